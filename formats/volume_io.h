@@ -1,0 +1,53 @@
+/// @file volume_io.h
+/// @brief Integer label maps from NIfTI (.nii, .nii.gz), NRRD (.nrrd, single-layer 3D Slicer
+/// .seg.nrrd) and MetaImage (.mha, .mhd) through ITK's image I/O; world frame LPS, mm.
+///
+/// ITK does not protect us from bad files (DESIGN.md): a truncated .nii.gz is read silently with
+/// partial data, and a float image is cast silently to integers. So before reading we probe the
+/// component type (integers only), check that the file holds all the voxel data its header
+/// declares (for compressed data, that the stream ends cleanly), and estimate the memory needed.
+#pragma once
+
+#include "libmodel/volume.h"
+
+#include <cstdint>
+#include <filesystem>
+#include <map>
+#include <string>
+
+namespace heartsim {
+
+/// What a volume file's header says, read without loading the voxels.
+struct VolumeHeader {
+    VolumeGeometry geometry;
+    std::string format;          ///< "NIfTI", "NRRD", "MetaImage"
+    std::string component_type;  ///< ITK's name, e.g. "unsigned_short"
+    int components = 1;          ///< values per voxel
+    std::uint64_t data_bytes = 0;  ///< bytes of voxel data the header declares
+    /// For 3D Slicer .seg.nrrd: label value -> segment name (empty otherwise).
+    std::map<int, std::string> segment_names;
+};
+
+struct VolumeReadOptions {
+    /// Refuse volumes whose estimated working memory exceeds this many bytes;
+    /// 0 = the machine's available memory (MemAvailable).
+    std::uint64_t memory_limit_bytes = 0;
+    /// Working bytes heartprep needs per voxel (labels, masks, distances); used for the estimate.
+    double working_bytes_per_voxel = 16.0;
+};
+
+/// Reads the header only. Throws InputError naming the file and the problem.
+VolumeHeader read_volume_header(const std::filesystem::path& path);
+
+/// Reads an integer label map. Throws InputError naming the file and the problem for: a missing
+/// or unreadable file, an unsupported format, a non-integer component type, more than one
+/// component, a dimension other than 3, non-finite or non-positive spacing, a truncated file or
+/// compressed stream, a volume too large for memory (estimated before allocating).
+LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeReadOptions& options = {},
+                              VolumeHeader* header = nullptr);
+
+/// Writes a label map (stored as unsigned 16-bit when every label fits, else signed 32-bit);
+/// the format follows the extension. Atomic: temporary file, then rename. Throws OutputError.
+void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume);
+
+}  // namespace heartsim

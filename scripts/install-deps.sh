@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages heartsim needs to build, test and benchmark.
+# Idempotent: packages already present are not reinstalled. Run as root.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config git
+  # geometry and volumes
+  libcgal-dev libopenvdb-dev libboost-iostreams-dev libeigen3-dev libtbb-dev
+  libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
+  # files and command line
+  libassimp-dev libhdf5-dev hdf5-tools libcli11-dev
+  # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe
+  libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri
+  # tests
+  googletest libgtest-dev
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+if [ "$(id -u)" -ne 0 ]; then
+  echo "install-deps: missing packages: ${missing[*]}; run this script as root" >&2
+  exit 1
+fi
+
+echo "install-deps: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+apt-get update -qq
+apt-get install -y -qq --no-install-recommends "${missing[@]}"

@@ -1,0 +1,62 @@
+#include "test_support.h"
+
+#include <array>
+#include <cstdio>
+#include <random>
+#include <sys/wait.h>
+
+namespace heartsim::test {
+
+TempDir::TempDir() {
+    std::random_device device;
+    auto base = std::filesystem::temp_directory_path();
+    for (;;) {
+        path_ = base / ("heartsim-test-" + std::to_string(device()));
+        if (std::filesystem::create_directory(path_)) break;
+    }
+}
+
+TempDir::~TempDir() {
+    std::error_code ignored;
+    std::filesystem::remove_all(path_, ignored);
+}
+
+std::filesystem::path real_data_dir() {
+    std::filesystem::path dir = HEARTSIM_REAL_DATA;
+    return std::filesystem::is_directory(dir) ? dir : std::filesystem::path();
+}
+
+std::filesystem::path real_case(const std::string& name) {
+    auto dir = real_data_dir();
+    if (dir.empty()) return {};
+    auto file = dir / name / ("training_axial_crop_" + name.substr(name.rfind('_') + 1) + "-label.nii.gz");
+    return std::filesystem::exists(file) ? file : std::filesystem::path();
+}
+
+Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vector3d&)>& inside) {
+    Mask mask;
+    mask.geometry.dims = {n, n, n};
+    mask.geometry.spacing = Eigen::Vector3d::Constant(spacing);
+    mask.geometry.origin = Eigen::Vector3d::Constant(-0.5 * (n - 1) * spacing);
+    mask.values.assign(mask.geometry.voxel_count(), 0);
+    for (int k = 0; k < n; ++k)
+        for (int j = 0; j < n; ++j)
+            for (int i = 0; i < n; ++i)
+                mask.values[mask.geometry.linear(i, j, k)] =
+                    inside(mask.geometry.to_world(Eigen::Vector3d(i, j, k))) ? 1 : 0;
+    return mask;
+}
+
+CommandResult run_command(const std::string& command) {
+    CommandResult result;
+    FILE* pipe = popen((command + " 2>&1").c_str(), "r");
+    if (!pipe) return result;
+    std::array<char, 4096> buffer;
+    size_t n;
+    while ((n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0) result.output.append(buffer.data(), n);
+    int status = pclose(pipe);
+    result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    return result;
+}
+
+}  // namespace heartsim::test
