@@ -10,7 +10,7 @@ packages=(
   libcgal-dev libopenvdb-dev libboost-iostreams-dev libeigen3-dev libtbb-dev
   libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
   # files and command line
-  libassimp-dev libhdf5-dev hdf5-tools libcli11-dev
+  libassimp-dev libhdf5-dev hdf5-tools libcli11-dev libssl-dev
   # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri
   # tests

@@ -1,10 +1,44 @@
-// heartprep: a segmented heart volume to a heartsim scenario. Subcommands are added in
-// commands_*.cpp files as the pipeline grows.
+// heartprep: a segmented heart MRI (label map) to a heartsim scenario, stage by stage.
+#include "commands.h"
+
+#include "libmodel/errors.h"
+
 #include <CLI/CLI.hpp>
 
+#include <cstdio>
+
 int main(int argc, char** argv) {
-    CLI::App app{"heartprep: segmented heart MRI to a heartsim simulation scenario"};
+    CLI::App app{"heartprep: turns a segmented heart MRI (a label map: NIfTI, NRRD or MetaImage) into a heartsim\n"
+                 "simulation scenario (HDF5). Units are mm, g, ms; the world frame is LPS, as ITK and DICOM.\n\n"
+                 "Typical use:\n"
+                 "  heartprep build case.nii.gz -o case.h5      all stages with sensible defaults\n"
+                 "  heartprep inspect case.h5                   what a scenario holds\n"
+                 "  heartprep surface case.nii.gz -o heart.stl  the detailed surface, for 3D Slicer or MeshLab\n"
+                 "  heartprep phantom -o phantom.nii.gz         a synthetic two-ventricle heart with a septal defect\n",
+                 "heartprep"};
+    app.set_version_flag("--version", std::string("heartprep ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
-    CLI11_PARSE(app, argc, argv);
+    app.fallthrough();
+    heartsim::cli::add_build_command(app);
+    heartsim::cli::add_surface_command(app);
+    heartsim::cli::add_inspect_command(app);
+    heartsim::cli::add_phantom_command(app);
+    try {
+        app.parse(argc, argv);
+    } catch (const CLI::ParseError& error) {
+        return app.exit(error);
+    } catch (const heartsim::InputError& error) {
+        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+        return 1;
+    } catch (const heartsim::OutputError& error) {
+        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+        return 1;
+    } catch (const std::bad_alloc&) {
+        std::fprintf(stderr, "heartprep: error: out of memory (try a coarser --spacing or a smaller volume)\n");
+        return 1;
+    } catch (const std::exception& error) {
+        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+        return 1;
+    }
     return 0;
 }

@@ -1,0 +1,74 @@
+/// @file scenario.h
+/// @brief The scenario file, version 1 (shared/SCENARIO.md, docs/scenario-format.md): the
+/// contract between heartprep and heartsim. A writer that writes atomically and a reader that
+/// validates shapes, types, index ranges and finiteness before anything uses the data.
+#pragma once
+
+#include "libmodel/lattice.h"
+#include "libmodel/mesh.h"
+#include "libmodel/volume.h"
+
+#include <Eigen/Core>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+inline constexpr int scenario_format_version = 1;
+
+/// Where the scenario came from (/source attributes).
+struct ScenarioSource {
+    std::string file_name;            ///< input volume file name (no folder)
+    std::string sha256;               ///< SHA-256 of the input file's bytes
+    VolumeGeometry geometry;          ///< dims, spacing, voxel-to-world
+    std::vector<int> tissue_labels;
+    std::vector<int> cavity_labels;
+    std::vector<int> anchor_labels;
+    bool anchor_border = false;
+};
+
+/// /solver attributes. Units: ms, mm/ms².
+struct SolverSettings {
+    double dt_ms = 0.0;               ///< default time step
+    int substeps = 1;                 ///< steps per runtime frame update
+    double damping = 0.0;             ///< global velocity damping rate γ, 1/ms (f = −γ m v)
+    Eigen::Vector3d gravity{0.0, 9.81e-3, 0.0};  ///< mm/ms²; +y is posterior in LPS (supine patient)
+    double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), power-iteration estimate
+    double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
+    double safety_factor = 0.5;       ///< dt_ms = min(safety_factor·critical_dt_ms, critical_dt_bound_ms)
+};
+
+/// The visual mesh (/visual): float32 positions and normals, int32 triangles.
+struct VisualMesh {
+    std::vector<std::array<float, 3>> positions;
+    std::vector<std::array<float, 3>> normals;
+    std::vector<std::array<std::int32_t, 3>> triangles;
+};
+
+struct Scenario {
+    std::string generator;            ///< tool name and version
+    ScenarioSource source;
+    Lattice lattice;                  ///< spacing, dims, index_to_world, materials, particles, springs
+    std::optional<VisualMesh> visual;
+    SolverSettings solver;
+};
+
+/// Converts a world-space mesh to the file's float32 layout.
+VisualMesh to_visual_mesh(const TriangleMesh& mesh);
+
+/// Writes `scenario` to `path` atomically (a temporary file beside it, then rename): a failed
+/// write leaves no file and no partial file. Throws OutputError naming the file.
+void write_scenario(const std::filesystem::path& path, const Scenario& scenario);
+
+/// Reads and validates a scenario. Throws InputError naming the file, the dataset or attribute,
+/// and what was expected, for: a missing file, not HDF5, a wrong `format`, a newer
+/// `format_version`, a missing or misshapen dataset, a wrong element type, an index out of
+/// range, a non-finite value, a non-positive mass, spacing or time step.
+Scenario read_scenario(const std::filesystem::path& path);
+
+/// SHA-256 of a file's bytes, lowercase hex. Throws InputError if it cannot be read.
+std::string sha256_file(const std::filesystem::path& path);
+
+}  // namespace heartsim

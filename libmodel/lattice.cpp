@@ -1,0 +1,272 @@
+#include "lattice.h"
+
+#include "errors.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace heartsim {
+
+const std::array<std::array<int, 3>, 18> neighbour_offsets{{
+    {1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1},
+    {1, 1, 0}, {1, -1, 0}, {-1, 1, 0}, {-1, -1, 0},
+    {1, 0, 1}, {1, 0, -1}, {-1, 0, 1}, {-1, 0, -1},
+    {0, 1, 1}, {0, 1, -1}, {0, -1, 1}, {0, -1, -1},
+}};
+
+double spring_stiffness(double youngs_modulus_kpa, double spacing_mm) {
+    return 0.4 * (youngs_modulus_kpa * 1e-3) * spacing_mm;
+}
+
+namespace {
+
+/// Overlap weights between lattice cells and voxels along one axis: cell c covers
+/// [c·h, (c+1)·h) and voxel i covers [i·s, (i+1)·s) in mm from the volume's lower edge;
+/// weight = overlap length / h, so summing weight × mask gives the cell's tissue fraction.
+struct AxisWeights {
+    struct Entry {
+        int voxel;
+        float weight;
+    };
+    int cells = 0;
+    std::vector<std::vector<Entry>> per_cell;
+};
+
+AxisWeights axis_weights(int voxels, double voxel_size, double cell_size) {
+    AxisWeights weights;
+    const double length = voxels * voxel_size;
+    weights.cells = std::max(1, int(std::ceil(length / cell_size - 1e-9)));
+    weights.per_cell.resize(std::size_t(weights.cells));
+    for (int c = 0; c < weights.cells; ++c) {
+        const double low = c * cell_size, high = (c + 1) * cell_size;
+        const int first = std::max(0, int(std::floor(low / voxel_size)));
+        const int last = std::min(voxels - 1, int(std::ceil(high / voxel_size)) - 1);
+        for (int i = first; i <= last; ++i) {
+            const double overlap = std::min(high, (i + 1) * voxel_size) - std::max(low, i * voxel_size);
+            if (overlap > 0) weights.per_cell[std::size_t(c)].push_back({i, float(overlap / cell_size)});
+        }
+    }
+    return weights;
+}
+
+struct CellGrid {
+    std::array<AxisWeights, 3> axes;
+    std::array<int, 3> dims() const { return {axes[0].cells, axes[1].cells, axes[2].cells}; }
+    std::size_t count() const { return std::size_t(axes[0].cells) * axes[1].cells * axes[2].cells; }
+};
+
+CellGrid make_cell_grid(const VolumeGeometry& g, double spacing) {
+    CellGrid grid;
+    for (int a = 0; a < 3; ++a) grid.axes[std::size_t(a)] = axis_weights(g.dims[std::size_t(a)], g.spacing[a], spacing);
+    return grid;
+}
+
+/// Fraction of each cell covered by `mask`, exact for box-shaped voxels: three separable
+/// passes (i, then j, then k), each parallel over independent slabs, so the result does not
+/// depend on the thread count.
+std::vector<float> cell_fractions(const Mask& mask, const CellGrid& grid) {
+    const auto& g = mask.geometry;
+    const int n1 = g.dims[1], n2 = g.dims[2];
+    const auto [c0, c1, c2] = grid.dims();
+    std::vector<float> pass_i(std::size_t(c0) * n1 * n2);
+    tbb::parallel_for(0, n2, [&](int k) {
+        for (int j = 0; j < n1; ++j) {
+            const std::uint8_t* row = &mask.values[g.linear(0, j, k)];
+            float* out = &pass_i[(std::size_t(k) * n1 + j) * c0];
+            for (int c = 0; c < c0; ++c) {
+                float sum = 0;
+                for (const auto& e : grid.axes[0].per_cell[std::size_t(c)]) sum += e.weight * float(row[e.voxel]);
+                out[c] = sum;
+            }
+        }
+    });
+    std::vector<float> pass_j(std::size_t(c0) * c1 * n2);
+    tbb::parallel_for(0, n2, [&](int k) {
+        for (int b = 0; b < c1; ++b) {
+            float* out = &pass_j[(std::size_t(k) * c1 + b) * c0];
+            std::fill(out, out + c0, 0.0f);
+            for (const auto& e : grid.axes[1].per_cell[std::size_t(b)]) {
+                const float* in = &pass_i[(std::size_t(k) * n1 + e.voxel) * c0];
+                for (int a = 0; a < c0; ++a) out[a] += e.weight * in[a];
+            }
+        }
+    });
+    std::vector<float> fraction(grid.count());
+    tbb::parallel_for(0, c2, [&](int c) {
+        float* out = &fraction[std::size_t(c) * c0 * c1];
+        std::fill(out, out + std::size_t(c0) * c1, 0.0f);
+        for (const auto& e : grid.axes[2].per_cell[std::size_t(c)]) {
+            const float* in = &pass_j[std::size_t(e.voxel) * c0 * c1];
+            for (std::size_t n = 0; n < std::size_t(c0) * c1; ++n) out[n] += e.weight * in[n];
+        }
+    });
+    return fraction;
+}
+
+std::size_t count_occupied(const std::vector<float>& fraction, double occupancy) {
+    // Compare in float, as the layout does, so the count is the layout's count.
+    const float threshold = float(occupancy);
+    return std::size_t(std::count_if(fraction.begin(), fraction.end(), [&](float f) { return f >= threshold; }));
+}
+
+/// The spacing whose lattice holds the most particles without exceeding `budget`: bisection on
+/// the spacing, starting from the tissue volume / budget estimate.
+double spacing_for_budget(const Mask& tissue, std::size_t budget, double occupancy, Progress& progress,
+                          std::size_t& trials) {
+    const auto& g = tissue.geometry;
+    const double tissue_volume = double(tissue.count()) * g.voxel_volume();
+    auto count_at = [&](double h) {
+        ++trials;
+        if (progress.cancelled()) throw Cancelled();
+        return count_occupied(cell_fractions(tissue, make_cell_grid(g, h)), occupancy);
+    };
+    const double finest = 0.25 * g.spacing.minCoeff();
+    double high = std::max(finest, std::cbrt(tissue_volume / double(budget)));
+    while (count_at(high) > budget) high *= 1.25;
+    double low = high / 1.25;
+    while (low > finest && count_at(low) <= budget) {
+        high = low;
+        low /= 1.25;
+    }
+    if (low <= finest) return high;
+    for (int iteration = 0; iteration < 14; ++iteration) {
+        const double middle = 0.5 * (low + high);
+        (count_at(middle) <= budget ? high : low) = middle;
+        progress.update(std::uint64_t(iteration + 1));
+    }
+    return high;
+}
+
+}  // namespace
+
+Lattice layout_particles(const Selection& selection, const std::vector<int>& tissue_labels,
+                         const LabelVolume& volume, const LayoutOptions& options, Progress& progress,
+                         LayoutReport* report_out) {
+    const auto& g = selection.tissue.geometry;
+    if (!(options.occupancy > 0.0 && options.occupancy <= 1.0))
+        throw InputError("--occupancy must be in (0, 1], got " + std::to_string(options.occupancy));
+    if (!std::isfinite(options.spacing_mm) || options.spacing_mm < 0.0)
+        throw InputError("--spacing must be a positive number of mm, got " + std::to_string(options.spacing_mm));
+    if (options.spacing_mm == 0.0 && options.particle_budget == 0)
+        throw InputError("--particles must be at least 1");
+    if (options.materials.empty()) throw InputError("no material given");
+    for (const auto& m : options.materials)
+        if (!(m.density > 0) || !(m.youngs_modulus_kpa > 0) || !(m.damping_ratio >= 0) || !std::isfinite(m.density) ||
+            !std::isfinite(m.youngs_modulus_kpa) || !std::isfinite(m.damping_ratio))
+            throw InputError("material '" + m.name + "': density and Young's modulus must be positive and finite, "
+                             "damping ratio non-negative");
+
+    LayoutReport report;
+    double spacing = options.spacing_mm;
+    {
+        ProgressStage stage(progress, "choose spacing", spacing > 0 ? 0 : 14);
+        if (spacing == 0.0)
+            spacing = spacing_for_budget(selection.tissue, options.particle_budget, options.occupancy, progress,
+                                         report.spacing_trials);
+    }
+    ProgressStage stage(progress, "lay out particles", 3);
+
+    Lattice lattice;
+    lattice.spacing = spacing;
+    const CellGrid grid = make_cell_grid(g, spacing);
+    lattice.dims = grid.dims();
+    const Eigen::Matrix3d axes = g.direction * spacing;
+    lattice.index_to_world.topLeftCorner<3, 3>() = axes;
+    lattice.index_to_world.topRightCorner<3, 1>() =
+        g.origin + g.direction * (Eigen::Vector3d::Constant(0.5 * spacing) - 0.5 * g.spacing);
+
+    // Material table: one row per tissue label, taken from the options by label.
+    for (std::size_t t = 0; t < tissue_labels.size(); ++t) {
+        auto found = std::find_if(options.materials.begin(), options.materials.end(),
+                                  [&](const Material& m) { return m.label == tissue_labels[t]; });
+        Material material = found != options.materials.end() ? *found : options.materials.front();
+        if (found == options.materials.end() && t > 0) material.name = "label_" + std::to_string(tissue_labels[t]);
+        material.label = tissue_labels[t];
+        lattice.materials.push_back(material);
+    }
+
+    // Tissue fraction per cell, and per label where there are several tissue labels.
+    const std::vector<float> fraction = cell_fractions(selection.tissue, grid);
+    std::vector<std::vector<float>> label_fraction;
+    if (tissue_labels.size() > 1) {
+        Mask one_label{g, std::vector<std::uint8_t>(g.voxel_count())};
+        for (int label : tissue_labels) {
+            for (std::size_t v = 0; v < one_label.values.size(); ++v)
+                one_label.values[v] = selection.tissue.values[v] && volume.labels[v] == label;
+            label_fraction.push_back(cell_fractions(one_label, grid));
+        }
+    }
+    const bool any_anchor = selection.anchors.count() > 0;
+    const std::vector<float> anchor_fraction = any_anchor ? cell_fractions(selection.anchors, grid) : std::vector<float>();
+    stage.update(1);
+
+    const float threshold = float(options.occupancy);
+    const double cell_volume = spacing * spacing * spacing;
+    std::vector<std::int32_t> particle_of_cell(grid.count(), -1);
+    auto& p = lattice.particles;
+    for (int c = 0; c < lattice.dims[2]; ++c)
+        for (int b = 0; b < lattice.dims[1]; ++b)
+            for (int a = 0; a < lattice.dims[0]; ++a) {
+                const std::size_t cell = (std::size_t(c) * lattice.dims[1] + b) * lattice.dims[0] + a;
+                if (fraction[cell] < threshold) continue;
+                std::size_t material = 0;
+                for (std::size_t t = 1; t < label_fraction.size(); ++t)
+                    if (label_fraction[t][cell] > label_fraction[material][cell]) material = t;
+                particle_of_cell[cell] = std::int32_t(p.size());
+                const Eigen::Vector3d x = (lattice.index_to_world * Eigen::Vector4d(a, b, c, 1)).head<3>();
+                p.rest_position.push_back({float(x.x()), float(x.y()), float(x.z())});
+                p.lattice_index.push_back({a, b, c});
+                const double occupied = std::min(1.0, double(fraction[cell])) * cell_volume;
+                p.mass.push_back(float(lattice.materials[material].density * occupied));
+                p.material.push_back(std::int32_t(material));
+                p.anchored.push_back(any_anchor && anchor_fraction[cell] > 0.0f ? 1 : 0);
+                report.occupied_volume_mm3 += occupied;
+                report.total_mass += p.mass.back();
+                report.anchored += p.anchored.back();
+            }
+    if (p.size() == 0)
+        throw InputError("no lattice cell reaches --occupancy " + std::to_string(options.occupancy) +
+                         " at spacing " + std::to_string(spacing) + " mm: lower the spacing or the occupancy");
+    if (p.size() > std::size_t(std::numeric_limits<std::int32_t>::max() / 18))
+        throw InputError("too many particles (" + std::to_string(p.size()) + "): raise --spacing");
+    stage.update(2);
+
+    // Springs: each particle to the neighbours at the 9 offsets whose first non-zero component
+    // is positive (3 face + 6 edge), so every one of the 18 neighbour pairs appears exactly once.
+    std::vector<double> stiffness_of_material;
+    for (const auto& m : lattice.materials) stiffness_of_material.push_back(spring_stiffness(m.youngs_modulus_kpa, spacing));
+    auto& s = lattice.springs;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        const auto [a, b, c] = p.lattice_index[i];
+        for (std::size_t slot = 0; slot < neighbour_offsets.size(); ++slot) {
+            const auto& o = neighbour_offsets[slot];
+            const int first_nonzero = o[0] != 0 ? o[0] : (o[1] != 0 ? o[1] : o[2]);
+            if (first_nonzero < 0) continue;
+            const int na = a + o[0], nb = b + o[1], nc = c + o[2];
+            if (na < 0 || nb < 0 || nc < 0 || na >= lattice.dims[0] || nb >= lattice.dims[1] || nc >= lattice.dims[2]) continue;
+            const std::int32_t j = particle_of_cell[(std::size_t(nc) * lattice.dims[1] + nb) * lattice.dims[0] + na];
+            if (j < 0) continue;
+            s.pairs.push_back({std::min(std::int32_t(i), j), std::max(std::int32_t(i), j)});
+            const Eigen::Vector3d offset = axes * Eigen::Vector3d(o[0], o[1], o[2]);
+            s.rest_length.push_back(float(offset.norm()));
+            const double ka = stiffness_of_material[std::size_t(p.material[i])];
+            const double kb = stiffness_of_material[std::size_t(p.material[std::size_t(j)])];
+            s.stiffness.push_back(float(2.0 * ka * kb / (ka + kb)));  // two half-springs in series
+            (slot < 6 ? report.face_springs : report.edge_springs)++;
+        }
+    }
+    stage.update(3);
+
+    report.spacing = spacing;
+    report.particles = p.size();
+    if (report.anchored == 0 && any_anchor)
+        report.warnings.push_back("anchor voxels exist but no particle cell contains one");
+    if (report_out) *report_out = std::move(report);
+    return lattice;
+}
+
+}  // namespace heartsim

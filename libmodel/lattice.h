@@ -1,0 +1,100 @@
+/// @file lattice.h
+/// @brief The particle lattice: a regular grid of cells at `spacing` mm aligned with the
+/// volume's axes, a particle per cell whose tissue fraction passes a threshold, springs to the
+/// 18 nearest neighbours (6 face, 12 edge), each once. Arrays are structures of arrays with the
+/// exact layout of the scenario file and the GPU buffers (float32 / int32 / uint8).
+#pragma once
+
+#include "progress.h"
+#include "select.h"
+#include "volume.h"
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// A tissue's mechanical description in physical terms.
+struct Material {
+    int label = 1;                           ///< label value in the input volume
+    std::string name = "myocardium";
+    double density = 1.06e-3;                ///< g/mm³ (1.06 g/cm³, myocardium)
+    double youngs_modulus_kpa = 10.0;        ///< kPa; passive myocardium is of the order of 10–50
+    /// Damping ratio of each spring's relative motion (fraction of critical damping of the
+    /// two-particle oscillator), dimensionless. See docs/scenario-format.md.
+    double damping_ratio = 0.1;
+};
+
+/// Stiffness of every spring (face and edge alike), N/mm, for Young's modulus `youngs_modulus_kpa`
+/// on a lattice of `spacing_mm`. With equal face and edge stiffness k the 18-neighbour cubic
+/// network is elastically isotropic (C11 − C12 = 2·C44) with Poisson's ratio 1/4 and Young's
+/// modulus E = 5k/(2h); hence k = 0.4·E·h. 1 kPa = 1e-3 N/mm².
+double spring_stiffness(double youngs_modulus_kpa, double spacing_mm);
+
+/// The 18 neighbour offsets in lattice index space, in the scenario's slot order: the 6 face
+/// offsets (+i, −i, +j, −j, +k, −k), then the 12 edge offsets (ij-plane, ik-plane, jk-plane,
+/// each as (+,+), (+,−), (−,+), (−,−)).
+extern const std::array<std::array<int, 3>, 18> neighbour_offsets;
+
+struct LayoutOptions {
+    /// Lattice spacing, mm. 0 chooses the spacing that meets `particle_budget`.
+    double spacing_mm = 0.0;
+    /// Target particle count when the spacing is chosen: the largest count not above it.
+    std::size_t particle_budget = 30000;
+    /// A cell gets a particle when its tissue fraction is at least this, in (0, 1].
+    double occupancy = 0.5;
+    /// One material per tissue label; a label without an entry gets the first material's values.
+    std::vector<Material> materials{Material{}};
+};
+
+/// Particles: N entries each, in lattice order (k slowest, i fastest) until packing reorders them.
+struct Particles {
+    std::vector<std::array<float, 3>> rest_position;   ///< N×3, world LPS mm
+    std::vector<std::array<std::int32_t, 3>> lattice_index; ///< N×3, cell (i,j,k)
+    std::vector<float> mass;                           ///< N, g
+    std::vector<std::int32_t> material;                ///< N, row in the material table
+    std::vector<std::uint8_t> anchored;                ///< N, 1 = does not move
+    std::size_t size() const { return mass.size(); }
+};
+static_assert(sizeof(std::array<float, 3>) == 12, "rest positions must be packed float32 triples");
+
+/// Springs: S entries each; pairs (first < second), each spring once.
+struct Springs {
+    std::vector<std::array<std::int32_t, 2>> pairs;  ///< S×2 particle indices
+    std::vector<float> rest_length;                  ///< S, mm
+    std::vector<float> stiffness;                    ///< S, N/mm
+    std::size_t size() const { return rest_length.size(); }
+};
+
+struct Lattice {
+    double spacing = 0.0;                 ///< mm
+    std::array<int, 3> dims{0, 0, 0};     ///< cells along the volume's i, j, k axes
+    /// Lattice index (continuous, cell centres at integers) to world LPS mm.
+    Eigen::Matrix4d index_to_world = Eigen::Matrix4d::Identity();
+    std::vector<Material> materials;      ///< the material table rows particles refer to
+    Particles particles;
+    Springs springs;
+};
+
+struct LayoutReport {
+    double spacing = 0.0;                 ///< mm, chosen or given
+    std::size_t particles = 0;
+    std::size_t anchored = 0;
+    std::size_t face_springs = 0;
+    std::size_t edge_springs = 0;
+    std::size_t spacing_trials = 0;       ///< lattices counted while meeting the budget
+    double total_mass = 0.0;              ///< g
+    double occupied_volume_mm3 = 0.0;     ///< Σ fraction × cell volume over particles
+    std::vector<std::string> warnings;
+};
+
+/// Lays out particles and springs over `selection`. Throws InputError for a non-positive or
+/// non-finite spacing, an occupancy outside (0, 1], or when no cell passes the occupancy.
+Lattice layout_particles(const Selection& selection, const std::vector<int>& tissue_labels,
+                         const LabelVolume& volume, const LayoutOptions& options = {},
+                         Progress& progress = null_progress(), LayoutReport* report = nullptr);
+
+}  // namespace heartsim

@@ -1,0 +1,167 @@
+#include "select.h"
+
+#include "errors.h"
+
+#include <algorithm>
+#include <sstream>
+#include <unordered_map>
+
+namespace heartsim {
+
+namespace {
+
+std::string join(const std::vector<int>& values) {
+    std::ostringstream out;
+    for (std::size_t n = 0; n < values.size(); ++n) out << (n ? "," : "") << values[n];
+    return out.str();
+}
+
+/// Labels the 6-connected components of `mask`: returns per-voxel component ids (−1 outside) and
+/// appends one Island per component. Breadth-first with an explicit queue: no recursion depth to blow.
+std::vector<std::int32_t> label_components(const Mask& mask, std::vector<Island>& islands) {
+    const auto& g = mask.geometry;
+    std::vector<std::int32_t> component(g.voxel_count(), -1);
+    std::vector<std::size_t> queue;
+    const std::ptrdiff_t stride_j = g.dims[0], stride_k = std::ptrdiff_t(g.dims[0]) * g.dims[1];
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                std::size_t seed = g.linear(i, j, k);
+                if (!mask.values[seed] || component[seed] >= 0) continue;
+                const auto id = std::int32_t(islands.size());
+                Island island;
+                island.first_voxel = {i, j, k};
+                queue.assign(1, seed);
+                component[seed] = id;
+                for (std::size_t head = 0; head < queue.size(); ++head) {
+                    const std::size_t v = queue[head];
+                    const int vi = int(v % g.dims[0]);
+                    const int vj = int((v / g.dims[0]) % g.dims[1]);
+                    const int vk = int(v / stride_k);
+                    auto visit = [&](bool inside, std::ptrdiff_t offset) {
+                        if (!inside) return;
+                        std::size_t w = std::size_t(std::ptrdiff_t(v) + offset);
+                        if (mask.values[w] && component[w] < 0) {
+                            component[w] = id;
+                            queue.push_back(w);
+                        }
+                    };
+                    visit(vi > 0, -1);
+                    visit(vi + 1 < g.dims[0], 1);
+                    visit(vj > 0, -stride_j);
+                    visit(vj + 1 < g.dims[1], stride_j);
+                    visit(vk > 0, -stride_k);
+                    visit(vk + 1 < g.dims[2], stride_k);
+                }
+                island.voxels = queue.size();
+                islands.push_back(island);
+            }
+    return component;
+}
+
+}  // namespace
+
+Selection select_tissue(const LabelVolume& volume, const SelectionOptions& options, Progress& progress,
+                        SelectionReport* report_out) {
+    const auto& g = volume.geometry;
+    if (options.tissue_labels.empty()) throw InputError("no tissue labels given (--tissue)");
+    for (int label : options.tissue_labels)
+        if (std::find(options.cavity_labels.begin(), options.cavity_labels.end(), label) != options.cavity_labels.end())
+            throw InputError("label " + std::to_string(label) + " is given both as tissue and as cavity");
+
+    ProgressStage stage(progress, "select tissue", 3);
+    std::unordered_map<int, std::size_t> label_counts;
+    for (std::int32_t label : volume.labels) ++label_counts[label];
+    auto require_present = [&](const std::vector<int>& labels, const char* role) {
+        for (int label : labels) {
+            if (label_counts.count(label)) continue;
+            std::vector<int> present;
+            for (const auto& [value, count] : label_counts) present.push_back(value);
+            std::sort(present.begin(), present.end());
+            throw InputError(std::string(role) + " label " + std::to_string(label) +
+                             " does not occur in the volume (labels present: " + join(present) + ")");
+        }
+    };
+    require_present(options.tissue_labels, "tissue");
+    require_present(options.cavity_labels, "cavity");
+    require_present(options.anchor_labels, "anchor");
+
+    auto is_one_of = [](const std::vector<int>& labels) {
+        return [labels](std::int32_t value) {
+            return std::find(labels.begin(), labels.end(), value) != labels.end();
+        };
+    };
+    const auto is_tissue = is_one_of(options.tissue_labels);
+    const auto is_cavity = is_one_of(options.cavity_labels);
+    const auto is_anchor = is_one_of(options.anchor_labels);
+
+    Selection selection;
+    selection.tissue.geometry = g;
+    selection.tissue.values.resize(g.voxel_count());
+    SelectionReport report;
+    for (std::size_t v = 0; v < volume.labels.size(); ++v) {
+        selection.tissue.values[v] = is_tissue(volume.labels[v]) ? 1 : 0;
+        if (is_cavity(volume.labels[v])) ++report.cavity_voxels;
+    }
+    stage.update(1);
+    if (progress.cancelled()) throw Cancelled();
+
+    // Islands: drop the small ones, report all.
+    auto component = label_components(selection.tissue, report.islands);
+    const double voxel_volume = g.voxel_volume();
+    std::vector<std::uint8_t> keep(report.islands.size(), 1);
+    for (std::size_t c = 0; c < report.islands.size(); ++c) {
+        auto& island = report.islands[c];
+        island.volume_mm3 = double(island.voxels) * voxel_volume;
+        island.kept = island.volume_mm3 >= options.min_island_mm3;
+        keep[c] = island.kept;
+        if (!island.kept) {
+            ++report.islands_dropped;
+            report.voxels_dropped += island.voxels;
+        }
+    }
+    for (std::size_t v = 0; v < component.size(); ++v)
+        if (component[v] >= 0 && !keep[std::size_t(component[v])]) selection.tissue.values[v] = 0;
+    std::stable_sort(report.islands.begin(), report.islands.end(),
+                     [](const Island& a, const Island& b) { return a.voxels > b.voxels; });
+    stage.update(2);
+
+    report.tissue_voxels = selection.tissue.count();
+    if (report.tissue_voxels == 0) {
+        std::ostringstream message;
+        message << "empty selection: tissue labels " << join(options.tissue_labels) << " have "
+                << report.voxels_dropped << " voxels, all in islands smaller than --min-island "
+                << options.min_island_mm3 << " mm³";
+        throw InputError(message.str());
+    }
+    report.tissue_volume_mm3 = double(report.tissue_voxels) * voxel_volume;
+    report.cavity_volume_mm3 = double(report.cavity_voxels) * voxel_volume;
+
+    std::size_t kept_islands = report.islands.size() - report.islands_dropped;
+    if (kept_islands > 1 && options.anchor_labels.empty() && !options.anchor_border)
+        report.warnings.push_back(std::to_string(kept_islands) +
+                                  " separate tissue islands are kept and nothing is anchored: the pieces "
+                                  "float freely (raise --min-island or anchor them)");
+
+    // Anchors: voxels of anchor labels, and tissue voxels on the volume border.
+    selection.anchors.geometry = g;
+    selection.anchors.values.assign(g.voxel_count(), 0);
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                const std::size_t v = g.linear(i, j, k);
+                const bool on_border = i == 0 || j == 0 || k == 0 || i + 1 == g.dims[0] ||
+                                       j + 1 == g.dims[1] || k + 1 == g.dims[2];
+                if (is_anchor(volume.labels[v]) || (options.anchor_border && on_border && selection.tissue.values[v]))
+                    selection.anchors.values[v] = 1;
+            }
+    report.anchor_voxels = selection.anchors.count();
+    if (options.anchor_border && report.anchor_voxels == 0 && options.anchor_labels.empty())
+        report.warnings.push_back("--anchor-border: the tissue does not touch the volume border; nothing is anchored");
+    stage.update(3);
+
+    if (report_out) *report_out = std::move(report);
+    return selection;
+}
+
+}  // namespace heartsim

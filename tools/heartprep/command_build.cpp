@@ -1,0 +1,187 @@
+// `heartprep build` and `heartprep surface`: the pipeline from a label map.
+#include "commands.h"
+#include "pipeline.h"
+#include "terminal_progress.h"
+
+#include "formats/mesh_io.h"
+#include "libmodel/errors.h"
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <memory>
+
+namespace heartsim::cli {
+
+namespace {
+
+void add_selection_options(CLI::App& command, SelectionOptions& o) {
+    command.add_option("--tissue", o.tissue_labels, "Labels that become simulated tissue (HVSMR: 1 = myocardium)")
+        ->delimiter(',')
+        ->capture_default_str()
+        ->group("Tissue");
+    command.add_option("--cavity", o.cavity_labels, "Labels of blood-filled cavities (HVSMR: 2 = blood pool), reported")
+        ->delimiter(',')
+        ->group("Tissue");
+    command.add_option("--anchor-label", o.anchor_labels, "Tissue touching voxels of these labels is anchored (does not move)")
+        ->delimiter(',')
+        ->group("Tissue");
+    command.add_flag("--anchor-border", o.anchor_border,
+                     "Anchor tissue where it touches the volume border (vessels cut by the crop)")
+        ->group("Tissue");
+    command.add_option("--min-island", o.min_island_mm3, "Drop detached tissue islands smaller than this, mm³")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Tissue");
+}
+
+void add_surface_options(CLI::App& command, SurfaceOptions& o) {
+    command.add_option("--smoothing", o.smoothing_factor,
+                       "Surface smoothing factor in [0, 1] as in 3D Slicer (windowed-sinc pass band 10^(-4·factor)); 0 = off")
+        ->check(CLI::Range(0.0, 1.0))
+        ->capture_default_str()
+        ->group("Surface");
+    command.add_option("--smoothing-iterations", o.smoothing_iterations, "Windowed-sinc iterations")
+        ->check(CLI::Range(1, 1000))
+        ->capture_default_str()
+        ->group("Surface");
+    command.add_option("--decimate", o.decimation, "Fraction of surface triangles to remove, in [0, 1); 0 = none")
+        ->check(CLI::Range(0.0, 0.99))
+        ->capture_default_str()
+        ->group("Surface");
+}
+
+void check_output_path(const std::filesystem::path& output, const std::string& extension_hint) {
+    if (output.empty()) throw InputError("no output file given (-o " + extension_hint + ")");
+    const auto folder = output.parent_path().empty() ? std::filesystem::path(".") : output.parent_path();
+    if (!std::filesystem::is_directory(folder))
+        throw OutputError(output.string() + ": folder " + folder.string() + " does not exist");
+    if (std::filesystem::is_directory(output)) throw OutputError(output.string() + ": is a folder, expected a file name");
+}
+
+}  // namespace
+
+void add_build_command(CLI::App& app) {
+    auto* command = app.add_subcommand("build", "All stages: label map -> scenario (surface, particles, springs, time step)");
+    command->footer(
+        "\nExample:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5 --anchor-border\n"
+        "By default the lattice spacing is chosen so the model has at most --particles particles.\n"
+        "The output is written atomically: a failed run leaves no file behind.");
+    auto options = std::make_shared<BuildOptions>();
+    auto output = std::make_shared<std::string>();
+    auto material = std::make_shared<Material>();
+    auto density = std::make_shared<double>(1.06);
+    auto quiet = std::make_shared<bool>(false);
+    command->add_option("input", options->input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
+    command->add_option("-o,--output", *output, "Scenario file to write (.h5)")->required();
+    add_selection_options(*command, options->selection);
+    add_surface_options(*command, options->surface);
+    command->add_flag("--no-visual", [options](std::int64_t) { options->visual = false; },
+                      "Skip the visual surface (the runtime then draws the simulation surface)")
+        ->group("Surface");
+    command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")
+        ->check(CLI::PositiveNumber)
+        ->group("Particles");
+    command->add_option("--particles", options->layout.particle_budget, "Particle budget when the spacing is chosen")
+        ->check(CLI::Range(std::size_t(1), std::size_t(50'000'000)))
+        ->capture_default_str()
+        ->group("Particles");
+    command->add_option("--occupancy", options->layout.occupancy, "Minimal tissue fraction of a cell to get a particle, (0, 1]")
+        ->check(CLI::Range(1e-6, 1.0))
+        ->capture_default_str()
+        ->group("Particles");
+    command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str()
+        ->group("Material");
+    command->add_option("--youngs-modulus", material->youngs_modulus_kpa,
+                        "Young's modulus, kPa (passive myocardium: 10-50); spring stiffness k = 0.4·E·spacing")
+        ->check(CLI::PositiveNumber)
+        ->capture_default_str()
+        ->group("Material");
+    command->add_option("--damping-ratio", material->damping_ratio, "Spring damping as a fraction of critical damping")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Material");
+    auto gravity = std::make_shared<std::vector<double>>();
+    command->add_option("--gravity", *gravity, "Gravity vector in LPS, mm/ms² (default 0 0.00981 0: supine patient, 9.81 m/s² to posterior)")
+        ->expected(3)
+        ->group("Solver");
+    command->add_option("--drag", options->solver.damping, "Global velocity damping rate, 1/ms")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Solver");
+    command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the critical time step, (0, 1)")
+        ->check(CLI::Range(1e-3, 0.99))
+        ->capture_default_str()
+        ->group("Solver");
+    command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+
+    command->callback([=] {
+        check_output_path(*output, "OUT.h5");
+        if (!gravity->empty()) {
+            options->solver.gravity = Eigen::Vector3d((*gravity)[0], (*gravity)[1], (*gravity)[2]);
+            if (!options->solver.gravity.allFinite()) throw InputError("--gravity must be three finite numbers");
+        }
+        material->density = *density * 1e-3;
+        material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
+        material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);
+        options->layout.materials = {*material};
+        TerminalProgress progress(*quiet);
+        BuildReport report;
+        Scenario scenario = build_scenario(*options, progress, report);
+        {
+            ProgressStage stage(progress, "write scenario", 0);
+            write_scenario(*output, scenario);
+        }
+        if (!*quiet) {
+            print_build_summary(report, scenario);
+            std::printf("wrote       %s (%.1f MB)\n", output->c_str(), double(std::filesystem::file_size(*output)) / 1e6);
+        }
+    });
+}
+
+void add_surface_command(CLI::App& app) {
+    auto* command = app.add_subcommand("surface", "The detailed tissue surface only: label map -> mesh file (LPS, mm)");
+    command->footer("\nExample:\n  heartprep surface case.nii.gz -o heart.stl --smoothing 0.5\n"
+                    "Formats by extension: .stl (binary), .obj, .ply (binary), .glb. Coordinates are LPS mm,\n"
+                    "the default frame of 3D Slicer's model files.");
+    auto input = std::make_shared<std::filesystem::path>();
+    auto output = std::make_shared<std::string>();
+    auto selection = std::make_shared<SelectionOptions>();
+    auto surface = std::make_shared<SurfaceOptions>();
+    auto quiet = std::make_shared<bool>(false);
+    command->add_option("input", *input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
+    command->add_option("-o,--output", *output, "Mesh file to write: .stl, .obj, .ply, .glb")->required();
+    add_selection_options(*command, *selection);
+    add_surface_options(*command, *surface);
+    command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+    command->callback([=] {
+        check_output_path(*output, "OUT.stl");
+        const auto extension = std::filesystem::path(*output).extension().string();
+        if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
+            throw InputError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
+        TerminalProgress progress(*quiet);
+        BuildReport report;
+        auto selected = read_and_select(*input, *selection, progress, report);
+        TriangleMesh mesh = extract_surface(selected.selection.tissue, *surface, progress, &report.surface);
+        const MeshReport check = analyse_mesh(mesh);
+        {
+            ProgressStage stage(progress, "write mesh", 0);
+            write_mesh(*output, mesh);
+        }
+        if (!*quiet) {
+            std::printf("surface  %zu vertices, %zu triangles; %s; Euler characteristic %ld; %zu component(s); "
+                        "area %.0f mm²; volume %.1f mL\n",
+                        check.vertices, check.faces, check.closed() && check.manifold() ? "closed 2-manifold" : "NOT closed/manifold",
+                        check.euler_characteristic, check.components, check.area, check.volume / 1000.0);
+            std::printf("time     marching cubes %.2f s, smoothing %.2f s, decimation %.2f s\n", report.surface.seconds_marching_cubes,
+                        report.surface.seconds_smoothing, report.surface.seconds_decimation);
+            std::printf("wrote    %s (LPS, mm)\n", output->c_str());
+            for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+            for (const auto& w : report.surface.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+        }
+    });
+}
+
+}  // namespace heartsim::cli

@@ -1,0 +1,136 @@
+// `heartprep inspect`: what a scenario file holds, for people (table) and scripts (--json).
+#include "commands.h"
+
+#include "formats/scenario.h"
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <limits>
+#include <memory>
+#include <sstream>
+
+namespace heartsim::cli {
+
+namespace {
+
+struct Summary {
+    std::size_t particles = 0, anchored = 0, springs = 0, face_springs = 0, edge_springs = 0;
+    std::size_t visual_vertices = 0, visual_triangles = 0;
+    double total_mass = 0.0;
+    Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d high = -low;
+};
+
+Summary summarise(const Scenario& s) {
+    Summary summary;
+    const auto& p = s.lattice.particles;
+    summary.particles = p.size();
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        summary.anchored += p.anchored[i];
+        summary.total_mass += p.mass[i];
+        const Eigen::Vector3d x(p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2]);
+        summary.low = summary.low.cwiseMin(x);
+        summary.high = summary.high.cwiseMax(x);
+    }
+    const auto& sp = s.lattice.springs;
+    summary.springs = sp.size();
+    // A face spring is one lattice step long; an edge spring √2 steps.
+    for (float length : sp.rest_length) (length < 1.2 * s.lattice.spacing ? summary.face_springs : summary.edge_springs)++;
+    if (s.visual) {
+        summary.visual_vertices = s.visual->positions.size();
+        summary.visual_triangles = s.visual->triangles.size();
+    }
+    return summary;
+}
+
+std::string json_escape(const std::string& text) {
+    std::string out;
+    for (char c : text) {
+        if (c == '"' || c == '\\') out += '\\';
+        if (static_cast<unsigned char>(c) < 0x20) continue;
+        out += c;
+    }
+    return out;
+}
+
+void print_json(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
+    std::ostringstream o;
+    o.precision(9);
+    auto vector = [&](const Eigen::Vector3d& v) { o << "[" << v.x() << ", " << v.y() << ", " << v.z() << "]"; };
+    o << "{\n  \"file\": \"" << json_escape(path.string()) << "\",\n  \"file_bytes\": " << std::filesystem::file_size(path)
+      << ",\n  \"format_version\": " << scenario_format_version << ",\n  \"generator\": \"" << json_escape(s.generator)
+      << "\",\n  \"source\": {\"file_name\": \"" << json_escape(s.source.file_name) << "\", \"sha256\": \"" << s.source.sha256
+      << "\", \"dims\": [" << s.source.geometry.dims[0] << ", " << s.source.geometry.dims[1] << ", " << s.source.geometry.dims[2]
+      << "], \"spacing\": ";
+    vector(s.source.geometry.spacing);
+    o << "},\n  \"lattice\": {\"spacing\": " << s.lattice.spacing << ", \"dims\": [" << s.lattice.dims[0] << ", "
+      << s.lattice.dims[1] << ", " << s.lattice.dims[2] << "]},\n  \"particles\": " << m.particles
+      << ",\n  \"anchored\": " << m.anchored << ",\n  \"springs\": " << m.springs << ",\n  \"face_springs\": " << m.face_springs
+      << ",\n  \"edge_springs\": " << m.edge_springs << ",\n  \"total_mass_g\": " << m.total_mass << ",\n  \"bounds\": {\"min\": ";
+    vector(m.low);
+    o << ", \"max\": ";
+    vector(m.high);
+    o << "},\n  \"visual\": " << (s.visual ? "{\"vertices\": " + std::to_string(m.visual_vertices) + ", \"triangles\": " +
+                                                   std::to_string(m.visual_triangles) + "}"
+                                             : std::string("null"))
+      << ",\n  \"materials\": [";
+    for (std::size_t i = 0; i < s.lattice.materials.size(); ++i) {
+        const auto& mat = s.lattice.materials[i];
+        o << (i ? ", " : "") << "{\"label\": " << mat.label << ", \"name\": \"" << json_escape(mat.name)
+          << "\", \"density_g_per_mm3\": " << mat.density << ", \"youngs_modulus_kpa\": " << mat.youngs_modulus_kpa
+          << ", \"face_spring_stiffness_n_per_mm\": " << spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)
+          << ", \"damping_ratio\": " << mat.damping_ratio << "}";
+    }
+    o << "],\n  \"solver\": {\"dt_ms\": " << s.solver.dt_ms << ", \"substeps\": " << s.solver.substeps
+      << ", \"damping\": " << s.solver.damping << ", \"gravity\": ";
+    vector(s.solver.gravity);
+    o << ", \"critical_dt_ms\": " << s.solver.critical_dt_ms << ", \"critical_dt_bound_ms\": " << s.solver.critical_dt_bound_ms
+      << "}\n}\n";
+    std::fputs(o.str().c_str(), stdout);
+}
+
+void print_table(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
+    std::printf("file        %s (%.2f MB), %s\n", path.c_str(), double(std::filesystem::file_size(path)) / 1e6, s.generator.c_str());
+    const auto& g = s.source.geometry;
+    std::printf("source      %s, %d x %d x %d voxels of %.3f x %.3f x %.3f mm, sha256 %.12s…\n", s.source.file_name.c_str(),
+                g.dims[0], g.dims[1], g.dims[2], g.spacing[0], g.spacing[1], g.spacing[2], s.source.sha256.c_str());
+    std::printf("lattice     spacing %.3f mm, %d x %d x %d cells\n", s.lattice.spacing, s.lattice.dims[0], s.lattice.dims[1],
+                s.lattice.dims[2]);
+    std::printf("particles   %zu (%zu anchored), total mass %.3f g\n", m.particles, m.anchored, m.total_mass);
+    std::printf("springs     %zu (%zu face, %zu edge)\n", m.springs, m.face_springs, m.edge_springs);
+    std::printf("bounds      LPS mm [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f]\n", m.low.x(), m.high.x(), m.low.y(), m.high.y(),
+                m.low.z(), m.high.z());
+    if (s.visual)
+        std::printf("visual      %zu vertices, %zu triangles\n", m.visual_vertices, m.visual_triangles);
+    else
+        std::printf("visual      none (the runtime draws the simulation surface)\n");
+    for (const auto& mat : s.lattice.materials)
+        std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
+                    mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,
+                    spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing), mat.damping_ratio);
+    std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms), %d substep(s), drag %.3g /ms, "
+                "gravity (%.3g, %.3g, %.3g) mm/ms²\n",
+                s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms, s.solver.substeps, s.solver.damping,
+                s.solver.gravity.x(), s.solver.gravity.y(), s.solver.gravity.z());
+}
+
+}  // namespace
+
+void add_inspect_command(CLI::App& app) {
+    auto* command = app.add_subcommand("inspect", "Summarise a scenario file: counts, bounds, materials, mass, time step, size");
+    auto path = std::make_shared<std::filesystem::path>();
+    auto json = std::make_shared<bool>(false);
+    command->add_option("file", *path, "Scenario file (.h5)")->required();
+    command->add_flag("--json", *json, "Print JSON instead of a table");
+    command->callback([=] {
+        const Scenario scenario = read_scenario(*path);  // validates everything
+        const Summary summary = summarise(scenario);
+        if (*json)
+            print_json(*path, scenario, summary);
+        else
+            print_table(*path, scenario, summary);
+    });
+}
+
+}  // namespace heartsim::cli

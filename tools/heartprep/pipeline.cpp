@@ -1,0 +1,125 @@
+#include "pipeline.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+namespace heartsim::cli {
+
+namespace {
+
+/// Times a stage into the report.
+template <class Work>
+auto timed(BuildReport& report, const char* stage, Work&& work) {
+    const auto start = std::chrono::steady_clock::now();
+    auto finish = [&] {
+        report.times.push_back({stage, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count()});
+    };
+    if constexpr (std::is_void_v<decltype(work())>) {
+        work();
+        finish();
+    } else {
+        auto result = work();
+        finish();
+        return result;
+    }
+}
+
+void append(std::vector<std::string>& to, const std::vector<std::string>& from) { to.insert(to.end(), from.begin(), from.end()); }
+
+}  // namespace
+
+SelectedVolume read_and_select(const std::filesystem::path& input, const SelectionOptions& options, Progress& progress,
+                               BuildReport& report) {
+    SelectedVolume result;
+    result.volume = timed(report, "read", [&] {
+        ProgressStage stage(progress, "read volume", 0);
+        return read_label_volume(input, {}, &report.header);
+    });
+    result.selection = timed(report, "select", [&] { return select_tissue(result.volume, options, progress, &report.selection); });
+    append(report.warnings, report.selection.warnings);
+    return result;
+}
+
+Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report) {
+    Scenario scenario;
+    scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
+    scenario.source.file_name = options.input.filename().string();
+    scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
+
+    auto [volume, selection] = read_and_select(options.input, options.selection, progress, report);
+    scenario.source.geometry = volume.geometry;
+    scenario.source.tissue_labels = options.selection.tissue_labels;
+    scenario.source.cavity_labels = options.selection.cavity_labels;
+    scenario.source.anchor_labels = options.selection.anchor_labels;
+    scenario.source.anchor_border = options.selection.anchor_border;
+
+    if (options.visual) {
+        TriangleMesh mesh = timed(report, "surface",
+                                  [&] { return extract_surface(selection.tissue, options.surface, progress, &report.surface); });
+        report.mesh = timed(report, "check surface", [&] { return analyse_mesh(mesh); });
+        append(report.warnings, report.surface.warnings);
+        if (!report.mesh.closed() || !report.mesh.manifold())
+            report.warnings.push_back("the visual surface is not a closed 2-manifold (" +
+                                      std::to_string(report.mesh.boundary_edges) + " boundary edges, " +
+                                      std::to_string(report.mesh.nonmanifold_edges) + " non-manifold edges)");
+        scenario.visual = to_visual_mesh(mesh);
+    }
+
+    scenario.lattice = timed(report, "layout", [&] {
+        return layout_particles(selection, options.selection.tissue_labels, volume, options.layout, progress, &report.layout);
+    });
+    append(report.warnings, report.layout.warnings);
+
+    report.stability = timed(report, "critical step", [&] {
+        ProgressStage stage(progress, "critical time step", 0);
+        return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
+    });
+    auto& solver = scenario.solver;
+    solver = options.solver;
+    solver.critical_dt_ms = report.stability.critical_dt_ms;
+    solver.critical_dt_bound_ms = report.stability.critical_dt_bound_ms;
+    if (!std::isfinite(solver.critical_dt_ms)) {
+        // No free particle or no spring: nothing limits the step; choose one that keeps a free
+        // particle's fall per step tiny and say so.
+        solver.critical_dt_ms = solver.critical_dt_bound_ms = 1.0;
+        report.warnings.push_back("no spring between free particles: the critical time step is unbounded; dt set to 0.5 ms");
+    }
+    solver.dt_ms = std::min(solver.safety_factor * solver.critical_dt_ms, solver.critical_dt_bound_ms);
+    return scenario;
+}
+
+void print_build_summary(const BuildReport& report, const Scenario& scenario) {
+    const auto& g = report.header.geometry;
+    std::printf("input       %s (%s, %s), %d x %d x %d voxels of %.3f x %.3f x %.3f mm\n", scenario.source.file_name.c_str(),
+                report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
+                g.spacing[0], g.spacing[1], g.spacing[2]);
+    const auto& s = report.selection;
+    std::printf("tissue      %zu voxels, %.1f mL; cavity %.1f mL; %zu islands, %zu dropped (%zu voxels)\n", s.tissue_voxels,
+                s.tissue_volume_mm3 / 1000.0, s.cavity_volume_mm3 / 1000.0, s.islands.size(), s.islands_dropped,
+                s.voxels_dropped);
+    if (scenario.visual)
+        std::printf("surface     %zu vertices, %zu triangles (marching cubes %zu); %s, Euler characteristic %ld, "
+                    "%zu component(s), area %.0f mm², volume %.1f mL\n",
+                    report.mesh.vertices, report.mesh.faces, report.surface.marching_cubes_triangles,
+                    report.mesh.closed() && report.mesh.manifold() ? "closed 2-manifold" : "NOT a closed 2-manifold",
+                    report.mesh.euler_characteristic, report.mesh.components, report.mesh.area, report.mesh.volume / 1000.0);
+    const auto& l = report.layout;
+    std::printf("lattice     spacing %.3f mm, %d x %d x %d cells; %zu particles (%zu anchored), %zu springs "
+                "(%zu face, %zu edge), mass %.2f g\n",
+                l.spacing, scenario.lattice.dims[0], scenario.lattice.dims[1], scenario.lattice.dims[2], l.particles,
+                l.anchored, l.face_springs + l.edge_springs, l.face_springs, l.edge_springs, l.total_mass);
+    std::printf("time step   critical %.4g ms (power iteration, %d iterations), proven bound %.4g ms; dt %.4g ms\n",
+                scenario.solver.critical_dt_ms, report.stability.iterations, scenario.solver.critical_dt_bound_ms,
+                scenario.solver.dt_ms);
+    std::printf("stages     ");
+    double total = 0;
+    for (const auto& t : report.times) {
+        std::printf(" %s %.2f s,", t.stage.c_str(), t.seconds);
+        total += t.seconds;
+    }
+    std::printf(" total %.2f s\n", total);
+    for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+}
+
+}  // namespace heartsim::cli

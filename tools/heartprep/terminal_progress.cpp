@@ -1,0 +1,66 @@
+#include "terminal_progress.h"
+
+#include <cstdio>
+#include <unistd.h>
+
+namespace heartsim::cli {
+
+namespace {
+constexpr double show_after_seconds = 1.0;
+}
+
+TerminalProgress::TerminalProgress(bool quiet) : quiet_(quiet), terminal_(isatty(fileno(stderr)) != 0) {}
+
+void TerminalProgress::begin(std::string_view stage, std::uint64_t total) {
+    std::lock_guard lock(mutex_);
+    if (depth_++ > 0) return;
+    stage_ = stage;
+    total_ = total;
+    done_ = 0;
+    start_ = last_draw_ = Clock::now();
+    shown_ = false;
+}
+
+void TerminalProgress::update(std::uint64_t done) {
+    done_ = done;
+    if (quiet_ || !terminal_) return;
+    std::unique_lock lock(mutex_, std::try_to_lock);  // workers never wait for the drawing
+    if (!lock.owns_lock() || depth_ != 1) return;
+    const auto now = Clock::now();
+    if (std::chrono::duration<double>(now - start_).count() < show_after_seconds) return;
+    if (shown_ && std::chrono::duration<double>(now - last_draw_).count() < 0.1) return;
+    last_draw_ = now;
+    draw(false);
+}
+
+void TerminalProgress::end() {
+    std::lock_guard lock(mutex_);
+    if (--depth_ > 0) return;
+    if (quiet_) return;
+    const double seconds = std::chrono::duration<double>(Clock::now() - start_).count();
+    if (terminal_) {
+        if (shown_ || seconds >= show_after_seconds) {
+            done_ = total_;
+            draw(true);
+        }
+    } else if (seconds >= show_after_seconds) {
+        std::fprintf(stderr, "heartprep: %s: %.1f s\n", stage_.c_str(), seconds);
+    }
+}
+
+void TerminalProgress::draw(bool final) {
+    const double seconds = std::chrono::duration<double>(Clock::now() - start_).count();
+    constexpr int width = 30;
+    const double fraction = total_ ? std::min(1.0, double(done_) / double(total_)) : (final ? 1.0 : 0.0);
+    std::string bar(width, ' ');
+    if (total_ || final)
+        for (int i = 0; i < int(fraction * width + 0.5); ++i) bar[std::size_t(i)] = '#';
+    else
+        bar[std::size_t(int(seconds * 8) % width)] = '#';  // unknown total: a moving mark
+    std::fprintf(stderr, "\r%-22s [%s] %3d%%  %5.1f s%s", stage_.c_str(), bar.c_str(), int(fraction * 100 + 0.5), seconds,
+                 final ? "\n" : "");
+    std::fflush(stderr);
+    shown_ = true;
+}
+
+}  // namespace heartsim::cli

@@ -1,0 +1,38 @@
+/// @file terminal_progress.h
+/// @brief heartsim::Progress on stderr: a progress bar on a terminal (shown once a stage has run
+/// for a second), plain timing lines when stderr is a file or a pipe (logs, CI, batch runs).
+#pragma once
+
+#include "libmodel/progress.h"
+
+#include <atomic>
+#include <chrono>
+#include <mutex>
+#include <string>
+
+namespace heartsim::cli {
+
+class TerminalProgress final : public Progress {
+public:
+    /// `quiet` suppresses everything.
+    explicit TerminalProgress(bool quiet = false);
+    void begin(std::string_view stage, std::uint64_t total) override;
+    void update(std::uint64_t done) override;
+    void end() override;
+
+private:
+    using Clock = std::chrono::steady_clock;
+    void draw(bool final);
+    bool quiet_;
+    bool terminal_;
+    std::mutex mutex_;
+    std::string stage_;
+    std::uint64_t total_ = 0;
+    std::atomic<std::uint64_t> done_{0};
+    Clock::time_point start_;
+    Clock::time_point last_draw_;
+    bool shown_ = false;
+    int depth_ = 0;  ///< nested stages: only the outermost prints
+};
+
+}  // namespace heartsim::cli
