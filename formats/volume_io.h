@@ -50,4 +50,10 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
 /// the format follows the extension. Atomic: temporary file, then rename. Throws OutputError.
 void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume);
 
+/// As above, naming the segments of a 3D Slicer .seg.nrrd: `segment_names` maps label value ->
+/// segment name, written as Segment<N>_LabelValue / _Name / _ID / _Layer (all layer 0). Other
+/// formats ignore the names. (Without names, a .seg.nrrd gets one segment "Label <v>" per label.)
+void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume,
+                        const std::map<int, std::string>& segment_names);
+
 }  // namespace heartsim

@@ -1,0 +1,818 @@
+/// @file volume_io.cpp
+/// @brief Label-map reading and writing through ITK's image I/O, with the checks ITK leaves out:
+/// integer component type, sane geometry, voxel data actually present, memory estimated first.
+#include "formats/volume_io.h"
+
+#include "libmodel/errors.h"
+
+// ITK 5.2 bundles an older Eigen (itkeigen/) and its headers include modules of it through
+// itkImageIOBase.h; over the system Eigen 3.4 that libmodel uses they do not compile
+// (EIGEN_USING_STD_MATH is gone in 3.4). Including the system modules first makes ITK's copies
+// no-ops through the shared include guards, so this file sees one Eigen.
+#include <Eigen/Eigenvalues>
+
+#include <itkImage.h>
+#include <itkImageFileWriter.h>
+#include <itkImageIOBase.h>
+#include <itkImageIOFactory.h>
+#include <itkMetaDataObject.h>
+#include <itkMetaImageIOFactory.h>
+#include <itkNiftiImageIOFactory.h>
+#include <itkNrrdImageIOFactory.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <mutex>
+#include <optional>
+#include <random>
+#include <regex>
+#include <sstream>
+#include <utility>
+#include <unistd.h>
+
+namespace heartsim {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// Extensions we read and write, longest first so ".seg.nrrd" wins over ".nrrd".
+constexpr std::array<const char*, 6> supported_extensions = {".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"};
+constexpr const char* supported_list = ".nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd";
+
+std::string lowercase(std::string text) {
+    std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    return text;
+}
+
+/// The supported extension `path` ends with (lower case), or empty.
+std::string volume_extension(const fs::path& path) {
+    const std::string name = lowercase(path.filename().string());
+    for (const char* extension : supported_extensions) {
+        const std::string ext = extension;
+        if (name.size() > ext.size() && name.compare(name.size() - ext.size(), ext.size(), ext) == 0) return ext;
+    }
+    return {};
+}
+
+/// Without these, ImageIOFactory finds nothing at run time: we do not include ITK_USE_FILE, whose
+/// generated registration code is what normally does this.
+void register_io_factories() {
+    static std::once_flag once;
+    std::call_once(once, [] {
+        itk::NiftiImageIOFactory::RegisterOneFactory();
+        itk::NrrdImageIOFactory::RegisterOneFactory();
+        itk::MetaImageIOFactory::RegisterOneFactory();
+    });
+}
+
+std::string describe_bytes(double bytes) {
+    std::ostringstream text;
+    text.precision(3);
+    if (bytes >= 1024.0 * 1024.0 * 1024.0) text << bytes / (1024.0 * 1024.0 * 1024.0) << " GiB";
+    else if (bytes >= 1024.0 * 1024.0) text << bytes / (1024.0 * 1024.0) << " MiB";
+    else text << bytes << " bytes";
+    return text.str();
+}
+
+/// ITK's exception description (without the source-file location ITK's what() adds).
+std::string itk_reason(const itk::ExceptionObject& error) {
+    std::string text = error.GetDescription();
+    while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
+    return text;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Where the voxel data lies, from our own reading of the raw header: ITK does not tell, and it
+// reads truncated files silently (DESIGN.md).
+
+struct DataLocation {
+    fs::path file;                 ///< file holding the voxel data
+    std::uint64_t offset = 0;      ///< byte where the (possibly compressed) data starts
+    bool compressed = false;       ///< zlib or gzip stream
+    bool at_end_of_file = false;   ///< raw data is the last `bytes` bytes (NRRD byte skip -1, MetaImage HeaderSize -1)
+    std::uint64_t skip_after_inflate = 0;  ///< bytes before the voxels inside a compressed stream
+    bool checkable = true;         ///< false for encodings we do not verify (ASCII, hex, file lists)
+};
+
+/// The fields of a NIfTI-1 or NIfTI-2 header we check ourselves: niftilib quietly replaces a zero
+/// or negative pixdim by 1 and ITK reports that, so bad spacing must be caught here.
+struct NiftiFields {
+    int version = 1;
+    std::array<std::int64_t, 8> dim{};
+    int bitpix = 0;
+    int datatype = 0;
+    std::array<double, 8> pixdim{};
+    double vox_offset = 0;
+};
+
+template <class T>
+T read_value(const unsigned char* bytes, bool swap) {
+    unsigned char copy[sizeof(T)];
+    std::memcpy(copy, bytes, sizeof(T));
+    if (swap) std::reverse(copy, copy + sizeof(T));
+    T value;
+    std::memcpy(&value, copy, sizeof(T));
+    return value;
+}
+
+NiftiFields read_nifti_fields(const fs::path& path) {
+    // gzopen reads plain files transparently, so one path serves .nii and .nii.gz.
+    gzFile file = gzopen(path.c_str(), "rb");
+    if (!file) throw InputError(path.string() + ": cannot open for reading");
+    std::array<unsigned char, 540> header{};
+    const int got = gzread(file, header.data(), unsigned(header.size()));
+    gzclose(file);
+    if (got < 348)
+        throw InputError(path.string() + ": NIfTI header truncated: expected at least 348 bytes, file holds " +
+                         std::to_string(std::max(got, 0)));
+    const std::int32_t sizeof_hdr = read_value<std::int32_t>(header.data(), false);
+    const std::int32_t swapped = read_value<std::int32_t>(header.data(), true);
+    NiftiFields fields;
+    bool swap = false;
+    if (sizeof_hdr == 348 || swapped == 348) {
+        swap = sizeof_hdr != 348;
+        for (int d = 0; d < 8; ++d) fields.dim[d] = read_value<std::int16_t>(&header[40 + 2 * d], swap);
+        fields.datatype = read_value<std::int16_t>(&header[70], swap);
+        fields.bitpix = read_value<std::int16_t>(&header[72], swap);
+        for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<float>(&header[76 + 4 * d], swap);
+        fields.vox_offset = read_value<float>(&header[108], swap);
+    } else if (sizeof_hdr == 540 || swapped == 540) {
+        if (got < 540)
+            throw InputError(path.string() + ": NIfTI-2 header truncated: expected 540 bytes, file holds " +
+                             std::to_string(got));
+        swap = sizeof_hdr != 540;
+        fields.version = 2;
+        fields.datatype = read_value<std::int16_t>(&header[12], swap);
+        fields.bitpix = read_value<std::int16_t>(&header[14], swap);
+        for (int d = 0; d < 8; ++d) fields.dim[d] = read_value<std::int64_t>(&header[16 + 8 * d], swap);
+        for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<double>(&header[104 + 8 * d], swap);
+        fields.vox_offset = double(read_value<std::int64_t>(&header[168], swap));
+    } else {
+        throw InputError(path.string() + ": not a NIfTI file: sizeof_hdr is " + std::to_string(sizeof_hdr) +
+                         "; expected 348 (NIfTI-1) or 540 (NIfTI-2)");
+    }
+    if (fields.dim[0] < 1 || fields.dim[0] > 7)
+        throw InputError(path.string() + ": NIfTI dim[0] is " + std::to_string(fields.dim[0]) +
+                         "; expected a dimension count from 1 to 7");
+    return fields;
+}
+
+std::uint64_t nifti_data_bytes(const fs::path& path, const NiftiFields& fields) {
+    long double voxels = 1;
+    for (int d = 1; d <= fields.dim[0]; ++d) {
+        if (fields.dim[d] < 1)
+            throw InputError(path.string() + ": NIfTI dim[" + std::to_string(d) + "] is " +
+                             std::to_string(fields.dim[d]) + "; expected a positive voxel count");
+        voxels *= fields.dim[d];
+    }
+    if (fields.bitpix <= 0 || fields.bitpix % 8 != 0)
+        throw InputError(path.string() + ": NIfTI bitpix is " + std::to_string(fields.bitpix) +
+                         "; expected a positive multiple of 8");
+    const long double bytes = voxels * (fields.bitpix / 8);
+    if (bytes > (long double)(std::numeric_limits<std::uint64_t>::max() / 2))
+        throw InputError(path.string() + ": NIfTI dims declare an impossible amount of voxel data");
+    return std::uint64_t(bytes);
+}
+
+/// Reads "key<separator>value" header lines of NRRD or MetaImage text headers.
+struct TextHeader {
+    std::map<std::string, std::string> fields;  ///< lower-case key -> value
+    std::uint64_t end_offset = 0;               ///< byte after the header
+};
+
+std::string trim(const std::string& text) {
+    const auto first = text.find_first_not_of(" \t\r");
+    if (first == std::string::npos) return {};
+    const auto last = text.find_last_not_of(" \t\r");
+    return text.substr(first, last - first + 1);
+}
+
+/// NRRD: magic line, then "field: value" lines (key/values use ":=") up to a blank line.
+TextHeader read_nrrd_header(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot open for reading");
+    std::string line;
+    std::getline(in, line);
+    if (line.rfind("NRRD", 0) != 0) throw InputError(path.string() + ": not a NRRD file: first line should start with NRRD");
+    TextHeader header;
+    while (std::getline(in, line)) {
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) break;
+        if (line[0] == '#' || line.find(":=") != std::string::npos) continue;
+        const auto colon = line.find(": ");
+        if (colon == std::string::npos) continue;
+        header.fields[lowercase(trim(line.substr(0, colon)))] = trim(line.substr(colon + 2));
+    }
+    // tellg is -1 at end of file (a header with no data after it).
+    const auto position = in.tellg();
+    header.end_offset = position < 0 ? fs::file_size(path) : std::uint64_t(position);
+    return header;
+}
+
+/// MetaImage: "Key = Value" lines; ElementDataFile is the last one.
+TextHeader read_metaimage_header(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot open for reading");
+    TextHeader header;
+    std::string line;
+    bool found_data_file = false;
+    while (std::getline(in, line)) {
+        const auto equals = line.find('=');
+        if (equals == std::string::npos) continue;
+        const std::string key = lowercase(trim(line.substr(0, equals)));
+        header.fields[key] = trim(line.substr(equals + 1));
+        if (key == "elementdatafile") {
+            found_data_file = true;
+            break;
+        }
+    }
+    if (!found_data_file) throw InputError(path.string() + ": MetaImage header has no ElementDataFile line");
+    const auto position = in.tellg();
+    header.end_offset = position < 0 ? fs::file_size(path) : std::uint64_t(position);
+    return header;
+}
+
+std::string field_or(const TextHeader& header, const std::string& key, const std::string& fallback) {
+    auto found = header.fields.find(key);
+    return found == header.fields.end() ? fallback : found->second;
+}
+
+long long integer_field(const fs::path& path, const TextHeader& header, const std::string& key, long long fallback) {
+    const std::string text = field_or(header, key, "");
+    if (text.empty()) return fallback;
+    try {
+        return std::stoll(text);
+    } catch (const std::exception&) {
+        throw InputError(path.string() + ": header field '" + key + "' is '" + text + "'; expected an integer");
+    }
+}
+
+DataLocation nrrd_data_location(const fs::path& path) {
+    const TextHeader header = read_nrrd_header(path);
+    DataLocation location;
+    std::string data_file = field_or(header, "data file", field_or(header, "datafile", ""));
+    if (data_file.empty()) {
+        location.file = path;
+        location.offset = header.end_offset;
+    } else if (data_file.rfind("LIST", 0) == 0 || data_file.find('%') != std::string::npos ||
+               data_file.find(' ') != std::string::npos) {
+        location.checkable = false;  // multi-file data: ITK reads it; we do not verify each piece
+        return location;
+    } else {
+        location.file = fs::path(data_file).is_absolute() ? fs::path(data_file) : path.parent_path() / data_file;
+        location.offset = 0;
+    }
+    const std::string encoding = lowercase(field_or(header, "encoding", "raw"));
+    const long long byte_skip = integer_field(path, header, "byte skip", integer_field(path, header, "byteskip", 0));
+    if (encoding == "raw") {
+        if (byte_skip == -1) location.at_end_of_file = true;
+        else location.offset += std::uint64_t(std::max(0LL, byte_skip));
+    } else if (encoding == "gzip" || encoding == "gz") {
+        location.compressed = true;
+        location.skip_after_inflate = std::uint64_t(std::max(0LL, byte_skip));
+    } else {
+        location.checkable = false;  // ascii / hex / bzip2: sizes are not byte counts we can verify
+    }
+    return location;
+}
+
+DataLocation metaimage_data_location(const fs::path& path) {
+    const TextHeader header = read_metaimage_header(path);
+    DataLocation location;
+    const std::string data_file = field_or(header, "elementdatafile", "");
+    if (lowercase(data_file) == "local") {
+        location.file = path;
+        location.offset = header.end_offset;
+    } else if (data_file.rfind("LIST", 0) == 0 || data_file.find('%') != std::string::npos ||
+               data_file.find(' ') != std::string::npos) {
+        location.checkable = false;  // one file per slice: ITK reads them; we do not verify each piece
+        return location;
+    } else {
+        location.file = fs::path(data_file).is_absolute() ? fs::path(data_file) : path.parent_path() / data_file;
+    }
+    location.compressed = lowercase(field_or(header, "compresseddata", "false")) == "true";
+    const long long header_size = integer_field(path, header, "headersize", 0);
+    if (!location.compressed) {
+        if (header_size == -1) location.at_end_of_file = true;
+        else location.offset += std::uint64_t(std::max(0LL, header_size));
+    }
+    return location;
+}
+
+/// Inflates a zlib or gzip stream (windowBits 15+32 detects which) starting at `offset`, counting
+/// the bytes it yields. Returns the count; sets `clean_end` when the stream's end marker (and,
+/// for gzip, its CRC) was reached; `problem` gets zlib's reason for corrupt data.
+std::uint64_t inflate_count(const fs::path& path, std::uint64_t offset, bool& clean_end, std::string& problem) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot open voxel data file for reading");
+    in.seekg(std::streamoff(offset));
+    z_stream stream{};
+    if (inflateInit2(&stream, 15 + 32) != Z_OK) throw InputError(path.string() + ": zlib could not start");
+    std::vector<unsigned char> input(1 << 16), output(1 << 18);
+    std::uint64_t total = 0;
+    clean_end = false;
+    bool input_done = false;
+    for (;;) {
+        if (stream.avail_in == 0 && !input_done) {
+            in.read(reinterpret_cast<char*>(input.data()), std::streamsize(input.size()));
+            stream.next_in = input.data();
+            stream.avail_in = unsigned(in.gcount());
+            input_done = in.gcount() == 0;
+        }
+        if (stream.avail_in == 0 && input_done) break;  // input exhausted before the end marker
+        stream.next_out = output.data();
+        stream.avail_out = unsigned(output.size());
+        const int status = inflate(&stream, Z_NO_FLUSH);
+        total += output.size() - stream.avail_out;
+        if (status == Z_STREAM_END) {
+            // gzip allows concatenated members (what `cat a.gz b.gz` makes); continue into the next.
+            if (stream.avail_in == 0 && !input_done) {
+                in.read(reinterpret_cast<char*>(input.data()), std::streamsize(input.size()));
+                stream.next_in = input.data();
+                stream.avail_in = unsigned(in.gcount());
+                input_done = in.gcount() == 0;
+            }
+            if (stream.avail_in >= 2 && stream.next_in[0] == 0x1f && stream.next_in[1] == 0x8b) {
+                inflateReset(&stream);
+                continue;
+            }
+            clean_end = true;
+            break;
+        }
+        if (status == Z_BUF_ERROR && stream.avail_in == 0) continue;  // needs more input
+        if (status != Z_OK) {
+            problem = stream.msg ? stream.msg : "zlib error " + std::to_string(status);
+            break;
+        }
+    }
+    inflateEnd(&stream);
+    return total;
+}
+
+/// Throws unless `location` holds at least `bytes` bytes of voxel data (compressed: a stream that
+/// ends cleanly and inflates to at least that much).
+void check_data_present(const fs::path& path, const DataLocation& location, std::uint64_t bytes) {
+    if (!location.checkable) return;
+    if (!fs::exists(location.file))
+        throw InputError(path.string() + ": voxel data file " + location.file.string() + " does not exist");
+    const std::uint64_t file_size = fs::file_size(location.file);
+    const std::string where = location.file == path ? std::string() : " (data file " + location.file.string() + ")";
+    if (!location.compressed) {
+        const std::uint64_t needed = location.at_end_of_file ? bytes : location.offset + bytes;
+        if (file_size < needed)
+            throw InputError(path.string() + ": voxel data truncated" + where + ": header declares " +
+                             std::to_string(bytes) + " bytes from byte " + std::to_string(location.offset) +
+                             ", file has only " + std::to_string(file_size) +
+                             " bytes (file is damaged or incomplete)");
+        return;
+    }
+    bool clean_end = false;
+    std::string problem;
+    const std::uint64_t inflated = inflate_count(location.file, location.offset, clean_end, problem);
+    const std::uint64_t needed = location.skip_after_inflate + bytes;
+    if (!problem.empty())
+        throw InputError(path.string() + ": compressed voxel data corrupt" + where + ": " + problem + " after " +
+                         std::to_string(inflated) + " of " + std::to_string(needed) +
+                         " bytes (file is damaged)");
+    const std::string declared = "header declares " + std::to_string(bytes) + " bytes of voxel data" +
+                                 (location.skip_after_inflate ? " from byte " + std::to_string(location.skip_after_inflate) +
+                                                                    " of the uncompressed stream"
+                                                              : std::string());
+    if (!clean_end)
+        throw InputError(path.string() + ": voxel data truncated" + where + ": " + declared +
+                         ", gzip/zlib stream ends after " + std::to_string(inflated) +
+                         " uncompressed bytes without its end marker (file is damaged or incomplete)");
+    if (inflated < needed)
+        throw InputError(path.string() + ": voxel data truncated" + where + ": " + declared +
+                         ", compressed stream holds only " + std::to_string(inflated) +
+                         " uncompressed bytes (file is damaged or incomplete)");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Probing: ITK's header reading plus our own raw-header facts.
+
+struct Probe {
+    VolumeHeader header;
+    itk::ImageIOBase::Pointer io;
+    unsigned itk_dimensions = 0;
+    std::vector<std::uint64_t> itk_sizes;
+    std::optional<NiftiFields> nifti;
+    DataLocation location;
+    bool segmentation_file = false;
+    int max_segment_layer = 0;
+};
+
+bool is_integer_component(itk::IOComponentEnum type) {
+    using C = itk::IOComponentEnum;
+    switch (type) {
+    case C::UCHAR: case C::CHAR: case C::USHORT: case C::SHORT: case C::UINT: case C::INT:
+    case C::ULONG: case C::LONG: case C::ULONGLONG: case C::LONGLONG:
+        return true;
+    default:
+        return false;
+    }
+}
+
+/// Segment<N>_LabelValue / _Name / _Layer key/values of a 3D Slicer .seg.nrrd.
+void read_segment_metadata(Probe& probe) {
+    static const std::regex key_pattern(R"(Segment(\d+)_(LabelValue|Name|Layer))");
+    std::map<int, std::string> names, label_values;
+    const itk::MetaDataDictionary& dictionary = probe.io->GetMetaDataDictionary();
+    for (const std::string& key : dictionary.GetKeys()) {
+        std::smatch match;
+        std::string value;
+        if (!std::regex_match(key, match, key_pattern) || !itk::ExposeMetaData<std::string>(dictionary, key, value))
+            continue;
+        const int segment = std::stoi(match[1].str());
+        if (match[2] == "Name") names[segment] = value;
+        else if (match[2] == "LabelValue") label_values[segment] = value;
+        else probe.max_segment_layer = std::max(probe.max_segment_layer, std::atoi(value.c_str()));
+    }
+    for (const auto& [segment, text] : label_values) {
+        int label = 0;
+        try {
+            label = std::stoi(text);
+        } catch (const std::exception&) {
+            throw InputError(probe.header.format + " file: Segment" + std::to_string(segment) + "_LabelValue is '" +
+                             text + "'; expected an integer");
+        }
+        auto name = names.find(segment);
+        probe.header.segment_names[label] = name != names.end() ? name->second : "Segment" + std::to_string(segment);
+    }
+}
+
+Probe probe_volume(const fs::path& path) {
+    const std::string extension = volume_extension(path);
+    if (extension.empty())
+        throw InputError(path.string() + ": unsupported file type '" + path.extension().string() +
+                         "'; expected one of " + supported_list);
+    std::error_code error;
+    if (!fs::exists(path, error)) throw InputError(path.string() + ": file not found");
+    if (fs::is_directory(path, error)) throw InputError(path.string() + ": is a folder; expected a volume file");
+    if (!std::ifstream(path, std::ios::binary)) throw InputError(path.string() + ": cannot open for reading");
+
+    register_io_factories();
+    Probe probe;
+    probe.io = itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::ImageIOFactory::ReadMode);
+    if (!probe.io)
+        throw InputError(path.string() + ": not a readable " + extension +
+                         " file (no ITK image reader recognises its contents)");
+    const std::string io_class = probe.io->GetNameOfClass();
+    const bool nifti = io_class == "NiftiImageIO", nrrd = io_class == "NrrdImageIO", meta = io_class == "MetaImageIO";
+    if (!nifti && !nrrd && !meta)
+        throw InputError(path.string() + ": read by ITK's " + io_class + ", not a supported format; expected " +
+                         supported_list);
+    probe.header.format = nifti ? "NIfTI" : nrrd ? "NRRD" : "MetaImage";
+    probe.segmentation_file = extension == ".seg.nrrd";
+
+    // Our own header reading comes first: it explains damage more precisely than ITK does.
+    if (nifti) probe.nifti = read_nifti_fields(path);
+
+    probe.io->SetFileName(path.string());
+    try {
+        probe.io->ReadImageInformation();
+    } catch (const itk::ExceptionObject& itk_error) {
+        throw InputError(path.string() + ": cannot read " + probe.header.format + " header: " + itk_reason(itk_error));
+    }
+
+    VolumeHeader& header = probe.header;
+    header.component_type = itk::ImageIOBase::GetComponentTypeAsString(probe.io->GetComponentType());
+    header.components = int(probe.io->GetNumberOfComponents());
+    probe.itk_dimensions = probe.io->GetNumberOfDimensions();
+    for (unsigned d = 0; d < probe.itk_dimensions; ++d) probe.itk_sizes.push_back(probe.io->GetDimensions(d));
+    for (unsigned d = 0; d < std::min(3u, probe.itk_dimensions); ++d) {
+        header.geometry.dims[d] = int(std::min<std::uint64_t>(probe.itk_sizes[d], std::numeric_limits<int>::max()));
+        header.geometry.spacing[d] = probe.io->GetSpacing(d);
+        header.geometry.origin[d] = probe.io->GetOrigin(d);
+        const std::vector<double> axis = probe.io->GetDirection(d);
+        for (unsigned row = 0; row < 3; ++row) header.geometry.direction(row, d) = row < axis.size() ? axis[row] : 0.0;
+    }
+    if (nrrd) read_segment_metadata(probe);
+
+    if (nifti) {
+        probe.header.data_bytes = nifti_data_bytes(path, *probe.nifti);
+        probe.location.file = path;
+        // vox_offset counts bytes of the uncompressed file: for .nii.gz the whole file is one stream.
+        const auto voxel_offset = std::uint64_t(std::max(0.0, probe.nifti->vox_offset));
+        probe.location.compressed = extension == ".nii.gz";
+        (probe.location.compressed ? probe.location.skip_after_inflate : probe.location.offset) = voxel_offset;
+    } else {
+        probe.header.data_bytes = probe.io->GetImageSizeInBytes();
+        probe.location = nrrd ? nrrd_data_location(path) : metaimage_data_location(path);
+    }
+    return probe;
+}
+
+const char* axis_name(int axis) { return axis == 0 ? "i" : axis == 1 ? "j" : "k"; }
+
+std::string number(double value) {
+    std::ostringstream text;
+    text.precision(9);
+    text << value;
+    return text.str();
+}
+
+/// Dimension 3 (or 4 with one volume), positive finite spacing, finite origin and direction,
+/// direction not singular.
+void check_geometry(const fs::path& path, const Probe& probe) {
+    const std::string file = path.string() + ": ";
+    const unsigned dimensions = probe.itk_dimensions;
+    if (dimensions < 3 || dimensions > 4 || (dimensions == 4 && probe.itk_sizes[3] != 1)) {
+        std::string sizes;
+        for (auto size : probe.itk_sizes) sizes += (sizes.empty() ? "" : "×") + std::to_string(size);
+        throw InputError(file + "image is " + std::to_string(dimensions) + "-dimensional (" + sizes +
+                         "); expected a 3D volume (or 4D with one time point)");
+    }
+    if (probe.nifti) {
+        // Raw pixdim: niftilib/ITK would report 1 for a zero or negative value.
+        for (int axis = 0; axis < 3; ++axis) {
+            const double value = probe.nifti->pixdim[axis + 1];
+            if (!std::isfinite(value) || value <= 0)
+                throw InputError(file + "invalid voxel spacing along " + axis_name(axis) + ": NIfTI pixdim[" +
+                                 std::to_string(axis + 1) + "] is " + number(value) +
+                                 "; expected a finite positive size in mm");
+        }
+    }
+    const VolumeGeometry& geometry = probe.header.geometry;
+    for (int axis = 0; axis < 3; ++axis) {
+        if (probe.itk_sizes[axis] > std::uint64_t(std::numeric_limits<int>::max()))
+            throw InputError(file + "size along " + axis_name(axis) + " is " + std::to_string(probe.itk_sizes[axis]) +
+                             "; expected at most " + std::to_string(std::numeric_limits<int>::max()) + " voxels");
+        if (geometry.dims[axis] < 1)
+            throw InputError(file + "size along " + axis_name(axis) + " is " + std::to_string(geometry.dims[axis]) +
+                             "; expected at least one voxel");
+        const double value = geometry.spacing[axis];
+        if (!std::isfinite(value) || value <= 0)
+            throw InputError(file + "invalid voxel spacing along " + axis_name(axis) + ": " + number(value) +
+                             "; expected a finite positive size in mm");
+    }
+    if (!geometry.origin.allFinite())
+        throw InputError(file + "origin is not finite (" + number(geometry.origin.x()) + ", " +
+                         number(geometry.origin.y()) + ", " + number(geometry.origin.z()) + ")");
+    if (!geometry.direction.allFinite()) throw InputError(file + "direction matrix has non-finite entries");
+    const double determinant = geometry.direction.determinant();
+    if (!(std::abs(determinant) > 1e-6))
+        throw InputError(file + "direction matrix is singular (determinant " + number(determinant) +
+                         "); expected independent axes");
+}
+
+/// Multi-layer .seg.nrrd files hold overlapping segments in separate layers: no single label map.
+void check_single_layer(const fs::path& path, const Probe& probe) {
+    if (!probe.segmentation_file) return;
+    const bool extra_axis = probe.itk_dimensions == 4 && probe.itk_sizes[3] > 1;
+    if (probe.header.components > 1 || extra_axis || probe.max_segment_layer > 0) {
+        const int layers = std::max({probe.header.components, probe.max_segment_layer + 1,
+                                     extra_axis ? int(probe.itk_sizes[3]) : 1});
+        throw InputError(path.string() + ": multi-layer 3D Slicer segmentation (" + std::to_string(layers) +
+                         " layers); expected a single layer: in 3D Slicer export it as a labelmap volume, or "
+                         "save the segmentation with overlapping segments collapsed into a single layer");
+    }
+}
+
+void check_component_type(const fs::path& path, const Probe& probe) {
+    const itk::IOComponentEnum type = probe.io->GetComponentType();
+    if (!is_integer_component(type)) {
+        const std::string kind = type == itk::IOComponentEnum::FLOAT ? "float" : type == itk::IOComponentEnum::DOUBLE
+                                                                               ? "double"
+                                                                               : probe.header.component_type;
+        throw InputError(path.string() + ": is a " + kind + " image; expected an integer label map" +
+                         (probe.nifti ? " (NIfTI datatype " + std::to_string(probe.nifti->datatype) +
+                                            ", or integer data rescaled by scl_slope/scl_inter)"
+                                      : std::string()));
+    }
+    if (probe.header.components != 1)
+        throw InputError(path.string() + ": has " + std::to_string(probe.header.components) +
+                         " components per voxel; expected one label per voxel");
+}
+
+/// MemAvailable from /proc/meminfo, bytes; 0 when unknown.
+std::uint64_t available_memory_bytes() {
+    std::ifstream meminfo("/proc/meminfo");
+    std::string key;
+    std::uint64_t kilobytes = 0;
+    std::string unit;
+    while (meminfo >> key >> kilobytes >> unit)
+        if (key == "MemAvailable:") return kilobytes * 1024;
+    return 0;
+}
+
+void check_memory(const fs::path& path, const Probe& probe, const VolumeReadOptions& options) {
+    long double voxels = 1;
+    for (auto size : probe.itk_sizes) voxels *= size;
+    const long double needed = voxels * options.working_bytes_per_voxel;
+    const bool from_machine = options.memory_limit_bytes == 0;
+    const std::uint64_t limit = from_machine ? available_memory_bytes() : options.memory_limit_bytes;
+    if (limit != 0 && needed > (long double)limit) {
+        std::string sizes;
+        for (auto size : probe.itk_sizes) sizes += (sizes.empty() ? "" : "×") + std::to_string(size);
+        throw InputError(path.string() + ": volume too large: " + sizes + " voxels need about " +
+                         describe_bytes(double(needed)) + " of working memory (" +
+                         number(options.working_bytes_per_voxel) + " bytes per voxel), more than the " +
+                         describe_bytes(double(limit)) +
+                         (from_machine ? " available on this machine (MemAvailable)" : " allowed (memory limit)") +
+                         "; crop or resample the volume");
+    }
+}
+
+/// Converts ITK's native buffer to int32, refusing values int32 cannot hold.
+template <class T>
+void convert_labels(const fs::path& path, const std::vector<char>& buffer, std::vector<std::int32_t>& labels) {
+    const std::size_t count = labels.size();
+    const T* values = reinterpret_cast<const T*>(buffer.data());
+    for (std::size_t index = 0; index < count; ++index) {
+        const T value = values[index];
+        if constexpr (sizeof(T) >= sizeof(std::int32_t)) {
+            // std::in_range compares across signedness without conversion surprises.
+            if (!std::in_range<std::int32_t>(value))
+                throw InputError(path.string() + ": label " + std::to_string(value) + " at voxel " +
+                                 std::to_string(index) + " is outside the 32-bit signed range labels are kept in");
+        }
+        labels[index] = std::int32_t(value);
+    }
+}
+
+LabelVolume read_voxels(const fs::path& path, Probe& probe) {
+    LabelVolume volume;
+    volume.geometry = probe.header.geometry;
+    const std::size_t voxel_count = volume.geometry.voxel_count();
+    itk::ImageIORegion region(probe.itk_dimensions);
+    for (unsigned d = 0; d < probe.itk_dimensions; ++d) {
+        region.SetIndex(d, 0);
+        region.SetSize(d, probe.itk_sizes[d]);
+    }
+    probe.io->SetIORegion(region);
+    std::vector<char> buffer(voxel_count * probe.io->GetComponentSize());
+    try {
+        probe.io->Read(buffer.data());
+    } catch (const itk::ExceptionObject& itk_error) {
+        throw InputError(path.string() + ": cannot read voxel data: " + itk_reason(itk_error));
+    }
+    volume.labels.resize(voxel_count);
+    using C = itk::IOComponentEnum;
+    switch (probe.io->GetComponentType()) {
+    case C::UCHAR: convert_labels<unsigned char>(path, buffer, volume.labels); break;
+    case C::CHAR: convert_labels<signed char>(path, buffer, volume.labels); break;
+    case C::USHORT: convert_labels<unsigned short>(path, buffer, volume.labels); break;
+    case C::SHORT: convert_labels<short>(path, buffer, volume.labels); break;
+    case C::UINT: convert_labels<unsigned int>(path, buffer, volume.labels); break;
+    case C::INT: convert_labels<int>(path, buffer, volume.labels); break;
+    case C::ULONG: convert_labels<unsigned long>(path, buffer, volume.labels); break;
+    case C::LONG: convert_labels<long>(path, buffer, volume.labels); break;
+    case C::ULONGLONG: convert_labels<unsigned long long>(path, buffer, volume.labels); break;
+    case C::LONGLONG: convert_labels<long long>(path, buffer, volume.labels); break;
+    default: throw InputError(path.string() + ": unexpected component type " + probe.header.component_type);
+    }
+    return volume;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Writing.
+
+template <class Pixel>
+void write_with_itk(const fs::path& path, const LabelVolume& volume, bool compress,
+                    const std::map<int, std::string>* segment_names) {
+    using Image = itk::Image<Pixel, 3>;
+    const VolumeGeometry& geometry = volume.geometry;
+    auto image = Image::New();
+    typename Image::RegionType region;
+    typename Image::SpacingType spacing;
+    typename Image::PointType origin;
+    typename Image::DirectionType direction;
+    for (unsigned d = 0; d < 3; ++d) {
+        region.SetIndex(d, 0);
+        region.SetSize(d, itk::SizeValueType(geometry.dims[d]));
+        spacing[d] = geometry.spacing[d];
+        origin[d] = geometry.origin[d];
+        for (unsigned column = 0; column < 3; ++column) direction(d, column) = geometry.direction(d, column);
+    }
+    image->SetRegions(region);
+    image->SetSpacing(spacing);
+    image->SetOrigin(origin);
+    image->SetDirection(direction);
+    image->Allocate();
+    Pixel* pixels = image->GetBufferPointer();
+    std::transform(volume.labels.begin(), volume.labels.end(), pixels, [](std::int32_t label) { return Pixel(label); });
+
+    if (segment_names) {
+        // 3D Slicer's segmentation keys: one segment per label, all in layer 0.
+        itk::MetaDataDictionary& dictionary = image->GetMetaDataDictionary();
+        int segment = 0;
+        for (const auto& [label, name] : *segment_names) {
+            const std::string prefix = "Segment" + std::to_string(segment++) + "_";
+            itk::EncapsulateMetaData<std::string>(dictionary, prefix + "ID", "Segment_" + std::to_string(label));
+            itk::EncapsulateMetaData<std::string>(dictionary, prefix + "Name", name);
+            itk::EncapsulateMetaData<std::string>(dictionary, prefix + "LabelValue", std::to_string(label));
+            itk::EncapsulateMetaData<std::string>(dictionary, prefix + "Layer", "0");
+        }
+    }
+    auto writer = itk::ImageFileWriter<Image>::New();
+    writer->SetFileName(path.string());
+    writer->SetInput(image);
+    writer->SetUseCompression(compress);
+    writer->Update();
+}
+
+/// A name beside `path` with the same extension, so ITK picks the same writer.
+fs::path temporary_name(const fs::path& path, const std::string& extension) {
+    static std::atomic<unsigned> counter{0};
+    std::random_device random;
+    const std::string name = path.filename().string();
+    const std::string stem = name.substr(0, name.size() - extension.size());
+    return path.parent_path() / ("." + stem + ".tmp-" + std::to_string(getpid()) + "-" + std::to_string(random()) +
+                                 "-" + std::to_string(counter++) + extension);
+}
+
+/// MetaImage .mhd headers name their data file (.raw/.zraw) after themselves, so a renamed
+/// temporary header would point at the wrong file: write both inside a temporary folder under
+/// their final names, then move the data file first and the header last.
+void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
+                             const std::map<int, std::string>* segment_names) {
+    const std::string extension = volume_extension(path);
+    if (extension.empty())
+        throw OutputError(path.string() + ": unsupported file type '" + path.extension().string() +
+                          "'; expected one of " + supported_list);
+    if (volume.labels.size() != volume.geometry.voxel_count())
+        throw OutputError(path.string() + ": label count " + std::to_string(volume.labels.size()) +
+                          " does not match the geometry's " + std::to_string(volume.geometry.voxel_count()) +
+                          " voxels");
+    register_io_factories();
+    const auto [lowest, highest] = std::minmax_element(volume.labels.begin(), volume.labels.end());
+    const bool fits_uint16 = volume.labels.empty() || (*lowest >= 0 && *highest <= 65535);
+    const bool compress = extension != ".nii" && extension != ".mhd";
+    std::map<int, std::string> default_names;
+    if (extension == ".seg.nrrd" && !segment_names) {
+        for (std::int32_t label : volume.labels)
+            if (label != 0 && !default_names.count(label)) default_names[label] = "Label " + std::to_string(label);
+        segment_names = &default_names;
+    }
+    if (extension != ".seg.nrrd") segment_names = nullptr;
+
+    const bool detached = extension == ".mhd";
+    const fs::path staging = detached ? temporary_name(path, "") : temporary_name(path, extension);
+    const fs::path written = detached ? staging / path.filename() : staging;
+    std::error_code ignored;
+    try {
+        if (detached && !fs::create_directory(staging))
+            throw OutputError(path.string() + ": cannot create temporary folder " + staging.string());
+        if (fits_uint16) write_with_itk<std::uint16_t>(written, volume, compress, segment_names);
+        else write_with_itk<std::int32_t>(written, volume, compress, segment_names);
+        // Some ITK writers (niftilib) report failure only on stderr: confirm the result is complete.
+        if (!fs::exists(written)) throw OutputError(path.string() + ": ITK wrote no file");
+        Probe check = probe_volume(written);
+        check_data_present(written, check.location, check.header.data_bytes);
+        if (detached) {
+            for (const auto& entry : fs::directory_iterator(staging))
+                if (entry.path() != written) fs::rename(entry.path(), path.parent_path() / entry.path().filename());
+        }
+        fs::rename(written, path);
+        if (detached) fs::remove_all(staging, ignored);
+    } catch (const itk::ExceptionObject& itk_error) {
+        fs::remove_all(staging, ignored);
+        throw OutputError(path.string() + ": cannot write: " + itk_reason(itk_error));
+    } catch (const OutputError&) {
+        fs::remove_all(staging, ignored);
+        throw;
+    } catch (const std::exception& error) {
+        fs::remove_all(staging, ignored);
+        throw OutputError(path.string() + ": cannot write: " + error.what());
+    }
+}
+
+}  // namespace
+
+VolumeHeader read_volume_header(const std::filesystem::path& path) {
+    Probe probe = probe_volume(path);
+    check_single_layer(path, probe);
+    check_geometry(path, probe);
+    return probe.header;
+}
+
+LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeReadOptions& options,
+                              VolumeHeader* header) {
+    Probe probe = probe_volume(path);
+    check_single_layer(path, probe);
+    check_component_type(path, probe);
+    check_geometry(path, probe);
+    check_memory(path, probe, options);
+    check_data_present(path, probe.location, probe.header.data_bytes);
+    LabelVolume volume = read_voxels(path, probe);
+    if (header) *header = probe.header;
+    return volume;
+}
+
+void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume) {
+    write_label_volume_impl(path, volume, nullptr);
+}
+
+void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume,
+                        const std::map<int, std::string>& segment_names) {
+    write_label_volume_impl(path, volume, &segment_names);
+}
+
+}  // namespace heartsim

@@ -1,0 +1,475 @@
+/// @file test_volume_io.cpp
+/// @brief Label-map I/O: round trips through every format, hand-written files whose geometry we
+/// compute independently, the real HVSMR case against nibabel's numbers, and damaged inputs.
+#include "formats/volume_io.h"
+#include "libmodel/errors.h"
+#include "test_support.h"
+
+#include <Eigen/Geometry>
+#include <gtest/gtest.h>
+#include <zlib.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <random>
+
+namespace heartsim {
+namespace {
+
+namespace fs = std::filesystem;
+using test::TempDir;
+
+/// A small volume with a rotated, anisotropic, offset grid and labels that identify each voxel.
+LabelVolume make_test_volume(int nx, int ny, int nz, int label_scale = 1, int label_offset = 0) {
+    LabelVolume volume;
+    volume.geometry.dims = {nx, ny, nz};
+    volume.geometry.spacing = Eigen::Vector3d(0.7, 1.3, 2.1);
+    volume.geometry.origin = Eigen::Vector3d(-12.5, 33.25, 101.75);
+    volume.geometry.direction = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+    volume.labels.resize(volume.geometry.voxel_count());
+    for (std::size_t index = 0; index < volume.labels.size(); ++index)
+        volume.labels[index] = int((index * 7) % 301) * label_scale + label_offset;
+    return volume;
+}
+
+void write_bytes(const fs::path& path, const std::vector<unsigned char>& bytes) {
+    std::ofstream out(path, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
+}
+
+void append_text(std::vector<unsigned char>& bytes, const std::string& text) { bytes.insert(bytes.end(), text.begin(), text.end()); }
+
+/// Cuts `count` bytes off the end of a file, as an interrupted copy would.
+void truncate_by(const fs::path& path, std::uint64_t count) {
+    fs::resize_file(path, fs::file_size(path) - count);
+}
+
+/// Expects `action` to throw E whose message contains every one of `parts`.
+template <class E, class F>
+void expect_error(F&& action, const std::vector<std::string>& parts) {
+    try {
+        action();
+        ADD_FAILURE() << "expected an exception mentioning '" << parts.front() << "'";
+    } catch (const E& error) {
+        const std::string message = error.what();
+        for (const auto& part : parts) EXPECT_NE(message.find(part), std::string::npos) << "'" << part << "' not in: " << message;
+    }
+}
+
+// -------------------------------------------------------------------------------------------
+// A NIfTI-1 single-file image written byte by byte from the standard's field offsets (nifti1.h).
+
+struct HandNifti {
+    std::vector<unsigned char> bytes = std::vector<unsigned char>(352, 0);
+
+    template <class T>
+    void put(std::size_t offset, T value) { std::memcpy(&bytes[offset], &value, sizeof(T)); }
+
+    HandNifti(std::array<short, 3> dims, short datatype, short bitpix) {
+        put<int>(0, 348);                        // sizeof_hdr
+        put<short>(40, 3);                       // dim[0]
+        for (int d = 0; d < 3; ++d) put<short>(42 + 2 * d, dims[d]);
+        for (int d = 3; d < 7; ++d) put<short>(42 + 2 * d, 1);
+        put<short>(70, datatype);
+        put<short>(72, bitpix);
+        put<float>(76, 1.0f);                    // pixdim[0] = qfac
+        for (int d = 0; d < 3; ++d) put<float>(80 + 4 * d, 1.0f);
+        put<float>(108, 352.0f);                 // vox_offset
+        put<float>(112, 1.0f);                   // scl_slope
+        bytes[123] = 2;                          // xyzt_units: mm
+        std::memcpy(&bytes[344], "n+1\0", 4);
+    }
+    void set_pixdim(int axis, float value) { put<float>(80 + 4 * axis, value); }
+    /// sform_code 1 with rows srow_x, srow_y, srow_z (RAS mm); qform_code 0.
+    void set_sform(const Eigen::Matrix<float, 3, 4>& rows) {
+        put<short>(252, 0);
+        put<short>(254, 1);
+        for (int row = 0; row < 3; ++row)
+            for (int column = 0; column < 4; ++column) put<float>(280 + 16 * row + 4 * column, rows(row, column));
+    }
+    template <class T>
+    void append_voxels(const std::vector<T>& values) {
+        const auto* raw = reinterpret_cast<const unsigned char*>(values.data());
+        bytes.insert(bytes.end(), raw, raw + values.size() * sizeof(T));
+    }
+};
+
+// -------------------------------------------------------------------------------------------
+// Round trips.
+
+class RoundTrip : public ::testing::TestWithParam<std::string> {};
+
+void expect_same_volume(const LabelVolume& expected, const LabelVolume& actual, double tolerance) {
+    EXPECT_EQ(actual.geometry.dims, expected.geometry.dims);
+    EXPECT_TRUE(actual.labels == expected.labels) << "labels differ";
+    for (int d = 0; d < 3; ++d) {
+        EXPECT_NEAR(actual.geometry.spacing[d], expected.geometry.spacing[d], tolerance) << "spacing " << d;
+        EXPECT_NEAR(actual.geometry.origin[d], expected.geometry.origin[d], tolerance) << "origin " << d;
+        for (int e = 0; e < 3; ++e)
+            EXPECT_NEAR(actual.geometry.direction(d, e), expected.geometry.direction(d, e), tolerance)
+                << "direction " << d << "," << e;
+    }
+}
+
+/// NIfTI stores spacing and the affine as float32: relative error about 6e-8, i.e. ~1e-5 mm at
+/// 100 mm. NRRD and MetaImage store decimal text.
+double geometry_tolerance(const std::string& extension) {
+    return extension.rfind(".nii", 0) == 0 ? 2e-5 : 1e-9;
+}
+
+TEST_P(RoundTrip, SmallLabelsKeepLabelsAndGeometry) {
+    TempDir folder;
+    const fs::path path = folder / ("volume" + GetParam());
+    const LabelVolume volume = make_test_volume(9, 6, 5);
+    write_label_volume(path, volume);
+    VolumeHeader header;
+    const LabelVolume read = read_label_volume(path, {}, &header);
+    expect_same_volume(volume, read, geometry_tolerance(GetParam()));
+    EXPECT_EQ(header.component_type, "unsigned_short");  // every label fits 16 bits
+}
+
+TEST_P(RoundTrip, WideAndNegativeLabelsUseInt32) {
+    TempDir folder;
+    const fs::path path = folder / ("wide" + GetParam());
+    const LabelVolume volume = make_test_volume(5, 4, 3, 100000, -2000000);
+    write_label_volume(path, volume);
+    VolumeHeader header;
+    const LabelVolume read = read_label_volume(path, {}, &header);
+    expect_same_volume(volume, read, geometry_tolerance(GetParam()));
+    EXPECT_EQ(header.component_type, "int");
+}
+
+TEST_P(RoundTrip, LeavesOnlyTheNamedFiles) {
+    TempDir folder;
+    write_label_volume(folder / ("only" + GetParam()), make_test_volume(4, 4, 4));
+    std::vector<std::string> names;
+    for (const auto& entry : fs::directory_iterator(folder.path())) names.push_back(entry.path().filename().string());
+    std::sort(names.begin(), names.end());
+    if (GetParam() == ".mhd") {
+        ASSERT_EQ(names.size(), 2u);  // header plus its data file
+        EXPECT_EQ(names[0], "only.mhd");
+        EXPECT_EQ(names[1], "only.raw");
+    } else {
+        ASSERT_EQ(names.size(), 1u);
+        EXPECT_EQ(names[0], "only" + GetParam());
+    }
+}
+
+INSTANTIATE_TEST_SUITE_P(EveryExtension, RoundTrip,
+                         ::testing::Values(".nii", ".nii.gz", ".nrrd", ".seg.nrrd", ".mha", ".mhd"),
+                         [](const ::testing::TestParamInfo<std::string>& info) {
+                             std::string name = info.param.substr(1);
+                             std::replace(name.begin(), name.end(), '.', '_');
+                             return name;
+                         });
+
+TEST(VolumeWrite, SegNrrdKeepsSegmentNames) {
+    TempDir folder;
+    const fs::path path = folder / "named.seg.nrrd";
+    LabelVolume volume = make_test_volume(4, 3, 2);
+    for (auto& label : volume.labels) label %= 3;
+    write_label_volume(path, volume, {{1, "Myocardium"}, {2, "Blood pool"}});
+    const VolumeHeader header = read_volume_header(path);
+    EXPECT_EQ(header.segment_names, (std::map<int, std::string>{{1, "Myocardium"}, {2, "Blood pool"}}));
+}
+
+// -------------------------------------------------------------------------------------------
+// Geometry of a hand-written NIfTI, computed independently from the standard's affine.
+
+TEST(VolumeRead, HandWrittenNiftiSformGivesNiftiWorldInLps) {
+    const std::array<short, 3> dims = {4, 3, 2};
+    const Eigen::Vector3f spacing(0.6f, 0.9f, 1.7f);
+    const Eigen::Matrix3f rotation =
+        Eigen::AngleAxisf(0.5f, Eigen::Vector3f(0.2f, -1.0f, 0.7f).normalized()).toRotationMatrix();
+    Eigen::Matrix<float, 3, 4> srow;
+    srow.leftCols<3>() = rotation * spacing.asDiagonal();
+    srow.col(3) = Eigen::Vector3f(10.5f, -20.25f, 30.0f);
+
+    HandNifti nifti(dims, 2 /*uint8*/, 8);
+    for (int axis = 0; axis < 3; ++axis) nifti.set_pixdim(axis, spacing[axis]);
+    nifti.set_sform(srow);
+    std::vector<std::uint8_t> voxels(24);
+    for (std::size_t index = 0; index < voxels.size(); ++index) voxels[index] = std::uint8_t(index * 3);
+    nifti.append_voxels(voxels);
+
+    TempDir folder;
+    const fs::path path = folder / "hand.nii";
+    write_bytes(path, nifti.bytes);
+    const LabelVolume volume = read_label_volume(path);
+    ASSERT_EQ(volume.geometry.dims, (std::array<int, 3>{4, 3, 2}));
+    for (std::size_t index = 0; index < voxels.size(); ++index) EXPECT_EQ(volume.labels[index], voxels[index]);
+
+    // NIfTI world is RAS: x = srow · (i,j,k,1). LPS flips the first two axes.
+    const Eigen::Matrix3d ras_to_lps = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+    for (const Eigen::Vector3d& ijk : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(3, 0, 0), Eigen::Vector3d(0, 2, 0),
+                                      Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(3, 2, 1), Eigen::Vector3d(1, 2, 0)}) {
+        const Eigen::Vector3d ras = srow.cast<double>() * ijk.homogeneous();
+        const Eigen::Vector3d expected = ras_to_lps * ras;
+        const Eigen::Vector3d actual = volume.geometry.to_world(ijk);
+        EXPECT_LT((actual - expected).norm(), 1e-4) << "voxel " << ijk.transpose() << ": " << actual.transpose()
+                                                    << " vs " << expected.transpose();
+    }
+}
+
+// -------------------------------------------------------------------------------------------
+// Real data: HVSMR 2016 pat0, numbers measured with nibabel (README beside the file).
+
+TEST(VolumeRead, RealHvsmrCaseMatchesNibabel) {
+    const fs::path path = test::real_case("hvsmr16_pat0");
+    if (path.empty()) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA << "; skipping";
+    const LabelVolume volume = read_label_volume(path);
+    EXPECT_EQ(volume.geometry.dims, (std::array<int, 3>{127, 207, 141}));
+    EXPECT_NEAR(volume.geometry.spacing[0], 0.885417, 1e-5);
+    EXPECT_NEAR(volume.geometry.spacing[1], 0.885417, 1e-5);
+    EXPECT_NEAR(volume.geometry.spacing[2], 0.889999, 1e-5);
+    std::map<int, std::size_t> counts;
+    for (auto label : volume.labels) ++counts[label];
+    EXPECT_EQ(counts[1], 251459u);
+    EXPECT_EQ(counts[2], 635481u);
+    EXPECT_EQ(counts[0], 2819809u);
+
+    // nibabel's RAS affine (README), rounded to 1e-4 mm; LPS = diag(-1,-1,1) RAS.
+    Eigen::Matrix<double, 3, 4> ras_affine;
+    ras_affine << 0, 0, 0.8900, -78.0850,
+                  -0.8854, 0, 0, 53.4050,
+                  0, -0.8854, 0, 124.1470;
+    const Eigen::Matrix3d ras_to_lps = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+    for (const Eigen::Vector3d& ijk : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(1, 0, 0),
+                                      Eigen::Vector3d(0, 1, 0)}) {
+        const Eigen::Vector3d expected = ras_to_lps * (ras_affine * ijk.homogeneous());
+        EXPECT_LT((volume.geometry.to_world(ijk) - expected).norm(), 1e-3) << "voxel " << ijk.transpose();
+    }
+    // +k points Right (nibabel: PIR), i.e. -x in LPS, by one k spacing.
+    const Eigen::Vector3d step_k = volume.geometry.to_world({0, 0, 1}) - volume.geometry.to_world({0, 0, 0});
+    EXPECT_NEAR(step_k.x(), -0.889999, 1e-5);
+    EXPECT_NEAR(step_k.y(), 0.0, 1e-5);
+    EXPECT_NEAR(step_k.z(), 0.0, 1e-5);
+}
+
+// -------------------------------------------------------------------------------------------
+// Hand-written 3D Slicer segmentations.
+
+std::string segmentation_header(const std::string& dimension_lines) {
+    return "NRRD0004\n"
+           "# Complete NRRD file format specification at:\n"
+           "# http://teem.sourceforge.net/nrrd/format.html\n"
+           "type: unsigned char\n" +
+           dimension_lines +
+           "encoding: raw\n"
+           "space origin: (1,2,3)\n"
+           "Segment0_ID:=Segment_1\n"
+           "Segment0_Name:=Myocardium\n"
+           "Segment0_LabelValue:=1\n"
+           "Segment0_Layer:=0\n"
+           "Segment1_ID:=Segment_2\n"
+           "Segment1_Name:=Blood pool\n"
+           "Segment1_LabelValue:=2\n";
+}
+
+TEST(VolumeRead, SingleLayerSegNrrdGivesLabelsAndSegmentNames) {
+    std::vector<unsigned char> bytes;
+    append_text(bytes, segmentation_header("dimension: 3\n"
+                                           "space: left-posterior-superior\n"
+                                           "sizes: 4 3 2\n"
+                                           "space directions: (0.5,0,0) (0,0.75,0) (0,0,1.25)\n"
+                                           "kinds: domain domain domain\n") +
+                           "Segment1_Layer:=0\n\n");
+    std::vector<std::int32_t> labels(24);
+    for (std::size_t index = 0; index < labels.size(); ++index) {
+        labels[index] = int(index % 3);
+        bytes.push_back(std::uint8_t(labels[index]));
+    }
+    TempDir folder;
+    const fs::path path = folder / "heart.seg.nrrd";
+    write_bytes(path, bytes);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_EQ(volume.labels, labels);
+    EXPECT_EQ(header.format, "NRRD");
+    EXPECT_EQ(header.segment_names, (std::map<int, std::string>{{1, "Myocardium"}, {2, "Blood pool"}}));
+    EXPECT_NEAR(volume.geometry.spacing[1], 0.75, 1e-12);
+    EXPECT_NEAR(volume.geometry.origin[2], 3.0, 1e-12);
+}
+
+TEST(VolumeRead, MultiLayerSegNrrdIsRefused) {
+    std::vector<unsigned char> bytes;
+    append_text(bytes, segmentation_header("dimension: 4\n"
+                                           "space: left-posterior-superior\n"
+                                           "sizes: 2 4 3 2\n"
+                                           "space directions: none (0.5,0,0) (0,0.75,0) (0,0,1.25)\n"
+                                           "kinds: list domain domain domain\n") +
+                           "Segment1_Layer:=1\n\n");
+    bytes.resize(bytes.size() + 2 * 24, 1);
+    TempDir folder;
+    const fs::path path = folder / "layers.seg.nrrd";
+    write_bytes(path, bytes);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "multi-layer", "single layer", "labelmap"});
+}
+
+// -------------------------------------------------------------------------------------------
+// Bad input: each names the file and the problem.
+
+TEST(VolumeReadErrors, MissingFile) {
+    TempDir folder;
+    const fs::path path = folder / "absent.nii.gz";
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "not found"});
+}
+
+TEST(VolumeReadErrors, UnsupportedExtension) {
+    TempDir folder;
+    const fs::path path = folder / "labels.txt";
+    write_bytes(path, {'1', '2', '3'});
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "unsupported", ".txt", ".nii.gz", ".seg.nrrd", ".mha"});
+}
+
+TEST(VolumeReadErrors, FloatImageIsRefused) {
+    HandNifti nifti({2, 2, 2}, 16 /*float32*/, 32);
+    nifti.append_voxels(std::vector<float>{1.7f, -3.2f, 0.0f, 2.0f, 1.0f, 1.0f, 0.5f, 7.9f});
+    TempDir folder;
+    const fs::path path = folder / "probability.nii";
+    write_bytes(path, nifti.bytes);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "float image", "integer label map"});
+}
+
+TEST(VolumeReadErrors, TruncatedGzipNifti) {
+    TempDir folder;
+    const fs::path path = folder / "cut.nii.gz";
+    write_label_volume(path, make_test_volume(40, 40, 40));
+    truncate_by(path, fs::file_size(path) / 2);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "truncated", "128000 bytes"});
+}
+
+TEST(VolumeReadErrors, TruncatedPlainNifti) {
+    TempDir folder;
+    const fs::path path = folder / "cut.nii";
+    write_label_volume(path, make_test_volume(10, 10, 10));
+    truncate_by(path, 100);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "truncated", "2000 bytes"});
+}
+
+TEST(VolumeReadErrors, TruncatedMetaImage) {
+    TempDir folder;
+    const fs::path path = folder / "cut.mha";
+    write_label_volume(path, make_test_volume(40, 40, 40));
+    truncate_by(path, 200);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "truncated"});
+}
+
+TEST(VolumeReadErrors, TruncatedMetaImageDataFile) {
+    TempDir folder;
+    const fs::path path = folder / "cut.mhd";
+    write_label_volume(path, make_test_volume(10, 10, 10));
+    truncate_by(folder / "cut.raw", 10);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "truncated", "cut.raw"});
+}
+
+TEST(VolumeReadErrors, TruncatedNrrd) {
+    TempDir folder;
+    const fs::path path = folder / "cut.nrrd";
+    write_label_volume(path, make_test_volume(40, 40, 40));
+    truncate_by(path, 30);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "truncated"});
+}
+
+/// A valid uint8 2×2×2 NIfTI except for one pixdim.
+fs::path nifti_with_spacing(const TempDir& folder, const std::string& name, int axis, float value) {
+    HandNifti nifti({2, 2, 2}, 2, 8);
+    nifti.set_pixdim(axis, value);
+    nifti.append_voxels(std::vector<std::uint8_t>(8, 1));
+    const fs::path path = folder / name;
+    write_bytes(path, nifti.bytes);
+    return path;
+}
+
+TEST(VolumeReadErrors, ZeroSpacing) {
+    TempDir folder;
+    const fs::path path = nifti_with_spacing(folder, "zero.nii", 1, 0.0f);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along j", "pixdim[2] is 0"});
+}
+
+TEST(VolumeReadErrors, NegativeSpacing) {
+    TempDir folder;
+    const fs::path path = nifti_with_spacing(folder, "negative.nii", 0, -1.5f);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along i", "pixdim[1] is -1.5"});
+}
+
+TEST(VolumeReadErrors, NanSpacing) {
+    TempDir folder;
+    const fs::path path = nifti_with_spacing(folder, "nan.nii", 2, std::numeric_limits<float>::quiet_NaN());
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along k", "pixdim[3] is nan"});
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "pixdim[3]"});
+}
+
+TEST(VolumeReadErrors, ZeroSpacingNrrd) {
+    // A zero space-direction vector: ITK's NRRD reader reports spacing 0 for that axis.
+    std::vector<unsigned char> bytes;
+    append_text(bytes, "NRRD0004\ntype: unsigned char\ndimension: 3\nspace: left-posterior-superior\n"
+                       "sizes: 2 2 2\nspace directions: (0,0,0) (0,1,0) (0,0,1)\nencoding: raw\n\n");
+    bytes.resize(bytes.size() + 8, 1);
+    TempDir folder;
+    const fs::path path = folder / "flat.nrrd";
+    write_bytes(path, bytes);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along i", "expected a finite positive"});
+}
+
+TEST(VolumeReadErrors, NegativeSpacingMetaImage) {
+    // MetaIO reports the -2 as written; ITK's reader would quietly make it +2.
+    std::vector<unsigned char> bytes;
+    append_text(bytes, "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+                       "ElementSpacing = 1 1 -2\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
+    bytes.resize(bytes.size() + 8, 1);
+    TempDir folder;
+    const fs::path path = folder / "mirrored.mha";
+    write_bytes(path, bytes);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along k: -2"});
+}
+
+TEST(VolumeReadErrors, TooLargeFailsOnTheEstimate) {
+    // 60000³ bytes claimed, 16 present: must be refused on the estimate, before any allocation.
+    std::vector<unsigned char> bytes;
+    append_text(bytes,
+                "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+                "ElementSpacing = 1 1 1\nDimSize = 60000 60000 60000\nElementType = MET_UCHAR\n"
+                "ElementDataFile = LOCAL\n");
+    bytes.resize(bytes.size() + 16, 0);
+    TempDir folder;
+    const fs::path path = folder / "huge.mha";
+    write_bytes(path, bytes);
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "too large", "60000×60000×60000"});
+}
+
+TEST(VolumeReadErrors, MemoryLimitOption) {
+    TempDir folder;
+    const fs::path path = folder / "small.nrrd";
+    write_label_volume(path, make_test_volume(10, 10, 10));
+    expect_error<InputError>([&] { read_label_volume(path, {.memory_limit_bytes = 1000}); },
+                             {path.string(), "too large", "memory limit"});
+    EXPECT_NO_THROW(read_label_volume(path, {.memory_limit_bytes = 16000}));
+}
+
+TEST(VolumeWriteErrors, MissingFolderLeavesNoFile) {
+    TempDir folder;
+    const fs::path path = folder / "missing" / "out.nii.gz";
+    expect_error<OutputError>([&] { write_label_volume(path, make_test_volume(4, 4, 4)); }, {path.string()});
+    EXPECT_FALSE(fs::exists(folder / "missing"));
+    EXPECT_TRUE(fs::is_empty(folder.path()));
+}
+
+TEST(VolumeWriteErrors, FailedRenameRemovesTemporaryFile) {
+    // The target name is taken by a non-empty folder: the temporary file is written, the rename
+    // fails, and nothing but the folder may remain.
+    TempDir folder;
+    const fs::path path = folder / "taken.nrrd";
+    fs::create_directory(path);
+    write_bytes(path / "keep", {'x'});
+    expect_error<OutputError>([&] { write_label_volume(path, make_test_volume(4, 4, 4)); }, {path.string()});
+    std::vector<fs::path> entries(fs::directory_iterator(folder.path()), fs::directory_iterator{});
+    ASSERT_EQ(entries.size(), 1u);
+    EXPECT_EQ(entries[0].filename(), "taken.nrrd");
+}
+
+}  // namespace
+}  // namespace heartsim
