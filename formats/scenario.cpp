@@ -145,9 +145,10 @@ public:
     template <class T> void attribute(hid_t where, const char* name, T value) { attribute(where, name, &value, {}); }
 
     void ints(hid_t where, const char* name, const std::vector<int>& values) {
+        // An empty list is a zero-length attribute; H5Awrite still wants a non-null buffer.
         std::vector<std::int32_t> copy(values.begin(), values.end());
-        const std::int32_t none = 0;
-        attribute(where, name, copy.empty() ? &none : copy.data(), {hsize_t(copy.size())});
+        const std::int32_t unused = 0;
+        attribute(where, name, copy.empty() ? &unused : copy.data(), {hsize_t(copy.size())});
     }
 
     void matrix(hid_t where, const char* name, const Eigen::Matrix4d& m) {

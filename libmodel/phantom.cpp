@@ -28,19 +28,24 @@ bool in_ellipsoid(const Eigen::Vector3d& x, const Eigen::Vector3d& c, const Eige
 }
 
 /// Fills a grid covering [low, high] (mm) plus margin with label(x) at voxel centres.
+/// With `cut_at_top`, no margin above `high.z()`: the shape is cut by the volume's top face, as a
+/// crop cuts the great vessels of a real scan.
 template <class LabelAt>
-LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d high, LabelAt label_at) {
+LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d high, LabelAt label_at,
+                   bool cut_at_top = false) {
     low.array() -= o.margin_mm;
     high.array() += o.margin_mm;
+    if (cut_at_top) high.z() -= o.margin_mm;
     const Eigen::Vector3d extent = high - low;
     const double voxel = o.size > 0 ? extent.maxCoeff() / o.size : o.voxel_mm;
     LabelVolume volume;
     auto& g = volume.geometry;
     for (int a = 0; a < 3; ++a) g.dims[std::size_t(a)] = std::max(1, int(std::ceil(extent[a] / voxel - 1e-9)));
     g.spacing = Eigen::Vector3d::Constant(voxel);
-    // Centre the grid on the box so the shape sits symmetrically.
+    // Centre the grid on the box so the shape sits symmetrically; a cut top face stays at high.z.
     const Eigen::Vector3d covered(g.dims[0] * voxel, g.dims[1] * voxel, g.dims[2] * voxel);
     g.origin = 0.5 * (low + high) - 0.5 * covered + Eigen::Vector3d::Constant(0.5 * voxel);
+    if (cut_at_top) g.origin.z() = high.z() - covered.z() + 0.5 * voxel;
     const double voxels = double(g.dims[0]) * g.dims[1] * g.dims[2];
     if (voxels > 2.0e9) throw InputError("phantom of " + std::to_string(voxels) + " voxels is too large: raise --voxel");
     volume.labels.assign(g.voxel_count(), 0);
@@ -64,7 +69,8 @@ LabelVolume make_heart(const PhantomOptions& o) {
 
     const double r = o.lv_radius_mm, length = o.lv_length_mm, w = o.wall_mm;
     // LV centred at the origin; the base plane cuts both ventricles open at 60% of the long
-    // semi-axis above the equator, as the valve planes open a real heart.
+    // semi-axis above the equator, as the valve planes open a real heart. The base lies on the
+    // volume's top face, so `--anchor-border` anchors it as it anchors cut vessels in a crop.
     const Eigen::Vector3d lv_centre(0, 0, 0);
     const Eigen::Vector3d lv_cavity(r, r, length);
     const Eigen::Vector3d lv_outer = lv_cavity + Eigen::Vector3d::Constant(w);
@@ -101,7 +107,7 @@ LabelVolume make_heart(const PhantomOptions& o) {
         const bool in_defect = vsd_radius > 0 && x.x() < 0 && in_ellipsoid(x, rv_centre, rv_cavity) &&
                                std::hypot(x.y() - vsd_y, x.z() - vsd_z) <= vsd_radius;
         return in_defect ? 2 : 1;
-    });
+    }, /*cut_at_top=*/true);
 }
 
 }  // namespace

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Sets up a fresh Debian 12 machine (as root), builds heartsim, and runs the main job on the
+# bundled sample: heartprep build samples/phantom.nii.gz -> out/phantom.h5, then inspects it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+bash scripts/install-deps.sh
+cmake --preset release >/dev/null
+cmake --build --preset release -j "$(nproc)" --target heartprep
+
+mkdir -p out
+build/release/tools/heartprep build samples/phantom.nii.gz -o out/phantom.h5 --cavity 2 --anchor-border
+build/release/tools/heartprep inspect out/phantom.h5

@@ -1,0 +1,212 @@
+// The scenario file: a write/read round trip of every dataset, and the reader's refusals.
+#include "formats/scenario.h"
+#include "libmodel/errors.h"
+#include "libmodel/lattice.h"
+#include "libmodel/select.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <hdf5.h>
+
+#include <cmath>
+#include <fstream>
+
+using namespace heartsim;
+
+namespace {
+
+Scenario sample_scenario() {
+    LabelVolume v;
+    v.geometry.dims = {10, 8, 6};
+    v.geometry.spacing = Eigen::Vector3d(0.9, 1.1, 1.3);
+    v.geometry.origin = Eigen::Vector3d(-4.5, 12.0, 30.25);
+    v.geometry.direction << 0, 1, 0, -1, 0, 0, 0, 0, 1;
+    v.labels.assign(v.geometry.voxel_count(), 0);
+    for (int k = 1; k < 5; ++k)
+        for (int j = 1; j < 7; ++j)
+            for (int i = 1; i < 9; ++i) v.labels[v.geometry.linear(i, j, k)] = 1;
+    Scenario s;
+    s.generator = "test";
+    s.source.file_name = "block.nii.gz";
+    s.source.sha256 = std::string(64, 'a');
+    s.source.geometry = v.geometry;
+    s.source.tissue_labels = {1};
+    s.source.cavity_labels = {2, 3};
+    s.source.anchor_border = true;
+    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
+    s.lattice = layout_particles(selection, {1}, v, {.spacing_mm = 1.7, .occupancy = 0.3});
+    s.lattice.particles.anchored[0] = 1;
+    VisualMesh mesh;
+    mesh.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    mesh.normals = {{0, 0, -1}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    mesh.triangles = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+    s.visual = mesh;
+    s.solver.dt_ms = 0.05;
+    s.solver.critical_dt_ms = 0.11;
+    s.solver.critical_dt_bound_ms = 0.07;
+    s.solver.substeps = 3;
+    s.solver.damping = 0.01;
+    s.solver.gravity = Eigen::Vector3d(0, 9.81e-3, 0);
+    return s;
+}
+
+/// Rewrites one dataset of an existing file in place (to damage it on purpose).
+template <class T>
+void overwrite(const std::filesystem::path& file, const char* dataset, const std::vector<T>& values, hid_t type) {
+    hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+    ASSERT_GE(H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
+    H5Dclose(d);
+    H5Fclose(f);
+}
+
+void remove_object(const std::filesystem::path& file, const char* name) {
+    hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    H5Ldelete(f, name, H5P_DEFAULT);
+    H5Fclose(f);
+}
+
+std::string refusal(const std::filesystem::path& file) {
+    try {
+        read_scenario(file);
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+}  // namespace
+
+TEST(Scenario, RoundTripKeepsEveryDataset) {
+    test::TempDir dir;
+    const Scenario s = sample_scenario();
+    write_scenario(dir / "s.h5", s);
+    const Scenario r = read_scenario(dir / "s.h5");
+
+    EXPECT_EQ(r.generator, s.generator);
+    EXPECT_EQ(r.source.file_name, s.source.file_name);
+    EXPECT_EQ(r.source.sha256, s.source.sha256);
+    EXPECT_EQ(r.source.geometry.dims, s.source.geometry.dims);
+    EXPECT_TRUE(r.source.geometry.spacing.isApprox(s.source.geometry.spacing, 1e-15));
+    EXPECT_TRUE(r.source.geometry.origin.isApprox(s.source.geometry.origin, 1e-15));
+    EXPECT_TRUE(r.source.geometry.direction.isApprox(s.source.geometry.direction, 1e-15));
+    EXPECT_EQ(r.source.tissue_labels, s.source.tissue_labels);
+    EXPECT_EQ(r.source.cavity_labels, s.source.cavity_labels);
+    EXPECT_EQ(r.source.anchor_labels, s.source.anchor_labels);
+    EXPECT_EQ(r.source.anchor_border, s.source.anchor_border);
+
+    EXPECT_EQ(r.lattice.spacing, s.lattice.spacing);
+    EXPECT_EQ(r.lattice.dims, s.lattice.dims);
+    EXPECT_EQ(r.lattice.index_to_world, s.lattice.index_to_world);
+    ASSERT_EQ(r.lattice.materials.size(), s.lattice.materials.size());
+    EXPECT_EQ(r.lattice.materials[0].name, s.lattice.materials[0].name);
+    EXPECT_EQ(r.lattice.materials[0].label, s.lattice.materials[0].label);
+    EXPECT_FLOAT_EQ(float(r.lattice.materials[0].density), float(s.lattice.materials[0].density));
+    EXPECT_FLOAT_EQ(float(r.lattice.materials[0].youngs_modulus_kpa), float(s.lattice.materials[0].youngs_modulus_kpa));
+    EXPECT_FLOAT_EQ(float(r.lattice.materials[0].damping_ratio), float(s.lattice.materials[0].damping_ratio));
+
+    const auto& p = r.lattice.particles;
+    EXPECT_EQ(p.rest_position, s.lattice.particles.rest_position);
+    EXPECT_EQ(p.lattice_index, s.lattice.particles.lattice_index);
+    EXPECT_EQ(p.mass, s.lattice.particles.mass);
+    EXPECT_EQ(p.material, s.lattice.particles.material);
+    EXPECT_EQ(p.anchored, s.lattice.particles.anchored);
+    EXPECT_EQ(r.lattice.springs.pairs, s.lattice.springs.pairs);
+    EXPECT_EQ(r.lattice.springs.rest_length, s.lattice.springs.rest_length);
+    EXPECT_EQ(r.lattice.springs.stiffness, s.lattice.springs.stiffness);
+
+    ASSERT_TRUE(r.visual.has_value());
+    EXPECT_EQ(r.visual->positions, s.visual->positions);
+    EXPECT_EQ(r.visual->normals, s.visual->normals);
+    EXPECT_EQ(r.visual->triangles, s.visual->triangles);
+
+    EXPECT_EQ(r.solver.dt_ms, s.solver.dt_ms);
+    EXPECT_EQ(r.solver.substeps, s.solver.substeps);
+    EXPECT_EQ(r.solver.damping, s.solver.damping);
+    EXPECT_EQ(r.solver.gravity, s.solver.gravity);
+    EXPECT_EQ(r.solver.critical_dt_ms, s.solver.critical_dt_ms);
+    EXPECT_EQ(r.solver.critical_dt_bound_ms, s.solver.critical_dt_bound_ms);
+}
+
+TEST(Scenario, VisualIsOptional) {
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    s.visual.reset();
+    write_scenario(dir / "s.h5", s);
+    EXPECT_FALSE(read_scenario(dir / "s.h5").visual.has_value());
+}
+
+TEST(Scenario, ReaderNamesTheDatasetAndTheProblem) {
+    test::TempDir dir;
+    const Scenario s = sample_scenario();
+    const std::size_t n = s.lattice.particles.size();
+    auto fresh = [&](const char* name) {
+        auto path = dir / name;
+        write_scenario(path, s);
+        return path;
+    };
+
+    auto file = fresh("nan.h5");
+    auto positions = std::vector<float>(3 * n, 0.0f);
+    positions[4] = std::nanf("");
+    overwrite(file, "particles/rest_position", positions, H5T_NATIVE_FLOAT);
+    EXPECT_NE(refusal(file).find("particles/rest_position: value 4 is not finite"), std::string::npos) << refusal(file);
+
+    file = fresh("range.h5");
+    auto pairs = std::vector<std::int32_t>(2 * s.lattice.springs.size(), 0);
+    for (std::size_t i = 0; i < s.lattice.springs.size(); ++i) {
+        pairs[2 * i] = 0;
+        pairs[2 * i + 1] = std::int32_t(n + 5);
+    }
+    overwrite(file, "springs/pairs", pairs, H5T_NATIVE_INT32);
+    EXPECT_NE(refusal(file).find("springs/pairs: entry 1 is"), std::string::npos) << refusal(file);
+
+    file = fresh("mass.h5");
+    overwrite(file, "particles/mass", std::vector<float>(n, -1.0f), H5T_NATIVE_FLOAT);
+    EXPECT_NE(refusal(file).find("particles/mass"), std::string::npos) << refusal(file);
+
+    file = fresh("missing.h5");
+    remove_object(file, "springs/stiffness");
+    EXPECT_NE(refusal(file).find("springs/stiffness: missing dataset"), std::string::npos) << refusal(file);
+
+    file = fresh("triangles.h5");
+    overwrite(file, "visual/triangles", std::vector<std::int32_t>(12, 9), H5T_NATIVE_INT32);
+    EXPECT_NE(refusal(file).find("visual/triangles"), std::string::npos) << refusal(file);
+
+    std::ofstream(dir / "text.h5") << "not hdf5";
+    EXPECT_NE(refusal(dir / "text.h5").find("not an HDF5 file"), std::string::npos);
+    EXPECT_NE(refusal(dir / "absent.h5").find("file not found"), std::string::npos);
+}
+
+TEST(Scenario, WrongElementTypeIsRefused) {
+    test::TempDir dir;
+    const auto file = dir / "type.h5";
+    write_scenario(file, sample_scenario());
+    // Replace /particles/mass by a float64 dataset of the same shape.
+    const std::size_t n = sample_scenario().lattice.particles.size();
+    hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    H5Ldelete(f, "particles/mass", H5P_DEFAULT);
+    hsize_t dims[1] = {n};
+    hid_t space = H5Screate_simple(1, dims, nullptr);
+    hid_t set = H5Dcreate2(f, "particles/mass", H5T_IEEE_F64LE, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+    std::vector<double> ones(n, 1.0);
+    H5Dwrite(set, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, ones.data());
+    H5Dclose(set);
+    H5Sclose(space);
+    H5Fclose(f);
+    EXPECT_NE(refusal(file).find("particles/mass: has element type float64, expected float32"), std::string::npos) << refusal(file);
+}
+
+TEST(Scenario, FailedWriteLeavesNoFile) {
+    test::TempDir dir;
+    EXPECT_THROW(write_scenario(dir / "no" / "such" / "folder.h5", sample_scenario()), OutputError);
+    EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+}
+
+TEST(Scenario, Sha256OfAKnownString) {
+    test::TempDir dir;
+    std::ofstream(dir / "abc.txt") << "abc";
+    // FIPS 180-2, appendix B.1.
+    EXPECT_EQ(sha256_file(dir / "abc.txt"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+}
