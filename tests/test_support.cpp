@@ -2,6 +2,7 @@
 
 #include <array>
 #include <cstdio>
+#include <fstream>
 #include <random>
 #include <sys/wait.h>
 
@@ -45,6 +46,11 @@ Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vect
                 mask.values[mask.geometry.linear(i, j, k)] =
                     inside(mask.geometry.to_world(Eigen::Vector3d(i, j, k))) ? 1 : 0;
     return mask;
+}
+
+void write_bytes(const std::filesystem::path& path, const std::vector<unsigned char>& bytes) {
+    std::ofstream out(path, std::ios::binary);
+    out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
 }
 
 CommandResult run_command(const std::string& command) {

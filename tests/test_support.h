@@ -4,7 +4,10 @@
 
 #include "libmodel/volume.h"
 
+#include <array>
+#include <cstring>
 #include <filesystem>
+#include <vector>
 #include <functional>
 #include <string>
 
@@ -39,5 +42,44 @@ struct CommandResult {
 
 /// Runs `command` through the shell, capturing stdout and stderr together.
 CommandResult run_command(const std::string& command);
+
+/// Writes `bytes` to `path` (replacing it).
+void write_bytes(const std::filesystem::path& path, const std::vector<unsigned char>& bytes);
+
+/// A NIfTI-1 single-file image written byte by byte from the standard's field offsets (nifti1.h).
+struct HandNifti {
+    std::vector<unsigned char> bytes = std::vector<unsigned char>(352, 0);
+
+    template <class T>
+    void put(std::size_t offset, T value) { std::memcpy(&bytes[offset], &value, sizeof(T)); }
+
+    HandNifti(std::array<short, 3> dims, short datatype, short bitpix) {
+        put<int>(0, 348);                        // sizeof_hdr
+        put<short>(40, 3);                       // dim[0]
+        for (int d = 0; d < 3; ++d) put<short>(42 + 2 * d, dims[d]);
+        for (int d = 3; d < 7; ++d) put<short>(42 + 2 * d, 1);
+        put<short>(70, datatype);
+        put<short>(72, bitpix);
+        put<float>(76, 1.0f);                    // pixdim[0] = qfac
+        for (int d = 0; d < 3; ++d) put<float>(80 + 4 * d, 1.0f);
+        put<float>(108, 352.0f);                 // vox_offset
+        put<float>(112, 1.0f);                   // scl_slope
+        bytes[123] = 2;                          // xyzt_units: mm
+        std::memcpy(&bytes[344], "n+1\0", 4);
+    }
+    void set_pixdim(int axis, float value) { put<float>(80 + 4 * axis, value); }
+    /// sform_code 1 with rows srow_x, srow_y, srow_z (RAS mm); qform_code 0.
+    void set_sform(const Eigen::Matrix<float, 3, 4>& rows) {
+        put<short>(252, 0);
+        put<short>(254, 1);
+        for (int row = 0; row < 3; ++row)
+            for (int column = 0; column < 4; ++column) put<float>(280 + 16 * row + 4 * column, rows(row, column));
+    }
+    template <class T>
+    void append_voxels(const std::vector<T>& values) {
+        const auto* raw = reinterpret_cast<const unsigned char*>(values.data());
+        bytes.insert(bytes.end(), raw, raw + values.size() * sizeof(T));
+    }
+};
 
 }  // namespace heartsim::test

@@ -45,9 +45,8 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     Scenario scenario;
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
     scenario.source.file_name = options.input.filename().string();
-    scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
-
     auto [volume, selection] = read_and_select(options.input, options.selection, progress, report);
+    scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
     scenario.source.geometry = volume.geometry;
     scenario.source.tissue_labels = options.selection.tissue_labels;
     scenario.source.cavity_labels = options.selection.cavity_labels;
