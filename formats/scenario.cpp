@@ -7,6 +7,7 @@
 #include <hdf5.h>
 #include <openssl/evp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -181,6 +182,7 @@ void write_contents(Writer& w, const Scenario& s) {
     w.attribute(root, "frame", std::string("LPS"));
     w.attribute(root, "generator", s.generator);
     w.attribute(root, "source_sha256", s.source.sha256);
+    if (!s.batch_key.empty()) w.attribute(root, "batch_key", s.batch_key);
 
     {
         H5Object g = w.group("source");
@@ -247,6 +249,27 @@ void write_contents(Writer& w, const Scenario& s) {
         w.dataset(g.get(), "positions", v.positions.data()->data(), v.positions.size(), 3);
         w.dataset(g.get(), "normals", v.normals.data()->data(), v.normals.size(), 3);
         w.dataset(g.get(), "triangles", v.triangles.data()->data(), v.triangles.size(), 3);
+    }
+    if (s.packing) {
+        H5Object g = w.group("packing");
+        const auto& p = *s.packing;
+        w.dataset(g.get(), "neighbours", p.neighbours.data()->data(), p.neighbours.size(), 18);
+        w.dataset(g.get(), "texture_coord", p.texture_coord.data()->data(), p.texture_coord.size(), 2);
+        H5Object set(H5Dopen2(g.get(), "texture_coord", H5P_DEFAULT), H5Dclose);
+        w.attribute(set.get(), "width", std::int32_t(p.width));
+        w.attribute(set.get(), "height", std::int32_t(p.height));
+        w.attribute(set.get(), "scheme", std::string(to_string(p.scheme)));
+    }
+    if (s.simulation_surface) {
+        H5Object g = w.group("simsurface");
+        w.dataset(g.get(), "triangles", s.simulation_surface->data()->data(), s.simulation_surface->size(), 3);
+    }
+    if (s.mapping) {
+        H5Object g = w.group("mapping");
+        const auto& m = *s.mapping;
+        w.dataset(g.get(), "triangle", m.triangle.data(), m.triangle.size());
+        w.dataset(g.get(), "barycentric", m.barycentric.data()->data(), m.barycentric.size(), 3);
+        w.dataset(g.get(), "offset", m.offset.data(), m.offset.size());
     }
     {
         H5Object g = w.group("solver");
@@ -429,6 +452,79 @@ void require_indices(const Reader& r, const char* name, const std::vector<std::i
                              std::to_string(limit) + ")");
 }
 
+/// /packing, /simsurface and /mapping, each optional, validated against the particles.
+void read_packing_and_mapping(const Reader& r, Scenario& s) {
+    const std::size_t n = s.lattice.particles.size();
+    if (r.exists("packing")) {
+        Packing p;
+        auto flat = r.dataset<std::int32_t>("packing/neighbours", long(n), 18);
+        p.neighbours = rows_of<std::int32_t, 18>(flat);
+        for (std::size_t i = 0; i < n; ++i)
+            for (int slot = 0; slot < 18; ++slot) {
+                const std::int32_t j = p.neighbours[i][std::size_t(slot)];
+                if (j == -1) continue;
+                if (j < 0 || std::size_t(j) >= n)
+                    r.fail("packing/neighbours", "row " + std::to_string(i) + " slot " + std::to_string(slot) + " is " +
+                                                     std::to_string(j) + ", outside [-1, " + std::to_string(n) + ")");
+                if (p.neighbours[std::size_t(j)][std::size_t(opposite_slot(slot))] != std::int32_t(i))
+                    r.fail("packing/neighbours", "not symmetric: particle " + std::to_string(i) + " slot " + std::to_string(slot) +
+                                                     " holds " + std::to_string(j) + " but " + std::to_string(j) +
+                                                     "'s opposite slot does not hold " + std::to_string(i));
+            }
+        for (std::size_t k = 0; k < s.lattice.springs.size(); ++k) {
+            const auto [a, b] = s.lattice.springs.pairs[k];
+            const auto& row = p.neighbours[std::size_t(a)];
+            if (std::find(row.begin(), row.end(), b) == row.end())
+                r.fail("packing/neighbours", "spring " + std::to_string(k) + " (" + std::to_string(a) + ", " + std::to_string(b) +
+                                                 ") has no neighbour slot");
+        }
+        p.texture_coord = rows_of<std::int32_t, 2>(r.dataset<std::int32_t>("packing/texture_coord", long(n), 2));
+        H5Object set(H5Dopen2(r.file(), "packing/texture_coord", H5P_DEFAULT), H5Dclose);
+        p.width = r.scalar<std::int32_t>(set.get(), "/packing/texture_coord", "width");
+        p.height = r.scalar<std::int32_t>(set.get(), "/packing/texture_coord", "height");
+        try {
+            p.scheme = parse_packing_scheme(r.string_attribute(set.get(), "/packing/texture_coord", "scheme"));
+        } catch (const InputError& e) {
+            r.fail("/packing/texture_coord", std::string("attribute scheme: ") + e.what());
+        }
+        if (p.width <= 0 || p.height <= 0) r.fail("/packing/texture_coord", "width and height must be positive");
+        std::vector<std::uint8_t> used(std::size_t(p.width) * std::size_t(p.height), 0);
+        for (std::size_t i = 0; i < n; ++i) {
+            const auto [x, y] = p.texture_coord[i];
+            if (x < 0 || y < 0 || x >= p.width || y >= p.height)
+                r.fail("packing/texture_coord", "row " + std::to_string(i) + " lies outside the " + std::to_string(p.width) + " x " +
+                                                    std::to_string(p.height) + " texture");
+            if (used[std::size_t(y) * std::size_t(p.width) + std::size_t(x)]++)
+                r.fail("packing/texture_coord", "row " + std::to_string(i) + " shares its texel with another particle");
+        }
+        s.packing = std::move(p);
+    }
+    if (r.exists("simsurface")) {
+        auto flat = r.dataset<std::int32_t>("simsurface/triangles", -1, 3);
+        require_indices(r, "simsurface/triangles", flat, n);
+        s.simulation_surface = rows_of<std::int32_t, 3>(flat);
+    }
+    if (r.exists("mapping")) {
+        if (!s.visual) r.fail("mapping", "present without /visual");
+        if (!s.simulation_surface) r.fail("mapping", "present without /simsurface");
+        const long v = long(s.visual->positions.size());
+        VisualMapping m;
+        m.triangle = r.dataset<std::int32_t>("mapping/triangle", v, 0);
+        require_indices(r, "mapping/triangle", m.triangle, s.simulation_surface->size());
+        auto weights = r.dataset<float>("mapping/barycentric", v, 3);
+        require_finite(r, "mapping/barycentric", weights);
+        m.barycentric = rows_of<float, 3>(weights);
+        for (std::size_t i = 0; i < m.barycentric.size(); ++i) {
+            const auto& b = m.barycentric[i];
+            if (std::abs(double(b[0]) + b[1] + b[2] - 1.0) > 1e-3)
+                r.fail("mapping/barycentric", "row " + std::to_string(i) + " does not sum to 1");
+        }
+        m.offset = r.dataset<float>("mapping/offset", v, 0);
+        require_finite(r, "mapping/offset", m.offset);
+        s.mapping = std::move(m);
+    }
+}
+
 Scenario read_contents(const Reader& r) {
     Scenario s;
     const hid_t root = r.file();
@@ -442,6 +538,7 @@ Scenario read_contents(const Reader& r) {
     if (r.string_attribute(root, "/", "frame") != "LPS") r.fail("/", "attribute frame must be 'LPS'");
     s.generator = r.string_attribute(root, "/", "generator");
     s.source.sha256 = r.string_attribute(root, "/", "source_sha256");
+    if (r.has_attribute(root, "batch_key")) s.batch_key = r.string_attribute(root, "/", "batch_key");
 
     {
         H5Object g = r.object("source");
@@ -557,6 +654,7 @@ Scenario read_contents(const Reader& r) {
         v.triangles = rows_of<std::int32_t, 3>(triangles);
         s.visual = std::move(v);
     }
+    read_packing_and_mapping(r, s);
     {
         H5Object g = r.object("solver");
         auto& solver = s.solver;
@@ -624,26 +722,47 @@ Scenario read_scenario(const std::filesystem::path& path) {
     return read_contents(reader);
 }
 
+namespace {
+
+/// Feeds bytes to SHA-256 through OpenSSL's EVP interface and returns lowercase hex.
+class Sha256 {
+public:
+    Sha256() : context_(EVP_MD_CTX_new(), EVP_MD_CTX_free) { EVP_DigestInit_ex(context_.get(), EVP_sha256(), nullptr); }
+    void add(const void* data, std::size_t size) { EVP_DigestUpdate(context_.get(), data, size); }
+    std::string hex() {
+        unsigned char digest[EVP_MAX_MD_SIZE];
+        unsigned int length = 0;
+        EVP_DigestFinal_ex(context_.get(), digest, &length);
+        static const char* digits = "0123456789abcdef";
+        std::string text;
+        for (unsigned int i = 0; i < length; ++i) {
+            text += digits[digest[i] >> 4];
+            text += digits[digest[i] & 15];
+        }
+        return text;
+    }
+private:
+    std::unique_ptr<EVP_MD_CTX, void (*)(EVP_MD_CTX*)> context_;
+};
+
+}  // namespace
+
 std::string sha256_file(const std::filesystem::path& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot be read");
-    std::unique_ptr<EVP_MD_CTX, void (*)(EVP_MD_CTX*)> context(EVP_MD_CTX_new(), EVP_MD_CTX_free);
-    EVP_DigestInit_ex(context.get(), EVP_sha256(), nullptr);
+    Sha256 hash;
     std::vector<char> buffer(1 << 16);
     while (in) {
         in.read(buffer.data(), std::streamsize(buffer.size()));
-        EVP_DigestUpdate(context.get(), buffer.data(), std::size_t(in.gcount()));
+        hash.add(buffer.data(), std::size_t(in.gcount()));
     }
-    unsigned char digest[EVP_MAX_MD_SIZE];
-    unsigned int length = 0;
-    EVP_DigestFinal_ex(context.get(), digest, &length);
-    static const char* hex = "0123456789abcdef";
-    std::string text;
-    for (unsigned int i = 0; i < length; ++i) {
-        text += hex[digest[i] >> 4];
-        text += hex[digest[i] & 15];
-    }
-    return text;
+    return hash.hex();
+}
+
+std::string sha256_text(const std::string& text) {
+    Sha256 hash;
+    hash.add(text.data(), text.size());
+    return hash.hex();
 }
 
 }  // namespace heartsim

@@ -5,6 +5,8 @@
 #pragma once
 
 #include "libmodel/lattice.h"
+#include "libmodel/mapping.h"
+#include "libmodel/packing.h"
 #include "libmodel/mesh.h"
 #include "libmodel/volume.h"
 
@@ -49,10 +51,19 @@ struct VisualMesh {
 
 struct Scenario {
     std::string generator;            ///< tool name and version
+    /// `heartprep batch`'s key: SHA-256 of (input bytes, build options, generator); empty outside
+    /// a batch. A batch skips a case whose existing scenario carries the key it would write.
+    std::string batch_key;
     ScenarioSource source;
     Lattice lattice;                  ///< spacing, dims, index_to_world, materials, particles, springs
     std::optional<VisualMesh> visual;
     SolverSettings solver;
+    /// /packing: present once the particles are packed (then particles are in packed order).
+    std::optional<Packing> packing;
+    /// /simsurface/triangles: particle indices, counter-clockwise seen from outside.
+    std::optional<std::vector<std::array<std::int32_t, 3>>> simulation_surface;
+    /// /mapping: one row per visual vertex; needs /visual and /simsurface.
+    std::optional<VisualMapping> mapping;
 };
 
 /// Converts a world-space mesh to the file's float32 layout.
@@ -65,10 +76,15 @@ void write_scenario(const std::filesystem::path& path, const Scenario& scenario)
 /// Reads and validates a scenario. Throws InputError naming the file, the dataset or attribute,
 /// and what was expected, for: a missing file, not HDF5, a wrong `format`, a newer
 /// `format_version`, a missing or misshapen dataset, a wrong element type, an index out of
-/// range, a non-finite value, a non-positive mass, spacing or time step.
+/// range, a non-finite value, a non-positive mass, spacing or time step; a neighbour table that
+/// is not symmetric or disagrees with /springs; texels outside the texture or shared; mapping
+/// rows that do not match /visual or point outside /simsurface.
 Scenario read_scenario(const std::filesystem::path& path);
 
 /// SHA-256 of a file's bytes, lowercase hex. Throws InputError if it cannot be read.
 std::string sha256_file(const std::filesystem::path& path);
+
+/// SHA-256 of a string's bytes, lowercase hex.
+std::string sha256_text(const std::string& text);
 
 }  // namespace heartsim

@@ -1,0 +1,57 @@
+/// @file mapping.h
+/// @brief Ties every visual-mesh vertex to a simulation-surface triangle (Mosegaard & Sørensen,
+/// EGVE 2005), so a coarse simulation deforms a detailed mesh. The formula (SCENARIO.md):
+///   n_i = normalise(Σ over surface triangles (a,b,c) containing i of (x_b − x_a) × (x_c − x_a))
+///   p   = λa·x_a + λb·x_b + λc·x_c + d · normalise(λa·n_a + λb·n_b + λc·n_c)
+/// The weights λ (summing to 1) and offset d are solved so that p reproduces the visual vertex
+/// at rest exactly, not merely taken from a closest-point projection.
+#pragma once
+
+#include "mesh.h"
+#include "progress.h"
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct VisualMapping {
+    std::vector<std::int32_t> triangle;               ///< V: row in the simulation-surface triangles
+    std::vector<std::array<float, 3>> barycentric;    ///< V×3: λa, λb, λc, summing to 1
+    std::vector<float> offset;                        ///< V: d, mm along the interpolated normal
+};
+
+struct MappingReport {
+    double max_rest_error_mm = 0.0;     ///< max |p(rest) − visual vertex| over vertices (float32 evaluation)
+    double mean_offset_mm = 0.0;        ///< mean |d|
+    double max_offset_mm = 0.0;         ///< max |d|
+    std::size_t outside_triangle = 0;   ///< vertices whose weights fall outside [0, 1] (extrapolated)
+    std::vector<std::string> warnings;  ///< e.g. a visual mesh far from the tissue
+};
+
+struct MappingOptions {
+    /// Warn when the mean |offset| exceeds this many lattice spacings (a mesh far from the tissue).
+    double far_warning_spacings = 2.0;
+    double lattice_spacing_mm = 1.0;    ///< to scale the warning
+};
+
+/// Particle normals n_i of the formula above (N×3; zero for particles on no triangle).
+std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float, 3>>& positions,
+                                              const std::vector<std::array<std::int32_t, 3>>& triangles);
+
+/// Evaluates the formula for every visual vertex at particle positions `positions` (N×3, mm).
+std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const std::vector<std::array<float, 3>>& positions,
+                                           const std::vector<std::array<std::int32_t, 3>>& triangles);
+
+/// Solves the mapping of `visual_positions` (V, world mm) onto the simulation surface
+/// (`triangles` over particles at `rest_positions`). Candidate triangles come from a CGAL AABB
+/// tree. Throws InputError for an empty visual mesh or an empty simulation surface.
+VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions,
+                              const std::vector<std::array<float, 3>>& rest_positions,
+                              const std::vector<std::array<std::int32_t, 3>>& triangles, const MappingOptions& options = {},
+                              Progress& progress = null_progress(), MappingReport* report = nullptr);
+
+}  // namespace heartsim
