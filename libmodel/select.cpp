@@ -4,7 +4,7 @@
 
 #include <algorithm>
 #include <sstream>
-#include <unordered_map>
+#include <map>
 
 namespace heartsim {
 
@@ -70,13 +70,38 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
             throw InputError("label " + std::to_string(label) + " is given both as tissue and as cavity");
 
     ProgressStage stage(progress, "select tissue", 3);
-    std::unordered_map<int, std::size_t> label_counts;
-    for (std::int32_t label : volume.labels) ++label_counts[label];
+    // Roles per label through a lookup table for the usual label range (label maps are 8- or
+    // 16-bit), a search only for labels outside it: one pass over a 57-million-voxel volume
+    // must not hash every voxel.
+    constexpr std::int32_t table_size = 65536;
+    enum Role : std::uint8_t { tissue_role = 1, cavity_role = 2, anchor_role = 4 };
+    std::vector<std::uint8_t> role_table(table_size, 0);
+    for (int label : options.tissue_labels) if (label >= 0 && label < table_size) role_table[std::size_t(label)] |= tissue_role;
+    for (int label : options.cavity_labels) if (label >= 0 && label < table_size) role_table[std::size_t(label)] |= cavity_role;
+    for (int label : options.anchor_labels) if (label >= 0 && label < table_size) role_table[std::size_t(label)] |= anchor_role;
+    auto role_of = [&](std::int32_t value) -> std::uint8_t {
+        if (value >= 0 && value < table_size) return role_table[std::size_t(value)];
+        auto in = [&](const std::vector<int>& labels) { return std::find(labels.begin(), labels.end(), value) != labels.end(); };
+        return std::uint8_t((in(options.tissue_labels) ? tissue_role : 0) | (in(options.cavity_labels) ? cavity_role : 0) |
+                            (in(options.anchor_labels) ? anchor_role : 0));
+    };
+
+    std::vector<std::size_t> histogram(table_size, 0);
+    std::map<std::int32_t, std::size_t> other_labels;
+    for (std::int32_t label : volume.labels) {
+        if (label >= 0 && label < table_size) ++histogram[std::size_t(label)];
+        else ++other_labels[label];
+    }
+    auto occurs = [&](int label) {
+        return label >= 0 && label < table_size ? histogram[std::size_t(label)] > 0 : other_labels.count(label) > 0;
+    };
     auto require_present = [&](const std::vector<int>& labels, const char* role) {
         for (int label : labels) {
-            if (label_counts.count(label)) continue;
+            if (occurs(label)) continue;
             std::vector<int> present;
-            for (const auto& [value, count] : label_counts) present.push_back(value);
+            for (std::int32_t value = 0; value < table_size; ++value)
+                if (histogram[std::size_t(value)]) present.push_back(value);
+            for (const auto& [value, count] : other_labels) present.push_back(value);
             std::sort(present.begin(), present.end());
             throw InputError(std::string(role) + " label " + std::to_string(label) +
                              " does not occur in the volume (labels present: " + join(present) + ")");
@@ -86,22 +111,14 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
     require_present(options.cavity_labels, "cavity");
     require_present(options.anchor_labels, "anchor");
 
-    auto is_one_of = [](const std::vector<int>& labels) {
-        return [labels](std::int32_t value) {
-            return std::find(labels.begin(), labels.end(), value) != labels.end();
-        };
-    };
-    const auto is_tissue = is_one_of(options.tissue_labels);
-    const auto is_cavity = is_one_of(options.cavity_labels);
-    const auto is_anchor = is_one_of(options.anchor_labels);
-
     Selection selection;
     selection.tissue.geometry = g;
     selection.tissue.values.resize(g.voxel_count());
     SelectionReport report;
     for (std::size_t v = 0; v < volume.labels.size(); ++v) {
-        selection.tissue.values[v] = is_tissue(volume.labels[v]) ? 1 : 0;
-        if (is_cavity(volume.labels[v])) ++report.cavity_voxels;
+        const std::uint8_t role = role_of(volume.labels[v]);
+        selection.tissue.values[v] = (role & tissue_role) ? 1 : 0;
+        report.cavity_voxels += (role & cavity_role) ? 1 : 0;
     }
     stage.update(1);
     if (progress.cancelled()) throw Cancelled();
@@ -152,7 +169,7 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
                 const std::size_t v = g.linear(i, j, k);
                 const bool on_border = i == 0 || j == 0 || k == 0 || i + 1 == g.dims[0] ||
                                        j + 1 == g.dims[1] || k + 1 == g.dims[2];
-                if (is_anchor(volume.labels[v]) || (options.anchor_border && on_border && selection.tissue.values[v]))
+                if ((role_of(volume.labels[v]) & anchor_role) || (options.anchor_border && on_border && selection.tissue.values[v]))
                     selection.anchors.values[v] = 1;
             }
     report.anchor_voxels = selection.anchors.count();

@@ -8,9 +8,9 @@
 namespace heartsim {
 
 struct StabilityEstimate {
-    /// Largest eigenvalue of M⁻¹K estimated by power iteration (Rayleigh quotient of the
-    /// symmetric M^(−1/2) K M^(−1/2), anchored particles removed), 1/ms². A Rayleigh quotient
-    /// never exceeds the true value, so it approaches it from below.
+    /// Largest eigenvalue of M⁻¹K estimated by Lanczos iteration (the largest Ritz value of the
+    /// symmetric M^(−1/2) K M^(−1/2), anchored particles removed), 1/ms². A Ritz value is a
+    /// Rayleigh quotient and never exceeds the true value: it approaches it from below.
     double max_eigenvalue = 0.0;
     /// 2 / sqrt(max_eigenvalue), ms: the estimate of the critical step.
     double critical_dt_ms = 0.0;
@@ -20,13 +20,14 @@ struct StabilityEstimate {
     /// 2 / sqrt(eigenvalue_bound), ms: a proven lower bound on the critical step.
     double critical_dt_bound_ms = 0.0;
     int iterations = 0;
-    bool converged = false;  ///< relative change of the estimate fell below the tolerance
+    /// The Ritz residual bound |A·y − θ·y| fell below tolerance·θ (then λmax − θ is far smaller).
+    bool converged = false;
 };
 
 /// Estimates the critical time step of the springs' stiffness at rest (K_ij = k n nᵀ per
 /// spring, damping ignored). Deterministic: fixed start vector, serial reductions.
 /// A network with no free particle or no spring gives infinite steps.
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
-                                              int max_iterations = 500, double tolerance = 1e-7);
+                                              int max_iterations = 300, double tolerance = 1e-6);
 
 }  // namespace heartsim
