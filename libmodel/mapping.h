@@ -29,6 +29,13 @@ struct MappingReport {
     double mean_offset_mm = 0.0;        ///< mean |d|
     double max_offset_mm = 0.0;         ///< max |d|
     std::size_t outside_triangle = 0;   ///< vertices whose weights fall outside [0, 1] (extrapolated)
+    /// Vertices for which no candidate triangle gave an exact solution: mapped by closest-point
+    /// projection instead (not exact at rest; expected 0).
+    std::size_t unsolved = 0;
+    /// Vertices mapped onto a triangle with a particle whose normal sum nearly cancels (both sides
+    /// of a one-particle-thick wall): their deformed positions follow an unstable normal.
+    std::size_t unstable_normal = 0;
+    double seconds = 0.0;               ///< wall time of map_visual_mesh
     std::vector<std::string> warnings;  ///< e.g. a visual mesh far from the tissue
 };
 
@@ -42,7 +49,10 @@ struct MappingOptions {
 std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float, 3>>& positions,
                                               const std::vector<std::array<std::int32_t, 3>>& triangles);
 
-/// Evaluates the formula for every visual vertex at particle positions `positions` (N×3, mm).
+/// Evaluates the formula for every visual vertex at particle positions `positions` (N×3, mm),
+/// in float32 exactly as the runtime's vertex shader does, in this order:
+///   p = (λa·x_a + λb·x_b) + λc·x_c;  m = (λa·n_a + λb·n_b) + λc·n_c;  p + d·(m / sqrt(m·m))
+/// (m = 0 gives p). Normals from particle_normals(positions, triangles).
 std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const std::vector<std::array<float, 3>>& positions,
                                            const std::vector<std::array<std::int32_t, 3>>& triangles);
 

@@ -1,0 +1,488 @@
+/// @file mapping.cpp
+/// @brief The visual-mesh mapping (Mosegaard & Sørensen, EGVE 2005) with the formula of
+/// SCENARIO.md solved exactly: for each visual vertex v, over candidate triangles (a,b,c) from an
+/// AABB tree, Newton's method on F(λb, λc, d) = λa·x_a + λb·x_b + λc·x_c + d·m̂(λ) − v = 0
+/// (λa = 1 − λb − λc, m = Σ λ·n), started from the closest point. Among exact solutions the one
+/// with all weights in [0, 1] and the smallest |d| wins; else the least extrapolated.
+#include "mapping.h"
+
+#include "errors.h"
+#include "mapping_candidates.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <optional>
+#include <sstream>
+
+namespace heartsim {
+
+namespace {
+
+using Vec3 = Eigen::Vector3d;
+
+void check_triangles(std::size_t particles, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    for (std::size_t t = 0; t < triangles.size(); ++t)
+        for (int v : triangles[t])
+            if (v < 0 || std::size_t(v) >= particles)
+                throw InputError("mapping: simulation-surface triangle " + std::to_string(t) + " refers to particle " +
+                                 std::to_string(v) + ", but there are " + std::to_string(particles));
+}
+
+Eigen::Vector3f to_vector(const std::array<float, 3>& p) { return Eigen::Vector3f(p[0], p[1], p[2]); }
+
+/// The formula in float32, in the order documented in mapping.h (the shader's order).
+Eigen::Vector3f evaluate_float(const std::array<std::int32_t, 3>& t, const std::array<float, 3>& lambda, float d,
+                               const std::vector<std::array<float, 3>>& x, const std::vector<Eigen::Vector3f>& n) {
+    const Eigen::Vector3f xa = to_vector(x[std::size_t(t[0])]), xb = to_vector(x[std::size_t(t[1])]), xc = to_vector(x[std::size_t(t[2])]);
+    const Eigen::Vector3f& na = n[std::size_t(t[0])];
+    const Eigen::Vector3f& nb = n[std::size_t(t[1])];
+    const Eigen::Vector3f& nc = n[std::size_t(t[2])];
+    Eigen::Vector3f p = Eigen::Vector3f::Zero(), m = Eigen::Vector3f::Zero();
+    for (int k = 0; k < 3; ++k) {
+        p[k] = (lambda[0] * xa[k] + lambda[1] * xb[k]) + lambda[2] * xc[k];
+        m[k] = (lambda[0] * na[k] + lambda[1] * nb[k]) + lambda[2] * nc[k];
+    }
+    const float length = std::sqrt(m.dot(m));
+    if (length > 0.0f)
+        for (int k = 0; k < 3; ++k) p[k] += d * (m[k] / length);
+    return p;
+}
+
+/// Closest point on triangle (a,b,c) to q as barycentric weights (Ericson, Real-Time Collision
+/// Detection, 5.1.5).
+Vec3 closest_barycentric(const Vec3& q, const Vec3& a, const Vec3& b, const Vec3& c) {
+    const Vec3 ab = b - a, ac = c - a, ap = q - a;
+    const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    if (d1 <= 0 && d2 <= 0) return {1, 0, 0};
+    const Vec3 bp = q - b;
+    const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    if (d3 >= 0 && d4 <= d3) return {0, 1, 0};
+    const double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        const double v = d1 / (d1 - d3);
+        return {1 - v, v, 0};
+    }
+    const Vec3 cp = q - c;
+    const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    if (d6 >= 0 && d5 <= d6) return {0, 0, 1};
+    const double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        const double w = d2 / (d2 - d6);
+        return {1 - w, 0, w};
+    }
+    const double va = d3 * d6 - d5 * d4;
+    if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        const double w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return {0, 1 - w, w};
+    }
+    const double denominator = va + vb + vc;
+    if (!(std::abs(denominator) > 0)) return {1.0 / 3, 1.0 / 3, 1.0 / 3};
+    const double v = vb / denominator, w = vc / denominator;
+    return {1 - v - w, v, w};
+}
+
+struct Solution {
+    std::int32_t triangle = -1;
+    Vec3 lambda{1, 0, 0};
+    double offset = 0.0;
+    double residual = std::numeric_limits<double>::infinity();
+    /// How far the weights leave [0, 1]: max(0, −min λ, max λ − 1).
+    double extrapolation = std::numeric_limits<double>::infinity();
+    bool exact = false;
+    bool unstable_normal = false;
+};
+
+/// Everything the per-vertex solve reads.
+struct Problem {
+    const std::vector<Vec3>& x;                        ///< particle positions, double
+    const std::vector<Vec3>& n;                        ///< particle normals (the float ones, widened)
+    const std::vector<char>& unstable;                 ///< particle normal nearly cancels
+    const std::vector<std::array<std::int32_t, 3>>& triangles;
+};
+
+constexpr double accept_residual_mm = 1e-6;   // the contract's solve tolerance (double)
+constexpr double target_residual_mm = 1e-10;  // what Newton aims for, to leave room for float32
+constexpr double inside_tolerance = 1e-7;     // weights this far outside [0, 1] count as inside
+constexpr double min_normal_length = 0.2;     // |Σ λ·n| below this: the normal field is unreliable
+
+/// Residual and Jacobian of F(λb, λc, d) on triangle t.
+struct Evaluation {
+    Vec3 residual = Vec3::Zero();
+    Eigen::Matrix3d jacobian = Eigen::Matrix3d::Zero();
+    double normal_length = 0.0;
+};
+
+Evaluation evaluate(const Problem& problem, std::int32_t t, const Vec3& unknowns, const Vec3& v) {
+    const auto& tri = problem.triangles[std::size_t(t)];
+    const Vec3& xa = problem.x[std::size_t(tri[0])];
+    const Vec3 eb = problem.x[std::size_t(tri[1])] - xa, ec = problem.x[std::size_t(tri[2])] - xa;
+    const Vec3& na = problem.n[std::size_t(tri[0])];
+    const Vec3 fb = problem.n[std::size_t(tri[1])] - na, fc = problem.n[std::size_t(tri[2])] - na;
+    const double lb = unknowns[0], lc = unknowns[1], d = unknowns[2];
+    const Vec3 m = na + lb * fb + lc * fc;
+    Evaluation e;
+    e.normal_length = m.norm();
+    if (!(e.normal_length > 0)) return e;
+    const Vec3 unit = m / e.normal_length;
+    e.residual = xa + lb * eb + lc * ec + d * unit - v;
+    const Eigen::Matrix3d projector = (Eigen::Matrix3d::Identity() - unit * unit.transpose()) / e.normal_length;
+    e.jacobian.col(0) = eb + d * projector * fb;
+    e.jacobian.col(1) = ec + d * projector * fc;
+    e.jacobian.col(2) = unit;
+    return e;
+}
+
+/// Newton's method with backtracking from the closest point of triangle t.
+Solution solve_on_triangle(const Problem& problem, std::int32_t t, const Vec3& v, const Vec3& start_lambda) {
+    Solution s;
+    s.triangle = t;
+    const auto& tri = problem.triangles[std::size_t(t)];
+    s.unstable_normal = problem.unstable[std::size_t(tri[0])] || problem.unstable[std::size_t(tri[1])] ||
+                        problem.unstable[std::size_t(tri[2])];
+    Vec3 u(start_lambda[1], start_lambda[2], 0.0);
+    {
+        const Vec3 p0 = start_lambda[0] * problem.x[std::size_t(tri[0])] + start_lambda[1] * problem.x[std::size_t(tri[1])] +
+                        start_lambda[2] * problem.x[std::size_t(tri[2])];
+        const Vec3 m = start_lambda[0] * problem.n[std::size_t(tri[0])] + start_lambda[1] * problem.n[std::size_t(tri[1])] +
+                       start_lambda[2] * problem.n[std::size_t(tri[2])];
+        if (!(m.norm() > 0)) return s;
+        u[2] = (v - p0).dot(m.normalized());
+    }
+    Evaluation e = evaluate(problem, t, u, v);
+    if (e.normal_length < min_normal_length) return s;
+    double r = e.residual.norm();
+    for (int iteration = 0; iteration < 40 && r > target_residual_mm; ++iteration) {
+        const Eigen::PartialPivLU<Eigen::Matrix3d> lu(e.jacobian);
+        if (!(std::abs(lu.determinant()) > 1e-300)) break;
+        const Vec3 step = lu.solve(-e.residual);
+        if (!step.allFinite()) break;
+        double alpha = 1.0;
+        bool improved = false;
+        for (int halving = 0; halving < 12; ++halving, alpha *= 0.5) {
+            const Vec3 trial = u + alpha * step;
+            Evaluation trial_e = evaluate(problem, t, trial, v);
+            if (trial_e.normal_length < min_normal_length) continue;
+            const double trial_r = trial_e.residual.norm();
+            if (trial_r < r) {
+                u = trial;
+                e = trial_e;
+                r = trial_r;
+                improved = true;
+                break;
+            }
+        }
+        if (!improved) break;
+        if (std::abs(u[0]) > 1e3 || std::abs(u[1]) > 1e3) break;  // diverging: far outside the triangle
+    }
+    s.lambda = Vec3(1.0 - u[0] - u[1], u[0], u[1]);
+    s.offset = u[2];
+    s.residual = r;
+    s.exact = r < accept_residual_mm && e.normal_length >= min_normal_length;
+    s.extrapolation = std::max({0.0, -s.lambda.minCoeff(), s.lambda.maxCoeff() - 1.0});
+    return s;
+}
+
+/// Preference tiers of an exact solution, best first: 0 inside the triangle with stable normals;
+/// 1 stable, weights at most `mild_extrapolation` outside [0, 1]; 2 inside but on a thin wall's
+/// unstable normal; 3 stable, further out; 4 the rest.
+constexpr double mild_extrapolation = 0.5;
+int tier(const Solution& s) {
+    const bool inside = s.extrapolation <= inside_tolerance;
+    if (!s.unstable_normal) return inside ? 0 : (s.extrapolation <= mild_extrapolation ? 1 : 3);
+    return inside ? 2 : 4;
+}
+
+/// Is `a` a better exact solution than `b`? The lower tier; within a tier the smallest |d|
+/// (inside) or the least extrapolation (outside); ties to the lower triangle row.
+bool better(const Solution& a, const Solution& b) {
+    if (!b.exact) return a.exact;
+    if (!a.exact) return false;
+    const int ta = tier(a), tb = tier(b);
+    if (ta != tb) return ta < tb;
+    if (ta == 0 || ta == 2) {
+        if (std::abs(a.offset) != std::abs(b.offset)) return std::abs(a.offset) < std::abs(b.offset);
+    } else if (a.extrapolation != b.extrapolation) {
+        return a.extrapolation < b.extrapolation;
+    }
+    return a.triangle < b.triangle;
+}
+
+struct Candidate {
+    double distance;
+    std::int32_t triangle;
+    Vec3 lambda;
+};
+
+Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSearch& search, const Vec3& v,
+                      double edge_length, std::vector<std::int32_t>& ids, std::vector<Candidate>& candidates) {
+    const auto [closest_triangle, closest_point] = search.closest(v);
+    const double closest_distance = (v - closest_point).norm();
+    // Search radii: first the closest distance plus half an edge; then, without a stable inside
+    // solution, up to two edges more (an inside solution's triangle lies within |d| of v, so a
+    // stable inside |d| beyond the radius widens it to |d|). At most `max_solves` Newton solves.
+    const double widest = closest_distance + 2.0 * edge_length;
+    double radius = closest_distance + 0.5 * edge_length;
+    constexpr int max_solves = 64;
+    int solves = 0;
+    Solution best;
+    double searched = -1.0;  // candidates with distance <= searched have been solved
+    for (int round = 0; round < 3 && solves < max_solves; ++round) {
+        ids.clear();
+        search.near(v, radius, ids);
+        candidates.clear();
+        for (std::int32_t t : ids) {
+            const auto& tri = problem.triangles[std::size_t(t)];
+            const Vec3& a = problem.x[std::size_t(tri[0])];
+            const Vec3& b = problem.x[std::size_t(tri[1])];
+            const Vec3& c = problem.x[std::size_t(tri[2])];
+            const Vec3 lambda = closest_barycentric(v, a, b, c);
+            const double distance = (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+            if (distance > radius || distance <= searched) continue;
+            candidates.push_back({distance, t, lambda});
+        }
+        std::sort(candidates.begin(), candidates.end(), [](const Candidate& p, const Candidate& q) {
+            return p.distance != q.distance ? p.distance < q.distance : p.triangle < q.triangle;
+        });
+        for (const Candidate& candidate : candidates) {
+            // An inside solution on a triangle lies |d| from v, so a triangle farther than the best
+            // stable inside |d| cannot beat it.
+            if (best.exact && tier(best) == 0 && candidate.distance > std::abs(best.offset)) break;
+            if (solves++ >= max_solves) break;
+            const Solution s = solve_on_triangle(problem, candidate.triangle, v, candidate.lambda);
+            if (better(s, best)) best = s;
+        }
+        searched = radius;
+        if (best.exact && tier(best) == 0) {
+            if (std::abs(best.offset) <= radius) break;
+            radius = std::abs(best.offset) * (1 + 1e-9) + 1e-9;
+        } else {
+            if (radius >= widest) break;
+            radius = widest;
+        }
+    }
+    if (!best.exact) {
+        // Nothing exact nearby (a thin wall's cancelled normals all round, or visual surface with
+        // no particles under it): wider searches, 6 to 48 edges, up to 512 more solves each.
+        for (double edges = 6.0; edges <= 48.0 && !best.exact; edges *= 2.0) {
+        const double wide = closest_distance + edges * edge_length;
+        ids.clear();
+        search.near(v, wide, ids);
+        candidates.clear();
+        for (std::int32_t t : ids) {
+            const auto& tri = problem.triangles[std::size_t(t)];
+            const Vec3& a = problem.x[std::size_t(tri[0])];
+            const Vec3& b = problem.x[std::size_t(tri[1])];
+            const Vec3& c = problem.x[std::size_t(tri[2])];
+            const Vec3 lambda = closest_barycentric(v, a, b, c);
+            const double distance = (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+            if (distance > searched && distance <= wide) candidates.push_back({distance, t, lambda});
+        }
+        std::sort(candidates.begin(), candidates.end(), [](const Candidate& p, const Candidate& q) {
+            return p.distance != q.distance ? p.distance < q.distance : p.triangle < q.triangle;
+        });
+        if (candidates.size() > 512) candidates.resize(512);
+        for (const Candidate& candidate : candidates) {
+            const Solution s = solve_on_triangle(problem, candidate.triangle, v, candidate.lambda);
+            if (better(s, best)) best = s;
+        }
+        searched = wide;
+        }
+    }
+    if (!best.exact) {
+        // No exact solution anywhere near: the closest-point projection (reported, not exact).
+        const auto& tri = problem.triangles[std::size_t(closest_triangle)];
+        best = Solution{};
+        best.triangle = closest_triangle;
+        best.lambda = closest_barycentric(v, problem.x[std::size_t(tri[0])], problem.x[std::size_t(tri[1])],
+                                          problem.x[std::size_t(tri[2])]);
+        const Vec3 m = best.lambda[0] * problem.n[std::size_t(tri[0])] + best.lambda[1] * problem.n[std::size_t(tri[1])] +
+                       best.lambda[2] * problem.n[std::size_t(tri[2])];
+        best.offset = m.norm() > 0 ? (v - closest_point).dot(m.normalized()) : 0.0;
+        best.extrapolation = 0.0;
+        best.exact = false;
+    }
+    return best;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float, 3>>& positions,
+                                              const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    check_triangles(positions.size(), triangles);
+    std::vector<Eigen::Vector3f> normals(positions.size(), Eigen::Vector3f::Zero());
+    for (const auto& t : triangles) {
+        const Eigen::Vector3f a = to_vector(positions[std::size_t(t[0])]);
+        const Eigen::Vector3f area = (to_vector(positions[std::size_t(t[1])]) - a).cross(to_vector(positions[std::size_t(t[2])]) - a);
+        for (int v : t) normals[std::size_t(v)] += area;
+    }
+    for (auto& n : normals) {
+        const float length = std::sqrt(n.dot(n));
+        n = length > 0.0f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero();
+    }
+    return normals;
+}
+
+std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const std::vector<std::array<float, 3>>& positions,
+                                           const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    const std::size_t count = mapping.triangle.size();
+    if (mapping.barycentric.size() != count || mapping.offset.size() != count)
+        throw InputError("mapping: triangle, barycentric and offset must have one entry per visual vertex");
+    for (std::size_t v = 0; v < count; ++v)
+        if (mapping.triangle[v] < 0 || std::size_t(mapping.triangle[v]) >= triangles.size())
+            throw InputError("mapping: vertex " + std::to_string(v) + " refers to triangle " +
+                             std::to_string(mapping.triangle[v]) + " of " + std::to_string(triangles.size()));
+    const std::vector<Eigen::Vector3f> normals = particle_normals(positions, triangles);
+    std::vector<Eigen::Vector3f> out(count);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t v = range.begin(); v < range.end(); ++v)
+            out[v] = evaluate_float(triangles[std::size_t(mapping.triangle[v])], mapping.barycentric[v], mapping.offset[v],
+                                    positions, normals);
+    });
+    return out;
+}
+
+VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions,
+                              const std::vector<std::array<float, 3>>& rest_positions,
+                              const std::vector<std::array<std::int32_t, 3>>& triangles, const MappingOptions& options,
+                              Progress& progress, MappingReport* report_out) {
+    const auto start_time = std::chrono::steady_clock::now();
+    if (visual_positions.empty()) throw InputError("mapping: the visual mesh has no vertices");
+    if (triangles.empty()) throw InputError("mapping: the simulation surface has no triangles");
+    check_triangles(rest_positions.size(), triangles);
+    for (std::size_t v = 0; v < visual_positions.size(); ++v)
+        if (!visual_positions[v].allFinite())
+            throw InputError("mapping: visual vertex " + std::to_string(v) + " is not finite");
+    for (const auto& p : rest_positions)
+        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+            throw InputError("mapping: a particle rest position is not finite");
+
+    const std::size_t particle_count = rest_positions.size();
+    std::vector<Vec3> x(particle_count);
+    for (std::size_t i = 0; i < particle_count; ++i) x[i] = Vec3(rest_positions[i][0], rest_positions[i][1], rest_positions[i][2]);
+    // Solve against the float normals the runtime computes, widened: the float evaluation then
+    // differs from the solved one by rounding only.
+    const std::vector<Eigen::Vector3f> normals_float = particle_normals(rest_positions, triangles);
+    std::vector<Vec3> n(particle_count);
+    for (std::size_t i = 0; i < particle_count; ++i) n[i] = normals_float[i].cast<double>();
+    // A normal whose summed area vectors nearly cancel (|Σ c| < 0.3 Σ|c|, both sides of a thin
+    // wall) has a direction set by rounding: avoid triangles that use it.
+    std::vector<char> unstable(particle_count, 0);
+    double edge_sum = 0.0;
+    {
+        std::vector<Vec3> sum(particle_count, Vec3::Zero());
+        std::vector<double> magnitude(particle_count, 0.0);
+        for (const auto& t : triangles) {
+            const Vec3 c = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).cross(x[std::size_t(t[2])] - x[std::size_t(t[0])]);
+            for (int v : t) {
+                sum[std::size_t(v)] += c;
+                magnitude[std::size_t(v)] += c.norm();
+            }
+            edge_sum += (x[std::size_t(t[1])] - x[std::size_t(t[0])]).norm() + (x[std::size_t(t[2])] - x[std::size_t(t[1])]).norm() +
+                        (x[std::size_t(t[0])] - x[std::size_t(t[2])]).norm();
+        }
+        for (std::size_t i = 0; i < particle_count; ++i)
+            unstable[i] = magnitude[i] > 0 && sum[i].norm() < 0.3 * magnitude[i];
+    }
+    const double edge_length = edge_sum / (3.0 * double(triangles.size()));
+
+    const mapping_internal::TriangleSearch search(x, triangles);
+    const Problem problem{x, n, unstable, triangles};
+    const std::size_t count = visual_positions.size();
+    std::vector<Solution> solutions(count);
+    {
+        ProgressStage stage(progress, "map visual mesh", count);
+        std::atomic<std::uint64_t> done{0};
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 256), [&](const tbb::blocked_range<std::size_t>& range) {
+            if (progress.cancelled()) throw Cancelled();
+            std::vector<std::int32_t> ids;
+            std::vector<Candidate> candidates;
+            for (std::size_t v = range.begin(); v < range.end(); ++v)
+                solutions[v] = solve_vertex(problem, search, visual_positions[v], edge_length, ids, candidates);
+            stage.update(done += range.size());
+        });
+    }
+
+    // Round to float32; where rounding leaves more than 1e-5 mm, a few Newton corrections on the
+    // float evaluation's own residual (iterative refinement) bring it back to rounding level.
+    VisualMapping mapping;
+    mapping.triangle.resize(count);
+    mapping.barycentric.resize(count);
+    mapping.offset.resize(count);
+    std::vector<double> error(count, 0.0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t v = range.begin(); v < range.end(); ++v) {
+            const Solution& s = solutions[v];
+            const auto& tri = triangles[std::size_t(s.triangle)];
+            auto round = [](const Vec3& lambda) {
+                // λa from the other two, so the stored weights sum to 1 as closely as float allows.
+                const float lb = float(lambda[1]), lc = float(lambda[2]);
+                return std::array<float, 3>{float(1.0 - double(lb) - double(lc)), lb, lc};
+            };
+            std::array<float, 3> lambda = round(s.lambda);
+            float d = float(s.offset);
+            auto float_error = [&](const std::array<float, 3>& l, float o) {
+                const Eigen::Vector3f p = evaluate_float(tri, l, o, rest_positions, normals_float);
+                return Vec3(double(p[0]) - visual_positions[v][0], double(p[1]) - visual_positions[v][1],
+                            double(p[2]) - visual_positions[v][2]);
+            };
+            Vec3 e = float_error(lambda, d);
+            if (s.exact && e.norm() > 1e-5) {
+                Vec3 u(s.lambda[1], s.lambda[2], s.offset);
+                for (int pass = 0; pass < 3 && e.norm() > 1e-5; ++pass) {
+                    const Evaluation at = evaluate(problem, s.triangle, u, visual_positions[v]);
+                    const Vec3 trial_u = u + at.jacobian.partialPivLu().solve(-e);
+                    const std::array<float, 3> trial_lambda = round(Vec3(1 - trial_u[0] - trial_u[1], trial_u[0], trial_u[1]));
+                    const Vec3 trial_e = float_error(trial_lambda, float(trial_u[2]));
+                    if (!(trial_e.norm() < e.norm())) break;
+                    u = trial_u;
+                    lambda = trial_lambda;
+                    d = float(trial_u[2]);
+                    e = trial_e;
+                }
+            }
+            mapping.triangle[v] = s.triangle;
+            mapping.barycentric[v] = lambda;
+            mapping.offset[v] = d;
+            error[v] = e.norm();
+        }
+    });
+
+    MappingReport report;
+    double offset_sum = 0.0;
+    for (std::size_t v = 0; v < count; ++v) {
+        const Solution& s = solutions[v];
+        report.max_rest_error_mm = std::max(report.max_rest_error_mm, error[v]);
+        offset_sum += std::abs(double(mapping.offset[v]));
+        report.max_offset_mm = std::max(report.max_offset_mm, std::abs(double(mapping.offset[v])));
+        if (s.extrapolation > 1e-6) ++report.outside_triangle;
+        if (!s.exact) ++report.unsolved;
+        if (s.unstable_normal) ++report.unstable_normal;
+    }
+    report.mean_offset_mm = offset_sum / double(count);
+    if (report.mean_offset_mm > options.far_warning_spacings * options.lattice_spacing_mm) {
+        std::ostringstream message;
+        message << "the visual mesh lies far from the tissue: mean offset " << report.mean_offset_mm << " mm is more than "
+                << options.far_warning_spacings << " lattice spacings (" << options.lattice_spacing_mm << " mm)";
+        report.warnings.push_back(message.str());
+    }
+    if (report.unsolved > 0)
+        report.warnings.push_back(std::to_string(report.unsolved) +
+                                  " visual vertices have no exact mapping (closest-point projection used); largest rest error " +
+                                  std::to_string(report.max_rest_error_mm) + " mm");
+    if (report.unstable_normal > 0)
+        report.warnings.push_back(std::to_string(report.unstable_normal) +
+                                  " visual vertices are tied to particles of one-particle-thick walls, whose normals nearly "
+                                  "cancel: they may move erratically when deformed");
+    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
+    if (report_out) *report_out = std::move(report);
+    return mapping;
+}
+
+}  // namespace heartsim

@@ -1,0 +1,263 @@
+// The simulation surface against facts that follow from the particle set alone: a block's
+// boundary, the Euler characteristic of a torus, the two boundaries of a thick shell, and for
+// every dual-cube configuration and random particle sets, closedness and boundary vertices.
+#include "libmodel/errors.h"
+#include "libmodel/lattice.h"
+#include "libmodel/mesh.h"
+#include "libmodel/simulation_surface.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <map>
+#include <random>
+#include <set>
+
+using namespace heartsim;
+
+namespace {
+
+/// A lattice of `dims` cells at `spacing` mm with a particle wherever `occupied(i,j,k)`.
+Lattice make_lattice(std::array<int, 3> dims, double spacing, const std::function<bool(int, int, int)>& occupied,
+                     Eigen::Matrix3d direction = Eigen::Matrix3d::Identity()) {
+    Lattice lattice;
+    lattice.spacing = spacing;
+    lattice.dims = dims;
+    lattice.index_to_world.topLeftCorner<3, 3>() = direction * spacing;
+    lattice.index_to_world.topRightCorner<3, 1>() = Eigen::Vector3d(-3.0, 5.0, 7.0);
+    for (int k = 0; k < dims[2]; ++k)
+        for (int j = 0; j < dims[1]; ++j)
+            for (int i = 0; i < dims[0]; ++i) {
+                if (!occupied(i, j, k)) continue;
+                const Eigen::Vector3d x = (lattice.index_to_world * Eigen::Vector4d(i, j, k, 1)).head<3>();
+                lattice.particles.rest_position.push_back({float(x.x()), float(x.y()), float(x.z())});
+                lattice.particles.lattice_index.push_back({i, j, k});
+                lattice.particles.mass.push_back(1.0f);
+                lattice.particles.material.push_back(0);
+                lattice.particles.anchored.push_back(0);
+            }
+    return lattice;
+}
+
+MeshReport analyse(const Lattice& lattice, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    return analyse_mesh(simulation_surface_mesh(lattice.particles.rest_position, triangles));
+}
+
+/// Every vertex is a particle with at least one of its 6 face neighbours missing.
+void expect_vertices_on_boundary(const Lattice& lattice, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    std::set<std::array<int, 3>> cells(lattice.particles.lattice_index.begin(), lattice.particles.lattice_index.end());
+    std::size_t interior = 0;
+    for (const auto& t : triangles)
+        for (int v : t) {
+            const auto ijk = lattice.particles.lattice_index[std::size_t(v)];
+            bool boundary = false;
+            for (int slot = 0; slot < 6; ++slot) {
+                const auto& o = neighbour_offsets[std::size_t(slot)];
+                boundary |= !cells.count({ijk[0] + o[0], ijk[1] + o[1], ijk[2] + o[2]});
+            }
+            interior += !boundary;
+        }
+    EXPECT_EQ(interior, 0u) << "vertices that are interior particles";
+}
+
+/// Closed as a chain: every directed edge a→b is matched by as many b→a (holds even where thin
+/// walls make edges non-manifold); no triangle repeats a vertex.
+void expect_closed_chain(const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    std::map<std::pair<int, int>, int> balance;
+    std::size_t degenerate = 0;
+    for (const auto& t : triangles) {
+        degenerate += t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+        for (int e = 0; e < 3; ++e) {
+            const int a = t[std::size_t(e)], b = t[std::size_t((e + 1) % 3)];
+            balance[{std::min(a, b), std::max(a, b)}] += a < b ? 1 : -1;
+        }
+    }
+    std::size_t unbalanced = 0;
+    for (const auto& [edge, count] : balance) unbalanced += count != 0;
+    EXPECT_EQ(unbalanced, 0u) << "edges not cancelled by an opposite traversal";
+    EXPECT_EQ(degenerate, 0u);
+}
+
+void expect_closed_oriented_manifold(const MeshReport& report) {
+    EXPECT_TRUE(report.closed());
+    EXPECT_EQ(report.boundary_edges, 0u);
+    EXPECT_EQ(report.nonmanifold_edges, 0u);
+    EXPECT_EQ(report.nonmanifold_vertices, 0u);
+    EXPECT_EQ(report.misoriented_edges, 0u);
+    EXPECT_EQ(report.degenerate_faces, 0u);
+}
+
+}  // namespace
+
+class SimulationSurfaceBlock : public ::testing::TestWithParam<int> {};
+
+TEST_P(SimulationSurfaceBlock, IsExactlyTheBlocksBoundary) {
+    const int n = GetParam();
+    const double h = 1.5;
+    const Lattice lattice = make_lattice({n + 4, n + 3, n + 2}, h, [&](int i, int j, int k) {
+        return i >= 2 && i < n + 2 && j >= 1 && j < n + 1 && k >= 1 && k < n + 1;
+    });
+    SimulationSurfaceReport surface_report;
+    const auto triangles = build_simulation_surface(lattice, null_progress(), &surface_report);
+    const MeshReport report = analyse(lattice, triangles);
+    // The boundary of the cube spanned by the particle centres: 6 faces of (n−1)² squares, 2
+    // triangles each; its vertices are the 6n² − 12n + 8 particles on the block's surface.
+    EXPECT_EQ(triangles.size(), std::size_t(12 * (n - 1) * (n - 1)));
+    EXPECT_EQ(report.vertices, std::size_t(6 * n * n - 12 * n + 8));
+    expect_closed_oriented_manifold(report);
+    EXPECT_EQ(report.components, 1u);
+    EXPECT_EQ(report.euler_characteristic, 2);
+    const double side = (n - 1) * h;
+    EXPECT_NEAR(report.volume, side * side * side, 1e-6 * side * side * side);
+    EXPECT_NEAR(report.area, 6 * side * side, 1e-6 * side * side);
+    expect_vertices_on_boundary(lattice, triangles);
+    EXPECT_EQ(surface_report.triangles, triangles.size());
+    EXPECT_EQ(surface_report.euler_characteristic, 2);
+    EXPECT_EQ(surface_report.nonmanifold_edges, 0u);
+    EXPECT_EQ(surface_report.thin_wall_triangles, 0u);
+    EXPECT_EQ(surface_report.duplicate_triangles_removed, 0u);
+    EXPECT_TRUE(surface_report.warnings.empty());
+}
+
+INSTANTIATE_TEST_SUITE_P(Sizes, SimulationSurfaceBlock, ::testing::Values(2, 3, 5, 8));
+
+TEST(SimulationSurface, MirroredLatticeStaysOutwardOriented) {
+    const Eigen::Matrix3d mirror = Eigen::Vector3d(-1, 1, 1).asDiagonal();
+    const Lattice lattice = make_lattice({6, 6, 6}, 2.0, [](int i, int j, int k) { return i > 0 && j > 0 && k > 0 && i < 5 && j < 5 && k < 5; }, mirror);
+    const MeshReport report = analyse(lattice, build_simulation_surface(lattice));
+    expect_closed_oriented_manifold(report);
+    EXPECT_NEAR(report.volume, 6.0 * 6.0 * 6.0, 1e-4);
+}
+
+TEST(SimulationSurface, TorusHasEulerCharacteristicZero) {
+    const double major = 9.0, minor = 3.6;  // in cells
+    const int n = 28;
+    const Lattice lattice = make_lattice({n, n, n}, 1.0, [&](int i, int j, int k) {
+        const Eigen::Vector3d x(i - 13.5, j - 13.5, k - 13.5);
+        const double ring = std::hypot(x.x(), x.y()) - major;
+        return ring * ring + x.z() * x.z() <= minor * minor;
+    });
+    const auto triangles = build_simulation_surface(lattice);
+    const MeshReport report = analyse(lattice, triangles);
+    expect_closed_oriented_manifold(report);
+    EXPECT_EQ(report.components, 1u);
+    EXPECT_EQ(report.euler_characteristic, 0);
+    EXPECT_GT(report.volume, 0.0);
+    expect_vertices_on_boundary(lattice, triangles);
+}
+
+TEST(SimulationSurface, ThickShellHasTwoClosedComponents) {
+    const int n = 30;
+    const Lattice lattice = make_lattice({n, n, n}, 1.0, [&](int i, int j, int k) {
+        const double r = Eigen::Vector3d(i - 14.5, j - 14.5, k - 14.5).norm();
+        return r >= 7.0 && r <= 13.0;
+    });
+    const auto triangles = build_simulation_surface(lattice);
+    const MeshReport report = analyse(lattice, triangles);
+    expect_closed_oriented_manifold(report);
+    EXPECT_EQ(report.components, 2u);
+    EXPECT_EQ(report.euler_characteristic, 4);
+    // Outer boundary outward, inner boundary facing the cavity: the enclosed volume is the shell's.
+    const double shell = 4.0 / 3.0 * M_PI * (std::pow(13.0, 3) - std::pow(7.0, 3));
+    EXPECT_NEAR(report.volume / shell, 1.0, 0.15);
+    expect_vertices_on_boundary(lattice, triangles);
+}
+
+TEST(SimulationSurface, EveryDualCubeConfigurationIsClosedOnBoundaryParticles) {
+    for (int configuration = 1; configuration < 256; ++configuration) {
+        const Lattice lattice = make_lattice({2, 2, 2}, 1.0, [&](int i, int j, int k) { return (configuration >> (i + 2 * j + 4 * k)) & 1; });
+        const auto triangles = build_simulation_surface(lattice);
+        SCOPED_TRACE("configuration " + std::to_string(configuration));
+        expect_closed_chain(triangles);
+        expect_vertices_on_boundary(lattice, triangles);
+        // Where the occupied corners span a solid, the surface encloses it: positive volume.
+        EXPECT_GE(analyse(lattice, triangles).volume, -1e-9);
+    }
+    // All eight: the unit cube, 12 triangles, volume 1.
+    const Lattice full = make_lattice({2, 2, 2}, 1.0, [](int, int, int) { return true; });
+    const MeshReport report = analyse(full, build_simulation_surface(full));
+    EXPECT_EQ(report.faces, 12u);
+    EXPECT_NEAR(report.volume, 1.0, 1e-6);
+}
+
+TEST(SimulationSurface, RandomParticleSetsAreClosedChainsOnBoundaryParticles) {
+    std::mt19937 random(7);
+    for (int trial = 0; trial < 20; ++trial) {
+        const double density = 0.3 + 0.03 * trial;
+        std::bernoulli_distribution coin(density);
+        std::vector<char> cells(10 * 10 * 10);
+        for (auto& c : cells) c = coin(random);
+        const Lattice lattice = make_lattice({10, 10, 10}, 1.0, [&](int i, int j, int k) { return cells[std::size_t((k * 10 + j) * 10 + i)] != 0; });
+        SimulationSurfaceReport surface_report;
+        const auto triangles = build_simulation_surface(lattice, null_progress(), &surface_report);
+        SCOPED_TRACE("trial " + std::to_string(trial));
+        expect_closed_chain(triangles);
+        expect_vertices_on_boundary(lattice, triangles);
+        EXPECT_EQ(surface_report.duplicate_triangles_removed, 0u);
+        EXPECT_GE(analyse(lattice, triangles).volume, 0.0);
+    }
+}
+
+TEST(SimulationSurface, OneParticleThickWallIsDoubleSidedAndReported) {
+    // A 6×6 sheet, one particle thick: both sides of the sheet, every triangle with its reverse.
+    const Lattice lattice = make_lattice({8, 8, 3}, 1.0, [](int i, int j, int k) { return k == 1 && i >= 1 && i <= 6 && j >= 1 && j <= 6; });
+    SimulationSurfaceReport report;
+    const auto triangles = build_simulation_surface(lattice, null_progress(), &report);
+    EXPECT_EQ(triangles.size(), std::size_t(2 * 2 * 25));
+    EXPECT_EQ(report.thin_wall_triangles, triangles.size());
+    EXPECT_GT(report.nonmanifold_edges, 0u);
+    EXPECT_FALSE(report.warnings.empty());
+    expect_closed_chain(triangles);
+    EXPECT_NEAR(analyse(lattice, triangles).volume, 0.0, 1e-9);
+}
+
+TEST(SimulationSurface, IsDeterministicAndFollowsTheParticlesNotTheirOrder) {
+    const int n = 24;
+    auto inside = [&](int i, int j, int k) { return Eigen::Vector3d(i - 11.5, j - 11.5, k - 11.5).norm() <= 10.5; };
+    const Lattice lattice = make_lattice({n, n, n}, 1.0, inside);
+    const auto first = build_simulation_surface(lattice);
+    EXPECT_EQ(first, build_simulation_surface(lattice));
+    // Reverse the particle order: the same triangles over the same cells.
+    Lattice reversed = lattice;
+    auto& p = reversed.particles;
+    std::reverse(p.rest_position.begin(), p.rest_position.end());
+    std::reverse(p.lattice_index.begin(), p.lattice_index.end());
+    auto as_cells = [](const Lattice& l, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+        std::multiset<std::array<std::array<int, 3>, 3>> out;
+        for (const auto& t : triangles) {
+            std::array<std::array<int, 3>, 3> cells{l.particles.lattice_index[std::size_t(t[0])], l.particles.lattice_index[std::size_t(t[1])],
+                                                   l.particles.lattice_index[std::size_t(t[2])]};
+            while (cells[0] > cells[1] || cells[0] > cells[2]) cells = {cells[1], cells[2], cells[0]};
+            out.insert(cells);
+        }
+        return out;
+    };
+    EXPECT_EQ(as_cells(lattice, first), as_cells(reversed, build_simulation_surface(reversed)));
+}
+
+TEST(SimulationSurface, SingleParticleGivesAnEmptySurfaceAndAWarning) {
+    const Lattice lattice = make_lattice({3, 3, 3}, 1.0, [](int i, int j, int k) { return i == 1 && j == 1 && k == 1; });
+    SimulationSurfaceReport report;
+    EXPECT_TRUE(build_simulation_surface(lattice, null_progress(), &report).empty());
+    EXPECT_FALSE(report.warnings.empty());
+}
+
+TEST(SimulationSurface, RejectsTwoParticlesInOneCell) {
+    Lattice lattice = make_lattice({3, 3, 3}, 1.0, [](int, int, int) { return true; });
+    lattice.particles.lattice_index[1] = lattice.particles.lattice_index[0];
+    EXPECT_THROW(build_simulation_surface(lattice), InputError);
+}
+
+TEST(SimulationSurface, ThirtyThousandParticleBallTiming) {
+    const int n = 40;  // a ball of about 30k particles
+    const Lattice lattice = make_lattice({n, n, n}, 1.0, [&](int i, int j, int k) { return Eigen::Vector3d(i - 19.5, j - 19.5, k - 19.5).norm() <= 19.3; });
+    const auto start = std::chrono::steady_clock::now();
+    const auto triangles = build_simulation_surface(lattice);
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::printf("ball of %zu particles: %zu triangles in %.4f s\n", lattice.particles.size(), triangles.size(), seconds);
+    expect_closed_oriented_manifold(analyse(lattice, triangles));
+}
