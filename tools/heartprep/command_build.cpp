@@ -79,6 +79,14 @@ void add_build_command(CLI::App& app) {
     command->add_flag("--no-visual", [options](std::int64_t) { options->visual = false; },
                       "Skip the visual surface (the runtime then draws the simulation surface)")
         ->group("Surface");
+    command->add_option("--visual-mesh", options->visual_mesh,
+                        "Use this mesh (STL/OBJ/PLY/glTF, LPS mm, e.g. from 3D Slicer) as the visual mesh instead of marching cubes")
+        ->check(CLI::ExistingFile)
+        ->group("Surface");
+    auto packing = std::make_shared<std::string>("bricks");
+    command->add_option("--packing", *packing, "GPU layout: bricks (Morton-ordered 4³ bricks) or slices (the seed's z-slice texture)")
+        ->capture_default_str()
+        ->group("Particles");
     command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")
         ->check(CLI::PositiveNumber)
         ->group("Particles");
@@ -116,6 +124,8 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Solver");
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+    auto batch_key = std::make_shared<std::string>();
+    command->add_option("--batch-key", *batch_key, "Stored in the file so `heartprep batch` can skip unchanged cases")->group("");
 
     command->callback([=] {
         check_output_path(*output, "OUT.h5");
@@ -127,9 +137,12 @@ void add_build_command(CLI::App& app) {
         material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
         material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);
         options->layout.materials = {*material};
+        options->packing.scheme = parse_packing_scheme(*packing);
+        options->batch_key = *batch_key;
         TerminalProgress progress(*quiet);
         BuildReport report;
         Scenario scenario = build_scenario(*options, progress, report);
+        scenario.batch_key = options->batch_key;
         {
             ProgressStage stage(progress, "write scenario", 0);
             write_scenario(*output, scenario);

@@ -17,6 +17,9 @@ namespace {
 struct Summary {
     std::size_t particles = 0, anchored = 0, springs = 0, face_springs = 0, edge_springs = 0;
     std::size_t visual_vertices = 0, visual_triangles = 0;
+    std::size_t simsurface_triangles = 0;
+    double texture_occupancy = 0.0;
+    double mapping_rest_error_mm = -1.0;  ///< max |mapped rest position − visual vertex|; −1 without a mapping
     double total_mass = 0.0;
     Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d high = -low;
@@ -40,6 +43,18 @@ Summary summarise(const Scenario& s) {
     if (s.visual) {
         summary.visual_vertices = s.visual->positions.size();
         summary.visual_triangles = s.visual->triangles.size();
+    }
+    if (s.packing) summary.texture_occupancy = double(p.size()) / (double(s.packing->width) * s.packing->height);
+    if (s.simulation_surface) summary.simsurface_triangles = s.simulation_surface->size();
+    if (s.mapping && s.simulation_surface && s.visual) {
+        // Evaluate the mapping at rest, as the runtime will, and compare with the stored mesh.
+        const auto mapped = apply_mapping(*s.mapping, p.rest_position, *s.simulation_surface);
+        summary.mapping_rest_error_mm = 0.0;
+        for (std::size_t v = 0; v < mapped.size(); ++v) {
+            const auto& x = s.visual->positions[v];
+            const double error = (mapped[v] - Eigen::Vector3f(x[0], x[1], x[2])).norm();
+            summary.mapping_rest_error_mm = std::max(summary.mapping_rest_error_mm, error);
+        }
     }
     return summary;
 }
@@ -74,7 +89,13 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
     o << "},\n  \"visual\": " << (s.visual ? "{\"vertices\": " + std::to_string(m.visual_vertices) + ", \"triangles\": " +
                                                    std::to_string(m.visual_triangles) + "}"
                                              : std::string("null"))
-      << ",\n  \"materials\": [";
+      << ",\n  \"packing\": "
+      << (s.packing ? "{\"scheme\": \"" + std::string(to_string(s.packing->scheme)) + "\", \"width\": " +
+                          std::to_string(s.packing->width) + ", \"height\": " + std::to_string(s.packing->height) +
+                          ", \"occupancy\": " + std::to_string(m.texture_occupancy) + "}"
+                    : std::string("null"))
+      << ",\n  \"simsurface_triangles\": " << m.simsurface_triangles << ",\n  \"mapping_rest_error_mm\": "
+      << (s.mapping ? std::to_string(m.mapping_rest_error_mm) : std::string("null")) << ",\n  \"materials\": [";
     for (std::size_t i = 0; i < s.lattice.materials.size(); ++i) {
         const auto& mat = s.lattice.materials[i];
         o << (i ? ", " : "") << "{\"label\": " << mat.label << ", \"name\": \"" << json_escape(mat.name)
@@ -105,6 +126,20 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
         std::printf("visual      %zu vertices, %zu triangles\n", m.visual_vertices, m.visual_triangles);
     else
         std::printf("visual      none (the runtime draws the simulation surface)\n");
+    if (s.packing)
+        std::printf("packing     %s, %d x %d texture, %.1f%% occupied\n", to_string(s.packing->scheme), s.packing->width,
+                    s.packing->height, 100 * m.texture_occupancy);
+    else
+        std::printf("packing     none (run `heartprep pack`)\n");
+    if (s.simulation_surface)
+        std::printf("simsurface  %zu triangles\n", m.simsurface_triangles);
+    else
+        std::printf("simsurface  none (run `heartprep simsurface`)\n");
+    if (s.mapping)
+        std::printf("mapping     %zu visual vertices; at rest the mapping reproduces them within %.2g mm\n", m.visual_vertices,
+                    m.mapping_rest_error_mm);
+    else if (s.visual)
+        std::printf("mapping     none (run `heartprep map`)\n");
     for (const auto& mat : s.lattice.materials)
         std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
                     mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,

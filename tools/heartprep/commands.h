@@ -14,5 +14,7 @@ void add_build_command(CLI::App& app);
 void add_surface_command(CLI::App& app);
 void add_inspect_command(CLI::App& app);
 void add_phantom_command(CLI::App& app);
+void add_stage_commands(CLI::App& app);  ///< pack, simsurface, map, export
+void add_batch_command(CLI::App& app);
 
 }  // namespace heartsim::cli

@@ -14,7 +14,9 @@ int main(int argc, char** argv) {
                  "  heartprep build case.nii.gz -o case.h5      all stages with sensible defaults\n"
                  "  heartprep inspect case.h5                   what a scenario holds\n"
                  "  heartprep surface case.nii.gz -o heart.stl  the detailed surface, for 3D Slicer or MeshLab\n"
-                 "  heartprep phantom -o phantom.nii.gz         a synthetic two-ventricle heart with a septal defect\n",
+                 "  heartprep phantom -o phantom.nii.gz         a synthetic two-ventricle heart with a septal defect\n"
+                 "  heartprep batch cases.csv -o out/ -j 2      many cases, resumable, with a summary table\n"
+                 "  heartprep export case.h5 --what simsurface -o sim.ply   meshes for 3D Slicer / MeshLab\n",
                  "heartprep"};
     app.set_version_flag("--version", std::string("heartprep ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
@@ -23,6 +25,8 @@ int main(int argc, char** argv) {
     heartsim::cli::add_surface_command(app);
     heartsim::cli::add_inspect_command(app);
     heartsim::cli::add_phantom_command(app);
+    heartsim::cli::add_stage_commands(app);
+    heartsim::cli::add_batch_command(app);
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& error) {

@@ -1,5 +1,8 @@
 #include "pipeline.h"
 
+#include "formats/mesh_io.h"
+#include "libmodel/errors.h"
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -41,6 +44,52 @@ SelectedVolume read_and_select(const std::filesystem::path& input, const Selecti
     return result;
 }
 
+void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& progress, BuildReport& report) {
+    std::vector<std::int32_t> new_index;
+    scenario.packing = timed(report, "pack", [&] {
+        return pack_particles(scenario.lattice, options, progress, &report.packing, &new_index);
+    });
+    if (scenario.simulation_surface)
+        for (auto& triangle : *scenario.simulation_surface)
+            for (auto& vertex : triangle) vertex = new_index[std::size_t(vertex)];
+}
+
+void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildReport& report) {
+    scenario.simulation_surface = timed(report, "simsurface", [&] {
+        return build_simulation_surface(scenario.lattice, progress, &report.simulation_surface);
+    });
+    append(report.warnings, report.simulation_surface.warnings);
+    scenario.mapping.reset();
+}
+
+void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report) {
+    if (!visual_mesh.empty()) {
+        TriangleMesh mesh = timed(report, "read visual mesh", [&] { return read_mesh(visual_mesh); });
+        report.mesh = analyse_mesh(mesh);
+        if (!report.mesh.closed() || !report.mesh.manifold())
+            report.warnings.push_back(visual_mesh.string() + ": the visual mesh is not a closed 2-manifold (" +
+                                      std::to_string(report.mesh.boundary_edges) + " boundary edges, " +
+                                      std::to_string(report.mesh.nonmanifold_edges) + " non-manifold edges, " +
+                                      std::to_string(report.mesh.nonmanifold_vertices) +
+                                      " non-manifold vertices): it is mapped, but its shading may show seams");
+        if (mesh.normals.size() != mesh.positions.size()) compute_vertex_normals(mesh);
+        scenario.visual = to_visual_mesh(mesh);
+    }
+    if (!scenario.visual) return;
+    if (!scenario.simulation_surface) simulation_surface_stage(scenario, progress, report);
+    std::vector<Eigen::Vector3d> positions;
+    positions.reserve(scenario.visual->positions.size());
+    for (const auto& p : scenario.visual->positions) positions.emplace_back(p[0], p[1], p[2]);
+    MappingOptions options;
+    options.lattice_spacing_mm = scenario.lattice.spacing;
+    scenario.mapping = timed(report, "map", [&] {
+        return map_visual_mesh(positions, scenario.lattice.particles.rest_position, *scenario.simulation_surface, options,
+                               progress, &report.mapping);
+    });
+    for (const auto& warning : report.mapping.warnings)
+        report.warnings.push_back((visual_mesh.empty() ? std::string() : visual_mesh.string() + ": ") + warning);
+}
+
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report) {
     Scenario scenario;
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
@@ -53,7 +102,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.source.anchor_labels = options.selection.anchor_labels;
     scenario.source.anchor_border = options.selection.anchor_border;
 
-    if (options.visual) {
+    if (options.visual && options.visual_mesh.empty()) {
         TriangleMesh mesh = timed(report, "surface",
                                   [&] { return extract_surface(selection.tissue, options.surface, progress, &report.surface); });
         report.mesh = timed(report, "check surface", [&] { return analyse_mesh(mesh); });
@@ -85,6 +134,10 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         report.warnings.push_back("no spring between free particles: the critical time step is unbounded; dt set to 0.5 ms");
     }
     solver.dt_ms = std::min(solver.safety_factor * solver.critical_dt_ms, solver.critical_dt_bound_ms);
+
+    pack_stage(scenario, options.packing, progress, report);
+    simulation_surface_stage(scenario, progress, report);
+    if (options.visual) mapping_stage(scenario, options.visual_mesh, progress, report);
     return scenario;
 }
 
@@ -108,16 +161,33 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 "(%zu face, %zu edge), mass %.2f g\n",
                 l.spacing, scenario.lattice.dims[0], scenario.lattice.dims[1], scenario.lattice.dims[2], l.particles,
                 l.anchored, l.face_springs + l.edge_springs, l.face_springs, l.edge_springs, l.total_mass);
-    std::printf("time step   critical %.4g ms (power iteration, %d iterations), proven bound %.4g ms; dt %.4g ms\n",
+    std::printf("time step   critical %.4g ms (Lanczos, %d iterations), proven bound %.4g ms; dt %.4g ms\n",
                 scenario.solver.critical_dt_ms, report.stability.iterations, scenario.solver.critical_dt_bound_ms,
                 scenario.solver.dt_ms);
+    if (scenario.packing)
+        std::printf("packing     %s, %d x %d texture (%.0f%% occupied, %.1f MB per position buffer), neighbour table %.1f MB, "
+                    "%.0f%% of springs within a 4 KB window\n",
+                    to_string(scenario.packing->scheme), report.packing.width, report.packing.height, 100 * report.packing.occupancy,
+                    double(report.packing.texture_bytes) / 1e6, double(report.packing.neighbour_bytes) / 1e6,
+                    100 * report.packing.springs_within_window);
+    if (scenario.simulation_surface) {
+        const auto& r = report.simulation_surface;
+        std::printf("simsurface  %zu triangles over %zu boundary particles, %zu component(s), Euler characteristic %ld, "
+                    "%zu non-manifold edges, %zu non-manifold vertices\n",
+                    r.triangles, r.boundary_particles, r.components, r.euler_characteristic, r.nonmanifold_edges,
+                    r.nonmanifold_vertices);
+    }
+    if (scenario.mapping)
+        std::printf("mapping     %zu visual vertices, rest error max %.2g mm, offset mean %.3f mm max %.3f mm, %zu extrapolated\n",
+                    scenario.mapping->offset.size(), report.mapping.max_rest_error_mm, report.mapping.mean_offset_mm,
+                    report.mapping.max_offset_mm, report.mapping.outside_triangle);
     std::printf("stages     ");
     double total = 0;
     for (const auto& t : report.times) {
-        std::printf(" %s %.2f s,", t.stage.c_str(), t.seconds);
+        std::printf(" %s %.3f s,", t.stage.c_str(), t.seconds);
         total += t.seconds;
     }
-    std::printf(" total %.2f s\n", total);
+    std::printf(" total %.3f s\n", total);
     for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
 }
 

@@ -6,6 +6,9 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "libmodel/lattice.h"
+#include "libmodel/mapping.h"
+#include "libmodel/packing.h"
+#include "libmodel/simulation_surface.h"
 #include "libmodel/mesh.h"
 #include "libmodel/select.h"
 #include "libmodel/stability.h"
@@ -24,6 +27,11 @@ struct BuildOptions {
     bool visual = true;              ///< extract the visual mesh (the marching-cubes surface)
     LayoutOptions layout;
     SolverSettings solver;           ///< gravity, damping and safety factor are inputs; steps computed
+    PackingOptions packing;
+    /// A mesh made elsewhere (3D Slicer; STL/OBJ/PLY/glTF) to use as the visual mesh instead of
+    /// the marching-cubes surface. Empty = none.
+    std::filesystem::path visual_mesh;
+    std::string batch_key;           ///< see Scenario::batch_key
 };
 
 struct StageTime {
@@ -38,6 +46,9 @@ struct BuildReport {
     MeshReport mesh;
     LayoutReport layout;
     StabilityEstimate stability;
+    PackingReport packing;
+    SimulationSurfaceReport simulation_surface;
+    MappingReport mapping;
     std::vector<StageTime> times;
     std::vector<std::string> warnings;  ///< every stage's warnings, in order
 };
@@ -49,6 +60,16 @@ struct SelectedVolume {
 };
 SelectedVolume read_and_select(const std::filesystem::path& input, const SelectionOptions& options,
                                Progress& progress, BuildReport& report);
+
+/// Packs the scenario's particles (re-packs a packed one); the simulation surface follows.
+void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& progress, BuildReport& report);
+
+/// Builds /simsurface from the particles; drops a /mapping made for an older surface.
+void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildReport& report);
+
+/// Maps /visual onto /simsurface (building the surface first if absent). With `visual_mesh`,
+/// that file replaces /visual first.
+void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report);
 
 /// Runs every stage and returns the scenario (not yet written).
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report);

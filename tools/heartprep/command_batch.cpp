@@ -1,0 +1,337 @@
+// `heartprep batch`: many cases at once. Each case runs as its own `heartprep build` process, so a
+// crash or an out-of-memory in one case cannot take the others down; a case whose input bytes,
+// options and heartprep version are unchanged since its scenario was written is skipped.
+#include "commands.h"
+#include "terminal_progress.h"
+
+#include "formats/scenario.h"
+#include "libmodel/errors.h"
+
+#include <CLI/CLI.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <fcntl.h>
+#include <cstring>
+#include <fstream>
+#include <iomanip>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <random>
+#include <spawn.h>
+#include <sstream>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+
+extern char** environ;
+
+namespace heartsim::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Case {
+    std::string id;
+    fs::path input;
+    std::string options;  ///< build options for this case (replace the batch's --options)
+    int line = 0;         ///< manifest line, for messages (0 for a folder)
+};
+
+struct Outcome {
+    std::string status = "failed";  ///< built, skipped, failed
+    std::size_t particles = 0, springs = 0, triangles = 0;
+    double seconds = 0.0;
+    std::vector<std::string> warnings;
+    std::string message;
+};
+
+bool is_volume_file(const fs::path& path) {
+    const std::string name = path.filename().string();
+    for (const char* extension : {".nii", ".nii.gz", ".nrrd", ".mha", ".mhd"})
+        if (name.size() > std::strlen(extension) && name.compare(name.size() - std::strlen(extension), std::string::npos, extension) == 0)
+            return true;
+    return false;
+}
+
+/// File name without its volume extension (".nii.gz" and ".seg.nrrd" count as one).
+std::string stem_of(const fs::path& path) {
+    std::string name = path.filename().string();
+    for (const char* extension : {".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"}) {
+        const std::size_t n = std::strlen(extension);
+        if (name.size() > n && name.compare(name.size() - n, n, extension) == 0) return name.substr(0, name.size() - n);
+    }
+    return path.stem().string();
+}
+
+/// One CSV line into fields (RFC 4180 quoting: "a ""quoted"" field").
+std::vector<std::string> csv_fields(const std::string& line) {
+    std::vector<std::string> fields(1);
+    bool quoted = false;
+    for (std::size_t i = 0; i < line.size(); ++i) {
+        const char c = line[i];
+        if (quoted) {
+            if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') fields.back() += '"', ++i;
+            else if (c == '"') quoted = false;
+            else fields.back() += c;
+        } else if (c == '"') quoted = true;
+        else if (c == ',') fields.emplace_back();
+        else if (c != '\r') fields.back() += c;
+    }
+    for (auto& f : fields) {
+        f.erase(0, f.find_first_not_of(" \t"));
+        f.erase(f.find_last_not_of(" \t") + 1);
+    }
+    return fields;
+}
+
+/// Splits build options as a shell would for plain words and quotes ("a b", 'a b'); no expansion.
+std::vector<std::string> split_words(const std::string& text) {
+    std::vector<std::string> words;
+    std::string word;
+    bool in_word = false;
+    char quote = 0;
+    for (char c : text) {
+        if (quote) {
+            if (c == quote) quote = 0;
+            else word += c;
+        } else if (c == '"' || c == '\'') quote = c, in_word = true;
+        else if (c == ' ' || c == '\t') {
+            if (in_word) words.push_back(word), word.clear(), in_word = false;
+        } else word += c, in_word = true;
+    }
+    if (quote) throw InputError("unbalanced quote in build options: " + text);
+    if (in_word) words.push_back(word);
+    return words;
+}
+
+std::vector<Case> read_manifest(const fs::path& manifest, const std::string& default_options) {
+    std::vector<Case> cases;
+    if (fs::is_directory(manifest)) {
+        std::vector<fs::path> files;
+        for (const auto& entry : fs::directory_iterator(manifest))
+            if (entry.is_regular_file() && is_volume_file(entry.path())) files.push_back(entry.path());
+        std::sort(files.begin(), files.end());
+        for (const auto& file : files) cases.push_back({stem_of(file), file, default_options, 0});
+        if (cases.empty()) throw InputError(manifest.string() + ": folder holds no label maps (.nii, .nii.gz, .nrrd, .mha, .mhd)");
+    } else {
+        std::ifstream in(manifest);
+        if (!fs::exists(manifest)) throw InputError(manifest.string() + ": file not found");
+        if (!in) throw InputError(manifest.string() + ": cannot be read");
+        std::string line;
+        int number = 0;
+        while (std::getline(in, line)) {
+            ++number;
+            auto fields = csv_fields(line);
+            if (fields.size() == 1 && fields[0].empty()) continue;
+            if (fields[0].rfind('#', 0) == 0) continue;
+            std::string first = fields[0];
+            std::transform(first.begin(), first.end(), first.begin(), ::tolower);
+            if (cases.empty() && first == "input") continue;  // header line
+            if (fields.size() > 3)
+                throw InputError(manifest.string() + ": line " + std::to_string(number) + " has " + std::to_string(fields.size()) +
+                                 " fields; expected input[,case_id[,options]] (quote options that contain commas)");
+            if (fields[0].empty()) throw InputError(manifest.string() + ": line " + std::to_string(number) + ": no input file");
+            fs::path input = fields[0];
+            if (input.is_relative()) input = manifest.parent_path() / input;
+            Case c{fields.size() > 1 && !fields[1].empty() ? fields[1] : stem_of(input), input,
+                   fields.size() > 2 && !fields[2].empty() ? fields[2] : default_options, number};
+            cases.push_back(c);
+        }
+        if (cases.empty()) throw InputError(manifest.string() + ": no cases (expected lines of input[,case_id[,options]])");
+    }
+    std::map<std::string, int> seen;
+    for (const auto& c : cases) {
+        if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
+            throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
+                             "' may only use letters, digits, '.', '_' and '-' (it names the output file)");
+        auto [it, fresh] = seen.emplace(c.id, c.line);
+        if (!fresh)
+            throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
+                             " and " + std::to_string(c.line));
+        split_words(c.options);  // refuse unbalanced quotes before anything runs
+    }
+    return cases;
+}
+
+fs::path self_executable() {
+    std::error_code error;
+    auto path = fs::read_symlink("/proc/self/exe", error);
+    if (error) throw OutputError("cannot locate the heartprep executable (/proc/self/exe)");
+    return path;
+}
+
+/// Runs `arguments` with stdout and stderr into `log`; returns the exit status (−signal if killed).
+int run_process(const std::vector<std::string>& arguments, const fs::path& log) {
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
+    posix_spawn_file_actions_addclose(&actions, STDIN_FILENO);
+    std::vector<char*> argv;
+    for (const auto& a : arguments) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    pid_t pid = 0;
+    const int spawned = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
+    posix_spawn_file_actions_destroy(&actions);
+    if (spawned != 0) return 127;
+    int status = 0;
+    while (waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+    }
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -WTERMSIG(status);
+}
+
+void fill_counts(const Scenario& s, Outcome& outcome) {
+    outcome.particles = s.lattice.particles.size();
+    outcome.springs = s.lattice.springs.size();
+    outcome.triangles = s.visual ? s.visual->triangles.size() : 0;
+}
+
+Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executable) {
+    Outcome outcome;
+    const auto start = std::chrono::steady_clock::now();
+    const fs::path output = folder / (c.id + ".h5");
+    const fs::path log = folder / "logs" / (c.id + ".log");
+    try {
+        if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
+        const std::string key = sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION);
+        if (fs::exists(output)) {
+            try {
+                const Scenario existing = read_scenario(output);
+                if (existing.batch_key == key) {
+                    outcome.status = "skipped";
+                    fill_counts(existing, outcome);
+                    return outcome;
+                }
+            } catch (const InputError&) {
+                // A damaged or foreign file: build the case again.
+            }
+        }
+        std::vector<std::string> arguments{executable.string(), "build", c.input.string(), "-o", output.string(), "--batch-key", key};
+        for (auto& word : split_words(c.options)) arguments.push_back(word);
+        const int status = run_process(arguments, log);
+        std::ifstream in(log);
+        std::string line;
+        while (std::getline(in, line)) {
+            if (line.rfind("heartprep: warning: ", 0) == 0) outcome.warnings.push_back(line.substr(20));
+            if (line.rfind("heartprep: error: ", 0) == 0) outcome.message = line.substr(18);
+        }
+        if (status != 0) {
+            if (outcome.message.empty())
+                outcome.message = status < 0 ? "killed by signal " + std::to_string(-status) + " (see " + log.string() + ")"
+                                             : "exit status " + std::to_string(status) + " (see " + log.string() + ")";
+        } else {
+            fill_counts(read_scenario(output), outcome);
+            outcome.status = "built";
+        }
+    } catch (const std::exception& e) {
+        outcome.message = e.what();
+    }
+    outcome.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return outcome;
+}
+
+std::string csv_quote(const std::string& text) {
+    std::string out = "\"";
+    for (char c : text) out += c == '"' ? std::string("\"\"") : std::string(1, c);
+    return out + "\"";
+}
+
+/// Writes `text` to `path` atomically.
+void write_text(const fs::path& path, const std::string& text) {
+    const fs::path temporary = path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(std::random_device{}()));
+    {
+        std::ofstream out(temporary);
+        out << text;
+        if (!out) throw OutputError(path.string() + ": cannot be written");
+    }
+    fs::rename(temporary, path);
+}
+
+}  // namespace
+
+void add_batch_command(CLI::App& app) {
+    auto* command = app.add_subcommand("batch", "Build many cases in parallel: resumable, with a summary table");
+    command->footer(
+        "\nMANIFEST is a CSV file of lines `input[,case_id[,options]]` (a header line starting with `input` and\n"
+        "lines starting with # are ignored; relative paths are relative to the manifest), or a folder of label maps.\n"
+        "Each case is written to DIR/<case_id>.h5 by its own `heartprep build` process, its output to\n"
+        "DIR/logs/<case_id>.log. Per-case options replace --options. A case whose input bytes, options and\n"
+        "heartprep version are unchanged since its scenario was written is skipped. One failing case does not\n"
+        "stop the others; the exit status is non-zero if any case failed. Summary: DIR/summary.csv, DIR/summary.md.\n"
+        "Example:\n  heartprep batch cases.csv -o scenarios/ -j 2 --options \"--cavity 2 --anchor-border\"");
+    auto manifest = std::make_shared<fs::path>();
+    auto folder = std::make_shared<fs::path>();
+    auto jobs = std::make_shared<int>(1);
+    auto options = std::make_shared<std::string>();
+    command->add_option("manifest", *manifest, "CSV manifest or folder of label maps")->required();
+    command->add_option("-o,--output", *folder, "Folder for the scenarios, logs and summary (created if needed)")->required();
+    command->add_option("-j,--jobs", *jobs, "Cases built at the same time")->check(CLI::Range(1, 256))->capture_default_str();
+    command->add_option("--options", *options, "heartprep build options for every case, e.g. \"--cavity 2 --anchor-border\"");
+    command->callback([=] {
+        const auto cases = read_manifest(*manifest, *options);
+        std::error_code error;
+        fs::create_directories(*folder / "logs", error);
+        if (error) throw OutputError(folder->string() + ": cannot create the output folder: " + error.message());
+        const fs::path executable = self_executable();
+
+        std::vector<Outcome> outcomes(cases.size());
+        std::atomic<std::size_t> next{0}, done{0};
+        std::mutex print;
+        TerminalProgress progress(false);
+        const auto start = std::chrono::steady_clock::now();
+        {
+            ProgressStage stage(progress, "batch", cases.size());
+            auto worker = [&] {
+                for (std::size_t i; (i = next++) < cases.size();) {
+                    outcomes[i] = run_case(cases[i], *folder, executable);
+                    std::lock_guard lock(print);
+                    const auto& o = outcomes[i];
+                    std::fprintf(stderr, "\r[%zu/%zu] %s: %s%s%s\n", ++done, cases.size(), cases[i].id.c_str(), o.status.c_str(),
+                                 o.status == "failed" ? ": " : "", o.status == "failed" ? o.message.c_str() : "");
+                    stage.update(done);
+                }
+            };
+            std::vector<std::thread> workers;
+            for (int w = 0; w < std::min<int>(*jobs, int(cases.size())); ++w) workers.emplace_back(worker);
+            for (auto& w : workers) w.join();
+        }
+        const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+        std::ostringstream csv, markdown;
+        csv << "case_id,input,status,particles,springs,triangles,seconds,warnings,message\n";
+        markdown << "| case | status | particles | springs | triangles | time (s) | warnings |\n|---|---|---:|---:|---:|---:|---|\n";
+        std::size_t failed = 0, skipped = 0;
+        for (std::size_t i = 0; i < cases.size(); ++i) {
+            const auto& c = cases[i];
+            const auto& o = outcomes[i];
+            failed += o.status == "failed";
+            skipped += o.status == "skipped";
+            std::string warnings;
+            for (const auto& w : o.warnings) warnings += (warnings.empty() ? "" : "; ") + w;
+            char seconds[32];
+            std::snprintf(seconds, sizeof seconds, "%.2f", o.seconds);
+            csv << csv_quote(c.id) << "," << csv_quote(c.input.string()) << "," << o.status << "," << o.particles << "," << o.springs
+                << "," << o.triangles << "," << seconds << "," << csv_quote(warnings) << "," << csv_quote(o.message) << "\n";
+            std::string cell = o.status == "failed" ? o.message : warnings;
+            std::replace(cell.begin(), cell.end(), '|', '/');
+            if (o.status != "failed" && cell.size() > 100)  // the CSV and the log keep the full text
+                cell = std::to_string(o.warnings.size()) + " warning(s): " + cell.substr(0, 80) + "… (see logs/" + c.id + ".log)";
+            markdown << "| " << c.id << " | " << o.status << " | " << o.particles << " | " << o.springs << " | " << o.triangles << " | "
+                     << seconds << " | " << cell << " |\n";
+        }
+        markdown << "\n" << cases.size() << " cases: " << cases.size() - failed - skipped << " built, " << skipped << " skipped, "
+                 << failed << " failed, in " << std::fixed << std::setprecision(1) << total << " s with -j " << *jobs << ".\n";
+        write_text(*folder / "summary.csv", csv.str());
+        write_text(*folder / "summary.md", markdown.str());
+        std::fputs(markdown.str().c_str(), stdout);
+        if (failed) throw InputError(std::to_string(failed) + " of " + std::to_string(cases.size()) + " cases failed (see " +
+                                     (*folder / "summary.md").string() + ")");
+    });
+}
+
+}  // namespace heartsim::cli

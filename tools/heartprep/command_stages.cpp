@@ -1,0 +1,140 @@
+// The stage subcommands that work on a scenario file: pack, simsurface, map, export.
+#include "commands.h"
+#include "pipeline.h"
+#include "terminal_progress.h"
+
+#include "formats/mesh_io.h"
+#include "libmodel/errors.h"
+
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <memory>
+
+namespace heartsim::cli {
+
+namespace {
+
+/// Input scenario and output path shared by the stage commands: -o defaults to updating the
+/// input in place (atomically: the old file stays intact until the new one is complete).
+struct StageFiles {
+    std::filesystem::path input;
+    std::filesystem::path output;
+    bool quiet = false;
+    std::filesystem::path target() const { return output.empty() ? input : output; }
+};
+
+std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
+    auto files = std::make_shared<StageFiles>();
+    command.add_option("scenario", files->input, "Scenario file (.h5) made by `heartprep build`")->required();
+    command.add_option("-o,--output", files->output, "Write here instead of updating the input in place");
+    command.add_flag("-q,--quiet", files->quiet, "No progress and no summary");
+    return files;
+}
+
+void finish(const StageFiles& files, const BuildReport& report, const Scenario& scenario, TerminalProgress& progress) {
+    {
+        ProgressStage stage(progress, "write scenario", 0);
+        write_scenario(files.target(), scenario);
+    }
+    if (files.quiet) return;
+    for (const auto& t : report.times) std::printf("%-14s %.3f s\n", t.stage.c_str(), t.seconds);
+    for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+    std::printf("wrote          %s\n", files.target().c_str());
+}
+
+}  // namespace
+
+void add_stage_commands(CLI::App& app) {
+    {
+        auto* command = app.add_subcommand("pack", "Reorder a scenario's particles for the GPU; write /packing (neighbour table, texels)");
+        auto files = add_stage_files(*command);
+        auto scheme = std::make_shared<std::string>("bricks");
+        command->add_option("--packing", *scheme, "bricks (Morton-ordered 4³ bricks) or slices (the seed's z-slice texture)")
+            ->capture_default_str();
+        auto width = std::make_shared<int>(0);
+        command->add_option("--texture-width", *width, "Texture width for bricks, texels (0: power of two ≥ √N)")
+            ->check(CLI::Range(0, 16384));
+        command->callback([=] {
+            TerminalProgress progress(files->quiet);
+            Scenario scenario = read_scenario(files->input);
+            BuildReport report;
+            pack_stage(scenario, {.scheme = parse_packing_scheme(*scheme), .texture_width = *width}, progress, report);
+            if (!files->quiet)
+                std::printf("packing        %s, %d x %d texels, %.1f%% occupied, position texture %.2f MB, neighbours %.2f MB, "
+                            "%.0f%% of springs within a 4 KB window\n",
+                            scheme->c_str(), report.packing.width, report.packing.height, 100 * report.packing.occupancy,
+                            double(report.packing.texture_bytes) / 1e6, double(report.packing.neighbour_bytes) / 1e6,
+                            100 * report.packing.springs_within_window);
+            finish(*files, report, scenario, progress);
+        });
+    }
+    {
+        auto* command = app.add_subcommand("simsurface", "Build /simsurface: the closed surface over the boundary particles "
+                                                         "(and redo /mapping when there is a visual mesh)");
+        auto files = add_stage_files(*command);
+        command->callback([=] {
+            TerminalProgress progress(files->quiet);
+            Scenario scenario = read_scenario(files->input);
+            BuildReport report;
+            simulation_surface_stage(scenario, progress, report);
+            if (scenario.visual) mapping_stage(scenario, {}, progress, report);
+            const auto& r = report.simulation_surface;
+            if (!files->quiet)
+                std::printf("simsurface     %zu triangles over %zu boundary particles, %zu component(s), Euler characteristic %ld, "
+                            "%zu non-manifold edges, %zu non-manifold vertices\n",
+                            r.triangles, r.boundary_particles, r.components, r.euler_characteristic, r.nonmanifold_edges,
+                            r.nonmanifold_vertices);
+            finish(*files, report, scenario, progress);
+        });
+    }
+    {
+        auto* command = app.add_subcommand("map", "Tie every visual vertex to the simulation surface: write /mapping");
+        command->footer("\nWith --visual-mesh, a mesh made elsewhere (e.g. exported from 3D Slicer, LPS mm) replaces /visual.");
+        auto files = add_stage_files(*command);
+        auto mesh = std::make_shared<std::filesystem::path>();
+        command->add_option("--visual-mesh", *mesh, "STL/OBJ/PLY/glTF mesh to use as the visual mesh")->check(CLI::ExistingFile);
+        command->callback([=] {
+            TerminalProgress progress(files->quiet);
+            Scenario scenario = read_scenario(files->input);
+            if (!scenario.visual && mesh->empty())
+                throw InputError(files->input.string() + ": has no /visual mesh to map; give --visual-mesh FILE");
+            BuildReport report;
+            mapping_stage(scenario, *mesh, progress, report);
+            if (!files->quiet)
+                std::printf("mapping        %zu visual vertices, rest error max %.2g mm, offset mean %.3f mm max %.3f mm\n",
+                            scenario.mapping->offset.size(), report.mapping.max_rest_error_mm, report.mapping.mean_offset_mm,
+                            report.mapping.max_offset_mm);
+            finish(*files, report, scenario, progress);
+        });
+    }
+    {
+        auto* command = app.add_subcommand("export", "Write a scenario's simulation surface or visual mesh for 3D Slicer / MeshLab");
+        command->footer("\nCoordinates are LPS mm (3D Slicer's default for model files). Formats by extension: .stl .obj .ply .glb");
+        auto input = std::make_shared<std::filesystem::path>();
+        auto output = std::make_shared<std::filesystem::path>();
+        auto what = std::make_shared<std::string>("visual");
+        command->add_option("scenario", *input, "Scenario file (.h5)")->required();
+        command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
+        command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .glb")->required();
+        command->callback([=] {
+            const Scenario scenario = read_scenario(*input);
+            TriangleMesh mesh;
+            if (*what == "simsurface") {
+                if (!scenario.simulation_surface) throw InputError(input->string() + ": has no /simsurface (run `heartprep simsurface`)");
+                mesh = simulation_surface_mesh(scenario.lattice.particles.rest_position, *scenario.simulation_surface);
+            } else {
+                if (!scenario.visual) throw InputError(input->string() + ": has no /visual mesh");
+                for (const auto& p : scenario.visual->positions) mesh.positions.emplace_back(p[0], p[1], p[2]);
+                for (const auto& n : scenario.visual->normals) mesh.normals.emplace_back(n[0], n[1], n[2]);
+                mesh.triangles = scenario.visual->triangles;
+            }
+            write_mesh(*output, mesh);
+            const MeshReport check = analyse_mesh(mesh);
+            std::printf("wrote %s: %s, %zu vertices, %zu triangles, %s, LPS mm\n", output->c_str(), what->c_str(), check.vertices,
+                        check.faces, check.closed() && check.manifold() ? "closed 2-manifold" : "not a closed 2-manifold");
+        });
+    }
+}
+
+}  // namespace heartsim::cli
