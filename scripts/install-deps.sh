@@ -1,21 +1,29 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages heartsim needs to build, test and benchmark.
-# Idempotent: packages already present are not reinstalled. Run as root.
+# Installs the Debian 12 packages heartsim needs. Idempotent: packages already present are not
+# reinstalled. Run as root.
+#   scripts/install-deps.sh           build and test
+#   scripts/install-deps.sh --bench   also the benchmarks' peers and tools (tests/bench/)
 set -euo pipefail
 
 packages=(
   # toolchain
   build-essential cmake ninja-build pkg-config git
   # geometry and volumes
-  libcgal-dev libopenvdb-dev libboost-iostreams-dev libeigen3-dev libtbb-dev
-  libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
+  libcgal-dev libeigen3-dev libtbb-dev libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
   # files and command line
   libassimp-dev libhdf5-dev hdf5-tools libcli11-dev libssl-dev
-  # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe
+  # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe (the runtime)
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri
   # tests
   googletest libgtest-dev
 )
+if [ "${1:-}" = "--bench" ]; then
+  packages+=(
+    python3 python3-vtk9 python3-numpy  # the surface peer: VTK flying edges + windowed sinc (3D Slicer's pipeline)
+    time                                # GNU /usr/bin/time -f %M: peak memory of a run
+    libbullet-dev                       # the solver peer: Bullet's btSoftBody
+  )
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -31,7 +31,7 @@ try:
     import vtk
     from vtk.util import numpy_support
 except ImportError as error:  # tell the user which script installs what is missing
-    sys.exit(f"heartprep_bench: {error}; run scripts/install-bench-deps.sh and use /usr/bin/python3")
+    sys.exit(f"heartprep_bench: {error}; run scripts/install-deps.sh --bench and use /usr/bin/python3")
 
 # LPS = diag(-1, -1, 1) * RAS: ITK (and so heartprep) reports LPS, NIfTI's qform/sform give RAS.
 RAS_TO_LPS = np.diag([-1.0, -1.0, 1.0])

@@ -3,7 +3,7 @@
 # Not a test: nothing here fails on a time. Usage:
 #   tests/bench/run_heartprep_bench.sh [--out DIR] [--reps N] [--parts build,critical,surface,real]
 # Needs a release heartprep (HEARTPREP=path, else build/release, else build-bench) and the packages
-# of scripts/install-bench-deps.sh.
+# of scripts/install-deps.sh --bench.
 set -euo pipefail
 
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
@@ -23,7 +23,7 @@ fi
 # pyenv or venv python3 earlier in PATH would not see them.
 PY=/usr/bin/python3
 if ! "$PY" -c "import vtk, numpy" 2>/dev/null || [ ! -x /usr/bin/time ]; then
-  echo "run_heartprep_bench: python3-vtk9, python3-numpy or GNU time missing; run scripts/install-bench-deps.sh" >&2
+  echo "run_heartprep_bench: python3-vtk9, python3-numpy or GNU time missing; run scripts/install-deps.sh --bench" >&2
   exit 1
 fi
 

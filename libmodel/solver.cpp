@@ -1,0 +1,1005 @@
+// The CPU spring-mass solver. Formulas, layout and sign conventions: docs/solver.md.
+//
+// Floating-point contract: the three float kernels (portable, SSE2, AVX2) evaluate the same
+// IEEE operations in the same order, with exact sqrt and division and no FMA, so they give the
+// same bits; fp-contract is off in this file so a -march=native build cannot fuse a multiply
+// and an add in one kernel and not in another.
+#pragma GCC optimize("fp-contract=off")
+
+#include "solver.h"
+
+#include "errors.h"
+#include "packing.h"
+#include "stability.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+
+#if defined(__x86_64__) || defined(_M_X64)
+#define HEARTSIM_SOLVER_X86 1
+#include <immintrin.h>
+#endif
+
+namespace heartsim {
+
+const char* to_string(WatchdogReason reason) {
+    switch (reason) {
+    case WatchdogReason::none: return "none";
+    case WatchdogReason::non_finite: return "non-finite value";
+    case WatchdogReason::speed: return "particle speed past the bound";
+    case WatchdogReason::energy: return "energy growth";
+    }
+    return "?";
+}
+
+namespace {
+
+constexpr int slot_count = 18;
+constexpr int lane_count = 8;
+constexpr std::size_t chunk_groups = 32;  // 256 particles per parallel task
+
+/// Everything one substep's inner loop reads, as raw pointers.
+template <class Real>
+struct KernelData {
+    const Real* x;          // current positions, 4 per particle
+    const Real* xp;         // previous positions
+    Real* xn;               // next positions (written)
+    const std::int32_t* neighbour;
+    const Real* rest_length;
+    const Real* stiffness;
+    const Real* dashpot;    // c/h
+    std::size_t parameter_group_stride;  // 18·8 for per-entry rest length and stiffness, 0 when uniform per slot
+    const Real* mass;
+    const Real* inverse_mass_h2;
+    Real keep;              // 1 − γh
+    Real gravity[3];        // mm/ms²
+    Real max_displacement2; // mm², per substep
+};
+
+template <class Real>
+constexpr Real tiny_length2() { return Real(1e-30); }
+
+/// One group of 8 particles: gather the 18 slots, integrate, store, check the displacement.
+/// Returns true when a displacement is past the bound or not finite.
+template <class Real, bool Damped>
+bool group_portable(const KernelData<Real>& k, std::size_t group) {
+    constexpr int W = lane_count;
+    Real xi[W], yi[W], zi[W], uxi[W], uyi[W], uzi[W], fx[W], fy[W], fz[W];
+    const std::size_t base = group * W;
+    for (int l = 0; l < W; ++l) {
+        const Real* p = k.x + 4 * (base + l);
+        const Real* q = k.xp + 4 * (base + l);
+        xi[l] = p[0], yi[l] = p[1], zi[l] = p[2];
+        uxi[l] = p[0] - q[0], uyi[l] = p[1] - q[1], uzi[l] = p[2] - q[2];
+        fx[l] = fy[l] = fz[l] = Real(0);
+    }
+    const std::size_t table = group * slot_count * W, parameters = group * k.parameter_group_stride;
+    for (int s = 0; s < slot_count; ++s) {
+        for (int l = 0; l < W; ++l) {
+            const std::size_t t = table + std::size_t(s) * W + l, u = parameters + std::size_t(s) * W + l;
+            const std::size_t j = std::size_t(k.neighbour[t]);
+            const Real* pj = k.x + 4 * j;
+            const Real dx = pj[0] - xi[l], dy = pj[1] - yi[l], dz = pj[2] - zi[l];
+            Real length2 = dx * dx + dy * dy;
+            length2 = length2 + dz * dz;
+            const Real length = std::sqrt(length2 > tiny_length2<Real>() ? length2 : tiny_length2<Real>());
+            const Real inverse = Real(1) / length;
+            Real scale = (k.stiffness[u] * (length - k.rest_length[u])) * inverse;
+            if constexpr (Damped) {
+                const Real* qj = k.xp + 4 * j;
+                const Real dux = (pj[0] - qj[0]) - uxi[l], duy = (pj[1] - qj[1]) - uyi[l], duz = (pj[2] - qj[2]) - uzi[l];
+                Real along = dux * dx + duy * dy;
+                along = (along + duz * dz) * inverse;
+                along = along * inverse;
+                scale = scale + k.dashpot[t] * along;
+            }
+            fx[l] = fx[l] + scale * dx;
+            fy[l] = fy[l] + scale * dy;
+            fz[l] = fz[l] + scale * dz;
+        }
+    }
+    bool bad = false;
+    for (int l = 0; l < W; ++l) {
+        const std::size_t i = base + l;
+        const Real m = k.mass[i], w = k.inverse_mass_h2[i];
+        const Real nx = xi[l] + (k.keep * uxi[l] + (fx[l] + m * k.gravity[0]) * w);
+        const Real ny = yi[l] + (k.keep * uyi[l] + (fy[l] + m * k.gravity[1]) * w);
+        const Real nz = zi[l] + (k.keep * uzi[l] + (fz[l] + m * k.gravity[2]) * w);
+        Real* out = k.xn + 4 * i;
+        out[0] = nx, out[1] = ny, out[2] = nz, out[3] = Real(0);
+        const Real ex = nx - xi[l], ey = ny - yi[l], ez = nz - zi[l];
+        Real d2 = ex * ex + ey * ey;
+        d2 = d2 + ez * ez;
+        bad |= !(d2 <= k.max_displacement2);
+    }
+    return bad;
+}
+
+#ifdef HEARTSIM_SOLVER_X86
+
+inline void transpose_in(__m128 a, __m128 b, __m128 c, __m128 d, __m128& x, __m128& y, __m128& z) {
+    const __m128 t0 = _mm_unpacklo_ps(a, b), t1 = _mm_unpacklo_ps(c, d);
+    const __m128 t2 = _mm_unpackhi_ps(a, b), t3 = _mm_unpackhi_ps(c, d);
+    x = _mm_movelh_ps(t0, t1);
+    y = _mm_movehl_ps(t1, t0);
+    z = _mm_movelh_ps(t2, t3);
+}
+
+inline void load_gather4(const float* base, const std::int32_t* index, __m128& x, __m128& y, __m128& z) {
+    transpose_in(_mm_loadu_ps(base + 4 * std::size_t(index[0])), _mm_loadu_ps(base + 4 * std::size_t(index[1])),
+                 _mm_loadu_ps(base + 4 * std::size_t(index[2])), _mm_loadu_ps(base + 4 * std::size_t(index[3])), x, y, z);
+}
+
+inline void load_own4(const float* p, __m128& x, __m128& y, __m128& z) {
+    transpose_in(_mm_loadu_ps(p), _mm_loadu_ps(p + 4), _mm_loadu_ps(p + 8), _mm_loadu_ps(p + 12), x, y, z);
+}
+
+template <bool Damped>
+bool group_sse2(const KernelData<float>& k, std::size_t group) {
+    bool bad = false;
+    const __m128 tiny = _mm_set1_ps(tiny_length2<float>()), one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
+    for (int half = 0; half < 2; ++half) {
+        const std::size_t base = group * lane_count + std::size_t(half) * 4;
+        __m128 xi, yi, zi, pxi, pyi, pzi;
+        load_own4(k.x + 4 * base, xi, yi, zi);
+        load_own4(k.xp + 4 * base, pxi, pyi, pzi);
+        const __m128 uxi = _mm_sub_ps(xi, pxi), uyi = _mm_sub_ps(yi, pyi), uzi = _mm_sub_ps(zi, pzi);
+        __m128 fx = zero, fy = zero, fz = zero;
+        const std::size_t table = group * slot_count * lane_count + std::size_t(half) * 4;
+        const std::size_t parameters = group * k.parameter_group_stride + std::size_t(half) * 4;
+        for (int s = 0; s < slot_count; ++s) {
+            const std::size_t t = table + std::size_t(s) * lane_count, u = parameters + std::size_t(s) * lane_count;
+            __m128 xj, yj, zj;
+            load_gather4(k.x, k.neighbour + t, xj, yj, zj);
+            const __m128 dx = _mm_sub_ps(xj, xi), dy = _mm_sub_ps(yj, yi), dz = _mm_sub_ps(zj, zi);
+            __m128 length2 = _mm_add_ps(_mm_mul_ps(dx, dx), _mm_mul_ps(dy, dy));
+            length2 = _mm_add_ps(length2, _mm_mul_ps(dz, dz));
+            const __m128 length = _mm_sqrt_ps(_mm_max_ps(length2, tiny));
+            const __m128 inverse = _mm_div_ps(one, length);
+            __m128 scale = _mm_mul_ps(_mm_mul_ps(_mm_loadu_ps(k.stiffness + u), _mm_sub_ps(length, _mm_loadu_ps(k.rest_length + u))), inverse);
+            if constexpr (Damped) {
+                __m128 pxj, pyj, pzj;
+                load_gather4(k.xp, k.neighbour + t, pxj, pyj, pzj);
+                const __m128 dux = _mm_sub_ps(_mm_sub_ps(xj, pxj), uxi);
+                const __m128 duy = _mm_sub_ps(_mm_sub_ps(yj, pyj), uyi);
+                const __m128 duz = _mm_sub_ps(_mm_sub_ps(zj, pzj), uzi);
+                __m128 along = _mm_add_ps(_mm_mul_ps(dux, dx), _mm_mul_ps(duy, dy));
+                along = _mm_mul_ps(_mm_add_ps(along, _mm_mul_ps(duz, dz)), inverse);
+                along = _mm_mul_ps(along, inverse);
+                scale = _mm_add_ps(scale, _mm_mul_ps(_mm_loadu_ps(k.dashpot + t), along));
+            }
+            fx = _mm_add_ps(fx, _mm_mul_ps(scale, dx));
+            fy = _mm_add_ps(fy, _mm_mul_ps(scale, dy));
+            fz = _mm_add_ps(fz, _mm_mul_ps(scale, dz));
+        }
+        const __m128 m = _mm_loadu_ps(k.mass + base), w = _mm_loadu_ps(k.inverse_mass_h2 + base), keep = _mm_set1_ps(k.keep);
+        const __m128 nx = _mm_add_ps(xi, _mm_add_ps(_mm_mul_ps(keep, uxi), _mm_mul_ps(_mm_add_ps(fx, _mm_mul_ps(m, _mm_set1_ps(k.gravity[0]))), w)));
+        const __m128 ny = _mm_add_ps(yi, _mm_add_ps(_mm_mul_ps(keep, uyi), _mm_mul_ps(_mm_add_ps(fy, _mm_mul_ps(m, _mm_set1_ps(k.gravity[1]))), w)));
+        const __m128 nz = _mm_add_ps(zi, _mm_add_ps(_mm_mul_ps(keep, uzi), _mm_mul_ps(_mm_add_ps(fz, _mm_mul_ps(m, _mm_set1_ps(k.gravity[2]))), w)));
+        const __m128 t0 = _mm_unpacklo_ps(nx, ny), t1 = _mm_unpacklo_ps(nz, zero);
+        const __m128 t2 = _mm_unpackhi_ps(nx, ny), t3 = _mm_unpackhi_ps(nz, zero);
+        float* out = k.xn + 4 * base;
+        _mm_storeu_ps(out, _mm_movelh_ps(t0, t1));
+        _mm_storeu_ps(out + 4, _mm_movehl_ps(t1, t0));
+        _mm_storeu_ps(out + 8, _mm_movelh_ps(t2, t3));
+        _mm_storeu_ps(out + 12, _mm_movehl_ps(t3, t2));
+        const __m128 ex = _mm_sub_ps(nx, xi), ey = _mm_sub_ps(ny, yi), ez = _mm_sub_ps(nz, zi);
+        __m128 d2 = _mm_add_ps(_mm_mul_ps(ex, ex), _mm_mul_ps(ey, ey));
+        d2 = _mm_add_ps(d2, _mm_mul_ps(ez, ez));
+        bad |= _mm_movemask_ps(_mm_cmpnle_ps(d2, _mm_set1_ps(k.max_displacement2))) != 0;
+    }
+    return bad;
+}
+
+#define HEARTSIM_AVX2 __attribute__((target("avx2")))
+
+HEARTSIM_AVX2 inline __m256 pair(const float* a, const float* b) {
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(a)), _mm_loadu_ps(b), 1);
+}
+
+HEARTSIM_AVX2 inline void transpose_in8(__m256 a, __m256 b, __m256 c, __m256 d, __m256& x, __m256& y, __m256& z) {
+    const __m256 t0 = _mm256_unpacklo_ps(a, b), t1 = _mm256_unpacklo_ps(c, d);
+    const __m256 t2 = _mm256_unpackhi_ps(a, b), t3 = _mm256_unpackhi_ps(c, d);
+    x = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));
+    y = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));
+    z = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));
+}
+
+HEARTSIM_AVX2 inline void load_gather8(const float* base, const std::int32_t* i, __m256& x, __m256& y, __m256& z) {
+    auto at = [&](int l) { return base + 4 * std::size_t(i[l]); };
+    transpose_in8(pair(at(0), at(4)), pair(at(1), at(5)), pair(at(2), at(6)), pair(at(3), at(7)), x, y, z);
+}
+
+HEARTSIM_AVX2 inline void load_own8(const float* p, __m256& x, __m256& y, __m256& z) {
+    transpose_in8(pair(p, p + 16), pair(p + 4, p + 20), pair(p + 8, p + 24), pair(p + 12, p + 28), x, y, z);
+}
+
+template <bool Damped>
+HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
+    const __m256 tiny = _mm256_set1_ps(tiny_length2<float>()), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
+    const std::size_t base = group * lane_count;
+    __m256 xi, yi, zi, pxi, pyi, pzi;
+    load_own8(k.x + 4 * base, xi, yi, zi);
+    load_own8(k.xp + 4 * base, pxi, pyi, pzi);
+    const __m256 uxi = _mm256_sub_ps(xi, pxi), uyi = _mm256_sub_ps(yi, pyi), uzi = _mm256_sub_ps(zi, pzi);
+    __m256 fx = zero, fy = zero, fz = zero;
+    const std::size_t table = group * slot_count * lane_count, parameters = group * k.parameter_group_stride;
+    for (int s = 0; s < slot_count; ++s) {
+        const std::size_t t = table + std::size_t(s) * lane_count, u = parameters + std::size_t(s) * lane_count;
+        __m256 xj, yj, zj;
+        load_gather8(k.x, k.neighbour + t, xj, yj, zj);
+        const __m256 dx = _mm256_sub_ps(xj, xi), dy = _mm256_sub_ps(yj, yi), dz = _mm256_sub_ps(zj, zi);
+        __m256 length2 = _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy));
+        length2 = _mm256_add_ps(length2, _mm256_mul_ps(dz, dz));
+        const __m256 length = _mm256_sqrt_ps(_mm256_max_ps(length2, tiny));
+        const __m256 inverse = _mm256_div_ps(one, length);
+        __m256 scale = _mm256_mul_ps(_mm256_mul_ps(_mm256_loadu_ps(k.stiffness + u), _mm256_sub_ps(length, _mm256_loadu_ps(k.rest_length + u))), inverse);
+        if constexpr (Damped) {
+            __m256 pxj, pyj, pzj;
+            load_gather8(k.xp, k.neighbour + t, pxj, pyj, pzj);
+            const __m256 dux = _mm256_sub_ps(_mm256_sub_ps(xj, pxj), uxi);
+            const __m256 duy = _mm256_sub_ps(_mm256_sub_ps(yj, pyj), uyi);
+            const __m256 duz = _mm256_sub_ps(_mm256_sub_ps(zj, pzj), uzi);
+            __m256 along = _mm256_add_ps(_mm256_mul_ps(dux, dx), _mm256_mul_ps(duy, dy));
+            along = _mm256_mul_ps(_mm256_add_ps(along, _mm256_mul_ps(duz, dz)), inverse);
+            along = _mm256_mul_ps(along, inverse);
+            scale = _mm256_add_ps(scale, _mm256_mul_ps(_mm256_loadu_ps(k.dashpot + t), along));
+        }
+        fx = _mm256_add_ps(fx, _mm256_mul_ps(scale, dx));
+        fy = _mm256_add_ps(fy, _mm256_mul_ps(scale, dy));
+        fz = _mm256_add_ps(fz, _mm256_mul_ps(scale, dz));
+    }
+    const __m256 m = _mm256_loadu_ps(k.mass + base), w = _mm256_loadu_ps(k.inverse_mass_h2 + base), keep = _mm256_set1_ps(k.keep);
+    const __m256 nx = _mm256_add_ps(xi, _mm256_add_ps(_mm256_mul_ps(keep, uxi), _mm256_mul_ps(_mm256_add_ps(fx, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[0]))), w)));
+    const __m256 ny = _mm256_add_ps(yi, _mm256_add_ps(_mm256_mul_ps(keep, uyi), _mm256_mul_ps(_mm256_add_ps(fy, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[1]))), w)));
+    const __m256 nz = _mm256_add_ps(zi, _mm256_add_ps(_mm256_mul_ps(keep, uzi), _mm256_mul_ps(_mm256_add_ps(fz, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[2]))), w)));
+    const __m256 t0 = _mm256_unpacklo_ps(nx, ny), t1 = _mm256_unpacklo_ps(nz, zero);
+    const __m256 t2 = _mm256_unpackhi_ps(nx, ny), t3 = _mm256_unpackhi_ps(nz, zero);
+    const __m256 p0 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));  // particles 0 | 4
+    const __m256 p1 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5
+    const __m256 p2 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6
+    const __m256 p3 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7
+    float* out = k.xn + 4 * base;
+    _mm256_storeu_ps(out, _mm256_permute2f128_ps(p0, p1, 0x20));       // 0 1
+    _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(p2, p3, 0x20));   // 2 3
+    _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(p0, p1, 0x31));  // 4 5
+    _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(p2, p3, 0x31));  // 6 7
+    const __m256 ex = _mm256_sub_ps(nx, xi), ey = _mm256_sub_ps(ny, yi), ez = _mm256_sub_ps(nz, zi);
+    __m256 d2 = _mm256_add_ps(_mm256_mul_ps(ex, ex), _mm256_mul_ps(ey, ey));
+    d2 = _mm256_add_ps(d2, _mm256_mul_ps(ez, ez));
+    return _mm256_movemask_ps(_mm256_cmp_ps(d2, _mm256_set1_ps(k.max_displacement2), _CMP_NLE_UQ)) != 0;
+}
+
+bool cpu_has_avx2() { return __builtin_cpu_supports("avx2"); }
+
+#else
+bool cpu_has_avx2() { return false; }
+#endif
+
+template <class Real>
+using GroupFunction = bool (*)(const KernelData<Real>&, std::size_t);
+
+template <class Real>
+GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped) {
+    if constexpr (std::is_same_v<Real, float>) {
+#ifdef HEARTSIM_SOLVER_X86
+        if (kernel == SolverKernel::avx2) return damped ? &group_avx2<true> : &group_avx2<false>;
+        if (kernel == SolverKernel::sse2) return damped ? &group_sse2<true> : &group_sse2<false>;
+#endif
+    }
+    return damped ? &group_portable<Real, true> : &group_portable<Real, false>;
+}
+
+SolverKernel resolve_kernel(SolverKernel wanted, bool is_float) {
+    if (!is_float) return SolverKernel::portable;
+#ifdef HEARTSIM_SOLVER_X86
+    if (wanted == SolverKernel::automatic) return cpu_has_avx2() ? SolverKernel::avx2 : SolverKernel::sse2;
+    if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) return SolverKernel::sse2;
+    return wanted;
+#else
+    (void)wanted;
+    return SolverKernel::portable;
+#endif
+}
+
+/// A probe during one substep, world frame, double.
+struct ProbeFrame {
+    int hand = 0;
+    Eigen::Vector3d centre;
+    Eigen::Matrix3d world_from_tool;
+    Eigen::Vector3d previous_centre;           // the pose one substep earlier: the surface's motion
+    Eigen::Matrix3d previous_world_from_tool;
+    Eigen::Vector3d semi_axes;
+    double bound2 = 0.0;  // squared bounding radius, with a margin
+};
+
+InstrumentPose interpolate(const InstrumentPose& a, const InstrumentPose& b, double t) {
+    return {a.position + t * (b.position - a.position), a.orientation.slerp(t, b.orientation)};
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+template <class Real>
+BasicSolver<Real>::BasicSolver(const Lattice& lattice, const std::vector<std::array<std::int32_t, 18>>& neighbours,
+                               const SolverOptions& options)
+    : BasicSolver(lattice.particles, lattice.springs, neighbours, [&] {
+          SolverOptions o = options;
+          if (o.damping_ratio.empty())
+              for (const auto& material : lattice.materials) o.damping_ratio.push_back(material.damping_ratio);
+          return o;
+      }()) {}
+
+template <class Real>
+BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& springs,
+                               const std::vector<std::array<std::int32_t, 18>>& neighbours, const SolverOptions& options)
+    : options_(options) {
+    n_ = particles.size();
+    if (n_ == 0) throw InputError("solver: no particles");
+    if (particles.rest_position.size() != n_ || particles.anchored.size() != n_ || particles.material.size() != n_)
+        throw InputError("solver: particle arrays differ in length (rest_position, mass, material, anchored)");
+    if (springs.pairs.size() != springs.size() || springs.stiffness.size() != springs.size())
+        throw InputError("solver: spring arrays differ in length (pairs, rest_length, stiffness)");
+    if (!neighbours.empty() && neighbours.size() != n_)
+        throw InputError("solver: the neighbour table has " + std::to_string(neighbours.size()) + " rows for " + std::to_string(n_) +
+                         " particles");
+    if (n_ > std::size_t(std::numeric_limits<std::int32_t>::max() - lane_count)) throw InputError("solver: too many particles");
+    for (std::size_t i = 0; i < n_; ++i) {
+        if (!(particles.mass[i] > 0) || !std::isfinite(particles.mass[i]))
+            throw InputError("solver: particle " + std::to_string(i) + " has a non-positive or non-finite mass");
+        for (float c : particles.rest_position[i])
+            if (!std::isfinite(c)) throw InputError("solver: particle " + std::to_string(i) + " has a non-finite rest position");
+    }
+
+    n_pad_ = (n_ + lane_count - 1) / lane_count * lane_count;
+    groups_ = n_pad_ / lane_count;
+    chunks_ = (groups_ + chunk_groups - 1) / chunk_groups;
+
+    // Slot of every spring at both ends.
+    std::vector<std::array<std::int32_t, 18>> table = neighbours;
+    const bool assign = table.empty();
+    if (assign) table.assign(n_, {-1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1});
+    for (std::size_t i = 0; i < n_; ++i)
+        for (int s = 0; s < slot_count; ++s)
+            if (table[i][std::size_t(s)] < -1 || table[i][std::size_t(s)] >= std::int32_t(n_))
+                throw InputError("solver: neighbour table row " + std::to_string(i) + " slot " + std::to_string(s) + " is out of range");
+    std::vector<std::int32_t> slot_spring(n_ * slot_count, -1);
+    auto find_slot = [&](std::size_t a, std::int32_t b, int preferred) {
+        if (preferred >= 0 && table[a][std::size_t(preferred)] == b) return preferred;
+        for (int s = 0; s < slot_count; ++s)
+            if (table[a][std::size_t(s)] == b) return s;
+        return -1;
+    };
+    for (std::size_t q = 0; q < springs.size(); ++q) {
+        const auto [a, b] = springs.pairs[q];
+        if (a < 0 || b < 0 || std::size_t(a) >= n_ || std::size_t(b) >= n_ || a == b)
+            throw InputError("solver: spring " + std::to_string(q) + " joins invalid particles");
+        if (!(springs.stiffness[q] >= 0) || !(springs.rest_length[q] > 0) || !std::isfinite(springs.stiffness[q]) ||
+            !std::isfinite(springs.rest_length[q]))
+            throw InputError("solver: spring " + std::to_string(q) + " has a bad stiffness or rest length");
+        int sa, sb;
+        if (assign) {
+            sa = find_slot(std::size_t(a), -1, -1);
+            sb = find_slot(std::size_t(b), -1, -1);
+            if (sa < 0 || sb < 0) throw InputError("solver: a particle has more than 18 springs");
+            table[std::size_t(a)][std::size_t(sa)] = b;
+            table[std::size_t(b)][std::size_t(sb)] = a;
+        } else {
+            sa = find_slot(std::size_t(a), b, -1);
+            sb = find_slot(std::size_t(b), a, sa >= 0 ? opposite_slot(sa) : -1);
+            if (sa < 0 || sb < 0)
+                throw InputError("solver: spring " + std::to_string(q) + " joins particles " + std::to_string(a) + " and " +
+                                 std::to_string(b) + ", which the neighbour table does not list as neighbours");
+        }
+        slot_spring[std::size_t(a) * slot_count + std::size_t(sa)] = std::int32_t(q);
+        slot_spring[std::size_t(b) * slot_count + std::size_t(sb)] = std::int32_t(q);
+    }
+
+    // Per-particle arrays.
+    for (auto& b : buffer_) b.assign(4 * n_pad_, Real(0));
+    rest_.assign(4 * n_pad_, Real(0));
+    mass_.assign(n_pad_, Real(1));
+    inverse_mass_h2_.assign(n_pad_, Real(0));
+    movable_.assign(n_pad_, 0);
+    anchored_.assign(n_pad_, 0);
+    held_by_.assign(n_pad_, -1);
+    for (std::size_t i = 0; i < n_; ++i) {
+        for (int c = 0; c < 3; ++c) rest_[4 * i + std::size_t(c)] = Real(particles.rest_position[i][std::size_t(c)]);
+        mass_[i] = Real(particles.mass[i]);
+        anchored_[i] = particles.anchored[i] ? 1 : 0;
+        movable_[i] = anchored_[i] ? 0 : 1;
+        load_report_.anchored += anchored_[i];
+    }
+
+    // Per-slot tables in [group][slot][lane] order.
+    const std::size_t entries = groups_ * slot_count * lane_count;
+    neighbour_.assign(entries, 0);
+    rest_length_.assign(entries, Real(0));
+    stiffness_.assign(entries, Real(0));
+    dashpot_.assign(entries, Real(0));
+    auto ratio = [&](std::size_t i) {
+        const auto row = std::size_t(particles.material[i]);
+        return row < options_.damping_ratio.size() ? options_.damping_ratio[row] : 0.0;
+    };
+    min_rest_length_ = std::numeric_limits<Real>::infinity();
+    damped_ = false;
+    for (std::size_t i = 0; i < n_pad_; ++i) {
+        for (int s = 0; s < slot_count; ++s) {
+            const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+            neighbour_[t] = std::int32_t(i);
+            if (i >= n_) continue;
+            const std::int32_t q = slot_spring[i * slot_count + std::size_t(s)];
+            if (q < 0) {
+                if (table[i][std::size_t(s)] >= 0) ++load_report_.table_slots_without_spring;
+                continue;
+            }
+            const auto [a, b] = springs.pairs[std::size_t(q)];
+            const std::size_t j = std::size_t(a) == i ? std::size_t(b) : std::size_t(a);
+            neighbour_[t] = std::int32_t(j);
+            rest_length_[t] = Real(springs.rest_length[std::size_t(q)]);
+            stiffness_[t] = Real(springs.stiffness[std::size_t(q)]);
+            const double ma = particles.mass[i], mb = particles.mass[j];
+            const double reduced = ma * mb / (ma + mb);
+            const double zeta = 0.5 * (ratio(i) + ratio(j));
+            dashpot_[t] = Real(2.0 * zeta * std::sqrt(double(springs.stiffness[std::size_t(q)]) * reduced));
+            damped_ = damped_ || dashpot_[t] != Real(0);
+            if (stiffness_[t] > Real(0)) dashpot_ratio_ = std::max(dashpot_ratio_, double(dashpot_[t]) / double(stiffness_[t]));
+            min_rest_length_ = std::min(min_rest_length_, rest_length_[t]);
+        }
+    }
+    // A regular lattice of one material has one rest length and one stiffness per slot: the
+    // kernel then reads 18 constants instead of two per-entry tables (less memory traffic).
+    // An empty slot points at the particle itself, which gives zero force with any constants.
+    {
+        std::array<Real, slot_count> rest{}, stiff{};
+        std::array<bool, slot_count> seen{};
+        bool uniform = true;
+        for (std::size_t i = 0; i < n_ && uniform; ++i)
+            for (int s = 0; s < slot_count; ++s) {
+                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                if (std::size_t(neighbour_[t]) == i) continue;
+                if (!seen[std::size_t(s)]) seen[std::size_t(s)] = true, rest[std::size_t(s)] = rest_length_[t], stiff[std::size_t(s)] = stiffness_[t];
+                else if (rest[std::size_t(s)] != rest_length_[t] || stiff[std::size_t(s)] != stiffness_[t]) uniform = false;
+            }
+        uniform_slots_ = uniform && options_.compact_uniform_slots;
+        slot_rest_length_.assign(std::size_t(slot_count) * lane_count, Real(0));
+        slot_stiffness_.assign(std::size_t(slot_count) * lane_count, Real(0));
+        for (int s = 0; s < slot_count; ++s)
+            for (int l = 0; l < lane_count; ++l) {
+                slot_rest_length_[std::size_t(s * lane_count + l)] = rest[std::size_t(s)];
+                slot_stiffness_[std::size_t(s * lane_count + l)] = stiff[std::size_t(s)];
+            }
+        load_report_.uniform_slots = uniform_slots_;
+    }
+    // Each spring appears twice in the tables: ½ · ½ k (0.1 L₀)² per entry.
+    for (std::size_t q = 0; q < springs.size(); ++q)
+        energy_floor_ += 0.5 * double(springs.stiffness[q]) * std::pow(0.1 * double(springs.rest_length[q]), 2);
+
+    load_report_.particles = n_;
+    load_report_.springs = springs.size();
+    if (options_.critical_dt_ms > 0) {
+        critical_dt_ms_ = options_.critical_dt_ms;
+    } else {
+        critical_dt_ms_ = estimate_critical_time_step(particles, springs).critical_dt_ms;
+        load_report_.critical_dt_estimated = true;
+    }
+    load_report_.critical_dt_ms = critical_dt_ms_;
+    load_report_.damped_critical_dt_ms = damped_critical_dt_ms();
+    load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>);
+
+    touched_.assign(chunks_ * hands, {});
+    touched_previous_.assign(chunks_ * hands, {});
+    chunk_bad_.assign(chunks_, 0);
+
+    double dt = options_.dt_ms;
+    if (!(dt > 0)) {
+        dt = options_.safety_factor * critical_dt_ms_;
+        if (!std::isfinite(dt) || !(dt > 0)) throw InputError("solver: dt_ms must be given for a network without a finite critical step");
+    }
+    current_ = buffer_[0].data();
+    previous_ = buffer_[1].data();
+    next_ = buffer_[2].data();
+    h_ = 0.0;
+    set_time_step(dt);
+    reset();
+}
+
+template <class Real>
+double BasicSolver<Real>::damped_critical_dt_ms() const {
+    if (!std::isfinite(critical_dt_ms_) || !(critical_dt_ms_ > 0)) return critical_dt_ms_;
+    const double lambda = 4.0 / (critical_dt_ms_ * critical_dt_ms_);
+    const double b = std::max(0.0, options_.damping) + dashpot_ratio_ * lambda;
+    return (-b + std::sqrt(b * b + 4.0 * lambda)) / lambda;
+}
+
+template <class Real>
+void BasicSolver<Real>::set_time_step(double dt_ms) {
+    if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
+    const double limit = options_.safety_factor * damped_critical_dt_ms();
+    int substeps = 1;
+    if (options_.subdivide && std::isfinite(limit) && limit > 0) substeps = std::max(1, int(std::ceil(dt_ms / limit * (1 - 1e-12))));
+    const double old_h = h_;
+    dt_ms_ = dt_ms;
+    substeps_ = substeps;
+    h_ = dt_ms / substeps;
+    load_report_.substeps = substeps_;
+    load_report_.substep_ms = h_;
+    build_step_constants();
+    if (old_h > 0 && old_h != h_) {
+        // Keep velocities: the Verlet state stores displacement per substep, u = v·h.
+        const Real ratio = Real(h_ / old_h);
+        for (std::size_t i = 0; i < 4 * n_pad_; ++i) previous_[i] = current_[i] - (current_[i] - previous_[i]) * ratio;
+        snapshot();
+    }
+}
+
+template <class Real>
+void BasicSolver<Real>::build_step_constants() {
+    const double h2 = h_ * h_;
+    for (std::size_t i = 0; i < n_pad_; ++i) inverse_mass_h2_[i] = movable_[i] ? Real(h2 / double(mass_[i])) : Real(0);
+    dashpot_over_h_.resize(dashpot_.size());
+    for (std::size_t t = 0; t < dashpot_.size(); ++t) dashpot_over_h_[t] = Real(double(dashpot_[t]) / h_);
+}
+
+template <class Real>
+void BasicSolver<Real>::reset() {
+    std::copy(rest_.begin(), rest_.end(), current_);
+    std::copy(rest_.begin(), rest_.end(), previous_);
+    std::copy(rest_.begin(), rest_.end(), next_);
+    // At rest the springs exert nothing: x₋₁ = x₀ + ½·g·h² starts the fall at second order.
+    for (std::size_t i = 0; i < n_pad_; ++i)
+        if (movable_[i])
+            for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] += Real(0.5 * options_.gravity[c] * h_ * h_);
+    for (int hand = 0; hand < hands; ++hand) release(hand);
+    for (auto& list : touched_) list.clear();
+    time_ms_ = 0.0;
+    good_energy_ = 0.0;
+    substeps_since_check_ = 0;
+    snapshot();
+}
+
+template <class Real>
+void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions, const std::vector<Eigen::Vector3d>& velocities) {
+    if (positions.size() != n_ || velocities.size() != n_) throw InputError("solver: set_state needs N positions and N velocities");
+    for (std::size_t i = 0; i < n_; ++i)
+        if (!positions[i].allFinite() || !velocities[i].allFinite()) throw InputError("solver: set_state with a non-finite value");
+    for (std::size_t i = 0; i < n_; ++i) {
+        const Eigen::Vector3d v = movable_[i] ? velocities[i] : Eigen::Vector3d::Zero();
+        for (int c = 0; c < 3; ++c) {
+            current_[4 * i + std::size_t(c)] = Real(positions[i][c]);
+            previous_[4 * i + std::size_t(c)] = Real(positions[i][c] - v[c] * h_);
+        }
+    }
+    // Taylor start: x₋₁ = x₀ − v·h + ½·a·h², a = (f + m·g)/m − γ·v (Verlet is then second order from
+    // the first step; x₋₁ = x₀ − v·h alone would shift time by h/2, a first-order error).
+    std::vector<Eigen::Vector3d> half_step(n_, Eigen::Vector3d::Zero());
+    for (std::size_t i = 0; i < n_; ++i) {
+        if (!movable_[i]) continue;
+        const double m = double(mass_[i]);
+        const Eigen::Vector3d a = (force_on(i) + m * options_.gravity) / m - options_.damping * velocities[i];
+        half_step[i] = 0.5 * h_ * h_ * a;
+    }
+    for (std::size_t i = 0; i < n_; ++i)
+        for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] = Real(double(previous_[4 * i + std::size_t(c)]) + half_step[i][c]);
+    for (auto& list : touched_) list.clear();
+    good_energy_ = compute_energy(false).total();
+    substeps_since_check_ = 0;
+    snapshot();
+}
+
+template <class Real>
+void BasicSolver<Real>::snapshot() {
+    good_current_.assign(current_, current_ + 4 * n_pad_);
+    good_previous_.assign(previous_, previous_ + 4 * n_pad_);
+    good_time_ms_ = time_ms_;
+}
+
+template <class Real>
+void BasicSolver<Real>::restore() {
+    std::copy(good_current_.begin(), good_current_.end(), current_);
+    std::copy(good_previous_.begin(), good_previous_.end(), previous_);
+    time_ms_ = good_time_ms_;
+    for (auto& list : touched_) list.clear();
+    substeps_since_check_ = 0;
+}
+
+template <class Real>
+void BasicSolver<Real>::set_instrument(int hand, const Instrument& instrument) {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    for (int c = 0; c < 3; ++c)
+        if (!(instrument.semi_axes[c] > 0) || !std::isfinite(instrument.semi_axes[c]))
+            throw InputError("solver: instrument semi-axes must be positive and finite, mm");
+    release(hand);
+    hand_[std::size_t(hand)].instrument = instrument;
+    hand_[std::size_t(hand)].placed = false;
+    for (std::size_t c = 0; c < chunks_; ++c) touched_[c * hands + std::size_t(hand)].clear();
+}
+
+template <class Real>
+const Instrument& BasicSolver<Real>::instrument(int hand) const {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    return hand_[std::size_t(hand)].instrument;
+}
+
+template <class Real>
+void BasicSolver<Real>::set_pose(int hand, const InstrumentPose& pose) {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    if (!pose.position.allFinite() || !pose.orientation.coeffs().allFinite() || pose.orientation.norm() < 1e-6)
+        throw InputError("solver: an instrument pose must be finite with a non-zero quaternion");
+    InstrumentPose p = pose;
+    p.orientation.normalize();
+    HandState& state = hand_[std::size_t(hand)];
+    state.target = p;
+    if (!state.placed) state.pose = p;  // the first pose of an instrument places it: no sweep from the origin
+    state.placed = true;
+}
+
+template <class Real>
+std::size_t BasicSolver<Real>::begin_grab(int hand) {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    HandState& state = hand_[std::size_t(hand)];
+    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber");
+    release(hand);
+    state.grabbing = true;
+    const Eigen::Matrix3d tool_from_world = state.pose.orientation.toRotationMatrix().transpose();
+    for (std::size_t i = 0; i < n_; ++i) {
+        if (!movable_[i] || held_by_[i] >= 0) continue;
+        const Eigen::Vector3d x(static_cast<double>(current_[4 * i]), double(current_[4 * i + 1]), double(current_[4 * i + 2]));
+        const Eigen::Vector3d local = tool_from_world * (x - state.pose.position);
+        if (local.cwiseQuotient(state.instrument.semi_axes).squaredNorm() > 1.0) continue;
+        state.held.push_back(std::int32_t(i));
+        state.held_local.push_back(local);
+        held_by_[i] = std::int8_t(hand);
+    }
+    return state.held.size();
+}
+
+template <class Real>
+void BasicSolver<Real>::release(int hand) {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    HandState& state = hand_[std::size_t(hand)];
+    for (std::int32_t i : state.held) held_by_[std::size_t(i)] = -1;
+    state.held.clear();
+    state.held_local.clear();
+    state.grabbing = false;
+}
+
+template <class Real>
+std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int hand) const {
+    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    const HandState& state = hand_[std::size_t(hand)];
+    if (state.instrument.kind == InstrumentKind::grabber) return state.held;
+    std::vector<std::int32_t> all;
+    for (std::size_t c = 0; c < chunks_; ++c) {
+        const auto& list = touched_[c * hands + std::size_t(hand)];
+        all.insert(all.end(), list.begin(), list.end());
+    }
+    return all;
+}
+
+template <class Real>
+void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad) {
+    KernelData<Real> k{};
+    k.x = current_;
+    k.xp = previous_;
+    k.xn = next_;
+    k.neighbour = neighbour_.data();
+    if (uniform_slots_) {
+        k.rest_length = slot_rest_length_.data();
+        k.stiffness = slot_stiffness_.data();
+        k.parameter_group_stride = 0;
+    } else {
+        k.rest_length = rest_length_.data();
+        k.stiffness = stiffness_.data();
+        k.parameter_group_stride = std::size_t(slot_count) * lane_count;
+    }
+    k.dashpot = dashpot_over_h_.data();
+    k.mass = mass_.data();
+    k.inverse_mass_h2 = inverse_mass_h2_.data();
+    k.keep = Real(1.0 - options_.damping * h_);
+    for (int c = 0; c < 3; ++c) k.gravity[c] = Real(options_.gravity[c]);
+    double max_displacement = options_.max_displacement_fraction * double(min_rest_length_);
+    for (const HandState& state : hand_)
+        if (state.instrument.kind != InstrumentKind::none) max_displacement = std::max(max_displacement, state.instrument.semi_axes.maxCoeff());
+    k.max_displacement2 = options_.watchdog && std::isfinite(max_displacement) ? Real(max_displacement * max_displacement)
+                                                                                 : std::numeric_limits<Real>::infinity();
+    const GroupFunction<Real> group_function = choose_group_function<Real>(load_report_.kernel, damped_);
+
+    std::array<ProbeFrame, hands> probes;
+    int probe_count = 0;
+    for (int hand = 0; hand < hands; ++hand) {
+        const HandState& state = hand_[std::size_t(hand)];
+        if (state.instrument.kind != InstrumentKind::probe) continue;
+        ProbeFrame& p = probes[std::size_t(probe_count++)];
+        p.hand = hand;
+        p.centre = poses[hand].position;
+        p.world_from_tool = poses[hand].orientation.toRotationMatrix();
+        p.previous_centre = previous_poses[hand].position;
+        p.previous_world_from_tool = previous_poses[hand].orientation.toRotationMatrix();
+        p.semi_axes = state.instrument.semi_axes;
+        const double radius = state.instrument.semi_axes.maxCoeff() * (1 + 1e-3) + 1e-3;
+        p.bound2 = radius * radius;
+    }
+
+    // Projects particle i out of the probe if inside (exact test in double; the stored float
+    // position is re-checked so rounding cannot leave it inside). The contact is inelastic and
+    // frictionless: the particle keeps its own displacement u of this substep except that its
+    // normal component becomes at least the probe surface's, so a deep or sudden probe does not
+    // fling particles out at penetration/h. The matching previous position is applied after the
+    // parallel loop (other particles still read the current buffer).
+    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched, std::vector<Eigen::Vector3d>& previous) {
+        Real* x = next_ + 4 * i;
+        const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
+        Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
+        const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
+        if (!(r2 < 1.0)) return;
+        if (r2 > 0) local /= std::sqrt(r2);
+        else local = Eigen::Vector3d(0, 0, p.semi_axes.z());
+        // Radial projection in the ellipsoid's scaled frame (the closest point for a sphere), to
+        // just outside the boundary (1e-6 relative) so that float rounding and a caller's own
+        // evaluation of the pose cannot see it inside.
+        double factor = 1.0 + 1e-6;
+        Eigen::Vector3d stored;
+        for (int attempt = 0; attempt < 60; ++attempt) {
+            const Eigen::Vector3d out = p.centre + p.world_from_tool * (local * factor);
+            for (int c = 0; c < 3; ++c) x[c] = Real(out[c]);
+            stored = Eigen::Vector3d(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
+            if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(p.semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
+            factor *= 1 + 1e-6 * double(1 << std::min(attempt, 20));
+        }
+        const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
+        const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
+        const Real* xc = current_ + 4 * i;
+        Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));
+        u += std::max(0.0, (surface_motion - u).dot(normal)) * normal;
+        touched.push_back(std::int32_t(i));
+        previous.push_back(stored - u);
+    };
+
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
+            bool chunk_bad = false;
+            const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
+            for (std::size_t g = first; g < last; ++g) chunk_bad |= group_function(k, g);
+            for (int hand = 0; hand < hands; ++hand) {
+                touched_[chunk * hands + std::size_t(hand)].clear();
+                touched_previous_[chunk * hands + std::size_t(hand)].clear();
+            }
+            for (int pi = 0; pi < probe_count; ++pi) {
+                const ProbeFrame& p = probes[std::size_t(pi)];
+                auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
+                auto& previous = touched_previous_[chunk * hands + std::size_t(p.hand)];
+                const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
+                const std::size_t end = std::min(n_, last * lane_count);
+                for (std::size_t i = first * lane_count; i < end; ++i) {
+                    const Real* x = next_ + 4 * i;
+                    const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
+                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, previous);
+                }
+            }
+            chunk_bad_[chunk] = chunk_bad;
+        }
+    });
+
+    // Probe contacts: the previous position that gives each touched particle its post-contact
+    // displacement (written into the buffer that becomes the previous one).
+    for (std::size_t list = 0; list < touched_.size(); ++list)
+        for (std::size_t q = 0; q < touched_[list].size(); ++q) {
+            Real* x = current_ + 4 * std::size_t(touched_[list][q]);
+            for (int c = 0; c < 3; ++c) x[c] = Real(touched_previous_[list][q][c]);
+        }
+
+    // Grabbed particles follow the tool rigidly.
+    for (int hand = 0; hand < hands; ++hand) {
+        const HandState& state = hand_[std::size_t(hand)];
+        if (!state.grabbing) continue;
+        const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
+        for (std::size_t q = 0; q < state.held.size(); ++q) {
+            const Eigen::Vector3d world = poses[hand].position + rotation * state.held_local[q];
+            Real* x = next_ + 4 * std::size_t(state.held[q]);
+            for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
+        }
+    }
+
+    for (std::size_t chunk = 0; chunk < chunks_; ++chunk) bad = bad || chunk_bad_[chunk];
+    Real* old_previous = previous_;
+    previous_ = current_;
+    current_ = next_;
+    next_ = old_previous;
+    time_ms_ += h_;
+}
+
+template <class Real>
+StepReport BasicSolver<Real>::step(int steps) {
+    StepReport report;
+    if (steps <= 0) return report;
+    const long long total = (long long)steps * substeps_;
+    std::array<InstrumentPose, hands> start, poses, previous_poses;
+    for (int hand = 0; hand < hands; ++hand) start[std::size_t(hand)] = hand_[std::size_t(hand)].pose;
+
+    auto fire = [&](WatchdogReason reason, const std::string& detail) {
+        const double failed_at = time_ms_;
+        restore();
+        ++watchdog_events_;
+        report.diverged = true;
+        report.reason = reason;
+        std::ostringstream message;
+        message << "solver watchdog: " << to_string(reason) << " at t = " << failed_at << " ms (substep " << h_
+                << " ms, critical " << critical_dt_ms_ << " ms)" << detail << "; restored the state of t = " << time_ms_ << " ms";
+        report.message = message.str();
+    };
+
+    for (long long q = 1; q <= total; ++q) {
+        const double fraction = double(q) / double(total);
+        const double previous_fraction = double(q - 1) / double(total);
+        for (int hand = 0; hand < hands; ++hand) {
+            poses[std::size_t(hand)] = interpolate(start[std::size_t(hand)], hand_[std::size_t(hand)].target, fraction);
+            previous_poses[std::size_t(hand)] = interpolate(start[std::size_t(hand)], hand_[std::size_t(hand)].target, previous_fraction);
+        }
+        bool bad = false;
+        substep(previous_poses.data(), poses.data(), bad);
+        ++report.substeps;
+        if (bad && options_.watchdog) {
+            bool finite = true;
+            for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]);
+            fire(finite ? WatchdogReason::speed : WatchdogReason::non_finite,
+                 finite ? ", a particle moved more than " + std::to_string(options_.max_displacement_fraction) +
+                              " of the shortest rest length in one substep"
+                        : "");
+            break;
+        }
+        if (options_.watchdog && ++substeps_since_check_ >= options_.watchdog_interval) {
+            substeps_since_check_ = 0;
+            const double e = compute_energy(false).total();
+            if (!std::isfinite(e)) {
+                fire(WatchdogReason::non_finite, "");
+                break;
+            }
+            const double limit = options_.energy_growth_limit * (std::max(good_energy_, 0.0) + energy_floor_);
+            if (e > limit) {
+                fire(WatchdogReason::energy, ", energy " + std::to_string(e) + " mJ above the limit " + std::to_string(limit) + " mJ");
+                break;
+            }
+            good_energy_ = e;
+            snapshot();
+        }
+        if (q % substeps_ == 0) ++report.steps;
+    }
+    if (!options_.watchdog) {
+        // Even unguarded, nothing non-finite leaves the solver.
+        bool finite = true;
+        for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]) && std::isfinite(previous_[i]);
+        if (!finite) fire(WatchdogReason::non_finite, "");
+    }
+    for (auto& state : hand_) state.pose = state.target;
+    return report;
+}
+
+template <class Real>
+Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    const Real* xi = current_ + 4 * i;
+    const Real* pi = previous_ + 4 * i;
+    for (int s = 0; s < slot_count; ++s) {
+        const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+        const std::size_t j = std::size_t(neighbour_[t]);
+        if (j == i) continue;
+        const Real* xj = current_ + 4 * j;
+        const Real* pj = previous_ + 4 * j;
+        const Eigen::Vector3d d(double(xj[0]) - xi[0], double(xj[1]) - xi[1], double(xj[2]) - xi[2]);
+        const double length = std::max(d.norm(), 1e-15);
+        double scale = double(stiffness_[t]) * (length - double(rest_length_[t])) / length;
+        if (damped_) {
+            const Eigen::Vector3d du((double(xj[0]) - pj[0]) - (double(xi[0]) - pi[0]), (double(xj[1]) - pj[1]) - (double(xi[1]) - pi[1]),
+                                     (double(xj[2]) - pj[2]) - (double(xi[2]) - pi[2]));
+            scale += double(dashpot_over_h_[t]) * du.dot(d) / (length * length);
+        }
+        force += scale * d;
+    }
+    return force;
+}
+
+template <class Real>
+Eigen::Vector3d BasicSolver<Real>::particle_force(std::size_t particle) const {
+    if (particle >= n_) throw InputError("solver: particle index out of range");
+    return force_on(particle);
+}
+
+template <class Real>
+InstrumentForces BasicSolver<Real>::instrument_forces() const {
+    InstrumentForces forces;
+    for (int hand = 0; hand < hands; ++hand) {
+        const std::vector<std::int32_t> contact = contact_particles(hand);
+        InstrumentForce& f = forces.hand[std::size_t(hand)];
+        for (std::int32_t i : contact) f.force_n += force_on(std::size_t(i));
+        f.particles = contact.size();
+        if (!f.force_n.allFinite()) f.force_n.setZero();  // unreachable with finite positions; never leak
+    }
+    return forces;
+}
+
+template <class Real>
+Eigen::Vector3d BasicSolver<Real>::anchor_force() const {
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < n_; ++i)
+        if (anchored_[i]) force += force_on(i);
+    return force;
+}
+
+template <class Real>
+SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
+    std::vector<std::array<double, 3>> partial(chunks_, {0.0, 0.0, 0.0});
+    const double h = h_, keep = 1.0 - options_.damping * h_;
+    const Eigen::Vector3d g = options_.gravity;
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
+            double kinetic = 0, elastic = 0, gravity = 0;
+            const std::size_t end = std::min(n_, (chunk + 1) * chunk_groups * lane_count);
+            for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
+                const Real* x = current_ + 4 * i;
+                for (int s = 0; s < slot_count; ++s) {
+                    const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                    const Real* y = current_ + 4 * std::size_t(neighbour_[t]);
+                    const double length = std::sqrt(std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) +
+                                                    std::pow(double(y[2]) - x[2], 2));
+                    elastic += 0.25 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
+                }
+                if (!movable_[i]) continue;
+                const double m = double(mass_[i]);
+                Eigen::Vector3d u(static_cast<double>(x[0]) - previous_[4 * i], static_cast<double>(x[1]) - previous_[4 * i + 1], static_cast<double>(x[2]) - previous_[4 * i + 2]);
+                if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / m));
+                kinetic += 0.5 * m * u.squaredNorm() / (h * h);
+                const Eigen::Vector3d displacement(static_cast<double>(x[0]) - rest_[4 * i], static_cast<double>(x[1]) - rest_[4 * i + 1], static_cast<double>(x[2]) - rest_[4 * i + 2]);
+                gravity -= m * g.dot(displacement);
+            }
+            partial[chunk] = {kinetic, elastic, gravity};
+        }
+    });
+    SolverEnergy e;
+    for (const auto& p : partial) e.kinetic += p[0], e.elastic += p[1], e.gravity += p[2];
+    return e;
+}
+
+template <class Real>
+SolverEnergy BasicSolver<Real>::energy() const {
+    return compute_energy(true);
+}
+
+template <class Real>
+Eigen::Vector3d BasicSolver<Real>::position(std::size_t particle) const {
+    if (particle >= n_) throw InputError("solver: particle index out of range");
+    const Real* x = current_ + 4 * particle;
+    return {static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2])};
+}
+
+template <class Real>
+std::vector<std::array<float, 3>> BasicSolver<Real>::positions() const {
+    std::vector<std::array<float, 3>> out(n_);
+    for (std::size_t i = 0; i < n_; ++i) out[i] = {float(current_[4 * i]), float(current_[4 * i + 1]), float(current_[4 * i + 2])};
+    return out;
+}
+
+template <class Real>
+std::uint64_t BasicSolver<Real>::state_hash() const {
+    std::uint64_t hash = 1469598103934665603ull;
+    auto mix = [&](const Real* data) {
+        const auto* bytes = reinterpret_cast<const unsigned char*>(data);
+        for (std::size_t b = 0; b < 4 * n_pad_ * sizeof(Real); ++b) hash = (hash ^ bytes[b]) * 1099511628211ull;
+    };
+    mix(current_);
+    mix(previous_);
+    return hash;
+}
+
+template class BasicSolver<float>;
+template class BasicSolver<double>;
+
+}  // namespace heartsim

@@ -1,0 +1,295 @@
+/// @file solver.h
+/// @brief The CPU spring-mass solver: Verlet integration of M ẍ = f_spring + f_damping + f_ext
+/// on the packed particle layout, driven by the 18-slot neighbour table; two instruments (probe
+/// and grabber) with haptic forces; a watchdog that never lets a non-finite value out.
+/// The reference every backend is checked against and the fallback where there is no GPU.
+/// Formulas, sign conventions and the memory layout: docs/solver.md.
+///
+/// Units: mm, g, ms; force N (g·mm/ms²), stiffness N/mm, energy mJ (N·mm). World frame LPS.
+///
+///     Solver solver(lattice, packing.neighbours, {.dt_ms = scenario.solver.dt_ms});
+///     solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = {2, 2, 6}});
+///     solver.set_pose(0, {.position = tip, .orientation = q});
+///     StepReport report = solver.step(10);
+///     InstrumentForces forces = solver.instrument_forces();   // both hands, one call
+#pragma once
+
+#include "lattice.h"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// Which inner loop runs the step. All of them give the same bits for float: they evaluate the
+/// same IEEE operations in the same order (no FMA contraction, exact sqrt and division).
+enum class SolverKernel {
+    automatic,  ///< the fastest this CPU supports (AVX2 where present, else SSE2)
+    portable,   ///< plain C++, what the compiler makes of it (the only kernel for double)
+    sse2,       ///< x86-64 baseline intrinsics, 4 lanes
+    avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2
+};
+
+/// Solver settings: the scenario's /solver attributes (formats/scenario.h `SolverSettings`)
+/// plus what only the solver needs. Every field has a default and a unit.
+struct SolverOptions {
+    /// Time of one step() unit, ms. 0 = safety_factor × critical step.
+    double dt_ms = 0.0;
+    /// Critical step 2/ω_max, ms. 0 = estimated here (stability.h power iteration).
+    double critical_dt_ms = 0.0;
+    /// Each step is split into the fewest equal substeps with substep ≤ safety_factor × critical.
+    double safety_factor = 0.5;
+    /// false: never subdivide (one substep per step even above critical; the watchdog guards it).
+    bool subdivide = true;
+    /// Global drag γ, 1/ms: f = −γ·m·v on every free particle (scenario /solver damping).
+    double damping = 0.0;
+    /// Gravity, mm/ms² (9.81e-3 is 1 g), world frame.
+    Eigen::Vector3d gravity{0.0, 9.81e-3, 0.0};
+    /// Spring damping ratio ζ per material row (dimensionless); a spring's dashpot is
+    /// c = 2ζ√(kμ), μ the pair's reduced mass, ζ the mean of its two particles' materials.
+    /// Empty: taken from the lattice's materials, or 0 when built from bare particles.
+    std::vector<double> damping_ratio;
+
+    bool watchdog = true;             ///< divergence detection and restore (off only for tests)
+    int watchdog_interval = 64;       ///< substeps between energy checks and good-state snapshots
+    /// Largest displacement of a free particle in one substep, as a fraction of the shortest
+    /// rest length (and at least the largest semi-axis of an instrument in use): the speed
+    /// bound. A stable mode moves at most its amplitude per substep at h ≤ critical/2; an
+    /// unstable one grows geometrically past any bound within a few dozen substeps.
+    double max_displacement_fraction = 2.0;
+    /// Energy check: the total energy may grow at most this factor between two checks, over a
+    /// floor of ½·Σk(0.1·L₀)² (every spring strained 10%), so instrument work from rest passes.
+    double energy_growth_limit = 100.0;
+    SolverKernel kernel = SolverKernel::automatic;
+    /// Read one rest length and stiffness per slot instead of per-entry tables when every
+    /// spring in a slot has the same (a one-material regular lattice): same results, less traffic.
+    bool compact_uniform_slots = true;
+};
+
+enum class InstrumentKind {
+    none,
+    probe,    ///< particles inside the ellipsoid are projected to its boundary after every substep
+    grabber,  ///< begin_grab() captures the particles inside; they follow the pose rigidly
+};
+
+/// An instrument's volume: an ellipsoid with semi-axes along the tool frame's x, y, z, mm.
+struct Instrument {
+    InstrumentKind kind = InstrumentKind::none;
+    Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
+};
+
+/// Tool frame → world: x_world = orientation · x_tool + position (mm, LPS).
+struct InstrumentPose {
+    Eigen::Vector3d position = Eigen::Vector3d::Zero();
+    Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+};
+
+/// The force the tissue exerts on one instrument, N, world frame: the sum of the spring and
+/// dashpot forces acting on the particles it holds (grabber) or touched in the last substep
+/// (probe). A probe pressed into tissue is pushed back out: the force points from the tissue
+/// towards the probe. A haptic device renders it as is.
+struct InstrumentForce {
+    Eigen::Vector3d force_n = Eigen::Vector3d::Zero();
+    std::size_t particles = 0;  ///< particles held or touched
+};
+
+struct InstrumentForces {
+    std::array<InstrumentForce, 2> hand;
+};
+
+enum class WatchdogReason { none, non_finite, speed, energy };
+const char* to_string(WatchdogReason reason);
+
+/// What step() did.
+struct StepReport {
+    int steps = 0;                ///< steps completed (each of dt_ms)
+    long long substeps = 0;       ///< substeps completed
+    bool diverged = false;        ///< the watchdog fired: the state is the last good one
+    WatchdogReason reason = WatchdogReason::none;
+    std::string message;          ///< one line: what, when, how large
+};
+
+/// Energies, mJ (N·mm), relative to the rest state (elastic 0, gravity potential 0 at rest).
+struct SolverEnergy {
+    double kinetic = 0.0;
+    double elastic = 0.0;
+    double gravity = 0.0;         ///< −Σ m g·(x − x_rest)
+    double total() const { return kinetic + elastic + gravity; }
+};
+
+struct SolverLoadReport {
+    std::size_t particles = 0;
+    std::size_t springs = 0;
+    std::size_t anchored = 0;
+    std::size_t table_slots_without_spring = 0;  ///< neighbour-table entries no spring joins (ignored)
+    double critical_dt_ms = 0.0;
+    double damped_critical_dt_ms = 0.0;          ///< with dashpots and drag (BasicSolver::damped_critical_dt_ms)
+    bool critical_dt_estimated = false;          ///< estimated here rather than given
+    int substeps = 1;                            ///< per step
+    double substep_ms = 0.0;
+    SolverKernel kernel = SolverKernel::portable;///< the one chosen
+    bool uniform_slots = false;                  ///< rest length and stiffness read as 18 per-slot constants
+};
+
+/// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
+/// the converged reference for convergence tests). Not thread-safe: one caller drives it;
+/// step() itself runs on TBB's workers and gives the same bits for any thread count.
+template <class Real>
+class BasicSolver {
+public:
+    static constexpr int hands = 2;
+    static constexpr int slots = 18;
+    static constexpr int lanes = 8;  ///< particles per group in the slot tables (docs/solver.md)
+
+    /// Builds the solver from the packed particles and springs. `neighbours` is /packing/neighbours
+    /// (N×18, lattice.h slot order, −1 = none); empty = slots assigned from the springs in order.
+    /// Throws InputError for mismatched sizes, a spring not in the table, a non-positive mass,
+    /// a particle with more than 18 springs, or a non-positive or non-finite time step.
+    BasicSolver(const Particles& particles, const Springs& springs,
+                const std::vector<std::array<std::int32_t, 18>>& neighbours, const SolverOptions& options = {});
+    /// Same, with damping ratios from `lattice.materials` unless options give them.
+    BasicSolver(const Lattice& lattice, const std::vector<std::array<std::int32_t, 18>>& neighbours,
+                const SolverOptions& options = {});
+
+    const SolverLoadReport& load_report() const { return load_report_; }
+    std::size_t size() const { return n_; }
+
+    /// Sets the time of one step, ms (recomputes substeps and the per-substep constants).
+    void set_time_step(double dt_ms);
+    double time_step_ms() const { return dt_ms_; }
+    double substep_ms() const { return h_; }
+    int substeps_per_step() const { return substeps_; }
+    double simulated_time_ms() const { return time_ms_; }
+    /// The critical step with damping: dashpots and drag shorten it. For a mode ω (ω² ≤ λ =
+    /// 4/critical²) the damped central-difference scheme is stable while ω²h² + 2h(γ + βω²) < 4,
+    /// β = max c/k over springs; solved for h at ω² = λ. Equals the critical step undamped.
+    double damped_critical_dt_ms() const;
+
+    /// Instruments: hand 0 or 1. Changing an instrument releases what it held.
+    void set_instrument(int hand, const Instrument& instrument);
+    const Instrument& instrument(int hand) const;
+    /// The pose reached at the end of the next step() call; the pose moves linearly (position)
+    /// and by slerp (orientation) across that call's substeps, so fast tools do not teleport.
+    /// The first pose after set_instrument() places the instrument there at once.
+    void set_pose(int hand, const InstrumentPose& pose);
+    /// Starts a grab gesture: captures the free particles inside the grabber at its current
+    /// pose; they then follow it rigidly. Returns how many. Throws if the hand is no grabber.
+    std::size_t begin_grab(int hand);
+    void release(int hand);
+    /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
+    std::vector<std::int32_t> contact_particles(int hand) const;
+
+    /// Advances `steps` steps of dt_ms. Stops early when the watchdog fires (see StepReport).
+    StepReport step(int steps = 1);
+    /// Back to rest: rest positions, zero velocity, grabs released, time 0. Instruments kept.
+    void reset();
+    /// Sets every particle's position (mm) and velocity (mm/ms), N each, packed order. The
+    /// previous position is x − v·h + ½·a·h² (a from the forces at x), so the start is second
+    /// order. Anchored particles take the given position and zero velocity. Time is unchanged.
+    void set_state(const std::vector<Eigen::Vector3d>& positions, const std::vector<Eigen::Vector3d>& velocities);
+
+    /// Both instruments' forces from the current state, in one call (N, world frame).
+    InstrumentForces instrument_forces() const;
+    /// The force the tissue exerts on its anchors (Σ spring + dashpot forces on anchored
+    /// particles), N. Minus it is the anchors' reaction on the tissue.
+    Eigen::Vector3d anchor_force() const;
+    /// Σ spring + dashpot force on one particle, N.
+    Eigen::Vector3d particle_force(std::size_t particle) const;
+
+    /// Energies with the centred velocity (x_{n+1} − x_{n−1})/2h (O(h²), for tests without
+    /// instruments). The watchdog uses the cheaper backward-difference kinetic energy.
+    SolverEnergy energy() const;
+
+    /// Current position of a particle (packed order), mm.
+    Eigen::Vector3d position(std::size_t particle) const;
+    /// Current positions, N×3 float32 in packed order, mm.
+    std::vector<std::array<float, 3>> positions() const;
+    /// The position buffer as the GPU holds it: 4 Real per particle (x, y, z, 0), padded to a
+    /// multiple of `lanes` particles. Valid until the next step().
+    const Real* position_texture() const { return current_; }
+    /// FNV-1a over the bits of the current and previous positions: equal states, equal hashes.
+    std::uint64_t state_hash() const;
+
+    std::size_t watchdog_events() const { return watchdog_events_; }
+
+    BasicSolver(const BasicSolver&) = delete;
+    BasicSolver& operator=(const BasicSolver&) = delete;
+    BasicSolver(BasicSolver&&) = default;
+    BasicSolver& operator=(BasicSolver&&) = default;
+    ~BasicSolver() = default;
+
+private:
+    struct HandState {
+        Instrument instrument;
+        InstrumentPose pose;        ///< where the tool is now
+        InstrumentPose target;      ///< where it will be after the next step()
+        bool grabbing = false;
+        bool placed = false;        ///< a pose was set since set_instrument
+        std::vector<std::int32_t> held;            ///< packed indices
+        std::vector<Eigen::Vector3d> held_local;   ///< tool-frame positions at capture
+    };
+
+    void build_step_constants();
+    void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad);
+    SolverEnergy compute_energy(bool centred) const;
+    void snapshot();
+    void restore();
+    Eigen::Vector3d force_on(std::size_t particle) const;
+
+    SolverOptions options_;
+    SolverLoadReport load_report_;
+    std::size_t n_ = 0, n_pad_ = 0, groups_ = 0, chunks_ = 0;
+    double dt_ms_ = 0.0, h_ = 0.0, critical_dt_ms_ = 0.0, time_ms_ = 0.0;
+    int substeps_ = 1;
+    Real min_rest_length_ = 0;
+    double energy_floor_ = 0.0;
+    double dashpot_ratio_ = 0.0;        ///< β = max c/k over springs, ms
+    bool damped_ = false;
+
+    // Per particle (n_pad_): positions as float4 in three rotating buffers, rest positions.
+    std::vector<Real> buffer_[3];
+    Real* current_ = nullptr;
+    Real* previous_ = nullptr;
+    Real* next_ = nullptr;
+    std::vector<Real> rest_;            ///< 4 per particle
+    std::vector<Real> mass_;            ///< g (1 for padding)
+    std::vector<Real> inverse_mass_h2_; ///< h²/m, 0 for anchored and padding
+    std::vector<std::uint8_t> movable_; ///< 1 = free particle (not anchored, not padding)
+    std::vector<std::uint8_t> anchored_;
+    std::vector<std::int8_t> held_by_;  ///< −1 or the hand holding it
+
+    // Per group of `lanes` particles, per slot, per lane: [group][slot][lane].
+    std::vector<std::int32_t> neighbour_;  ///< the particle itself where the slot is empty
+    std::vector<Real> rest_length_;        ///< mm (0 where empty)
+    std::vector<Real> stiffness_;          ///< N/mm (0 where empty)
+    std::vector<Real> dashpot_;            ///< c, N·ms/mm (0 where empty)
+    std::vector<Real> dashpot_over_h_;     ///< c/h, N/mm
+    bool uniform_slots_ = false;
+    std::vector<Real> slot_rest_length_;   ///< [slot][lane] constants when uniform_slots_
+    std::vector<Real> slot_stiffness_;
+
+    std::array<HandState, hands> hand_;
+    std::vector<std::vector<std::int32_t>> touched_;  ///< [chunk × hands + hand]
+    std::vector<std::vector<Eigen::Vector3d>> touched_previous_;  ///< their post-contact previous positions
+    std::vector<std::uint8_t> chunk_bad_;
+
+    // Watchdog.
+    std::vector<Real> good_current_, good_previous_;
+    double good_time_ms_ = 0.0;
+    double good_energy_ = 0.0;
+    long long substeps_since_check_ = 0;
+    std::size_t watchdog_events_ = 0;
+};
+
+using Solver = BasicSolver<float>;
+using ReferenceSolver = BasicSolver<double>;
+
+extern template class BasicSolver<float>;
+extern template class BasicSolver<double>;
+
+}  // namespace heartsim

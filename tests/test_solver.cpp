@@ -1,0 +1,521 @@
+// The CPU solver against truths: closed-form oscillators, conservation laws, convergence order,
+// analytic static deflections, exact instrument constraints, force balance, the critical step,
+// determinism across thread counts and kernels, and a stress run on a real heart.
+#include "libmodel/errors.h"
+#include "libmodel/lattice.h"
+#include "libmodel/packing.h"
+#include "libmodel/select.h"
+#include "libmodel/solver.h"
+#include "libmodel/stability.h"
+#include "formats/volume_io.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Dense>
+#include <tbb/global_control.h>
+
+#include <cmath>
+#include <fstream>
+#include <random>
+#include <unistd.h>
+
+using namespace heartsim;
+
+namespace {
+
+struct Model {
+    Lattice lattice;
+    Packing packing;
+};
+
+/// An nx × ny × nz block of particles at `spacing` mm, packed in bricks.
+Model block(int nx, int ny, int nz, double spacing = 1.5, double damping_ratio = 0.0) {
+    LabelVolume v;
+    v.geometry.dims = {nx, ny, nz};
+    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
+    v.labels.assign(v.geometry.voxel_count(), 1);
+    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
+    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
+    layout.materials[0].damping_ratio = damping_ratio;
+    Model model{layout_particles(selection, {1}, v, layout), {}};
+    model.packing = pack_particles(model.lattice);
+    return model;
+}
+
+SolverOptions quiet(double dt_factor, const Model& model, double damping_ratio = 0.0) {
+    SolverOptions o;
+    o.gravity.setZero();
+    o.critical_dt_ms = estimate_critical_time_step(model.lattice.particles, model.lattice.springs, 5000, 1e-12).critical_dt_ms;
+    o.dt_ms = dt_factor * o.critical_dt_ms;
+    o.subdivide = damping_ratio > 0;  // dashpots shorten the stable step: let the solver subdivide
+    o.damping_ratio = {damping_ratio};
+    return o;
+}
+
+/// A smooth displacement (mostly low modes): stretch along x, shear, a bend.
+std::vector<Eigen::Vector3d> smooth_displacement(const Particles& p, double amplitude) {
+    std::vector<Eigen::Vector3d> x(p.size());
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        const Eigen::Vector3d r(p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2]);
+        x[i] = r + amplitude * Eigen::Vector3d(0.05 * r.x() + 0.02 * r.y(), 0.03 * std::sin(0.3 * r.x()), 0.02 * r.z());
+    }
+    return x;
+}
+
+Eigen::AlignedBox3d bounds(const Particles& p) {
+    Eigen::AlignedBox3d box;
+    for (const auto& r : p.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
+    return box;
+}
+
+std::vector<Eigen::Vector3d> zeros(std::size_t n) { return std::vector<Eigen::Vector3d>(n, Eigen::Vector3d::Zero()); }
+
+template <class Real>
+Eigen::Vector3d momentum(const BasicSolver<Real>& solver, const Particles& p, const std::vector<Eigen::Vector3d>& before) {
+    Eigen::Vector3d total = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < p.size(); ++i) total += double(p.mass[i]) * (solver.position(i) - before[i]) / solver.substep_ms();
+    return total;
+}
+
+template <class Real>
+std::vector<Eigen::Vector3d> all_positions(const BasicSolver<Real>& solver) {
+    std::vector<Eigen::Vector3d> x(solver.size());
+    for (std::size_t i = 0; i < x.size(); ++i) x[i] = solver.position(i);
+    return x;
+}
+
+bool inside(const Eigen::Vector3d& x, const InstrumentPose& pose, const Eigen::Vector3d& semi_axes) {
+    const Eigen::Vector3d local = pose.orientation.toRotationMatrix().transpose() * (x - pose.position);
+    return local.cwiseQuotient(semi_axes).squaredNorm() < 1.0;
+}
+
+std::size_t resident_bytes() {
+    std::ifstream statm("/proc/self/statm");
+    std::size_t pages = 0, resident = 0;
+    statm >> pages >> resident;
+    return resident * std::size_t(sysconf(_SC_PAGESIZE));
+}
+
+}  // namespace
+
+TEST(Solver, TwoFreeMassesOscillateWithPeriodTwoPiOverSqrtTwoKOverM) {
+    const Model model = block(2, 1, 1);
+    const double k = model.lattice.springs.stiffness[0], m = model.lattice.particles.mass[0];
+    const double rest = model.lattice.springs.rest_length[0];
+    const double period = 2 * M_PI / std::sqrt(2 * k / m);
+    Solver solver(model.lattice, model.packing.neighbours, quiet(0.1, model));
+    auto x = all_positions(solver);
+    x[0].x() -= 0.05 * rest, x[1].x() += 0.05 * rest;  // stretch by 10%, symmetric
+    solver.set_state(x, zeros(2));
+    // Zero crossings of the extension, linearly interpolated, over about ten periods.
+    std::vector<double> crossings;
+    double previous = (solver.position(1) - solver.position(0)).norm() - rest;
+    while (solver.simulated_time_ms() < 10.5 * period) {
+        const double t0 = solver.simulated_time_ms();
+        { const StepReport r = solver.step(); ASSERT_FALSE(r.diverged) << r.message; }
+        const double e = (solver.position(1) - solver.position(0)).norm() - rest;
+        if ((previous > 0) != (e > 0)) crossings.push_back(t0 + solver.substep_ms() * previous / (previous - e));
+        previous = e;
+    }
+    ASSERT_GE(crossings.size(), 19u);
+    const double measured = 2 * (crossings.back() - crossings.front()) / double(crossings.size() - 1);
+    EXPECT_NEAR(measured, period, 0.005 * period) << "k " << k << " N/mm, m " << m << " g";
+}
+
+TEST(Solver, UndampedEnergyStaysWithinOnePercentOverOneHundredThousandSteps) {
+    const Model model = block(4, 3, 3);
+    SolverOptions options = quiet(0.1, model);
+    Solver solver(model.lattice, model.packing.neighbours, options);
+    solver.set_state(smooth_displacement(model.lattice.particles, 1.0), zeros(solver.size()));
+    const double initial = solver.energy().total();
+    ASSERT_GT(initial, 0);
+    double worst = 0;
+    for (int chunk = 0; chunk < 1000; ++chunk) {
+        { const StepReport r = solver.step(100); ASSERT_FALSE(r.diverged) << r.message; }
+        worst = std::max(worst, std::abs(solver.energy().total() - initial) / initial);
+    }
+    EXPECT_LT(worst, 0.01) << "largest relative energy deviation over 1e5 steps";
+}
+
+TEST(Solver, MomentumIsConservedToRoundOffWithoutAnchorsOrGravity) {
+    const Model model = block(4, 3, 3);
+    std::mt19937 random(7);
+    std::normal_distribution<double> normal(0.0, 0.01);
+    std::vector<Eigen::Vector3d> v(model.lattice.particles.size());
+    for (auto& vi : v) vi = Eigen::Vector3d(normal(random), normal(random), normal(random)) + Eigen::Vector3d(0.02, -0.01, 0.005);
+    const auto x0 = smooth_displacement(model.lattice.particles, 1.0);
+    auto check = [&](auto& solver, double tolerance, int steps) {
+        solver.set_state(x0, v);
+        auto before = all_positions(solver);
+        solver.step();
+        const Eigen::Vector3d initial = momentum(solver, model.lattice.particles, before);
+        double scale = 0;
+        for (std::size_t i = 0; i < v.size(); ++i) scale += model.lattice.particles.mass[i] * v[i].norm();
+        for (int s = 0; s < steps; ++s) {
+            before = all_positions(solver);
+            { const StepReport r = solver.step(); ASSERT_FALSE(r.diverged) << r.message; }
+        }
+        const Eigen::Vector3d final = momentum(solver, model.lattice.particles, before);
+        // Round-off bound: each step rounds each position once, by at most half an ulp of the
+        // largest coordinate, and a rounding error δ stays in the velocity as δ/h.
+        double largest = 0, mass = 0;
+        for (std::size_t i = 0; i < v.size(); ++i) largest = std::max(largest, solver.position(i).cwiseAbs().maxCoeff());
+        for (float m : model.lattice.particles.mass) mass += m;
+        using Real = std::remove_cvref_t<decltype(*solver.position_texture())>;
+        const double bound = steps * mass * 0.5 * largest * std::numeric_limits<Real>::epsilon() / solver.substep_ms();
+        EXPECT_LT((final - initial).norm(), tolerance * bound) << initial.transpose() << " -> " << final.transpose() << " |P| scale " << scale;
+    };
+    ReferenceSolver reference(model.lattice, model.packing.neighbours, quiet(0.4, model, 0.3));
+    check(reference, 1.0, 20000);
+    Solver single(model.lattice, model.packing.neighbours, quiet(0.4, model, 0.3));
+    check(single, 1.0, 20000);
+}
+
+TEST(Solver, ErrorDropsFourfoldWhenTheStepHalves) {
+    const Model model = block(3, 3, 2);
+    const double critical = quiet(1, model).critical_dt_ms;
+    const double end_time = 16 * critical;
+    const auto x0 = smooth_displacement(model.lattice.particles, 2.0);
+    auto run = [&](double divisor) {
+        SolverOptions o = quiet(1.0 / divisor, model);
+        ReferenceSolver solver(model.lattice, model.packing.neighbours, o);
+        solver.set_state(x0, zeros(solver.size()));
+        solver.step(int(std::lround(end_time / o.dt_ms)));
+        EXPECT_NEAR(solver.simulated_time_ms(), end_time, 1e-9 * end_time);
+        return all_positions(solver);
+    };
+    const auto reference = run(1024);
+    std::vector<double> errors;
+    for (double divisor : {4.0, 8.0, 16.0, 32.0}) {
+        const auto x = run(divisor);
+        double e = 0;
+        for (std::size_t i = 0; i < x.size(); ++i) e = std::max(e, (x[i] - reference[i]).norm());
+        errors.push_back(e);
+    }
+    for (std::size_t i = 1; i < errors.size(); ++i) {
+        const double ratio = errors[i - 1] / errors[i];
+        EXPECT_GT(ratio, 3.5) << "step " << i;
+        EXPECT_LT(ratio, 4.5) << "step " << i;
+    }
+}
+
+TEST(Solver, HangingChainReachesTheAnalyticStaticDeflection) {
+    // A vertical chain of n particles along k, the top one anchored, gravity along −k: spring i
+    // (from the top) carries the weight of the n − i particles below it, extension w/k exactly.
+    const int n = 10;
+    Model model = block(1, 1, n);
+    auto& p = model.lattice.particles;
+    std::size_t top = 0;
+    for (std::size_t i = 0; i < p.size(); ++i)
+        if (p.lattice_index[i][2] == n - 1) top = i;
+    p.anchored[top] = 1;
+    SolverOptions o = quiet(0.5, model, 0.5);
+    const Eigen::Vector3d axis = (Eigen::Vector3d(p.rest_position[top][0], p.rest_position[top][1], p.rest_position[top][2]) -
+                                  Eigen::Vector3d(p.rest_position[0][0], p.rest_position[0][1], p.rest_position[0][2]))
+                                     .normalized() *
+                                 (p.lattice_index[top][2] > p.lattice_index[0][2] ? 1.0 : -1.0);
+    o.gravity = -9.81e-3 * axis;
+    o.damping = 0.05;
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    for (int i = 0; i < 200; ++i) { const StepReport r = solver.step(500); ASSERT_FALSE(r.diverged) << r.message; }
+    const double k = model.lattice.springs.stiffness[0], m = p.mass[0];
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        const int below_top = n - 1 - p.lattice_index[i][2];  // springs between it and the top
+        double expected = 0;
+        for (int s = 1; s <= below_top; ++s) expected += (n - s) * m * 9.81e-3 / k;
+        const Eigen::Vector3d r(p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2]);
+        const double measured = -(solver.position(i) - r).dot(axis);
+        if (below_top == 0) EXPECT_EQ(measured, 0.0);
+        else EXPECT_NEAR(measured, expected, 0.01 * expected) << "particle " << below_top << " below the top";
+    }
+}
+
+TEST(Solver, HangingColumnMatchesTheLinearStaticSolutionOfTheNetwork) {
+    // A 2×2×6 column hanging from its anchored top layer: the static deflection against the
+    // exact solution K u = M g of the linearised network (dense, Eigen), within 1%.
+    Model model = block(2, 2, 6);
+    auto& p = model.lattice.particles;
+    for (std::size_t i = 0; i < p.size(); ++i) p.anchored[i] = p.lattice_index[i][2] == 5;
+    const Eigen::Vector3d g(0, 0, -9.81e-3);  // lattice k is world +z here (identity direction): hang down
+    SolverOptions o = quiet(0.5, model, 0.7);
+    o.gravity = g;
+    o.damping = 0.05;
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    for (int i = 0; i < 100; ++i) { const StepReport r = solver.step(1000); ASSERT_FALSE(r.diverged) << r.message; }
+
+    const Eigen::Index n = Eigen::Index(p.size());
+    Eigen::MatrixXd k = Eigen::MatrixXd::Zero(3 * n, 3 * n);
+    const auto& s = model.lattice.springs;
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const auto [a, b] = s.pairs[q];
+        Eigen::Vector3d d(p.rest_position[b][0] - p.rest_position[a][0], p.rest_position[b][1] - p.rest_position[a][1],
+                          p.rest_position[b][2] - p.rest_position[a][2]);
+        d.normalize();
+        const Eigen::Matrix3d block3 = s.stiffness[q] * d * d.transpose();
+        k.block<3, 3>(3 * a, 3 * a) += block3, k.block<3, 3>(3 * b, 3 * b) += block3;
+        k.block<3, 3>(3 * a, 3 * b) -= block3, k.block<3, 3>(3 * b, 3 * a) -= block3;
+    }
+    std::vector<Eigen::Index> free;
+    for (Eigen::Index i = 0; i < n; ++i)
+        if (!p.anchored[std::size_t(i)])
+            for (int c = 0; c < 3; ++c) free.push_back(3 * i + c);
+    Eigen::MatrixXd kf(free.size(), free.size());
+    Eigen::VectorXd f(free.size());
+    for (std::size_t r = 0; r < free.size(); ++r) {
+        for (std::size_t c = 0; c < free.size(); ++c) kf(Eigen::Index(r), Eigen::Index(c)) = k(free[r], free[c]);
+        f[Eigen::Index(r)] = p.mass[std::size_t(free[r] / 3)] * g[free[r] % 3];
+    }
+    const Eigen::VectorXd u = kf.ldlt().solve(f);
+    double max_expected = 0, max_error = 0;
+    for (std::size_t r = 0; r < free.size(); ++r) {
+        const std::size_t i = std::size_t(free[r] / 3);
+        const int c = int(free[r] % 3);
+        const double measured = solver.position(i)[c] - p.rest_position[i][std::size_t(c)];
+        max_expected = std::max(max_expected, std::abs(u[Eigen::Index(r)]));
+        max_error = std::max(max_error, std::abs(measured - u[Eigen::Index(r)]));
+    }
+    ASSERT_GT(max_expected, 0);
+    EXPECT_LT(max_error, 0.01 * max_expected) << "largest deflection " << max_expected << " mm";
+}
+
+TEST(Solver, NoParticleIsInsideTheProbeAfterAStepAndTheForcePushesTheProbeOut) {
+    Model model = block(8, 8, 4);
+    for (std::size_t i = 0; i < model.lattice.particles.size(); ++i) model.lattice.particles.anchored[i] = model.lattice.particles.lattice_index[i][2] == 0;
+    SolverOptions o = quiet(0.5, model, 0.3);
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    const Eigen::Vector3d semi_axes(2.0, 3.0, 1.5);
+    solver.set_instrument(1, {.kind = InstrumentKind::probe, .semi_axes = semi_axes});
+    // Come down on the top face from above, tilted.
+    const Eigen::AlignedBox3d box = bounds(model.lattice.particles);
+    const double top = box.max().z();
+    InstrumentPose pose{box.center() + Eigen::Vector3d(0.3, -0.2, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 1, 0).normalized()))};
+    pose.position.z() = top + 3.0;
+    solver.set_pose(1, pose);
+    solver.step();
+    std::size_t most_touched = 0;
+    for (int s = 0; s < 400; ++s) {
+        pose.position.z() = top + 3.0 - 5.0 * std::min(1.0, s / 200.0);  // down to 2 mm into the top face
+        solver.set_pose(1, pose);
+        { const StepReport r = solver.step(); ASSERT_FALSE(r.diverged) << r.message; }
+        for (std::size_t i = 0; i < solver.size(); ++i) {
+            const auto contact = solver.contact_particles(1);
+            ASSERT_FALSE(inside(solver.position(i), pose, semi_axes))
+                << "particle " << i << " step " << s << " r2 "
+                << (pose.orientation.toRotationMatrix().transpose() * (solver.position(i) - pose.position)).cwiseQuotient(semi_axes).squaredNorm()
+                << " in contact " << (std::find(contact.begin(), contact.end(), std::int32_t(i)) != contact.end()) << " anchored "
+                << int(model.lattice.particles.anchored[i]);
+        }
+        most_touched = std::max(most_touched, solver.contact_particles(1).size());
+    }
+    EXPECT_GT(most_touched, 3u);
+    const InstrumentForces forces = solver.instrument_forces();
+    EXPECT_EQ(forces.hand[0].particles, 0u);
+    EXPECT_GT(forces.hand[1].force_n.z(), 0) << "the tissue pushes the probe back up: " << forces.hand[1].force_n.transpose();
+}
+
+TEST(Solver, GrabbedParticlesFollowTheToolExactlyAndAreFreeAfterRelease) {
+    Model model = block(6, 6, 4);
+    SolverOptions o = quiet(0.5, model, 0.2);
+    o.gravity = Eigen::Vector3d(0, 9.81e-3, 0);
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    solver.set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(2.5, 2.5, 2.0)});
+    InstrumentPose pose{bounds(model.lattice.particles).max(), Eigen::Quaterniond::Identity()};  // a corner
+    solver.set_pose(0, pose);
+    solver.step();
+    const std::size_t captured = solver.begin_grab(0);
+    ASSERT_GT(captured, 2u);
+    const auto held = solver.contact_particles(0);
+    std::vector<Eigen::Vector3d> local;
+    for (auto i : held) local.push_back(solver.position(std::size_t(i)) - pose.position);
+    for (int s = 1; s <= 300; ++s) {
+        pose.position += Eigen::Vector3d(0.01, -0.005, 0.02);
+        pose.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.002 * s, Eigen::Vector3d(0.2, 1, 0.3).normalized()));
+        solver.set_pose(0, pose);
+        { const StepReport r = solver.step(); ASSERT_FALSE(r.diverged) << r.message; }
+        for (std::size_t q = 0; q < held.size(); ++q) {
+            const Eigen::Vector3d expected = pose.position + pose.orientation.toRotationMatrix() * local[q];
+            ASSERT_LT((solver.position(std::size_t(held[q])) - expected).norm(), 1e-5 * (1 + expected.norm())) << "step " << s;
+        }
+    }
+    const Eigen::Vector3d pull = solver.instrument_forces().hand[0].force_n;
+    EXPECT_GT(pull.norm(), 0);
+    EXPECT_LT(pull.dot(Eigen::Vector3d(0.01, -0.005, 0.02)), 0) << "the tissue pulls the tool back";
+    solver.release(0);
+    EXPECT_TRUE(solver.contact_particles(0).empty());
+    const Eigen::Vector3d before = solver.position(std::size_t(held[0]));
+    for (int s = 0; s < 50; ++s) solver.step();
+    EXPECT_GT((solver.position(std::size_t(held[0])) - before).norm(), 1e-3) << "released particles move again";
+}
+
+TEST(Solver, ProbeForceBalancesTheAnchorReactionAtEquilibrium) {
+    Model model = block(6, 6, 3);
+    auto& p = model.lattice.particles;
+    int lowest = 1 << 30;
+    for (const auto& l : p.lattice_index) lowest = std::min(lowest, l[2]);
+    for (std::size_t i = 0; i < p.size(); ++i) p.anchored[i] = p.lattice_index[i][2] == lowest;
+    SolverOptions o = quiet(0.5, model, 1.0);
+    o.damping = 0.1;
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(2.2, 2.2, 2.2)});
+    // The sphere's bottom goes 0.6 mm into the top face.
+    const Eigen::AlignedBox3d box = bounds(p);
+    const InstrumentPose pose{Eigen::Vector3d(box.center().x() + 0.2, box.center().y() + 0.1, box.max().z() + 2.2 - 0.6),
+                              Eigen::Quaterniond::Identity()};
+    solver.set_pose(0, pose);
+    for (int i = 0; i < 60; ++i) { const StepReport r = solver.step(500); ASSERT_FALSE(r.diverged) << r.message; }
+    const auto before = all_positions(solver);
+    solver.step();
+    double largest_motion = 0;
+    for (std::size_t i = 0; i < before.size(); ++i) largest_motion = std::max(largest_motion, (solver.position(i) - before[i]).norm());
+    EXPECT_LT(largest_motion, 1e-6) << "not at rest yet, mm per step";
+    const Eigen::Vector3d probe = solver.instrument_forces().hand[0].force_n;
+    const Eigen::Vector3d anchors = solver.anchor_force();
+    ASSERT_GT(probe.norm(), 0);
+    EXPECT_GT(probe.z(), 0);
+    EXPECT_LT((probe + anchors).norm(), 0.01 * probe.norm()) << "probe " << probe.transpose() << " anchors " << anchors.transpose();
+}
+
+TEST(Solver, StableBelowTheCriticalStepWatchdogAboveNeverNonFinite) {
+    const Model model = block(4, 3, 3);
+    std::mt19937 random(3);
+    std::uniform_real_distribution<double> uniform(-0.015, 0.015);
+    std::vector<Eigen::Vector3d> x0;
+    for (const auto& r : model.lattice.particles.rest_position)
+        x0.emplace_back(r[0] + uniform(random), r[1] + uniform(random), r[2] + uniform(random));
+    for (double factor : {0.5, 0.75, 0.9, 0.97, 1.03, 1.1, 1.5, 2.0}) {
+        for (bool watchdog : {true, false}) {
+            SolverOptions o = quiet(factor, model);
+            o.watchdog = watchdog;
+            Solver solver(model.lattice, model.packing.neighbours, o);
+            solver.set_state(x0, zeros(solver.size()));
+            StepReport report;
+            for (int i = 0; i < 30 && !report.diverged; ++i) report = solver.step(100);
+            if (watchdog) EXPECT_EQ(report.diverged, factor > 1) << "dt = " << factor << " × critical: " << report.message;
+            for (std::size_t i = 0; i < solver.size(); ++i) ASSERT_TRUE(solver.position(i).allFinite()) << factor;
+            ASSERT_TRUE(solver.anchor_force().allFinite());
+            ASSERT_TRUE(solver.instrument_forces().hand[0].force_n.allFinite());
+            if (report.diverged) EXPECT_NE(report.message.find("watchdog"), std::string::npos);
+        }
+    }
+}
+
+TEST(Solver, AutomaticSubstepsKeepTheStepBelowTheSafetyFraction) {
+    const Model model = block(3, 3, 3);
+    SolverOptions o;
+    o.dt_ms = 1.0;
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    const double critical = solver.load_report().critical_dt_ms;
+    EXPECT_TRUE(solver.load_report().critical_dt_estimated);
+    EXPECT_LE(solver.substep_ms(), 0.5 * critical * (1 + 1e-12));
+    EXPECT_GT(solver.substep_ms(), 0.5 * critical * (1 - 1.0 / solver.substeps_per_step()) * 0.999);
+    EXPECT_NEAR(solver.substep_ms() * solver.substeps_per_step(), 1.0, 1e-12);
+    const StepReport report = solver.step(3);
+    EXPECT_EQ(report.steps, 3);
+    EXPECT_EQ(report.substeps, 3LL * solver.substeps_per_step());
+}
+
+TEST(Solver, SameBitsForOneAndTwoThreadsAndEveryKernel) {
+    Model model = block(20, 16, 16, 1.5, 0.1);
+    const Eigen::AlignedBox3d box = bounds(model.lattice.particles);
+    const Eigen::Vector3d c = box.center(), corner = box.min();
+    auto run = [&](int threads, SolverKernel kernel, bool compact = true) {
+        tbb::global_control control(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
+        SolverOptions o;
+        o.kernel = kernel;
+        o.compact_uniform_slots = compact;
+        o.damping = 0.01;
+        Solver solver(model.lattice, model.packing.neighbours, o);
+        solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 2, 4)});
+        solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(3, 3, 3)});
+        solver.set_pose(1, {corner, Eigen::Quaterniond::Identity()});
+        solver.step();
+        solver.begin_grab(1);
+        for (int s = 0; s < 1000; ++s) {
+            solver.set_pose(0, {c + Eigen::Vector3d(0, 0, 14 - 0.01 * s), Eigen::Quaterniond(Eigen::AngleAxisd(0.001 * s, Eigen::Vector3d::UnitX()))});
+            solver.set_pose(1, {corner - Eigen::Vector3d(0.003 * s, 0, 0), Eigen::Quaterniond::Identity()});
+            { const StepReport r = solver.step(); EXPECT_FALSE(r.diverged) << r.message; }
+        }
+        EXPECT_EQ(solver.load_report().uniform_slots, compact);
+        EXPECT_EQ(solver.load_report().kernel, kernel == SolverKernel::avx2 && !__builtin_cpu_supports("avx2") ? SolverKernel::sse2 : kernel);
+        return solver.state_hash();
+    };
+    const std::uint64_t one = run(1, SolverKernel::sse2);
+    EXPECT_EQ(run(2, SolverKernel::sse2), one);
+    EXPECT_EQ(run(2, SolverKernel::avx2), one);
+    EXPECT_EQ(run(2, SolverKernel::portable), one);
+    EXPECT_EQ(run(2, SolverKernel::avx2, false), one) << "per-slot constants and per-entry tables must agree";
+}
+
+TEST(Solver, RefusesInconsistentInput) {
+    Model model = block(3, 2, 2);
+    auto table = model.packing.neighbours;
+    table[0].fill(-1);
+    EXPECT_THROW(Solver(model.lattice, table, {}), InputError);
+    Lattice bad = model.lattice;
+    bad.particles.mass[1] = 0;
+    EXPECT_THROW(Solver(bad, model.packing.neighbours, {}), InputError);
+    Solver solver(model.lattice, {}, {});  // slots from the springs alone
+    EXPECT_EQ(solver.load_report().springs, model.lattice.springs.size());
+    EXPECT_THROW(solver.begin_grab(0), InputError);
+    EXPECT_THROW(solver.set_instrument(2, {}), InputError);
+    EXPECT_THROW(solver.set_pose(0, {Eigen::Vector3d(NAN, 0, 0), Eigen::Quaterniond::Identity()}), InputError);
+}
+
+TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
+    const auto path = test::real_case("hvsmr16_pat1");
+    if (path.empty()) GTEST_SKIP() << "real data absent";
+    const LabelVolume volume = read_label_volume(path);
+    const Selection selection = select_tissue(volume, {});
+    Lattice lattice = layout_particles(selection, {1}, volume, {.particle_budget = 8000});
+    const Packing packing = pack_particles(lattice);
+    SolverOptions o;
+    o.damping = 0.01;
+    Solver solver(lattice, packing.neighbours, o);
+    Eigen::AlignedBox3d box;
+    for (const auto& r : lattice.particles.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
+    const double diagonal = box.diagonal().norm();
+    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 3, 8)});
+    solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(4, 4, 4)});
+    std::mt19937 random(11);
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    auto random_pose = [&] {
+        const Eigen::Vector3d p = box.min() + box.diagonal().cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random)));
+        return InstrumentPose{p, Eigen::Quaterniond::UnitRandom()};
+    };
+    std::size_t memory_after_warmup = 0;
+    std::size_t events = 0;
+    // Each hand chases a random target anywhere in the heart's box at 2 mm/ms (fast for a hand),
+    // a new target every 40 steps; the grabber lets go and grabs again each time.
+    const double speed = 2.0;
+    std::array<InstrumentPose, 2> current{random_pose(), random_pose()}, target{random_pose(), random_pose()};
+    for (int hand = 0; hand < 2; ++hand) solver.set_pose(hand, current[std::size_t(hand)]);
+    for (int s = 0; s < 600; ++s) {
+        if (s % 40 == 0) {
+            target = {random_pose(), random_pose()};
+            solver.release(1);
+        }
+        for (int hand = 0; hand < 2; ++hand) {
+            auto& c = current[std::size_t(hand)];
+            const Eigen::Vector3d to = target[std::size_t(hand)].position - c.position;
+            const double reach = speed * solver.time_step_ms();
+            c.position += to.norm() > reach ? Eigen::Vector3d(to.normalized() * reach) : to;
+            c.orientation = c.orientation.slerp(0.05, target[std::size_t(hand)].orientation);
+            solver.set_pose(hand, c);
+        }
+        if (s % 40 == 5) solver.begin_grab(1);
+        const StepReport report = solver.step();
+        events += report.diverged;
+        const InstrumentForces f = solver.instrument_forces();
+        ASSERT_TRUE(f.hand[0].force_n.allFinite() && f.hand[1].force_n.allFinite());
+        if (s == 100) memory_after_warmup = resident_bytes();
+    }
+    for (std::size_t i = 0; i < solver.size(); ++i) {
+        const Eigen::Vector3d x = solver.position(i);
+        ASSERT_TRUE(x.allFinite());
+        ASSERT_LT((x - box.center()).norm(), 2 * diagonal) << "particle " << i << " left the scene";
+    }
+    EXPECT_LT(resident_bytes(), memory_after_warmup + (std::size_t(2) << 20)) << "memory grows with steps";
+    RecordProperty("watchdog_events", int(events));
+    EXPECT_LT(events, 30u) << "the watchdog should rarely need to step in at hand speeds";
+}
