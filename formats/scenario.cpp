@@ -262,7 +262,12 @@ void write_contents(Writer& w, const Scenario& s) {
     }
     if (s.simulation_surface) {
         H5Object g = w.group("simsurface");
-        w.dataset(g.get(), "triangles", s.simulation_surface->data()->data(), s.simulation_surface->size(), 3);
+        const auto& surface = *s.simulation_surface;
+        if (surface.normal_weight.size() != surface.triangles.size())
+            throw InputError("scenario: the simulation surface has " + std::to_string(surface.normal_weight.size()) +
+                             " normal weights for " + std::to_string(surface.triangles.size()) + " triangles");
+        w.dataset(g.get(), "triangles", surface.triangles.data()->data(), surface.triangles.size(), 3);
+        w.dataset(g.get(), "normal_weight", surface.normal_weight.data(), surface.normal_weight.size());
     }
     if (s.mapping) {
         H5Object g = w.group("mapping");
@@ -502,7 +507,19 @@ void read_packing_and_mapping(const Reader& r, Scenario& s) {
     if (r.exists("simsurface")) {
         auto flat = r.dataset<std::int32_t>("simsurface/triangles", -1, 3);
         require_indices(r, "simsurface/triangles", flat, n);
-        s.simulation_surface = rows_of<std::int32_t, 3>(flat);
+        SimulationSurface surface;
+        surface.triangles = rows_of<std::int32_t, 3>(flat);
+        if (r.exists("simsurface/normal_weight")) {
+            // ➕ One per triangle, 0 or 1. Files written before it existed count every triangle.
+            surface.normal_weight = r.dataset<std::uint8_t>("simsurface/normal_weight", long(surface.triangles.size()), 0);
+            for (std::size_t t = 0; t < surface.normal_weight.size(); ++t)
+                if (surface.normal_weight[t] > 1)
+                    r.fail("simsurface/normal_weight", "entry " + std::to_string(t) + " is " +
+                                                           std::to_string(int(surface.normal_weight[t])) + ", not 0 or 1");
+        } else {
+            surface.normal_weight.assign(surface.triangles.size(), 1);
+        }
+        s.simulation_surface = std::move(surface);
     }
     if (r.exists("mapping")) {
         if (!s.visual) r.fail("mapping", "present without /visual");

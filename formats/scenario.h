@@ -60,8 +60,9 @@ struct Scenario {
     SolverSettings solver;
     /// /packing: present once the particles are packed (then particles are in packed order).
     std::optional<Packing> packing;
-    /// /simsurface/triangles: particle indices, counter-clockwise seen from outside.
-    std::optional<std::vector<std::array<std::int32_t, 3>>> simulation_surface;
+    /// /simsurface: triangles (particle indices, counter-clockwise seen from outside) and
+    /// normal_weight (1 = counts in particle normals; a file without it reads as all ones).
+    std::optional<SimulationSurface> simulation_surface;
     /// /mapping: one row per visual vertex; needs /visual and /simsurface.
     std::optional<VisualMapping> mapping;
 };

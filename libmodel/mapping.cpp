@@ -3,7 +3,8 @@
 /// SCENARIO.md solved exactly: for each visual vertex v, over candidate triangles (a,b,c) from an
 /// AABB tree, Newton's method on F(λb, λc, d) = λa·x_a + λb·x_b + λc·x_c + d·m̂(λ) − v = 0
 /// (λa = 1 − λb − λc, m = Σ λ·n), started from the closest point. Among exact solutions the one
-/// with all weights in [0, 1] and the smallest |d| wins; else the least extrapolated.
+/// with all weights in [0, 1] and the smallest |d| wins; else the least extrapolated. Particle
+/// normals count only the triangles of normal weight 1 (one side of each thin-wall sheet).
 #include "mapping.h"
 
 #include "errors.h"
@@ -27,12 +28,20 @@ namespace {
 
 using Vec3 = Eigen::Vector3d;
 
-void check_triangles(std::size_t particles, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+void check_surface(std::size_t particles, const SimulationSurface& surface) {
+    const auto& triangles = surface.triangles;
     for (std::size_t t = 0; t < triangles.size(); ++t)
         for (int v : triangles[t])
             if (v < 0 || std::size_t(v) >= particles)
                 throw InputError("mapping: simulation-surface triangle " + std::to_string(t) + " refers to particle " +
                                  std::to_string(v) + ", but there are " + std::to_string(particles));
+    if (surface.normal_weight.size() != triangles.size())
+        throw InputError("mapping: the simulation surface has " + std::to_string(surface.normal_weight.size()) +
+                         " normal weights for " + std::to_string(triangles.size()) + " triangles");
+    for (std::size_t t = 0; t < triangles.size(); ++t)
+        if (surface.normal_weight[t] > 1)
+            throw InputError("mapping: normal weight of simulation-surface triangle " + std::to_string(t) + " is " +
+                             std::to_string(int(surface.normal_weight[t])) + ", not 0 or 1");
 }
 
 Eigen::Vector3f to_vector(const std::array<float, 3>& p) { return Eigen::Vector3f(p[0], p[1], p[2]); }
@@ -119,7 +128,7 @@ struct Evaluation {
     double normal_length = 0.0;
 };
 
-Evaluation evaluate(const Problem& problem, std::int32_t t, const Vec3& unknowns, const Vec3& v) {
+Evaluation evaluate(const Problem& problem, std::int32_t t, const Vec3& unknowns, const Vec3& v, bool with_jacobian = true) {
     const auto& tri = problem.triangles[std::size_t(t)];
     const Vec3& xa = problem.x[std::size_t(tri[0])];
     const Vec3 eb = problem.x[std::size_t(tri[1])] - xa, ec = problem.x[std::size_t(tri[2])] - xa;
@@ -132,11 +141,23 @@ Evaluation evaluate(const Problem& problem, std::int32_t t, const Vec3& unknowns
     if (!(e.normal_length > 0)) return e;
     const Vec3 unit = m / e.normal_length;
     e.residual = xa + lb * eb + lc * ec + d * unit - v;
+    if (!with_jacobian) return e;
     const Eigen::Matrix3d projector = (Eigen::Matrix3d::Identity() - unit * unit.transpose()) / e.normal_length;
     e.jacobian.col(0) = eb + d * projector * fb;
     e.jacobian.col(1) = ec + d * projector * fc;
     e.jacobian.col(2) = unit;
     return e;
+}
+
+/// Solves J·x = b by Cramer's rule (cross products): cheaper than an LU for 3×3. False when J is
+/// singular or the result is not finite.
+bool solve3(const Eigen::Matrix3d& J, const Vec3& b, Vec3& x) {
+    const Vec3 c0 = J.col(0), c1 = J.col(1), c2 = J.col(2);
+    const Vec3 c12 = c1.cross(c2);
+    const double det = c0.dot(c12);
+    if (!(std::abs(det) > 1e-300)) return false;
+    x = Vec3(b.dot(c12), c0.dot(b.cross(c2)), c0.dot(c1.cross(b))) / det;
+    return x.allFinite();
 }
 
 /// Newton's method with backtracking from the closest point of triangle t.
@@ -159,27 +180,25 @@ Solution solve_on_triangle(const Problem& problem, std::int32_t t, const Vec3& v
     if (e.normal_length < min_normal_length) return s;
     double r = e.residual.norm();
     for (int iteration = 0; iteration < 40 && r > target_residual_mm; ++iteration) {
-        const Eigen::PartialPivLU<Eigen::Matrix3d> lu(e.jacobian);
-        if (!(std::abs(lu.determinant()) > 1e-300)) break;
-        const Vec3 step = lu.solve(-e.residual);
-        if (!step.allFinite()) break;
+        Vec3 step;
+        if (!solve3(e.jacobian, -e.residual, step)) break;
         double alpha = 1.0;
         bool improved = false;
         for (int halving = 0; halving < 12; ++halving, alpha *= 0.5) {
             const Vec3 trial = u + alpha * step;
-            Evaluation trial_e = evaluate(problem, t, trial, v);
+            const Evaluation trial_e = evaluate(problem, t, trial, v, false);
             if (trial_e.normal_length < min_normal_length) continue;
             const double trial_r = trial_e.residual.norm();
             if (trial_r < r) {
                 u = trial;
-                e = trial_e;
+                e = evaluate(problem, t, trial, v);
                 r = trial_r;
                 improved = true;
                 break;
             }
         }
         if (!improved) break;
-        if (std::abs(u[0]) > 1e3 || std::abs(u[1]) > 1e3) break;  // diverging: far outside the triangle
+        if (std::abs(u[0]) > 20 || std::abs(u[1]) > 20) break;  // diverging: far outside the triangle
     }
     s.lambda = Vec3(1.0 - u[0] - u[1], u[0], u[1]);
     s.offset = u[2];
@@ -221,9 +240,53 @@ struct Candidate {
 };
 
 Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSearch& search, const Vec3& v,
-                      double edge_length, std::vector<std::int32_t>& ids, std::vector<Candidate>& candidates) {
+                      double edge_length, std::vector<std::int32_t>& ids, std::vector<Candidate>& candidates,
+                      std::size_t& solve_count) {
     const auto [closest_triangle, closest_point] = search.closest(v);
     const double closest_distance = (v - closest_point).norm();
+    auto distance_to = [&](std::int32_t t, Vec3& lambda) {
+        const auto& tri = problem.triangles[std::size_t(t)];
+        const Vec3& a = problem.x[std::size_t(tri[0])];
+        const Vec3& b = problem.x[std::size_t(tri[1])];
+        const Vec3& c = problem.x[std::size_t(tri[2])];
+        lambda = closest_barycentric(v, a, b, c);
+        return (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+    };
+    // Fast path: solve on the closest triangle first. An inside solution on any triangle lies |d|
+    // from v, so if the closest triangle's solution is inside with stable normals, only triangles
+    // nearer than its |d| can beat it: solve those (usually the closest triangle's neighbours
+    // around its closest point), nearest first, and stop. The choice is the same as the full
+    // search's below: the inside solution of smallest |d|, ties to the lower triangle row.
+    Solution first;
+    {
+        Vec3 lambda0;
+        distance_to(closest_triangle, lambda0);
+        ++solve_count;
+        first = solve_on_triangle(problem, closest_triangle, v, lambda0);
+        if (first.exact && tier(first) == 0) {
+            Solution best = first;
+            const double reach = std::abs(best.offset);
+            ids.clear();
+            search.near(v, reach, ids);
+            candidates.clear();
+            for (std::int32_t t : ids) {
+                if (t == closest_triangle) continue;
+                Vec3 lambda;
+                const double distance = distance_to(t, lambda);
+                if (distance <= reach) candidates.push_back({distance, t, lambda});
+            }
+            std::sort(candidates.begin(), candidates.end(), [](const Candidate& p, const Candidate& q) {
+                return p.distance != q.distance ? p.distance < q.distance : p.triangle < q.triangle;
+            });
+            for (const Candidate& candidate : candidates) {
+                if (candidate.distance > std::abs(best.offset)) break;
+                ++solve_count;
+                const Solution s = solve_on_triangle(problem, candidate.triangle, v, candidate.lambda);
+                if (better(s, best)) best = s;
+            }
+            return best;
+        }
+    }
     // Search radii: first the closest distance plus half an edge; then, without a stable inside
     // solution, up to two edges more (an inside solution's triangle lies within |d| of v, so a
     // stable inside |d| beyond the radius widens it to |d|). At most `max_solves` Newton solves.
@@ -231,7 +294,8 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
     double radius = closest_distance + 0.5 * edge_length;
     constexpr int max_solves = 64;
     int solves = 0;
-    Solution best;
+    // Otherwise the search by rounds, the closest triangle's solution already in hand.
+    Solution best = first;
     double searched = -1.0;  // candidates with distance <= searched have been solved
     for (int round = 0; round < 3 && solves < max_solves; ++round) {
         ids.clear();
@@ -244,7 +308,7 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
             const Vec3& c = problem.x[std::size_t(tri[2])];
             const Vec3 lambda = closest_barycentric(v, a, b, c);
             const double distance = (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
-            if (distance > radius || distance <= searched) continue;
+            if (distance > radius || distance <= searched || t == closest_triangle) continue;
             candidates.push_back({distance, t, lambda});
         }
         std::sort(candidates.begin(), candidates.end(), [](const Candidate& p, const Candidate& q) {
@@ -255,6 +319,7 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
             // stable inside |d| cannot beat it.
             if (best.exact && tier(best) == 0 && candidate.distance > std::abs(best.offset)) break;
             if (solves++ >= max_solves) break;
+            ++solve_count;
             const Solution s = solve_on_triangle(problem, candidate.triangle, v, candidate.lambda);
             if (better(s, best)) best = s;
         }
@@ -263,6 +328,11 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
             if (std::abs(best.offset) <= radius) break;
             radius = std::abs(best.offset) * (1 + 1e-9) + 1e-9;
         } else {
+            // A stable solution at most mildly extrapolated among the triangles nearest v: take
+            // it rather than search two edges out for an inside one farther away (at thin walls'
+            // free rims, where the visual surface wraps around the sheet's edge, no inside
+            // solution exists and the wide search only costs time).
+            if (best.exact && tier(best) == 1) break;
             if (radius >= widest) break;
             radius = widest;
         }
@@ -289,6 +359,7 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
         });
         if (candidates.size() > 512) candidates.resize(512);
         for (const Candidate& candidate : candidates) {
+            ++solve_count;
             const Solution s = solve_on_triangle(problem, candidate.triangle, v, candidate.lambda);
             if (better(s, best)) best = s;
         }
@@ -314,10 +385,12 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
 }  // namespace
 
 std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float, 3>>& positions,
-                                              const std::vector<std::array<std::int32_t, 3>>& triangles) {
-    check_triangles(positions.size(), triangles);
+                                              const SimulationSurface& surface) {
+    check_surface(positions.size(), surface);
     std::vector<Eigen::Vector3f> normals(positions.size(), Eigen::Vector3f::Zero());
-    for (const auto& t : triangles) {
+    for (std::size_t row = 0; row < surface.triangles.size(); ++row) {
+        if (!surface.normal_weight[row]) continue;
+        const auto& t = surface.triangles[row];
         const Eigen::Vector3f a = to_vector(positions[std::size_t(t[0])]);
         const Eigen::Vector3f area = (to_vector(positions[std::size_t(t[1])]) - a).cross(to_vector(positions[std::size_t(t[2])]) - a);
         for (int v : t) normals[std::size_t(v)] += area;
@@ -330,7 +403,8 @@ std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float
 }
 
 std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const std::vector<std::array<float, 3>>& positions,
-                                           const std::vector<std::array<std::int32_t, 3>>& triangles) {
+                                           const SimulationSurface& surface) {
+    const auto& triangles = surface.triangles;
     const std::size_t count = mapping.triangle.size();
     if (mapping.barycentric.size() != count || mapping.offset.size() != count)
         throw InputError("mapping: triangle, barycentric and offset must have one entry per visual vertex");
@@ -338,7 +412,7 @@ std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const s
         if (mapping.triangle[v] < 0 || std::size_t(mapping.triangle[v]) >= triangles.size())
             throw InputError("mapping: vertex " + std::to_string(v) + " refers to triangle " +
                              std::to_string(mapping.triangle[v]) + " of " + std::to_string(triangles.size()));
-    const std::vector<Eigen::Vector3f> normals = particle_normals(positions, triangles);
+    const std::vector<Eigen::Vector3f> normals = particle_normals(positions, surface);
     std::vector<Eigen::Vector3f> out(count);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t v = range.begin(); v < range.end(); ++v)
@@ -350,12 +424,13 @@ std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const s
 
 VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions,
                               const std::vector<std::array<float, 3>>& rest_positions,
-                              const std::vector<std::array<std::int32_t, 3>>& triangles, const MappingOptions& options,
-                              Progress& progress, MappingReport* report_out) {
+                              const SimulationSurface& surface, const MappingOptions& options, Progress& progress,
+                              MappingReport* report_out) {
     const auto start_time = std::chrono::steady_clock::now();
+    const auto& triangles = surface.triangles;
     if (visual_positions.empty()) throw InputError("mapping: the visual mesh has no vertices");
     if (triangles.empty()) throw InputError("mapping: the simulation surface has no triangles");
-    check_triangles(rest_positions.size(), triangles);
+    check_surface(rest_positions.size(), surface);
     for (std::size_t v = 0; v < visual_positions.size(); ++v)
         if (!visual_positions[v].allFinite())
             throw InputError("mapping: visual vertex " + std::to_string(v) + " is not finite");
@@ -368,17 +443,23 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
     for (std::size_t i = 0; i < particle_count; ++i) x[i] = Vec3(rest_positions[i][0], rest_positions[i][1], rest_positions[i][2]);
     // Solve against the float normals the runtime computes, widened: the float evaluation then
     // differs from the solved one by rounding only.
-    const std::vector<Eigen::Vector3f> normals_float = particle_normals(rest_positions, triangles);
+    const std::vector<Eigen::Vector3f> normals_float = particle_normals(rest_positions, surface);
     std::vector<Vec3> n(particle_count);
     for (std::size_t i = 0; i < particle_count; ++i) n[i] = normals_float[i].cast<double>();
-    // A normal whose summed area vectors nearly cancel (|Σ c| < 0.3 Σ|c|, both sides of a thin
-    // wall) has a direction set by rounding: avoid triangles that use it.
+    // A normal whose summed (counted) area vectors nearly cancel (|Σ c| < 0.3 Σ|c|) has an
+    // ill-defined direction: avoid triangles that use it. The normal weights remove this at
+    // sheets with exact twins; it remains at thin walls whose two sides are triangulated
+    // differently (staircase or diagonal walls) and at sharp folds.
     std::vector<char> unstable(particle_count, 0);
     double edge_sum = 0.0;
+    std::vector<std::int32_t> candidate_rows;  // counted triangles: a twin adds nothing new
     {
         std::vector<Vec3> sum(particle_count, Vec3::Zero());
         std::vector<double> magnitude(particle_count, 0.0);
-        for (const auto& t : triangles) {
+        for (std::size_t row = 0; row < triangles.size(); ++row) {
+            if (!surface.normal_weight[row]) continue;
+            candidate_rows.push_back(std::int32_t(row));
+            const auto& t = triangles[row];
             const Vec3 c = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).cross(x[std::size_t(t[2])] - x[std::size_t(t[0])]);
             for (int v : t) {
                 sum[std::size_t(v)] += c;
@@ -390,22 +471,33 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
         for (std::size_t i = 0; i < particle_count; ++i)
             unstable[i] = magnitude[i] > 0 && sum[i].norm() < 0.3 * magnitude[i];
     }
-    const double edge_length = edge_sum / (3.0 * double(triangles.size()));
+    if (candidate_rows.empty()) throw InputError("mapping: no simulation-surface triangle counts in the particle normals");
+    const double edge_length = edge_sum / (3.0 * double(candidate_rows.size()));
 
-    const mapping_internal::TriangleSearch search(x, triangles);
+    std::vector<std::array<std::int32_t, 3>> candidate_triangles;
+    candidate_triangles.reserve(candidate_rows.size());
+    for (std::int32_t row : candidate_rows) candidate_triangles.push_back(triangles[std::size_t(row)]);
+    const mapping_internal::TriangleSearch search(x, candidate_triangles, candidate_rows);
     const Problem problem{x, n, unstable, triangles};
     const std::size_t count = visual_positions.size();
     std::vector<Solution> solutions(count);
+    std::atomic<std::size_t> solve_total{0};
     {
         ProgressStage stage(progress, "map visual mesh", count);
         std::atomic<std::uint64_t> done{0};
-        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 256), [&](const tbb::blocked_range<std::size_t>& range) {
+        // Each vertex is solved independently of the others: deterministic for any thread count.
+        constexpr std::size_t chunk = 256;
+        const std::size_t chunks = (count + chunk - 1) / chunk;
+        tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
             if (progress.cancelled()) throw Cancelled();
             std::vector<std::int32_t> ids;
             std::vector<Candidate> candidates;
-            for (std::size_t v = range.begin(); v < range.end(); ++v)
-                solutions[v] = solve_vertex(problem, search, visual_positions[v], edge_length, ids, candidates);
-            stage.update(done += range.size());
+            std::size_t local_solves = 0;
+            const std::size_t end = std::min(count, (c + 1) * chunk);
+            for (std::size_t v = c * chunk; v < end; ++v)
+                solutions[v] = solve_vertex(problem, search, visual_positions[v], edge_length, ids, candidates, local_solves);
+            solve_total += local_solves;
+            stage.update(done += end - c * chunk);
         });
     }
 
@@ -466,6 +558,7 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
         if (s.unstable_normal) ++report.unstable_normal;
     }
     report.mean_offset_mm = offset_sum / double(count);
+    report.candidate_solves = solve_total.load();
     if (report.mean_offset_mm > options.far_warning_spacings * options.lattice_spacing_mm) {
         std::ostringstream message;
         message << "the visual mesh lies far from the tissue: mean offset " << report.mean_offset_mm << " mm is more than "
@@ -478,8 +571,9 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
                                   std::to_string(report.max_rest_error_mm) + " mm");
     if (report.unstable_normal > 0)
         report.warnings.push_back(std::to_string(report.unstable_normal) +
-                                  " visual vertices are tied to particles of one-particle-thick walls, whose normals nearly "
-                                  "cancel: they may move erratically when deformed");
+                                  " visual vertices are tied to particles whose normals nearly cancel (thin walls whose two "
+                                  "sides are not exact reverses, e.g. staircase or diagonal walls): they may move "
+                                  "erratically when deformed");
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
     if (report_out) *report_out = std::move(report);
     return mapping;

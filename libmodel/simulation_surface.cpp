@@ -188,13 +188,176 @@ std::array<std::int32_t, 3> canonical(std::array<std::int32_t, 3> t) {
 
 }  // namespace
 
-std::vector<std::array<std::int32_t, 3>> build_simulation_surface(const Lattice& lattice, Progress& progress,
-                                                                  SimulationSurfaceReport* report_out) {
+std::vector<std::uint8_t> compute_normal_weights(const std::vector<std::array<std::int32_t, 3>>& triangles,
+                                                 NormalWeightReport* report_out) {
+    const std::size_t count = triangles.size();
+    std::vector<std::uint8_t> weight(count, 1);
+    NormalWeightReport report;
+
+    // Twins: triangle t and its exact reverse. Paired only when the pairing is mutual (a surface
+    // with repeated oriented triangles, which build_simulation_surface never makes, pairs once).
+    std::vector<std::int32_t> twin(count, -1);
+    {
+        std::vector<std::pair<std::array<std::int32_t, 3>, std::int32_t>> keys(count);
+        for (std::size_t t = 0; t < count; ++t) keys[t] = {canonical(triangles[t]), std::int32_t(t)};
+        std::sort(keys.begin(), keys.end());
+        for (std::size_t t = 0; t < count; ++t) {
+            const auto& tri = triangles[t];
+            const auto reverse = canonical({tri[0], tri[2], tri[1]});
+            const auto it = std::lower_bound(keys.begin(), keys.end(), std::make_pair(reverse, std::int32_t(-1)));
+            if (it != keys.end() && it->first == reverse && std::size_t(it->second) != t) twin[t] = it->second;
+        }
+        for (std::size_t t = 0; t < count; ++t)
+            if (twin[t] >= 0 && twin[std::size_t(twin[t])] != std::int32_t(t)) twin[t] = -1;
+        for (std::size_t t = 0; t < count; ++t)
+            if (twin[t] >= 0 && twin[std::size_t(twin[t])] < 0) twin[t] = -1;
+    }
+    // Pairs, numbered in the order of their lower-index triangle (the pair's reference).
+    std::vector<std::int32_t> pair_of(count, -1), reference;
+    for (std::size_t t = 0; t < count; ++t)
+        if (twin[t] > std::int32_t(t)) {
+            pair_of[t] = pair_of[std::size_t(twin[t])] = std::int32_t(reference.size());
+            reference.push_back(std::int32_t(t));
+        }
+    const std::size_t pairs = reference.size();
+    report.sheet_pairs = pairs;
+    if (pairs == 0) {
+        if (report_out) *report_out = report;
+        return weight;
+    }
+
+    // Undirected edges: (edge key, triangle, direction +1 when it runs from the lower to the
+    // higher particle index), grouped by key.
+    struct EdgeUse {
+        std::uint64_t key;
+        std::int32_t triangle;
+        std::int8_t direction;
+    };
+    std::vector<EdgeUse> uses;
+    uses.reserve(3 * count);
+    for (std::size_t t = 0; t < count; ++t)
+        for (int e = 0; e < 3; ++e) {
+            const std::int32_t a = triangles[t][std::size_t(e)], b = triangles[t][std::size_t((e + 1) % 3)];
+            const std::uint64_t lo = std::uint32_t(std::min(a, b)), hi = std::uint32_t(std::max(a, b));
+            uses.push_back({(lo << 32) | hi, std::int32_t(t), std::int8_t(a < b ? 1 : -1)});
+        }
+    std::sort(uses.begin(), uses.end(), [](const EdgeUse& p, const EdgeUse& q) {
+        return p.key != q.key ? p.key < q.key : p.triangle < q.triangle;
+    });
+
+    // σ_p = +1 keeps pair p's reference triangle, −1 its twin. Across an edge shared by exactly two
+    // pairs and nothing else, the kept triangles must run opposite ways: with d the directions of
+    // the references on the edge, d_p·σ_p = −d_q·σ_q, i.e. σ_q = −d_p·d_q·σ_p (a link of that
+    // sign). Along an edge shared with thick triangles, each thick triangle A proposes a seed for
+    // every pair there: d_p·σ_p = −d_A. Each pair remembers the proposal of lowest A.
+    std::vector<std::vector<std::pair<std::int32_t, std::int8_t>>> links(pairs);
+    std::vector<std::pair<std::int32_t, std::int8_t>> seed(pairs, {std::numeric_limits<std::int32_t>::max(), 0});
+    std::vector<std::pair<std::int32_t, std::int8_t>> sheet;  // (pair, reference direction) on this edge
+    for (std::size_t begin = 0; begin < uses.size();) {
+        std::size_t end = begin;
+        while (end < uses.size() && uses[end].key == uses[begin].key) ++end;
+        sheet.clear();
+        std::int32_t thick = -1;
+        std::int8_t thick_direction = 0;
+        for (std::size_t u = begin; u < end; ++u) {
+            const std::int32_t t = uses[u].triangle, p = pair_of[std::size_t(t)];
+            if (p < 0) {
+                if (thick < 0) {  // sorted by triangle: the first is the lowest
+                    thick = t;
+                    thick_direction = uses[u].direction;
+                }
+            } else if (reference[std::size_t(p)] == t) {
+                sheet.push_back({p, uses[u].direction});
+            }
+        }
+        if (thick >= 0) {
+            for (const auto& [p, d] : sheet)
+                if (thick < seed[std::size_t(p)].first) seed[std::size_t(p)] = {thick, std::int8_t(-thick_direction * d)};
+        } else if (sheet.size() == 2) {
+            const auto [p, dp] = sheet[0];
+            const auto [q, dq] = sheet[1];
+            const std::int8_t sign = std::int8_t(-dp * dq);
+            links[std::size_t(p)].push_back({q, sign});
+            links[std::size_t(q)].push_back({p, sign});
+        }
+        begin = end;
+    }
+    for (auto& l : links) std::sort(l.begin(), l.end());
+
+    // Regions: components of the link graph, in the order of their lowest pair. Each is seeded by
+    // its proposal of lowest thick triangle (ties: lowest pair), else its lowest pair keeps its
+    // reference; breadth-first from the seed.
+    std::vector<std::int8_t> sigma(pairs, 0);
+    std::vector<char> visited(pairs, 0);
+    std::vector<std::int32_t> region, queue;
+    for (std::size_t first = 0; first < pairs; ++first) {
+        if (visited[first]) continue;
+        region.clear();
+        region.push_back(std::int32_t(first));
+        visited[first] = 1;
+        for (std::size_t r = 0; r < region.size(); ++r)
+            for (const auto& [q, sign] : links[std::size_t(region[r])])
+                if (!visited[std::size_t(q)]) {
+                    visited[std::size_t(q)] = 1;
+                    region.push_back(q);
+                }
+        ++report.sheet_regions;
+        // `first` is the region's lowest pair (all lower ones belong to earlier regions).
+        std::int32_t start = std::int32_t(first);
+        std::int8_t start_sigma = 1;
+        std::pair<std::int32_t, std::int32_t> best{std::numeric_limits<std::int32_t>::max(), 0};
+        for (std::int32_t p : region)
+            if (seed[std::size_t(p)].second != 0 && std::make_pair(seed[std::size_t(p)].first, p) < best) {
+                best = {seed[std::size_t(p)].first, p};
+                start = p;
+                start_sigma = seed[std::size_t(p)].second;
+            }
+        if (best.first == std::numeric_limits<std::int32_t>::max()) ++report.sheet_regions_unseeded;
+        queue.clear();
+        queue.push_back(start);
+        sigma[std::size_t(start)] = start_sigma;
+        for (std::size_t r = 0; r < queue.size(); ++r) {
+            const std::int32_t p = queue[r];
+            for (const auto& [q, sign] : links[std::size_t(p)]) {
+                const std::int8_t wanted = std::int8_t(sign * sigma[std::size_t(p)]);
+                if (sigma[std::size_t(q)] == 0) {
+                    sigma[std::size_t(q)] = wanted;
+                    queue.push_back(q);
+                } else if (sigma[std::size_t(q)] != wanted && p < q) {
+                    ++report.sheet_orientation_conflicts;
+                }
+            }
+        }
+    }
+    for (std::size_t p = 0; p < pairs; ++p) {
+        const std::size_t kept = std::size_t(reference[p]), other = std::size_t(twin[kept]);
+        weight[kept] = sigma[p] > 0 ? 1 : 0;
+        weight[other] = sigma[p] > 0 ? 0 : 1;
+    }
+    if (report_out) *report_out = report;
+    return weight;
+}
+
+SimulationSurface SimulationSurface::with_computed_weights(std::vector<std::array<std::int32_t, 3>> triangles) {
+    SimulationSurface surface;
+    surface.normal_weight = compute_normal_weights(triangles);
+    surface.triangles = std::move(triangles);
+    return surface;
+}
+
+SimulationSurface SimulationSurface::all_counted(std::vector<std::array<std::int32_t, 3>> triangles) {
+    SimulationSurface surface;
+    surface.normal_weight.assign(triangles.size(), 1);
+    surface.triangles = std::move(triangles);
+    return surface;
+}
+
+SimulationSurface build_simulation_surface(const Lattice& lattice, Progress& progress, SimulationSurfaceReport* report_out) {
     const auto& particles = lattice.particles;
     const std::size_t n = particles.size();
     if (n > std::size_t(std::numeric_limits<std::int32_t>::max()))
         throw InputError("simulation surface: too many particles");
-    ProgressStage stage(progress, "simulation surface", 3);
+    ProgressStage stage(progress, "simulation surface", 4);
 
     // Occupancy grid padded by one empty cell on every side: cell -> particle index, −1 if void.
     const std::array<int, 3> dims{lattice.dims[0] + 2, lattice.dims[1] + 2, lattice.dims[2] + 2};
@@ -268,6 +431,10 @@ std::vector<std::array<std::int32_t, 3>> build_simulation_surface(const Lattice&
     }
     stage.update(3);
 
+    NormalWeightReport sheets;
+    std::vector<std::uint8_t> weights = compute_normal_weights(triangles, &sheets);
+    stage.update(4);
+
     if (report_out) {
         SimulationSurfaceReport report;
         report.triangles = triangles.size();
@@ -284,6 +451,9 @@ std::vector<std::array<std::int32_t, 3>> build_simulation_surface(const Lattice&
         report.nonmanifold_vertices = check.nonmanifold_vertices;
         report.thin_wall_triangles = thin_wall;
         report.duplicate_triangles_removed = duplicates;
+        report.sheet_regions = sheets.sheet_regions;
+        report.sheet_regions_unseeded = sheets.sheet_regions_unseeded;
+        report.sheet_orientation_conflicts = sheets.sheet_orientation_conflicts;
         if (triangles.empty())
             report.warnings.push_back("simulation surface is empty: no particle has a 2×2 patch of neighbours to span a triangle");
         if (check.nonmanifold_edges > 0 || check.nonmanifold_vertices > 0)
@@ -291,9 +461,16 @@ std::vector<std::array<std::int32_t, 3>> build_simulation_surface(const Lattice&
                                       std::to_string(check.nonmanifold_vertices) +
                                       " non-manifold vertices where the tissue is one particle thick or touches itself "
                                       "along an edge (" + std::to_string(thin_wall) + " triangles lie on both sides of a thin wall)");
+        if (sheets.sheet_orientation_conflicts > 0)
+            report.warnings.push_back(std::to_string(sheets.sheet_orientation_conflicts) +
+                                      " places where a one-particle-thick sheet cannot be oriented consistently "
+                                      "(a non-orientable sheet): particle normals turn over there");
         *report_out = std::move(report);
     }
-    return triangles;
+    SimulationSurface surface;
+    surface.triangles = std::move(triangles);
+    surface.normal_weight = std::move(weights);
+    return surface;
 }
 
 TriangleMesh simulation_surface_mesh(const std::vector<std::array<float, 3>>& positions,

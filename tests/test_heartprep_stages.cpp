@@ -46,6 +46,7 @@ TEST(HeartprepStages, BuildWritesEveryGroupOfTheContract) {
     const Scenario s = read_scenario(built(dir, "heart"));  // the reader validates every group
     ASSERT_TRUE(s.packing && s.simulation_surface && s.visual && s.mapping);
     EXPECT_EQ(s.packing->neighbours.size(), s.lattice.particles.size());
+    EXPECT_EQ(s.simulation_surface->normal_weight.size(), s.simulation_surface->triangles.size());
     EXPECT_EQ(s.mapping->triangle.size(), s.visual->positions.size());
 }
 
@@ -64,10 +65,12 @@ TEST(HeartprepStages, PackRewritesTheLayoutAndKeepsTheFileValid) {
     ASSERT_EQ(after.simulation_surface->size(), before.simulation_surface->size());
     auto corners = [](const Scenario& s, std::size_t t) {
         std::array<std::array<float, 3>, 3> c;
-        for (int k = 0; k < 3; ++k) c[std::size_t(k)] = s.lattice.particles.rest_position[std::size_t((*s.simulation_surface)[t][std::size_t(k)])];
+        for (int k = 0; k < 3; ++k) c[std::size_t(k)] = s.lattice.particles.rest_position[std::size_t(s.simulation_surface->triangles[t][std::size_t(k)])];
         return c;
     };
     for (std::size_t t = 0; t < after.simulation_surface->size(); t += 97) EXPECT_EQ(corners(after, t), corners(before, t));
+    // The normal weights stay with their triangles (rows are not reordered by packing).
+    EXPECT_EQ(after.simulation_surface->normal_weight, before.simulation_surface->normal_weight);
     // And the mapping still reproduces the visual mesh: inspect evaluates it.
     const auto inspect = heartprep("inspect --json " + quoted(dir / "slices.h5"));
     std::smatch m;

@@ -3,6 +3,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
+#include "libmodel/simulation_surface.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -177,6 +178,49 @@ TEST(Scenario, ReaderNamesTheDatasetAndTheProblem) {
     std::ofstream(dir / "text.h5") << "not hdf5";
     EXPECT_NE(refusal(dir / "text.h5").find("not an HDF5 file"), std::string::npos);
     EXPECT_NE(refusal(dir / "absent.h5").find("file not found"), std::string::npos);
+}
+
+TEST(Scenario, SimulationSurfaceNormalWeightsRoundTripAndAreValidated) {
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    const std::int32_t n = std::int32_t(s.lattice.particles.size());
+    ASSERT_GE(n, 3);
+    // Two twins (one counted) and a third triangle.
+    s.simulation_surface = SimulationSurface{{{0, 1, 2}, {0, 2, 1}, {1, 2, n - 1}}, {1, 0, 1}};
+    const auto file = dir / "surface.h5";
+    write_scenario(file, s);
+    const Scenario back = read_scenario(file);
+    ASSERT_TRUE(back.simulation_surface);
+    EXPECT_TRUE(*back.simulation_surface == *s.simulation_surface);
+    // A weight other than 0 or 1 is refused, naming the dataset.
+    overwrite(file, "simsurface/normal_weight", std::vector<std::uint8_t>{1, 2, 1}, H5T_NATIVE_UINT8);
+    EXPECT_NE(refusal(file).find("simsurface/normal_weight"), std::string::npos) << refusal(file);
+    EXPECT_NE(refusal(file).find("not 0 or 1"), std::string::npos) << refusal(file);
+    // A file written before the weights existed reads with every triangle counted.
+    remove_object(file, "simsurface/normal_weight");
+    const Scenario old = read_scenario(file);
+    ASSERT_TRUE(old.simulation_surface);
+    EXPECT_EQ(old.simulation_surface->normal_weight, std::vector<std::uint8_t>(3, 1));
+    // Weights of the wrong shape: refused on reading, and not written.
+    s.simulation_surface->normal_weight = {1, 0};
+    EXPECT_THROW(write_scenario(dir / "bad.h5", s), InputError);
+    s.simulation_surface->normal_weight = {1, 0, 1};
+    write_scenario(file, s);
+    remove_object(file, "simsurface/normal_weight");
+    {
+        hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        hid_t g = H5Gopen2(f, "simsurface", H5P_DEFAULT);
+        const hsize_t two = 2;
+        hid_t space = H5Screate_simple(1, &two, nullptr);
+        hid_t set = H5Dcreate2(g, "normal_weight", H5T_NATIVE_UINT8, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+        const std::uint8_t ones[2] = {1, 1};
+        H5Dwrite(set, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, ones);
+        H5Dclose(set);
+        H5Sclose(space);
+        H5Gclose(g);
+        H5Fclose(f);
+    }
+    EXPECT_NE(refusal(file).find("simsurface/normal_weight"), std::string::npos) << refusal(file);
 }
 
 TEST(Scenario, WrongElementTypeIsRefused) {

@@ -82,9 +82,9 @@ void add_stage_commands(CLI::App& app) {
             const auto& r = report.simulation_surface;
             if (!files->quiet)
                 std::printf("simsurface     %zu triangles over %zu boundary particles, %zu component(s), Euler characteristic %ld, "
-                            "%zu non-manifold edges, %zu non-manifold vertices\n",
+                            "%zu non-manifold edges, %zu non-manifold vertices, %zu thin-wall triangles in %zu sheet region(s)\n",
                             r.triangles, r.boundary_particles, r.components, r.euler_characteristic, r.nonmanifold_edges,
-                            r.nonmanifold_vertices);
+                            r.nonmanifold_vertices, r.thin_wall_triangles, r.sheet_regions);
             finish(*files, report, scenario, progress);
         });
     }
@@ -122,7 +122,7 @@ void add_stage_commands(CLI::App& app) {
             TriangleMesh mesh;
             if (*what == "simsurface") {
                 if (!scenario.simulation_surface) throw InputError(input->string() + ": has no /simsurface (run `heartprep simsurface`)");
-                mesh = simulation_surface_mesh(scenario.lattice.particles.rest_position, *scenario.simulation_surface);
+                mesh = simulation_surface_mesh(scenario.lattice.particles.rest_position, scenario.simulation_surface->triangles);
             } else {
                 if (!scenario.visual) throw InputError(input->string() + ": has no /visual mesh");
                 for (const auto& p : scenario.visual->positions) mesh.positions.emplace_back(p[0], p[1], p[2]);

@@ -50,7 +50,7 @@ void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& pro
         return pack_particles(scenario.lattice, options, progress, &report.packing, &new_index);
     });
     if (scenario.simulation_surface)
-        for (auto& triangle : *scenario.simulation_surface)
+        for (auto& triangle : scenario.simulation_surface->triangles)
             for (auto& vertex : triangle) vertex = new_index[std::size_t(vertex)];
 }
 
@@ -173,9 +173,9 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     if (scenario.simulation_surface) {
         const auto& r = report.simulation_surface;
         std::printf("simsurface  %zu triangles over %zu boundary particles, %zu component(s), Euler characteristic %ld, "
-                    "%zu non-manifold edges, %zu non-manifold vertices\n",
+                    "%zu non-manifold edges, %zu non-manifold vertices, %zu thin-wall triangles in %zu sheet region(s)\n",
                     r.triangles, r.boundary_particles, r.components, r.euler_characteristic, r.nonmanifold_edges,
-                    r.nonmanifold_vertices);
+                    r.nonmanifold_vertices, r.thin_wall_triangles, r.sheet_regions);
     }
     if (scenario.mapping)
         std::printf("mapping     %zu visual vertices, rest error max %.2g mm, offset mean %.3f mm max %.3f mm, %zu extrapolated\n",
