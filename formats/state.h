@@ -1,0 +1,37 @@
+/// @file state.h
+/// @brief The simulation state file `heartsim run --save-state OUT.h5` writes: final particle
+/// positions and the last forces of each instrument. HDF5, written atomically (a temporary file
+/// beside it, then rename). Layout (docs/runtime.md):
+///   root attrs  format = "heartsim.state", format_version = 1, units = "mm g ms", frame = "LPS",
+///               backend, scenario (file name), time_ms (simulated), steps
+///   /positions          float32 [N,3]  mm, packed order (as /particles/rest_position)
+///   /instrument_forces  float64 [2,3]  N, the force the tissue exerts on each hand's instrument
+///   /instrument_particles int32 [2]    particles held or touched per hand
+///   /instrument_kind    int32 [2]      0 none, 1 probe, 2 grabber
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct SimulationState {
+    std::string backend;                               ///< "cpu" or "gl"
+    std::string scenario;                              ///< scenario file name
+    double time_ms = 0.0;                              ///< simulated time, ms
+    long long steps = 0;
+    std::vector<std::array<float, 3>> positions;       ///< N×3, mm
+    std::array<std::array<double, 3>, 2> force_n{};    ///< per hand, N
+    std::array<std::int32_t, 2> particles{};           ///< per hand
+    std::array<std::int32_t, 2> kind{};                ///< per hand: 0 none, 1 probe, 2 grabber
+};
+
+/// Writes atomically; throws OutputError naming the file.
+void write_state(const std::filesystem::path& path, const SimulationState& state);
+/// Reads and validates; throws InputError naming the file and dataset.
+SimulationState read_state(const std::filesystem::path& path);
+
+}  // namespace heartsim

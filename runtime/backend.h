@@ -1,0 +1,94 @@
+/// @file backend.h
+/// @brief The simulation behind one interface: `cpu` (libmodel's Solver, the reference) and
+/// `gl` (compute shaders on the same packed layout). Both do the same step with the same
+/// formulas, instrument semantics and force sign (docs/solver.md, docs/runtime.md).
+///
+///     auto backend = make_backend(BackendKind::gl, scenario, options_from(scenario.solver), &gl);
+///     backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = {2, 2, 6}});
+///     backend->set_pose(0, pose);
+///     backend->step(scenario.solver.substeps);
+///     backend->request_forces();                       // asynchronous, both hands
+///     if (auto f = backend->latest_forces()) use(*f);  // never waits
+#pragma once
+
+#include "formats/scenario.h"
+#include "libmodel/solver.h"
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+class GlContext;
+
+enum class BackendKind { cpu, gl };
+/// "cpu" or "gl"; throws InputError otherwise.
+BackendKind parse_backend_kind(const std::string& name);
+const char* to_string(BackendKind kind);
+
+/// Time spent per pass, ms, summed over the run (GPU timer queries for gl, wall clock for cpu).
+struct PassTimes {
+    double step_ms = 0.0;          ///< simulation substeps: springs, integration, probe projection, grab follow
+    double force_ms = 0.0;         ///< force buffer: both instruments' forces
+    long long step_calls = 0;      ///< step() calls measured
+    long long substeps = 0;        ///< substeps measured
+    long long force_calls = 0;     ///< force passes measured
+    bool gpu_timed = false;        ///< true when the figures come from GPU timer queries
+};
+
+/// The solver settings of a scenario, field by field (docs/solver.md).
+SolverOptions options_from(const SolverSettings& settings);
+
+class Backend {
+public:
+    virtual ~Backend() = default;
+    virtual BackendKind kind() const = 0;
+    virtual std::size_t size() const = 0;                  ///< particles
+    virtual const SolverLoadReport& load_report() const = 0;
+    virtual double time_step_ms() const = 0;               ///< one step()
+    virtual double substep_ms() const = 0;
+    virtual int substeps_per_step() const = 0;
+    virtual double simulated_time_ms() const = 0;
+
+    /// Hand 0 or 1; as Solver::set_instrument / set_pose / begin_grab / release.
+    virtual void set_instrument(int hand, const Instrument& instrument) = 0;
+    virtual void set_pose(int hand, const InstrumentPose& pose) = 0;
+    /// Captures the free particles inside the grabber; returns how many (gl: one small readback).
+    virtual std::size_t begin_grab(int hand) = 0;
+    virtual void release(int hand) = 0;
+
+    /// Advances `steps` steps of time_step_ms(). gl: queued on the GPU, returns at once.
+    virtual StepReport step(int steps = 1) = 0;
+
+    /// Queues the force pass for both hands on the current state (gl: into a persistent mapped
+    /// ring, fenced); latest_forces() returns the newest finished one without waiting.
+    virtual void request_forces() = 0;
+    virtual std::optional<InstrumentForces> latest_forces() = 0;
+    /// Both hands' forces on the current state, N, world frame (the force the tissue exerts on
+    /// the instrument, docs/solver.md). Waits for the GPU.
+    virtual InstrumentForces instrument_forces() = 0;
+    /// Current positions, N×3 mm, packed order. Waits for the GPU.
+    virtual std::vector<std::array<float, 3>> positions() = 0;
+    /// Pass timings so far (waits for outstanding timer queries).
+    virtual PassTimes pass_times() = 0;
+    /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
+    virtual std::size_t memory_bytes() const = 0;
+};
+
+/// The CPU backend: libmodel's Solver on the scenario's packed particles. Throws InputError if
+/// the scenario has no /packing.
+std::unique_ptr<Backend> make_cpu_backend(const Scenario& scenario, const SolverOptions& options);
+
+/// Device memory the GL backend will allocate for `scenario`, bytes (printed before allocating).
+std::size_t estimate_gl_memory_bytes(const Scenario& scenario);
+
+/// The GL backend on the current context of `context`. Throws InputError if the scenario has no
+/// /packing, GlUnavailable if the context cannot run it (or a shader fails to build).
+std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options);
+
+/// Throws InputError naming the group when the scenario lacks what a run needs (/packing).
+void require_runnable(const Scenario& scenario, const std::string& file_name);
+
+}  // namespace heartsim

@@ -1,0 +1,92 @@
+// The CPU backend: libmodel's Solver behind the Backend interface, timed by the wall clock.
+#include "backend.h"
+
+#include "libmodel/errors.h"
+
+#include <chrono>
+
+namespace heartsim {
+
+BackendKind parse_backend_kind(const std::string& name) {
+    if (name == "cpu") return BackendKind::cpu;
+    if (name == "gl") return BackendKind::gl;
+    throw InputError("backend '" + name + "': expected cpu or gl");
+}
+
+const char* to_string(BackendKind kind) { return kind == BackendKind::cpu ? "cpu" : "gl"; }
+
+SolverOptions options_from(const SolverSettings& settings) {
+    SolverOptions options;
+    options.dt_ms = settings.dt_ms;
+    options.critical_dt_ms = settings.critical_dt_ms;
+    options.safety_factor = settings.safety_factor;
+    options.damping = settings.damping;
+    options.gravity = settings.gravity;
+    return options;
+}
+
+void require_runnable(const Scenario& scenario, const std::string& file_name) {
+    if (!scenario.packing)
+        throw InputError(file_name + ": group /packing is missing; the runtime needs the packed neighbour table "
+                                     "(run `heartprep pack` or `heartprep build`)");
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+class CpuBackend final : public Backend {
+public:
+    CpuBackend(const Scenario& scenario, const SolverOptions& options)
+        : solver_(scenario.lattice, scenario.packing->neighbours, options) {}
+
+    BackendKind kind() const override { return BackendKind::cpu; }
+    std::size_t size() const override { return solver_.size(); }
+    const SolverLoadReport& load_report() const override { return solver_.load_report(); }
+    double time_step_ms() const override { return solver_.time_step_ms(); }
+    double substep_ms() const override { return solver_.substep_ms(); }
+    int substeps_per_step() const override { return solver_.substeps_per_step(); }
+    double simulated_time_ms() const override { return solver_.simulated_time_ms(); }
+    void set_instrument(int hand, const Instrument& instrument) override { solver_.set_instrument(hand, instrument); }
+    void set_pose(int hand, const InstrumentPose& pose) override { solver_.set_pose(hand, pose); }
+    std::size_t begin_grab(int hand) override { return solver_.begin_grab(hand); }
+    void release(int hand) override { solver_.release(hand); }
+
+    StepReport step(int steps) override {
+        const auto start = Clock::now();
+        StepReport report = solver_.step(steps);
+        times_.step_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+        ++times_.step_calls;
+        times_.substeps += report.substeps;
+        return report;
+    }
+    void request_forces() override {
+        const auto start = Clock::now();
+        latest_ = solver_.instrument_forces();
+        times_.force_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+        ++times_.force_calls;
+    }
+    std::optional<InstrumentForces> latest_forces() override { return latest_; }
+    InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
+    std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
+    PassTimes pass_times() override { return times_; }
+    std::size_t memory_bytes() const override {
+        // Three float4 position buffers, rest, per-particle constants, five per-entry tables.
+        const std::size_t n = (solver_.size() + 7) / 8 * 8;
+        return n * (4 * 4 * 4 + 4 * 3) + n * 18 * 4 * 5;
+    }
+
+private:
+    Solver solver_;
+    PassTimes times_;
+    std::optional<InstrumentForces> latest_;
+};
+
+}  // namespace
+
+std::unique_ptr<Backend> make_cpu_backend(const Scenario& scenario, const SolverOptions& options) {
+    require_runnable(scenario, "scenario");
+    return std::make_unique<CpuBackend>(scenario, options);
+}
+
+}  // namespace heartsim

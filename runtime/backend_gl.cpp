@@ -1,0 +1,583 @@
+// The GL backend: the CPU solver's substep as OpenGL 4.3 compute shaders on shader storage
+// buffers in the same packed layout. Shaders and the arithmetic contract: gl_shaders.h.
+// Design and deviations: docs/runtime.md.
+#include "backend.h"
+#include "gl_context.h"
+#include "gl_shaders.h"
+
+#include "libmodel/errors.h"
+#include "libmodel/packing.h"
+
+#include <epoxy/gl.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <sstream>
+
+namespace heartsim {
+
+namespace {
+
+namespace sh = gl_shaders;
+constexpr int slot_count = 18, lane_count = 8, hands = 2;
+constexpr int ring_slots = 4;              // force readbacks in flight
+constexpr GLsizeiptr ring_stride = 256;    // ≥ GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT everywhere we know
+
+/// A GL object name with its deleter: no raw ids leak out of this file.
+struct Buffer {
+    GLuint id = 0;
+    Buffer() = default;
+    Buffer(const Buffer&) = delete;
+    Buffer& operator=(const Buffer&) = delete;
+    ~Buffer() { if (id) glDeleteBuffers(1, &id); }
+};
+
+struct Program {
+    GLuint id = 0;
+    Program() = default;
+    Program(const Program&) = delete;
+    Program& operator=(const Program&) = delete;
+    ~Program() { if (id) glDeleteProgram(id); }
+    GLint at(const char* name) const { return glGetUniformLocation(id, name); }
+};
+
+void build(Program& program, const char* name, const char* body) {
+    const GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
+    const char* sources[] = {sh::common, body};
+    glShaderSource(shader, 2, sources, nullptr);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
+        glDeleteShader(shader);
+        throw GlUnavailable(std::string("gl backend: the ") + name + " compute shader does not compile on this driver: " + log +
+                            "; run with --backend cpu");
+    }
+    program.id = glCreateProgram();
+    glAttachShader(program.id, shader);
+    glLinkProgram(program.id);
+    glDeleteShader(shader);
+    glGetProgramiv(program.id, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetProgramInfoLog(program.id, sizeof log, nullptr, log);
+        throw GlUnavailable(std::string("gl backend: the ") + name + " compute shader does not link: " + log + "; run with --backend cpu");
+    }
+}
+
+template <class T>
+void storage(Buffer& buffer, const std::vector<T>& data, GLbitfield flags = 0) {
+    glCreateBuffers(1, &buffer.id);
+    glNamedBufferStorage(buffer.id, GLsizeiptr(std::max<std::size_t>(data.size() * sizeof(T), 16)), data.empty() ? nullptr : data.data(),
+                         flags);
+}
+
+void storage(Buffer& buffer, std::size_t bytes, GLbitfield flags) {
+    glCreateBuffers(1, &buffer.id);
+    glNamedBufferStorage(buffer.id, GLsizeiptr(std::max<std::size_t>(bytes, 16)), nullptr, flags);
+}
+
+InstrumentPose interpolate(const InstrumentPose& a, const InstrumentPose& b, double t) {
+    return {a.position + t * (b.position - a.position), a.orientation.slerp(t, b.orientation)};
+}
+
+struct ForceSlot {
+    double force[2][4];
+    std::uint32_t status;
+    std::uint32_t sequence;
+};
+
+class GlBackend final : public Backend {
+public:
+    GlBackend(const Scenario& scenario, const SolverOptions& options) : options_(options) {
+        // The CPU solver validates the scenario exactly as the cpu backend would and decides
+        // the substeps (critical step, damping): both backends then share h and the constants.
+        {
+            const Solver reference(scenario.lattice, scenario.packing->neighbours, options);
+            load_report_ = reference.load_report();
+            dt_ms_ = reference.time_step_ms();
+            h_ = reference.substep_ms();
+            substeps_ = reference.substeps_per_step();
+        }
+        build_buffers(scenario);
+        build(step_program_, "step", sh::step);
+        build(after_program_, "after-step", sh::after_step);
+        build(capture_program_, "grab", sh::capture);
+        build(release_program_, "release", sh::release);
+        build(force_program_, "force", sh::force_pass);
+        for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_}) {
+            glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
+            glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
+        }
+        glProgramUniform1f(step_program_.id, step_program_.at("keep"), float(1.0 - options_.damping * h_));
+        glProgramUniform3f(step_program_.id, step_program_.at("gravity"), float(options_.gravity.x()), float(options_.gravity.y()),
+                           float(options_.gravity.z()));
+        glProgramUniform1i(step_program_.id, step_program_.at("damped"), damped_);
+        glProgramUniform1i(force_program_.id, force_program_.at("damped"), damped_);
+        check("setting up the gl backend");
+    }
+
+    ~GlBackend() override {
+        for (auto& fence : fences_)
+            if (fence) glDeleteSync(fence);
+        for (auto& pending : pending_) glDeleteQueries(2, pending.queries);
+        if (ring_.id) glUnmapNamedBuffer(ring_.id);
+    }
+
+    BackendKind kind() const override { return BackendKind::gl; }
+    std::size_t size() const override { return n_; }
+    const SolverLoadReport& load_report() const override { return load_report_; }
+    double time_step_ms() const override { return dt_ms_; }
+    double substep_ms() const override { return h_; }
+    int substeps_per_step() const override { return substeps_; }
+    double simulated_time_ms() const override { return time_ms_; }
+    std::size_t memory_bytes() const override { return memory_bytes_; }
+
+    void set_instrument(int hand, const Instrument& instrument) override {
+        check_hand(hand);
+        for (int c = 0; c < 3; ++c)
+            if (!(instrument.semi_axes[c] > 0) || !std::isfinite(instrument.semi_axes[c]))
+                throw InputError("solver: instrument semi-axes must be positive and finite, mm");
+        release(hand);
+        hand_[hand].instrument = instrument;
+        hand_[hand].placed = false;
+        // A probe's touched list starts empty (the step pass refills it every substep).
+        const GLuint zero = 0;
+        glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(hand * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+    }
+
+    void set_pose(int hand, const InstrumentPose& pose) override {
+        check_hand(hand);
+        if (!pose.position.allFinite() || !pose.orientation.coeffs().allFinite() || pose.orientation.norm() < 1e-6)
+            throw InputError("solver: an instrument pose must be finite with a non-zero quaternion");
+        InstrumentPose p = pose;
+        p.orientation.normalize();
+        hand_[hand].target = p;
+        if (!hand_[hand].placed) hand_[hand].pose = p;
+        hand_[hand].placed = true;
+    }
+
+    std::size_t begin_grab(int hand) override {
+        check_hand(hand);
+        HandState& state = hand_[hand];
+        if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber");
+        release(hand);
+        state.grabbing = true;
+        bind_common();
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
+        const GLuint p = capture_program_.id;
+        glProgramUniform1i(p, capture_program_.at("hand"), hand);
+        glProgramUniform3dv(p, capture_program_.at("centre"), 1, state.pose.position.data());
+        const Eigen::Matrix3d rotation = state.pose.orientation.toRotationMatrix();
+        glProgramUniformMatrix3dv(p, capture_program_.at("rotation"), 1, GL_FALSE, rotation.data());
+        glProgramUniform3dv(p, capture_program_.at("semi_axes"), 1, state.instrument.semi_axes.data());
+        glUseProgram(p);
+        glDispatchCompute(GLuint((n_ + 63) / 64), 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        GLuint count = 0;
+        glGetNamedBufferSubData(counters_.id, GLintptr((sh::held0 + hand) * 4), 4, &count);
+        check("begin_grab");
+        return count;
+    }
+
+    void release(int hand) override {
+        check_hand(hand);
+        HandState& state = hand_[hand];
+        if (!state.grabbing) return;
+        bind_common();
+        glProgramUniform1i(release_program_.id, release_program_.at("hand"), hand);
+        glUseProgram(release_program_.id);
+        glDispatchCompute(1, 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+        state.grabbing = false;
+    }
+
+    StepReport step(int steps) override {
+        StepReport report;
+        harvest_queries(false);
+        if (steps <= 0) return report;
+        Pending timing{};
+        glGenQueries(2, timing.queries);
+        glQueryCounter(timing.queries[0], GL_TIMESTAMP);
+
+        const long long total = (long long)steps * substeps_;
+        std::array<InstrumentPose, hands> start;
+        for (int hand = 0; hand < hands; ++hand) start[hand] = hand_[hand].pose;
+        double max_displacement = options_.max_displacement_fraction * double(min_rest_length_);
+        int probe_hands[2] = {0, 0}, probe_count = 0;
+        for (int hand = 0; hand < hands; ++hand) {
+            const HandState& state = hand_[hand];
+            if (state.instrument.kind != InstrumentKind::none) max_displacement = std::max(max_displacement, state.instrument.semi_axes.maxCoeff());
+            if (state.instrument.kind == InstrumentKind::probe) probe_hands[probe_count++] = hand;
+        }
+        const bool grabbing = hand_[0].grabbing || hand_[1].grabbing;
+        const GLuint sp = step_program_.id, ap = after_program_.id;
+        glProgramUniform1f(sp, step_program_.at("max_displacement2"),
+                           options_.watchdog && std::isfinite(max_displacement) ? float(max_displacement * max_displacement)
+                                                                               : std::numeric_limits<float>::infinity());
+        glProgramUniform1i(sp, step_program_.at("probe_count"), probe_count);
+        glProgramUniform1iv(sp, step_program_.at("probe_hand"), 2, probe_hands);
+        for (int q = 0; q < probe_count; ++q) {
+            const double radius = hand_[probe_hands[q]].instrument.semi_axes.maxCoeff() * (1 + 1e-3) + 1e-3;
+            set_indexed_1f(sp, "probe_bound2", q, float(radius * radius));
+            set_indexed_3dv(sp, "probe_semi_axes", q, hand_[probe_hands[q]].instrument.semi_axes.data());
+        }
+        int grab_flags[2] = {hand_[0].grabbing, hand_[1].grabbing};
+        glProgramUniform1iv(ap, after_program_.at("grabbing"), 2, grab_flags);
+
+        bind_common();
+        const GLuint zero = 0;
+        for (long long q = 1; q <= total; ++q) {
+            const double fraction = double(q) / double(total), previous_fraction = double(q - 1) / double(total);
+            std::array<InstrumentPose, hands> poses, previous_poses;
+            for (int hand = 0; hand < hands; ++hand) {
+                poses[hand] = interpolate(start[hand], hand_[hand].target, fraction);
+                previous_poses[hand] = interpolate(start[hand], hand_[hand].target, previous_fraction);
+            }
+            for (int k = 0; k < probe_count; ++k) {
+                const int hand = probe_hands[k];
+                const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
+                const Eigen::Matrix3d previous_rotation = previous_poses[hand].orientation.toRotationMatrix();
+                set_indexed_3dv(sp, "probe_centre", k, poses[hand].position.data());
+                set_indexed_3dv(sp, "probe_previous_centre", k, previous_poses[hand].position.data());
+                set_indexed_matrix(sp, "probe_rotation", k, rotation.data());
+                set_indexed_matrix(sp, "probe_previous_rotation", k, previous_rotation.data());
+            }
+            // Touched lists and contact fix-ups are per substep.
+            glClearNamedBufferSubData(counters_.id, GL_R32UI, 0, 12, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::previous, position_[previous_].id);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next, position_[next_].id);
+            glUseProgram(sp);
+            glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+            if (probe_count > 0 || grabbing) {
+                for (int hand = 0; hand < hands; ++hand) {
+                    if (!hand_[hand].grabbing) continue;
+                    const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
+                    set_indexed_3dv(ap, "grab_centre", hand, poses[hand].position.data());
+                    set_indexed_matrix(ap, "grab_rotation", hand, rotation.data());
+                }
+                glUseProgram(ap);
+                glDispatchCompute(1, 1, 1);
+                glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+            }
+            const int old_previous = previous_;
+            previous_ = current_;
+            current_ = next_;
+            next_ = old_previous;
+            time_ms_ += h_;
+            ++report.substeps;
+        }
+        report.steps = steps;
+        for (auto& state : hand_) state.pose = state.target;
+        glQueryCounter(timing.queries[1], GL_TIMESTAMP);
+        timing.is_force = false;
+        timing.substeps = report.substeps;
+        pending_.push_back(timing);
+        glFlush();
+        if (diverged_seen_ && !diverged_reported_) {
+            diverged_reported_ = true;
+            report.diverged = true;
+            report.reason = WatchdogReason::speed;
+            report.message = "gl backend watchdog: a particle moved more than the displacement bound in one substep (seen in the "
+                             "asynchronous status, not restored on the GPU)";
+        }
+        check("step");
+        return report;
+    }
+
+    void request_forces() override {
+        const int slot = int(next_sequence_ % ring_slots);
+        if (fences_[slot]) {  // ring full: the oldest readback is still in flight (rare: 4 outstanding)
+            glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(10'000'000'000ull));
+            glDeleteSync(fences_[slot]);
+            fences_[slot] = nullptr;
+        }
+        Pending timing{};
+        glGenQueries(2, timing.queries);
+        glQueryCounter(timing.queries[0], GL_TIMESTAMP);
+        bind_common();
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::previous, position_[previous_].id);
+        glBindBufferRange(GL_SHADER_STORAGE_BUFFER, sh::forces, ring_.id, GLintptr(slot) * ring_stride, sizeof(ForceSlot));
+        int kinds[2];
+        for (int hand = 0; hand < hands; ++hand)
+            kinds[hand] = hand_[hand].instrument.kind == InstrumentKind::probe ? 1 : hand_[hand].grabbing ? 2 : 0;
+        glProgramUniform1iv(force_program_.id, force_program_.at("hand_kind"), 2, kinds);
+        glProgramUniform1ui(force_program_.id, force_program_.at("sequence_number"), GLuint(next_sequence_));
+        glUseProgram(force_program_.id);
+        glDispatchCompute(hands, 1, 1);
+        glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
+        fences_[slot] = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
+        sequence_of_[slot] = next_sequence_++;
+        glQueryCounter(timing.queries[1], GL_TIMESTAMP);
+        timing.is_force = true;
+        pending_.push_back(timing);
+        glFlush();
+        check("request_forces");
+    }
+
+    std::optional<InstrumentForces> latest_forces() override {
+        // Newest finished slot, without waiting.
+        for (int back = 1; back <= ring_slots; ++back) {
+            if (next_sequence_ < std::uint64_t(back)) break;
+            const std::uint64_t sequence = next_sequence_ - std::uint64_t(back);
+            const int slot = int(sequence % ring_slots);
+            if (!fences_[slot] || sequence_of_[slot] != sequence) continue;
+            if (glClientWaitSync(fences_[slot], 0, 0) == GL_TIMEOUT_EXPIRED) continue;
+            glDeleteSync(fences_[slot]);
+            fences_[slot] = nullptr;
+            latest_ = read_slot(slot);
+            latest_sequence_ = sequence;
+            break;
+        }
+        return latest_;
+    }
+
+    InstrumentForces instrument_forces() override {
+        request_forces();
+        const int slot = int((next_sequence_ - 1) % ring_slots);
+        glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(60'000'000'000ull));
+        glDeleteSync(fences_[slot]);
+        fences_[slot] = nullptr;
+        latest_ = read_slot(slot);
+        latest_sequence_ = next_sequence_ - 1;
+        return *latest_;
+    }
+
+    std::vector<std::array<float, 3>> positions() override {
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        std::vector<float> raw(4 * n_pad_);
+        glGetNamedBufferSubData(position_[current_].id, 0, GLsizeiptr(raw.size() * sizeof(float)), raw.data());
+        check("reading positions");
+        std::vector<std::array<float, 3>> out(n_);
+        for (std::size_t i = 0; i < n_; ++i) out[i] = {raw[4 * i], raw[4 * i + 1], raw[4 * i + 2]};
+        return out;
+    }
+
+    PassTimes pass_times() override {
+        harvest_queries(true);
+        return times_;
+    }
+
+private:
+    struct HandState {
+        Instrument instrument;
+        InstrumentPose pose, target;
+        bool grabbing = false, placed = false;
+    };
+    struct Pending {
+        GLuint queries[2] = {0, 0};
+        bool is_force = false;
+        long long substeps = 0;
+    };
+
+    static void check_hand(int hand) {
+        if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    }
+
+    static void check(const char* what) {
+        const GLenum error = glGetError();
+        if (error != GL_NO_ERROR) {
+            std::ostringstream s;
+            s << "gl backend: OpenGL error 0x" << std::hex << error << " while " << what;
+            throw std::runtime_error(s.str());
+        }
+    }
+
+    void set_indexed_1f(GLuint program, const std::string& name, int index, float value) {
+        glProgramUniform1f(program, glGetUniformLocation(program, (name + "[" + std::to_string(index) + "]").c_str()), value);
+    }
+    void set_indexed_3dv(GLuint program, const std::string& name, int index, const double* value) {
+        glProgramUniform3dv(program, glGetUniformLocation(program, (name + "[" + std::to_string(index) + "]").c_str()), 1, value);
+    }
+    void set_indexed_matrix(GLuint program, const std::string& name, int index, const double* column_major) {
+        glProgramUniformMatrix3dv(program, glGetUniformLocation(program, (name + "[" + std::to_string(index) + "]").c_str()), 1, GL_FALSE,
+                                  column_major);
+    }
+
+    InstrumentForces read_slot(int slot) {
+        const auto* s = reinterpret_cast<const ForceSlot*>(static_cast<const char*>(ring_map_) + slot * ring_stride);
+        InstrumentForces forces;
+        for (int hand = 0; hand < hands; ++hand) {
+            forces.hand[hand].force_n = Eigen::Vector3d(s->force[hand][0], s->force[hand][1], s->force[hand][2]);
+            forces.hand[hand].particles = std::size_t(s->force[hand][3]);
+            if (!forces.hand[hand].force_n.allFinite()) forces.hand[hand].force_n.setZero();  // never leak a non-finite force
+        }
+        if (s->status) diverged_seen_ = true;
+        return forces;
+    }
+
+    void harvest_queries(bool wait) {
+        while (!pending_.empty()) {
+            Pending& p = pending_.front();
+            GLint available = 0;
+            if (!wait) {
+                glGetQueryObjectiv(p.queries[1], GL_QUERY_RESULT_AVAILABLE, &available);
+                if (!available) break;
+            }
+            GLuint64 begin = 0, end = 0;
+            glGetQueryObjectui64v(p.queries[0], GL_QUERY_RESULT, &begin);
+            glGetQueryObjectui64v(p.queries[1], GL_QUERY_RESULT, &end);
+            const double ms = double(end - begin) * 1e-6;
+            if (p.is_force) times_.force_ms += ms, ++times_.force_calls;
+            else times_.step_ms += ms, ++times_.step_calls, times_.substeps += p.substeps;
+            glDeleteQueries(2, p.queries);
+            pending_.pop_front();
+        }
+        times_.gpu_timed = true;
+    }
+
+    void bind_common() {
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::neighbour, neighbour_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::rest_length, rest_length_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::stiffness, stiffness_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::dashpot, dashpot_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle, particle_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_by, held_by_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::touched, touched_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::fixup, fixup_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id);
+    }
+
+    /// The tables of libmodel/solver.cpp's constructor, built the same way (same slot search,
+    /// same rounding of the dashpot and h²/m from double).
+    void build_buffers(const Scenario& scenario) {
+        const Particles& particles = scenario.lattice.particles;
+        const Springs& springs = scenario.lattice.springs;
+        const auto& table = scenario.packing->neighbours;
+        n_ = particles.size();
+        n_pad_ = (n_ + lane_count - 1) / lane_count * lane_count;
+        std::vector<double> damping_ratio = options_.damping_ratio;
+        if (damping_ratio.empty())
+            for (const auto& material : scenario.lattice.materials) damping_ratio.push_back(material.damping_ratio);
+        auto ratio = [&](std::size_t i) {
+            const auto row = std::size_t(particles.material[i]);
+            return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
+        };
+        std::vector<std::int32_t> slot_spring(n_ * slot_count, -1);
+        auto find_slot = [&](std::size_t a, std::int32_t b, int preferred) {
+            if (preferred >= 0 && table[a][std::size_t(preferred)] == b) return preferred;
+            for (int s = 0; s < slot_count; ++s)
+                if (table[a][std::size_t(s)] == b) return s;
+            return -1;
+        };
+        for (std::size_t q = 0; q < springs.size(); ++q) {
+            const auto [a, b] = springs.pairs[q];
+            const int sa = find_slot(std::size_t(a), b, -1);
+            const int sb = find_slot(std::size_t(b), a, sa >= 0 ? opposite_slot(sa) : -1);
+            slot_spring[std::size_t(a) * slot_count + std::size_t(sa)] = std::int32_t(q);
+            slot_spring[std::size_t(b) * slot_count + std::size_t(sb)] = std::int32_t(q);
+        }
+        const std::size_t entries = n_pad_ * slot_count;
+        std::vector<std::int32_t> neighbour(entries);
+        std::vector<float> rest(entries, 0.0f), stiff(entries, 0.0f), dashpot_over_h(entries, 0.0f);
+        min_rest_length_ = std::numeric_limits<float>::infinity();
+        damped_ = false;
+        for (std::size_t i = 0; i < n_pad_; ++i)
+            for (int s = 0; s < slot_count; ++s) {
+                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                neighbour[t] = std::int32_t(i);
+                if (i >= n_) continue;
+                const std::int32_t q = slot_spring[i * slot_count + std::size_t(s)];
+                if (q < 0) continue;
+                const auto [a, b] = springs.pairs[std::size_t(q)];
+                const std::size_t j = std::size_t(a) == i ? std::size_t(b) : std::size_t(a);
+                neighbour[t] = std::int32_t(j);
+                rest[t] = springs.rest_length[std::size_t(q)];
+                stiff[t] = springs.stiffness[std::size_t(q)];
+                const double ma = particles.mass[i], mb = particles.mass[j];
+                const double reduced = ma * mb / (ma + mb);
+                const double zeta = 0.5 * (ratio(i) + ratio(j));
+                const float c = float(2.0 * zeta * std::sqrt(double(springs.stiffness[std::size_t(q)]) * reduced));
+                damped_ = damped_ || c != 0.0f;
+                dashpot_over_h[t] = float(double(c) / h_);
+                min_rest_length_ = std::min(min_rest_length_, rest[t]);
+            }
+        struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable, pad; };
+        static_assert(sizeof(ParticleConstants) == 16);
+        std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0});
+        std::vector<float> current(4 * n_pad_, 0.0f), previous;
+        for (std::size_t i = 0; i < n_; ++i) {
+            const bool movable = !particles.anchored[i];
+            constants[i].mass = particles.mass[i];
+            constants[i].movable = movable;
+            constants[i].inverse_mass_h2 = movable ? float(h_ * h_ / double(constants[i].mass)) : 0.0f;
+            for (int c = 0; c < 3; ++c) current[4 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
+        }
+        // Solver::reset(): at rest the springs exert nothing, x₋₁ = x₀ + ½·g·h².
+        previous = current;
+        for (std::size_t i = 0; i < n_; ++i)
+            if (constants[i].movable)
+                for (int c = 0; c < 3; ++c) previous[4 * i + std::size_t(c)] += float(0.5 * options_.gravity[c] * h_ * h_);
+        storage(position_[0], current, 0);
+        storage(position_[1], previous, 0);
+        storage(position_[2], current, 0);
+        storage(neighbour_, neighbour);
+        storage(rest_length_, rest);
+        storage(stiffness_, stiff);
+        storage(dashpot_, dashpot_over_h);
+        storage(particle_, constants);
+        storage(held_by_, std::vector<std::int32_t>(n_pad_, -1));
+        storage(counters_, std::vector<std::uint32_t>(sh::counter_words, 0u), GL_DYNAMIC_STORAGE_BIT);
+        storage(touched_, std::size_t(hands) * n_ * 4, 0);
+        storage(fixup_, n_ * 16, 0);
+        storage(held_, std::size_t(hands) * n_ * 4, 0);
+        storage(held_local_, std::size_t(hands) * n_ * 3 * 8, 0);
+        const GLbitfield ring_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+        storage(ring_, std::size_t(ring_slots) * ring_stride, ring_flags);
+        ring_map_ = glMapNamedBufferRange(ring_.id, 0, ring_slots * ring_stride, ring_flags);
+        if (!ring_map_) throw GlUnavailable("gl backend: cannot map the force readback buffer persistently; run with --backend cpu");
+        memory_bytes_ = estimate_gl_memory_bytes(scenario);
+    }
+
+    SolverOptions options_;
+    SolverLoadReport load_report_;
+    std::size_t n_ = 0, n_pad_ = 0, memory_bytes_ = 0;
+    double dt_ms_ = 0, h_ = 0, time_ms_ = 0;
+    int substeps_ = 1;
+    float min_rest_length_ = 0;
+    bool damped_ = false;
+    std::array<HandState, hands> hand_{};
+
+    Buffer position_[3];
+    int current_ = 0, previous_ = 1, next_ = 2;
+    Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, fixup_, held_, held_local_, ring_;
+    Program step_program_, after_program_, capture_program_, release_program_, force_program_;
+    void* ring_map_ = nullptr;
+    std::array<GLsync, ring_slots> fences_{};
+    std::array<std::uint64_t, ring_slots> sequence_of_{};
+    std::uint64_t next_sequence_ = 0, latest_sequence_ = 0;
+    std::optional<InstrumentForces> latest_;
+    bool diverged_seen_ = false, diverged_reported_ = false;
+    std::deque<Pending> pending_;
+    PassTimes times_;
+};
+
+}  // namespace
+
+std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
+    const std::size_t n = scenario.lattice.particles.size(), n_pad = (n + 7) / 8 * 8;
+    return 3 * n_pad * 16            // positions, three rotating float4 buffers
+           + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
+           + n_pad * 16 + n_pad * 4  // particle constants, held-by
+           + n * (2 * 4 + 16 + 2 * 4 + 2 * 24)  // touched lists, contact fix-ups, held lists and their local coordinates
+           + ring_slots * ring_stride + 32;
+}
+
+std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options) {
+    require_runnable(scenario, "scenario");
+    context.make_current();
+    return std::make_unique<GlBackend>(scenario, options);
+}
+
+}  // namespace heartsim

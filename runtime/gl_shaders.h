@@ -1,0 +1,297 @@
+/// @file gl_shaders.h
+/// @brief GLSL 4.30 compute shaders of the GL backend. Every arithmetic expression mirrors
+/// libmodel/solver.cpp operation for operation (same order, `precise` so no FMA is fused), so
+/// the GPU step is the CPU step: float for the springs and integration, double for the
+/// instrument geometry (probe projection, grab capture and follow, forces), as on the CPU.
+#pragma once
+
+namespace heartsim::gl_shaders {
+
+/// Buffer bindings shared by all passes.
+enum Binding : unsigned {
+    current = 0, previous = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
+    particle = 7, held_by = 8, counters = 9, touched = 10, fixup = 11, held = 12, held_local = 13, forces = 14,
+};
+
+/// Counter words in the `counters` buffer.
+enum Counter : unsigned { touched0 = 0, touched1 = 1, fixups = 2, held0 = 3, held1 = 4, status = 5, counter_words = 8 };
+
+inline constexpr const char* common = R"(#version 430 core
+#extension GL_ARB_gpu_shader_fp64 : enable
+struct Particle { float mass; float inverse_mass_h2; int movable; int pad; };
+layout(std430, binding = 7) readonly buffer ParticleBuffer { Particle particle[]; };
+layout(std430, binding = 8) buffer HeldByBuffer { int held_by[]; };
+layout(std430, binding = 9) buffer CounterBuffer { uint counter[]; };
+uniform uint particle_count;   // real particles N
+uniform uint padded_count;     // N rounded up to 8
+)";
+
+/// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
+inline constexpr const char* step = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 1) readonly buffer PreviousBuffer { vec4 xp[]; };
+layout(std430, binding = 2) writeonly buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
+layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
+layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
+layout(std430, binding = 10) writeonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = 11) writeonly buffer FixupBuffer { vec4 fixup[]; };
+
+uniform float keep;             // 1 − γh
+uniform vec3 gravity;           // mm/ms²
+uniform float max_displacement2;
+uniform bool damped;
+uniform int probe_count;
+uniform int probe_hand[2];
+uniform dvec3 probe_centre[2];
+uniform dmat3 probe_rotation[2];
+uniform dvec3 probe_previous_centre[2];
+uniform dmat3 probe_previous_rotation[2];
+uniform dvec3 probe_semi_axes[2];
+uniform float probe_bound2[2];
+
+dvec3 rotate(dmat3 r, dvec3 v) {          // r · v, Eigen's order
+    precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
+    precise double b = r[0][1] * v.x + r[1][1] * v.y; b = b + r[2][1] * v.z;
+    precise double c = r[0][2] * v.x + r[1][2] * v.y; c = c + r[2][2] * v.z;
+    return dvec3(a, b, c);
+}
+dvec3 rotate_back(dmat3 r, dvec3 v) {     // rᵀ · v
+    precise double a = r[0][0] * v.x + r[0][1] * v.y; a = a + r[0][2] * v.z;
+    precise double b = r[1][0] * v.x + r[1][1] * v.y; b = b + r[1][2] * v.z;
+    precise double c = r[2][0] * v.x + r[2][1] * v.y; c = c + r[2][2] * v.z;
+    return dvec3(a, b, c);
+}
+double squared_norm(dvec3 v) { precise double s = v.x * v.x + v.y * v.y; s = s + v.z * v.z; return s; }
+double dot3(dvec3 a, dvec3 b) { precise double s = a.x * b.x + a.y * b.y; s = s + a.z * b.z; return s; }
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= padded_count) return;
+    uint group = i / 8u, lane = i % 8u;
+    vec4 own = x[i], own_previous = xp[i];
+    precise float xi = own.x, yi = own.y, zi = own.z;
+    precise float uxi = own.x - own_previous.x, uyi = own.y - own_previous.y, uzi = own.z - own_previous.z;
+    precise float fx = 0.0, fy = 0.0, fz = 0.0;
+    uint table = group * 18u * 8u + lane;
+    for (uint s = 0u; s < 18u; ++s) {
+        uint t = table + s * 8u;
+        uint j = uint(neighbour[t]);
+        vec4 pj = x[j];
+        precise float dx = pj.x - xi, dy = pj.y - yi, dz = pj.z - zi;
+        precise float length2 = dx * dx + dy * dy;
+        length2 = length2 + dz * dz;
+        precise float len = sqrt(length2 > 1e-30 ? length2 : 1e-30);
+        precise float inverse = 1.0 / len;
+        precise float scale = (stiffness[t] * (len - rest_length[t])) * inverse;
+        if (damped) {
+            vec4 qj = xp[j];
+            precise float dux = (pj.x - qj.x) - uxi, duy = (pj.y - qj.y) - uyi, duz = (pj.z - qj.z) - uzi;
+            precise float along = dux * dx + duy * dy;
+            along = (along + duz * dz) * inverse;
+            along = along * inverse;
+            scale = scale + dashpot[t] * along;
+        }
+        fx = fx + scale * dx;
+        fy = fy + scale * dy;
+        fz = fz + scale * dz;
+    }
+    Particle p = particle[i];
+    precise float nx = xi + (keep * uxi + (fx + p.mass * gravity.x) * p.inverse_mass_h2);
+    precise float ny = yi + (keep * uyi + (fy + p.mass * gravity.y) * p.inverse_mass_h2);
+    precise float nz = zi + (keep * uzi + (fz + p.mass * gravity.z) * p.inverse_mass_h2);
+    precise float ex = nx - xi, ey = ny - yi, ez = nz - zi;
+    precise float d2 = ex * ex + ey * ey;
+    d2 = d2 + ez * ez;
+    if (!(d2 <= max_displacement2)) atomicOr(counter[5], 1u);
+
+    // Probes (libmodel/solver.cpp `project`): exact test and projection in double.
+    bool touched_any = false;
+    dvec3 contact_previous = dvec3(0.0);
+    if (i < particle_count && p.movable != 0 && held_by[i] < 0) {
+        for (int q = 0; q < probe_count; ++q) {
+            precise float cx = float(probe_centre[q].x), cy = float(probe_centre[q].y), cz = float(probe_centre[q].z);
+            precise float bx = nx - cx, by = ny - cy, bz = nz - cz;
+            precise float b2 = bx * bx + by * by;
+            b2 = b2 + bz * bz;
+            if (!(b2 < probe_bound2[q])) continue;
+            dmat3 r = probe_rotation[q];
+            dvec3 semi = probe_semi_axes[q];
+            dvec3 world = dvec3(double(nx), double(ny), double(nz));
+            precise dvec3 local = rotate_back(r, world - probe_centre[q]);
+            precise double r2 = squared_norm(local / semi);
+            if (!(r2 < 1.0lf)) continue;
+            if (r2 > 0.0lf) local = local / sqrt(r2);
+            else local = dvec3(0.0lf, 0.0lf, semi.z);
+            precise double factor = 1.0lf + 1e-6lf;
+            dvec3 stored;
+            for (int attempt = 0; attempt < 60; ++attempt) {
+                precise dvec3 out_position = probe_centre[q] + rotate(r, local * factor);
+                nx = float(out_position.x); ny = float(out_position.y); nz = float(out_position.z);
+                stored = dvec3(double(nx), double(ny), double(nz));
+                if (squared_norm(rotate_back(r, stored - probe_centre[q]) / semi) >= 1.0lf + 1e-6lf) break;
+                factor = factor * (1.0lf + 1e-6lf * double(1 << min(attempt, 20)));
+            }
+            precise dvec3 normal = rotate(r, local / (semi * semi));
+            normal = normal / sqrt(squared_norm(normal));
+            precise dvec3 surface_motion = stored - (probe_previous_centre[q] + rotate(probe_previous_rotation[q], local * factor));
+            precise dvec3 u = world - dvec3(double(xi), double(yi), double(zi));
+            u = u + max(0.0lf, dot3(surface_motion - u, normal)) * normal;
+            contact_previous = stored - u;
+            touched_any = true;
+            uint slot = atomicAdd(counter[probe_hand[q]], 1u);
+            touched[uint(probe_hand[q]) * particle_count + slot] = int(i);
+        }
+    }
+    xn[i] = vec4(nx, ny, nz, 0.0);
+    if (touched_any) {
+        uint slot = atomicAdd(counter[2], 1u);
+        fixup[slot] = vec4(vec3(contact_previous), intBitsToFloat(int(i)));
+    }
+}
+)";
+
+/// After a substep (one work group): probe contacts get their post-contact previous position
+/// (into the buffer that becomes the previous one), grabbed particles follow their grabber.
+inline constexpr const char* after_step = R"(
+layout(local_size_x = 256) in;
+layout(std430, binding = 0) buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 2) buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = 11) readonly buffer FixupBuffer { vec4 fixup[]; };
+layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = 13) readonly buffer HeldLocalBuffer { double held_local[]; };
+uniform bool grabbing[2];
+uniform dvec3 grab_centre[2];
+uniform dmat3 grab_rotation[2];
+
+void main() {
+    uint lid = gl_LocalInvocationID.x;
+    uint fixups = counter[2];
+    for (uint k = lid; k < fixups; k += 256u) {
+        vec4 f = fixup[k];
+        uint i = uint(floatBitsToInt(f.w));
+        x[i] = vec4(f.xyz, 0.0);
+    }
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!grabbing[hand]) continue;
+        uint count = counter[3 + hand];
+        dmat3 r = grab_rotation[hand];
+        for (uint k = lid; k < count; k += 256u) {
+            uint e = uint(hand) * particle_count + k;
+            uint i = uint(held[e]);
+            dvec3 v = dvec3(held_local[3u * e], held_local[3u * e + 1u], held_local[3u * e + 2u]);
+            precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
+            precise double b = r[0][1] * v.x + r[1][1] * v.y; b = b + r[2][1] * v.z;
+            precise double c = r[0][2] * v.x + r[1][2] * v.y; c = c + r[2][2] * v.z;
+            precise dvec3 world = grab_centre[hand] + dvec3(a, b, c);
+            xn[i] = vec4(vec3(world), 0.0);
+        }
+    }
+}
+)";
+
+/// begin_grab: free particles inside the grabber at its pose join the hand's held list.
+inline constexpr const char* capture = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 12) writeonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = 13) writeonly buffer HeldLocalBuffer { double held_local[]; };
+uniform int hand;
+uniform dvec3 centre;
+uniform dmat3 rotation;
+uniform dvec3 semi_axes;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= particle_count || particle[i].movable == 0 || held_by[i] >= 0) return;
+    dmat3 r = rotation;
+    dvec3 v = dvec3(x[i].xyz) - centre;
+    precise double a = r[0][0] * v.x + r[0][1] * v.y; a = a + r[0][2] * v.z;
+    precise double b = r[1][0] * v.x + r[1][1] * v.y; b = b + r[1][2] * v.z;
+    precise double c = r[2][0] * v.x + r[2][1] * v.y; c = c + r[2][2] * v.z;
+    dvec3 q = dvec3(a, b, c) / semi_axes;
+    precise double r2 = q.x * q.x + q.y * q.y; r2 = r2 + q.z * q.z;
+    if (r2 > 1.0) return;
+    held_by[i] = hand;
+    uint slot = atomicAdd(counter[3 + hand], 1u);
+    uint e = uint(hand) * particle_count + slot;
+    held[e] = int(i);
+    held_local[3u * e] = a; held_local[3u * e + 1u] = b; held_local[3u * e + 2u] = c;
+}
+)";
+
+/// release: the hand's held particles are free again.
+inline constexpr const char* release = R"(
+layout(local_size_x = 256) in;
+layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
+uniform int hand;
+void main() {
+    uint count = counter[3 + hand];
+    for (uint k = gl_LocalInvocationID.x; k < count; k += 256u) held_by[held[uint(hand) * particle_count + k]] = -1;
+    barrier();
+    if (gl_LocalInvocationID.x == 0u) counter[3 + hand] = 0u;
+}
+)";
+
+/// Forces for both hands (one work group per hand): Σ spring + dashpot force on the particles
+/// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
+inline constexpr const char* force_pass = R"(
+layout(local_size_x = 256) in;
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 1) readonly buffer PreviousBuffer { vec4 xp[]; };
+layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
+layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
+layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
+layout(std430, binding = 10) readonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = 14) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
+uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding
+uniform bool damped;
+uniform uint sequence_number;
+shared dvec3 partial[256];
+
+void main() {
+    uint hand = gl_WorkGroupID.x, lid = gl_LocalInvocationID.x;
+    int kind = hand_kind[hand];
+    uint count = kind == 1 ? counter[hand] : kind == 2 ? counter[3u + hand] : 0u;
+    precise dvec3 sum = dvec3(0.0);
+    for (uint k = lid; k < count; k += 256u) {
+        uint i = uint(kind == 1 ? touched[hand * particle_count + k] : held[hand * particle_count + k]);
+        vec4 xi = x[i], pi = xp[i];
+        uint table = (i / 8u) * 18u * 8u + i % 8u;
+        precise dvec3 f = dvec3(0.0);
+        for (uint s = 0u; s < 18u; ++s) {
+            uint t = table + s * 8u;
+            uint j = uint(neighbour[t]);
+            if (j == i) continue;
+            vec4 xj = x[j], pj = xp[j];
+            precise dvec3 d = dvec3(xj.xyz) - dvec3(xi.xyz);
+            precise double len2 = d.x * d.x + d.y * d.y; len2 = len2 + d.z * d.z;
+            precise double len = max(sqrt(len2), 1e-15lf);
+            precise double scale = double(stiffness[t]) * (len - double(rest_length[t])) / len;
+            if (damped) {
+                precise dvec3 du = (dvec3(xj.xyz) - dvec3(pj.xyz)) - (dvec3(xi.xyz) - dvec3(pi.xyz));
+                precise double along = du.x * d.x + du.y * d.y; along = along + du.z * d.z;
+                scale = scale + double(dashpot[t]) * along / (len * len);
+            }
+            f = f + scale * d;
+        }
+        sum = sum + f;
+    }
+    partial[lid] = sum;
+    barrier();
+    for (uint width = 128u; width > 0u; width >>= 1u) {
+        if (lid < width) partial[lid] = partial[lid] + partial[lid + width];
+        barrier();
+    }
+    if (lid == 0u) {
+        force[hand] = dvec4(partial[0], double(count));
+        if (hand == 0u) { status = counter[5]; sequence = sequence_number; }
+    }
+}
+)";
+
+}  // namespace heartsim::gl_shaders

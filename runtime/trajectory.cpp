@@ -1,0 +1,181 @@
+// Scripted instruments and the run loop shared by the CLI and the tests. trajectory.h.
+#include "trajectory.h"
+
+#include "libmodel/errors.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+namespace heartsim {
+
+namespace {
+
+std::vector<std::string> split(const std::string& line, char separator) {
+    std::vector<std::string> fields;
+    std::string field;
+    std::istringstream in(line);
+    while (std::getline(in, field, separator)) {
+        const auto first = field.find_first_not_of(" \t\r"), last = field.find_last_not_of(" \t\r");
+        fields.push_back(first == std::string::npos ? std::string() : field.substr(first, last - first + 1));
+    }
+    if (!line.empty() && line.back() == separator) fields.emplace_back();
+    return fields;
+}
+
+double number(const std::string& text, const std::string& where) {
+    std::size_t used = 0;
+    double value = 0;
+    try {
+        value = std::stod(text, &used);
+    } catch (const std::exception&) {
+        used = 0;
+    }
+    if (used == 0 || used != text.size() || !std::isfinite(value)) throw InputError(where + ": '" + text + "' is not a finite number");
+    return value;
+}
+
+InstrumentKind parse_kind(const std::string& text, const std::string& where) {
+    if (text == "probe") return InstrumentKind::probe;
+    if (text == "grabber" || text == "grab") return InstrumentKind::grabber;
+    if (text == "none") return InstrumentKind::none;
+    throw InputError(where + ": kind '" + text + "': expected probe, grabber or none");
+}
+
+}  // namespace
+
+bool Trajectory::uses_hand(int hand) const {
+    return std::any_of(keyframes.begin(), keyframes.end(), [&](const InstrumentKeyframe& k) { return k.hand == hand; });
+}
+
+InstrumentKeyframe Trajectory::at(int hand, double time_ms) const {
+    const InstrumentKeyframe* before = nullptr;
+    const InstrumentKeyframe* after = nullptr;
+    for (const auto& k : keyframes) {
+        if (k.hand != hand) continue;
+        if (k.time_ms <= time_ms) before = &k;
+        else if (!after) after = &k;
+    }
+    if (!before && !after) throw InputError("trajectory: no keyframe for hand " + std::to_string(hand));
+    if (!before) return *after;
+    InstrumentKeyframe state = *before;
+    state.time_ms = time_ms;
+    if (after && after->time_ms > before->time_ms) {
+        const double t = (time_ms - before->time_ms) / (after->time_ms - before->time_ms);
+        state.pose.position = before->pose.position + t * (after->pose.position - before->pose.position);
+        state.pose.orientation = before->pose.orientation.slerp(t, after->pose.orientation);
+    }
+    return state;
+}
+
+Trajectory parse_trajectory(const std::string& text, const std::string& name) {
+    Trajectory trajectory;
+    std::istringstream in(text);
+    std::string line;
+    int line_number = 0;
+    while (std::getline(in, line)) {
+        ++line_number;
+        const auto hash = line.find('#');
+        if (hash != std::string::npos) line.erase(hash);
+        if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+        const auto fields = split(line, ',');
+        const std::string where = name + " line " + std::to_string(line_number);
+        if (!fields.empty() && fields[0] == "time_ms") continue;  // header
+        if (fields.size() != 14)
+            throw InputError(where + ": expected 14 columns (time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab), found " +
+                             std::to_string(fields.size()));
+        InstrumentKeyframe k;
+        k.time_ms = number(fields[0], where + " column time_ms");
+        const double hand = number(fields[1], where + " column hand");
+        if (hand != 0 && hand != 1) throw InputError(where + " column hand: expected 0 or 1");
+        k.hand = int(hand);
+        k.kind = parse_kind(fields[2], where + " column kind");
+        k.pose.position = {number(fields[3], where + " column x"), number(fields[4], where + " column y"), number(fields[5], where + " column z")};
+        k.pose.orientation = Eigen::Quaterniond(number(fields[6], where + " column qw"), number(fields[7], where + " column qx"),
+                                                number(fields[8], where + " column qy"), number(fields[9], where + " column qz"));
+        if (k.pose.orientation.norm() < 1e-6) throw InputError(where + ": the orientation quaternion is zero");
+        k.pose.orientation.normalize();
+        k.semi_axes = {number(fields[10], where + " column ax"), number(fields[11], where + " column ay"), number(fields[12], where + " column az")};
+        if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");
+        const double grab = number(fields[13], where + " column grab");
+        if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
+        k.grab = grab == 1;
+        if (k.grab && k.kind != InstrumentKind::grabber) throw InputError(where + ": grab is 1 but the kind is not grabber");
+        trajectory.keyframes.push_back(k);
+    }
+    std::stable_sort(trajectory.keyframes.begin(), trajectory.keyframes.end(),
+                     [](const InstrumentKeyframe& a, const InstrumentKeyframe& b) { return a.time_ms < b.time_ms; });
+    if (trajectory.keyframes.empty()) throw InputError(name + ": no keyframes");
+    return trajectory;
+}
+
+Trajectory read_trajectory(const std::filesystem::path& path) {
+    std::ifstream in(path);
+    if (!in) throw InputError(path.string() + ": cannot open the trajectory file");
+    std::stringstream buffer;
+    buffer << in.rdbuf();
+    return parse_trajectory(buffer.str(), path.string());
+}
+
+InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) {
+    const auto fields = split(text, ',');
+    const std::string what = kind == InstrumentKind::probe ? "--probe" : "--grab";
+    if (fields.size() != 6 && !(kind == InstrumentKind::grabber && fields.size() == 9))
+        throw InputError(what + " '" + text + "': expected X,Y,Z,AX,AY,AZ" + (kind == InstrumentKind::grabber ? "[,DX,DY,DZ]" : "") + " (mm)");
+    std::vector<double> v;
+    for (const auto& f : fields) v.push_back(number(f, what));
+    InstrumentKeyframe k;
+    k.hand = hand;
+    k.kind = kind;
+    k.pose.position = {v[0], v[1], v[2]};
+    k.semi_axes = {v[3], v[4], v[5]};
+    if (!(k.semi_axes.minCoeff() > 0)) throw InputError(what + ": semi-axes must be positive, mm");
+    k.grab = kind == InstrumentKind::grabber;
+    return k;
+}
+
+ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, const ScriptedRunOptions& options) {
+    ScriptedRunResult result;
+    struct Applied {
+        bool active = false;
+        InstrumentKind kind = InstrumentKind::none;
+        Eigen::Vector3d semi_axes = Eigen::Vector3d::Zero();
+        bool grab = false;
+    };
+    Applied applied[2];
+    const bool uses[2] = {trajectory.uses_hand(0), trajectory.uses_hand(1)};
+    const double dt = backend.time_step_ms();
+    const auto start = std::chrono::steady_clock::now();
+    for (int step = 0; step < options.steps; ++step) {
+        const double t = step * dt, t_next = (step + 1) * dt;
+        for (int hand = 0; hand < 2; ++hand) {
+            if (!uses[hand]) continue;
+            const InstrumentKeyframe now = trajectory.at(hand, t);
+            Applied& a = applied[hand];
+            if (!a.active || a.kind != now.kind || a.semi_axes != now.semi_axes) {
+                backend.set_instrument(hand, {.kind = now.kind, .semi_axes = now.semi_axes});
+                backend.set_pose(hand, now.pose);  // placed at once at its pose now
+                a = {true, now.kind, now.semi_axes, false};
+            }
+            if (now.grab && !a.grab) backend.begin_grab(hand);
+            if (!now.grab && a.grab) backend.release(hand);
+            a.grab = now.grab;
+            backend.set_pose(hand, trajectory.at(hand, t_next).pose);
+        }
+        const StepReport report = backend.step(1);
+        result.steps += report.steps;
+        result.substeps += report.substeps;
+        if (report.diverged) ++result.watchdog_events, result.last_watchdog_message = report.message;
+        if (options.forces_every_step && (uses[0] || uses[1])) {
+            backend.request_forces();
+            if (backend.latest_forces()) ++result.forces_received;
+        }
+        if (options.on_step) options.on_step(step, report);
+    }
+    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    return result;
+}
+
+}  // namespace heartsim

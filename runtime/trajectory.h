@@ -1,0 +1,70 @@
+/// @file trajectory.h
+/// @brief Scripted instruments: a CSV of instrument keyframes per hand (the scripted-replay
+/// device), and the loop that drives a Backend along it, step by step, identically for every
+/// backend (so backends can be compared on the same gesture).
+///
+/// CSV columns (header line optional, `#` starts a comment; units mm, ms, world frame LPS):
+///     time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab
+/// kind is probe, grabber or none; (x, y, z) the tool position, q its orientation (tool → world,
+/// normalised on use), (ax, ay, az) the ellipsoid's semi-axes, grab 1 while the grabber holds.
+/// Between two keyframes of a hand the pose moves linearly (position) and by slerp (orientation);
+/// kind, semi-axes and grab switch at a keyframe's time and hold until the next.
+#pragma once
+
+#include "backend.h"
+
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct InstrumentKeyframe {
+    double time_ms = 0.0;
+    int hand = 0;
+    InstrumentKind kind = InstrumentKind::none;
+    InstrumentPose pose;
+    Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};  ///< mm
+    bool grab = false;
+};
+
+struct Trajectory {
+    std::vector<InstrumentKeyframe> keyframes;  ///< sorted by time within each hand
+    bool uses_hand(int hand) const;
+    /// The keyframe state of `hand` at `time_ms` (pose interpolated; the rest from the keyframe
+    /// at or before, or the first one before the script starts). Requires uses_hand(hand).
+    InstrumentKeyframe at(int hand, double time_ms) const;
+};
+
+/// Reads a trajectory CSV. Throws InputError naming the file, line and column on a bad row.
+Trajectory read_trajectory(const std::filesystem::path& path);
+/// Parses CSV text (the same format); `name` is used in error messages.
+Trajectory parse_trajectory(const std::string& text, const std::string& name);
+
+/// A fixed probe or grabber from the command line: "X,Y,Z,AX,AY,AZ" (mm), a grabber optionally
+/// followed by ",DX,DY,DZ", the distance it pulls over the run.
+InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand);
+
+struct ScriptedRunOptions {
+    int steps = 0;                    ///< backend steps of time_step_ms() each
+    bool forces_every_step = true;    ///< queue the force pass after each step (asynchronous readback)
+    std::function<void(int step, const StepReport&)> on_step{};  ///< optional, after each step
+};
+
+struct ScriptedRunResult {
+    int steps = 0;
+    long long substeps = 0;
+    double wall_ms = 0.0;
+    std::size_t watchdog_events = 0;
+    std::string last_watchdog_message;
+    std::size_t forces_received = 0;  ///< asynchronous readbacks that had finished when polled
+};
+
+/// Drives `backend` along `trajectory` for `options.steps` steps. Before step k (time t = k·dt):
+/// a hand whose kind or semi-axes change gets set_instrument and is placed at its pose at t; a
+/// grab flag turning on calls begin_grab at t, turning off calls release; then set_pose with the
+/// pose at t + dt, reached at the end of the step.
+ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, const ScriptedRunOptions& options);
+
+}  // namespace heartsim

@@ -1,0 +1,298 @@
+// The runtime's backends: GL against the CPU reference on a scripted probe and grab (phantom and
+// a real HVSMR case), the force readback, the state file, and the errors a run must give.
+// GL tests run on whatever EGL device there is (Mesa llvmpipe in CI) and skip with a message
+// where there is none.
+#include "test_support.h"
+
+#include "formats/scenario.h"
+#include "formats/state.h"
+#include "libmodel/errors.h"
+#include "runtime/backend.h"
+#include "runtime/gl_context.h"
+#include "runtime/trajectory.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <memory>
+#include <optional>
+
+using namespace heartsim;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
+
+/// One headless context for the whole test program (creating EGL displays repeatedly is slow
+/// on llvmpipe); empty with the reason when there is no usable GL.
+GlContext* shared_context(std::string* reason = nullptr) {
+    static std::optional<GlContext> context;
+    static std::string why;
+    static bool tried = false;
+    if (!tried) {
+        tried = true;
+        try {
+            context.emplace(GlContext::create_headless());
+        } catch (const std::exception& e) {
+            why = e.what();
+        }
+    }
+    if (reason) *reason = why;
+    return context ? &*context : nullptr;
+}
+
+#define REQUIRE_GL()                                                                                  \
+    do {                                                                                              \
+        std::string reason;                                                                           \
+        if (!shared_context(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;    \
+    } while (0)
+
+/// Scenarios built once per test program with heartprep (the real tool, as users build them).
+const fs::path& built_scenario(const std::string& key, const fs::path& input, const std::string& options) {
+    static test::TempDir dir;
+    static std::map<std::string, fs::path> built;
+    auto found = built.find(key);
+    if (found != built.end()) return found->second;
+    const fs::path output = dir / (key + ".h5");
+    const auto run = test::run_command(std::string(quoted(HEARTPREP_EXE)) + " build " + quoted(input) + " -o " + quoted(output) + " " + options);
+    if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
+    return built.emplace(key, output).first->second;
+}
+
+const fs::path& phantom_scenario() {
+    return built_scenario("phantom", fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz", "--cavity 2 --anchor-border -q");
+}
+
+/// A probe pressing into the surface at the particle of largest x, and a grabber pulling the
+/// particle of smallest x outwards (among free particles next to an anchor), both over the 200 steps of the comparison (still moving at the end, so the probe is in contact).
+Trajectory probe_and_grab(const Scenario& scenario, double depth_mm) {
+    const auto& rest = scenario.lattice.particles.rest_position;
+    const auto& anchored = scenario.lattice.particles.anchored;
+    std::size_t right = 0, left = 0;
+    bool have = false;
+    // Free particles next to an anchor: they stay in reach of the instruments while gravity
+    // makes the rest of the model sag.
+    const auto& neighbours = scenario.packing->neighbours;
+    for (std::size_t i = 0; i < rest.size(); ++i) {
+        if (anchored[i]) continue;
+        if (std::none_of(neighbours[i].begin(), neighbours[i].end(), [&](std::int32_t j) { return j >= 0 && anchored[std::size_t(j)]; }))
+            continue;
+        if (!have) right = left = i, have = true;
+        if (rest[i][0] > rest[right][0]) right = i;
+        if (rest[i][0] < rest[left][0]) left = i;
+    }
+    const double spacing = scenario.lattice.spacing;
+    const double dt = scenario.solver.dt_ms;
+    const double radius = 1.5 * spacing;
+    Trajectory t;
+    auto key = [&](double time, int hand, InstrumentKind kind, Eigen::Vector3d p, bool grab) {
+        InstrumentKeyframe k;
+        k.time_ms = time;
+        k.hand = hand;
+        k.kind = kind;
+        k.pose.position = p;
+        k.pose.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(0, 1, 1).normalized()));
+        k.semi_axes = kind == InstrumentKind::probe ? Eigen::Vector3d(radius, 0.8 * radius, 1.2 * radius) : Eigen::Vector3d::Constant(radius);
+        k.grab = grab;
+        t.keyframes.push_back(k);
+    };
+    const Eigen::Vector3d r(rest[right][0], rest[right][1], rest[right][2]), l(rest[left][0], rest[left][1], rest[left][2]);
+    // A scenario without anchors falls freely: the instruments fall with it (½ g t², keyframes
+    // every 10 steps) so that they keep touching what they press and pull.
+    if (!have)
+        for (std::size_t i = 0; i < rest.size(); ++i) {
+            if (!have) right = left = i, have = true;
+            if (rest[i][0] > rest[right][0]) right = i;
+            if (rest[i][0] < rest[left][0]) left = i;
+        }
+    const bool anchors = std::any_of(anchored.begin(), anchored.end(), [](auto a) { return a != 0; });
+    for (int step = 0; step <= 200; step += 10) {
+        const double time = step * dt, fraction = step / 200.0;
+        const Eigen::Vector3d fall = anchors ? Eigen::Vector3d::Zero() : Eigen::Vector3d(0.5 * scenario.solver.gravity * time * time);
+        key(time, 0, InstrumentKind::probe, r + fall + Eigen::Vector3d(radius + 0.5 * spacing - fraction * (0.5 * spacing + depth_mm), 0, 0), false);
+        key(time, 1, InstrumentKind::grabber, l + fall - Eigen::Vector3d(fraction * depth_mm, 0, 0), true);
+    }
+    std::stable_sort(t.keyframes.begin(), t.keyframes.end(), [](const auto& a, const auto& b) { return a.time_ms < b.time_ms; });
+    return t;
+}
+
+double model_size(const Scenario& scenario) {
+    Eigen::Vector3d low = Eigen::Vector3d::Constant(1e30), high = Eigen::Vector3d::Constant(-1e30);
+    for (const auto& p : scenario.lattice.particles.rest_position) {
+        const Eigen::Vector3d x(p[0], p[1], p[2]);
+        low = low.cwiseMin(x), high = high.cwiseMax(x);
+    }
+    return (high - low).norm();
+}
+
+struct Comparison {
+    double max_position_error_mm = 0, size_mm = 0, max_displacement_mm = 0;
+    InstrumentForces cpu, gl;
+};
+
+Comparison compare_backends(const Scenario& scenario, int steps, double depth_mm) {
+    const Trajectory trajectory = probe_and_grab(scenario, depth_mm);
+    const SolverOptions options = options_from(scenario.solver);
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*shared_context(), scenario, options);
+    EXPECT_EQ(cpu->substeps_per_step(), gl->substeps_per_step());
+    EXPECT_EQ(cpu->substep_ms(), gl->substep_ms());
+    const ScriptedRunResult a = run_scripted(*cpu, trajectory, {.steps = steps});
+    const ScriptedRunResult b = run_scripted(*gl, trajectory, {.steps = steps});
+    EXPECT_EQ(a.watchdog_events, 0u) << a.last_watchdog_message;
+    EXPECT_EQ(b.watchdog_events, 0u) << b.last_watchdog_message;
+    Comparison c;
+    c.cpu = cpu->instrument_forces();
+    c.gl = gl->instrument_forces();
+    const auto x = cpu->positions(), y = gl->positions();
+    const auto& rest = scenario.lattice.particles.rest_position;
+    for (std::size_t i = 0; i < x.size(); ++i)
+        for (int k = 0; k < 3; ++k) {
+            c.max_position_error_mm = std::max(c.max_position_error_mm, double(std::abs(x[i][k] - y[i][k])));
+            c.max_displacement_mm = std::max(c.max_displacement_mm, double(std::abs(x[i][k] - rest[i][k])));
+        }
+    c.size_mm = model_size(scenario);
+    return c;
+}
+
+void expect_agreement(const Comparison& c) {
+    std::printf("  model size %.2f mm, max displacement %.3f mm, max |x_gl - x_cpu| %.3g mm (%.3g of the size)\n", c.size_mm,
+                c.max_displacement_mm, c.max_position_error_mm, c.max_position_error_mm / c.size_mm);
+    EXPECT_GT(c.max_displacement_mm, 0.1) << "the gesture should deform the model";
+    EXPECT_LE(c.max_position_error_mm, 1e-4 * c.size_mm);
+    for (int hand = 0; hand < 2; ++hand) {
+        const auto& f = c.cpu.hand[hand];
+        const auto& g = c.gl.hand[hand];
+        std::printf("  hand %d: cpu (%.6g, %.6g, %.6g) N on %zu, gl (%.6g, %.6g, %.6g) N on %zu, relative difference %.3g\n", hand,
+                    f.force_n.x(), f.force_n.y(), f.force_n.z(), f.particles, g.force_n.x(), g.force_n.y(), g.force_n.z(), g.particles,
+                    (f.force_n - g.force_n).norm() / f.force_n.norm());
+        EXPECT_GT(f.particles, 0u) << "hand " << hand << " should touch or hold particles";
+        EXPECT_EQ(f.particles, g.particles) << "hand " << hand;
+        EXPECT_GT(f.force_n.norm(), 0.0);
+        EXPECT_LE((f.force_n - g.force_n).norm(), 1e-3 * f.force_n.norm()) << "hand " << hand;
+    }
+}
+
+}  // namespace
+
+TEST(RuntimeGl, InfoReportsComputeLimits) {
+    REQUIRE_GL();
+    const GlInfo info = shared_context()->info();
+    EXPECT_TRUE(info.major > 4 || (info.major == 4 && info.minor >= 3)) << info.version;
+    EXPECT_GT(info.max_ssbo_bytes, 0);
+    EXPECT_GE(info.max_work_group_size[0], 256);
+    EXPECT_NE(describe(info).find("renderer"), std::string::npos);
+}
+
+TEST(RuntimeGl, RequireComputeNamesTheVersionAndSuggestsCpu) {
+    GlInfo old;
+    old.major = 3, old.minor = 3, old.version = "3.3 (Core Profile) Mesa", old.renderer = "some GPU";
+    try {
+        require_compute(old);
+        FAIL() << "accepted OpenGL 3.3";
+    } catch (const GlUnavailable& e) {
+        const std::string message = e.what();
+        EXPECT_NE(message.find("OpenGL 4.3 with compute shaders is needed"), std::string::npos) << message;
+        EXPECT_NE(message.find("3.3 (Core Profile) Mesa"), std::string::npos) << message;
+        EXPECT_NE(message.find("--backend cpu"), std::string::npos) << message;
+    }
+}
+
+TEST(RuntimeBackend, GlMatchesCpuOnThePhantom) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const Comparison c = compare_backends(scenario, 200, 1.5 * scenario.lattice.spacing);
+    expect_agreement(c);
+}
+
+TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
+    REQUIRE_GL();
+    const fs::path input = test::real_case("hvsmr16_pat1");
+    if (input.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
+    const Scenario scenario =
+        read_scenario(built_scenario("pat1", input, "--cavity 2 --anchor-border --no-visual --particles 20000 -q"));
+    const Comparison c = compare_backends(scenario, 200, 1.5 * scenario.lattice.spacing);
+    expect_agreement(c);
+}
+
+TEST(RuntimeBackend, AsynchronousForcesArriveWithoutWaiting) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    auto gl = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+    const Trajectory trajectory = probe_and_grab(scenario, scenario.lattice.spacing);
+    const ScriptedRunResult run = run_scripted(*gl, trajectory, {.steps = 40});
+    EXPECT_EQ(run.steps, 40);
+    // The newest finished readback equals a waited-for one once the GPU is idle.
+    const InstrumentForces waited = gl->instrument_forces();
+    const auto latest = gl->latest_forces();
+    ASSERT_TRUE(latest.has_value());
+    for (int hand = 0; hand < 2; ++hand) EXPECT_EQ(latest->hand[hand].force_n, waited.hand[hand].force_n);
+    const PassTimes times = gl->pass_times();
+    EXPECT_TRUE(times.gpu_timed);
+    EXPECT_EQ(times.step_calls, 40);
+    EXPECT_GE(times.force_calls, 40);
+    EXPECT_GT(times.step_ms, 0.0);
+}
+
+TEST(RuntimeBackend, ScenarioWithoutPackingIsRefusedByName) {
+    Scenario scenario = read_scenario(phantom_scenario());
+    scenario.packing.reset();
+    try {
+        make_cpu_backend(scenario, options_from(scenario.solver));
+        FAIL() << "accepted a scenario without /packing";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("/packing"), std::string::npos) << e.what();
+    }
+    std::string reason;
+    if (shared_context(&reason)) {
+        EXPECT_THROW(make_gl_backend(*shared_context(), scenario, options_from(scenario.solver)), InputError);
+    }
+}
+
+TEST(RuntimeState, RoundTripAndAtomicWrite) {
+    test::TempDir dir;
+    SimulationState state;
+    state.backend = "gl";
+    state.scenario = "phantom.h5";
+    state.time_ms = 12.5;
+    state.steps = 200;
+    state.positions = {{1, 2, 3}, {4, 5, 6}};
+    state.force_n = {{{0.1, -0.2, 0.3}, {1e-3, 0, -4}}};
+    state.particles = {7, 9};
+    state.kind = {1, 2};
+    write_state(dir / "s.h5", state);
+    const SimulationState back = read_state(dir / "s.h5");
+    EXPECT_EQ(back.backend, "gl");
+    EXPECT_EQ(back.scenario, "phantom.h5");
+    EXPECT_EQ(back.time_ms, 12.5);
+    EXPECT_EQ(back.steps, 200);
+    EXPECT_EQ(back.positions, state.positions);
+    EXPECT_EQ(back.force_n, state.force_n);
+    EXPECT_EQ(back.particles, state.particles);
+    EXPECT_EQ(back.kind, state.kind);
+    EXPECT_THROW(write_state(dir / "missing-folder" / "s.h5", state), OutputError);
+    std::size_t files = 0;
+    for (const auto& entry : fs::directory_iterator(dir.path())) files += entry.is_regular_file();
+    EXPECT_EQ(files, 1u) << "no temporary file may remain";
+    EXPECT_THROW(read_state(dir / "nothing.h5"), InputError);
+}
+
+TEST(RuntimeTrajectory, ParsesAndInterpolates) {
+    const Trajectory t = parse_trajectory(
+        "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n"
+        "0,0,probe,0,0,0,1,0,0,0,2,2,6,0\n"
+        "10,0,probe,10,0,0,1,0,0,0,2,2,6,0   # comment\n"
+        "0,1,grabber,5,5,5,1,0,0,0,3,3,3,1\n",
+        "test.csv");
+    EXPECT_TRUE(t.uses_hand(0));
+    EXPECT_TRUE(t.uses_hand(1));
+    EXPECT_NEAR(t.at(0, 2.5).pose.position.x(), 2.5, 1e-12);
+    EXPECT_NEAR(t.at(0, 20).pose.position.x(), 10, 1e-12);
+    EXPECT_TRUE(t.at(1, 3).grab);
+    EXPECT_THROW(parse_trajectory("0,0,probe,0,0,0,1,0,0,0,2,2,6\n", "bad.csv"), InputError);
+    EXPECT_THROW(parse_trajectory("0,2,probe,0,0,0,1,0,0,0,2,2,6,0\n", "bad.csv"), InputError);
+    EXPECT_THROW(parse_trajectory("0,0,probe,0,0,0,1,0,0,0,2,2,6,1\n", "bad.csv"), InputError);
+}
