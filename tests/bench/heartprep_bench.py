@@ -10,6 +10,17 @@ Part B, surface: our `heartprep surface` against 3D Slicer's default pipeline in
 vtkDiscreteFlyingEdges3D, vtkWindowedSincPolyDataFilter 20 iterations, pass band 0.01) on sphere
 and shell phantoms with analytic truth, and on the real cases (mesh-to-mesh distance only).
 
+Part 2 (issue 3, `--parts part2`, or any of stages, batch, mapping):
+- stages: `heartprep build CASE --cavity 2 --anchor-border` on every real case at the default
+  spacing (30 000 particles); medians of the pack, simsurface and map stage times (the `stages`
+  line, 1 ms resolution) and of their sum, against the target of 1 s on 2 cores.
+- batch: `heartprep batch FOLDER -o OUT -j N --options "--cavity 2 --anchor-border"` on a temporary
+  folder of symlinks to the real cases, -j 1 and -j 2, from an empty OUT, then a second run on the
+  same OUT (resumed: every case skipped); wall time and cases per minute.
+- mapping: runs the C++ program mapping_bench (tests/bench/mapping_bench.cpp; target mapping_bench,
+  found beside heartprep's build or given by --mapping-bench): mapping error under a reference
+  deformation against particle spacing.
+
 Run it with Debian's /usr/bin/python3: python3-vtk9 and python3-numpy are installed for that
 interpreter only (a pyenv python3 earlier in PATH does not see them).
 """
@@ -21,6 +32,7 @@ import math
 import os
 import platform
 import re
+import shutil
 import statistics
 import subprocess
 import sys
@@ -427,6 +439,69 @@ def bench_surface_real(args, work, cases):
     return raw
 
 
+
+def bench_part2_stages(args, work, cases):
+    """Part 2: the stages issue 3 added (pack, simsurface, map), timed inside `heartprep build`."""
+    raw = []
+    for case in cases:
+        name = os.path.basename(case).replace("-label.nii.gz", "").replace(".nii.gz", "")
+        name = re.sub(r"^.*_(pat\d+)$", r"\1", name)  # training_axial_crop_pat0 -> pat0
+        for rep in range(args.reps):
+            out = os.path.join(work, f"{name}.h5")
+            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", out, "--cavity", "2", "--anchor-border"],
+                                          os.path.join(work, "rss.txt"))
+            row = {"case": name, "rep": rep + 1, "wall s": wall, "peak RSS MiB": rss}
+            row.update(parse_build_stdout(stdout))
+            for stage in ("pack", "simsurface", "map"):
+                if "stage " + stage not in row:
+                    raise RuntimeError(f"no '{stage}' stage in heartprep's stages line:\n" + stdout)
+            row["pack+simsurface+map s"] = row["stage pack"] + row["stage simsurface"] + row["stage map"]
+            m = re.search(r"^simsurface\s+(\d+) triangles over (\d+) boundary particles", stdout, re.M)
+            row["simsurface triangles"] = int(m.group(1)) if m else 0
+            m = re.search(r"^mapping\s+(\d+) visual vertices", stdout, re.M)
+            row["visual vertices"] = int(m.group(1)) if m else 0
+            raw.append(row)
+            print(f"  stages {name} rep {rep + 1}: pack {row['stage pack']:.3f} s, simsurface {row['stage simsurface']:.3f} s, "
+                  f"map {row['stage map']:.3f} s (load {os.getloadavg()[0]:.2f})", file=sys.stderr)
+    return raw
+
+
+def bench_batch(args, work, cases):
+    """Part 2: `heartprep batch` on a folder of symlinks to the real cases (the data is not copied)."""
+    folder = os.path.join(work, "batch-input")
+    shutil.rmtree(folder, ignore_errors=True)
+    os.makedirs(folder)
+    for case in cases:
+        os.symlink(os.path.abspath(case), os.path.join(folder, os.path.basename(case)))
+    raw = []
+    for jobs in (1, 2):
+        for rep in range(args.reps):
+            out = os.path.join(work, f"batch-j{jobs}")
+            shutil.rmtree(out, ignore_errors=True)
+            cmd = [args.heartprep, "batch", folder, "-o", out, "-j", str(jobs), "--options", "--cavity 2 --anchor-border"]
+            for run in ("fresh", "resumed"):
+                wall, _, _ = run_timed(cmd)
+                with open(os.path.join(out, "summary.csv"), newline="") as f:
+                    status = [r["status"] for r in csv.DictReader(f)]
+                raw.append({"run": f"-j {jobs}, {run}", "rep": rep + 1, "cases": len(status),
+                            "built": status.count("built"), "skipped": status.count("skipped"),
+                            "failed": status.count("failed"), "wall s": wall,
+                            "cases per minute": 60.0 * len(status) / wall})
+                print(f"  batch -j {jobs} {run} rep {rep + 1}: {wall:.2f} s, {status.count('built')} built, "
+                      f"{status.count('skipped')} skipped, {status.count('failed')} failed (load {os.getloadavg()[0]:.2f})",
+                      file=sys.stderr)
+    shutil.rmtree(folder, ignore_errors=True)
+    return raw
+
+
+def find_mapping_bench(args):
+    if args.mapping_bench:
+        return args.mapping_bench
+    build = os.path.dirname(os.path.dirname(os.path.abspath(args.heartprep)))  # <build>/tools/heartprep
+    candidate = os.path.join(build, "tests", "bench", "mapping_bench")
+    return candidate if os.access(candidate, os.X_OK) else None
+
+
 def machine_description():
     model = "?"
     with open("/proc/cpuinfo") as f:
@@ -454,10 +529,15 @@ def main():
     ap.add_argument("--reps", type=int, default=3, help="repetitions per measurement (median reported)")
     ap.add_argument("--samples", type=int, default=20000, help="vertices per direction for mesh-to-mesh distance")
     ap.add_argument("--parts", default="build,critical,surface,real",
-                    help="comma list of: build, critical, surface, real")
+                    help="comma list of: build, critical, surface, real (issue 2); stages, batch, mapping (issue 3; "
+                         "'part2' = all three)")
+    ap.add_argument("--mapping-bench", default=os.environ.get("MAPPING_BENCH"),
+                    help="mapping_bench binary (default: <heartprep's build>/tests/bench/mapping_bench)")
     args = ap.parse_args()
     args.build_extra = []
     parts = set(args.parts.split(","))
+    if "part2" in parts:
+        parts |= {"stages", "batch", "mapping"}
     if not os.access(args.heartprep, os.X_OK):
         sys.exit(f"heartprep_bench: no heartprep at {args.heartprep}; build it or pass --heartprep / HEARTPREP")
     os.makedirs(args.out, exist_ok=True)
@@ -526,6 +606,42 @@ def main():
                     [r for r in med if r["pipeline"] == "heartprep"],
                     ["case", "ours->VTK mean mm", "VTK->ours mean mm", "symmetric mean mm", "symmetric p99 mm",
                      "symmetric max mm"])
+
+    if "stages" in parts and cases:
+        raw = bench_part2_stages(args, work, cases)
+        write_csv(os.path.join(args.out, "part2_stages_raw.csv"), raw)
+        med = median_rows(raw, "case")
+        for r in med:
+            rs = [x["pack+simsurface+map s"] for x in raw if x["case"] == r["case"]]
+            r["min pack+simsurface+map s"] = min(rs)
+            r["max pack+simsurface+map s"] = max(rs)
+            r["target 1 s"] = "met" if r["pack+simsurface+map s"] < 1.0 else "MISSED"
+        write_csv(os.path.join(args.out, "part2_stages.csv"), med)
+        print_table("pack, simsurface and map inside heartprep build, median of %d (seconds)" % args.reps, med,
+                    ["case", "particles", "simsurface triangles", "visual vertices", "stage pack", "stage simsurface",
+                     "stage map", "pack+simsurface+map s", "min pack+simsurface+map s", "max pack+simsurface+map s",
+                     "target 1 s", "stage total", "wall s"])
+
+    if "batch" in parts and cases:
+        raw = bench_batch(args, work, cases)
+        write_csv(os.path.join(args.out, "part2_batch_raw.csv"), raw)
+        med = median_rows(raw, "run")
+        for r in med:
+            r["min wall s"] = min(x["wall s"] for x in raw if x["run"] == r["run"])
+        write_csv(os.path.join(args.out, "part2_batch.csv"), med)
+        print_table("heartprep batch on the %d real cases, median of %d" % (len(cases), args.reps), med,
+                    ["run", "cases", "built", "skipped", "failed", "wall s", "min wall s", "cases per minute"])
+
+    if "mapping" in parts:
+        binary = find_mapping_bench(args)
+        if not binary:
+            print("\nmapping: no mapping_bench binary; build it (cmake --build build/release --target mapping_bench) "
+                  "or pass --mapping-bench; skipped")
+        else:
+            cmd = [binary, "--out", args.out]
+            cmd += ["--real", args.data] if cases else ["--no-real"]
+            print(f"\n$ {' '.join(cmd)}\n", flush=True)
+            subprocess.run(cmd, check=True)
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# heartprep speed and accuracy benchmark (issue 2): prints Markdown tables, writes CSV files.
+# heartprep speed and accuracy benchmark (issues 2 and 3): prints Markdown tables, writes CSV files.
 # Not a test: nothing here fails on a time. Usage:
-#   tests/bench/run_heartprep_bench.sh [--out DIR] [--reps N] [--parts build,critical,surface,real]
+#   tests/bench/run_heartprep_bench.sh [--out DIR] [--reps N] [--parts build,critical,surface,real,part2]
 # Needs a release heartprep (HEARTPREP=path, else build/release, else build-bench) and the packages
 # of scripts/install-deps.sh --bench.
 set -euo pipefail
