@@ -90,8 +90,8 @@ def parse_build_stdout(out):
     m = re.search(r"^lattice\s+spacing ([0-9.]+) mm.*?; (\d+) particles \((\d+) anchored\), (\d+) springs", out, re.M)
     row["spacing mm"], row["particles"], row["anchored"], row["springs"] = (
         float(m.group(1)), int(m.group(2)), int(m.group(3)), int(m.group(4)))
-    m = re.search(r"\(power iteration, (\d+) iterations\)", out)
-    row["power iterations"] = int(m.group(1)) if m else 0
+    m = re.search(r"\(Lanczos, (\d+) iterations\)", out)
+    row["Lanczos iterations"] = int(m.group(1)) if m else 0
     return row
 
 
@@ -329,7 +329,7 @@ def bench_build(args, work, cases):
 
 
 def bench_critical_step(args, work, case):
-    """The critical step (power iteration on M^-1 K) dominates the build; how it scales with the
+    """The critical step (Lanczos on M^-1 K) once dominated the build; how it scales with the
     particle budget tells whether it is the iteration count or the per-iteration cost."""
     raw = []
     name = os.path.basename(case).replace("-label.nii.gz", "")
@@ -560,7 +560,7 @@ def main():
         print_table("heartprep build, median of %d (seconds; RSS MiB)" % args.reps, med,
                     ["case", "wall s", "min wall s", "stage total"] + stage_keys + ["peak RSS MiB"])
         print_table("heartprep build: model size", med,
-                    ["case", "triangles", "spacing mm", "particles", "anchored", "springs", "power iterations"])
+                    ["case", "triangles", "spacing mm", "particles", "anchored", "springs", "Lanczos iterations"])
         for r in med:
             top = max(stage_keys, key=lambda k: r[k])
             print(f"- {r['case']}: dominant stage '{top[6:]}' {r[top]:.2f} s of {r['stage total']:.2f} s "
@@ -574,7 +574,7 @@ def main():
         med = median_rows(raw, "case/budget")
         write_csv(os.path.join(args.out, "critical_step.csv"), med)
         print_table("critical time step vs particle budget, median of %d" % args.reps, med,
-                    ["case/budget", "particles", "springs", "power iterations", "stage critical step", "stage total",
+                    ["case/budget", "particles", "springs", "Lanczos iterations", "stage critical step", "stage total",
                      "wall s"])
 
     if "surface" in parts:

@@ -188,7 +188,7 @@ void add_surface_command(CLI::App& app) {
                         "area %.0f mm²; volume %.1f mL\n",
                         check.vertices, check.faces, check.closed() && check.manifold() ? "closed 2-manifold" : "NOT closed/manifold",
                         check.euler_characteristic, check.components, check.area, check.volume / 1000.0);
-            std::printf("time     marching cubes %.2f s, smoothing %.2f s, decimation %.2f s\n", report.surface.seconds_marching_cubes,
+            std::printf("time     marching cubes %.3f s, smoothing %.3f s, decimation %.3f s\n", report.surface.seconds_marching_cubes,
                         report.surface.seconds_smoothing, report.surface.seconds_decimation);
             std::printf("wrote    %s (LPS, mm)\n", output->c_str());
             for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
