@@ -13,6 +13,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/solver.h"
+#include "picking.h"
 
 #include <memory>
 #include <optional>
@@ -35,6 +36,9 @@ struct PassTimes {
     long long step_calls = 0;      ///< step() calls measured
     long long substeps = 0;        ///< substeps measured
     long long force_calls = 0;     ///< force passes measured
+    double picking_ms = 0.0;       ///< probe contact search (picking buffer render + collect, or the direct search pass)
+    long long picking_calls = 0;   ///< contact passes measured (both probes of one force request: one call)
+    long long picking_renders = 0; ///< picking-buffer renders (one per probe every K force requests)
     bool gpu_timed = false;        ///< true when the figures come from GPU timer queries
 };
 
@@ -75,6 +79,17 @@ public:
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
     virtual std::size_t memory_bytes() const = 0;
+    /// How the force pass finds a probe's contact particles (runtime/picking.h): gl only; the cpu
+    /// backend always uses its solver's touched list (`direct`) and rejects the others.
+    virtual void set_contact(const ContactSettings& settings) {
+        if (settings.mode != ContactMode::direct) throw InputError("--contact picking|search needs --backend gl");
+    }
+    /// The particles the last force pass summed for `hand`, sorted (gl: waits for the GPU).
+    virtual std::vector<std::int32_t> contact_particles(int hand) { (void)hand; return {}; }
+    /// gl: the GL name of the shader storage buffer holding the current positions (float4 per
+    /// particle, packed order, w unused), for passes that read them in place (visualisation);
+    /// valid until the next step(), which rotates the buffers. 0 for the cpu backend.
+    virtual unsigned gl_position_buffer() const { return 0; }
 };
 
 /// The CPU backend: libmodel's Solver on the scenario's packed particles. Throws InputError if

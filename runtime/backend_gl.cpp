@@ -105,6 +105,8 @@ public:
             substeps_ = reference.substeps_per_step();
         }
         build_buffers(scenario);
+        surface_ = scenario.simulation_surface;  // for the picking / search contact passes, built on demand
+        lattice_spacing_ = scenario.lattice.spacing;
         build(step_program_, "step", sh::step);
         build(after_program_, "after-step", sh::after_step);
         build(capture_program_, "grab", sh::capture);
@@ -137,6 +139,7 @@ public:
     int substeps_per_step() const override { return substeps_; }
     double simulated_time_ms() const override { return time_ms_; }
     std::size_t memory_bytes() const override { return memory_bytes_; }
+    unsigned gl_position_buffer() const override { return position_[current_].id; }
 
     void set_instrument(int hand, const Instrument& instrument) override {
         check_hand(hand);
@@ -146,6 +149,7 @@ public:
         release(hand);
         hand_[hand].instrument = instrument;
         hand_[hand].placed = false;
+        if (picking_) picking_->invalidate(hand);
         // A probe's touched list starts empty (the step pass refills it every substep).
         const GLuint zero = 0;
         glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(hand * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
@@ -300,6 +304,7 @@ public:
             glDeleteSync(fences_[slot]);
             fences_[slot] = nullptr;
         }
+        run_contact_search();
         Pending timing{};
         glGenQueries(2, timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
@@ -307,9 +312,10 @@ public:
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::previous, position_[previous_].id);
         glBindBufferRange(GL_SHADER_STORAGE_BUFFER, sh::forces, ring_.id, GLintptr(slot) * ring_stride, sizeof(ForceSlot));
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, picking_ ? picking_->picked_buffer() : touched_.id);
         int kinds[2];
         for (int hand = 0; hand < hands; ++hand)
-            kinds[hand] = hand_[hand].instrument.kind == InstrumentKind::probe ? 1 : hand_[hand].grabbing ? 2 : 0;
+            kinds[hand] = hand_[hand].instrument.kind == InstrumentKind::probe ? (listed_contacts() ? 3 : 1) : hand_[hand].grabbing ? 2 : 0;
         glProgramUniform1iv(force_program_.id, force_program_.at("hand_kind"), 2, kinds);
         glProgramUniform1ui(force_program_.id, force_program_.at("sequence_number"), GLuint(next_sequence_));
         glUseProgram(force_program_.id);
@@ -362,6 +368,31 @@ public:
         return out;
     }
 
+    void set_contact(const ContactSettings& settings) override {
+        if (settings.mode != ContactMode::direct && !picking_)
+            picking_ = std::make_unique<PickingPass>(surface_, n_, lattice_spacing_, settings);
+        if (picking_) picking_->set_settings(settings);
+        contact_ = settings;
+        check("set_contact");
+    }
+
+    std::vector<std::int32_t> contact_particles(int hand) override {
+        check_hand(hand);
+        const HandState& state = hand_[hand];
+        if (state.instrument.kind == InstrumentKind::none) return {};
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        const bool listed = state.instrument.kind == InstrumentKind::probe && listed_contacts();
+        const GLuint word = listed ? sh::picked0 + hand : state.grabbing ? sh::held0 + hand : sh::touched0 + hand;
+        GLuint count = 0;
+        glGetNamedBufferSubData(counters_.id, GLintptr(word * 4), 4, &count);
+        std::vector<std::int32_t> out(std::min<std::size_t>(count, n_));
+        const GLuint list = listed ? picking_->picked_buffer() : state.grabbing ? held_.id : touched_.id;
+        if (!out.empty()) glGetNamedBufferSubData(list, GLintptr(std::size_t(hand) * n_ * 4), GLsizeiptr(out.size() * 4), out.data());
+        check("reading contact particles");
+        std::sort(out.begin(), out.end());
+        return out;
+    }
+
     PassTimes pass_times() override {
         harvest_queries(true);
         return times_;
@@ -376,8 +407,39 @@ private:
     struct Pending {
         GLuint queries[2] = {0, 0};
         bool is_force = false;
+        bool is_picking = false;
         long long substeps = 0;
     };
+
+    /// The force pass reads the picking / search list (not the step's touched list) for probes.
+    bool listed_contacts() const { return contact_.mode != ContactMode::direct && picking_; }
+
+    /// picking or search: each probe's contact list for the force pass, timed as one call.
+    void run_contact_search() {
+        if (!listed_contacts()) return;
+        bool any = false;
+        const GLuint zero = 0;
+        for (int hand = 0; hand < hands; ++hand) {
+            const HandState& state = hand_[hand];
+            if (state.instrument.kind != InstrumentKind::probe) continue;
+            if (state.placed) any = true;
+            else glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr((sh::picked0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        }
+        if (!any) return;
+        Pending timing{};
+        timing.is_picking = true;
+        glGenQueries(2, timing.queries);
+        glQueryCounter(timing.queries[0], GL_TIMESTAMP);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+        for (int hand = 0; hand < hands; ++hand) {
+            const HandState& state = hand_[hand];
+            if (state.instrument.kind != InstrumentKind::probe || !state.placed) continue;
+            picking_->collect(hand, state.instrument, state.pose, position_[current_].id, counters_.id);
+        }
+        glQueryCounter(timing.queries[1], GL_TIMESTAMP);
+        pending_.push_back(timing);
+        check("the contact search");
+    }
 
     static void check_hand(int hand) {
         if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
@@ -427,12 +489,14 @@ private:
             glGetQueryObjectui64v(p.queries[0], GL_QUERY_RESULT, &begin);
             glGetQueryObjectui64v(p.queries[1], GL_QUERY_RESULT, &end);
             const double ms = double(end - begin) * 1e-6;
-            if (p.is_force) times_.force_ms += ms, ++times_.force_calls;
+            if (p.is_picking) times_.picking_ms += ms, ++times_.picking_calls;
+            else if (p.is_force) times_.force_ms += ms, ++times_.force_calls;
             else times_.step_ms += ms, ++times_.step_calls, times_.substeps += p.substeps;
             glDeleteQueries(2, p.queries);
             pending_.pop_front();
         }
         times_.gpu_timed = true;
+        times_.picking_renders = picking_ ? picking_->renders() : 0;
     }
 
     void bind_common() {
@@ -561,6 +625,10 @@ private:
     bool diverged_seen_ = false, diverged_reported_ = false;
     std::deque<Pending> pending_;
     PassTimes times_;
+    std::optional<SimulationSurface> surface_;
+    double lattice_spacing_ = 1.0;
+    ContactSettings contact_;
+    std::unique_ptr<PickingPass> picking_;
 };
 
 }  // namespace

@@ -11,10 +11,11 @@ namespace heartsim::gl_shaders {
 enum Binding : unsigned {
     current = 0, previous = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
     particle = 7, held_by = 8, counters = 9, touched = 10, fixup = 11, held = 12, held_local = 13, forces = 14,
+    picked = 15,  ///< probe contact lists of the picking / search passes (runtime/picking.cpp also uses 16..19)
 };
 
 /// Counter words in the `counters` buffer.
-enum Counter : unsigned { touched0 = 0, touched1 = 1, fixups = 2, held0 = 3, held1 = 4, status = 5, counter_words = 8 };
+enum Counter : unsigned { touched0 = 0, touched1 = 1, fixups = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
 
 inline constexpr const char* common = R"(#version 430 core
 #extension GL_ARB_gpu_shader_fp64 : enable
@@ -248,7 +249,8 @@ layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
 layout(std430, binding = 10) readonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
 layout(std430, binding = 14) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
-uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding
+layout(std430, binding = 15) readonly buffer PickedBuffer { int picked[]; };
+uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding, 3 probe with the picking/search list
 uniform bool damped;
 uniform uint sequence_number;
 shared dvec3 partial[256];
@@ -256,10 +258,10 @@ shared dvec3 partial[256];
 void main() {
     uint hand = gl_WorkGroupID.x, lid = gl_LocalInvocationID.x;
     int kind = hand_kind[hand];
-    uint count = kind == 1 ? counter[hand] : kind == 2 ? counter[3u + hand] : 0u;
+    uint count = kind == 1 ? counter[hand] : kind == 2 ? counter[3u + hand] : kind == 3 ? counter[6u + hand] : 0u;
     precise dvec3 sum = dvec3(0.0);
     for (uint k = lid; k < count; k += 256u) {
-        uint i = uint(kind == 1 ? touched[hand * particle_count + k] : held[hand * particle_count + k]);
+        uint i = uint(kind == 1 ? touched[hand * particle_count + k] : kind == 3 ? picked[hand * particle_count + k] : held[hand * particle_count + k]);
         vec4 xi = x[i], pi = xp[i];
         uint table = (i / 8u) * 18u * 8u + i % 8u;
         precise dvec3 f = dvec3(0.0);

@@ -2,6 +2,8 @@
 // docs/runtime.md.
 #include "backend.h"
 #include "gl_context.h"
+#include "png.h"
+#include "renderer.h"
 #include "trajectory.h"
 
 #include "formats/scenario.h"
@@ -9,12 +11,15 @@
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <optional>
+#include <utility>
 
 using namespace heartsim;
 
@@ -28,7 +33,199 @@ struct RunArguments {
     double seconds = 0.0;
     std::string probe, grab, trajectory, save_state;
     bool stats = false;
+    std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/picking.h)
+    int picking_refresh = 1;
+    // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
+    std::string screenshot;          // OUT.png: the last frame
+    int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
+    std::string size;                // WxH pixels of the window or the offscreen frame
+    std::string view = "anterior";
+    bool steps_given = false;        // --steps 0 (the rest state) differs from no --steps
 };
+
+/// "WxH" → (W, H); empty gives `fallback`.
+std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fallback) {
+    if (text.empty()) return fallback;
+    int w = 0, h = 0;
+    char x = 0, extra = 0;
+    if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 || h < 16 || w > 16384 ||
+        h > 16384)
+        throw InputError("--size '" + text + "': expected WxH pixels, e.g. 1024x768");
+    return {w, h};
+}
+
+/// OUT.png → OUT-000123.png (after step 123).
+std::string numbered_screenshot(const std::string& path, long long step) {
+    const std::filesystem::path p(path);
+    char suffix[32];
+    std::snprintf(suffix, sizeof suffix, "-%06lld", step);
+    return (p.parent_path() / (p.stem().string() + suffix + p.extension().string())).string();
+}
+
+/// The instruments of the script at `time_ms`, to draw.
+std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time_ms) {
+    std::vector<InstrumentShape> shapes;
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!trajectory.uses_hand(hand)) continue;
+        const InstrumentKeyframe k = trajectory.at(hand, time_ms);
+        if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
+    }
+    return shapes;
+}
+
+/// The window's mouse and keyboard state (GLFW callbacks write it).
+struct WindowInput {
+    Renderer* renderer = nullptr;
+    double last_x = 0, last_y = 0;
+    bool orbiting = false, panning = false, paused = false;
+};
+
+/// The window mode's loop: per frame, the scenario's /solver substeps (steps per frame) with the
+/// script or the keyboard moving the instruments, then one rendered frame. Ends on Esc, on
+/// closing the window, or after `steps` steps (< 0: no limit). Returns what run_scripted would.
+ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
+                             int steps, int steps_per_frame, const RunArguments& a) {
+    auto* window = static_cast<GLFWwindow*>(context.window());
+    WindowInput input;
+    input.renderer = &renderer;
+    glfwSetWindowUserPointer(window, &input);
+    glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
+        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        const bool down = action == GLFW_PRESS;
+        if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
+        if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
+            in->panning = down;
+        if (!down) in->orbiting = in->panning = false;
+        glfwGetCursorPos(w, &in->last_x, &in->last_y);
+    });
+    glfwSetCursorPosCallback(window, [](GLFWwindow* w, double x, double y) {
+        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        const float dx = float(x - in->last_x), dy = float(y - in->last_y);
+        in->last_x = x, in->last_y = y;
+        int width = 0, height = 0;
+        glfwGetWindowSize(w, &width, &height);
+        if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);
+        if (in->panning) in->renderer->camera().pan(dx, dy, height);
+    });
+    glfwSetScrollCallback(window, [](GLFWwindow* w, double, double y) {
+        static_cast<WindowInput*>(glfwGetWindowUserPointer(w))->renderer->camera().zoom(std::pow(0.9f, float(y)));
+    });
+    glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int) {
+        if (action != GLFW_PRESS) return;
+        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
+        if (key == GLFW_KEY_R) in->renderer->reset_camera();
+        if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
+    });
+    glfwSwapInterval(1);
+
+    // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
+    struct Applied {
+        bool active = false;
+        InstrumentKind kind = InstrumentKind::none;
+        Eigen::Vector3d semi_axes = Eigen::Vector3d::Zero();
+        bool grab = false;
+    } applied[2];
+    const double dt = backend.time_step_ms();
+    InstrumentKeyframe keyboard;
+    if (keyboard_hand0) {
+        keyboard = trajectory.at(0, 0.0);
+        backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
+        backend.set_pose(0, keyboard.pose);
+    }
+    const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
+
+    ScriptedRunResult result;
+    long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
+    const auto start = std::chrono::steady_clock::now();
+    auto last = start;
+    while (!glfwWindowShouldClose(window) && (steps < 0 || result.steps < steps)) {
+        glfwPollEvents();
+        const auto now = std::chrono::steady_clock::now();
+        const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
+        last = now;
+        int n = input.paused ? 0 : steps_per_frame;
+        if (steps >= 0) n = std::min(n, steps - result.steps);
+
+        // Keyboard: arrows move hand 0 in the view plane, PgUp/PgDn into / out of the screen.
+        InstrumentPose from = keyboard.pose, to = keyboard.pose;
+        if (keyboard_hand0) {
+            const Camera& camera = renderer.camera();
+            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
+            Eigen::Vector3d move = Eigen::Vector3d::Zero();
+            if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
+            if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
+            if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
+            if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
+            if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
+            if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
+            const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
+            to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
+            keyboard.pose = to;
+        }
+        for (int k = 0; k < n; ++k) {
+            const int step = result.steps;
+            const double t = step * dt, t_next = (step + 1) * dt;
+            for (int hand = 0; hand < 2; ++hand) {
+                if (!trajectory.uses_hand(hand)) continue;
+                if (hand == 0 && keyboard_hand0) {
+                    const double f = double(k + 1) / double(n);
+                    backend.set_pose(0, {from.position + f * (to.position - from.position), to.orientation});
+                    continue;
+                }
+                const InstrumentKeyframe now_key = trajectory.at(hand, t);
+                Applied& ap = applied[hand];
+                if (!ap.active || ap.kind != now_key.kind || ap.semi_axes != now_key.semi_axes) {
+                    backend.set_instrument(hand, {.kind = now_key.kind, .semi_axes = now_key.semi_axes});
+                    backend.set_pose(hand, now_key.pose);
+                    ap = {true, now_key.kind, now_key.semi_axes, false};
+                }
+                if (now_key.grab && !ap.grab) backend.begin_grab(hand);
+                if (!now_key.grab && ap.grab) backend.release(hand);
+                ap.grab = now_key.grab;
+                backend.set_pose(hand, trajectory.at(hand, t_next).pose);
+            }
+            const StepReport report = backend.step(1);
+            result.steps += report.steps;
+            result.substeps += report.substeps;
+            if (report.diverged) ++result.watchdog_events, result.last_watchdog_message = report.message;
+            if (any_instrument) {
+                backend.request_forces();
+                if (backend.latest_forces()) ++result.forces_received;
+            }
+        }
+
+        int width = 0, height = 0;
+        glfwGetFramebufferSize(window, &width, &height);
+        if (width > 0 && height > 0) renderer.resize(width, height);
+        std::vector<InstrumentShape> shapes;
+        for (int hand = 0; hand < 2; ++hand) {
+            if (!trajectory.uses_hand(hand)) continue;
+            const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, backend.simulated_time_ms());
+            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
+        }
+        renderer.render(backend, shapes);
+        renderer.present(width, height);
+        glfwSwapBuffers(window);
+        ++frames;
+        if (next_shot > 0 && result.steps >= next_shot) {
+            const std::string path = numbered_screenshot(a.screenshot, result.steps);
+            write_png(path, renderer.read_pixels());
+            while (next_shot <= result.steps) next_shot += a.screenshot_every;
+        }
+        if (frames % 30 == 0) {
+            const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+            char title[256];
+            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s%s", std::filesystem::path(a.scenario).filename().c_str(),
+                          frames / s, result.steps / s, input.paused ? " (paused)" : "");
+            glfwSetWindowTitle(window, title);
+        }
+    }
+    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    std::printf("window: %lld frames in %.3g s (%.1f fps), %d steps per frame\n", frames, result.wall_ms * 1e-3,
+                frames / std::max(result.wall_ms * 1e-3, 1e-9), steps_per_frame);
+    return result;
+}
 
 int command_info() {
     GlContext context = GlContext::create_headless();
@@ -37,19 +234,24 @@ int command_info() {
 }
 
 int command_run(const RunArguments& a) {
-    if (!a.headless)
-        throw InputError("the window mode is not built yet (rendering, picking and visualisation are still to come); run with --headless");
     const BackendKind kind = parse_backend_kind(a.backend);
     if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
+    if (a.screenshot_every > 0 && a.screenshot.empty()) throw InputError("--screenshot-every needs --screenshot OUT.png");
+    // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
+    const bool render = !a.headless || !a.screenshot.empty();
+    const auto [frame_width, frame_height] = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
+    const ViewDirection view = parse_view_direction(a.view);
 
     Scenario scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);
     const SolverOptions options = options_from(scenario.solver);
 
     std::optional<GlContext> context;
+    if (!a.headless)
+        context.emplace(GlContext::create_window(frame_width, frame_height, "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
     std::unique_ptr<Backend> backend;
     if (kind == BackendKind::gl) {
-        context.emplace(GlContext::create_headless());
+        if (!context) context.emplace(GlContext::create_headless());
         const GlInfo info = context->info();
         const std::size_t need = estimate_gl_memory_bytes(scenario);
         std::printf("gl: %s, OpenGL %d.%d; device memory needed %.1f MiB\n", info.renderer.c_str(), info.major, info.minor,
@@ -60,11 +262,37 @@ int command_run(const RunArguments& a) {
         backend = make_gl_backend(*context, scenario, options);
     } else {
         backend = make_cpu_backend(scenario, options);
+        if (render && !context) context.emplace(GlContext::create_headless());  // screenshots of the cpu backend
+    }
+    std::optional<Renderer> renderer;
+    if (render) {
+        context->make_current();
+        renderer.emplace(scenario, RenderOptions{.width = frame_width, .height = frame_height, .view = view});
+        if (renderer->draws_visual_mesh())
+            std::printf("render: visual mesh, %zu vertices, %zu triangles, mapped onto %zu simulation-surface triangles; %dx%d\n",
+                        renderer->vertex_count(), renderer->triangle_count(), scenario.simulation_surface->size(), renderer->width(),
+                        renderer->height());
+        else
+            std::printf("render: no /visual mesh with /mapping: the simulation surface, %zu triangles (flat shaded); %dx%d\n",
+                        renderer->triangle_count(), renderer->width(), renderer->height());
+    }
+    {
+        ContactSettings contact;
+        contact.mode = parse_contact_mode(a.contact);
+        contact.picking_refresh = a.picking_refresh;
+        if (contact.mode != ContactMode::direct && kind == BackendKind::gl)
+            std::printf("contact: %s%s, %.2f MiB more device memory\n", to_string(contact.mode),
+                        contact.mode == ContactMode::picking ? (" (buffer rendered every " + std::to_string(contact.picking_refresh) +
+                                                                " force requests)").c_str() : "",
+                        double(estimate_picking_memory_bytes(scenario, contact)) / (1024.0 * 1024.0));
+        backend->set_contact(contact);
     }
     const SolverLoadReport& load = backend->load_report();
     int steps = a.steps;
     if (a.seconds > 0) steps = int(std::ceil(a.seconds * 1000.0 / backend->time_step_ms() - 1e-9));
-    if (steps <= 0) steps = 1;
+    // --steps 0: no step (the rest state, e.g. for a screenshot); no --steps: 1 step headless,
+    // no limit in a window.
+    if (steps <= 0) steps = (a.steps_given && a.steps == 0) ? 0 : a.headless ? 1 : -1;
     std::printf("%s backend: %zu particles, %zu springs, %zu anchored; step %.4g ms = %d substeps of %.4g ms (critical %.4g ms)\n",
                 to_string(kind), load.particles, load.springs, load.anchored, backend->time_step_ms(), backend->substeps_per_step(),
                 backend->substep_ms(), load.critical_dt_ms);
@@ -86,14 +314,45 @@ int command_run(const RunArguments& a) {
                 while (std::getline(in, field, ',')) values.push_back(std::stod(field));
             }
             if (values.size() == 9) end.pose.position += Eigen::Vector3d(values[6], values[7], values[8]);
-            end.time_ms = steps * backend->time_step_ms();
+            end.time_ms = (steps >= 0 ? steps : 1000) * backend->time_step_ms();  // a window without limit: over 1000 steps
             trajectory.keyframes.push_back(start);
             trajectory.keyframes.push_back(end);
         }
     }
 
+    // Window without a script: the keyboard moves hand 0, the --probe or a default probe
+    // (semi-axes 1.5 lattice spacings) in front of the model, between it and the camera.
+    const bool keyboard_hand0 = !a.headless && a.trajectory.empty();
+    if (keyboard_hand0 && a.probe.empty()) {
+        InstrumentKeyframe k;
+        k.hand = 0;
+        k.kind = InstrumentKind::probe;
+        k.semi_axes = Eigen::Vector3d::Constant(1.5 * scenario.lattice.spacing);
+        const Camera& camera = renderer->camera();
+        const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
+        k.pose.position = camera.target.cast<double>() + back * (0.8 * camera.radius);
+        trajectory.keyframes.insert(trajectory.keyframes.begin(), k);
+    }
+
     const auto wall_start = std::chrono::steady_clock::now();
-    ScriptedRunResult run = run_scripted(*backend, trajectory, {.steps = steps, .forces_every_step = !trajectory.keyframes.empty()});
+    ScriptedRunResult run;
+    if (!a.headless) {
+        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, std::max(1, scenario.solver.substeps), a);
+    } else {
+        ScriptedRunOptions scripted{.steps = steps, .forces_every_step = !trajectory.keyframes.empty()};
+        if (renderer && a.screenshot_every > 0)
+            scripted.on_step = [&](int step, const StepReport&) {
+                if ((step + 1) % a.screenshot_every != 0) return;
+                renderer->render(*backend, shapes_at(trajectory, backend->simulated_time_ms()));
+                write_png(numbered_screenshot(a.screenshot, step + 1), renderer->read_pixels());
+            };
+        run = run_scripted(*backend, trajectory, scripted);
+    }
+    if (renderer && !a.screenshot.empty()) {
+        renderer->render(*backend, shapes_at(trajectory, backend->simulated_time_ms()));
+        write_png(a.screenshot, renderer->read_pixels());
+        std::printf("wrote %s (%dx%d)\n", a.screenshot.c_str(), renderer->width(), renderer->height());
+    }
     const InstrumentForces forces = backend->instrument_forces();       // waits: the run is finished
     const auto positions = backend->positions();
     const double wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - wall_start).count();
@@ -112,8 +371,25 @@ int command_run(const RunArguments& a) {
         std::printf("%-22s %12s %12s\n", "pass", "per call ms", "calls");
         const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
         std::printf("%-22s %12.4f %12lld   (%zu particles, 18 neighbours)\n", "simulation step", per_substep, t.substeps, load.particles);
-        std::printf("%-22s %12s %12s\n", "visualisation step", "-", "not built");
-        std::printf("%-22s %12s %12s\n", "picking buffer", "-", "not built (probe uses the direct test in the step)");
+        if (renderer) {
+            const RenderTimes r = renderer->times(true);
+            if (r.normals_calls)
+                std::printf("%-22s %12.4f %12lld   (compute, one invocation per surface particle)\n", "particle normals",
+                            r.normals_ms / double(r.normals_calls), r.normals_calls);
+            std::printf("%-22s %12.4f %12lld   (%s: %zu vertices, %zu faces; %dx%d)\n", "visualisation step",
+                        r.frames ? r.draw_ms / double(r.frames) : 0.0, r.frames, renderer->draws_visual_mesh() ? "mapped visual mesh" : "simulation surface",
+                        renderer->vertex_count(), renderer->triangle_count(), renderer->width(), renderer->height());
+            if (r.uploads)
+                std::printf("%-22s %12.4f %12lld   (cpu backend: positions to the GPU, wall clock)\n", "position upload", r.upload_ms / double(r.uploads),
+                            r.uploads);
+        } else {
+            std::printf("%-22s %12s %12s\n", "visualisation step", "-", "skipped (headless, no --screenshot)");
+        }
+        if (t.picking_calls)
+            std::printf("%-22s %12.4f %12lld   (%s; %lld buffer renders)\n", "picking buffer", t.picking_ms / double(t.picking_calls),
+                        t.picking_calls, a.contact.c_str(), t.picking_renders);
+        else
+            std::printf("%-22s %12s %12s\n", "picking buffer", "-", "none (--contact direct: the step's own probe test)");
         std::printf("%-22s %12.4f %12lld\n", "force buffer", t.force_calls ? t.force_ms / double(t.force_calls) : 0.0, t.force_calls);
         std::printf("steps/s (substeps/s)  %.0f from the step pass, %.0f overall\n", per_substep > 0 ? 1000.0 / per_substep : 0.0,
                     run.substeps / (wall_ms * 1e-3));
@@ -154,8 +430,20 @@ int main(int argc, char** argv) {
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)")->check(CLI::ExistingFile);
     run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5)");
+    run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
+                                            "picking (the seed's picking buffer) or search (every surface particle)")
+        ->check(CLI::IsMember({"direct", "picking", "search"}));
+    run->add_option("--picking-refresh", a.picking_refresh, "Render the picking buffer every K force requests (stale in between)")
+        ->check(CLI::Range(1, 1 << 20));
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as the seed's Table 1");
+    run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)");
+    run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step)")
+        ->check(CLI::NonNegativeNumber);
+    run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
+    run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
+        ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));
     CLI11_PARSE(app, argc, argv);
+    a.steps_given = run->count("--steps") > 0;
     try {
         if (info->parsed()) return command_info();
         if (run->parsed()) return command_run(a);

@@ -16,6 +16,8 @@ packages=(
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri
   # tests
   googletest libgtest-dev
+  # window tests (heartsim's GLFW window under a virtual X server)
+  xvfb xauth
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(

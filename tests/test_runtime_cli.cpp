@@ -113,7 +113,9 @@ TEST(HeartsimCli, ErrorsNameTheCause) {
     EXPECT_EQ(run.exit_code, 2) << run.output;
     EXPECT_NE(run.output.find("/packing is missing"), std::string::npos) << run.output;
 
-    run = run_heartsim("run " + quoted(phantom()) + " --backend cpu --steps 1");
+    // Without a display the window mode cannot start: it must say so and point to --headless.
+    run = test::run_command("env -u DISPLAY -u WAYLAND_DISPLAY " + std::string(HEARTSIM_EXE) + " run " + quoted(phantom()) +
+                            " --backend cpu --steps 1");
     EXPECT_NE(run.exit_code, 0);
     EXPECT_NE(run.output.find("--headless"), std::string::npos) << run.output;
 

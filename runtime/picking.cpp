@@ -1,0 +1,435 @@
+// The picking buffer (the seed's §1.2.2) and the direct surface search: docs/runtime.md,
+// "Probe contacts: picking buffer and direct search".
+#include "picking.h"
+#include "gl_context.h"
+
+#include "libmodel/errors.h"
+
+#include <epoxy/gl.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <set>
+
+namespace heartsim {
+
+ContactMode parse_contact_mode(const std::string& name) {
+    if (name == "direct") return ContactMode::direct;
+    if (name == "picking") return ContactMode::picking;
+    if (name == "search") return ContactMode::search;
+    throw InputError("--contact must be direct, picking or search, not '" + name + "'");
+}
+
+const char* to_string(ContactMode mode) {
+    switch (mode) {
+    case ContactMode::direct: return "direct";
+    case ContactMode::picking: return "picking";
+    case ContactMode::search: return "search";
+    }
+    return "?";
+}
+
+namespace {
+
+// Bindings beyond the backend's (gl_shaders.h Binding: 0..14); 15 is read by the force pass.
+constexpr GLuint bind_positions = 0, bind_counters = 9, bind_picked = 15, bind_triangles = 16, bind_samples = 17, bind_mark = 18,
+                 bind_surface = 19;
+constexpr GLuint unit_index = 6;  // texture unit of the index image in the collect pass
+constexpr int hands = 2;
+
+const char* render_vertex = R"(#version 430 core
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 16) readonly buffer TriangleBuffer { int triangle[]; };
+uniform vec3 centre;          // probe centre at render time, world mm
+uniform mat3 to_tool;         // Rᵀ: world → tool frame
+uniform vec4 window;          // half width W, near, far, unused (tool-frame z)
+flat out ivec3 corner_particle;
+out vec3 bary;
+out vec3 local;
+void main() {
+    int t = gl_VertexID / 3, c = gl_VertexID - 3 * (gl_VertexID / 3);
+    ivec3 ids = ivec3(triangle[3 * t], triangle[3 * t + 1], triangle[3 * t + 2]);
+    corner_particle = ids;
+    bary = vec3(c == 0 ? 1.0 : 0.0, c == 1 ? 1.0 : 0.0, c == 2 ? 1.0 : 0.0);
+    local = to_tool * (x[ids[c]].xyz - centre);
+    gl_Position = vec4(local.x / window.x, local.y / window.x, 2.0 * (local.z - window.y) / (window.z - window.y) - 1.0, 1.0);
+}
+)";
+
+const char* render_fragment = R"(#version 430 core
+flat in ivec3 corner_particle;
+in vec3 bary;
+in vec3 local;
+uniform vec3 semi_axes;
+layout(location = 0) out int picked;
+layout(location = 1) out float distance_mm;
+void main() {
+    // The triangle's corner with the largest barycentric weight: a Voronoi-like diagram.
+    int k = (bary.x >= bary.y && bary.x >= bary.z) ? 0 : (bary.y >= bary.z ? 1 : 2);
+    picked = corner_particle[k];
+    // Radial distance of the surface point to the ellipsoid (the solver's projection direction).
+    float rho = length(local / semi_axes);
+    distance_mm = rho > 0.0 ? length(local) * (1.0 - 1.0 / rho) : -min(semi_axes.x, min(semi_axes.y, semi_axes.z));
+}
+)";
+
+// Shared by the collect and search passes: the exact contact test in double, and the
+// deduplicated append (mark[i] holds the epoch of the last pass that appended i).
+const char* contact_common = R"(#version 430 core
+#extension GL_ARB_gpu_shader_fp64 : enable
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 9) buffer CounterBuffer { uint counter[]; };
+layout(std430, binding = 18) buffer MarkBuffer { uint mark[]; };
+layout(std430, binding = 15) writeonly buffer PickedBuffer { int picked[]; };
+uniform uint particle_count;
+uniform int hand;
+uniform uint epoch;
+uniform dvec3 centre;         // current pose
+uniform dmat3 rotation;       // tool → world
+uniform dvec3 semi_axes;
+uniform double tolerance;
+bool in_contact(uint i) {
+    dvec3 v = dvec3(x[i].xyz) - centre;
+    dvec3 local = transpose(rotation) * v;
+    dvec3 q = local / semi_axes;
+    double rho = sqrt(dot(q, q));
+    double d = rho > 0.0lf ? sqrt(dot(local, local)) * (1.0lf - 1.0lf / rho) : -1.0lf;
+    return d <= tolerance;
+}
+void append(uint i) {
+    if (atomicExchange(mark[i], epoch) == epoch) return;
+    uint slot = atomicAdd(counter[6 + hand], 1u);
+    picked[uint(hand) * particle_count + slot] = int(i);
+}
+)";
+
+const char* collect_body = R"(
+layout(std430, binding = 17) readonly buffer SampleBuffer { vec4 sample_unit[]; };
+layout(binding = 6) uniform isampler2D index_image;
+uniform uint sample_count;
+uniform int resolution;
+uniform dvec3 render_centre;  // the camera of the (possibly stale) picking buffer
+uniform dmat3 render_to_tool;
+uniform double render_half_width;
+void main() {
+    uint k = gl_GlobalInvocationID.x;
+    if (k >= sample_count) return;
+    dvec3 s = centre + rotation * (semi_axes * dvec3(sample_unit[k].xyz));   // boundary point, current pose
+    dvec3 p = render_to_tool * (s - render_centre);                          // into the buffer's camera
+    dvec2 uv = (p.xy / render_half_width) * 0.5lf + 0.5lf;
+    ivec2 pixel = ivec2(floor(uv * double(resolution)));
+    if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) return;
+    int i = texelFetch(index_image, pixel, 0).r;
+    if (i < 0 || uint(i) >= particle_count) return;
+    if (in_contact(uint(i))) append(uint(i));
+}
+)";
+
+const char* search_body = R"(
+layout(std430, binding = 19) readonly buffer SurfaceBuffer { int surface[]; };
+uniform uint surface_count;
+void main() {
+    uint k = gl_GlobalInvocationID.x;
+    if (k >= surface_count) return;
+    uint i = uint(surface[k]);
+    if (in_contact(i)) append(i);
+}
+)";
+
+GLuint compile(GLenum type, const std::vector<const char*>& sources, const char* name) {
+    const GLuint shader = glCreateShader(type);
+    glShaderSource(shader, GLsizei(sources.size()), sources.data(), nullptr);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
+        glDeleteShader(shader);
+        throw GlUnavailable(std::string("picking: the ") + name + " shader does not compile on this driver: " + log +
+                            "; run with --contact direct");
+    }
+    return shader;
+}
+
+GLuint link(const std::vector<GLuint>& shaders, const char* name) {
+    const GLuint program = glCreateProgram();
+    for (GLuint s : shaders) glAttachShader(program, s);
+    glLinkProgram(program);
+    for (GLuint s : shaders) glDeleteShader(s);
+    GLint ok = 0;
+    glGetProgramiv(program, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetProgramInfoLog(program, sizeof log, nullptr, log);
+        glDeleteProgram(program);
+        throw GlUnavailable(std::string("picking: the ") + name + " program does not link: " + log + "; run with --contact direct");
+    }
+    return program;
+}
+
+double default_tolerance(double spacing) { return 1e-3 * spacing; }
+
+}  // namespace
+
+struct PickingPass::Gl {
+    GLuint render_program = 0, collect_program = 0, search_program = 0, vao = 0;
+    GLuint triangles = 0, surface = 0, samples = 0, mark = 0, picked = 0;
+    struct Hand {
+        GLuint framebuffer = 0, index = 0, distance = 0, depth = 0;
+        int resolution = 0;
+        bool valid = false;
+        int age = 0;                        // force requests since the buffer was rendered
+        Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+        Eigen::Matrix3d to_tool = Eigen::Matrix3d::Identity();
+        double half_width = 1.0;
+    };
+    std::array<Hand, hands> hand;
+
+    void free_targets(Hand& h) {
+        if (h.framebuffer) glDeleteFramebuffers(1, &h.framebuffer);
+        GLuint textures[3] = {h.index, h.distance, h.depth};
+        glDeleteTextures(3, textures);
+        h = Hand{};
+    }
+    ~Gl() {
+        for (auto& h : hand) free_targets(h);
+        for (GLuint p : {render_program, collect_program, search_program})
+            if (p) glDeleteProgram(p);
+        if (vao) glDeleteVertexArrays(1, &vao);
+        GLuint buffers[5] = {triangles, surface, samples, mark, picked};
+        glDeleteBuffers(5, buffers);
+    }
+};
+
+std::size_t estimate_picking_memory_bytes(const Scenario& scenario, const ContactSettings& settings) {
+    const std::size_t n = scenario.lattice.particles.size();
+    const std::size_t t = scenario.simulation_surface ? scenario.simulation_surface->size() : 0;
+    const std::size_t g = std::size_t(std::max(settings.sampling_grid, 2));
+    const std::size_t r = std::size_t(std::max(settings.picking_resolution, 8));
+    return t * 12 + n * 4 /* surface list, at most */ + (g * g + 4 * g) * 16 + n * 4 /* mark */ + hands * n * 4 /* lists */ +
+           hands * r * r * 12 /* index, distance, depth */;
+}
+
+PickingPass::PickingPass(const std::optional<SimulationSurface>& simulation_surface, std::size_t particles, double spacing_mm,
+                         const ContactSettings& settings)
+    : gl_(std::make_unique<Gl>()) {
+    if (!simulation_surface || simulation_surface->empty())
+        throw InputError("--contact picking|search needs the scenario's /simsurface group (heartprep build writes it); "
+                         "run with --contact direct");
+    n_ = particles;
+    spacing_ = spacing_mm > 0 ? spacing_mm : 1.0;
+    const auto& triangles = simulation_surface->triangles;
+    triangle_count_ = triangles.size();
+    std::set<std::int32_t> vertices;
+    std::vector<std::int32_t> flat;
+    flat.reserve(3 * triangles.size());
+    for (const auto& t : triangles)
+        for (std::int32_t v : t) flat.push_back(v), vertices.insert(v);
+    const std::vector<std::int32_t> surface(vertices.begin(), vertices.end());
+    surface_count_ = surface.size();
+
+    gl_->render_program = link({compile(GL_VERTEX_SHADER, {render_vertex}, "picking vertex"),
+                                compile(GL_FRAGMENT_SHADER, {render_fragment}, "picking fragment")},
+                               "picking render");
+    gl_->collect_program = link({compile(GL_COMPUTE_SHADER, {contact_common, collect_body}, "picking collect")}, "picking collect");
+    gl_->search_program = link({compile(GL_COMPUTE_SHADER, {contact_common, search_body}, "direct search")}, "direct search");
+    for (GLuint p : {gl_->collect_program, gl_->search_program})
+        glProgramUniform1ui(p, glGetUniformLocation(p, "particle_count"), GLuint(n_));
+    glProgramUniform1ui(gl_->search_program, glGetUniformLocation(gl_->search_program, "surface_count"), GLuint(surface_count_));
+    glCreateVertexArrays(1, &gl_->vao);
+    auto make = [](GLuint& id, std::size_t bytes, const void* data, GLbitfield flags) {
+        glCreateBuffers(1, &id);
+        glNamedBufferStorage(id, GLsizeiptr(std::max<std::size_t>(bytes, 16)), data, flags);
+    };
+    make(gl_->triangles, flat.size() * 4, flat.data(), 0);
+    make(gl_->surface, surface.size() * 4, surface.data(), 0);
+    const std::vector<std::uint32_t> zeros(n_, 0u);
+    make(gl_->mark, n_ * 4, zeros.data(), 0);
+    make(gl_->picked, std::size_t(hands) * n_ * 4, nullptr, 0);
+    set_settings(settings);
+    const GLenum error = glGetError();
+    if (error != GL_NO_ERROR) throw GlUnavailable("picking: OpenGL error " + std::to_string(error) + " while setting up");
+}
+
+PickingPass::~PickingPass() = default;
+
+unsigned PickingPass::picked_buffer() const { return gl_->picked; }
+
+void PickingPass::set_settings(const ContactSettings& settings) {
+    if (settings.picking_refresh < 1) throw InputError("--picking-refresh must be at least 1");
+    if (settings.picking_resolution < 8 || settings.picking_resolution > 4096)
+        throw InputError("the picking resolution must be within [8, 4096] pixels");
+    if (settings.sampling_grid < 2 || settings.sampling_grid > 1024) throw InputError("the sampling grid must be within [2, 1024]");
+    if (!(settings.tolerance_mm >= 0) || !std::isfinite(settings.tolerance_mm)) throw InputError("the contact tolerance must be ≥ 0 mm");
+    const bool regrid = !gl_->samples || settings.sampling_grid != settings_.sampling_grid;
+    settings_ = settings;
+    tolerance_ = settings.tolerance_mm > 0 ? settings.tolerance_mm : default_tolerance(spacing_);
+    if (regrid) {
+        // Sampling points on the unit sphere's front half (z ≥ 0, towards the tip), as a regular
+        // grid in their projection along the axis (so they cover the picking buffer's view of
+        // the probe evenly), plus a ring on the rim; scaled by the semi-axes in the shader.
+        const int g = settings.sampling_grid;
+        std::vector<std::array<float, 4>> unit;
+        for (int a = 0; a < g; ++a)
+            for (int b = 0; b < g; ++b) {
+                const double u = -1.0 + (2.0 * a + 1.0) / g, v = -1.0 + (2.0 * b + 1.0) / g;
+                const double r2 = u * u + v * v;
+                if (r2 > 1.0) continue;
+                unit.push_back({float(u), float(v), float(std::sqrt(1.0 - r2)), 0.0f});
+            }
+        for (int k = 0; k < 4 * g; ++k) {
+            const double phi = 2.0 * M_PI * (k + 0.5) / (4.0 * g);
+            unit.push_back({float(std::cos(phi)), float(std::sin(phi)), 0.0f, 0.0f});
+        }
+        sample_count_ = unit.size();
+        if (gl_->samples) glDeleteBuffers(1, &gl_->samples);
+        glCreateBuffers(1, &gl_->samples);
+        glNamedBufferStorage(gl_->samples, GLsizeiptr(unit.size() * 16), unit.data(), 0);
+        glProgramUniform1ui(gl_->collect_program, glGetUniformLocation(gl_->collect_program, "sample_count"), GLuint(sample_count_));
+    }
+    for (int h = 0; h < hands; ++h) invalidate(h);
+    memory_bytes_ = triangle_count_ * 12 + surface_count_ * 4 + sample_count_ * 16 + n_ * 4 + hands * n_ * 4 +
+                    std::size_t(hands) * std::size_t(settings_.picking_resolution) * std::size_t(settings_.picking_resolution) * 12;
+}
+
+void PickingPass::invalidate(int hand) { gl_->hand[std::size_t(hand)].valid = false; }
+
+void PickingPass::render(int hand, const Instrument& instrument, const InstrumentPose& pose, unsigned positions_buffer) {
+    Gl::Hand& h = gl_->hand[std::size_t(hand)];
+    const int resolution = settings_.picking_resolution;
+    if (h.resolution != resolution) {
+        gl_->free_targets(h);
+        h.resolution = resolution;
+        glCreateTextures(GL_TEXTURE_2D, 1, &h.index);
+        glTextureStorage2D(h.index, 1, GL_R32I, resolution, resolution);
+        glCreateTextures(GL_TEXTURE_2D, 1, &h.distance);
+        glTextureStorage2D(h.distance, 1, GL_R32F, resolution, resolution);
+        glCreateTextures(GL_TEXTURE_2D, 1, &h.depth);
+        glTextureStorage2D(h.depth, 1, GL_DEPTH_COMPONENT32F, resolution, resolution);
+        for (GLuint t : {h.index, h.distance}) {
+            glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+            glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+        }
+        glCreateFramebuffers(1, &h.framebuffer);
+        glNamedFramebufferTexture(h.framebuffer, GL_COLOR_ATTACHMENT0, h.index, 0);
+        glNamedFramebufferTexture(h.framebuffer, GL_COLOR_ATTACHMENT1, h.distance, 0);
+        glNamedFramebufferTexture(h.framebuffer, GL_DEPTH_ATTACHMENT, h.depth, 0);
+        const GLenum draw[2] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1};
+        glNamedFramebufferDrawBuffers(h.framebuffer, 2, draw);
+        if (glCheckNamedFramebufferStatus(h.framebuffer, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+            throw GlUnavailable("picking: the R32I + R32F + depth picking buffer is not renderable on this driver; run with --contact direct");
+    }
+    // The camera: orthographic along the tool's +z, from the base (z = −c) to 3c + spacing.
+    const Eigen::Vector3d& semi = instrument.semi_axes;
+    h.centre = pose.position;
+    h.to_tool = pose.orientation.toRotationMatrix().transpose();
+    h.half_width = 1.02 * std::max(semi.x(), semi.y()) + tolerance_;
+    const double near_z = -semi.z(), far_z = 3.0 * semi.z() + spacing_;
+
+    // Keep the caller's render state (the visualisation shares the context).
+    GLint previous_framebuffer = 0, viewport[4] = {0, 0, 0, 0}, previous_program = 0, previous_vao = 0;
+    glGetIntegerv(GL_DRAW_FRAMEBUFFER_BINDING, &previous_framebuffer);
+    glGetIntegerv(GL_VIEWPORT, viewport);
+    glGetIntegerv(GL_CURRENT_PROGRAM, &previous_program);
+    glGetIntegerv(GL_VERTEX_ARRAY_BINDING, &previous_vao);
+    const GLboolean depth_test = glIsEnabled(GL_DEPTH_TEST), cull = glIsEnabled(GL_CULL_FACE), blend = glIsEnabled(GL_BLEND),
+                    scissor = glIsEnabled(GL_SCISSOR_TEST);
+    GLint depth_func = GL_LESS;
+    glGetIntegerv(GL_DEPTH_FUNC, &depth_func);
+    GLboolean depth_mask = GL_TRUE;
+    glGetBooleanv(GL_DEPTH_WRITEMASK, &depth_mask);
+
+    glBindFramebuffer(GL_DRAW_FRAMEBUFFER, h.framebuffer);
+    glViewport(0, 0, resolution, resolution);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+    glDisable(GL_CULL_FACE);
+    glDisable(GL_BLEND);
+    glDisable(GL_SCISSOR_TEST);
+    const GLint no_particle = -1;
+    const GLfloat far_distance = std::numeric_limits<float>::infinity(), far_depth = 1.0f;
+    glClearNamedFramebufferiv(h.framebuffer, GL_COLOR, 0, &no_particle);
+    glClearNamedFramebufferfv(h.framebuffer, GL_COLOR, 1, &far_distance);
+    glClearNamedFramebufferfv(h.framebuffer, GL_DEPTH, 0, &far_depth);
+
+    const GLuint p = gl_->render_program;
+    const Eigen::Matrix3f to_tool = h.to_tool.cast<float>();
+    glProgramUniform3f(p, glGetUniformLocation(p, "centre"), float(h.centre.x()), float(h.centre.y()), float(h.centre.z()));
+    glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "to_tool"), 1, GL_FALSE, to_tool.data());
+    glProgramUniform4f(p, glGetUniformLocation(p, "window"), float(h.half_width), float(near_z), float(far_z), 0.0f);
+    glProgramUniform3f(p, glGetUniformLocation(p, "semi_axes"), float(semi.x()), float(semi.y()), float(semi.z()));
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_positions, positions_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_triangles, gl_->triangles);
+    glUseProgram(p);
+    glBindVertexArray(gl_->vao);
+    glDrawArrays(GL_TRIANGLES, 0, GLsizei(3 * triangle_count_));
+
+    glBindFramebuffer(GL_DRAW_FRAMEBUFFER, GLuint(previous_framebuffer));
+    glViewport(viewport[0], viewport[1], viewport[2], viewport[3]);
+    glUseProgram(GLuint(previous_program));
+    glBindVertexArray(GLuint(previous_vao));
+    (depth_test ? glEnable : glDisable)(GL_DEPTH_TEST);
+    (cull ? glEnable : glDisable)(GL_CULL_FACE);
+    (blend ? glEnable : glDisable)(GL_BLEND);
+    (scissor ? glEnable : glDisable)(GL_SCISSOR_TEST);
+    glDepthFunc(GLenum(depth_func));
+    glDepthMask(depth_mask);
+    h.valid = true;
+    h.age = 0;
+    ++renders_;
+}
+
+void PickingPass::collect(int hand, const Instrument& instrument, const InstrumentPose& pose, unsigned positions_buffer,
+                          unsigned counters_buffer) {
+    const GLuint zero = 0;
+    glClearNamedBufferSubData(counters_buffer, GL_R32UI, GLintptr((6 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+    ++epoch_;
+    if (epoch_ == 0) {  // wrapped: clear the marks so that no old epoch matches
+        glClearNamedBufferData(gl_->mark, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        epoch_ = 1;
+    }
+    const bool picking = settings_.mode == ContactMode::picking;
+    Gl::Hand& h = gl_->hand[std::size_t(hand)];
+    if (picking && (!h.valid || h.age >= settings_.picking_refresh)) render(hand, instrument, pose, positions_buffer);
+    ++h.age;
+
+    const GLuint p = picking ? gl_->collect_program : gl_->search_program;
+    const Eigen::Matrix3d rotation = pose.orientation.toRotationMatrix();
+    glProgramUniform1i(p, glGetUniformLocation(p, "hand"), hand);
+    glProgramUniform1ui(p, glGetUniformLocation(p, "epoch"), epoch_);
+    glProgramUniform3dv(p, glGetUniformLocation(p, "centre"), 1, pose.position.data());
+    glProgramUniformMatrix3dv(p, glGetUniformLocation(p, "rotation"), 1, GL_FALSE, rotation.data());
+    glProgramUniform3dv(p, glGetUniformLocation(p, "semi_axes"), 1, instrument.semi_axes.data());
+    glProgramUniform1d(p, glGetUniformLocation(p, "tolerance"), tolerance_);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_positions, positions_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_counters, counters_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_mark, gl_->mark);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_picked, gl_->picked);
+    std::size_t invocations = surface_count_;
+    if (picking) {
+        glProgramUniform1i(p, glGetUniformLocation(p, "resolution"), h.resolution);
+        glProgramUniform3dv(p, glGetUniformLocation(p, "render_centre"), 1, h.centre.data());
+        glProgramUniformMatrix3dv(p, glGetUniformLocation(p, "render_to_tool"), 1, GL_FALSE, h.to_tool.data());
+        glProgramUniform1d(p, glGetUniformLocation(p, "render_half_width"), h.half_width);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_samples, gl_->samples);
+        glBindTextureUnit(unit_index, h.index);
+        invocations = sample_count_;
+    } else {
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_surface, gl_->surface);
+    }
+    GLint previous_program = 0;
+    glGetIntegerv(GL_CURRENT_PROGRAM, &previous_program);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_TEXTURE_FETCH_BARRIER_BIT | GL_FRAMEBUFFER_BARRIER_BIT);
+    glUseProgram(p);
+    glDispatchCompute(GLuint((invocations + 63) / 64), 1, 1);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    glUseProgram(GLuint(previous_program));
+    if (picking) glBindTextureUnit(unit_index, 0);
+}
+
+}  // namespace heartsim

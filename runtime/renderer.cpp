@@ -1,0 +1,692 @@
+// The visualisation step: the mapped visual mesh (or the simulation surface), lit, with the
+// instruments, into an offscreen framebuffer. renderer.h; docs/runtime.md "Rendering".
+#include "renderer.h"
+
+#include "gl_context.h"
+
+#include "libmodel/errors.h"
+#include "libmodel/mapping.h"
+
+#include <epoxy/gl.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <deque>
+#include <sstream>
+
+namespace heartsim {
+
+namespace {
+
+// Binding points of the renderer's passes (rebound before each use; the backend rebinds its own).
+enum RenderBinding : unsigned { positions_binding = 0, incidence_start_binding = 1, incidence_binding = 2, normals_binding = 3,
+                                surface_particles_binding = 4 };
+
+/// Particle normals (libmodel particle_normals, same float operations in the same order): one
+/// invocation per surface particle sums the area vectors of its counted triangles in row order
+/// (the incidence list keeps it), then normalises; (x·x) + ... as Eigen's 3-term dot:
+/// x·x + (y·y + z·z).
+constexpr const char* normals_shader = R"(#version 430 core
+layout(local_size_x = 64) in;
+layout(std430, binding = 0) readonly buffer PositionBuffer { vec4 x[]; };
+layout(std430, binding = 1) readonly buffer StartBuffer { uint start[]; };
+layout(std430, binding = 2) readonly buffer IncidenceBuffer { ivec4 triangle[]; };
+layout(std430, binding = 3) writeonly buffer NormalBuffer { vec4 normal[]; };
+layout(std430, binding = 4) readonly buffer SurfaceBuffer { uint surface_particle[]; };
+uniform uint surface_count;
+void main() {
+    uint k = gl_GlobalInvocationID.x;
+    if (k >= surface_count) return;
+    precise vec3 sum = vec3(0.0);
+    for (uint e = start[k]; e < start[k + 1u]; ++e) {
+        ivec4 t = triangle[e];
+        vec3 a = x[t.x].xyz, b = x[t.y].xyz, c = x[t.z].xyz;
+        precise vec3 u = b - a;
+        precise vec3 v = c - a;
+        precise vec3 area = vec3(u.y * v.z - u.z * v.y, u.z * v.x - u.x * v.z, u.x * v.y - u.y * v.x);
+        sum = sum + area;
+    }
+    precise float length2 = sum.x * sum.x + (sum.y * sum.y + sum.z * sum.z);
+    precise float len = sqrt(length2);
+    normal[surface_particle[k]] = len > 0.0 ? vec4(sum / len, 0.0) : vec4(0.0);
+}
+)";
+
+/// The mapping (libmodel apply_mapping, float32, same order). Its output world_position is what
+/// transform feedback captures for the tests.
+constexpr const char* mesh_vertex_shader = R"(#version 430 core
+layout(std430, binding = 0) readonly buffer PositionBuffer { vec4 x[]; };
+layout(std430, binding = 3) readonly buffer NormalBuffer { vec4 n[]; };
+layout(location = 0) in ivec3 particle;         // the simulation-surface triangle's particles a, b, c
+layout(location = 1) in vec3 lambda;            // barycentric weights
+layout(location = 2) in float offset;           // d, mm
+layout(location = 3) in vec3 rest_normal;       // the visual vertex's normal at rest (0: flat shading)
+layout(location = 4) in vec3 rest_frame_normal; // normalised interpolated particle normal at rest
+uniform mat4 view_projection;
+out vec3 world_position;
+out vec3 shading_normal;
+void main() {
+    vec3 xa = x[particle.x].xyz, xb = x[particle.y].xyz, xc = x[particle.z].xyz;
+    vec3 na = n[particle.x].xyz, nb = n[particle.y].xyz, nc = n[particle.z].xyz;
+    precise vec3 p = (lambda.x * xa + lambda.y * xb) + lambda.z * xc;
+    precise vec3 m = (lambda.x * na + lambda.y * nb) + lambda.z * nc;
+    precise float m2 = m.x * m.x + (m.y * m.y + m.z * m.z);
+    precise float len = sqrt(m2);
+    if (len > 0.0) p = p + offset * (m / len);
+    world_position = p;
+    // Shading: the rest normal turned by the rotation taking the rest interpolated normal to
+    // the current one (Rodrigues), so the detailed mesh keeps its detail as it deforms.
+    vec3 s = rest_normal;
+    if (len > 0.0 && dot(rest_frame_normal, rest_frame_normal) > 0.5) {
+        vec3 b = m / len, a = rest_frame_normal;
+        float c = dot(a, b);
+        vec3 k = cross(a, b);
+        s = c > -0.99 ? s * c + cross(k, s) + k * (dot(k, s) / (1.0 + c)) : b;
+    }
+    shading_normal = s;
+    gl_Position = view_projection * vec4(p, 1.0);
+}
+)";
+
+constexpr const char* instrument_vertex_shader = R"(#version 430 core
+layout(location = 0) in vec3 unit;              // a point of the unit sphere (also its normal)
+uniform mat4 view_projection;
+uniform mat4 model;                             // translate · rotate · scale(semi-axes)
+uniform mat3 normal_matrix;                     // rotate · scale⁻¹
+out vec3 world_position;
+out vec3 shading_normal;
+void main() {
+    vec4 w = model * vec4(unit, 1.0);
+    world_position = w.xyz;
+    shading_normal = normal_matrix * unit;
+    gl_Position = view_projection * w;
+}
+)";
+
+/// Two directional lights fixed to the camera, Blinn-Phong, two-sided; a zero shading normal
+/// (the simulation surface) gives the flat face normal from screen-space derivatives.
+constexpr const char* fragment_shader = R"(#version 430 core
+in vec3 world_position;
+in vec3 shading_normal;
+uniform vec3 eye;
+uniform vec3 key_light;
+uniform vec3 fill_light;
+uniform vec3 base_color;
+uniform float specular;
+out vec4 colour;
+void main() {
+    vec3 nrm = shading_normal;
+    if (dot(nrm, nrm) < 1e-12) nrm = cross(dFdx(world_position), dFdy(world_position));
+    vec3 v = normalize(eye - world_position);
+    nrm = dot(nrm, nrm) > 1e-20 ? normalize(nrm) : v;
+    if (dot(nrm, v) < 0.0) nrm = -nrm;
+    float diffuse = 0.62 * max(dot(nrm, key_light), 0.0) + 0.28 * max(dot(nrm, fill_light), 0.0);
+    vec3 h = normalize(key_light + v);
+    float shine = specular * pow(max(dot(nrm, h), 0.0), 32.0);
+    colour = vec4(min(base_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), 1.0);
+}
+)";
+
+struct VertexRecord {
+    std::int32_t particle[3];
+    float lambda[3];
+    float offset;
+    float rest_normal[3];
+    float rest_frame_normal[3];
+};
+static_assert(sizeof(VertexRecord) == 52);
+
+void check(const char* what) {
+    const GLenum error = glGetError();
+    if (error != GL_NO_ERROR) {
+        std::ostringstream s;
+        s << "renderer: OpenGL error 0x" << std::hex << error << " while " << what;
+        throw std::runtime_error(s.str());
+    }
+}
+
+GLuint compile(GLenum stage, const char* source, const char* name) {
+    const GLuint shader = glCreateShader(stage);
+    glShaderSource(shader, 1, &source, nullptr);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
+        glDeleteShader(shader);
+        throw GlUnavailable(std::string("renderer: the ") + name + " shader does not compile on this driver: " + log);
+    }
+    return shader;
+}
+
+GLuint link(std::initializer_list<GLuint> shaders, const char* name, const char* feedback_varying = nullptr) {
+    const GLuint program = glCreateProgram();
+    for (GLuint s : shaders) glAttachShader(program, s);
+    if (feedback_varying) glTransformFeedbackVaryings(program, 1, &feedback_varying, GL_INTERLEAVED_ATTRIBS);
+    glLinkProgram(program);
+    for (GLuint s : shaders) glDeleteShader(s);
+    GLint ok = 0;
+    glGetProgramiv(program, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetProgramInfoLog(program, sizeof log, nullptr, log);
+        glDeleteProgram(program);
+        throw GlUnavailable(std::string("renderer: the ") + name + " program does not link: " + log);
+    }
+    return program;
+}
+
+GLuint buffer_with(const void* data, std::size_t bytes, GLbitfield flags = 0) {
+    GLuint id = 0;
+    glCreateBuffers(1, &id);
+    glNamedBufferStorage(id, GLsizeiptr(std::max<std::size_t>(bytes, 16)), bytes ? data : nullptr, flags);
+    return id;
+}
+
+Eigen::Vector3f to_vector(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
+
+/// Camera basis (right, up, back) for each named view, world LPS.
+Eigen::Matrix3f view_basis(ViewDirection view) {
+    Eigen::Vector3f back, up;
+    switch (view) {
+        case ViewDirection::anterior: back = {0, -1, 0}, up = {0, 0, 1}; break;
+        case ViewDirection::posterior: back = {0, 1, 0}, up = {0, 0, 1}; break;
+        case ViewDirection::left: back = {1, 0, 0}, up = {0, 0, 1}; break;
+        case ViewDirection::right: back = {-1, 0, 0}, up = {0, 0, 1}; break;
+        case ViewDirection::superior: back = {0, 0, 1}, up = {0, -1, 0}; break;
+        case ViewDirection::inferior: back = {0, 0, -1}, up = {0, -1, 0}; break;
+    }
+    Eigen::Matrix3f basis;
+    basis.col(0) = up.cross(back);
+    basis.col(1) = up;
+    basis.col(2) = back;
+    return basis;
+}
+
+/// The unit sphere the instruments are drawn with (latitude-longitude, 32 × 16).
+void unit_sphere(std::vector<float>& vertices, std::vector<std::uint32_t>& indices) {
+    constexpr int slices = 32, stacks = 16;
+    const double pi = 3.14159265358979323846;
+    for (int i = 0; i <= stacks; ++i) {
+        const double theta = pi * i / stacks;
+        for (int j = 0; j <= slices; ++j) {
+            const double phi = 2 * pi * j / slices;
+            vertices.push_back(float(std::sin(theta) * std::cos(phi)));
+            vertices.push_back(float(std::sin(theta) * std::sin(phi)));
+            vertices.push_back(float(std::cos(theta)));
+        }
+    }
+    for (int i = 0; i < stacks; ++i)
+        for (int j = 0; j < slices; ++j) {
+            const std::uint32_t a = std::uint32_t(i * (slices + 1) + j), b = a + slices + 1;
+            indices.insert(indices.end(), {a, b, a + 1, a + 1, b, b + 1});
+        }
+}
+
+}  // namespace
+
+ViewDirection parse_view_direction(const std::string& name) {
+    if (name == "anterior") return ViewDirection::anterior;
+    if (name == "posterior") return ViewDirection::posterior;
+    if (name == "left") return ViewDirection::left;
+    if (name == "right") return ViewDirection::right;
+    if (name == "superior") return ViewDirection::superior;
+    if (name == "inferior") return ViewDirection::inferior;
+    throw InputError("--view '" + name + "': expected anterior, posterior, left, right, superior or inferior");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Camera
+
+Eigen::Vector3f Camera::eye() const { return target + orientation * Eigen::Vector3f(0, 0, distance); }
+
+Eigen::Matrix4f Camera::view() const {
+    const Eigen::Matrix3f r = orientation.toRotationMatrix().transpose();
+    Eigen::Matrix4f m = Eigen::Matrix4f::Identity();
+    m.topLeftCorner<3, 3>() = r;
+    m.topRightCorner<3, 1>() = -(r * eye());
+    return m;
+}
+
+Eigen::Matrix4f Camera::projection(float aspect) const {
+    const float f = 1.0f / std::tan(0.5f * fov_y_degrees * float(M_PI) / 180.0f);
+    const float near_plane = std::max(distance - 2.0f * radius, 0.01f * radius), far_plane = distance + 2.0f * radius;
+    Eigen::Matrix4f m = Eigen::Matrix4f::Zero();
+    m(0, 0) = f / aspect;
+    m(1, 1) = f;
+    m(2, 2) = (far_plane + near_plane) / (near_plane - far_plane);
+    m(2, 3) = 2.0f * far_plane * near_plane / (near_plane - far_plane);
+    m(3, 2) = -1.0f;
+    return m;
+}
+
+void Camera::orbit(float yaw, float pitch) {
+    const Eigen::Vector3f right = orientation * Eigen::Vector3f::UnitX();
+    orientation = Eigen::AngleAxisf(yaw, turntable_axis.normalized()) * Eigen::AngleAxisf(pitch, right) * orientation;
+    orientation.normalize();
+}
+
+void Camera::pan(float dx, float dy, int height) {
+    const float mm_per_pixel = 2.0f * distance * std::tan(0.5f * fov_y_degrees * float(M_PI) / 180.0f) / float(std::max(height, 1));
+    target += orientation * Eigen::Vector3f(-dx * mm_per_pixel, dy * mm_per_pixel, 0.0f);
+}
+
+void Camera::zoom(float factor) { distance = std::clamp(distance * factor, 0.05f * radius, 20.0f * radius); }
+
+Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspect) {
+    Camera camera;
+    camera.target = box.center();
+    camera.radius = std::max(0.5f * box.diagonal().norm(), 1e-3f);
+    const Eigen::Matrix3f basis = view_basis(view);
+    camera.orientation = Eigen::Quaternionf(basis);
+    camera.turntable_axis = basis.col(1);
+    // The nearest distance at which every corner of the box lies inside the frustum, plus 5 %.
+    const float tan_y = std::tan(0.5f * camera.fov_y_degrees * float(M_PI) / 180.0f), tan_x = tan_y * aspect;
+    float distance = 0.0f;
+    for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector3f c = basis.transpose() * (box.corner(Eigen::AlignedBox3f::CornerType(corner)) - camera.target);
+        distance = std::max({distance, c.z() + std::abs(c.x()) / tan_x, c.z() + std::abs(c.y()) / tan_y});
+    }
+    camera.distance = 1.05f * distance;
+    return camera;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Renderer
+
+struct Renderer::State {
+    bool visual = false;
+    std::size_t particles = 0, vertices = 0, triangles = 0, surface_particles = 0;
+    std::size_t memory = 0;
+    int width = 0, height = 0;
+    RenderOptions options;
+    Eigen::AlignedBox3f box;
+    Camera camera;
+
+    GLuint normals_program = 0, mesh_program = 0, instrument_program = 0;
+    GLuint records = 0, elements = 0, vao = 0;
+    GLuint incidence_start = 0, incidence = 0, surface_list = 0, normals = 0;
+    GLuint own_positions = 0;  // cpu backend: uploaded per frame
+    GLuint sphere_vertices = 0, sphere_elements = 0, sphere_vao = 0;
+    GLsizei sphere_index_count = 0;
+    GLuint fbo = 0, colour_rb = 0, depth_rb = 0;
+    GLuint feedback = 0;  // transform feedback capture buffer (lazily)
+
+    struct Pending { GLuint queries[3] = {0, 0, 0}; bool normals = false; };
+    std::deque<Pending> pending;
+    RenderTimes times;
+
+    ~State() {
+        for (auto& p : pending) glDeleteQueries(3, p.queries);
+        for (GLuint program : {normals_program, mesh_program, instrument_program})
+            if (program) glDeleteProgram(program);
+        for (GLuint b : {records, elements, incidence_start, incidence, surface_list, normals, own_positions, sphere_vertices, sphere_elements,
+                         feedback})
+            if (b) glDeleteBuffers(1, &b);
+        for (GLuint v : {vao, sphere_vao})
+            if (v) glDeleteVertexArrays(1, &v);
+        if (fbo) glDeleteFramebuffers(1, &fbo);
+        for (GLuint r : {colour_rb, depth_rb})
+            if (r) glDeleteRenderbuffers(1, &r);
+    }
+
+    void make_framebuffer(int w, int h) {
+        if (fbo) glDeleteFramebuffers(1, &fbo), fbo = 0;
+        for (GLuint* r : {&colour_rb, &depth_rb})
+            if (*r) glDeleteRenderbuffers(1, r), *r = 0;
+        width = std::max(w, 1), height = std::max(h, 1);
+        glCreateRenderbuffers(1, &colour_rb);
+        glNamedRenderbufferStorage(colour_rb, GL_RGBA8, width, height);
+        glCreateRenderbuffers(1, &depth_rb);
+        glNamedRenderbufferStorage(depth_rb, GL_DEPTH_COMPONENT24, width, height);
+        glCreateFramebuffers(1, &fbo);
+        glNamedFramebufferRenderbuffer(fbo, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, colour_rb);
+        glNamedFramebufferRenderbuffer(fbo, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_rb);
+        if (glCheckNamedFramebufferStatus(fbo, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
+            throw GlUnavailable("renderer: the offscreen framebuffer (RGBA8 + depth 24) is not supported by this driver");
+        check("creating the offscreen framebuffer");
+    }
+
+    /// The position buffer to read: the gl backend's own, or ours after an upload (cpu).
+    GLuint positions_of(Backend& backend) {
+        const GLuint id = backend.gl_position_buffer();
+        if (id) {
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+            return id;
+        }
+        const auto start = std::chrono::steady_clock::now();
+        const auto p = backend.positions();
+        std::vector<float> packed(4 * particles, 0.0f);
+        for (std::size_t i = 0; i < std::min(particles, p.size()); ++i)
+            for (int c = 0; c < 3; ++c) packed[4 * i + std::size_t(c)] = p[i][std::size_t(c)];
+        if (!own_positions) {
+            own_positions = buffer_with(nullptr, packed.size() * sizeof(float), GL_DYNAMIC_STORAGE_BIT);
+            memory += packed.size() * sizeof(float);
+        }
+        glNamedBufferSubData(own_positions, 0, GLsizeiptr(packed.size() * sizeof(float)), packed.data());
+        times.upload_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        ++times.uploads;
+        return own_positions;
+    }
+
+    void normals_pass(GLuint positions) {
+        if (!visual) return;
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, positions_binding, positions);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, incidence_start_binding, incidence_start);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, incidence_binding, incidence);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, normals_binding, normals);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, surface_particles_binding, surface_list);
+        glUseProgram(normals_program);
+        glDispatchCompute(GLuint((surface_particles + 63) / 64), 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+    }
+
+    void bind_mesh(GLuint positions) {
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, positions_binding, positions);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, normals_binding, normals);
+        glUseProgram(mesh_program);
+        glBindVertexArray(vao);
+    }
+
+    void harvest(bool wait) {
+        while (!pending.empty()) {
+            Pending& p = pending.front();
+            if (!wait) {
+                GLint available = 0;
+                glGetQueryObjectiv(p.queries[2], GL_QUERY_RESULT_AVAILABLE, &available);
+                if (!available) break;
+            }
+            GLuint64 t[3] = {0, 0, 0};
+            for (int k = 0; k < 3; ++k) glGetQueryObjectui64v(p.queries[k], GL_QUERY_RESULT, &t[k]);
+            if (p.normals) times.normals_ms += double(t[1] - t[0]) * 1e-6, ++times.normals_calls;
+            times.draw_ms += double(t[2] - t[1]) * 1e-6;
+            ++times.frames;
+            glDeleteQueries(3, p.queries);
+            pending.pop_front();
+        }
+    }
+};
+
+Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : state_(std::make_unique<State>()) {
+    State& s = *state_;
+    s.options = options;
+    const auto& rest = scenario.lattice.particles.rest_position;
+    s.particles = rest.size();
+    if (!scenario.simulation_surface || scenario.simulation_surface->empty())
+        throw InputError("rendering needs the group /simsurface (the simulation surface, for the mapping or to be drawn itself); rebuild "
+                         "the scenario with heartprep, or run --headless without --screenshot");
+    const SimulationSurface& surface = *scenario.simulation_surface;
+    s.visual = scenario.visual && scenario.mapping && !scenario.visual->positions.empty();
+
+    GLint vertex_blocks = 0;
+    glGetIntegerv(GL_MAX_VERTEX_SHADER_STORAGE_BLOCKS, &vertex_blocks);
+    if (vertex_blocks < 2)
+        throw GlUnavailable("renderer: the vertex stage of this OpenGL (" + std::to_string(vertex_blocks) +
+                            " shader storage blocks) cannot read the particle buffers; run --headless without --screenshot");
+
+    std::vector<VertexRecord> records;
+    std::vector<std::uint32_t> elements;
+    if (s.visual) {
+        const VisualMesh& visual = *scenario.visual;
+        const VisualMapping& mapping = *scenario.mapping;
+        // Rest interpolated normals (for turning the visual normals as the mesh deforms).
+        const std::vector<Eigen::Vector3f> rest_normals = particle_normals(rest, surface);
+        records.resize(visual.positions.size());
+        for (std::size_t v = 0; v < records.size(); ++v) {
+            const auto& t = surface.triangles[std::size_t(mapping.triangle[v])];
+            const auto& l = mapping.barycentric[v];
+            VertexRecord& r = records[v];
+            Eigen::Vector3f m = Eigen::Vector3f::Zero();
+            for (int k = 0; k < 3; ++k) {
+                r.particle[k] = t[std::size_t(k)];
+                r.lambda[k] = l[std::size_t(k)];
+                r.rest_normal[k] = visual.normals.size() == visual.positions.size() ? visual.normals[v][std::size_t(k)] : 0.0f;
+                m += l[std::size_t(k)] * rest_normals[std::size_t(t[std::size_t(k)])];
+            }
+            r.offset = mapping.offset[v];
+            const float length = m.norm();
+            for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
+            s.box.extend(to_vector(visual.positions[v]));
+        }
+        for (const auto& t : visual.triangles)
+            for (int k = 0; k < 3; ++k) elements.push_back(std::uint32_t(t[std::size_t(k)]));
+
+        // Incidence list over the counted triangles, per surface particle in row order (counting sort).
+        std::vector<std::uint32_t> count(s.particles, 0);
+        for (std::size_t row = 0; row < surface.triangles.size(); ++row)
+            if (surface.normal_weight[row])
+                for (int v : surface.triangles[row]) ++count[std::size_t(v)];
+        std::vector<std::uint32_t> surface_list, start{0}, slot_of(s.particles, 0);
+        for (std::size_t i = 0; i < s.particles; ++i)
+            if (count[i]) {
+                slot_of[i] = start.back();
+                surface_list.push_back(std::uint32_t(i));
+                start.push_back(start.back() + count[i]);
+            }
+        std::vector<std::array<std::int32_t, 4>> incidence(start.back());
+        for (std::size_t row = 0; row < surface.triangles.size(); ++row) {
+            if (!surface.normal_weight[row]) continue;
+            const auto& t = surface.triangles[row];
+            for (int v : t) incidence[slot_of[std::size_t(v)]++] = {t[0], t[1], t[2], 0};
+        }
+        s.surface_particles = surface_list.size();
+        s.incidence_start = buffer_with(start.data(), start.size() * 4);
+        s.incidence = buffer_with(incidence.data(), incidence.size() * 16);
+        s.surface_list = buffer_with(surface_list.data(), surface_list.size() * 4);
+        s.memory += start.size() * 4 + incidence.size() * 16 + surface_list.size() * 4;
+        s.normals_program = link({compile(GL_COMPUTE_SHADER, normals_shader, "normals")}, "normals");
+        glProgramUniform1ui(s.normals_program, glGetUniformLocation(s.normals_program, "surface_count"), GLuint(s.surface_particles));
+    } else {
+        // The simulation surface itself: one record per particle, (i, i, i), λ = (1, 0, 0), d = 0
+        // (the same shader gives p = x_i exactly); flat shaded, no normals pass.
+        records.resize(s.particles);
+        for (std::size_t i = 0; i < s.particles; ++i) records[i] = {{std::int32_t(i), std::int32_t(i), std::int32_t(i)}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}};
+        for (const auto& t : surface.triangles)
+            for (int k = 0; k < 3; ++k) {
+                elements.push_back(std::uint32_t(t[std::size_t(k)]));
+                s.box.extend(to_vector(rest[std::size_t(t[std::size_t(k)])]));
+            }
+    }
+    s.vertices = records.size();
+    s.triangles = elements.size() / 3;
+    // Normals: written by the pass for surface particles, zero elsewhere (and everywhere without
+    // a visual mesh, where m = 0 leaves p unchanged).
+    s.normals = buffer_with(std::vector<float>(4 * s.particles, 0.0f).data(), 16 * s.particles);
+    s.records = buffer_with(records.data(), records.size() * sizeof(VertexRecord));
+    s.elements = buffer_with(elements.data(), elements.size() * 4);
+    s.memory += 16 * s.particles + records.size() * sizeof(VertexRecord) + elements.size() * 4;
+
+    glCreateVertexArrays(1, &s.vao);
+    glVertexArrayVertexBuffer(s.vao, 0, s.records, 0, sizeof(VertexRecord));
+    glVertexArrayElementBuffer(s.vao, s.elements);
+    for (GLuint a = 0; a < 5; ++a) {
+        glEnableVertexArrayAttrib(s.vao, a);
+        glVertexArrayAttribBinding(s.vao, a, 0);
+    }
+    glVertexArrayAttribIFormat(s.vao, 0, 3, GL_INT, offsetof(VertexRecord, particle));
+    glVertexArrayAttribFormat(s.vao, 1, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, lambda));
+    glVertexArrayAttribFormat(s.vao, 2, 1, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, offset));
+    glVertexArrayAttribFormat(s.vao, 3, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_normal));
+    glVertexArrayAttribFormat(s.vao, 4, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_frame_normal));
+
+    std::vector<float> sphere;
+    std::vector<std::uint32_t> sphere_indices;
+    unit_sphere(sphere, sphere_indices);
+    s.sphere_vertices = buffer_with(sphere.data(), sphere.size() * 4);
+    s.sphere_elements = buffer_with(sphere_indices.data(), sphere_indices.size() * 4);
+    s.sphere_index_count = GLsizei(sphere_indices.size());
+    glCreateVertexArrays(1, &s.sphere_vao);
+    glVertexArrayVertexBuffer(s.sphere_vao, 0, s.sphere_vertices, 0, 12);
+    glVertexArrayElementBuffer(s.sphere_vao, s.sphere_elements);
+    glEnableVertexArrayAttrib(s.sphere_vao, 0);
+    glVertexArrayAttribBinding(s.sphere_vao, 0, 0);
+    glVertexArrayAttribFormat(s.sphere_vao, 0, 3, GL_FLOAT, GL_FALSE, 0);
+
+    s.mesh_program = link({compile(GL_VERTEX_SHADER, mesh_vertex_shader, "mapping vertex"),
+                           compile(GL_FRAGMENT_SHADER, fragment_shader, "fragment")},
+                          "mesh", "world_position");
+    s.instrument_program = link({compile(GL_VERTEX_SHADER, instrument_vertex_shader, "instrument vertex"),
+                                 compile(GL_FRAGMENT_SHADER, fragment_shader, "fragment")},
+                                "instrument");
+    s.make_framebuffer(options.width, options.height);
+    s.memory += std::size_t(s.width) * std::size_t(s.height) * 8;
+    reset_camera();
+    check("setting up the renderer");
+}
+
+Renderer::~Renderer() = default;
+
+bool Renderer::draws_visual_mesh() const { return state_->visual; }
+std::size_t Renderer::vertex_count() const { return state_->vertices; }
+std::size_t Renderer::triangle_count() const { return state_->triangles; }
+int Renderer::width() const { return state_->width; }
+int Renderer::height() const { return state_->height; }
+Camera& Renderer::camera() { return state_->camera; }
+std::size_t Renderer::memory_bytes() const { return state_->memory; }
+
+void Renderer::reset_camera() {
+    state_->camera = fit_camera(state_->box, state_->options.view, float(state_->width) / float(state_->height));
+}
+
+void Renderer::resize(int width, int height) {
+    if (width == state_->width && height == state_->height) return;
+    state_->make_framebuffer(width, height);
+}
+
+void Renderer::render(Backend& backend, const std::vector<InstrumentShape>& instruments) {
+    State& s = *state_;
+    s.harvest(false);
+    State::Pending timing;
+    timing.normals = s.visual;
+    glGenQueries(3, timing.queries);
+    const GLuint positions = s.positions_of(backend);
+
+    glQueryCounter(timing.queries[0], GL_TIMESTAMP);
+    s.normals_pass(positions);
+    glQueryCounter(timing.queries[1], GL_TIMESTAMP);
+
+    glBindFramebuffer(GL_FRAMEBUFFER, s.fbo);
+    glViewport(0, 0, s.width, s.height);
+    glEnable(GL_DEPTH_TEST);
+    glDepthFunc(GL_LESS);
+    glDisable(GL_CULL_FACE);  // thin walls are double-sided sheets; lighting is two-sided
+    glClearColor(0.10f, 0.11f, 0.14f, 1.0f);
+    glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+
+    const Camera& camera = s.camera;
+    const Eigen::Matrix4f view_projection = camera.projection(float(s.width) / float(s.height)) * camera.view();
+    const Eigen::Matrix3f basis = camera.orientation.toRotationMatrix();
+    const Eigen::Vector3f eye = camera.eye();
+    const Eigen::Vector3f key = basis * Eigen::Vector3f(-0.35f, 0.55f, 0.75f).normalized();
+    const Eigen::Vector3f fill = basis * Eigen::Vector3f(0.6f, -0.25f, 0.5f).normalized();
+    for (GLuint program : {s.mesh_program, s.instrument_program}) {
+        glProgramUniformMatrix4fv(program, glGetUniformLocation(program, "view_projection"), 1, GL_FALSE, view_projection.data());
+        glProgramUniform3fv(program, glGetUniformLocation(program, "eye"), 1, eye.data());
+        glProgramUniform3fv(program, glGetUniformLocation(program, "key_light"), 1, key.data());
+        glProgramUniform3fv(program, glGetUniformLocation(program, "fill_light"), 1, fill.data());
+    }
+    glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "base_color"), 0.80f, 0.33f, 0.30f);
+    glProgramUniform1f(s.mesh_program, glGetUniformLocation(s.mesh_program, "specular"), 0.18f);
+    s.bind_mesh(positions);
+    glDrawElements(GL_TRIANGLES, GLsizei(3 * s.triangles), GL_UNSIGNED_INT, nullptr);
+
+    if (!instruments.empty()) {
+        const GLuint p = s.instrument_program;
+        glUseProgram(p);
+        glBindVertexArray(s.sphere_vao);
+        glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.45f);
+        for (const InstrumentShape& shape : instruments) {
+            if (shape.kind == InstrumentKind::none) continue;
+            const Eigen::Matrix3f rotation = shape.pose.orientation.normalized().toRotationMatrix().cast<float>();
+            const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
+            Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
+            model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
+            model.topRightCorner<3, 1>() = shape.pose.position.cast<float>();
+            const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
+            glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
+            glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
+            if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
+            else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
+            glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+        }
+    }
+    glQueryCounter(timing.queries[2], GL_TIMESTAMP);
+    glBindVertexArray(0);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    s.pending.push_back(timing);
+    check("rendering a frame");
+}
+
+Image Renderer::read_pixels() {
+    State& s = *state_;
+    Image image;
+    image.width = s.width;
+    image.height = s.height;
+    image.channels = 3;
+    std::vector<std::uint8_t> raw(std::size_t(s.width) * std::size_t(s.height) * 3);
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, s.fbo);
+    glNamedFramebufferReadBuffer(s.fbo, GL_COLOR_ATTACHMENT0);
+    glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadPixels(0, 0, s.width, s.height, GL_RGB, GL_UNSIGNED_BYTE, raw.data());
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    check("reading the frame back");
+    image.pixels.resize(raw.size());
+    const std::size_t stride = std::size_t(s.width) * 3;
+    for (int y = 0; y < s.height; ++y)  // GL rows go bottom to top
+        std::copy_n(raw.begin() + std::ptrdiff_t(std::size_t(s.height - 1 - y) * stride), stride,
+                    image.pixels.begin() + std::ptrdiff_t(std::size_t(y) * stride));
+    return image;
+}
+
+void Renderer::present(int window_width, int window_height) {
+    State& s = *state_;
+    const bool same = window_width == s.width && window_height == s.height;
+    glBlitNamedFramebuffer(s.fbo, 0, 0, 0, s.width, s.height, 0, 0, window_width, window_height, GL_COLOR_BUFFER_BIT,
+                           same ? GL_NEAREST : GL_LINEAR);
+    check("presenting the frame");
+}
+
+std::vector<std::array<float, 3>> Renderer::capture_vertices(Backend& backend) {
+    State& s = *state_;
+    const GLuint positions = s.positions_of(backend);
+    s.normals_pass(positions);
+    const std::size_t bytes = s.vertices * 12;
+    if (!s.feedback) s.feedback = buffer_with(nullptr, bytes, 0);
+    s.bind_mesh(positions);
+    glBindFramebuffer(GL_FRAMEBUFFER, s.fbo);  // a complete framebuffer even with the rasteriser off (surfaceless EGL has none)
+    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, 0, s.feedback);
+    glEnable(GL_RASTERIZER_DISCARD);
+    glBeginTransformFeedback(GL_POINTS);
+    glDrawArrays(GL_POINTS, 0, GLsizei(s.vertices));
+    glEndTransformFeedback();
+    glDisable(GL_RASTERIZER_DISCARD);
+    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, 0, 0);
+    glBindVertexArray(0);
+    glBindFramebuffer(GL_FRAMEBUFFER, 0);
+    glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    std::vector<std::array<float, 3>> out(s.vertices);
+    glGetNamedBufferSubData(s.feedback, 0, GLsizeiptr(bytes), out.data());
+    check("capturing the mapped vertices (transform feedback)");
+    return out;
+}
+
+std::vector<std::array<float, 3>> Renderer::read_particle_normals() {
+    State& s = *state_;
+    glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+    std::vector<float> raw(4 * s.particles);
+    glGetNamedBufferSubData(s.normals, 0, GLsizeiptr(raw.size() * 4), raw.data());
+    check("reading the particle normals");
+    std::vector<std::array<float, 3>> out(s.particles);
+    for (std::size_t i = 0; i < s.particles; ++i) out[i] = {raw[4 * i], raw[4 * i + 1], raw[4 * i + 2]};
+    return out;
+}
+
+RenderTimes Renderer::times(bool wait) {
+    state_->harvest(wait);
+    return state_->times;
+}
+
+}  // namespace heartsim

@@ -1,0 +1,141 @@
+/// @file renderer.h
+/// @brief The visualisation step (issue 5 item 4): the detailed visual mesh deformed in the
+/// vertex shader from the particle positions and per-frame particle normals, by the mapping
+/// formula of libmodel/mapping.h in the same float32 order, with no per-frame upload on the gl
+/// backend. Without /visual (or /mapping) the simulation surface is drawn instead (flat shaded,
+/// no normals pass). Instruments are drawn as their ellipsoids. Everything goes into an
+/// offscreen framebuffer: read back for screenshots, blitted to the window in window mode.
+///
+///     Renderer renderer(scenario, {.width = 1024, .height = 768});   // current GL context
+///     renderer.render(*backend, instruments);      // gl: positions read in place; cpu: uploaded
+///     write_png("shot.png", renderer.read_pixels());
+///
+/// Passes per frame (each timed with GL_TIMESTAMP queries, harvested without waiting):
+///   * normals (compute, visual mesh only): n_i = normalise(Σ area vectors of the counted
+///     simulation-surface triangles containing i), one invocation per surface particle gathering
+///     over an incidence list built at load, in triangle-row order: the same sum, in the same
+///     order, as libmodel's particle_normals; no atomics, deterministic;
+///   * visualisation: the mapped mesh (vertex shader: p = (λa·x_a + λb·x_b) + λc·x_c,
+///     m = (λa·n_a + λb·n_b) + λc·n_c, p + d·(m/√(m·m)), written with `precise`), lit, then the
+///     instruments.
+#pragma once
+
+#include "backend.h"
+#include "png.h"
+
+#include "formats/scenario.h"
+
+#include <Eigen/Geometry>
+
+#include <array>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// The default views, named by where the camera stands (world frame LPS: +x left, +y posterior,
+/// +z superior). anterior (the default): the camera in front of the patient looking posterior,
+/// superior up, the patient's left on the image's right (as facing the patient).
+enum class ViewDirection { anterior, posterior, left, right, superior, inferior };
+/// "anterior", "posterior", "left", "right", "superior" or "inferior"; throws InputError otherwise.
+ViewDirection parse_view_direction(const std::string& name);
+
+/// An orbiting perspective camera (mm, world frame).
+struct Camera {
+    Eigen::Vector3f target = Eigen::Vector3f::Zero();            ///< orbit centre
+    float distance = 100.0f;                                     ///< eye to target
+    Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();  ///< camera → world (x right, y up, z back)
+    Eigen::Vector3f turntable_axis = Eigen::Vector3f::UnitZ();  ///< horizontal drags turn about this world axis
+    float fov_y_degrees = 30.0f;
+    float radius = 50.0f;                                        ///< the model's bounding-sphere radius (near/far, zoom limits)
+
+    Eigen::Vector3f eye() const;
+    Eigen::Matrix4f view() const;
+    Eigen::Matrix4f projection(float aspect) const;
+    /// Turns about the turntable axis by `yaw` and about the camera's right axis by `pitch` (radians).
+    void orbit(float yaw, float pitch);
+    /// Moves the target in the view plane by a drag of (dx, dy) pixels in a viewport `height` pixels high.
+    void pan(float dx, float dy, int height);
+    /// Multiplies the distance by `factor` (clamped to 0.05–20 model radii).
+    void zoom(float factor);
+};
+
+/// The camera that shows the whole box from `view`: the nearest distance at which all eight
+/// corners lie inside the frustum at `aspect` (width / height), plus 5 %.
+Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspect);
+
+struct RenderOptions {
+    int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
+    ViewDirection view = ViewDirection::anterior;
+};
+
+/// An instrument to draw: the ellipsoid of `semi_axes` (mm, tool frame) at `pose`.
+struct InstrumentShape {
+    InstrumentKind kind = InstrumentKind::probe;
+    InstrumentPose pose;
+    Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
+};
+
+/// Rendering times so far, ms summed (GPU timer queries; the cpu backend's position upload in
+/// wall clock).
+struct RenderTimes {
+    double normals_ms = 0.0;        ///< normals compute pass
+    double draw_ms = 0.0;           ///< visualisation step: mapped mesh + instruments
+    double upload_ms = 0.0;         ///< cpu backend only: positions() + buffer upload, wall clock
+    long long frames = 0;           ///< frames measured
+    long long normals_calls = 0;    ///< normals passes measured (0 without a visual mesh)
+    long long uploads = 0;
+};
+
+class Renderer {
+public:
+    /// Builds the static buffers (mapping records, triangles, incidence list) and shaders on the
+    /// current GL context. Throws InputError when the scenario has neither /visual with /mapping
+    /// nor /simsurface (naming the group), GlUnavailable when the GL cannot run it (no shader
+    /// storage in the vertex stage, a shader that does not compile).
+    Renderer(const Scenario& scenario, const RenderOptions& options);
+    ~Renderer();
+    Renderer(const Renderer&) = delete;
+    Renderer& operator=(const Renderer&) = delete;
+
+    /// True when the mapped visual mesh is drawn, false for the simulation surface.
+    bool draws_visual_mesh() const;
+    /// Vertices the vertex shader processes: visual vertices, or particles (simulation surface).
+    std::size_t vertex_count() const;
+    std::size_t triangle_count() const;
+    int width() const;
+    int height() const;
+
+    Camera& camera();
+    /// Back to the fitted default view.
+    void reset_camera();
+    /// Resizes the offscreen framebuffer (window resized); keeps the camera.
+    void resize(int width, int height);
+
+    /// Draws one frame of `backend`'s current positions with `instruments` into the offscreen
+    /// framebuffer: gl backend, read in place from its position buffer; cpu backend, uploaded.
+    void render(Backend& backend, const std::vector<InstrumentShape>& instruments);
+    /// The last frame, RGB, rows top to bottom. Waits for the GPU.
+    Image read_pixels();
+    /// Copies the last frame into the current context's default framebuffer (window mode).
+    void present(int window_width, int window_height);
+
+    /// The deformed visual vertices (V×3, mm) at `backend`'s current positions, captured from
+    /// the drawing vertex shader itself through transform feedback (rasteriser off). Runs the
+    /// normals pass first. For tests against libmodel's apply_mapping.
+    std::vector<std::array<float, 3>> capture_vertices(Backend& backend);
+    /// The particle normals of the last normals pass (N×3; zero off the surface). Waits.
+    std::vector<std::array<float, 3>> read_particle_normals();
+
+    /// Timings so far; `wait` waits for outstanding timer queries (end of run).
+    RenderTimes times(bool wait);
+    /// Device memory the renderer allocated, bytes.
+    std::size_t memory_bytes() const;
+
+private:
+    struct State;
+    std::unique_ptr<State> state_;
+};
+
+}  // namespace heartsim

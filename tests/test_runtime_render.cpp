@@ -1,0 +1,372 @@
+// The visualisation step (issue 5 item 4) and its outputs: the vertex-shader mapping against
+// libmodel's apply_mapping (read back through transform feedback from the drawing shader
+// itself), the normals pass against particle_normals, a headless screenshot of the phantom
+// against a golden image, the simulation surface drawn when there is no visual mesh, the
+// window mode under Xvfb, and the PNG writer. GL tests skip with a message where there is no
+// EGL/OpenGL 4.3 device; the window test where Xvfb is not installed.
+//
+// Golden image: tests/data/golden/phantom_rest.png. Regenerate (after an intended change of the
+// picture) with HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_render --gtest_filter='*Golden*'.
+#include "test_support.h"
+
+#include "formats/scenario.h"
+#include "libmodel/errors.h"
+#include "libmodel/mapping.h"
+#include "runtime/backend.h"
+#include "runtime/gl_context.h"
+#include "runtime/png.h"
+#include "runtime/renderer.h"
+#include "runtime/trajectory.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <optional>
+
+using namespace heartsim;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
+
+GlContext* shared_context(std::string* reason = nullptr) {
+    static std::optional<GlContext> context;
+    static std::string why;
+    static bool tried = false;
+    if (!tried) {
+        tried = true;
+        try {
+            context.emplace(GlContext::create_headless());
+        } catch (const std::exception& e) {
+            why = e.what();
+        }
+    }
+    if (reason) *reason = why;
+    return context ? &*context : nullptr;
+}
+
+#define REQUIRE_GL()                                                                                  \
+    do {                                                                                              \
+        std::string reason;                                                                           \
+        if (!shared_context(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;    \
+    } while (0)
+
+test::TempDir& scratch() {
+    static test::TempDir dir;
+    return dir;
+}
+
+/// The phantom scenario, built once with heartprep as users build it.
+const fs::path& phantom() {
+    static fs::path path;
+    if (path.empty()) {
+        const fs::path output = scratch() / "phantom.h5";
+        const auto run = test::run_command(std::string(quoted(HEARTPREP_EXE)) + " build " +
+                                           quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " + quoted(output) +
+                                           " --cavity 2 --anchor-border -q");
+        if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
+        path = output;
+    }
+    return path;
+}
+
+const Scenario& phantom_scenario() {
+    static std::optional<Scenario> scenario;
+    if (!scenario) scenario = read_scenario(phantom());
+    return *scenario;
+}
+
+test::CommandResult run_heartsim(const std::string& arguments) {
+    return test::run_command("timeout 600 " + quoted(HEARTSIM_EXE) + " " + arguments);
+}
+
+/// A probe pressing `depth_mm` into the phantom at its right-most free particle next to an
+/// anchor, over `steps` steps (the pattern of test_runtime_backend).
+Trajectory pressing_probe(const Scenario& scenario, int steps, double depth_mm) {
+    const auto& rest = scenario.lattice.particles.rest_position;
+    const auto& anchored = scenario.lattice.particles.anchored;
+    const auto& neighbours = scenario.packing->neighbours;
+    std::size_t right = 0;
+    bool have = false;
+    for (std::size_t i = 0; i < rest.size(); ++i) {
+        if (anchored[i]) continue;
+        if (std::none_of(neighbours[i].begin(), neighbours[i].end(), [&](std::int32_t j) { return j >= 0 && anchored[std::size_t(j)]; }))
+            continue;
+        if (!have || rest[i][0] > rest[right][0]) right = i, have = true;
+    }
+    const double spacing = scenario.lattice.spacing, radius = 1.5 * spacing, dt = scenario.solver.dt_ms;
+    const Eigen::Vector3d r(rest[right][0], rest[right][1], rest[right][2]);
+    Trajectory t;
+    for (int k = 0; k <= 2; ++k) {
+        InstrumentKeyframe key;
+        key.time_ms = k * steps * dt / 2;
+        key.hand = 0;
+        key.kind = InstrumentKind::probe;
+        key.semi_axes = Eigen::Vector3d(radius, 0.8 * radius, 1.2 * radius);
+        key.pose.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d(0, 1, 1).normalized()));
+        key.pose.position = r + Eigen::Vector3d(radius + 0.5 * spacing - std::min(1.0, k / 1.0) * (0.5 * spacing + depth_mm), 0, 0);
+        t.keyframes.push_back(key);
+    }
+    return t;
+}
+
+struct MappingCheck {
+    double max_vertex_error_mm = 0, max_normal_error = 0, max_displacement_mm = 0;
+    std::size_t vertices = 0;
+};
+
+/// Runs `steps` steps of a pressing probe on `backend`, then compares the drawing shader's
+/// vertices (transform feedback) with apply_mapping on the read-back positions, and the
+/// normals pass with particle_normals.
+MappingCheck check_mapping(Backend& backend, const Scenario& scenario, int steps) {
+    const ScriptedRunResult run = run_scripted(backend, pressing_probe(scenario, steps, 3.0), {.steps = steps});
+    EXPECT_EQ(run.watchdog_events, 0u) << run.last_watchdog_message;
+    Renderer renderer(scenario, {.width = 64, .height = 64});
+    EXPECT_TRUE(renderer.draws_visual_mesh());
+    const auto captured = renderer.capture_vertices(backend);
+    const auto normals = renderer.read_particle_normals();
+    const auto positions = backend.positions();
+    const auto expected = apply_mapping(*scenario.mapping, positions, *scenario.simulation_surface);
+    const auto expected_normals = particle_normals(positions, *scenario.simulation_surface);
+    MappingCheck c;
+    c.vertices = captured.size();
+    EXPECT_EQ(captured.size(), expected.size());
+    for (std::size_t v = 0; v < std::min(captured.size(), expected.size()); ++v)
+        for (int k = 0; k < 3; ++k) {
+            c.max_vertex_error_mm = std::max(c.max_vertex_error_mm, double(std::abs(captured[v][k] - expected[v][k])));
+            c.max_displacement_mm = std::max(c.max_displacement_mm, double(std::abs(expected[v][k] - scenario.visual->positions[v][k])));
+        }
+    for (std::size_t i = 0; i < normals.size(); ++i)
+        for (int k = 0; k < 3; ++k) c.max_normal_error = std::max(c.max_normal_error, double(std::abs(normals[i][k] - expected_normals[i][k])));
+    std::printf("  %zu visual vertices after %d steps: max displacement %.3f mm, max |vertex shader - apply_mapping| %.3g mm, "
+                "max |normals pass - particle_normals| %.3g\n",
+                c.vertices, steps, c.max_displacement_mm, c.max_vertex_error_mm, c.max_normal_error);
+    return c;
+}
+
+/// Mean absolute difference (0–255, over all channels) and the fraction of pixels whose largest
+/// channel difference exceeds `threshold`; writes the amplified difference to `diff`.
+struct ImageDifference {
+    double mean_abs = 0, fraction_over = 0;
+};
+
+ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff) {
+    ImageDifference d;
+    const std::size_t pixels = std::size_t(a.width) * std::size_t(a.height);
+    if (diff) *diff = Image{a.width, a.height, 3, std::vector<std::uint8_t>(pixels * 3, 0)};
+    double sum = 0;
+    std::size_t over = 0;
+    for (std::size_t p = 0; p < pixels; ++p) {
+        int largest = 0;
+        for (int c = 0; c < 3; ++c) {
+            const int delta = std::abs(int(a.pixels[p * 3 + std::size_t(c)]) - int(b.pixels[p * 3 + std::size_t(c)]));
+            sum += delta;
+            largest = std::max(largest, delta);
+            if (diff) diff->pixels[p * 3 + std::size_t(c)] = std::uint8_t(std::min(255, 4 * delta));
+        }
+        if (largest > threshold) ++over;
+    }
+    d.mean_abs = sum / double(3 * pixels);
+    d.fraction_over = double(over) / double(pixels);
+    return d;
+}
+
+/// Pixels that differ from the background colour (the model or an instrument).
+double coverage(const Image& image) {
+    const std::uint8_t* corner = image.pixels.data();
+    std::size_t covered = 0;
+    const std::size_t pixels = std::size_t(image.width) * std::size_t(image.height);
+    for (std::size_t p = 0; p < pixels; ++p)
+        for (int c = 0; c < 3; ++c)
+            if (std::abs(int(image.pixels[p * 3 + std::size_t(c)]) - int(corner[c])) > 8) {
+                ++covered;
+                break;
+            }
+    return double(covered) / double(pixels);
+}
+
+/// The golden scene: the phantom at rest, anterior view, 256×256, with a probe beside its
+/// right-most particle (drawn as its ellipsoid).
+std::string golden_arguments(const Scenario& scenario) {
+    const auto& rest = scenario.lattice.particles.rest_position;
+    std::size_t right = 0;
+    for (std::size_t i = 0; i < rest.size(); ++i)
+        if (rest[i][0] > rest[right][0]) right = i;
+    const double r = 1.5 * scenario.lattice.spacing;
+    char probe[256];
+    std::snprintf(probe, sizeof probe, "%.3f,%.3f,%.3f,%.3f,%.3f,%.3f", rest[right][0] + r + 1.0, rest[right][1] - 2 * r, rest[right][2],
+                  r, r, 2 * r);
+    return std::string(" --headless --steps 0 --size 256x256 --view anterior --probe ") + probe;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+
+TEST(Png, RoundTripAndDamageDetection) {
+    test::TempDir dir;
+    Image image{37, 21, 3, {}};
+    for (int y = 0; y < image.height; ++y)
+        for (int x = 0; x < image.width; ++x)
+            for (int c = 0; c < 3; ++c) image.pixels.push_back(std::uint8_t((x * 7 + y * 13 + c * 50 + x * y) & 255));
+    write_png(dir / "a.png", image);
+    const Image back = read_png(dir / "a.png");
+    EXPECT_EQ(back.width, image.width);
+    EXPECT_EQ(back.height, image.height);
+    EXPECT_EQ(back.channels, 3);
+    EXPECT_EQ(back.pixels, image.pixels);
+    // Only the file itself remains (the temporary was renamed).
+    EXPECT_EQ(std::distance(fs::directory_iterator(dir.path()), fs::directory_iterator()), 1);
+    // A flipped byte in IDAT is caught by the CRC.
+    std::vector<std::uint8_t> bytes = encode_png(image);
+    bytes[bytes.size() / 2] ^= 0x40;
+    EXPECT_THROW(decode_png(bytes, "damaged"), InputError);
+    bytes = encode_png(image);
+    bytes.resize(bytes.size() - 12);  // IEND cut off
+    EXPECT_THROW(decode_png(bytes, "truncated"), InputError);
+    // Signature, then IHDR first (PNG 1.2).
+    bytes = encode_png(image);
+    EXPECT_EQ(bytes[12], 'I');
+    EXPECT_EQ(bytes[15], 'R');
+    EXPECT_THROW(write_png(dir / "missing-folder" / "x.png", image), OutputError);
+}
+
+TEST(RenderCamera, DefaultAnteriorViewPutsThePatientsLeftOnTheRight) {
+    const Eigen::AlignedBox3f box(Eigen::Vector3f(-10, -20, -30), Eigen::Vector3f(10, 20, 30));
+    const Camera camera = fit_camera(box, ViewDirection::anterior, 1.0f);
+    // The eye is anterior (−y in LPS) of the centre; +x (patient's left) maps to +x on screen,
+    // +z (superior) up.
+    EXPECT_LT(camera.eye().y(), -camera.radius);
+    const Eigen::Matrix4f vp = camera.projection(1.0f) * camera.view();
+    auto screen = [&](Eigen::Vector3f p) {
+        const Eigen::Vector4f c = vp * p.homogeneous();
+        return Eigen::Vector2f(c.x() / c.w(), c.y() / c.w());
+    };
+    EXPECT_GT(screen({10, 0, 0}).x(), 0.1f);
+    EXPECT_GT(screen({0, 0, 30}).y(), 0.1f);
+    // The whole box is inside the frame.
+    for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector2f s = screen(box.corner(Eigen::AlignedBox3f::CornerType(corner)));
+        EXPECT_LE(s.cwiseAbs().maxCoeff(), 1.0f) << corner;
+    }
+    EXPECT_THROW(parse_view_direction("sideways"), InputError);
+}
+
+TEST(RenderMapping, VertexShaderEqualsTheCpuFormulaOnTheGlBackend) {
+    REQUIRE_GL();
+    const Scenario& scenario = phantom_scenario();
+    ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface) << "the phantom scenario should have a mapped visual mesh";
+    auto backend = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+    const MappingCheck c = check_mapping(*backend, scenario, 300);
+    EXPECT_GT(c.max_displacement_mm, 0.5) << "the probe and gravity should deform the mesh";
+    EXPECT_LE(c.max_vertex_error_mm, 1e-4);
+    EXPECT_LE(c.max_normal_error, 1e-5);
+}
+
+TEST(RenderMapping, VertexShaderEqualsTheCpuFormulaOnTheCpuBackend) {
+    REQUIRE_GL();
+    const Scenario& scenario = phantom_scenario();
+    auto backend = make_cpu_backend(scenario, options_from(scenario.solver));
+    const MappingCheck c = check_mapping(*backend, scenario, 100);  // positions uploaded per frame
+    EXPECT_GT(c.max_displacement_mm, 0.1);
+    EXPECT_LE(c.max_vertex_error_mm, 1e-4);
+    EXPECT_LE(c.max_normal_error, 1e-5);
+}
+
+TEST(RenderGolden, HeadlessScreenshotOfThePhantomMatchesTheGoldenImage) {
+    REQUIRE_GL();
+    const fs::path golden = fs::path(HEARTSIM_SOURCE_DIR) / "tests/data/golden/phantom_rest.png";
+    const std::string arguments = golden_arguments(phantom_scenario());
+    const bool update = std::getenv("HEARTSIM_UPDATE_GOLDEN") != nullptr;
+    for (const char* backend : {"gl", "cpu"}) {
+        const fs::path shot = scratch() / (std::string("phantom_rest_") + backend + ".png");
+        const auto run = run_heartsim("run " + quoted(phantom()) + arguments + " --backend " + backend + " --screenshot " + quoted(shot) + " --stats");
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        EXPECT_NE(run.output.find("visualisation step"), std::string::npos) << run.output;
+        const Image image = read_png(shot);
+        ASSERT_EQ(image.width, 256);
+        ASSERT_EQ(image.height, 256);
+        EXPECT_GT(coverage(image), 0.15) << "the phantom should fill a good part of the frame";
+        if (update && std::string(backend) == "gl") {
+            fs::create_directories(golden.parent_path());
+            write_png(golden, image);
+            std::printf("  updated the golden image %s\n", golden.c_str());
+        }
+        if (!fs::exists(golden)) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
+        const Image reference = read_png(golden);
+        ASSERT_EQ(reference.width, image.width);
+        ASSERT_EQ(reference.height, image.height);
+        ASSERT_EQ(reference.channels, 3);
+        Image diff;
+        const ImageDifference d = compare_images(image, reference, 16, &diff);
+        std::printf("  %s backend: mean |difference| %.4f / 255, %.4f %% of pixels differ by more than 16 / 255\n", backend, d.mean_abs,
+                    100 * d.fraction_over);
+        // Tolerance: llvmpipe on another CPU or Mesa version may round edges and shading
+        // differently; a wrong view, mapping or lighting moves far more than this.
+        const bool pass = d.mean_abs < 2.0 && d.fraction_over < 0.01;
+        if (!pass) {
+            const fs::path out = fs::current_path() / (std::string("phantom_rest_") + backend + ".diff.png");
+            const fs::path actual = fs::current_path() / (std::string("phantom_rest_") + backend + ".actual.png");
+            write_png(out, diff);
+            write_png(actual, image);
+            std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
+        }
+        EXPECT_TRUE(pass) << backend << ": mean " << d.mean_abs << ", fraction " << d.fraction_over;
+    }
+}
+
+TEST(RenderScreenshot, SimulationSurfaceIsDrawnWithoutAVisualMeshAndEveryNWritesNumberedFrames) {
+    REQUIRE_GL();
+    test::TempDir dir;
+    Scenario scenario = phantom_scenario();
+    scenario.visual.reset();
+    scenario.mapping.reset();
+    write_scenario(dir / "surface.h5", scenario);
+    const auto run = run_heartsim("run " + quoted(dir / "surface.h5") + " --headless --steps 4 --size 128x96 --screenshot " +
+                                  quoted(dir / "s.png") + " --screenshot-every 2 --stats");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("the simulation surface"), std::string::npos) << run.output;
+    EXPECT_EQ(run.output.find("particle normals"), std::string::npos) << "no normals pass without a visual mesh\n" << run.output;
+    for (const char* name : {"s.png", "s-000002.png", "s-000004.png"}) {
+        ASSERT_TRUE(fs::exists(dir / name)) << name << "\n" << run.output;
+        const Image image = read_png(dir / name);
+        EXPECT_EQ(image.width, 128);
+        EXPECT_EQ(image.height, 96);
+        EXPECT_GT(coverage(image), 0.15) << name;
+    }
+    EXPECT_FALSE(fs::exists(dir / "s-000001.png"));
+}
+
+TEST(RenderScreenshot, HeadlessWithoutScreenshotSkipsRendering) {
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --stats");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("skipped (headless, no --screenshot)"), std::string::npos) << run.output;
+    EXPECT_EQ(run.output.find("render:"), std::string::npos) << run.output;
+    const auto bad = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --screenshot-every 2");
+    EXPECT_EQ(bad.exit_code, 2) << bad.output;
+    EXPECT_NE(bad.output.find("--screenshot-every needs --screenshot"), std::string::npos) << bad.output;
+}
+
+TEST(RenderWindow, StartsUnderXvfbRendersFramesAndExitsCleanly) {
+    if (test::run_command("command -v xvfb-run && command -v Xvfb").exit_code != 0)
+        GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
+    REQUIRE_GL();
+    test::TempDir dir;
+    const auto run = test::run_command("timeout 600 xvfb-run -a -s '-screen 0 640x480x24' " + quoted(HEARTSIM_EXE) + " run " +
+                                       quoted(phantom()) + " --steps 20 --size 320x240 --screenshot " + quoted(dir / "window.png") +
+                                       " --stats 2>&1");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("window: "), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("ran 20 steps"), std::string::npos) << run.output;
+    ASSERT_TRUE(fs::exists(dir / "window.png")) << run.output;
+    const Image image = read_png(dir / "window.png");
+    EXPECT_EQ(image.width, 320);
+    EXPECT_EQ(image.height, 240);
+    EXPECT_GT(coverage(image), 0.1) << run.output;
+    std::printf("%s", run.output.c_str());
+}
