@@ -17,6 +17,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <optional>
 #include <utility>
@@ -33,6 +34,7 @@ struct RunArguments {
     double seconds = 0.0;
     std::string probe, grab, trajectory, save_state;
     bool stats = false;
+    std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
     std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/picking.h)
     int picking_refresh = 1;
     // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
@@ -394,6 +396,43 @@ int command_run(const RunArguments& a) {
         std::printf("steps/s (substeps/s)  %.0f from the step pass, %.0f overall\n", per_substep > 0 ? 1000.0 / per_substep : 0.0,
                     run.substeps / (wall_ms * 1e-3));
     }
+    if (!a.stats_csv.empty()) {
+        // --stats-csv: the --stats figures, one row per pass, with the run's columns repeated on
+        // every row (tests/bench/run_runtime_bench.sh reads it). A pass that did not run: calls 0.
+        const PassTimes t = backend->pass_times();
+        const RenderTimes r = renderer ? renderer->times(true) : RenderTimes{};
+        const std::string device = context ? context->info().renderer : std::string("none (cpu backend, headless, no GL context)");
+        auto quote = [](const std::string& text) {
+            std::string q = "\"";
+            for (char c : text) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+            return q + "\"";
+        };
+        const double seconds = std::max(wall_ms * 1e-3, 1e-9);
+        const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
+        char run_columns[512];
+        std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(kind), a.contact.c_str(),
+                      a.picking_refresh, quote(device).c_str(), load.particles, run.steps, run.substeps, wall_ms, run.steps / seconds,
+                      run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames);
+        std::ofstream out(a.stats_csv);
+        if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+        out << "pass,calls,total_ms,mean_ms,per,timing,backend,contact,picking_refresh,renderer,particles,steps,substeps,wall_ms,"
+               "steps_per_s,substeps_per_s,step_pass_substeps_per_s,frames\n";
+        const char* timing = t.gpu_timed ? "gpu" : "wall";
+        auto row = [&](const char* pass, long long calls, double total_ms, const char* per, const char* how) {
+            char line[256];
+            std::snprintf(line, sizeof line, "%s,%lld,%.6f,%.6f,%s,%s,", pass, calls, total_ms, calls ? total_ms / double(calls) : 0.0, per, how);
+            out << line << run_columns << '\n';
+        };
+        row("simulation step", t.substeps, t.step_ms, "substep", timing);
+        row("particle normals", r.normals_calls, r.normals_ms, "frame", "gpu");
+        row("visualisation step", r.frames, r.draw_ms, "frame", "gpu");
+        row("position upload", r.uploads, r.upload_ms, "frame", "wall");
+        row("picking buffer", t.picking_calls, t.picking_ms, "force request", timing);
+        row("force buffer", t.force_calls, t.force_ms, "force request", timing);
+        out.close();
+        if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+        std::printf("wrote %s\n", a.stats_csv.c_str());
+    }
     if (!a.save_state.empty()) {
         SimulationState state;
         state.backend = to_string(kind);
@@ -415,7 +454,10 @@ int command_run(const RunArguments& a) {
 }  // namespace
 
 int main(int argc, char** argv) {
-    CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)"};
+    CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)\n\n"
+                 "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
+                 "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
+                 "  heartsim info                             the OpenGL device, version and limits\n"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
     auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
@@ -436,13 +478,20 @@ int main(int argc, char** argv) {
     run->add_option("--picking-refresh", a.picking_refresh, "Render the picking buffer every K force requests (stale in between)")
         ->check(CLI::Range(1, 1 << 20));
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as the seed's Table 1");
+    run->add_option("--stats-csv", a.stats_csv, "Write the --stats timings as CSV, one row per pass (tests/bench/run_runtime_bench.sh)");
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)");
     run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step)")
         ->check(CLI::NonNegativeNumber);
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
     run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
         ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));
-    CLI11_PARSE(app, argc, argv);
+    // Training staff launch a session as `heartsim scenario.h5`: a first argument that is not a
+    // subcommand or an option means `run`.
+    std::vector<char*> arguments(argv, argv + argc);
+    static char run_word[] = "run";
+    if (argc >= 2 && argv[1][0] != '-' && std::string(argv[1]) != "run" && std::string(argv[1]) != "info")
+        arguments.insert(arguments.begin() + 1, run_word);
+    CLI11_PARSE(app, int(arguments.size()), arguments.data());
     a.steps_given = run->count("--steps") > 0;
     try {
         if (info->parsed()) return command_info();
