@@ -1,0 +1,329 @@
+// The haptic core: safety chain, coupling, the session (device thread) and its statistics.
+// Design: docs/haptics.md.
+#include "haptics.h"
+
+#include "libmodel/errors.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+namespace heartsim::haptics {
+
+namespace {
+
+bool finite(const Eigen::Vector3d& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
+
+/// Scales v down to |v| ≤ limit (direction kept); true when it had to.
+bool clamp_norm(Eigen::Vector3d& v, double limit) {
+    const double n = v.norm();
+    if (n > limit) {
+        v *= limit / n;
+        return true;
+    }
+    return false;
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// ForceSafety
+
+ForceSafety::ForceSafety(const SafetySettings& settings, double device_max_force_n) : settings_(settings) {
+    if (!(device_max_force_n > 0.0) || !std::isfinite(device_max_force_n))
+        throw InputError("haptics: a device's maximum force must be positive and finite");
+    max_force_ = settings.max_force_n > 0.0 ? std::min(settings.max_force_n, device_max_force_n) : device_max_force_n;
+    if (!(settings.fade_out_ms > 0.0) || !(settings.fade_in_ms > 0.0) || !(settings.max_rate_n_per_ms > 0.0))
+        throw InputError("haptics: fade times and the force rate limit must be positive");
+}
+
+Eigen::Vector3d ForceSafety::filter(const SafetyInput& in) {
+    ++counters_.ticks;
+    const double dt = started_ ? std::clamp(in.now_ms - last_ms_, 0.0, 1000.0) : 0.0;
+    started_ = true;
+    last_ms_ = in.now_ms;
+
+    // 1. Non-finite → zero.
+    Eigen::Vector3d f = in.force_n;
+    const bool non_finite = !finite(f);
+    if (non_finite) {
+        ++counters_.non_finite;
+        f.setZero();
+    }
+    // 2. Clamp to the maximum force.
+    if (clamp_norm(f, max_force_)) ++counters_.clamped;
+    // 3. Rate limit against the previous limited value.
+    Eigen::Vector3d step = f - limited_;
+    if (clamp_norm(step, settings_.max_rate_n_per_ms * dt)) ++counters_.rate_limited;
+    limited_ += step;
+    if (!finite(limited_)) limited_.setZero();
+
+    // 4. Gain: faults latch until faded out and a clean update arrived.
+    if (in.fault_event) {
+        latched_fault_ = true;
+        ++counters_.faults;
+    } else if (latched_fault_ && gain_ <= 0.0 && in.clean_update) {
+        latched_fault_ = false;
+    }
+    const bool healthy = in.simulation_fresh && !non_finite && !latched_fault_ && !estop_;
+    if (healthy) gain_ = std::min(1.0, gain_ + dt / settings_.fade_in_ms);
+    else gain_ = std::max(0.0, gain_ - dt / settings_.fade_out_ms);
+
+    // 5. Emergency stop: zero now.
+    if (estop_) {
+        ++counters_.stopped;
+        gain_ = 0.0;
+        limited_.setZero();
+        return Eigen::Vector3d::Zero();
+    }
+    // 6. Last check.
+    Eigen::Vector3d out = gain_ * limited_;
+    if (!finite(out) || out.norm() > max_force_ * (1.0 + 1e-12)) out.setZero();
+    return out;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Coupling
+
+const char* to_string(ForceInterpolation mode) { return mode == ForceInterpolation::hold ? "hold" : "extrapolate"; }
+
+CouplingSettings choose_coupling(double b, double period_ms, double margin) {
+    if (!(b > 0.0) || !(period_ms > 0.0) || !(margin > 0.0 && margin < 1.0))
+        throw InputError("haptics: virtual coupling needs a positive device damping, period and a margin in (0, 1)");
+    CouplingSettings c;
+    c.enabled = true;
+    c.damping_n_ms_per_mm = 0.25 * b;
+    c.stiffness_n_per_mm = margin * 2.0 * (b - c.damping_n_ms_per_mm) / period_ms;
+    return c;
+}
+
+bool within_passivity_bound(const CouplingSettings& c, double b, double period_ms) {
+    return b > c.stiffness_n_per_mm * period_ms / 2.0 + std::abs(c.damping_n_ms_per_mm);
+}
+
+// ------------------------------------------------------------------------------------------------
+// HapticSession
+
+HapticSession::HapticSession(const HapticSettings& settings)
+    : settings_(settings), epoch_(std::chrono::steady_clock::now()), histogram_(histogram_bins + 1, 0) {
+    if (!(settings.rate_hz >= 1.0 && settings.rate_hz <= 20000.0))
+        throw InputError("haptics: the haptic rate must be between 1 and 20000 Hz");
+}
+
+HapticSession::~HapticSession() { stop(); }
+
+void HapticSession::attach(int hand, Device* device, const DeviceMapping& mapping) {
+    if (hand < 0 || hand > 1) throw InputError("haptics: hand must be 0 or 1");
+    if (running()) throw InputError("haptics: attach devices before start()");
+    Hand& h = hands_[hand];
+    h = Hand{};
+    h.device = device;
+    h.mapping = mapping;
+    h.mapping.rotation.normalize();
+    if (!device) return;
+    const DeviceLimits limits = device->limits();
+    h.safety = std::make_unique<ForceSafety>(settings_.safety, limits.max_force_n);
+    h.coupling = settings_.coupling;
+    if (h.coupling.enabled && h.coupling.stiffness_n_per_mm <= 0.0) {
+        const CouplingSettings chosen = choose_coupling(limits.damping_n_ms_per_mm, period_ms());
+        h.coupling.stiffness_n_per_mm = chosen.stiffness_n_per_mm;
+        h.coupling.damping_n_ms_per_mm = chosen.damping_n_ms_per_mm;
+    }
+    if (h.coupling.enabled) {
+        if (!(h.coupling.proxy_mass_g > 0.0)) throw InputError("haptics: the coupling proxy needs a positive mass");
+        if (h.coupling.proxy_damping_n_ms_per_mm <= 0.0)
+            h.coupling.proxy_damping_n_ms_per_mm = 2.0 * std::sqrt(h.coupling.stiffness_n_per_mm * h.coupling.proxy_mass_g);
+    }
+}
+
+void HapticSession::publish_forces(const InstrumentForces& forces, double time_ms, bool diverged, bool reset) {
+    ForceSample s;
+    for (int i = 0; i < 2; ++i) s.force_n[i] = forces.hand[i].force_n;
+    s.time_ms = time_ms;
+    s.sequence = ++published_;
+    if (diverged) ++divergences_;
+    if (reset) ++resets_;
+    s.divergences = divergences_;
+    s.resets = resets_;
+    forces_.publish(s);
+}
+
+std::optional<ToolSamples> HapticSession::latest_tools() {
+    ToolSamples t;
+    tools_.fetch(t);
+    if (t.tick == 0) return std::nullopt;
+    return t;
+}
+
+double HapticSession::now_ms() const {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - epoch_).count();
+}
+
+void HapticSession::tick(double now_ms) {
+    const double dt = ticked_ ? std::max(now_ms - last_tick_ms_, 1e-6) : period_ms();
+    ticked_ = true;
+    last_tick_ms_ = now_ms;
+    ++ticks_;
+
+    // The newest forces.
+    ForceSample sample;
+    const bool fresh = forces_.fetch(sample) && sample.sequence != last_sample_.sequence && sample.sequence != 0;
+    bool fault_event = false, clean_update = false;
+    if (fresh) {
+        fault_event = sample.divergences != last_sample_.divergences || sample.resets != last_sample_.resets;
+        clean_update = !fault_event;
+        last_arrival_ms_ = now_ms;
+        last_sample_ = sample;
+    }
+    const bool simulation_fresh = last_sample_.sequence != 0 && now_ms - last_arrival_ms_ <= settings_.safety.stall_ms;
+    const bool stop = estop_.load(std::memory_order_acquire);
+
+    ToolSamples tools;
+    tools.tick = ticks_;
+    for (int i = 0; i < 2; ++i) {
+        Hand& h = hands_[i];
+        if (!h.device) continue;
+        const DevicePose pose = h.device->read_pose(now_ms);
+        const Eigen::Matrix3d r = h.mapping.rotation.toRotationMatrix();
+        const Eigen::Vector3d device_world = h.mapping.offset_mm + h.mapping.scale * (r * pose.position_mm);
+        const Eigen::Quaterniond orientation_world = (h.mapping.rotation * pose.orientation).normalized();
+        if (!h.primed) {
+            h.proxy = device_world;
+            h.proxy_v.setZero();
+            h.last_device = device_world;
+            h.primed = true;
+        }
+        const Eigen::Vector3d device_v = (device_world - h.last_device) / dt;
+        h.last_device = device_world;
+
+        // Interpolation: keep this hand's two newest samples.
+        if (fresh) {
+            if (h.samples > 0) h.f0 = h.f1, h.t0 = h.t1;
+            h.f1 = sample.force_n[i];
+            h.t1 = sample.time_ms;
+            ++h.samples;
+            if (fault_event) h.samples = 1;  // never extrapolate across a restore or reset
+        }
+        Eigen::Vector3d tissue = h.samples > 0 ? h.f1 : Eigen::Vector3d::Zero();
+        if (settings_.interpolation == ForceInterpolation::extrapolate && h.samples > 1 && h.t1 > h.t0) {
+            const double interval = h.t1 - h.t0;
+            const double ahead = std::clamp(now_ms - h.t1, 0.0, interval);  // at most one interval ahead
+            tissue += (h.f1 - h.f0) * (ahead / interval);
+        }
+        if (!finite(tissue)) tissue = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+
+        // Coupling.
+        Eigen::Vector3d world_force;
+        Eigen::Vector3d tool_position = device_world;
+        if (h.coupling.enabled) {
+            const CouplingSettings& c = h.coupling;
+            const Eigen::Vector3d env = finite(tissue) && simulation_fresh ? tissue : Eigen::Vector3d::Zero();
+            // Semi-implicit Euler on the proxy; the spring-damper evaluated at the tick's start.
+            const Eigen::Vector3d coupling_on_proxy = c.stiffness_n_per_mm * (device_world - h.proxy) + c.damping_n_ms_per_mm * (device_v - h.proxy_v);
+            const Eigen::Vector3d accel = (env + coupling_on_proxy - c.proxy_damping_n_ms_per_mm * h.proxy_v) / c.proxy_mass_g;
+            h.proxy_v += accel * dt;
+            h.proxy += h.proxy_v * dt;
+            if (!finite(h.proxy) || !finite(h.proxy_v)) h.proxy = device_world, h.proxy_v.setZero();
+            world_force = c.stiffness_n_per_mm * (h.proxy - device_world) + c.damping_n_ms_per_mm * (h.proxy_v - device_v);
+            if (!finite(tissue)) world_force = tissue;  // let the safety chain see the fault
+            tool_position = h.proxy;
+        } else {
+            world_force = tissue;
+        }
+        tools.hand[i].pose.position = tool_position;
+        tools.hand[i].pose.orientation = orientation_world;
+        tools.hand[i].buttons = pose.buttons;
+        tools.hand[i].time_ms = now_ms;
+        tools.hand[i].valid = true;
+
+        const Eigen::Vector3d device_force = h.mapping.force_scale * (r.transpose() * world_force);
+        if (stop) h.safety->emergency_stop();
+        else if (h.safety->stopped()) h.safety->release_emergency_stop();
+        const Eigen::Vector3d out = h.safety->filter({.force_n = device_force,
+                                                      .now_ms = now_ms,
+                                                      .simulation_fresh = simulation_fresh,
+                                                      .fault_event = fault_event,
+                                                      .clean_update = clean_update});
+        h.device->send_force(out, now_ms);
+        h.telemetry.last_input_n = device_force;
+        h.telemetry.last_force_n = out;
+        ++h.telemetry.forces_sent;
+        h.telemetry.safety = h.safety->counters();
+        h.telemetry.gain = h.safety->gain();
+    }
+    tools_.publish(tools);
+}
+
+void HapticSession::start() {
+    if (running()) return;
+    stop_.store(false);
+    thread_ = std::thread([this] { run_thread(); });
+}
+
+void HapticSession::stop() {
+    if (!running()) return;
+    stop_.store(true);
+    thread_.join();
+}
+
+void HapticSession::run_thread() {
+    using clock = std::chrono::steady_clock;
+    const auto period = std::chrono::duration_cast<clock::duration>(std::chrono::duration<double, std::milli>(period_ms()));
+    auto next = clock::now();
+    clock::time_point previous{};
+    bool first = true;
+    while (!stop_.load(std::memory_order_acquire)) {
+        const auto start = clock::now();
+        if (!first) {
+            const double p = std::chrono::duration<double, std::milli>(start - previous).count();
+            const int bin = std::clamp(int(p * 1000.0), 0, histogram_bins);
+            ++histogram_[bin];
+            period_max_ms_ = std::max(period_max_ms_, p);
+            period_sum_ms_ += p;
+            ++periods_;
+        }
+        first = false;
+        previous = start;
+        tick(std::chrono::duration<double, std::milli>(start - epoch_).count());
+        next += period;
+        const auto after = clock::now();
+        if (after > next + period) {  // more than a period late: skip ahead, do not burst
+            ++overruns_;
+            next = after;
+        }
+        std::this_thread::sleep_until(next);
+    }
+}
+
+PeriodStats HapticSession::period_stats() const {
+    PeriodStats s;
+    s.ticks = periods_;
+    s.max_ms = period_max_ms_;
+    s.overruns = overruns_;
+    if (periods_ == 0) return s;
+    s.mean_ms = period_sum_ms_ / double(periods_);
+    auto percentile = [&](double q) {
+        const std::uint64_t target = std::uint64_t(std::ceil(q * double(periods_)));
+        std::uint64_t seen = 0;
+        for (int b = 0; b <= histogram_bins; ++b) {
+            seen += histogram_[b];
+            if (seen >= target) return (b + 0.5) / 1000.0;
+        }
+        return s.max_ms;
+    };
+    s.p50_ms = percentile(0.50);
+    s.p99_ms = std::min(percentile(0.99), s.max_ms);
+    return s;
+}
+
+HandTelemetry HapticSession::telemetry(int hand) const { return hands_.at(hand).telemetry; }
+
+std::string format_period_stats(const PeriodStats& s, double rate_hz) {
+    char line[256];
+    std::snprintf(line, sizeof line, "haptic rate %.0f Hz: %llu periods, mean %.3f ms, p50 %.3f ms, p99 %.3f ms, max %.3f ms, overruns %llu",
+                  rate_hz, (unsigned long long)s.ticks, s.mean_ms, s.p50_ms, s.p99_ms, s.max_ms, (unsigned long long)s.overruns);
+    return line;
+}
+
+}  // namespace heartsim::haptics
