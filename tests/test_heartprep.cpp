@@ -15,15 +15,11 @@
 #include <unistd.h>
 
 using namespace heartsim;
+using test::heartprep;
+using test::quoted;
 namespace fs = std::filesystem;
 
 namespace {
-
-test::CommandResult heartprep(const std::string& arguments) {
-    return test::run_command(std::string(HEARTPREP_EXE) + " " + arguments);
-}
-
-std::string quoted(const fs::path& path) { return "'" + path.string() + "'"; }
 
 /// Files in `folder` (names only).
 std::set<std::string> listing(const fs::path& folder) {

@@ -12,15 +12,11 @@
 #include <regex>
 
 using namespace heartsim;
+using test::heartprep;
+using test::quoted;
 namespace fs = std::filesystem;
 
 namespace {
-
-test::CommandResult heartprep(const std::string& arguments) {
-    return test::run_command(std::string(HEARTPREP_EXE) + " " + arguments);
-}
-
-std::string quoted(const fs::path& path) { return "'" + path.string() + "'"; }
 
 /// A small heart phantom (2 mm voxels) written as NIfTI: fast to build.
 fs::path small_phantom(const test::TempDir& dir, const std::string& name, double vsd = 8.0) {

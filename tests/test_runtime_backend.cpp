@@ -2,6 +2,7 @@
 // a real HVSMR case), the force readback, the state file, and the errors a run must give.
 // GL tests run on whatever EGL device there is (Mesa llvmpipe in CI) and skip with a message
 // where there is none.
+#include "runtime_test_support.h"
 #include "test_support.h"
 
 #include "formats/scenario.h"
@@ -20,35 +21,11 @@
 #include <optional>
 
 using namespace heartsim;
+using test::quoted;
 namespace fs = std::filesystem;
 
 namespace {
 
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
-/// One headless context for the whole test program (creating EGL displays repeatedly is slow
-/// on llvmpipe); empty with the reason when there is no usable GL.
-GlContext* shared_context(std::string* reason = nullptr) {
-    static std::optional<GlContext> context;
-    static std::string why;
-    static bool tried = false;
-    if (!tried) {
-        tried = true;
-        try {
-            context.emplace(GlContext::create_headless());
-        } catch (const std::exception& e) {
-            why = e.what();
-        }
-    }
-    if (reason) *reason = why;
-    return context ? &*context : nullptr;
-}
-
-#define REQUIRE_GL()                                                                                  \
-    do {                                                                                              \
-        std::string reason;                                                                           \
-        if (!shared_context(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;    \
-    } while (0)
 
 /// Scenarios built once per test program with heartprep (the real tool, as users build them).
 const fs::path& built_scenario(const std::string& key, const fs::path& input, const std::string& options) {
@@ -137,7 +114,7 @@ Comparison compare_backends(const Scenario& scenario, int steps, double depth_mm
     const Trajectory trajectory = probe_and_grab(scenario, depth_mm);
     const SolverOptions options = options_from(scenario.solver);
     auto cpu = make_cpu_backend(scenario, options);
-    auto gl = make_gl_backend(*shared_context(), scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
     EXPECT_EQ(cpu->substeps_per_step(), gl->substeps_per_step());
     EXPECT_EQ(cpu->substep_ms(), gl->substep_ms());
     const ScriptedRunResult a = run_scripted(*cpu, trajectory, {.steps = steps});
@@ -180,7 +157,7 @@ void expect_agreement(const Comparison& c) {
 
 TEST(RuntimeGl, InfoReportsComputeLimits) {
     REQUIRE_GL();
-    const GlInfo info = shared_context()->info();
+    const GlInfo info = test::shared_gl_context()->info();
     EXPECT_TRUE(info.major > 4 || (info.major == 4 && info.minor >= 3)) << info.version;
     EXPECT_GT(info.max_ssbo_bytes, 0);
     EXPECT_GE(info.max_work_group_size[0], 256);
@@ -221,7 +198,7 @@ TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
 TEST(RuntimeBackend, AsynchronousForcesArriveWithoutWaiting) {
     REQUIRE_GL();
     const Scenario scenario = read_scenario(phantom_scenario());
-    auto gl = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver));
     const Trajectory trajectory = probe_and_grab(scenario, scenario.lattice.spacing);
     const ScriptedRunResult run = run_scripted(*gl, trajectory, {.steps = 40});
     EXPECT_EQ(run.steps, 40);
@@ -247,8 +224,8 @@ TEST(RuntimeBackend, ScenarioWithoutPackingIsRefusedByName) {
         EXPECT_NE(std::string(e.what()).find("/packing"), std::string::npos) << e.what();
     }
     std::string reason;
-    if (shared_context(&reason)) {
-        EXPECT_THROW(make_gl_backend(*shared_context(), scenario, options_from(scenario.solver)), InputError);
+    if (test::shared_gl_context(&reason)) {
+        EXPECT_THROW(make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver)), InputError);
     }
 }
 

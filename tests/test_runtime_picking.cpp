@@ -3,6 +3,7 @@
 // stale picking buffer (refreshed every K force requests) while the probe moves.
 // GL tests run on whatever EGL device there is (Mesa llvmpipe in CI) and skip with a message
 // where there is none. docs/runtime.md, "Probe contacts".
+#include "runtime_test_support.h"
 #include "test_support.h"
 
 #include "formats/scenario.h"
@@ -22,30 +23,6 @@ using namespace heartsim;
 namespace fs = std::filesystem;
 
 namespace {
-
-GlContext* shared_context(std::string* reason = nullptr) {
-    static std::optional<GlContext> context;
-    static std::string why;
-    static bool tried = false;
-    if (!tried) {
-        tried = true;
-        try {
-            context.emplace(GlContext::create_headless());
-            require_compute(context->info());
-        } catch (const std::exception& e) {
-            context.reset();
-            why = e.what();
-        }
-    }
-    if (reason) *reason = why;
-    return context ? &*context : nullptr;
-}
-
-#define REQUIRE_GL()                                                                                  \
-    do {                                                                                              \
-        std::string reason;                                                                           \
-        if (!shared_context(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;    \
-    } while (0)
 
 /// A flat block of tissue (label 1, 20 × 20 × 8 mm at 1 mm) on an anchoring slab (label 2), built
 /// by heartprep as users build scenarios; read once per test program.
@@ -139,7 +116,7 @@ TEST(RuntimePicking, FlatBlockPickingFindsTheDirectContacts) {
     const Scenario& scenario = block_scenario();
     ASSERT_TRUE(scenario.simulation_surface.has_value());
     const Face face = top_face(scenario);
-    auto gl = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver));
     gl->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = semi_axes});
     gl->set_pose(0, probe_pose(face, semi_axes, -0.5, Eigen::Vector3d::Zero()));
     const int press = 60, hold = 60;
@@ -193,7 +170,7 @@ TEST(RuntimePicking, StalePickingBufferErrorAgainstRefresh) {
     for (double speed : {0.2, 1.0}) {
         const int press = 40, slide = int(std::lround(8.0 / speed));
         auto run = [&](const ContactSettings& contact) {
-            auto gl = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+            auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver));
             gl->set_contact(contact);
             gl->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = semi_axes});
             gl->set_pose(0, probe_pose(face, semi_axes, -0.5, -4.0 * tangent));

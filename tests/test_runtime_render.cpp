@@ -7,6 +7,7 @@
 //
 // Golden image: tests/data/golden/phantom_rest.png. Regenerate (after an intended change of the
 // picture) with HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_render --gtest_filter='*Golden*'.
+#include "runtime_test_support.h"
 #include "test_support.h"
 
 #include "formats/scenario.h"
@@ -28,33 +29,10 @@
 #include <optional>
 
 using namespace heartsim;
+using test::quoted;
 namespace fs = std::filesystem;
 
 namespace {
-
-std::string quoted(const fs::path& p) { return "'" + p.string() + "'"; }
-
-GlContext* shared_context(std::string* reason = nullptr) {
-    static std::optional<GlContext> context;
-    static std::string why;
-    static bool tried = false;
-    if (!tried) {
-        tried = true;
-        try {
-            context.emplace(GlContext::create_headless());
-        } catch (const std::exception& e) {
-            why = e.what();
-        }
-    }
-    if (reason) *reason = why;
-    return context ? &*context : nullptr;
-}
-
-#define REQUIRE_GL()                                                                                  \
-    do {                                                                                              \
-        std::string reason;                                                                           \
-        if (!shared_context(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;    \
-    } while (0)
 
 test::TempDir& scratch() {
     static test::TempDir dir;
@@ -261,7 +239,7 @@ TEST(RenderMapping, VertexShaderEqualsTheCpuFormulaOnTheGlBackend) {
     REQUIRE_GL();
     const Scenario& scenario = phantom_scenario();
     ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface) << "the phantom scenario should have a mapped visual mesh";
-    auto backend = make_gl_backend(*shared_context(), scenario, options_from(scenario.solver));
+    auto backend = make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver));
     const MappingCheck c = check_mapping(*backend, scenario, 300);
     EXPECT_GT(c.max_displacement_mm, 0.5) << "the probe and gravity should deform the mesh";
     EXPECT_LE(c.max_vertex_error_mm, 1e-4);

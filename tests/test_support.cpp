@@ -65,4 +65,8 @@ CommandResult run_command(const std::string& command) {
     return result;
 }
 
+std::string quoted(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
+
+CommandResult heartprep(const std::string& arguments) { return run_command(quoted(HEARTPREP_EXE) + " " + arguments); }
+
 }  // namespace heartsim::test

@@ -43,6 +43,12 @@ struct CommandResult {
 /// Runs `command` through the shell, capturing stdout and stderr together.
 CommandResult run_command(const std::string& command);
 
+/// `path` in single quotes, for a shell command line.
+std::string quoted(const std::filesystem::path& path);
+
+/// Runs the heartprep binary of this build with `arguments` (already quoted where needed).
+CommandResult heartprep(const std::string& arguments);
+
 /// Writes `bytes` to `path` (replacing it).
 void write_bytes(const std::filesystem::path& path, const std::vector<unsigned char>& bytes);
 
