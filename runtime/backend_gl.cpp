@@ -3,6 +3,7 @@
 // Design and deviations: docs/runtime.md.
 #include "backend.h"
 #include "gl_context.h"
+#include "gl_program.h"
 #include "gl_shaders.h"
 
 #include "libmodel/errors.h"
@@ -45,29 +46,9 @@ struct Program {
 };
 
 void build(Program& program, const char* name, const char* body) {
-    const GLuint shader = glCreateShader(GL_COMPUTE_SHADER);
-    const char* sources[] = {sh::common, body};
-    glShaderSource(shader, 2, sources, nullptr);
-    glCompileShader(shader);
-    GLint ok = 0;
-    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-        glDeleteShader(shader);
-        throw GlUnavailable(std::string("gl backend: the ") + name + " compute shader does not compile on this driver: " + log +
-                            "; run with --backend cpu");
-    }
-    program.id = glCreateProgram();
-    glAttachShader(program.id, shader);
-    glLinkProgram(program.id);
-    glDeleteShader(shader);
-    glGetProgramiv(program.id, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetProgramInfoLog(program.id, sizeof log, nullptr, log);
-        throw GlUnavailable(std::string("gl backend: the ") + name + " compute shader does not link: " + log + "; run with --backend cpu");
-    }
+    const std::string what = std::string("gl backend: the ") + name + " compute shader";
+    program.id = link_program({compile_shader(GL_COMPUTE_SHADER, {sh::common, body}, what, "run with --backend cpu")}, what,
+                              "run with --backend cpu");
 }
 
 template <class T>

@@ -2,6 +2,7 @@
 // "Probe contacts: picking buffer and direct search".
 #include "picking.h"
 #include "gl_context.h"
+#include "gl_program.h"
 
 #include "libmodel/errors.h"
 
@@ -140,35 +141,11 @@ void main() {
 )";
 
 GLuint compile(GLenum type, const std::vector<const char*>& sources, const char* name) {
-    const GLuint shader = glCreateShader(type);
-    glShaderSource(shader, GLsizei(sources.size()), sources.data(), nullptr);
-    glCompileShader(shader);
-    GLint ok = 0;
-    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-        glDeleteShader(shader);
-        throw GlUnavailable(std::string("picking: the ") + name + " shader does not compile on this driver: " + log +
-                            "; run with --contact direct");
-    }
-    return shader;
+    return compile_shader(type, sources, std::string("picking: the ") + name + " shader", "run with --contact direct");
 }
 
 GLuint link(const std::vector<GLuint>& shaders, const char* name) {
-    const GLuint program = glCreateProgram();
-    for (GLuint s : shaders) glAttachShader(program, s);
-    glLinkProgram(program);
-    for (GLuint s : shaders) glDeleteShader(s);
-    GLint ok = 0;
-    glGetProgramiv(program, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetProgramInfoLog(program, sizeof log, nullptr, log);
-        glDeleteProgram(program);
-        throw GlUnavailable(std::string("picking: the ") + name + " program does not link: " + log + "; run with --contact direct");
-    }
-    return program;
+    return link_program(shaders, std::string("picking: the ") + name + " program", "run with --contact direct");
 }
 
 double default_tolerance(double spacing) { return 1e-3 * spacing; }

@@ -3,6 +3,7 @@
 #include "renderer.h"
 
 #include "gl_context.h"
+#include "gl_program.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
@@ -148,35 +149,11 @@ void check(const char* what) {
 }
 
 GLuint compile(GLenum stage, const char* source, const char* name) {
-    const GLuint shader = glCreateShader(stage);
-    glShaderSource(shader, 1, &source, nullptr);
-    glCompileShader(shader);
-    GLint ok = 0;
-    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
-        glDeleteShader(shader);
-        throw GlUnavailable(std::string("renderer: the ") + name + " shader does not compile on this driver: " + log);
-    }
-    return shader;
+    return compile_shader(stage, {source}, std::string("renderer: the ") + name + " shader");
 }
 
 GLuint link(std::initializer_list<GLuint> shaders, const char* name, const char* feedback_varying = nullptr) {
-    const GLuint program = glCreateProgram();
-    for (GLuint s : shaders) glAttachShader(program, s);
-    if (feedback_varying) glTransformFeedbackVaryings(program, 1, &feedback_varying, GL_INTERLEAVED_ATTRIBS);
-    glLinkProgram(program);
-    for (GLuint s : shaders) glDeleteShader(s);
-    GLint ok = 0;
-    glGetProgramiv(program, GL_LINK_STATUS, &ok);
-    if (!ok) {
-        char log[4096] = {};
-        glGetProgramInfoLog(program, sizeof log, nullptr, log);
-        glDeleteProgram(program);
-        throw GlUnavailable(std::string("renderer: the ") + name + " program does not link: " + log);
-    }
-    return program;
+    return link_program(shaders, std::string("renderer: the ") + name + " program", "", feedback_varying);
 }
 
 GLuint buffer_with(const void* data, std::size_t bytes, GLbitfield flags = 0) {

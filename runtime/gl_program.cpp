@@ -1,0 +1,46 @@
+#include "gl_program.h"
+
+#include "gl_context.h"
+
+namespace heartsim {
+
+namespace {
+std::string with_advice(const std::string& message, const std::string& advice) {
+    return advice.empty() ? message : message + "; " + advice;
+}
+}  // namespace
+
+GLuint compile_shader(GLenum stage, const std::vector<const char*>& sources, const std::string& what, const std::string& advice) {
+    const GLuint shader = glCreateShader(stage);
+    glShaderSource(shader, GLsizei(sources.size()), sources.data(), nullptr);
+    glCompileShader(shader);
+    GLint ok = 0;
+    glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetShaderInfoLog(shader, sizeof log, nullptr, log);
+        glDeleteShader(shader);
+        throw GlUnavailable(with_advice(what + " does not compile on this driver: " + log, advice));
+    }
+    return shader;
+}
+
+GLuint link_program(const std::vector<GLuint>& shaders, const std::string& what, const std::string& advice,
+                    const char* feedback_varying) {
+    const GLuint program = glCreateProgram();
+    for (GLuint s : shaders) glAttachShader(program, s);
+    if (feedback_varying) glTransformFeedbackVaryings(program, 1, &feedback_varying, GL_INTERLEAVED_ATTRIBS);
+    glLinkProgram(program);
+    for (GLuint s : shaders) glDeleteShader(s);
+    GLint ok = 0;
+    glGetProgramiv(program, GL_LINK_STATUS, &ok);
+    if (!ok) {
+        char log[4096] = {};
+        glGetProgramInfoLog(program, sizeof log, nullptr, log);
+        glDeleteProgram(program);
+        throw GlUnavailable(with_advice(what + " does not link: " + log, advice));
+    }
+    return program;
+}
+
+}  // namespace heartsim
