@@ -57,6 +57,30 @@ std::vector<std::array<std::int32_t, 18>> neighbour_table(const Lattice& lattice
     return table;
 }
 
+std::vector<std::int32_t> spring_of_slot(const std::vector<std::array<std::int32_t, 18>>& neighbours, const Springs& springs) {
+    const std::size_t n = neighbours.size();
+    std::vector<std::int32_t> slot_spring(n * 18, -1);
+    auto find_slot = [&](std::int32_t a, std::int32_t b, int preferred) {
+        if (a < 0 || std::size_t(a) >= n) return -1;
+        const auto& row = neighbours[std::size_t(a)];
+        if (preferred >= 0 && row[std::size_t(preferred)] == b) return preferred;
+        for (int s = 0; s < 18; ++s)
+            if (row[std::size_t(s)] == b) return s;
+        return -1;
+    };
+    for (std::size_t q = 0; q < springs.size(); ++q) {
+        const auto [a, b] = springs.pairs[q];
+        const int sa = find_slot(a, b, -1);
+        const int sb = find_slot(b, a, sa >= 0 ? opposite_slot(sa) : -1);
+        if (sa < 0 || sb < 0)
+            throw InputError("spring " + std::to_string(q) + " joins particles " + std::to_string(a) + " and " + std::to_string(b) +
+                             ", which the neighbour table does not list as neighbours");
+        slot_spring[std::size_t(a) * 18 + std::size_t(sa)] = std::int32_t(q);
+        slot_spring[std::size_t(b) * 18 + std::size_t(sb)] = std::int32_t(q);
+    }
+    return slot_spring;
+}
+
 Packing pack_particles(Lattice& lattice, const PackingOptions& options, Progress& progress, PackingReport* report_out,
                        std::vector<std::int32_t>* new_index_of_old) {
     ProgressStage stage(progress, "pack", 3);

@@ -66,6 +66,11 @@ Packing pack_particles(Lattice& lattice, const PackingOptions& options = {}, Pro
 /// The neighbour table of `lattice` in its current order (used by pack_particles and by tests).
 std::vector<std::array<std::int32_t, 18>> neighbour_table(const Lattice& lattice);
 
+/// The per-slot view of the springs that gather-based kernels (CPU and GPU) need: entry
+/// i·18 + s is the row in `springs` of the spring held at particle i's slot s, −1 for none.
+/// Throws InputError when a spring joins particles that `neighbours` does not list as neighbours.
+std::vector<std::int32_t> spring_of_slot(const std::vector<std::array<std::int32_t, 18>>& neighbours, const Springs& springs);
+
 /// The slot opposite to `slot` (the offset negated).
 constexpr int opposite_slot(int slot) {
     if (slot < 6) return slot ^ 1;

@@ -371,13 +371,6 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         for (int s = 0; s < slot_count; ++s)
             if (table[i][std::size_t(s)] < -1 || table[i][std::size_t(s)] >= std::int32_t(n_))
                 throw InputError("solver: neighbour table row " + std::to_string(i) + " slot " + std::to_string(s) + " is out of range");
-    std::vector<std::int32_t> slot_spring(n_ * slot_count, -1);
-    auto find_slot = [&](std::size_t a, std::int32_t b, int preferred) {
-        if (preferred >= 0 && table[a][std::size_t(preferred)] == b) return preferred;
-        for (int s = 0; s < slot_count; ++s)
-            if (table[a][std::size_t(s)] == b) return s;
-        return -1;
-    };
     for (std::size_t q = 0; q < springs.size(); ++q) {
         const auto [a, b] = springs.pairs[q];
         if (a < 0 || b < 0 || std::size_t(a) >= n_ || std::size_t(b) >= n_ || a == b)
@@ -385,22 +378,23 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         if (!(springs.stiffness[q] >= 0) || !(springs.rest_length[q] > 0) || !std::isfinite(springs.stiffness[q]) ||
             !std::isfinite(springs.rest_length[q]))
             throw InputError("solver: spring " + std::to_string(q) + " has a bad stiffness or rest length");
-        int sa, sb;
-        if (assign) {
-            sa = find_slot(std::size_t(a), -1, -1);
-            sb = find_slot(std::size_t(b), -1, -1);
+        if (assign) {  // no table given: each spring takes the first free slot at both ends
+            auto free_slot = [&](std::int32_t p) {
+                for (int s = 0; s < slot_count; ++s)
+                    if (table[std::size_t(p)][std::size_t(s)] == -1) return s;
+                return -1;
+            };
+            const int sa = free_slot(a), sb = free_slot(b);
             if (sa < 0 || sb < 0) throw InputError("solver: a particle has more than 18 springs");
             table[std::size_t(a)][std::size_t(sa)] = b;
             table[std::size_t(b)][std::size_t(sb)] = a;
-        } else {
-            sa = find_slot(std::size_t(a), b, -1);
-            sb = find_slot(std::size_t(b), a, sa >= 0 ? opposite_slot(sa) : -1);
-            if (sa < 0 || sb < 0)
-                throw InputError("solver: spring " + std::to_string(q) + " joins particles " + std::to_string(a) + " and " +
-                                 std::to_string(b) + ", which the neighbour table does not list as neighbours");
         }
-        slot_spring[std::size_t(a) * slot_count + std::size_t(sa)] = std::int32_t(q);
-        slot_spring[std::size_t(b) * slot_count + std::size_t(sb)] = std::int32_t(q);
+    }
+    std::vector<std::int32_t> slot_spring;
+    try {
+        slot_spring = spring_of_slot(table, springs);
+    } catch (const InputError& e) {
+        throw InputError(std::string("solver: ") + e.what());
     }
 
     // Per-particle arrays.

@@ -509,20 +509,7 @@ private:
             const auto row = std::size_t(particles.material[i]);
             return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
         };
-        std::vector<std::int32_t> slot_spring(n_ * slot_count, -1);
-        auto find_slot = [&](std::size_t a, std::int32_t b, int preferred) {
-            if (preferred >= 0 && table[a][std::size_t(preferred)] == b) return preferred;
-            for (int s = 0; s < slot_count; ++s)
-                if (table[a][std::size_t(s)] == b) return s;
-            return -1;
-        };
-        for (std::size_t q = 0; q < springs.size(); ++q) {
-            const auto [a, b] = springs.pairs[q];
-            const int sa = find_slot(std::size_t(a), b, -1);
-            const int sb = find_slot(std::size_t(b), a, sa >= 0 ? opposite_slot(sa) : -1);
-            slot_spring[std::size_t(a) * slot_count + std::size_t(sa)] = std::int32_t(q);
-            slot_spring[std::size_t(b) * slot_count + std::size_t(sb)] = std::int32_t(q);
-        }
+        const std::vector<std::int32_t> slot_spring = spring_of_slot(table, springs);  // throws for non-neighbours
         const std::size_t entries = n_pad_ * slot_count;
         std::vector<std::int32_t> neighbour(entries);
         std::vector<float> rest(entries, 0.0f), stiff(entries, 0.0f), dashpot_over_h(entries, 0.0f);

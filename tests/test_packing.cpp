@@ -130,3 +130,31 @@ TEST(Packing, OppositeSlotNegatesTheOffset) {
     }
     EXPECT_THROW(parse_packing_scheme("hilbert"), InputError);
 }
+
+TEST(Packing, SpringOfSlotPutsEverySpringAtTheSlotOfItsOffset) {
+    Lattice lattice = sphere_lattice(8.0, 2.0);
+    const Packing packing = pack_particles(lattice);
+    const auto slot_spring = spring_of_slot(packing.neighbours, lattice.springs);
+    std::size_t filled = 0;
+    for (std::size_t i = 0; i < lattice.particles.size(); ++i)
+        for (int slot = 0; slot < 18; ++slot) {
+            const std::int32_t q = slot_spring[i * 18 + std::size_t(slot)];
+            if (q < 0) continue;
+            ++filled;
+            const auto [a, b] = lattice.springs.pairs[std::size_t(q)];
+            const std::size_t other = std::size_t(a) == i ? std::size_t(b) : std::size_t(a);
+            const auto& li = lattice.particles.lattice_index[i];
+            const auto& lo = lattice.particles.lattice_index[other];
+            const auto& offset = neighbour_offsets[std::size_t(slot)];
+            EXPECT_EQ(lo[0] - li[0], offset[0]);
+            EXPECT_EQ(lo[1] - li[1], offset[1]);
+            EXPECT_EQ(lo[2] - li[2], offset[2]);
+        }
+    EXPECT_EQ(filled, 2 * lattice.springs.size());
+
+    Springs stray = lattice.springs;
+    stray.pairs.push_back({0, std::int32_t(lattice.particles.size() - 1)});  // far apart: not neighbours
+    stray.rest_length.push_back(1.0f);
+    stray.stiffness.push_back(1.0f);
+    EXPECT_THROW(spring_of_slot(packing.neighbours, stray), InputError);
+}
