@@ -122,12 +122,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     glfwSwapInterval(1);
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
-    struct Applied {
-        bool active = false;
-        InstrumentKind kind = InstrumentKind::none;
-        Eigen::Vector3d semi_axes = Eigen::Vector3d::Zero();
-        bool grab = false;
-    } applied[2];
+    ScriptedHands hands(trajectory);
     const double dt = backend.time_step_ms();
     InstrumentKeyframe keyboard;
     if (keyboard_hand0) {
@@ -175,17 +170,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                     backend.set_pose(0, {from.position + f * (to.position - from.position), to.orientation});
                     continue;
                 }
-                const InstrumentKeyframe now_key = trajectory.at(hand, t);
-                Applied& ap = applied[hand];
-                if (!ap.active || ap.kind != now_key.kind || ap.semi_axes != now_key.semi_axes) {
-                    backend.set_instrument(hand, {.kind = now_key.kind, .semi_axes = now_key.semi_axes});
-                    backend.set_pose(hand, now_key.pose);
-                    ap = {true, now_key.kind, now_key.semi_axes, false};
-                }
-                if (now_key.grab && !ap.grab) backend.begin_grab(hand);
-                if (!now_key.grab && ap.grab) backend.release(hand);
-                ap.grab = now_key.grab;
-                backend.set_pose(hand, trajectory.at(hand, t_next).pose);
+                hands.apply(backend, hand, t, t_next);
             }
             const StepReport report = backend.step(1);
             result.steps += report.steps;

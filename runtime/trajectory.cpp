@@ -136,15 +136,24 @@ InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKin
     return k;
 }
 
+void ScriptedHands::apply(Backend& backend, int hand, double t_ms, double t_next_ms) {
+    if (!trajectory_.uses_hand(hand)) return;
+    const InstrumentKeyframe now = trajectory_.at(hand, t_ms);
+    Applied& a = applied_[hand];
+    if (!a.active || a.kind != now.kind || a.semi_axes != now.semi_axes) {
+        backend.set_instrument(hand, {.kind = now.kind, .semi_axes = now.semi_axes});
+        backend.set_pose(hand, now.pose);  // placed at once at its pose now
+        a = {true, now.kind, now.semi_axes, false};
+    }
+    if (now.grab && !a.grab) backend.begin_grab(hand);
+    if (!now.grab && a.grab) backend.release(hand);
+    a.grab = now.grab;
+    backend.set_pose(hand, trajectory_.at(hand, t_next_ms).pose);
+}
+
 ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, const ScriptedRunOptions& options) {
     ScriptedRunResult result;
-    struct Applied {
-        bool active = false;
-        InstrumentKind kind = InstrumentKind::none;
-        Eigen::Vector3d semi_axes = Eigen::Vector3d::Zero();
-        bool grab = false;
-    };
-    Applied applied[2];
+    ScriptedHands hands(trajectory);
     const bool uses[2] = {trajectory.uses_hand(0), trajectory.uses_hand(1)};
     const double dt = backend.time_step_ms();
     const auto start = std::chrono::steady_clock::now();
@@ -152,17 +161,7 @@ ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, c
         const double t = step * dt, t_next = (step + 1) * dt;
         for (int hand = 0; hand < 2; ++hand) {
             if (!uses[hand]) continue;
-            const InstrumentKeyframe now = trajectory.at(hand, t);
-            Applied& a = applied[hand];
-            if (!a.active || a.kind != now.kind || a.semi_axes != now.semi_axes) {
-                backend.set_instrument(hand, {.kind = now.kind, .semi_axes = now.semi_axes});
-                backend.set_pose(hand, now.pose);  // placed at once at its pose now
-                a = {true, now.kind, now.semi_axes, false};
-            }
-            if (now.grab && !a.grab) backend.begin_grab(hand);
-            if (!now.grab && a.grab) backend.release(hand);
-            a.grab = now.grab;
-            backend.set_pose(hand, trajectory.at(hand, t_next).pose);
+            hands.apply(backend, hand, t, t_next);
         }
         const StepReport report = backend.step(1);
         result.steps += report.steps;

@@ -65,6 +65,26 @@ struct ScriptedRunResult {
 /// a hand whose kind or semi-axes change gets set_instrument and is placed at its pose at t; a
 /// grab flag turning on calls begin_grab at t, turning off calls release; then set_pose with the
 /// pose at t + dt, reached at the end of the step.
+/// Applies a trajectory's keyframes to a backend step by step, remembering what each hand holds:
+/// (re)places a hand whose kind or semi-axes change, begins or releases a grab when the flag
+/// turns, then sets the pose the solver should reach by the end of the step. Shared by the
+/// headless run (run_scripted) and the window loop.
+class ScriptedHands {
+public:
+    explicit ScriptedHands(const Trajectory& trajectory) : trajectory_(trajectory) {}
+    /// Before the step from t_ms to t_next_ms, for `hand` (skipped if the trajectory never uses it).
+    void apply(Backend& backend, int hand, double t_ms, double t_next_ms);
+private:
+    struct Applied {
+        bool active = false;
+        InstrumentKind kind = InstrumentKind::none;
+        Eigen::Vector3d semi_axes = Eigen::Vector3d::Zero();
+        bool grab = false;
+    };
+    const Trajectory& trajectory_;
+    Applied applied_[2];
+};
+
 ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, const ScriptedRunOptions& options);
 
 }  // namespace heartsim
