@@ -1,0 +1,97 @@
+/// @file recording.h
+/// @brief The haptic session recording `heartsim run … --device … --record OUT.h5` writes, and
+/// `heartsim run SCENARIO.h5 --replay OUT.h5` replays. HDF5, written atomically. Two time lines:
+/// the device thread's ticks (what each device did and was sent) and the simulation's steps
+/// (the tool poses each step used and the forces it published), plus events. Layout
+/// (docs/haptics.md "Recording"):
+///   root attrs  format = "heartsim.recording", format_version = 1, units = "mm g ms N", frame = "LPS",
+///               scenario (file name), particles, dt_ms, substeps, backend, contact, rate_hz,
+///               interpolation, coupling (0/1), period_p50_ms, period_p99_ms, period_max_ms,
+///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
+///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
+///               instrument ("probe" | "grabber"), semi_axes_mm [3], max_force_n
+///     tick_time_ms   float64 [T]      session clock of each device-thread tick
+///     position_mm    float64 [T,3]    device pose (device frame)
+///     orientation    float64 [T,4]    w, x, y, z
+///     buttons        uint32  [T]
+///     input_n        float64 [T,3]    force before the safety chain (device frame)
+///     force_n        float64 [T,3]    force sent to the device
+///     gain           float32 [T]      safety gain 0…1
+///   /steps
+///     time_ms        float64 [S]      simulated time at the end of the step
+///     wall_ms        float64 [S]      session clock when the step's forces were published
+///     tool_time_ms   float64 [S]      session clock of the tool sample the step used
+///     tool_position_mm float64 [S,2,3]  tool pose per hand (world frame) used by the step
+///     tool_orientation float64 [S,2,4]
+///     grab           int8    [S,2]    1 while the hand's grabber held during the step
+///     force_n        float64 [S,2,3]  forces published after the step (world frame)
+///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
+///     diverged       int8    [S]      the step hit the watchdog
+///   /events
+///     time_ms float64 [E], hand int32 [E] (−1: both), what (fixed-length strings) [E]
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct RecordedHand {
+    bool used = false;
+    std::string device;       ///< the --device spec, e.g. "simulated:samples/haptics/press.csv"
+    std::string device_name;  ///< what the device calls itself
+    std::string instrument;   ///< "probe" or "grabber"
+    std::array<double, 3> semi_axes_mm{};
+    double max_force_n = 0.0;
+    std::vector<double> tick_time_ms;
+    std::vector<std::array<double, 3>> position_mm;
+    std::vector<std::array<double, 4>> orientation;  ///< w, x, y, z
+    std::vector<std::uint32_t> buttons;
+    std::vector<std::array<double, 3>> input_n;
+    std::vector<std::array<double, 3>> force_n;
+    std::vector<float> gain;
+};
+
+struct RecordedSteps {
+    std::vector<double> time_ms, wall_ms, tool_time_ms;
+    std::vector<std::array<std::array<double, 3>, 2>> tool_position_mm;
+    std::vector<std::array<std::array<double, 4>, 2>> tool_orientation;
+    std::vector<std::array<std::int8_t, 2>> grab;
+    std::vector<std::array<std::array<double, 3>, 2>> force_n;
+    std::vector<std::int64_t> force_step;
+    std::vector<std::int8_t> diverged;
+    std::size_t size() const { return time_ms.size(); }
+};
+
+struct RecordedEvent {
+    double time_ms = 0.0;
+    int hand = -1;
+    std::string what;
+};
+
+struct Recording {
+    std::string scenario;
+    std::int64_t particles = 0;
+    double dt_ms = 0.0;
+    std::int32_t substeps = 0;
+    std::string backend, contact, interpolation;
+    double rate_hz = 0.0;
+    bool coupling = false;
+    double period_p50_ms = 0, period_p99_ms = 0, period_max_ms = 0, period_mean_ms = 0;
+    std::int64_t periods = 0, overruns = 0;
+    double latency_p50_ms = 0, latency_p99_ms = 0, latency_max_ms = 0;
+    std::array<RecordedHand, 2> hands;
+    RecordedSteps steps;
+    std::vector<RecordedEvent> events;
+};
+
+/// Writes atomically; throws OutputError naming the file.
+void write_recording(const std::filesystem::path& path, const Recording& recording);
+/// Reads and validates (shapes agree, values finite where they must be); throws InputError
+/// naming the file and the dataset.
+Recording read_recording(const std::filesystem::path& path);
+
+}  // namespace heartsim
