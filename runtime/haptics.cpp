@@ -106,7 +106,8 @@ bool within_passivity_bound(const CouplingSettings& c, double b, double period_m
 // HapticSession
 
 HapticSession::HapticSession(const HapticSettings& settings)
-    : settings_(settings), epoch_(std::chrono::steady_clock::now()), histogram_(histogram_bins + 1, 0) {
+    : settings_(settings), epoch_(std::chrono::steady_clock::now()), histogram_(histogram_bins + 1, 0),
+      latency_histogram_(latency_bins + 1, 0) {
     if (!(settings.rate_hz >= 1.0 && settings.rate_hz <= 20000.0))
         throw InputError("haptics: the haptic rate must be between 1 and 20000 Hz");
 }
@@ -137,8 +138,9 @@ void HapticSession::attach(int hand, Device* device, const DeviceMapping& mappin
     }
 }
 
-void HapticSession::publish_forces(const InstrumentForces& forces, double time_ms, bool diverged, bool reset) {
+void HapticSession::publish_forces(const InstrumentForces& forces, double time_ms, bool diverged, bool reset, double tool_time_ms) {
     ForceSample s;
+    s.tool_time_ms = tool_time_ms;
     for (int i = 0; i < 2; ++i) s.force_n[i] = forces.hand[i].force_n;
     s.time_ms = time_ms;
     s.sequence = ++published_;
@@ -175,12 +177,24 @@ void HapticSession::tick(double now_ms) {
         clean_update = !fault_event;
         last_arrival_ms_ = now_ms;
         last_sample_ = sample;
+        if (sample.tool_time_ms >= 0.0 && sample.tool_time_ms <= now_ms) {
+            const double latency = now_ms - sample.tool_time_ms;
+            ++latency_histogram_[std::clamp(int(latency * 100.0), 0, latency_bins)];
+            latency_max_ms_ = std::max(latency_max_ms_, latency);
+            latency_sum_ms_ += latency;
+            ++latencies_;
+        }
     }
     const bool simulation_fresh = last_sample_.sequence != 0 && now_ms - last_arrival_ms_ <= settings_.safety.stall_ms;
     const bool stop = estop_.load(std::memory_order_acquire);
 
     ToolSamples tools;
     tools.tick = ticks_;
+    TickRecord record;
+    record.time_ms = now_ms;
+    record.tick = ticks_;
+    record.estop = stop;
+    record.simulation_fresh = simulation_fresh;
     for (int i = 0; i < 2; ++i) {
         Hand& h = hands_[i];
         if (!h.device) continue;
@@ -251,8 +265,13 @@ void HapticSession::tick(double now_ms) {
         ++h.telemetry.forces_sent;
         h.telemetry.safety = h.safety->counters();
         h.telemetry.gain = h.safety->gain();
+        record.pose[i] = pose;
+        record.input_n[i] = device_force;
+        record.force_n[i] = out;
+        record.gain[i] = float(h.safety->gain());
     }
     tools_.publish(tools);
+    if (ticks_queue_.enabled()) ticks_queue_.push(record);
 }
 
 void HapticSession::start() {
@@ -314,6 +333,26 @@ PeriodStats HapticSession::period_stats() const {
     };
     s.p50_ms = percentile(0.50);
     s.p99_ms = std::min(percentile(0.99), s.max_ms);
+    return s;
+}
+
+LatencyStats HapticSession::latency_stats() const {
+    LatencyStats s;
+    s.samples = latencies_;
+    s.max_ms = latency_max_ms_;
+    if (latencies_ == 0) return s;
+    s.mean_ms = latency_sum_ms_ / double(latencies_);
+    auto percentile = [&](double q) {
+        const std::uint64_t target = std::uint64_t(std::ceil(q * double(latencies_)));
+        std::uint64_t seen = 0;
+        for (int b = 0; b <= latency_bins; ++b) {
+            seen += latency_histogram_[b];
+            if (seen >= target) return std::min((b + 0.5) / 100.0, s.max_ms);
+        }
+        return s.max_ms;
+    };
+    s.p50_ms = percentile(0.50);
+    s.p99_ms = percentile(0.99);
     return s;
 }
 

@@ -31,6 +31,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -72,8 +73,57 @@ private:
     alignas(64) unsigned front_ = 2;  // reader's
 };
 
+/// Single producer, single consumer queue of fixed capacity, wait-free: the device thread pushes
+/// one record per tick, the simulation thread drains them. A full queue drops the new record and
+/// counts it (the device thread never waits and never allocates).
+template <class T>
+class SpscQueue {
+public:
+    explicit SpscQueue(std::size_t capacity = 0) { reset(capacity); }
+    /// Not concurrently with push / drain.
+    void reset(std::size_t capacity) {
+        std::size_t c = 1;
+        while (c < capacity) c <<= 1;
+        slots_.assign(capacity ? c : 0, T{});
+        head_.store(0), tail_.store(0), dropped_.store(0);
+    }
+    bool enabled() const { return !slots_.empty(); }
+    /// Producer only.
+    bool push(const T& value) {
+        const std::size_t tail = tail_.load(std::memory_order_relaxed);
+        if (slots_.empty() || tail - head_.load(std::memory_order_acquire) >= slots_.size()) {
+            dropped_.fetch_add(1, std::memory_order_relaxed);
+            return false;
+        }
+        slots_[tail & (slots_.size() - 1)] = value;
+        tail_.store(tail + 1, std::memory_order_release);
+        return true;
+    }
+    /// Consumer only: appends everything queued to `out`; returns how many.
+    std::size_t drain(std::vector<T>& out) {
+        const std::size_t head = head_.load(std::memory_order_relaxed), tail = tail_.load(std::memory_order_acquire);
+        for (std::size_t i = head; i < tail; ++i) out.push_back(slots_[i & (slots_.size() - 1)]);
+        head_.store(tail, std::memory_order_release);
+        return tail - head;
+    }
+    std::uint64_t dropped() const { return dropped_.load(std::memory_order_relaxed); }
+
+private:
+    std::vector<T> slots_;
+    alignas(64) std::atomic<std::size_t> head_{0};
+    alignas(64) std::atomic<std::size_t> tail_{0};
+    std::atomic<std::uint64_t> dropped_{0};
+};
+
 // ------------------------------------------------------------------------------------------------
 // Devices
+
+/// A haptic device that cannot be used: not found, not calibrated, its driver or scheduler
+/// failed, or a device that needs a window in a headless run. heartsim exits 4 with the message.
+class DeviceUnavailable : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
 
 /// A device sample: position mm and orientation (device frame), buttons as bits.
 struct DevicePose {
@@ -174,6 +224,41 @@ private:
     double time_ms_ = 0.0;
     bool started_ = false;
     double rendered_work_mj_ = 0.0, hand_work_mj_ = 0.0;
+};
+
+/// `mouse`: the window's mouse and keyboard drive this device. The window (main) thread moves it
+/// with set_pose(); the device thread reads the newest pose and sends forces, which the window
+/// reads back with latest_force() to show them. Poses are in the world frame (mapping identity).
+class WindowDevice final : public Device {
+public:
+    explicit WindowDevice(DeviceLimits limits = {}) : limits_(limits) { limits_.workspace_mm.setEmpty(); }
+    std::string name() const override { return "mouse"; }
+    DeviceLimits limits() const override { return limits_; }
+    DevicePose read_pose(double) override {
+        pose_.fetch(current_);
+        return current_;
+    }
+    void send_force(const Eigen::Vector3d& force_n, double) override { force_.publish(force_n); }
+    /// Window thread only.
+    void set_pose(const DevicePose& pose) {
+        last_set_ = pose;
+        pose_.publish(pose);
+    }
+    /// Window thread only: the pose it last set.
+    const DevicePose& last_set() const { return last_set_; }
+    /// Window thread only: the newest force sent (zero before the first).
+    Eigen::Vector3d latest_force() {
+        Eigen::Vector3d f = Eigen::Vector3d::Zero();
+        force_.fetch(f);
+        return f;
+    }
+
+private:
+    DeviceLimits limits_;
+    LatestValue<DevicePose> pose_;
+    DevicePose current_;    // device thread's
+    DevicePose last_set_;   // window thread's
+    LatestValue<Eigen::Vector3d> force_;
 };
 
 // ------------------------------------------------------------------------------------------------
@@ -286,6 +371,9 @@ struct ForceSample {
     std::uint64_t sequence = 0;      ///< 1, 2, …; 0 = none yet
     std::uint64_t divergences = 0;   ///< cumulative
     std::uint64_t resets = 0;        ///< cumulative
+    /// Session clock of the tool sample the step that produced these forces used (its pose is
+    /// what they reflect); < 0 = unknown. The device thread measures pose → force latency by it.
+    double tool_time_ms = -1.0;
 };
 
 struct HapticSettings {
@@ -300,6 +388,25 @@ struct PeriodStats {
     std::uint64_t ticks = 0;
     double p50_ms = 0.0, p99_ms = 0.0, max_ms = 0.0, mean_ms = 0.0;
     std::uint64_t overruns = 0;  ///< ticks that started more than one period late (skipped ahead)
+};
+
+/// Pose → force latency, ms: from a tool sample (device read) to the tick that first sends a force
+/// computed from it (measured on the device thread when the force arrives).
+struct LatencyStats {
+    std::uint64_t samples = 0;
+    double p50_ms = 0.0, p99_ms = 0.0, max_ms = 0.0, mean_ms = 0.0;
+};
+
+/// One device-thread tick, for recording (HapticSession::enable_tick_recording).
+struct TickRecord {
+    double time_ms = 0.0;
+    std::uint64_t tick = 0;
+    std::array<DevicePose, 2> pose{};                 ///< device frame, as read
+    std::array<Eigen::Vector3d, 2> input_n{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< before safety
+    std::array<Eigen::Vector3d, 2> force_n{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< sent
+    std::array<float, 2> gain{};
+    bool estop = false;            ///< the emergency stop was engaged this tick
+    bool simulation_fresh = false; ///< a simulation force arrived within stall_ms
 };
 
 /// What one hand did on the device thread (read after stop(), or from the thread calling tick()).
@@ -328,7 +435,9 @@ public:
     // --- simulation side (one thread) -----------------------------------------------------------
     /// Publishes both hands' forces from one InstrumentForces (world frame). `diverged`: the step
     /// that produced them hit the watchdog; `reset`: the simulation was reset.
-    void publish_forces(const InstrumentForces& forces, double time_ms, bool diverged = false, bool reset = false);
+    /// `tool_time_ms`: ToolSample::time_ms of the poses the producing step used (latency), or < 0.
+    void publish_forces(const InstrumentForces& forces, double time_ms, bool diverged = false, bool reset = false,
+                        double tool_time_ms = -1.0);
     /// The newest tool poses, or nullopt before the first tick.
     std::optional<ToolSamples> latest_tools();
 
@@ -350,7 +459,15 @@ public:
 
     /// After stop() (or from the ticking thread).
     PeriodStats period_stats() const;
+    LatencyStats latency_stats() const;
     HandTelemetry telemetry(int hand) const;
+    bool attached(int hand) const { return hands_.at(hand).device != nullptr; }
+
+    /// Before start(): keep a TickRecord of every tick in a queue of `capacity` (0 = off), which
+    /// the simulation thread empties with drain_ticks() well within capacity ticks.
+    void enable_tick_recording(std::size_t capacity) { ticks_queue_.reset(capacity); }
+    std::size_t drain_ticks(std::vector<TickRecord>& out) { return ticks_queue_.drain(out); }
+    std::uint64_t dropped_ticks() const { return ticks_queue_.dropped(); }
 
 private:
     struct Hand {
@@ -391,6 +508,12 @@ private:
     std::vector<std::uint32_t> histogram_;
     double period_max_ms_ = 0.0, period_sum_ms_ = 0.0;
     std::uint64_t periods_ = 0, overruns_ = 0;
+    // pose → force latency: 10 µs bins up to 1 s, device thread only
+    static constexpr int latency_bins = 100000;
+    std::vector<std::uint32_t> latency_histogram_;
+    double latency_max_ms_ = 0.0, latency_sum_ms_ = 0.0;
+    std::uint64_t latencies_ = 0;
+    SpscQueue<TickRecord> ticks_queue_;
 };
 
 std::string format_period_stats(const PeriodStats& stats, double rate_hz);
