@@ -70,6 +70,9 @@ public:
     /// ring, fenced); latest_forces() returns the newest finished one without waiting.
     virtual void request_forces() = 0;
     virtual std::optional<InstrumentForces> latest_forces() = 0;
+    /// The request number (0, 1, … in request_forces() order) of what latest_forces() returned
+    /// last; meaningful once it returned a value.
+    virtual std::uint64_t latest_forces_request() const = 0;
     /// Both hands' forces on the current state, N, world frame (the force the tissue exerts on
     /// the instrument, docs/solver.md). Waits for the GPU.
     virtual InstrumentForces instrument_forces() = 0;

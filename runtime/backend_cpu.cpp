@@ -63,10 +63,12 @@ public:
     void request_forces() override {
         const auto start = Clock::now();
         latest_ = solver_.instrument_forces();
+        latest_request_ = requests_++;
         times_.force_ms += std::chrono::duration<double, std::milli>(Clock::now() - start).count();
         ++times_.force_calls;
     }
     std::optional<InstrumentForces> latest_forces() override { return latest_; }
+    std::uint64_t latest_forces_request() const override { return latest_request_; }
     InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
     std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
     PassTimes pass_times() override { return times_; }
@@ -80,6 +82,7 @@ private:
     Solver solver_;
     PassTimes times_;
     std::optional<InstrumentForces> latest_;
+    std::uint64_t requests_ = 0, latest_request_ = 0;
 };
 
 }  // namespace

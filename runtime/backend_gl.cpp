@@ -311,6 +311,8 @@ public:
         check("request_forces");
     }
 
+    std::uint64_t latest_forces_request() const override { return latest_sequence_; }
+
     std::optional<InstrumentForces> latest_forces() override {
         // Newest finished slot, without waiting.
         for (int back = 1; back <= ring_slots; ++back) {

@@ -2,10 +2,12 @@
 // docs/runtime.md.
 #include "backend.h"
 #include "gl_context.h"
+#include "haptic_run.h"
 #include "png.h"
 #include "renderer.h"
 #include "trajectory.h"
 
+#include "formats/recording.h"
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "libmodel/errors.h"
@@ -14,8 +16,11 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <csignal>
+#include <thread>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
@@ -43,7 +48,19 @@ struct RunArguments {
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
     bool steps_given = false;        // --steps 0 (the rest state) differs from no --steps
+    // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
+    std::vector<std::string> devices, instruments;
+    double haptic_rate = 1000.0;
+    double max_force = 0.0;          // 0 = each device's own maximum
+    std::string interpolation = "hold";
+    bool coupling = false;
+    std::string record, replay;
+    double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
+    bool backend_given = false;
 };
+
+/// Ctrl-C during a haptic run: end it cleanly (forces fade out, the recording is written).
+std::atomic<bool> interrupted{false};
 
 /// "WxH" → (W, H); empty gives `fallback`.
 std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fallback) {
@@ -64,6 +81,44 @@ std::string numbered_screenshot(const std::string& path, long long step) {
     return (p.parent_path() / (p.stem().string() + suffix + p.extension().string())).string();
 }
 
+/// The particles' rest bounding box (where the devices' frames are placed when nothing is drawn).
+Eigen::AlignedBox3f model_box(const Scenario& scenario) {
+    Eigen::AlignedBox3f box;
+    for (const auto& p : scenario.lattice.particles.rest_position) box.extend(Eigen::Vector3f(p[0], p[1], p[2]));
+    if (box.isEmpty()) box.extend(Eigen::Vector3f::Zero());
+    return box;
+}
+
+/// --replay: the recording's tool poses and grabs, step by step, on this backend; compares the
+/// forces with the recorded ones. Exit 0 when they agree within the tolerance, 5 when not.
+int replay_recording(const RunArguments& a, Backend& backend, Renderer* renderer) {
+    const Recording recording = read_recording(a.replay);
+    std::printf("replay: %s (%s backend, %zu steps of %.4g ms, %s%s%s) on the %s backend\n", a.replay.c_str(), recording.backend.c_str(),
+                recording.steps.size(), recording.dt_ms, recording.hands[0].used ? ("hand 0 " + recording.hands[0].instrument).c_str() : "",
+                recording.hands[0].used && recording.hands[1].used ? ", " : "",
+                recording.hands[1].used ? ("hand 1 " + recording.hands[1].instrument).c_str() : "", to_string(backend.kind()));
+    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay);
+    const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
+    const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
+    std::printf("replay: %zu steps in %.4g ms; %zu forces compared, %zu bit for bit identical; max |Δf| %.3g N, rms %.3g N "
+                "(largest recorded force %.4g N%s)\n",
+                r.steps, r.wall_ms, r.compared, r.identical, r.max_difference_n, r.rms_difference_n, r.max_force_n,
+                r.worst_step >= 0 && r.max_difference_n > 0 ? (", worst at step " + std::to_string(r.worst_step)).c_str() : "");
+    if (renderer && !a.screenshot.empty()) {
+        renderer->render(backend, {});
+        write_png(a.screenshot, renderer->read_pixels());
+        std::printf("wrote %s\n", a.screenshot.c_str());
+    }
+    if (r.max_difference_n > tolerance) {
+        std::fprintf(stderr, "heartsim: replay of %s: forces differ from the recording by up to %.3g N (tolerance %.3g N%s)\n",
+                     a.replay.c_str(), r.max_difference_n, tolerance, exact ? ": a cpu recording replayed on cpu must be identical" : "");
+        return 5;
+    }
+    std::printf("replay: the forces %s\n", r.identical == r.compared ? "match the recording bit for bit"
+                                                                    : ("match the recording within " + std::to_string(tolerance) + " N").c_str());
+    return 0;
+}
+
 /// The instruments of the script at `time_ms`, to draw.
 std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time_ms) {
     std::vector<InstrumentShape> shapes;
@@ -80,24 +135,36 @@ struct WindowInput {
     Renderer* renderer = nullptr;
     double last_x = 0, last_y = 0;
     bool orbiting = false, panning = false, paused = false;
+    // The mouse haptic device (--device mouse): Ctrl + left drag moves it in the view plane,
+    // Ctrl + wheel in depth, G toggles its button 1 (grab), E the emergency stop.
+    haptics::WindowDevice* device = nullptr;
+    haptics::HapticSession* session = nullptr;
+    haptics::DevicePose device_pose;
+    bool dragging_device = false, estop = false;
 };
 
 /// The window mode's loop: per frame, the scenario's /solver substeps (steps per frame) with the
 /// script or the keyboard moving the instruments, then one rendered frame. Ends on Esc, on
 /// closing the window, or after `steps` steps (< 0: no limit). Returns what run_scripted would.
 ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
-                             int steps, int steps_per_frame, const RunArguments& a) {
+                             int steps, int steps_per_frame, const RunArguments& a, haptics::HapticRun* haptic) {
     auto* window = static_cast<GLFWwindow*>(context.window());
     WindowInput input;
     input.renderer = &renderer;
+    if (haptic) {
+        input.session = &haptic->session();
+        input.device = haptic->window_device();
+        if (input.device) input.device_pose = input.device->last_set();
+    }
     glfwSetWindowUserPointer(window, &input);
     glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
         const bool down = action == GLFW_PRESS;
-        if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
+        if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL)) in->dragging_device = down;
+        else if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
         if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
             in->panning = down;
-        if (!down) in->orbiting = in->panning = false;
+        if (!down) in->orbiting = in->panning = in->dragging_device = false;
         glfwGetCursorPos(w, &in->last_x, &in->last_y);
     });
     glfwSetCursorPosCallback(window, [](GLFWwindow* w, double x, double y) {
@@ -106,11 +173,26 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         in->last_x = x, in->last_y = y;
         int width = 0, height = 0;
         glfwGetWindowSize(w, &width, &height);
+        if (in->dragging_device) {
+            // One pixel = the model's view height / window height at the target's depth.
+            const Camera& camera = in->renderer->camera();
+            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
+            const double mm_per_pixel = 2.0 * camera.distance * std::tan(camera.fov_y_degrees * M_PI / 360.0) / std::max(height, 1);
+            in->device_pose.position_mm += mm_per_pixel * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
+            return;
+        }
         if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);
         if (in->panning) in->renderer->camera().pan(dx, dy, height);
     });
     glfwSetScrollCallback(window, [](GLFWwindow* w, double, double y) {
-        static_cast<WindowInput*>(glfwGetWindowUserPointer(w))->renderer->camera().zoom(std::pow(0.9f, float(y)));
+        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        if (in->device && (glfwGetKey(w, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS || glfwGetKey(w, GLFW_KEY_RIGHT_CONTROL) == GLFW_PRESS)) {
+            const Camera& camera = in->renderer->camera();
+            const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
+            in->device_pose.position_mm -= back * (0.02 * camera.radius * y);  // wheel up: into the screen
+            return;
+        }
+        in->renderer->camera().zoom(std::pow(0.9f, float(y)));
     });
     glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int) {
         if (action != GLFW_PRESS) return;
@@ -118,6 +200,12 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
         if (key == GLFW_KEY_R) in->renderer->reset_camera();
         if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
+        if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
+        if (key == GLFW_KEY_E && in->session) {
+            in->estop = !in->estop;
+            if (in->estop) in->session->emergency_stop();
+            else in->session->release_emergency_stop();
+        }
     });
     glfwSwapInterval(1);
 
@@ -144,9 +232,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         int n = input.paused ? 0 : steps_per_frame;
         if (steps >= 0) n = std::min(n, steps - result.steps);
 
-        // Keyboard: arrows move hand 0 in the view plane, PgUp/PgDn into / out of the screen.
+        // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
+        // out of the screen.
         InstrumentPose from = keyboard.pose, to = keyboard.pose;
-        if (keyboard_hand0) {
+        if (keyboard_hand0 || input.device) {
             const Camera& camera = renderer.camera();
             const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
             Eigen::Vector3d move = Eigen::Vector3d::Zero();
@@ -159,6 +248,20 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
             to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
             keyboard.pose = to;
+            if (input.device) {
+                input.device_pose.position_mm += to.position - from.position;
+                input.device->set_pose(input.device_pose);
+            }
+        }
+        if (haptic) {
+            // Haptics: the simulation follows real time (at most 200 steps per frame); the device
+            // thread moves the instruments.
+            if (!input.paused) {
+                haptic->step_to_real_time(steps >= 0 ? std::min(200, steps - result.steps) : 200, 12.0);
+                result.steps = haptic->result().steps;
+                result.substeps = haptic->result().substeps;
+            }
+            n = 0;
         }
         for (int k = 0; k < n; ++k) {
             const int step = result.steps;
@@ -185,8 +288,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         int width = 0, height = 0;
         glfwGetFramebufferSize(window, &width, &height);
         if (width > 0 && height > 0) renderer.resize(width, height);
-        std::vector<InstrumentShape> shapes;
-        for (int hand = 0; hand < 2; ++hand) {
+        std::vector<InstrumentShape> shapes = haptic ? haptic->shapes() : std::vector<InstrumentShape>{};
+        for (int hand = 0; hand < 2 && !haptic; ++hand) {
             if (!trajectory.uses_hand(hand)) continue;
             const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, backend.simulated_time_ms());
             if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
@@ -203,14 +306,22 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (frames % 30 == 0) {
             const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
             char title[256];
-            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s%s", std::filesystem::path(a.scenario).filename().c_str(),
-                          frames / s, result.steps / s, input.paused ? " (paused)" : "");
+            std::string forces;
+            if (input.device) {
+                const Eigen::Vector3d f = input.device->latest_force();
+                char text[96];
+                std::snprintf(text, sizeof text, ", mouse device force %.3f N%s", f.norm(), input.device_pose.buttons & 1u ? ", grab" : "");
+                forces = text;
+            }
+            if (input.estop) forces += ", EMERGENCY STOP (E releases)";
+            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s%s%s", std::filesystem::path(a.scenario).filename().c_str(),
+                          frames / s, result.steps / s, input.paused ? " (paused)" : "", forces.c_str());
             glfwSetWindowTitle(window, title);
         }
     }
     result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    std::printf("window: %lld frames in %.3g s (%.1f fps), %d steps per frame\n", frames, result.wall_ms * 1e-3,
-                frames / std::max(result.wall_ms * 1e-3, 1e-9), steps_per_frame);
+    std::printf("window: %lld frames in %.3g s (%.1f fps), %s\n", frames, result.wall_ms * 1e-3, frames / std::max(result.wall_ms * 1e-3, 1e-9),
+                haptic ? "steps to real time between frames (haptics)" : (std::to_string(steps_per_frame) + " steps per frame").c_str());
     return result;
 }
 
@@ -221,9 +332,20 @@ int command_info() {
 }
 
 int command_run(const RunArguments& a) {
-    const BackendKind kind = parse_backend_kind(a.backend);
+    // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
+    const BackendKind kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
     if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw InputError("--screenshot-every needs --screenshot OUT.png");
+    const bool haptic_run = !a.devices.empty();
+    if (a.devices.size() > 2) throw InputError("--device: at most two (hand 0, hand 1)");
+    if (haptic_run && (!a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
+        throw InputError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
+    if (!haptic_run && (!a.instruments.empty() || !a.record.empty()))
+        throw InputError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
+    if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
+        throw InputError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
+    if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
+        throw InputError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
     const bool render = !a.headless || !a.screenshot.empty();
     const auto [frame_width, frame_height] = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
@@ -321,10 +443,53 @@ int command_run(const RunArguments& a) {
         trajectory.keyframes.insert(trajectory.keyframes.begin(), k);
     }
 
+    if (!a.replay.empty()) return replay_recording(a, *backend, renderer ? &*renderer : nullptr);
+
+    std::unique_ptr<haptics::HapticRun> haptic;
+    if (haptic_run) {
+        haptics::HapticRunSettings settings;
+        settings.devices = a.devices;
+        settings.instruments = a.instruments;
+        settings.session.rate_hz = a.haptic_rate;
+        settings.session.safety.max_force_n = a.max_force;
+        settings.session.interpolation = a.interpolation == "extrapolate" ? haptics::ForceInterpolation::extrapolate
+                                                                          : haptics::ForceInterpolation::hold;
+        settings.session.coupling.enabled = a.coupling;  // K, B chosen per device within the passivity bound
+        settings.record = a.record;
+        settings.contact = a.contact;
+        haptics::HapticRunContext context_settings{.headless = a.headless};
+        context_settings.camera = renderer ? renderer->camera()
+                                           : fit_camera(model_box(scenario), view, float(frame_width) / float(frame_height));
+        haptic = std::make_unique<haptics::HapticRun>(*backend, scenario, a.scenario, settings, context_settings);
+        for (int hand = 0; hand < 2; ++hand)
+            if (haptic->uses_hand(hand)) std::printf("%s\n", haptic->describe(hand).c_str());
+        if (a.headless) std::printf("haptics: %s at %.0f Hz; the simulation follows real time; Ctrl-C ends the run cleanly\n",
+                                    a.seconds > 0 ? (std::to_string(a.seconds) + " s").c_str() : (std::to_string(steps) + " steps").c_str(),
+                                    a.haptic_rate);
+        else std::printf("haptics: E = emergency stop (again: release), G = grab button of the mouse device, Ctrl + drag / wheel moves it\n");
+        std::fflush(stdout);
+        haptic->start();
+    }
+
     const auto wall_start = std::chrono::steady_clock::now();
     ScriptedRunResult run;
-    if (!a.headless) {
-        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, std::max(1, scenario.solver.substeps), a);
+    if (haptic && a.headless) {
+        std::signal(SIGINT, [](int) { interrupted.store(true); });
+        const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
+        const double started = haptic->session().now_ms();
+        while (!interrupted.load() && haptic->session().now_ms() - started < end_ms &&
+               (a.seconds > 0 || haptic->result().steps < steps)) {
+            const int limit = a.seconds > 0 ? 1000 : steps - haptic->result().steps;
+            if (haptic->step_to_real_time(limit) == 0)
+                std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
+        }
+        std::signal(SIGINT, SIG_DFL);
+        if (interrupted.load()) std::printf("interrupted: ending the session\n");
+        haptic->finish(run);
+    } else if (!a.headless) {
+        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, std::max(1, scenario.solver.substeps), a,
+                         haptic.get());
+        if (haptic) haptic->finish(run);
     } else {
         ScriptedRunOptions scripted{.steps = steps, .forces_every_step = !trajectory.keyframes.empty()};
         if (renderer && a.screenshot_every > 0)
@@ -335,8 +500,9 @@ int command_run(const RunArguments& a) {
             };
         run = run_scripted(*backend, trajectory, scripted);
     }
+    auto uses_hand = [&](int hand) { return haptic ? haptic->uses_hand(hand) : trajectory.uses_hand(hand); };
     if (renderer && !a.screenshot.empty()) {
-        renderer->render(*backend, shapes_at(trajectory, backend->simulated_time_ms()));
+        renderer->render(*backend, haptic ? haptic->shapes() : shapes_at(trajectory, backend->simulated_time_ms()));
         write_png(a.screenshot, renderer->read_pixels());
         std::printf("wrote %s (%dx%d)\n", a.screenshot.c_str(), renderer->width(), renderer->height());
     }
@@ -348,7 +514,7 @@ int command_run(const RunArguments& a) {
                 run.substeps, backend->simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend->simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
     for (int hand = 0; hand < 2; ++hand) {
-        if (!trajectory.uses_hand(hand)) continue;
+        if (!uses_hand(hand)) continue;
         const auto& f = forces.hand[hand];
         std::printf("hand %d force (%.6g, %.6g, %.6g) N on %zu particles\n", hand, f.force_n.x(), f.force_n.y(), f.force_n.z(), f.particles);
     }
@@ -428,7 +594,11 @@ int command_run(const RunArguments& a) {
         for (int hand = 0; hand < 2; ++hand) {
             for (int c = 0; c < 3; ++c) state.force_n[hand][c] = forces.hand[hand].force_n[c];
             state.particles[hand] = std::int32_t(forces.hand[hand].particles);
-            state.kind[hand] = trajectory.uses_hand(hand) ? (trajectory.at(hand, backend->simulated_time_ms()).kind == InstrumentKind::probe ? 1 : 2) : 0;
+            if (haptic) {
+                state.kind[hand] = !haptic->uses_hand(hand) ? 0 : haptic->instrument(hand) == InstrumentKind::probe ? 1 : 2;
+            } else {
+                state.kind[hand] = trajectory.uses_hand(hand) ? (trajectory.at(hand, backend->simulated_time_ms()).kind == InstrumentKind::probe ? 1 : 2) : 0;
+            }
         }
         write_state(a.save_state, state);
         std::printf("wrote %s\n", a.save_state.c_str());
@@ -470,20 +640,48 @@ int main(int argc, char** argv) {
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
     run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
         ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));
-    // Training staff launch a session as `heartsim scenario.h5`: a first argument that is not a
-    // subcommand or an option means `run`.
+    run->add_option("--device", a.devices,
+                    "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
+                    ".h5[@HAND]), simulated:FILE (a virtual device pushed by a scripted hand force), mouse (the window), "
+                    "openhaptics[:NAME] (3D Systems Touch / Phantom Omni through libHD)")
+        ->type_name("SPEC")
+        ->allow_extra_args(false);
+    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe or grabber[:AX,AY,AZ] semi-axes mm "
+                                                    "(default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber holds while "
+                                                    "button 1 is pressed)")
+        ->type_name("KIND")
+        ->allow_extra_args(false);
+    run->add_option("--haptic-rate", a.haptic_rate, "Device thread rate, Hz")->check(CLI::Range(100.0, 10000.0))->capture_default_str();
+    run->add_option("--max-force", a.max_force, "Largest force sent to any device, N (default: each device's own maximum; never above it)")
+        ->check(CLI::NonNegativeNumber);
+    run->add_option("--interpolation", a.interpolation, "Force between simulation updates: hold (zero order) or extrapolate (first order)")
+        ->check(CLI::IsMember({"hold", "extrapolate"}))->capture_default_str();
+    run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
+    run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5)");
+    run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces")
+        ->check(CLI::ExistingFile);
+    run->add_option("--replay-tolerance", a.replay_tolerance,
+                    "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
+        ->check(CLI::NonNegativeNumber);
+    // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
+    // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
     std::vector<char*> arguments(argv, argv + argc);
     static char run_word[] = "run";
-    if (argc >= 2 && argv[1][0] != '-' && std::string(argv[1]) != "run" && std::string(argv[1]) != "info")
+    const std::string first = argc >= 2 ? argv[1] : "";
+    if (argc >= 2 && first != "run" && first != "info" && first != "-h" && first != "--help" && first != "--version")
         arguments.insert(arguments.begin() + 1, run_word);
     CLI11_PARSE(app, int(arguments.size()), arguments.data());
     a.steps_given = run->count("--steps") > 0;
+    a.backend_given = run->count("--backend") > 0;
     try {
         if (info->parsed()) return command_info();
         if (run->parsed()) return command_run(a);
     } catch (const GlUnavailable& e) {
         std::fprintf(stderr, "heartsim: %s\n", e.what());
         return 3;
+    } catch (const haptics::DeviceUnavailable& e) {
+        std::fprintf(stderr, "heartsim: %s\n", e.what());
+        return 4;
     } catch (const InputError& e) {
         std::fprintf(stderr, "heartsim: %s\n", e.what());
         return 2;

@@ -1,0 +1,584 @@
+// The simulation side of a haptic session: devices from --device specs, the real-time step loop,
+// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md).
+#include "haptic_run.h"
+
+#include "openhaptics.h"
+
+#include "libmodel/errors.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+namespace heartsim::haptics {
+
+namespace {
+
+std::string lower_extension(const std::string& file) {
+    std::string e = std::filesystem::path(file).extension().string();
+    std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    return e;
+}
+
+std::string trim(const std::string& s) {
+    const auto b = s.find_first_not_of(" \t\r"), e = s.find_last_not_of(" \t\r");
+    return b == std::string::npos ? "" : s.substr(b, e - b + 1);
+}
+
+const char* instrument_name(InstrumentKind kind) { return kind == InstrumentKind::grabber ? "grabber" : "probe"; }
+
+std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
+std::array<double, 4> to_array(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
+
+}  // namespace
+
+// ------------------------------------------------------------------------------------------------
+// Command-line vocabulary
+
+DeviceSpec parse_device_spec(const std::string& text) {
+    DeviceSpec spec;
+    spec.text = text;
+    const auto colon = text.find(':');
+    const std::string kind = text.substr(0, colon);
+    spec.argument = colon == std::string::npos ? "" : text.substr(colon + 1);
+    const char* usage = "expected scripted:FILE, simulated:FILE, mouse or openhaptics[:NAME]";
+    if (kind == "scripted" || kind == "simulated") {
+        spec.kind = kind == "scripted" ? DeviceSpec::Kind::scripted : DeviceSpec::Kind::simulated;
+        if (spec.argument.empty()) throw InputError("--device " + text + ": " + kind + " needs a file (" + usage + ")");
+    } else if (kind == "mouse") {
+        spec.kind = DeviceSpec::Kind::mouse;
+        if (!spec.argument.empty()) throw InputError("--device " + text + ": mouse takes no argument");
+    } else if (kind == "openhaptics") {
+        spec.kind = DeviceSpec::Kind::openhaptics;
+    } else {
+        throw InputError("--device " + text + ": unknown device '" + kind + "'; " + usage);
+    }
+    return spec;
+}
+
+SimulatedDeviceSettings parse_simulated_device(const std::string& text, const std::string& name) {
+    SimulatedDeviceSettings settings;
+    bool workspace_given = false;
+    // Settings rows are taken out (replaced by blank lines, so the force rows keep their numbers).
+    std::istringstream in(text);
+    std::string line, forces;
+    int number = 0;
+    while (std::getline(in, line)) {
+        ++number;
+        std::string content = line;
+        if (const auto hash = content.find('#'); hash != std::string::npos) content.erase(hash);
+        const std::string key = trim(content.substr(0, content.find(',')));
+        const bool is_setting = key == "start_mm" || key == "mass_g" || key == "damping_n_ms_per_mm" || key == "max_force_n" || key == "workspace_mm";
+        if (!is_setting) {
+            forces += line + '\n';
+            continue;
+        }
+        forces += '\n';
+        std::vector<double> values;
+        std::istringstream fields(content.substr(content.find(',') == std::string::npos ? content.size() : content.find(',') + 1));
+        std::string field;
+        while (std::getline(fields, field, ',')) {
+            const std::string f = trim(field);
+            char* end = nullptr;
+            const double v = std::strtod(f.c_str(), &end);
+            if (f.empty() || *end != '\0' || !std::isfinite(v))
+                throw InputError(name + ":" + std::to_string(number) + ": " + key + ": '" + f + "' is not a finite number");
+            values.push_back(v);
+        }
+        const std::size_t expected = key == "start_mm" ? 3 : key == "workspace_mm" ? 6 : 1;
+        if (values.size() != expected)
+            throw InputError(name + ":" + std::to_string(number) + ": " + key + " needs " + std::to_string(expected) + " number" +
+                             (expected > 1 ? "s" : "") + ", found " + std::to_string(values.size()));
+        if (key == "start_mm") settings.start_mm = Eigen::Vector3d(values[0], values[1], values[2]);
+        if (key == "mass_g") {
+            if (!(values[0] > 0.0)) throw InputError(name + ":" + std::to_string(number) + ": mass_g must be positive");
+            settings.mass_g = values[0];
+        }
+        if (key == "damping_n_ms_per_mm") {
+            if (!(values[0] >= 0.0)) throw InputError(name + ":" + std::to_string(number) + ": damping_n_ms_per_mm must not be negative");
+            settings.damping_n_ms_per_mm = values[0];
+        }
+        if (key == "max_force_n") {
+            if (!(values[0] > 0.0)) throw InputError(name + ":" + std::to_string(number) + ": max_force_n must be positive");
+            settings.limits.max_force_n = values[0];
+        }
+        if (key == "workspace_mm") {
+            const Eigen::Vector3d lo(values[0], values[1], values[2]), hi(values[3], values[4], values[5]);
+            if (!(lo.array() < hi.array()).all())
+                throw InputError(name + ":" + std::to_string(number) + ": workspace_mm needs X0 < X1, Y0 < Y1, Z0 < Z1");
+            settings.limits.workspace_mm = Eigen::AlignedBox3d(lo, hi);
+            workspace_given = true;
+        }
+    }
+    settings.hand_force = parse_hand_force(forces, name);
+    if (!workspace_given) {
+        const Eigen::Vector3d half(80, 60, 35);
+        settings.limits.workspace_mm = Eigen::AlignedBox3d(settings.start_mm - half, settings.start_mm + half);
+    }
+    if (!settings.limits.workspace_mm.contains(settings.start_mm))
+        throw InputError(name + ": start_mm lies outside workspace_mm");
+    return settings;
+}
+
+SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot open");
+    std::ostringstream s;
+    s << in.rdbuf();
+    return parse_simulated_device(s.str(), path.string());
+}
+
+std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name) {
+    if (hand < 0 || hand > 1 || !recording.hands[hand].used)
+        throw InputError(name + ": the recording has no hand " + std::to_string(hand) + " (groups /hand0, /hand1)");
+    const RecordedHand& h = recording.hands[hand];
+    if (h.tick_time_ms.empty()) throw InputError(name + ":/hand" + std::to_string(hand) + ": no ticks recorded");
+    std::vector<PoseKeyframe> keyframes(h.tick_time_ms.size());
+    for (std::size_t i = 0; i < keyframes.size(); ++i) {
+        keyframes[i].time_ms = h.tick_time_ms[i];
+        keyframes[i].pose.position_mm = Eigen::Vector3d(h.position_mm[i][0], h.position_mm[i][1], h.position_mm[i][2]);
+        Eigen::Quaterniond q(h.orientation[i][0], h.orientation[i][1], h.orientation[i][2], h.orientation[i][3]);
+        if (q.norm() < 1e-9) throw InputError(name + ":/hand" + std::to_string(hand) + "/orientation row " + std::to_string(i) + " is zero");
+        keyframes[i].pose.orientation = q.normalized();
+        keyframes[i].pose.buttons = h.buttons[i];
+    }
+    return keyframes;
+}
+
+Instrument parse_instrument(const std::string& text, double default_semi_axis_mm) {
+    Instrument instrument;
+    const auto colon = text.find(':');
+    const std::string kind = text.substr(0, colon);
+    if (kind == "probe") instrument.kind = InstrumentKind::probe;
+    else if (kind == "grabber") instrument.kind = InstrumentKind::grabber;
+    else throw InputError("--instrument " + text + ": expected probe or grabber, optionally :AX,AY,AZ (semi-axes, mm)");
+    instrument.semi_axes = Eigen::Vector3d::Constant(default_semi_axis_mm);
+    if (colon != std::string::npos) {
+        double a[3];
+        char extra = 0;
+        if (std::sscanf(text.c_str() + colon + 1, "%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &extra) != 3 || !(a[0] > 0) || !(a[1] > 0) ||
+            !(a[2] > 0) || !std::isfinite(a[0] + a[1] + a[2]))
+            throw InputError("--instrument " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
+        instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
+    }
+    return instrument;
+}
+
+void apply_tool(Backend& backend, int hand, const Instrument& instrument, const InstrumentPose& pose, bool grab, bool& placed,
+                bool& grabbing) {
+    if (!placed) {
+        backend.set_instrument(hand, instrument);
+        backend.set_pose(hand, pose);
+        placed = true;
+    }
+    if (grab != grabbing) {
+        if (grab) backend.begin_grab(hand);
+        else backend.release(hand);
+        grabbing = grab;
+    }
+    backend.set_pose(hand, pose);
+}
+
+// ------------------------------------------------------------------------------------------------
+// HapticRun
+
+HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::string& scenario_name, const HapticRunSettings& settings,
+                     const HapticRunContext& context)
+    : backend_(backend), scenario_name_(scenario_name), settings_(settings) {
+    if (settings.devices.empty() || settings.devices.size() > 2) throw InputError("--device: give one or two devices (hand 0, hand 1)");
+    if (settings.instruments.size() > settings.devices.size())
+        throw InputError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
+    if (!settings.record.empty()) {
+        const std::filesystem::path path(settings.record);
+        const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
+        if (!std::filesystem::is_directory(folder)) throw InputError("--record " + settings.record + ": folder " + folder.string() + " does not exist");
+    }
+    session_ = std::make_unique<HapticSession>(settings.session);
+    const double semi_axis = 1.5 * scenario.lattice.spacing;
+    for (int i = 0; i < int(settings.devices.size()); ++i) {
+        Hand& h = hands_[i];
+        h.spec = parse_device_spec(settings.devices[i]);
+        h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
+                                                            : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
+        DeviceMapping mapping;  // scripted, simulated and mouse devices move in the world frame
+        switch (h.spec.kind) {
+        case DeviceSpec::Kind::scripted: {
+            std::string file = h.spec.argument;
+            int recorded_hand = i;
+            if (const auto at = file.rfind('@'); at != std::string::npos && (lower_extension(file.substr(0, at)) == ".h5" ||
+                                                                              lower_extension(file.substr(0, at)) == ".hdf5")) {
+                const std::string which = file.substr(at + 1);
+                if (which != "0" && which != "1") throw InputError("--device " + h.spec.text + ": @HAND must be @0 or @1");
+                recorded_hand = which[0] - '0';
+                file = file.substr(0, at);
+            }
+            if (!std::filesystem::exists(file)) throw InputError("--device " + h.spec.text + ": " + file + ": no such file");
+            std::vector<PoseKeyframe> keyframes;
+            const std::string e = lower_extension(file);
+            if (e == ".h5" || e == ".hdf5") keyframes = recorded_pose_script(read_recording(file), recorded_hand, file);
+            else keyframes = read_pose_script(file);
+            DeviceLimits limits;
+            limits.workspace_mm.setEmpty();
+            h.device = std::make_unique<ScriptedDevice>(std::move(keyframes), limits);
+            break;
+        }
+        case DeviceSpec::Kind::simulated:
+            if (!std::filesystem::exists(h.spec.argument)) throw InputError("--device " + h.spec.text + ": " + h.spec.argument + ": no such file");
+            h.device = std::make_unique<SimulatedDevice>(read_simulated_device(h.spec.argument));
+            break;
+        case DeviceSpec::Kind::mouse: {
+            if (context.headless)
+                throw DeviceUnavailable("--device mouse needs the window; run without --headless, or use scripted:FILE / simulated:FILE");
+            if (window_device_) throw InputError("--device mouse: only one hand can follow the mouse");
+            auto device = std::make_unique<WindowDevice>();
+            window_device_ = device.get();
+            DevicePose start;
+            const Eigen::Vector3d back = (context.camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
+            start.position_mm = context.camera.target.cast<double>() + back * (0.8 * context.camera.radius);
+            window_device_->set_pose(start);
+            h.device = std::move(device);
+            break;
+        }
+        case DeviceSpec::Kind::openhaptics:
+            h.device = open_openhaptics({.device_name = h.spec.argument, .library = ""});
+            // The device's frame (x right, y up, z towards the user) is the camera's; its origin
+            // the centre of the view.
+            mapping.offset_mm = context.camera.target.cast<double>();
+            mapping.rotation = context.camera.orientation.cast<double>();
+            break;
+        }
+        session_->attach(i, h.device.get(), mapping);
+    }
+    recording_on_ = !settings.record.empty();
+    if (recording_on_) session_->enable_tick_recording(std::size_t(4.0 * settings.session.rate_hz) + 1024);  // ≥ 4 s of ticks
+
+    recording_.scenario = std::filesystem::path(scenario_name).filename().string();
+    recording_.particles = std::int64_t(backend.size());
+    recording_.dt_ms = backend.time_step_ms();
+    recording_.substeps = backend.substeps_per_step();
+    recording_.backend = to_string(backend.kind());
+    recording_.contact = settings.contact;
+    recording_.interpolation = to_string(settings.session.interpolation);
+    recording_.rate_hz = settings.session.rate_hz;
+    recording_.coupling = settings.session.coupling.enabled;
+    for (int i = 0; i < 2; ++i) {
+        if (!hands_[i].device) continue;
+        RecordedHand& r = recording_.hands[i];
+        r.used = true;
+        r.device = hands_[i].spec.text;
+        r.device_name = hands_[i].device->name();
+        r.instrument = instrument_name(hands_[i].instrument.kind);
+        r.semi_axes_mm = to_array(hands_[i].instrument.semi_axes);
+        r.max_force_n = std::min(hands_[i].device->limits().max_force_n,
+                                 settings.session.safety.max_force_n > 0 ? settings.session.safety.max_force_n : 1e300);
+    }
+}
+
+HapticRun::~HapticRun() {
+    if (session_) session_->stop();
+}
+
+std::string HapticRun::describe(int hand) const {
+    const Hand& h = hands_[hand];
+    char line[512];
+    const CouplingSettings& c = session_->coupling(hand);
+    std::snprintf(line, sizeof line, "hand %d: %s (%s) → %s %.3g×%.3g×%.3g mm, max force %.3g N%s", hand, h.spec.text.c_str(),
+                  h.device->name().c_str(), instrument_name(h.instrument.kind), h.instrument.semi_axes.x(), h.instrument.semi_axes.y(),
+                  h.instrument.semi_axes.z(), recording_.hands[hand].max_force_n,
+                  c.enabled ? (", coupling K " + std::to_string(c.stiffness_n_per_mm) + " N/mm, B " + std::to_string(c.damping_n_ms_per_mm) +
+                               " N·ms/mm").c_str()
+                            : "");
+    return line;
+}
+
+void HapticRun::start() {
+    session_->start();
+    start_sim_ms_ = backend_.simulated_time_ms();
+    wall_start_ms_ = session_->now_ms();
+    // The first tool poses (one tick), so the first step already has the instruments.
+    for (int i = 0; i < 2000 && !session_->latest_tools(); ++i) std::this_thread::sleep_for(std::chrono::microseconds(50));
+    if (!session_->latest_tools()) throw DeviceUnavailable("haptics: the device thread produced no tool pose within 100 ms");
+}
+
+StepReport HapticRun::step() {
+    const long long step_index = result_.steps;
+    double tool_time = -1.0;
+    std::array<bool, 2> grab{false, false};
+    if (auto tools = session_->latest_tools()) {
+        for (int i = 0; i < 2; ++i) {
+            Hand& h = hands_[i];
+            if (!h.device || !tools->hand[i].valid) continue;
+            h.pose = tools->hand[i].pose;
+            h.buttons = tools->hand[i].buttons;
+            const bool wants = h.instrument.kind == InstrumentKind::grabber && (h.buttons & 1u);
+            const bool was = h.grabbing;
+            apply_tool(backend_, i, h.instrument, h.pose, wants, h.placed, h.grabbing);
+            if (h.grabbing != was && recording_on_)
+                recording_.events.push_back({session_->now_ms(), i, h.grabbing ? "grab" : "release"});
+            tool_time = std::max(tool_time, tools->hand[i].time_ms);
+        }
+    }
+    for (int i = 0; i < 2; ++i) grab[i] = hands_[i].grabbing;
+
+    const StepReport report = backend_.step(1);
+    result_.steps += report.steps;
+    result_.substeps += report.substeps;
+    if (report.diverged) {
+        ++result_.watchdog_events;
+        result_.last_watchdog_message = report.message;
+        if (recording_on_) recording_.events.push_back({session_->now_ms(), -1, "divergence"});
+    }
+    // Which step each force request follows, and which tool sample each step used, for the
+    // last `ring` steps: a gl readback is at most a few requests old.
+    const std::size_t slot = std::size_t(step_index) % ring;
+    step_tool_time_[slot] = tool_time;
+    step_of_request_[requests_ % ring] = step_index;
+    backend_.request_forces();
+    ++requests_;
+
+    long long force_step = -1;
+    InstrumentForces forces{};
+    if (auto latest = backend_.latest_forces()) {
+        const std::uint64_t request = backend_.latest_forces_request();
+        if (request < requests_ && requests_ - request <= ring) {
+            force_step = step_of_request_[request % ring];
+            forces = *latest;
+            if (request != last_published_request_) {  // a gl readback that has not advanced is not a new sample
+                last_published_request_ = request;
+                ++result_.forces_received;
+                // Steps from the one that first used the newest pose to the one whose forces these
+                // are, inclusive: 1 when the forces come from the step that used the pose.
+                ++latency_steps_[std::min<std::size_t>(std::size_t(step_index - force_step + 1), latency_steps_.size() - 1)];
+                session_->publish_forces(forces, session_->now_ms(), report.diverged, false,
+                                         step_tool_time_[std::size_t(force_step) % ring]);
+            }
+        }
+    }
+    if (!recording_on_) return report;
+
+    RecordedSteps& s = recording_.steps;
+    s.tool_time_ms.push_back(tool_time);
+    s.time_ms.push_back(backend_.simulated_time_ms());
+    s.wall_ms.push_back(session_->now_ms());
+    std::array<std::array<double, 3>, 2> position{};
+    std::array<std::array<double, 4>, 2> orientation{{{1, 0, 0, 0}, {1, 0, 0, 0}}};
+    std::array<std::array<double, 3>, 2> force{};
+    for (int i = 0; i < 2; ++i) {
+        position[i] = to_array(hands_[i].pose.position);
+        orientation[i] = to_array(hands_[i].pose.orientation);
+        force[i] = to_array(forces.hand[i].force_n);
+    }
+    s.tool_position_mm.push_back(position);
+    s.tool_orientation.push_back(orientation);
+    s.grab.push_back({std::int8_t(grab[0]), std::int8_t(grab[1])});
+    s.force_n.push_back(force);
+    s.force_step.push_back(force_step);
+    s.diverged.push_back(std::int8_t(report.diverged));
+    return report;
+}
+
+double HapticRun::ms_until_next_step() const {
+    const double simulated = backend_.simulated_time_ms() - start_sim_ms_;
+    return simulated + backend_.time_step_ms() - session_->now_ms() + wall_start_ms_;
+}
+
+int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
+    // A simulation slower than real time is always due: the wall budget returns control (to end
+    // the run on time, draw a frame) and the ticks are drained after every step.
+    const double until = session_->now_ms() + max_wall_ms;
+    int n = 0;
+    while (n < max_steps && ms_until_next_step() <= 0.0) {
+        step();
+        ++n;
+        drain_ticks();
+        if (session_->now_ms() >= until) break;
+    }
+    return n;
+}
+
+void HapticRun::drain_ticks() {
+    const std::size_t before = ticks_.size();
+    session_->drain_ticks(ticks_);
+    if (!recording_on_) {
+        ticks_.clear();
+        return;
+    }
+    for (std::size_t k = before; k < ticks_.size(); ++k) {
+        const TickRecord& t = ticks_[k];
+        if (t.estop != last_estop_) recording_.events.push_back({t.time_ms, -1, t.estop ? "emergency_stop" : "emergency_stop_released"});
+        if (t.simulation_fresh != last_fresh_) recording_.events.push_back({t.time_ms, -1, t.simulation_fresh ? "simulation_fresh" : "simulation_stalled"});
+        last_estop_ = t.estop;
+        last_fresh_ = t.simulation_fresh;
+    }
+}
+
+std::vector<InstrumentShape> HapticRun::shapes() const {
+    std::vector<InstrumentShape> shapes;
+    for (const Hand& h : hands_)
+        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes});
+    return shapes;
+}
+
+void HapticRun::finish(ScriptedRunResult& result) {
+    if (finished_) return;
+    finished_ = true;
+    // End without a jolt: a reset fades the forces out (fade_out_ms), then the thread stops.
+    if (session_->running()) {
+        session_->publish_forces(InstrumentForces{}, session_->now_ms(), false, true);
+        const double until = session_->now_ms() + settings_.session.safety.fade_out_ms + 2.0 * session_->period_ms();
+        while (session_->now_ms() < until) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        session_->stop();
+    }
+    drain_ticks();
+    result_.wall_ms = session_->now_ms() - wall_start_ms_;
+    result = result_;
+
+    const PeriodStats period = session_->period_stats();
+    const LatencyStats latency = session_->latency_stats();
+    const double dt = backend_.time_step_ms();
+    const double simulated = backend_.simulated_time_ms() - start_sim_ms_;
+    std::printf("\nhaptics (%s, %s)\n", to_string(settings_.session.interpolation),
+                settings_.session.coupling.enabled ? "virtual coupling" : "direct rendering");
+    for (int i = 0; i < 2; ++i)
+        if (hands_[i].device) std::printf("  %s\n", describe(i).c_str());
+    std::printf("%-26s %10s %10s %10s %10s %10s\n", "", "samples", "p50 ms", "p99 ms", "max ms", "mean ms");
+    std::printf("%-26s %10llu %10.3f %10.3f %10.3f %10.3f   (%.0f Hz target: %.3f ms; %llu overruns)\n", "haptic period",
+                (unsigned long long)period.ticks, period.p50_ms, period.p99_ms, period.max_ms, period.mean_ms, settings_.session.rate_hz,
+                session_->period_ms(), (unsigned long long)period.overruns);
+    std::printf("%-26s %10llu %10.3f %10.3f %10.3f %10.3f   (pose read → first force from it at the device thread; step %.3g ms)\n",
+                "pose → force latency", (unsigned long long)latency.samples, latency.p50_ms, latency.p99_ms, latency.max_ms,
+                latency.mean_ms, dt);
+    {
+        std::uint64_t total = 0, seen = 0;
+        for (auto c : latency_steps_) total += c;
+        int p50 = 0, p99 = 0, worst = 0;
+        for (std::size_t k = 0; k < latency_steps_.size(); ++k) {
+            if (!latency_steps_[k]) continue;
+            seen += latency_steps_[k];
+            worst = int(k);
+            if (!p50 && 2 * seen >= total) p50 = int(k);
+            if (!p99 && 100 * seen >= 99 * total) p99 = int(k);
+        }
+        std::printf("%-26s %10llu %10d %10d %10d %10s   (simulation steps from the first step using a pose to the forces it gave)\n",
+                    "pose → force, steps", (unsigned long long)total, p50, p99, worst, "");
+        latency_steps_p99_ = p99;
+        latency_steps_max_ = worst;
+    }
+    std::printf("simulation: %d steps, %.4g ms simulated in %.4g ms wall (real-time factor %.3g)\n", result_.steps, simulated,
+                result_.wall_ms, result_.wall_ms > 0 ? simulated / result_.wall_ms : 0.0);
+    if (result_.wall_ms > 0 && simulated / result_.wall_ms < 0.95)
+        std::printf("warning: the simulation ran slower than real time; forces lag the devices (fewer particles, or the gl backend "
+                    "on a GPU)\n");
+    std::printf("%-6s %12s %12s %10s %10s %10s %10s %8s   %s\n", "hand", "forces sent", "max sent N", "clamped", "rate-lim", "non-finite",
+                "faults", "e-stop", "last sent N");
+    for (int i = 0; i < 2; ++i) {
+        if (!hands_[i].device) continue;
+        const HandTelemetry t = session_->telemetry(i);
+        double max_sent = 0.0;
+        for (const TickRecord& r : ticks_) max_sent = std::max(max_sent, r.force_n[i].norm());
+        char max_text[32] = "-";
+        if (recording_on_) std::snprintf(max_text, sizeof max_text, "%.4f", max_sent);
+        std::printf("%-6d %12llu %12s %10llu %10llu %10llu %10llu %8llu   (%.4f, %.4f, %.4f)\n", i, (unsigned long long)t.forces_sent, max_text,
+                    (unsigned long long)t.safety.clamped, (unsigned long long)t.safety.rate_limited, (unsigned long long)t.safety.non_finite,
+                    (unsigned long long)t.safety.faults, (unsigned long long)t.safety.stopped, t.last_force_n.x(), t.last_force_n.y(),
+                    t.last_force_n.z());
+    }
+    if (session_->dropped_ticks())
+        std::printf("warning: %llu device ticks were not recorded (the simulation thread fell behind draining them)\n",
+                    (unsigned long long)session_->dropped_ticks());
+
+    if (!recording_on_) return;
+    recording_.period_p50_ms = period.p50_ms;
+    recording_.period_p99_ms = period.p99_ms;
+    recording_.period_max_ms = period.max_ms;
+    recording_.period_mean_ms = period.mean_ms;
+    recording_.periods = std::int64_t(period.ticks);
+    recording_.overruns = std::int64_t(period.overruns);
+    recording_.latency_p50_ms = latency.p50_ms;
+    recording_.latency_p99_ms = latency.p99_ms;
+    recording_.latency_max_ms = latency.max_ms;
+    if (session_->dropped_ticks()) recording_.events.push_back({session_->now_ms(), -1, "ticks_dropped"});
+    for (int i = 0; i < 2; ++i) {
+        if (!hands_[i].device) continue;
+        RecordedHand& r = recording_.hands[i];
+        for (const TickRecord& t : ticks_) {
+            r.tick_time_ms.push_back(t.time_ms);
+            r.position_mm.push_back(to_array(t.pose[i].position_mm));
+            r.orientation.push_back(to_array(t.pose[i].orientation));
+            r.buttons.push_back(t.pose[i].buttons);
+            r.input_n.push_back(to_array(t.input_n[i]));
+            r.force_n.push_back(to_array(t.force_n[i]));
+            r.gain.push_back(t.gain[i]);
+        }
+    }
+    recording_.events.push_back({session_->now_ms(), -1, "end"});
+    std::stable_sort(recording_.events.begin(), recording_.events.end(),
+                     [](const RecordedEvent& x, const RecordedEvent& y) { return x.time_ms < y.time_ms; });
+    write_recording(settings_.record, recording_);
+    std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", settings_.record.c_str(), recording_.steps.size(), ticks_.size(),
+                recording_.events.size());
+}
+
+// ------------------------------------------------------------------------------------------------
+// Replay
+
+ReplayResult replay(Backend& backend, const Recording& recording, const std::string& name) {
+    if (recording.particles != std::int64_t(backend.size()))
+        throw InputError(name + ": recorded on " + recording.scenario + " with " + std::to_string(recording.particles) +
+                         " particles; this scenario has " + std::to_string(backend.size()));
+    if (std::abs(recording.dt_ms - backend.time_step_ms()) > 1e-12 * recording.dt_ms)
+        throw InputError(name + ": recorded with a step of " + std::to_string(recording.dt_ms) + " ms; this scenario's step is " +
+                         std::to_string(backend.time_step_ms()) + " ms");
+    std::array<Instrument, 2> instruments;
+    for (int i = 0; i < 2; ++i) {
+        if (!recording.hands[i].used) continue;
+        instruments[i].kind = recording.hands[i].instrument == "grabber" ? InstrumentKind::grabber : InstrumentKind::probe;
+        const auto& a = recording.hands[i].semi_axes_mm;
+        instruments[i].semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
+    }
+    const RecordedSteps& s = recording.steps;
+    ReplayResult result;
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<InstrumentForces> forces;
+    forces.reserve(s.size());
+    std::array<bool, 2> placed{false, false}, grabbing{false, false};
+    for (std::size_t k = 0; k < s.size(); ++k) {
+        for (int i = 0; i < 2; ++i) {
+            if (!recording.hands[i].used) continue;
+            // Every recorded step has both hands' poses: the live run starts stepping only after
+            // the device thread published the first tool poses (HapticRun::start).
+            const auto& p = s.tool_position_mm[k][i];
+            const auto& q = s.tool_orientation[k][i];
+            InstrumentPose pose;
+            pose.position = Eigen::Vector3d(p[0], p[1], p[2]);
+            pose.orientation = Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
+            apply_tool(backend, i, instruments[i], pose, s.grab[k][i] != 0, placed[i], grabbing[i]);
+        }
+        backend.step(1);
+        forces.push_back(backend.instrument_forces());
+        ++result.steps;
+    }
+    for (std::size_t k = 0; k < s.size(); ++k) {
+        const long long from = s.force_step[k];
+        if (from < 0) continue;
+        for (int i = 0; i < 2; ++i) {
+            if (!recording.hands[i].used) continue;
+            const Eigen::Vector3d recorded(s.force_n[k][i][0], s.force_n[k][i][1], s.force_n[k][i][2]);
+            const Eigen::Vector3d again = forces[std::size_t(from)].hand[i].force_n;
+            const double d = (again - recorded).norm();
+            ++result.compared;
+            result.rms_difference_n += d * d;
+            if (again == recorded) ++result.identical;
+            result.max_force_n = std::max(result.max_force_n, recorded.norm());
+            if (d > result.max_difference_n || result.worst_step < 0) result.max_difference_n = std::max(d, result.max_difference_n), result.worst_step = (long long)k;
+        }
+    }
+    if (result.compared) result.rms_difference_n = std::sqrt(result.rms_difference_n / double(result.compared));
+    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    return result;
+}
+
+}  // namespace heartsim::haptics

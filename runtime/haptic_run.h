@@ -1,0 +1,158 @@
+/// @file haptic_run.h
+/// @brief `heartsim run … --device SPEC [--device SPEC]`: opens the devices, runs a HapticSession
+/// beside the simulation at real time, records the session (`--record`), and replays a recording
+/// (`--replay`). The device thread is haptics.h's; this is the simulation side and the command
+/// line's vocabulary. docs/haptics.md.
+///
+///     HapticRun run(backend, scenario, "pat1.h5", settings, {.headless = true});
+///     run.start();
+///     while (…) run.step_to_real_time(100);   // tools → backend → step → forces → devices
+///     run.finish(result);                       // stops the thread, prints the table, writes --record
+#pragma once
+
+#include "backend.h"
+#include "haptics.h"
+#include "renderer.h"
+#include "trajectory.h"
+
+#include "formats/recording.h"
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace heartsim::haptics {
+
+/// A --device argument: `scripted:FILE` (CSV pose script, or a recording .h5 with an optional
+/// `@HAND`), `simulated:FILE` (docs/haptics.md "Simulated device file"), `mouse`, or
+/// `openhaptics[:NAME]`. Throws InputError naming the argument.
+struct DeviceSpec {
+    enum class Kind { scripted, simulated, mouse, openhaptics } kind = Kind::scripted;
+    std::string argument;  ///< the file or the device name (may be empty for mouse / openhaptics)
+    std::string text;      ///< the whole spec as given
+};
+DeviceSpec parse_device_spec(const std::string& text);
+
+/// The simulated device file: optional settings rows, then the hand force rows
+///     start_mm, X, Y, Z          (world frame; default 0, 0, 0)
+///     mass_g, M                  (default 50)
+///     damping_n_ms_per_mm, B     (default 0.02)
+///     max_force_n, F             (default 3.3)
+///     workspace_mm, X0, Y0, Z0, X1, Y1, Z1   (default: the start ± 80, 60, 35 mm)
+///     time_ms, fx, fy, fz        (header, optional)
+///     0, 0, 0, -0.05             (hand force, N, piecewise linear, held after the last row)
+SimulatedDeviceSettings parse_simulated_device(const std::string& text, const std::string& name);
+SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path);
+
+/// The device poses of one hand of a recording as a pose script (scripted:REC.h5@HAND).
+std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name);
+
+/// `--instrument KIND[:AX,AY,AZ]`: probe or grabber, semi-axes mm (default 1.5 lattice spacings).
+Instrument parse_instrument(const std::string& text, double default_semi_axis_mm);
+
+struct HapticRunSettings {
+    std::vector<std::string> devices;      ///< one or two --device specs: hand 0, hand 1
+    std::vector<std::string> instruments;  ///< per hand; default probe for hand 0, grabber for hand 1
+    HapticSettings session{};              ///< rate, interpolation, coupling, safety (max force)
+    std::string record;                    ///< --record OUT.h5 ("" = none)
+    std::string contact = "direct";        ///< recorded with the session
+};
+
+struct HapticRunContext {
+    bool headless = true;
+    /// Where devices with their own frame (mouse, openhaptics) are placed: the camera's view.
+    Camera camera{};
+};
+
+/// The simulation side of a haptic session. Not thread-safe: one thread (the main one) calls
+/// everything; the devices run on the session's thread.
+class HapticRun {
+public:
+    HapticRun(Backend& backend, const Scenario& scenario, const std::string& scenario_name, const HapticRunSettings& settings,
+              const HapticRunContext& context);
+    ~HapticRun();
+    HapticRun(const HapticRun&) = delete;
+    HapticRun& operator=(const HapticRun&) = delete;
+
+    /// Starts the device thread; the simulation clock starts with it.
+    void start();
+    /// One step: newest tool poses → backend (grab on button 1 of a grabber hand) → step →
+    /// forces → devices; recorded. Returns the step's report.
+    StepReport step();
+    /// Steps until the simulated time reaches the session clock (real time), at most `max_steps`
+    /// and for at most about `max_wall_ms` (one step may overrun it); returns how many ran. When
+    /// the simulation is ahead it returns 0 at once.
+    int step_to_real_time(int max_steps, double max_wall_ms = 10.0);
+    /// Milliseconds until the next step is due (≤ 0: now).
+    double ms_until_next_step() const;
+    /// Stops the device thread (forces fade first), prints the haptic-rate table, writes --record.
+    void finish(ScriptedRunResult& result);
+
+    /// The instruments to draw (tool poses as the simulation last used them).
+    std::vector<InstrumentShape> shapes() const;
+    /// The mouse device, if one was given (the window moves it).
+    WindowDevice* window_device() const { return window_device_; }
+    HapticSession& session() { return *session_; }
+    const ScriptedRunResult& result() const { return result_; }
+    /// After finish(): pose → force latency in simulation steps (p99, max).
+    int latency_steps_p99() const { return latency_steps_p99_; }
+    int latency_steps_max() const { return latency_steps_max_; }
+    bool uses_hand(int hand) const { return hands_[hand].device != nullptr; }
+    InstrumentKind instrument(int hand) const { return hands_[hand].instrument.kind; }
+    /// The hand's device description for printing.
+    std::string describe(int hand) const;
+
+private:
+    struct Hand {
+        std::unique_ptr<Device> device;
+        DeviceSpec spec;
+        Instrument instrument;
+        InstrumentPose pose;  ///< last applied
+        bool placed = false, grabbing = false;
+        std::uint32_t buttons = 0;
+    };
+    void drain_ticks();
+
+    Backend& backend_;
+    std::string scenario_name_;
+    HapticRunSettings settings_;
+    std::array<Hand, 2> hands_;
+    WindowDevice* window_device_ = nullptr;
+    std::unique_ptr<HapticSession> session_;
+    Recording recording_;
+    std::vector<TickRecord> ticks_;
+    static constexpr std::size_t ring = 64;
+    std::array<long long, ring> step_of_request_{};  ///< force request number mod ring → step index
+    std::array<double, ring> step_tool_time_{};      ///< step index mod ring → tool sample time used
+    std::uint64_t requests_ = 0, last_published_request_ = ~std::uint64_t(0);
+    ScriptedRunResult result_;
+    double start_sim_ms_ = 0.0, wall_start_ms_ = 0.0;
+    std::array<std::uint64_t, 65> latency_steps_{};  ///< published forces by pose → force steps (64 = more)
+    int latency_steps_p99_ = 0, latency_steps_max_ = 0;
+    bool recording_on_ = false, last_estop_ = false, last_fresh_ = false, finished_ = false;
+};
+
+/// Applies a hand's tool for one step exactly as the live session does (the replay uses the same
+/// function, so a cpu replay reproduces the forces bit for bit): the first time places the
+/// instrument; a grab flag that turns begins or releases the grab at the current pose; then the
+/// pose the step should reach.
+void apply_tool(Backend& backend, int hand, const Instrument& instrument, const InstrumentPose& pose, bool grab, bool& placed,
+                bool& grabbing);
+
+struct ReplayResult {
+    std::size_t steps = 0;
+    std::size_t compared = 0;        ///< step forces compared (steps with force_step ≥ 0 and a used hand)
+    std::size_t identical = 0;       ///< of those, bit for bit equal
+    double max_difference_n = 0.0;   ///< max |f_replay − f_recorded| over compared forces
+    double rms_difference_n = 0.0;   ///< root mean square of |f_replay − f_recorded|
+    double max_force_n = 0.0;        ///< max |f_recorded|
+    long long worst_step = -1;
+    double wall_ms = 0.0;
+};
+
+/// Replays `recording` on `backend` step by step (recorded tool poses and grabs), computing the
+/// forces after every step, and compares them with the recorded ones. Throws InputError when the
+/// recording was made on a different scenario (particle count, step).
+ReplayResult replay(Backend& backend, const Recording& recording, const std::string& recording_name);
+
+}  // namespace heartsim::haptics
