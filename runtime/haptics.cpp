@@ -25,6 +25,18 @@ bool clamp_norm(Eigen::Vector3d& v, double limit) {
     return false;
 }
 
+/// The q-quantile of `count` samples in a histogram of `bin_ms` wide bins (the last one open),
+/// as the centre of the bin that reaches it.
+double histogram_percentile(const std::vector<std::uint32_t>& histogram, std::uint64_t count, double q, double bin_ms) {
+    const std::uint64_t target = std::uint64_t(std::ceil(q * double(count)));
+    std::uint64_t seen = 0;
+    for (std::size_t b = 0; b < histogram.size(); ++b) {
+        seen += histogram[b];
+        if (seen >= target) return (double(b) + 0.5) * bin_ms;
+    }
+    return double(histogram.size()) * bin_ms;
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
@@ -322,17 +334,8 @@ PeriodStats HapticSession::period_stats() const {
     s.overruns = overruns_;
     if (periods_ == 0) return s;
     s.mean_ms = period_sum_ms_ / double(periods_);
-    auto percentile = [&](double q) {
-        const std::uint64_t target = std::uint64_t(std::ceil(q * double(periods_)));
-        std::uint64_t seen = 0;
-        for (int b = 0; b <= histogram_bins; ++b) {
-            seen += histogram_[b];
-            if (seen >= target) return (b + 0.5) / 1000.0;
-        }
-        return s.max_ms;
-    };
-    s.p50_ms = percentile(0.50);
-    s.p99_ms = std::min(percentile(0.99), s.max_ms);
+    s.p50_ms = std::min(histogram_percentile(histogram_, periods_, 0.50, 1e-3), s.max_ms);
+    s.p99_ms = std::min(histogram_percentile(histogram_, periods_, 0.99, 1e-3), s.max_ms);
     return s;
 }
 
@@ -342,17 +345,8 @@ LatencyStats HapticSession::latency_stats() const {
     s.max_ms = latency_max_ms_;
     if (latencies_ == 0) return s;
     s.mean_ms = latency_sum_ms_ / double(latencies_);
-    auto percentile = [&](double q) {
-        const std::uint64_t target = std::uint64_t(std::ceil(q * double(latencies_)));
-        std::uint64_t seen = 0;
-        for (int b = 0; b <= latency_bins; ++b) {
-            seen += latency_histogram_[b];
-            if (seen >= target) return std::min((b + 0.5) / 100.0, s.max_ms);
-        }
-        return s.max_ms;
-    };
-    s.p50_ms = percentile(0.50);
-    s.p99_ms = percentile(0.99);
+    s.p50_ms = std::min(histogram_percentile(latency_histogram_, latencies_, 0.50, 1e-2), s.max_ms);
+    s.p99_ms = std::min(histogram_percentile(latency_histogram_, latencies_, 0.99, 1e-2), s.max_ms);
     return s;
 }
 

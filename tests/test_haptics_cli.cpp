@@ -29,19 +29,7 @@ fs::path sample(const std::string& name) { return fs::path(HEARTSIM_SOURCE_DIR) 
 
 /// The shipped phantom at 12,000 particles (fast enough to follow real time on a loaded 2-core
 /// machine within a factor of a few), base anchored, no gravity (samples/haptics/press_phantom.csv).
-const fs::path& phantom() {
-    static test::TempDir dir;
-    static fs::path path;
-    if (path.empty()) {
-        const fs::path output = dir / "phantom.h5";
-        const auto run = test::run_command(std::string(quoted(HEARTPREP_EXE)) + " build " +
-                                           quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " + quoted(output) +
-                                           " --cavity 2 --anchor-border --gravity 0 0 0 --particles 12000 -q");
-        if (run.exit_code != 0) throw std::runtime_error(run.output);
-        path = output;
-    }
-    return path;
-}
+const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border --gravity 0 0 0 --particles 12000"); }
 
 /// One two-handed session recorded on the cpu backend, shared by the tests that read it.
 struct RecordedSession {

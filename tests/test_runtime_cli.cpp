@@ -35,19 +35,7 @@ bool have_gl(std::string* reason) {
     return state == 1;
 }
 
-const fs::path& phantom() {
-    static test::TempDir dir;
-    static fs::path path;
-    if (path.empty()) {
-        const fs::path output = dir / "phantom.h5";
-        const auto run = test::run_command(std::string(quoted(HEARTPREP_EXE)) + " build " +
-                                           quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " + quoted(output) +
-                                           " --cavity 2 --anchor-border -q");
-        if (run.exit_code != 0) throw std::runtime_error(run.output);
-        path = output;
-    }
-    return path;
-}
+const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border"); }
 
 }  // namespace
 

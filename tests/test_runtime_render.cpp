@@ -40,18 +40,7 @@ test::TempDir& scratch() {
 }
 
 /// The phantom scenario, built once with heartprep as users build it.
-const fs::path& phantom() {
-    static fs::path path;
-    if (path.empty()) {
-        const fs::path output = scratch() / "phantom.h5";
-        const auto run = test::run_command(std::string(quoted(HEARTPREP_EXE)) + " build " +
-                                           quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " + quoted(output) +
-                                           " --cavity 2 --anchor-border -q");
-        if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
-        path = output;
-    }
-    return path;
-}
+const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border"); }
 
 const Scenario& phantom_scenario() {
     static std::optional<Scenario> scenario;

@@ -3,6 +3,7 @@
 #include <array>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sys/wait.h>
 
@@ -68,5 +69,19 @@ CommandResult run_command(const std::string& command) {
 std::string quoted(const std::filesystem::path& path) { return "'" + path.string() + "'"; }
 
 CommandResult heartprep(const std::string& arguments) { return run_command(quoted(HEARTPREP_EXE) + " " + arguments); }
+
+const std::filesystem::path& built_phantom(const std::string& build_options) {
+    static TempDir dir;
+    static std::map<std::string, std::filesystem::path> built;
+    auto& path = built[build_options];
+    if (path.empty()) {
+        const auto output = dir / ("phantom-" + std::to_string(built.size()) + ".h5");
+        const auto run = heartprep("build " + quoted(std::filesystem::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " +
+                                   quoted(output) + " " + build_options + " -q");
+        if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
+        path = output;
+    }
+    return path;
+}
 
 }  // namespace heartsim::test

@@ -49,6 +49,11 @@ std::string quoted(const std::filesystem::path& path);
 /// Runs the heartprep binary of this build with `arguments` (already quoted where needed).
 CommandResult heartprep(const std::string& arguments);
 
+/// The shipped phantom (samples/phantom.nii.gz) built by heartprep with `build_options` (e.g.
+/// "--cavity 2 --anchor-border"), once per test program and set of options, into a folder that
+/// lives as long as the program. Throws with heartprep's output when the build fails.
+const std::filesystem::path& built_phantom(const std::string& build_options);
+
 /// Writes `bytes` to `path` (replacing it).
 void write_bytes(const std::filesystem::path& path, const std::vector<unsigned char>& bytes);
 
