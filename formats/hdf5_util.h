@@ -32,6 +32,12 @@ private:
     herr_t (*close_)(hid_t);
 };
 
+/// Element count of an attribute's dataspace (scalar: 1), or −1 when it cannot be read.
+inline long long attribute_elements(hid_t attribute) {
+    Handle space(H5Aget_space(attribute), H5Sclose);
+    return space.valid() ? (long long)H5Sget_simple_extent_npoints(space.get()) : -1;
+}
+
 inline void quiet() { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); }
 
 inline void write_string_attribute(hid_t where, const char* name, const std::string& value, const std::string& file) {
@@ -66,6 +72,7 @@ inline std::string read_string_attribute(hid_t where, const char* name, const st
     if (!attribute.valid()) throw InputError(file + ": attribute " + std::string(name) + " is missing");
     Handle type(H5Aget_type(attribute.get()), H5Tclose);
     if (H5Tget_class(type.get()) != H5T_STRING) throw InputError(file + ": attribute " + std::string(name) + " is not a string");
+    if (attribute_elements(attribute.get()) != 1) throw InputError(file + ": attribute " + std::string(name) + " must be a single string");
     Handle memory(H5Tcopy(H5T_C_S1), H5Tclose);
     if (H5Tis_variable_str(type.get()) > 0) {  // written by other tools (h5py, the scenario writer's peers)
         H5Tset_size(memory.get(), H5T_VARIABLE);
@@ -85,9 +92,13 @@ inline std::string read_string_attribute(hid_t where, const char* name, const st
 template <class T>
 T read_scalar_attribute(hid_t where, const char* name, hid_t memory_type, const std::string& file) {
     Handle attribute(H5Aopen(where, name, H5P_DEFAULT), H5Aclose);
+    if (!attribute.valid()) throw InputError(file + ": attribute " + std::string(name) + " is missing");
+    // One element only: H5Aread writes every element of the attribute into `value`.
+    if (attribute_elements(attribute.get()) != 1)
+        throw InputError(file + ": attribute " + std::string(name) + " must be a single value");
     T value{};
-    if (!attribute.valid() || H5Aread(attribute.get(), memory_type, &value) < 0)
-        throw InputError(file + ": attribute " + std::string(name) + " is missing or unreadable");
+    if (H5Aread(attribute.get(), memory_type, &value) < 0)
+        throw InputError(file + ": attribute " + std::string(name) + " is unreadable (expected a number)");
     return value;
 }
 

@@ -29,6 +29,27 @@ std::vector<std::array<double, N>> rows_of(const std::vector<double>& flat) {
     return rows;
 }
 
+template <std::size_t N>
+void write_vector_attribute(hid_t where, const char* name, const std::array<double, N>& values, const std::string& file) {
+    const hsize_t n = N;
+    Handle space(H5Screate_simple(1, &n, nullptr), H5Sclose);
+    Handle attribute(H5Acreate2(where, name, H5T_IEEE_F64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+    if (!attribute.valid() || H5Awrite(attribute.get(), H5T_NATIVE_DOUBLE, values.data()) < 0)
+        throw OutputError(file + ": cannot write attribute " + name);
+}
+
+template <std::size_t N>
+std::array<double, N> read_vector_attribute(hid_t where, const char* name, const std::string& file) {
+    Handle attribute(H5Aopen(where, name, H5P_DEFAULT), H5Aclose);
+    std::array<double, N> values{};
+    if (!attribute.valid() || attribute_elements(attribute.get()) != (long long)N ||
+        H5Aread(attribute.get(), H5T_NATIVE_DOUBLE, values.data()) < 0)
+        throw InputError(file + ": attribute " + name + " is missing or not " + std::to_string(N) + " numbers");
+    for (double v : values)
+        if (!std::isfinite(v)) throw InputError(file + ": attribute " + name + " is not finite");
+    return values;
+}
+
 void require_finite(const std::vector<double>& values, const std::string& file, const std::string& name) {
     for (double v : values)
         if (!std::isfinite(v)) throw InputError(file + ": dataset " + name + " holds a non-finite value");
@@ -79,14 +100,12 @@ void write_recording(const std::filesystem::path& path, const Recording& r) {
             write_string_attribute(g, "device", hand.device, file);
             write_string_attribute(g, "device_name", hand.device_name, file);
             write_string_attribute(g, "instrument", hand.instrument, file);
-            {
-                const hsize_t three = 3;
-                Handle space(H5Screate_simple(1, &three, nullptr), H5Sclose);
-                Handle attribute(H5Acreate2(g, "semi_axes_mm", H5T_IEEE_F64LE, space.get(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
-                if (!attribute.valid() || H5Awrite(attribute.get(), H5T_NATIVE_DOUBLE, hand.semi_axes_mm.data()) < 0)
-                    throw OutputError(file + ": cannot write attribute semi_axes_mm");
-            }
+            write_vector_attribute(g, "semi_axes_mm", hand.semi_axes_mm, file);
             write_scalar_attribute<double>(g, "max_force_n", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, hand.max_force_n, file);
+            write_vector_attribute(g, "mapping_offset_mm", hand.mapping_offset_mm, file);
+            write_vector_attribute(g, "mapping_rotation", hand.mapping_rotation, file);
+            write_scalar_attribute<double>(g, "mapping_scale", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, hand.mapping_scale, file);
+            write_scalar_attribute<double>(g, "force_scale", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, hand.force_scale, file);
             write_f64(g, "tick_time_ms", hand.tick_time_ms.data(), {t}, file);
             write_f64(g, "position_mm", hand.position_mm.data(), {t, 3}, file);
             write_f64(g, "orientation", hand.orientation.data(), {t, 4}, file);
@@ -172,16 +191,21 @@ Recording read_recording(const std::filesystem::path& path) {
         hand.instrument = read_string_attribute(g, "instrument", where);
         if (hand.instrument != "probe" && hand.instrument != "grabber")
             throw InputError(where + ": attribute instrument is '" + hand.instrument + "', expected probe or grabber");
-        {
-            Handle attribute(H5Aopen(g, "semi_axes_mm", H5P_DEFAULT), H5Aclose);
-            Handle space(attribute.valid() ? H5Aget_space(attribute.get()) : -1, H5Sclose);
-            if (!attribute.valid() || H5Sget_simple_extent_npoints(space.get()) != 3 ||
-                H5Aread(attribute.get(), H5T_NATIVE_DOUBLE, hand.semi_axes_mm.data()) < 0)
-                throw InputError(where + ": attribute semi_axes_mm is missing or not 3 numbers");
-            for (double a : hand.semi_axes_mm)
-                if (!(a > 0.0) || !std::isfinite(a)) throw InputError(where + ": attribute semi_axes_mm must be positive");
-        }
+        hand.semi_axes_mm = read_vector_attribute<3>(g, "semi_axes_mm", where);
+        for (double a : hand.semi_axes_mm)
+            if (!(a > 0.0)) throw InputError(where + ": attribute semi_axes_mm must be positive");
         hand.max_force_n = read_scalar_attribute<double>(g, "max_force_n", H5T_NATIVE_DOUBLE, where);
+        hand.mapping_offset_mm = read_vector_attribute<3>(g, "mapping_offset_mm", where);
+        hand.mapping_rotation = read_vector_attribute<4>(g, "mapping_rotation", where);
+        hand.mapping_scale = read_scalar_attribute<double>(g, "mapping_scale", H5T_NATIVE_DOUBLE, where);
+        hand.force_scale = read_scalar_attribute<double>(g, "force_scale", H5T_NATIVE_DOUBLE, where);
+        {
+            const auto& q = hand.mapping_rotation;
+            if (!(std::abs(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) < 1e-6))
+                throw InputError(where + ": attribute mapping_rotation is not a unit quaternion");
+            if (!(hand.mapping_scale > 0.0) || !std::isfinite(hand.mapping_scale) || !std::isfinite(hand.force_scale))
+                throw InputError(where + ": attributes mapping_scale and force_scale must be finite, mapping_scale positive");
+        }
         hand.tick_time_ms = read_dataset<double>(g, "tick_time_ms", H5T_NATIVE_DOUBLE, {0}, where);
         const hsize_t t = hand.tick_time_ms.size();
         const auto position = read_dataset<double>(g, "position_mm", H5T_NATIVE_DOUBLE, {t, 3}, where);
@@ -224,10 +248,22 @@ Recording read_recording(const std::filesystem::path& path) {
     s.grab.resize(n);
     for (std::size_t i = 0; i < n; ++i) s.grab[i] = {grab[2 * i], grab[2 * i + 1]};
     const auto force = read_dataset<double>(g, "force_n", H5T_NATIVE_DOUBLE, {n, 2, 3}, where);
+    require_finite(force, where, "force_n");
     s.force_n.resize(n);
     if (n) std::memcpy(s.force_n.data(), force.data(), force.size() * sizeof(double));
     s.force_step = read_dataset<std::int64_t>(g, "force_step", H5T_NATIVE_INT64, {n}, where);
     s.diverged = read_dataset<std::int8_t>(g, "diverged", H5T_NATIVE_INT8, {n}, where);
+    for (std::size_t i = 0; i < n; ++i)
+        for (int h = 0; h < 2; ++h) {
+            const std::string row = " row " + std::to_string(i) + ", hand " + std::to_string(h);
+            if (s.grab[i][h] != 0 && s.grab[i][h] != 1) throw InputError(where + ": dataset grab" + row + " is not 0 or 1");
+            if (s.grab[i][h] && (!r.hands[h].used || r.hands[h].instrument != "grabber"))
+                throw InputError(where + ": dataset grab" + row + " grabs with a hand that holds no grabber");
+            if (!r.hands[h].used) continue;
+            const auto& q = s.tool_orientation[i][h];
+            if (!(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 1e-12))
+                throw InputError(where + ": dataset tool_orientation" + row + " is a zero quaternion");
+        }
     for (std::size_t i = 0; i < n; ++i)
         if (s.force_step[i] < -1 || s.force_step[i] > std::int64_t(i))
             throw InputError(where + ": dataset force_step row " + std::to_string(i) + " names step " + std::to_string(s.force_step[i]) +

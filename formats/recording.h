@@ -9,7 +9,8 @@
 ///               interpolation, coupling (0/1), period_p50_ms, period_p99_ms, period_max_ms,
 ///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
-///               instrument ("probe" | "grabber"), semi_axes_mm [3], max_force_n
+///               instrument ("probe" | "grabber"), semi_axes_mm [3], max_force_n,
+///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
 ///     tick_time_ms   float64 [T]      session clock of each device-thread tick
 ///     position_mm    float64 [T,3]    device pose (device frame)
 ///     orientation    float64 [T,4]    w, x, y, z
@@ -23,7 +24,7 @@
 ///     tool_time_ms   float64 [S]      session clock of the tool sample the step used
 ///     tool_position_mm float64 [S,2,3]  tool pose per hand (world frame) used by the step
 ///     tool_orientation float64 [S,2,4]
-///     grab           int8    [S,2]    1 while the hand's grabber held during the step
+///     grab           int8    [S,2]    1 while the hand's grabber held during the step (0 or 1; only a grabber hand)
 ///     force_n        float64 [S,2,3]  forces published after the step (world frame)
 ///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
 ///     diverged       int8    [S]      the step hit the watchdog
@@ -46,6 +47,11 @@ struct RecordedHand {
     std::string instrument;   ///< "probe" or "grabber"
     std::array<double, 3> semi_axes_mm{};
     double max_force_n = 0.0;
+    /// Device frame → world: x_w = offset + scale·R·x_d (R from the quaternion w, x, y, z);
+    /// forces back scaled by force_scale.
+    std::array<double, 3> mapping_offset_mm{};
+    std::array<double, 4> mapping_rotation{1.0, 0.0, 0.0, 0.0};
+    double mapping_scale = 1.0, force_scale = 1.0;
     std::vector<double> tick_time_ms;
     std::vector<std::array<double, 3>> position_mm;
     std::vector<std::array<double, 4>> orientation;  ///< w, x, y, z

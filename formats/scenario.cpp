@@ -362,6 +362,10 @@ public:
         H5Object attr = open_attribute(where, owner, name);
         H5Object type(H5Aget_type(attr.get()), H5Tclose);
         if (H5Tget_class(type.get()) != H5T_STRING) fail(owner, std::string("attribute ") + name + " is not a string");
+        {  // one string only: H5Aread writes every element into the buffer
+            H5Object space(H5Aget_space(attr.get()), H5Sclose);
+            if (H5Sget_simple_extent_npoints(space.get()) != 1) fail(owner, std::string("attribute ") + name + " must be a single string");
+        }
         if (H5Tis_variable_str(type.get())) {
             char* value = nullptr;
             H5Object memory(H5Tcopy(H5T_C_S1), H5Tclose);

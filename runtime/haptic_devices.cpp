@@ -12,8 +12,8 @@ namespace heartsim::haptics {
 
 namespace {
 
-/// Rows of numbers from CSV text: `#` comments, blank lines and one non-numeric header line
-/// skipped; every row must have between min_columns and max_columns numbers.
+/// Rows of numbers from CSV text: `#` comments, blank lines and one header line (no numbers in
+/// it) skipped; every row must have between min_columns and max_columns numbers.
 std::vector<std::vector<double>> parse_rows(const std::string& text, const std::string& name, std::size_t min_columns,
                                             std::size_t max_columns) {
     std::vector<std::vector<double>> rows;
@@ -28,7 +28,7 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const std::
         std::vector<double> row;
         std::istringstream fields(line);
         std::string field;
-        bool numeric = true;
+        bool numeric = true, any_number = false;
         int column = 0;
         std::string bad;
         while (std::getline(fields, field, ',')) {
@@ -43,9 +43,11 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const std::
                 continue;
             }
             row.push_back(v);
+            any_number = true;
         }
         if (!numeric) {
-            if (header_allowed && rows.empty()) {
+            // A header has no numbers; a first row with a typo in one field is an error, not a header.
+            if (header_allowed && rows.empty() && !any_number) {
                 header_allowed = false;
                 continue;
             }

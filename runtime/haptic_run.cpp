@@ -10,8 +10,11 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <thread>
+
+#include <unistd.h>
 
 namespace heartsim::haptics {
 
@@ -31,6 +34,34 @@ std::string trim(const std::string& s) {
 const char* instrument_name(InstrumentKind kind) { return kind == InstrumentKind::grabber ? "grabber" : "probe"; }
 
 std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
+
+/// --record OUT.h5 must be a new or replaceable file: not the scenario or a device's script
+/// (it would be replaced at the end), not a folder, and its folder writable. Checked before the
+/// session, so nothing is lost at the end.
+void check_record_path(const std::string& record, const std::string& scenario, const std::vector<std::string>& devices) {
+    namespace fs = std::filesystem;
+    const fs::path path(record);
+    const fs::path folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
+    if (record.back() == '/' || fs::is_directory(path)) throw InputError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
+    if (!fs::is_directory(folder)) throw InputError("--record " + record + ": folder " + folder.string() + " does not exist");
+    std::error_code error;
+    auto same = [&](const std::string& other) { return fs::exists(path) && fs::exists(other) && fs::equivalent(path, other, error); };
+    if (same(scenario)) throw InputError("--record " + record + ": that is the scenario being run; give another file");
+    for (const std::string& device : devices) {
+        const auto colon = device.find(':');
+        if (colon == std::string::npos) continue;
+        std::string file = device.substr(colon + 1);
+        if (const auto at = file.rfind('@'); at != std::string::npos && !fs::exists(file)) file = file.substr(0, at);
+        if (same(file)) throw InputError("--record " + record + ": that is the file of --device " + device + "; give another file");
+    }
+    // Writable? A probe file beside it, removed at once.
+    const fs::path probe = folder / (".heartsim-record-check-" + std::to_string(::getpid()));
+    {
+        std::ofstream out(probe);
+        if (!out) throw InputError("--record " + record + ": cannot write in folder " + folder.string());
+    }
+    fs::remove(probe, error);
+}
 std::array<double, 4> to_array(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
 
 }  // namespace
@@ -191,19 +222,15 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     if (settings.devices.empty() || settings.devices.size() > 2) throw InputError("--device: give one or two devices (hand 0, hand 1)");
     if (settings.instruments.size() > settings.devices.size())
         throw InputError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
-    if (!settings.record.empty()) {
-        const std::filesystem::path path(settings.record);
-        const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-        if (!std::filesystem::is_directory(folder)) throw InputError("--record " + settings.record + ": folder " + folder.string() + " does not exist");
-    }
-    session_ = std::make_unique<HapticSession>(settings.session);
+    if (!settings.record.empty()) check_record_path(settings.record, scenario_name, settings.devices);
+    std::array<DeviceMapping, 2> mappings;
     const double semi_axis = 1.5 * scenario.lattice.spacing;
     for (int i = 0; i < int(settings.devices.size()); ++i) {
         Hand& h = hands_[i];
         h.spec = parse_device_spec(settings.devices[i]);
         h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
                                                             : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
-        DeviceMapping mapping;  // scripted, simulated and mouse devices move in the world frame
+        DeviceMapping& mapping = mappings[i];  // scripted, simulated and mouse devices move in the world frame
         switch (h.spec.kind) {
         case DeviceSpec::Kind::scripted: {
             std::string file = h.spec.argument;
@@ -218,8 +245,18 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
             if (!std::filesystem::exists(file)) throw InputError("--device " + h.spec.text + ": " + file + ": no such file");
             std::vector<PoseKeyframe> keyframes;
             const std::string e = lower_extension(file);
-            if (e == ".h5" || e == ".hdf5") keyframes = recorded_pose_script(read_recording(file), recorded_hand, file);
-            else keyframes = read_pose_script(file);
+            if (e == ".h5" || e == ".hdf5") {
+                const Recording recorded = read_recording(file);
+                keyframes = recorded_pose_script(recorded, recorded_hand, file);
+                // The recorded device's poses are in its own frame: place them as it was placed.
+                const RecordedHand& rh = recorded.hands[recorded_hand];
+                mapping.offset_mm = Eigen::Vector3d(rh.mapping_offset_mm[0], rh.mapping_offset_mm[1], rh.mapping_offset_mm[2]);
+                mapping.rotation = Eigen::Quaterniond(rh.mapping_rotation[0], rh.mapping_rotation[1], rh.mapping_rotation[2], rh.mapping_rotation[3]);
+                mapping.scale = rh.mapping_scale;
+                mapping.force_scale = rh.force_scale;
+            } else {
+                keyframes = read_pose_script(file);
+            }
             DeviceLimits limits;
             limits.workspace_mm.setEmpty();
             h.device = std::make_unique<ScriptedDevice>(std::move(keyframes), limits);
@@ -250,8 +287,11 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
             mapping.rotation = context.camera.orientation.cast<double>();
             break;
         }
-        session_->attach(i, h.device.get(), mapping);
     }
+    // The session (and its clock, the scripts' time zero) starts once every device is open.
+    session_ = std::make_unique<HapticSession>(settings.session);
+    for (int i = 0; i < 2; ++i)
+        if (hands_[i].device) session_->attach(i, hands_[i].device.get(), mappings[i]);
     recording_on_ = !settings.record.empty();
     if (recording_on_) session_->enable_tick_recording(std::size_t(4.0 * settings.session.rate_hz) + 1024);  // ≥ 4 s of ticks
 
@@ -274,6 +314,10 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         r.semi_axes_mm = to_array(hands_[i].instrument.semi_axes);
         r.max_force_n = std::min(hands_[i].device->limits().max_force_n,
                                  settings.session.safety.max_force_n > 0 ? settings.session.safety.max_force_n : 1e300);
+        r.mapping_offset_mm = to_array(mappings[i].offset_mm);
+        r.mapping_rotation = to_array(mappings[i].rotation.normalized());
+        r.mapping_scale = mappings[i].scale;
+        r.force_scale = mappings[i].force_scale;
     }
 }
 
@@ -304,14 +348,26 @@ void HapticRun::start() {
 }
 
 StepReport HapticRun::step() {
-    const long long step_index = result_.steps;
+    // Rows count step() calls: a step the watchdog restores is a row (and a recorded step) too.
+    const long long step_index = (long long)rows_++;
     double tool_time = -1.0;
     std::array<bool, 2> grab{false, false};
     if (auto tools = session_->latest_tools()) {
         for (int i = 0; i < 2; ++i) {
             Hand& h = hands_[i];
             if (!h.device || !tools->hand[i].valid) continue;
-            h.pose = tools->hand[i].pose;
+            // A device pose that is not finite, or absurdly far (> 1 km), is not applied: the hand
+            // keeps its last pose (counted, reported at the end).
+            const InstrumentPose& p = tools->hand[i].pose;
+            const bool usable = p.position.allFinite() && p.position.cwiseAbs().maxCoeff() < 1e6 && p.orientation.coeffs().allFinite() &&
+                                p.orientation.norm() > 1e-6;
+            if (!usable) {
+                if (h.bad_poses++ == 0 && recording_on_) recording_.events.push_back({session_->now_ms(), i, "bad_pose"});
+                if (!h.placed) continue;
+                apply_tool(backend_, i, h.instrument, h.pose, h.grabbing, h.placed, h.grabbing);
+                continue;
+            }
+            h.pose = p;
             h.buttons = tools->hand[i].buttons;
             const bool wants = h.instrument.kind == InstrumentKind::grabber && (h.buttons & 1u);
             const bool was = h.grabbing;
@@ -399,7 +455,16 @@ int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
     return n;
 }
 
+void HapticRun::set_paused(bool paused) {
+    if (paused == paused_) return;
+    const double now = session_->now_ms();
+    if (paused) paused_at_ms_ = now;
+    else wall_start_ms_ += now - paused_at_ms_;  // the paused interval does not count as simulation time owed
+    paused_ = paused;
+}
+
 void HapticRun::drain_ticks() {
+    poll_device_faults();
     const std::size_t before = ticks_.size();
     session_->drain_ticks(ticks_);
     if (!recording_on_) {
@@ -413,6 +478,26 @@ void HapticRun::drain_ticks() {
         last_estop_ = t.estop;
         last_fresh_ = t.simulation_fresh;
     }
+}
+
+void HapticRun::poll_device_faults() {
+    for (int i = 0; i < 2; ++i) {
+        Hand& h = hands_[i];
+        if (!h.device || !h.fault.empty()) continue;
+        if (const auto* touch = dynamic_cast<const OpenHapticsDevice*>(h.device.get())) {
+            const std::string fault = touch->fault();
+            if (fault.empty()) continue;
+            h.fault = fault;
+            std::fprintf(stderr, "heartsim: hand %d (%s): device fault: %s; its force is held at zero\n", i, h.spec.text.c_str(), fault.c_str());
+            if (recording_on_) recording_.events.push_back({session_->now_ms(), i, "device_fault"});
+        }
+    }
+}
+
+bool HapticRun::device_faulted() const {
+    for (const Hand& h : hands_)
+        if (!h.fault.empty()) return true;
+    return false;
 }
 
 std::vector<InstrumentShape> HapticRun::shapes() const {
@@ -486,6 +571,10 @@ void HapticRun::finish(ScriptedRunResult& result) {
                     (unsigned long long)t.safety.faults, (unsigned long long)t.safety.stopped, t.last_force_n.x(), t.last_force_n.y(),
                     t.last_force_n.z());
     }
+    for (int i = 0; i < 2; ++i)
+        if (hands_[i].bad_poses)
+            std::printf("warning: hand %d: %llu tool poses from the device were not finite or out of range and were not applied\n", i,
+                        (unsigned long long)hands_[i].bad_poses);
     if (session_->dropped_ticks())
         std::printf("warning: %llu device ticks were not recorded (the simulation thread fell behind draining them)\n",
                     (unsigned long long)session_->dropped_ticks());
@@ -529,9 +618,12 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     if (recording.particles != std::int64_t(backend.size()))
         throw InputError(name + ": recorded on " + recording.scenario + " with " + std::to_string(recording.particles) +
                          " particles; this scenario has " + std::to_string(backend.size()));
-    if (std::abs(recording.dt_ms - backend.time_step_ms()) > 1e-12 * recording.dt_ms)
-        throw InputError(name + ": recorded with a step of " + std::to_string(recording.dt_ms) + " ms; this scenario's step is " +
-                         std::to_string(backend.time_step_ms()) + " ms");
+    if (std::abs(recording.dt_ms - backend.time_step_ms()) > 1e-12 * recording.dt_ms) {
+        char text[160];
+        std::snprintf(text, sizeof text, "recorded with a step of %.17g ms; this scenario's step is %.17g ms", recording.dt_ms, backend.time_step_ms());
+        throw InputError(name + ": " + text + " (another scenario, or other solver settings)");
+    }
+    if (!recording.hands[0].used && !recording.hands[1].used) throw InputError(name + ": the recording has no hand (/hand0, /hand1): nothing to replay");
     std::array<Instrument, 2> instruments;
     for (int i = 0; i < 2; ++i) {
         if (!recording.hands[i].used) continue;
@@ -568,7 +660,8 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
             if (!recording.hands[i].used) continue;
             const Eigen::Vector3d recorded(s.force_n[k][i][0], s.force_n[k][i][1], s.force_n[k][i][2]);
             const Eigen::Vector3d again = forces[std::size_t(from)].hand[i].force_n;
-            const double d = (again - recorded).norm();
+            // A non-finite difference counts as infinite (never as a match).
+            const double d = std::isfinite((again - recorded).norm()) ? (again - recorded).norm() : std::numeric_limits<double>::infinity();
             ++result.compared;
             result.rms_difference_n += d * d;
             if (again == recorded) ++result.identical;
@@ -576,6 +669,8 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
             if (d > result.max_difference_n || result.worst_step < 0) result.max_difference_n = std::max(d, result.max_difference_n), result.worst_step = (long long)k;
         }
     }
+    if (result.compared == 0)
+        throw InputError(name + ": no recorded force to compare (no step has forces: /steps/force_step is −1 throughout)");
     if (result.compared) result.rms_difference_n = std::sqrt(result.rms_difference_n / double(result.compared));
     result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     return result;

@@ -85,6 +85,15 @@ public:
     int step_to_real_time(int max_steps, double max_wall_ms = 10.0);
     /// Milliseconds until the next step is due (≤ 0: now).
     double ms_until_next_step() const;
+    /// step() calls so far (a step the watchdog restored counts: --steps limits these).
+    std::size_t rows() const { return rows_; }
+    /// Window pause: the real-time reference stops, so resuming does not race to catch up.
+    void set_paused(bool paused);
+    /// Empties the device thread's tick queue (recording) and reports device faults; step()
+    /// does it after every step, a paused window every frame.
+    void drain() { drain_ticks(); }
+    /// True when a device reported a fault (its force is held at zero); heartsim exits 4.
+    bool device_faulted() const;
     /// Stops the device thread (forces fade first), prints the haptic-rate table, writes --record.
     void finish(ScriptedRunResult& result);
 
@@ -110,8 +119,11 @@ private:
         InstrumentPose pose;  ///< last applied
         bool placed = false, grabbing = false;
         std::uint32_t buttons = 0;
+        std::uint64_t bad_poses = 0;  ///< device poses not applied (non-finite or out of range)
+        std::string fault;            ///< a device fault, once reported
     };
     void drain_ticks();
+    void poll_device_faults();
 
     Backend& backend_;
     std::string scenario_name_;
@@ -129,7 +141,9 @@ private:
     double start_sim_ms_ = 0.0, wall_start_ms_ = 0.0;
     std::array<std::uint64_t, 65> latency_steps_{};  ///< published forces by pose → force steps (64 = more)
     int latency_steps_p99_ = 0, latency_steps_max_ = 0;
-    bool recording_on_ = false, last_estop_ = false, last_fresh_ = false, finished_ = false;
+    bool recording_on_ = false, last_estop_ = false, last_fresh_ = false, finished_ = false, paused_ = false;
+    std::size_t rows_ = 0;
+    double paused_at_ms_ = 0.0;
 };
 
 /// Applies a hand's tool for one step exactly as the live session does (the replay uses the same

@@ -56,7 +56,7 @@ struct RunArguments {
     bool coupling = false;
     std::string record, replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
-    bool backend_given = false;
+    bool backend_given = false, record_given = false;
 };
 
 /// Ctrl-C during a haptic run: end it cleanly (forces fade out, the recording is written).
@@ -221,16 +221,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
 
     ScriptedRunResult result;
+    int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
-    while (!glfwWindowShouldClose(window) && (steps < 0 || result.steps < steps)) {
+    while (!glfwWindowShouldClose(window) && !interrupted.load() && (steps < 0 || attempted < steps)) {
         glfwPollEvents();
         const auto now = std::chrono::steady_clock::now();
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
         last = now;
         int n = input.paused ? 0 : steps_per_frame;
-        if (steps >= 0) n = std::min(n, steps - result.steps);
+        if (steps >= 0) n = std::min(n, steps - attempted);
 
         // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
         // out of the screen.
@@ -256,15 +257,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (haptic) {
             // Haptics: the simulation follows real time (at most 200 steps per frame); the device
             // thread moves the instruments.
-            if (!input.paused) {
-                haptic->step_to_real_time(steps >= 0 ? std::min(200, steps - result.steps) : 200, 12.0);
-                result.steps = haptic->result().steps;
-                result.substeps = haptic->result().substeps;
-            }
+            haptic->set_paused(input.paused);  // the real-time reference stops while paused
+            if (!input.paused) haptic->step_to_real_time(steps >= 0 ? std::min(200, steps - attempted) : 200, 12.0);
+            else haptic->drain();
+            attempted = int(haptic->rows());
+            result.steps = haptic->result().steps;
+            result.substeps = haptic->result().substeps;
             n = 0;
         }
         for (int k = 0; k < n; ++k) {
-            const int step = result.steps;
+            const int step = attempted++;
             const double t = step * dt, t_next = (step + 1) * dt;
             for (int hand = 0; hand < 2; ++hand) {
                 if (!trajectory.uses_hand(hand)) continue;
@@ -335,6 +337,12 @@ int command_run(const RunArguments& a) {
     // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
     const BackendKind kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
     if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
+    if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw InputError("--seconds: expected a finite number of seconds up to 10^6");
+    if (!std::isfinite(a.max_force)) throw InputError("--max-force: expected a finite force in N");
+    if (a.record_given && a.record.empty()) throw InputError("--record: give the file to write, e.g. --record session.h5");
+    if (a.replay_tolerance >= 0 && a.replay.empty()) throw InputError("--replay-tolerance needs --replay");
+    if (!a.replay.empty() && (a.steps_given || a.seconds > 0))
+        throw InputError("--replay runs the recording's own steps: no --steps or --seconds with it");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw InputError("--screenshot-every needs --screenshot OUT.png");
     const bool haptic_run = !a.devices.empty();
     if (a.devices.size() > 2) throw InputError("--device: at most two (hand 0, hand 1)");
@@ -473,23 +481,30 @@ int command_run(const RunArguments& a) {
 
     const auto wall_start = std::chrono::steady_clock::now();
     ScriptedRunResult run;
-    if (haptic && a.headless) {
+    if (haptic) {
+        // Ctrl-C or a termination request ends a haptic session cleanly (fade, recording written);
+        // the handlers stay until the session is finished, so a second Ctrl-C cannot cut the fade.
         std::signal(SIGINT, [](int) { interrupted.store(true); });
+        std::signal(SIGTERM, [](int) { interrupted.store(true); });
+    }
+    if (haptic && a.headless) {
         const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
         const double started = haptic->session().now_ms();
         while (!interrupted.load() && haptic->session().now_ms() - started < end_ms &&
-               (a.seconds > 0 || haptic->result().steps < steps)) {
-            const int limit = a.seconds > 0 ? 1000 : steps - haptic->result().steps;
+               (a.seconds > 0 || haptic->rows() < std::size_t(steps))) {
+            const int limit = a.seconds > 0 ? 1000 : steps - int(haptic->rows());
             if (haptic->step_to_real_time(limit) == 0)
                 std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
         }
-        std::signal(SIGINT, SIG_DFL);
         if (interrupted.load()) std::printf("interrupted: ending the session\n");
         haptic->finish(run);
     } else if (!a.headless) {
         run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, std::max(1, scenario.solver.substeps), a,
                          haptic.get());
-        if (haptic) haptic->finish(run);
+        if (haptic) {
+            if (interrupted.load()) std::printf("interrupted: ending the session\n");
+            haptic->finish(run);
+        }
     } else {
         ScriptedRunOptions scripted{.steps = steps, .forces_every_step = !trajectory.keyframes.empty()};
         if (renderer && a.screenshot_every > 0)
@@ -500,6 +515,7 @@ int command_run(const RunArguments& a) {
             };
         run = run_scripted(*backend, trajectory, scripted);
     }
+    if (haptic) std::signal(SIGINT, SIG_DFL), std::signal(SIGTERM, SIG_DFL);
     auto uses_hand = [&](int hand) { return haptic ? haptic->uses_hand(hand) : trajectory.uses_hand(hand); };
     if (renderer && !a.screenshot.empty()) {
         renderer->render(*backend, haptic ? haptic->shapes() : shapes_at(trajectory, backend->simulated_time_ms()));
@@ -603,6 +619,10 @@ int command_run(const RunArguments& a) {
         write_state(a.save_state, state);
         std::printf("wrote %s\n", a.save_state.c_str());
     }
+    if (haptic && haptic->device_faulted()) {
+        std::fprintf(stderr, "heartsim: a haptic device faulted during the session (above); the run's outputs were written\n");
+        return 4;
+    }
     return 0;
 }
 
@@ -673,6 +693,7 @@ int main(int argc, char** argv) {
     CLI11_PARSE(app, int(arguments.size()), arguments.data());
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;
+    a.record_given = run->count("--record") > 0;
     try {
         if (info->parsed()) return command_info();
         if (run->parsed()) return command_run(a);

@@ -11,8 +11,10 @@
 #include "runtime/haptic_run.h"
 
 #include <gtest/gtest.h>
+#include <hdf5.h>
 
 #include <cmath>
+#include <limits>
 #include <fstream>
 #include <regex>
 
@@ -204,12 +206,62 @@ TEST(HapticsCli, TheGlBackendsForcesArriveAFewStepsLateAndReplayOnCpuWithinToler
     EXPECT_LT(std::stod(m[1]), 0.01 * std::stod(m[2])) << replay.output;
 }
 
+TEST(HapticsCli, ADivergingGrabStillEndsAfterSteps_AndReplaysBitForBitThroughTheRestores) {
+    // A grabber on the apex yanked 2 m in 5 ms: the solver's watchdog restores step after step.
+    // --steps counts step calls, restored or not, so the run ends; the replay goes through the
+    // same restores (the solver is deterministic) and gives the same forces.
+    test::TempDir dir;
+    {
+        std::ofstream out(dir / "yank.csv");
+        out << "0, -1.9, -3.0, -47.0, 1,0,0,0, 1\n20, -1.9, -3.0, -47.0, 1,0,0,0, 1\n25, -1.9, -3.0, -2047.0, 1,0,0,0, 1\n";
+    }
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --device scripted:" + quoted(dir / "yank.csv") +
+                                  " --instrument grabber --steps 300 --record " + quoted(dir / "yank.h5"));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("watchdog:"), std::string::npos) << "the yank did not make the solver diverge; the test shows nothing\n" << run.output;
+    const Recording r = read_recording(dir / "yank.h5");
+    EXPECT_EQ(r.steps.size(), 300u);
+    std::size_t restored = 0;
+    for (auto d : r.steps.diverged) restored += d != 0;
+    EXPECT_GT(restored, 0u);
+    for (const auto& f : r.hands[0].force_n) ASSERT_LE(norm3(f), r.hands[0].max_force_n * (1 + 1e-12));
+    const auto replay = run_heartsim("run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "yank.h5"));
+    EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("bit for bit"), std::string::npos) << replay.output;
+}
+
+TEST(HapticsCli, AnOpenHapticsDeviceRunsAndAFaultMidSessionIsReportedWithExit4) {
+    // Through hd_testdouble, a test double of the OpenHaptics HD library (tests/hd_testdouble).
+    test::TempDir dir;
+    const std::string library = std::string("HEARTSIM_OPENHAPTICS_LIB=") + quoted(fs::path(HD_TESTDOUBLE_LIB)) + " ";
+    const auto healthy = test::run_command(library + "HD_TESTDOUBLE_MODE=ok " + quoted(fs::path(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                           " --headless --backend cpu --device openhaptics --seconds 0.5 --record " + quoted(dir / "oh.h5"));
+    ASSERT_EQ(healthy.exit_code, 0) << healthy.output;
+    EXPECT_NE(healthy.output.find("hand 0: openhaptics"), std::string::npos) << healthy.output;
+    const Recording r = read_recording(dir / "oh.h5");
+    // The device's frame is placed at the view's centre, turned as the camera: recorded, so a
+    // scripted replay of these poses lands where the device did.
+    const auto& q = r.hands[0].mapping_rotation;
+    EXPECT_NEAR(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3], 1.0, 1e-9);
+    EXPECT_GT(norm3(r.hands[0].mapping_offset_mm), 0.0);
+
+    const auto faulty = test::run_command(library + "HD_TESTDOUBLE_MODE=fault_after_ms=200 " + quoted(fs::path(HEARTSIM_EXE)) + " run " +
+                                          quoted(phantom()) + " --headless --backend cpu --device openhaptics --seconds 0.6 --record " +
+                                          quoted(dir / "fault.h5"));
+    EXPECT_EQ(faulty.exit_code, 4) << faulty.output;
+    EXPECT_NE(faulty.output.find("device fault"), std::string::npos) << faulty.output;
+    const Recording f = read_recording(dir / "fault.h5");  // the outputs were still written
+    bool recorded = false;
+    for (const auto& e : f.events) recorded |= e.what == "device_fault" && e.hand == 0;
+    EXPECT_TRUE(recorded);
+}
+
 TEST(HapticsCli, TheWindowRunsTheMouseDeviceBesideASimulatedOneAndEndsCleanly) {
     if (test::run_command("command -v xvfb-run && command -v Xvfb").exit_code != 0)
         GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
     REQUIRE_GL();
     test::TempDir dir;
-    const auto run = test::run_command("timeout 600 xvfb-run -a -s '-screen 0 640x480x24' " + quoted(HEARTSIM_EXE) + " run " +
+    const auto run = test::run_command(test::in_xvfb_window() + quoted(HEARTSIM_EXE) + " run " +
                                        quoted(phantom()) + " --backend cpu --size 320x240 --steps 300 --device mouse --device simulated:" +
                                        quoted(sample("press_phantom.csv")) + " --instrument probe --instrument probe --record " +
                                        quoted(dir / "window.h5") + " 2>&1");
@@ -256,6 +308,11 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record /no/such/folder/r.h5", 2,
          "folder /no/such/folder does not exist"},
         {"--headless --device openhaptics --seconds 1", 4, "openhaptics"},
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record " + quoted(phantom()), 2,
+         "that is the scenario being run"},
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record " + quoted(dir.path()), 2, "is a folder"},
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds nan", 2, "--seconds"},
+        {"--headless --replay-tolerance 1 --steps 1", 2, "--replay-tolerance needs --replay"},
     };
     for (const Case& c : cases) {
         // openhaptics: no libHD here, or (where HEARTSIM_OPENHAPTICS_LIB names a test double) a
@@ -310,6 +367,11 @@ TEST(HapticsVocabulary, DeviceSpecsSimulatedDeviceFilesAndInstruments) {
     }
     EXPECT_THROW(parse_simulated_device("mass_g, -1\n0, 0, 0, 0\n", "f"), InputError);
     EXPECT_THROW(parse_simulated_device("start_mm, 500, 0, 0\nworkspace_mm, -1, -1, -1, 1, 1, 1\n0, 0, 0, 0\n", "f"), InputError);
+
+    // A first row with a typo is an error, not a header (a header has no numbers).
+    EXPECT_THROW(parse_pose_script("0, 1, 2, x3, 1, 0, 0, 0\n10, 1, 2, 3, 1, 0, 0, 0\n", "typo.csv"), InputError);
+    EXPECT_EQ(parse_pose_script("time_ms, x, y, z, qw, qx, qy, qz\n0, 1, 2, 3, 1, 0, 0, 0\n", "header.csv").size(), 1u);
+    EXPECT_THROW(parse_simulated_device("bogus_key, 1\n0, 0, 0, 0\n", "f.csv"), InputError);  // a misspelled setting
 
     const Instrument probe = parse_instrument("probe", 2.5);
     EXPECT_EQ(probe.kind, InstrumentKind::probe);
@@ -388,6 +450,81 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("force_step"), std::string::npos) << e.what();
     }
+    // Damaged recordings are refused by file, dataset and row, never half-used.
+    auto refused = [&](const Recording& damaged, const std::string& expected) {
+        write_recording(dir / "damaged.h5", damaged);
+        try {
+            read_recording(dir / "damaged.h5");
+            ADD_FAILURE() << "accepted; expected: " << expected;
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+        }
+    };
+    {
+        Recording d = r;
+        d.steps.force_n[1][1][2] = std::numeric_limits<double>::quiet_NaN();
+        refused(d, "force_n holds a non-finite value");
+    }
+    {
+        Recording d = r;
+        d.steps.grab[1][1] = 7;
+        refused(d, "grab row 1, hand 1 is not 0 or 1");
+    }
+    {
+        Recording d = r;
+        d.steps.grab[0][0] = 1;  // hand 0 has no device, let alone a grabber
+        refused(d, "grabs with a hand that holds no grabber");
+    }
+    {
+        Recording d = r;
+        d.steps.tool_orientation[0][1] = {0, 0, 0, 0};
+        refused(d, "tool_orientation row 0, hand 1 is a zero quaternion");
+    }
+    {
+        Recording d = r;
+        d.hands[1].mapping_rotation = {2, 0, 0, 0};
+        refused(d, "mapping_rotation is not a unit quaternion");
+    }
+    // An attribute holding many values where one is expected (HDF5 would write them all into
+    // one variable) and a list of strings where one format name is expected.
+    write_recording(dir / "arrays.h5", r);
+    {
+        const hid_t file = H5Fopen((dir / "arrays.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        ASSERT_GE(file, 0);
+        const hid_t hand = H5Gopen2(file, "hand1", H5P_DEFAULT);
+        H5Adelete(hand, "max_force_n");
+        const hsize_t many = 4096;
+        const std::vector<double> values(many, 1.0);
+        const hid_t space = H5Screate_simple(1, &many, nullptr);
+        const hid_t attribute = H5Acreate2(hand, "max_force_n", H5T_IEEE_F64LE, space, H5P_DEFAULT, H5P_DEFAULT);
+        H5Awrite(attribute, H5T_NATIVE_DOUBLE, values.data());
+        H5Aclose(attribute), H5Sclose(space), H5Gclose(hand), H5Fclose(file);
+    }
+    try {
+        read_recording(dir / "arrays.h5");
+        ADD_FAILURE() << "an array attribute was read as one value";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("max_force_n must be a single value"), std::string::npos) << e.what();
+    }
+    {
+        const hid_t file = H5Fopen((dir / "arrays.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        H5Adelete(file, "format");
+        const hsize_t many = 1000;
+        const hid_t type = H5Tcopy(H5T_C_S1);
+        H5Tset_size(type, 32);
+        const std::vector<char> text(many * 32, 'x');
+        const hid_t space = H5Screate_simple(1, &many, nullptr);
+        const hid_t attribute = H5Acreate2(file, "format", type, space, H5P_DEFAULT, H5P_DEFAULT);
+        H5Awrite(attribute, type, text.data());
+        H5Aclose(attribute), H5Sclose(space), H5Tclose(type), H5Fclose(file);
+    }
+    try {
+        read_recording(dir / "arrays.h5");
+        ADD_FAILURE() << "a list of strings was read as one";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("format must be a single string"), std::string::npos) << e.what();
+    }
+
     // Nothing half-written: a failed write leaves no file behind.
     Recording uneven = r;
     uneven.steps.wall_ms.pop_back();

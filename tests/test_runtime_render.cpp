@@ -324,7 +324,7 @@ TEST(RenderWindow, StartsUnderXvfbRendersFramesAndExitsCleanly) {
         GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
     REQUIRE_GL();
     test::TempDir dir;
-    const auto run = test::run_command("timeout 600 xvfb-run -a -s '-screen 0 640x480x24' " + quoted(HEARTSIM_EXE) + " run " +
+    const auto run = test::run_command(test::in_xvfb_window() + quoted(HEARTSIM_EXE) + " run " +
                                        quoted(phantom()) + " --steps 20 --size 320x240 --screenshot " + quoted(dir / "window.png") +
                                        " --stats 2>&1");
     ASSERT_EQ(run.exit_code, 0) << run.output;

@@ -70,6 +70,10 @@ std::string quoted(const std::filesystem::path& path) { return "'" + path.string
 
 CommandResult heartprep(const std::string& arguments) { return run_command(quoted(HEARTPREP_EXE) + " " + arguments); }
 
+std::string in_xvfb_window() {
+    return "ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" timeout 600 xvfb-run -a -s '-screen 0 640x480x24' ";
+}
+
 const std::filesystem::path& built_phantom(const std::string& build_options) {
     static TempDir dir;
     static std::map<std::string, std::filesystem::path> built;
