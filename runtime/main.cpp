@@ -335,7 +335,7 @@ int command_info() {
 
 int command_run(const RunArguments& a) {
     // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
-    const BackendKind kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
+    BackendKind kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
     if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
     if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw InputError("--seconds: expected a finite number of seconds up to 10^6");
     if (!std::isfinite(a.max_force)) throw InputError("--max-force: expected a finite force in N");
@@ -366,6 +366,19 @@ int command_run(const RunArguments& a) {
     std::optional<GlContext> context;
     if (!a.headless)
         context.emplace(GlContext::create_window(frame_width, frame_height, "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
+    if (haptic_run && kind == BackendKind::gl && !a.backend_given) {
+        // Haptics need the simulation near real time. On a software rasteriser (Mesa llvmpipe,
+        // softpipe) the compute shaders run on the CPU cores, far slower than the cpu backend:
+        // choose it, and say so.
+        if (!context) context.emplace(GlContext::create_headless());
+        const std::string renderer_name = context->info().renderer;
+        if (renderer_name.find("llvmpipe") != std::string::npos || renderer_name.find("softpipe") != std::string::npos ||
+            renderer_name.find("swrast") != std::string::npos) {
+            kind = BackendKind::cpu;
+            std::printf("haptics: the OpenGL device is %s, a software rasteriser: simulating with the cpu backend, which is faster "
+                        "here (--backend gl to override)\n", renderer_name.c_str());
+        }
+    }
     std::unique_ptr<Backend> backend;
     if (kind == BackendKind::gl) {
         if (!context) context.emplace(GlContext::create_headless());
