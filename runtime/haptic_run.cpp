@@ -530,9 +530,9 @@ void HapticRun::finish(ScriptedRunResult& result) {
     for (int i = 0; i < 2; ++i)
         if (hands_[i].device) std::printf("  %s\n", describe(i).c_str());
     std::printf("%-26s %10s %10s %10s %10s %10s\n", "", "samples", "p50 ms", "p99 ms", "max ms", "mean ms");
-    std::printf("%-26s %10llu %10.3f %10.3f %10.3f %10.3f   (%.0f Hz target: %.3f ms; %llu overruns)\n", "haptic period",
+    std::printf("%-26s %10llu %10.3f %10.3f %10.3f %10.3f   (%.0f Hz target: %.3f ms; %llu overruns; device thread %s)\n", "haptic period",
                 (unsigned long long)period.ticks, period.p50_ms, period.p99_ms, period.max_ms, period.mean_ms, settings_.session.rate_hz,
-                session_->period_ms(), (unsigned long long)period.overruns);
+                session_->period_ms(), (unsigned long long)period.overruns, session_->scheduling().c_str());
     std::printf("%-26s %10llu %10.3f %10.3f %10.3f %10.3f   (pose read → first force from it at the device thread; step %.3g ms)\n",
                 "pose → force latency", (unsigned long long)latency.samples, latency.p50_ms, latency.p99_ms, latency.max_ms,
                 latency.mean_ms, dt);

@@ -7,6 +7,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+
+#include <pthread.h>
+#include <sched.h>
 #include <sstream>
 
 namespace heartsim::haptics {
@@ -290,7 +294,19 @@ void HapticSession::start() {
     if (running()) return;
     stop_.store(false);
     thread_ = std::thread([this] { run_thread(); });
+    scheduling_ = "normal";
+    if (settings_.realtime) {
+        // Above the simulation and llvmpipe's workers, below the kernel's own RT threads (99). The
+        // thread sleeps every period, and Linux throttles RT threads that do not (95 % by default).
+        sched_param parameters{};
+        parameters.sched_priority = std::min(80, sched_get_priority_max(SCHED_FIFO));
+        const int error = pthread_setschedparam(thread_.native_handle(), SCHED_FIFO, &parameters);
+        scheduling_ = error == 0 ? "SCHED_FIFO priority " + std::to_string(parameters.sched_priority)
+                                 : std::string("normal (SCHED_FIFO refused: ") + std::strerror(error) + ")";
+    }
 }
+
+std::string HapticSession::scheduling() const { return scheduling_; }
 
 void HapticSession::stop() {
     if (!running()) return;

@@ -381,6 +381,10 @@ struct HapticSettings {
     ForceInterpolation interpolation = ForceInterpolation::hold;
     CouplingSettings coupling{};  ///< coupling.enabled with K = 0: choose_coupling() per device
     SafetySettings safety{};
+    /// Ask the OS to run the device thread ahead of the simulation and rendering (Linux
+    /// SCHED_FIFO); where that is not permitted the thread runs with normal scheduling and
+    /// scheduling() says why.
+    bool realtime = true;
 };
 
 /// Period statistics of the device thread, ms.
@@ -460,6 +464,9 @@ public:
     /// After stop() (or from the ticking thread).
     PeriodStats period_stats() const;
     LatencyStats latency_stats() const;
+    /// How the device thread is scheduled, e.g. "SCHED_FIFO priority 80" or "normal (SCHED_FIFO
+    /// refused: Operation not permitted)"; empty before start().
+    std::string scheduling() const;
     HandTelemetry telemetry(int hand) const;
     bool attached(int hand) const { return hands_.at(hand).device != nullptr; }
 
@@ -502,6 +509,7 @@ private:
     std::atomic<bool> estop_{false};
     std::atomic<bool> stop_{false};
     std::thread thread_;
+    std::string scheduling_;          ///< written by start() before the thread runs its loop
     std::chrono::steady_clock::time_point epoch_;
     // period histogram: 1 µs bins up to 20 ms, written by the device thread only
     static constexpr int histogram_bins = 20000;

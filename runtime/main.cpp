@@ -54,6 +54,7 @@ struct RunArguments {
     double max_force = 0.0;          // 0 = each device's own maximum
     std::string interpolation = "hold";
     bool coupling = false;
+    std::string haptic_priority = "realtime";
     std::string record, replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
     bool backend_given = false, record_given = false;
@@ -476,6 +477,7 @@ int command_run(const RunArguments& a) {
         settings.session.interpolation = a.interpolation == "extrapolate" ? haptics::ForceInterpolation::extrapolate
                                                                           : haptics::ForceInterpolation::hold;
         settings.session.coupling.enabled = a.coupling;  // K, B chosen per device within the passivity bound
+        settings.session.realtime = a.haptic_priority == "realtime";
         settings.record = a.record;
         settings.contact = a.contact;
         haptics::HapticRunContext context_settings{.headless = a.headless};
@@ -689,6 +691,10 @@ int main(int argc, char** argv) {
         ->check(CLI::NonNegativeNumber);
     run->add_option("--interpolation", a.interpolation, "Force between simulation updates: hold (zero order) or extrapolate (first order)")
         ->check(CLI::IsMember({"hold", "extrapolate"}))->capture_default_str();
+    run->add_option("--haptic-priority", a.haptic_priority,
+                    "Device thread scheduling: realtime (SCHED_FIFO where permitted, else normal, as the table says) or normal")
+        ->check(CLI::IsMember({"realtime", "normal"}))
+        ->capture_default_str();
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
     run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5)");
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces")

@@ -805,6 +805,7 @@ TEST(HapticsThread, TheDeviceThreadRunsAt1kHzOnTheSteadyClockRateIsReportedNotAs
     HapticSession session({.rate_hz = 1000.0});
     session.attach(0, &device);
     session.start();
+    std::printf("[thread] device thread scheduling: %s\n", session.scheduling().c_str());
     // A "simulation" on this thread: publishes a spring force on the tool at ~300 Hz for 1 s.
     const double end = session.now_ms() + 1000.0;
     std::size_t published = 0;
@@ -822,6 +823,22 @@ TEST(HapticsThread, TheDeviceThreadRunsAt1kHzOnTheSteadyClockRateIsReportedNotAs
     EXPECT_GT(s.ticks, 10u);
     EXPECT_TRUE(finite(device.position()));
     EXPECT_GT(published, 0u);
+}
+
+TEST(HapticsThread, ItsSchedulingIsAskedForAndReported) {
+    // realtime: SCHED_FIFO where the OS permits it, else normal with the reason; normal: normal.
+    for (const bool realtime : {true, false}) {
+        HapticSession session({.rate_hz = 1000.0, .realtime = realtime});
+        EXPECT_EQ(session.scheduling(), "");
+        session.start();
+        const std::string how = session.scheduling();
+        session.stop();
+        std::printf("[thread] realtime %d: %s\n", int(realtime), how.c_str());
+        if (realtime)
+            EXPECT_TRUE(how.rfind("SCHED_FIFO priority ", 0) == 0 || how.rfind("normal (SCHED_FIFO refused: ", 0) == 0) << how;
+        else
+            EXPECT_EQ(how, "normal");
+    }
 }
 
 TEST(HapticsInterpolation, HoldKeepsTheLastForceExtrapolationFollowsARampToFirstOrder) {
