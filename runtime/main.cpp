@@ -223,6 +223,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
 
     ScriptedRunResult result;
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
+    double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
     long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
@@ -259,7 +260,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             // Haptics: the simulation follows real time (at most 200 steps per frame); the device
             // thread moves the instruments.
             haptic->set_paused(input.paused);  // the real-time reference stops while paused
-            if (!input.paused) haptic->step_to_real_time(steps >= 0 ? std::min(200, steps - attempted) : 200, 12.0);
+            // Stepping gets at least twice the last frame's drawing time (12 ms minimum): on a slow
+            // renderer (llvmpipe) the simulation keeps 2/3 of the wall clock, fewer frames are drawn.
+            if (!input.paused)
+                haptic->step_to_real_time(steps >= 0 ? std::max(0, std::min(100000, steps - attempted)) : 100000,
+                                          std::max(12.0, 2.0 * last_draw_ms));
             else haptic->drain();
             attempted = int(haptic->rows());
             result.steps = haptic->result().steps;
@@ -297,8 +302,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, backend.simulated_time_ms());
             if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
         }
+        const auto draw_start = std::chrono::steady_clock::now();
         renderer.render(backend, shapes);
         renderer.present(width, height);
+        last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
         glfwSwapBuffers(window);
         ++frames;
         if (next_shot > 0 && result.steps >= next_shot) {
