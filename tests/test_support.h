@@ -56,8 +56,9 @@ const std::filesystem::path& built_phantom(const std::string& build_options);
 
 /// The start of a shell command that runs a program in a window under Xvfb (640×480), with a
 /// 10-minute limit. Under AddressSanitizer leak detection is off for that program only: Mesa's
-/// GLX driver leaves 112 bytes at exit in a module it has already unloaded, which LeakSanitizer
-/// cannot attribute or suppress; the headless runs of the same code keep leak detection.
+/// driver leaves 112 bytes at exit when it has rasterised, in a module it has already unloaded,
+/// which LeakSanitizer cannot attribute or suppress (tests/CMakeLists.txt does the same for the
+/// picking and render test programs); heartsim's headless runs in the other tests keep it.
 std::string in_xvfb_window();
 
 /// Writes `bytes` to `path` (replacing it).
