@@ -57,7 +57,7 @@ struct RunArguments {
     std::string haptic_priority = "realtime";
     std::string record, replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
-    bool backend_given = false, record_given = false;
+    bool backend_given = false, record_given = false, contact_given = false;
 };
 
 /// Ctrl-C during a haptic run: end it cleanly (forces fade out, the recording is written).
@@ -98,6 +98,19 @@ int replay_recording(const RunArguments& a, Backend& backend, Renderer* renderer
                 recording.steps.size(), recording.dt_ms, recording.hands[0].used ? ("hand 0 " + recording.hands[0].instrument).c_str() : "",
                 recording.hands[0].used && recording.hands[1].used ? ", " : "",
                 recording.hands[1].used ? ("hand 1 " + recording.hands[1].instrument).c_str() : "", to_string(backend.kind()));
+    // The recording's contact mode, unless --contact says otherwise (the cpu backend has only
+    // `direct`: a gl recording made with another mode is compared as is and may differ).
+    if (!a.contact_given && recording.contact != "direct") {
+        if (backend.kind() == BackendKind::gl) {
+            ContactSettings contact;
+            contact.mode = parse_contact_mode(recording.contact);
+            backend.set_contact(contact);
+            std::printf("replay: --contact %s, as recorded\n", recording.contact.c_str());
+        } else {
+            std::printf("replay: recorded with --contact %s on gl; the cpu backend's contacts are direct, so forces may differ\n",
+                        recording.contact.c_str());
+        }
+    }
     const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay);
     const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
     const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
@@ -720,6 +733,7 @@ int main(int argc, char** argv) {
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;
     a.record_given = run->count("--record") > 0;
+    a.contact_given = run->count("--contact") > 0;
     try {
         if (info->parsed()) return command_info();
         if (run->parsed()) return command_run(a);

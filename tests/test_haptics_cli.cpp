@@ -208,6 +208,16 @@ TEST(HapticsCli, TheGlBackendsForcesArriveAFewStepsLateAndReplayOnCpuWithinToler
     std::smatch m;
     ASSERT_TRUE(std::regex_search(replay.output, m, std::regex(R"(rms ([0-9.e+-]+) N \(largest recorded force ([0-9.e+-]+) N)"))) << replay.output;
     EXPECT_LT(std::stod(m[1]), 0.01 * std::stod(m[2])) << replay.output;
+
+    // A gl session with another contact mode replays on gl with that mode (unless --contact
+    // says otherwise) and agrees within the tolerance (measured on llvmpipe: bit for bit).
+    const auto search = run_heartsim("run " + quoted(phantom()) + " --headless --backend gl --contact search --device simulated:" +
+                                     quoted(sample("press_phantom.csv")) + " --steps 150 --record " + quoted(dir / "search.h5"));
+    ASSERT_EQ(search.exit_code, 0) << search.output;
+    const auto again = run_heartsim("run " + quoted(phantom()) + " --headless --backend gl --replay " + quoted(dir / "search.h5"));
+    EXPECT_EQ(again.exit_code, 0) << again.output;
+    EXPECT_NE(again.output.find("--contact search, as recorded"), std::string::npos) << again.output;
+    std::printf("%s\n", again.output.c_str());
 }
 
 TEST(HapticsCli, ADivergingGrabStillEndsAfterSteps_AndReplaysBitForBitThroughTheRestores) {
