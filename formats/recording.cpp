@@ -62,7 +62,7 @@ void write_recording(const std::filesystem::path& path, const Recording& r) {
     const RecordedSteps& s = r.steps;
     const std::size_t n = s.size();
     if (s.wall_ms.size() != n || s.tool_time_ms.size() != n || s.tool_position_mm.size() != n || s.tool_orientation.size() != n ||
-        s.grab.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n)
+        s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n)
         throw OutputError(file + ": the step columns have different lengths (a bug in heartsim)");
     write_atomically(path, [&](hid_t root) {
         write_string_attribute(root, "format", "heartsim.recording", file);
@@ -124,6 +124,7 @@ void write_recording(const std::filesystem::path& path, const Recording& r) {
         write_f64(g, "tool_position_mm", s.tool_position_mm.data(), {n, 2, 3}, file);
         write_f64(g, "tool_orientation", s.tool_orientation.data(), {n, 2, 4}, file);
         write_dataset(g, "grab", H5T_STD_I8LE, H5T_NATIVE_INT8, s.grab.data(), {n, 2}, file);
+        write_dataset(g, "applied", H5T_STD_I8LE, H5T_NATIVE_INT8, s.applied.data(), {n, 2}, file);
         write_f64(g, "force_n", s.force_n.data(), {n, 2, 3}, file);
         write_dataset(g, "force_step", H5T_STD_I64LE, H5T_NATIVE_INT64, s.force_step.data(), {n}, file);
         write_dataset(g, "diverged", H5T_STD_I8LE, H5T_NATIVE_INT8, s.diverged.data(), {n}, file);
@@ -247,6 +248,9 @@ Recording read_recording(const std::filesystem::path& path) {
     const auto grab = read_dataset<std::int8_t>(g, "grab", H5T_NATIVE_INT8, {n, 2}, where);
     s.grab.resize(n);
     for (std::size_t i = 0; i < n; ++i) s.grab[i] = {grab[2 * i], grab[2 * i + 1]};
+    const auto applied = read_dataset<std::int8_t>(g, "applied", H5T_NATIVE_INT8, {n, 2}, where);
+    s.applied.resize(n);
+    for (std::size_t i = 0; i < n; ++i) s.applied[i] = {applied[2 * i], applied[2 * i + 1]};
     const auto force = read_dataset<double>(g, "force_n", H5T_NATIVE_DOUBLE, {n, 2, 3}, where);
     require_finite(force, where, "force_n");
     s.force_n.resize(n);
@@ -257,6 +261,8 @@ Recording read_recording(const std::filesystem::path& path) {
         for (int h = 0; h < 2; ++h) {
             const std::string row = " row " + std::to_string(i) + ", hand " + std::to_string(h);
             if (s.grab[i][h] != 0 && s.grab[i][h] != 1) throw InputError(where + ": dataset grab" + row + " is not 0 or 1");
+            if (s.applied[i][h] != 0 && s.applied[i][h] != 1) throw InputError(where + ": dataset applied" + row + " is not 0 or 1");
+            if (s.applied[i][h] && !r.hands[h].used) throw InputError(where + ": dataset applied" + row + " applies a hand without a device");
             if (s.grab[i][h] && (!r.hands[h].used || r.hands[h].instrument != "grabber"))
                 throw InputError(where + ": dataset grab" + row + " grabs with a hand that holds no grabber");
             if (!r.hands[h].used) continue;

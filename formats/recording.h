@@ -25,6 +25,7 @@
 ///     tool_position_mm float64 [S,2,3]  tool pose per hand (world frame) used by the step
 ///     tool_orientation float64 [S,2,4]
 ///     grab           int8    [S,2]    1 while the hand's grabber held during the step (0 or 1; only a grabber hand)
+///     applied        int8    [S,2]    1 when the step applied the hand's tool (0 before its first pose)
 ///     force_n        float64 [S,2,3]  forces published after the step (world frame)
 ///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
 ///     diverged       int8    [S]      the step hit the watchdog
@@ -66,6 +67,7 @@ struct RecordedSteps {
     std::vector<std::array<std::array<double, 3>, 2>> tool_position_mm;
     std::vector<std::array<std::array<double, 4>, 2>> tool_orientation;
     std::vector<std::array<std::int8_t, 2>> grab;
+    std::vector<std::array<std::int8_t, 2>> applied;
     std::vector<std::array<std::array<double, 3>, 2>> force_n;
     std::vector<std::int64_t> force_step;
     std::vector<std::int8_t> diverged;

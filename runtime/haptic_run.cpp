@@ -351,7 +351,7 @@ StepReport HapticRun::step() {
     // Rows count step() calls: a step the watchdog restores is a row (and a recorded step) too.
     const long long step_index = (long long)rows_++;
     double tool_time = -1.0;
-    std::array<bool, 2> grab{false, false};
+    std::array<bool, 2> grab{false, false}, applied{false, false};
     if (auto tools = session_->latest_tools()) {
         for (int i = 0; i < 2; ++i) {
             Hand& h = hands_[i];
@@ -365,6 +365,7 @@ StepReport HapticRun::step() {
                 if (h.bad_poses++ == 0 && recording_on_) recording_.events.push_back({session_->now_ms(), i, "bad_pose"});
                 if (!h.placed) continue;
                 apply_tool(backend_, i, h.instrument, h.pose, h.grabbing, h.placed, h.grabbing);
+                applied[i] = true;
                 continue;
             }
             h.pose = p;
@@ -372,6 +373,7 @@ StepReport HapticRun::step() {
             const bool wants = h.instrument.kind == InstrumentKind::grabber && (h.buttons & 1u);
             const bool was = h.grabbing;
             apply_tool(backend_, i, h.instrument, h.pose, wants, h.placed, h.grabbing);
+            applied[i] = true;
             if (h.grabbing != was && recording_on_)
                 recording_.events.push_back({session_->now_ms(), i, h.grabbing ? "grab" : "release"});
             tool_time = std::max(tool_time, tools->hand[i].time_ms);
@@ -430,6 +432,7 @@ StepReport HapticRun::step() {
     s.tool_position_mm.push_back(position);
     s.tool_orientation.push_back(orientation);
     s.grab.push_back({std::int8_t(grab[0]), std::int8_t(grab[1])});
+    s.applied.push_back({std::int8_t(applied[0]), std::int8_t(applied[1])});
     s.force_n.push_back(force);
     s.force_step.push_back(force_step);
     s.diverged.push_back(std::int8_t(report.diverged));
@@ -639,9 +642,8 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     std::array<bool, 2> placed{false, false}, grabbing{false, false};
     for (std::size_t k = 0; k < s.size(); ++k) {
         for (int i = 0; i < 2; ++i) {
-            if (!recording.hands[i].used) continue;
-            // Every recorded step has both hands' poses: the live run starts stepping only after
-            // the device thread published the first tool poses (HapticRun::start).
+            // Exactly where the live step applied the hand's tool (not before its first usable pose).
+            if (!recording.hands[i].used || !s.applied[k][i]) continue;
             const auto& p = s.tool_position_mm[k][i];
             const auto& q = s.tool_orientation[k][i];
             InstrumentPose pose;

@@ -98,8 +98,12 @@ TEST(HapticsCli, TwoHandsRunForTwoSecondsAndPrintTheHapticRateTable) {
     bool grabbed = false;
     for (const auto& e : r.events) grabbed |= e.what == "grab" && e.hand == 1;
     EXPECT_TRUE(grabbed);
-    // Each step's forces came from that very step on the cpu backend (pose → force: 1 step).
-    for (std::size_t k = 0; k < r.steps.size(); ++k) ASSERT_EQ(r.steps.force_step[k], std::int64_t(k));
+    // Each step's forces came from that very step on the cpu backend (pose → force: 1 step), and
+    // every step applied both tools (stepping starts once the device thread has given poses).
+    for (std::size_t k = 0; k < r.steps.size(); ++k) {
+        ASSERT_EQ(r.steps.force_step[k], std::int64_t(k));
+        ASSERT_EQ(r.steps.applied[k][0] + r.steps.applied[k][1], 2) << "step " << k;
+    }
 }
 
 TEST(HapticsCli, TheRecordingReplaysToTheSameForcesBitForBitOnTheCpuBackend) {
@@ -430,6 +434,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         r.steps.tool_position_mm.push_back({{{0, 0, 0}, {1, 2, double(k)}}});
         r.steps.tool_orientation.push_back({{{1, 0, 0, 0}, {0, 1, 0, 0}}});
         r.steps.grab.push_back({0, std::int8_t(k)});
+        r.steps.applied.push_back({0, 1});
         r.steps.force_n.push_back({{{0, 0, 0}, {0.1, 0.2, 0.3 * k}}});
         r.steps.force_step.push_back(k - 1);
         r.steps.diverged.push_back(0);
@@ -448,6 +453,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     EXPECT_EQ(back.steps.tool_position_mm, r.steps.tool_position_mm);
     EXPECT_EQ(back.steps.force_n, r.steps.force_n);
     EXPECT_EQ(back.steps.grab, r.steps.grab);
+    EXPECT_EQ(back.steps.applied, r.steps.applied);
     EXPECT_EQ(back.steps.force_step, r.steps.force_step);
     ASSERT_EQ(back.events.size(), 2u);
     EXPECT_EQ(back.events[1].what, "emergency_stop");
@@ -483,6 +489,11 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         Recording d = r;
         d.steps.grab[1][1] = 7;
         refused(d, "grab row 1, hand 1 is not 0 or 1");
+    }
+    {
+        Recording d = r;
+        d.steps.applied[1][0] = 1;  // hand 0 has no device
+        refused(d, "applied row 1, hand 0 applies a hand without a device");
     }
     {
         Recording d = r;
