@@ -218,7 +218,7 @@ void apply_tool(Backend& backend, int hand, const Instrument& instrument, const 
 
 HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::string& scenario_name, const HapticRunSettings& settings,
                      const HapticRunContext& context)
-    : backend_(backend), scenario_name_(scenario_name), settings_(settings) {
+    : backend_(backend), settings_(settings) {
     if (settings.devices.empty() || settings.devices.size() > 2) throw InputError("--device: give one or two devices (hand 0, hand 1)");
     if (settings.instruments.size() > settings.devices.size())
         throw InputError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
@@ -452,7 +452,7 @@ int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
     while (n < max_steps && ms_until_next_step() <= 0.0) {
         step();
         ++n;
-        drain_ticks();
+        drain();
         if (session_->now_ms() >= until) break;
     }
     return n;
@@ -466,7 +466,7 @@ void HapticRun::set_paused(bool paused) {
     paused_ = paused;
 }
 
-void HapticRun::drain_ticks() {
+void HapticRun::drain() {
     poll_device_faults();
     const std::size_t before = ticks_.size();
     session_->drain_ticks(ticks_);
@@ -520,7 +520,7 @@ void HapticRun::finish(ScriptedRunResult& result) {
         while (session_->now_ms() < until) std::this_thread::sleep_for(std::chrono::milliseconds(1));
         session_->stop();
     }
-    drain_ticks();
+    drain();
     result_.wall_ms = session_->now_ms() - wall_start_ms_;
     result = result_;
 
@@ -552,8 +552,6 @@ void HapticRun::finish(ScriptedRunResult& result) {
         }
         std::printf("%-26s %10llu %10d %10d %10d %10s   (simulation steps from the first step using a pose to the forces it gave)\n",
                     "pose → force, steps", (unsigned long long)total, p50, p99, worst, "");
-        latency_steps_p99_ = p99;
-        latency_steps_max_ = worst;
     }
     std::printf("simulation: %d steps, %.4g ms simulated in %.4g ms wall (real-time factor %.3g)\n", result_.steps, simulated,
                 result_.wall_ms, result_.wall_ms > 0 ? simulated / result_.wall_ms : 0.0);

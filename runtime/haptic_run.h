@@ -91,7 +91,7 @@ public:
     void set_paused(bool paused);
     /// Empties the device thread's tick queue (recording) and reports device faults; step()
     /// does it after every step, a paused window every frame.
-    void drain() { drain_ticks(); }
+    void drain();
     /// True when a device reported a fault (its force is held at zero); heartsim exits 4.
     bool device_faulted() const;
     /// Stops the device thread (forces fade first), prints the haptic-rate table, writes --record.
@@ -103,9 +103,6 @@ public:
     WindowDevice* window_device() const { return window_device_; }
     HapticSession& session() { return *session_; }
     const ScriptedRunResult& result() const { return result_; }
-    /// After finish(): pose → force latency in simulation steps (p99, max).
-    int latency_steps_p99() const { return latency_steps_p99_; }
-    int latency_steps_max() const { return latency_steps_max_; }
     bool uses_hand(int hand) const { return hands_[hand].device != nullptr; }
     InstrumentKind instrument(int hand) const { return hands_[hand].instrument.kind; }
     /// The hand's device description for printing.
@@ -122,11 +119,9 @@ private:
         std::uint64_t bad_poses = 0;  ///< device poses not applied (non-finite or out of range)
         std::string fault;            ///< a device fault, once reported
     };
-    void drain_ticks();
     void poll_device_faults();
 
     Backend& backend_;
-    std::string scenario_name_;
     HapticRunSettings settings_;
     std::array<Hand, 2> hands_;
     WindowDevice* window_device_ = nullptr;
@@ -140,7 +135,6 @@ private:
     ScriptedRunResult result_;
     double start_sim_ms_ = 0.0, wall_start_ms_ = 0.0;
     std::array<std::uint64_t, 65> latency_steps_{};  ///< published forces by pose → force steps (64 = more)
-    int latency_steps_p99_ = 0, latency_steps_max_ = 0;
     bool recording_on_ = false, last_estop_ = false, last_fresh_ = false, finished_ = false, paused_ = false;
     std::size_t rows_ = 0;
     double paused_at_ms_ = 0.0;

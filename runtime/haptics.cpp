@@ -29,19 +29,17 @@ bool clamp_norm(Eigen::Vector3d& v, double limit) {
     return false;
 }
 
-/// The q-quantile of `count` samples in a histogram of `bin_ms` wide bins (the last one open),
-/// as the centre of the bin that reaches it.
-double histogram_percentile(const std::vector<std::uint32_t>& histogram, std::uint64_t count, double q, double bin_ms) {
-    const std::uint64_t target = std::uint64_t(std::ceil(q * double(count)));
-    std::uint64_t seen = 0;
-    for (std::size_t b = 0; b < histogram.size(); ++b) {
-        seen += histogram[b];
-        if (seen >= target) return (double(b) + 0.5) * bin_ms;
-    }
-    return double(histogram.size()) * bin_ms;
-}
-
 }  // namespace
+
+double DurationHistogram::quantile_ms(double q) const {
+    const std::uint64_t target = std::uint64_t(std::ceil(q * double(count_)));
+    std::uint64_t seen = 0;
+    for (std::size_t b = 0; b < counts_.size(); ++b) {
+        seen += counts_[b];
+        if (seen >= target) return std::min((double(b) + 0.5) / bins_per_ms_, max_ms_);
+    }
+    return max_ms_;
+}
 
 // ------------------------------------------------------------------------------------------------
 // ForceSafety
@@ -122,8 +120,7 @@ bool within_passivity_bound(const CouplingSettings& c, double b, double period_m
 // HapticSession
 
 HapticSession::HapticSession(const HapticSettings& settings)
-    : settings_(settings), epoch_(std::chrono::steady_clock::now()), histogram_(histogram_bins + 1, 0),
-      latency_histogram_(latency_bins + 1, 0) {
+    : settings_(settings), epoch_(std::chrono::steady_clock::now()) {
     if (!(settings.rate_hz >= 1.0 && settings.rate_hz <= 20000.0))
         throw InputError("haptics: the haptic rate must be between 1 and 20000 Hz");
 }
@@ -194,11 +191,7 @@ void HapticSession::tick(double now_ms) {
         last_arrival_ms_ = now_ms;
         last_sample_ = sample;
         if (sample.tool_time_ms >= 0.0 && sample.tool_time_ms <= now_ms) {
-            const double latency = now_ms - sample.tool_time_ms;
-            ++latency_histogram_[std::clamp(int(latency * 100.0), 0, latency_bins)];
-            latency_max_ms_ = std::max(latency_max_ms_, latency);
-            latency_sum_ms_ += latency;
-            ++latencies_;
+            latencies_.add(now_ms - sample.tool_time_ms);
         }
     }
     const bool simulation_fresh = last_sample_.sequence != 0 && now_ms - last_arrival_ms_ <= settings_.safety.stall_ms;
@@ -323,12 +316,7 @@ void HapticSession::run_thread() {
     while (!stop_.load(std::memory_order_acquire)) {
         const auto start = clock::now();
         if (!first) {
-            const double p = std::chrono::duration<double, std::milli>(start - previous).count();
-            const int bin = std::clamp(int(p * 1000.0), 0, histogram_bins);
-            ++histogram_[bin];
-            period_max_ms_ = std::max(period_max_ms_, p);
-            period_sum_ms_ += p;
-            ++periods_;
+            periods_.add(std::chrono::duration<double, std::milli>(start - previous).count());
         }
         first = false;
         previous = start;
@@ -344,26 +332,20 @@ void HapticSession::run_thread() {
 }
 
 PeriodStats HapticSession::period_stats() const {
-    PeriodStats s;
-    s.ticks = periods_;
-    s.max_ms = period_max_ms_;
-    s.overruns = overruns_;
-    if (periods_ == 0) return s;
-    s.mean_ms = period_sum_ms_ / double(periods_);
-    s.p50_ms = std::min(histogram_percentile(histogram_, periods_, 0.50, 1e-3), s.max_ms);
-    s.p99_ms = std::min(histogram_percentile(histogram_, periods_, 0.99, 1e-3), s.max_ms);
-    return s;
+    return {.ticks = periods_.count(),
+            .p50_ms = periods_.quantile_ms(0.50),
+            .p99_ms = periods_.quantile_ms(0.99),
+            .max_ms = periods_.max_ms(),
+            .mean_ms = periods_.mean_ms(),
+            .overruns = overruns_};
 }
 
 LatencyStats HapticSession::latency_stats() const {
-    LatencyStats s;
-    s.samples = latencies_;
-    s.max_ms = latency_max_ms_;
-    if (latencies_ == 0) return s;
-    s.mean_ms = latency_sum_ms_ / double(latencies_);
-    s.p50_ms = std::min(histogram_percentile(latency_histogram_, latencies_, 0.50, 1e-2), s.max_ms);
-    s.p99_ms = std::min(histogram_percentile(latency_histogram_, latencies_, 0.99, 1e-2), s.max_ms);
-    return s;
+    return {.samples = latencies_.count(),
+            .p50_ms = latencies_.quantile_ms(0.50),
+            .p99_ms = latencies_.quantile_ms(0.99),
+            .max_ms = latencies_.max_ms(),
+            .mean_ms = latencies_.mean_ms()};
 }
 
 HandTelemetry HapticSession::telemetry(int hand) const { return hands_.at(hand).telemetry; }

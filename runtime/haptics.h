@@ -23,6 +23,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <chrono>
@@ -394,6 +395,32 @@ struct PeriodStats {
     std::uint64_t overruns = 0;  ///< ticks that started more than one period late (skipped ahead)
 };
 
+/// Durations in fixed-width bins (the last one open for everything longer) with their count, sum
+/// and maximum; one writer, no allocation after construction. The device thread keeps its
+/// period and pose → force latency statistics in two of these.
+class DurationHistogram {
+public:
+    DurationHistogram(int bins_per_ms, double span_ms)
+        : bins_per_ms_(bins_per_ms), counts_(std::size_t(bins_per_ms * span_ms) + 1, 0) {}
+    void add(double ms) {
+        ++counts_[std::size_t(std::clamp(int(ms * bins_per_ms_), 0, int(counts_.size()) - 1))];
+        max_ms_ = std::max(max_ms_, ms);
+        sum_ms_ += ms;
+        ++count_;
+    }
+    std::uint64_t count() const { return count_; }
+    double max_ms() const { return max_ms_; }
+    double mean_ms() const { return count_ ? sum_ms_ / double(count_) : 0.0; }
+    /// The q-quantile as the centre of the bin that reaches it, never above the maximum seen.
+    double quantile_ms(double q) const;
+
+private:
+    int bins_per_ms_;
+    std::vector<std::uint32_t> counts_;
+    double max_ms_ = 0.0, sum_ms_ = 0.0;
+    std::uint64_t count_ = 0;
+};
+
 /// Pose → force latency, ms: from a tool sample (device read) to the tick that first sends a force
 /// computed from it (measured on the device thread when the force arrives).
 struct LatencyStats {
@@ -511,16 +538,11 @@ private:
     std::thread thread_;
     std::string scheduling_;          ///< written by start() before the thread runs its loop
     std::chrono::steady_clock::time_point epoch_;
-    // period histogram: 1 µs bins up to 20 ms, written by the device thread only
-    static constexpr int histogram_bins = 20000;
-    std::vector<std::uint32_t> histogram_;
-    double period_max_ms_ = 0.0, period_sum_ms_ = 0.0;
-    std::uint64_t periods_ = 0, overruns_ = 0;
-    // pose → force latency: 10 µs bins up to 1 s, device thread only
-    static constexpr int latency_bins = 100000;
-    std::vector<std::uint32_t> latency_histogram_;
-    double latency_max_ms_ = 0.0, latency_sum_ms_ = 0.0;
-    std::uint64_t latencies_ = 0;
+    // Written by the device thread only: periods in 1 µs bins up to 20 ms, pose → force latency
+    // in 10 µs bins up to 1 s.
+    DurationHistogram periods_{1000, 20.0};
+    std::uint64_t overruns_ = 0;
+    DurationHistogram latencies_{100, 1000.0};
     SpscQueue<TickRecord> ticks_queue_;
 };
 
