@@ -8,6 +8,7 @@
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
 #include "formats/volume_io.h"
+#include "stress_gesture.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -485,25 +486,9 @@ TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
     };
     std::size_t memory_after_warmup = 0;
     std::size_t events = 0;
-    // Each hand chases a random target anywhere in the heart's box at 2 mm/ms (fast for a hand),
-    // a new target every 40 steps; the grabber lets go and grabs again each time.
-    const double speed = 2.0;
-    std::array<InstrumentPose, 2> current{random_pose(), random_pose()}, target{random_pose(), random_pose()};
-    for (int hand = 0; hand < 2; ++hand) solver.set_pose(hand, current[std::size_t(hand)]);
+    test::StressGesture gesture(solver, random_pose);  // tests/stress_gesture.h
     for (int s = 0; s < 600; ++s) {
-        if (s % 40 == 0) {
-            target = {random_pose(), random_pose()};
-            solver.release(1);
-        }
-        for (int hand = 0; hand < 2; ++hand) {
-            auto& c = current[std::size_t(hand)];
-            const Eigen::Vector3d to = target[std::size_t(hand)].position - c.position;
-            const double reach = speed * solver.time_step_ms();
-            c.position += to.norm() > reach ? Eigen::Vector3d(to.normalized() * reach) : to;
-            c.orientation = c.orientation.slerp(0.05, target[std::size_t(hand)].orientation);
-            solver.set_pose(hand, c);
-        }
-        if (s % 40 == 5) solver.begin_grab(1);
+        gesture.before_step(solver, s);
         const StepReport report = solver.step();
         events += report.diverged;
         const InstrumentForces f = solver.instrument_forces();

@@ -13,6 +13,7 @@
 #include "libmodel/select.h"
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
+#include "tests/stress_gesture.h"
 
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
@@ -362,26 +363,9 @@ int main(int argc, char** argv) {
         std::array<std::size_t, 4> reasons{};
         double largest_force = 0;
         const auto t0 = Clock::now();
-        // Each hand chases a random target anywhere in the heart's box at up to 2 mm/ms (2 m/s,
-        // faster than hands move in surgery), a new target every 40 steps; the grabber lets go
-        // and grabs again each time.
-        const double speed = 2.0;  // mm/ms
-        std::array<InstrumentPose, 2> current{pose(), pose()}, target{pose(), pose()};
-        for (int hand = 0; hand < 2; ++hand) solver.set_pose(hand, current[std::size_t(hand)]);
+        test::StressGesture gesture(solver, pose);  // tests/stress_gesture.h
         for (long long s = 0; s < stress_steps; ++s) {
-            if (s % 40 == 0) {
-                target = {pose(), pose()};
-                solver.release(1);
-            }
-            for (int hand = 0; hand < 2; ++hand) {
-                auto& c = current[std::size_t(hand)];
-                const Eigen::Vector3d to = target[std::size_t(hand)].position - c.position;
-                const double reach = speed * solver.time_step_ms();
-                c.position += to.norm() > reach ? Eigen::Vector3d(to.normalized() * reach) : to;
-                c.orientation = c.orientation.slerp(0.05, target[std::size_t(hand)].orientation);
-                solver.set_pose(hand, c);
-            }
-            if (s % 40 == 5) solver.begin_grab(1);
+            gesture.before_step(solver, s);
             const StepReport report = solver.step();
             events += report.diverged;
             if (report.diverged) ++reasons[int(report.reason)];

@@ -1,0 +1,49 @@
+/// @file stress_gesture.h
+/// @brief The two-handed stress gesture shared by tests/test_solver.cpp and the solver benchmark:
+/// each hand chases a random target anywhere in the heart's box at up to `speed` mm/ms (2 mm/ms,
+/// 2 m/s, is faster than hands move in surgery), a new target every 40 steps; the grabber (hand 1)
+/// lets go at each new target and grabs again 5 steps later.
+#pragma once
+
+#include "libmodel/solver.h"
+
+#include <array>
+#include <functional>
+
+namespace heartsim::test {
+
+class StressGesture {
+public:
+    /// Draws the start poses and the first targets (hand 0, hand 1; then the targets) and places
+    /// both instruments.
+    StressGesture(Solver& solver, std::function<InstrumentPose()> random_pose, double speed_mm_per_ms = 2.0)
+        : random_pose_(std::move(random_pose)), speed_(speed_mm_per_ms) {
+        current_ = {random_pose_(), random_pose_()};
+        target_ = {random_pose_(), random_pose_()};
+        for (int hand = 0; hand < 2; ++hand) solver.set_pose(hand, current_[std::size_t(hand)]);
+    }
+
+    /// Moves both hands for step `step` (0, 1, …), before solver.step().
+    void before_step(Solver& solver, long long step) {
+        if (step % 40 == 0) {
+            target_ = {random_pose_(), random_pose_()};
+            solver.release(1);
+        }
+        for (int hand = 0; hand < 2; ++hand) {
+            auto& c = current_[std::size_t(hand)];
+            const Eigen::Vector3d to = target_[std::size_t(hand)].position - c.position;
+            const double reach = speed_ * solver.time_step_ms();
+            c.position += to.norm() > reach ? Eigen::Vector3d(to.normalized() * reach) : to;
+            c.orientation = c.orientation.slerp(0.05, target_[std::size_t(hand)].orientation);
+            solver.set_pose(hand, c);
+        }
+        if (step % 40 == 5) solver.begin_grab(1);
+    }
+
+private:
+    std::function<InstrumentPose()> random_pose_;
+    double speed_;
+    std::array<InstrumentPose, 2> current_, target_;
+};
+
+}  // namespace heartsim::test
