@@ -38,6 +38,8 @@ import subprocess
 import sys
 import time
 
+from bench_common import write_csv
+
 try:
     import numpy as np
     import vtk
@@ -246,17 +248,6 @@ def poly_from_arrays(points, tris):
 
 # ---------------------------------------------------------------------------------------------
 # Output
-
-
-def write_csv(path, rows):
-    keys = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"\nwrote {path}")
 
 
 def fmt(v):

@@ -39,6 +39,8 @@ import subprocess
 import sys
 import time
 
+from bench_common import write_csv
+
 try:
     import numpy as np
 except ImportError as error:
@@ -166,17 +168,6 @@ def read_state(path):
 
 # ---------------------------------------------------------------------------------------------
 # Output
-
-
-def write_csv(path, rows):
-    keys = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
-        w.writeheader()
-        w.writerows(rows)
-    print(f"\nwrote {path}")
 
 
 def fmt(v):
