@@ -235,6 +235,14 @@ void write_contents(Writer& w, const Scenario& s) {
         w.dataset(g.get(), "mass", p.mass.data(), n);
         w.dataset(g.get(), "material", p.material.data(), n);
         w.dataset(g.get(), "anchored", p.anchored.data(), n);
+        if (p.supported()) {
+            if (p.support_stiffness.size() != n || p.support_point.size() != n)
+                throw InputError("scenario: the support arrays differ in length from the particles");
+            w.dataset(g.get(), "support_stiffness", p.support_stiffness.data(), n);
+            w.dataset(g.get(), "support_point", p.support_point.data()->data(), n, 3);
+            if (p.support_damping.size() != n) throw InputError("scenario: the support damping array differs in length from the particles");
+            w.dataset(g.get(), "support_damping", p.support_damping.data(), n);
+        }
     }
     {
         H5Object g = w.group("springs");
@@ -282,6 +290,7 @@ void write_contents(Writer& w, const Scenario& s) {
         w.attribute(g.get(), "substeps", std::int32_t(s.solver.substeps));
         w.attribute(g.get(), "damping", s.solver.damping);
         w.attribute(g.get(), "gravity", s.solver.gravity.data(), {3});
+        w.attribute(g.get(), "balanced_gravity", s.solver.balanced_gravity.data(), {3});
         w.attribute(g.get(), "critical_dt_ms", s.solver.critical_dt_ms);
         w.attribute(g.get(), "critical_dt_bound_ms", s.solver.critical_dt_bound_ms);
         w.attribute(g.get(), "safety_factor", s.solver.safety_factor);
@@ -641,6 +650,27 @@ Scenario read_contents(const Reader& r) {
         for (std::size_t i = 0; i < n; ++i)
             if (p.anchored[i] > 1) r.fail("particles/anchored", "entry " + std::to_string(i) + " is neither 0 nor 1");
         if (n == 0) r.fail("particles/mass", "no particles");
+        // Supports (optional: a file without them has none).
+        const bool has_stiffness = r.exists("particles/support_stiffness"), has_point = r.exists("particles/support_point");
+        if (has_stiffness != has_point)
+            r.fail(has_stiffness ? "particles/support_point" : "particles/support_stiffness",
+                   "missing: support_stiffness and support_point come together");
+        if (has_stiffness) {
+            p.support_stiffness = r.dataset<float>("particles/support_stiffness", long(n), 0);
+            for (std::size_t i = 0; i < n; ++i)
+                if (!(p.support_stiffness[i] >= 0) || !std::isfinite(p.support_stiffness[i]))
+                    r.fail("particles/support_stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness (N/mm)");
+            auto point = r.dataset<float>("particles/support_point", long(n), 3);
+            require_finite(r, "particles/support_point", point);
+            p.support_point = rows_of<float, 3>(point);
+            p.support_damping.assign(n, 0.0f);  // optional: undamped supports
+            if (r.exists("particles/support_damping")) {
+                p.support_damping = r.dataset<float>("particles/support_damping", long(n), 0);
+                for (std::size_t i = 0; i < n; ++i)
+                    if (!(p.support_damping[i] >= 0) || !std::isfinite(p.support_damping[i]))
+                        r.fail("particles/support_damping", "entry " + std::to_string(i) + " is not a non-negative finite damping (N·ms/mm)");
+            }
+        }
     }
     {
         auto& sp = lattice.springs;
@@ -684,6 +714,11 @@ Scenario read_contents(const Reader& r) {
         solver.damping = r.scalar<double>(g.get(), "/solver", "damping");
         auto gravity = r.numeric_attribute<double>(g.get(), "/solver", "gravity", 3);
         solver.gravity = Eigen::Vector3d(gravity[0], gravity[1], gravity[2]);
+        if (r.has_attribute(g.get(), "balanced_gravity")) {
+            auto balanced = r.numeric_attribute<double>(g.get(), "/solver", "balanced_gravity", 3);
+            solver.balanced_gravity = Eigen::Vector3d(balanced[0], balanced[1], balanced[2]);
+            if (!solver.balanced_gravity.allFinite()) r.fail("/solver", "balanced_gravity must be finite");
+        }
         solver.critical_dt_ms = r.scalar<double>(g.get(), "/solver", "critical_dt_ms");
         if (r.has_attribute(g.get(), "critical_dt_bound_ms"))
             solver.critical_dt_bound_ms = r.scalar<double>(g.get(), "/solver", "critical_dt_bound_ms");

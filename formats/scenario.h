@@ -37,6 +37,9 @@ struct SolverSettings {
     int substeps = 1;                 ///< steps per runtime frame update
     double damping = 0.0;             ///< global velocity damping rate γ, 1/ms (f = −γ m v)
     Eigen::Vector3d gravity{0.0, 9.81e-3, 0.0};  ///< mm/ms²; +y is posterior in LPS (supine patient)
+    /// The gravity the rest state is a static equilibrium for (pre-stressed springs, pre-loaded
+    /// supports: libmodel/supports.h), mm/ms²; zero when the rest state is the unstressed one.
+    Eigen::Vector3d balanced_gravity = Eigen::Vector3d::Zero();
     double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), power-iteration estimate
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
     double safety_factor = 0.5;       ///< dt_ms = min(safety_factor·critical_dt_ms, critical_dt_bound_ms)

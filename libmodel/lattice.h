@@ -57,7 +57,14 @@ struct Particles {
     std::vector<float> mass;                           ///< N, g
     std::vector<std::int32_t> material;                ///< N, row in the material table
     std::vector<std::uint8_t> anchored;                ///< N, 1 = does not move
+    /// Supports (supports.h): a zero-rest-length spring from each particle to a fixed point,
+    /// f = k·(support_point − x). Both empty (no supports) or N each; k = 0 where unsupported.
+    std::vector<float> support_stiffness;              ///< N, N/mm
+    std::vector<std::array<float, 3>> support_point;   ///< N×3, world LPS mm (the rest position, or
+                                                       ///< moved by balance_rest_state to carry a pre-load)
+    std::vector<float> support_damping;                ///< N, N·ms/mm: the support's dashpot, f = −c·v
     std::size_t size() const { return mass.size(); }
+    bool supported() const { return !support_stiffness.empty(); }
 };
 static_assert(sizeof(std::array<float, 3>) == 12, "rest positions must be packed float32 triples");
 

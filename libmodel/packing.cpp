@@ -142,6 +142,11 @@ Packing pack_particles(Lattice& lattice, const PackingOptions& options, Progress
     permute(p.mass);
     permute(p.material);
     permute(p.anchored);
+    if (p.supported()) {
+        permute(p.support_stiffness);
+        permute(p.support_point);
+        permute(p.support_damping);
+    }
     if (options.scheme == PackingScheme::slices) {
         permute(texel);
         packing.texture_coord = std::move(texel);

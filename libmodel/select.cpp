@@ -154,11 +154,8 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
     report.tissue_volume_mm3 = double(report.tissue_voxels) * voxel_volume;
     report.cavity_volume_mm3 = double(report.cavity_voxels) * voxel_volume;
 
-    std::size_t kept_islands = report.islands.size() - report.islands_dropped;
-    if (kept_islands > 1 && options.anchor_labels.empty() && !options.anchor_border)
-        report.warnings.push_back(std::to_string(kept_islands) +
-                                  " separate tissue islands are kept and nothing is anchored: the pieces "
-                                  "float freely (raise --min-island or anchor them)");
+    // Whether each kept island is held (anchors, supports) is decided on the lattice, where
+    // pieces are what moves: libmodel/supports.h drop_free_pieces.
 
     // Anchors: voxels of anchor labels, and tissue voxels on the volume border.
     selection.anchors.geometry = g;

@@ -58,6 +58,9 @@ struct KernelData {
     std::size_t parameter_group_stride;  // 18·8 for per-entry rest length and stiffness, 0 when uniform per slot
     const Real* mass;
     const Real* inverse_mass_h2;
+    const Real* support_point;      // 4 per particle (x, y, z, 0), mm
+    const Real* support_stiffness;  // 1 per particle, N/mm (0 where unsupported)
+    const Real* support_damping;    // 1 per particle, c/h, N/mm (0 where unsupported)
     Real keep;              // 1 − γh
     Real gravity[3];        // mm/ms²
     Real max_displacement2; // mm², per substep
@@ -68,7 +71,7 @@ constexpr Real tiny_length2() { return Real(1e-30); }
 
 /// One group of 8 particles: gather the 18 slots, integrate, store, check the displacement.
 /// Returns true when a displacement is past the bound or not finite.
-template <class Real, bool Damped>
+template <class Real, bool Damped, bool Supported>
 bool group_portable(const KernelData<Real>& k, std::size_t group) {
     constexpr int W = lane_count;
     Real xi[W], yi[W], zi[W], uxi[W], uyi[W], uzi[W], fx[W], fy[W], fz[W];
@@ -103,6 +106,16 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
             fx[l] = fx[l] + scale * dx;
             fy[l] = fy[l] + scale * dy;
             fz[l] = fz[l] + scale * dz;
+        }
+    }
+    if constexpr (Supported) {
+        // Support spring of zero rest length: f += k_s (y − x), after the 18 slots.
+        for (int l = 0; l < W; ++l) {
+            const Real* y = k.support_point + 4 * (base + l);
+            const Real ks = k.support_stiffness[base + l], cs = k.support_damping[base + l];
+            fx[l] = fx[l] + (ks * (y[0] - xi[l]) - cs * uxi[l]);
+            fy[l] = fy[l] + (ks * (y[1] - yi[l]) - cs * uyi[l]);
+            fz[l] = fz[l] + (ks * (y[2] - zi[l]) - cs * uzi[l]);
         }
     }
     bool bad = false;
@@ -141,7 +154,7 @@ inline void load_own4(const float* p, __m128& x, __m128& y, __m128& z) {
     transpose_in(_mm_loadu_ps(p), _mm_loadu_ps(p + 4), _mm_loadu_ps(p + 8), _mm_loadu_ps(p + 12), x, y, z);
 }
 
-template <bool Damped>
+template <bool Damped, bool Supported>
 bool group_sse2(const KernelData<float>& k, std::size_t group) {
     bool bad = false;
     const __m128 tiny = _mm_set1_ps(tiny_length2<float>()), one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
@@ -178,6 +191,14 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
             fx = _mm_add_ps(fx, _mm_mul_ps(scale, dx));
             fy = _mm_add_ps(fy, _mm_mul_ps(scale, dy));
             fz = _mm_add_ps(fz, _mm_mul_ps(scale, dz));
+        }
+        if constexpr (Supported) {
+            __m128 sx, sy, sz;
+            load_own4(k.support_point + 4 * base, sx, sy, sz);
+            const __m128 ks = _mm_loadu_ps(k.support_stiffness + base), cs = _mm_loadu_ps(k.support_damping + base);
+            fx = _mm_add_ps(fx, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sx, xi)), _mm_mul_ps(cs, uxi)));
+            fy = _mm_add_ps(fy, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sy, yi)), _mm_mul_ps(cs, uyi)));
+            fz = _mm_add_ps(fz, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sz, zi)), _mm_mul_ps(cs, uzi)));
         }
         const __m128 m = _mm_loadu_ps(k.mass + base), w = _mm_loadu_ps(k.inverse_mass_h2 + base), keep = _mm_set1_ps(k.keep);
         const __m128 nx = _mm_add_ps(xi, _mm_add_ps(_mm_mul_ps(keep, uxi), _mm_mul_ps(_mm_add_ps(fx, _mm_mul_ps(m, _mm_set1_ps(k.gravity[0]))), w)));
@@ -221,7 +242,7 @@ HEARTSIM_AVX2 inline void load_own8(const float* p, __m256& x, __m256& y, __m256
     transpose_in8(pair(p, p + 16), pair(p + 4, p + 20), pair(p + 8, p + 24), pair(p + 12, p + 28), x, y, z);
 }
 
-template <bool Damped>
+template <bool Damped, bool Supported>
 HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
     const __m256 tiny = _mm256_set1_ps(tiny_length2<float>()), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
     const std::size_t base = group * lane_count;
@@ -256,6 +277,14 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
         fy = _mm256_add_ps(fy, _mm256_mul_ps(scale, dy));
         fz = _mm256_add_ps(fz, _mm256_mul_ps(scale, dz));
     }
+    if constexpr (Supported) {
+        __m256 sx, sy, sz;
+        load_own8(k.support_point + 4 * base, sx, sy, sz);
+        const __m256 ks = _mm256_loadu_ps(k.support_stiffness + base), cs = _mm256_loadu_ps(k.support_damping + base);
+        fx = _mm256_add_ps(fx, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sx, xi)), _mm256_mul_ps(cs, uxi)));
+        fy = _mm256_add_ps(fy, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sy, yi)), _mm256_mul_ps(cs, uyi)));
+        fz = _mm256_add_ps(fz, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sz, zi)), _mm256_mul_ps(cs, uzi)));
+    }
     const __m256 m = _mm256_loadu_ps(k.mass + base), w = _mm256_loadu_ps(k.inverse_mass_h2 + base), keep = _mm256_set1_ps(k.keep);
     const __m256 nx = _mm256_add_ps(xi, _mm256_add_ps(_mm256_mul_ps(keep, uxi), _mm256_mul_ps(_mm256_add_ps(fx, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[0]))), w)));
     const __m256 ny = _mm256_add_ps(yi, _mm256_add_ps(_mm256_mul_ps(keep, uyi), _mm256_mul_ps(_mm256_add_ps(fy, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[1]))), w)));
@@ -286,15 +315,20 @@ bool cpu_has_avx2() { return false; }
 template <class Real>
 using GroupFunction = bool (*)(const KernelData<Real>&, std::size_t);
 
-template <class Real>
+template <class Real, bool Supported>
 GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped) {
     if constexpr (std::is_same_v<Real, float>) {
 #ifdef HEARTSIM_SOLVER_X86
-        if (kernel == SolverKernel::avx2) return damped ? &group_avx2<true> : &group_avx2<false>;
-        if (kernel == SolverKernel::sse2) return damped ? &group_sse2<true> : &group_sse2<false>;
+        if (kernel == SolverKernel::avx2) return damped ? &group_avx2<true, Supported> : &group_avx2<false, Supported>;
+        if (kernel == SolverKernel::sse2) return damped ? &group_sse2<true, Supported> : &group_sse2<false, Supported>;
 #endif
     }
-    return damped ? &group_portable<Real, true> : &group_portable<Real, false>;
+    return damped ? &group_portable<Real, true, Supported> : &group_portable<Real, false, Supported>;
+}
+
+template <class Real>
+GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool supported) {
+    return supported ? choose_group_function<Real, true>(kernel, damped) : choose_group_function<Real, false>(kernel, damped);
 }
 
 SolverKernel resolve_kernel(SolverKernel wanted, bool is_float) {
@@ -358,6 +392,21 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         for (float c : particles.rest_position[i])
             if (!std::isfinite(c)) throw InputError("solver: particle " + std::to_string(i) + " has a non-finite rest position");
     }
+    if (particles.supported()) {
+        if (particles.support_stiffness.size() != n_ || particles.support_point.size() != n_)
+            throw InputError("solver: support arrays differ in length from the particles (support_stiffness, support_point)");
+        if (!particles.support_damping.empty() && particles.support_damping.size() != n_)
+            throw InputError("solver: support_damping differs in length from the particles");
+        for (std::size_t i = 0; i < n_; ++i) {
+            if (!particles.support_damping.empty() && (!(particles.support_damping[i] >= 0) || !std::isfinite(particles.support_damping[i])))
+                throw InputError("solver: particle " + std::to_string(i) + " has a negative or non-finite support damping");
+            if (!(particles.support_stiffness[i] >= 0) || !std::isfinite(particles.support_stiffness[i]))
+                throw InputError("solver: particle " + std::to_string(i) + " has a negative or non-finite support stiffness");
+            for (float c : particles.support_point[i])
+                if (!std::isfinite(c)) throw InputError("solver: particle " + std::to_string(i) + " has a non-finite support point");
+        }
+    }
+    if (!options_.balanced_gravity.allFinite()) throw InputError("solver: balanced_gravity must be finite");
 
     n_pad_ = (n_ + lane_count - 1) / lane_count * lane_count;
     groups_ = n_pad_ / lane_count;
@@ -411,6 +460,23 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         anchored_[i] = particles.anchored[i] ? 1 : 0;
         movable_[i] = anchored_[i] ? 0 : 1;
         load_report_.anchored += anchored_[i];
+    }
+    // Supports: zero-rest-length springs to fixed points (none on anchored particles).
+    support_point_.assign(4 * n_pad_, Real(0));
+    support_stiffness_.assign(n_pad_, Real(0));
+    support_damping_.assign(n_pad_, Real(0));
+    supported_ = false;
+    for (std::size_t i = 0; i < n_; ++i) {
+        const std::array<float, 3>& y = particles.supported() ? particles.support_point[i] : particles.rest_position[i];
+        for (int c = 0; c < 3; ++c) support_point_[4 * i + std::size_t(c)] = Real(y[std::size_t(c)]);
+        if (particles.supported() && movable_[i] && particles.support_stiffness[i] > 0) {
+            support_stiffness_[i] = Real(particles.support_stiffness[i]);
+            if (!particles.support_damping.empty()) support_damping_[i] = Real(particles.support_damping[i]);
+            // A dashpot to a fixed point is a drag c/m on its particle (damped_critical_dt_ms).
+            support_drag_ = std::max(support_drag_, double(support_damping_[i]) / double(particles.mass[i]));
+            supported_ = true;
+            ++load_report_.supported;
+        }
     }
 
     // Per-slot tables in [group][slot][lane] order.
@@ -510,7 +576,7 @@ template <class Real>
 double BasicSolver<Real>::damped_critical_dt_ms() const {
     if (!std::isfinite(critical_dt_ms_) || !(critical_dt_ms_ > 0)) return critical_dt_ms_;
     const double lambda = 4.0 / (critical_dt_ms_ * critical_dt_ms_);
-    const double b = std::max(0.0, options_.damping) + dashpot_ratio_ * lambda;
+    const double b = std::max(0.0, options_.damping) + support_drag_ + dashpot_ratio_ * lambda;
     return (-b + std::sqrt(b * b + 4.0 * lambda)) / lambda;
 }
 
@@ -539,22 +605,32 @@ template <class Real>
 void BasicSolver<Real>::build_step_constants() {
     const double h2 = h_ * h_;
     for (std::size_t i = 0; i < n_pad_; ++i) inverse_mass_h2_[i] = movable_[i] ? Real(h2 / double(mass_[i])) : Real(0);
+    support_damping_over_h_.resize(support_damping_.size());
+    for (std::size_t i = 0; i < support_damping_.size(); ++i) support_damping_over_h_[i] = Real(double(support_damping_[i]) / h_);
     dashpot_over_h_.resize(dashpot_.size());
     for (std::size_t t = 0; t < dashpot_.size(); ++t) dashpot_over_h_[t] = Real(double(dashpot_[t]) / h_);
 }
 
 template <class Real>
 void BasicSolver<Real>::reset() {
+    time_ms_ = 0.0;
+    reset_tissue();
+}
+
+template <class Real>
+void BasicSolver<Real>::reset_tissue() {
     std::copy(rest_.begin(), rest_.end(), current_);
     std::copy(rest_.begin(), rest_.end(), previous_);
     std::copy(rest_.begin(), rest_.end(), next_);
-    // At rest the springs exert nothing: x₋₁ = x₀ + ½·g·h² starts the fall at second order.
+    // At rest the springs and supports balance the gravity the rest state was built for
+    // (`balanced_gravity`; zero for an unbalanced rest state, where they exert nothing): the rest
+    // acceleration is g − g_balanced, and x₋₁ = x₀ + ½·a·h² starts the motion at second order.
+    const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
     for (std::size_t i = 0; i < n_pad_; ++i)
         if (movable_[i])
-            for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] += Real(0.5 * options_.gravity[c] * h_ * h_);
+            for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] += Real(0.5 * rest_acceleration[c] * h_ * h_);
     for (int hand = 0; hand < hands; ++hand) release(hand);
     for (auto& list : touched_) list.clear();
-    time_ms_ = 0.0;
     good_energy_ = 0.0;
     substeps_since_check_ = 0;
     snapshot();
@@ -705,7 +781,10 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         if (state.instrument.kind != InstrumentKind::none) max_displacement = std::max(max_displacement, state.instrument.semi_axes.maxCoeff());
     k.max_displacement2 = options_.watchdog && std::isfinite(max_displacement) ? Real(max_displacement * max_displacement)
                                                                                  : std::numeric_limits<Real>::infinity();
-    const GroupFunction<Real> group_function = choose_group_function<Real>(load_report_.kernel, damped_);
+    k.support_point = support_point_.data();
+    k.support_stiffness = support_stiffness_.data();
+    k.support_damping = support_damping_over_h_.data();
+    const GroupFunction<Real> group_function = choose_group_function<Real>(load_report_.kernel, damped_, supported_);
 
     std::array<ProbeFrame, hands> probes;
     int probe_count = 0;
@@ -898,6 +977,11 @@ Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
         }
         force += scale * d;
     }
+    if (supported_ && support_stiffness_[i] != Real(0)) {
+        const Real* y = support_point_.data() + 4 * i;
+        force += double(support_stiffness_[i]) * Eigen::Vector3d(double(y[0]) - xi[0], double(y[1]) - xi[1], double(y[2]) - xi[2]);
+        force -= double(support_damping_over_h_[i]) * Eigen::Vector3d(double(xi[0]) - pi[0], double(xi[1]) - pi[1], double(xi[2]) - pi[2]);
+    }
     return force;
 }
 
@@ -929,6 +1013,18 @@ Eigen::Vector3d BasicSolver<Real>::anchor_force() const {
 }
 
 template <class Real>
+Eigen::Vector3d BasicSolver<Real>::support_force() const {
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    if (!supported_) return force;
+    for (std::size_t i = 0; i < n_; ++i) {
+        const Real* x = current_ + 4 * i;
+        const Real* y = support_point_.data() + 4 * i;
+        force += double(support_stiffness_[i]) * Eigen::Vector3d(double(y[0]) - x[0], double(y[1]) - x[1], double(y[2]) - x[2]);
+    }
+    return force;
+}
+
+template <class Real>
 SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
     std::vector<std::array<double, 3>> partial(chunks_, {0.0, 0.0, 0.0});
     const double h = h_, keep = 1.0 - options_.damping * h_;
@@ -947,6 +1043,11 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                     elastic += 0.25 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
                 }
                 if (!movable_[i]) continue;
+                if (supported_) {
+                    const Real* y = support_point_.data() + 4 * i;
+                    elastic += 0.5 * double(support_stiffness_[i]) *
+                               (std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) + std::pow(double(y[2]) - x[2], 2));
+                }
                 const double m = double(mass_[i]);
                 Eigen::Vector3d u(static_cast<double>(x[0]) - previous_[4 * i], static_cast<double>(x[1]) - previous_[4 * i + 1], static_cast<double>(x[2]) - previous_[4 * i + 2]);
                 if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / m));

@@ -50,6 +50,11 @@ struct SolverOptions {
     double damping = 0.0;
     /// Gravity, mm/ms² (9.81e-3 is 1 g), world frame.
     Eigen::Vector3d gravity{0.0, 9.81e-3, 0.0};
+    /// The gravity the rest state is a static equilibrium for (supports.h balance_rest_state;
+    /// scenario /solver balanced_gravity), mm/ms²; zero when the springs are unstressed at rest.
+    /// Only the start of motion depends on it: reset() starts from rest with acceleration
+    /// gravity − balanced_gravity.
+    Eigen::Vector3d balanced_gravity = Eigen::Vector3d::Zero();
     /// Spring damping ratio ζ per material row (dimensionless); a spring's dashpot is
     /// c = 2ζ√(kμ), μ the pair's reduced mass, ζ the mean of its two particles' materials.
     /// Empty: taken from the lattice's materials, or 0 when built from bare particles.
@@ -117,7 +122,7 @@ struct StepReport {
 /// Energies, mJ (N·mm), relative to the rest state (elastic 0, gravity potential 0 at rest).
 struct SolverEnergy {
     double kinetic = 0.0;
-    double elastic = 0.0;
+    double elastic = 0.0;         ///< springs and supports (not 0 at rest when pre-stressed)
     double gravity = 0.0;         ///< −Σ m g·(x − x_rest)
     double total() const { return kinetic + elastic + gravity; }
 };
@@ -126,6 +131,7 @@ struct SolverLoadReport {
     std::size_t particles = 0;
     std::size_t springs = 0;
     std::size_t anchored = 0;
+    std::size_t supported = 0;                   ///< free particles with a support spring
     std::size_t table_slots_without_spring = 0;  ///< neighbour-table entries no spring joins (ignored)
     double critical_dt_ms = 0.0;
     double damped_critical_dt_ms = 0.0;          ///< with dashpots and drag (BasicSolver::damped_critical_dt_ms)
@@ -167,7 +173,8 @@ public:
     double simulated_time_ms() const { return time_ms_; }
     /// The critical step with damping: dashpots and drag shorten it. For a mode ω (ω² ≤ λ =
     /// 4/critical²) the damped central-difference scheme is stable while ω²h² + 2h(γ + βω²) < 4,
-    /// β = max c/k over springs; solved for h at ω² = λ. Equals the critical step undamped.
+    /// β = max c/k over springs, γ the drag plus the largest support dashpot's c/m; solved for h
+    /// at ω² = λ. Equals the critical step undamped.
     double damped_critical_dt_ms() const;
 
     /// Instruments: hand 0 or 1. Changing an instrument releases what it held.
@@ -188,6 +195,9 @@ public:
     StepReport step(int steps = 1);
     /// Back to rest: rest positions, zero velocity, grabs released, time 0. Instruments kept.
     void reset();
+    /// The tissue back to its rest state as reset(), but the simulated time goes on (a window's
+    /// "reset the tissue" key during a session).
+    void reset_tissue();
     /// Sets every particle's position (mm) and velocity (mm/ms), N each, packed order. The
     /// previous position is x − v·h + ½·a·h² (a from the forces at x), so the start is second
     /// order. Anchored particles take the given position and zero velocity. Time is unchanged.
@@ -198,7 +208,11 @@ public:
     /// The force the tissue exerts on its anchors (Σ spring + dashpot forces on anchored
     /// particles), N. Minus it is the anchors' reaction on the tissue.
     Eigen::Vector3d anchor_force() const;
-    /// Σ spring + dashpot force on one particle, N.
+    /// The force the supports exert on the tissue, Σ k_s·(support point − x), N. With the anchors'
+    /// reaction (−anchor_force()), the weight and the instruments' it sums to the tissue's
+    /// momentum change: zero at static equilibrium.
+    Eigen::Vector3d support_force() const;
+    /// Σ spring + dashpot + support force on one particle, N.
     Eigen::Vector3d particle_force(std::size_t particle) const;
 
     /// Energies with the centred velocity (x_{n+1} − x_{n−1})/2h (O(h²), for tests without
@@ -262,6 +276,12 @@ private:
     std::vector<std::uint8_t> movable_; ///< 1 = free particle (not anchored, not padding)
     std::vector<std::uint8_t> anchored_;
     std::vector<std::int8_t> held_by_;  ///< −1 or the hand holding it
+    std::vector<Real> support_point_;   ///< 4 per particle, mm (the rest position where unsupported)
+    std::vector<Real> support_stiffness_; ///< N/mm, 0 for unsupported, anchored and padding
+    std::vector<Real> support_damping_;   ///< c, N·ms/mm
+    std::vector<Real> support_damping_over_h_; ///< c/h, N/mm
+    double support_drag_ = 0.0;           ///< max c/m over supported particles, 1/ms
+    bool supported_ = false;
 
     // Per group of `lanes` particles, per slot, per lane: [group][slot][lane].
     std::vector<std::int32_t> neighbour_;  ///< the particle itself where the slot is empty

@@ -14,6 +14,7 @@ namespace {
 struct SpringDirection {
     Eigen::Vector3d unit;  ///< from first to second particle at rest
     double stiffness;
+    double tension_over_length = 0.0;  ///< t/L at rest, N/mm (0 for an unstressed spring)
 };
 
 }  // namespace
@@ -38,17 +39,29 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
         Eigen::Vector3d d(double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]);
         const double length = d.norm();
         direction[s] = {length > 0 ? Eigen::Vector3d(d / length) : Eigen::Vector3d::Zero(), double(springs.stiffness[s])};
+        // A spring stretched at rest (a pre-stressed rest state, supports.h) adds the geometric
+        // stiffness (t/L)(I − n nᵀ), t = k (L − L₀) its tension.
+        // A rest length within float rounding (1e-6 relative) of the rest distance is unstressed.
+        const double stretch = length - double(springs.rest_length[s]);
+        if (length > 0 && std::abs(stretch) > 1e-6 * length) direction[s].tension_over_length = double(springs.stiffness[s]) * stretch / length;
         // Gershgorin: row (i, r) of the 3×3 block k n nᵀ has absolute sum k |n_r| Σ|n_c|, in the
         // diagonal block scaled by 1/m_i and in the off-diagonal block by 1/sqrt(m_i m_j).
         const Eigen::Vector3d& u = direction[s].unit;
         const double k = direction[s].stiffness;
         const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
+        const double g = direction[s].tension_over_length;
         for (int r = 0; r < 3; ++r) {
-            const double block = k * std::abs(u[r]) * u.cwiseAbs().sum();
+            // |(t/L)(δ_rc − n_r n_c)| summed over c is at most |t/L|·(1 + |n_r| Σ|n_c|).
+            const double block = k * std::abs(u[r]) * u.cwiseAbs().sum() + std::abs(g) * (1.0 + std::abs(u[r]) * u.cwiseAbs().sum());
             row_bound[3 * std::size_t(a) + r] += block * (ma * ma + ma * mb);
             row_bound[3 * std::size_t(b) + r] += block * (mb * mb + ma * mb);
         }
     }
+    // Supports: a diagonal k_s/m per free particle.
+    if (particles.supported())
+        for (std::size_t i = 0; i < n; ++i)
+            for (int r = 0; r < 3; ++r)
+                row_bound[3 * i + std::size_t(r)] += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i];
     for (double row : row_bound) estimate.eigenvalue_bound = std::max(estimate.eigenvalue_bound, row);
     if (estimate.eigenvalue_bound <= 0.0) return estimate;
     estimate.critical_dt_bound_ms = 2.0 / std::sqrt(estimate.eigenvalue_bound);
@@ -65,10 +78,16 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
             const auto [a, b] = springs.pairs[s];
             const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
             const Eigen::Vector3d relative = v.segment<3>(3 * a) * ma - v.segment<3>(3 * b) * mb;
-            const Eigen::Vector3d force = direction[s].stiffness * direction[s].unit * direction[s].unit.dot(relative);
+            const Eigen::Vector3d& unit = direction[s].unit;
+            const Eigen::Vector3d force = direction[s].stiffness * unit * unit.dot(relative) +
+                                          direction[s].tension_over_length * (relative - unit * unit.dot(relative));
             w.segment<3>(3 * a) += force * ma;
             w.segment<3>(3 * b) -= force * mb;
         }
+        if (particles.supported())
+            for (std::size_t i = 0; i < n; ++i)
+                w.segment<3>(3 * Eigen::Index(i)) += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i] *
+                                                     v.segment<3>(3 * Eigen::Index(i));
     };
     std::mt19937_64 generator(20061);
     std::uniform_real_distribution<double> uniform(-1.0, 1.0);

@@ -24,8 +24,9 @@ struct StabilityEstimate {
     bool converged = false;
 };
 
-/// Estimates the critical time step of the springs' stiffness at rest (K_ij = k n nᵀ per
-/// spring, damping ignored). Deterministic: fixed start vector, serial reductions.
+/// Estimates the critical time step of the stiffness at rest: K = k n nᵀ + (t/L)(I − n nᵀ) per
+/// spring (t its tension at rest: zero unless the rest state is pre-stressed), plus k_s·I per
+/// supported particle; damping ignored. Deterministic: fixed start vector, serial reductions.
 /// A network with no free particle or no spring gives infinite steps.
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
                                               int max_iterations = 300, double tolerance = 1e-6);

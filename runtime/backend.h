@@ -63,6 +63,9 @@ public:
     virtual std::size_t begin_grab(int hand) = 0;
     virtual void release(int hand) = 0;
 
+    /// The tissue back to its rest state (rest positions, at rest, grabs released); the
+    /// simulated time and the instruments are kept.
+    virtual void reset_tissue() = 0;
     /// Advances `steps` steps of time_step_ms(). gl: queued on the GPU, returns at once.
     virtual StepReport step(int steps = 1) = 0;
 

@@ -22,6 +22,7 @@ SolverOptions options_from(const SolverSettings& settings) {
     options.safety_factor = settings.safety_factor;
     options.damping = settings.damping;
     options.gravity = settings.gravity;
+    options.balanced_gravity = settings.balanced_gravity;
     return options;
 }
 
@@ -51,6 +52,7 @@ public:
     void set_pose(int hand, const InstrumentPose& pose) override { solver_.set_pose(hand, pose); }
     std::size_t begin_grab(int hand) override { return solver_.begin_grab(hand); }
     void release(int hand) override { solver_.release(hand); }
+    void reset_tissue() override { solver_.reset_tissue(); }
 
     StepReport step(int steps) override {
         const auto start = Clock::now();

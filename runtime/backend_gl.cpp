@@ -101,6 +101,8 @@ public:
         glProgramUniform3f(step_program_.id, step_program_.at("gravity"), float(options_.gravity.x()), float(options_.gravity.y()),
                            float(options_.gravity.z()));
         glProgramUniform1i(step_program_.id, step_program_.at("damped"), damped_);
+        for (const Program* p : {&step_program_, &force_program_})
+            glProgramUniform1i(p->id, p->at("supported"), supported_);
         glProgramUniform1i(force_program_.id, force_program_.at("damped"), damped_);
         check("setting up the gl backend");
     }
@@ -180,6 +182,19 @@ public:
         glDispatchCompute(1, 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
         state.grabbing = false;
+    }
+
+    void reset_tissue() override {
+        for (int hand = 0; hand < hands; ++hand) release(hand);
+        const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
+        glCopyNamedBufferSubData(rest_current_.id, position_[current_].id, 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_previous_.id, position_[previous_].id, 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_current_.id, position_[next_].id, 0, 0, bytes);
+        const GLuint zero = 0;
+        for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1)})
+            glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        check("reset_tissue");
     }
 
     StepReport step(int steps) override {
@@ -537,25 +552,39 @@ private:
                 dashpot_over_h[t] = float(double(c) / h_);
                 min_rest_length_ = std::min(min_rest_length_, rest[t]);
             }
-        struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable, pad; };
-        static_assert(sizeof(ParticleConstants) == 16);
-        std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0});
+        struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
+        static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in gl_shaders.h
+        std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
         std::vector<float> current(4 * n_pad_, 0.0f), previous;
+        supported_ = false;
         for (std::size_t i = 0; i < n_; ++i) {
             const bool movable = !particles.anchored[i];
             constants[i].mass = particles.mass[i];
             constants[i].movable = movable;
             constants[i].inverse_mass_h2 = movable ? float(h_ * h_ / double(constants[i].mass)) : 0.0f;
+            const std::array<float, 3>& y = particles.supported() ? particles.support_point[i] : particles.rest_position[i];
+            for (int c = 0; c < 3; ++c) constants[i].support_point[c] = y[std::size_t(c)];
+            if (movable && particles.supported() && particles.support_stiffness[i] > 0.0f) {
+                constants[i].support_stiffness = particles.support_stiffness[i];
+                // Solver::build_step_constants(): c/h rounded from double.
+                if (!particles.support_damping.empty())
+                    constants[i].support_point[3] = float(double(particles.support_damping[i]) / h_);
+                supported_ = true;
+            }
             for (int c = 0; c < 3; ++c) current[4 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
         }
-        // Solver::reset(): at rest the springs exert nothing, x₋₁ = x₀ + ½·g·h².
+        // Solver::reset(): at rest the springs and supports balance `balanced_gravity`, so the
+        // motion starts with acceleration g − g_balanced: x₋₁ = x₀ + ½·a·h².
+        const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
         previous = current;
         for (std::size_t i = 0; i < n_; ++i)
             if (constants[i].movable)
-                for (int c = 0; c < 3; ++c) previous[4 * i + std::size_t(c)] += float(0.5 * options_.gravity[c] * h_ * h_);
+                for (int c = 0; c < 3; ++c) previous[4 * i + std::size_t(c)] += float(0.5 * rest_acceleration[c] * h_ * h_);
         storage(position_[0], current, 0);
         storage(position_[1], previous, 0);
         storage(position_[2], current, 0);
+        storage(rest_current_, current, 0);    // the start state again, for reset_tissue()
+        storage(rest_previous_, previous, 0);
         storage(neighbour_, neighbour);
         storage(rest_length_, rest);
         storage(stiffness_, stiff);
@@ -581,9 +610,10 @@ private:
     int substeps_ = 1;
     float min_rest_length_ = 0;
     bool damped_ = false;
+    bool supported_ = false;
     std::array<HandState, hands> hand_{};
 
-    Buffer position_[3];
+    Buffer position_[3], rest_current_, rest_previous_;
     int current_ = 0, previous_ = 1, next_ = 2;
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, fixup_, held_, held_local_, ring_;
     Program step_program_, after_program_, capture_program_, release_program_, force_program_;
@@ -605,9 +635,9 @@ private:
 
 std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
     const std::size_t n = scenario.lattice.particles.size(), n_pad = (n + 7) / 8 * 8;
-    return 3 * n_pad * 16            // positions, three rotating float4 buffers
+    return 5 * n_pad * 16            // positions: three rotating float4 buffers and the start state
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
-           + n_pad * 16 + n_pad * 4  // particle constants, held-by
+           + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n * (2 * 4 + 16 + 2 * 4 + 2 * 24)  // touched lists, contact fix-ups, held lists and their local coordinates
            + ring_slots * ring_stride + 32;
 }

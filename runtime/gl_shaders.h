@@ -19,12 +19,15 @@ enum Counter : unsigned { touched0 = 0, touched1 = 1, fixups = 2, held0 = 3, hel
 
 inline constexpr const char* common = R"(#version 430 core
 #extension GL_ARB_gpu_shader_fp64 : enable
-struct Particle { float mass; float inverse_mass_h2; int movable; int pad; };
+// support_stiffness (N/mm), support_point.xyz (mm) and support_point.w (its dashpot c/h, N/mm):
+// the particle's support (libmodel/supports.h), stiffness 0 where it has none.
+struct Particle { float mass; float inverse_mass_h2; int movable; float support_stiffness; vec4 support_point; };
 layout(std430, binding = 7) readonly buffer ParticleBuffer { Particle particle[]; };
 layout(std430, binding = 8) buffer HeldByBuffer { int held_by[]; };
 layout(std430, binding = 9) buffer CounterBuffer { uint counter[]; };
 uniform uint particle_count;   // real particles N
 uniform uint padded_count;     // N rounded up to 8
+uniform bool supported;        // any particle has a support spring
 )";
 
 /// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
@@ -100,6 +103,11 @@ void main() {
         fz = fz + scale * dz;
     }
     Particle p = particle[i];
+    if (supported) {  // zero-rest-length support spring, after the 18 slots (solver.cpp order)
+        fx = fx + (p.support_stiffness * (p.support_point.x - xi) - p.support_point.w * uxi);
+        fy = fy + (p.support_stiffness * (p.support_point.y - yi) - p.support_point.w * uyi);
+        fz = fz + (p.support_stiffness * (p.support_point.z - zi) - p.support_point.w * uzi);
+    }
     precise float nx = xi + (keep * uxi + (fx + p.mass * gravity.x) * p.inverse_mass_h2);
     precise float ny = yi + (keep * uyi + (fy + p.mass * gravity.y) * p.inverse_mass_h2);
     precise float nz = zi + (keep * uzi + (fz + p.mass * gravity.z) * p.inverse_mass_h2);
@@ -236,7 +244,7 @@ void main() {
 }
 )";
 
-/// Forces for both hands (one work group per hand): Σ spring + dashpot force on the particles
+/// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
@@ -280,6 +288,11 @@ void main() {
                 scale = scale + double(dashpot[t]) * along / (len * len);
             }
             f = f + scale * d;
+        }
+        Particle own = particle[i];
+        if (supported && own.support_stiffness != 0.0) {
+            f = f + double(own.support_stiffness) * (dvec3(own.support_point.xyz) - dvec3(xi.xyz));
+            f = f - double(own.support_point.w) * (dvec3(xi.xyz) - dvec3(pi.xyz));
         }
         sum = sum + f;
     }

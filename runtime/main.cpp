@@ -38,6 +38,7 @@ struct RunArguments {
     int steps = 0;
     double seconds = 0.0;
     std::string probe, grab, trajectory, save_state;
+    std::vector<double> gravity;  ///< --gravity X Y Z, mm/ms²; empty = the scenario's
     bool stats = false;
     std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
     std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/picking.h)
@@ -155,6 +156,7 @@ struct WindowInput {
     haptics::HapticSession* session = nullptr;
     haptics::DevicePose device_pose;
     bool dragging_device = false, estop = false;
+    bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
 };
 
 /// The window mode's loop: per frame, the scenario's /solver substeps (steps per frame) with the
@@ -214,6 +216,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
         if (key == GLFW_KEY_R) in->renderer->reset_camera();
         if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
+        if (key == GLFW_KEY_T) in->reset_tissue = true;
         if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
         if (key == GLFW_KEY_E && in->session) {
             in->estop = !in->estop;
@@ -245,6 +248,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         const auto now = std::chrono::steady_clock::now();
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
         last = now;
+        if (input.reset_tissue) {
+            backend.reset_tissue();
+            input.reset_tissue = false;
+            std::printf("tissue reset to its rest state at t = %.1f ms\n", backend.simulated_time_ms());
+        }
         int n = input.paused ? 0 : steps_per_frame;
         if (steps >= 0) n = std::min(n, steps - attempted);
 
@@ -382,7 +390,18 @@ int command_run(const RunArguments& a) {
 
     Scenario scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);
-    const SolverOptions options = options_from(scenario.solver);
+    SolverOptions options = options_from(scenario.solver);
+    if (!a.gravity.empty()) {
+        const Eigen::Vector3d g(a.gravity[0], a.gravity[1], a.gravity[2]);
+        if (!g.allFinite()) throw InputError("--gravity must be three finite numbers, mm/ms²");
+        if (g != options.gravity) {
+            std::printf("gravity: (%.4g, %.4g, %.4g) mm/ms² instead of the scenario's (%.4g, %.4g, %.4g)%s\n", g.x(), g.y(), g.z(),
+                        options.gravity.x(), options.gravity.y(), options.gravity.z(),
+                        options.balanced_gravity != g ? "; the rest state is not balanced for it: the tissue moves to a new equilibrium"
+                                                      : "");
+            options.gravity = g;
+        }
+    }
 
     std::optional<GlContext> context;
     if (!a.headless)
@@ -564,6 +583,20 @@ int command_run(const RunArguments& a) {
     std::printf("ran %d steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", run.steps,
                 run.substeps, backend->simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend->simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
+    {
+        // How far the tissue is from where it was imaged: a heart that is held stays in place.
+        const auto& rest = scenario.lattice.particles.rest_position;
+        double largest = 0.0, sum = 0.0;
+        std::size_t worst = 0;
+        for (std::size_t i = 0; i < positions.size() && i < rest.size(); ++i) {
+            const double d = std::sqrt(std::pow(double(positions[i][0]) - rest[i][0], 2) + std::pow(double(positions[i][1]) - rest[i][1], 2) +
+                                       std::pow(double(positions[i][2]) - rest[i][2], 2));
+            sum += d;
+            if (d > largest) largest = d, worst = i;
+        }
+        std::printf("displacement from rest: max %.4g mm (particle %zu), mean %.4g mm\n", largest, worst,
+                    positions.empty() ? 0.0 : sum / double(positions.size()));
+    }
     for (int hand = 0; hand < 2; ++hand) {
         if (!uses_hand(hand)) continue;
         const auto& f = forces.hand[hand];
@@ -682,6 +715,9 @@ int main(int argc, char** argv) {
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)")->check(CLI::ExistingFile);
     run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5)");
+    run->add_option("--gravity", a.gravity,
+                    "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
+        ->expected(3);
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
                                             "picking (the seed's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}));

@@ -302,6 +302,9 @@ std::optional<PressSite> press_site(const Scenario& s, const Eigen::Vector3d& se
     for (const std::size_t i : on_surface) {
         if (p.anchored[i]) continue;
         const Eigen::Vector3d x = rest_of(p, i), n = normal[i];
+        // The anterior side (outward normal towards −y in LPS), where a surgeon reaches the heart
+        // of a supine patient; its back lies on heartprep's posterior supports.
+        if (!(n.y() < 0)) continue;
         PressSite site{.particle = i, .position = x, .outward = n, .toward_anchors = -n.dot((centroid - x).normalized()),
                        .anchors_distance_mm = (centroid - x).norm()};
         if (best && site.toward_anchors <= best->toward_anchors) continue;
@@ -321,7 +324,7 @@ std::optional<PressSite> press_site(const Scenario& s, const Eigen::Vector3d& se
 }
 
 /// A heart model ready for the closed loop: the scenario (owning lattice and packing), where it
-/// is pressed, and the solver settings (the scenario's, without gravity).
+/// is pressed, and the solver settings (the scenario's).
 struct TissueScene {
     const Scenario* scenario = nullptr;
     PressSite site;
@@ -359,11 +362,11 @@ std::optional<TissueScene> tissue_scene(const std::string& name) {
     scene.site = *site;
     target.lattice = &s.lattice;
     target.neighbours = &s.packing.value().neighbours;
+    // The scenario's own gravity: heartprep's default supports hold the heart and its rest state
+    // is balanced under that gravity, so the model rests where it was imaged until the probe
+    // arrives (without them it sagged and swung by tens of mm, 0.86 N on 87 g of pat6 against a
+    // 0.05 N press).
     target.options = options_from(s.solver);
-    // No gravity: the model has no pericardium and hangs from its cut vessels only; under the
-    // scenario's 1 g it sags and swings by tens of mm (0.86 N on 87 g of pat6 against a 0.05 N
-    // press), which is not what this loop is about.
-    target.options.gravity.setZero();
     target.surface_mm = site->position;
     target.outward = site->outward;
     return scenes.emplace(name, scene).first->second;

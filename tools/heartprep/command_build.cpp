@@ -64,7 +64,9 @@ void check_output_path(const std::filesystem::path& output, const std::string& e
 void add_build_command(CLI::App& app) {
     auto* command = app.add_subcommand("build", "All stages: label map -> scenario (surface, particles, springs, time step)");
     command->footer(
-        "\nExample:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5 --anchor-border\n"
+        "\nExample:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5\n"
+        "By default the heart lies on support springs on its posterior surface and its imaged shape is the\n"
+        "equilibrium under gravity: it stays where it was imaged (docs/user-guide.md, \"How the heart is held\").\n"
         "By default the lattice spacing is chosen so the model has at most --particles particles.\n"
         "The output is written atomically: a failed run leaves no file behind.");
     auto options = std::make_shared<BuildOptions>();
@@ -111,6 +113,44 @@ void add_build_command(CLI::App& app) {
         ->check(CLI::NonNegativeNumber)
         ->capture_default_str()
         ->group("Material");
+    auto support = std::make_shared<std::string>("posterior");
+    command->add_option("--support", *support,
+                        "How the heart is held besides its anchors: posterior (springs on the heart's back, where it lies "
+                        "on the posterior mediastinum), boundary (springs on every surface particle: the whole pericardium) "
+                        "or none")
+        ->capture_default_str()
+        ->group("Holding the heart");
+    command->add_option("--support-stiffness", options->supports.stiffness_kpa_per_mm,
+                        "Support stiffness per supported area, kPa/mm (N/mm per mm² × 1000)")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Holding the heart");
+    command->add_option("--embedding-stiffness", options->supports.embedding_kpa_per_mm2,
+                        "Weak elastic foundation on every free particle (surrounding tissue and fluid), kPa/mm² "
+                        "(N/mm per mm³ × 1000); holds the one-particle-thick parts of a wall; 0 = off")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Holding the heart");
+    command->add_option("--support-damping", options->supports.damping_ratio,
+                        "Damping ratio of each support against its particle's mass (a dashpot c = 2ζ√(k·m)): the viscous "
+                        "tissue around the heart; 0 lets the heart ring on its supports")
+        ->check(CLI::NonNegativeNumber)
+        ->capture_default_str()
+        ->group("Holding the heart");
+    auto rest_state = std::make_shared<std::string>("balanced");
+    command->add_option("--rest-state", *rest_state,
+                        "balanced: the imaged shape is the static equilibrium under gravity (pre-stressed springs: nothing "
+                        "sags at t = 0); imaged: unstressed springs at the imaged shape (it sags when the simulation starts)")
+        ->capture_default_str()
+        ->group("Holding the heart");
+    command->add_option("--drop-free-below", options->free_pieces.drop_below_particles,
+                        "Lattice pieces held by nothing (no anchor, no support) with fewer particles are dropped; larger "
+                        "ones are an error")
+        ->capture_default_str()
+        ->group("Holding the heart");
+    command->add_flag("--allow-free", options->free_pieces.allow_free,
+                      "Keep pieces held by nothing, of any size (they fall under gravity and drift under instruments)")
+        ->group("Holding the heart");
     auto gravity = std::make_shared<std::vector<double>>();
     command->add_option("--gravity", *gravity, "Gravity vector in LPS, mm/ms² (default 0 0.00981 0: supine patient, 9.81 m/s² to posterior)")
         ->expected(3)
@@ -133,6 +173,10 @@ void add_build_command(CLI::App& app) {
             options->solver.gravity = Eigen::Vector3d((*gravity)[0], (*gravity)[1], (*gravity)[2]);
             if (!options->solver.gravity.allFinite()) throw InputError("--gravity must be three finite numbers");
         }
+        options->supports.region = parse_support_region(*support);
+        if (*rest_state != "balanced" && *rest_state != "imaged")
+            throw InputError("--rest-state must be balanced or imaged, got '" + *rest_state + "'");
+        options->balance_rest_state = *rest_state == "balanced";
         material->density = *density * 1e-3;
         material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
         material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);

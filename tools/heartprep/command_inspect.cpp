@@ -2,6 +2,7 @@
 #include "commands.h"
 
 #include "formats/scenario.h"
+#include "libmodel/supports.h"
 
 #include <CLI/CLI.hpp>
 
@@ -21,6 +22,11 @@ struct Summary {
     double texture_occupancy = 0.0;
     double mapping_rest_error_mm = -1.0;  ///< max |mapped rest position − visual vertex|; −1 without a mapping
     double total_mass = 0.0;
+    std::size_t supported = 0;            ///< particles with a support spring
+    double support_stiffness = 0.0;       ///< Σ k_s, N/mm
+    std::size_t pieces = 0, free_pieces = 0;
+    double max_prestrain = 0.0;           ///< max |L₀ − |x_b − x_a|| / |x_b − x_a| over springs at rest
+    RestResidual residual;                ///< force at rest under /solver gravity (zero when balanced)
     Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d high = -low;
 };
@@ -38,6 +44,21 @@ Summary summarise(const Scenario& s) {
     }
     const auto& sp = s.lattice.springs;
     summary.springs = sp.size();
+    if (p.supported())
+        for (float k : p.support_stiffness) {
+            summary.supported += k > 0;
+            summary.support_stiffness += k;
+        }
+    const Pieces pieces = find_pieces(p, sp);
+    summary.pieces = pieces.size.size();
+    for (bool held : pieces.held) summary.free_pieces += !held;
+    for (std::size_t q = 0; q < sp.size(); ++q) {
+        const auto& a = p.rest_position[std::size_t(sp.pairs[q][0])];
+        const auto& b = p.rest_position[std::size_t(sp.pairs[q][1])];
+        const double distance = Eigen::Vector3d(double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]).norm();
+        summary.max_prestrain = std::max(summary.max_prestrain, std::abs(distance - double(sp.rest_length[q])) / distance);
+    }
+    summary.residual = rest_force_residual(s.lattice, s.solver.gravity);
     // A face spring is one lattice step long; an edge spring √2 steps.
     for (float length : sp.rest_length) (length < 1.2 * s.lattice.spacing ? summary.face_springs : summary.edge_springs)++;
     if (s.visual) {
@@ -106,7 +127,12 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
     o << "],\n  \"solver\": {\"dt_ms\": " << s.solver.dt_ms << ", \"substeps\": " << s.solver.substeps
       << ", \"damping\": " << s.solver.damping << ", \"gravity\": ";
     vector(s.solver.gravity);
+    o << ", \"balanced_gravity\": ";
+    vector(s.solver.balanced_gravity);
     o << ", \"critical_dt_ms\": " << s.solver.critical_dt_ms << ", \"critical_dt_bound_ms\": " << s.solver.critical_dt_bound_ms
+      << "},\n  \"holding\": {\"supported_particles\": " << m.supported << ", \"support_stiffness_n_per_mm\": " << m.support_stiffness
+      << ", \"pieces\": " << m.pieces << ", \"free_pieces\": " << m.free_pieces << ", \"max_prestrain\": " << m.max_prestrain
+      << ", \"rest_residual_max_particle_n\": " << m.residual.max_particle_n << ", \"rest_residual_total_n\": " << m.residual.total.norm()
       << "}\n}\n";
     std::fputs(o.str().c_str(), stdout);
 }
@@ -148,6 +174,12 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
                 "gravity (%.3g, %.3g, %.3g) mm/ms²\n",
                 s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms, s.solver.substeps, s.solver.damping,
                 s.solver.gravity.x(), s.solver.gravity.y(), s.solver.gravity.z());
+    std::printf("holding     %zu anchored; %zu particles on supports, %.3g N/mm in all; %zu piece(s), %zu held by nothing\n", m.anchored,
+                m.supported, m.support_stiffness, m.pieces, m.free_pieces);
+    const Eigen::Vector3d& b = s.solver.balanced_gravity;
+    std::printf("rest state  %s; pre-strain max %.2g%%; force at rest under gravity: max %.3g N on a particle, %.3g N in all\n",
+                b.norm() > 0 ? "balanced under gravity (pre-stressed)" : "unstressed (imaged shape, no pre-stress)", 100 * m.max_prestrain,
+                m.residual.max_particle_n, m.residual.total.norm());
 }
 
 }  // namespace

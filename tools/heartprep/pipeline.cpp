@@ -3,6 +3,7 @@
 #include "formats/mesh_io.h"
 #include "libmodel/errors.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -90,6 +91,55 @@ void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh,
         report.warnings.push_back((visual_mesh.empty() ? std::string() : visual_mesh.string() + ": ") + warning);
 }
 
+void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progress, BuildReport& report) {
+    Lattice& lattice = scenario.lattice;
+    timed(report, "supports", [&] {
+        report.supports = add_supports(lattice, options.supports);
+        report.free_pieces = drop_free_pieces(lattice, options.free_pieces);
+    });
+    const auto& pieces = report.free_pieces;
+    report.layout.particles = lattice.particles.size();
+    if (pieces.dropped_particles > 0)
+        report.layout.anchored = std::size_t(std::count(lattice.particles.anchored.begin(), lattice.particles.anchored.end(), 1));
+    if (pieces.free_pieces_kept > 0)
+        report.warnings.push_back(std::to_string(pieces.free_pieces_kept) + " lattice piece(s) of " +
+                                  std::to_string(pieces.free_particles_kept) +
+                                  " particles are held by nothing (--allow-free): they fall under gravity and drift under instruments");
+    const Eigen::Vector3d& g = options.solver.gravity;
+    scenario.solver.balanced_gravity = Eigen::Vector3d::Zero();
+    if (options.balance_rest_state && g.norm() > 0) {
+        report.balance = timed(report, "balance", [&] { return balance_rest_state(lattice, g, {}, progress); });
+        append(report.warnings, report.balance.warnings);
+        if (report.balance.balanced) scenario.solver.balanced_gravity = g;
+        // Weak supports: the balance hides the sag at rest, but the heart still swings that far
+        // under a disturbance of its own weight.
+        if (report.balance.max_sag_mm > 5.0)
+            report.warnings.push_back("the supports are weak: without the balanced rest state the heart would sag by up to " +
+                                      std::to_string(report.balance.max_sag_mm) +
+                                      " mm under gravity; raise --support-stiffness or use --support boundary");
+    } else if (g.norm() > 0) {
+        report.balance = timed(report, "balance", [&] {
+            // Measure the sag anyway (on a copy) so the summary can say what the unbalanced state does.
+            Lattice copy = lattice;
+            const Pieces held = find_pieces(copy.particles, copy.springs);
+            bool any_held = false;
+            for (bool h : held.held) any_held = any_held || h;
+            if (!any_held) return RestBalanceReport{};
+            RestBalanceReport sag = balance_rest_state(copy, g, {}, progress);
+            sag.balanced = false;
+            return sag;
+        });
+        if (report.balance.max_sag_mm > 0)
+            report.warnings.push_back("--rest-state imaged: the springs are unstressed at the imaged shape, so the heart sags by up to " +
+                                      std::to_string(report.balance.max_sag_mm) + " mm under gravity when the simulation starts");
+    }
+    const Pieces final_pieces = find_pieces(lattice.particles, lattice.springs);
+    bool all_free = true;
+    for (bool h : final_pieces.held) all_free = all_free && !h;
+    if (all_free && g.norm() > 0)
+        report.warnings.push_back("nothing holds the heart (no anchor, no support) and gravity is on: it free-falls in heartsim");
+}
+
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report) {
     Scenario scenario;
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
@@ -118,13 +168,16 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         return layout_particles(selection, options.selection.tissue_labels, volume, options.layout, progress, &report.layout);
     });
     append(report.warnings, report.layout.warnings);
+    hold_stage(scenario, options, progress, report);
 
     report.stability = timed(report, "critical step", [&] {
         ProgressStage stage(progress, "critical time step", 0);
         return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
     });
     auto& solver = scenario.solver;
+    const Eigen::Vector3d balanced_gravity = solver.balanced_gravity;  // set by hold_stage
     solver = options.solver;
+    solver.balanced_gravity = balanced_gravity;
     solver.critical_dt_ms = report.stability.critical_dt_ms;
     solver.critical_dt_bound_ms = report.stability.critical_dt_bound_ms;
     if (!std::isfinite(solver.critical_dt_ms)) {
@@ -161,6 +214,34 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 "(%zu face, %zu edge), mass %.2f g\n",
                 l.spacing, scenario.lattice.dims[0], scenario.lattice.dims[1], scenario.lattice.dims[2], l.particles,
                 l.anchored, l.face_springs + l.edge_springs, l.face_springs, l.edge_springs, l.total_mass);
+    if (!report.free_pieces.piece_sizes.empty()) {
+        const auto& f = report.free_pieces;
+        std::string sizes;
+        for (std::size_t k = 0; k < f.piece_sizes.size() && k < 6; ++k) sizes += (k ? ", " : "") + std::to_string(f.piece_sizes[k]);
+        if (f.piece_sizes.size() > 6) sizes += ", ...";
+        std::printf("pieces      %zu connected piece(s) of %s particles; %zu held by nothing dropped (%zu particles)%s\n", f.pieces,
+                    sizes.c_str(), f.dropped_pieces, f.dropped_particles,
+                    f.free_pieces_kept ? (", " + std::to_string(f.free_pieces_kept) + " free kept (--allow-free)").c_str() : "");
+    }
+    {
+        const auto& sp = report.supports;
+        if (sp.total_stiffness > 0)
+            std::printf("supports    %s: %zu particles, %.3g kPa/mm over %.0f mm²; elastic foundation %.3g kPa/mm² on every free "
+                        "particle (%.3g N/mm); %.3g N/mm in all (1 N moves the whole heart %.3g mm)\n",
+                        to_string(sp.region), sp.supported, sp.stiffness_kpa_per_mm, sp.area_mm2, sp.embedding_kpa_per_mm2,
+                        sp.embedding_stiffness, sp.total_stiffness, 1.0 / sp.total_stiffness);
+        else
+            std::printf("supports    none\n");
+        const auto& b = report.balance;
+        if (b.balanced)
+            std::printf("rest state  balanced under gravity (%.4g N): sag it replaces max %.3f mm, mean %.3f mm; pre-strain max %.2g%%; "
+                        "%d CG iterations\n",
+                        b.weight_n, b.max_sag_mm, b.mean_sag_mm, 100 * b.max_prestrain, b.iterations);
+        else if (b.max_sag_mm > 0)
+            std::printf("rest state  imaged, unstressed: it sags by up to %.3f mm under gravity\n", b.max_sag_mm);
+        else
+            std::printf("rest state  imaged, unstressed%s\n", scenario.solver.gravity.norm() > 0 ? "" : " (no gravity)");
+    }
     std::printf("time step   critical %.4g ms (Lanczos, %d iterations), proven bound %.4g ms; dt %.4g ms\n",
                 scenario.solver.critical_dt_ms, report.stability.iterations, scenario.solver.critical_dt_bound_ms,
                 scenario.solver.dt_ms);

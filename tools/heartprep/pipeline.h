@@ -12,6 +12,7 @@
 #include "libmodel/mesh.h"
 #include "libmodel/select.h"
 #include "libmodel/stability.h"
+#include "libmodel/supports.h"
 #include "libmodel/surface.h"
 
 #include <filesystem>
@@ -28,6 +29,11 @@ struct BuildOptions {
     LayoutOptions layout;
     SolverSettings solver;           ///< gravity, damping and safety factor are inputs; steps computed
     PackingOptions packing;
+    SupportOptions supports;         ///< how the heart is held besides its anchors
+    FreePieceOptions free_pieces;    ///< what happens to lattice pieces nothing holds
+    /// Make the imaged shape the static equilibrium under gravity (pre-stressed springs and
+    /// supports, supports.h balance_rest_state); false keeps unstressed springs (it then sags).
+    bool balance_rest_state = true;
     /// A mesh made elsewhere (3D Slicer; STL/OBJ/PLY/glTF) to use as the visual mesh instead of
     /// the marching-cubes surface. Empty = none.
     std::filesystem::path visual_mesh;
@@ -45,6 +51,9 @@ struct BuildReport {
     SurfaceReport surface;
     MeshReport mesh;
     LayoutReport layout;
+    SupportReport supports;
+    FreePieceReport free_pieces;
+    RestBalanceReport balance;
     StabilityEstimate stability;
     PackingReport packing;
     SimulationSurfaceReport simulation_surface;
@@ -70,6 +79,10 @@ void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildRepor
 /// Maps /visual onto /simsurface (building the surface first if absent). With `visual_mesh`,
 /// that file replaces /visual first.
 void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report);
+
+/// Holds the laid-out lattice: supports, free pieces (dropped or refused), and the rest state
+/// balanced under the options' gravity; sets /solver balanced_gravity.
+void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progress, BuildReport& report);
 
 /// Runs every stage and returns the scenario (not yet written).
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report);

@@ -1,0 +1,447 @@
+#include "supports.h"
+
+#include "errors.h"
+
+#include <Eigen/Dense>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+namespace heartsim {
+
+const char* to_string(SupportRegion region) {
+    switch (region) {
+    case SupportRegion::none: return "none";
+    case SupportRegion::posterior: return "posterior";
+    case SupportRegion::boundary: return "boundary";
+    }
+    return "?";
+}
+
+SupportRegion parse_support_region(const std::string& text) {
+    if (text == "none") return SupportRegion::none;
+    if (text == "posterior") return SupportRegion::posterior;
+    if (text == "boundary") return SupportRegion::boundary;
+    throw InputError("--support must be posterior, boundary or none, got '" + text + "'");
+}
+
+namespace {
+
+/// Particle index per lattice cell (−1 where none), cells in k-slowest order.
+std::vector<std::int32_t> particle_of_cell(const Lattice& lattice) {
+    const auto& d = lattice.dims;
+    std::vector<std::int32_t> map(std::size_t(d[0]) * std::size_t(d[1]) * std::size_t(d[2]), -1);
+    const auto& p = lattice.particles;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        const auto& c = p.lattice_index[i];
+        if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= d[0] || c[1] >= d[1] || c[2] >= d[2])
+            throw InputError("supports: particle " + std::to_string(i) + " lies outside the lattice");
+        map[(std::size_t(c[2]) * std::size_t(d[1]) + std::size_t(c[1])) * std::size_t(d[0]) + std::size_t(c[0])] = std::int32_t(i);
+    }
+    return map;
+}
+
+}  // namespace
+
+SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
+    auto& p = lattice.particles;
+    SupportReport report;
+    report.region = options.region;
+    report.stiffness_kpa_per_mm = options.stiffness_kpa_per_mm;
+    report.embedding_kpa_per_mm2 = options.embedding_kpa_per_mm2;
+    if (options.region == SupportRegion::none) {
+        p.support_stiffness.clear();
+        p.support_point.clear();
+        p.support_damping.clear();
+        return report;
+    }
+    if (!(options.stiffness_kpa_per_mm >= 0) || !std::isfinite(options.stiffness_kpa_per_mm))
+        throw InputError("--support-stiffness must be a non-negative number of kPa/mm");
+    if (!(options.embedding_kpa_per_mm2 >= 0) || !std::isfinite(options.embedding_kpa_per_mm2))
+        throw InputError("--embedding-stiffness must be a non-negative number of kPa/mm²");
+    if (!(options.posterior.norm() > 0) || !options.posterior.allFinite()) throw InputError("supports: the posterior direction is zero");
+    const std::size_t n = p.size();
+    std::vector<double> area(n, 0.0);
+    const double face = lattice.spacing * lattice.spacing;
+    const auto& d = lattice.dims;
+    const std::vector<std::int32_t> cells = particle_of_cell(lattice);
+    auto at = [&](int a, int b, int c) -> std::int32_t {
+        if (a < 0 || b < 0 || c < 0 || a >= d[0] || b >= d[1] || c >= d[2]) return -1;
+        return cells[(std::size_t(c) * std::size_t(d[1]) + std::size_t(b)) * std::size_t(d[0]) + std::size_t(a)];
+    };
+
+    if (options.region == SupportRegion::posterior) {
+        // The lattice axis nearest to the posterior direction, and which way along it is posterior.
+        const Eigen::Matrix3d axes = lattice.index_to_world.topLeftCorner<3, 3>();
+        const Eigen::Vector3d back = options.posterior.normalized();
+        int axis = 0;
+        double best = 0.0;
+        for (int a = 0; a < 3; ++a) {
+            const double c = axes.col(a).normalized().dot(back);
+            if (std::abs(c) > std::abs(best)) best = c, axis = a;
+        }
+        const int step = best > 0 ? 1 : -1;
+        // In each line along that axis, the particle with no particle beyond it posteriorly.
+        for (std::size_t i = 0; i < n; ++i) {
+            auto c = p.lattice_index[i];
+            bool last = true;
+            for (c[std::size_t(axis)] += step; c[std::size_t(axis)] >= 0 && c[std::size_t(axis)] < d[std::size_t(axis)];
+                 c[std::size_t(axis)] += step)
+                if (at(c[0], c[1], c[2]) >= 0) {
+                    last = false;
+                    break;
+                }
+            if (last) area[i] = face;
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            const auto& c = p.lattice_index[i];
+            for (int f = 0; f < 6; ++f) {
+                const auto& o = neighbour_offsets[std::size_t(f)];
+                if (at(c[0] + o[0], c[1] + o[1], c[2] + o[2]) < 0) area[i] += face;
+            }
+        }
+    }
+
+    if (!(options.damping_ratio >= 0) || !std::isfinite(options.damping_ratio))
+        throw InputError("--support-damping must be a non-negative damping ratio");
+    p.support_stiffness.assign(n, 0.0f);
+    p.support_damping.assign(n, 0.0f);
+    p.support_point = p.rest_position;
+    const double per_area = options.stiffness_kpa_per_mm * 1e-3;         // N/mm per mm²
+    const double per_volume = options.embedding_kpa_per_mm2 * 1e-3;      // N/mm per mm³
+    for (std::size_t i = 0; i < n; ++i) {
+        if (p.anchored[i]) continue;
+        const auto row = std::size_t(p.material[i]);
+        const double density = row < lattice.materials.size() ? lattice.materials[row].density : Material{}.density;
+        const double embedding = per_volume * double(p.mass[i]) / density;
+        p.support_stiffness[i] = float(per_area * area[i] + embedding);
+        report.embedding_stiffness += embedding;
+        if (area[i] == 0.0 || per_area == 0.0) continue;
+        ++report.supported;
+        report.area_mm2 += area[i];
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        report.total_stiffness += double(p.support_stiffness[i]);
+        p.support_damping[i] = float(2.0 * options.damping_ratio * std::sqrt(double(p.support_stiffness[i]) * double(p.mass[i])));
+    }
+    return report;
+}
+
+Pieces find_pieces(const Particles& particles, const Springs& springs) {
+    const std::size_t n = particles.size();
+    // Union-find over the springs.
+    std::vector<std::int32_t> parent(n);
+    std::iota(parent.begin(), parent.end(), 0);
+    auto find = [&](std::int32_t i) {
+        while (parent[std::size_t(i)] != i) i = parent[std::size_t(i)] = parent[std::size_t(parent[std::size_t(i)])];
+        return i;
+    };
+    for (const auto& [a, b] : springs.pairs) {
+        const std::int32_t ra = find(a), rb = find(b);
+        if (ra != rb) parent[std::size_t(std::max(ra, rb))] = std::min(ra, rb);
+    }
+    std::vector<std::int32_t> root_piece(n, -1);
+    std::vector<std::size_t> size;
+    std::vector<bool> held;
+    std::vector<std::int32_t> raw(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        const std::int32_t r = find(std::int32_t(i));
+        if (root_piece[std::size_t(r)] < 0) {
+            root_piece[std::size_t(r)] = std::int32_t(size.size());
+            size.push_back(0);
+            held.push_back(false);
+        }
+        const std::int32_t k = root_piece[std::size_t(r)];
+        raw[i] = k;
+        ++size[std::size_t(k)];
+        const bool supported = particles.supported() && particles.support_stiffness[i] > 0.0f;
+        if (particles.anchored[i] || supported) held[std::size_t(k)] = true;
+    }
+    // Largest first (ties by first particle: deterministic).
+    std::vector<std::int32_t> order(size.size());
+    std::iota(order.begin(), order.end(), 0);
+    std::stable_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return size[std::size_t(a)] > size[std::size_t(b)]; });
+    std::vector<std::int32_t> rank(size.size());
+    for (std::size_t r = 0; r < order.size(); ++r) rank[std::size_t(order[r])] = std::int32_t(r);
+    Pieces pieces;
+    pieces.piece.resize(n);
+    for (std::size_t i = 0; i < n; ++i) pieces.piece[i] = rank[std::size_t(raw[i])];
+    for (std::int32_t k : order) {
+        pieces.size.push_back(size[std::size_t(k)]);
+        pieces.held.push_back(held[std::size_t(k)]);
+    }
+    return pieces;
+}
+
+FreePieceReport drop_free_pieces(Lattice& lattice, const FreePieceOptions& options) {
+    auto& p = lattice.particles;
+    const Pieces pieces = find_pieces(p, lattice.springs);
+    FreePieceReport report;
+    report.pieces = pieces.size.size();
+    report.piece_sizes = pieces.size;
+    std::vector<bool> drop_piece(pieces.size.size(), false);
+    for (std::size_t k = 0; k < pieces.size.size(); ++k) {
+        if (pieces.held[k]) continue;
+        if (options.allow_free) {
+            ++report.free_pieces_kept;
+            report.free_particles_kept += pieces.size[k];
+        } else if (pieces.size[k] < options.drop_below_particles) {
+            drop_piece[k] = true;
+            ++report.dropped_pieces;
+            report.dropped_particles += pieces.size[k];
+        } else {
+            throw InputError("a piece of " + std::to_string(pieces.size[k]) + " of the " + std::to_string(p.size()) +
+                             " particles is held by nothing (no anchored and no supported particle): it would fall away. "
+                             "Hold it with --support posterior or --support boundary, anchor it (--anchor-label, --anchor-border), "
+                             "raise --drop-free-below above " + std::to_string(pieces.size[k]) + " particles to drop it, "
+                             "or keep it free with --allow-free");
+        }
+    }
+    if (report.dropped_particles == 0) return report;
+
+    const std::size_t n = p.size();
+    std::vector<std::int32_t> new_index(n, -1);
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < n; ++i)
+        if (!drop_piece[std::size_t(pieces.piece[i])]) new_index[i] = std::int32_t(kept++);
+    auto compact = [&](auto& values) {
+        if (values.empty()) return;
+        std::size_t w = 0;
+        for (std::size_t i = 0; i < n; ++i)
+            if (new_index[i] >= 0) values[w++] = values[i];
+        values.resize(w);
+    };
+    compact(p.rest_position);
+    compact(p.lattice_index);
+    compact(p.mass);
+    compact(p.material);
+    compact(p.anchored);
+    compact(p.support_stiffness);
+    compact(p.support_point);
+    compact(p.support_damping);
+    Springs kept_springs;
+    auto& s = lattice.springs;
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const std::int32_t a = new_index[std::size_t(s.pairs[q][0])], b = new_index[std::size_t(s.pairs[q][1])];
+        if (a < 0 || b < 0) continue;  // a spring never joins two pieces
+        kept_springs.pairs.push_back({std::min(a, b), std::max(a, b)});
+        kept_springs.rest_length.push_back(s.rest_length[q]);
+        kept_springs.stiffness.push_back(s.stiffness[q]);
+    }
+    s = std::move(kept_springs);
+    return report;
+}
+
+namespace {
+
+/// The float rest distance of a spring, evaluated as the solvers' kernels evaluate a length.
+float float_distance(const std::array<float, 3>& a, const std::array<float, 3>& b) {
+    const float dx = b[0] - a[0], dy = b[1] - a[1], dz = b[2] - a[2];
+    float length2 = dx * dx + dy * dy;
+    length2 = length2 + dz * dz;
+    return std::sqrt(length2);
+}
+
+struct SpringEnd {
+    std::int32_t other;
+    std::int32_t spring;
+};
+
+}  // namespace
+
+RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gravity, const RestBalanceOptions& options,
+                                     Progress& progress) {
+    RestBalanceReport report;
+    auto& p = lattice.particles;
+    auto& s = lattice.springs;
+    const std::size_t n = p.size();
+    if (!gravity.allFinite()) throw InputError("balance_rest_state: gravity must be finite");
+    if (gravity.norm() == 0.0 || n == 0) return report;
+
+    const Pieces pieces = find_pieces(p, s);
+    // Unknowns: free particles of held pieces. Anchored particles and free pieces stay put.
+    std::vector<std::uint8_t> unknown(n, 0);
+    std::size_t unknowns = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (p.anchored[i]) continue;
+        if (!pieces.held[std::size_t(pieces.piece[i])]) {
+            ++report.unbalanced_particles;
+            continue;
+        }
+        unknown[i] = 1;
+        ++unknowns;
+    }
+    if (report.unbalanced_particles > 0)
+        report.warnings.push_back(std::to_string(report.unbalanced_particles) +
+                                  " particles in pieces that nothing holds are not balanced: they fall under gravity");
+    if (unknowns == 0) return report;
+
+    // Spring directions at rest (double) and adjacency for a race-free gather.
+    std::vector<Eigen::Vector3d> unit(s.size());
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const auto& a = p.rest_position[std::size_t(s.pairs[q][0])];
+        const auto& b = p.rest_position[std::size_t(s.pairs[q][1])];
+        const Eigen::Vector3d dvec(double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]);
+        unit[q] = dvec.norm() > 0 ? Eigen::Vector3d(dvec.normalized()) : Eigen::Vector3d::Zero();
+    }
+    std::vector<std::size_t> first(n + 1, 0);
+    for (const auto& [a, b] : s.pairs) ++first[std::size_t(a) + 1], ++first[std::size_t(b) + 1];
+    for (std::size_t i = 0; i < n; ++i) first[i + 1] += first[i];
+    std::vector<SpringEnd> ends(first[n]);
+    {
+        std::vector<std::size_t> fill(first.begin(), first.end() - 1);
+        for (std::size_t q = 0; q < s.size(); ++q) {
+            const auto [a, b] = s.pairs[q];
+            ends[fill[std::size_t(a)]++] = {b, std::int32_t(q)};
+            ends[fill[std::size_t(b)]++] = {a, std::int32_t(q)};
+        }
+    }
+    auto support = [&](std::size_t i) { return p.supported() ? double(p.support_stiffness[i]) : 0.0; };
+
+    // 3×3 block-Jacobi preconditioner: the inverse of each particle's diagonal block.
+    std::vector<Eigen::Matrix3d> block_inverse(n, Eigen::Matrix3d::Zero());
+    tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
+        if (!unknown[i]) return;
+        Eigen::Matrix3d block = support(i) * Eigen::Matrix3d::Identity();
+        for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
+            const auto q = std::size_t(ends[e].spring);
+            block += double(s.stiffness[q]) * unit[q] * unit[q].transpose();
+        }
+        Eigen::FullPivLU<Eigen::Matrix3d> lu(block);
+        if (lu.isInvertible()) block_inverse[i] = lu.inverse();
+        else {
+            const double trace = block.trace();
+            block_inverse[i] = trace > 0 ? Eigen::Matrix3d(Eigen::Matrix3d::Identity() * (3.0 / trace)) : Eigen::Matrix3d::Zero();
+        }
+    });
+
+    using Vectors = std::vector<Eigen::Vector3d>;
+    auto multiply = [&](const Vectors& x, Vectors& y) {  // y = K x over the unknowns
+        tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
+            if (!unknown[i]) {
+                y[i].setZero();
+                return;
+            }
+            Eigen::Vector3d sum = support(i) * x[i];
+            for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
+                const auto q = std::size_t(ends[e].spring);
+                const auto j = std::size_t(ends[e].other);
+                const Eigen::Vector3d relative = unknown[j] ? Eigen::Vector3d(x[i] - x[j]) : x[i];
+                sum += double(s.stiffness[q]) * unit[q] * unit[q].dot(relative);
+            }
+            y[i] = sum;
+        });
+    };
+    auto dot = [&](const Vectors& a, const Vectors& b) {
+        // Fixed blocks, serial sum of block partials: the same result for any thread count.
+        const std::size_t block = 4096, blocks = (n + block - 1) / block;
+        std::vector<double> partial(blocks, 0.0);
+        tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t k) {
+            double sum = 0;
+            for (std::size_t i = k * block; i < std::min(n, (k + 1) * block); ++i) sum += a[i].dot(b[i]);
+            partial[k] = sum;
+        });
+        return std::accumulate(partial.begin(), partial.end(), 0.0);
+    };
+
+    Vectors f(n, Eigen::Vector3d::Zero()), u(n, Eigen::Vector3d::Zero()), r(n), z(n), d(n), kd(n);
+    for (std::size_t i = 0; i < n; ++i)
+        if (unknown[i]) {
+            f[i] = double(p.mass[i]) * gravity;
+            report.weight_n += double(p.mass[i]) * gravity.norm();
+        }
+    r = f;
+    for (std::size_t i = 0; i < n; ++i) z[i] = block_inverse[i] * r[i];
+    d = z;
+    double rz = dot(r, z);
+    const double f_norm = std::sqrt(dot(f, f));
+    ProgressStage stage(progress, "balance the rest state", 0);
+    int iteration = 0;
+    double residual = 1.0;
+    for (; iteration < options.max_iterations; ++iteration) {
+        residual = std::sqrt(dot(r, r)) / f_norm;
+        if (residual <= options.tolerance) break;
+        if ((iteration & 63) == 0 && progress.cancelled()) throw Cancelled();
+        multiply(d, kd);
+        const double curvature = dot(d, kd);
+        if (!(curvature > 0)) break;  // a direction with no stiffness: a mechanism nothing holds
+        const double alpha = rz / curvature;
+        for (std::size_t i = 0; i < n; ++i) {
+            u[i] += alpha * d[i];
+            r[i] -= alpha * kd[i];
+            z[i] = block_inverse[i] * r[i];
+        }
+        const double rz_next = dot(r, z);
+        const double beta = rz_next / rz;
+        rz = rz_next;
+        for (std::size_t i = 0; i < n; ++i) d[i] = z[i] + beta * d[i];
+    }
+    report.iterations = iteration;
+    report.relative_residual = residual;
+    if (!(residual <= std::max(options.tolerance, 1e-6)))
+        throw InputError("the rest state cannot be balanced under gravity (conjugate gradients stopped at a relative residual of " +
+                         std::to_string(residual) + " after " + std::to_string(iteration) +
+                         " iterations): a part of the heart is held at too few points to resist rotation. Use --support boundary, "
+                         "anchor more, or --rest-state imaged");
+
+    // Pre-stress: each spring keeps the tension of the sagged shape at the rest positions.
+    double sag_sum = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        const double sag = u[i].norm();
+        report.max_sag_mm = std::max(report.max_sag_mm, sag);
+        sag_sum += sag;
+    }
+    report.mean_sag_mm = sag_sum / double(unknowns);
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const auto a = std::size_t(s.pairs[q][0]), b = std::size_t(s.pairs[q][1]);
+        if (!unknown[a] && !unknown[b]) continue;
+        const double elongation = unit[q].dot(u[b] - u[a]);
+        const double distance = double(float_distance(p.rest_position[a], p.rest_position[b]));
+        const double rest = distance - elongation;
+        if (!(rest > 0)) throw InputError("balancing the rest state compressed a spring to zero length: the supports are far too weak");
+        s.rest_length[q] = float(rest);
+        report.max_prestrain = std::max(report.max_prestrain, std::abs(elongation) / distance);
+    }
+    if (p.supported())
+        for (std::size_t i = 0; i < n; ++i)
+            if (unknown[i] && p.support_stiffness[i] > 0)
+                for (int c = 0; c < 3; ++c) p.support_point[i][std::size_t(c)] = float(double(p.rest_position[i][std::size_t(c)]) - u[i][c]);
+    report.balanced = true;
+    return report;
+}
+
+RestResidual rest_force_residual(const Lattice& lattice, const Eigen::Vector3d& gravity) {
+    const auto& p = lattice.particles;
+    const auto& s = lattice.springs;
+    std::vector<Eigen::Vector3d> force(p.size(), Eigen::Vector3d::Zero());
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        force[i] = double(p.mass[i]) * gravity;
+        if (p.supported())
+            for (int c = 0; c < 3; ++c)
+                force[i][c] += double(p.support_stiffness[i]) * (double(p.support_point[i][std::size_t(c)]) - p.rest_position[i][std::size_t(c)]);
+    }
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const auto a = std::size_t(s.pairs[q][0]), b = std::size_t(s.pairs[q][1]);
+        const auto& xa = p.rest_position[a];
+        const auto& xb = p.rest_position[b];
+        const Eigen::Vector3d d(double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]);
+        const double length = d.norm();
+        const Eigen::Vector3d f = double(s.stiffness[q]) * (length - double(s.rest_length[q])) / length * d;
+        force[a] += f;
+        force[b] -= f;
+    }
+    RestResidual residual;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        if (p.anchored[i]) continue;
+        residual.total += force[i];
+        residual.max_particle_n = std::max(residual.max_particle_n, force[i].norm());
+    }
+    return residual;
+}
+
+}  // namespace heartsim
