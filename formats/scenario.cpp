@@ -561,9 +561,10 @@ Scenario read_contents(const Reader& r) {
     const std::string format = r.string_attribute(root, "/", "format");
     if (format != "heartsim.scenario") r.fail("/", "attribute format is '" + format + "', expected 'heartsim.scenario'");
     const int version = r.scalar<std::int32_t>(root, "/", "format_version");
-    if (version != scenario_format_version)
-        r.fail("/", "format_version " + std::to_string(version) + " is not supported (this build reads version " +
-                        std::to_string(scenario_format_version) + "); use a matching heartsim");
+    if (version < scenario_oldest_format_version || version > scenario_format_version)
+        r.fail("/", "format_version " + std::to_string(version) + " is not supported (this build reads versions " +
+                        std::to_string(scenario_oldest_format_version) + " to " + std::to_string(scenario_format_version) +
+                        "); use a matching heartsim");
     if (r.string_attribute(root, "/", "units") != "mm g ms") r.fail("/", "attribute units must be 'mm g ms'");
     if (r.string_attribute(root, "/", "frame") != "LPS") r.fail("/", "attribute frame must be 'LPS'");
     s.generator = r.string_attribute(root, "/", "generator");

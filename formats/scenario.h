@@ -18,7 +18,11 @@
 
 namespace heartsim {
 
-inline constexpr int scenario_format_version = 1;
+/// 2: pre-stressed rest lengths with supports and /solver balanced_gravity (docs/scenario-format.md).
+/// A version-1 reader would read a version-2 file's pre-stressed springs without the supports that
+/// balance them; this reader reads both (a version-1 file has no supports and no pre-stress).
+inline constexpr int scenario_format_version = 2;
+inline constexpr int scenario_oldest_format_version = 1;
 
 /// Where the scenario came from (/source attributes).
 struct ScenarioSource {

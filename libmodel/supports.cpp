@@ -366,6 +366,7 @@ RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gr
     for (; iteration < options.max_iterations; ++iteration) {
         residual = std::sqrt(dot(r, r)) / f_norm;
         if (residual <= options.tolerance) break;
+        if (residual > 1e6) break;  // diverging: a load across a mechanism (below)
         if ((iteration & 63) == 0 && progress.cancelled()) throw Cancelled();
         multiply(d, kd);
         const double curvature = dot(d, kd);

@@ -77,7 +77,7 @@ Trajectory probe_and_grab(const Scenario& scenario, double depth_mm) {
         t.keyframes.push_back(k);
     };
     const Eigen::Vector3d r(rest[right][0], rest[right][1], rest[right][2]), l(rest[left][0], rest[left][1], rest[left][2]);
-    // A scenario without anchors falls freely: the instruments fall with it (½ g t², keyframes
+    // A scenario that nothing holds falls freely: the instruments fall with it (½ g t², keyframes
     // every 10 steps) so that they keep touching what they press and pull.
     if (!have)
         for (std::size_t i = 0; i < rest.size(); ++i) {
@@ -85,10 +85,12 @@ Trajectory probe_and_grab(const Scenario& scenario, double depth_mm) {
             if (rest[i][0] > rest[right][0]) right = i;
             if (rest[i][0] < rest[left][0]) left = i;
         }
-    const bool anchors = std::any_of(anchored.begin(), anchored.end(), [](auto a) { return a != 0; });
+    // A held model (anchors, or heartprep's default supports and balanced rest state) stays put.
+    const bool held = std::any_of(anchored.begin(), anchored.end(), [](auto a) { return a != 0; }) ||
+                      (scenario.lattice.particles.supported() && scenario.solver.balanced_gravity == scenario.solver.gravity);
     for (int step = 0; step <= 200; step += 10) {
         const double time = step * dt, fraction = step / 200.0;
-        const Eigen::Vector3d fall = anchors ? Eigen::Vector3d::Zero() : Eigen::Vector3d(0.5 * scenario.solver.gravity * time * time);
+        const Eigen::Vector3d fall = held ? Eigen::Vector3d::Zero() : Eigen::Vector3d(0.5 * scenario.solver.gravity * time * time);
         key(time, 0, InstrumentKind::probe, r + fall + Eigen::Vector3d(radius + 0.5 * spacing - fraction * (0.5 * spacing + depth_mm), 0, 0), false);
         key(time, 1, InstrumentKind::grabber, l + fall - Eigen::Vector3d(fraction * depth_mm, 0, 0), true);
     }
@@ -193,6 +195,46 @@ TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
         read_scenario(built_scenario("pat1", input, "--cavity 2 --anchor-border --no-visual --particles 20000 -q"));
     const Comparison c = compare_backends(scenario, 200, 1.5 * scenario.lattice.spacing);
     expect_agreement(c);
+}
+
+TEST(RuntimeBackend, ResetTissueReturnsToTheBalancedRestStateAndKeepsTheTime) {
+    // The window's T key: after a press, both backends put every particle back at its imaged
+    // place, the simulated time goes on, and the (balanced) rest state then stays put.
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    ASSERT_TRUE(scenario.lattice.particles.supported()) << "heartprep's defaults hold the phantom";
+    const auto& rest = scenario.lattice.particles.rest_position;
+    std::size_t front = 0;
+    for (std::size_t i = 0; i < rest.size(); ++i)
+        if (rest[i][1] < rest[front][1]) front = i;
+    const SolverOptions options = options_from(scenario.solver);
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        SCOPED_TRACE(to_string(backend->kind()));
+        backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d::Constant(3.0)});
+        const Eigen::Vector3d touch(rest[front][0], rest[front][1] - 3.0, rest[front][2]);
+        backend->set_pose(0, {touch, Eigen::Quaterniond::Identity()});
+        backend->step(1);
+        backend->set_pose(0, {touch + Eigen::Vector3d(0, 4.0, 0), Eigen::Quaterniond::Identity()});
+        backend->step(50);
+        auto largest = [&] {
+            const auto x = backend->positions();
+            double d = 0;
+            for (std::size_t i = 0; i < x.size(); ++i)
+                d = std::max(d, std::sqrt(std::pow(double(x[i][0]) - rest[i][0], 2) + std::pow(double(x[i][1]) - rest[i][1], 2) +
+                                          std::pow(double(x[i][2]) - rest[i][2], 2)));
+            return d;
+        };
+        ASSERT_GT(largest(), 1.0) << "the press dents the wall";
+        const double time = backend->simulated_time_ms();
+        backend->set_instrument(0, {.kind = InstrumentKind::none});
+        backend->reset_tissue();
+        EXPECT_EQ(largest(), 0.0);
+        EXPECT_EQ(backend->simulated_time_ms(), time);
+        backend->step(50);
+        EXPECT_LT(largest(), 1e-4) << "mm, 50 steps after the reset with no instrument";
+    }
 }
 
 TEST(RuntimeBackend, AsynchronousForcesArriveWithoutWaiting) {
