@@ -740,6 +740,17 @@ std::filesystem::path temporary_beside(const std::filesystem::path& path) {
 
 }  // namespace
 
+SolverOptions options_from(const SolverSettings& settings) {
+    SolverOptions options;
+    options.dt_ms = settings.dt_ms;
+    options.critical_dt_ms = settings.critical_dt_ms;
+    options.safety_factor = settings.safety_factor;
+    options.damping = settings.damping;
+    options.gravity = settings.gravity;
+    options.balanced_gravity = settings.balanced_gravity;
+    return options;
+}
+
 VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
     VisualMesh v;
     v.positions.reserve(mesh.positions.size());

@@ -7,6 +7,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/mapping.h"
 #include "libmodel/packing.h"
+#include "libmodel/solver.h"
 #include "libmodel/mesh.h"
 #include "libmodel/volume.h"
 
@@ -73,6 +74,9 @@ struct Scenario {
     /// /mapping: one row per visual vertex; needs /visual and /simsurface.
     std::optional<VisualMapping> mapping;
 };
+
+/// The solver settings of a scenario, field by field (docs/solver.md).
+SolverOptions options_from(const SolverSettings& settings);
 
 /// Converts a world-space mesh to the file's float32 layout.
 VisualMesh to_visual_mesh(const TriangleMesh& mesh);

@@ -1,6 +1,7 @@
 #include "supports.h"
 
 #include "errors.h"
+#include "packing.h"
 
 #include <Eigen/Dense>
 #include <tbb/blocked_range.h>
@@ -9,6 +10,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 namespace heartsim {
@@ -29,24 +31,6 @@ SupportRegion parse_support_region(const std::string& text) {
     throw InputError("--support must be posterior, boundary or none, got '" + text + "'");
 }
 
-namespace {
-
-/// Particle index per lattice cell (−1 where none), cells in k-slowest order.
-std::vector<std::int32_t> particle_of_cell(const Lattice& lattice) {
-    const auto& d = lattice.dims;
-    std::vector<std::int32_t> map(std::size_t(d[0]) * std::size_t(d[1]) * std::size_t(d[2]), -1);
-    const auto& p = lattice.particles;
-    for (std::size_t i = 0; i < p.size(); ++i) {
-        const auto& c = p.lattice_index[i];
-        if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= d[0] || c[1] >= d[1] || c[2] >= d[2])
-            throw InputError("supports: particle " + std::to_string(i) + " lies outside the lattice");
-        map[(std::size_t(c[2]) * std::size_t(d[1]) + std::size_t(c[1])) * std::size_t(d[0]) + std::size_t(c[0])] = std::int32_t(i);
-    }
-    return map;
-}
-
-}  // namespace
-
 SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
     auto& p = lattice.particles;
     SupportReport report;
@@ -64,15 +48,11 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
     if (!(options.embedding_kpa_per_mm2 >= 0) || !std::isfinite(options.embedding_kpa_per_mm2))
         throw InputError("--embedding-stiffness must be a non-negative number of kPa/mm²");
     if (!(options.posterior.norm() > 0) || !options.posterior.allFinite()) throw InputError("supports: the posterior direction is zero");
+    if (!(options.damping_ratio >= 0) || !std::isfinite(options.damping_ratio))
+        throw InputError("--support-damping must be a non-negative damping ratio");
     const std::size_t n = p.size();
     std::vector<double> area(n, 0.0);
     const double face = lattice.spacing * lattice.spacing;
-    const auto& d = lattice.dims;
-    const std::vector<std::int32_t> cells = particle_of_cell(lattice);
-    auto at = [&](int a, int b, int c) -> std::int32_t {
-        if (a < 0 || b < 0 || c < 0 || a >= d[0] || b >= d[1] || c >= d[2]) return -1;
-        return cells[(std::size_t(c) * std::size_t(d[1]) + std::size_t(b)) * std::size_t(d[0]) + std::size_t(a)];
-    };
 
     if (options.region == SupportRegion::posterior) {
         // The lattice axis nearest to the posterior direction, and which way along it is posterior.
@@ -84,31 +64,24 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
             const double c = axes.col(a).normalized().dot(back);
             if (std::abs(c) > std::abs(best)) best = c, axis = a;
         }
-        const int step = best > 0 ? 1 : -1;
-        // In each line along that axis, the particle with no particle beyond it posteriorly.
-        for (std::size_t i = 0; i < n; ++i) {
-            auto c = p.lattice_index[i];
-            bool last = true;
-            for (c[std::size_t(axis)] += step; c[std::size_t(axis)] >= 0 && c[std::size_t(axis)] < d[std::size_t(axis)];
-                 c[std::size_t(axis)] += step)
-                if (at(c[0], c[1], c[2]) >= 0) {
-                    last = false;
-                    break;
-                }
-            if (last) area[i] = face;
-        }
+        // In each line along that axis, the particle farthest posteriorly: one pass for each
+        // line's extreme index (counted so that larger is more posterior), one to mark it.
+        const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+        const int sign = best > 0 ? 1 : -1;
+        const auto& d = lattice.dims;
+        auto line = [&](const std::array<std::int32_t, 3>& c) { return std::size_t(c[std::size_t(u)]) * std::size_t(d[std::size_t(v)]) + std::size_t(c[std::size_t(v)]); };
+        std::vector<int> extreme(std::size_t(d[std::size_t(u)]) * std::size_t(d[std::size_t(v)]), std::numeric_limits<int>::min());
+        for (const auto& c : p.lattice_index) extreme[line(c)] = std::max(extreme[line(c)], sign * c[std::size_t(axis)]);
+        for (std::size_t i = 0; i < n; ++i)
+            if (sign * p.lattice_index[i][std::size_t(axis)] == extreme[line(p.lattice_index[i])]) area[i] = face;
     } else {
-        for (std::size_t i = 0; i < n; ++i) {
-            const auto& c = p.lattice_index[i];
-            for (int f = 0; f < 6; ++f) {
-                const auto& o = neighbour_offsets[std::size_t(f)];
-                if (at(c[0] + o[0], c[1] + o[1], c[2] + o[2]) < 0) area[i] += face;
-            }
-        }
+        // An exposed face: a face slot (the table's first 6) with no neighbour.
+        const auto table = neighbour_table(lattice);
+        for (std::size_t i = 0; i < n; ++i)
+            for (int f = 0; f < 6; ++f)
+                if (table[i][std::size_t(f)] < 0) area[i] += face;
     }
 
-    if (!(options.damping_ratio >= 0) || !std::isfinite(options.damping_ratio))
-        throw InputError("--support-damping must be a non-negative damping ratio");
     p.support_stiffness.assign(n, 0.0f);
     p.support_damping.assign(n, 0.0f);
     p.support_point = p.rest_position;

@@ -42,9 +42,6 @@ struct PassTimes {
     bool gpu_timed = false;        ///< true when the figures come from GPU timer queries
 };
 
-/// The solver settings of a scenario, field by field (docs/solver.md).
-SolverOptions options_from(const SolverSettings& settings);
-
 class Backend {
 public:
     virtual ~Backend() = default;

@@ -15,17 +15,6 @@ BackendKind parse_backend_kind(const std::string& name) {
 
 const char* to_string(BackendKind kind) { return kind == BackendKind::cpu ? "cpu" : "gl"; }
 
-SolverOptions options_from(const SolverSettings& settings) {
-    SolverOptions options;
-    options.dt_ms = settings.dt_ms;
-    options.critical_dt_ms = settings.critical_dt_ms;
-    options.safety_factor = settings.safety_factor;
-    options.damping = settings.damping;
-    options.gravity = settings.gravity;
-    options.balanced_gravity = settings.balanced_gravity;
-    return options;
-}
-
 void require_runnable(const Scenario& scenario, const std::string& file_name) {
     if (!scenario.packing)
         throw InputError(file_name + ": group /packing is missing; the runtime needs the packed neighbour table "

@@ -32,14 +32,7 @@ struct Model {
 
 /// An nx × ny × nz block of particles at `spacing` mm, packed in bricks.
 Model block(int nx, int ny, int nz, double spacing = 1.5, double damping_ratio = 0.0) {
-    LabelVolume v;
-    v.geometry.dims = {nx, ny, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
-    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
-    layout.materials[0].damping_ratio = damping_ratio;
-    Model model{layout_particles(selection, {1}, v, layout), {}};
+    Model model{test::block_lattice(nx, ny, nz, spacing, damping_ratio), {}};
     model.packing = pack_particles(model.lattice);
     return model;
 }

@@ -2,6 +2,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
 #include "libmodel/stability.h"
+#include "test_support.h"
 
 #include <gtest/gtest.h>
 
@@ -12,14 +13,7 @@ using namespace heartsim;
 
 namespace {
 
-Lattice block_lattice(int nx, int ny, int nz, double spacing = 1.5) {
-    LabelVolume v;
-    v.geometry.dims = {nx, ny, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
-    return layout_particles(selection, {1}, v, {.spacing_mm = spacing, .occupancy = 0.5});
-}
+using test::block_lattice;
 
 /// Largest eigenvalue of M⁻¹K from the assembled dense matrices (free particles only).
 double dense_largest_eigenvalue(const Particles& p, const Springs& s) {

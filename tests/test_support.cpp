@@ -1,5 +1,7 @@
 #include "test_support.h"
 
+#include "libmodel/select.h"
+
 #include <array>
 #include <cstdio>
 #include <fstream>
@@ -33,6 +35,17 @@ std::filesystem::path real_case(const std::string& name) {
     if (dir.empty()) return {};
     auto file = dir / name / ("training_axial_crop_" + name.substr(name.rfind('_') + 1) + "-label.nii.gz");
     return std::filesystem::exists(file) ? file : std::filesystem::path();
+}
+
+Lattice block_lattice(int nx, int ny, int nz, double spacing, double damping_ratio) {
+    LabelVolume v;
+    v.geometry.dims = {nx, ny, nz};
+    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
+    v.labels.assign(v.geometry.voxel_count(), 1);
+    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
+    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
+    layout.materials[0].damping_ratio = damping_ratio;
+    return layout_particles(selection, {1}, v, layout);
 }
 
 Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vector3d&)>& inside) {

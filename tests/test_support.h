@@ -2,6 +2,7 @@
 /// @brief Shared helpers for the tests: temporary folders, real-data paths, shape masks.
 #pragma once
 
+#include "libmodel/lattice.h"
 #include "libmodel/volume.h"
 
 #include <array>
@@ -33,6 +34,11 @@ std::filesystem::path real_case(const std::string& name);
 /// A mask on an isotropic grid of `n` voxels per side with `spacing` mm, centred on the world
 /// origin (identity direction), selected where inside(x) is true at the voxel centre (world mm).
 Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vector3d&)>& inside);
+
+/// An nx × ny × nz block of tissue voxels of `spacing` mm laid out at the same spacing (one
+/// particle per voxel, in lattice order, not packed), its material's springs damped at
+/// `damping_ratio`.
+Lattice block_lattice(int nx, int ny, int nz, double spacing = 1.5, double damping_ratio = Material{}.damping_ratio);
 
 /// Result of running a command: exit status and what it printed (stdout + stderr).
 struct CommandResult {

@@ -22,17 +22,7 @@ namespace {
 
 const Eigen::Vector3d one_g(0.0, 9.81e-3, 0.0);  // mm/ms², towards posterior (+y in LPS)
 
-/// An nx × ny × nz block of tissue voxels laid out at `spacing` mm (one particle per voxel).
-Lattice block_lattice(int nx, int ny, int nz, double spacing = 1.5, double damping_ratio = 0.1) {
-    LabelVolume v;
-    v.geometry.dims = {nx, ny, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
-    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
-    layout.materials[0].damping_ratio = damping_ratio;
-    return layout_particles(selection, {1}, v, layout);
-}
+using test::block_lattice;
 
 struct Model {
     Lattice lattice;
@@ -270,12 +260,7 @@ TEST(Supports, ARealHeartBuiltWithTheDefaultsStaysWhereItWasImagedForFiveSeconds
     const auto run = test::heartprep("build " + test::quoted(input) + " -o " + test::quoted(output) + " --no-visual -q");
     ASSERT_EQ(run.exit_code, 0) << run.output;
     const Scenario s = read_scenario(output);
-    SolverOptions options;
-    options.dt_ms = s.solver.dt_ms;
-    options.critical_dt_ms = s.solver.critical_dt_ms;
-    options.gravity = s.solver.gravity;
-    options.balanced_gravity = s.solver.balanced_gravity;
-    Solver solver(s.lattice, s.packing->neighbours, options);
+    Solver solver(s.lattice, s.packing->neighbours, options_from(s.solver));
     const StepReport r = solver.step(int(std::ceil(5000.0 / solver.time_step_ms())));
     ASSERT_FALSE(r.diverged) << r.message;
     double largest = 0;

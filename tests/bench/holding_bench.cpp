@@ -39,17 +39,6 @@ struct Row {
 
 Eigen::Vector3d rest_of(const Particles& p, std::size_t i) { return {p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2]}; }
 
-SolverOptions options_of(const Scenario& s) {
-    SolverOptions o;
-    o.dt_ms = s.solver.dt_ms;
-    o.critical_dt_ms = s.solver.critical_dt_ms;
-    o.safety_factor = s.solver.safety_factor;
-    o.damping = s.solver.damping;
-    o.gravity = s.solver.gravity;
-    o.balanced_gravity = s.solver.balanced_gravity;
-    return o;
-}
-
 /// Least-squares rigid motion (Kabsch) from rest to current positions: rotation angle (deg),
 /// translation of the centroid (mm), and the largest residual (the local deformation, mm).
 void rigid_part(const std::vector<Eigen::Vector3d>& from, const std::vector<Eigen::Vector3d>& to, Row& row) {
@@ -84,7 +73,7 @@ Row measure(const std::string& path, double seconds, double radius) {
 
     // 1. Drift with no instrument.
     {
-        Solver solver(s.lattice, s.packing->neighbours, options_of(s));
+        Solver solver(s.lattice, s.packing->neighbours, options_from(s.solver));
         const StepReport r = solver.step(int(std::ceil(seconds * 1000.0 / solver.time_step_ms())));
         row.drift_diverged = r.diverged || solver.watchdog_events() > 0;
         double sum = 0;
@@ -107,7 +96,7 @@ Row measure(const std::string& path, double seconds, double radius) {
         const Eigen::Vector3d d = rest[i] - centre;
         if (std::hypot(d.x(), d.z()) < 5.0 && rest[i].y() < front) front = rest[i].y(), site = i;
     }
-    Solver solver(s.lattice, s.packing->neighbours, options_of(s));
+    Solver solver(s.lattice, s.packing->neighbours, options_from(s.solver));
     solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d::Constant(radius)});
     const Eigen::Vector3d touch = rest[site] - Eigen::Vector3d(0, radius + 0.01, 0);
     const double dt = solver.time_step_ms();

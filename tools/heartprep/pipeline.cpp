@@ -107,6 +107,9 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
                                   " particles are held by nothing (--allow-free): they fall under gravity and drift under instruments");
     const Eigen::Vector3d& g = options.solver.gravity;
     scenario.solver.balanced_gravity = Eigen::Vector3d::Zero();
+    // The pieces after dropping (balancing moves no particle between pieces).
+    const Pieces pieces_left = find_pieces(lattice.particles, lattice.springs);
+    const bool any_held = std::find(pieces_left.held.begin(), pieces_left.held.end(), true) != pieces_left.held.end();
     if (options.balance_rest_state && g.norm() > 0) {
         report.balance = timed(report, "balance", [&] { return balance_rest_state(lattice, g, {}, progress); });
         append(report.warnings, report.balance.warnings);
@@ -120,11 +123,8 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
     } else if (g.norm() > 0) {
         report.balance = timed(report, "balance", [&] {
             // Measure the sag anyway (on a copy) so the summary can say what the unbalanced state does.
-            Lattice copy = lattice;
-            const Pieces held = find_pieces(copy.particles, copy.springs);
-            bool any_held = false;
-            for (bool h : held.held) any_held = any_held || h;
             if (!any_held) return RestBalanceReport{};
+            Lattice copy = lattice;
             try {
                 RestBalanceReport sag = balance_rest_state(copy, g, {}, progress);
                 sag.balanced = false;
@@ -137,10 +137,7 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
             report.warnings.push_back("--rest-state imaged: the springs are unstressed at the imaged shape, so the heart sags by up to " +
                                       std::to_string(report.balance.max_sag_mm) + " mm under gravity when the simulation starts");
     }
-    const Pieces final_pieces = find_pieces(lattice.particles, lattice.springs);
-    bool all_free = true;
-    for (bool h : final_pieces.held) all_free = all_free && !h;
-    if (all_free && g.norm() > 0)
+    if (!any_held && g.norm() > 0)
         report.warnings.push_back("nothing holds the heart (no anchor, no support) and gravity is on: it free-falls in heartsim");
 }
 
@@ -172,6 +169,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         return layout_particles(selection, options.selection.tissue_labels, volume, options.layout, progress, &report.layout);
     });
     append(report.warnings, report.layout.warnings);
+    scenario.solver = options.solver;  // gravity, drag, safety; hold_stage and the critical step fill in the rest
     hold_stage(scenario, options, progress, report);
 
     report.stability = timed(report, "critical step", [&] {
@@ -179,9 +177,6 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
     });
     auto& solver = scenario.solver;
-    const Eigen::Vector3d balanced_gravity = solver.balanced_gravity;  // set by hold_stage
-    solver = options.solver;
-    solver.balanced_gravity = balanced_gravity;
     solver.critical_dt_ms = report.stability.critical_dt_ms;
     solver.critical_dt_bound_ms = report.stability.critical_dt_bound_ms;
     if (!std::isfinite(solver.critical_dt_ms)) {
