@@ -97,6 +97,7 @@ TEST(OpenHaptics, ADeviceIsFoundItsPosesArriveAndMove) {
     EXPECT_TRUE(limits.workspace_mm.max().isApprox(Eigen::Vector3d(100, 70, 50)));
     EXPECT_DOUBLE_EQ(limits.damping_n_ms_per_mm, DeviceLimits{}.damping_n_ms_per_mm);
 
+    const auto t0 = Clock::now();  // drive's clock, within a microsecond
     const std::vector<DevicePose> poses = drive(*device, 600.0);
     const std::uint64_t frames_before = touch.counters().servo_frames;
     const HdTestDoubleStats stats = double_stats();
@@ -126,9 +127,19 @@ TEST(OpenHaptics, ADeviceIsFoundItsPosesArriveAndMove) {
     EXPECT_GT(largest_angle, 0.01);
     EXPECT_LE(largest_angle, 0.3 + 1e-9);
     EXPECT_TRUE(pressed && released) << "button 1 toggles every 250 ms";
-    // The newest pose is the double's device position, a few servo frames old at most.
-    const DevicePose last = device->read_pose(700.0);
-    EXPECT_LT((last.position_mm - Eigen::Vector3d(stats.position[0], stats.position[1], stats.position[2])).norm(), 2.0);
+    // The newest pose is the double's device position, a few servo frames old at most. The hand
+    // moves ~0.06 mm per ms, so the two reads must be close in time: on a loaded machine this
+    // thread can be preempted between them, and then the pair is read again. read_pose gets the
+    // drive's clock: a made-up later time would look like a servo stall to the device.
+    HdTestDoubleStats now{};
+    DevicePose last{};
+    for (int attempt = 0; attempt < 50; ++attempt) {
+        const auto before = Clock::now();
+        now = double_stats();
+        last = device->read_pose(ms_since(t0));
+        if (ms_since(before) < 2.0) break;
+    }
+    EXPECT_LT((last.position_mm - Eigen::Vector3d(now.position[0], now.position[1], now.position[2])).norm(), 2.0);
     EXPECT_EQ(touch.fault(), "");
 
     device.reset();
