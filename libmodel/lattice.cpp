@@ -18,6 +18,28 @@ const std::array<std::array<int, 3>, 18> neighbour_offsets{{
     {0, 1, 1}, {0, 1, -1}, {0, -1, 1}, {0, -1, -1},
 }};
 
+std::vector<char> thin_wall_particles(const Lattice& lattice) {
+    const auto& d = lattice.dims;
+    const auto& index = lattice.particles.lattice_index;
+    std::vector<char> cells(std::size_t(d[0]) * d[1] * d[2], 0);
+    auto cell = [&](int i, int j, int k) { return (std::size_t(k) * d[1] + j) * d[0] + i; };
+    auto inside = [&](int i, int j, int k) { return i >= 0 && j >= 0 && k >= 0 && i < d[0] && j < d[1] && k < d[2]; };
+    for (const auto& c : index)
+        if (inside(c[0], c[1], c[2])) cells[cell(c[0], c[1], c[2])] = 1;
+    auto occupied = [&](int i, int j, int k) { return inside(i, j, k) && cells[cell(i, j, k)]; };
+    std::vector<char> thin(index.size(), 0);
+    for (std::size_t p = 0; p < index.size(); ++p) {
+        const auto& c = index[p];
+        for (int a = 0; a < 3 && !thin[p]; ++a) {
+            std::array<int, 3> below = c, above = c;
+            --below[std::size_t(a)];
+            ++above[std::size_t(a)];
+            thin[p] = !occupied(below[0], below[1], below[2]) && !occupied(above[0], above[1], above[2]);
+        }
+    }
+    return thin;
+}
+
 double spring_stiffness(double youngs_modulus_kpa, double spacing_mm) {
     return 0.4 * (youngs_modulus_kpa * 1e-3) * spacing_mm;
 }
@@ -107,22 +129,78 @@ std::vector<float> cell_fractions(const Mask& mask, const CellGrid& grid) {
     return fraction;
 }
 
-std::size_t count_occupied(const std::vector<float>& fraction, double occupancy) {
-    // Compare in float, as the layout does, so the count is the layout's count.
-    const float threshold = float(occupancy);
-    return std::size_t(std::count_if(fraction.begin(), fraction.end(), [&](float f) { return f >= threshold; }));
+/// The cells that get a particle: tissue fraction at least `occupancy` (compared in float); with
+/// thin-wall handling also the ridges of thinner walls, then the fuller side neighbour of every
+/// occupied cell that is one cell thick along an axis, if that neighbour holds at least
+/// `thicken_fraction`. 1: occupied (threshold or ridge), 2: added to thicken.
+std::vector<std::uint8_t> occupied_cells(const std::vector<float>& fraction, const std::array<int, 3>& dims,
+                                         const LayoutOptions& options) {
+    const float threshold = float(options.occupancy);
+    std::vector<std::uint8_t> occupied(fraction.size(), 0);
+    for (std::size_t c = 0; c < fraction.size(); ++c) occupied[c] = fraction[c] >= threshold ? 1 : 0;
+    if (!options.thicken_walls) return occupied;
+    const std::array<long, 3> stride{1, long(dims[0]), long(dims[0]) * dims[1]};
+    // Walls thinner than half a cell: a cell whose fraction is a ridge across some axis (at least
+    // both face neighbours' along it, more than one's), with at least `ridge_fraction` and no
+    // occupied neighbour along that axis, holds a wall the occupancy threshold would lose.
+    const float ridge = float(options.ridge_fraction);
+    std::vector<std::uint8_t> ridges(fraction.size(), 0);
+    for (int k = 0; k < dims[2]; ++k)
+        for (int j = 0; j < dims[1]; ++j)
+            for (int i = 0; i < dims[0]; ++i) {
+                const std::array<int, 3> at{i, j, k};
+                const long cell = (long(k) * dims[1] + j) * dims[0] + i;
+                const float f = fraction[std::size_t(cell)];
+                if (occupied[std::size_t(cell)] || f < ridge) continue;
+                for (std::size_t a = 0; a < 3 && !ridges[std::size_t(cell)]; ++a) {
+                    const long below = at[a] > 0 ? cell - stride[a] : -1;
+                    const long above = at[a] + 1 < dims[a] ? cell + stride[a] : -1;
+                    const float f_below = below >= 0 ? fraction[std::size_t(below)] : 0.0f;
+                    const float f_above = above >= 0 ? fraction[std::size_t(above)] : 0.0f;
+                    const bool beside = (below >= 0 && occupied[std::size_t(below)]) || (above >= 0 && occupied[std::size_t(above)]);
+                    ridges[std::size_t(cell)] = !beside && f >= f_below && f >= f_above && (f > f_below || f > f_above);
+                }
+            }
+    for (std::size_t c = 0; c < fraction.size(); ++c)
+        if (ridges[c]) occupied[c] = 1;
+    const float enough = float(options.thicken_fraction);
+    for (int k = 0; k < dims[2]; ++k)
+        for (int j = 0; j < dims[1]; ++j)
+            for (int i = 0; i < dims[0]; ++i) {
+                const std::array<int, 3> at{i, j, k};
+                const long cell = (long(k) * dims[1] + j) * dims[0] + i;
+                if (occupied[std::size_t(cell)] != 1) continue;
+                for (std::size_t a = 0; a < 3; ++a) {
+                    // The two face neighbours along axis a (-1: outside the lattice); a neighbour
+                    // already added for another particle thickens this one too.
+                    const long below = at[a] > 0 ? cell - stride[a] : -1;
+                    const long above = at[a] + 1 < dims[a] ? cell + stride[a] : -1;
+                    if ((below >= 0 && occupied[std::size_t(below)]) || (above >= 0 && occupied[std::size_t(above)])) continue;
+                    const float f_below = below >= 0 ? fraction[std::size_t(below)] : -1.0f;
+                    const float f_above = above >= 0 ? fraction[std::size_t(above)] : -1.0f;
+                    const long side = f_above >= f_below ? above : below;
+                    if (side >= 0 && std::max(f_above, f_below) >= enough) occupied[std::size_t(side)] = 2;
+                }
+            }
+    return occupied;
+}
+
+std::size_t count_occupied(const std::vector<float>& fraction, const std::array<int, 3>& dims, const LayoutOptions& options) {
+    const auto occupied = occupied_cells(fraction, dims, options);
+    return std::size_t(std::count_if(occupied.begin(), occupied.end(), [](std::uint8_t o) { return o != 0; }));
 }
 
 /// The spacing whose lattice holds the most particles without exceeding `budget`: bisection on
 /// the spacing, starting from the tissue volume / budget estimate.
-double spacing_for_budget(const Mask& tissue, std::size_t budget, double occupancy, Progress& progress,
+double spacing_for_budget(const Mask& tissue, std::size_t budget, const LayoutOptions& options, Progress& progress,
                           std::size_t& trials) {
     const auto& g = tissue.geometry;
     const double tissue_volume = double(tissue.count()) * g.voxel_volume();
     auto count_at = [&](double h) {
         ++trials;
         if (progress.cancelled()) throw Cancelled();
-        return count_occupied(cell_fractions(tissue, make_cell_grid(g, h)), occupancy);
+        const CellGrid grid = make_cell_grid(g, h);
+        return count_occupied(cell_fractions(tissue, grid), grid.dims(), options);
     };
     const double finest = 0.25 * g.spacing.minCoeff();
     double high = std::max(finest, std::cbrt(tissue_volume / double(budget)));
@@ -149,6 +227,10 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
     const auto& g = selection.tissue.geometry;
     if (!(options.occupancy > 0.0 && options.occupancy <= 1.0))
         throw InputError("--occupancy must be in (0, 1], got " + std::to_string(options.occupancy));
+    if (!(options.thicken_fraction > 0.0 && options.thicken_fraction <= 1.0))
+        throw InputError("--thicken-fraction must be in (0, 1], got " + std::to_string(options.thicken_fraction));
+    if (!(options.ridge_fraction > 0.0 && options.ridge_fraction <= 1.0))
+        throw InputError("--ridge-fraction must be in (0, 1], got " + std::to_string(options.ridge_fraction));
     if (!std::isfinite(options.spacing_mm) || options.spacing_mm < 0.0)
         throw InputError("--spacing must be a positive number of mm, got " + std::to_string(options.spacing_mm));
     if (options.spacing_mm == 0.0 && options.particle_budget == 0)
@@ -165,8 +247,7 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
     {
         ProgressStage stage(progress, "choose spacing", spacing > 0 ? 0 : 14);
         if (spacing == 0.0)
-            spacing = spacing_for_budget(selection.tissue, options.particle_budget, options.occupancy, progress,
-                                         report.spacing_trials);
+            spacing = spacing_for_budget(selection.tissue, options.particle_budget, options, progress, report.spacing_trials);
     }
     ProgressStage stage(progress, "lay out particles", 3);
 
@@ -204,15 +285,18 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
     const std::vector<float> anchor_fraction = any_anchor ? cell_fractions(selection.anchors, grid) : std::vector<float>();
     stage.update(1);
 
-    const float threshold = float(options.occupancy);
+    const std::vector<std::uint8_t> occupied = occupied_cells(fraction, lattice.dims, options);
     const double cell_volume = spacing * spacing * spacing;
     std::vector<std::int32_t> particle_of_cell(grid.count(), -1);
+    std::vector<float> particle_fraction;  // tissue fraction of each particle's cell
     auto& p = lattice.particles;
     for (int c = 0; c < lattice.dims[2]; ++c)
         for (int b = 0; b < lattice.dims[1]; ++b)
             for (int a = 0; a < lattice.dims[0]; ++a) {
                 const std::size_t cell = (std::size_t(c) * lattice.dims[1] + b) * lattice.dims[0] + a;
-                if (fraction[cell] < threshold) continue;
+                if (!occupied[cell]) continue;
+                if (occupied[cell] == 2) ++report.thickened;
+                if (occupied[cell] == 1 && fraction[cell] < float(options.occupancy)) ++report.ridges;
                 std::size_t material = 0;
                 for (std::size_t t = 1; t < label_fraction.size(); ++t)
                     if (label_fraction[t][cell] > label_fraction[material][cell]) material = t;
@@ -220,6 +304,7 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
                 const Eigen::Vector3d x = (lattice.index_to_world * Eigen::Vector4d(a, b, c, 1)).head<3>();
                 p.rest_position.push_back({float(x.x()), float(x.y()), float(x.z())});
                 p.lattice_index.push_back({a, b, c});
+                particle_fraction.push_back(std::min(1.0f, fraction[cell]));
                 const double occupied = std::min(1.0, double(fraction[cell])) * cell_volume;
                 p.mass.push_back(float(lattice.materials[material].density * occupied));
                 p.material.push_back(std::int32_t(material));
@@ -255,7 +340,11 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
             s.rest_length.push_back(float(offset.norm()));
             const double ka = stiffness_of_material[std::size_t(p.material[i])];
             const double kb = stiffness_of_material[std::size_t(p.material[std::size_t(j)])];
-            s.stiffness.push_back(float(2.0 * ka * kb / (ka + kb)));  // two half-springs in series
+            // A thin-wall particle's cell holds less tissue than --occupancy: its springs carry
+            // that much less material, in proportion (so k/m, and the stable time step, stay
+            // those of a cell at the occupancy).
+            const double scale = std::min(1.0, double(std::min(particle_fraction[i], particle_fraction[std::size_t(j)])) / options.occupancy);
+            s.stiffness.push_back(float(scale * 2.0 * ka * kb / (ka + kb)));  // two half-springs in series
             (slot < 6 ? report.face_springs : report.edge_springs)++;
         }
     }
@@ -263,6 +352,16 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
 
     report.spacing = spacing;
     report.particles = p.size();
+    {
+        const std::vector<char> thin = thin_wall_particles(lattice);
+        double thin_volume = 0.0;
+        for (std::size_t i = 0; i < p.size(); ++i)
+            if (thin[i]) {
+                ++report.thin_particles;
+                thin_volume += double(p.mass[i]) / lattice.materials[std::size_t(p.material[i])].density;
+            }
+        report.thin_volume_share = report.occupied_volume_mm3 > 0 ? thin_volume / report.occupied_volume_mm3 : 0.0;
+    }
     if (report.anchored == 0 && any_anchor)
         report.warnings.push_back("anchor voxels exist but no particle cell contains one");
     if (report_out) *report_out = std::move(report);

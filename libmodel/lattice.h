@@ -46,6 +46,17 @@ struct LayoutOptions {
     std::size_t particle_budget = 30000;
     /// A cell gets a particle when its tissue fraction is at least this, in (0, 1].
     double occupancy = 0.5;
+    /// Thin walls. (1) A wall thinner than half a cell has no cell reaching `occupancy`: a cell
+    /// whose tissue fraction is a ridge across a lattice axis (at least its two face neighbours'
+    /// along it) and at least `ridge_fraction` also gets a particle, so the wall is not lost.
+    /// (2) A particle whose two face neighbours along an axis are both empty is a wall one
+    /// particle thick there, with no bending stiffness and no cell of particles for the visual
+    /// mesh to be embedded in: the neighbour on the side holding more tissue also gets a
+    /// particle, if it holds at least `thicken_fraction`. Particles are only added: no wall is
+    /// lost and no hole opened. The spacing chosen for the budget counts the added particles.
+    bool thicken_walls = true;
+    double ridge_fraction = 0.2;
+    double thicken_fraction = 0.05;
     /// One material per tissue label; a label without an entry gets the first material's values.
     std::vector<Material> materials{Material{}};
 };
@@ -95,8 +106,18 @@ struct LayoutReport {
     std::size_t spacing_trials = 0;       ///< lattices counted while meeting the budget
     double total_mass = 0.0;              ///< g
     double occupied_volume_mm3 = 0.0;     ///< Σ fraction × cell volume over particles
+    std::size_t ridges = 0;               ///< particles on walls thinner than half a cell (below the occupancy)
+    std::size_t thickened = 0;            ///< particles added to thicken walls (LayoutOptions::thicken_walls)
+    /// Particles still one particle thick along some axis (too little tissue beside them), and
+    /// their share of the occupied volume.
+    std::size_t thin_particles = 0;
+    double thin_volume_share = 0.0;
     std::vector<std::string> warnings;
 };
+
+/// Per particle, whether it is a wall one particle thick: along some lattice axis both face
+/// neighbours are empty (or outside the lattice).
+std::vector<char> thin_wall_particles(const Lattice& lattice);
 
 /// Lays out particles and springs over `selection`. Throws InputError for a non-positive or
 /// non-finite spacing, an occupancy outside (0, 1], or when no cell passes the occupancy.

@@ -166,3 +166,132 @@ TEST(Lattice, RejectsBadSpacingAndOccupancy) {
     EXPECT_THROW(layout(volume, {.spacing_mm = 1.0, .occupancy = 1.5}), InputError);
     EXPECT_THROW(layout(volume, {.spacing_mm = 50.0, .occupancy = 1.0}), InputError);  // no cell full
 }
+
+namespace {
+
+/// Particles reachable from particle 0 along springs.
+std::size_t connected_to_first(const Lattice& lattice) {
+    const std::size_t n = lattice.particles.size();
+    std::vector<std::vector<std::int32_t>> next(n);
+    for (const auto& p : lattice.springs.pairs) {
+        next[std::size_t(p[0])].push_back(p[1]);
+        next[std::size_t(p[1])].push_back(p[0]);
+    }
+    std::vector<char> seen(n, 0);
+    std::vector<std::int32_t> stack{0};
+    seen[0] = 1;
+    std::size_t count = 0;
+    while (!stack.empty()) {
+        const std::int32_t i = stack.back();
+        stack.pop_back();
+        ++count;
+        for (std::int32_t j : next[std::size_t(i)])
+            if (!seen[std::size_t(j)]) seen[std::size_t(j)] = 1, stack.push_back(j);
+    }
+    return count;
+}
+
+/// The largest distance from a tissue voxel centre to its nearest particle, mm.
+double farthest_tissue_from_particles(const LabelVolume& volume, const Lattice& lattice) {
+    double farthest = 0.0;
+    const auto& g = volume.geometry;
+    for (int k = 0; k < g.dims[2]; ++k)
+        for (int j = 0; j < g.dims[1]; ++j)
+            for (int i = 0; i < g.dims[0]; ++i) {
+                if (volume.labels[g.linear(i, j, k)] != 1) continue;
+                const Eigen::Vector3d x = g.to_world(Eigen::Vector3d(i, j, k));
+                double nearest = 1e30;
+                for (const auto& p : lattice.particles.rest_position)
+                    nearest = std::min(nearest, (Eigen::Vector3d(p[0], p[1], p[2]) - x).norm());
+                farthest = std::max(farthest, nearest);
+            }
+    return farthest;
+}
+
+}  // namespace
+
+TEST(Lattice, ThinWallsAreKeptWholeAndThickenedWhereTheTissueAllows) {
+    // Plates 0.5 mm voxels, 1.5 mm cells (three voxels per cell, cell c = voxels 3c..3c+2 along
+    // k): a 1-voxel plate fills a third of its cells, below --occupancy 0.5.
+    struct Plate {
+        int first, thickness;
+        const char* what;
+        std::size_t layers;  // particle layers expected with thin-wall handling
+    };
+    for (const Plate plate : {Plate{15, 1, "1-voxel plate in one cell layer", 1}, Plate{16, 2, "2-voxel plate in one cell layer", 1},
+                              Plate{17, 2, "2-voxel plate across two cell layers", 2}}) {
+        SCOPED_TRACE(plate.what);
+        const auto volume = block_volume({36, 36, 36}, {3, 3, plate.first}, {33, 33, plate.first + plate.thickness},
+                                         Eigen::Vector3d::Constant(0.5));
+        LayoutReport report;
+        const Lattice lattice = layout(volume, {.spacing_mm = 1.5}, &report);
+        ASSERT_GT(lattice.particles.size(), 0u);
+        // Whole: one piece, every plate voxel within a cell's half-diagonal of a particle, and
+        // every cell column over the plate (cells 1..10 along i and j) holds a particle: no hole.
+        EXPECT_EQ(connected_to_first(lattice), lattice.particles.size());
+        EXPECT_LE(farthest_tissue_from_particles(volume, lattice), 0.5 * std::sqrt(3.0) * 1.5 + 1e-9);
+        std::set<std::array<int, 3>> cells;
+        std::set<int> layers;
+        for (const auto& c : lattice.particles.lattice_index) cells.insert(c), layers.insert(c[2]);
+        for (int ci = 1; ci <= 10; ++ci)
+            for (int cj = 1; cj <= 10; ++cj) {
+                bool column = false;
+                for (int layer : layers) column = column || cells.count({ci, cj, layer});
+                EXPECT_TRUE(column) << "hole at cell column (" << ci << ", " << cj << ")";
+            }
+        EXPECT_EQ(layers.size(), plate.layers);
+        // One layer is reported as thin (nothing beside it holds tissue); two layers are not.
+        const std::vector<char> thin = thin_wall_particles(lattice);
+        const std::size_t thin_count = std::size_t(std::count(thin.begin(), thin.end(), 1));
+        EXPECT_EQ(report.thin_particles, thin_count);
+        if (plate.layers == 1) {
+            EXPECT_EQ(thin_count, lattice.particles.size());
+            EXPECT_NEAR(report.thin_volume_share, 1.0, 1e-6);
+        } else {
+            EXPECT_EQ(thin_count, 0u);
+        }
+    }
+    // Without thin-wall handling the 1-voxel plate is lost: no cell reaches the occupancy.
+    const auto thin_plate = block_volume({36, 36, 36}, {3, 3, 15}, {33, 33, 16}, Eigen::Vector3d::Constant(0.5));
+    EXPECT_THROW(layout(thin_plate, {.spacing_mm = 1.5, .thicken_walls = false}), InputError);
+}
+
+TEST(Lattice, AOneParticleWallWithTissueBesideItIsThickened) {
+    // A 3-voxel plate, voxels 14..16 along k: cell 4 (voxels 12..14) holds a third of tissue,
+    // cell 5 (15..17) two thirds. Cell 5 reaches the occupancy and is one particle thick; cell 4
+    // beside it holds tissue, so it is added.
+    const auto volume = block_volume({36, 36, 36}, {3, 3, 14}, {33, 33, 17}, Eigen::Vector3d::Constant(0.5));
+    LayoutReport report;
+    const Lattice lattice = layout(volume, {.spacing_mm = 1.5}, &report);
+    std::set<int> layers;
+    for (const auto& c : lattice.particles.lattice_index) layers.insert(c[2]);
+    EXPECT_EQ(layers, (std::set<int>{4, 5}));
+    EXPECT_GT(report.thickened, 0u);
+    EXPECT_EQ(report.thin_particles, 0u);
+    // Masses stay the tissue's: Σ m = density × tissue volume (every tissue voxel is in a cell
+    // that has a particle).
+    double mass = 0.0;
+    for (float m : lattice.particles.mass) mass += m;
+    const double tissue_mm3 = 30.0 * 30.0 * 3.0 * 0.125;
+    EXPECT_NEAR(mass, lattice.materials[0].density * tissue_mm3, 1e-4 * mass);
+    // And the thin-wall handling off keeps it one particle thick.
+    LayoutReport kept;
+    const Lattice one = layout(volume, {.spacing_mm = 1.5, .thicken_walls = false}, &kept);
+    EXPECT_EQ(kept.thin_particles, one.particles.size());
+}
+
+TEST(Lattice, AThinTubeIsKeptWhole) {
+    // A tube along k, radius 6 mm, wall one 0.5 mm voxel: no cell reaches the occupancy.
+    const auto mask = test::make_mask(40, 0.5, [](const Eigen::Vector3d& x) {
+        const double r = std::hypot(x.x(), x.y());
+        return r >= 6.0 && r < 6.5 && std::abs(x.z()) < 8.0;
+    });
+    LabelVolume volume{mask.geometry, std::vector<std::int32_t>(mask.values.begin(), mask.values.end())};
+    LayoutReport report;
+    const Lattice lattice = layout(volume, {.spacing_mm = 1.5}, &report);
+    ASSERT_GT(lattice.particles.size(), 0u);
+    EXPECT_EQ(connected_to_first(lattice), lattice.particles.size()) << "the tube is one piece";
+    EXPECT_LE(farthest_tissue_from_particles(volume, lattice), 0.5 * std::sqrt(3.0) * 1.5 + 1e-9);
+    std::printf("thin tube: %zu particles (%zu ridges, %zu thickening), %zu still one thick (%.1f%% of the volume)\n",
+                lattice.particles.size(), report.ridges, report.thickened, report.thin_particles, 100 * report.thin_volume_share);
+}
