@@ -283,6 +283,13 @@ void write_contents(Writer& w, const Scenario& s) {
         w.dataset(g.get(), "triangle", m.triangle.data(), m.triangle.size());
         w.dataset(g.get(), "barycentric", m.barycentric.data()->data(), m.barycentric.size(), 3);
         w.dataset(g.get(), "offset", m.offset.data(), m.offset.size());
+        if (m.particles.size() != m.weights.size())
+            throw InputError("scenario: the mapping has " + std::to_string(m.particles.size()) + " carrier rows and " +
+                             std::to_string(m.weights.size()) + " weight rows");
+        if (!m.particles.empty()) {
+            w.dataset(g.get(), "particles", m.particles.data()->data(), m.particles.size(), 8);
+            w.dataset(g.get(), "weights", m.weights.data()->data(), m.weights.size(), 8);
+        }
     }
     {
         H5Object g = w.group("solver");
@@ -551,6 +558,23 @@ void read_packing_and_mapping(const Reader& r, Scenario& s) {
         }
         m.offset = r.dataset<float>("mapping/offset", v, 0);
         require_finite(r, "mapping/offset", m.offset);
+        // ➕ The carriers (format_version 3). A file without them reads as the triangle's three.
+        const bool has_particles = r.exists("mapping/particles"), has_weights = r.exists("mapping/weights");
+        if (has_particles != has_weights)
+            r.fail(has_particles ? "mapping/weights" : "mapping/particles", "missing (mapping/particles and mapping/weights go together)");
+        if (has_particles) {
+            auto carriers = r.dataset<std::int32_t>("mapping/particles", v, 8);
+            require_indices(r, "mapping/particles", carriers, s.lattice.particles.size());
+            m.particles = rows_of<std::int32_t, 8>(carriers);
+            auto carried = r.dataset<float>("mapping/weights", v, 8);
+            require_finite(r, "mapping/weights", carried);
+            m.weights = rows_of<float, 8>(carried);
+            for (std::size_t i = 0; i < m.weights.size(); ++i) {
+                double sum = 0.0;
+                for (float w : m.weights[i]) sum += double(w);
+                if (std::abs(sum - 1.0) > 1e-3) r.fail("mapping/weights", "row " + std::to_string(i) + " does not sum to 1");
+            }
+        }
         s.mapping = std::move(m);
     }
 }

@@ -22,7 +22,10 @@ namespace heartsim {
 /// 2: pre-stressed rest lengths with supports and /solver balanced_gravity (docs/scenario-format.md).
 /// A version-1 reader would read a version-2 file's pre-stressed springs without the supports that
 /// balance them; this reader reads both (a version-1 file has no supports and no pre-stress).
-inline constexpr int scenario_format_version = 2;
+/// 3: /mapping/particles and /mapping/weights, the carriers of embedded visual vertices; a
+/// version-2 reader would ignore them and draw those vertices wrongly. Earlier files read as
+/// tangent-space mappings.
+inline constexpr int scenario_format_version = 3;
 inline constexpr int scenario_oldest_format_version = 1;
 
 /// Where the scenario came from (/source attributes).

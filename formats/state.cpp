@@ -27,6 +27,12 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
         write_dataset(root, "instrument_forces", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, state.force_n.data(), {2, 3}, file);
         write_dataset(root, "instrument_particles", H5T_STD_I32LE, H5T_NATIVE_INT32, state.particles.data(), {2}, file);
         write_dataset(root, "instrument_kind", H5T_STD_I32LE, H5T_NATIVE_INT32, state.kind.data(), {2}, file);
+        if (!state.visual_positions.empty()) {
+            Handle visual(H5Gcreate2(root, "visual", H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose);
+            if (!visual.valid()) throw OutputError(file + ": cannot create group /visual");
+            write_dataset(visual.get(), "positions", H5T_IEEE_F32LE, H5T_NATIVE_FLOAT, state.visual_positions.data(),
+                          {state.visual_positions.size(), 3}, file);
+        }
     });
 }
 
@@ -54,6 +60,15 @@ SimulationState read_state(const std::filesystem::path& path) {
     for (const auto& p : state.positions)
         for (float c : p)
             if (!std::isfinite(c)) throw InputError(file + ": dataset positions holds a non-finite value");
+    if (H5Lexists(root, "visual", H5P_DEFAULT) > 0) {
+        const auto visual = read_dataset<float>(root, "visual/positions", H5T_NATIVE_FLOAT, {0, 3}, file);
+        state.visual_positions.resize(visual.size() / 3);
+        for (std::size_t i = 0; i < state.visual_positions.size(); ++i) {
+            state.visual_positions[i] = {visual[3 * i], visual[3 * i + 1], visual[3 * i + 2]};
+            for (float c : state.visual_positions[i])
+                if (!std::isfinite(c)) throw InputError(file + ": dataset visual/positions holds a non-finite value");
+        }
+    }
     return state;
 }
 

@@ -27,6 +27,9 @@ struct SimulationState {
     std::array<std::array<double, 3>, 2> force_n{};    ///< per hand, N
     std::array<std::int32_t, 2> particles{};           ///< per hand
     std::array<std::int32_t, 2> kind{};                ///< per hand: 0 none, 1 probe, 2 grabber
+    /// The deformed detailed mesh, V×3 mm (the scenario's mapping evaluated at `positions`, as the
+    /// runtime draws it): /visual/positions. Empty when the scenario has no visual mesh.
+    std::vector<std::array<float, 3>> visual_positions;
 };
 
 /// Writes atomically; throws OutputError naming the file.

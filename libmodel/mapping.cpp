@@ -9,6 +9,7 @@
 
 #include "errors.h"
 #include "mapping_candidates.h"
+#include "mapping_embedding.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -47,21 +48,34 @@ void check_surface(std::size_t particles, const SimulationSurface& surface) {
 Eigen::Vector3f to_vector(const std::array<float, 3>& p) { return Eigen::Vector3f(p[0], p[1], p[2]); }
 
 /// The formula in float32, in the order documented in mapping.h (the shader's order).
-Eigen::Vector3f evaluate_float(const std::array<std::int32_t, 3>& t, const std::array<float, 3>& lambda, float d,
+Eigen::Vector3f evaluate_float(const std::array<std::int32_t, 8>& carriers, const std::array<float, 8>& w,
+                               const std::array<std::int32_t, 3>& t, const std::array<float, 3>& lambda, float d,
                                const std::vector<std::array<float, 3>>& x, const std::vector<Eigen::Vector3f>& n) {
-    const Eigen::Vector3f xa = to_vector(x[std::size_t(t[0])]), xb = to_vector(x[std::size_t(t[1])]), xc = to_vector(x[std::size_t(t[2])]);
     const Eigen::Vector3f& na = n[std::size_t(t[0])];
     const Eigen::Vector3f& nb = n[std::size_t(t[1])];
     const Eigen::Vector3f& nc = n[std::size_t(t[2])];
     Eigen::Vector3f p = Eigen::Vector3f::Zero(), m = Eigen::Vector3f::Zero();
     for (int k = 0; k < 3; ++k) {
-        p[k] = (lambda[0] * xa[k] + lambda[1] * xb[k]) + lambda[2] * xc[k];
+        float sum = w[0] * x[std::size_t(carriers[0])][std::size_t(k)];
+        for (std::size_t c = 1; c < 8; ++c) sum = sum + w[c] * x[std::size_t(carriers[c])][std::size_t(k)];
+        p[k] = sum;
         m[k] = (lambda[0] * na[k] + lambda[1] * nb[k]) + lambda[2] * nc[k];
     }
     const float length = std::sqrt(m.dot(m));
     if (length > 0.0f)
         for (int k = 0; k < 3; ++k) p[k] += d * (m[k] / length);
     return p;
+}
+
+/// A tangent-space vertex's carriers: (a, b, c, a, a, a, a, a) with (λ, 0, …, 0).
+void triangle_carriers(const std::array<std::int32_t, 3>& t, const std::array<float, 3>& lambda,
+                       std::array<std::int32_t, 8>& particles, std::array<float, 8>& weights) {
+    particles.fill(t[0]);
+    weights.fill(0.0f);
+    for (std::size_t k = 0; k < 3; ++k) {
+        particles[k] = t[k];
+        weights[k] = lambda[k];
+    }
 }
 
 /// Closest point on triangle (a,b,c) to q as barycentric weights (Ericson, Real-Time Collision
@@ -402,30 +416,53 @@ std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float
     return normals;
 }
 
+void mapping_carriers(const VisualMapping& mapping, const SimulationSurface& surface, std::size_t v,
+                      std::array<std::int32_t, 8>& particles, std::array<float, 8>& weights) {
+    if (!mapping.particles.empty()) {
+        particles = mapping.particles[v];
+        weights = mapping.weights[v];
+    } else {
+        triangle_carriers(surface.triangles[std::size_t(mapping.triangle[v])], mapping.barycentric[v], particles, weights);
+    }
+}
+
 std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const std::vector<std::array<float, 3>>& positions,
                                            const SimulationSurface& surface) {
     const auto& triangles = surface.triangles;
     const std::size_t count = mapping.triangle.size();
     if (mapping.barycentric.size() != count || mapping.offset.size() != count)
         throw InputError("mapping: triangle, barycentric and offset must have one entry per visual vertex");
-    for (std::size_t v = 0; v < count; ++v)
+    if (mapping.particles.size() != mapping.weights.size() || (!mapping.particles.empty() && mapping.particles.size() != count))
+        throw InputError("mapping: particles and weights must both be empty or have one row per visual vertex");
+    for (std::size_t v = 0; v < count; ++v) {
         if (mapping.triangle[v] < 0 || std::size_t(mapping.triangle[v]) >= triangles.size())
             throw InputError("mapping: vertex " + std::to_string(v) + " refers to triangle " +
                              std::to_string(mapping.triangle[v]) + " of " + std::to_string(triangles.size()));
+        if (!mapping.particles.empty())
+            for (std::int32_t p : mapping.particles[v])
+                if (p < 0 || std::size_t(p) >= positions.size())
+                    throw InputError("mapping: vertex " + std::to_string(v) + " is carried by particle " + std::to_string(p) +
+                                     " of " + std::to_string(positions.size()));
+    }
     const std::vector<Eigen::Vector3f> normals = particle_normals(positions, surface);
     std::vector<Eigen::Vector3f> out(count);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t v = range.begin(); v < range.end(); ++v)
-            out[v] = evaluate_float(triangles[std::size_t(mapping.triangle[v])], mapping.barycentric[v], mapping.offset[v],
-                                    positions, normals);
+        std::array<std::int32_t, 8> carriers;
+        std::array<float, 8> weights;
+        for (std::size_t v = range.begin(); v < range.end(); ++v) {
+            mapping_carriers(mapping, surface, v, carriers, weights);
+            out[v] = evaluate_float(carriers, weights, triangles[std::size_t(mapping.triangle[v])], mapping.barycentric[v],
+                                    mapping.offset[v], positions, normals);
+        }
     });
     return out;
 }
 
-VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions,
-                              const std::vector<std::array<float, 3>>& rest_positions,
-                              const SimulationSurface& surface, const MappingOptions& options, Progress& progress,
-                              MappingReport* report_out) {
+namespace {
+
+VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, const std::vector<std::array<float, 3>>& rest_positions,
+                       const Lattice* lattice, const SimulationSurface& surface, const MappingOptions& options,
+                       Progress& progress, MappingReport* report_out) {
     const auto start_time = std::chrono::steady_clock::now();
     const auto& triangles = surface.triangles;
     if (visual_positions.empty()) throw InputError("mapping: the visual mesh has no vertices");
@@ -451,25 +488,32 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
     // sheets with exact twins; it remains at thin walls whose two sides are triangulated
     // differently (staircase or diagonal walls) and at sharp folds.
     std::vector<char> unstable(particle_count, 0);
+    // Normal sensitivity P_j/|S_j| (mapping.h, MappingReport::amplification): moving the
+    // particles by at most δ turns n_j by at most δ·P_j/|S_j|.
+    std::vector<double> sensitivity(particle_count, std::numeric_limits<double>::infinity());
     double edge_sum = 0.0;
     std::vector<std::int32_t> candidate_rows;  // counted triangles: a twin adds nothing new
     {
         std::vector<Vec3> sum(particle_count, Vec3::Zero());
-        std::vector<double> magnitude(particle_count, 0.0);
+        std::vector<double> magnitude(particle_count, 0.0), perimeter(particle_count, 0.0);
         for (std::size_t row = 0; row < triangles.size(); ++row) {
             if (!surface.normal_weight[row]) continue;
             candidate_rows.push_back(std::int32_t(row));
             const auto& t = triangles[row];
             const Vec3 c = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).cross(x[std::size_t(t[2])] - x[std::size_t(t[0])]);
+            const double edges = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).norm() +
+                                 (x[std::size_t(t[2])] - x[std::size_t(t[1])]).norm() + (x[std::size_t(t[0])] - x[std::size_t(t[2])]).norm();
             for (int v : t) {
                 sum[std::size_t(v)] += c;
                 magnitude[std::size_t(v)] += c.norm();
+                perimeter[std::size_t(v)] += edges;
             }
-            edge_sum += (x[std::size_t(t[1])] - x[std::size_t(t[0])]).norm() + (x[std::size_t(t[2])] - x[std::size_t(t[1])]).norm() +
-                        (x[std::size_t(t[0])] - x[std::size_t(t[2])]).norm();
+            edge_sum += edges;
         }
-        for (std::size_t i = 0; i < particle_count; ++i)
+        for (std::size_t i = 0; i < particle_count; ++i) {
             unstable[i] = magnitude[i] > 0 && sum[i].norm() < 0.3 * magnitude[i];
+            if (sum[i].norm() > 0) sensitivity[i] = perimeter[i] / sum[i].norm();
+        }
     }
     if (candidate_rows.empty()) throw InputError("mapping: no simulation-surface triangle counts in the particle normals");
     const double edge_length = edge_sum / (3.0 * double(candidate_rows.size()));
@@ -481,6 +525,24 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
     const Problem problem{x, n, unstable, triangles};
     const std::size_t count = visual_positions.size();
     std::vector<Solution> solutions(count);
+    std::vector<mapping_internal::Embedding> embeddings(count);  // count > 0: the vertex is embedded
+    std::vector<double> amplification(count, 0.0);
+    std::optional<mapping_internal::CellEmbedder> embedder;
+    if (lattice && options.method == MappingMethod::automatic) embedder.emplace(*lattice, x);
+    // The tangent-space sensitivity bound of a solution (MappingReport::amplification).
+    auto tangent_amplification = [&](const Solution& s) {
+        if (!s.exact) return std::numeric_limits<double>::infinity();
+        const auto& tri = triangles[std::size_t(s.triangle)];
+        double a = s.lambda.cwiseAbs().sum();
+        if (s.offset == 0.0) return a;
+        Vec3 m = Vec3::Zero();
+        double turn = 0.0;
+        for (int k = 0; k < 3; ++k) {
+            m += s.lambda[k] * n[std::size_t(tri[std::size_t(k)])];
+            if (s.lambda[k] != 0.0) turn += std::abs(s.lambda[k]) * sensitivity[std::size_t(tri[std::size_t(k)])];
+        }
+        return m.norm() > 0 ? a + std::abs(s.offset) / m.norm() * turn : std::numeric_limits<double>::infinity();
+    };
     std::atomic<std::size_t> solve_total{0};
     {
         ProgressStage stage(progress, "map visual mesh", count);
@@ -494,8 +556,37 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
             std::vector<Candidate> candidates;
             std::size_t local_solves = 0;
             const std::size_t end = std::min(count, (c + 1) * chunk);
-            for (std::size_t v = c * chunk; v < end; ++v)
-                solutions[v] = solve_vertex(problem, search, visual_positions[v], edge_length, ids, candidates, local_solves);
+            for (std::size_t v = c * chunk; v < end; ++v) {
+                const Vec3& p = visual_positions[v];
+                mapping_internal::Embedding e;
+                if (embedder) e = embedder->embed(p);
+                if (e.found() && e.amplification <= options.embed_below_amplification) {
+                    // A well-conditioned embedding: it follows every affine motion exactly, which
+                    // a tangent-space offset does not (a stretch leaves d unscaled). The normal
+                    // frame (for shading only) is the closest surface point.
+                    const auto [row, point] = search.closest(p);
+                    const auto& tri = triangles[std::size_t(row)];
+                    solutions[v].triangle = row;
+                    solutions[v].lambda = closest_barycentric(p, x[std::size_t(tri[0])], x[std::size_t(tri[1])], x[std::size_t(tri[2])]);
+                    solutions[v].offset = 0.0;
+                    embeddings[v] = e;
+                    amplification[v] = e.amplification;
+                    continue;
+                }
+                solutions[v] = solve_vertex(problem, search, p, edge_length, ids, candidates, local_solves);
+                amplification[v] = tangent_amplification(solutions[v]);
+                if (e.found() && e.amplification <= amplification[v]) {
+                    // The embedding is the better conditioned: keep the tangent solution's
+                    // triangle as the shading frame, inside it and without offset.
+                    Solution& s = solutions[v];
+                    s.lambda = s.lambda.cwiseMax(0.0);
+                    s.lambda /= s.lambda.sum() > 0 ? s.lambda.sum() : 1.0;
+                    if (!(s.lambda.sum() > 0)) s.lambda = Vec3(1, 0, 0);
+                    s.offset = 0.0;
+                    embeddings[v] = e;
+                    amplification[v] = e.amplification;
+                }
+            }
             solve_total += local_solves;
             stage.update(done += end - c * chunk);
         });
@@ -507,6 +598,8 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
     mapping.triangle.resize(count);
     mapping.barycentric.resize(count);
     mapping.offset.resize(count);
+    mapping.particles.resize(count);
+    mapping.weights.resize(count);
     std::vector<double> error(count, 0.0);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t v = range.begin(); v < range.end(); ++v) {
@@ -519,45 +612,78 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
             };
             std::array<float, 3> lambda = round(s.lambda);
             float d = float(s.offset);
-            auto float_error = [&](const std::array<float, 3>& l, float o) {
-                const Eigen::Vector3f p = evaluate_float(tri, l, o, rest_positions, normals_float);
+            std::array<std::int32_t, 8> carriers;
+            std::array<float, 8> weights;
+            const mapping_internal::Embedding& e = embeddings[v];
+            if (e.found()) {
+                carriers.fill(e.particles[0]);
+                weights.fill(0.0f);
+                double rest = 1.0;  // w_0 from the others, so the weights sum to 1 as closely as float allows
+                for (int k = 1; k < e.count; ++k) {
+                    carriers[std::size_t(k)] = e.particles[std::size_t(k)];
+                    weights[std::size_t(k)] = float(e.weights[std::size_t(k)]);
+                    rest -= double(weights[std::size_t(k)]);
+                }
+                weights[0] = float(rest);
+                d = 0.0f;
+            } else {
+                triangle_carriers(tri, lambda, carriers, weights);
+            }
+            auto float_error = [&](const std::array<float, 8>& w, const std::array<float, 3>& l, float o) {
+                const Eigen::Vector3f p = evaluate_float(carriers, w, tri, l, o, rest_positions, normals_float);
                 return Vec3(double(p[0]) - visual_positions[v][0], double(p[1]) - visual_positions[v][1],
                             double(p[2]) - visual_positions[v][2]);
             };
-            Vec3 e = float_error(lambda, d);
-            if (s.exact && e.norm() > 1e-5) {
+            Vec3 err = float_error(weights, lambda, d);
+            if (!e.found() && s.exact && err.norm() > 1e-5) {
                 Vec3 u(s.lambda[1], s.lambda[2], s.offset);
-                for (int pass = 0; pass < 3 && e.norm() > 1e-5; ++pass) {
+                for (int pass = 0; pass < 3 && err.norm() > 1e-5; ++pass) {
                     const Evaluation at = evaluate(problem, s.triangle, u, visual_positions[v]);
-                    const Vec3 trial_u = u + at.jacobian.partialPivLu().solve(-e);
+                    const Vec3 trial_u = u + at.jacobian.partialPivLu().solve(-err);
                     const std::array<float, 3> trial_lambda = round(Vec3(1 - trial_u[0] - trial_u[1], trial_u[0], trial_u[1]));
-                    const Vec3 trial_e = float_error(trial_lambda, float(trial_u[2]));
-                    if (!(trial_e.norm() < e.norm())) break;
+                    std::array<std::int32_t, 8> trial_carriers;
+                    std::array<float, 8> trial_weights;
+                    triangle_carriers(tri, trial_lambda, trial_carriers, trial_weights);
+                    const Vec3 trial_e = float_error(trial_weights, trial_lambda, float(trial_u[2]));
+                    if (!(trial_e.norm() < err.norm())) break;
                     u = trial_u;
                     lambda = trial_lambda;
+                    weights = trial_weights;
                     d = float(trial_u[2]);
-                    e = trial_e;
+                    err = trial_e;
                 }
             }
             mapping.triangle[v] = s.triangle;
             mapping.barycentric[v] = lambda;
             mapping.offset[v] = d;
-            error[v] = e.norm();
+            mapping.particles[v] = carriers;
+            mapping.weights[v] = weights;
+            error[v] = err.norm();
         }
     });
 
     MappingReport report;
-    double offset_sum = 0.0;
+    double offset_sum = 0.0, amplification_sum = 0.0;
     for (std::size_t v = 0; v < count; ++v) {
         const Solution& s = solutions[v];
         report.max_rest_error_mm = std::max(report.max_rest_error_mm, error[v]);
+        report.max_amplification = std::max(report.max_amplification, amplification[v]);
+        amplification_sum += amplification[v];
+        if (amplification[v] > options.max_amplification) ++report.over_amplification;
+        if (embeddings[v].found()) {
+            ++report.embedded;
+            if (embeddings[v].convex) ++report.embedded_convex;
+            continue;
+        }
+        ++report.tangent;
         offset_sum += std::abs(double(mapping.offset[v]));
         report.max_offset_mm = std::max(report.max_offset_mm, std::abs(double(mapping.offset[v])));
         if (s.extrapolation > 1e-6) ++report.outside_triangle;
         if (!s.exact) ++report.unsolved;
         if (s.unstable_normal) ++report.unstable_normal;
     }
-    report.mean_offset_mm = offset_sum / double(count);
+    report.mean_offset_mm = report.tangent ? offset_sum / double(report.tangent) : 0.0;
+    report.mean_amplification = amplification_sum / double(count);
     report.candidate_solves = solve_total.load();
     if (report.mean_offset_mm > options.far_warning_spacings * options.lattice_spacing_mm) {
         std::ostringstream message;
@@ -569,14 +695,32 @@ VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positio
         report.warnings.push_back(std::to_string(report.unsolved) +
                                   " visual vertices have no exact mapping (closest-point projection used); largest rest error " +
                                   std::to_string(report.max_rest_error_mm) + " mm");
-    if (report.unstable_normal > 0)
-        report.warnings.push_back(std::to_string(report.unstable_normal) +
-                                  " visual vertices are tied to particles whose normals nearly cancel (thin walls whose two "
-                                  "sides are not exact reverses, e.g. staircase or diagonal walls): they may move "
-                                  "erratically when deformed");
+    if (report.over_amplification > 0) {
+        std::ostringstream message;
+        message << report.over_amplification << " visual vertices have a sensitivity bound above " << options.max_amplification
+                << " (largest " << report.max_amplification
+                << "): moving the particles by 1 um may move them by more than that many um (tissue too thin for a cell of "
+                   "particles, mapped in tangent space on normals that nearly cancel)";
+        report.warnings.push_back(message.str());
+    }
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
     if (report_out) *report_out = std::move(report);
     return mapping;
+}
+
+
+}  // namespace
+
+VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions, const Lattice& lattice,
+                              const SimulationSurface& surface, const MappingOptions& options, Progress& progress,
+                              MappingReport* report) {
+    return map_impl(visual_positions, lattice.particles.rest_position, &lattice, surface, options, progress, report);
+}
+
+VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions,
+                              const std::vector<std::array<float, 3>>& rest_positions, const SimulationSurface& surface,
+                              const MappingOptions& options, Progress& progress, MappingReport* report) {
+    return map_impl(visual_positions, rest_positions, nullptr, surface, options, progress, report);
 }
 
 }  // namespace heartsim

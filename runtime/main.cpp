@@ -9,6 +9,7 @@
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
+#include "libmodel/mapping.h"
 #include "formats/state.h"
 #include "libmodel/errors.h"
 
@@ -683,6 +684,13 @@ int command_run(const RunArguments& a) {
             } else {
                 state.kind[hand] = trajectory.uses_hand(hand) ? (trajectory.at(hand, backend->simulated_time_ms()).kind == InstrumentKind::probe ? 1 : 2) : 0;
             }
+        }
+        if (scenario.visual && scenario.mapping && scenario.simulation_surface) {
+            // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
+            // the vertex shader's formula and float order).
+            const auto visual = apply_mapping(*scenario.mapping, positions, *scenario.simulation_surface);
+            state.visual_positions.reserve(visual.size());
+            for (const auto& p : visual) state.visual_positions.push_back({p.x(), p.y(), p.z()});
         }
         write_state(a.save_state, state);
         std::printf("wrote %s\n", a.save_state.c_str());

@@ -11,6 +11,7 @@
 #include <epoxy/gl.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -65,13 +66,23 @@ layout(location = 1) in vec3 lambda;            // barycentric weights
 layout(location = 2) in float offset;           // d, mm
 layout(location = 3) in vec3 rest_normal;       // the visual vertex's normal at rest (0: flat shading)
 layout(location = 4) in vec3 rest_frame_normal; // normalised interpolated particle normal at rest
+layout(location = 5) in ivec4 carrier_lo;       // the carrying particles i_0..i_3
+layout(location = 6) in ivec4 carrier_hi;       // i_4..i_7
+layout(location = 7) in vec4 weight_lo;         // their weights w_0..w_3
+layout(location = 8) in vec4 weight_hi;         // w_4..w_7
 uniform mat4 view_projection;
 out vec3 world_position;
 out vec3 shading_normal;
 void main() {
-    vec3 xa = x[particle.x].xyz, xb = x[particle.y].xyz, xc = x[particle.z].xyz;
     vec3 na = n[particle.x].xyz, nb = n[particle.y].xyz, nc = n[particle.z].xyz;
-    precise vec3 p = (lambda.x * xa + lambda.y * xb) + lambda.z * xc;
+    precise vec3 p = weight_lo.x * x[carrier_lo.x].xyz;
+    p = p + weight_lo.y * x[carrier_lo.y].xyz;
+    p = p + weight_lo.z * x[carrier_lo.z].xyz;
+    p = p + weight_lo.w * x[carrier_lo.w].xyz;
+    p = p + weight_hi.x * x[carrier_hi.x].xyz;
+    p = p + weight_hi.y * x[carrier_hi.y].xyz;
+    p = p + weight_hi.z * x[carrier_hi.z].xyz;
+    p = p + weight_hi.w * x[carrier_hi.w].xyz;
     precise vec3 m = (lambda.x * na + lambda.y * nb) + lambda.z * nc;
     precise float m2 = m.x * m.x + (m.y * m.y + m.z * m.z);
     precise float len = sqrt(m2);
@@ -136,8 +147,10 @@ struct VertexRecord {
     float offset;
     float rest_normal[3];
     float rest_frame_normal[3];
+    std::int32_t carrier[8];
+    float weight[8];
 };
-static_assert(sizeof(VertexRecord) == 52);
+static_assert(sizeof(VertexRecord) == 116);
 
 void check(const char* what) {
     const GLenum error = glGetError();
@@ -424,6 +437,13 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
                 m += l[std::size_t(k)] * rest_normals[std::size_t(t[std::size_t(k)])];
             }
             r.offset = mapping.offset[v];
+            std::array<std::int32_t, 8> carriers;
+            std::array<float, 8> weights;
+            mapping_carriers(mapping, surface, v, carriers, weights);
+            for (std::size_t k = 0; k < 8; ++k) {
+                r.carrier[k] = carriers[k];
+                r.weight[k] = weights[k];
+            }
             const float length = m.norm();
             for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
             s.box.extend(to_vector(visual.positions[v]));
@@ -460,7 +480,10 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
         // The simulation surface itself: one record per particle, (i, i, i), λ = (1, 0, 0), d = 0
         // (the same shader gives p = x_i exactly); flat shaded, no normals pass.
         records.resize(s.particles);
-        for (std::size_t i = 0; i < s.particles; ++i) records[i] = {{std::int32_t(i), std::int32_t(i), std::int32_t(i)}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}};
+        for (std::size_t i = 0; i < s.particles; ++i) {
+            const std::int32_t p = std::int32_t(i);
+            records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0}};
+        }
         for (const auto& t : surface.triangles)
             for (int k = 0; k < 3; ++k) {
                 elements.push_back(std::uint32_t(t[std::size_t(k)]));
@@ -479,7 +502,7 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     glCreateVertexArrays(1, &s.vao);
     glVertexArrayVertexBuffer(s.vao, 0, s.records, 0, sizeof(VertexRecord));
     glVertexArrayElementBuffer(s.vao, s.elements);
-    for (GLuint a = 0; a < 5; ++a) {
+    for (GLuint a = 0; a < 9; ++a) {
         glEnableVertexArrayAttrib(s.vao, a);
         glVertexArrayAttribBinding(s.vao, a, 0);
     }
@@ -488,6 +511,10 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     glVertexArrayAttribFormat(s.vao, 2, 1, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, offset));
     glVertexArrayAttribFormat(s.vao, 3, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_normal));
     glVertexArrayAttribFormat(s.vao, 4, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_frame_normal));
+    glVertexArrayAttribIFormat(s.vao, 5, 4, GL_INT, offsetof(VertexRecord, carrier));
+    glVertexArrayAttribIFormat(s.vao, 6, 4, GL_INT, offsetof(VertexRecord, carrier) + 16);
+    glVertexArrayAttribFormat(s.vao, 7, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight));
+    glVertexArrayAttribFormat(s.vao, 8, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight) + 16);
 
     std::vector<float> sphere;
     std::vector<std::uint32_t> sphere_indices;

@@ -108,7 +108,7 @@ double model_size(const Scenario& scenario) {
 }
 
 struct Comparison {
-    double max_position_error_mm = 0, size_mm = 0, max_displacement_mm = 0;
+    double max_position_error_mm = 0, size_mm = 0, max_displacement_mm = 0, max_stiffness = 0;
     InstrumentForces cpu, gl;
 };
 
@@ -134,6 +134,8 @@ Comparison compare_backends(const Scenario& scenario, int steps, double depth_mm
             c.max_displacement_mm = std::max(c.max_displacement_mm, double(std::abs(x[i][k] - rest[i][k])));
         }
     c.size_mm = model_size(scenario);
+    const auto& k = scenario.lattice.springs.stiffness;
+    c.max_stiffness = double(*std::max_element(k.begin(), k.end()));
     return c;
 }
 
@@ -151,7 +153,11 @@ void expect_agreement(const Comparison& c) {
         EXPECT_GT(f.particles, 0u) << "hand " << hand << " should touch or hold particles";
         EXPECT_EQ(f.particles, g.particles) << "hand " << hand;
         EXPECT_GT(f.force_n.norm(), 0.0);
-        EXPECT_LE((f.force_n - g.force_n).norm(), 1e-3 * f.force_n.norm()) << "hand " << hand;
+        // The force is a sum of spring forces on the touched or held particles: each of their up
+        // to 18 springs may differ by k·2·|Δx| between the backends, which matters where a probe
+        // barely touches (a small force).
+        const double from_positions = double(f.particles) * 18.0 * c.max_stiffness * 2.0 * c.max_position_error_mm;
+        EXPECT_LE((f.force_n - g.force_n).norm(), 1e-3 * f.force_n.norm() + from_positions) << "hand " << hand;
     }
 }
 

@@ -80,6 +80,40 @@ TEST(HeartsimCli, HeadlessRunOnBothBackendsWritesTheState) {
         EXPECT_EQ(states.back().positions.size(), rest.size());
         EXPECT_EQ(states.back().kind[0], 1);
         EXPECT_GT(states.back().particles[0], 0);
+        // /visual/positions: the deformed detailed mesh. An independent float64 reading of the
+        // documented formula (docs/scenario-format.md, /mapping) at the state's particle
+        // positions gives the same mesh.
+        const SimulationState& state = states.back();
+        ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface);
+        ASSERT_EQ(state.visual_positions.size(), scenario.visual->positions.size());
+        const auto& x = state.positions;
+        auto at = [&](std::int32_t i) { return Eigen::Vector3d(x[std::size_t(i)][0], x[std::size_t(i)][1], x[std::size_t(i)][2]); };
+        std::vector<Eigen::Vector3d> normal(x.size(), Eigen::Vector3d::Zero());
+        const auto& surface = *scenario.simulation_surface;
+        for (std::size_t t = 0; t < surface.triangles.size(); ++t)
+            if (surface.normal_weight[t]) {
+                const auto& tri = surface.triangles[t];
+                const Eigen::Vector3d area = (at(tri[1]) - at(tri[0])).cross(at(tri[2]) - at(tri[0]));
+                for (std::int32_t i : tri) normal[std::size_t(i)] += area;
+            }
+        double error = 0.0, moved = 0.0;
+        const auto& m = *scenario.mapping;
+        for (std::size_t v = 0; v < state.visual_positions.size(); ++v) {
+            Eigen::Vector3d p = Eigen::Vector3d::Zero(), n = Eigen::Vector3d::Zero();
+            for (std::size_t k = 0; k < 8; ++k) p += double(m.weights[v][k]) * at(m.particles[v][k]);
+            const auto& tri = surface.triangles[std::size_t(m.triangle[v])];
+            for (std::size_t k = 0; k < 3; ++k)
+                if (normal[std::size_t(tri[k])].norm() > 0) n += double(m.barycentric[v][k]) * normal[std::size_t(tri[k])].normalized();
+            if (n.norm() > 0) p += double(m.offset[v]) * n.normalized();
+            const auto& saved = state.visual_positions[v];
+            const auto& rest_v = scenario.visual->positions[v];
+            error = std::max(error, (p - Eigen::Vector3d(saved[0], saved[1], saved[2])).norm());
+            moved = std::max(moved, (p - Eigen::Vector3d(rest_v[0], rest_v[1], rest_v[2])).norm());
+        }
+        std::printf("%s: /visual/positions against an independent float64 evaluation: max %.3g mm (the mesh moved up to %.3f mm)\n",
+                    backend.c_str(), error, moved);
+        EXPECT_LT(error, 1e-3);
+        EXPECT_GT(moved, 0.1);
     }
     if (states.size() == 2) {
         double error = 0;

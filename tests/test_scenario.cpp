@@ -223,6 +223,53 @@ TEST(Scenario, SimulationSurfaceNormalWeightsRoundTripAndAreValidated) {
     EXPECT_NE(refusal(file).find("simsurface/normal_weight"), std::string::npos) << refusal(file);
 }
 
+TEST(Scenario, MappingCarriersRoundTripAndAreValidated) {
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    const std::int32_t n = std::int32_t(s.lattice.particles.size());
+    ASSERT_GE(n, 8);
+    s.simulation_surface = SimulationSurface::all_counted({{0, 1, 2}, {1, 2, 3}});
+    VisualMapping m;
+    for (std::size_t v = 0; v < s.visual->positions.size(); ++v) {
+        m.triangle.push_back(std::int32_t(v % 2));
+        m.barycentric.push_back({0.5f, 0.25f, 0.25f});
+        m.offset.push_back(v == 0 ? 0.5f : 0.0f);
+        m.particles.push_back({0, 1, 2, 3, 4, 5, 6, n - 1});
+        m.weights.push_back({0.25f, 0.25f, 0.125f, 0.125f, 0.0625f, 0.0625f, 0.0625f, 0.0625f});
+    }
+    s.mapping = m;
+    const auto file = dir / "carriers.h5";
+    write_scenario(file, s);
+    const Scenario back = read_scenario(file);
+    ASSERT_TRUE(back.mapping);
+    EXPECT_EQ(back.mapping->particles, m.particles);
+    EXPECT_EQ(back.mapping->weights, m.weights);
+    // Weights that do not sum to 1, and a carrier outside the particles, are refused by name.
+    std::vector<float> weights(8 * m.weights.size(), 0.125f);
+    weights[3] = 0.5f;
+    overwrite(file, "mapping/weights", weights, H5T_NATIVE_FLOAT);
+    EXPECT_NE(refusal(file).find("mapping/weights"), std::string::npos) << refusal(file);
+    EXPECT_NE(refusal(file).find("row 0 does not sum to 1"), std::string::npos) << refusal(file);
+    write_scenario(file, s);
+    std::vector<std::int32_t> carriers(8 * m.particles.size(), 0);
+    carriers[5] = n;
+    overwrite(file, "mapping/particles", carriers, H5T_NATIVE_INT32);
+    EXPECT_NE(refusal(file).find("mapping/particles"), std::string::npos) << refusal(file);
+    // One without the other is refused; neither (an older file) reads as the triangle's corners.
+    write_scenario(file, s);
+    remove_object(file, "mapping/weights");
+    EXPECT_NE(refusal(file).find("mapping/weights"), std::string::npos) << refusal(file);
+    remove_object(file, "mapping/particles");
+    const Scenario old = read_scenario(file);
+    ASSERT_TRUE(old.mapping);
+    EXPECT_TRUE(old.mapping->particles.empty());
+    std::array<std::int32_t, 8> p;
+    std::array<float, 8> w;
+    mapping_carriers(*old.mapping, *old.simulation_surface, 1, p, w);
+    EXPECT_EQ(p, (std::array<std::int32_t, 8>{1, 2, 3, 1, 1, 1, 1, 1}));
+    EXPECT_EQ(w, (std::array<float, 8>{0.5f, 0.25f, 0.25f, 0, 0, 0, 0, 0}));
+}
+
 TEST(Scenario, WrongElementTypeIsRefused) {
     test::TempDir dir;
     const auto file = dir / "type.h5";

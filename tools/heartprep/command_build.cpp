@@ -100,6 +100,32 @@ void add_build_command(CLI::App& app) {
         ->check(CLI::Range(1e-6, 1.0))
         ->capture_default_str()
         ->group("Particles");
+    auto thin_walls = std::make_shared<std::string>("thicken");
+    command->add_option("--thin-walls", *thin_walls,
+                        "thicken: a wall too thin for any cell to reach --occupancy still gets particles along its ridge "
+                        "(cells holding at least --ridge-fraction), and where a wall is one particle thick along a lattice "
+                        "axis the neighbour cell on the side with more tissue also gets one (if it holds at least "
+                        "--thicken-fraction), so the wall can bend and the visual mesh has a cell of particles to follow; "
+                        "keep: only cells reaching --occupancy")
+        ->capture_default_str()
+        ->group("Particles");
+    command->add_option("--ridge-fraction", options->layout.ridge_fraction,
+                        "Least tissue fraction of a cell on the ridge of a thin wall to get a particle, (0, 1]")
+        ->check(CLI::Range(1e-6, 1.0))
+        ->capture_default_str()
+        ->group("Particles");
+    command->add_option("--thicken-fraction", options->layout.thicken_fraction,
+                        "Least tissue fraction of a cell added to thicken a wall, (0, 1]")
+        ->check(CLI::Range(1e-6, 1.0))
+        ->capture_default_str()
+        ->group("Particles");
+    auto mapping = std::make_shared<std::string>("auto");
+    command->add_option("--mapping", *mapping,
+                        "How visual vertices follow the particles: auto (each vertex embedded in a lattice cell or mapped "
+                        "in tangent space, whichever is less sensitive to particle motion), or tangent (the seed's "
+                        "tangent-space mapping only, for comparison)")
+        ->capture_default_str()
+        ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
         ->check(CLI::PositiveNumber)
         ->capture_default_str()
@@ -177,6 +203,11 @@ void add_build_command(CLI::App& app) {
         if (*rest_state != "balanced" && *rest_state != "imaged")
             throw InputError("--rest-state must be balanced or imaged, got '" + *rest_state + "'");
         options->balance_rest_state = *rest_state == "balanced";
+        if (*thin_walls != "thicken" && *thin_walls != "keep")
+            throw InputError("--thin-walls must be thicken or keep, got '" + *thin_walls + "'");
+        options->layout.thicken_walls = *thin_walls == "thicken";
+        if (*mapping != "auto" && *mapping != "tangent") throw InputError("--mapping must be auto or tangent, got '" + *mapping + "'");
+        options->mapping = *mapping == "auto" ? MappingMethod::automatic : MappingMethod::tangent;
         material->density = *density * 1e-3;
         material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
         material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);

@@ -2,10 +2,14 @@
 #include "commands.h"
 
 #include "formats/scenario.h"
+#include "libmodel/mapping.h"
 #include "libmodel/supports.h"
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstdio>
 #include <limits>
 #include <memory>
@@ -21,6 +25,12 @@ struct Summary {
     std::size_t simsurface_triangles = 0;
     double texture_occupancy = 0.0;
     double mapping_rest_error_mm = -1.0;  ///< max |mapped rest position − visual vertex|; −1 without a mapping
+    std::size_t embedded = 0, tangent = 0;  ///< visual vertices with d = 0 (carried by their weights alone) and d ≠ 0
+    std::array<double, 3> weight_sum{};   ///< Σ|w| (the embedding's sensitivity) over vertices: median, 99th percentile, max
+    std::array<double, 3> reach{};        ///< distance from a visual vertex to its nearest carrier, mm: median, 99th pct, max
+    std::array<double, 3> offset{};       ///< |d| over tangent-space vertices, mm: median, 99th percentile, max
+    std::size_t thin_particles = 0;       ///< particles one particle thick along some lattice axis
+    double thin_volume_share = 0.0;       ///< their share of the tissue volume (mass / density)
     double total_mass = 0.0;
     std::size_t supported = 0;            ///< particles with a support spring
     double support_stiffness = 0.0;       ///< Σ k_s, N/mm
@@ -30,6 +40,14 @@ struct Summary {
     Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     Eigen::Vector3d high = -low;
 };
+
+/// Median, 99th percentile and maximum of `values` (zeros when empty).
+std::array<double, 3> spread(std::vector<double> values) {
+    if (values.empty()) return {0.0, 0.0, 0.0};
+    std::sort(values.begin(), values.end());
+    auto at = [&](double q) { return values[std::size_t(q * double(values.size() - 1) + 0.5)]; };
+    return {at(0.5), at(0.99), values.back()};
+}
 
 Summary summarise(const Scenario& s) {
     Summary summary;
@@ -71,11 +89,43 @@ Summary summarise(const Scenario& s) {
         // Evaluate the mapping at rest, as the runtime will, and compare with the stored mesh.
         const auto mapped = apply_mapping(*s.mapping, p.rest_position, *s.simulation_surface);
         summary.mapping_rest_error_mm = 0.0;
+        std::vector<double> weight_sum, reach, offset;
+        std::array<std::int32_t, 8> carriers;
+        std::array<float, 8> weights;
         for (std::size_t v = 0; v < mapped.size(); ++v) {
             const auto& x = s.visual->positions[v];
-            const double error = (mapped[v] - Eigen::Vector3f(x[0], x[1], x[2])).norm();
+            const Eigen::Vector3f xv(x[0], x[1], x[2]);
+            const double error = (mapped[v] - xv).norm();
             summary.mapping_rest_error_mm = std::max(summary.mapping_rest_error_mm, error);
+            mapping_carriers(*s.mapping, *s.simulation_surface, v, carriers, weights);
+            double sum = 0.0, nearest = std::numeric_limits<double>::infinity();
+            for (std::size_t k = 0; k < 8; ++k) {
+                sum += std::abs(double(weights[k]));
+                const auto& c = p.rest_position[std::size_t(carriers[k])];
+                if (weights[k] != 0.0f) nearest = std::min(nearest, double((Eigen::Vector3f(c[0], c[1], c[2]) - xv).norm()));
+            }
+            weight_sum.push_back(sum);
+            reach.push_back(nearest);
+            if (s.mapping->offset[v] != 0.0f) {
+                ++summary.tangent;
+                offset.push_back(std::abs(double(s.mapping->offset[v])));
+            } else {
+                ++summary.embedded;
+            }
         }
+        summary.weight_sum = spread(weight_sum);
+        summary.reach = spread(reach);
+        summary.offset = spread(offset);
+    }
+    {
+        const std::vector<char> thin = thin_wall_particles(s.lattice);
+        double thin_volume = 0.0, volume = 0.0;
+        for (std::size_t i = 0; i < p.size(); ++i) {
+            const double v = double(p.mass[i]) / s.lattice.materials[std::size_t(p.material[i])].density;
+            volume += v;
+            if (thin[i]) ++summary.thin_particles, thin_volume += v;
+        }
+        summary.thin_volume_share = volume > 0 ? thin_volume / volume : 0.0;
     }
     return summary;
 }
@@ -116,7 +166,20 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                           ", \"occupancy\": " + std::to_string(m.texture_occupancy) + "}"
                     : std::string("null"))
       << ",\n  \"simsurface_triangles\": " << m.simsurface_triangles << ",\n  \"mapping_rest_error_mm\": "
-      << (s.mapping ? std::to_string(m.mapping_rest_error_mm) : std::string("null")) << ",\n  \"materials\": [";
+      << (s.mapping ? std::to_string(m.mapping_rest_error_mm) : std::string("null"));
+    auto triple = [&](const std::array<double, 3>& t) { o << "[" << t[0] << ", " << t[1] << ", " << t[2] << "]"; };
+    if (s.mapping) {
+        o << ",\n  \"mapping\": {\"embedded\": " << m.embedded << ", \"tangent\": " << m.tangent
+          << ", \"weight_sum_median_p99_max\": ";
+        triple(m.weight_sum);
+        o << ", \"nearest_carrier_mm_median_p99_max\": ";
+        triple(m.reach);
+        o << ", \"offset_mm_median_p99_max\": ";
+        triple(m.offset);
+        o << "}";
+    }
+    o << ",\n  \"thin_walls\": {\"particles\": " << m.thin_particles << ", \"volume_share\": " << m.thin_volume_share
+      << "},\n  \"materials\": [";
     for (std::size_t i = 0; i < s.lattice.materials.size(); ++i) {
         const auto& mat = s.lattice.materials[i];
         o << (i ? ", " : "") << "{\"label\": " << mat.label << ", \"name\": \"" << json_escape(mat.name)
@@ -146,6 +209,8 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
                 s.lattice.dims[2]);
     std::printf("particles   %zu (%zu anchored), total mass %.3f g\n", m.particles, m.anchored, m.total_mass);
     std::printf("springs     %zu (%zu face, %zu edge)\n", m.springs, m.face_springs, m.edge_springs);
+    std::printf("thin walls  %zu particles one particle thick along some axis, %.2f%% of the tissue volume\n", m.thin_particles,
+                100 * m.thin_volume_share);
     std::printf("bounds      LPS mm [%.1f, %.1f] x [%.1f, %.1f] x [%.1f, %.1f]\n", m.low.x(), m.high.x(), m.low.y(), m.high.y(),
                 m.low.z(), m.high.z());
     if (s.visual)
@@ -161,9 +226,15 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
         std::printf("simsurface  %zu triangles\n", m.simsurface_triangles);
     else
         std::printf("simsurface  none (run `heartprep simsurface`)\n");
-    if (s.mapping)
+    if (s.mapping) {
         std::printf("mapping     %zu visual vertices; at rest the mapping reproduces them within %.2g mm\n", m.visual_vertices,
                     m.mapping_rest_error_mm);
+        std::printf("            %zu embedded in lattice cells (d = 0), %zu in tangent space (|d| median %.2f, 99%% %.2f, max "
+                    "%.2f mm)\n",
+                    m.embedded, m.tangent, m.offset[0], m.offset[1], m.offset[2]);
+        std::printf("            sum |w| median %.2f, 99%% %.2f, max %.2f; nearest carrier median %.2f, 99%% %.2f, max %.2f mm\n",
+                    m.weight_sum[0], m.weight_sum[1], m.weight_sum[2], m.reach[0], m.reach[1], m.reach[2]);
+    }
     else if (s.visual)
         std::printf("mapping     none (run `heartprep map`)\n");
     for (const auto& mat : s.lattice.materials)

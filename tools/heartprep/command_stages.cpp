@@ -102,9 +102,11 @@ void add_stage_commands(CLI::App& app) {
             BuildReport report;
             mapping_stage(scenario, *mesh, progress, report);
             if (!files->quiet)
-                std::printf("mapping        %zu visual vertices, rest error max %.2g mm, offset mean %.3f mm max %.3f mm\n",
-                            scenario.mapping->offset.size(), report.mapping.max_rest_error_mm, report.mapping.mean_offset_mm,
-                            report.mapping.max_offset_mm);
+                std::printf("mapping        %zu visual vertices (%zu embedded in lattice cells, %zu in tangent space), rest error "
+                            "max %.2g mm, tangent offset mean %.3f mm max %.3f mm, sensitivity bound max %.2f\n",
+                            scenario.mapping->offset.size(), report.mapping.embedded, report.mapping.tangent,
+                            report.mapping.max_rest_error_mm, report.mapping.mean_offset_mm, report.mapping.max_offset_mm,
+                            report.mapping.max_amplification);
             finish(*files, report, scenario, progress);
         });
     }

@@ -53,6 +53,9 @@ void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& pro
     if (scenario.simulation_surface)
         for (auto& triangle : scenario.simulation_surface->triangles)
             for (auto& vertex : triangle) vertex = new_index[std::size_t(vertex)];
+    if (scenario.mapping)  // the carriers of embedded vertices are particle indices too
+        for (auto& carriers : scenario.mapping->particles)
+            for (auto& particle : carriers) particle = new_index[std::size_t(particle)];
 }
 
 void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildReport& report) {
@@ -63,7 +66,8 @@ void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildRepor
     scenario.mapping.reset();
 }
 
-void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report) {
+void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report,
+                   MappingMethod method) {
     if (!visual_mesh.empty()) {
         TriangleMesh mesh = timed(report, "read visual mesh", [&] { return read_mesh(visual_mesh); });
         report.mesh = analyse_mesh(mesh);
@@ -83,9 +87,9 @@ void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh,
     for (const auto& p : scenario.visual->positions) positions.emplace_back(p[0], p[1], p[2]);
     MappingOptions options;
     options.lattice_spacing_mm = scenario.lattice.spacing;
+    options.method = method;
     scenario.mapping = timed(report, "map", [&] {
-        return map_visual_mesh(positions, scenario.lattice.particles.rest_position, *scenario.simulation_surface, options,
-                               progress, &report.mapping);
+        return map_visual_mesh(positions, scenario.lattice, *scenario.simulation_surface, options, progress, &report.mapping);
     });
     for (const auto& warning : report.mapping.warnings)
         report.warnings.push_back((visual_mesh.empty() ? std::string() : visual_mesh.string() + ": ") + warning);
@@ -189,7 +193,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
 
     pack_stage(scenario, options.packing, progress, report);
     simulation_surface_stage(scenario, progress, report);
-    if (options.visual) mapping_stage(scenario, options.visual_mesh, progress, report);
+    if (options.visual) mapping_stage(scenario, options.visual_mesh, progress, report, options.mapping);
     return scenario;
 }
 
@@ -213,6 +217,9 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 "(%zu face, %zu edge), mass %.2f g\n",
                 l.spacing, scenario.lattice.dims[0], scenario.lattice.dims[1], scenario.lattice.dims[2], l.particles,
                 l.anchored, l.face_springs + l.edge_springs, l.face_springs, l.edge_springs, l.total_mass);
+    std::printf("thin walls  %zu particles on walls thinner than half a cell, %zu added to thicken walls; %zu particles "
+                "(%.1f%% of the tissue volume) still one particle thick\n",
+                l.ridges, l.thickened, l.thin_particles, 100 * l.thin_volume_share);
     if (!report.free_pieces.piece_sizes.empty()) {
         const auto& f = report.free_pieces;
         std::string sizes;
@@ -258,9 +265,11 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                     r.nonmanifold_vertices, r.thin_wall_triangles, r.sheet_regions);
     }
     if (scenario.mapping)
-        std::printf("mapping     %zu visual vertices, rest error max %.2g mm, offset mean %.3f mm max %.3f mm, %zu extrapolated\n",
-                    scenario.mapping->offset.size(), report.mapping.max_rest_error_mm, report.mapping.mean_offset_mm,
-                    report.mapping.max_offset_mm, report.mapping.outside_triangle);
+        std::printf("mapping     %zu visual vertices: %zu embedded in lattice cells (%zu inside a complete cell), %zu in tangent "
+                    "space (offset mean %.3f mm, max %.3f mm); rest error max %.2g mm; sensitivity bound mean %.2f, max %.2f\n",
+                    scenario.mapping->offset.size(), report.mapping.embedded, report.mapping.embedded_convex,
+                    report.mapping.tangent, report.mapping.mean_offset_mm, report.mapping.max_offset_mm,
+                    report.mapping.max_rest_error_mm, report.mapping.mean_amplification, report.mapping.max_amplification);
     std::printf("stages     ");
     double total = 0;
     for (const auto& t : report.times) {

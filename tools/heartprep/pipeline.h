@@ -37,6 +37,7 @@ struct BuildOptions {
     /// A mesh made elsewhere (3D Slicer; STL/OBJ/PLY/glTF) to use as the visual mesh instead of
     /// the marching-cubes surface. Empty = none.
     std::filesystem::path visual_mesh;
+    MappingMethod mapping = MappingMethod::automatic;  ///< how visual vertices are tied to particles
     std::string batch_key;           ///< see Scenario::batch_key
 };
 
@@ -78,7 +79,8 @@ void simulation_surface_stage(Scenario& scenario, Progress& progress, BuildRepor
 
 /// Maps /visual onto /simsurface (building the surface first if absent). With `visual_mesh`,
 /// that file replaces /visual first.
-void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report);
+void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh, Progress& progress, BuildReport& report,
+                   MappingMethod method = MappingMethod::automatic);
 
 /// Holds the laid-out lattice: supports, free pieces (dropped or refused), and the rest state
 /// balanced under the options' gravity; sets /solver balanced_gravity.

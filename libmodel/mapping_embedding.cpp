@@ -1,0 +1,163 @@
+/// @file mapping_embedding.cpp
+/// @brief A visual vertex embedded in a lattice cell (mapping_embedding.h).
+#include "mapping_embedding.h"
+
+#include "errors.h"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+namespace heartsim::mapping_internal {
+
+namespace {
+
+/// Corners of a cell (2×2×2 particles from (i, j, k)), i fastest.
+constexpr std::array<std::array<int, 3>, 8> corner_offsets{
+    {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}, {0, 0, 1}, {1, 0, 1}, {0, 1, 1}, {1, 1, 1}}};
+
+/// Smallest eigenvalue of the carriers' scatter (lattice units) below which they count as flat:
+/// four corners of one face have 0; the flattest set of cell corners spanning a volume (a face
+/// and one corner off it) about 0.1.
+constexpr double flat_scatter = 1e-3;
+
+}  // namespace
+
+CellEmbedder::CellEmbedder(const Lattice& lattice, const std::vector<Eigen::Vector3d>& rest)
+    : rest_(rest), spacing_(lattice.spacing) {
+    for (int a = 0; a < 3; ++a) dims_[std::size_t(a)] = lattice.dims[std::size_t(a)];
+    if (!(spacing_ > 0) || dims_[0] <= 0 || dims_[1] <= 0 || dims_[2] <= 0)
+        throw InputError("mapping: the lattice has no cells (spacing or dims not positive)");
+    const auto& index = lattice.particles.lattice_index;
+    if (index.size() != rest.size())
+        throw InputError("mapping: the lattice has " + std::to_string(index.size()) + " particle indices for " +
+                         std::to_string(rest.size()) + " particles");
+    cells_.assign(std::size_t(dims_[0] * dims_[1] * dims_[2]), -1);
+    for (std::size_t p = 0; p < index.size(); ++p) {
+        const auto& c = index[p];
+        if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= dims_[0] || c[1] >= dims_[1] || c[2] >= dims_[2])
+            throw InputError("mapping: particle " + std::to_string(p) + " has a lattice index outside the lattice's dims");
+        cells_[std::size_t((long(c[2]) * dims_[1] + c[1]) * dims_[0] + c[0])] = std::int32_t(p);
+    }
+    world_to_index_ = lattice.index_to_world.inverse();
+}
+
+std::int32_t CellEmbedder::at(long i, long j, long k) const {
+    if (i < 0 || j < 0 || k < 0 || i >= dims_[0] || j >= dims_[1] || k >= dims_[2]) return -1;
+    return cells_[std::size_t((k * dims_[1] + j) * dims_[0] + i)];
+}
+
+bool CellEmbedder::affine(const Eigen::Vector3d& v, const std::int32_t* ids, int count, Embedding& out) const {
+    if (count < 4) return false;
+    std::array<Eigen::Vector3d, 8> r;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (int k = 0; k < count; ++k) {
+        r[std::size_t(k)] = (rest_[std::size_t(ids[k])] - v) / spacing_;
+        mean += r[std::size_t(k)];
+    }
+    mean /= double(count);
+    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+    Eigen::Matrix4d normal = Eigen::Matrix4d::Zero();
+    for (int k = 0; k < count; ++k) {
+        const Eigen::Vector3d c = r[std::size_t(k)] - mean;
+        scatter += c * c.transpose();
+        Eigen::Vector4d b;
+        b << r[std::size_t(k)], 1.0;
+        normal += b * b.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+    eigen.computeDirect(scatter, Eigen::EigenvaluesOnly);
+    if (!(eigen.eigenvalues()[0] > flat_scatter)) return false;
+    // min |w|² subject to Σ w_k·(x_k − v) = 0 and Σ w_k = 1: w = Bᵀ(B·Bᵀ)⁻¹·e₄, B's columns (r_k, 1).
+    const Eigen::Vector4d y = normal.ldlt().solve(Eigen::Vector4d(0, 0, 0, 1));
+    if (!y.allFinite()) return false;
+    Embedding e;
+    e.count = count;
+    e.convex = true;
+    for (int k = 0; k < count; ++k) {
+        e.particles[std::size_t(k)] = ids[k];
+        e.weights[std::size_t(k)] = r[std::size_t(k)].dot(y.head<3>()) + y[3];
+        e.amplification += std::abs(e.weights[std::size_t(k)]);
+        e.convex = e.convex && e.weights[std::size_t(k)] >= 0.0 && e.weights[std::size_t(k)] <= 1.0;
+    }
+    if (!std::isfinite(e.amplification)) return false;
+    out = e;
+    return true;
+}
+
+Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
+    const Eigen::Vector3d q = (world_to_index_ * v.homogeneous()).head<3>();
+    const std::array<long, 3> base{long(std::floor(q[0])), long(std::floor(q[1])), long(std::floor(q[2]))};
+    Embedding best;
+    auto consider = [&](long ci, long cj, long ck) {
+        std::array<std::int32_t, 8> ids{};
+        int count = 0;
+        for (const auto& o : corner_offsets) {
+            const std::int32_t p = at(ci + o[0], cj + o[1], ck + o[2]);
+            if (p >= 0) ids[std::size_t(count++)] = p;
+        }
+        Embedding e;
+        if (count == 8) {
+            // Trilinear: exact for the lattice's affine index_to_world, and a partition of unity
+            // that is continuous from cell to cell.
+            const Eigen::Vector3d t = q - Eigen::Vector3d(double(ci), double(cj), double(ck));
+            e.count = 8;
+            e.particles = ids;
+            e.convex = (t.array() >= 0.0).all() && (t.array() <= 1.0).all();
+            for (int c = 0; c < 8; ++c) {
+                double w = 1.0;
+                for (int a = 0; a < 3; ++a) w *= corner_offsets[std::size_t(c)][std::size_t(a)] ? t[a] : 1.0 - t[a];
+                e.weights[std::size_t(c)] = w;
+                e.amplification += std::abs(w);
+            }
+        } else if (!affine(v, ids.data(), count, e)) {
+            return;
+        }
+        if (!best.found() || e.amplification < best.amplification) best = e;
+    };
+    consider(base[0], base[1], base[2]);
+    if (best.found() && best.convex && best.count == 8) return best;
+    for (long dk = -1; dk <= 1; ++dk)
+        for (long dj = -1; dj <= 1; ++dj)
+            for (long di = -1; di <= 1; ++di)
+                if (di || dj || dk) consider(base[0] + di, base[1] + dj, base[2] + dk);
+    if (best.found()) return best;
+
+    // Far from any cell with a volume of particles: the 8 nearest particles within 6 cells; if
+    // they are flat (a sheet), the 7 nearest and the nearest one off their plane.
+    std::vector<std::pair<double, std::int32_t>> near;
+    constexpr long reach = 6;
+    for (long k = base[2] - reach; k <= base[2] + reach + 1; ++k)
+        for (long j = base[1] - reach; j <= base[1] + reach + 1; ++j)
+            for (long i = base[0] - reach; i <= base[0] + reach + 1; ++i)
+                if (const std::int32_t p = at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
+    if (near.size() < 4) return best;
+    std::sort(near.begin(), near.end());
+    const std::size_t count = std::min<std::size_t>(8, near.size());
+    std::array<std::int32_t, 8> ids{};
+    for (std::size_t k = 0; k < count; ++k) ids[k] = near[k].second;
+    if (affine(v, ids.data(), int(count), best) || count < 8) return best;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (std::size_t k = 0; k < 7; ++k) mean += rest_[std::size_t(ids[k])];
+    mean /= 7.0;
+    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+    for (std::size_t k = 0; k < 7; ++k) {
+        const Eigen::Vector3d c = rest_[std::size_t(ids[k])] - mean;
+        scatter += c * c.transpose();
+    }
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
+    eigen.computeDirect(scatter);
+    const Eigen::Vector3d normal = eigen.eigenvectors().col(0);
+    for (std::size_t k = 7; k < near.size(); ++k)
+        if (std::abs((rest_[std::size_t(near[k].second)] - mean).dot(normal)) > 0.5 * spacing_) {
+            ids[7] = near[k].second;
+            affine(v, ids.data(), 8, best);
+            break;
+        }
+    return best;
+}
+
+}  // namespace heartsim::mapping_internal

@@ -1,0 +1,50 @@
+/// @file mapping_embedding.h
+/// @brief Internal to the mapping: a visual vertex embedded in a lattice cell, as an affine
+/// combination of up to 8 of the cell's particles (mapping.h, "embedded" vertices).
+#pragma once
+
+#include "lattice.h"
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace heartsim::mapping_internal {
+
+struct Embedding {
+    std::array<std::int32_t, 8> particles{};
+    std::array<double, 8> weights{};
+    int count = 0;                  ///< carriers used (the rest: weight 0)
+    double amplification = 0.0;     ///< Σ|w|; 0 when no cell embeds the vertex
+    bool convex = false;            ///< every weight in [0, 1]
+    bool found() const { return count > 0; }
+};
+
+/// Finds particles by lattice cell.
+class CellEmbedder {
+public:
+    /// `rest` are the particles' rest positions (world mm, in the lattice's particle order).
+    CellEmbedder(const Lattice& lattice, const std::vector<Eigen::Vector3d>& rest);
+
+    /// The best-conditioned embedding of `v` (world mm): over the 27 cells (2×2×2 particle blocks)
+    /// around v's, trilinear weights where all 8 corners are particles, else the minimum-norm
+    /// affine weights of the corners that are (at least 4, not coplanar); the smallest Σ|w| wins,
+    /// v's own complete cell at once. Where no such cell is near (v more than a cell from the
+    /// tissue), the 8 particles nearest v within 4 cells, if not coplanar. found() is false
+    /// otherwise.
+    Embedding embed(const Eigen::Vector3d& v) const;
+
+private:
+    std::int32_t at(long i, long j, long k) const;
+    /// Minimum-norm affine weights of `ids` reproducing v; false when they span no volume.
+    bool affine(const Eigen::Vector3d& v, const std::int32_t* ids, int count, Embedding& out) const;
+
+    const std::vector<Eigen::Vector3d>& rest_;
+    std::array<long, 3> dims_{};
+    std::vector<std::int32_t> cells_;  ///< particle per cell, −1 for none (i fastest)
+    Eigen::Matrix4d world_to_index_;
+    double spacing_ = 1.0;
+};
+
+}  // namespace heartsim::mapping_internal
