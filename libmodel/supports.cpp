@@ -92,7 +92,9 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         const auto row = std::size_t(p.material[i]);
         const double density = row < lattice.materials.size() ? lattice.materials[row].density : Material{}.density;
         const double embedding = per_volume * double(p.mass[i]) / density;
-        p.support_stiffness[i] = float(per_area * area[i] + embedding);
+        const double fraction = double(p.mass[i]) / density / (lattice.spacing * lattice.spacing * lattice.spacing);
+        const double fill = options.full_fraction > 0 ? std::min(1.0, fraction / options.full_fraction) : 1.0;
+        p.support_stiffness[i] = float(per_area * fill * area[i] + embedding);
         report.embedding_stiffness += embedding;
         if (area[i] == 0.0 || per_area == 0.0) continue;
         ++report.supported;

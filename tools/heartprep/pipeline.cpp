@@ -98,7 +98,9 @@ void mapping_stage(Scenario& scenario, const std::filesystem::path& visual_mesh,
 void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progress, BuildReport& report) {
     Lattice& lattice = scenario.lattice;
     timed(report, "supports", [&] {
-        report.supports = add_supports(lattice, options.supports);
+        SupportOptions supports = options.supports;
+        supports.full_fraction = options.layout.occupancy;  // thin-wall particles carry their cell's tissue only
+        report.supports = add_supports(lattice, supports);
         report.free_pieces = drop_free_pieces(lattice, options.free_pieces);
     });
     const auto& pieces = report.free_pieces;
