@@ -543,6 +543,16 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
         }
         return m.norm() > 0 ? a + std::abs(s.offset) / m.norm() * turn : std::numeric_limits<double>::infinity();
     };
+    auto unstable_triangle = [&](std::int32_t t) {
+        const auto& tri = triangles[std::size_t(t)];
+        return unstable[std::size_t(tri[0])] || unstable[std::size_t(tri[1])] || unstable[std::size_t(tri[2])];
+    };
+    auto distance_to = [&](std::int32_t t, const Vec3& p, Vec3& lambda) {
+        const auto& tri = triangles[std::size_t(t)];
+        const Vec3 &a = x[std::size_t(tri[0])], &b = x[std::size_t(tri[1])], &c = x[std::size_t(tri[2])];
+        lambda = closest_barycentric(p, a, b, c);
+        return (lambda[0] * a + lambda[1] * b + lambda[2] * c - p).norm();
+    };
     std::atomic<std::size_t> solve_total{0};
     {
         ProgressStage stage(progress, "map visual mesh", count);
@@ -560,32 +570,41 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
                 const Vec3& p = visual_positions[v];
                 mapping_internal::Embedding e;
                 if (embedder) e = embedder->embed(p);
-                if (e.found() && e.amplification <= options.embed_below_amplification) {
-                    // A well-conditioned embedding: it follows every affine motion exactly, which
-                    // a tangent-space offset does not (a stretch leaves d unscaled). The normal
-                    // frame (for shading only) is the closest surface point.
+                // An embedded vertex's normal frame (for shading only): the closest point of the
+                // nearest surface triangle whose particle normals are stable (a frame on normals
+                // that nearly cancel would turn the shading at random), else the closest.
+                auto embed = [&] {
                     const auto [row, point] = search.closest(p);
-                    const auto& tri = triangles[std::size_t(row)];
-                    solutions[v].triangle = row;
+                    std::int32_t frame = row;
+                    if (unstable_triangle(row)) {
+                        double nearest = std::numeric_limits<double>::infinity();
+                        ids.clear();
+                        search.near(p, (p - point).norm() + edge_length, ids);
+                        for (std::int32_t t : ids) {
+                            if (unstable_triangle(t)) continue;
+                            Vec3 lambda;
+                            const double distance = distance_to(t, p, lambda);
+                            if (distance < nearest || (distance == nearest && t < frame)) nearest = distance, frame = t;
+                        }
+                    }
+                    const auto& tri = triangles[std::size_t(frame)];
+                    solutions[v] = Solution{};
+                    solutions[v].triangle = frame;
                     solutions[v].lambda = closest_barycentric(p, x[std::size_t(tri[0])], x[std::size_t(tri[1])], x[std::size_t(tri[2])]);
                     solutions[v].offset = 0.0;
+                    solutions[v].exact = true;
                     embeddings[v] = e;
                     amplification[v] = e.amplification;
+                };
+                if (e.found() && e.amplification <= options.embed_below_amplification) {
+                    // A well-conditioned embedding: it follows every affine motion exactly, which
+                    // a tangent-space offset does not (a stretch leaves d unscaled).
+                    embed();
                     continue;
                 }
                 solutions[v] = solve_vertex(problem, search, p, edge_length, ids, candidates, local_solves);
                 amplification[v] = tangent_amplification(solutions[v]);
-                if (e.found() && e.amplification <= amplification[v]) {
-                    // The embedding is the better conditioned: keep the tangent solution's
-                    // triangle as the shading frame, inside it and without offset.
-                    Solution& s = solutions[v];
-                    s.lambda = s.lambda.cwiseMax(0.0);
-                    s.lambda /= s.lambda.sum() > 0 ? s.lambda.sum() : 1.0;
-                    if (!(s.lambda.sum() > 0)) s.lambda = Vec3(1, 0, 0);
-                    s.offset = 0.0;
-                    embeddings[v] = e;
-                    amplification[v] = e.amplification;
-                }
+                if (e.found() && e.amplification <= amplification[v]) embed();  // the better conditioned
             }
             solve_total += local_solves;
             stage.update(done += end - c * chunk);

@@ -121,9 +121,10 @@ void add_build_command(CLI::App& app) {
         ->group("Particles");
     auto mapping = std::make_shared<std::string>("auto");
     command->add_option("--mapping", *mapping,
-                        "How visual vertices follow the particles: auto (each vertex embedded in a lattice cell or mapped "
-                        "in tangent space, whichever is less sensitive to particle motion), or tangent (the seed's "
-                        "tangent-space mapping only, for comparison)")
+                        "How visual vertices follow the particles: auto (each vertex embedded in a lattice cell: a "
+                        "weighted sum of up to 8 particles, exact under any affine motion; in tangent space only where no "
+                        "cell embeds it well and that is less sensitive to particle motion), or tangent (the seed's "
+                        "tangent-space mapping alone, for comparison)")
         ->capture_default_str()
         ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
