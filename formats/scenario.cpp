@@ -283,9 +283,10 @@ void write_contents(Writer& w, const Scenario& s) {
         w.dataset(g.get(), "triangle", m.triangle.data(), m.triangle.size());
         w.dataset(g.get(), "barycentric", m.barycentric.data()->data(), m.barycentric.size(), 3);
         w.dataset(g.get(), "offset", m.offset.data(), m.offset.size());
-        if (m.particles.size() != m.weights.size())
+        if (m.particles.size() != m.weights.size() || (!m.particles.empty() && m.particles.size() != m.triangle.size()))
             throw InputError("scenario: the mapping has " + std::to_string(m.particles.size()) + " carrier rows and " +
-                             std::to_string(m.weights.size()) + " weight rows");
+                             std::to_string(m.weights.size()) + " weight rows for " + std::to_string(m.triangle.size()) +
+                             " visual vertices");
         if (!m.particles.empty()) {
             w.dataset(g.get(), "particles", m.particles.data()->data(), m.particles.size(), 8);
             w.dataset(g.get(), "weights", m.weights.data()->data(), m.weights.size(), 8);

@@ -119,6 +119,14 @@ struct LayoutReport {
 /// neighbours are empty (or outside the lattice).
 std::vector<char> thin_wall_particles(const Lattice& lattice);
 
+/// How many particles are one particle thick (thin_wall_particles) and their share of the tissue
+/// volume (Σ mass/density).
+struct ThinWallSummary {
+    std::size_t particles = 0;
+    double volume_share = 0.0;
+};
+ThinWallSummary summarise_thin_walls(const Lattice& lattice);
+
 /// Lays out particles and springs over `selection`. Throws InputError for a non-positive or
 /// non-finite spacing, an occupancy outside (0, 1], or when no cell passes the occupancy.
 Lattice layout_particles(const Selection& selection, const std::vector<int>& tissue_labels,

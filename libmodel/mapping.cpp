@@ -416,6 +416,12 @@ std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float
     return normals;
 }
 
+MappingMethod parse_mapping_method(const std::string& text) {
+    if (text == "auto") return MappingMethod::automatic;
+    if (text == "tangent") return MappingMethod::tangent;
+    throw InputError("--mapping must be auto or tangent, got '" + text + "'");
+}
+
 void mapping_carriers(const VisualMapping& mapping, const SimulationSurface& surface, std::size_t v,
                       std::array<std::int32_t, 8>& particles, std::array<float, 8>& weights) {
     if (!mapping.particles.empty()) {

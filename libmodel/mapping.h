@@ -54,7 +54,7 @@ struct MappingReport {
     double max_offset_mm = 0.0;         ///< max |d|
     std::size_t tangent = 0;            ///< vertices mapped in tangent space (d along the normal)
     std::size_t embedded = 0;           ///< vertices embedded in a lattice cell (d = 0)
-    std::size_t embedded_convex = 0;    ///< of those, with all weights in [0, 1] (inside a complete cell)
+    std::size_t embedded_convex = 0;    ///< of those, with all weights in [0, 1] (a convex combination)
     /// The sensitivity bound A of each vertex: to first order, moving every particle by at most δ
     /// moves the vertex by at most A·δ. Embedded: A = Σ|w_k| (exact). Tangent-space:
     /// A = Σ|λ| + |d|/|m|·Σ|λ_j|·P_j/|S_j|, with S_j particle j's summed area vector and P_j the
@@ -81,6 +81,9 @@ enum class MappingMethod {
     automatic,  ///< embedded where a cell embeds the vertex well, else the kind with the smaller bound A
     tangent,    ///< tangent space only: the seed's method (for comparison)
 };
+
+/// "auto" or "tangent" (the command-line spelling); throws InputError naming --mapping otherwise.
+MappingMethod parse_mapping_method(const std::string& text);
 
 struct MappingOptions {
     /// Warn when the mean |offset| exceeds this many lattice spacings (a mesh far from the tissue).
@@ -112,8 +115,9 @@ std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const s
 /// Maps `visual_positions` (V, world mm) onto the lattice's particles (at their rest positions):
 /// per vertex the embedded or the tangent-space kind, whichever has the smaller sensitivity bound
 /// (options.method). The lattice's indices, dims and index_to_world give the cells; its rest
-/// positions the particles (the embedding is solved on them, so it is exact even if they are off
-/// the lattice points). Throws InputError as the overload below.
+/// positions the particles: trilinear weights assume them at their lattice points (as the layout
+/// puts them), the affine weights are solved on them; the float rest error is reported either
+/// way. Throws InputError as the overload below.
 VisualMapping map_visual_mesh(const std::vector<Eigen::Vector3d>& visual_positions, const Lattice& lattice,
                               const SimulationSurface& surface, const MappingOptions& options = {},
                               Progress& progress = null_progress(), MappingReport* report = nullptr);

@@ -31,7 +31,8 @@ public:
     /// around v's, trilinear weights where all 8 corners are particles, else the minimum-norm
     /// affine weights of the corners that are (at least 4, not coplanar); the smallest Σ|w| wins,
     /// v's own complete cell at once. Where no such cell is near (v more than a cell from the
-    /// tissue), the 8 particles nearest v within 4 cells, if not coplanar. found() is false
+    /// tissue), the 8 particles nearest v within 6 cells, or the 7 nearest and the nearest one off their
+    /// plane. found() is false
     /// otherwise.
     Embedding embed(const Eigen::Vector3d& v) const;
 

@@ -53,6 +53,13 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
     const std::size_t n = p.size();
     std::vector<double> area(n, 0.0);
     const double face = lattice.spacing * lattice.spacing;
+    // How full of tissue a particle's cell is, relative to a cell at the occupancy (at most 1).
+    auto fill_of = [&](std::size_t i) {
+        const auto row = std::size_t(p.material[i]);
+        const double density = row < lattice.materials.size() ? lattice.materials[row].density : Material{}.density;
+        const double fraction = double(p.mass[i]) / density / (face * lattice.spacing);
+        return options.full_fraction > 0 ? std::min(1.0, fraction / options.full_fraction) : 1.0;
+    };
 
     if (options.region == SupportRegion::posterior) {
         // The lattice axis nearest to the posterior direction, and which way along it is posterior.
@@ -72,14 +79,32 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         auto line = [&](const std::array<std::int32_t, 3>& c) { return std::size_t(c[std::size_t(u)]) * std::size_t(d[std::size_t(v)]) + std::size_t(c[std::size_t(v)]); };
         std::vector<int> extreme(std::size_t(d[std::size_t(u)]) * std::size_t(d[std::size_t(v)]), std::numeric_limits<int>::min());
         for (const auto& c : p.lattice_index) extreme[line(c)] = std::max(extreme[line(c)], sign * c[std::size_t(axis)]);
-        for (std::size_t i = 0; i < n; ++i)
-            if (sign * p.lattice_index[i][std::size_t(axis)] == extreme[line(p.lattice_index[i])]) area[i] = face;
+        // A support carries the tissue of its cell: a light particle (a thin wall's ridge or
+        // thickening particle, fraction below the occupancy) at a line's extreme takes its share of
+        // the face, and the particles behind it, inwards, the rest.
+        std::vector<std::int32_t> cells(std::size_t(d[0]) * std::size_t(d[1]) * std::size_t(d[2]), -1);
+        auto cell = [&](const std::array<std::int32_t, 3>& c) {
+            return (std::size_t(c[2]) * std::size_t(d[1]) + std::size_t(c[1])) * std::size_t(d[0]) + std::size_t(c[0]);
+        };
+        for (std::size_t i = 0; i < n; ++i) cells[cell(p.lattice_index[i])] = std::int32_t(i);
+        for (std::size_t i = 0; i < n; ++i) {
+            if (sign * p.lattice_index[i][std::size_t(axis)] != extreme[line(p.lattice_index[i])]) continue;
+            double left = 1.0;
+            std::array<std::int32_t, 3> c = p.lattice_index[i];
+            for (std::int32_t q = std::int32_t(i); q >= 0 && left > 0.0;) {
+                const double share = std::min(left, fill_of(std::size_t(q)));
+                area[std::size_t(q)] += share * face;
+                left -= share;
+                c[std::size_t(axis)] -= sign;
+                q = c[std::size_t(axis)] >= 0 && c[std::size_t(axis)] < d[std::size_t(axis)] ? cells[cell(c)] : -1;
+            }
+        }
     } else {
         // An exposed face: a face slot (the table's first 6) with no neighbour.
         const auto table = neighbour_table(lattice);
         for (std::size_t i = 0; i < n; ++i)
             for (int f = 0; f < 6; ++f)
-                if (table[i][std::size_t(f)] < 0) area[i] += face;
+                if (table[i][std::size_t(f)] < 0) area[i] += face * fill_of(i);
     }
 
     p.support_stiffness.assign(n, 0.0f);
@@ -92,9 +117,7 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         const auto row = std::size_t(p.material[i]);
         const double density = row < lattice.materials.size() ? lattice.materials[row].density : Material{}.density;
         const double embedding = per_volume * double(p.mass[i]) / density;
-        const double fraction = double(p.mass[i]) / density / (lattice.spacing * lattice.spacing * lattice.spacing);
-        const double fill = options.full_fraction > 0 ? std::min(1.0, fraction / options.full_fraction) : 1.0;
-        p.support_stiffness[i] = float(per_area * fill * area[i] + embedding);
+        p.support_stiffness[i] = float(per_area * area[i] + embedding);
         report.embedding_stiffness += embedding;
         if (area[i] == 0.0 || per_area == 0.0) continue;
         ++report.supported;

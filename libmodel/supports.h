@@ -47,9 +47,10 @@ struct SupportOptions {
     /// The tissue around the heart is viscous: undamped supports let the whole heart ring on
     /// them after an impact (its rigid mode has no spring dashpot to damp it).
     double damping_ratio = 1.0;
-    /// A particle's support carries the tissue in its cell: the area term is scaled by
+    /// A particle's support carries the tissue in its cell: its share of a face is at most
     /// min(1, fraction/full_fraction), fraction = m/(ρ·h³), as the layout scales a thin-wall
-    /// particle's springs (LayoutOptions::occupancy), so k/m and the damped step stay bounded.
+    /// particle's springs (LayoutOptions::occupancy), so k/m and the damped step stay bounded;
+    /// with posterior supports the particles behind it along the line take the rest of the face.
     double full_fraction = 0.5;
     /// The direction the heart rests against, world LPS (default +y: posterior).
     Eigen::Vector3d posterior{0.0, 1.0, 0.0};

@@ -198,7 +198,9 @@ Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executab
     const fs::path log = folder / "logs" / (c.id + ".log");
     try {
         if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
-        const std::string key = sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION);
+        // The format version is in the key: a build of a newer format is not skipped as up to date.
+        const std::string key = sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION +
+                                            " format " + std::to_string(scenario_format_version));
         if (fs::exists(output)) {
             try {
                 const Scenario existing = read_scenario(output);

@@ -207,8 +207,7 @@ void add_build_command(CLI::App& app) {
         if (*thin_walls != "thicken" && *thin_walls != "keep")
             throw InputError("--thin-walls must be thicken or keep, got '" + *thin_walls + "'");
         options->layout.thicken_walls = *thin_walls == "thicken";
-        if (*mapping != "auto" && *mapping != "tangent") throw InputError("--mapping must be auto or tangent, got '" + *mapping + "'");
-        options->mapping = *mapping == "auto" ? MappingMethod::automatic : MappingMethod::tangent;
+        options->mapping = parse_mapping_method(*mapping);
         material->density = *density * 1e-3;
         material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
         material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);

@@ -25,7 +25,7 @@ struct Summary {
     std::size_t simsurface_triangles = 0;
     double texture_occupancy = 0.0;
     double mapping_rest_error_mm = -1.0;  ///< max |mapped rest position − visual vertex|; −1 without a mapping
-    std::size_t embedded = 0, tangent = 0;  ///< visual vertices with d = 0 (carried by their weights alone) and d ≠ 0
+    std::size_t embedded = 0, tangent = 0;  ///< visual vertices embedded in lattice cells, and in tangent space
     std::array<double, 3> weight_sum{};   ///< Σ|w| (the embedding's sensitivity) over vertices: median, 99th percentile, max
     std::array<double, 3> reach{};        ///< distance from a visual vertex to its nearest carrier, mm: median, 99th pct, max
     std::array<double, 3> offset{};       ///< |d| over tangent-space vertices, mm: median, 99th percentile, max
@@ -106,7 +106,11 @@ Summary summarise(const Scenario& s) {
             }
             weight_sum.push_back(sum);
             reach.push_back(nearest);
-            if (s.mapping->offset[v] != 0.0f) {
+            // Tangent space: the carriers are the frame triangle's corners with weights λ alone.
+            const auto& frame = s.simulation_surface->triangles[std::size_t(s.mapping->triangle[v])];
+            bool tangent = carriers[0] == frame[0] && carriers[1] == frame[1] && carriers[2] == frame[2];
+            for (std::size_t k = 3; k < 8; ++k) tangent = tangent && weights[k] == 0.0f;
+            if (tangent) {
                 ++summary.tangent;
                 offset.push_back(std::abs(double(s.mapping->offset[v])));
             } else {
@@ -117,16 +121,9 @@ Summary summarise(const Scenario& s) {
         summary.reach = spread(reach);
         summary.offset = spread(offset);
     }
-    {
-        const std::vector<char> thin = thin_wall_particles(s.lattice);
-        double thin_volume = 0.0, volume = 0.0;
-        for (std::size_t i = 0; i < p.size(); ++i) {
-            const double v = double(p.mass[i]) / s.lattice.materials[std::size_t(p.material[i])].density;
-            volume += v;
-            if (thin[i]) ++summary.thin_particles, thin_volume += v;
-        }
-        summary.thin_volume_share = volume > 0 ? thin_volume / volume : 0.0;
-    }
+    const ThinWallSummary thin = summarise_thin_walls(s.lattice);
+    summary.thin_particles = thin.particles;
+    summary.thin_volume_share = thin.volume_share;
     return summary;
 }
 
@@ -229,7 +226,7 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     if (s.mapping) {
         std::printf("mapping     %zu visual vertices; at rest the mapping reproduces them within %.2g mm\n", m.visual_vertices,
                     m.mapping_rest_error_mm);
-        std::printf("            %zu embedded in lattice cells (d = 0), %zu in tangent space (|d| median %.2f, 99%% %.2f, max "
+        std::printf("            %zu embedded in lattice cells, %zu in tangent space (|d| median %.2f, 99%% %.2f, max "
                     "%.2f mm)\n",
                     m.embedded, m.tangent, m.offset[0], m.offset[1], m.offset[2]);
         std::printf("            sum |w| median %.2f, 99%% %.2f, max %.2f; nearest carrier median %.2f, 99%% %.2f, max %.2f mm\n",

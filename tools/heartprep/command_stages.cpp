@@ -32,6 +32,13 @@ std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
     return files;
 }
 
+std::shared_ptr<std::string> add_mapping_option(CLI::App& command) {
+    auto method = std::make_shared<std::string>("auto");
+    command.add_option("--mapping", *method, "auto (visual vertices embedded in lattice cells) or tangent (the seed's mapping alone)")
+        ->capture_default_str();
+    return method;
+}
+
 void finish(const StageFiles& files, const BuildReport& report, const Scenario& scenario, TerminalProgress& progress) {
     {
         ProgressStage stage(progress, "write scenario", 0);
@@ -73,12 +80,13 @@ void add_stage_commands(CLI::App& app) {
         auto* command = app.add_subcommand("simsurface", "Build /simsurface: the closed surface over the boundary particles "
                                                          "(and redo /mapping when there is a visual mesh)");
         auto files = add_stage_files(*command);
+        auto method = add_mapping_option(*command);
         command->callback([=] {
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);
             BuildReport report;
             simulation_surface_stage(scenario, progress, report);
-            if (scenario.visual) mapping_stage(scenario, {}, progress, report);
+            if (scenario.visual) mapping_stage(scenario, {}, progress, report, parse_mapping_method(*method));
             const auto& r = report.simulation_surface;
             if (!files->quiet)
                 std::printf("simsurface     %zu triangles over %zu boundary particles, %zu component(s), Euler characteristic %ld, "
@@ -94,13 +102,14 @@ void add_stage_commands(CLI::App& app) {
         auto files = add_stage_files(*command);
         auto mesh = std::make_shared<std::filesystem::path>();
         command->add_option("--visual-mesh", *mesh, "STL/OBJ/PLY/glTF mesh to use as the visual mesh")->check(CLI::ExistingFile);
+        auto method = add_mapping_option(*command);
         command->callback([=] {
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);
             if (!scenario.visual && mesh->empty())
                 throw InputError(files->input.string() + ": has no /visual mesh to map; give --visual-mesh FILE");
             BuildReport report;
-            mapping_stage(scenario, *mesh, progress, report);
+            mapping_stage(scenario, *mesh, progress, report, parse_mapping_method(*method));
             if (!files->quiet)
                 std::printf("mapping        %zu visual vertices (%zu embedded in lattice cells, %zu in tangent space), rest error "
                             "max %.2g mm, tangent offset mean %.3f mm max %.3f mm, sensitivity bound max %.2f\n",

@@ -105,8 +105,12 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
     });
     const auto& pieces = report.free_pieces;
     report.layout.particles = lattice.particles.size();
-    if (pieces.dropped_particles > 0)
+    if (pieces.dropped_particles > 0) {
         report.layout.anchored = std::size_t(std::count(lattice.particles.anchored.begin(), lattice.particles.anchored.end(), 1));
+        const ThinWallSummary thin = summarise_thin_walls(lattice);  // of the particles kept
+        report.layout.thin_particles = thin.particles;
+        report.layout.thin_volume_share = thin.volume_share;
+    }
     if (pieces.free_pieces_kept > 0)
         report.warnings.push_back(std::to_string(pieces.free_pieces_kept) + " lattice piece(s) of " +
                                   std::to_string(pieces.free_particles_kept) +
@@ -267,7 +271,7 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                     r.nonmanifold_vertices, r.thin_wall_triangles, r.sheet_regions);
     }
     if (scenario.mapping)
-        std::printf("mapping     %zu visual vertices: %zu embedded in lattice cells (%zu inside a complete cell), %zu in tangent "
+        std::printf("mapping     %zu visual vertices: %zu embedded in lattice cells (%zu convex), %zu in tangent "
                     "space (offset mean %.3f mm, max %.3f mm); rest error max %.2g mm; sensitivity bound mean %.2f, max %.2f\n",
                     scenario.mapping->offset.size(), report.mapping.embedded, report.mapping.embedded_convex,
                     report.mapping.tangent, report.mapping.mean_offset_mm, report.mapping.max_offset_mm,
