@@ -79,7 +79,7 @@ struct MappingReport {
 
 enum class MappingMethod {
     automatic,  ///< embedded where a cell embeds the vertex well, else the kind with the smaller bound A
-    tangent,    ///< tangent space only: the seed's method (for comparison)
+    tangent,    ///< tangent space only: Mosegaard & Sørensen's method (for comparison)
 };
 
 /// "auto" or "tangent" (the command-line spelling); throws InputError naming --mapping otherwise.

@@ -379,13 +379,13 @@ TEST_P(RealCaseMapping, IsExactAtRestWellConditionedAndMovesRigidly) {
     EXPECT_EQ(report.over_amplification, 0u);
 
     // Sensitivity: every particle moved by 1 µm in a random direction moves no visual vertex by
-    // more than 0.01 mm (three draws). The seed's tangent-space mapping alone, for comparison.
+    // more than 0.01 mm (three draws). The tangent-space mapping alone, for comparison.
     double largest = 0.0;
     for (unsigned seed : {1u, 2u, 3u}) largest = std::max(largest, largest_response_to_1um(mapping, rest, surface, seed));
     MappingOptions tangent_only = options;
     tangent_only.method = MappingMethod::tangent;
-    const VisualMapping seed_mapping = map_visual_mesh(visual.positions, lattice, surface, tangent_only);
-    const double largest_tangent = largest_response_to_1um(seed_mapping, rest, surface, 1u);
+    const VisualMapping tangent_mapping = map_visual_mesh(visual.positions, lattice, surface, tangent_only);
+    const double largest_tangent = largest_response_to_1um(tangent_mapping, rest, surface, 1u);
     std::printf("  1 um random particle motion moves a visual vertex by at most %.4f mm (tangent-space mapping only: %.4f mm)\n",
                 largest, largest_tangent);
     EXPECT_LE(largest, 0.01);

@@ -123,8 +123,8 @@ void add_build_command(CLI::App& app) {
     command->add_option("--mapping", *mapping,
                         "How visual vertices follow the particles: auto (each vertex embedded in a lattice cell: a "
                         "weighted sum of up to 8 particles, exact under any affine motion; in tangent space only where no "
-                        "cell embeds it well and that is less sensitive to particle motion), or tangent (the seed's "
-                        "tangent-space mapping alone, for comparison)")
+                        "cell embeds it well and that is less sensitive to particle motion), or tangent (the "
+                        "tangent-space mapping of Mosegaard & Sørensen alone, for comparison)")
         ->capture_default_str()
         ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")

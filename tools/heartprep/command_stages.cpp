@@ -34,7 +34,7 @@ std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
 
 std::shared_ptr<std::string> add_mapping_option(CLI::App& command) {
     auto method = std::make_shared<std::string>("auto");
-    command.add_option("--mapping", *method, "auto (visual vertices embedded in lattice cells) or tangent (the seed's mapping alone)")
+    command.add_option("--mapping", *method, "auto (visual vertices embedded in lattice cells) or tangent (the tangent-space mapping alone)")
         ->capture_default_str();
     return method;
 }
