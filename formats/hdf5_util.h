@@ -4,13 +4,14 @@
 /// reported as InputError / OutputError naming the file and the object.
 #pragma once
 
+#include "atomic_file.h"
+
 #include "libmodel/errors.h"
 
 #include <hdf5.h>
 
 #include <filesystem>
 #include <initializer_list>
-#include <random>
 #include <system_error>
 #include <string>
 #include <vector>
@@ -128,25 +129,12 @@ template <class Fill>
 void write_atomically(const std::filesystem::path& path, Fill&& fill) {
     quiet();
     const std::string file = path.string();
-    const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-    if (!std::filesystem::is_directory(folder)) throw OutputError(file + ": folder " + folder.string() + " does not exist");
-    std::random_device device;
-    const auto temporary = folder / ("." + path.filename().string() + ".tmp-" + std::to_string(device()));
-    try {
-        {
-            Handle h5(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
-            if (!h5.valid()) throw OutputError(file + ": cannot create the file");
-            fill(h5.get());
-            if (H5Fflush(h5.get(), H5F_SCOPE_GLOBAL) < 0) throw OutputError(file + ": cannot flush");
-        }
-        std::error_code error;
-        std::filesystem::rename(temporary, path, error);
-        if (error) throw OutputError(file + ": cannot rename the finished file into place: " + error.message());
-    } catch (...) {
-        std::error_code ignored;
-        std::filesystem::remove(temporary, ignored);
-        throw;
-    }
+    write_file_atomically(path, [&](const std::filesystem::path& temporary) {
+        Handle h5(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+        if (!h5.valid()) throw OutputError(file + ": cannot create the file");
+        fill(h5.get());
+        if (H5Fflush(h5.get(), H5F_SCOPE_GLOBAL) < 0) throw OutputError(file + ": cannot flush");
+    });
 }
 
 /// Opens an existing HDF5 file read-only; InputError when it is missing or not HDF5.

@@ -2,6 +2,8 @@
 /// @brief Triangle meshes to and from files through assimp's Exporter and Importer.
 #include "mesh_io.h"
 
+#include "atomic_file.h"
+
 #include "libmodel/errors.h"
 
 #include <assimp/Exporter.hpp>
@@ -11,11 +13,9 @@
 #include <assimp/scene.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cctype>
 #include <memory>
 #include <string>
-#include <unistd.h>
 
 namespace heartsim {
 
@@ -78,14 +78,6 @@ std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh) {
     return scene;
 }
 
-/// A name beside `path` that no other writer in this or another process uses at the same time.
-std::filesystem::path temporary_beside(const std::filesystem::path& path) {
-    static std::atomic<unsigned> counter{0};
-    auto name = "." + path.filename().string() + ".tmp-" + std::to_string(::getpid()) + "-" +
-                std::to_string(counter++) + path.extension().string();
-    return path.parent_path() / name;
-}
-
 }  // namespace
 
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
@@ -99,20 +91,11 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
                 throw OutputError("cannot write mesh '" + path.string() + "': a triangle refers to a missing vertex");
 
     const auto scene = scene_of(mesh);
-    const std::filesystem::path temporary = temporary_beside(path);
-    Assimp::Exporter exporter;
-    if (exporter.Export(scene.get(), format, temporary.string()) != aiReturn_SUCCESS) {
-        std::error_code ignored;
-        std::filesystem::remove(temporary, ignored);
-        throw OutputError("cannot write mesh '" + path.string() + "': " + exporter.GetErrorString());
-    }
-    std::error_code error;
-    std::filesystem::rename(temporary, path, error);
-    if (error) {
-        std::error_code ignored;
-        std::filesystem::remove(temporary, ignored);
-        throw OutputError("cannot write mesh '" + path.string() + "': " + error.message());
-    }
+    write_file_atomically(path, [&](const std::filesystem::path& temporary) {
+        Assimp::Exporter exporter;
+        if (exporter.Export(scene.get(), format, temporary.string()) != aiReturn_SUCCESS)
+            throw OutputError("cannot write mesh '" + path.string() + "': " + exporter.GetErrorString());
+    });
 }
 
 TriangleMesh read_mesh(const std::filesystem::path& path) {

@@ -2,6 +2,8 @@
 // shared/SCENARIO.md; additions are documented in docs/scenario-format.md.
 #include "scenario.h"
 
+#include "atomic_file.h"
+
 #include "libmodel/errors.h"
 
 #include <hdf5.h>
@@ -14,9 +16,7 @@
 #include <memory>
 #include <fstream>
 #include <functional>
-#include <random>
 #include <sstream>
-#include <unistd.h>
 
 namespace heartsim {
 
@@ -757,11 +757,6 @@ Scenario read_contents(const Reader& r) {
     return s;
 }
 
-std::filesystem::path temporary_beside(const std::filesystem::path& path) {
-    std::random_device device;
-    auto name = "." + path.filename().string() + ".tmp-" + std::to_string(device());
-    return path.parent_path() / name;
-}
 
 }  // namespace
 
@@ -791,22 +786,11 @@ VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
 
 void write_scenario(const std::filesystem::path& path, const Scenario& scenario) {
     silence_hdf5();
-    const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-    if (!std::filesystem::is_directory(folder)) throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
-    if (access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
-    const auto temporary = temporary_beside(path);
-    try {
+    write_file_atomically(path, [&](const std::filesystem::path& temporary) {
         Writer writer(path, temporary);
         write_contents(writer, scenario);
         writer.close();
-        std::error_code error;
-        std::filesystem::rename(temporary, path, error);
-        if (error) throw OutputError(path.string() + ": cannot rename the finished file into place: " + error.message());
-    } catch (...) {
-        std::error_code ignored;
-        std::filesystem::remove(temporary, ignored);
-        throw;
-    }
+    });
 }
 
 Scenario read_scenario(const std::filesystem::path& path) {

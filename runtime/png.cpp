@@ -1,6 +1,8 @@
 // A minimal PNG encoder and decoder (PNG 1.2 / ISO 15948, 8-bit, non-interlaced) on zlib. png.h.
 #include "png.h"
 
+#include "formats/atomic_file.h"
+
 #include "libmodel/errors.h"
 
 #include <zlib.h>
@@ -12,7 +14,6 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
-#include <random>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -127,33 +128,7 @@ std::vector<std::uint8_t> encode_png(const Image& image) {
 
 void write_png(const std::filesystem::path& path, const Image& image) {
     const std::vector<std::uint8_t> bytes = encode_png(image);
-    std::filesystem::path folder = path.parent_path();
-    if (folder.empty()) folder = ".";
-    std::random_device random;
-    std::string name = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
-    name += path.filename().string();
-    name += ".tmp-";
-    name += std::to_string(random() % 1000000u);
-    const std::filesystem::path temporary = folder / name;
-    {
-        std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-        if (!out) throw OutputError(path.string() + ": cannot write the screenshot (cannot create " + temporary.string() + ")");
-        out.write(reinterpret_cast<const char*>(bytes.data()), std::streamsize(bytes.size()));
-        out.flush();
-        if (!out) {
-            out.close();
-            std::error_code ignored;
-            std::filesystem::remove(temporary, ignored);
-            throw OutputError(path.string() + ": cannot write the screenshot (disk full?)");
-        }
-    }
-    std::error_code error;
-    std::filesystem::rename(temporary, path, error);
-    if (error) {
-        std::error_code ignored;
-        std::filesystem::remove(temporary, ignored);
-        throw OutputError(path.string() + ": cannot write the screenshot: " + error.message());
-    }
+    write_bytes_atomically(path, bytes.data(), bytes.size(), "the screenshot");
 }
 
 Image decode_png(const std::vector<std::uint8_t>& bytes, const std::string& name) {

@@ -1,4 +1,5 @@
 // The scenario file: a write/read round trip of every dataset, and the reader's refusals.
+#include "formats/atomic_file.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
@@ -12,6 +13,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <iterator>
 
 using namespace heartsim;
 
@@ -300,4 +302,34 @@ TEST(Scenario, Sha256OfAKnownString) {
     std::ofstream(dir / "abc.txt") << "abc";
     // FIPS 180-2, appendix B.1.
     EXPECT_EQ(sha256_file(dir / "abc.txt"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+}
+
+TEST(AtomicFile, AFailedWriteLeavesNeitherTheFileNorItsTemporaryAndASuccessfulOneReplacesTheFile) {
+    test::TempDir dir;
+    const auto path = dir / "table.csv";
+    write_bytes_atomically(path, "old\n", 4, "the table");
+    EXPECT_THROW(write_file_atomically(path, [](const std::filesystem::path& temporary) {
+                     std::ofstream(temporary) << "half";
+                     throw OutputError("disk full");
+                 }),
+                 OutputError);
+    std::ifstream in(path);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(text, "old\n") << "the old file stays whole";
+    std::size_t entries = 0;
+    for ([[maybe_unused]] const auto& entry : std::filesystem::directory_iterator(dir.path())) ++entries;
+    EXPECT_EQ(entries, 1u) << "no temporary left beside it";
+    // Temporaries are distinct, hidden, beside the file, and keep its extension.
+    const auto a = temporary_beside(path), b = temporary_beside(path);
+    EXPECT_NE(a, b);
+    EXPECT_EQ(a.parent_path(), dir.path());
+    EXPECT_EQ(a.filename().string().front(), '.');
+    EXPECT_EQ(a.extension(), ".csv");
+    // A missing folder is named.
+    try {
+        write_bytes_atomically(dir / "missing" / "x.csv", "x", 1, "the table");
+        ADD_FAILURE() << "no error";
+    } catch (const OutputError& e) {
+        EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
+    }
 }

@@ -4,6 +4,7 @@
 #include "commands.h"
 #include "terminal_progress.h"
 
+#include "formats/atomic_file.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 
@@ -20,7 +21,6 @@
 #include <map>
 #include <memory>
 #include <mutex>
-#include <random>
 #include <spawn.h>
 #include <sstream>
 #include <sys/wait.h>
@@ -244,15 +244,7 @@ std::string csv_quote(const std::string& text) {
 }
 
 /// Writes `text` to `path` atomically.
-void write_text(const fs::path& path, const std::string& text) {
-    const fs::path temporary = path.parent_path() / ("." + path.filename().string() + ".tmp-" + std::to_string(std::random_device{}()));
-    {
-        std::ofstream out(temporary);
-        out << text;
-        if (!out) throw OutputError(path.string() + ": cannot be written");
-    }
-    fs::rename(temporary, path);
-}
+void write_text(const fs::path& path, const std::string& text) { write_bytes_atomically(path, text.data(), text.size(), "the table"); }
 
 }  // namespace
 

@@ -1,0 +1,27 @@
+/// @file atomic_file.h
+/// @brief Every writer's "write beside, then rename into place": a reader never sees a
+/// half-written file, and a failed write leaves nothing behind.
+#pragma once
+
+#include <cstddef>
+#include <filesystem>
+#include <functional>
+#include <string>
+
+namespace heartsim {
+
+/// A hidden name beside `path` that no other writer in this or another process uses at the same
+/// time (process id and a per-process counter), ending in `path`'s own extension for writers that
+/// choose the format by it.
+std::filesystem::path temporary_beside(const std::filesystem::path& path);
+
+/// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
+/// then renamed onto `path`. When fill throws or the rename fails, the temporary is removed and
+/// the error passes on. Throws OutputError naming `path` when its folder does not exist or is not
+/// writable, or the rename fails.
+void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill);
+
+/// write_file_atomically of `size` bytes; `what` names the file in errors ("the screenshot").
+void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what);
+
+}  // namespace heartsim
