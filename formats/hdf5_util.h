@@ -10,6 +10,7 @@
 
 #include <hdf5.h>
 
+#include <cstdint>
 #include <filesystem>
 #include <initializer_list>
 #include <system_error>
@@ -135,6 +136,26 @@ void write_atomically(const std::filesystem::path& path, Fill&& fill) {
         fill(h5.get());
         if (H5Fflush(h5.get(), H5F_SCOPE_GLOBAL) < 0) throw OutputError(file + ": cannot flush");
     });
+}
+
+/// The root attributes every heartsim HDF5 file except the scenario starts with: `format`,
+/// `format_version`, `units`, `frame` (LPS).
+inline void write_file_header(hid_t root, const std::string& format, std::int32_t version, const std::string& units,
+                              const std::string& file) {
+    write_string_attribute(root, "format", format, file);
+    write_scalar_attribute<std::int32_t>(root, "format_version", H5T_STD_I32LE, H5T_NATIVE_INT32, version, file);
+    write_string_attribute(root, "units", units, file);
+    write_string_attribute(root, "frame", "LPS", file);
+}
+
+/// InputError naming `file` unless its `format` is `format` (then `hint`, e.g. which command
+/// writes such files) and its `format_version` is `version`.
+inline void check_file_header(hid_t root, const std::string& format, std::int32_t version, const std::string& file,
+                              const std::string& hint = "") {
+    if (read_string_attribute(root, "format", file) != format)
+        throw InputError(file + ": attribute format is not " + format + (hint.empty() ? "" : " (" + hint + ")"));
+    if (read_scalar_attribute<std::int32_t>(root, "format_version", H5T_NATIVE_INT32, file) != version)
+        throw InputError(file + ": format_version is not " + std::to_string(version));
 }
 
 /// Opens an existing HDF5 file read-only; InputError when it is missing or not HDF5.

@@ -65,10 +65,7 @@ void write_recording(const std::filesystem::path& path, const Recording& r) {
         s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n)
         throw OutputError(file + ": the step columns have different lengths (a bug in heartsim)");
     write_atomically(path, [&](hid_t root) {
-        write_string_attribute(root, "format", "heartsim.recording", file);
-        write_scalar_attribute<std::int32_t>(root, "format_version", H5T_STD_I32LE, H5T_NATIVE_INT32, 1, file);
-        write_string_attribute(root, "units", "mm g ms N", file);
-        write_string_attribute(root, "frame", "LPS", file);
+        write_file_header(root, "heartsim.recording", 1, "mm g ms N", file);
         write_string_attribute(root, "scenario", r.scenario, file);
         write_scalar_attribute<std::int64_t>(root, "particles", H5T_STD_I64LE, H5T_NATIVE_INT64, r.particles, file);
         write_scalar_attribute<double>(root, "dt_ms", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, r.dt_ms, file);
@@ -153,10 +150,7 @@ Recording read_recording(const std::filesystem::path& path) {
     const std::string file = path.string();
     Handle h5 = open_read_only(path);
     const hid_t root = h5.get();
-    if (read_string_attribute(root, "format", file) != "heartsim.recording")
-        throw InputError(file + ": attribute format is not heartsim.recording (is this a heartsim run --record file?)");
-    if (read_scalar_attribute<std::int32_t>(root, "format_version", H5T_NATIVE_INT32, file) != 1)
-        throw InputError(file + ": format_version is not 1");
+    check_file_header(root, "heartsim.recording", 1, file, "is this a heartsim run --record file?");
     Recording r;
     r.scenario = read_string_attribute(root, "scenario", file);
     r.particles = read_scalar_attribute<std::int64_t>(root, "particles", H5T_NATIVE_INT64, file);

@@ -15,10 +15,7 @@ using namespace h5;
 void write_state(const std::filesystem::path& path, const SimulationState& state) {
     const std::string file = path.string();
     write_atomically(path, [&](hid_t root) {
-        write_string_attribute(root, "format", "heartsim.state", file);
-        write_scalar_attribute<std::int32_t>(root, "format_version", H5T_STD_I32LE, H5T_NATIVE_INT32, 1, file);
-        write_string_attribute(root, "units", "mm g ms", file);
-        write_string_attribute(root, "frame", "LPS", file);
+        write_file_header(root, "heartsim.state", 1, "mm g ms", file);
         write_string_attribute(root, "backend", state.backend, file);
         write_string_attribute(root, "scenario", state.scenario, file);
         write_scalar_attribute<double>(root, "time_ms", H5T_IEEE_F64LE, H5T_NATIVE_DOUBLE, state.time_ms, file);
@@ -40,9 +37,7 @@ SimulationState read_state(const std::filesystem::path& path) {
     const std::string file = path.string();
     Handle h5 = open_read_only(path);
     const hid_t root = h5.get();
-    if (read_string_attribute(root, "format", file) != "heartsim.state") throw InputError(file + ": attribute format is not heartsim.state");
-    if (read_scalar_attribute<std::int32_t>(root, "format_version", H5T_NATIVE_INT32, file) != 1)
-        throw InputError(file + ": format_version is not 1");
+    check_file_header(root, "heartsim.state", 1, file);
     SimulationState state;
     state.backend = read_string_attribute(root, "backend", file);
     state.scenario = read_string_attribute(root, "scenario", file);
