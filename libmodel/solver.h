@@ -40,7 +40,7 @@ enum class SolverKernel {
 struct SolverOptions {
     /// Time of one step() unit, ms. 0 = safety_factor × critical step.
     double dt_ms = 0.0;
-    /// Critical step 2/ω_max, ms. 0 = estimated here (stability.h power iteration).
+    /// Critical step 2/ω_max, ms. 0 = estimated here (stability.h: Lanczos iteration).
     double critical_dt_ms = 0.0;
     /// Each step is split into the fewest equal substeps with substep ≤ safety_factor × critical.
     double safety_factor = 0.5;

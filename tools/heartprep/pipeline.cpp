@@ -189,13 +189,19 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     auto& solver = scenario.solver;
     solver.critical_dt_ms = report.stability.critical_dt_ms;
     solver.critical_dt_bound_ms = report.stability.critical_dt_bound_ms;
-    if (!std::isfinite(solver.critical_dt_ms)) {
+    const bool unbounded = !std::isfinite(solver.critical_dt_ms);
+    if (unbounded) {
         // No free particle or no spring: nothing limits the step; choose one that keeps a free
         // particle's fall per step tiny and say so.
         solver.critical_dt_ms = solver.critical_dt_bound_ms = 1.0;
-        report.warnings.push_back("no spring between free particles: the critical time step is unbounded; dt set to 0.5 ms");
     }
     solver.dt_ms = std::min(solver.safety_factor * solver.critical_dt_ms, solver.critical_dt_bound_ms);
+    if (unbounded) {
+        char message[160];
+        std::snprintf(message, sizeof message, "no spring between free particles: the critical time step is unbounded; dt set to %g ms",
+                      solver.dt_ms);
+        report.warnings.push_back(message);
+    }
 
     pack_stage(scenario, options.packing, progress, report);
     simulation_surface_stage(scenario, progress, report);
