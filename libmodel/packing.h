@@ -1,5 +1,5 @@
 /// @file packing.h
-/// @brief The GPU layout of the particles (the seed's position texture): particles reordered
+/// @brief The GPU layout of the particles (Sørensen & Mosegaard's position texture): particles reordered
 /// for memory locality, a fixed 18-slot neighbour table, and a texel per particle. Void cells
 /// are never stored: arrays hold particles only; the texture's void texels exist only on the GPU.
 #pragma once
@@ -15,7 +15,7 @@
 namespace heartsim {
 
 enum class PackingScheme {
-    /// The seed's position texture: each lattice z-slice is a tile of dims[0] × dims[1] texels,
+    /// Sørensen & Mosegaard's position texture: each lattice z-slice is a tile of dims[0] × dims[1] texels,
     /// tiles side by side in a near-square grid; particles ordered by texel, row by row.
     slices,
     /// 4×4×4 bricks of cells in Morton (Z-order) of the brick coordinates, cells within a brick in

@@ -1,6 +1,6 @@
 /// @file phantom.h
 /// @brief Synthetic label maps we generate ourselves: the bundled two-ventricle heart with a
-/// configurable ventricular septal defect (the seed's teaching cases), and analytic shapes
+/// configurable ventricular septal defect (Sørensen & Mosegaard's teaching cases), and analytic shapes
 /// (sphere, thick shell) for accuracy tests and benchmarks. Labels follow HVSMR:
 /// 0 background, 1 myocardium, 2 blood pool.
 #pragma once

@@ -1,6 +1,6 @@
 /// @file simulation_surface.h
 /// @brief The simulation surface: a closed, outward-oriented triangle mesh whose vertices are
-/// the lattice's boundary particles. The runtime renders it for picking (the seed's picking
+/// the lattice's boundary particles. The runtime renders it for picking (Sørensen & Mosegaard's picking
 /// buffer) and the mapping ties the detailed visual mesh to it.
 #pragma once
 

@@ -727,11 +727,11 @@ int main(int argc, char** argv) {
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
         ->expected(3);
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
-                                            "picking (the seed's picking buffer) or search (every surface particle)")
+                                            "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}));
     run->add_option("--picking-refresh", a.picking_refresh, "Render the picking buffer every K force requests (stale in between)")
         ->check(CLI::Range(1, 1 << 20));
-    run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as the seed's Table 1");
+    run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as Sørensen & Mosegaard's Table 1");
     run->add_option("--stats-csv", a.stats_csv, "Write the --stats timings as CSV, one row per pass (tests/bench/run_runtime_bench.sh)");
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)");
     run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step)")

@@ -1,4 +1,4 @@
-// The picking buffer (the seed's §1.2.2) and the direct surface search: docs/runtime.md,
+// The picking buffer (Sørensen & Mosegaard's §1.2.2) and the direct surface search: docs/runtime.md,
 // "Probe contacts: picking buffer and direct search".
 #include "picking.h"
 #include "gl_context.h"

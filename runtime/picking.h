@@ -1,16 +1,16 @@
 /// @file picking.h
-/// @brief Probe contact search for the force pass (issue 5 item 3, the seed's §1.2.2): which
+/// @brief Probe contact search for the force pass (Sørensen & Mosegaard, MMVR 2006, §1.2.2; docs/runtime.md "Probe contacts"): which
 /// particles a probe touches, three ways, selectable, all feeding the same force pass.
 ///
 /// * `direct` (default, the CPU reference's definition): the particles the step pass projected
 ///   out of the probe in the last substep (the step tests every particle, fused, no extra pass).
-/// * `picking` (the seed): the simulation surface (/simsurface over the current positions) is
+/// * `picking` (Sørensen & Mosegaard): the simulation surface (/simsurface over the current positions) is
 ///   rendered from the probe's base along its axis into an offscreen integer target holding,
 ///   per pixel, the nearest particle of the visible triangle and the distance of the surface
 ///   point to the probe; a compute pass projects sampling points on the probe's boundary into
 ///   it and keeps the picked particles within `tolerance_mm` of the probe. Rendered every
 ///   `picking_refresh` (K) force requests; in between the stale image is used with the current
-///   pose and current particle positions (the seed's choice).
+///   pose and current particle positions (Sørensen & Mosegaard's choice).
 /// * `search`: a compute pass testing every simulation-surface particle with the same
 ///   tolerance: what the picking buffer approximates (for measuring it).
 ///

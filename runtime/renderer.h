@@ -1,5 +1,5 @@
 /// @file renderer.h
-/// @brief The visualisation step (issue 5 item 4): the detailed visual mesh deformed in the
+/// @brief The visualisation step (docs/runtime.md "Rendering"): the detailed visual mesh deformed in the
 /// vertex shader from the particle positions and per-frame particle normals, by the mapping
 /// formula of libmodel/mapping.h in the same float32 order, with no per-frame upload on the gl
 /// backend. Without /visual (or /mapping) the simulation surface is drawn instead (flat shaded,

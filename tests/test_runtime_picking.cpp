@@ -1,4 +1,4 @@
-// Probe contacts (issue 5 item 3): the picking buffer against the direct searches on a flat
+// Probe contacts (docs/runtime.md "Probe contacts"): the picking buffer against the direct searches on a flat
 // block pressed by a probe: the same contact particles, the same force, and the force error of a
 // stale picking buffer (refreshed every K force requests) while the probe moves.
 // GL tests run on whatever EGL device there is (Mesa llvmpipe in CI) and skip with a message

@@ -1,4 +1,4 @@
-// The visualisation step (issue 5 item 4) and its outputs: the vertex-shader mapping against
+// The visualisation step (docs/runtime.md "Rendering") and its outputs: the vertex-shader mapping against
 // libmodel's apply_mapping (read back through transform feedback from the drawing shader
 // itself), the normals pass against particle_normals, a headless screenshot of the phantom
 // against a golden image, the simulation surface drawn when there is no visual mesh, the

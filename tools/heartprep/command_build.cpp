@@ -86,7 +86,7 @@ void add_build_command(CLI::App& app) {
         ->check(CLI::ExistingFile)
         ->group("Surface");
     auto packing = std::make_shared<std::string>("bricks");
-    command->add_option("--packing", *packing, "GPU layout: bricks (Morton-ordered 4³ bricks) or slices (the seed's z-slice texture)")
+    command->add_option("--packing", *packing, "GPU layout: bricks (Morton-ordered 4³ bricks) or slices (Sørensen & Mosegaard's z-slice texture)")
         ->capture_default_str()
         ->group("Particles");
     command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")

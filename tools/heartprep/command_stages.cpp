@@ -57,7 +57,7 @@ void add_stage_commands(CLI::App& app) {
         auto* command = app.add_subcommand("pack", "Reorder a scenario's particles for the GPU; write /packing (neighbour table, texels)");
         auto files = add_stage_files(*command);
         auto scheme = std::make_shared<std::string>("bricks");
-        command->add_option("--packing", *scheme, "bricks (Morton-ordered 4³ bricks) or slices (the seed's z-slice texture)")
+        command->add_option("--packing", *scheme, "bricks (Morton-ordered 4³ bricks) or slices (Sørensen & Mosegaard's z-slice texture)")
             ->capture_default_str();
         auto width = std::make_shared<int>(0);
         command->add_option("--texture-width", *width, "Texture width for bricks, texels (0: power of two ≥ √N)")
