@@ -495,7 +495,6 @@ public:
     /// refused: Operation not permitted)"; empty before start().
     std::string scheduling() const;
     HandTelemetry telemetry(int hand) const;
-    bool attached(int hand) const { return hands_.at(hand).device != nullptr; }
 
     /// Before start(): keep a TickRecord of every tick in a queue of `capacity` (0 = off), which
     /// the simulation thread empties with drain_ticks() well within capacity ticks.

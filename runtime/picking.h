@@ -63,7 +63,6 @@ public:
     void set_settings(const ContactSettings& settings);
     const ContactSettings& settings() const { return settings_; }
     double tolerance_mm() const { return tolerance_; }
-    std::size_t sampling_points() const { return sample_count_; }
     std::size_t surface_particles() const { return surface_count_; }
 
     /// The picking buffer of `hand` is out of date (instrument changed): rendered on next use.
