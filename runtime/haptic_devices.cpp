@@ -1,6 +1,8 @@
 // The scripted and simulated haptic devices (runtime/haptics.h).
 #include "haptics.h"
 
+#include "formats/csv.h"
+
 #include "libmodel/errors.h"
 
 #include <algorithm>
@@ -26,15 +28,13 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const std::
         if (const auto hash = line.find('#'); hash != std::string::npos) line.erase(hash);
         if (line.find_first_not_of(" \t\r,") == std::string::npos) continue;
         std::vector<double> row;
-        std::istringstream fields(line);
-        std::string field;
         bool numeric = true, any_number = false;
         int column = 0;
         std::string bad;
-        while (std::getline(fields, field, ',')) {
+        std::vector<std::string> fields = csv_fields(line);
+        if (fields.size() > 1 && fields.back().empty()) fields.pop_back();  // a trailing comma adds no column
+        for (const std::string& f : fields) {
             ++column;
-            const auto b = field.find_first_not_of(" \t\r"), e = field.find_last_not_of(" \t\r");
-            const std::string f = b == std::string::npos ? "" : field.substr(b, e - b + 1);
             char* end = nullptr;
             const double v = std::strtod(f.c_str(), &end);
             if (f.empty() || *end != '\0' || !std::isfinite(v)) {

@@ -1,6 +1,8 @@
 // Scripted instruments and the run loop shared by the CLI and the tests. trajectory.h.
 #include "trajectory.h"
 
+#include "formats/csv.h"
+
 #include "libmodel/errors.h"
 
 #include <algorithm>
@@ -12,18 +14,6 @@
 namespace heartsim {
 
 namespace {
-
-std::vector<std::string> split(const std::string& line, char separator) {
-    std::vector<std::string> fields;
-    std::string field;
-    std::istringstream in(line);
-    while (std::getline(in, field, separator)) {
-        const auto first = field.find_first_not_of(" \t\r"), last = field.find_last_not_of(" \t\r");
-        fields.push_back(first == std::string::npos ? std::string() : field.substr(first, last - first + 1));
-    }
-    if (!line.empty() && line.back() == separator) fields.emplace_back();
-    return fields;
-}
 
 double number(const std::string& text, const std::string& where) {
     std::size_t used = 0;
@@ -80,7 +70,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         const auto hash = line.find('#');
         if (hash != std::string::npos) line.erase(hash);
         if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-        const auto fields = split(line, ',');
+        const auto fields = csv_fields(line);
         const std::string where = name + " line " + std::to_string(line_number);
         if (!fields.empty() && fields[0] == "time_ms") continue;  // header
         if (fields.size() != 14)
@@ -120,7 +110,7 @@ Trajectory read_trajectory(const std::filesystem::path& path) {
 }
 
 InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) {
-    const auto fields = split(text, ',');
+    const auto fields = csv_fields(text);
     const std::string what = kind == InstrumentKind::probe ? "--probe" : "--grab";
     if (fields.size() != 6 && !(kind == InstrumentKind::grabber && fields.size() == 9))
         throw InputError(what + " '" + text + "': expected X,Y,Z,AX,AY,AZ" + (kind == InstrumentKind::grabber ? "[,DX,DY,DZ]" : "") + " (mm)");

@@ -1,5 +1,6 @@
 // The scenario file: a write/read round trip of every dataset, and the reader's refusals.
 #include "formats/atomic_file.h"
+#include "formats/csv.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
@@ -332,4 +333,13 @@ TEST(AtomicFile, AFailedWriteLeavesNeitherTheFileNorItsTemporaryAndASuccessfulOn
     } catch (const OutputError& e) {
         EXPECT_NE(std::string(e.what()).find("does not exist"), std::string::npos) << e.what();
     }
+}
+
+TEST(Csv, FieldsFollowRfc4180QuotingAndAreTrimmed) {
+    using Fields = std::vector<std::string>;
+    EXPECT_EQ(csv_fields(" a , b,c \r"), (Fields{"a", "b", "c"}));
+    EXPECT_EQ(csv_fields("\"x, y\",\"say \"\"hi\"\"\",z"), (Fields{"x, y", "say \"hi\"", "z"}));
+    EXPECT_EQ(csv_fields("1,2,"), (Fields{"1", "2", ""})) << "a trailing comma is an empty last field";
+    EXPECT_EQ(csv_fields(""), (Fields{""}));
+    EXPECT_EQ(csv_fields("\t0.5\t,\t-1e3"), (Fields{"0.5", "-1e3"}));
 }

@@ -5,6 +5,7 @@
 #include "terminal_progress.h"
 
 #include "formats/atomic_file.h"
+#include "formats/csv.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 
@@ -66,27 +67,6 @@ std::string stem_of(const fs::path& path) {
         if (name.size() > n && name.compare(name.size() - n, n, extension) == 0) return name.substr(0, name.size() - n);
     }
     return path.stem().string();
-}
-
-/// One CSV line into fields (RFC 4180 quoting: "a ""quoted"" field").
-std::vector<std::string> csv_fields(const std::string& line) {
-    std::vector<std::string> fields(1);
-    bool quoted = false;
-    for (std::size_t i = 0; i < line.size(); ++i) {
-        const char c = line[i];
-        if (quoted) {
-            if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') fields.back() += '"', ++i;
-            else if (c == '"') quoted = false;
-            else fields.back() += c;
-        } else if (c == '"') quoted = true;
-        else if (c == ',') fields.emplace_back();
-        else if (c != '\r') fields.back() += c;
-    }
-    for (auto& f : fields) {
-        f.erase(0, f.find_first_not_of(" \t"));
-        f.erase(f.find_last_not_of(" \t") + 1);
-    }
-    return fields;
 }
 
 /// Splits build options as a shell would for plain words and quotes ("a b", 'a b'); no expansion.
