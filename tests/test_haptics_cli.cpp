@@ -1,4 +1,4 @@
-// `heartsim run … --device …` end to end (issue 6): two hands on the phantom for real seconds with
+// `heartsim run … --device …` end to end (docs/haptics.md): two hands on the phantom for real seconds with
 // a recording, the recording's contents, replay reproducing the forces bit for bit (cpu), replay
 // catching a tampered recording, the scripted device replaying a recording's poses, --max-force,
 // and the errors a user sees. Plus the command-line vocabulary in process (device specs, the

@@ -172,7 +172,7 @@ void plot(const std::vector<Run>& runs, const std::string& path) {
         const auto colour = colours[index % colours.size()];
         std::vector<const Run*> series;
         for (const Run& r : runs)
-            if (r.case_name == name && !r.reference && r.mean_mm > 0 && r.label.find("before") == std::string::npos) series.push_back(&r);
+            if (r.case_name == name && !r.reference && r.mean_mm > 0 && r.label == "defaults") series.push_back(&r);
         std::sort(series.begin(), series.end(), [](const Run* a, const Run* b) { return a->particles < b->particles; });
         for (std::size_t k = 0; k + 1 < series.size(); ++k)
             c.line(px(series[k]->wall_s / series[k]->simulated_s), py(series[k]->mean_mm), px(series[k + 1]->wall_s / series[k + 1]->simulated_s),
@@ -180,7 +180,7 @@ void plot(const std::vector<Run>& runs, const std::string& path) {
         for (const Run& r : runs) {
             if (r.case_name != name || r.reference || r.mean_mm <= 0) continue;
             const double x = px(r.wall_s / r.simulated_s), y = py(r.mean_mm);
-            const bool before = r.label.find("before") != std::string::npos;  // the 30k build before issue 11: hollow
+            const bool before = r.label != "defaults";  // the keep + tangent build: hollow
             for (int dx = -5; dx <= 5; ++dx)
                 for (int dy = -5; dy <= 5; ++dy)
                     if (!before || std::abs(dx) == 5 || std::abs(dy) == 5) c.dot(int(x) + dx, int(y) + dy, colour);

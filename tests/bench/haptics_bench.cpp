@@ -1,8 +1,8 @@
-// Haptics benchmark analyser (issue 6; not a test): reads haptic session recordings
+// Haptics benchmark analyser (not a test): reads haptic session recordings
 // (`heartsim run … --device … --record REC.h5`, formats/recording.h) and prints one row per
 // recording: the device thread's period, the pose → force latency, and the error of the force the
 // device thread rendered between simulation updates. tests/bench/run_haptics_bench.sh records the
-// sessions; results in docs/benchmarks.md, "Haptics (issue 6)".
+// sessions; results in docs/benchmarks.md, "Haptics".
 //
 //   haptics_bench [--format markdown|csv] [--part timing|force|all] [--per-hand] [--no-header]
 //                 REC.h5 [REC2.h5 …]

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""heartprep speed and accuracy benchmark (issue 2). Not a test: it prints Markdown tables and
+"""heartprep speed and accuracy benchmark (docs/benchmarks.md). Not a test: it prints Markdown tables and
 writes CSV files, and never fails on a time.
 
 Part A, build: `heartprep build CASE --cavity 2 --anchor-border` on every real case and on a
@@ -10,7 +10,7 @@ Part B, surface: our `heartprep surface` against 3D Slicer's default pipeline in
 vtkDiscreteFlyingEdges3D, vtkWindowedSincPolyDataFilter 20 iterations, pass band 0.01) on sphere
 and shell phantoms with analytic truth, and on the real cases (mesh-to-mesh distance only).
 
-Part 2 (issue 3, `--parts part2`, or any of stages, batch, mapping):
+Part 2 (packing, simulation surface, mapping: `--parts part2`, or any of stages, batch, mapping):
 - stages: `heartprep build CASE --cavity 2 --anchor-border` on every real case at the default
   spacing (30 000 particles); medians of the pack, simsurface and map stage times (the `stages`
   line, 1 ms resolution) and of their sum, against the target of 1 s on 2 cores.
@@ -432,7 +432,7 @@ def bench_surface_real(args, work, cases):
 
 
 def bench_part2_stages(args, work, cases):
-    """Part 2: the stages issue 3 added (pack, simsurface, map), timed inside `heartprep build`."""
+    """Part 2: the stages after the layout (pack, simsurface, map), timed inside `heartprep build`."""
     raw = []
     for case in cases:
         name = os.path.basename(case).replace("-label.nii.gz", "").replace(".nii.gz", "")
@@ -520,7 +520,7 @@ def main():
     ap.add_argument("--reps", type=int, default=3, help="repetitions per measurement (median reported)")
     ap.add_argument("--samples", type=int, default=20000, help="vertices per direction for mesh-to-mesh distance")
     ap.add_argument("--parts", default="build,critical,surface,real",
-                    help="comma list of: build, critical, surface, real (issue 2); stages, batch, mapping (issue 3; "
+                    help="comma list of: build, critical, surface, real (part 1); stages, batch, mapping (issue 3; "
                          "'part2' = all three)")
     ap.add_argument("--mapping-bench", default=os.environ.get("MAPPING_BENCH"),
                     help="mapping_bench binary (default: <heartprep's build>/tests/bench/mapping_bench)")

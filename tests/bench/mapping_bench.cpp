@@ -12,7 +12,7 @@
 //                 [--threads N]
 //
 // --real defaults to every */ *-label.nii.gz under HEARTSIM_REAL_DATA (skipped with a message if
-// absent). Results and the exact commands: docs/benchmarks.md, "heartprep part 2 (issue 3)".
+// absent). Results and the exact commands: docs/benchmarks.md, "heartprep: packing, simulation surface and mapping".
 //
 // Reference field (world LPS mm). c = centre of the visual mesh's bounding box, L = half its
 // extent along z (the long axis of the phantom, the axial direction of the HVSMR crops),

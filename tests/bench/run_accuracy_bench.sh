@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Run time against error on real hearts (issue 11; docs/benchmarks.md "Run time against error").
+# Run time against error on real hearts (docs/benchmarks.md "The detailed mesh on real hearts").
 # For every real case (../shared/data/real; skipped with a message where absent): heartprep
-# build at 10k, 30k, 100k and 300k particles (defaults otherwise), and the 30k build as it was
-# before issue 11 (--thin-walls keep --mapping tangent); one scripted gesture per case, placed
+# build at 10k, 30k, 100k and 300k particles (defaults otherwise), and the 30k build without the
+# thin-wall layout and the embedding (--thin-walls keep --mapping tangent, "keep + tangent"); one scripted gesture per case, placed
 # from the detailed mesh (the same at every particle count: accuracy_bench gesture, press and
 # grab together); heartsim run --backend cpu --seconds 0.3 on each, writing the deformed detailed
 # mesh (/visual/positions); then accuracy_bench table: each run's mesh against the 300k run's,
@@ -40,7 +40,7 @@ for dir in "$real"/*/; do
           --trajectory "$out/$case-gesture.csv" --save-state "$out/$case-$label-state.h5")
     wall_ms=$(sed -n 's/.* simulated in \([0-9.e+]*\) ms wall.*/\1/p' <<<"$log")
     particles=$(sed -n 's/^cpu backend: \([0-9]*\) particles.*/\1/p' <<<"$log")
-    label_text=defaults; [ "$label" = 30000-before ] && label_text="before issue 11"
+    label_text=defaults; [ "$label" = 30000-before ] && label_text="keep + tangent"
     echo "$case,$label_text,$particles,$out/$case-$label-state.h5,$(awk "BEGIN{print $wall_ms/1000}"),$seconds" >> "$runs"
   done
 done

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# heartsim haptics benchmark (issue 6): the device thread's period p50/p99/max with the machine
+# heartsim haptics benchmark: the device thread's period p50/p99/max with the machine
 # idle, under simulation load and under simulation + rendering load; pose → force latency; the
 # error of the force rendered between simulation updates with hold against extrapolation; and the
 # force error of the picking buffer against its refresh interval K. Records haptic sessions with
 # `heartsim run … --device … --record`, analyses them with haptics_bench (tests/bench/
 # haptics_bench.cpp) and `heartsim run … --replay`. Prints Markdown tables and writes them to
 # OUT/haptics_bench.md (CSV beside). Not a test: nothing here fails on a time.
-# docs/benchmarks.md, "Haptics (issue 6)".
+# docs/benchmarks.md, "Haptics".
 #
 # Run from anywhere (it works in the repository root):
 #   tests/bench/run_haptics_bench.sh [--out DIR] [--seconds S] [--quick] [--parts LIST]

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# How the real hearts are held (issue 10; docs/benchmarks.md "Holding a real heart"): every case
+# How the real hearts are held (docs/benchmarks.md "Holding a real heart"): every case
 # in ../shared/data/real built with heartprep's defaults ("after") and with the options that
 # reproduce the old defaults ("before": no supports, unstressed rest state, nothing anchored,
 # and the same with --anchor-border); then holding_bench on each: drift after 5 s with no

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# heartsim runtime benchmark (issue 5, "Benchmark"): Sørensen & Mosegaard's Table 1 per backend, steps/s of the
+# heartsim runtime benchmark (docs/benchmarks.md "heartsim runtime"): Sørensen & Mosegaard's Table 1 per backend, steps/s of the
 # gl and cpu backends, picking buffer against direct and search contacts for K = 1, 2, 4, 8.
 # Prints Markdown tables, writes CSV files. Not a test: nothing here fails on a time. Usage:
 #   tests/bench/run_runtime_bench.sh [--out DIR] [--steps N] [--cases phantom,pat1,...]

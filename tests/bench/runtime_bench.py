@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""heartsim runtime benchmark (issue 5, "Benchmark"). Not a test: it prints Markdown tables and
+"""heartsim runtime benchmark (docs/benchmarks.md "heartsim runtime"). Not a test: it prints Markdown tables and
 writes CSV files, and never fails on a time. Run through tests/bench/run_runtime_bench.sh.
 
 For the phantom (samples/phantom.nii.gz) and every real case (DATA/*/*-label.nii.gz, skipped
