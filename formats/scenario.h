@@ -48,7 +48,7 @@ struct SolverSettings {
     /// The gravity the rest state is a static equilibrium for (pre-stressed springs, pre-loaded
     /// supports: libmodel/supports.h), mm/ms²; zero when the rest state is the unstressed one.
     Eigen::Vector3d balanced_gravity = Eigen::Vector3d::Zero();
-    double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), power-iteration estimate
+    double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), Lanczos estimate (libmodel/stability.h)
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
     double safety_factor = 0.5;       ///< dt_ms = min(safety_factor·critical_dt_ms, critical_dt_bound_ms)
 };
