@@ -18,23 +18,29 @@ const std::array<std::array<int, 3>, 18> neighbour_offsets{{
     {0, 1, 1}, {0, 1, -1}, {0, -1, 1}, {0, -1, -1},
 }};
 
-std::vector<char> thin_wall_particles(const Lattice& lattice) {
-    const auto& d = lattice.dims;
+ParticleGrid::ParticleGrid(const Lattice& lattice) {
+    for (std::size_t a = 0; a < 3; ++a) dims_[a] = std::max(0, lattice.dims[a]);
+    cells_.assign(std::size_t(dims_[0] * dims_[1] * dims_[2]), -1);
     const auto& index = lattice.particles.lattice_index;
-    std::vector<char> cells(std::size_t(d[0]) * d[1] * d[2], 0);
-    auto cell = [&](int i, int j, int k) { return (std::size_t(k) * d[1] + j) * d[0] + i; };
-    auto inside = [&](int i, int j, int k) { return i >= 0 && j >= 0 && k >= 0 && i < d[0] && j < d[1] && k < d[2]; };
-    for (const auto& c : index)
-        if (inside(c[0], c[1], c[2])) cells[cell(c[0], c[1], c[2])] = 1;
-    auto occupied = [&](int i, int j, int k) { return inside(i, j, k) && cells[cell(i, j, k)]; };
+    for (std::size_t p = 0; p < index.size(); ++p) {
+        const auto& c = index[p];
+        if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= dims_[0] || c[1] >= dims_[1] || c[2] >= dims_[2])
+            throw InputError("particle " + std::to_string(p) + " has a lattice index outside the lattice's dims");
+        cells_[std::size_t((long(c[2]) * dims_[1] + c[1]) * dims_[0] + c[0])] = std::int32_t(p);
+    }
+}
+
+std::vector<char> thin_wall_particles(const Lattice& lattice) {
+    const ParticleGrid grid(lattice);
+    const auto& index = lattice.particles.lattice_index;
     std::vector<char> thin(index.size(), 0);
     for (std::size_t p = 0; p < index.size(); ++p) {
         const auto& c = index[p];
-        for (int a = 0; a < 3 && !thin[p]; ++a) {
-            std::array<int, 3> below = c, above = c;
-            --below[std::size_t(a)];
-            ++above[std::size_t(a)];
-            thin[p] = !occupied(below[0], below[1], below[2]) && !occupied(above[0], above[1], above[2]);
+        for (std::size_t a = 0; a < 3 && !thin[p]; ++a) {
+            std::array<std::int32_t, 3> below = c, above = c;
+            --below[a];
+            ++above[a];
+            thin[p] = grid.at(below) < 0 && grid.at(above) < 0;
         }
     }
     return thin;

@@ -115,6 +115,23 @@ struct LayoutReport {
     std::vector<std::string> warnings;
 };
 
+/// The particle at each lattice cell, for lookups by lattice index (dims from the lattice, i
+/// fastest). Throws InputError for a particle whose lattice index lies outside the dims.
+class ParticleGrid {
+public:
+    explicit ParticleGrid(const Lattice& lattice);
+    /// The particle at cell (i, j, k), or −1 where there is none or the cell is outside.
+    std::int32_t at(long i, long j, long k) const {
+        if (i < 0 || j < 0 || k < 0 || i >= dims_[0] || j >= dims_[1] || k >= dims_[2]) return -1;
+        return cells_[std::size_t((k * dims_[1] + j) * dims_[0] + i)];
+    }
+    std::int32_t at(const std::array<std::int32_t, 3>& c) const { return at(c[0], c[1], c[2]); }
+
+private:
+    std::array<long, 3> dims_{};
+    std::vector<std::int32_t> cells_;
+};
+
 /// Per particle, whether it is a wall one particle thick: along some lattice axis both face
 /// neighbours are empty (or outside the lattice).
 std::vector<char> thin_wall_particles(const Lattice& lattice);

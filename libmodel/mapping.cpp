@@ -111,6 +111,14 @@ Vec3 closest_barycentric(const Vec3& q, const Vec3& a, const Vec3& b, const Vec3
     return {1 - v - w, v, w};
 }
 
+/// The closest point of triangle `tri` (over positions x) to v: its weights in `lambda`; returns
+/// the distance.
+double distance_to_triangle(const std::vector<Vec3>& x, const std::array<std::int32_t, 3>& tri, const Vec3& v, Vec3& lambda) {
+    const Vec3 &a = x[std::size_t(tri[0])], &b = x[std::size_t(tri[1])], &c = x[std::size_t(tri[2])];
+    lambda = closest_barycentric(v, a, b, c);
+    return (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+}
+
 struct Solution {
     std::int32_t triangle = -1;
     Vec3 lambda{1, 0, 0};
@@ -258,14 +266,7 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
                       std::size_t& solve_count) {
     const auto [closest_triangle, closest_point] = search.closest(v);
     const double closest_distance = (v - closest_point).norm();
-    auto distance_to = [&](std::int32_t t, Vec3& lambda) {
-        const auto& tri = problem.triangles[std::size_t(t)];
-        const Vec3& a = problem.x[std::size_t(tri[0])];
-        const Vec3& b = problem.x[std::size_t(tri[1])];
-        const Vec3& c = problem.x[std::size_t(tri[2])];
-        lambda = closest_barycentric(v, a, b, c);
-        return (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
-    };
+    auto distance_to = [&](std::int32_t t, Vec3& lambda) { return distance_to_triangle(problem.x, problem.triangles[std::size_t(t)], v, lambda); };
     // Fast path: solve on the closest triangle first. An inside solution on any triangle lies |d|
     // from v, so if the closest triangle's solution is inside with stable normals, only triangles
     // nearer than its |d| can beat it: solve those (usually the closest triangle's neighbours
@@ -316,12 +317,8 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
         search.near(v, radius, ids);
         candidates.clear();
         for (std::int32_t t : ids) {
-            const auto& tri = problem.triangles[std::size_t(t)];
-            const Vec3& a = problem.x[std::size_t(tri[0])];
-            const Vec3& b = problem.x[std::size_t(tri[1])];
-            const Vec3& c = problem.x[std::size_t(tri[2])];
-            const Vec3 lambda = closest_barycentric(v, a, b, c);
-            const double distance = (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+            Vec3 lambda;
+            const double distance = distance_to(t, lambda);
             if (distance > radius || distance <= searched || t == closest_triangle) continue;
             candidates.push_back({distance, t, lambda});
         }
@@ -360,12 +357,8 @@ Solution solve_vertex(const Problem& problem, const mapping_internal::TriangleSe
         search.near(v, wide, ids);
         candidates.clear();
         for (std::int32_t t : ids) {
-            const auto& tri = problem.triangles[std::size_t(t)];
-            const Vec3& a = problem.x[std::size_t(tri[0])];
-            const Vec3& b = problem.x[std::size_t(tri[1])];
-            const Vec3& c = problem.x[std::size_t(tri[2])];
-            const Vec3 lambda = closest_barycentric(v, a, b, c);
-            const double distance = (lambda[0] * a + lambda[1] * b + lambda[2] * c - v).norm();
+            Vec3 lambda;
+            const double distance = distance_to(t, lambda);
             if (distance > searched && distance <= wide) candidates.push_back({distance, t, lambda});
         }
         std::sort(candidates.begin(), candidates.end(), [](const Candidate& p, const Candidate& q) {
@@ -553,12 +546,6 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
         const auto& tri = triangles[std::size_t(t)];
         return unstable[std::size_t(tri[0])] || unstable[std::size_t(tri[1])] || unstable[std::size_t(tri[2])];
     };
-    auto distance_to = [&](std::int32_t t, const Vec3& p, Vec3& lambda) {
-        const auto& tri = triangles[std::size_t(t)];
-        const Vec3 &a = x[std::size_t(tri[0])], &b = x[std::size_t(tri[1])], &c = x[std::size_t(tri[2])];
-        lambda = closest_barycentric(p, a, b, c);
-        return (lambda[0] * a + lambda[1] * b + lambda[2] * c - p).norm();
-    };
     std::atomic<std::size_t> solve_total{0};
     {
         ProgressStage stage(progress, "map visual mesh", count);
@@ -582,6 +569,8 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
                 auto embed = [&] {
                     const auto [row, point] = search.closest(p);
                     std::int32_t frame = row;
+                    Vec3 frame_lambda;
+                    distance_to_triangle(x, triangles[std::size_t(row)], p, frame_lambda);
                     if (unstable_triangle(row)) {
                         double nearest = std::numeric_limits<double>::infinity();
                         ids.clear();
@@ -589,14 +578,14 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
                         for (std::int32_t t : ids) {
                             if (unstable_triangle(t)) continue;
                             Vec3 lambda;
-                            const double distance = distance_to(t, p, lambda);
-                            if (distance < nearest || (distance == nearest && t < frame)) nearest = distance, frame = t;
+                            const double distance = distance_to_triangle(x, triangles[std::size_t(t)], p, lambda);
+                            if (distance < nearest || (distance == nearest && t < frame))
+                                nearest = distance, frame = t, frame_lambda = lambda;
                         }
                     }
-                    const auto& tri = triangles[std::size_t(frame)];
                     solutions[v] = Solution{};
                     solutions[v].triangle = frame;
-                    solutions[v].lambda = closest_barycentric(p, x[std::size_t(tri[0])], x[std::size_t(tri[1])], x[std::size_t(tri[2])]);
+                    solutions[v].lambda = frame_lambda;
                     solutions[v].offset = 0.0;
                     solutions[v].exact = true;
                     embeddings[v] = e;

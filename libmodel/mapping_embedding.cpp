@@ -27,27 +27,12 @@ constexpr double flat_scatter = 1e-3;
 }  // namespace
 
 CellEmbedder::CellEmbedder(const Lattice& lattice, const std::vector<Eigen::Vector3d>& rest)
-    : rest_(rest), spacing_(lattice.spacing) {
-    for (int a = 0; a < 3; ++a) dims_[std::size_t(a)] = lattice.dims[std::size_t(a)];
-    if (!(spacing_ > 0) || dims_[0] <= 0 || dims_[1] <= 0 || dims_[2] <= 0)
+    : rest_(rest), grid_(lattice), world_to_index_(lattice.index_to_world.inverse()), spacing_(lattice.spacing) {
+    if (!(spacing_ > 0) || lattice.dims[0] <= 0 || lattice.dims[1] <= 0 || lattice.dims[2] <= 0)
         throw InputError("mapping: the lattice has no cells (spacing or dims not positive)");
-    const auto& index = lattice.particles.lattice_index;
-    if (index.size() != rest.size())
-        throw InputError("mapping: the lattice has " + std::to_string(index.size()) + " particle indices for " +
-                         std::to_string(rest.size()) + " particles");
-    cells_.assign(std::size_t(dims_[0] * dims_[1] * dims_[2]), -1);
-    for (std::size_t p = 0; p < index.size(); ++p) {
-        const auto& c = index[p];
-        if (c[0] < 0 || c[1] < 0 || c[2] < 0 || c[0] >= dims_[0] || c[1] >= dims_[1] || c[2] >= dims_[2])
-            throw InputError("mapping: particle " + std::to_string(p) + " has a lattice index outside the lattice's dims");
-        cells_[std::size_t((long(c[2]) * dims_[1] + c[1]) * dims_[0] + c[0])] = std::int32_t(p);
-    }
-    world_to_index_ = lattice.index_to_world.inverse();
-}
-
-std::int32_t CellEmbedder::at(long i, long j, long k) const {
-    if (i < 0 || j < 0 || k < 0 || i >= dims_[0] || j >= dims_[1] || k >= dims_[2]) return -1;
-    return cells_[std::size_t((k * dims_[1] + j) * dims_[0] + i)];
+    if (lattice.particles.lattice_index.size() != rest.size())
+        throw InputError("mapping: the lattice has " + std::to_string(lattice.particles.lattice_index.size()) +
+                         " particle indices for " + std::to_string(rest.size()) + " particles");
 }
 
 bool CellEmbedder::affine(const Eigen::Vector3d& v, const std::int32_t* ids, int count, Embedding& out) const {
@@ -96,7 +81,7 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
         std::array<std::int32_t, 8> ids{};
         int count = 0;
         for (const auto& o : corner_offsets) {
-            const std::int32_t p = at(ci + o[0], cj + o[1], ck + o[2]);
+            const std::int32_t p = grid_.at(ci + o[0], cj + o[1], ck + o[2]);
             if (p >= 0) ids[std::size_t(count++)] = p;
         }
         Embedding e;
@@ -133,7 +118,7 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
     for (long k = base[2] - reach; k <= base[2] + reach + 1; ++k)
         for (long j = base[1] - reach; j <= base[1] + reach + 1; ++j)
             for (long i = base[0] - reach; i <= base[0] + reach + 1; ++i)
-                if (const std::int32_t p = at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
+                if (const std::int32_t p = grid_.at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
     if (near.size() < 4) return best;
     std::sort(near.begin(), near.end());
     const std::size_t count = std::min<std::size_t>(8, near.size());

@@ -37,13 +37,11 @@ public:
     Embedding embed(const Eigen::Vector3d& v) const;
 
 private:
-    std::int32_t at(long i, long j, long k) const;
     /// Minimum-norm affine weights of `ids` reproducing v; false when they span no volume.
     bool affine(const Eigen::Vector3d& v, const std::int32_t* ids, int count, Embedding& out) const;
 
     const std::vector<Eigen::Vector3d>& rest_;
-    std::array<long, 3> dims_{};
-    std::vector<std::int32_t> cells_;  ///< particle per cell, −1 for none (i fastest)
+    ParticleGrid grid_;
     Eigen::Matrix4d world_to_index_;
     double spacing_ = 1.0;
 };

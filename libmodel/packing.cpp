@@ -37,21 +37,13 @@ constexpr int max_texture_side = 16384;
 
 std::vector<std::array<std::int32_t, 18>> neighbour_table(const Lattice& lattice) {
     const auto& p = lattice.particles;
-    const auto [da, db, dc] = lattice.dims;
-    std::vector<std::int32_t> particle_of_cell(std::size_t(da) * db * dc, -1);
-    auto cell = [&](int a, int b, int c) { return (std::size_t(c) * db + b) * da + a; };
-    for (std::size_t i = 0; i < p.size(); ++i) {
-        const auto& l = p.lattice_index[i];
-        particle_of_cell[cell(l[0], l[1], l[2])] = std::int32_t(i);
-    }
+    const ParticleGrid grid(lattice);
     std::vector<std::array<std::int32_t, 18>> table(p.size());
     for (std::size_t i = 0; i < p.size(); ++i) {
         const auto& l = p.lattice_index[i];
         for (std::size_t slot = 0; slot < 18; ++slot) {
             const auto& o = neighbour_offsets[slot];
-            const int a = l[0] + o[0], b = l[1] + o[1], c = l[2] + o[2];
-            const bool inside = a >= 0 && b >= 0 && c >= 0 && a < da && b < db && c < dc;
-            table[i][slot] = inside ? particle_of_cell[cell(a, b, c)] : -1;
+            table[i][slot] = grid.at(l[0] + o[0], l[1] + o[1], l[2] + o[2]);
         }
     }
     return table;

@@ -82,11 +82,7 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         // A support carries the tissue of its cell: a light particle (a thin wall's ridge or
         // thickening particle, fraction below the occupancy) at a line's extreme takes its share of
         // the face, and the particles behind it, inwards, the rest.
-        std::vector<std::int32_t> cells(std::size_t(d[0]) * std::size_t(d[1]) * std::size_t(d[2]), -1);
-        auto cell = [&](const std::array<std::int32_t, 3>& c) {
-            return (std::size_t(c[2]) * std::size_t(d[1]) + std::size_t(c[1])) * std::size_t(d[0]) + std::size_t(c[0]);
-        };
-        for (std::size_t i = 0; i < n; ++i) cells[cell(p.lattice_index[i])] = std::int32_t(i);
+        const ParticleGrid grid(lattice);
         for (std::size_t i = 0; i < n; ++i) {
             if (sign * p.lattice_index[i][std::size_t(axis)] != extreme[line(p.lattice_index[i])]) continue;
             double left = 1.0;
@@ -96,7 +92,7 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
                 area[std::size_t(q)] += share * face;
                 left -= share;
                 c[std::size_t(axis)] -= sign;
-                q = c[std::size_t(axis)] >= 0 && c[std::size_t(axis)] < d[std::size_t(axis)] ? cells[cell(c)] : -1;
+                q = grid.at(c);
             }
         }
     } else {
