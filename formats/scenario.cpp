@@ -301,6 +301,7 @@ void write_contents(Writer& w, const Scenario& s) {
         w.attribute(g.get(), "balanced_gravity", s.solver.balanced_gravity.data(), {3});
         w.attribute(g.get(), "critical_dt_ms", s.solver.critical_dt_ms);
         w.attribute(g.get(), "critical_dt_bound_ms", s.solver.critical_dt_bound_ms);
+        if (s.solver.damped_critical_dt_ms > 0) w.attribute(g.get(), "damped_critical_dt_ms", s.solver.damped_critical_dt_ms);
         w.attribute(g.get(), "safety_factor", s.solver.safety_factor);
     }
 }
@@ -748,6 +749,8 @@ Scenario read_contents(const Reader& r) {
         solver.critical_dt_ms = r.scalar<double>(g.get(), "/solver", "critical_dt_ms");
         if (r.has_attribute(g.get(), "critical_dt_bound_ms"))
             solver.critical_dt_bound_ms = r.scalar<double>(g.get(), "/solver", "critical_dt_bound_ms");
+        if (r.has_attribute(g.get(), "damped_critical_dt_ms"))
+            solver.damped_critical_dt_ms = r.scalar<double>(g.get(), "/solver", "damped_critical_dt_ms");
         if (r.has_attribute(g.get(), "safety_factor")) solver.safety_factor = r.scalar<double>(g.get(), "/solver", "safety_factor");
         if (!(solver.dt_ms > 0)) r.fail("/solver", "dt_ms must be positive");
         if (solver.substeps < 1) r.fail("/solver", "substeps must be at least 1");
@@ -764,6 +767,7 @@ SolverOptions options_from(const SolverSettings& settings) {
     SolverOptions options;
     options.dt_ms = settings.dt_ms;
     options.critical_dt_ms = settings.critical_dt_ms;
+    options.damped_critical_dt_ms = settings.damped_critical_dt_ms;
     options.safety_factor = settings.safety_factor;
     options.damping = settings.damping;
     options.gravity = settings.gravity;

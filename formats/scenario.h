@@ -50,7 +50,12 @@ struct SolverSettings {
     Eigen::Vector3d balanced_gravity = Eigen::Vector3d::Zero();
     double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), Lanczos estimate (libmodel/stability.h)
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
-    double safety_factor = 0.5;       ///< dt_ms = min(safety_factor·critical_dt_ms, critical_dt_bound_ms)
+    /// The stable step with the dashpots, support dampers and drag (libmodel/stability.h
+    /// stable_step_ms); 0 when the file does not say (the runtime estimates it either way).
+    double damped_critical_dt_ms = 0.0;
+    /// dt_ms = safety_factor × damped_critical_dt_ms; the runtime splits a step into substeps of
+    /// at most safety_factor × its own damped critical step (docs/solver.md "Step policy").
+    double safety_factor = 0.9;
 };
 
 /// The visual mesh (/visual): float32 positions and normals, int32 triangles.

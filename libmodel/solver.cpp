@@ -29,6 +29,17 @@
 
 namespace heartsim {
 
+const char* to_string(SolverKernel kernel) {
+    switch (kernel) {
+    case SolverKernel::automatic: return "automatic";
+    case SolverKernel::portable: return "portable";
+    case SolverKernel::sse2: return "sse2";
+    case SolverKernel::avx2: return "avx2";
+    case SolverKernel::avx512: return "avx512";
+    }
+    return "?";
+}
+
 const char* to_string(WatchdogReason reason) {
     switch (reason) {
     case WatchdogReason::none: return "none";
@@ -49,8 +60,9 @@ constexpr std::size_t chunk_groups = 32;  // 256 particles per parallel task
 template <class Real>
 struct KernelData {
     const Real* x;          // current positions, 4 per particle
-    const Real* xp;         // previous positions
+    const Real* u;          // motion of the last substep, x_n − x_{n−1}, 4 per particle
     Real* xn;               // next positions (written)
+    Real* un;               // next motion, x_{n+1} − x_n (written)
     const std::int32_t* neighbour;
     const Real* rest_length;
     const Real* stiffness;
@@ -78,9 +90,9 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
     const std::size_t base = group * W;
     for (int l = 0; l < W; ++l) {
         const Real* p = k.x + 4 * (base + l);
-        const Real* q = k.xp + 4 * (base + l);
+        const Real* q = k.u + 4 * (base + l);
         xi[l] = p[0], yi[l] = p[1], zi[l] = p[2];
-        uxi[l] = p[0] - q[0], uyi[l] = p[1] - q[1], uzi[l] = p[2] - q[2];
+        uxi[l] = q[0], uyi[l] = q[1], uzi[l] = q[2];
         fx[l] = fy[l] = fz[l] = Real(0);
     }
     const std::size_t table = group * slot_count * W, parameters = group * k.parameter_group_stride;
@@ -96,8 +108,8 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
             const Real inverse = Real(1) / length;
             Real scale = (k.stiffness[u] * (length - k.rest_length[u])) * inverse;
             if constexpr (Damped) {
-                const Real* qj = k.xp + 4 * j;
-                const Real dux = (pj[0] - qj[0]) - uxi[l], duy = (pj[1] - qj[1]) - uyi[l], duz = (pj[2] - qj[2]) - uzi[l];
+                const Real* qj = k.u + 4 * j;
+                const Real dux = qj[0] - uxi[l], duy = qj[1] - uyi[l], duz = qj[2] - uzi[l];
                 Real along = dux * dx + duy * dy;
                 along = (along + duz * dz) * inverse;
                 along = along * inverse;
@@ -122,12 +134,13 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
     for (int l = 0; l < W; ++l) {
         const std::size_t i = base + l;
         const Real m = k.mass[i], w = k.inverse_mass_h2[i];
-        const Real nx = xi[l] + (k.keep * uxi[l] + (fx[l] + m * k.gravity[0]) * w);
-        const Real ny = yi[l] + (k.keep * uyi[l] + (fy[l] + m * k.gravity[1]) * w);
-        const Real nz = zi[l] + (k.keep * uzi[l] + (fz[l] + m * k.gravity[2]) * w);
+        const Real ex = k.keep * uxi[l] + (fx[l] + m * k.gravity[0]) * w;
+        const Real ey = k.keep * uyi[l] + (fy[l] + m * k.gravity[1]) * w;
+        const Real ez = k.keep * uzi[l] + (fz[l] + m * k.gravity[2]) * w;
         Real* out = k.xn + 4 * i;
-        out[0] = nx, out[1] = ny, out[2] = nz, out[3] = Real(0);
-        const Real ex = nx - xi[l], ey = ny - yi[l], ez = nz - zi[l];
+        out[0] = xi[l] + ex, out[1] = yi[l] + ey, out[2] = zi[l] + ez, out[3] = Real(0);
+        Real* motion = k.un + 4 * i;
+        motion[0] = ex, motion[1] = ey, motion[2] = ez, motion[3] = Real(0);
         Real d2 = ex * ex + ey * ey;
         d2 = d2 + ez * ez;
         bad |= !(d2 <= k.max_displacement2);
@@ -154,16 +167,26 @@ inline void load_own4(const float* p, __m128& x, __m128& y, __m128& z) {
     transpose_in(_mm_loadu_ps(p), _mm_loadu_ps(p + 4), _mm_loadu_ps(p + 8), _mm_loadu_ps(p + 12), x, y, z);
 }
 
+/// Stores x, y, z of 4 particles as float4 (x, y, z, 0).
+inline void store_own4(float* out, __m128 x, __m128 y, __m128 z) {
+    const __m128 zero = _mm_setzero_ps();
+    const __m128 t0 = _mm_unpacklo_ps(x, y), t1 = _mm_unpacklo_ps(z, zero);
+    const __m128 t2 = _mm_unpackhi_ps(x, y), t3 = _mm_unpackhi_ps(z, zero);
+    _mm_storeu_ps(out, _mm_movelh_ps(t0, t1));
+    _mm_storeu_ps(out + 4, _mm_movehl_ps(t1, t0));
+    _mm_storeu_ps(out + 8, _mm_movelh_ps(t2, t3));
+    _mm_storeu_ps(out + 12, _mm_movehl_ps(t3, t2));
+}
+
 template <bool Damped, bool Supported>
 bool group_sse2(const KernelData<float>& k, std::size_t group) {
     bool bad = false;
     const __m128 tiny = _mm_set1_ps(tiny_length2<float>()), one = _mm_set1_ps(1.0f), zero = _mm_setzero_ps();
     for (int half = 0; half < 2; ++half) {
         const std::size_t base = group * lane_count + std::size_t(half) * 4;
-        __m128 xi, yi, zi, pxi, pyi, pzi;
+        __m128 xi, yi, zi, uxi, uyi, uzi;
         load_own4(k.x + 4 * base, xi, yi, zi);
-        load_own4(k.xp + 4 * base, pxi, pyi, pzi);
-        const __m128 uxi = _mm_sub_ps(xi, pxi), uyi = _mm_sub_ps(yi, pyi), uzi = _mm_sub_ps(zi, pzi);
+        load_own4(k.u + 4 * base, uxi, uyi, uzi);
         __m128 fx = zero, fy = zero, fz = zero;
         const std::size_t table = group * slot_count * lane_count + std::size_t(half) * 4;
         const std::size_t parameters = group * k.parameter_group_stride + std::size_t(half) * 4;
@@ -178,11 +201,9 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
             const __m128 inverse = _mm_div_ps(one, length);
             __m128 scale = _mm_mul_ps(_mm_mul_ps(_mm_loadu_ps(k.stiffness + u), _mm_sub_ps(length, _mm_loadu_ps(k.rest_length + u))), inverse);
             if constexpr (Damped) {
-                __m128 pxj, pyj, pzj;
-                load_gather4(k.xp, k.neighbour + t, pxj, pyj, pzj);
-                const __m128 dux = _mm_sub_ps(_mm_sub_ps(xj, pxj), uxi);
-                const __m128 duy = _mm_sub_ps(_mm_sub_ps(yj, pyj), uyi);
-                const __m128 duz = _mm_sub_ps(_mm_sub_ps(zj, pzj), uzi);
+                __m128 uxj, uyj, uzj;
+                load_gather4(k.u, k.neighbour + t, uxj, uyj, uzj);
+                const __m128 dux = _mm_sub_ps(uxj, uxi), duy = _mm_sub_ps(uyj, uyi), duz = _mm_sub_ps(uzj, uzi);
                 __m128 along = _mm_add_ps(_mm_mul_ps(dux, dx), _mm_mul_ps(duy, dy));
                 along = _mm_mul_ps(_mm_add_ps(along, _mm_mul_ps(duz, dz)), inverse);
                 along = _mm_mul_ps(along, inverse);
@@ -201,17 +222,11 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
             fz = _mm_add_ps(fz, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sz, zi)), _mm_mul_ps(cs, uzi)));
         }
         const __m128 m = _mm_loadu_ps(k.mass + base), w = _mm_loadu_ps(k.inverse_mass_h2 + base), keep = _mm_set1_ps(k.keep);
-        const __m128 nx = _mm_add_ps(xi, _mm_add_ps(_mm_mul_ps(keep, uxi), _mm_mul_ps(_mm_add_ps(fx, _mm_mul_ps(m, _mm_set1_ps(k.gravity[0]))), w)));
-        const __m128 ny = _mm_add_ps(yi, _mm_add_ps(_mm_mul_ps(keep, uyi), _mm_mul_ps(_mm_add_ps(fy, _mm_mul_ps(m, _mm_set1_ps(k.gravity[1]))), w)));
-        const __m128 nz = _mm_add_ps(zi, _mm_add_ps(_mm_mul_ps(keep, uzi), _mm_mul_ps(_mm_add_ps(fz, _mm_mul_ps(m, _mm_set1_ps(k.gravity[2]))), w)));
-        const __m128 t0 = _mm_unpacklo_ps(nx, ny), t1 = _mm_unpacklo_ps(nz, zero);
-        const __m128 t2 = _mm_unpackhi_ps(nx, ny), t3 = _mm_unpackhi_ps(nz, zero);
-        float* out = k.xn + 4 * base;
-        _mm_storeu_ps(out, _mm_movelh_ps(t0, t1));
-        _mm_storeu_ps(out + 4, _mm_movehl_ps(t1, t0));
-        _mm_storeu_ps(out + 8, _mm_movelh_ps(t2, t3));
-        _mm_storeu_ps(out + 12, _mm_movehl_ps(t3, t2));
-        const __m128 ex = _mm_sub_ps(nx, xi), ey = _mm_sub_ps(ny, yi), ez = _mm_sub_ps(nz, zi);
+        const __m128 ex = _mm_add_ps(_mm_mul_ps(keep, uxi), _mm_mul_ps(_mm_add_ps(fx, _mm_mul_ps(m, _mm_set1_ps(k.gravity[0]))), w));
+        const __m128 ey = _mm_add_ps(_mm_mul_ps(keep, uyi), _mm_mul_ps(_mm_add_ps(fy, _mm_mul_ps(m, _mm_set1_ps(k.gravity[1]))), w));
+        const __m128 ez = _mm_add_ps(_mm_mul_ps(keep, uzi), _mm_mul_ps(_mm_add_ps(fz, _mm_mul_ps(m, _mm_set1_ps(k.gravity[2]))), w));
+        store_own4(k.xn + 4 * base, _mm_add_ps(xi, ex), _mm_add_ps(yi, ey), _mm_add_ps(zi, ez));
+        store_own4(k.un + 4 * base, ex, ey, ez);
         __m128 d2 = _mm_add_ps(_mm_mul_ps(ex, ex), _mm_mul_ps(ey, ey));
         d2 = _mm_add_ps(d2, _mm_mul_ps(ez, ez));
         bad |= _mm_movemask_ps(_mm_cmpnle_ps(d2, _mm_set1_ps(k.max_displacement2))) != 0;
@@ -242,14 +257,31 @@ HEARTSIM_AVX2 inline void load_own8(const float* p, __m256& x, __m256& y, __m256
     transpose_in8(pair(p, p + 16), pair(p + 4, p + 20), pair(p + 8, p + 24), pair(p + 12, p + 28), x, y, z);
 }
 
+/// Stores x, y, z of 8 particles as float4 (x, y, z, 0).
+HEARTSIM_AVX2 inline void store_own8(float* out, __m256 x, __m256 y, __m256 z) {
+    const __m256 zero = _mm256_setzero_ps();
+    const __m256 t0 = _mm256_unpacklo_ps(x, y), t1 = _mm256_unpacklo_ps(z, zero);
+    const __m256 t2 = _mm256_unpackhi_ps(x, y), t3 = _mm256_unpackhi_ps(z, zero);
+    const __m256 p0 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));  // particles 0 | 4
+    const __m256 p1 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5
+    const __m256 p2 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6
+    const __m256 p3 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7
+    _mm256_storeu_ps(out, _mm256_permute2f128_ps(p0, p1, 0x20));       // 0 1
+    _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(p2, p3, 0x20));   // 2 3
+    _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(p0, p1, 0x31));  // 4 5
+    _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(p2, p3, 0x31));  // 6 7
+}
+
+/// The 8-lane body, inlined into two wrappers below: one compiled for AVX2 (16 vector registers),
+/// one for AVX-512VL (the same 256-bit instructions, EVEX-encoded, with 32 vector registers: the
+/// loop's working set then fits without spilling to the stack). Same operations, same bits.
 template <bool Damped, bool Supported>
-HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
+HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const KernelData<float>& k, std::size_t group) {
     const __m256 tiny = _mm256_set1_ps(tiny_length2<float>()), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
     const std::size_t base = group * lane_count;
-    __m256 xi, yi, zi, pxi, pyi, pzi;
+    __m256 xi, yi, zi, uxi, uyi, uzi;
     load_own8(k.x + 4 * base, xi, yi, zi);
-    load_own8(k.xp + 4 * base, pxi, pyi, pzi);
-    const __m256 uxi = _mm256_sub_ps(xi, pxi), uyi = _mm256_sub_ps(yi, pyi), uzi = _mm256_sub_ps(zi, pzi);
+    load_own8(k.u + 4 * base, uxi, uyi, uzi);
     __m256 fx = zero, fy = zero, fz = zero;
     const std::size_t table = group * slot_count * lane_count, parameters = group * k.parameter_group_stride;
     for (int s = 0; s < slot_count; ++s) {
@@ -263,11 +295,9 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
         const __m256 inverse = _mm256_div_ps(one, length);
         __m256 scale = _mm256_mul_ps(_mm256_mul_ps(_mm256_loadu_ps(k.stiffness + u), _mm256_sub_ps(length, _mm256_loadu_ps(k.rest_length + u))), inverse);
         if constexpr (Damped) {
-            __m256 pxj, pyj, pzj;
-            load_gather8(k.xp, k.neighbour + t, pxj, pyj, pzj);
-            const __m256 dux = _mm256_sub_ps(_mm256_sub_ps(xj, pxj), uxi);
-            const __m256 duy = _mm256_sub_ps(_mm256_sub_ps(yj, pyj), uyi);
-            const __m256 duz = _mm256_sub_ps(_mm256_sub_ps(zj, pzj), uzi);
+            __m256 uxj, uyj, uzj;
+            load_gather8(k.u, k.neighbour + t, uxj, uyj, uzj);
+            const __m256 dux = _mm256_sub_ps(uxj, uxi), duy = _mm256_sub_ps(uyj, uyi), duz = _mm256_sub_ps(uzj, uzi);
             __m256 along = _mm256_add_ps(_mm256_mul_ps(dux, dx), _mm256_mul_ps(duy, dy));
             along = _mm256_mul_ps(_mm256_add_ps(along, _mm256_mul_ps(duz, dz)), inverse);
             along = _mm256_mul_ps(along, inverse);
@@ -286,30 +316,32 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
         fz = _mm256_add_ps(fz, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sz, zi)), _mm256_mul_ps(cs, uzi)));
     }
     const __m256 m = _mm256_loadu_ps(k.mass + base), w = _mm256_loadu_ps(k.inverse_mass_h2 + base), keep = _mm256_set1_ps(k.keep);
-    const __m256 nx = _mm256_add_ps(xi, _mm256_add_ps(_mm256_mul_ps(keep, uxi), _mm256_mul_ps(_mm256_add_ps(fx, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[0]))), w)));
-    const __m256 ny = _mm256_add_ps(yi, _mm256_add_ps(_mm256_mul_ps(keep, uyi), _mm256_mul_ps(_mm256_add_ps(fy, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[1]))), w)));
-    const __m256 nz = _mm256_add_ps(zi, _mm256_add_ps(_mm256_mul_ps(keep, uzi), _mm256_mul_ps(_mm256_add_ps(fz, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[2]))), w)));
-    const __m256 t0 = _mm256_unpacklo_ps(nx, ny), t1 = _mm256_unpacklo_ps(nz, zero);
-    const __m256 t2 = _mm256_unpackhi_ps(nx, ny), t3 = _mm256_unpackhi_ps(nz, zero);
-    const __m256 p0 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));  // particles 0 | 4
-    const __m256 p1 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5
-    const __m256 p2 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6
-    const __m256 p3 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7
-    float* out = k.xn + 4 * base;
-    _mm256_storeu_ps(out, _mm256_permute2f128_ps(p0, p1, 0x20));       // 0 1
-    _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(p2, p3, 0x20));   // 2 3
-    _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(p0, p1, 0x31));  // 4 5
-    _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(p2, p3, 0x31));  // 6 7
-    const __m256 ex = _mm256_sub_ps(nx, xi), ey = _mm256_sub_ps(ny, yi), ez = _mm256_sub_ps(nz, zi);
+    const __m256 ex = _mm256_add_ps(_mm256_mul_ps(keep, uxi), _mm256_mul_ps(_mm256_add_ps(fx, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[0]))), w));
+    const __m256 ey = _mm256_add_ps(_mm256_mul_ps(keep, uyi), _mm256_mul_ps(_mm256_add_ps(fy, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[1]))), w));
+    const __m256 ez = _mm256_add_ps(_mm256_mul_ps(keep, uzi), _mm256_mul_ps(_mm256_add_ps(fz, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[2]))), w));
+    store_own8(k.xn + 4 * base, _mm256_add_ps(xi, ex), _mm256_add_ps(yi, ey), _mm256_add_ps(zi, ez));
+    store_own8(k.un + 4 * base, ex, ey, ez);
     __m256 d2 = _mm256_add_ps(_mm256_mul_ps(ex, ex), _mm256_mul_ps(ey, ey));
     d2 = _mm256_add_ps(d2, _mm256_mul_ps(ez, ez));
     return _mm256_movemask_ps(_mm256_cmp_ps(d2, _mm256_set1_ps(k.max_displacement2), _CMP_NLE_UQ)) != 0;
 }
 
+template <bool Damped, bool Supported>
+HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
+    return group_avx2_body<Damped, Supported>(k, group);
+}
+
+template <bool Damped, bool Supported>
+__attribute__((target("avx2,avx512f,avx512vl"))) bool group_avx512(const KernelData<float>& k, std::size_t group) {
+    return group_avx2_body<Damped, Supported>(k, group);
+}
+
 bool cpu_has_avx2() { return __builtin_cpu_supports("avx2"); }
+bool cpu_has_avx512() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"); }
 
 #else
 bool cpu_has_avx2() { return false; }
+bool cpu_has_avx512() { return false; }
 #endif
 
 template <class Real>
@@ -319,6 +351,7 @@ template <class Real, bool Supported>
 GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped) {
     if constexpr (std::is_same_v<Real, float>) {
 #ifdef HEARTSIM_SOLVER_X86
+        if (kernel == SolverKernel::avx512) return damped ? &group_avx512<true, Supported> : &group_avx512<false, Supported>;
         if (kernel == SolverKernel::avx2) return damped ? &group_avx2<true, Supported> : &group_avx2<false, Supported>;
         if (kernel == SolverKernel::sse2) return damped ? &group_sse2<true, Supported> : &group_sse2<false, Supported>;
 #endif
@@ -334,8 +367,9 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool
 SolverKernel resolve_kernel(SolverKernel wanted, bool is_float) {
     if (!is_float) return SolverKernel::portable;
 #ifdef HEARTSIM_SOLVER_X86
-    if (wanted == SolverKernel::automatic) return cpu_has_avx2() ? SolverKernel::avx2 : SolverKernel::sse2;
-    if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) return SolverKernel::sse2;
+    if (wanted == SolverKernel::automatic) wanted = SolverKernel::avx512;
+    if (wanted == SolverKernel::avx512 && !cpu_has_avx512()) wanted = SolverKernel::avx2;
+    if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) wanted = SolverKernel::sse2;
     return wanted;
 #else
     (void)wanted;
@@ -472,8 +506,6 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         if (particles.supported() && movable_[i] && particles.support_stiffness[i] > 0) {
             support_stiffness_[i] = Real(particles.support_stiffness[i]);
             if (!particles.support_damping.empty()) support_damping_[i] = Real(particles.support_damping[i]);
-            // A dashpot to a fixed point is a drag c/m on its particle (damped_critical_dt_ms).
-            support_drag_ = std::max(support_drag_, double(support_damping_[i]) / double(particles.mass[i]));
             supported_ = true;
             ++load_report_.supported;
         }
@@ -506,12 +538,9 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
             neighbour_[t] = std::int32_t(j);
             rest_length_[t] = Real(springs.rest_length[std::size_t(q)]);
             stiffness_[t] = Real(springs.stiffness[std::size_t(q)]);
-            const double ma = particles.mass[i], mb = particles.mass[j];
-            const double reduced = ma * mb / (ma + mb);
-            const double zeta = 0.5 * (ratio(i) + ratio(j));
-            dashpot_[t] = Real(2.0 * zeta * std::sqrt(double(springs.stiffness[std::size_t(q)]) * reduced));
+            dashpot_[t] = Real(dashpot_coefficient(double(springs.stiffness[std::size_t(q)]), particles.mass[i], particles.mass[j],
+                                                   0.5 * (ratio(i) + ratio(j))));
             damped_ = damped_ || dashpot_[t] != Real(0);
-            if (stiffness_[t] > Real(0)) dashpot_ratio_ = std::max(dashpot_ratio_, double(dashpot_[t]) / double(stiffness_[t]));
             min_rest_length_ = std::min(min_rest_length_, rest_length_[t]);
         }
     }
@@ -552,32 +581,30 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         load_report_.critical_dt_estimated = true;
     }
     load_report_.critical_dt_ms = critical_dt_ms_;
-    load_report_.damped_critical_dt_ms = damped_critical_dt_ms();
+    // The dashpots, support dampers and drag shorten the stable step (stability.h stable_step_ms).
+    if (options_.damped_critical_dt_ms > 0 && std::isfinite(options_.damped_critical_dt_ms))
+        damped_critical_dt_ms_ = std::min(options_.damped_critical_dt_ms, critical_dt_ms_);
+    else
+        damped_critical_dt_ms_ = stable_step_ms(4.0 / (critical_dt_ms_ * critical_dt_ms_),
+                                                estimate_damping_eigenvalue(particles, springs, options_.damping_ratio, options_.damping));
+    load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
     load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>);
 
     touched_.assign(chunks_ * hands, {});
-    touched_previous_.assign(chunks_ * hands, {});
     chunk_bad_.assign(chunks_, 0);
 
     double dt = options_.dt_ms;
     if (!(dt > 0)) {
-        dt = options_.safety_factor * critical_dt_ms_;
+        dt = options_.safety_factor * damped_critical_dt_ms();
         if (!std::isfinite(dt) || !(dt > 0)) throw InputError("solver: dt_ms must be given for a network without a finite critical step");
     }
     current_ = buffer_[0].data();
-    previous_ = buffer_[1].data();
-    next_ = buffer_[2].data();
+    next_ = buffer_[1].data();
+    motion_ = buffer_[2].data();
+    next_motion_ = buffer_[3].data();
     h_ = 0.0;
     set_time_step(dt);
     reset();
-}
-
-template <class Real>
-double BasicSolver<Real>::damped_critical_dt_ms() const {
-    if (!std::isfinite(critical_dt_ms_) || !(critical_dt_ms_ > 0)) return critical_dt_ms_;
-    const double lambda = 4.0 / (critical_dt_ms_ * critical_dt_ms_);
-    const double b = std::max(0.0, options_.damping) + support_drag_ + dashpot_ratio_ * lambda;
-    return (-b + std::sqrt(b * b + 4.0 * lambda)) / lambda;
 }
 
 template <class Real>
@@ -596,7 +623,7 @@ void BasicSolver<Real>::set_time_step(double dt_ms) {
     if (old_h > 0 && old_h != h_) {
         // Keep velocities: the Verlet state stores displacement per substep, u = v·h.
         const Real ratio = Real(h_ / old_h);
-        for (std::size_t i = 0; i < 4 * n_pad_; ++i) previous_[i] = current_[i] - (current_[i] - previous_[i]) * ratio;
+        for (std::size_t i = 0; i < 4 * n_pad_; ++i) motion_[i] = motion_[i] * ratio;
         snapshot();
     }
 }
@@ -620,15 +647,16 @@ void BasicSolver<Real>::reset() {
 template <class Real>
 void BasicSolver<Real>::reset_tissue() {
     std::copy(rest_.begin(), rest_.end(), current_);
-    std::copy(rest_.begin(), rest_.end(), previous_);
     std::copy(rest_.begin(), rest_.end(), next_);
+    std::fill(motion_, motion_ + 4 * n_pad_, Real(0));
+    std::fill(next_motion_, next_motion_ + 4 * n_pad_, Real(0));
     // At rest the springs and supports balance the gravity the rest state was built for
     // (`balanced_gravity`; zero for an unbalanced rest state, where they exert nothing): the rest
-    // acceleration is g − g_balanced, and x₋₁ = x₀ + ½·a·h² starts the motion at second order.
+    // acceleration is g − g_balanced, and u₀ = x₀ − x₋₁ = −½·a·h² starts the motion at second order.
     const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
     for (std::size_t i = 0; i < n_pad_; ++i)
         if (movable_[i])
-            for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] += Real(0.5 * rest_acceleration[c] * h_ * h_);
+            for (int c = 0; c < 3; ++c) motion_[4 * i + std::size_t(c)] = Real(-0.5 * rest_acceleration[c] * h_ * h_);
     for (int hand = 0; hand < hands; ++hand) release(hand);
     for (auto& list : touched_) list.clear();
     good_energy_ = 0.0;
@@ -645,11 +673,11 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
         const Eigen::Vector3d v = movable_[i] ? velocities[i] : Eigen::Vector3d::Zero();
         for (int c = 0; c < 3; ++c) {
             current_[4 * i + std::size_t(c)] = Real(positions[i][c]);
-            previous_[4 * i + std::size_t(c)] = Real(positions[i][c] - v[c] * h_);
+            motion_[4 * i + std::size_t(c)] = Real(v[c] * h_);
         }
     }
-    // Taylor start: x₋₁ = x₀ − v·h + ½·a·h², a = (f + m·g)/m − γ·v (Verlet is then second order from
-    // the first step; x₋₁ = x₀ − v·h alone would shift time by h/2, a first-order error).
+    // Taylor start: u₀ = x₀ − x₋₁ = v·h − ½·a·h², a = (f + m·g)/m − γ·v (Verlet is then second order
+    // from the first step; u₀ = v·h alone would shift time by h/2, a first-order error).
     std::vector<Eigen::Vector3d> half_step(n_, Eigen::Vector3d::Zero());
     for (std::size_t i = 0; i < n_; ++i) {
         if (!movable_[i]) continue;
@@ -657,8 +685,10 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
         const Eigen::Vector3d a = (force_on(i) + m * options_.gravity) / m - options_.damping * velocities[i];
         half_step[i] = 0.5 * h_ * h_ * a;
     }
-    for (std::size_t i = 0; i < n_; ++i)
-        for (int c = 0; c < 3; ++c) previous_[4 * i + std::size_t(c)] = Real(double(previous_[4 * i + std::size_t(c)]) + half_step[i][c]);
+    for (std::size_t i = 0; i < n_; ++i) {
+        const Eigen::Vector3d v = movable_[i] ? velocities[i] : Eigen::Vector3d::Zero();
+        for (int c = 0; c < 3; ++c) motion_[4 * i + std::size_t(c)] = Real(v[c] * h_ - half_step[i][c]);
+    }
     for (auto& list : touched_) list.clear();
     good_energy_ = compute_energy(false).total();
     substeps_since_check_ = 0;
@@ -668,14 +698,14 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
 template <class Real>
 void BasicSolver<Real>::snapshot() {
     good_current_.assign(current_, current_ + 4 * n_pad_);
-    good_previous_.assign(previous_, previous_ + 4 * n_pad_);
+    good_motion_.assign(motion_, motion_ + 4 * n_pad_);
     good_time_ms_ = time_ms_;
 }
 
 template <class Real>
 void BasicSolver<Real>::restore() {
     std::copy(good_current_.begin(), good_current_.end(), current_);
-    std::copy(good_previous_.begin(), good_previous_.end(), previous_);
+    std::copy(good_motion_.begin(), good_motion_.end(), motion_);
     time_ms_ = good_time_ms_;
     for (auto& list : touched_) list.clear();
     substeps_since_check_ = 0;
@@ -759,8 +789,9 @@ template <class Real>
 void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad) {
     KernelData<Real> k{};
     k.x = current_;
-    k.xp = previous_;
+    k.u = motion_;
     k.xn = next_;
+    k.un = next_motion_;
     k.neighbour = neighbour_.data();
     if (uniform_slots_) {
         k.rest_length = slot_rest_length_.data();
@@ -806,9 +837,9 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     // position is re-checked so rounding cannot leave it inside). The contact is inelastic and
     // frictionless: the particle keeps its own displacement u of this substep except that its
     // normal component becomes at least the probe surface's, so a deep or sudden probe does not
-    // fling particles out at penetration/h. The matching previous position is applied after the
-    // parallel loop (other particles still read the current buffer).
-    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched, std::vector<Eigen::Vector3d>& previous) {
+    // fling particles out at penetration/h. Only this particle's next position and motion change
+    // (nothing else reads them during the substep).
+    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched) {
         Real* x = next_ + 4 * i;
         const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
         Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
@@ -834,7 +865,8 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));
         u += std::max(0.0, (surface_motion - u).dot(normal)) * normal;
         touched.push_back(std::int32_t(i));
-        previous.push_back(stored - u);
+        Real* motion = next_motion_ + 4 * i;
+        for (int c = 0; c < 3; ++c) motion[c] = Real(u[c]);
     };
 
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
@@ -842,33 +874,21 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
             bool chunk_bad = false;
             const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
             for (std::size_t g = first; g < last; ++g) chunk_bad |= group_function(k, g);
-            for (int hand = 0; hand < hands; ++hand) {
-                touched_[chunk * hands + std::size_t(hand)].clear();
-                touched_previous_[chunk * hands + std::size_t(hand)].clear();
-            }
+            for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
             for (int pi = 0; pi < probe_count; ++pi) {
                 const ProbeFrame& p = probes[std::size_t(pi)];
                 auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
-                auto& previous = touched_previous_[chunk * hands + std::size_t(p.hand)];
                 const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
                 const std::size_t end = std::min(n_, last * lane_count);
                 for (std::size_t i = first * lane_count; i < end; ++i) {
                     const Real* x = next_ + 4 * i;
                     const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
-                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, previous);
+                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched);
                 }
             }
             chunk_bad_[chunk] = chunk_bad;
         }
     });
-
-    // Probe contacts: the previous position that gives each touched particle its post-contact
-    // displacement (written into the buffer that becomes the previous one).
-    for (std::size_t list = 0; list < touched_.size(); ++list)
-        for (std::size_t q = 0; q < touched_[list].size(); ++q) {
-            Real* x = current_ + 4 * std::size_t(touched_[list][q]);
-            for (int c = 0; c < 3; ++c) x[c] = Real(touched_previous_[list][q][c]);
-        }
 
     // Grabbed particles follow the tool rigidly.
     for (int hand = 0; hand < hands; ++hand) {
@@ -877,16 +897,19 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
         for (std::size_t q = 0; q < state.held.size(); ++q) {
             const Eigen::Vector3d world = poses[hand].position + rotation * state.held_local[q];
-            Real* x = next_ + 4 * std::size_t(state.held[q]);
-            for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
+            const std::size_t i = std::size_t(state.held[q]);
+            Real* x = next_ + 4 * i;
+            Real* motion = next_motion_ + 4 * i;
+            for (int c = 0; c < 3; ++c) {
+                x[c] = Real(world[c]);
+                motion[c] = Real(world[c] - double(current_[4 * i + std::size_t(c)]));
+            }
         }
     }
 
     for (std::size_t chunk = 0; chunk < chunks_; ++chunk) bad = bad || chunk_bad_[chunk];
-    Real* old_previous = previous_;
-    previous_ = current_;
-    current_ = next_;
-    next_ = old_previous;
+    std::swap(current_, next_);
+    std::swap(motion_, next_motion_);
     time_ms_ += h_;
 }
 
@@ -949,7 +972,7 @@ StepReport BasicSolver<Real>::step(int steps) {
     if (!options_.watchdog) {
         // Even unguarded, nothing non-finite leaves the solver.
         bool finite = true;
-        for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]) && std::isfinite(previous_[i]);
+        for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]) && std::isfinite(motion_[i]);
         if (!finite) fire(WatchdogReason::non_finite, "");
     }
     for (auto& state : hand_) state.pose = state.target;
@@ -960,19 +983,18 @@ template <class Real>
 Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
     const Real* xi = current_ + 4 * i;
-    const Real* pi = previous_ + 4 * i;
+    const Real* ui = motion_ + 4 * i;
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
         const std::size_t j = std::size_t(neighbour_[t]);
         if (j == i) continue;
         const Real* xj = current_ + 4 * j;
-        const Real* pj = previous_ + 4 * j;
+        const Real* uj = motion_ + 4 * j;
         const Eigen::Vector3d d(double(xj[0]) - xi[0], double(xj[1]) - xi[1], double(xj[2]) - xi[2]);
         const double length = std::max(d.norm(), 1e-15);
         double scale = double(stiffness_[t]) * (length - double(rest_length_[t])) / length;
         if (damped_) {
-            const Eigen::Vector3d du((double(xj[0]) - pj[0]) - (double(xi[0]) - pi[0]), (double(xj[1]) - pj[1]) - (double(xi[1]) - pi[1]),
-                                     (double(xj[2]) - pj[2]) - (double(xi[2]) - pi[2]));
+            const Eigen::Vector3d du(double(uj[0]) - ui[0], double(uj[1]) - ui[1], double(uj[2]) - ui[2]);
             scale += double(dashpot_over_h_[t]) * du.dot(d) / (length * length);
         }
         force += scale * d;
@@ -980,7 +1002,7 @@ Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
     if (supported_ && support_stiffness_[i] != Real(0)) {
         const Real* y = support_point_.data() + 4 * i;
         force += double(support_stiffness_[i]) * Eigen::Vector3d(double(y[0]) - xi[0], double(y[1]) - xi[1], double(y[2]) - xi[2]);
-        force -= double(support_damping_over_h_[i]) * Eigen::Vector3d(double(xi[0]) - pi[0], double(xi[1]) - pi[1], double(xi[2]) - pi[2]);
+        force -= double(support_damping_over_h_[i]) * Eigen::Vector3d(double(ui[0]), double(ui[1]), double(ui[2]));
     }
     return force;
 }
@@ -1049,7 +1071,7 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                                (std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) + std::pow(double(y[2]) - x[2], 2));
                 }
                 const double m = double(mass_[i]);
-                Eigen::Vector3d u(static_cast<double>(x[0]) - previous_[4 * i], static_cast<double>(x[1]) - previous_[4 * i + 1], static_cast<double>(x[2]) - previous_[4 * i + 2]);
+                Eigen::Vector3d u(static_cast<double>(motion_[4 * i]), static_cast<double>(motion_[4 * i + 1]), static_cast<double>(motion_[4 * i + 2]));
                 if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / m));
                 kinetic += 0.5 * m * u.squaredNorm() / (h * h);
                 const Eigen::Vector3d displacement(static_cast<double>(x[0]) - rest_[4 * i], static_cast<double>(x[1]) - rest_[4 * i + 1], static_cast<double>(x[2]) - rest_[4 * i + 2]);
@@ -1090,7 +1112,7 @@ std::uint64_t BasicSolver<Real>::state_hash() const {
         for (std::size_t b = 0; b < 4 * n_pad_ * sizeof(Real); ++b) hash = (hash ^ bytes[b]) * 1099511628211ull;
     };
     mix(current_);
-    mix(previous_);
+    mix(motion_);
     return hash;
 }
 

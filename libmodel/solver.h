@@ -29,21 +29,31 @@ namespace heartsim {
 /// Which inner loop runs the step. All of them give the same bits for float: they evaluate the
 /// same IEEE operations in the same order (no FMA contraction, exact sqrt and division).
 enum class SolverKernel {
-    automatic,  ///< the fastest this CPU supports (AVX2 where present, else SSE2)
+    automatic,  ///< the fastest this CPU supports (AVX-512VL, else AVX2, else SSE2)
     portable,   ///< plain C++, what the compiler makes of it (the only kernel for double)
     sse2,       ///< x86-64 baseline intrinsics, 4 lanes
     avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2
+    /// The avx2 kernel compiled for AVX-512VL: the same 8-lane instructions with 32 vector
+    /// registers instead of 16, so the slot loop does not spill; falls back to avx2.
+    avx512,
 };
+const char* to_string(SolverKernel kernel);
 
 /// Solver settings: the scenario's /solver attributes (formats/scenario.h `SolverSettings`)
 /// plus what only the solver needs. Every field has a default and a unit.
 struct SolverOptions {
-    /// Time of one step() unit, ms. 0 = safety_factor × critical step.
+    /// Time of one step() unit, ms. 0 = safety_factor × the damped critical step.
     double dt_ms = 0.0;
     /// Critical step 2/ω_max, ms. 0 = estimated here (stability.h: Lanczos iteration).
     double critical_dt_ms = 0.0;
-    /// Each step is split into the fewest equal substeps with substep ≤ safety_factor × critical.
-    double safety_factor = 0.5;
+    /// The stable step with dashpots, support dampers and drag (stability.h stable_step_ms), ms.
+    /// 0 = estimated here from critical_dt_ms and the damping (a Lanczos estimate of its own).
+    double damped_critical_dt_ms = 0.0;
+    /// Each step is split into the fewest equal substeps with substep ≤ safety_factor × the
+    /// damped critical step (damped_critical_dt_ms); dt_ms = 0 takes one such substep. The margin
+    /// covers the estimate (a Lanczos Ritz value approaches the largest eigenvalue from below)
+    /// and deformation: docs/solver.md "Step policy".
+    double safety_factor = 0.9;
     /// false: never subdivide (one substep per step even above critical; the watchdog guards it).
     bool subdivide = true;
     /// Global drag γ, 1/ms: f = −γ·m·v on every free particle (scenario /solver damping).
@@ -171,11 +181,11 @@ public:
     double substep_ms() const { return h_; }
     int substeps_per_step() const { return substeps_; }
     double simulated_time_ms() const { return time_ms_; }
-    /// The critical step with damping: dashpots and drag shorten it. For a mode ω (ω² ≤ λ =
-    /// 4/critical²) the damped central-difference scheme is stable while ω²h² + 2h(γ + βω²) < 4,
-    /// β = max c/k over springs, γ the drag plus the largest support dashpot's c/m; solved for h
-    /// at ω² = λ. Equals the critical step undamped.
-    double damped_critical_dt_ms() const;
+    /// The critical step with damping: dashpots, support dampers and drag shorten it. The
+    /// damped central-difference scheme is stable while h²λ_K + 2hλ_C < 4 (stability.h
+    /// stable_step_ms), λ_K = 4/critical², λ_C the largest eigenvalue of M^(−1/2) C M^(−1/2)
+    /// estimated at load. Equals the critical step undamped.
+    double damped_critical_dt_ms() const { return damped_critical_dt_ms_; }
 
     /// Instruments: hand 0 or 1. Changing an instrument releases what it held.
     void set_instrument(int hand, const Instrument& instrument);
@@ -262,14 +272,18 @@ private:
     int substeps_ = 1;
     Real min_rest_length_ = 0;
     double energy_floor_ = 0.0;
-    double dashpot_ratio_ = 0.0;        ///< β = max c/k over springs, ms
+    double damped_critical_dt_ms_ = 0.0;  ///< given, or from λ_max of M^(−1/2) C M^(−1/2) (stability.h)
     bool damped_ = false;
 
-    // Per particle (n_pad_): positions as float4 in three rotating buffers, rest positions.
-    std::vector<Real> buffer_[3];
+    // Per particle (n_pad_), float4 each: positions and the motion of the last substep
+    // (u = x_n − x_{n−1} = v·h), each in two buffers that swap after a substep; rest positions.
+    // Keeping u apart from x keeps the velocity exact to float rounding of u itself, not of the
+    // absolute coordinates (docs/solver.md "Precision").
+    std::vector<Real> buffer_[4];
     Real* current_ = nullptr;
-    Real* previous_ = nullptr;
     Real* next_ = nullptr;
+    Real* motion_ = nullptr;
+    Real* next_motion_ = nullptr;
     std::vector<Real> rest_;            ///< 4 per particle
     std::vector<Real> mass_;            ///< g (1 for padding)
     std::vector<Real> inverse_mass_h2_; ///< h²/m, 0 for anchored and padding
@@ -280,7 +294,6 @@ private:
     std::vector<Real> support_stiffness_; ///< N/mm, 0 for unsupported, anchored and padding
     std::vector<Real> support_damping_;   ///< c, N·ms/mm
     std::vector<Real> support_damping_over_h_; ///< c/h, N/mm
-    double support_drag_ = 0.0;           ///< max c/m over supported particles, 1/ms
     bool supported_ = false;
 
     // Per group of `lanes` particles, per slot, per lane: [group][slot][lane].
@@ -295,11 +308,10 @@ private:
 
     std::array<HandState, hands> hand_;
     std::vector<std::vector<std::int32_t>> touched_;  ///< [chunk × hands + hand]
-    std::vector<std::vector<Eigen::Vector3d>> touched_previous_;  ///< their post-contact previous positions
     std::vector<std::uint8_t> chunk_bad_;
 
     // Watchdog.
-    std::vector<Real> good_current_, good_previous_;
+    std::vector<Real> good_current_, good_motion_;
     double good_time_ms_ = 0.0;
     double good_energy_ = 0.0;
     long long substeps_since_check_ = 0;

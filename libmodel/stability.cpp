@@ -17,6 +17,64 @@ struct SpringDirection {
     double tension_over_length = 0.0;  ///< t/L at rest, N/mm (0 for an unstressed spring)
 };
 
+struct Lanczos {
+    double value = 0.0;
+    int iterations = 0;
+    bool converged = false;
+};
+
+/// Largest eigenvalue of a symmetric positive semi-definite operator on 3 values per particle,
+/// `multiply(v, w)`: w = A v; particles whose `weight` is 0 (anchored) are left out of the start
+/// vector. Lanczos: the Krylov space of a power iteration, but the largest Ritz value converges
+/// in tens of steps where the power iteration's Rayleigh quotient needs hundreds (the top of a
+/// lattice's spectrum is a dense band). Plain three-term recurrence, no reorthogonalisation:
+/// lost orthogonality only duplicates converged Ritz values, it does not move the largest one.
+/// The start vector is random but seeded: the highest mode of a lattice alternates in sign,
+/// which a smooth start would barely contain. A Ritz value is a Rayleigh quotient: it never
+/// exceeds the true value and approaches it from below.
+template <class Multiply>
+Lanczos largest_eigenvalue(const std::vector<double>& weight, Multiply&& multiply, int max_iterations, double tolerance) {
+    Lanczos result;
+    const std::size_t n = weight.size();
+    std::mt19937_64 generator(20061);
+    std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+    Eigen::VectorXd q(3 * n), previous = Eigen::VectorXd::Zero(3 * n), w(3 * n);
+    for (Eigen::Index i = 0; i < q.size(); ++i) q[i] = uniform(generator) * (weight[std::size_t(i / 3)] > 0);
+    if (q.norm() == 0) return result;
+    q.normalize();
+    std::vector<double> alpha, beta;  // the tridiagonal matrix T: diagonal and off-diagonal
+    double beta_previous = 0.0;
+    for (int iteration = 1; iteration <= max_iterations; ++iteration) {
+        multiply(q, w);
+        const double a = q.dot(w);
+        w -= a * q + beta_previous * previous;
+        alpha.push_back(a);
+        const double b = w.norm();
+        result.iterations = iteration;
+
+        // Largest eigenvalue of T and its residual bound β·|last component of its eigenvector|.
+        const Eigen::Index m = Eigen::Index(alpha.size());
+        Eigen::MatrixXd t = Eigen::MatrixXd::Zero(m, m);
+        for (Eigen::Index i = 0; i < m; ++i) {
+            t(i, i) = alpha[std::size_t(i)];
+            if (i + 1 < m) t(i, i + 1) = t(i + 1, i) = beta[std::size_t(i)];
+        }
+        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> solver(t);
+        const double ritz = solver.eigenvalues()[m - 1];
+        const double residual = b * std::abs(solver.eigenvectors()(m - 1, m - 1));
+        result.value = ritz;
+        if (residual <= tolerance * std::abs(ritz) || b <= 1e-14 * std::abs(ritz)) {
+            result.converged = true;
+            break;
+        }
+        beta.push_back(b);
+        previous = q;
+        q = w / b;
+        beta_previous = b;
+    }
+    return result;
+}
+
 }  // namespace
 
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
@@ -66,12 +124,7 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     if (estimate.eigenvalue_bound <= 0.0) return estimate;
     estimate.critical_dt_bound_ms = 2.0 / std::sqrt(estimate.eigenvalue_bound);
 
-    // Lanczos on A = M^(−1/2) K M^(−1/2): the Krylov space of a power iteration, but the largest
-    // Ritz value converges in tens of steps where the power iteration's Rayleigh quotient needs
-    // hundreds (the top of a lattice's spectrum is a dense band). Plain three-term recurrence, no
-    // reorthogonalisation: lost orthogonality only duplicates converged Ritz values, it does not
-    // move the largest one. The start vector is random but seeded: the highest mode of a lattice
-    // alternates in sign, which a smooth start would barely contain.
+    // Lanczos on A = M^(−1/2) K M^(−1/2) (largest_eigenvalue below).
     auto multiply = [&](const Eigen::VectorXd& v, Eigen::VectorXd& w) {
         w.setZero();
         for (std::size_t s = 0; s < springs.size(); ++s) {
@@ -89,44 +142,73 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
                 w.segment<3>(3 * Eigen::Index(i)) += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i] *
                                                      v.segment<3>(3 * Eigen::Index(i));
     };
-    std::mt19937_64 generator(20061);
-    std::uniform_real_distribution<double> uniform(-1.0, 1.0);
-    Eigen::VectorXd q(3 * n), previous = Eigen::VectorXd::Zero(3 * n), w(3 * n);
-    for (Eigen::Index i = 0; i < q.size(); ++i) q[i] = uniform(generator) * (inverse_sqrt_mass[std::size_t(i / 3)] > 0);
-    if (q.norm() == 0) return estimate;
-    q.normalize();
-    std::vector<double> alpha, beta;  // the tridiagonal matrix T: diagonal and off-diagonal
-    double beta_previous = 0.0;
-    for (int iteration = 1; iteration <= max_iterations; ++iteration) {
-        multiply(q, w);
-        const double a = q.dot(w);
-        w -= a * q + beta_previous * previous;
-        alpha.push_back(a);
-        const double b = w.norm();
-        estimate.iterations = iteration;
-
-        // Largest eigenvalue of T and its residual bound β·|last component of its eigenvector|.
-        const Eigen::Index m = Eigen::Index(alpha.size());
-        Eigen::MatrixXd t = Eigen::MatrixXd::Zero(m, m);
-        for (Eigen::Index i = 0; i < m; ++i) {
-            t(i, i) = alpha[std::size_t(i)];
-            if (i + 1 < m) t(i, i + 1) = t(i + 1, i) = beta[std::size_t(i)];
-        }
-        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> solver(t);
-        const double ritz = solver.eigenvalues()[m - 1];
-        const double residual = b * std::abs(solver.eigenvectors()(m - 1, m - 1));
-        estimate.max_eigenvalue = ritz;
-        if (residual <= tolerance * ritz || b <= 1e-14 * std::abs(ritz)) {
-            estimate.converged = true;
-            break;
-        }
-        beta.push_back(b);
-        previous = q;
-        q = w / b;
-        beta_previous = b;
-    }
+    const Lanczos lanczos = largest_eigenvalue(inverse_sqrt_mass, multiply, max_iterations, tolerance);
+    estimate.max_eigenvalue = lanczos.value;
+    estimate.iterations = lanczos.iterations;
+    estimate.converged = lanczos.converged;
     if (estimate.max_eigenvalue > 0) estimate.critical_dt_ms = 2.0 / std::sqrt(estimate.max_eigenvalue);
     return estimate;
+}
+
+double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio) {
+    const double reduced = mass_a * mass_b / (mass_a + mass_b);
+    return 2.0 * damping_ratio * std::sqrt(stiffness * reduced);
+}
+
+double estimate_damping_eigenvalue(const Particles& particles, const Springs& springs,
+                                   const std::vector<double>& damping_ratio, double drag_per_ms) {
+    const std::size_t n = particles.size();
+    std::vector<double> inverse_sqrt_mass(n, 0.0);
+    bool free = false;
+    for (std::size_t i = 0; i < n; ++i)
+        if (!particles.anchored[i] && particles.mass[i] > 0) inverse_sqrt_mass[i] = 1.0 / std::sqrt(double(particles.mass[i])), free = true;
+    const double drag = std::max(0.0, drag_per_ms);
+    if (!free) return 0.0;
+    auto ratio = [&](std::size_t i) {
+        const auto row = std::size_t(particles.material[i]);
+        return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
+    };
+    // Per spring: its dashpot c and unit direction at rest.
+    std::vector<double> dashpot(springs.size(), 0.0);
+    std::vector<Eigen::Vector3d> unit(springs.size(), Eigen::Vector3d::Zero());
+    bool damped = false;
+    for (std::size_t s = 0; s < springs.size(); ++s) {
+        const auto [a, b] = springs.pairs[s];
+        const auto& xa = particles.rest_position[std::size_t(a)];
+        const auto& xb = particles.rest_position[std::size_t(b)];
+        const Eigen::Vector3d d(double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]);
+        if (d.norm() > 0) unit[s] = d.normalized();
+        const double zeta = 0.5 * (ratio(std::size_t(a)) + ratio(std::size_t(b)));
+        dashpot[s] = dashpot_coefficient(double(springs.stiffness[s]), double(particles.mass[std::size_t(a)]),
+                                         double(particles.mass[std::size_t(b)]), zeta);
+        damped = damped || dashpot[s] > 0;
+    }
+    std::vector<double> support(n, 0.0);
+    if (!particles.support_damping.empty())
+        for (std::size_t i = 0; i < n; ++i) {
+            support[i] = double(particles.support_damping[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i];
+            damped = damped || support[i] > 0;
+        }
+    if (!damped) return drag;
+    auto multiply = [&](const Eigen::VectorXd& v, Eigen::VectorXd& w) {
+        w.setZero();
+        for (std::size_t s = 0; s < springs.size(); ++s) {
+            const auto [a, b] = springs.pairs[s];
+            const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
+            const Eigen::Vector3d relative = v.segment<3>(3 * a) * ma - v.segment<3>(3 * b) * mb;
+            const Eigen::Vector3d force = dashpot[s] * unit[s] * unit[s].dot(relative);
+            w.segment<3>(3 * a) += force * ma;
+            w.segment<3>(3 * b) -= force * mb;
+        }
+        for (std::size_t i = 0; i < n; ++i) w.segment<3>(3 * Eigen::Index(i)) += support[i] * v.segment<3>(3 * Eigen::Index(i));
+    };
+    return largest_eigenvalue(inverse_sqrt_mass, multiply, 300, 1e-6).value + drag;
+}
+
+double stable_step_ms(double max_eigenvalue, double damping_eigenvalue) {
+    const double lambda = std::max(0.0, max_eigenvalue), b = std::max(0.0, damping_eigenvalue);
+    if (lambda == 0 && b == 0) return std::numeric_limits<double>::infinity();
+    return 4.0 / (b + std::sqrt(b * b + 4.0 * lambda));  // the root of λh² + 2bh − 4, without cancellation
 }
 
 }  // namespace heartsim

@@ -1,6 +1,7 @@
 /// @file stability.h
 /// @brief The critical time step of explicit (Verlet / central-difference) integration of a
-/// spring network: dt_crit = 2 / ω_max, with ω_max² the largest eigenvalue of M⁻¹K at rest.
+/// spring network: dt_crit = 2 / ω_max, with ω_max² the largest eigenvalue of M⁻¹K at rest;
+/// and the stable step with dashpots, drag and support dampers (docs/solver.md "Step policy").
 #pragma once
 
 #include "lattice.h"
@@ -30,5 +31,23 @@ struct StabilityEstimate {
 /// A network with no free particle or no spring gives infinite steps.
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
                                               int max_iterations = 300, double tolerance = 1e-6);
+
+/// The dashpot of a spring of stiffness k between masses m_a and m_b with damping ratio ζ:
+/// c = 2ζ√(kμ), μ = m_a m_b / (m_a + m_b), N·ms/mm (docs/scenario-format.md).
+double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio);
+
+/// Largest eigenvalue of M^(−1/2) C M^(−1/2), 1/ms, by the same Lanczos iteration: C the damping
+/// matrix of the spring dashpots (c n nᵀ per spring, ζ the mean of the two particles' rows of
+/// `damping_ratio`, missing rows 0), the support dashpots (c_s per supported particle) and the
+/// global drag γ·M. Zero without any damping.
+double estimate_damping_eigenvalue(const Particles& particles, const Springs& springs,
+                                   const std::vector<double>& damping_ratio, double drag_per_ms);
+
+/// The largest substep h for which Verlet with backward-difference damping is stable in every
+/// mode of the linearised network: h² λ_K + 2 h λ_C < 4 (energy argument: M − h²K/4 − hC/2 ≻ 0,
+/// with λ_max(h²K + 2hC) ≤ h² λ_K + 2h λ_C by Weyl's inequality). λ_K = max_eigenvalue (1/ms²),
+/// λ_C = estimate_damping_eigenvalue (1/ms). Equals the critical step 2/√λ_K without damping;
+/// infinite when both are 0.
+double stable_step_ms(double max_eigenvalue, double damping_eigenvalue);
 
 }  // namespace heartsim

@@ -188,8 +188,8 @@ public:
         for (int hand = 0; hand < hands; ++hand) release(hand);
         const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
         glCopyNamedBufferSubData(rest_current_.id, position_[current_].id, 0, 0, bytes);
-        glCopyNamedBufferSubData(rest_previous_.id, position_[previous_].id, 0, 0, bytes);
         glCopyNamedBufferSubData(rest_current_.id, position_[next_].id, 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_motion_.id, motion_[current_].id, 0, 0, bytes);
         const GLuint zero = 0;
         for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1)})
             glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
@@ -248,12 +248,13 @@ public:
                 set_indexed_matrix(sp, "probe_rotation", k, rotation.data());
                 set_indexed_matrix(sp, "probe_previous_rotation", k, previous_rotation.data());
             }
-            // Touched lists and contact fix-ups are per substep.
-            glClearNamedBufferSubData(counters_.id, GL_R32UI, 0, 12, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            // Touched lists are per substep.
+            glClearNamedBufferSubData(counters_.id, GL_R32UI, 0, 8, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
             glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::previous, position_[previous_].id);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id);
             glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next, position_[next_].id);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next_motion, motion_[next_].id);
             glUseProgram(sp);
             glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -268,10 +269,7 @@ public:
                 glDispatchCompute(1, 1, 1);
                 glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
             }
-            const int old_previous = previous_;
-            previous_ = current_;
-            current_ = next_;
-            next_ = old_previous;
+            std::swap(current_, next_);
             time_ms_ += h_;
             ++report.substeps;
         }
@@ -306,7 +304,7 @@ public:
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
         bind_common();
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::previous, position_[previous_].id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id);
         glBindBufferRange(GL_SHADER_STORAGE_BUFFER, sh::forces, ring_.id, GLintptr(slot) * ring_stride, sizeof(ForceSlot));
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, picking_ ? picking_->picked_buffer() : touched_.id);
         int kinds[2];
@@ -506,7 +504,6 @@ private:
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_by, held_by_.id);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_.id);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::touched, touched_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::fixup, fixup_.id);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id);
     }
@@ -555,7 +552,7 @@ private:
         struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
         static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in gl_shaders.h
         std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
-        std::vector<float> current(4 * n_pad_, 0.0f), previous;
+        std::vector<float> current(4 * n_pad_, 0.0f), motion(4 * n_pad_, 0.0f);
         supported_ = false;
         for (std::size_t i = 0; i < n_; ++i) {
             const bool movable = !particles.anchored[i];
@@ -574,17 +571,17 @@ private:
             for (int c = 0; c < 3; ++c) current[4 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
         }
         // Solver::reset(): at rest the springs and supports balance `balanced_gravity`, so the
-        // motion starts with acceleration g − g_balanced: x₋₁ = x₀ + ½·a·h².
+        // motion starts with acceleration g − g_balanced: u₀ = x₀ − x₋₁ = −½·a·h².
         const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
-        previous = current;
         for (std::size_t i = 0; i < n_; ++i)
             if (constants[i].movable)
-                for (int c = 0; c < 3; ++c) previous[4 * i + std::size_t(c)] += float(0.5 * rest_acceleration[c] * h_ * h_);
+                for (int c = 0; c < 3; ++c) motion[4 * i + std::size_t(c)] = float(-0.5 * rest_acceleration[c] * h_ * h_);
         storage(position_[0], current, 0);
-        storage(position_[1], previous, 0);
-        storage(position_[2], current, 0);
+        storage(position_[1], current, 0);
+        storage(motion_[0], motion, 0);
+        storage(motion_[1], motion, 0);
         storage(rest_current_, current, 0);    // the start state again, for reset_tissue()
-        storage(rest_previous_, previous, 0);
+        storage(rest_motion_, motion, 0);
         storage(neighbour_, neighbour);
         storage(rest_length_, rest);
         storage(stiffness_, stiff);
@@ -593,7 +590,6 @@ private:
         storage(held_by_, std::vector<std::int32_t>(n_pad_, -1));
         storage(counters_, std::vector<std::uint32_t>(sh::counter_words, 0u), GL_DYNAMIC_STORAGE_BIT);
         storage(touched_, std::size_t(hands) * n_ * 4, 0);
-        storage(fixup_, n_ * 16, 0);
         storage(held_, std::size_t(hands) * n_ * 4, 0);
         storage(held_local_, std::size_t(hands) * n_ * 3 * 8, 0);
         const GLbitfield ring_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
@@ -613,9 +609,11 @@ private:
     bool supported_ = false;
     std::array<HandState, hands> hand_{};
 
-    Buffer position_[3], rest_current_, rest_previous_;
-    int current_ = 0, previous_ = 1, next_ = 2;
-    Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, fixup_, held_, held_local_, ring_;
+    /// Positions and the motion of the last substep (u = x_n − x_{n−1}), two buffers each: index
+    /// current_ is read by a substep, next_ written; they swap after it.
+    Buffer position_[2], motion_[2], rest_current_, rest_motion_;
+    int current_ = 0, next_ = 1;
+    Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
     Program step_program_, after_program_, capture_program_, release_program_, force_program_;
     void* ring_map_ = nullptr;
     std::array<GLsync, ring_slots> fences_{};
@@ -635,10 +633,10 @@ private:
 
 std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
     const std::size_t n = scenario.lattice.particles.size(), n_pad = (n + 7) / 8 * 8;
-    return 5 * n_pad * 16            // positions: three rotating float4 buffers and the start state
+    return 6 * n_pad * 16            // positions and motions: two float4 buffers each, and the start state of both
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
-           + n * (2 * 4 + 16 + 2 * 4 + 2 * 24)  // touched lists, contact fix-ups, held lists and their local coordinates
+           + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
            + ring_slots * ring_stride + 32;
 }
 

@@ -9,13 +9,13 @@ namespace heartsim::gl_shaders {
 
 /// Buffer bindings shared by all passes.
 enum Binding : unsigned {
-    current = 0, previous = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
-    particle = 7, held_by = 8, counters = 9, touched = 10, fixup = 11, held = 12, held_local = 13, forces = 14,
+    current = 0, motion = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
+    particle = 7, held_by = 8, counters = 9, touched = 10, next_motion = 11, held = 12, held_local = 13, forces = 14,
     picked = 15,  ///< probe contact lists of the picking / search passes (runtime/picking.cpp also uses 16..19)
 };
 
 /// Counter words in the `counters` buffer.
-enum Counter : unsigned { touched0 = 0, touched1 = 1, fixups = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
+enum Counter : unsigned { touched0 = 0, touched1 = 1, unused = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
 
 inline constexpr const char* common = R"(#version 430 core
 #extension GL_ARB_gpu_shader_fp64 : enable
@@ -31,17 +31,18 @@ uniform bool supported;        // any particle has a support spring
 )";
 
 /// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
+/// Positions x and the motion of the last substep u = x_n − x_{n−1} are kept apart, as on the CPU.
 inline constexpr const char* step = R"(
 layout(local_size_x = 64) in;
 layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 1) readonly buffer PreviousBuffer { vec4 xp[]; };
+layout(std430, binding = 1) readonly buffer MotionBuffer { vec4 u[]; };
 layout(std430, binding = 2) writeonly buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = 11) writeonly buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
 layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
 layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
 layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
 layout(std430, binding = 10) writeonly buffer TouchedBuffer { int touched[]; };
-layout(std430, binding = 11) writeonly buffer FixupBuffer { vec4 fixup[]; };
 
 uniform float keep;             // 1 − γh
 uniform vec3 gravity;           // mm/ms²
@@ -75,9 +76,9 @@ void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= padded_count) return;
     uint group = i / 8u, lane = i % 8u;
-    vec4 own = x[i], own_previous = xp[i];
+    vec4 own = x[i], own_motion = u[i];
     precise float xi = own.x, yi = own.y, zi = own.z;
-    precise float uxi = own.x - own_previous.x, uyi = own.y - own_previous.y, uzi = own.z - own_previous.z;
+    precise float uxi = own_motion.x, uyi = own_motion.y, uzi = own_motion.z;
     precise float fx = 0.0, fy = 0.0, fz = 0.0;
     uint table = group * 18u * 8u + lane;
     for (uint s = 0u; s < 18u; ++s) {
@@ -91,8 +92,8 @@ void main() {
         precise float inverse = 1.0 / len;
         precise float scale = (stiffness[t] * (len - rest_length[t])) * inverse;
         if (damped) {
-            vec4 qj = xp[j];
-            precise float dux = (pj.x - qj.x) - uxi, duy = (pj.y - qj.y) - uyi, duz = (pj.z - qj.z) - uzi;
+            vec4 qj = u[j];
+            precise float dux = qj.x - uxi, duy = qj.y - uyi, duz = qj.z - uzi;
             precise float along = dux * dx + duy * dy;
             along = (along + duz * dz) * inverse;
             along = along * inverse;
@@ -108,17 +109,16 @@ void main() {
         fy = fy + (p.support_stiffness * (p.support_point.y - yi) - p.support_point.w * uyi);
         fz = fz + (p.support_stiffness * (p.support_point.z - zi) - p.support_point.w * uzi);
     }
-    precise float nx = xi + (keep * uxi + (fx + p.mass * gravity.x) * p.inverse_mass_h2);
-    precise float ny = yi + (keep * uyi + (fy + p.mass * gravity.y) * p.inverse_mass_h2);
-    precise float nz = zi + (keep * uzi + (fz + p.mass * gravity.z) * p.inverse_mass_h2);
-    precise float ex = nx - xi, ey = ny - yi, ez = nz - zi;
+    precise float ex = keep * uxi + (fx + p.mass * gravity.x) * p.inverse_mass_h2;
+    precise float ey = keep * uyi + (fy + p.mass * gravity.y) * p.inverse_mass_h2;
+    precise float ez = keep * uzi + (fz + p.mass * gravity.z) * p.inverse_mass_h2;
+    precise float nx = xi + ex, ny = yi + ey, nz = zi + ez;
+    vec4 motion = vec4(ex, ey, ez, 0.0);
     precise float d2 = ex * ex + ey * ey;
     d2 = d2 + ez * ez;
     if (!(d2 <= max_displacement2)) atomicOr(counter[5], 1u);
 
     // Probes (libmodel/solver.cpp `project`): exact test and projection in double.
-    bool touched_any = false;
-    dvec3 contact_previous = dvec3(0.0);
     if (i < particle_count && p.movable != 0 && held_by[i] < 0) {
         for (int q = 0; q < probe_count; ++q) {
             precise float cx = float(probe_centre[q].x), cy = float(probe_centre[q].y), cz = float(probe_centre[q].z);
@@ -146,29 +146,25 @@ void main() {
             precise dvec3 normal = rotate(r, local / (semi * semi));
             normal = normal / sqrt(squared_norm(normal));
             precise dvec3 surface_motion = stored - (probe_previous_centre[q] + rotate(probe_previous_rotation[q], local * factor));
-            precise dvec3 u = world - dvec3(double(xi), double(yi), double(zi));
-            u = u + max(0.0lf, dot3(surface_motion - u, normal)) * normal;
-            contact_previous = stored - u;
-            touched_any = true;
+            precise dvec3 contact = world - dvec3(double(xi), double(yi), double(zi));
+            contact = contact + max(0.0lf, dot3(surface_motion - contact, normal)) * normal;
+            motion = vec4(vec3(contact), 0.0);
             uint slot = atomicAdd(counter[probe_hand[q]], 1u);
             touched[uint(probe_hand[q]) * particle_count + slot] = int(i);
         }
     }
     xn[i] = vec4(nx, ny, nz, 0.0);
-    if (touched_any) {
-        uint slot = atomicAdd(counter[2], 1u);
-        fixup[slot] = vec4(vec3(contact_previous), intBitsToFloat(int(i)));
-    }
+    un[i] = motion;
 }
 )";
 
-/// After a substep (one work group): probe contacts get their post-contact previous position
-/// (into the buffer that becomes the previous one), grabbed particles follow their grabber.
+/// After a substep (one work group): grabbed particles follow their grabber; their motion is
+/// the step from their current position (double, rounded once, as Solver::substep).
 inline constexpr const char* after_step = R"(
 layout(local_size_x = 256) in;
-layout(std430, binding = 0) buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
 layout(std430, binding = 2) buffer NextBuffer { vec4 xn[]; };
-layout(std430, binding = 11) readonly buffer FixupBuffer { vec4 fixup[]; };
+layout(std430, binding = 11) buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
 layout(std430, binding = 13) readonly buffer HeldLocalBuffer { double held_local[]; };
 uniform bool grabbing[2];
@@ -177,12 +173,6 @@ uniform dmat3 grab_rotation[2];
 
 void main() {
     uint lid = gl_LocalInvocationID.x;
-    uint fixups = counter[2];
-    for (uint k = lid; k < fixups; k += 256u) {
-        vec4 f = fixup[k];
-        uint i = uint(floatBitsToInt(f.w));
-        x[i] = vec4(f.xyz, 0.0);
-    }
     for (int hand = 0; hand < 2; ++hand) {
         if (!grabbing[hand]) continue;
         uint count = counter[3 + hand];
@@ -196,6 +186,8 @@ void main() {
             precise double c = r[0][2] * v.x + r[1][2] * v.y; c = c + r[2][2] * v.z;
             precise dvec3 world = grab_centre[hand] + dvec3(a, b, c);
             xn[i] = vec4(vec3(world), 0.0);
+            precise dvec3 step_motion = world - dvec3(x[i].xyz);
+            un[i] = vec4(vec3(step_motion), 0.0);
         }
     }
 }
@@ -249,7 +241,7 @@ void main() {
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
 layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 1) readonly buffer PreviousBuffer { vec4 xp[]; };
+layout(std430, binding = 1) readonly buffer MotionBuffer { vec4 u[]; };
 layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
 layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
 layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
@@ -270,20 +262,20 @@ void main() {
     precise dvec3 sum = dvec3(0.0);
     for (uint k = lid; k < count; k += 256u) {
         uint i = uint(kind == 1 ? touched[hand * particle_count + k] : kind == 3 ? picked[hand * particle_count + k] : held[hand * particle_count + k]);
-        vec4 xi = x[i], pi = xp[i];
+        vec4 xi = x[i], ui = u[i];
         uint table = (i / 8u) * 18u * 8u + i % 8u;
         precise dvec3 f = dvec3(0.0);
         for (uint s = 0u; s < 18u; ++s) {
             uint t = table + s * 8u;
             uint j = uint(neighbour[t]);
             if (j == i) continue;
-            vec4 xj = x[j], pj = xp[j];
+            vec4 xj = x[j], uj = u[j];
             precise dvec3 d = dvec3(xj.xyz) - dvec3(xi.xyz);
             precise double len2 = d.x * d.x + d.y * d.y; len2 = len2 + d.z * d.z;
             precise double len = max(sqrt(len2), 1e-15lf);
             precise double scale = double(stiffness[t]) * (len - double(rest_length[t])) / len;
             if (damped) {
-                precise dvec3 du = (dvec3(xj.xyz) - dvec3(pj.xyz)) - (dvec3(xi.xyz) - dvec3(pi.xyz));
+                precise dvec3 du = dvec3(uj.xyz) - dvec3(ui.xyz);
                 precise double along = du.x * d.x + du.y * d.y; along = along + du.z * d.z;
                 scale = scale + double(dashpot[t]) * along / (len * len);
             }
@@ -292,7 +284,7 @@ void main() {
         Particle own = particle[i];
         if (supported && own.support_stiffness != 0.0) {
             f = f + double(own.support_stiffness) * (dvec3(own.support_point.xyz) - dvec3(xi.xyz));
-            f = f - double(own.support_point.w) * (dvec3(xi.xyz) - dvec3(pi.xyz));
+            f = f - double(own.support_point.w) * dvec3(ui.xyz);
         }
         sum = sum + f;
     }

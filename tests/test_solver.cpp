@@ -399,10 +399,11 @@ TEST(Solver, AutomaticSubstepsKeepTheStepBelowTheSafetyFraction) {
     SolverOptions o;
     o.dt_ms = 1.0;
     Solver solver(model.lattice, model.packing.neighbours, o);
-    const double critical = solver.load_report().critical_dt_ms;
+    const double critical = solver.load_report().damped_critical_dt_ms;
     EXPECT_TRUE(solver.load_report().critical_dt_estimated);
-    EXPECT_LE(solver.substep_ms(), 0.5 * critical * (1 + 1e-12));
-    EXPECT_GT(solver.substep_ms(), 0.5 * critical * (1 - 1.0 / solver.substeps_per_step()) * 0.999);
+    EXPECT_LE(critical, solver.load_report().critical_dt_ms);
+    EXPECT_LE(solver.substep_ms(), o.safety_factor * critical * (1 + 1e-12));
+    EXPECT_GT(solver.substep_ms(), o.safety_factor * critical * (1 - 1.0 / solver.substeps_per_step()) * 0.999);
     EXPECT_NEAR(solver.substep_ms() * solver.substeps_per_step(), 1.0, 1e-12);
     const StepReport report = solver.step(3);
     EXPECT_EQ(report.steps, 3);
@@ -431,14 +432,20 @@ TEST(Solver, SameBitsForOneAndTwoThreadsAndEveryKernel) {
             { const StepReport r = solver.step(); EXPECT_FALSE(r.diverged) << r.message; }
         }
         EXPECT_EQ(solver.load_report().uniform_slots, compact);
-        EXPECT_EQ(solver.load_report().kernel, kernel == SolverKernel::avx2 && !__builtin_cpu_supports("avx2") ? SolverKernel::sse2 : kernel);
+        SolverKernel expected = kernel;
+        if (expected == SolverKernel::avx512 && !(__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl")))
+            expected = SolverKernel::avx2;
+        if (expected == SolverKernel::avx2 && !__builtin_cpu_supports("avx2")) expected = SolverKernel::sse2;
+        EXPECT_EQ(solver.load_report().kernel, expected) << to_string(kernel);
         return solver.state_hash();
     };
     const std::uint64_t one = run(1, SolverKernel::sse2);
     EXPECT_EQ(run(2, SolverKernel::sse2), one);
     EXPECT_EQ(run(2, SolverKernel::avx2), one);
+    EXPECT_EQ(run(2, SolverKernel::avx512), one);
     EXPECT_EQ(run(2, SolverKernel::portable), one);
     EXPECT_EQ(run(2, SolverKernel::avx2, false), one) << "per-slot constants and per-entry tables must agree";
+    EXPECT_EQ(run(2, SolverKernel::avx512, false), one) << "per-slot constants and per-entry tables must agree";
 }
 
 TEST(Solver, RefusesInconsistentInput) {

@@ -1,13 +1,16 @@
 // The critical time step against closed forms and a dense eigen-solver.
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
+#include "libmodel/solver.h"
 #include "libmodel/stability.h"
+#include "libmodel/supports.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
 #include <cmath>
+#include <random>
 
 using namespace heartsim;
 
@@ -38,7 +41,135 @@ double dense_largest_eigenvalue(const Particles& p, const Springs& s) {
     return solver.eigenvalues().maxCoeff();
 }
 
+/// M^(−1/2) K M^(−1/2) and M^(−1/2) C M^(−1/2) assembled densely from the springs, supports and
+/// materials, written here from the formulas of docs/scenario-format.md (c = 2ζ√(kμ) per spring,
+/// ζ the mean of the two particles' rows; support springs and dashpots; drag γ·M).
+struct DenseSystem {
+    Eigen::MatrixXd k, c;
+};
+
+DenseSystem assemble(const Lattice& lattice, double drag) {
+    const Particles& p = lattice.particles;
+    const Springs& s = lattice.springs;
+    const Eigen::Index n = Eigen::Index(p.size());
+    DenseSystem d{Eigen::MatrixXd::Zero(3 * n, 3 * n), Eigen::MatrixXd::Zero(3 * n, 3 * n)};
+    auto add = [&](Eigen::MatrixXd& m, Eigen::Index a, Eigen::Index b, const Eigen::Matrix3d& block) {
+        m.block<3, 3>(3 * a, 3 * a) += block;
+        m.block<3, 3>(3 * b, 3 * b) += block;
+        m.block<3, 3>(3 * a, 3 * b) -= block;
+        m.block<3, 3>(3 * b, 3 * a) -= block;
+    };
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        const auto [a, b] = s.pairs[i];
+        Eigen::Vector3d u(p.rest_position[std::size_t(b)][0] - p.rest_position[std::size_t(a)][0],
+                          p.rest_position[std::size_t(b)][1] - p.rest_position[std::size_t(a)][1],
+                          p.rest_position[std::size_t(b)][2] - p.rest_position[std::size_t(a)][2]);
+        u.normalize();
+        const double ma = p.mass[std::size_t(a)], mb = p.mass[std::size_t(b)];
+        const double zeta = 0.5 * (lattice.materials[std::size_t(p.material[std::size_t(a)])].damping_ratio +
+                                   lattice.materials[std::size_t(p.material[std::size_t(b)])].damping_ratio);
+        add(d.k, a, b, s.stiffness[i] * u * u.transpose());
+        add(d.c, a, b, 2 * zeta * std::sqrt(s.stiffness[i] * ma * mb / (ma + mb)) * u * u.transpose());
+    }
+    for (Eigen::Index i = 0; i < n; ++i) {
+        if (p.supported()) d.k.block<3, 3>(3 * i, 3 * i) += p.support_stiffness[std::size_t(i)] * Eigen::Matrix3d::Identity();
+        if (!p.support_damping.empty()) d.c.block<3, 3>(3 * i, 3 * i) += p.support_damping[std::size_t(i)] * Eigen::Matrix3d::Identity();
+        d.c.block<3, 3>(3 * i, 3 * i) += drag * p.mass[std::size_t(i)] * Eigen::Matrix3d::Identity();
+    }
+    Eigen::VectorXd scale(3 * n);
+    for (Eigen::Index i = 0; i < 3 * n; ++i) scale[i] = p.anchored[std::size_t(i / 3)] ? 0.0 : 1.0 / std::sqrt(p.mass[std::size_t(i / 3)]);
+    d.k = scale.asDiagonal() * d.k * scale.asDiagonal();
+    d.c = scale.asDiagonal() * d.c * scale.asDiagonal();
+    return d;
+}
+
+double largest(const Eigen::MatrixXd& m) {
+    return Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(m, Eigen::EigenvaluesOnly).eigenvalues().maxCoeff();
+}
+
+/// The exact edge of stability of Verlet with backward-difference damping: the h where an
+/// eigenvalue ρ = −1 of the step appears, i.e. λ_max(h²K + 2hC) = 4 (scaled), by bisection.
+double exact_stable_step(const DenseSystem& d) {
+    double low = 0, high = 10;
+    for (int i = 0; i < 100; ++i) {
+        const double h = 0.5 * (low + high);
+        (largest(h * h * d.k + 2 * h * d.c) < 4 ? low : high) = h;
+    }
+    return low;
+}
+
+/// A block with two materials (ζ 0.1 and 0.4), some particles a third of the mass (the light
+/// particles of thin walls), posterior supports with their dashpots.
+Lattice mixed_block() {
+    Lattice lattice = block_lattice(5, 4, 3);
+    lattice.materials.push_back(lattice.materials[0]);
+    lattice.materials[1].damping_ratio = 0.4;
+    for (std::size_t i = 0; i < lattice.particles.size(); ++i) {
+        if (i % 3 == 0) lattice.particles.material[i] = 1;
+        if (i % 5 == 0) lattice.particles.mass[i] /= 3;
+    }
+    add_supports(lattice, {});
+    return lattice;
+}
+
 }  // namespace
+
+TEST(Stability, DampedStableStepIsBelowTheExactEdgeAndClose) {
+    const Lattice lattice = mixed_block();
+    ASSERT_TRUE(lattice.particles.supported());
+    for (double drag : {0.0, 0.05}) {
+        const DenseSystem d = assemble(lattice, drag);
+        const auto estimate = estimate_critical_time_step(lattice.particles, lattice.springs, 300, 1e-10);
+        const double damping = estimate_damping_eigenvalue(lattice.particles, lattice.springs, {0.1, 0.4}, drag);
+        EXPECT_NEAR(damping, largest(d.c), 1e-6 * largest(d.c)) << "Lanczos on the damping matrix";
+        EXPECT_NEAR(estimate.max_eigenvalue, largest(d.k), 1e-6 * largest(d.k));
+        const double step = stable_step_ms(estimate.max_eigenvalue, damping);
+        const double exact = exact_stable_step(d);
+        std::printf("  drag %g: stable step %.5g ms, exact edge %.5g ms (%.3f of it), undamped critical %.5g ms\n", drag, step, exact,
+                    step / exact, estimate.critical_dt_ms);
+        EXPECT_LE(step, exact * (1 + 1e-6)) << "Weyl's inequality makes the estimate safe";
+        EXPECT_GE(step, 0.85 * exact) << "and not much smaller";
+        EXPECT_LT(step, estimate.critical_dt_ms) << "damping shortens the step";
+    }
+    // Without damping it is the critical step.
+    EXPECT_DOUBLE_EQ(stable_step_ms(4.0, 0.0), 1.0);
+}
+
+TEST(Stability, TheSolverTurnsUnstableAtTheExactEdge) {
+    // The solver's own float step on the same block: stable just below the exact edge (a random
+    // perturbation dies out), unstable just above it (it grows). So the edge the
+    // step policy keeps a margin from is where the integrator really fails.
+    const Lattice lattice = mixed_block();
+    const double exact = exact_stable_step(assemble(lattice, 0.0));
+    std::mt19937 generator(7);
+    std::normal_distribution<double> noise(0.0, 1e-3);
+    std::vector<Eigen::Vector3d> x0, v0(lattice.particles.size(), Eigen::Vector3d::Zero());
+    for (const auto& r : lattice.particles.rest_position) x0.emplace_back(r[0] + noise(generator), r[1] + noise(generator), r[2] + noise(generator));
+    for (double factor : {0.97, 1.03}) {
+        SolverOptions options;
+        options.dt_ms = factor * exact;
+        options.subdivide = false;
+        options.gravity.setZero();
+        Solver solver(lattice, {}, options);
+        EXPECT_LE(solver.damped_critical_dt_ms(), exact * (1 + 1e-6));
+        solver.set_state(x0, v0);
+        StepReport report;
+        for (int block = 0; block < 40 && !report.diverged; ++block) report = solver.step(100);
+        double displacement = 0;
+        for (std::size_t i = 0; i < solver.size(); ++i)
+            displacement = std::max(displacement, (solver.position(i) - Eigen::Vector3d(lattice.particles.rest_position[i][0],
+                                                                                          lattice.particles.rest_position[i][1],
+                                                                                          lattice.particles.rest_position[i][2])).norm());
+        if (factor < 1) {
+            EXPECT_FALSE(report.diverged) << report.message;
+            EXPECT_LT(displacement, 1e-4) << "mm after 4000 steps at " << factor << " × the edge";
+        } else {
+            // The perturbation (≤ 0.005 mm) grows geometrically: past 0.1 mm, or the watchdog stops it.
+            EXPECT_TRUE(report.diverged || displacement > 0.1)
+                << "4000 steps at " << factor << " × the edge, largest displacement " << displacement << " mm";
+        }
+    }
+}
 
 TEST(Stability, TwoMassesOnOneSpringHaveOmegaSquaredTwoKOverM) {
     const Lattice lattice = block_lattice(2, 1, 1);

@@ -299,7 +299,7 @@ int main(int argc, char** argv) {
               << bytes_per_particle(true, true) << " with per-slot constants, " << bytes_per_particle(true, false) << " with per-entry tables)\n";
     double rate_30k = 0;
     for (const Case& c : cases) {
-        for (SolverKernel kernel : {SolverKernel::avx2, SolverKernel::sse2, SolverKernel::portable}) {
+        for (SolverKernel kernel : {SolverKernel::avx512, SolverKernel::avx2, SolverKernel::sse2, SolverKernel::portable}) {
             if (c.lattice.particles.size() > 100000 && kernel == SolverKernel::portable) continue;
             SolverOptions o = scenario_options();
             o.kernel = kernel;
@@ -307,14 +307,14 @@ int main(int argc, char** argv) {
             const Timing t = time_steps(solver, min_seconds);
             const double n = double(c.lattice.particles.size());
             const double gbs = t.steps_per_second * n * bytes_per_particle(true, solver.load_report().uniform_slots) / 1e9;
-            const char* kernel_name = solver.load_report().kernel == SolverKernel::avx2 ? "avx2" : solver.load_report().kernel == SolverKernel::sse2 ? "sse2" : "portable";
+            const char* kernel_name = to_string(solver.load_report().kernel);
             if (kernel == SolverKernel::avx2) std::cout << "  (" << c.name << ": per-slot constants " << (solver.load_report().uniform_slots ? "yes" : "no") << ")\n";
             std::cout << "  " << std::left << std::setw(20) << c.name << std::right << std::setw(10) << std::size_t(n) << "  " << std::setw(8) << kernel_name
                       << std::setw(11) << std::fixed << std::setprecision(0) << t.steps_per_second << std::setw(13) << std::setprecision(2)
                       << 1e9 / (t.steps_per_second * n) << std::setw(12) << gbs << std::setw(12) << gbs / copy_gbs << std::defaultfloat
                       << std::setprecision(6) << "\n";
             csv << "steps," << c.name << "," << std::size_t(n) << "," << kernel_name << "," << t.steps_per_second << "," << gbs << "," << gbs / copy_gbs << "\n";
-            if (&c == &cases[0] && kernel == SolverKernel::avx2) rate_30k = t.steps_per_second;
+            if (&c == &cases[0] && kernel == SolverKernel::avx512) rate_30k = t.steps_per_second;
         }
     }
 

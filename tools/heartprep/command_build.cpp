@@ -186,7 +186,8 @@ void add_build_command(CLI::App& app) {
         ->check(CLI::NonNegativeNumber)
         ->capture_default_str()
         ->group("Solver");
-    command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the critical time step, (0, 1)")
+    command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the damped critical step (dashpots and supports included); "
+                        "the runtime keeps every substep within the same fraction")
         ->check(CLI::Range(1e-3, 0.99))
         ->capture_default_str()
         ->group("Solver");

@@ -190,6 +190,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
     o << ", \"balanced_gravity\": ";
     vector(s.solver.balanced_gravity);
     o << ", \"critical_dt_ms\": " << s.solver.critical_dt_ms << ", \"critical_dt_bound_ms\": " << s.solver.critical_dt_bound_ms
+      << ", \"damped_critical_dt_ms\": " << s.solver.damped_critical_dt_ms
       << "},\n  \"holding\": {\"supported_particles\": " << m.supported << ", \"support_stiffness_n_per_mm\": " << m.support_stiffness
       << ", \"pieces\": " << m.pieces << ", \"free_pieces\": " << m.free_pieces << ", \"max_prestrain\": " << m.max_prestrain
       << ", \"rest_residual_max_particle_n\": " << m.residual.max_particle_n << ", \"rest_residual_total_n\": " << m.residual.total.norm()
@@ -238,9 +239,11 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
         std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
                     mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,
                     spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing), mat.damping_ratio);
-    std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms), %d substep(s), drag %.3g /ms, "
+    std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms, damped %s ms), %d substep(s), drag %.3g /ms, "
                 "gravity (%.3g, %.3g, %.3g) mm/ms²\n",
-                s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms, s.solver.substeps, s.solver.damping,
+                s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms,
+                s.solver.damped_critical_dt_ms > 0 ? std::to_string(s.solver.damped_critical_dt_ms).c_str() : "not stored", s.solver.substeps,
+                s.solver.damping,
                 s.solver.gravity.x(), s.solver.gravity.y(), s.solver.gravity.z());
     std::printf("holding     %zu anchored; %zu particles on supports, %.3g N/mm in all; %zu piece(s), %zu held by nothing\n", m.anchored,
                 m.supported, m.support_stiffness, m.pieces, m.free_pieces);

@@ -182,8 +182,15 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.solver = options.solver;  // gravity, drag, safety; hold_stage and the critical step fill in the rest
     hold_stage(scenario, options, progress, report);
 
+    double damping_eigenvalue = 0.0;
     report.stability = timed(report, "critical step", [&] {
         ProgressStage stage(progress, "critical time step", 0);
+        // The dashpots, support dampers and drag shorten the stable step: the runtime's solver
+        // estimates the same from the same arrays (solver.h damped_critical_dt_ms), so a step of
+        // dt_ms is one substep there.
+        std::vector<double> ratios;
+        for (const Material& material : scenario.lattice.materials) ratios.push_back(material.damping_ratio);
+        damping_eigenvalue = estimate_damping_eigenvalue(scenario.lattice.particles, scenario.lattice.springs, ratios, scenario.solver.damping);
         return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
     });
     auto& solver = scenario.solver;
@@ -193,9 +200,11 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     if (unbounded) {
         // No free particle or no spring: nothing limits the step; choose one that keeps a free
         // particle's fall per step tiny and say so.
-        solver.critical_dt_ms = solver.critical_dt_bound_ms = 1.0;
+        solver.critical_dt_ms = solver.critical_dt_bound_ms = solver.damped_critical_dt_ms = 1.0;
+    } else {
+        solver.damped_critical_dt_ms = stable_step_ms(4.0 / (solver.critical_dt_ms * solver.critical_dt_ms), damping_eigenvalue);
     }
-    solver.dt_ms = std::min(solver.safety_factor * solver.critical_dt_ms, solver.critical_dt_bound_ms);
+    solver.dt_ms = solver.safety_factor * solver.damped_critical_dt_ms;
     if (unbounded) {
         char message[160];
         std::snprintf(message, sizeof message, "no spring between free particles: the critical time step is unbounded; dt set to %g ms",
@@ -260,9 +269,9 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
         else
             std::printf("rest state  imaged, unstressed%s\n", scenario.solver.gravity.norm() > 0 ? "" : " (no gravity)");
     }
-    std::printf("time step   critical %.4g ms (Lanczos, %d iterations), proven bound %.4g ms; dt %.4g ms\n",
+    std::printf("time step   critical %.4g ms (Lanczos, %d iterations), proven bound %.4g ms, damped %.4g ms; dt %.4g ms\n",
                 scenario.solver.critical_dt_ms, report.stability.iterations, scenario.solver.critical_dt_bound_ms,
-                scenario.solver.dt_ms);
+                scenario.solver.damped_critical_dt_ms, scenario.solver.dt_ms);
     if (scenario.packing)
         std::printf("packing     %s, %d x %d texture (%.0f%% occupied, %.1f MB per position buffer), neighbour table %.1f MB, "
                     "%.0f%% of springs within a 4 KB window\n",
