@@ -55,7 +55,7 @@ struct SolverSettings {
     double damped_critical_dt_ms = 0.0;
     /// dt_ms = safety_factor × damped_critical_dt_ms; the runtime splits a step into substeps of
     /// at most safety_factor × its own damped critical step (docs/solver.md "Step policy").
-    double safety_factor = 0.9;
+    double safety_factor = 0.8;
 };
 
 /// The visual mesh (/visual): float32 positions and normals, int32 triangles.

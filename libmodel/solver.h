@@ -53,7 +53,7 @@ struct SolverOptions {
     /// damped critical step (damped_critical_dt_ms); dt_ms = 0 takes one such substep. The margin
     /// covers the estimate (a Lanczos Ritz value approaches the largest eigenvalue from below)
     /// and deformation: docs/solver.md "Step policy".
-    double safety_factor = 0.9;
+    double safety_factor = 0.8;
     /// false: never subdivide (one substep per step even above critical; the watchdog guards it).
     bool subdivide = true;
     /// Global drag γ, 1/ms: f = −γ·m·v on every free particle (scenario /solver damping).
@@ -209,8 +209,8 @@ public:
     /// "reset the tissue" key during a session).
     void reset_tissue();
     /// Sets every particle's position (mm) and velocity (mm/ms), N each, packed order. The
-    /// previous position is x − v·h + ½·a·h² (a from the forces at x), so the start is second
-    /// order. Anchored particles take the given position and zero velocity. Time is unchanged.
+    /// motion of the last substep is v·h − ½·a·h² (a from the forces at x), so the start is
+    /// second order. Anchored particles take the given position and zero velocity. Time is unchanged.
     void set_state(const std::vector<Eigen::Vector3d>& positions, const std::vector<Eigen::Vector3d>& velocities);
 
     /// Both instruments' forces from the current state, in one call (N, world frame).
@@ -236,7 +236,7 @@ public:
     /// The position buffer as the GPU holds it: 4 Real per particle (x, y, z, 0), padded to a
     /// multiple of `lanes` particles. Valid until the next step().
     const Real* position_texture() const { return current_; }
-    /// FNV-1a over the bits of the current and previous positions: equal states, equal hashes.
+    /// FNV-1a over the bits of the current positions and motions: equal states, equal hashes.
     std::uint64_t state_hash() const;
 
     std::size_t watchdog_events() const { return watchdog_events_; }

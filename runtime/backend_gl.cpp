@@ -258,7 +258,7 @@ public:
             glUseProgram(sp);
             glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-            if (probe_count > 0 || grabbing) {
+            if (grabbing) {
                 for (int hand = 0; hand < hands; ++hand) {
                     if (!hand_[hand].grabbing) continue;
                     const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
