@@ -6,6 +6,7 @@
 #include "png.h"
 #include "renderer.h"
 #include "trajectory.h"
+#include "window_simulation.h"
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
@@ -17,6 +18,7 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -25,6 +27,7 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <optional>
 #include <utility>
 
@@ -47,6 +50,7 @@ struct RunArguments {
     // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
     std::string screenshot;          // OUT.png: the last frame
     int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
+    double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
     bool steps_given = false;        // --steps 0 (the rest state) differs from no --steps
@@ -160,11 +164,12 @@ struct WindowInput {
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
 };
 
-/// The window mode's loop: per frame, the scenario's /solver substeps (steps per frame) with the
-/// script or the keyboard moving the instruments, then one rendered frame. Ends on Esc, on
+/// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
+/// thread, the gl backend between frames, haptics through `haptic`) with the script or the
+/// keyboard moving the instruments; frames are drawn from the latest state. Ends on Esc, on
 /// closing the window, or after `steps` steps (< 0: no limit). Returns what run_scripted would.
 ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
-                             int steps, int steps_per_frame, const RunArguments& a, haptics::HapticRun* haptic) {
+                             int steps, const RunArguments& a, haptics::HapticRun* haptic) {
     auto* window = static_cast<GLFWwindow*>(context.window());
     WindowInput input;
     input.renderer = &renderer;
@@ -238,6 +243,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     }
     const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
 
+    // Without haptics the simulation follows the wall clock, never ahead of it: the cpu backend on
+    // its own thread, the gl backend (one GL context) between frames within a time budget.
+    // Drawing takes at most --draw-share of the wall clock (docs/runtime.md "The window").
+    std::optional<WindowSimulation> simulation;
+    if (!haptic && backend.kind() == BackendKind::cpu)
+        simulation.emplace(backend, trajectory, WindowSimulationOptions{.keyboard_hand0 = keyboard_hand0, .steps = steps});
+    double paused_ms = 0.0;  // gl pacing: wall time spent paused, not owed
+    double next_title_s = 0.0;
+    bool said_slow = false;
+    std::vector<std::array<float, 3>> latest_positions;
+
     ScriptedRunResult result;
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
@@ -248,14 +264,23 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         glfwPollEvents();
         const auto now = std::chrono::steady_clock::now();
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
+        if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
         last = now;
         if (input.reset_tissue) {
-            backend.reset_tissue();
+            if (simulation) simulation->request_reset_tissue();
+            else backend.reset_tissue();
             input.reset_tissue = false;
-            std::printf("tissue reset to its rest state at t = %.1f ms\n", backend.simulated_time_ms());
+            std::printf("tissue reset to its rest state\n");
         }
-        int n = input.paused ? 0 : steps_per_frame;
+        // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
+        // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
+        int n = 0;
+        if (!simulation && !haptic && !input.paused) {
+            const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
+            n = int(std::clamp(std::floor(owed_ms / dt) - double(attempted), 0.0, 1e6));
+        }
         if (steps >= 0) n = std::min(n, steps - attempted);
+        const double step_budget_ms = std::max(12.0, 2.0 * last_draw_ms);
 
         // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
         // out of the screen.
@@ -273,6 +298,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
             to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
             keyboard.pose = to;
+            if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
             if (input.device) {
                 input.device_pose.position_mm += to.position - from.position;
                 input.device->set_pose(input.device_pose);
@@ -293,7 +319,24 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             result.substeps = haptic->result().substeps;
             n = 0;
         }
+        if (simulation) {
+            simulation->set_paused(input.paused);
+            simulation->latest(latest_positions);
+            const WindowSimulation::Status status = simulation->status();
+            attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
+            result.steps = status.steps;
+            result.substeps = status.substeps;
+            result.watchdog_events = status.watchdog_events;
+            result.last_watchdog_message = status.last_watchdog_message;
+            result.forces_received = status.forces_received;
+            if (status.finished) {
+                simulation->latest(latest_positions);  // the final state
+                attempted = std::max(attempted, steps);
+            }
+        }
+        const auto step_start = std::chrono::steady_clock::now();
         for (int k = 0; k < n; ++k) {
+            if (k > 0 && std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - step_start).count() > step_budget_ms) break;
             const int step = attempted++;
             const double t = step * dt, t_next = (step + 1) * dt;
             for (int hand = 0; hand < 2; ++hand) {
@@ -321,22 +364,35 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         std::vector<InstrumentShape> shapes = haptic ? haptic->shapes() : std::vector<InstrumentShape>{};
         for (int hand = 0; hand < 2 && !haptic; ++hand) {
             if (!trajectory.uses_hand(hand)) continue;
-            const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, backend.simulated_time_ms());
+            const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+            const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
             if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
         }
         const auto draw_start = std::chrono::steady_clock::now();
-        renderer.render(backend, shapes);
+        if (simulation) renderer.render(latest_positions, shapes);
+        else renderer.render(backend, shapes);
         renderer.present(width, height);
-        last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
         glfwSwapBuffers(window);
+        last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
         ++frames;
+        // Drawing takes at most --draw-share of the wall clock: on a software renderer the window
+        // draws fewer frames and the simulation keeps the cores.
+        if (simulation && a.draw_share < 1.0) {
+            const double rest_ms = last_draw_ms / a.draw_share - last_draw_ms;
+            const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
+            while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
+                glfwWaitEventsTimeout(0.01);
+                if (input.reset_tissue || input.paused) break;
+            }
+        }
         if (next_shot > 0 && result.steps >= next_shot) {
             const std::string path = numbered_screenshot(a.screenshot, result.steps);
             write_png(path, renderer.read_pixels());
             while (next_shot <= result.steps) next_shot += a.screenshot_every;
         }
-        if (frames % 30 == 0) {
-            const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        if (s >= next_title_s) {  // the title twice a second
+            next_title_s = s + 0.5;
             char title[256];
             std::string forces;
             if (input.device) {
@@ -346,14 +402,35 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 forces = text;
             }
             if (input.estop) forces += ", EMERGENCY STOP (E releases)";
-            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s%s%s", std::filesystem::path(a.scenario).filename().c_str(),
-                          frames / s, result.steps / s, input.paused ? " (paused)" : "", forces.c_str());
+            const double simulated_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+            const double owed_ms = simulation ? simulation->status().owed_ms : 1e3 * s - paused_ms;
+            const double factor = owed_ms > 0 ? simulated_ms / owed_ms : 1.0;
+            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s, %.2f× real time%s%s",
+                          std::filesystem::path(a.scenario).filename().c_str(), frames / s, result.steps / s, haptic ? 1.0 : factor,
+                          input.paused ? " (paused)" : "", forces.c_str());
             glfwSetWindowTitle(window, title);
+            if (!haptic && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
+                said_slow = true;
+                std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
+                            "the hand. Fewer particles (heartprep build --particles) or a GPU (--backend gl on one) would keep up\n",
+                            factor, backend.size(), to_string(backend.kind()));
+            }
         }
     }
     result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    std::printf("window: %lld frames in %.3g s (%.1f fps), %s\n", frames, result.wall_ms * 1e-3, frames / std::max(result.wall_ms * 1e-3, 1e-9),
-                haptic ? "steps to real time between frames (haptics)" : (std::to_string(steps_per_frame) + " steps per frame").c_str());
+    const char* pacing = haptic ? "steps to real time between frames (haptics)"
+                         : simulation ? "simulation on its own thread, paced to the wall clock"
+                                      : "steps owed to the wall clock between frames";
+    double simulated_ms = backend.time_step_ms() * double(result.steps);
+    if (simulation) {
+        const WindowSimulation::Status status = simulation->status();
+        simulated_ms = status.simulated_ms;
+        result.steps = status.steps, result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
+        result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
+        simulation.reset();  // joins the thread before the caller reads the backend
+    }
+    std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
+                frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
     return result;
 }
 
@@ -554,7 +631,7 @@ int command_run(const RunArguments& a) {
         if (interrupted.load()) std::printf("interrupted: ending the session\n");
         haptic->finish(run);
     } else if (!a.headless) {
-        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, std::max(1, scenario.solver.substeps), a,
+        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, a,
                          haptic.get());
         if (haptic) {
             if (interrupted.load()) std::printf("interrupted: ending the session\n");
@@ -736,6 +813,11 @@ int main(int argc, char** argv) {
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)");
     run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step)")
         ->check(CLI::NonNegativeNumber);
+    run->add_option("--draw-share", a.draw_share,
+                    "Window with the cpu backend: drawing takes at most this fraction of the wall clock, the simulation the rest "
+                    "(a software renderer then draws fewer frames)")
+        ->check(CLI::Range(0.01, 1.0))
+        ->capture_default_str();
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
     run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
         ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));

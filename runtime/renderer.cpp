@@ -347,8 +347,12 @@ struct Renderer::State {
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
             return id;
         }
+        return upload(backend.positions());
+    }
+
+    /// Uploads positions (N×3, mm) into our own position buffer.
+    GLuint upload(const std::vector<std::array<float, 3>>& p) {
         const auto start = std::chrono::steady_clock::now();
-        const auto p = backend.positions();
         std::vector<float> packed(4 * particles, 0.0f);
         for (std::size_t i = 0; i < std::min(particles, p.size()); ++i)
             for (int c = 0; c < 3; ++c) packed[4 * i + std::size_t(c)] = p[i][std::size_t(c)];
@@ -561,12 +565,19 @@ void Renderer::resize(int width, int height) {
 }
 
 void Renderer::render(Backend& backend, const std::vector<InstrumentShape>& instruments) {
+    draw(state_->positions_of(backend), instruments);
+}
+
+void Renderer::render(const std::vector<std::array<float, 3>>& positions, const std::vector<InstrumentShape>& instruments) {
+    draw(state_->upload(positions), instruments);
+}
+
+void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& instruments) {
     State& s = *state_;
     s.harvest(false);
     State::Pending timing;
     timing.normals = s.visual;
     glGenQueries(3, timing.queries);
-    const GLuint positions = s.positions_of(backend);
 
     glQueryCounter(timing.queries[0], GL_TIMESTAMP);
     s.normals_pass(positions);

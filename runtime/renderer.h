@@ -116,6 +116,9 @@ public:
     /// Draws one frame of `backend`'s current positions with `instruments` into the offscreen
     /// framebuffer: gl backend, read in place from its position buffer; cpu backend, uploaded.
     void render(Backend& backend, const std::vector<InstrumentShape>& instruments);
+    /// The same from positions (N×3, mm, packed order) taken elsewhere: a simulation thread's
+    /// latest state (the window with the cpu backend).
+    void render(const std::vector<std::array<float, 3>>& positions, const std::vector<InstrumentShape>& instruments);
     /// The last frame, RGB, rows top to bottom. Waits for the GPU.
     Image read_pixels();
     /// Copies the last frame into the current context's default framebuffer (window mode).
@@ -134,6 +137,7 @@ public:
     std::size_t memory_bytes() const;
 
 private:
+    void draw(unsigned positions, const std::vector<InstrumentShape>& instruments);
     struct State;
     std::unique_ptr<State> state_;
 };

@@ -21,6 +21,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -317,6 +319,34 @@ TEST(RenderScreenshot, HeadlessWithoutScreenshotSkipsRendering) {
     const auto bad = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --screenshot-every 2");
     EXPECT_EQ(bad.exit_code, 2) << bad.output;
     EXPECT_NE(bad.output.find("--screenshot-every needs --screenshot"), std::string::npos) << bad.output;
+}
+
+TEST(RenderWindow, TheCpuBackendSimulatesOnItsOwnThreadPacedToTheWallClock) {
+    // `heartsim scenario.h5` the way staff start a session: the simulation must follow the wall
+    // clock (never ahead of it), not take one step per frame (docs/runtime.md "The window").
+    if (test::run_command("command -v xvfb-run && command -v Xvfb").exit_code != 0)
+        GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
+    REQUIRE_GL();
+    const auto run = test::run_command(test::in_xvfb_window() + quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) +
+                                       " --backend cpu --seconds 0.5 --size 320x240 2>&1");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("simulation on its own thread, paced to the wall clock"), std::string::npos) << run.output;
+    long long frames = 0;
+    double wall_s = 0, simulated_ms = 0;
+    long long steps = 0;
+    const auto window = run.output.find("window: ");
+    ASSERT_NE(window, std::string::npos) << run.output;
+    ASSERT_EQ(std::sscanf(run.output.c_str() + window, "window: %lld frames in %lf s", &frames, &wall_s), 2) << run.output;
+    const auto simulated = run.output.find(" ms simulated", window);
+    ASSERT_NE(simulated, std::string::npos) << run.output;
+    simulated_ms = std::stod(run.output.substr(run.output.rfind(' ', simulated - 1) + 1));
+    const auto ran = run.output.find("ran ");
+    ASSERT_NE(ran, std::string::npos) << run.output;
+    ASSERT_EQ(std::sscanf(run.output.c_str() + ran, "ran %lld steps", &steps), 1) << run.output;
+    std::printf("  %lld frames, %lld steps, %.1f ms simulated in %.2f s of wall clock\n", frames, steps, simulated_ms, wall_s);
+    EXPECT_NEAR(simulated_ms, 500.0, phantom_scenario().solver.dt_ms) << "the whole --seconds";
+    EXPECT_GE(wall_s * 1e3, simulated_ms * 0.99) << "never ahead of the wall clock";
+    EXPECT_GT(steps, 3 * frames) << "not one step per frame";
 }
 
 TEST(RenderWindow, StartsUnderXvfbRendersFramesAndExitsCleanly) {

@@ -1,0 +1,145 @@
+// The window's simulation thread: docs/runtime.md "The window".
+#include "window_simulation.h"
+
+#include <chrono>
+
+namespace heartsim {
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double ms_between(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+}  // namespace
+
+WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
+    : backend_(backend), hands_(trajectory), trajectory_(trajectory), options_(options) {
+    status_.simulated_ms = backend.simulated_time_ms();
+    thread_ = std::thread([this] { run(); });
+}
+
+WindowSimulation::~WindowSimulation() {
+    {
+        std::lock_guard lock(mutex_);
+        stop_ = true;
+    }
+    published_.notify_all();
+    if (thread_.joinable()) thread_.join();
+}
+
+void WindowSimulation::set_keyboard_pose(const InstrumentPose& pose) {
+    std::lock_guard lock(mutex_);
+    keyboard_pose_ = pose;
+    keyboard_set_ = true;
+}
+
+void WindowSimulation::set_paused(bool paused) {
+    std::lock_guard lock(mutex_);
+    paused_ = paused;
+}
+
+void WindowSimulation::request_reset_tissue() {
+    std::lock_guard lock(mutex_);
+    reset_ = true;
+}
+
+bool WindowSimulation::latest(std::vector<std::array<float, 3>>& positions) {
+    std::unique_lock lock(mutex_);
+    if (!status_.finished && !stop_ && !paused_) {
+        want_positions_ = true;
+        published_.wait(lock, [&] { return fresh_ || status_.finished || stop_ || paused_; });
+    }
+    if (!fresh_ && positions_.empty()) return false;
+    positions = positions_;
+    fresh_ = false;
+    return true;
+}
+
+WindowSimulation::Status WindowSimulation::status() const {
+    std::lock_guard lock(mutex_);
+    return status_;
+}
+
+void WindowSimulation::run() {
+    const double dt = backend_.time_step_ms();
+    const bool any_instrument = trajectory_.uses_hand(0) || trajectory_.uses_hand(1);
+    const double start_ms = backend_.simulated_time_ms();
+    Clock::time_point start = Clock::now(), paused_at{};
+    double paused_total_ms = 0;
+    bool was_paused = false;
+    {
+        std::lock_guard lock(mutex_);
+        positions_ = backend_.positions();  // something to draw before the first step
+        fresh_ = true;
+    }
+    published_.notify_all();
+    for (;;) {
+        InstrumentPose keyboard;
+        bool keyboard_set = false, reset = false, paused = false;
+        {
+            std::unique_lock lock(mutex_);
+            if (stop_) break;
+            keyboard = keyboard_pose_, keyboard_set = keyboard_set_, reset = reset_, paused = paused_;
+            reset_ = false;
+        }
+        const Clock::time_point now = Clock::now();
+        if (paused != was_paused) {
+            if (paused) paused_at = now;
+            else paused_total_ms += ms_between(paused_at, now);
+            was_paused = paused;
+        }
+        if (reset) backend_.reset_tissue();
+        const double owed_ms = ms_between(start, paused ? paused_at : now) - paused_total_ms;
+        const double simulated_ms = backend_.simulated_time_ms() - start_ms;
+        if (paused || simulated_ms + dt > owed_ms) {
+            // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
+            std::unique_lock lock(mutex_);
+            status_.owed_ms = owed_ms;
+            if (want_positions_) {
+                positions_ = backend_.positions();
+                fresh_ = true, want_positions_ = false;
+                published_.notify_all();
+            }
+            const double wait_ms = paused ? 5.0 : std::min(5.0, simulated_ms + dt - owed_ms);
+            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });
+            continue;
+        }
+        // One step, the hands posed as run_scripted poses them.
+        const long long step = status_.attempted;
+        const double t = step * dt, t_next = (step + 1) * dt;
+        for (int hand = 0; hand < 2; ++hand) {
+            if (!trajectory_.uses_hand(hand)) continue;
+            if (hand == 0 && options_.keyboard_hand0) {
+                if (keyboard_set) backend_.set_pose(0, keyboard);
+                continue;
+            }
+            hands_.apply(backend_, hand, t, t_next);
+        }
+        const StepReport report = backend_.step(1);
+        bool received = false;
+        if (any_instrument) {
+            backend_.request_forces();
+            received = backend_.latest_forces().has_value();
+        }
+        std::lock_guard lock(mutex_);
+        ++status_.attempted;
+        status_.steps += report.steps;
+        status_.substeps += report.substeps;
+        status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
+        status_.owed_ms = owed_ms;
+        status_.forces_received += received;
+        if (report.diverged) ++status_.watchdog_events, status_.last_watchdog_message = report.message;
+        if (want_positions_) {
+            positions_ = backend_.positions();
+            fresh_ = true, want_positions_ = false;
+            published_.notify_all();
+        }
+        if (options_.steps >= 0 && status_.attempted >= options_.steps) {
+            status_.finished = true;
+            positions_ = backend_.positions();
+            fresh_ = true;
+            published_.notify_all();
+            break;
+        }
+    }
+}
+
+}  // namespace heartsim

@@ -1,0 +1,77 @@
+/// @file window_simulation.h
+/// @brief The window's simulation on its own thread (cpu backend): paced to the wall clock, never
+/// ahead of real time and never one step per frame; the window draws at its own rate from the
+/// latest positions it asks for. docs/runtime.md "The window".
+///
+///     WindowSimulation simulation(backend, trajectory, {.keyboard_hand0 = true, .steps = -1});
+///     simulation.set_keyboard_pose(pose);              // hand 0 from the arrow keys
+///     if (simulation.latest(positions)) renderer.render(positions, shapes);
+///     WindowSimulation::Status s = simulation.status(); // simulated time, steps, RTF
+#pragma once
+
+#include "backend.h"
+#include "trajectory.h"
+
+#include <array>
+#include <atomic>
+#include <condition_variable>
+#include <mutex>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace heartsim {
+
+struct WindowSimulationOptions {
+    bool keyboard_hand0 = false;  ///< hand 0 follows set_keyboard_pose instead of the trajectory
+    long long steps = -1;         ///< stop after this many steps (< 0: until destroyed)
+};
+
+class WindowSimulation {
+public:
+    struct Status {
+        double simulated_ms = 0;      ///< simulated time
+        double owed_ms = 0;           ///< real time since the start, pauses excluded
+        long long steps = 0, substeps = 0, attempted = 0;
+        std::size_t watchdog_events = 0, forces_received = 0;
+        std::string last_watchdog_message;
+        bool finished = false;        ///< the step limit was reached
+        /// Simulated per real time over the run so far (1 when it keeps up).
+        double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
+    };
+
+    /// Starts the thread. `backend` and `trajectory` must outlive this object and are used by
+    /// the thread only (the caller must not step or pose the backend meanwhile).
+    WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options);
+    ~WindowSimulation();  ///< stops and joins
+    WindowSimulation(const WindowSimulation&) = delete;
+    WindowSimulation& operator=(const WindowSimulation&) = delete;
+
+    void set_keyboard_pose(const InstrumentPose& pose);
+    /// While paused the simulation stops and the paused time is not owed afterwards.
+    void set_paused(bool paused);
+    void request_reset_tissue();
+    /// The newest positions (N×3, mm): asks the thread for a copy after its next step and waits
+    /// for it (at most one step). False once the thread has stopped and nothing new exists.
+    bool latest(std::vector<std::array<float, 3>>& positions);
+    Status status() const;
+
+private:
+    void run();
+
+    Backend& backend_;
+    ScriptedHands hands_;
+    const Trajectory& trajectory_;
+    WindowSimulationOptions options_;
+    std::thread thread_;
+
+    mutable std::mutex mutex_;
+    std::condition_variable published_;
+    bool stop_ = false, paused_ = false, reset_ = false, want_positions_ = false, fresh_ = false;
+    InstrumentPose keyboard_pose_;
+    bool keyboard_set_ = false;
+    std::vector<std::array<float, 3>> positions_;
+    Status status_;
+};
+
+}  // namespace heartsim
