@@ -272,9 +272,8 @@ HEARTSIM_AVX2 inline void store_own8(float* out, __m256 x, __m256 y, __m256 z) {
     _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(p2, p3, 0x31));  // 6 7
 }
 
-/// The 8-lane body, inlined into two wrappers below: one compiled for AVX2 (16 vector registers),
-/// one for AVX-512VL (the same 256-bit instructions, EVEX-encoded, with 32 vector registers: the
-/// loop's working set then fits without spilling to the stack). Same operations, same bits.
+/// The 8-lane body, inlined into group_avx2 (compiled for AVX2) and into groups_avx512 for an odd
+/// last group (compiled for AVX-512: EVEX-encoded, 32 vector registers). Same operations, same bits.
 template <bool Damped, bool Supported>
 HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const KernelData<float>& k, std::size_t group) {
     const __m256 tiny = _mm256_set1_ps(tiny_length2<float>()), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
@@ -331,32 +330,176 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
     return group_avx2_body<Damped, Supported>(k, group);
 }
 
+#define HEARTSIM_AVX512 __attribute__((target("avx2,avx512f,avx512vl,avx512dq")))
+
+/// Four float4 (16 bytes each) into one 512-bit register, one per 128-bit lane.
+HEARTSIM_AVX512 inline __m512 quad(const float* a, const float* b, const float* c, const float* d) {
+    __m512 r = _mm512_castps128_ps512(_mm_loadu_ps(a));
+    r = _mm512_insertf32x4(r, _mm_loadu_ps(b), 1);
+    r = _mm512_insertf32x4(r, _mm_loadu_ps(c), 2);
+    return _mm512_insertf32x4(r, _mm_loadu_ps(d), 3);
+}
+
+/// Registers holding particles (0,4,8,12), (1,5,9,13), (2,6,10,14), (3,7,11,15) as float4 →
+/// x, y, z of particles 0..15 in order (a 4×4 transpose in each 128-bit lane, as transpose_in8).
+HEARTSIM_AVX512 inline void transpose_in16(__m512 a, __m512 b, __m512 c, __m512 d, __m512& x, __m512& y, __m512& z) {
+    const __m512 t0 = _mm512_unpacklo_ps(a, b), t1 = _mm512_unpacklo_ps(c, d);
+    const __m512 t2 = _mm512_unpackhi_ps(a, b), t3 = _mm512_unpackhi_ps(c, d);
+    x = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));
+    y = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));
+    z = _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));
+}
+
+/// Gathers the float4 of 16 particles: indices 0..7 from `low`, 8..15 from `high`.
+HEARTSIM_AVX512 inline void load_gather16(const float* base, const std::int32_t* low, const std::int32_t* high, __m512& x, __m512& y,
+                                          __m512& z) {
+    auto at = [&](int l) { return base + 4 * std::size_t(l < 8 ? low[l] : high[l - 8]); };
+    transpose_in16(quad(at(0), at(4), at(8), at(12)), quad(at(1), at(5), at(9), at(13)), quad(at(2), at(6), at(10), at(14)),
+                   quad(at(3), at(7), at(11), at(15)), x, y, z);
+}
+
+/// x, y, z of 16 consecutive particles (float4 each, from p).
+HEARTSIM_AVX512 inline void load_own16(const float* p, __m512& x, __m512& y, __m512& z) {
+    transpose_in16(quad(p, p + 16, p + 32, p + 48), quad(p + 4, p + 20, p + 36, p + 52), quad(p + 8, p + 24, p + 40, p + 56),
+                   quad(p + 12, p + 28, p + 44, p + 60), x, y, z);
+}
+
+HEARTSIM_AVX512 inline void store_own16(float* out, __m512 x, __m512 y, __m512 z) {
+    const __m512 zero = _mm512_setzero_ps();
+    const __m512 t0 = _mm512_unpacklo_ps(x, y), t1 = _mm512_unpacklo_ps(z, zero);
+    const __m512 t2 = _mm512_unpackhi_ps(x, y), t3 = _mm512_unpackhi_ps(z, zero);
+    const __m512 p0 = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));  // particles 0 | 4 | 8 | 12
+    const __m512 p1 = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5 | 9 | 13
+    const __m512 p2 = _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6 | 10 | 14
+    const __m512 p3 = _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7 | 11 | 15
+    // 4×4 transpose of 128-bit lanes: q_k = particles 4k .. 4k+3.
+    const __m512 a = _mm512_shuffle_f32x4(p0, p1, _MM_SHUFFLE(1, 0, 1, 0));  // 0 4 1 5
+    const __m512 b = _mm512_shuffle_f32x4(p2, p3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 6 3 7
+    const __m512 c = _mm512_shuffle_f32x4(p0, p1, _MM_SHUFFLE(3, 2, 3, 2));  // 8 12 9 13
+    const __m512 d = _mm512_shuffle_f32x4(p2, p3, _MM_SHUFFLE(3, 2, 3, 2));  // 10 14 11 15
+    _mm512_storeu_ps(out, _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(2, 0, 2, 0)));       // 0 1 2 3
+    _mm512_storeu_ps(out + 16, _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(3, 1, 3, 1)));  // 4 5 6 7
+    _mm512_storeu_ps(out + 32, _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(2, 0, 2, 0)));  // 8 9 10 11
+    _mm512_storeu_ps(out + 48, _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(3, 1, 3, 1)));  // 12 13 14 15
+}
+
+/// Bit l set when particle l of the 16 from `x` (float4 each) lies within √bound2 of c: the
+/// probe's candidate test, (dx² + dy²) + dz² < bound2 in float as the scalar loop evaluates it.
+HEARTSIM_AVX512 unsigned near_probe16(const float* x, float cx, float cy, float cz, float bound2) {
+    __m512 px, py, pz;
+    load_own16(x, px, py, pz);
+    const __m512 dx = _mm512_sub_ps(px, _mm512_set1_ps(cx)), dy = _mm512_sub_ps(py, _mm512_set1_ps(cy)), dz = _mm512_sub_ps(pz, _mm512_set1_ps(cz));
+    __m512 d2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
+    d2 = _mm512_add_ps(d2, _mm512_mul_ps(dz, dz));
+    return _mm512_cmp_ps_mask(d2, _mm512_set1_ps(bound2), _CMP_LT_OQ);
+}
+
+/// 8 values from each of two groups' tables: lanes 0..7 from `low`, 8..15 from `high`.
+HEARTSIM_AVX512 inline __m512 load_two(const float* low, const float* high) {
+    return _mm512_insertf32x8(_mm512_castps256_ps512(_mm256_loadu_ps(low)), _mm256_loadu_ps(high), 1);
+}
+
+/// Two groups (16 particles) at once in 512-bit registers: the same operations in the same order
+/// per particle as group_portable, so the same bits.
 template <bool Damped, bool Supported>
-__attribute__((target("avx2,avx512f,avx512vl"))) bool group_avx512(const KernelData<float>& k, std::size_t group) {
-    return group_avx2_body<Damped, Supported>(k, group);
+HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t group) {
+    const __m512 tiny = _mm512_set1_ps(tiny_length2<float>()), one = _mm512_set1_ps(1.0f), zero = _mm512_setzero_ps();
+    const std::size_t base = group * lane_count;
+    __m512 xi, yi, zi, uxi, uyi, uzi;
+    load_own16(k.x + 4 * base, xi, yi, zi);
+    load_own16(k.u + 4 * base, uxi, uyi, uzi);
+    __m512 fx = zero, fy = zero, fz = zero;
+    const std::size_t table = group * slot_count * lane_count, next_table = table + slot_count * lane_count;
+    const std::size_t parameters = group * k.parameter_group_stride, next_parameters = parameters + k.parameter_group_stride;
+    for (int s = 0; s < slot_count; ++s) {
+        const std::size_t t = table + std::size_t(s) * lane_count, t2 = next_table + std::size_t(s) * lane_count;
+        const std::size_t u = parameters + std::size_t(s) * lane_count, u2 = next_parameters + std::size_t(s) * lane_count;
+        __m512 xj, yj, zj;
+        load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
+        const __m512 dx = _mm512_sub_ps(xj, xi), dy = _mm512_sub_ps(yj, yi), dz = _mm512_sub_ps(zj, zi);
+        __m512 length2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
+        length2 = _mm512_add_ps(length2, _mm512_mul_ps(dz, dz));
+        const __m512 length = _mm512_sqrt_ps(_mm512_max_ps(length2, tiny));
+        const __m512 inverse = _mm512_div_ps(one, length);
+        __m512 scale = _mm512_mul_ps(_mm512_mul_ps(load_two(k.stiffness + u, k.stiffness + u2),
+                                                   _mm512_sub_ps(length, load_two(k.rest_length + u, k.rest_length + u2))),
+                                     inverse);
+        if constexpr (Damped) {
+            __m512 uxj, uyj, uzj;
+            load_gather16(k.u, k.neighbour + t, k.neighbour + t2, uxj, uyj, uzj);
+            const __m512 dux = _mm512_sub_ps(uxj, uxi), duy = _mm512_sub_ps(uyj, uyi), duz = _mm512_sub_ps(uzj, uzi);
+            __m512 along = _mm512_add_ps(_mm512_mul_ps(dux, dx), _mm512_mul_ps(duy, dy));
+            along = _mm512_mul_ps(_mm512_add_ps(along, _mm512_mul_ps(duz, dz)), inverse);
+            along = _mm512_mul_ps(along, inverse);
+            scale = _mm512_add_ps(scale, _mm512_mul_ps(load_two(k.dashpot + t, k.dashpot + t2), along));
+        }
+        fx = _mm512_add_ps(fx, _mm512_mul_ps(scale, dx));
+        fy = _mm512_add_ps(fy, _mm512_mul_ps(scale, dy));
+        fz = _mm512_add_ps(fz, _mm512_mul_ps(scale, dz));
+    }
+    if constexpr (Supported) {
+        __m512 sx, sy, sz;
+        load_own16(k.support_point + 4 * base, sx, sy, sz);
+        const __m512 ks = _mm512_loadu_ps(k.support_stiffness + base), cs = _mm512_loadu_ps(k.support_damping + base);
+        fx = _mm512_add_ps(fx, _mm512_sub_ps(_mm512_mul_ps(ks, _mm512_sub_ps(sx, xi)), _mm512_mul_ps(cs, uxi)));
+        fy = _mm512_add_ps(fy, _mm512_sub_ps(_mm512_mul_ps(ks, _mm512_sub_ps(sy, yi)), _mm512_mul_ps(cs, uyi)));
+        fz = _mm512_add_ps(fz, _mm512_sub_ps(_mm512_mul_ps(ks, _mm512_sub_ps(sz, zi)), _mm512_mul_ps(cs, uzi)));
+    }
+    const __m512 m = _mm512_loadu_ps(k.mass + base), w = _mm512_loadu_ps(k.inverse_mass_h2 + base), keep = _mm512_set1_ps(k.keep);
+    const __m512 ex = _mm512_add_ps(_mm512_mul_ps(keep, uxi), _mm512_mul_ps(_mm512_add_ps(fx, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[0]))), w));
+    const __m512 ey = _mm512_add_ps(_mm512_mul_ps(keep, uyi), _mm512_mul_ps(_mm512_add_ps(fy, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[1]))), w));
+    const __m512 ez = _mm512_add_ps(_mm512_mul_ps(keep, uzi), _mm512_mul_ps(_mm512_add_ps(fz, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[2]))), w));
+    store_own16(k.xn + 4 * base, _mm512_add_ps(xi, ex), _mm512_add_ps(yi, ey), _mm512_add_ps(zi, ez));
+    store_own16(k.un + 4 * base, ex, ey, ez);
+    __m512 d2 = _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey));
+    d2 = _mm512_add_ps(d2, _mm512_mul_ps(ez, ez));
+    return _mm512_cmp_ps_mask(d2, _mm512_set1_ps(k.max_displacement2), _CMP_NLE_UQ) != 0;
+}
+
+/// Groups [first, last): pairs in 512-bit registers, an odd last group in 256-bit ones.
+template <bool Damped, bool Supported>
+HEARTSIM_AVX512 bool groups_avx512(const KernelData<float>& k, std::size_t first, std::size_t last) {
+    bool bad = false;
+    std::size_t g = first;
+    for (; g + 1 < last; g += 2) bad |= group_pair_avx512<Damped, Supported>(k, g);
+    if (g < last) bad |= group_avx2_body<Damped, Supported>(k, g);
+    return bad;
 }
 
 bool cpu_has_avx2() { return __builtin_cpu_supports("avx2"); }
-bool cpu_has_avx512() { return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl"); }
+bool cpu_has_avx512() {
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+           __builtin_cpu_supports("avx512dq");
+}
 
 #else
 bool cpu_has_avx2() { return false; }
 bool cpu_has_avx512() { return false; }
 #endif
 
+/// Runs a kernel over groups [first, last); true when a displacement is past the bound.
 template <class Real>
-using GroupFunction = bool (*)(const KernelData<Real>&, std::size_t);
+using GroupFunction = bool (*)(const KernelData<Real>&, std::size_t, std::size_t);
+
+template <class Real, bool (*Group)(const KernelData<Real>&, std::size_t)>
+bool each_group(const KernelData<Real>& k, std::size_t first, std::size_t last) {
+    bool bad = false;
+    for (std::size_t g = first; g < last; ++g) bad |= Group(k, g);
+    return bad;
+}
 
 template <class Real, bool Supported>
 GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped) {
     if constexpr (std::is_same_v<Real, float>) {
 #ifdef HEARTSIM_SOLVER_X86
-        if (kernel == SolverKernel::avx512) return damped ? &group_avx512<true, Supported> : &group_avx512<false, Supported>;
-        if (kernel == SolverKernel::avx2) return damped ? &group_avx2<true, Supported> : &group_avx2<false, Supported>;
-        if (kernel == SolverKernel::sse2) return damped ? &group_sse2<true, Supported> : &group_sse2<false, Supported>;
+        if (kernel == SolverKernel::avx512) return damped ? &groups_avx512<true, Supported> : &groups_avx512<false, Supported>;
+        if (kernel == SolverKernel::avx2)
+            return damped ? &each_group<float, &group_avx2<true, Supported>> : &each_group<float, &group_avx2<false, Supported>>;
+        if (kernel == SolverKernel::sse2)
+            return damped ? &each_group<float, &group_sse2<true, Supported>> : &each_group<float, &group_sse2<false, Supported>>;
 #endif
     }
-    return damped ? &group_portable<Real, true, Supported> : &group_portable<Real, false, Supported>;
+    return damped ? &each_group<Real, &group_portable<Real, true, Supported>> : &each_group<Real, &group_portable<Real, false, Supported>>;
 }
 
 template <class Real>
@@ -873,14 +1016,26 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
             bool chunk_bad = false;
             const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
-            for (std::size_t g = first; g < last; ++g) chunk_bad |= group_function(k, g);
+            chunk_bad |= group_function(k, first, last);
             for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
             for (int pi = 0; pi < probe_count; ++pi) {
                 const ProbeFrame& p = probes[std::size_t(pi)];
                 auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
                 const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
                 const std::size_t end = std::min(n_, last * lane_count);
-                for (std::size_t i = first * lane_count; i < end; ++i) {
+                std::size_t i = first * lane_count;
+#ifdef HEARTSIM_SOLVER_X86
+                if constexpr (std::is_same_v<Real, float>) {
+                    // 16 particles per test where the avx512 kernel runs (same operations as below).
+                    if (load_report_.kernel == SolverKernel::avx512)
+                        for (; i + 16 <= last * lane_count; i += 16)
+                            for (unsigned mask = near_probe16(next_ + 4 * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
+                                const std::size_t q = i + std::size_t(__builtin_ctz(mask));
+                                if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched);
+                            }
+                }
+#endif
+                for (; i < end; ++i) {
                     const Real* x = next_ + 4 * i;
                     const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
                     if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched);
