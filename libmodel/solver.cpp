@@ -507,15 +507,21 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool
     return supported ? choose_group_function<Real, true>(kernel, damped) : choose_group_function<Real, false>(kernel, damped);
 }
 
-SolverKernel resolve_kernel(SolverKernel wanted, bool is_float) {
+/// Above this many particles `automatic` prefers avx2 to avx512: measured on the development VM
+/// (docs/benchmarks-solver.md), the 16-lane kernel is 1.3–1.6× faster at 30k particles and
+/// 0.8× as fast at 100k, 0.7× at 300k and 1M, where the step streams its tables from memory.
+/// The crossover lies between 30k and 100k; 50k is not itself measured.
+constexpr std::size_t avx512_particle_limit = 50000;
+
+SolverKernel resolve_kernel(SolverKernel wanted, bool is_float, std::size_t particles) {
     if (!is_float) return SolverKernel::portable;
 #ifdef HEARTSIM_SOLVER_X86
-    if (wanted == SolverKernel::automatic) wanted = SolverKernel::avx512;
+    if (wanted == SolverKernel::automatic) wanted = particles <= avx512_particle_limit ? SolverKernel::avx512 : SolverKernel::avx2;
     if (wanted == SolverKernel::avx512 && !cpu_has_avx512()) wanted = SolverKernel::avx2;
     if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) wanted = SolverKernel::sse2;
     return wanted;
 #else
-    (void)wanted;
+    (void)wanted, (void)particles;
     return SolverKernel::portable;
 #endif
 }
@@ -731,7 +737,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         damped_critical_dt_ms_ = stable_step_ms(4.0 / (critical_dt_ms_ * critical_dt_ms_),
                                                 estimate_damping_eigenvalue(particles, springs, options_.damping_ratio, options_.damping));
     load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
-    load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>);
+    load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>, n_);
 
     touched_.assign(chunks_ * hands, {});
     chunk_bad_.assign(chunks_, 0);

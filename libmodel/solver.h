@@ -29,12 +29,11 @@ namespace heartsim {
 /// Which inner loop runs the step. All of them give the same bits for float: they evaluate the
 /// same IEEE operations in the same order (no FMA contraction, exact sqrt and division).
 enum class SolverKernel {
-    automatic,  ///< the fastest this CPU supports (AVX-512VL, else AVX2, else SSE2)
+    automatic,  ///< the fastest here: avx512 up to 50,000 particles, avx2 above; else sse2
     portable,   ///< plain C++, what the compiler makes of it (the only kernel for double)
     sse2,       ///< x86-64 baseline intrinsics, 4 lanes
     avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2
-    /// The avx2 kernel compiled for AVX-512VL: the same 8-lane instructions with 32 vector
-    /// registers instead of 16, so the slot loop does not spill; falls back to avx2.
+    /// 16 lanes (two groups per 512-bit register; AVX-512F/VL/DQ); falls back to avx2.
     avx512,
 };
 const char* to_string(SolverKernel kernel);
