@@ -243,12 +243,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     }
     const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
 
-    // Without haptics the simulation follows the wall clock, never ahead of it: the cpu backend on
-    // its own thread, the gl backend (one GL context) between frames within a time budget.
-    // Drawing takes at most --draw-share of the wall clock (docs/runtime.md "The window").
+    // The simulation follows the wall clock, never ahead of it: with the cpu backend on its own
+    // thread (a haptic session's steps too, so drawing never stalls the forces); with the gl
+    // backend (one GL context) between frames within a time budget. Drawing takes at most
+    // --draw-share of the wall clock (docs/runtime.md "Window mode").
     std::optional<WindowSimulation> simulation;
-    if (!haptic && backend.kind() == BackendKind::cpu)
-        simulation.emplace(backend, trajectory, WindowSimulationOptions{.keyboard_hand0 = keyboard_hand0, .steps = steps});
+    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps};
+    if (backend.kind() == BackendKind::cpu) {
+        if (haptic) simulation.emplace(backend, *haptic, simulation_options);
+        else simulation.emplace(backend, trajectory, simulation_options);
+    }
     double paused_ms = 0.0;  // gl pacing: wall time spent paused, not owed
     double next_title_s = 0.0;
     bool said_slow = false;
@@ -304,9 +308,9 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 input.device->set_pose(input.device_pose);
             }
         }
-        if (haptic) {
-            // Haptics: the simulation follows real time (at most 200 steps per frame); the device
-            // thread moves the instruments.
+        if (haptic && !simulation) {
+            // Haptics with the gl backend: the simulation follows real time between frames; the
+            // device thread moves the instruments.
             haptic->set_paused(input.paused);  // the real-time reference stops while paused
             // Stepping gets at least twice the last frame's drawing time (12 ms minimum): on a slow
             // renderer (llvmpipe) the simulation keeps 2/3 of the wall clock, fewer frames are drawn.
@@ -361,7 +365,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         int width = 0, height = 0;
         glfwGetFramebufferSize(window, &width, &height);
         if (width > 0 && height > 0) renderer.resize(width, height);
-        std::vector<InstrumentShape> shapes = haptic ? haptic->shapes() : std::vector<InstrumentShape>{};
+        std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
+                                              : simulation ? simulation->status().shapes : haptic->shapes();
         for (int hand = 0; hand < 2 && !haptic; ++hand) {
             if (!trajectory.uses_hand(hand)) continue;
             const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
@@ -406,10 +411,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const double owed_ms = simulation ? simulation->status().owed_ms : 1e3 * s - paused_ms;
             const double factor = owed_ms > 0 ? simulated_ms / owed_ms : 1.0;
             std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s, %.2f× real time%s%s",
-                          std::filesystem::path(a.scenario).filename().c_str(), frames / s, result.steps / s, haptic ? 1.0 : factor,
+                          std::filesystem::path(a.scenario).filename().c_str(), frames / s, result.steps / s, haptic && !simulation ? 1.0 : factor,
                           input.paused ? " (paused)" : "", forces.c_str());
             glfwSetWindowTitle(window, title);
-            if (!haptic && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
+            if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
                 said_slow = true;
                 std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
                             "the hand. Fewer particles (heartprep build --particles) or a GPU (--backend gl on one) would keep up\n",
@@ -418,9 +423,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         }
     }
     result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    const char* pacing = haptic ? "steps to real time between frames (haptics)"
-                         : simulation ? "simulation on its own thread, paced to the wall clock"
-                                      : "steps owed to the wall clock between frames";
+    const char* pacing = simulation ? (haptic ? "haptic simulation on its own thread, paced to the session clock"
+                                              : "simulation on its own thread, paced to the wall clock")
+                         : haptic   ? "steps to real time between frames (haptics)"
+                                    : "steps owed to the wall clock between frames";
     double simulated_ms = backend.time_step_ms() * double(result.steps);
     if (simulation) {
         const WindowSimulation::Status status = simulation->status();

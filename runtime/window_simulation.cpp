@@ -1,6 +1,7 @@
 // The window's simulation thread: docs/runtime.md "The window".
 #include "window_simulation.h"
 
+#include <algorithm>
 #include <chrono>
 
 namespace heartsim {
@@ -11,9 +12,21 @@ double ms_between(Clock::time_point a, Clock::time_point b) { return std::chrono
 }  // namespace
 
 WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
-    : backend_(backend), hands_(trajectory), trajectory_(trajectory), options_(options) {
-    status_.simulated_ms = backend.simulated_time_ms();
+    : backend_(backend), hands_(std::in_place, trajectory), trajectory_(&trajectory), options_(options) {
     thread_ = std::thread([this] { run(); });
+}
+
+WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options)
+    : backend_(backend), haptic_(&haptic), options_(options) {
+    status_.shapes = haptic.shapes();
+    thread_ = std::thread([this] { run_haptic(); });
+}
+
+void WindowSimulation::publish_if_wanted() {
+    if (!want_positions_) return;
+    positions_ = backend_.positions();
+    fresh_ = true, want_positions_ = false;
+    published_.notify_all();
 }
 
 WindowSimulation::~WindowSimulation() {
@@ -60,7 +73,7 @@ WindowSimulation::Status WindowSimulation::status() const {
 
 void WindowSimulation::run() {
     const double dt = backend_.time_step_ms();
-    const bool any_instrument = trajectory_.uses_hand(0) || trajectory_.uses_hand(1);
+    const bool any_instrument = trajectory_->uses_hand(0) || trajectory_->uses_hand(1);
     const double start_ms = backend_.simulated_time_ms();
     Clock::time_point start = Clock::now(), paused_at{};
     double paused_total_ms = 0;
@@ -93,11 +106,7 @@ void WindowSimulation::run() {
             // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
             std::unique_lock lock(mutex_);
             status_.owed_ms = owed_ms;
-            if (want_positions_) {
-                positions_ = backend_.positions();
-                fresh_ = true, want_positions_ = false;
-                published_.notify_all();
-            }
+            publish_if_wanted();
             const double wait_ms = paused ? 5.0 : std::min(5.0, simulated_ms + dt - owed_ms);
             published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });
             continue;
@@ -106,12 +115,12 @@ void WindowSimulation::run() {
         const long long step = status_.attempted;
         const double t = step * dt, t_next = (step + 1) * dt;
         for (int hand = 0; hand < 2; ++hand) {
-            if (!trajectory_.uses_hand(hand)) continue;
+            if (!trajectory_->uses_hand(hand)) continue;
             if (hand == 0 && options_.keyboard_hand0) {
                 if (keyboard_set) backend_.set_pose(0, keyboard);
                 continue;
             }
-            hands_.apply(backend_, hand, t, t_next);
+            hands_->apply(backend_, hand, t, t_next);
         }
         const StepReport report = backend_.step(1);
         bool received = false;
@@ -127,17 +136,73 @@ void WindowSimulation::run() {
         status_.owed_ms = owed_ms;
         status_.forces_received += received;
         if (report.diverged) ++status_.watchdog_events, status_.last_watchdog_message = report.message;
-        if (want_positions_) {
-            positions_ = backend_.positions();
-            fresh_ = true, want_positions_ = false;
-            published_.notify_all();
-        }
+        publish_if_wanted();
         if (options_.steps >= 0 && status_.attempted >= options_.steps) {
             status_.finished = true;
             positions_ = backend_.positions();
             fresh_ = true;
             published_.notify_all();
             break;
+        }
+    }
+}
+
+void WindowSimulation::run_haptic() {
+    // The session's own clock paces the steps (HapticRun::step_to_real_time); pauses stop it.
+    const double start_ms = backend_.simulated_time_ms();
+    const Clock::time_point start = Clock::now();
+    Clock::time_point paused_at{};
+    double paused_total_ms = 0;
+    bool was_paused = false;
+    {
+        std::lock_guard lock(mutex_);
+        positions_ = backend_.positions();
+        fresh_ = true;
+    }
+    published_.notify_all();
+    for (;;) {
+        bool reset = false, paused = false;
+        {
+            std::lock_guard lock(mutex_);
+            if (stop_) break;
+            reset = reset_, paused = paused_;
+            reset_ = false;
+        }
+        const Clock::time_point now = Clock::now();
+        if (paused != was_paused) {
+            haptic_->set_paused(paused);
+            if (paused) paused_at = now;
+            else paused_total_ms += ms_between(paused_at, now);
+            was_paused = paused;
+        }
+        if (reset) backend_.reset_tissue();
+        int stepped = 0;
+        if (paused) {
+            haptic_->drain();
+        } else {
+            const long long left = options_.steps >= 0 ? options_.steps - (long long)haptic_->rows() : 100000;
+            stepped = haptic_->step_to_real_time(int(std::clamp(left, 0LL, 100000LL)), 2.0);
+        }
+        std::unique_lock lock(mutex_);
+        status_.attempted = (long long)haptic_->rows();
+        status_.steps = haptic_->result().steps;
+        status_.substeps = haptic_->result().substeps;
+        status_.watchdog_events = haptic_->result().watchdog_events;
+        status_.last_watchdog_message = haptic_->result().last_watchdog_message;
+        status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
+        status_.owed_ms = ms_between(start, paused ? paused_at : now) - paused_total_ms;
+        status_.shapes = haptic_->shapes();
+        publish_if_wanted();
+        if (options_.steps >= 0 && status_.attempted >= options_.steps) {
+            status_.finished = true;
+            positions_ = backend_.positions();
+            fresh_ = true;
+            published_.notify_all();
+            break;
+        }
+        if (stepped == 0) {
+            const double wait_ms = paused ? 5.0 : std::clamp(haptic_->ms_until_next_step(), 0.05, 1.0);
+            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });
         }
     }
 }

@@ -1,7 +1,8 @@
 /// @file window_simulation.h
 /// @brief The window's simulation on its own thread (cpu backend): paced to the wall clock, never
 /// ahead of real time and never one step per frame; the window draws at its own rate from the
-/// latest positions it asks for. docs/runtime.md "The window".
+/// latest positions it asks for. Scripted or keyboard instruments, or a haptic session (its steps
+/// to real time, so drawing never stalls the forces). docs/runtime.md "Window mode".
 ///
 ///     WindowSimulation simulation(backend, trajectory, {.keyboard_hand0 = true, .steps = -1});
 ///     simulation.set_keyboard_pose(pose);              // hand 0 from the arrow keys
@@ -10,12 +11,15 @@
 #pragma once
 
 #include "backend.h"
+#include "haptic_run.h"
+#include "renderer.h"
 #include "trajectory.h"
 
 #include <array>
 #include <atomic>
 #include <condition_variable>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <vector>
@@ -36,6 +40,7 @@ public:
         std::size_t watchdog_events = 0, forces_received = 0;
         std::string last_watchdog_message;
         bool finished = false;        ///< the step limit was reached
+        std::vector<InstrumentShape> shapes;  ///< a haptic session's instruments as last applied
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };
@@ -43,6 +48,9 @@ public:
     /// Starts the thread. `backend` and `trajectory` must outlive this object and are used by
     /// the thread only (the caller must not step or pose the backend meanwhile).
     WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options);
+    /// A haptic session (started) steps to real time on the thread; the caller must not touch
+    /// `haptic` until this object is destroyed (then haptic->finish()).
+    WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options);
     ~WindowSimulation();  ///< stops and joins
     WindowSimulation(const WindowSimulation&) = delete;
     WindowSimulation& operator=(const WindowSimulation&) = delete;
@@ -58,10 +66,13 @@ public:
 
 private:
     void run();
+    void run_haptic();
+    void publish_if_wanted();  ///< with the mutex held
 
     Backend& backend_;
-    ScriptedHands hands_;
-    const Trajectory& trajectory_;
+    std::optional<ScriptedHands> hands_;
+    const Trajectory* trajectory_ = nullptr;
+    haptics::HapticRun* haptic_ = nullptr;
     WindowSimulationOptions options_;
     std::thread thread_;
 
