@@ -763,17 +763,7 @@ Scenario read_contents(const Reader& r) {
 
 }  // namespace
 
-SolverOptions options_from(const SolverSettings& settings) {
-    SolverOptions options;
-    options.dt_ms = settings.dt_ms;
-    options.critical_dt_ms = settings.critical_dt_ms;
-    options.damped_critical_dt_ms = settings.damped_critical_dt_ms;
-    options.safety_factor = settings.safety_factor;
-    options.damping = settings.damping;
-    options.gravity = settings.gravity;
-    options.balanced_gravity = settings.balanced_gravity;
-    return options;
-}
+SolverOptions options_from(const SolverSettings& settings) { return settings; }
 
 VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
     VisualMesh v;

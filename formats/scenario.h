@@ -39,23 +39,14 @@ struct ScenarioSource {
     bool anchor_border = false;
 };
 
-/// /solver attributes. Units: ms, mm/ms².
-struct SolverSettings {
-    double dt_ms = 0.0;               ///< default time step
+/// /solver attributes: the solver's own options (libmodel/solver.h: dt_ms, damping, gravity,
+/// balanced_gravity, critical_dt_ms, damped_critical_dt_ms, safety_factor; same names, units and
+/// defaults as the file's attributes) plus what only the file holds. The file stores the
+/// scenario's choices; SolverOptions' other fields (kernel, watchdog, damping_ratio: from the
+/// materials) keep their defaults when read. Units: ms, mm/ms².
+struct SolverSettings : SolverOptions {
     int substeps = 1;                 ///< steps per runtime frame update
-    double damping = 0.0;             ///< global velocity damping rate γ, 1/ms (f = −γ m v)
-    Eigen::Vector3d gravity{0.0, 9.81e-3, 0.0};  ///< mm/ms²; +y is posterior in LPS (supine patient)
-    /// The gravity the rest state is a static equilibrium for (pre-stressed springs, pre-loaded
-    /// supports: libmodel/supports.h), mm/ms²; zero when the rest state is the unstressed one.
-    Eigen::Vector3d balanced_gravity = Eigen::Vector3d::Zero();
-    double critical_dt_ms = 0.0;      ///< 2/sqrt(λmax(M⁻¹K)), Lanczos estimate (libmodel/stability.h)
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
-    /// The stable step with the dashpots, support dampers and drag (libmodel/stability.h
-    /// stable_step_ms); 0 when the file does not say (the runtime estimates it either way).
-    double damped_critical_dt_ms = 0.0;
-    /// dt_ms = safety_factor × damped_critical_dt_ms; the runtime splits a step into substeps of
-    /// at most safety_factor × its own damped critical step (docs/solver.md "Step policy").
-    double safety_factor = 0.8;
 };
 
 /// The visual mesh (/visual): float32 positions and normals, int32 triangles.
@@ -83,7 +74,7 @@ struct Scenario {
     std::optional<VisualMapping> mapping;
 };
 
-/// The solver settings of a scenario, field by field (docs/solver.md).
+/// The solver options of a scenario: its settings without the file-only fields.
 SolverOptions options_from(const SolverSettings& settings);
 
 /// Converts a world-space mesh to the file's float32 layout.

@@ -38,8 +38,9 @@ enum class SolverKernel {
 };
 const char* to_string(SolverKernel kernel);
 
-/// Solver settings: the scenario's /solver attributes (formats/scenario.h `SolverSettings`)
-/// plus what only the solver needs. Every field has a default and a unit.
+/// Solver options. The scenario's /solver attributes are these (formats/scenario.h
+/// `SolverSettings` derives from this struct and adds the file-only fields); the rest is what only
+/// the solver needs. Every field has a default and a unit.
 struct SolverOptions {
     /// Time of one step() unit, ms. 0 = safety_factor × the damped critical step.
     double dt_ms = 0.0;
