@@ -6,7 +6,7 @@
 #include "png.h"
 #include "renderer.h"
 #include "trajectory.h"
-#include "window_simulation.h"
+#include "window_run.h"
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
@@ -15,8 +15,6 @@
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
-#define GLFW_INCLUDE_NONE
-#include <GLFW/glfw3.h>
 
 #include <algorithm>
 #include <atomic>
@@ -81,13 +79,6 @@ std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fall
 }
 
 /// OUT.png → OUT-000123.png (after step 123).
-std::string numbered_screenshot(const std::string& path, long long step) {
-    const std::filesystem::path p(path);
-    char suffix[32];
-    std::snprintf(suffix, sizeof suffix, "-%06lld", step);
-    return (p.parent_path() / (p.stem().string() + suffix + p.extension().string())).string();
-}
-
 /// The particles' rest bounding box (where the devices' frames are placed when nothing is drawn).
 Eigen::AlignedBox3f model_box(const Scenario& scenario) {
     Eigen::AlignedBox3f box;
@@ -148,296 +139,6 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
         if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
     }
     return shapes;
-}
-
-/// The window's mouse and keyboard state (GLFW callbacks write it).
-struct WindowInput {
-    Renderer* renderer = nullptr;
-    double last_x = 0, last_y = 0;
-    bool orbiting = false, panning = false, paused = false;
-    // The mouse haptic device (--device mouse): Ctrl + left drag moves it in the view plane,
-    // Ctrl + wheel in depth, G toggles its button 1 (grab), E the emergency stop.
-    haptics::WindowDevice* device = nullptr;
-    haptics::HapticSession* session = nullptr;
-    haptics::DevicePose device_pose;
-    bool dragging_device = false, estop = false;
-    bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
-};
-
-/// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
-/// thread, the gl backend between frames, haptics through `haptic`) with the script or the
-/// keyboard moving the instruments; frames are drawn from the latest state. Ends on Esc, on
-/// closing the window, or after `steps` steps (< 0: no limit). Returns what run_scripted would.
-ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
-                             int steps, const RunArguments& a, haptics::HapticRun* haptic) {
-    auto* window = static_cast<GLFWwindow*>(context.window());
-    WindowInput input;
-    input.renderer = &renderer;
-    if (haptic) {
-        input.session = &haptic->session();
-        input.device = haptic->window_device();
-        if (input.device) input.device_pose = input.device->last_set();
-    }
-    glfwSetWindowUserPointer(window, &input);
-    glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        const bool down = action == GLFW_PRESS;
-        if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL)) in->dragging_device = down;
-        else if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
-        if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
-            in->panning = down;
-        if (!down) in->orbiting = in->panning = in->dragging_device = false;
-        glfwGetCursorPos(w, &in->last_x, &in->last_y);
-    });
-    glfwSetCursorPosCallback(window, [](GLFWwindow* w, double x, double y) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        const float dx = float(x - in->last_x), dy = float(y - in->last_y);
-        in->last_x = x, in->last_y = y;
-        int width = 0, height = 0;
-        glfwGetWindowSize(w, &width, &height);
-        if (in->dragging_device) {
-            // One pixel = the model's view height / window height at the target's depth.
-            const Camera& camera = in->renderer->camera();
-            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-            const double mm_per_pixel = 2.0 * camera.distance * std::tan(camera.fov_y_degrees * M_PI / 360.0) / std::max(height, 1);
-            in->device_pose.position_mm += mm_per_pixel * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
-            return;
-        }
-        if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);
-        if (in->panning) in->renderer->camera().pan(dx, dy, height);
-    });
-    glfwSetScrollCallback(window, [](GLFWwindow* w, double, double y) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        if (in->device && (glfwGetKey(w, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS || glfwGetKey(w, GLFW_KEY_RIGHT_CONTROL) == GLFW_PRESS)) {
-            const Camera& camera = in->renderer->camera();
-            const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
-            in->device_pose.position_mm -= back * (0.02 * camera.radius * y);  // wheel up: into the screen
-            return;
-        }
-        in->renderer->camera().zoom(std::pow(0.9f, float(y)));
-    });
-    glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int) {
-        if (action != GLFW_PRESS) return;
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
-        if (key == GLFW_KEY_R) in->renderer->reset_camera();
-        if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
-        if (key == GLFW_KEY_T) in->reset_tissue = true;
-        if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
-        if (key == GLFW_KEY_E && in->session) {
-            in->estop = !in->estop;
-            if (in->estop) in->session->emergency_stop();
-            else in->session->release_emergency_stop();
-        }
-    });
-    glfwSwapInterval(1);
-
-    // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
-    ScriptedHands hands(trajectory);
-    const double dt = backend.time_step_ms();
-    InstrumentKeyframe keyboard;
-    if (keyboard_hand0) {
-        keyboard = trajectory.at(0, 0.0);
-        backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
-        backend.set_pose(0, keyboard.pose);
-    }
-    const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
-
-    // The simulation follows the wall clock, never ahead of it: with the cpu backend on its own
-    // thread (a haptic session's steps too, so drawing never stalls the forces); with the gl
-    // backend (one GL context) between frames within a time budget. Drawing takes at most
-    // --draw-share of the wall clock (docs/runtime.md "Window mode").
-    std::optional<WindowSimulation> simulation;
-    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps};
-    if (backend.kind() == BackendKind::cpu) {
-        if (haptic) simulation.emplace(backend, *haptic, simulation_options);
-        else simulation.emplace(backend, trajectory, simulation_options);
-    }
-    double paused_ms = 0.0;  // gl pacing: wall time spent paused, not owed
-    double next_title_s = 0.0;
-    bool said_slow = false;
-    std::vector<std::array<float, 3>> latest_positions;
-
-    ScriptedRunResult result;
-    int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
-    double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
-    long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
-    const auto start = std::chrono::steady_clock::now();
-    auto last = start;
-    while (!glfwWindowShouldClose(window) && !interrupted.load() && (steps < 0 || attempted < steps)) {
-        glfwPollEvents();
-        const auto now = std::chrono::steady_clock::now();
-        const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
-        if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
-        last = now;
-        if (input.reset_tissue) {
-            if (simulation) simulation->request_reset_tissue();
-            else backend.reset_tissue();
-            input.reset_tissue = false;
-            std::printf("tissue reset to its rest state\n");
-        }
-        // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
-        // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
-        int n = 0;
-        if (!simulation && !haptic && !input.paused) {
-            const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
-            n = int(std::clamp(std::floor(owed_ms / dt) - double(attempted), 0.0, 1e6));
-        }
-        if (steps >= 0) n = std::min(n, steps - attempted);
-        const double step_budget_ms = std::max(12.0, 2.0 * last_draw_ms);
-
-        // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
-        // out of the screen.
-        InstrumentPose from = keyboard.pose, to = keyboard.pose;
-        if (keyboard_hand0 || input.device) {
-            const Camera& camera = renderer.camera();
-            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-            Eigen::Vector3d move = Eigen::Vector3d::Zero();
-            if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
-            if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
-            if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
-            if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
-            if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
-            if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
-            const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
-            to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
-            keyboard.pose = to;
-            if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
-            if (input.device) {
-                input.device_pose.position_mm += to.position - from.position;
-                input.device->set_pose(input.device_pose);
-            }
-        }
-        if (haptic && !simulation) {
-            // Haptics with the gl backend: the simulation follows real time between frames; the
-            // device thread moves the instruments.
-            haptic->set_paused(input.paused);  // the real-time reference stops while paused
-            // Stepping gets at least twice the last frame's drawing time (12 ms minimum): on a slow
-            // renderer (llvmpipe) the simulation keeps 2/3 of the wall clock, fewer frames are drawn.
-            if (!input.paused)
-                haptic->step_to_real_time(steps >= 0 ? std::max(0, std::min(100000, steps - attempted)) : 100000,
-                                          std::max(12.0, 2.0 * last_draw_ms));
-            else haptic->drain();
-            attempted = int(haptic->rows());
-            result.steps = haptic->result().steps;
-            result.substeps = haptic->result().substeps;
-            n = 0;
-        }
-        if (simulation) {
-            simulation->set_paused(input.paused);
-            simulation->latest(latest_positions);
-            const WindowSimulation::Status status = simulation->status();
-            attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
-            result.steps = status.steps;
-            result.substeps = status.substeps;
-            result.watchdog_events = status.watchdog_events;
-            result.last_watchdog_message = status.last_watchdog_message;
-            result.forces_received = status.forces_received;
-            if (status.finished) {
-                simulation->latest(latest_positions);  // the final state
-                attempted = std::max(attempted, steps);
-            }
-        }
-        const auto step_start = std::chrono::steady_clock::now();
-        for (int k = 0; k < n; ++k) {
-            if (k > 0 && std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - step_start).count() > step_budget_ms) break;
-            const int step = attempted++;
-            const double t = step * dt, t_next = (step + 1) * dt;
-            for (int hand = 0; hand < 2; ++hand) {
-                if (!trajectory.uses_hand(hand)) continue;
-                if (hand == 0 && keyboard_hand0) {
-                    const double f = double(k + 1) / double(n);
-                    backend.set_pose(0, {from.position + f * (to.position - from.position), to.orientation});
-                    continue;
-                }
-                hands.apply(backend, hand, t, t_next);
-            }
-            const StepReport report = backend.step(1);
-            result.steps += report.steps;
-            result.substeps += report.substeps;
-            if (report.diverged) ++result.watchdog_events, result.last_watchdog_message = report.message;
-            if (any_instrument) {
-                backend.request_forces();
-                if (backend.latest_forces()) ++result.forces_received;
-            }
-        }
-
-        int width = 0, height = 0;
-        glfwGetFramebufferSize(window, &width, &height);
-        if (width > 0 && height > 0) renderer.resize(width, height);
-        std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
-                                              : simulation ? simulation->status().shapes : haptic->shapes();
-        for (int hand = 0; hand < 2 && !haptic; ++hand) {
-            if (!trajectory.uses_hand(hand)) continue;
-            const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
-            const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
-            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
-        }
-        const auto draw_start = std::chrono::steady_clock::now();
-        if (simulation) renderer.render(latest_positions, shapes);
-        else renderer.render(backend, shapes);
-        renderer.present(width, height);
-        glfwSwapBuffers(window);
-        last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
-        ++frames;
-        // Drawing takes at most --draw-share of the wall clock: on a software renderer the window
-        // draws fewer frames and the simulation keeps the cores.
-        if (simulation && a.draw_share < 1.0) {
-            const double rest_ms = last_draw_ms / a.draw_share - last_draw_ms;
-            const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
-            while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
-                glfwWaitEventsTimeout(0.01);
-                if (input.reset_tissue || input.paused) break;
-            }
-        }
-        if (next_shot > 0 && result.steps >= next_shot) {
-            const std::string path = numbered_screenshot(a.screenshot, result.steps);
-            write_png(path, renderer.read_pixels());
-            while (next_shot <= result.steps) next_shot += a.screenshot_every;
-        }
-        const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-        if (s >= next_title_s) {  // the title twice a second
-            next_title_s = s + 0.5;
-            char title[256];
-            std::string forces;
-            if (input.device) {
-                const Eigen::Vector3d f = input.device->latest_force();
-                char text[96];
-                std::snprintf(text, sizeof text, ", mouse device force %.3f N%s", f.norm(), input.device_pose.buttons & 1u ? ", grab" : "");
-                forces = text;
-            }
-            if (input.estop) forces += ", EMERGENCY STOP (E releases)";
-            const double simulated_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
-            const double owed_ms = simulation ? simulation->status().owed_ms : 1e3 * s - paused_ms;
-            const double factor = owed_ms > 0 ? simulated_ms / owed_ms : 1.0;
-            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s, %.2f× real time%s%s",
-                          std::filesystem::path(a.scenario).filename().c_str(), frames / s, result.steps / s, haptic && !simulation ? 1.0 : factor,
-                          input.paused ? " (paused)" : "", forces.c_str());
-            glfwSetWindowTitle(window, title);
-            if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
-                said_slow = true;
-                std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
-                            "the hand. Fewer particles (heartprep build --particles) or a GPU (--backend gl on one) would keep up\n",
-                            factor, backend.size(), to_string(backend.kind()));
-            }
-        }
-    }
-    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    const char* pacing = simulation ? (haptic ? "haptic simulation on its own thread, paced to the session clock"
-                                              : "simulation on its own thread, paced to the wall clock")
-                         : haptic   ? "steps to real time between frames (haptics)"
-                                    : "steps owed to the wall clock between frames";
-    double simulated_ms = backend.time_step_ms() * double(result.steps);
-    if (simulation) {
-        const WindowSimulation::Status status = simulation->status();
-        simulated_ms = status.simulated_ms;
-        result.steps = status.steps, result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
-        result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
-        simulation.reset();  // joins the thread before the caller reads the backend
-    }
-    std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
-                frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
-    return result;
 }
 
 int command_info() {
@@ -637,8 +338,12 @@ int command_run(const RunArguments& a) {
         if (interrupted.load()) std::printf("interrupted: ending the session\n");
         haptic->finish(run);
     } else if (!a.headless) {
-        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, a,
-                         haptic.get());
+        const WindowRunOptions window{.scenario_name = std::filesystem::path(a.scenario).filename().string(),
+                                      .screenshot = a.screenshot,
+                                      .screenshot_every = a.screenshot_every,
+                                      .draw_share = a.draw_share,
+                                      .interrupted = &interrupted};
+        run = run_window(*context, *backend, *renderer, trajectory, keyboard_hand0, steps, window, haptic.get());
         if (haptic) {
             if (interrupted.load()) std::printf("interrupted: ending the session\n");
             haptic->finish(run);

@@ -1,0 +1,35 @@
+/// @file window_run.h
+/// @brief The window mode's loop (docs/runtime.md "Window mode"): mouse and keyboard, the
+/// simulation paced to the wall clock (on its own thread with the cpu backend, window_simulation.h),
+/// frames drawn from the latest state, the title with the real-time factor.
+#pragma once
+
+#include "backend.h"
+#include "gl_context.h"
+#include "haptic_run.h"
+#include "renderer.h"
+#include "trajectory.h"
+
+#include <atomic>
+#include <string>
+
+namespace heartsim {
+
+struct WindowRunOptions {
+    std::string scenario_name;      ///< for the title
+    std::string screenshot;         ///< OUT.png; with screenshot_every, numbered frames too
+    int screenshot_every = 0;       ///< also OUT-000123.png after every N steps
+    double draw_share = 0.1;        ///< drawing takes at most this fraction of the wall clock (cpu backend)
+    const std::atomic<bool>* interrupted = nullptr;  ///< ends the loop when set (Ctrl-C)
+};
+
+/// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no
+/// limit). `keyboard_hand0`: the arrow keys move hand 0 (no trajectory). `haptic`: a started
+/// haptic session (its devices move the instruments). Returns what run_scripted would.
+ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
+                             int steps, const WindowRunOptions& options, haptics::HapticRun* haptic);
+
+/// OUT.png → OUT-000123.png for step 123.
+std::string numbered_screenshot(const std::string& path, long long step);
+
+}  // namespace heartsim
