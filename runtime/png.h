@@ -1,10 +1,8 @@
 /// @file png.h
-/// @brief A minimal PNG writer and reader for the runtime's screenshots and the golden-image
-/// tests: 8-bit greyscale, RGB or RGBA, non-interlaced (PNG 1.2 / ISO 15948). The encoder writes
-/// IHDR, one IDAT (zlib, per-row filter chosen by the minimum-sum-of-absolute-differences rule)
-/// and IEND, each with its CRC-32; the file appears atomically (a temporary file beside it, then
-/// rename). The reader accepts what the writer writes (any of the five row filters), which is
-/// all the tests need; it rejects palette, 16-bit and interlaced images with a clear message.
+/// @brief PNG files for the runtime's screenshots and the golden-image tests, through libpng's
+/// simplified API: 8-bit grey, RGB or RGBA written; any PNG read (converted to 8-bit grey, RGB or
+/// RGBA). The file appears atomically (a temporary file beside it, then rename). A damaged file
+/// (bad CRC in a critical chunk, truncated data) is an InputError naming it.
 ///
 ///     Image image{256, 256, 3, pixels};          // rows top to bottom, RGB
 ///     write_png("shot.png", image);
@@ -30,8 +28,8 @@ std::vector<std::uint8_t> encode_png(const Image& image);
 /// Writes `image` to `path` atomically. Throws OutputError naming the file.
 void write_png(const std::filesystem::path& path, const Image& image);
 
-/// Decodes PNG bytes (8-bit grey, grey+alpha, RGB or RGBA, not interlaced). Throws InputError
-/// (`name` in the message) for anything else or a damaged file (bad CRC, truncated data).
+/// Decodes PNG bytes: grey stays grey (1 channel), colour becomes RGB (3), anything with alpha
+/// RGBA (4), 8 bits each. Throws InputError (`name` in the message) for a damaged or non-PNG file.
 Image decode_png(const std::vector<std::uint8_t>& bytes, const std::string& name = "PNG");
 
 /// Reads and decodes a PNG file. Throws InputError naming the file.

@@ -12,8 +12,9 @@ packages=(
   libcgal-dev libeigen3-dev libtbb-dev libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
   # files and command line
   libassimp-dev libhdf5-dev hdf5-tools libcli11-dev libssl-dev
-  # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe (the runtime)
-  libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri
+  # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe (the runtime);
+  # libpng for screenshots
+  libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri libpng-dev
   # tests
   googletest libgtest-dev
   # window tests (heartsim's GLFW window under a virtual X server)
