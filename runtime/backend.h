@@ -13,7 +13,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/solver.h"
-#include "picking.h"
+#include "runtime/gl/picking.h"
 
 #include <memory>
 #include <optional>
@@ -82,7 +82,7 @@ public:
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
     virtual std::size_t memory_bytes() const = 0;
-    /// How the force pass finds a probe's contact particles (runtime/picking.h): gl only; the cpu
+    /// How the force pass finds a probe's contact particles (runtime/gl/picking.h): gl only; the cpu
     /// backend always uses its solver's touched list (`direct`) and rejects the others.
     virtual void set_contact(const ContactSettings& settings) {
         if (settings.mode != ContactMode::direct) throw InputError("--contact picking|search needs --backend gl");

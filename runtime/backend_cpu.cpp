@@ -1,5 +1,5 @@
 // The CPU backend: libmodel's Solver behind the Backend interface, timed by the wall clock.
-#include "backend.h"
+#include "runtime/backend.h"
 
 #include "libmodel/errors.h"
 

@@ -1,12 +1,12 @@
 // heartsim: the simulation runtime. `heartsim info` (the GL device), `heartsim run SCENARIO.h5`.
 // docs/runtime.md.
-#include "backend.h"
-#include "gl_context.h"
-#include "haptic_run.h"
-#include "png.h"
-#include "renderer.h"
-#include "trajectory.h"
-#include "window_run.h"
+#include "runtime/backend.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/haptics/haptic_run.h"
+#include "runtime/png.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/trajectory.h"
+#include "runtime/window_run.h"
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
@@ -43,7 +43,7 @@ struct RunArguments {
     std::vector<double> gravity;  ///< --gravity X Y Z, mm/ms²; empty = the scenario's
     bool stats = false;
     std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
-    std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/picking.h)
+    std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/gl/picking.h)
     int picking_refresh = 1;
     // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
     std::string screenshot;          // OUT.png: the last frame

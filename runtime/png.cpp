@@ -1,5 +1,5 @@
 // PNG screenshots and golden images through libpng's simplified API (libpng 1.6). png.h.
-#include "png.h"
+#include "runtime/png.h"
 
 #include "formats/atomic_file.h"
 

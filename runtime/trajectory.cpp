@@ -1,5 +1,5 @@
 // Scripted instruments and the run loop shared by the CLI and the tests. trajectory.h.
-#include "trajectory.h"
+#include "runtime/trajectory.h"
 
 #include "formats/csv.h"
 

@@ -11,7 +11,7 @@
 /// kind, semi-axes and grab switch at a keyframe's time and hold until the next.
 #pragma once
 
-#include "backend.h"
+#include "runtime/backend.h"
 
 #include <filesystem>
 #include <functional>

@@ -1,8 +1,8 @@
 // The window mode's loop: docs/runtime.md "Window mode".
-#include "window_run.h"
+#include "runtime/window_run.h"
 
-#include "png.h"
-#include "window_simulation.h"
+#include "runtime/png.h"
+#include "runtime/window_simulation.h"
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>

@@ -4,11 +4,11 @@
 /// frames drawn from the latest state, the title with the real-time factor.
 #pragma once
 
-#include "backend.h"
-#include "gl_context.h"
-#include "haptic_run.h"
-#include "renderer.h"
-#include "trajectory.h"
+#include "runtime/backend.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/haptics/haptic_run.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/trajectory.h"
 
 #include <atomic>
 #include <string>

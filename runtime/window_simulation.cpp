@@ -1,5 +1,5 @@
 // The window's simulation thread: docs/runtime.md "The window".
-#include "window_simulation.h"
+#include "runtime/window_simulation.h"
 
 #include <algorithm>
 #include <chrono>

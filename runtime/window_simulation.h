@@ -10,10 +10,10 @@
 ///     WindowSimulation::Status s = simulation.status(); // simulated time, steps, RTF
 #pragma once
 
-#include "backend.h"
-#include "haptic_run.h"
-#include "renderer.h"
-#include "trajectory.h"
+#include "runtime/backend.h"
+#include "runtime/haptics/haptic_run.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/trajectory.h"
 
 #include <array>
 #include <atomic>

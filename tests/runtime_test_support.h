@@ -2,7 +2,7 @@
 /// @brief Shared by the tests that need OpenGL: one headless context per test program.
 #pragma once
 
-#include "runtime/gl_context.h"
+#include "runtime/gl/gl_context.h"
 
 #include <gtest/gtest.h>
 

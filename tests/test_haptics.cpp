@@ -1,10 +1,10 @@
-// The haptic core (runtime/haptics.h): closed-loop stability with the simulated device pressing a
+// The haptic core (runtime/haptics/haptics.h): closed-loop stability with the simulated device pressing a
 // block, the phantom and a real HVSMR case (pat6, built with heartprep) driven by the CPU solver
 // (with and without virtual coupling, hold and extrapolation), the
 // safety chain (clamp, rate limit, stall / divergence / reset fade, NaN, emergency stop), two hands
 // from one force readback, the scripted device, the lock-free exchange, and the device thread's
 // measured rate (printed, not asserted). Simulated time everywhere except the thread test.
-#include "runtime/haptics.h"
+#include "runtime/haptics/haptics.h"
 #include "runtime/backend.h"
 
 #include "test_support.h"

@@ -8,7 +8,7 @@
 
 #include "formats/recording.h"
 #include "libmodel/errors.h"
-#include "runtime/haptic_run.h"
+#include "runtime/haptics/haptic_run.h"
 
 #include <gtest/gtest.h>
 #include <hdf5.h>

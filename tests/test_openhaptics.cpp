@@ -1,8 +1,8 @@
-// The `openhaptics` device (runtime/openhaptics.h) against hd_testdouble, a test double of the
+// The `openhaptics` device (runtime/haptics/openhaptics.h) against hd_testdouble, a test double of the
 // OpenHaptics HD library with a simulated device (tests/hd_testdouble/). Real time: the double
 // runs its own 1 kHz servo thread, as HD does; assertions are on what the double's device
 // received, never on wall-clock rates.
-#include "runtime/openhaptics.h"
+#include "runtime/haptics/openhaptics.h"
 
 #include "hd_testdouble.h"
 

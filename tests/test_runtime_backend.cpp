@@ -9,7 +9,7 @@
 #include "formats/state.h"
 #include "libmodel/errors.h"
 #include "runtime/backend.h"
-#include "runtime/gl_context.h"
+#include "runtime/gl/gl_context.h"
 #include "runtime/trajectory.h"
 
 #include <gtest/gtest.h>

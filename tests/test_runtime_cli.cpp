@@ -4,7 +4,7 @@
 
 #include "formats/scenario.h"
 #include "formats/state.h"
-#include "runtime/gl_context.h"
+#include "runtime/gl/gl_context.h"
 
 #include <gtest/gtest.h>
 

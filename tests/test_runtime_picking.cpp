@@ -9,8 +9,8 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "runtime/backend.h"
-#include "runtime/gl_context.h"
-#include "runtime/picking.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/gl/picking.h"
 
 #include <gtest/gtest.h>
 

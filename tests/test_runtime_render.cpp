@@ -14,9 +14,9 @@
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
 #include "runtime/backend.h"
-#include "runtime/gl_context.h"
+#include "runtime/gl/gl_context.h"
 #include "runtime/png.h"
-#include "runtime/renderer.h"
+#include "runtime/gl/renderer.h"
 #include "runtime/trajectory.h"
 
 #include <gtest/gtest.h>

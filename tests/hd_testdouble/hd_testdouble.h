@@ -1,7 +1,7 @@
 /// @file hd_testdouble.h
 /// @brief The test-only entry points of hd_testdouble, a TEST DOUBLE of the OpenHaptics HD
 /// library (libHD.so): a shared library exporting the same HD C functions over a simulated device,
-/// so runtime/openhaptics.cpp can be tested where there is neither the SDK nor a Touch. It is not
+/// so runtime/haptics/openhaptics.cpp can be tested where there is neither the SDK nor a Touch. It is not
 /// 3D Systems' library and imitates only what heartsim uses. Tests reach these functions with
 /// dlsym on the same library the device loaded.
 ///

@@ -1,9 +1,9 @@
 // The visualisation step: the mapped visual mesh (or the simulation surface), lit, with the
 // instruments, into an offscreen framebuffer. renderer.h; docs/runtime.md "Rendering".
-#include "renderer.h"
+#include "runtime/gl/renderer.h"
 
-#include "gl_context.h"
-#include "gl_program.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_program.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"

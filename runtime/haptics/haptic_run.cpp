@@ -1,8 +1,8 @@
 // The simulation side of a haptic session: devices from --device specs, the real-time step loop,
 // the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md).
-#include "haptic_run.h"
+#include "runtime/haptics/haptic_run.h"
 
-#include "openhaptics.h"
+#include "runtime/haptics/openhaptics.h"
 
 #include "libmodel/errors.h"
 

@@ -1,10 +1,10 @@
 // The GL backend: the CPU solver's substep as OpenGL 4.3 compute shaders on shader storage
 // buffers in the same packed layout. Shaders and the arithmetic contract: gl_shaders.h.
 // Design and deviations: docs/runtime.md.
-#include "backend.h"
-#include "gl_context.h"
-#include "gl_program.h"
-#include "gl_shaders.h"
+#include "runtime/backend.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_program.h"
+#include "runtime/gl/gl_shaders.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"

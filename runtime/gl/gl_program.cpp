@@ -1,6 +1,6 @@
-#include "gl_program.h"
+#include "runtime/gl/gl_program.h"
 
-#include "gl_context.h"
+#include "runtime/gl/gl_context.h"
 
 namespace heartsim {
 

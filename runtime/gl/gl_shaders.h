@@ -11,7 +11,7 @@ namespace heartsim::gl_shaders {
 enum Binding : unsigned {
     current = 0, motion = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
     particle = 7, held_by = 8, counters = 9, touched = 10, next_motion = 11, held = 12, held_local = 13, forces = 14,
-    picked = 15,  ///< probe contact lists of the picking / search passes (runtime/picking.cpp also uses 16..19)
+    picked = 15,  ///< probe contact lists of the picking / search passes (runtime/gl/picking.cpp also uses 16..19)
 };
 
 /// Counter words in the `counters` buffer.

@@ -1,5 +1,5 @@
-// The openhaptics device (runtime/openhaptics.h): the OpenHaptics HD C API through dlopen.
-#include "openhaptics.h"
+// The openhaptics device (runtime/haptics/openhaptics.h): the OpenHaptics HD C API through dlopen.
+#include "runtime/haptics/openhaptics.h"
 
 #include "libmodel/errors.h"
 

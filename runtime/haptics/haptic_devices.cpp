@@ -1,5 +1,5 @@
-// The scripted and simulated haptic devices (runtime/haptics.h).
-#include "haptics.h"
+// The scripted and simulated haptic devices (runtime/haptics/haptics.h).
+#include "runtime/haptics/haptics.h"
 
 #include "formats/csv.h"
 

@@ -1,6 +1,6 @@
 // The haptic core: safety chain, coupling, the session (device thread) and its statistics.
 // Design: docs/haptics.md.
-#include "haptics.h"
+#include "runtime/haptics/haptics.h"
 
 #include "libmodel/errors.h"
 

@@ -19,7 +19,7 @@
 /// for `force_timeout_ms` (the device thread stopped). Neither side ever blocks on the other.
 #pragma once
 
-#include "runtime/haptics.h"
+#include "runtime/haptics/haptics.h"
 
 #include <cstdint>
 #include <memory>

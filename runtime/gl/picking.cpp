@@ -1,8 +1,8 @@
 // The picking buffer (Sørensen & Mosegaard's §1.2.2) and the direct surface search: docs/runtime.md,
 // "Probe contacts: picking buffer and direct search".
-#include "picking.h"
-#include "gl_context.h"
-#include "gl_program.h"
+#include "runtime/gl/picking.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_program.h"
 
 #include "libmodel/errors.h"
 

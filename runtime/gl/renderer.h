@@ -20,8 +20,8 @@
 ///     instruments.
 #pragma once
 
-#include "backend.h"
-#include "png.h"
+#include "runtime/backend.h"
+#include "runtime/png.h"
 
 #include "formats/scenario.h"
 

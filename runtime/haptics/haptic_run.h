@@ -10,10 +10,10 @@
 ///     run.finish(result);                       // stops the thread, prints the table, writes --record
 #pragma once
 
-#include "backend.h"
-#include "haptics.h"
-#include "renderer.h"
-#include "trajectory.h"
+#include "runtime/backend.h"
+#include "runtime/haptics/haptics.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/trajectory.h"
 
 #include "formats/recording.h"
 

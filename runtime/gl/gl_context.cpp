@@ -1,5 +1,5 @@
 // The GL context: headless EGL (Mesa surfaceless platform) or a GLFW window. docs/runtime.md.
-#include "gl_context.h"
+#include "runtime/gl/gl_context.h"
 
 #include <epoxy/egl.h>
 #include <epoxy/gl.h>
