@@ -22,6 +22,15 @@ WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic,
     thread_ = std::thread([this] { run_haptic(); });
 }
 
+bool WindowSimulation::finish_at_limit() {
+    if (options_.steps < 0 || status_.attempted < options_.steps) return false;
+    status_.finished = true;
+    positions_ = backend_.positions();  // the final state, for the last frame
+    fresh_ = true;
+    published_.notify_all();
+    return true;
+}
+
 void WindowSimulation::publish_if_wanted() {
     if (!want_positions_) return;
     positions_ = backend_.positions();
@@ -137,13 +146,7 @@ void WindowSimulation::run() {
         status_.forces_received += received;
         if (report.diverged) ++status_.watchdog_events, status_.last_watchdog_message = report.message;
         publish_if_wanted();
-        if (options_.steps >= 0 && status_.attempted >= options_.steps) {
-            status_.finished = true;
-            positions_ = backend_.positions();
-            fresh_ = true;
-            published_.notify_all();
-            break;
-        }
+        if (finish_at_limit()) break;
     }
 }
 
@@ -193,13 +196,7 @@ void WindowSimulation::run_haptic() {
         status_.owed_ms = ms_between(start, paused ? paused_at : now) - paused_total_ms;
         status_.shapes = haptic_->shapes();
         publish_if_wanted();
-        if (options_.steps >= 0 && status_.attempted >= options_.steps) {
-            status_.finished = true;
-            positions_ = backend_.positions();
-            fresh_ = true;
-            published_.notify_all();
-            break;
-        }
+        if (finish_at_limit()) break;
         if (stepped == 0) {
             const double wait_ms = paused ? 5.0 : std::clamp(haptic_->ms_until_next_step(), 0.05, 1.0);
             published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });

@@ -68,6 +68,7 @@ private:
     void run();
     void run_haptic();
     void publish_if_wanted();  ///< with the mutex held
+    bool finish_at_limit();    ///< with the mutex held: true (and the final state published) at the step limit
 
     Backend& backend_;
     std::optional<ScriptedHands> hands_;
