@@ -3,6 +3,7 @@
 // Design and deviations: docs/runtime.md.
 #include "runtime/backend.h"
 #include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
 #include "runtime/gl/gl_shaders.h"
 
@@ -27,21 +28,11 @@ constexpr int slot_count = 18, lane_count = 8, hands = 2;
 constexpr int ring_slots = 4;              // force readbacks in flight
 constexpr GLsizeiptr ring_stride = 256;    // ≥ GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT everywhere we know
 
-/// A GL object name with its deleter: no raw ids leak out of this file.
-struct Buffer {
-    GLuint id = 0;
-    Buffer() = default;
-    Buffer(const Buffer&) = delete;
-    Buffer& operator=(const Buffer&) = delete;
-    ~Buffer() { if (id) glDeleteBuffers(1, &id); }
-};
+using gl::Buffer;
 
+/// A compute program and its uniform lookup.
 struct Program {
-    GLuint id = 0;
-    Program() = default;
-    Program(const Program&) = delete;
-    Program& operator=(const Program&) = delete;
-    ~Program() { if (id) glDeleteProgram(id); }
+    gl::Program id;
     GLint at(const char* name) const { return glGetUniformLocation(id, name); }
 };
 
@@ -53,14 +44,14 @@ void build(Program& program, const char* name, const char* body) {
 
 template <class T>
 void storage(Buffer& buffer, const std::vector<T>& data, GLbitfield flags = 0) {
-    glCreateBuffers(1, &buffer.id);
-    glNamedBufferStorage(buffer.id, GLsizeiptr(std::max<std::size_t>(data.size() * sizeof(T), 16)), data.empty() ? nullptr : data.data(),
+    glCreateBuffers(1, buffer.create());
+    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(data.size() * sizeof(T), 16)), data.empty() ? nullptr : data.data(),
                          flags);
 }
 
 void storage(Buffer& buffer, std::size_t bytes, GLbitfield flags) {
-    glCreateBuffers(1, &buffer.id);
-    glNamedBufferStorage(buffer.id, GLsizeiptr(std::max<std::size_t>(bytes, 16)), nullptr, flags);
+    glCreateBuffers(1, buffer.create());
+    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(bytes, 16)), nullptr, flags);
 }
 
 InstrumentPose interpolate(const InstrumentPose& a, const InstrumentPose& b, double t) {
@@ -111,7 +102,7 @@ public:
         for (auto& fence : fences_)
             if (fence) glDeleteSync(fence);
         for (auto& pending : pending_) glDeleteQueries(2, pending.queries);
-        if (ring_.id) glUnmapNamedBuffer(ring_.id);
+        if (ring_.id()) glUnmapNamedBuffer(ring_.id());
     }
 
     BackendKind kind() const override { return BackendKind::gl; }
@@ -122,7 +113,7 @@ public:
     int substeps_per_step() const override { return substeps_; }
     double simulated_time_ms() const override { return time_ms_; }
     std::size_t memory_bytes() const override { return memory_bytes_; }
-    unsigned gl_position_buffer() const override { return position_[current_].id; }
+    unsigned gl_position_buffer() const override { return position_[current_].id(); }
 
     void set_instrument(int hand, const Instrument& instrument) override {
         check_hand(hand);
@@ -135,7 +126,7 @@ public:
         if (picking_) picking_->invalidate(hand);
         // A probe's touched list starts empty (the step pass refills it every substep).
         const GLuint zero = 0;
-        glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(hand * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(hand * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
     }
 
     void set_pose(int hand, const InstrumentPose& pose) override {
@@ -156,7 +147,7 @@ public:
         release(hand);
         state.grabbing = true;
         bind_common();
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
         const GLuint p = capture_program_.id;
         glProgramUniform1i(p, capture_program_.at("hand"), hand);
         glProgramUniform3dv(p, capture_program_.at("centre"), 1, state.pose.position.data());
@@ -167,7 +158,7 @@ public:
         glDispatchCompute(GLuint((n_ + 63) / 64), 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         GLuint count = 0;
-        glGetNamedBufferSubData(counters_.id, GLintptr((sh::held0 + hand) * 4), 4, &count);
+        glGetNamedBufferSubData(counters_.id(), GLintptr((sh::held0 + hand) * 4), 4, &count);
         check("begin_grab");
         return count;
     }
@@ -187,12 +178,12 @@ public:
     void reset_tissue() override {
         for (int hand = 0; hand < hands; ++hand) release(hand);
         const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
-        glCopyNamedBufferSubData(rest_current_.id, position_[current_].id, 0, 0, bytes);
-        glCopyNamedBufferSubData(rest_current_.id, position_[next_].id, 0, 0, bytes);
-        glCopyNamedBufferSubData(rest_motion_.id, motion_[current_].id, 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_current_.id(), position_[current_].id(), 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_current_.id(), position_[next_].id(), 0, 0, bytes);
+        glCopyNamedBufferSubData(rest_motion_.id(), motion_[current_].id(), 0, 0, bytes);
         const GLuint zero = 0;
         for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1)})
-            glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         check("reset_tissue");
     }
@@ -249,12 +240,12 @@ public:
                 set_indexed_matrix(sp, "probe_previous_rotation", k, previous_rotation.data());
             }
             // Touched lists are per substep.
-            glClearNamedBufferSubData(counters_.id, GL_R32UI, 0, 8, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            glClearNamedBufferSubData(counters_.id(), GL_R32UI, 0, 8, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next, position_[next_].id);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next_motion, motion_[next_].id);
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next, position_[next_].id());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next_motion, motion_[next_].id());
             glUseProgram(sp);
             glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
             glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -303,10 +294,10 @@ public:
         glGenQueries(2, timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
         bind_common();
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id);
-        glBindBufferRange(GL_SHADER_STORAGE_BUFFER, sh::forces, ring_.id, GLintptr(slot) * ring_stride, sizeof(ForceSlot));
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, picking_ ? picking_->picked_buffer() : touched_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id());
+        glBindBufferRange(GL_SHADER_STORAGE_BUFFER, sh::forces, ring_.id(), GLintptr(slot) * ring_stride, sizeof(ForceSlot));
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, picking_ ? picking_->picked_buffer() : touched_.id());
         int kinds[2];
         for (int hand = 0; hand < hands; ++hand)
             kinds[hand] = hand_[hand].instrument.kind == InstrumentKind::probe ? (listed_contacts() ? 3 : 1) : hand_[hand].grabbing ? 2 : 0;
@@ -357,7 +348,7 @@ public:
     std::vector<std::array<float, 3>> positions() override {
         glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
         std::vector<float> raw(4 * n_pad_);
-        glGetNamedBufferSubData(position_[current_].id, 0, GLsizeiptr(raw.size() * sizeof(float)), raw.data());
+        glGetNamedBufferSubData(position_[current_].id(), 0, GLsizeiptr(raw.size() * sizeof(float)), raw.data());
         check("reading positions");
         std::vector<std::array<float, 3>> out(n_);
         for (std::size_t i = 0; i < n_; ++i) out[i] = {raw[4 * i], raw[4 * i + 1], raw[4 * i + 2]};
@@ -380,9 +371,9 @@ public:
         const bool listed = state.instrument.kind == InstrumentKind::probe && listed_contacts();
         const GLuint word = listed ? sh::picked0 + hand : state.grabbing ? sh::held0 + hand : sh::touched0 + hand;
         GLuint count = 0;
-        glGetNamedBufferSubData(counters_.id, GLintptr(word * 4), 4, &count);
+        glGetNamedBufferSubData(counters_.id(), GLintptr(word * 4), 4, &count);
         std::vector<std::int32_t> out(std::min<std::size_t>(count, n_));
-        const GLuint list = listed ? picking_->picked_buffer() : state.grabbing ? held_.id : touched_.id;
+        const GLuint list = listed ? picking_->picked_buffer() : state.grabbing ? held_.id() : touched_.id();
         if (!out.empty()) glGetNamedBufferSubData(list, GLintptr(std::size_t(hand) * n_ * 4), GLsizeiptr(out.size() * 4), out.data());
         check("reading contact particles");
         std::sort(out.begin(), out.end());
@@ -419,7 +410,7 @@ private:
             const HandState& state = hand_[hand];
             if (state.instrument.kind != InstrumentKind::probe) continue;
             if (state.placed) any = true;
-            else glClearNamedBufferSubData(counters_.id, GL_R32UI, GLintptr((sh::picked0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            else glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr((sh::picked0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         }
         if (!any) return;
         Pending timing{};
@@ -430,7 +421,7 @@ private:
         for (int hand = 0; hand < hands; ++hand) {
             const HandState& state = hand_[hand];
             if (state.instrument.kind != InstrumentKind::probe || !state.placed) continue;
-            picking_->collect(hand, state.instrument, state.pose, position_[current_].id, counters_.id);
+            picking_->collect(hand, state.instrument, state.pose, position_[current_].id(), counters_.id());
         }
         glQueryCounter(timing.queries[1], GL_TIMESTAMP);
         pending_.push_back(timing);
@@ -496,16 +487,16 @@ private:
     }
 
     void bind_common() {
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::neighbour, neighbour_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::rest_length, rest_length_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::stiffness, stiffness_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::dashpot, dashpot_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle, particle_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_by, held_by_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::touched, touched_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::neighbour, neighbour_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::rest_length, rest_length_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::stiffness, stiffness_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::dashpot, dashpot_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle, particle_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_by, held_by_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::touched, touched_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id());
     }
 
     /// The tables of libmodel/solver.cpp's constructor, built the same way (same slot search,
@@ -594,7 +585,7 @@ private:
         storage(held_local_, std::size_t(hands) * n_ * 3 * 8, 0);
         const GLbitfield ring_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
         storage(ring_, std::size_t(ring_slots) * ring_stride, ring_flags);
-        ring_map_ = glMapNamedBufferRange(ring_.id, 0, ring_slots * ring_stride, ring_flags);
+        ring_map_ = glMapNamedBufferRange(ring_.id(), 0, ring_slots * ring_stride, ring_flags);
         if (!ring_map_) throw GlUnavailable("gl backend: cannot map the force readback buffer persistently; run with --backend cpu");
         memory_bytes_ = estimate_gl_memory_bytes(scenario);
     }

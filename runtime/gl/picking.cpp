@@ -2,6 +2,7 @@
 // "Probe contacts: picking buffer and direct search".
 #include "runtime/gl/picking.h"
 #include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
 
 #include "libmodel/errors.h"
@@ -153,10 +154,12 @@ double default_tolerance(double spacing) { return 1e-3 * spacing; }
 }  // namespace
 
 struct PickingPass::Gl {
-    GLuint render_program = 0, collect_program = 0, search_program = 0, vao = 0;
-    GLuint triangles = 0, surface = 0, samples = 0, mark = 0, picked = 0;
+    gl::Program render_program, collect_program, search_program;
+    gl::VertexArray vao;
+    gl::Buffer triangles, surface, samples, mark, picked;
     struct Hand {
-        GLuint framebuffer = 0, index = 0, distance = 0, depth = 0;
+        gl::Framebuffer framebuffer;
+        gl::Texture index, distance, depth;
         int resolution = 0;
         bool valid = false;
         int age = 0;                        // force requests since the buffer was rendered
@@ -166,20 +169,6 @@ struct PickingPass::Gl {
     };
     std::array<Hand, hands> hand;
 
-    void free_targets(Hand& h) {
-        if (h.framebuffer) glDeleteFramebuffers(1, &h.framebuffer);
-        GLuint textures[3] = {h.index, h.distance, h.depth};
-        glDeleteTextures(3, textures);
-        h = Hand{};
-    }
-    ~Gl() {
-        for (auto& h : hand) free_targets(h);
-        for (GLuint p : {render_program, collect_program, search_program})
-            if (p) glDeleteProgram(p);
-        if (vao) glDeleteVertexArrays(1, &vao);
-        GLuint buffers[5] = {triangles, surface, samples, mark, picked};
-        glDeleteBuffers(5, buffers);
-    }
 };
 
 std::size_t estimate_picking_memory_bytes(const Scenario& scenario, const ContactSettings& settings) {
@@ -214,13 +203,13 @@ PickingPass::PickingPass(const std::optional<SimulationSurface>& simulation_surf
                                "picking render");
     gl_->collect_program = link({compile(GL_COMPUTE_SHADER, {contact_common, collect_body}, "picking collect")}, "picking collect");
     gl_->search_program = link({compile(GL_COMPUTE_SHADER, {contact_common, search_body}, "direct search")}, "direct search");
-    for (GLuint p : {gl_->collect_program, gl_->search_program})
+    for (GLuint p : {gl_->collect_program.id(), gl_->search_program.id()})
         glProgramUniform1ui(p, glGetUniformLocation(p, "particle_count"), GLuint(n_));
     glProgramUniform1ui(gl_->search_program, glGetUniformLocation(gl_->search_program, "surface_count"), GLuint(surface_count_));
-    glCreateVertexArrays(1, &gl_->vao);
-    auto make = [](GLuint& id, std::size_t bytes, const void* data, GLbitfield flags) {
-        glCreateBuffers(1, &id);
-        glNamedBufferStorage(id, GLsizeiptr(std::max<std::size_t>(bytes, 16)), data, flags);
+    glCreateVertexArrays(1, gl_->vao.create());
+    auto make = [](gl::Buffer& buffer, std::size_t bytes, const void* data, GLbitfield flags) {
+        glCreateBuffers(1, buffer.create());
+        glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(bytes, 16)), data, flags);
     };
     make(gl_->triangles, flat.size() * 4, flat.data(), 0);
     make(gl_->surface, surface.size() * 4, surface.data(), 0);
@@ -263,8 +252,7 @@ void PickingPass::set_settings(const ContactSettings& settings) {
             unit.push_back({float(std::cos(phi)), float(std::sin(phi)), 0.0f, 0.0f});
         }
         sample_count_ = unit.size();
-        if (gl_->samples) glDeleteBuffers(1, &gl_->samples);
-        glCreateBuffers(1, &gl_->samples);
+        glCreateBuffers(1, gl_->samples.create());
         glNamedBufferStorage(gl_->samples, GLsizeiptr(unit.size() * 16), unit.data(), 0);
         glProgramUniform1ui(gl_->collect_program, glGetUniformLocation(gl_->collect_program, "sample_count"), GLuint(sample_count_));
     }
@@ -279,19 +267,19 @@ void PickingPass::render(int hand, const Instrument& instrument, const Instrumen
     Gl::Hand& h = gl_->hand[std::size_t(hand)];
     const int resolution = settings_.picking_resolution;
     if (h.resolution != resolution) {
-        gl_->free_targets(h);
+        h = Gl::Hand{};  // the old targets delete themselves
         h.resolution = resolution;
-        glCreateTextures(GL_TEXTURE_2D, 1, &h.index);
+        glCreateTextures(GL_TEXTURE_2D, 1, h.index.create());
         glTextureStorage2D(h.index, 1, GL_R32I, resolution, resolution);
-        glCreateTextures(GL_TEXTURE_2D, 1, &h.distance);
+        glCreateTextures(GL_TEXTURE_2D, 1, h.distance.create());
         glTextureStorage2D(h.distance, 1, GL_R32F, resolution, resolution);
-        glCreateTextures(GL_TEXTURE_2D, 1, &h.depth);
+        glCreateTextures(GL_TEXTURE_2D, 1, h.depth.create());
         glTextureStorage2D(h.depth, 1, GL_DEPTH_COMPONENT32F, resolution, resolution);
-        for (GLuint t : {h.index, h.distance}) {
+        for (GLuint t : {h.index.id(), h.distance.id()}) {
             glTextureParameteri(t, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
             glTextureParameteri(t, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
         }
-        glCreateFramebuffers(1, &h.framebuffer);
+        glCreateFramebuffers(1, h.framebuffer.create());
         glNamedFramebufferTexture(h.framebuffer, GL_COLOR_ATTACHMENT0, h.index, 0);
         glNamedFramebufferTexture(h.framebuffer, GL_COLOR_ATTACHMENT1, h.distance, 0);
         glNamedFramebufferTexture(h.framebuffer, GL_DEPTH_ATTACHMENT, h.depth, 0);

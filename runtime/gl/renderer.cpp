@@ -3,6 +3,7 @@
 #include "runtime/gl/renderer.h"
 
 #include "runtime/gl/gl_context.h"
+#include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
 
 #include "libmodel/errors.h"
@@ -296,43 +297,33 @@ struct Renderer::State {
     Eigen::AlignedBox3f box;
     Camera camera;
 
-    GLuint normals_program = 0, mesh_program = 0, instrument_program = 0;
-    GLuint records = 0, elements = 0, vao = 0;
-    GLuint incidence_start = 0, incidence = 0, surface_list = 0, normals = 0;
-    GLuint own_positions = 0;  // cpu backend: uploaded per frame
-    GLuint sphere_vertices = 0, sphere_elements = 0, sphere_vao = 0;
+    gl::Program normals_program, mesh_program, instrument_program;
+    gl::Buffer records, elements;
+    gl::VertexArray vao;
+    gl::Buffer incidence_start, incidence, surface_list, normals;
+    gl::Buffer own_positions;  // cpu backend: uploaded per frame
+    gl::Buffer sphere_vertices, sphere_elements;
+    gl::VertexArray sphere_vao;
     GLsizei sphere_index_count = 0;
-    GLuint fbo = 0, colour_rb = 0, depth_rb = 0;
-    GLuint feedback = 0;  // transform feedback capture buffer (lazily)
+    gl::Framebuffer fbo;
+    gl::Renderbuffer colour_rb, depth_rb;
+    gl::Buffer feedback;  // transform feedback capture buffer (lazily)
 
     struct Pending { GLuint queries[3] = {0, 0, 0}; bool normals = false; };
     std::deque<Pending> pending;
     RenderTimes times;
 
     ~State() {
-        for (auto& p : pending) glDeleteQueries(3, p.queries);
-        for (GLuint program : {normals_program, mesh_program, instrument_program})
-            if (program) glDeleteProgram(program);
-        for (GLuint b : {records, elements, incidence_start, incidence, surface_list, normals, own_positions, sphere_vertices, sphere_elements,
-                         feedback})
-            if (b) glDeleteBuffers(1, &b);
-        for (GLuint v : {vao, sphere_vao})
-            if (v) glDeleteVertexArrays(1, &v);
-        if (fbo) glDeleteFramebuffers(1, &fbo);
-        for (GLuint r : {colour_rb, depth_rb})
-            if (r) glDeleteRenderbuffers(1, &r);
+        for (auto& p : pending) glDeleteQueries(3, p.queries);  // the GL objects delete themselves
     }
 
     void make_framebuffer(int w, int h) {
-        if (fbo) glDeleteFramebuffers(1, &fbo), fbo = 0;
-        for (GLuint* r : {&colour_rb, &depth_rb})
-            if (*r) glDeleteRenderbuffers(1, r), *r = 0;
         width = std::max(w, 1), height = std::max(h, 1);
-        glCreateRenderbuffers(1, &colour_rb);
+        glCreateRenderbuffers(1, colour_rb.create());
         glNamedRenderbufferStorage(colour_rb, GL_RGBA8, width, height);
-        glCreateRenderbuffers(1, &depth_rb);
+        glCreateRenderbuffers(1, depth_rb.create());
         glNamedRenderbufferStorage(depth_rb, GL_DEPTH_COMPONENT24, width, height);
-        glCreateFramebuffers(1, &fbo);
+        glCreateFramebuffers(1, fbo.create());
         glNamedFramebufferRenderbuffer(fbo, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER, colour_rb);
         glNamedFramebufferRenderbuffer(fbo, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_rb);
         if (glCheckNamedFramebufferStatus(fbo, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
@@ -503,7 +494,7 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     s.elements = buffer_with(elements.data(), elements.size() * 4);
     s.memory += 16 * s.particles + records.size() * sizeof(VertexRecord) + elements.size() * 4;
 
-    glCreateVertexArrays(1, &s.vao);
+    glCreateVertexArrays(1, s.vao.create());
     glVertexArrayVertexBuffer(s.vao, 0, s.records, 0, sizeof(VertexRecord));
     glVertexArrayElementBuffer(s.vao, s.elements);
     for (GLuint a = 0; a < 9; ++a) {
@@ -526,7 +517,7 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     s.sphere_vertices = buffer_with(sphere.data(), sphere.size() * 4);
     s.sphere_elements = buffer_with(sphere_indices.data(), sphere_indices.size() * 4);
     s.sphere_index_count = GLsizei(sphere_indices.size());
-    glCreateVertexArrays(1, &s.sphere_vao);
+    glCreateVertexArrays(1, s.sphere_vao.create());
     glVertexArrayVertexBuffer(s.sphere_vao, 0, s.sphere_vertices, 0, 12);
     glVertexArrayElementBuffer(s.sphere_vao, s.sphere_elements);
     glEnableVertexArrayAttrib(s.sphere_vao, 0);
@@ -597,7 +588,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     const Eigen::Vector3f eye = camera.eye();
     const Eigen::Vector3f key = basis * Eigen::Vector3f(-0.35f, 0.55f, 0.75f).normalized();
     const Eigen::Vector3f fill = basis * Eigen::Vector3f(0.6f, -0.25f, 0.5f).normalized();
-    for (GLuint program : {s.mesh_program, s.instrument_program}) {
+    for (GLuint program : {s.mesh_program.id(), s.instrument_program.id()}) {
         glProgramUniformMatrix4fv(program, glGetUniformLocation(program, "view_projection"), 1, GL_FALSE, view_projection.data());
         glProgramUniform3fv(program, glGetUniformLocation(program, "eye"), 1, eye.data());
         glProgramUniform3fv(program, glGetUniformLocation(program, "key_light"), 1, key.data());
