@@ -554,8 +554,7 @@ BasicSolver<Real>::BasicSolver(const Lattice& lattice, const std::vector<std::ar
                                const SolverOptions& options)
     : BasicSolver(lattice.particles, lattice.springs, neighbours, [&] {
           SolverOptions o = options;
-          if (o.damping_ratio.empty())
-              for (const auto& material : lattice.materials) o.damping_ratio.push_back(material.damping_ratio);
+          if (o.damping_ratio.empty()) o.damping_ratio = damping_ratios(lattice.materials);
           return o;
       }()) {}
 
@@ -670,10 +669,6 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     rest_length_.assign(entries, Real(0));
     stiffness_.assign(entries, Real(0));
     dashpot_.assign(entries, Real(0));
-    auto ratio = [&](std::size_t i) {
-        const auto row = std::size_t(particles.material[i]);
-        return row < options_.damping_ratio.size() ? options_.damping_ratio[row] : 0.0;
-    };
     min_rest_length_ = std::numeric_limits<Real>::infinity();
     damped_ = false;
     for (std::size_t i = 0; i < n_pad_; ++i) {
@@ -691,8 +686,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
             neighbour_[t] = std::int32_t(j);
             rest_length_[t] = Real(springs.rest_length[std::size_t(q)]);
             stiffness_[t] = Real(springs.stiffness[std::size_t(q)]);
-            dashpot_[t] = Real(dashpot_coefficient(double(springs.stiffness[std::size_t(q)]), particles.mass[i], particles.mass[j],
-                                                   0.5 * (ratio(i) + ratio(j))));
+            dashpot_[t] = Real(spring_dashpot(particles, options_.damping_ratio, double(springs.stiffness[std::size_t(q)]), i, j));
             damped_ = damped_ || dashpot_[t] != Real(0);
             min_rest_length_ = std::min(min_rest_length_, rest_length_[t]);
         }

@@ -3,6 +3,7 @@
 #include <Eigen/Core>
 #include <Eigen/Eigenvalues>
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -75,6 +76,36 @@ Lanczos largest_eigenvalue(const std::vector<double>& weight, Multiply&& multipl
     return result;
 }
 
+/// M^(−1/2) per particle; anchored particles have infinite mass (0: their rows vanish).
+std::vector<double> inverse_sqrt_masses(const Particles& particles) {
+    std::vector<double> inverse_sqrt_mass(particles.size(), 0.0);
+    for (std::size_t i = 0; i < particles.size(); ++i)
+        if (!particles.anchored[i] && particles.mass[i] > 0) inverse_sqrt_mass[i] = 1.0 / std::sqrt(double(particles.mass[i]));
+    return inverse_sqrt_mass;
+}
+
+/// Spring s from its first particle to its second at rest, and its length.
+Eigen::Vector3d rest_vector(const Particles& particles, const Springs& springs, std::size_t s) {
+    const auto [a, b] = springs.pairs[s];
+    const auto& xa = particles.rest_position[std::size_t(a)];
+    const auto& xb = particles.rest_position[std::size_t(b)];
+    return {double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]};
+}
+
+/// w += the springs' part of M^(−1/2) A M^(−1/2) v for A assembled from one 3×3 block per spring:
+/// `block(s, r)` is that block applied to the scaled relative vector r = v_a/√m_a − v_b/√m_b.
+template <class Block>
+void add_spring_blocks(const Springs& springs, const std::vector<double>& inverse_sqrt_mass, const Eigen::VectorXd& v, Eigen::VectorXd& w,
+                       Block&& block) {
+    for (std::size_t s = 0; s < springs.size(); ++s) {
+        const auto [a, b] = springs.pairs[s];
+        const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
+        const Eigen::Vector3d force = block(s, Eigen::Vector3d(v.segment<3>(3 * a) * ma - v.segment<3>(3 * b) * mb));
+        w.segment<3>(3 * a) += force * ma;
+        w.segment<3>(3 * b) -= force * mb;
+    }
+}
+
 }  // namespace
 
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
@@ -83,18 +114,12 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     StabilityEstimate estimate;
     estimate.critical_dt_ms = estimate.critical_dt_bound_ms = std::numeric_limits<double>::infinity();
 
-    // Scale by M^(−1/2); anchored particles have infinite mass (their rows vanish).
-    std::vector<double> inverse_sqrt_mass(n, 0.0);
-    for (std::size_t i = 0; i < n; ++i)
-        if (!particles.anchored[i] && particles.mass[i] > 0) inverse_sqrt_mass[i] = 1.0 / std::sqrt(double(particles.mass[i]));
-
+    const std::vector<double> inverse_sqrt_mass = inverse_sqrt_masses(particles);
     std::vector<SpringDirection> direction(springs.size());
     std::vector<double> row_bound(3 * n, 0.0);
     for (std::size_t s = 0; s < springs.size(); ++s) {
         const auto [a, b] = springs.pairs[s];
-        const auto& xa = particles.rest_position[std::size_t(a)];
-        const auto& xb = particles.rest_position[std::size_t(b)];
-        Eigen::Vector3d d(double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]);
+        const Eigen::Vector3d d = rest_vector(particles, springs, s);
         const double length = d.norm();
         direction[s] = {length > 0 ? Eigen::Vector3d(d / length) : Eigen::Vector3d::Zero(), double(springs.stiffness[s])};
         // A spring stretched at rest (a pre-stressed rest state, supports.h) adds the geometric
@@ -127,16 +152,11 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     // Lanczos on A = M^(−1/2) K M^(−1/2) (largest_eigenvalue below).
     auto multiply = [&](const Eigen::VectorXd& v, Eigen::VectorXd& w) {
         w.setZero();
-        for (std::size_t s = 0; s < springs.size(); ++s) {
-            const auto [a, b] = springs.pairs[s];
-            const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
-            const Eigen::Vector3d relative = v.segment<3>(3 * a) * ma - v.segment<3>(3 * b) * mb;
+        add_spring_blocks(springs, inverse_sqrt_mass, v, w, [&](std::size_t s, const Eigen::Vector3d& relative) -> Eigen::Vector3d {
             const Eigen::Vector3d& unit = direction[s].unit;
-            const Eigen::Vector3d force = direction[s].stiffness * unit * unit.dot(relative) +
-                                          direction[s].tension_over_length * (relative - unit * unit.dot(relative));
-            w.segment<3>(3 * a) += force * ma;
-            w.segment<3>(3 * b) -= force * mb;
-        }
+            return direction[s].stiffness * unit * unit.dot(relative) +
+                   direction[s].tension_over_length * (relative - unit * unit.dot(relative));
+        });
         if (particles.supported())
             for (std::size_t i = 0; i < n; ++i)
                 w.segment<3>(3 * Eigen::Index(i)) += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i] *
@@ -155,32 +175,35 @@ double dashpot_coefficient(double stiffness, double mass_a, double mass_b, doubl
     return 2.0 * damping_ratio * std::sqrt(stiffness * reduced);
 }
 
-double estimate_damping_eigenvalue(const Particles& particles, const Springs& springs,
-                                   const std::vector<double>& damping_ratio, double drag_per_ms) {
-    const std::size_t n = particles.size();
-    std::vector<double> inverse_sqrt_mass(n, 0.0);
-    bool free = false;
-    for (std::size_t i = 0; i < n; ++i)
-        if (!particles.anchored[i] && particles.mass[i] > 0) inverse_sqrt_mass[i] = 1.0 / std::sqrt(double(particles.mass[i])), free = true;
-    const double drag = std::max(0.0, drag_per_ms);
-    if (!free) return 0.0;
+std::vector<double> damping_ratios(const std::vector<Material>& materials) {
+    std::vector<double> ratios;
+    for (const Material& material : materials) ratios.push_back(material.damping_ratio);
+    return ratios;
+}
+
+double spring_dashpot(const Particles& particles, const std::vector<double>& damping_ratio, double stiffness, std::size_t a, std::size_t b) {
     auto ratio = [&](std::size_t i) {
         const auto row = std::size_t(particles.material[i]);
         return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
     };
+    return dashpot_coefficient(stiffness, double(particles.mass[a]), double(particles.mass[b]), 0.5 * (ratio(a) + ratio(b)));
+}
+
+double estimate_damping_eigenvalue(const Particles& particles, const Springs& springs,
+                                   const std::vector<double>& damping_ratio, double drag_per_ms) {
+    const std::size_t n = particles.size();
+    const std::vector<double> inverse_sqrt_mass = inverse_sqrt_masses(particles);
+    const double drag = std::max(0.0, drag_per_ms);
+    if (std::none_of(inverse_sqrt_mass.begin(), inverse_sqrt_mass.end(), [](double m) { return m > 0; })) return 0.0;
     // Per spring: its dashpot c and unit direction at rest.
     std::vector<double> dashpot(springs.size(), 0.0);
     std::vector<Eigen::Vector3d> unit(springs.size(), Eigen::Vector3d::Zero());
     bool damped = false;
     for (std::size_t s = 0; s < springs.size(); ++s) {
         const auto [a, b] = springs.pairs[s];
-        const auto& xa = particles.rest_position[std::size_t(a)];
-        const auto& xb = particles.rest_position[std::size_t(b)];
-        const Eigen::Vector3d d(double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]);
+        const Eigen::Vector3d d = rest_vector(particles, springs, s);
         if (d.norm() > 0) unit[s] = d.normalized();
-        const double zeta = 0.5 * (ratio(std::size_t(a)) + ratio(std::size_t(b)));
-        dashpot[s] = dashpot_coefficient(double(springs.stiffness[s]), double(particles.mass[std::size_t(a)]),
-                                         double(particles.mass[std::size_t(b)]), zeta);
+        dashpot[s] = spring_dashpot(particles, damping_ratio, double(springs.stiffness[s]), std::size_t(a), std::size_t(b));
         damped = damped || dashpot[s] > 0;
     }
     std::vector<double> support(n, 0.0);
@@ -192,14 +215,9 @@ double estimate_damping_eigenvalue(const Particles& particles, const Springs& sp
     if (!damped) return drag;
     auto multiply = [&](const Eigen::VectorXd& v, Eigen::VectorXd& w) {
         w.setZero();
-        for (std::size_t s = 0; s < springs.size(); ++s) {
-            const auto [a, b] = springs.pairs[s];
-            const double ma = inverse_sqrt_mass[std::size_t(a)], mb = inverse_sqrt_mass[std::size_t(b)];
-            const Eigen::Vector3d relative = v.segment<3>(3 * a) * ma - v.segment<3>(3 * b) * mb;
-            const Eigen::Vector3d force = dashpot[s] * unit[s] * unit[s].dot(relative);
-            w.segment<3>(3 * a) += force * ma;
-            w.segment<3>(3 * b) -= force * mb;
-        }
+        add_spring_blocks(springs, inverse_sqrt_mass, v, w, [&](std::size_t s, const Eigen::Vector3d& relative) -> Eigen::Vector3d {
+            return dashpot[s] * unit[s] * unit[s].dot(relative);
+        });
         for (std::size_t i = 0; i < n; ++i) w.segment<3>(3 * Eigen::Index(i)) += support[i] * v.segment<3>(3 * Eigen::Index(i));
     };
     return largest_eigenvalue(inverse_sqrt_mass, multiply, 300, 1e-6).value + drag;

@@ -6,6 +6,8 @@
 
 #include "lattice.h"
 
+#include <vector>
+
 namespace heartsim {
 
 struct StabilityEstimate {
@@ -35,6 +37,14 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
 /// The dashpot of a spring of stiffness k between masses m_a and m_b with damping ratio ζ:
 /// c = 2ζ√(kμ), μ = m_a m_b / (m_a + m_b), N·ms/mm (docs/scenario-format.md).
 double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio);
+
+/// The damping ratio ζ of each material row, for the functions below.
+std::vector<double> damping_ratios(const std::vector<Material>& materials);
+
+/// The dashpot c of spring (a, b) of `stiffness`: dashpot_coefficient with ζ the mean of the two
+/// particles' rows of `damping_ratio` (a row past its end: 0). The same bits with a and b swapped.
+/// One rule for the CPU solver, the GL backend and estimate_damping_eigenvalue.
+double spring_dashpot(const Particles& particles, const std::vector<double>& damping_ratio, double stiffness, std::size_t a, std::size_t b);
 
 /// Largest eigenvalue of M^(−1/2) C M^(−1/2), 1/ms, by the same Lanczos iteration: C the damping
 /// matrix of the spring dashpots (c n nᵀ per spring, ζ the mean of the two particles' rows of

@@ -18,29 +18,6 @@ namespace {
 
 using test::block_lattice;
 
-/// Largest eigenvalue of M⁻¹K from the assembled dense matrices (free particles only).
-double dense_largest_eigenvalue(const Particles& p, const Springs& s) {
-    const Eigen::Index n = Eigen::Index(p.size());
-    Eigen::MatrixXd k = Eigen::MatrixXd::Zero(3 * n, 3 * n);
-    for (std::size_t i = 0; i < s.size(); ++i) {
-        const auto [a, b] = s.pairs[i];
-        Eigen::Vector3d d(p.rest_position[std::size_t(b)][0] - p.rest_position[std::size_t(a)][0],
-                          p.rest_position[std::size_t(b)][1] - p.rest_position[std::size_t(a)][1],
-                          p.rest_position[std::size_t(b)][2] - p.rest_position[std::size_t(a)][2]);
-        d.normalize();
-        const Eigen::Matrix3d block = s.stiffness[i] * d * d.transpose();
-        k.block<3, 3>(3 * a, 3 * a) += block;
-        k.block<3, 3>(3 * b, 3 * b) += block;
-        k.block<3, 3>(3 * a, 3 * b) -= block;
-        k.block<3, 3>(3 * b, 3 * a) -= block;
-    }
-    Eigen::VectorXd scale(3 * n);
-    for (Eigen::Index i = 0; i < 3 * n; ++i) scale[i] = p.anchored[std::size_t(i / 3)] ? 0.0 : 1.0 / std::sqrt(p.mass[std::size_t(i / 3)]);
-    const Eigen::MatrixXd a = scale.asDiagonal() * k * scale.asDiagonal();
-    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> solver(a, Eigen::EigenvaluesOnly);
-    return solver.eigenvalues().maxCoeff();
-}
-
 /// M^(−1/2) K M^(−1/2) and M^(−1/2) C M^(−1/2) assembled densely from the springs, supports and
 /// materials, written here from the formulas of docs/scenario-format.md (c = 2ζ√(kμ) per spring,
 /// ζ the mean of the two particles' rows; support springs and dashpots; drag γ·M).
@@ -48,9 +25,11 @@ struct DenseSystem {
     Eigen::MatrixXd k, c;
 };
 
-DenseSystem assemble(const Lattice& lattice, double drag) {
-    const Particles& p = lattice.particles;
-    const Springs& s = lattice.springs;
+DenseSystem assemble(const Particles& p, const Springs& s, const std::vector<double>& damping_ratio, double drag) {
+    auto ratio = [&](std::int32_t i) {
+        const auto row = std::size_t(p.material[std::size_t(i)]);
+        return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
+    };
     const Eigen::Index n = Eigen::Index(p.size());
     DenseSystem d{Eigen::MatrixXd::Zero(3 * n, 3 * n), Eigen::MatrixXd::Zero(3 * n, 3 * n)};
     auto add = [&](Eigen::MatrixXd& m, Eigen::Index a, Eigen::Index b, const Eigen::Matrix3d& block) {
@@ -66,8 +45,7 @@ DenseSystem assemble(const Lattice& lattice, double drag) {
                           p.rest_position[std::size_t(b)][2] - p.rest_position[std::size_t(a)][2]);
         u.normalize();
         const double ma = p.mass[std::size_t(a)], mb = p.mass[std::size_t(b)];
-        const double zeta = 0.5 * (lattice.materials[std::size_t(p.material[std::size_t(a)])].damping_ratio +
-                                   lattice.materials[std::size_t(p.material[std::size_t(b)])].damping_ratio);
+        const double zeta = 0.5 * (ratio(a) + ratio(b));
         add(d.k, a, b, s.stiffness[i] * u * u.transpose());
         add(d.c, a, b, 2 * zeta * std::sqrt(s.stiffness[i] * ma * mb / (ma + mb)) * u * u.transpose());
     }
@@ -86,6 +64,9 @@ DenseSystem assemble(const Lattice& lattice, double drag) {
 double largest(const Eigen::MatrixXd& m) {
     return Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(m, Eigen::EigenvaluesOnly).eigenvalues().maxCoeff();
 }
+
+/// Largest eigenvalue of M⁻¹K from the assembled dense matrices (free particles only).
+double dense_largest_eigenvalue(const Particles& p, const Springs& s) { return largest(assemble(p, s, {}, 0.0).k); }
 
 /// The exact edge of stability of Verlet with backward-difference damping: the h where an
 /// eigenvalue ρ = −1 of the step appears, i.e. λ_max(h²K + 2hC) = 4 (scaled), by bisection.
@@ -118,7 +99,7 @@ TEST(Stability, DampedStableStepIsBelowTheExactEdgeAndClose) {
     const Lattice lattice = mixed_block();
     ASSERT_TRUE(lattice.particles.supported());
     for (double drag : {0.0, 0.05}) {
-        const DenseSystem d = assemble(lattice, drag);
+        const DenseSystem d = assemble(lattice.particles, lattice.springs, {0.1, 0.4}, drag);
         const auto estimate = estimate_critical_time_step(lattice.particles, lattice.springs, 300, 1e-10);
         const double damping = estimate_damping_eigenvalue(lattice.particles, lattice.springs, {0.1, 0.4}, drag);
         EXPECT_NEAR(damping, largest(d.c), 1e-6 * largest(d.c)) << "Lanczos on the damping matrix";
@@ -140,7 +121,7 @@ TEST(Stability, TheSolverTurnsUnstableAtTheExactEdge) {
     // perturbation dies out), unstable just above it (it grows). So the edge the
     // step policy keeps a margin from is where the integrator really fails.
     const Lattice lattice = mixed_block();
-    const double exact = exact_stable_step(assemble(lattice, 0.0));
+    const double exact = exact_stable_step(assemble(lattice.particles, lattice.springs, {0.1, 0.4}, 0.0));
     std::mt19937 generator(7);
     std::normal_distribution<double> noise(0.0, 1e-3);
     std::vector<Eigen::Vector3d> x0, v0(lattice.particles.size(), Eigen::Vector3d::Zero());

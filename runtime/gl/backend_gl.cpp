@@ -9,6 +9,7 @@
 
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
+#include "libmodel/stability.h"
 
 #include <epoxy/gl.h>
 
@@ -507,13 +508,8 @@ private:
         const auto& table = scenario.packing->neighbours;
         n_ = particles.size();
         n_pad_ = (n_ + lane_count - 1) / lane_count * lane_count;
-        std::vector<double> damping_ratio = options_.damping_ratio;
-        if (damping_ratio.empty())
-            for (const auto& material : scenario.lattice.materials) damping_ratio.push_back(material.damping_ratio);
-        auto ratio = [&](std::size_t i) {
-            const auto row = std::size_t(particles.material[i]);
-            return row < damping_ratio.size() ? damping_ratio[row] : 0.0;
-        };
+        const std::vector<double> damping_ratio =
+            options_.damping_ratio.empty() ? damping_ratios(scenario.lattice.materials) : options_.damping_ratio;
         const std::vector<std::int32_t> slot_spring = spring_of_slot(table, springs);  // throws for non-neighbours
         const std::size_t entries = n_pad_ * slot_count;
         std::vector<std::int32_t> neighbour(entries);
@@ -532,10 +528,7 @@ private:
                 neighbour[t] = std::int32_t(j);
                 rest[t] = springs.rest_length[std::size_t(q)];
                 stiff[t] = springs.stiffness[std::size_t(q)];
-                const double ma = particles.mass[i], mb = particles.mass[j];
-                const double reduced = ma * mb / (ma + mb);
-                const double zeta = 0.5 * (ratio(i) + ratio(j));
-                const float c = float(2.0 * zeta * std::sqrt(double(springs.stiffness[std::size_t(q)]) * reduced));
+                const float c = float(spring_dashpot(particles, damping_ratio, double(springs.stiffness[std::size_t(q)]), i, j));
                 damped_ = damped_ || c != 0.0f;
                 dashpot_over_h[t] = float(double(c) / h_);
                 min_rest_length_ = std::min(min_rest_length_, rest[t]);

@@ -188,9 +188,8 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         // The dashpots, support dampers and drag shorten the stable step: the runtime's solver
         // estimates the same from the same arrays (solver.h damped_critical_dt_ms), so a step of
         // dt_ms is one substep there.
-        std::vector<double> ratios;
-        for (const Material& material : scenario.lattice.materials) ratios.push_back(material.damping_ratio);
-        damping_eigenvalue = estimate_damping_eigenvalue(scenario.lattice.particles, scenario.lattice.springs, ratios, scenario.solver.damping);
+        damping_eigenvalue = estimate_damping_eigenvalue(scenario.lattice.particles, scenario.lattice.springs,
+                                                         damping_ratios(scenario.lattice.materials), scenario.solver.damping);
         return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
     });
     auto& solver = scenario.solver;
