@@ -138,6 +138,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     std::vector<std::array<float, 3>> latest_positions;
 
     ScriptedRunResult result;
+    // What the simulation thread has done, as run_scripted reports it.
+    auto take = [&](const WindowSimulation::Status& status) {
+        result.steps = int(status.steps), result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
+        result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
+    };
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
     long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
@@ -207,11 +212,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             simulation->latest(latest_positions);
             const WindowSimulation::Status status = simulation->status();
             attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
-            result.steps = status.steps;
-            result.substeps = status.substeps;
-            result.watchdog_events = status.watchdog_events;
-            result.last_watchdog_message = status.last_watchdog_message;
-            result.forces_received = status.forces_received;
+            take(status);
             if (status.finished) {
                 simulation->latest(latest_positions);  // the final state
                 attempted = std::max(attempted, steps);
@@ -310,8 +311,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     if (simulation) {
         const WindowSimulation::Status status = simulation->status();
         simulated_ms = status.simulated_ms;
-        result.steps = status.steps, result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
-        result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
+        take(status);
         simulation.reset();  // joins the thread before the caller reads the backend
     }
     std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,

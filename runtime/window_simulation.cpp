@@ -9,6 +9,25 @@ namespace heartsim {
 namespace {
 using Clock = std::chrono::steady_clock;
 double ms_between(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+/// The real time owed to the simulation: the wall clock since the start less the time paused.
+class OwedClock {
+public:
+    /// At `now`, with the window `paused` or not: the owed time, ms (frozen while paused).
+    double owed_ms(bool paused, Clock::time_point now) {
+        if (paused != paused_) {
+            if (paused) paused_at_ = now;
+            else paused_total_ms_ += ms_between(paused_at_, now);
+            paused_ = paused;
+        }
+        return ms_between(start_, paused ? paused_at_ : now) - paused_total_ms_;
+    }
+
+private:
+    Clock::time_point start_ = Clock::now(), paused_at_{};
+    double paused_total_ms_ = 0;
+    bool paused_ = false;
+};
 }  // namespace
 
 WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
@@ -29,6 +48,15 @@ bool WindowSimulation::finish_at_limit() {
     fresh_ = true;
     published_.notify_all();
     return true;
+}
+
+void WindowSimulation::publish_start() {
+    {
+        std::lock_guard lock(mutex_);
+        positions_ = backend_.positions();  // something to draw before the first step
+        fresh_ = true;
+    }
+    published_.notify_all();
 }
 
 void WindowSimulation::publish_if_wanted() {
@@ -84,15 +112,8 @@ void WindowSimulation::run() {
     const double dt = backend_.time_step_ms();
     const bool any_instrument = trajectory_->uses_hand(0) || trajectory_->uses_hand(1);
     const double start_ms = backend_.simulated_time_ms();
-    Clock::time_point start = Clock::now(), paused_at{};
-    double paused_total_ms = 0;
-    bool was_paused = false;
-    {
-        std::lock_guard lock(mutex_);
-        positions_ = backend_.positions();  // something to draw before the first step
-        fresh_ = true;
-    }
-    published_.notify_all();
+    OwedClock clock;
+    publish_start();
     for (;;) {
         InstrumentPose keyboard;
         bool keyboard_set = false, reset = false, paused = false;
@@ -102,14 +123,8 @@ void WindowSimulation::run() {
             keyboard = keyboard_pose_, keyboard_set = keyboard_set_, reset = reset_, paused = paused_;
             reset_ = false;
         }
-        const Clock::time_point now = Clock::now();
-        if (paused != was_paused) {
-            if (paused) paused_at = now;
-            else paused_total_ms += ms_between(paused_at, now);
-            was_paused = paused;
-        }
         if (reset) backend_.reset_tissue();
-        const double owed_ms = ms_between(start, paused ? paused_at : now) - paused_total_ms;
+        const double owed_ms = clock.owed_ms(paused, Clock::now());
         const double simulated_ms = backend_.simulated_time_ms() - start_ms;
         if (paused || simulated_ms + dt > owed_ms) {
             // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
@@ -153,16 +168,8 @@ void WindowSimulation::run() {
 void WindowSimulation::run_haptic() {
     // The session's own clock paces the steps (HapticRun::step_to_real_time); pauses stop it.
     const double start_ms = backend_.simulated_time_ms();
-    const Clock::time_point start = Clock::now();
-    Clock::time_point paused_at{};
-    double paused_total_ms = 0;
-    bool was_paused = false;
-    {
-        std::lock_guard lock(mutex_);
-        positions_ = backend_.positions();
-        fresh_ = true;
-    }
-    published_.notify_all();
+    OwedClock clock;
+    publish_start();
     for (;;) {
         bool reset = false, paused = false;
         {
@@ -171,13 +178,8 @@ void WindowSimulation::run_haptic() {
             reset = reset_, paused = paused_;
             reset_ = false;
         }
-        const Clock::time_point now = Clock::now();
-        if (paused != was_paused) {
-            haptic_->set_paused(paused);
-            if (paused) paused_at = now;
-            else paused_total_ms += ms_between(paused_at, now);
-            was_paused = paused;
-        }
+        haptic_->set_paused(paused);  // no-op unless it changed
+        const double owed_ms = clock.owed_ms(paused, Clock::now());
         if (reset) backend_.reset_tissue();
         int stepped = 0;
         if (paused) {
@@ -193,7 +195,7 @@ void WindowSimulation::run_haptic() {
         status_.watchdog_events = haptic_->result().watchdog_events;
         status_.last_watchdog_message = haptic_->result().last_watchdog_message;
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
-        status_.owed_ms = ms_between(start, paused ? paused_at : now) - paused_total_ms;
+        status_.owed_ms = owed_ms;
         status_.shapes = haptic_->shapes();
         publish_if_wanted();
         if (finish_at_limit()) break;

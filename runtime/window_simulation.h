@@ -67,6 +67,7 @@ public:
 private:
     void run();
     void run_haptic();
+    void publish_start();      ///< the positions before the first step
     void publish_if_wanted();  ///< with the mutex held
     bool finish_at_limit();    ///< with the mutex held: true (and the final state published) at the step limit
 
