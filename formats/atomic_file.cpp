@@ -11,14 +11,16 @@
 
 namespace heartsim {
 
-std::filesystem::path temporary_beside(const std::filesystem::path& path) {
+std::filesystem::path temporary_beside(const std::filesystem::path& path, const std::string& extension) {
     static std::atomic<unsigned> counter{0};
     std::string name = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
     name += path.filename().string();
     name += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-    name += path.extension().string();
+    name += extension;
     return path.parent_path() / name;
 }
+
+std::filesystem::path temporary_beside(const std::filesystem::path& path) { return temporary_beside(path, path.extension().string()); }
 
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();

@@ -11,9 +11,10 @@
 namespace heartsim {
 
 /// A hidden name beside `path` that no other writer in this or another process uses at the same
-/// time (process id and a per-process counter), ending in `path`'s own extension for writers that
-/// choose the format by it.
+/// time (process id and a per-process counter), ending in `extension` (by default `path`'s own)
+/// for writers that choose the format by it; ITK needs whole compound extensions (".nii.gz").
 std::filesystem::path temporary_beside(const std::filesystem::path& path);
+std::filesystem::path temporary_beside(const std::filesystem::path& path, const std::string& extension);
 
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
 /// then renamed onto `path`. When fill throws or the rename fails, the temporary is removed and

@@ -30,7 +30,7 @@
 ///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
 ///     diverged       int8    [S]      the step hit the watchdog
 ///   /events
-///     time_ms float64 [E], hand int32 [E] (−1: both), what (fixed-length strings) [E]
+///     time_ms float64 [E], hand int32 [E] (−1: both), what (UTF-8 strings) [E]
 #pragma once
 
 #include <array>

@@ -1,7 +1,12 @@
 /// @file volume_io.cpp
 /// @brief Label-map reading and writing through ITK's image I/O, with the checks ITK leaves out:
 /// integer component type, sane geometry, voxel data actually present, memory estimated first.
+/// One file of about 800 lines on purpose: it is the only translation unit that compiles ITK's
+/// headers (about a minute each on the build machines), so reading, checking and writing stay
+/// together rather than paying that cost twice.
 #include "formats/volume_io.h"
+
+#include "formats/atomic_file.h"
 
 #include "libmodel/errors.h"
 
@@ -23,18 +28,15 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <limits>
 #include <mutex>
 #include <optional>
-#include <random>
 #include <regex>
 #include <sstream>
 #include <utility>
-#include <unistd.h>
 
 namespace heartsim {
 namespace {
@@ -718,16 +720,6 @@ void write_with_itk(const fs::path& path, const LabelVolume& volume, bool compre
     writer->Update();
 }
 
-/// A name beside `path` with the same extension, so ITK picks the same writer.
-fs::path temporary_name(const fs::path& path, const std::string& extension) {
-    static std::atomic<unsigned> counter{0};
-    std::random_device random;
-    const std::string name = path.filename().string();
-    const std::string stem = name.substr(0, name.size() - extension.size());
-    return path.parent_path() / ("." + stem + ".tmp-" + std::to_string(getpid()) + "-" + std::to_string(random()) +
-                                 "-" + std::to_string(counter++) + extension);
-}
-
 /// MetaImage .mhd headers name their data file (.raw/.zraw) after themselves, so a renamed
 /// temporary header would point at the wrong file: write both inside a temporary folder under
 /// their final names, then move the data file first and the header last.
@@ -754,7 +746,8 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
     if (extension != ".seg.nrrd") segment_names = nullptr;
 
     const bool detached = extension == ".mhd";
-    const fs::path staging = detached ? temporary_name(path, "") : temporary_name(path, extension);
+    // The temporary keeps the whole extension, so ITK picks the same writer.
+    const fs::path staging = temporary_beside(path, detached ? "" : extension);
     const fs::path written = detached ? staging / path.filename() : staging;
     std::error_code ignored;
     try {

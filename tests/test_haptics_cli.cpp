@@ -483,7 +483,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     {
         Recording d = r;
         d.steps.force_n[1][1][2] = std::numeric_limits<double>::quiet_NaN();
-        refused(d, "force_n holds a non-finite value");
+        refused(d, "steps/force_n: value 11 is not finite");  // row 1, hand 1, z
     }
     {
         Recording d = r;

@@ -1,0 +1,286 @@
+// The one HDF5 layer of formats/ (hdf5_io.h) through HDF5's C API.
+#include "hdf5_io.h"
+
+#include "atomic_file.h"
+
+#include <algorithm>
+#include <mutex>
+
+namespace heartsim::h5 {
+
+namespace {
+
+/// HDF5 prints its own error stack by default; every caller reports its own message instead.
+void quiet() {
+    static std::once_flag once;
+    std::call_once(once, [] { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); });
+}
+
+/// An object path for messages: "/" for the root, "/source" for "source".
+std::string object_name(const std::string& object) {
+    if (!object.empty() && object[0] == '/') return object;
+    std::string name = "/";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "/" + std::string
+    name += object;
+    return name;
+}
+
+Handle utf8_string_type() {
+    Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
+    H5Tset_size(type.get(), H5T_VARIABLE);
+    H5Tset_cset(type.get(), H5T_CSET_UTF8);
+    return type;
+}
+
+Handle dataspace(std::initializer_list<std::size_t> dims) {
+    if (dims.size() == 0) return Handle(H5Screate(H5S_SCALAR), H5Sclose);
+    std::vector<hsize_t> d(dims.begin(), dims.end());
+    return Handle(H5Screate_simple(int(d.size()), d.data(), nullptr), H5Sclose);
+}
+
+std::string shape_text(const std::vector<long>& shape) {
+    std::string text = "[";
+    for (std::size_t i = 0; i < shape.size(); ++i) {
+        if (i) text += ",";
+        text += shape[i] < 0 ? std::string("N") : std::to_string(shape[i]);
+    }
+    return text + "]";
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// Writing
+
+void Writer::fail(const std::string& what) const { throw OutputError(path_ + ": " + what); }
+
+void Writer::group(const std::string& name) {
+    Handle g(H5Gcreate2(file_, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose);
+    if (!g.valid()) fail("cannot create group " + object_name(name));
+}
+
+void Writer::write_dataset(const std::string& name, const ElementType& type, const void* data, std::initializer_list<std::size_t> dims) {
+    Handle space = dataspace(dims);
+    Handle properties(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
+    std::size_t elements = 1;
+    for (std::size_t d : dims) elements *= d;
+    if (elements >= 4096) {
+        // Chunks of about 64k elements, whole rows each.
+        std::vector<hsize_t> chunk(dims.begin(), dims.end());
+        const std::size_t row = elements / chunk[0];
+        chunk[0] = std::min<hsize_t>(chunk[0], std::max<hsize_t>(1, 65536 / row));
+        H5Pset_chunk(properties.get(), int(chunk.size()), chunk.data());
+        H5Pset_shuffle(properties.get());
+        H5Pset_deflate(properties.get(), 1);
+    }
+    Handle set(H5Dcreate2(file_, name.c_str(), type.file, space.get(), H5P_DEFAULT, properties.get(), H5P_DEFAULT), H5Dclose);
+    if (!set.valid()) fail("cannot create dataset " + name);
+    if (elements && H5Dwrite(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+        fail("cannot write dataset " + name + " (disk full?)");
+}
+
+void Writer::strings(const std::string& name, const std::vector<std::string>& values) {
+    Handle space = dataspace({values.size()});
+    Handle type = utf8_string_type();
+    Handle set(H5Dcreate2(file_, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Dclose);
+    std::vector<const char*> pointers;
+    for (const auto& v : values) pointers.push_back(v.c_str());
+    if (!set.valid() || (!values.empty() && H5Dwrite(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0))
+        fail("cannot write dataset " + name);
+}
+
+void Writer::attribute(const std::string& object, const std::string& name, const std::string& value) {
+    Handle type = utf8_string_type();
+    Handle space = dataspace({});
+    Handle attribute(H5Acreate_by_name(file_, object.c_str(), name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
+                     H5Aclose);
+    const char* pointer = value.c_str();
+    if (!attribute.valid() || H5Awrite(attribute.get(), type.get(), &pointer) < 0)
+        fail("cannot write attribute " + name + " of " + object_name(object));
+}
+
+void Writer::write_attribute(const std::string& object, const std::string& name, const ElementType& type, const void* values,
+                             std::initializer_list<std::size_t> dims) {
+    Handle space = dataspace(dims);
+    Handle attribute(H5Acreate_by_name(file_, object.c_str(), name.c_str(), type.file, space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
+                     H5Aclose);
+    // An empty list is a zero-length attribute; H5Awrite still wants a non-null buffer.
+    const std::int64_t unused = 0;
+    if (!attribute.valid() || H5Awrite(attribute.get(), type.memory, values ? values : &unused) < 0)
+        fail("cannot write attribute " + name + " of " + object_name(object));
+}
+
+void Writer::header(const std::string& format, int version, const std::string& units) {
+    attribute("/", "format", format);
+    attribute("/", "format_version", std::int32_t(version));
+    attribute("/", "units", units);
+    attribute("/", "frame", "LPS");
+}
+
+void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill) {
+    quiet();
+    const std::string name = path.string();
+    write_file_atomically(path, [&](const std::filesystem::path& temporary) {
+        Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+        if (!file.valid()) throw OutputError(name + ": cannot create the file");
+        Writer writer(file.get(), name);
+        fill(writer);
+        if (H5Fflush(file.get(), H5F_SCOPE_GLOBAL) < 0) writer.fail("cannot flush");
+    });
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reading
+
+Reader::Reader(const std::filesystem::path& path) : path_(path.string()) {
+    quiet();
+    if (!std::filesystem::exists(path)) fail("", "file not found");
+    if (H5Fis_hdf5(path.c_str()) <= 0) fail("", "not an HDF5 file");
+    file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
+    if (!file_.valid()) fail("", "cannot open (damaged HDF5 file?)");
+}
+
+void Reader::fail(const std::string& where, const std::string& what) const {
+    throw InputError(path_ + ": " + (where.empty() ? "" : where + ": ") + what);
+}
+
+bool Reader::exists(const std::string& name) const {
+    // H5Lexists wants every group on the way to exist: check each prefix in turn.
+    for (std::size_t slash = name.find('/', 1); slash != std::string::npos; slash = name.find('/', slash + 1))
+        if (H5Lexists(file_.get(), name.substr(0, slash).c_str(), H5P_DEFAULT) <= 0) return false;
+    return H5Lexists(file_.get(), name.c_str(), H5P_DEFAULT) > 0;
+}
+
+bool Reader::has_attribute(const std::string& object, const std::string& name) const {
+    return (object == "/" || exists(object)) && H5Aexists_by_name(file_.get(), object.c_str(), name.c_str(), H5P_DEFAULT) > 0;
+}
+
+int Reader::header(const std::string& format, int oldest, int newest, const std::string& units, const std::string& hint) const {
+    const std::string found = string_attribute("/", "format");
+    if (found != format) fail("/", "attribute format is '" + found + "', not " + format + (hint.empty() ? "" : " (" + hint + ")"));
+    const int version = number<std::int32_t>("/", "format_version");
+    if (version < oldest || version > newest)
+        fail("/", "format_version " + std::to_string(version) + " is not supported (this build reads " +
+                      (oldest == newest ? "version " + std::to_string(oldest)
+                                        : "versions " + std::to_string(oldest) + " to " + std::to_string(newest)) +
+                      "); use a matching heartsim");
+    if (string_attribute("/", "units") != units) fail("/", "attribute units must be '" + units + "'");
+    if (string_attribute("/", "frame") != "LPS") fail("/", "attribute frame must be 'LPS'");
+    return version;
+}
+
+void Reader::read_dataset(const std::string& name, const ElementType& type, std::initializer_list<long> shape, std::size_t* rows,
+                          const std::function<void*(std::size_t)>& allocate) const {
+    if (!exists(name)) fail(name, "missing dataset");
+    Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
+    if (!set.valid()) fail(name, "is not a dataset");
+    {
+        Handle stored(H5Dget_type(set.get()), H5Tclose);
+        const H5T_class_t type_class = H5Tget_class(stored.get());
+        const std::size_t size = H5Tget_size(stored.get());
+        const bool ok = size == type.size &&
+                        (type.floating ? type_class == H5T_FLOAT
+                                       : type_class == H5T_INTEGER && (H5Tget_sign(stored.get()) != H5T_SGN_NONE) == type.is_signed);
+        if (!ok) {
+            const std::string found = type_class == H5T_FLOAT ? "float" : type_class == H5T_INTEGER ? "integer" : "non-numeric";
+            fail(name, "has element type " + found + std::to_string(8 * size) + ", expected " + type.name);
+        }
+    }
+    const std::vector<long> expected(shape);
+    Handle space(H5Dget_space(set.get()), H5Sclose);
+    const int rank = H5Sget_simple_extent_ndims(space.get());
+    if (rank != int(expected.size())) fail(name, "has rank " + std::to_string(rank) + ", expected shape " + shape_text(expected));
+    std::vector<hsize_t> dims(expected.size());
+    H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+    std::vector<long> found(dims.begin(), dims.end());
+    for (std::size_t i = 0; i < expected.size(); ++i)
+        if (expected[i] >= 0 && found[i] != expected[i]) fail(name, "has shape " + shape_text(found) + ", expected " + shape_text(expected));
+    std::size_t count = 1;
+    for (hsize_t d : dims) count *= std::size_t(d);
+    void* data = allocate(count);
+    if (count && H5Dread(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0) fail(name, "cannot be read (damaged file?)");
+    if (rows) *rows = dims.empty() ? 1 : std::size_t(dims[0]);
+}
+
+std::vector<std::string> Reader::strings(const std::string& name, long rows) const {
+    if (!exists(name)) fail(name, "missing dataset");
+    Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
+    if (!set.valid()) fail(name, "is not a dataset");
+    Handle type(H5Dget_type(set.get()), H5Tclose);
+    if (H5Tget_class(type.get()) != H5T_STRING) fail(name, "expected strings");
+    Handle space(H5Dget_space(set.get()), H5Sclose);
+    if (H5Sget_simple_extent_ndims(space.get()) != 1) fail(name, "expected a one-dimensional dataset");
+    hsize_t dims[1] = {0};
+    H5Sget_simple_extent_dims(space.get(), dims, nullptr);
+    if (rows >= 0 && dims[0] != hsize_t(rows)) fail(name, "has " + std::to_string(dims[0]) + " entries, expected " + std::to_string(rows));
+    const std::size_t n = std::size_t(dims[0]);
+    std::vector<std::string> values;
+    if (H5Tis_variable_str(type.get()) > 0) {
+        std::vector<char*> pointers(n, nullptr);
+        if (n && H5Dread(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0) fail(name, "cannot be read");
+        for (char* p : pointers) values.emplace_back(p ? p : "");
+        if (n) H5Dvlen_reclaim(type.get(), space.get(), H5P_DEFAULT, pointers.data());
+        return values;
+    }
+    const std::size_t width = H5Tget_size(type.get());
+    std::vector<char> text(n * width, '\0');
+    if (n && H5Dread(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, text.data()) < 0) fail(name, "cannot be read");
+    for (std::size_t i = 0; i < n; ++i) {
+        const char* begin = text.data() + i * width;
+        values.emplace_back(begin, std::find(begin, begin + width, '\0'));
+    }
+    return values;
+}
+
+Handle Reader::open_attribute(const std::string& object, const std::string& name) const {
+    if (object != "/" && !exists(object)) fail(object_name(object), "missing");
+    if (H5Aexists_by_name(file_.get(), object.c_str(), name.c_str(), H5P_DEFAULT) <= 0)
+        fail(object_name(object), "attribute " + name + " missing");
+    Handle attribute(H5Aopen_by_name(file_.get(), object.c_str(), name.c_str(), H5P_DEFAULT, H5P_DEFAULT), H5Aclose);
+    if (!attribute.valid()) fail(object_name(object), "attribute " + name + " cannot be opened");
+    return attribute;
+}
+
+std::string Reader::string_attribute(const std::string& object, const std::string& name) const {
+    const std::string owner = object_name(object);
+    Handle attribute = open_attribute(object, name);
+    Handle type(H5Aget_type(attribute.get()), H5Tclose);
+    if (H5Tget_class(type.get()) != H5T_STRING) fail(owner, "attribute " + name + " is not a string");
+    {  // one string only: H5Aread writes every element into the buffer
+        Handle space(H5Aget_space(attribute.get()), H5Sclose);
+        if (H5Sget_simple_extent_npoints(space.get()) != 1) fail(owner, "attribute " + name + " must be a single string");
+    }
+    if (H5Tis_variable_str(type.get()) > 0) {
+        char* value = nullptr;
+        Handle memory(H5Tcopy(H5T_C_S1), H5Tclose);
+        H5Tset_size(memory.get(), H5T_VARIABLE);
+        H5Tset_cset(memory.get(), H5Tget_cset(type.get()));
+        if (H5Aread(attribute.get(), memory.get(), &value) < 0) fail(owner, "attribute " + name + " cannot be read");
+        std::string result = value ? value : "";
+        H5free_memory(value);
+        return result;
+    }
+    std::string value(H5Tget_size(type.get()), '\0');
+    if (H5Aread(attribute.get(), type.get(), value.data()) < 0) fail(owner, "attribute " + name + " cannot be read");
+    return value.substr(0, value.find('\0'));
+}
+
+void Reader::read_attribute(const std::string& object, const std::string& name, const ElementType& type, long count,
+                            const std::function<void*(std::size_t)>& allocate) const {
+    const std::string owner = object_name(object);
+    Handle attribute = open_attribute(object, name);
+    {
+        Handle stored(H5Aget_type(attribute.get()), H5Tclose);
+        const H5T_class_t type_class = H5Tget_class(stored.get());
+        if (type_class != H5T_INTEGER && type_class != H5T_FLOAT) fail(owner, "attribute " + name + " is not numeric");
+    }
+    // The count is checked before reading: H5Aread writes every element of the attribute.
+    Handle space(H5Aget_space(attribute.get()), H5Sclose);
+    const hssize_t n = H5Sget_simple_extent_npoints(space.get());
+    if (count == 1 && n != 1) fail(owner, "attribute " + name + " must be a single value");
+    if (count >= 0 && n != count)
+        fail(owner, "attribute " + name + " has " + std::to_string(n) + " values, expected " + std::to_string(count));
+    void* data = allocate(std::size_t(std::max<hssize_t>(n, 0)));
+    if (n > 0 && H5Aread(attribute.get(), type.memory, data) < 0) fail(owner, "attribute " + name + " cannot be read (expected numbers)");
+}
+
+}  // namespace heartsim::h5
