@@ -1,5 +1,8 @@
 // The simulation side of a haptic session: devices from --device specs, the real-time step loop,
-// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md).
+// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md). One file over
+// 600 lines because it is one header's implementation whose parts change together: the run is
+// built from the --device and --instrument words, and the replay must apply the tools exactly as
+// the live run does (apply_tool), or a cpu replay would not reproduce the forces bit for bit.
 #include "runtime/haptics/haptic_run.h"
 
 #include "runtime/haptics/openhaptics.h"

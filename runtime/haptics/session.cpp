@@ -1,6 +1,5 @@
-// The haptic core: safety chain, coupling, the session (device thread) and its statistics.
-// Design: docs/haptics.md.
-#include "runtime/haptics/haptics.h"
+// The haptic session (session.h): the device thread and its statistics. Design: docs/haptics.md.
+#include "runtime/haptics/session.h"
 
 #include "libmodel/errors.h"
 
@@ -8,28 +7,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <limits>
+#include <sstream>
 
 #include <pthread.h>
 #include <sched.h>
-#include <sstream>
 
 namespace heartsim::haptics {
-
-namespace {
-
-bool finite(const Eigen::Vector3d& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
-
-/// Scales v down to |v| ≤ limit (direction kept); true when it had to.
-bool clamp_norm(Eigen::Vector3d& v, double limit) {
-    const double n = v.norm();
-    if (n > limit) {
-        v *= limit / n;
-        return true;
-    }
-    return false;
-}
-
-}  // namespace
 
 double DurationHistogram::quantile_ms(double q) const {
     const std::uint64_t target = std::uint64_t(std::ceil(q * double(count_)));
@@ -40,84 +24,6 @@ double DurationHistogram::quantile_ms(double q) const {
     }
     return max_ms_;
 }
-
-// ------------------------------------------------------------------------------------------------
-// ForceSafety
-
-ForceSafety::ForceSafety(const SafetySettings& settings, double device_max_force_n) : settings_(settings) {
-    if (!(device_max_force_n > 0.0) || !std::isfinite(device_max_force_n))
-        throw InputError("haptics: a device's maximum force must be positive and finite");
-    max_force_ = settings.max_force_n > 0.0 ? std::min(settings.max_force_n, device_max_force_n) : device_max_force_n;
-    if (!(settings.fade_out_ms > 0.0) || !(settings.fade_in_ms > 0.0) || !(settings.max_rate_n_per_ms > 0.0))
-        throw InputError("haptics: fade times and the force rate limit must be positive");
-}
-
-Eigen::Vector3d ForceSafety::filter(const SafetyInput& in) {
-    ++counters_.ticks;
-    const double dt = started_ ? std::clamp(in.now_ms - last_ms_, 0.0, 1000.0) : 0.0;
-    started_ = true;
-    last_ms_ = in.now_ms;
-
-    // 1. Non-finite → zero.
-    Eigen::Vector3d f = in.force_n;
-    const bool non_finite = !finite(f);
-    if (non_finite) {
-        ++counters_.non_finite;
-        f.setZero();
-    }
-    // 2. Clamp to the maximum force.
-    if (clamp_norm(f, max_force_)) ++counters_.clamped;
-    // 3. Rate limit against the previous limited value.
-    Eigen::Vector3d step = f - limited_;
-    if (clamp_norm(step, settings_.max_rate_n_per_ms * dt)) ++counters_.rate_limited;
-    limited_ += step;
-    if (!finite(limited_)) limited_.setZero();
-
-    // 4. Gain: faults latch until faded out and a clean update arrived.
-    if (in.fault_event) {
-        latched_fault_ = true;
-        ++counters_.faults;
-    } else if (latched_fault_ && gain_ <= 0.0 && in.clean_update) {
-        latched_fault_ = false;
-    }
-    const bool healthy = in.simulation_fresh && !non_finite && !latched_fault_ && !estop_;
-    if (healthy) gain_ = std::min(1.0, gain_ + dt / settings_.fade_in_ms);
-    else gain_ = std::max(0.0, gain_ - dt / settings_.fade_out_ms);
-
-    // 5. Emergency stop: zero now.
-    if (estop_) {
-        ++counters_.stopped;
-        gain_ = 0.0;
-        limited_.setZero();
-        return Eigen::Vector3d::Zero();
-    }
-    // 6. Last check.
-    Eigen::Vector3d out = gain_ * limited_;
-    if (!finite(out) || out.norm() > max_force_ * (1.0 + 1e-12)) out.setZero();
-    return out;
-}
-
-// ------------------------------------------------------------------------------------------------
-// Coupling
-
-const char* to_string(ForceInterpolation mode) { return mode == ForceInterpolation::hold ? "hold" : "extrapolate"; }
-
-CouplingSettings choose_coupling(double b, double period_ms, double margin) {
-    if (!(b > 0.0) || !(period_ms > 0.0) || !(margin > 0.0 && margin < 1.0))
-        throw InputError("haptics: virtual coupling needs a positive device damping, period and a margin in (0, 1)");
-    CouplingSettings c;
-    c.enabled = true;
-    c.damping_n_ms_per_mm = 0.25 * b;
-    c.stiffness_n_per_mm = margin * 2.0 * (b - c.damping_n_ms_per_mm) / period_ms;
-    return c;
-}
-
-bool within_passivity_bound(const CouplingSettings& c, double b, double period_ms) {
-    return b > c.stiffness_n_per_mm * period_ms / 2.0 + std::abs(c.damping_n_ms_per_mm);
-}
-
-// ------------------------------------------------------------------------------------------------
-// HapticSession
 
 HapticSession::HapticSession(const HapticSettings& settings)
     : settings_(settings), epoch_(std::chrono::steady_clock::now()) {
@@ -234,22 +140,22 @@ void HapticSession::tick(double now_ms) {
             const double ahead = std::clamp(now_ms - h.t1, 0.0, interval);  // at most one interval ahead
             tissue += (h.f1 - h.f0) * (ahead / interval);
         }
-        if (!finite(tissue)) tissue = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
+        if (!tissue.allFinite()) tissue = Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN());
 
         // Coupling.
         Eigen::Vector3d world_force;
         Eigen::Vector3d tool_position = device_world;
         if (h.coupling.enabled) {
             const CouplingSettings& c = h.coupling;
-            const Eigen::Vector3d env = finite(tissue) && simulation_fresh ? tissue : Eigen::Vector3d::Zero();
+            const Eigen::Vector3d env = tissue.allFinite() && simulation_fresh ? tissue : Eigen::Vector3d::Zero();
             // Semi-implicit Euler on the proxy; the spring-damper evaluated at the tick's start.
             const Eigen::Vector3d coupling_on_proxy = c.stiffness_n_per_mm * (device_world - h.proxy) + c.damping_n_ms_per_mm * (device_v - h.proxy_v);
             const Eigen::Vector3d accel = (env + coupling_on_proxy - c.proxy_damping_n_ms_per_mm * h.proxy_v) / c.proxy_mass_g;
             h.proxy_v += accel * dt;
             h.proxy += h.proxy_v * dt;
-            if (!finite(h.proxy) || !finite(h.proxy_v)) h.proxy = device_world, h.proxy_v.setZero();
+            if (!h.proxy.allFinite() || !h.proxy_v.allFinite()) h.proxy = device_world, h.proxy_v.setZero();
             world_force = c.stiffness_n_per_mm * (h.proxy - device_world) + c.damping_n_ms_per_mm * (h.proxy_v - device_v);
-            if (!finite(tissue)) world_force = tissue;  // let the safety chain see the fault
+            if (!tissue.allFinite()) world_force = tissue;  // let the safety chain see the fault
             tool_position = h.proxy;
         } else {
             world_force = tissue;

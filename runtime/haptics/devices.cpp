@@ -1,5 +1,5 @@
-// The scripted and simulated haptic devices (runtime/haptics/haptics.h).
-#include "runtime/haptics/haptics.h"
+// The scripted, simulated and window haptic devices (devices.h).
+#include "runtime/haptics/devices.h"
 
 #include "formats/csv.h"
 
