@@ -1,11 +1,13 @@
 // The GL backend: the CPU solver's substep as OpenGL 4.3 compute shaders on shader storage
-// buffers in the same packed layout. Shaders and the arithmetic contract: gl_shaders.h.
-// Design and deviations: docs/runtime.md.
+// buffers in the same packed layout. Shaders and the arithmetic contract: shaders/solver_shaders.h.
+// Design and deviations: docs/runtime.md. One file over 600 lines because it is one class,
+// GlBackend: every pass reads and writes the same buffers and hand state, kept private here.
 #include "runtime/backend.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
-#include "runtime/gl/gl_shaders.h"
+#include "runtime/gl/shaders/bindings.h"
+#include "runtime/gl/shaders/solver_shaders.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
@@ -127,7 +129,7 @@ public:
         if (picking_) picking_->invalidate(hand);
         // A probe's touched list starts empty (the step pass refills it every substep).
         const GLuint zero = 0;
-        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(hand * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr((sh::touched0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
     }
 
     void set_pose(int hand, const InstrumentPose& pose) override {
@@ -534,7 +536,7 @@ private:
                 min_rest_length_ = std::min(min_rest_length_, rest[t]);
             }
         struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
-        static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in gl_shaders.h
+        static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in shaders/solver_shaders.h
         std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
         std::vector<float> current(4 * n_pad_, 0.0f), motion(4 * n_pad_, 0.0f);
         supported_ = false;

@@ -1,6 +1,7 @@
 #include "runtime/gl/gl_program.h"
 
 #include "runtime/gl/gl_context.h"
+#include "runtime/gl/shaders/bindings.h"
 
 namespace heartsim {
 
@@ -8,11 +9,24 @@ namespace {
 std::string with_advice(const std::string& message, const std::string& advice) {
     return advice.empty() ? message : message + "; " + advice;
 }
+
+/// The `#version` line must come first in a shader, so the binding names follow it here.
+const char* preamble() {
+    static const std::string text = [] {
+        std::string lines = "#version 430 core\n";
+        for (const auto& [name, value] : gl_shaders::shader_constants)
+            lines += "#define " + std::string(name) + " " + std::to_string(value) + "\n";
+        return lines;
+    }();
+    return text.c_str();
+}
 }  // namespace
 
 GLuint compile_shader(GLenum stage, const std::vector<const char*>& sources, const std::string& what, const std::string& advice) {
+    std::vector<const char*> strings{preamble()};
+    strings.insert(strings.end(), sources.begin(), sources.end());
     const GLuint shader = glCreateShader(stage);
-    glShaderSource(shader, GLsizei(sources.size()), sources.data(), nullptr);
+    glShaderSource(shader, GLsizei(strings.size()), strings.data(), nullptr);
     glCompileShader(shader);
     GLint ok = 0;
     glGetShaderiv(shader, GL_COMPILE_STATUS, &ok);

@@ -10,7 +10,9 @@
 
 namespace heartsim {
 
-/// Compiles one shader stage from `sources` (concatenated). Throws GlUnavailable
+/// Compiles one shader stage from `sources` (concatenated) after a preamble: `#version 430 core`
+/// and the names of shaders/bindings.h (BINDING_CURRENT, ...), which is why the sources carry no
+/// `#version` line of their own. Throws GlUnavailable
 /// "<what> does not compile on this driver: <log>[; <advice>]".
 GLuint compile_shader(GLenum stage, const std::vector<const char*>& sources, const std::string& what,
                       const std::string& advice = "");

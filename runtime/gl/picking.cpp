@@ -1,9 +1,11 @@
 // The picking buffer (Sørensen & Mosegaard's §1.2.2) and the direct surface search: docs/runtime.md,
-// "Probe contacts: picking buffer and direct search".
+// "Probe contacts: picking buffer and direct search". Shaders: shaders/picking_shaders.h.
 #include "runtime/gl/picking.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
+#include "runtime/gl/shaders/bindings.h"
+#include "runtime/gl/shaders/picking_shaders.h"
 
 #include "libmodel/errors.h"
 
@@ -35,111 +37,8 @@ const char* to_string(ContactMode mode) {
 
 namespace {
 
-// Bindings beyond the backend's (gl_shaders.h Binding: 0..14); 15 is read by the force pass.
-constexpr GLuint bind_positions = 0, bind_counters = 9, bind_picked = 15, bind_triangles = 16, bind_samples = 17, bind_mark = 18,
-                 bind_surface = 19;
-constexpr GLuint unit_index = 6;  // texture unit of the index image in the collect pass
+namespace sh = gl_shaders;
 constexpr int hands = 2;
-
-const char* render_vertex = R"(#version 430 core
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 16) readonly buffer TriangleBuffer { int triangle[]; };
-uniform vec3 centre;          // probe centre at render time, world mm
-uniform mat3 to_tool;         // Rᵀ: world → tool frame
-uniform vec4 window;          // half width W, near, far, unused (tool-frame z)
-flat out ivec3 corner_particle;
-out vec3 bary;
-out vec3 local;
-void main() {
-    int t = gl_VertexID / 3, c = gl_VertexID - 3 * (gl_VertexID / 3);
-    ivec3 ids = ivec3(triangle[3 * t], triangle[3 * t + 1], triangle[3 * t + 2]);
-    corner_particle = ids;
-    bary = vec3(c == 0 ? 1.0 : 0.0, c == 1 ? 1.0 : 0.0, c == 2 ? 1.0 : 0.0);
-    local = to_tool * (x[ids[c]].xyz - centre);
-    gl_Position = vec4(local.x / window.x, local.y / window.x, 2.0 * (local.z - window.y) / (window.z - window.y) - 1.0, 1.0);
-}
-)";
-
-const char* render_fragment = R"(#version 430 core
-flat in ivec3 corner_particle;
-in vec3 bary;
-in vec3 local;
-uniform vec3 semi_axes;
-layout(location = 0) out int picked;
-layout(location = 1) out float distance_mm;
-void main() {
-    // The triangle's corner with the largest barycentric weight: a Voronoi-like diagram.
-    int k = (bary.x >= bary.y && bary.x >= bary.z) ? 0 : (bary.y >= bary.z ? 1 : 2);
-    picked = corner_particle[k];
-    // Radial distance of the surface point to the ellipsoid (the solver's projection direction).
-    float rho = length(local / semi_axes);
-    distance_mm = rho > 0.0 ? length(local) * (1.0 - 1.0 / rho) : -min(semi_axes.x, min(semi_axes.y, semi_axes.z));
-}
-)";
-
-// Shared by the collect and search passes: the exact contact test in double, and the
-// deduplicated append (mark[i] holds the epoch of the last pass that appended i).
-const char* contact_common = R"(#version 430 core
-#extension GL_ARB_gpu_shader_fp64 : enable
-layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 9) buffer CounterBuffer { uint counter[]; };
-layout(std430, binding = 18) buffer MarkBuffer { uint mark[]; };
-layout(std430, binding = 15) writeonly buffer PickedBuffer { int picked[]; };
-uniform uint particle_count;
-uniform int hand;
-uniform uint epoch;
-uniform dvec3 centre;         // current pose
-uniform dmat3 rotation;       // tool → world
-uniform dvec3 semi_axes;
-uniform double tolerance;
-bool in_contact(uint i) {
-    dvec3 v = dvec3(x[i].xyz) - centre;
-    dvec3 local = transpose(rotation) * v;
-    dvec3 q = local / semi_axes;
-    double rho = sqrt(dot(q, q));
-    double d = rho > 0.0lf ? sqrt(dot(local, local)) * (1.0lf - 1.0lf / rho) : -1.0lf;
-    return d <= tolerance;
-}
-void append(uint i) {
-    if (atomicExchange(mark[i], epoch) == epoch) return;
-    uint slot = atomicAdd(counter[6 + hand], 1u);
-    picked[uint(hand) * particle_count + slot] = int(i);
-}
-)";
-
-const char* collect_body = R"(
-layout(std430, binding = 17) readonly buffer SampleBuffer { vec4 sample_unit[]; };
-layout(binding = 6) uniform isampler2D index_image;
-uniform uint sample_count;
-uniform int resolution;
-uniform dvec3 render_centre;  // the camera of the (possibly stale) picking buffer
-uniform dmat3 render_to_tool;
-uniform double render_half_width;
-void main() {
-    uint k = gl_GlobalInvocationID.x;
-    if (k >= sample_count) return;
-    dvec3 s = centre + rotation * (semi_axes * dvec3(sample_unit[k].xyz));   // boundary point, current pose
-    dvec3 p = render_to_tool * (s - render_centre);                          // into the buffer's camera
-    dvec2 uv = (p.xy / render_half_width) * 0.5lf + 0.5lf;
-    ivec2 pixel = ivec2(floor(uv * double(resolution)));
-    if (any(lessThan(pixel, ivec2(0))) || any(greaterThanEqual(pixel, ivec2(resolution)))) return;
-    int i = texelFetch(index_image, pixel, 0).r;
-    if (i < 0 || uint(i) >= particle_count) return;
-    if (in_contact(uint(i))) append(uint(i));
-}
-)";
-
-const char* search_body = R"(
-layout(std430, binding = 19) readonly buffer SurfaceBuffer { int surface[]; };
-uniform uint surface_count;
-void main() {
-    uint k = gl_GlobalInvocationID.x;
-    if (k >= surface_count) return;
-    uint i = uint(surface[k]);
-    if (in_contact(i)) append(i);
-}
-)";
 
 GLuint compile(GLenum type, const std::vector<const char*>& sources, const char* name) {
     return compile_shader(type, sources, std::string("picking: the ") + name + " shader", "run with --contact direct");
@@ -198,11 +97,11 @@ PickingPass::PickingPass(const std::optional<SimulationSurface>& simulation_surf
     const std::vector<std::int32_t> surface(vertices.begin(), vertices.end());
     surface_count_ = surface.size();
 
-    gl_->render_program = link({compile(GL_VERTEX_SHADER, {render_vertex}, "picking vertex"),
-                                compile(GL_FRAGMENT_SHADER, {render_fragment}, "picking fragment")},
+    gl_->render_program = link({compile(GL_VERTEX_SHADER, {sh::picking_vertex_shader}, "picking vertex"),
+                                compile(GL_FRAGMENT_SHADER, {sh::picking_fragment_shader}, "picking fragment")},
                                "picking render");
-    gl_->collect_program = link({compile(GL_COMPUTE_SHADER, {contact_common, collect_body}, "picking collect")}, "picking collect");
-    gl_->search_program = link({compile(GL_COMPUTE_SHADER, {contact_common, search_body}, "direct search")}, "direct search");
+    gl_->collect_program = link({compile(GL_COMPUTE_SHADER, {sh::contact_common, sh::collect_body}, "picking collect")}, "picking collect");
+    gl_->search_program = link({compile(GL_COMPUTE_SHADER, {sh::contact_common, sh::search_body}, "direct search")}, "direct search");
     for (GLuint p : {gl_->collect_program.id(), gl_->search_program.id()})
         glProgramUniform1ui(p, glGetUniformLocation(p, "particle_count"), GLuint(n_));
     glProgramUniform1ui(gl_->search_program, glGetUniformLocation(gl_->search_program, "surface_count"), GLuint(surface_count_));
@@ -328,8 +227,8 @@ void PickingPass::render(int hand, const Instrument& instrument, const Instrumen
     glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "to_tool"), 1, GL_FALSE, to_tool.data());
     glProgramUniform4f(p, glGetUniformLocation(p, "window"), float(h.half_width), float(near_z), float(far_z), 0.0f);
     glProgramUniform3f(p, glGetUniformLocation(p, "semi_axes"), float(semi.x()), float(semi.y()), float(semi.z()));
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_positions, positions_buffer);
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_triangles, gl_->triangles);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, positions_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picking_triangles, gl_->triangles);
     glUseProgram(p);
     glBindVertexArray(gl_->vao);
     glDrawArrays(GL_TRIANGLES, 0, GLsizei(3 * triangle_count_));
@@ -352,7 +251,7 @@ void PickingPass::render(int hand, const Instrument& instrument, const Instrumen
 void PickingPass::collect(int hand, const Instrument& instrument, const InstrumentPose& pose, unsigned positions_buffer,
                           unsigned counters_buffer) {
     const GLuint zero = 0;
-    glClearNamedBufferSubData(counters_buffer, GL_R32UI, GLintptr((6 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+    glClearNamedBufferSubData(counters_buffer, GL_R32UI, GLintptr((sh::picked0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
     ++epoch_;
     if (epoch_ == 0) {  // wrapped: clear the marks so that no old epoch matches
         glClearNamedBufferData(gl_->mark, GL_R32UI, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
@@ -371,21 +270,21 @@ void PickingPass::collect(int hand, const Instrument& instrument, const Instrume
     glProgramUniformMatrix3dv(p, glGetUniformLocation(p, "rotation"), 1, GL_FALSE, rotation.data());
     glProgramUniform3dv(p, glGetUniformLocation(p, "semi_axes"), 1, instrument.semi_axes.data());
     glProgramUniform1d(p, glGetUniformLocation(p, "tolerance"), tolerance_);
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_positions, positions_buffer);
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_counters, counters_buffer);
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_mark, gl_->mark);
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_picked, gl_->picked);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, positions_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_buffer);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picking_marks, gl_->mark);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, gl_->picked);
     std::size_t invocations = surface_count_;
     if (picking) {
         glProgramUniform1i(p, glGetUniformLocation(p, "resolution"), h.resolution);
         glProgramUniform3dv(p, glGetUniformLocation(p, "render_centre"), 1, h.centre.data());
         glProgramUniformMatrix3dv(p, glGetUniformLocation(p, "render_to_tool"), 1, GL_FALSE, h.to_tool.data());
         glProgramUniform1d(p, glGetUniformLocation(p, "render_half_width"), h.half_width);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_samples, gl_->samples);
-        glBindTextureUnit(unit_index, h.index);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picking_samples, gl_->samples);
+        glBindTextureUnit(sh::picking_index_image, h.index);
         invocations = sample_count_;
     } else {
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, bind_surface, gl_->surface);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picking_surface, gl_->surface);
     }
     GLint previous_program = 0;
     glGetIntegerv(GL_CURRENT_PROGRAM, &previous_program);
@@ -394,7 +293,7 @@ void PickingPass::collect(int hand, const Instrument& instrument, const Instrume
     glDispatchCompute(GLuint((invocations + 63) / 64), 1, 1);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     glUseProgram(GLuint(previous_program));
-    if (picking) glBindTextureUnit(unit_index, 0);
+    if (picking) glBindTextureUnit(sh::picking_index_image, 0);
 }
 
 }  // namespace heartsim

@@ -49,7 +49,7 @@ std::size_t estimate_picking_memory_bytes(const Scenario& scenario, const Contac
 
 /// The GL passes behind `picking` and `search` (needs a current GL 4.3+ context). Owned by the
 /// GL backend; it writes hand h's contact list to picked_buffer()[h·N ...] and its count to word
-/// 6 + h of the backend's counter buffer (gl_shaders.h `Counter`).
+/// picked0 + h of the backend's counter buffer (shaders/bindings.h `Counter`).
 class PickingPass {
 public:
     /// `surface`: the scenario's /simsurface, `particles` N, `spacing_mm` the lattice spacing.

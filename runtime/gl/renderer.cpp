@@ -1,10 +1,13 @@
 // The visualisation step: the mapped visual mesh (or the simulation surface), lit, with the
-// instruments, into an offscreen framebuffer. renderer.h; docs/runtime.md "Rendering".
+// instruments, into an offscreen framebuffer. renderer.h; docs/runtime.md "Rendering"; shaders:
+// shaders/render_shaders.h.
 #include "runtime/gl/renderer.h"
 
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
+#include "runtime/gl/shaders/bindings.h"
+#include "runtime/gl/shaders/render_shaders.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
@@ -23,124 +26,7 @@ namespace heartsim {
 
 namespace {
 
-// Binding points of the renderer's passes (rebound before each use; the backend rebinds its own).
-enum RenderBinding : unsigned { positions_binding = 0, incidence_start_binding = 1, incidence_binding = 2, normals_binding = 3,
-                                surface_particles_binding = 4 };
-
-/// Particle normals (libmodel particle_normals, same float operations in the same order): one
-/// invocation per surface particle sums the area vectors of its counted triangles in row order
-/// (the incidence list keeps it), then normalises; (x·x) + ... as Eigen's 3-term dot:
-/// x·x + (y·y + z·z).
-constexpr const char* normals_shader = R"(#version 430 core
-layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer PositionBuffer { vec4 x[]; };
-layout(std430, binding = 1) readonly buffer StartBuffer { uint start[]; };
-layout(std430, binding = 2) readonly buffer IncidenceBuffer { ivec4 triangle[]; };
-layout(std430, binding = 3) writeonly buffer NormalBuffer { vec4 normal[]; };
-layout(std430, binding = 4) readonly buffer SurfaceBuffer { uint surface_particle[]; };
-uniform uint surface_count;
-void main() {
-    uint k = gl_GlobalInvocationID.x;
-    if (k >= surface_count) return;
-    precise vec3 sum = vec3(0.0);
-    for (uint e = start[k]; e < start[k + 1u]; ++e) {
-        ivec4 t = triangle[e];
-        vec3 a = x[t.x].xyz, b = x[t.y].xyz, c = x[t.z].xyz;
-        precise vec3 u = b - a;
-        precise vec3 v = c - a;
-        precise vec3 area = vec3(u.y * v.z - u.z * v.y, u.z * v.x - u.x * v.z, u.x * v.y - u.y * v.x);
-        sum = sum + area;
-    }
-    precise float length2 = sum.x * sum.x + (sum.y * sum.y + sum.z * sum.z);
-    precise float len = sqrt(length2);
-    normal[surface_particle[k]] = len > 0.0 ? vec4(sum / len, 0.0) : vec4(0.0);
-}
-)";
-
-/// The mapping (libmodel apply_mapping, float32, same order). Its output world_position is what
-/// transform feedback captures for the tests.
-constexpr const char* mesh_vertex_shader = R"(#version 430 core
-layout(std430, binding = 0) readonly buffer PositionBuffer { vec4 x[]; };
-layout(std430, binding = 3) readonly buffer NormalBuffer { vec4 n[]; };
-layout(location = 0) in ivec3 particle;         // the simulation-surface triangle's particles a, b, c
-layout(location = 1) in vec3 lambda;            // barycentric weights
-layout(location = 2) in float offset;           // d, mm
-layout(location = 3) in vec3 rest_normal;       // the visual vertex's normal at rest (0: flat shading)
-layout(location = 4) in vec3 rest_frame_normal; // normalised interpolated particle normal at rest
-layout(location = 5) in ivec4 carrier_lo;       // the carrying particles i_0..i_3
-layout(location = 6) in ivec4 carrier_hi;       // i_4..i_7
-layout(location = 7) in vec4 weight_lo;         // their weights w_0..w_3
-layout(location = 8) in vec4 weight_hi;         // w_4..w_7
-uniform mat4 view_projection;
-out vec3 world_position;
-out vec3 shading_normal;
-void main() {
-    vec3 na = n[particle.x].xyz, nb = n[particle.y].xyz, nc = n[particle.z].xyz;
-    precise vec3 p = weight_lo.x * x[carrier_lo.x].xyz;
-    p = p + weight_lo.y * x[carrier_lo.y].xyz;
-    p = p + weight_lo.z * x[carrier_lo.z].xyz;
-    p = p + weight_lo.w * x[carrier_lo.w].xyz;
-    p = p + weight_hi.x * x[carrier_hi.x].xyz;
-    p = p + weight_hi.y * x[carrier_hi.y].xyz;
-    p = p + weight_hi.z * x[carrier_hi.z].xyz;
-    p = p + weight_hi.w * x[carrier_hi.w].xyz;
-    precise vec3 m = (lambda.x * na + lambda.y * nb) + lambda.z * nc;
-    precise float m2 = m.x * m.x + (m.y * m.y + m.z * m.z);
-    precise float len = sqrt(m2);
-    if (len > 0.0) p = p + offset * (m / len);
-    world_position = p;
-    // Shading: the rest normal turned by the rotation taking the rest interpolated normal to
-    // the current one (Rodrigues), so the detailed mesh keeps its detail as it deforms.
-    vec3 s = rest_normal;
-    if (len > 0.0 && dot(rest_frame_normal, rest_frame_normal) > 0.5) {
-        vec3 b = m / len, a = rest_frame_normal;
-        float c = dot(a, b);
-        vec3 k = cross(a, b);
-        s = c > -0.99 ? s * c + cross(k, s) + k * (dot(k, s) / (1.0 + c)) : b;
-    }
-    shading_normal = s;
-    gl_Position = view_projection * vec4(p, 1.0);
-}
-)";
-
-constexpr const char* instrument_vertex_shader = R"(#version 430 core
-layout(location = 0) in vec3 unit;              // a point of the unit sphere (also its normal)
-uniform mat4 view_projection;
-uniform mat4 model;                             // translate · rotate · scale(semi-axes)
-uniform mat3 normal_matrix;                     // rotate · scale⁻¹
-out vec3 world_position;
-out vec3 shading_normal;
-void main() {
-    vec4 w = model * vec4(unit, 1.0);
-    world_position = w.xyz;
-    shading_normal = normal_matrix * unit;
-    gl_Position = view_projection * w;
-}
-)";
-
-/// Two directional lights fixed to the camera, Blinn-Phong, two-sided; a zero shading normal
-/// (the simulation surface) gives the flat face normal from screen-space derivatives.
-constexpr const char* fragment_shader = R"(#version 430 core
-in vec3 world_position;
-in vec3 shading_normal;
-uniform vec3 eye;
-uniform vec3 key_light;
-uniform vec3 fill_light;
-uniform vec3 base_color;
-uniform float specular;
-out vec4 colour;
-void main() {
-    vec3 nrm = shading_normal;
-    if (dot(nrm, nrm) < 1e-12) nrm = cross(dFdx(world_position), dFdy(world_position));
-    vec3 v = normalize(eye - world_position);
-    nrm = dot(nrm, nrm) > 1e-20 ? normalize(nrm) : v;
-    if (dot(nrm, v) < 0.0) nrm = -nrm;
-    float diffuse = 0.62 * max(dot(nrm, key_light), 0.0) + 0.28 * max(dot(nrm, fill_light), 0.0);
-    vec3 h = normalize(key_light + v);
-    float shine = specular * pow(max(dot(nrm, h), 0.0), 32.0);
-    colour = vec4(min(base_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), 1.0);
-}
-)";
+namespace sh = gl_shaders;
 
 struct VertexRecord {
     std::int32_t particle[3];
@@ -181,7 +67,7 @@ Eigen::Vector3f to_vector(const std::array<float, 3>& a) { return {a[0], a[1], a
 
 /// Camera basis (right, up, back) for each named view, world LPS.
 Eigen::Matrix3f view_basis(ViewDirection view) {
-    Eigen::Vector3f back, up;
+    Eigen::Vector3f back = {0, -1, 0}, up = {0, 0, 1};  // set again below; initialised for the compiler
     switch (view) {
         case ViewDirection::anterior: back = {0, -1, 0}, up = {0, 0, 1}; break;
         case ViewDirection::posterior: back = {0, 1, 0}, up = {0, 0, 1}; break;
@@ -359,19 +245,19 @@ struct Renderer::State {
 
     void normals_pass(GLuint positions) {
         if (!visual) return;
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, positions_binding, positions);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, incidence_start_binding, incidence_start);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, incidence_binding, incidence);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, normals_binding, normals);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, surface_particles_binding, surface_list);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, positions);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::incidence_start, incidence_start);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::incidence, incidence);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle_normals, normals);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::surface_particles, surface_list);
         glUseProgram(normals_program);
         glDispatchCompute(GLuint((surface_particles + 63) / 64), 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     }
 
     void bind_mesh(GLuint positions) {
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, positions_binding, positions);
-        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, normals_binding, normals);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, positions);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle_normals, normals);
         glUseProgram(mesh_program);
         glBindVertexArray(vao);
     }
@@ -469,7 +355,7 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
         s.incidence = buffer_with(incidence.data(), incidence.size() * 16);
         s.surface_list = buffer_with(surface_list.data(), surface_list.size() * 4);
         s.memory += start.size() * 4 + incidence.size() * 16 + surface_list.size() * 4;
-        s.normals_program = link({compile(GL_COMPUTE_SHADER, normals_shader, "normals")}, "normals");
+        s.normals_program = link({compile(GL_COMPUTE_SHADER, sh::normals_shader, "normals")}, "normals");
         glProgramUniform1ui(s.normals_program, glGetUniformLocation(s.normals_program, "surface_count"), GLuint(s.surface_particles));
     } else {
         // The simulation surface itself: one record per particle, (i, i, i), λ = (1, 0, 0), d = 0
@@ -524,11 +410,11 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     glVertexArrayAttribBinding(s.sphere_vao, 0, 0);
     glVertexArrayAttribFormat(s.sphere_vao, 0, 3, GL_FLOAT, GL_FALSE, 0);
 
-    s.mesh_program = link({compile(GL_VERTEX_SHADER, mesh_vertex_shader, "mapping vertex"),
-                           compile(GL_FRAGMENT_SHADER, fragment_shader, "fragment")},
+    s.mesh_program = link({compile(GL_VERTEX_SHADER, sh::mesh_vertex_shader, "mapping vertex"),
+                           compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
                           "mesh", "world_position");
-    s.instrument_program = link({compile(GL_VERTEX_SHADER, instrument_vertex_shader, "instrument vertex"),
-                                 compile(GL_FRAGMENT_SHADER, fragment_shader, "fragment")},
+    s.instrument_program = link({compile(GL_VERTEX_SHADER, sh::instrument_vertex_shader, "instrument vertex"),
+                                 compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
                                 "instrument");
     s.make_framebuffer(options.width, options.height);
     s.memory += std::size_t(s.width) * std::size_t(s.height) * 8;
@@ -663,13 +549,13 @@ std::vector<std::array<float, 3>> Renderer::capture_vertices(Backend& backend) {
     if (!s.feedback) s.feedback = buffer_with(nullptr, bytes, 0);
     s.bind_mesh(positions);
     glBindFramebuffer(GL_FRAMEBUFFER, s.fbo);  // a complete framebuffer even with the rasteriser off (surfaceless EGL has none)
-    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, 0, s.feedback);
+    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, sh::captured_vertices, s.feedback);
     glEnable(GL_RASTERIZER_DISCARD);
     glBeginTransformFeedback(GL_POINTS);
     glDrawArrays(GL_POINTS, 0, GLsizei(s.vertices));
     glEndTransformFeedback();
     glDisable(GL_RASTERIZER_DISCARD);
-    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, 0, 0);
+    glBindBufferBase(GL_TRANSFORM_FEEDBACK_BUFFER, sh::captured_vertices, 0);
     glBindVertexArray(0);
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);

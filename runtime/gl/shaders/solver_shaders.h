@@ -1,30 +1,21 @@
-/// @file gl_shaders.h
-/// @brief GLSL 4.30 compute shaders of the GL backend. Every arithmetic expression mirrors
-/// libmodel/solver.cpp operation for operation (same order, `precise` so no FMA is fused), so
-/// the GPU step is the CPU step: float for the springs and integration, double for the
-/// instrument geometry (probe projection, grab capture and follow, forces), as on the CPU.
+/// @file solver_shaders.h
+/// @brief GLSL 4.30 compute shaders of the GL backend (backend_gl.cpp): each program is `common`
+/// and one pass, after the preamble compile_shader puts first (bindings.h). Every arithmetic
+/// expression mirrors libmodel/solver.cpp operation for operation (same order, `precise` so no
+/// FMA is fused), so the GPU step is the CPU step: float for the springs and integration, double
+/// for the instrument geometry (probe projection, grab capture and follow, forces), as on the CPU.
 #pragma once
 
 namespace heartsim::gl_shaders {
 
-/// Buffer bindings shared by all passes.
-enum Binding : unsigned {
-    current = 0, motion = 1, next = 2, neighbour = 3, rest_length = 4, stiffness = 5, dashpot = 6,
-    particle = 7, held_by = 8, counters = 9, touched = 10, next_motion = 11, held = 12, held_local = 13, forces = 14,
-    picked = 15,  ///< probe contact lists of the picking / search passes (runtime/gl/picking.cpp also uses 16..19)
-};
-
-/// Counter words in the `counters` buffer.
-enum Counter : unsigned { touched0 = 0, touched1 = 1, unused = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
-
-inline constexpr const char* common = R"(#version 430 core
+inline constexpr const char* common = R"(
 #extension GL_ARB_gpu_shader_fp64 : enable
 // support_stiffness (N/mm), support_point.xyz (mm) and support_point.w (its dashpot c/h, N/mm):
 // the particle's support (libmodel/supports.h), stiffness 0 where it has none.
 struct Particle { float mass; float inverse_mass_h2; int movable; float support_stiffness; vec4 support_point; };
-layout(std430, binding = 7) readonly buffer ParticleBuffer { Particle particle[]; };
-layout(std430, binding = 8) buffer HeldByBuffer { int held_by[]; };
-layout(std430, binding = 9) buffer CounterBuffer { uint counter[]; };
+layout(std430, binding = BINDING_PARTICLE) readonly buffer ParticleBuffer { Particle particle[]; };
+layout(std430, binding = BINDING_HELD_BY) buffer HeldByBuffer { int held_by[]; };
+layout(std430, binding = BINDING_COUNTERS) buffer CounterBuffer { uint counter[]; };
 uniform uint particle_count;   // real particles N
 uniform uint padded_count;     // N rounded up to 8
 uniform bool supported;        // any particle has a support spring
@@ -34,15 +25,15 @@ uniform bool supported;        // any particle has a support spring
 /// Positions x and the motion of the last substep u = x_n − x_{n−1} are kept apart, as on the CPU.
 inline constexpr const char* step = R"(
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 1) readonly buffer MotionBuffer { vec4 u[]; };
-layout(std430, binding = 2) writeonly buffer NextBuffer { vec4 xn[]; };
-layout(std430, binding = 11) writeonly buffer NextMotionBuffer { vec4 un[]; };
-layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
-layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
-layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
-layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
-layout(std430, binding = 10) writeonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_MOTION) readonly buffer MotionBuffer { vec4 u[]; };
+layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
+layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = BINDING_REST_LENGTH) readonly buffer RestBuffer { float rest_length[]; };
+layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { float stiffness[]; };
+layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
+layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
 
 uniform float keep;             // 1 − γh
 uniform vec3 gravity;           // mm/ms²
@@ -116,7 +107,7 @@ void main() {
     vec4 motion = vec4(ex, ey, ez, 0.0);
     precise float d2 = ex * ex + ey * ey;
     d2 = d2 + ez * ez;
-    if (!(d2 <= max_displacement2)) atomicOr(counter[5], 1u);
+    if (!(d2 <= max_displacement2)) atomicOr(counter[COUNTER_STATUS], 1u);
 
     // Probes (libmodel/solver.cpp `project`): exact test and projection in double.
     if (i < particle_count && p.movable != 0 && held_by[i] < 0) {
@@ -149,7 +140,7 @@ void main() {
             precise dvec3 contact = world - dvec3(double(xi), double(yi), double(zi));
             contact = contact + max(0.0lf, dot3(surface_motion - contact, normal)) * normal;
             motion = vec4(vec3(contact), 0.0);
-            uint slot = atomicAdd(counter[probe_hand[q]], 1u);
+            uint slot = atomicAdd(counter[COUNTER_TOUCHED0 + probe_hand[q]], 1u);
             touched[uint(probe_hand[q]) * particle_count + slot] = int(i);
         }
     }
@@ -162,11 +153,11 @@ void main() {
 /// the step from their current position (double, rounded once, as Solver::substep).
 inline constexpr const char* after_step = R"(
 layout(local_size_x = 256) in;
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 2) buffer NextBuffer { vec4 xn[]; };
-layout(std430, binding = 11) buffer NextMotionBuffer { vec4 un[]; };
-layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = 13) readonly buffer HeldLocalBuffer { double held_local[]; };
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_NEXT) buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = BINDING_NEXT_MOTION) buffer NextMotionBuffer { vec4 un[]; };
+layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = BINDING_HELD_LOCAL) readonly buffer HeldLocalBuffer { double held_local[]; };
 uniform bool grabbing[2];
 uniform dvec3 grab_centre[2];
 uniform dmat3 grab_rotation[2];
@@ -175,7 +166,7 @@ void main() {
     uint lid = gl_LocalInvocationID.x;
     for (int hand = 0; hand < 2; ++hand) {
         if (!grabbing[hand]) continue;
-        uint count = counter[3 + hand];
+        uint count = counter[COUNTER_HELD0 + hand];
         dmat3 r = grab_rotation[hand];
         for (uint k = lid; k < count; k += 256u) {
             uint e = uint(hand) * particle_count + k;
@@ -196,9 +187,9 @@ void main() {
 /// begin_grab: free particles inside the grabber at its pose join the hand's held list.
 inline constexpr const char* capture = R"(
 layout(local_size_x = 64) in;
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 12) writeonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = 13) writeonly buffer HeldLocalBuffer { double held_local[]; };
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_HELD) writeonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = BINDING_HELD_LOCAL) writeonly buffer HeldLocalBuffer { double held_local[]; };
 uniform int hand;
 uniform dvec3 centre;
 uniform dmat3 rotation;
@@ -216,7 +207,7 @@ void main() {
     precise double r2 = q.x * q.x + q.y * q.y; r2 = r2 + q.z * q.z;
     if (r2 > 1.0) return;
     held_by[i] = hand;
-    uint slot = atomicAdd(counter[3 + hand], 1u);
+    uint slot = atomicAdd(counter[COUNTER_HELD0 + hand], 1u);
     uint e = uint(hand) * particle_count + slot;
     held[e] = int(i);
     held_local[3u * e] = a; held_local[3u * e + 1u] = b; held_local[3u * e + 2u] = c;
@@ -226,13 +217,13 @@ void main() {
 /// release: the hand's held particles are free again.
 inline constexpr const char* release = R"(
 layout(local_size_x = 256) in;
-layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
 uniform int hand;
 void main() {
-    uint count = counter[3 + hand];
+    uint count = counter[COUNTER_HELD0 + hand];
     for (uint k = gl_LocalInvocationID.x; k < count; k += 256u) held_by[held[uint(hand) * particle_count + k]] = -1;
     barrier();
-    if (gl_LocalInvocationID.x == 0u) counter[3 + hand] = 0u;
+    if (gl_LocalInvocationID.x == 0u) counter[COUNTER_HELD0 + hand] = 0u;
 }
 )";
 
@@ -240,16 +231,16 @@ void main() {
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
-layout(std430, binding = 0) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = 1) readonly buffer MotionBuffer { vec4 u[]; };
-layout(std430, binding = 3) readonly buffer NeighbourBuffer { int neighbour[]; };
-layout(std430, binding = 4) readonly buffer RestBuffer { float rest_length[]; };
-layout(std430, binding = 5) readonly buffer StiffnessBuffer { float stiffness[]; };
-layout(std430, binding = 6) readonly buffer DashpotBuffer { float dashpot[]; };
-layout(std430, binding = 10) readonly buffer TouchedBuffer { int touched[]; };
-layout(std430, binding = 12) readonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = 14) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
-layout(std430, binding = 15) readonly buffer PickedBuffer { int picked[]; };
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_MOTION) readonly buffer MotionBuffer { vec4 u[]; };
+layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = BINDING_REST_LENGTH) readonly buffer RestBuffer { float rest_length[]; };
+layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { float stiffness[]; };
+layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
+layout(std430, binding = BINDING_TOUCHED) readonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
+layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
+layout(std430, binding = BINDING_PICKED) readonly buffer PickedBuffer { int picked[]; };
 uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding, 3 probe with the picking/search list
 uniform bool damped;
 uniform uint sequence_number;
@@ -258,7 +249,7 @@ shared dvec3 partial[256];
 void main() {
     uint hand = gl_WorkGroupID.x, lid = gl_LocalInvocationID.x;
     int kind = hand_kind[hand];
-    uint count = kind == 1 ? counter[hand] : kind == 2 ? counter[3u + hand] : kind == 3 ? counter[6u + hand] : 0u;
+    uint count = kind == 1 ? counter[COUNTER_TOUCHED0 + hand] : kind == 2 ? counter[COUNTER_HELD0 + hand] : kind == 3 ? counter[COUNTER_PICKED0 + hand] : 0u;
     precise dvec3 sum = dvec3(0.0);
     for (uint k = lid; k < count; k += 256u) {
         uint i = uint(kind == 1 ? touched[hand * particle_count + k] : kind == 3 ? picked[hand * particle_count + k] : held[hand * particle_count + k]);
@@ -296,7 +287,7 @@ void main() {
     }
     if (lid == 0u) {
         force[hand] = dvec4(partial[0], double(count));
-        if (hand == 0u) { status = counter[5]; sequence = sequence_number; }
+        if (hand == 0u) { status = counter[COUNTER_STATUS]; sequence = sequence_number; }
     }
 }
 )";
