@@ -1,0 +1,511 @@
+// The modes of `heartsim run` (run_modes.h): what each prints, in the order it prints it, is the
+// command's output that tests/test_runtime_cli.cpp and tests/test_haptics_cli.cpp check.
+#include "runtime/run_modes.h"
+
+#include "runtime/haptics/haptic_run.h"
+#include "runtime/png.h"
+#include "runtime/window_run.h"
+
+#include "formats/recording.h"
+#include "formats/state.h"
+#include "libmodel/errors.h"
+#include "libmodel/mapping.h"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <thread>
+#include <tuple>
+#include <utility>
+
+namespace heartsim {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+/// Ctrl-C during a haptic run: end it cleanly (forces fade out, the recording is written).
+std::atomic<bool> interrupted{false};
+
+/// Ctrl-C or a termination request ends a haptic session cleanly (fade, recording written); the
+/// handlers stay until the session is finished, so a second Ctrl-C cannot cut the fade.
+void catch_interrupts() {
+    std::signal(SIGINT, [](int) { interrupted.store(true); });
+    std::signal(SIGTERM, [](int) { interrupted.store(true); });
+}
+
+void restore_interrupts() { std::signal(SIGINT, SIG_DFL), std::signal(SIGTERM, SIG_DFL); }
+
+/// "WxH" → (W, H); empty gives `fallback`.
+std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fallback) {
+    if (text.empty()) return fallback;
+    int w = 0, h = 0;
+    char x = 0, extra = 0;
+    if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 || h < 16 || w > 16384 ||
+        h > 16384)
+        throw InputError("--size '" + text + "': expected WxH pixels, e.g. 1024x768");
+    return {w, h};
+}
+
+/// The particles' rest bounding box (where the devices' frames are placed when nothing is drawn).
+Eigen::AlignedBox3f model_box(const Scenario& scenario) {
+    Eigen::AlignedBox3f box;
+    for (const auto& p : scenario.lattice.particles.rest_position) box.extend(Eigen::Vector3f(p[0], p[1], p[2]));
+    if (box.isEmpty()) box.extend(Eigen::Vector3f::Zero());
+    return box;
+}
+
+/// The instruments of the script at `time_ms`, to draw.
+std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time_ms) {
+    std::vector<InstrumentShape> shapes;
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!trajectory.uses_hand(hand)) continue;
+        const InstrumentKeyframe k = trajectory.at(hand, time_ms);
+        if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
+    }
+    return shapes;
+}
+
+/// The combinations of options no mode accepts, refused before anything is read.
+void check_arguments(const RunArguments& a) {
+    if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
+    if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw InputError("--seconds: expected a finite number of seconds up to 10^6");
+    if (!std::isfinite(a.max_force)) throw InputError("--max-force: expected a finite force in N");
+    if (a.record_given && a.record.empty()) throw InputError("--record: give the file to write, e.g. --record session.h5");
+    if (a.replay_tolerance >= 0 && a.replay.empty()) throw InputError("--replay-tolerance needs --replay");
+    if (!a.replay.empty() && (a.steps_given || a.seconds > 0))
+        throw InputError("--replay runs the recording's own steps: no --steps or --seconds with it");
+    if (a.screenshot_every > 0 && a.screenshot.empty()) throw InputError("--screenshot-every needs --screenshot OUT.png");
+    const bool haptic_run = !a.devices.empty();
+    if (a.devices.size() > 2) throw InputError("--device: at most two (hand 0, hand 1)");
+    if (haptic_run && (!a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
+        throw InputError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
+    if (!haptic_run && (!a.instruments.empty() || !a.record.empty()))
+        throw InputError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
+    if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
+        throw InputError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
+    if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
+        throw InputError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
+}
+
+/// The scenario's solver options, with --gravity instead of its gravity.
+SolverOptions solver_options(const RunArguments& a, const Scenario& scenario) {
+    SolverOptions options = options_from(scenario.solver);
+    if (!a.gravity.empty()) {
+        const Eigen::Vector3d g(a.gravity[0], a.gravity[1], a.gravity[2]);
+        if (!g.allFinite()) throw InputError("--gravity must be three finite numbers, mm/ms²");
+        if (g != options.gravity) {
+            std::printf("gravity: (%.4g, %.4g, %.4g) mm/ms² instead of the scenario's (%.4g, %.4g, %.4g)%s\n", g.x(), g.y(), g.z(),
+                        options.gravity.x(), options.gravity.y(), options.gravity.z(),
+                        options.balanced_gravity != g ? "; the rest state is not balanced for it: the tissue moves to a new equilibrium"
+                                                      : "");
+            options.gravity = g;
+        }
+    }
+    return options;
+}
+
+/// The GL context (a window unless --headless; a headless one where the backend or the
+/// screenshots need it) and the backend.
+void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p) {
+    const SolverOptions options = solver_options(a, p.scenario);
+    if (!a.headless)
+        p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
+                                                   "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
+    if (!a.devices.empty() && p.kind == BackendKind::gl && !a.backend_given) {
+        // Haptics need the simulation near real time. On a software rasteriser (Mesa llvmpipe,
+        // softpipe) the compute shaders run on the CPU cores, far slower than the cpu backend:
+        // choose it, and say so.
+        if (!p.context) p.context.emplace(GlContext::create_headless());
+        const std::string renderer_name = p.context->info().renderer;
+        if (renderer_name.find("llvmpipe") != std::string::npos || renderer_name.find("softpipe") != std::string::npos ||
+            renderer_name.find("swrast") != std::string::npos) {
+            p.kind = BackendKind::cpu;
+            std::printf("haptics: the OpenGL device is %s, a software rasteriser: simulating with the cpu backend, which is faster "
+                        "here (--backend gl to override)\n", renderer_name.c_str());
+        }
+    }
+    if (p.kind == BackendKind::gl) {
+        if (!p.context) p.context.emplace(GlContext::create_headless());
+        const GlInfo info = p.context->info();
+        const std::size_t need = estimate_gl_memory_bytes(p.scenario);
+        std::printf("gl: %s, OpenGL %d.%d; device memory needed %.1f MiB\n", info.renderer.c_str(), info.major, info.minor,
+                    double(need) / (1024.0 * 1024.0));
+        if (info.max_ssbo_bytes > 0 && (long long)(p.scenario.lattice.particles.size() * 18 * 4 + 4096) > info.max_ssbo_bytes)
+            throw InputError("the neighbour table needs more than the largest shader storage block this device offers (" +
+                             std::to_string(info.max_ssbo_bytes) + " bytes); run with --backend cpu");
+        p.backend = make_gl_backend(*p.context, p.scenario, options);
+    } else {
+        p.backend = make_cpu_backend(p.scenario, options);
+        if (render && !p.context) p.context.emplace(GlContext::create_headless());  // screenshots of the cpu backend
+    }
+}
+
+void make_renderer(PreparedRun& p) {
+    p.context->make_current();
+    p.renderer.emplace(p.scenario, RenderOptions{.width = p.frame_width, .height = p.frame_height, .view = p.view});
+    const Renderer& renderer = *p.renderer;
+    if (renderer.draws_visual_mesh())
+        std::printf("render: visual mesh, %zu vertices, %zu triangles, mapped onto %zu simulation-surface triangles; %dx%d\n",
+                    renderer.vertex_count(), renderer.triangle_count(), p.scenario.simulation_surface->size(), renderer.width(),
+                    renderer.height());
+    else
+        std::printf("render: no /visual mesh with /mapping: the simulation surface, %zu triangles (flat shaded); %dx%d\n",
+                    renderer.triangle_count(), renderer.width(), renderer.height());
+}
+
+void set_contact(const RunArguments& a, PreparedRun& p) {
+    ContactSettings contact;
+    contact.mode = parse_contact_mode(a.contact);
+    contact.picking_refresh = a.picking_refresh;
+    if (contact.mode != ContactMode::direct && p.kind == BackendKind::gl)
+        std::printf("contact: %s%s, %.2f MiB more device memory\n", to_string(contact.mode),
+                    contact.mode == ContactMode::picking ? (" (buffer rendered every " + std::to_string(contact.picking_refresh) +
+                                                            " force requests)").c_str() : "",
+                    double(estimate_picking_memory_bytes(p.scenario, contact)) / (1024.0 * 1024.0));
+    p.backend->set_contact(contact);
+}
+
+/// The instruments of --trajectory, or of --probe and --grab; in a window without a script,
+/// the keyboard's probe on hand 0.
+void script_instruments(const RunArguments& a, PreparedRun& p) {
+    if (!a.trajectory.empty()) {
+        if (!a.probe.empty() || !a.grab.empty()) throw InputError("give --trajectory or --probe/--grab, not both");
+        p.trajectory = read_trajectory(a.trajectory);
+    } else {
+        if (!a.probe.empty()) p.trajectory.keyframes.push_back(parse_fixed_instrument(a.probe, InstrumentKind::probe, 0));
+        if (!a.grab.empty()) {
+            // "X,Y,Z,AX,AY,AZ[,DX,DY,DZ]": grabs at the start, pulls by D over the run.
+            InstrumentKeyframe start = parse_fixed_instrument(a.grab, InstrumentKind::grabber, 1);
+            InstrumentKeyframe end = start;
+            std::vector<double> values;
+            {
+                std::stringstream in(a.grab);
+                std::string field;
+                while (std::getline(in, field, ',')) values.push_back(std::stod(field));
+            }
+            if (values.size() == 9) end.pose.position += Eigen::Vector3d(values[6], values[7], values[8]);
+            end.time_ms = (p.steps >= 0 ? p.steps : 1000) * p.backend->time_step_ms();  // a window without limit: over 1000 steps
+            p.trajectory.keyframes.push_back(start);
+            p.trajectory.keyframes.push_back(end);
+        }
+    }
+
+    // Window without a script: the keyboard moves hand 0, the --probe or a default probe
+    // (semi-axes 1.5 lattice spacings) in front of the model, between it and the camera.
+    p.keyboard_hand0 = !a.headless && a.trajectory.empty();
+    if (p.keyboard_hand0 && a.probe.empty()) {
+        InstrumentKeyframe k;
+        k.hand = 0;
+        k.kind = InstrumentKind::probe;
+        k.semi_axes = Eigen::Vector3d::Constant(1.5 * p.scenario.lattice.spacing);
+        const Camera& camera = p.renderer->camera();
+        const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
+        k.pose.position = camera.target.cast<double>() + back * (0.8 * camera.radius);
+        p.trajectory.keyframes.insert(p.trajectory.keyframes.begin(), k);
+    }
+}
+
+/// The devices of --device, described, and their session started.
+std::unique_ptr<haptics::HapticRun> start_haptics(const RunArguments& a, PreparedRun& p) {
+    haptics::HapticRunSettings settings;
+    settings.devices = a.devices;
+    settings.instruments = a.instruments;
+    settings.session.rate_hz = a.haptic_rate;
+    settings.session.safety.max_force_n = a.max_force;
+    settings.session.interpolation = a.interpolation == "extrapolate" ? haptics::ForceInterpolation::extrapolate
+                                                                      : haptics::ForceInterpolation::hold;
+    settings.session.coupling.enabled = a.coupling;  // K, B chosen per device within the passivity bound
+    settings.session.realtime = a.haptic_priority == "realtime";
+    settings.record = a.record;
+    settings.contact = a.contact;
+    haptics::HapticRunContext context_settings{.headless = a.headless};
+    context_settings.camera = p.renderer ? p.renderer->camera()
+                                         : fit_camera(model_box(p.scenario), p.view, float(p.frame_width) / float(p.frame_height));
+    auto haptic = std::make_unique<haptics::HapticRun>(*p.backend, p.scenario, a.scenario, settings, context_settings);
+    for (int hand = 0; hand < 2; ++hand)
+        if (haptic->uses_hand(hand)) std::printf("%s\n", haptic->describe(hand).c_str());
+    if (a.headless) std::printf("haptics: %s at %.0f Hz; the simulation follows real time; Ctrl-C ends the run cleanly\n",
+                                a.seconds > 0 ? (std::to_string(a.seconds) + " s").c_str() : (std::to_string(p.steps) + " steps").c_str(),
+                                a.haptic_rate);
+    else std::printf("haptics: E = emergency stop (again: release), G = grab button of the mouse device, Ctrl + drag / wheel moves it\n");
+    std::fflush(stdout);
+    haptic->start();
+    return haptic;
+}
+
+/// --stats: Sørensen & Mosegaard's Table 1, per pass.
+void print_stats(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, double wall_ms) {
+    const PassTimes t = p.backend->pass_times();
+    std::printf("\nTable 1 (%s, %s timing)\n", to_string(p.kind), t.gpu_timed ? "GPU timer queries" : "wall clock");
+    std::printf("%-22s %12s %12s\n", "pass", "per call ms", "calls");
+    const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
+    std::printf("%-22s %12.4f %12lld   (%zu particles, 18 neighbours)\n", "simulation step", per_substep, t.substeps,
+                p.backend->load_report().particles);
+    if (p.renderer) {
+        Renderer& renderer = *p.renderer;
+        const RenderTimes r = renderer.times(true);
+        if (r.normals_calls)
+            std::printf("%-22s %12.4f %12lld   (compute, one invocation per surface particle)\n", "particle normals",
+                        r.normals_ms / double(r.normals_calls), r.normals_calls);
+        std::printf("%-22s %12.4f %12lld   (%s: %zu vertices, %zu faces; %dx%d)\n", "visualisation step",
+                    r.frames ? r.draw_ms / double(r.frames) : 0.0, r.frames, renderer.draws_visual_mesh() ? "mapped visual mesh" : "simulation surface",
+                    renderer.vertex_count(), renderer.triangle_count(), renderer.width(), renderer.height());
+        if (r.uploads)
+            std::printf("%-22s %12.4f %12lld   (cpu backend: positions to the GPU, wall clock)\n", "position upload", r.upload_ms / double(r.uploads),
+                        r.uploads);
+    } else {
+        std::printf("%-22s %12s %12s\n", "visualisation step", "-", "skipped (headless, no --screenshot)");
+    }
+    if (t.picking_calls)
+        std::printf("%-22s %12.4f %12lld   (%s; %lld buffer renders)\n", "picking buffer", t.picking_ms / double(t.picking_calls),
+                    t.picking_calls, a.contact.c_str(), t.picking_renders);
+    else
+        std::printf("%-22s %12s %12s\n", "picking buffer", "-", "none (--contact direct: the step's own probe test)");
+    std::printf("%-22s %12.4f %12lld\n", "force buffer", t.force_calls ? t.force_ms / double(t.force_calls) : 0.0, t.force_calls);
+    std::printf("steps/s (substeps/s)  %.0f from the step pass, %.0f overall\n", per_substep > 0 ? 1000.0 / per_substep : 0.0,
+                run.substeps / (wall_ms * 1e-3));
+}
+
+/// --stats-csv: the --stats figures, one row per pass, with the run's columns repeated on every
+/// row (tests/bench/run_runtime_bench.sh reads it). A pass that did not run: calls 0.
+void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, double wall_ms) {
+    const PassTimes t = p.backend->pass_times();
+    const RenderTimes r = p.renderer ? p.renderer->times(true) : RenderTimes{};
+    const std::string device = p.context ? p.context->info().renderer : std::string("none (cpu backend, headless, no GL context)");
+    auto quote = [](const std::string& text) {
+        std::string q = "\"";
+        for (char c : text) q += c == '"' ? std::string("\"\"") : std::string(1, c);
+        return q + "\"";
+    };
+    const double seconds = std::max(wall_ms * 1e-3, 1e-9);
+    const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
+    char run_columns[512];
+    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact.c_str(),
+                  a.picking_refresh, quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
+                  run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames);
+    std::ofstream out(a.stats_csv);
+    if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+    out << "pass,calls,total_ms,mean_ms,per,timing,backend,contact,picking_refresh,renderer,particles,steps,substeps,wall_ms,"
+           "steps_per_s,substeps_per_s,step_pass_substeps_per_s,frames\n";
+    const char* timing = t.gpu_timed ? "gpu" : "wall";
+    auto row = [&](const char* pass, long long calls, double total_ms, const char* per, const char* how) {
+        char line[256];
+        std::snprintf(line, sizeof line, "%s,%lld,%.6f,%.6f,%s,%s,", pass, calls, total_ms, calls ? total_ms / double(calls) : 0.0, per, how);
+        out << line << run_columns << '\n';
+    };
+    row("simulation step", t.substeps, t.step_ms, "substep", timing);
+    row("particle normals", r.normals_calls, r.normals_ms, "frame", "gpu");
+    row("visualisation step", r.frames, r.draw_ms, "frame", "gpu");
+    row("position upload", r.uploads, r.upload_ms, "frame", "wall");
+    row("picking buffer", t.picking_calls, t.picking_ms, "force request", timing);
+    row("force buffer", t.force_calls, t.force_ms, "force request", timing);
+    out.close();
+    if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+    std::printf("wrote %s\n", a.stats_csv.c_str());
+}
+
+/// --save-state: the final positions, the forces and what each hand held.
+void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const InstrumentForces& forces,
+                const std::vector<std::array<float, 3>>& positions, const haptics::HapticRun* haptic) {
+    SimulationState state;
+    state.backend = to_string(p.kind);
+    state.scenario = std::filesystem::path(a.scenario).filename().string();
+    state.time_ms = p.backend->simulated_time_ms();
+    state.steps = run.steps;
+    state.positions = positions;
+    for (int hand = 0; hand < 2; ++hand) {
+        for (int c = 0; c < 3; ++c) state.force_n[hand][c] = forces.hand[hand].force_n[c];
+        state.particles[hand] = std::int32_t(forces.hand[hand].particles);
+        if (haptic) {
+            state.kind[hand] = !haptic->uses_hand(hand) ? 0 : haptic->instrument(hand) == InstrumentKind::probe ? 1 : 2;
+        } else {
+            state.kind[hand] = p.trajectory.uses_hand(hand) ? (p.trajectory.at(hand, p.backend->simulated_time_ms()).kind == InstrumentKind::probe ? 1 : 2) : 0;
+        }
+    }
+    if (p.scenario.visual && p.scenario.mapping && p.scenario.simulation_surface) {
+        // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
+        // the vertex shader's formula and float order).
+        const auto visual = apply_mapping(*p.scenario.mapping, positions, *p.scenario.simulation_surface);
+        state.visual_positions.reserve(visual.size());
+        for (const auto& v : visual) state.visual_positions.push_back({v.x(), v.y(), v.z()});
+    }
+    write_state(a.save_state, state);
+    std::printf("wrote %s\n", a.save_state.c_str());
+}
+
+/// After every mode but --replay: the last screenshot, the summary, --stats, --stats-csv,
+/// --save-state. Returns the exit status: 4 when a haptic device faulted, else 0.
+int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const haptics::HapticRun* haptic,
+               Clock::time_point wall_start) {
+    Backend& backend = *p.backend;
+    auto uses_hand = [&](int hand) { return haptic ? haptic->uses_hand(hand) : p.trajectory.uses_hand(hand); };
+    if (p.renderer && !a.screenshot.empty()) {
+        p.renderer->render(backend, haptic ? haptic->shapes() : shapes_at(p.trajectory, backend.simulated_time_ms()));
+        write_png(a.screenshot, p.renderer->read_pixels());
+        std::printf("wrote %s (%dx%d)\n", a.screenshot.c_str(), p.renderer->width(), p.renderer->height());
+    }
+    const InstrumentForces forces = backend.instrument_forces();       // waits: the run is finished
+    const auto positions = backend.positions();
+    const double wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - wall_start).count();
+
+    std::printf("ran %d steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", run.steps,
+                run.substeps, backend.simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend.simulated_time_ms() / wall_ms);
+    if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
+    {
+        // How far the tissue is from where it was imaged: a heart that is held stays in place.
+        const auto& rest = p.scenario.lattice.particles.rest_position;
+        double largest = 0.0, sum = 0.0;
+        std::size_t worst = 0;
+        for (std::size_t i = 0; i < positions.size() && i < rest.size(); ++i) {
+            const double d = std::sqrt(std::pow(double(positions[i][0]) - rest[i][0], 2) + std::pow(double(positions[i][1]) - rest[i][1], 2) +
+                                       std::pow(double(positions[i][2]) - rest[i][2], 2));
+            sum += d;
+            if (d > largest) largest = d, worst = i;
+        }
+        std::printf("displacement from rest: max %.4g mm (particle %zu), mean %.4g mm\n", largest, worst,
+                    positions.empty() ? 0.0 : sum / double(positions.size()));
+    }
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!uses_hand(hand)) continue;
+        const auto& f = forces.hand[hand];
+        std::printf("hand %d force (%.6g, %.6g, %.6g) N on %zu particles\n", hand, f.force_n.x(), f.force_n.y(), f.force_n.z(), f.particles);
+    }
+    if (a.stats) print_stats(a, p, run, wall_ms);
+    if (!a.stats_csv.empty()) write_stats_csv(a, p, run, wall_ms);
+    if (!a.save_state.empty()) save_state(a, p, run, forces, positions, haptic);
+    if (haptic && haptic->device_faulted()) {
+        std::fprintf(stderr, "heartsim: a haptic device faulted during the session (above); the run's outputs were written\n");
+        return 4;
+    }
+    return 0;
+}
+
+}  // namespace
+
+PreparedRun::PreparedRun(const RunArguments& a) {
+    // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
+    kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
+    check_arguments(a);
+    // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
+    const bool render = !a.headless || !a.screenshot.empty();
+    std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
+    view = parse_view_direction(a.view);
+
+    scenario = read_scenario(a.scenario);
+    require_runnable(scenario, a.scenario);
+    make_context_and_backend(a, render, *this);
+    if (render) make_renderer(*this);
+    set_contact(a, *this);
+    const SolverLoadReport& load = backend->load_report();
+    steps = a.steps;
+    if (a.seconds > 0) steps = int(std::ceil(a.seconds * 1000.0 / backend->time_step_ms() - 1e-9));
+    // --steps 0: no step (the rest state, e.g. for a screenshot); no --steps: 1 step headless,
+    // no limit in a window.
+    if (steps <= 0) steps = (a.steps_given && a.steps == 0) ? 0 : a.headless ? 1 : -1;
+    std::printf("%s backend: %zu particles, %zu springs, %zu anchored; step %.4g ms = %d substeps of %.4g ms (critical %.4g ms)\n",
+                to_string(kind), load.particles, load.springs, load.anchored, backend->time_step_ms(), backend->substeps_per_step(),
+                backend->substep_ms(), load.critical_dt_ms);
+    script_instruments(a, *this);
+}
+
+int replay_mode(const RunArguments& a, PreparedRun& run) {
+    Backend& backend = *run.backend;
+    const Recording recording = read_recording(a.replay);
+    std::printf("replay: %s (%s backend, %zu steps of %.4g ms, %s%s%s) on the %s backend\n", a.replay.c_str(), recording.backend.c_str(),
+                recording.steps.size(), recording.dt_ms, recording.hands[0].used ? ("hand 0 " + recording.hands[0].instrument).c_str() : "",
+                recording.hands[0].used && recording.hands[1].used ? ", " : "",
+                recording.hands[1].used ? ("hand 1 " + recording.hands[1].instrument).c_str() : "", to_string(backend.kind()));
+    // The recording's contact mode, unless --contact says otherwise (the cpu backend has only
+    // `direct`: a gl recording made with another mode is compared as is and may differ).
+    if (!a.contact_given && recording.contact != "direct") {
+        if (backend.kind() == BackendKind::gl) {
+            ContactSettings contact;
+            contact.mode = parse_contact_mode(recording.contact);
+            backend.set_contact(contact);
+            std::printf("replay: --contact %s, as recorded\n", recording.contact.c_str());
+        } else {
+            std::printf("replay: recorded with --contact %s on gl; the cpu backend's contacts are direct, so forces may differ\n",
+                        recording.contact.c_str());
+        }
+    }
+    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay);
+    const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
+    const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
+    std::printf("replay: %zu steps in %.4g ms; %zu forces compared, %zu bit for bit identical; max |Δf| %.3g N, rms %.3g N "
+                "(largest recorded force %.4g N%s)\n",
+                r.steps, r.wall_ms, r.compared, r.identical, r.max_difference_n, r.rms_difference_n, r.max_force_n,
+                r.worst_step >= 0 && r.max_difference_n > 0 ? (", worst at step " + std::to_string(r.worst_step)).c_str() : "");
+    if (run.renderer && !a.screenshot.empty()) {
+        run.renderer->render(backend, {});
+        write_png(a.screenshot, run.renderer->read_pixels());
+        std::printf("wrote %s\n", a.screenshot.c_str());
+    }
+    if (r.max_difference_n > tolerance) {
+        std::fprintf(stderr, "heartsim: replay of %s: forces differ from the recording by up to %.3g N (tolerance %.3g N%s)\n",
+                     a.replay.c_str(), r.max_difference_n, tolerance, exact ? ": a cpu recording replayed on cpu must be identical" : "");
+        return 5;
+    }
+    std::printf("replay: the forces %s\n", r.identical == r.compared ? "match the recording bit for bit"
+                                                                    : ("match the recording within " + std::to_string(tolerance) + " N").c_str());
+    return 0;
+}
+
+int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
+    const std::unique_ptr<haptics::HapticRun> haptic = start_haptics(a, run);
+    const auto wall_start = Clock::now();
+    ScriptedRunResult result;
+    catch_interrupts();
+    const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
+    const double started = haptic->session().now_ms();
+    while (!interrupted.load() && haptic->session().now_ms() - started < end_ms &&
+           (a.seconds > 0 || haptic->rows() < std::size_t(run.steps))) {
+        const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
+        if (haptic->step_to_real_time(limit) == 0)
+            std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
+    }
+    if (interrupted.load()) std::printf("interrupted: ending the session\n");
+    haptic->finish(result);
+    restore_interrupts();
+    return finish_run(a, run, result, haptic.get(), wall_start);
+}
+
+int window_mode(const RunArguments& a, PreparedRun& run) {
+    const std::unique_ptr<haptics::HapticRun> haptic = a.devices.empty() ? nullptr : start_haptics(a, run);
+    const auto wall_start = Clock::now();
+    if (haptic) catch_interrupts();
+    const WindowRunOptions window{.scenario_name = std::filesystem::path(a.scenario).filename().string(),
+                                  .screenshot = a.screenshot,
+                                  .screenshot_every = a.screenshot_every,
+                                  .draw_share = a.draw_share,
+                                  .interrupted = &interrupted};
+    ScriptedRunResult result =
+        run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
+    if (haptic) {
+        if (interrupted.load()) std::printf("interrupted: ending the session\n");
+        haptic->finish(result);
+        restore_interrupts();
+    }
+    return finish_run(a, run, result, haptic.get(), wall_start);
+}
+
+int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
+    const auto wall_start = Clock::now();
+    ScriptedRunOptions scripted{.steps = run.steps, .forces_every_step = !run.trajectory.keyframes.empty()};
+    if (run.renderer && a.screenshot_every > 0)
+        scripted.on_step = [&](int step, const StepReport&) {
+            if ((step + 1) % a.screenshot_every != 0) return;
+            run.renderer->render(*run.backend, shapes_at(run.trajectory, run.backend->simulated_time_ms()));
+            write_png(numbered_screenshot(a.screenshot, step + 1), run.renderer->read_pixels());
+        };
+    const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
+    return finish_run(a, run, result, nullptr, wall_start);
+}
+
+}  // namespace heartsim

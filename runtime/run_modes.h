@@ -1,0 +1,94 @@
+/// @file run_modes.h
+/// @brief The modes of `heartsim run` (docs/runtime.md, docs/haptics.md): a scripted headless
+/// run, a headless haptic session, the window (with or without haptic devices) and the replay
+/// of a recording. main.cpp fills RunArguments from the command line, prepares the run and
+/// calls one mode; each prints what the command prints and returns its exit status.
+///
+///     PreparedRun run(arguments);          // checks, scenario, backend, renderer, instruments
+///     return headless_scripted_mode(arguments, run);
+#pragma once
+
+#include "runtime/backend.h"
+#include "runtime/gl/gl_context.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/trajectory.h"
+
+#include "formats/scenario.h"
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// The options of `heartsim run`, as main.cpp's CLI11 definitions fill them.
+struct RunArguments {
+    std::string scenario;
+    bool headless = false;
+    std::string backend = "gl";
+    int steps = 0;
+    double seconds = 0.0;
+    std::string probe, grab, trajectory, save_state;
+    std::vector<double> gravity;  ///< --gravity X Y Z, mm/ms²; empty = the scenario's
+    bool stats = false;
+    std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
+    std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/gl/picking.h)
+    int picking_refresh = 1;
+    // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
+    std::string screenshot;          // OUT.png: the last frame
+    int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
+    double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
+    std::string size;                // WxH pixels of the window or the offscreen frame
+    std::string view = "anterior";
+    bool steps_given = false;        // --steps 0 (the rest state) differs from no --steps
+    // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
+    std::vector<std::string> devices, instruments;
+    double haptic_rate = 1000.0;
+    double max_force = 0.0;          // 0 = each device's own maximum
+    std::string interpolation = "hold";
+    bool coupling = false;
+    std::string haptic_priority = "realtime";
+    std::string record, replay;
+    double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
+    bool backend_given = false, record_given = false, contact_given = false;
+};
+
+/// What every mode starts from. The constructor checks the arguments (InputError), reads the
+/// scenario, opens the GL context where one is needed (a window unless --headless), makes the
+/// backend and the renderer (where frames are seen: a window or a screenshot), sets the probe
+/// contacts, and scripts the instruments (--trajectory, --probe, --grab, or the window's
+/// keyboard probe); it prints the run's first lines.
+struct PreparedRun {
+    explicit PreparedRun(const RunArguments& arguments);
+    PreparedRun(const PreparedRun&) = delete;
+    PreparedRun& operator=(const PreparedRun&) = delete;
+
+    // The renderer and the backend are declared after the context, so their GL objects are
+    // deleted while it still exists.
+    Scenario scenario;
+    int frame_width = 0, frame_height = 0;  ///< pixels of the window or the offscreen frame
+    ViewDirection view = ViewDirection::anterior;
+    std::optional<GlContext> context;
+    BackendKind kind = BackendKind::gl;
+    std::unique_ptr<Backend> backend;
+    std::optional<Renderer> renderer;
+    int steps = 0;               ///< steps to run; 0 the rest state, < 0 no limit (a window)
+    Trajectory trajectory;
+    bool keyboard_hand0 = false;  ///< the window's arrow keys move hand 0
+};
+
+/// --replay: the recording's tool poses and grabs, step by step, on the backend; compares the
+/// forces with the recorded ones. 0 when they agree within the tolerance, 5 when not.
+int replay_mode(const RunArguments& arguments, PreparedRun& run);
+/// --headless with --device: the haptic session for --seconds of wall clock or --steps steps,
+/// the simulation following real time; Ctrl-C ends it cleanly. 0, or 4 when a device faulted.
+int headless_haptic_mode(const RunArguments& arguments, PreparedRun& run);
+/// The window, with the haptic devices of --device if any, until it is closed or `run.steps`.
+/// 0, or 4 when a device faulted.
+int window_mode(const RunArguments& arguments, PreparedRun& run);
+/// --headless: `run.steps` steps along the scripted instruments, with numbered screenshots
+/// after every --screenshot-every steps. 0.
+int headless_scripted_mode(const RunArguments& arguments, PreparedRun& run);
+
+}  // namespace heartsim
