@@ -5,6 +5,10 @@
 /// (λa = 1 − λb − λc, m = Σ λ·n), started from the closest point. Among exact solutions the one
 /// with all weights in [0, 1] and the smallest |d| wins; else the least extrapolated. Particle
 /// normals count only the triangles of normal weight 1 (one side of each thin-wall sheet).
+/// About 750 lines in one file because the per-vertex solve, the driver that falls back to lattice
+/// embedding, and the runtime's evaluation of the result all share the Problem/Solution types and
+/// the exact formula, which must not drift apart; the candidate search and the lattice embedding
+/// live in mapping_candidates.cpp and mapping_embedding.cpp.
 #include "mapping.h"
 
 #include "errors.h"

@@ -4,6 +4,8 @@
 // safety chain (clamp, rate limit, stall / divergence / reset fade, NaN, emergency stop), two hands
 // from one force readback, the scripted device, the lock-free exchange, and the device thread's
 // measured rate (printed, not asserted). Simulated time everywhere except the thread test.
+// One file of about 900 lines because every case drives the same harness defined at its top (the
+// recording device double, the block and heart scenes, press_loop).
 #include "runtime/haptics/haptics.h"
 #include "runtime/backend.h"
 

@@ -520,7 +520,7 @@ def main():
     ap.add_argument("--reps", type=int, default=3, help="repetitions per measurement (median reported)")
     ap.add_argument("--samples", type=int, default=20000, help="vertices per direction for mesh-to-mesh distance")
     ap.add_argument("--parts", default="build,critical,surface,real",
-                    help="comma list of: build, critical, surface, real (part 1); stages, batch, mapping (issue 3; "
+                    help="comma list of: build, critical, surface, real (part 1); stages, batch, mapping (part 2; "
                          "'part2' = all three)")
     ap.add_argument("--mapping-bench", default=os.environ.get("MAPPING_BENCH"),
                     help="mapping_bench binary (default: <heartprep's build>/tests/bench/mapping_bench)")

@@ -7,7 +7,7 @@ with a message if absent; read in place, never copied) it builds a scenario with
 `heartprep build CASE --cavity 2 --anchor-border`, writes a scripted probe + grab trajectory for
 it (below), and runs `heartsim run X.h5 --headless --steps N --trajectory T --stats-csv ...`:
 
-- table1: the seed's Table 1 per backend: simulation substep, particle normals, visualisation
+- table1: Sørensen & Mosegaard's Table 1 (MMVR 2006) per backend: simulation substep, particle normals, visualisation
   step (frames from --screenshot-every at --size), picking buffer, force buffer (+ the cpu
   backend's position upload). gl runs this with --contact picking (K = 1) so every row is filled.
 - speed: steps per second of gl and cpu, headless without rendering, --contact direct.
