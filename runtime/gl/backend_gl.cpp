@@ -39,10 +39,12 @@ struct Program {
     GLint at(const char* name) const { return glGetUniformLocation(id, name); }
 };
 
-void build(Program& program, const char* name, const char* body) {
+/// Compiles sh::common followed by `parts` into one compute program.
+void build(Program& program, const char* name, std::initializer_list<const char*> parts) {
     const std::string what = std::string("gl backend: the ") + name + " compute shader";
-    program.id = link_program({compile_shader(GL_COMPUTE_SHADER, {sh::common, body}, what, "run with --backend cpu")}, what,
-                              "run with --backend cpu");
+    std::vector<const char*> sources{sh::common};
+    sources.insert(sources.end(), parts.begin(), parts.end());
+    program.id = link_program({compile_shader(GL_COMPUTE_SHADER, sources, what, "run with --backend cpu")}, what, "run with --backend cpu");
 }
 
 template <class T>
@@ -82,11 +84,11 @@ public:
         build_buffers(scenario);
         surface_ = scenario.simulation_surface;  // for the picking / search contact passes, built on demand
         lattice_spacing_ = scenario.lattice.spacing;
-        build(step_program_, "step", sh::step);
-        build(after_program_, "after-step", sh::after_step);
-        build(capture_program_, "grab", sh::capture);
-        build(release_program_, "release", sh::release);
-        build(force_program_, "force", sh::force_pass);
+        build(step_program_, "step", {sh::springs, sh::step});
+        build(after_program_, "after-step", {sh::after_step});
+        build(capture_program_, "grab", {sh::capture});
+        build(release_program_, "release", {sh::release});
+        build(force_program_, "force", {sh::springs, sh::force_pass});
         for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_}) {
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
             glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));

@@ -21,18 +21,22 @@ uniform uint padded_count;     // N rounded up to 8
 uniform bool supported;        // any particle has a support spring
 )";
 
-/// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
-/// Positions x and the motion of the last substep u = x_n − x_{n−1} are kept apart, as on the CPU.
-inline constexpr const char* step = R"(
-layout(local_size_x = 64) in;
+/// The positions, motion and springs that the step and force passes both read.
+inline constexpr const char* springs = R"(
 layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
 layout(std430, binding = BINDING_MOTION) readonly buffer MotionBuffer { vec4 u[]; };
-layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
-layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
 layout(std430, binding = BINDING_REST_LENGTH) readonly buffer RestBuffer { float rest_length[]; };
 layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { float stiffness[]; };
 layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
+)";
+
+/// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
+/// Positions x and the motion of the last substep u = x_n − x_{n−1} are kept apart, as on the CPU.
+inline constexpr const char* step = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
 
 uniform float keep;             // 1 − γh
@@ -231,12 +235,6 @@ void main() {
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
-layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
-layout(std430, binding = BINDING_MOTION) readonly buffer MotionBuffer { vec4 u[]; };
-layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
-layout(std430, binding = BINDING_REST_LENGTH) readonly buffer RestBuffer { float rest_length[]; };
-layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { float stiffness[]; };
-layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
 layout(std430, binding = BINDING_TOUCHED) readonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
 layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
