@@ -104,9 +104,6 @@ public:
     }
 
     ~GlBackend() override {
-        for (auto& fence : fences_)
-            if (fence) glDeleteSync(fence);
-        for (auto& pending : pending_) glDeleteQueries(2, pending.queries);
         if (ring_.id()) glUnmapNamedBuffer(ring_.id());
     }
 
@@ -198,7 +195,7 @@ public:
         harvest_queries(false);
         if (steps <= 0) return report;
         Pending timing{};
-        glGenQueries(2, timing.queries);
+        gl::generate(timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
 
         const long long total = (long long)steps * substeps_;
@@ -274,7 +271,7 @@ public:
         glQueryCounter(timing.queries[1], GL_TIMESTAMP);
         timing.is_force = false;
         timing.substeps = report.substeps;
-        pending_.push_back(timing);
+        pending_.push_back(std::move(timing));
         glFlush();
         if (diverged_seen_ && !diverged_reported_) {
             diverged_reported_ = true;
@@ -291,12 +288,11 @@ public:
         const int slot = int(next_sequence_ % ring_slots);
         if (fences_[slot]) {  // ring full: the oldest readback is still in flight (rare: 4 outstanding)
             glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(10'000'000'000ull));
-            glDeleteSync(fences_[slot]);
-            fences_[slot] = nullptr;
+            fences_[slot].reset();
         }
         run_contact_search();
         Pending timing{};
-        glGenQueries(2, timing.queries);
+        gl::generate(timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
         bind_common();
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
@@ -311,11 +307,11 @@ public:
         glUseProgram(force_program_.id);
         glDispatchCompute(hands, 1, 1);
         glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
-        fences_[slot] = glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0);
+        fences_[slot].reset(glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0));
         sequence_of_[slot] = next_sequence_++;
         glQueryCounter(timing.queries[1], GL_TIMESTAMP);
         timing.is_force = true;
-        pending_.push_back(timing);
+        pending_.push_back(std::move(timing));
         glFlush();
         check("request_forces");
     }
@@ -330,8 +326,7 @@ public:
             const int slot = int(sequence % ring_slots);
             if (!fences_[slot] || sequence_of_[slot] != sequence) continue;
             if (glClientWaitSync(fences_[slot], 0, 0) == GL_TIMEOUT_EXPIRED) continue;
-            glDeleteSync(fences_[slot]);
-            fences_[slot] = nullptr;
+            fences_[slot].reset();
             latest_ = read_slot(slot);
             latest_sequence_ = sequence;
             break;
@@ -343,8 +338,7 @@ public:
         request_forces();
         const int slot = int((next_sequence_ - 1) % ring_slots);
         glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(60'000'000'000ull));
-        glDeleteSync(fences_[slot]);
-        fences_[slot] = nullptr;
+        fences_[slot].reset();
         latest_ = read_slot(slot);
         latest_sequence_ = next_sequence_ - 1;
         return *latest_;
@@ -397,7 +391,7 @@ private:
         bool grabbing = false, placed = false;
     };
     struct Pending {
-        GLuint queries[2] = {0, 0};
+        std::array<gl::Query, 2> queries;
         bool is_force = false;
         bool is_picking = false;
         long long substeps = 0;
@@ -420,7 +414,7 @@ private:
         if (!any) return;
         Pending timing{};
         timing.is_picking = true;
-        glGenQueries(2, timing.queries);
+        gl::generate(timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
         for (int hand = 0; hand < hands; ++hand) {
@@ -429,7 +423,7 @@ private:
             picking_->collect(hand, state.instrument, state.pose, position_[current_].id(), counters_.id());
         }
         glQueryCounter(timing.queries[1], GL_TIMESTAMP);
-        pending_.push_back(timing);
+        pending_.push_back(std::move(timing));
         check("the contact search");
     }
 
@@ -484,7 +478,6 @@ private:
             if (p.is_picking) times_.picking_ms += ms, ++times_.picking_calls;
             else if (p.is_force) times_.force_ms += ms, ++times_.force_calls;
             else times_.step_ms += ms, ++times_.step_calls, times_.substeps += p.substeps;
-            glDeleteQueries(2, p.queries);
             pending_.pop_front();
         }
         times_.gpu_timed = true;
@@ -604,7 +597,7 @@ private:
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
     Program step_program_, after_program_, capture_program_, release_program_, force_program_;
     void* ring_map_ = nullptr;
-    std::array<GLsync, ring_slots> fences_{};
+    std::array<gl::Fence, ring_slots> fences_;
     std::array<std::uint64_t, ring_slots> sequence_of_{};
     std::uint64_t next_sequence_ = 0, latest_sequence_ = 0;
     std::optional<InstrumentForces> latest_;

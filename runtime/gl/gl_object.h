@@ -1,8 +1,9 @@
 /// @file gl_object.h
 /// @brief One owner for OpenGL object names: `gl::Object<Delete>` holds a name and deletes it
 /// when destroyed or handed another (move-only). The runtime's GL code (gl backend, renderer,
-/// picking) keeps every buffer, program, vertex array, framebuffer, renderbuffer and texture in
-/// one of the aliases below, so no raw name needs a hand-written destructor.
+/// picking) keeps every buffer, program, vertex array, framebuffer, renderbuffer, texture and
+/// timer query in one of the aliases below, and every fence in a `gl::Fence`, so no raw name
+/// needs a hand-written destructor.
 ///
 ///     gl::Buffer buffer;
 ///     glCreateBuffers(1, buffer.create());        // or: buffer = name_from_elsewhere;
@@ -11,6 +12,8 @@
 
 #include <epoxy/gl.h>
 
+#include <array>
+#include <cstddef>
 #include <utility>
 
 namespace heartsim::gl {
@@ -57,6 +60,7 @@ inline void delete_vertex_array(GLuint name) { glDeleteVertexArrays(1, &name); }
 inline void delete_framebuffer(GLuint name) { glDeleteFramebuffers(1, &name); }
 inline void delete_renderbuffer(GLuint name) { glDeleteRenderbuffers(1, &name); }
 inline void delete_texture(GLuint name) { glDeleteTextures(1, &name); }
+inline void delete_query(GLuint name) { glDeleteQueries(1, &name); }
 
 using Buffer = Object<delete_buffer>;
 using Program = Object<delete_program>;
@@ -64,5 +68,34 @@ using VertexArray = Object<delete_vertex_array>;
 using Framebuffer = Object<delete_framebuffer>;
 using Renderbuffer = Object<delete_renderbuffer>;
 using Texture = Object<delete_texture>;
+using Query = Object<delete_query>;
+
+/// Fresh query names for all of `queries` (e.g. the GL_TIMESTAMP pair around a pass).
+template <std::size_t N> void generate(std::array<Query, N>& queries) {
+    for (Query& q : queries) glGenQueries(1, q.create());
+}
+
+/// One owner for a fence sync object (a GLsync pointer rather than a name): deleted when
+/// destroyed or reset, move-only.
+class Fence {
+public:
+    Fence() = default;
+    Fence(const Fence&) = delete;
+    Fence& operator=(const Fence&) = delete;
+    Fence(Fence&& other) noexcept : sync_(std::exchange(other.sync_, nullptr)) {}
+    Fence& operator=(Fence&& other) noexcept {
+        if (this != &other) reset(std::exchange(other.sync_, nullptr));
+        return *this;
+    }
+    ~Fence() { reset(); }
+    /// Deletes the fence held (if any) and holds `sync`.
+    void reset(GLsync sync = nullptr) {
+        if (sync_ && sync_ != sync) glDeleteSync(sync_);
+        sync_ = sync;
+    }
+    operator GLsync() const { return sync_; }  ///< hands the fence to glClientWaitSync; null when none
+private:
+    GLsync sync_ = nullptr;
+};
 
 }  // namespace heartsim::gl

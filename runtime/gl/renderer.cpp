@@ -195,13 +195,9 @@ struct Renderer::State {
     gl::Renderbuffer colour_rb, depth_rb;
     gl::Buffer feedback;  // transform feedback capture buffer (lazily)
 
-    struct Pending { GLuint queries[3] = {0, 0, 0}; bool normals = false; };
+    struct Pending { std::array<gl::Query, 3> queries; bool normals = false; };
     std::deque<Pending> pending;
     RenderTimes times;
-
-    ~State() {
-        for (auto& p : pending) glDeleteQueries(3, p.queries);  // the GL objects delete themselves
-    }
 
     void make_framebuffer(int w, int h) {
         width = std::max(w, 1), height = std::max(h, 1);
@@ -275,7 +271,6 @@ struct Renderer::State {
             if (p.normals) times.normals_ms += double(t[1] - t[0]) * 1e-6, ++times.normals_calls;
             times.draw_ms += double(t[2] - t[1]) * 1e-6;
             ++times.frames;
-            glDeleteQueries(3, p.queries);
             pending.pop_front();
         }
     }
@@ -454,7 +449,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     s.harvest(false);
     State::Pending timing;
     timing.normals = s.visual;
-    glGenQueries(3, timing.queries);
+    gl::generate(timing.queries);
 
     glQueryCounter(timing.queries[0], GL_TIMESTAMP);
     s.normals_pass(positions);
@@ -508,7 +503,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     glQueryCounter(timing.queries[2], GL_TIMESTAMP);
     glBindVertexArray(0);
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
-    s.pending.push_back(timing);
+    s.pending.push_back(std::move(timing));
     check("rendering a frame");
 }
 
