@@ -14,6 +14,7 @@
 #include <hdf5.h>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <fstream>
 #include <regex>
@@ -548,6 +549,30 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         ADD_FAILURE() << "a list of strings was read as one";
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("format must be a single string"), std::string::npos) << e.what();
+    }
+
+    // Recordings written before the event names became UTF-8 strings kept them as 24-byte
+    // fixed-length strings: those still read, name for name.
+    write_recording(dir / "fixed.h5", r);
+    {
+        const hid_t file = H5Fopen((dir / "fixed.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        ASSERT_GE(file, 0);
+        H5Ldelete(file, "events/what", H5P_DEFAULT);
+        const hsize_t count = r.events.size();
+        const hid_t type = H5Tcopy(H5T_C_S1);
+        H5Tset_size(type, 24);
+        H5Tset_strpad(type, H5T_STR_NULLTERM);
+        std::vector<char> text(count * 24, '\0');
+        for (std::size_t i = 0; i < count; ++i) std::strncpy(&text[i * 24], r.events[i].what.c_str(), 23);
+        const hid_t space = H5Screate_simple(1, &count, nullptr);
+        const hid_t set = H5Dcreate2(file, "events/what", type, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+        H5Dwrite(set, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, text.data());
+        H5Dclose(set), H5Sclose(space), H5Tclose(type), H5Fclose(file);
+    }
+    {
+        const Recording fixed = read_recording(dir / "fixed.h5");
+        ASSERT_EQ(fixed.events.size(), r.events.size());
+        for (std::size_t i = 0; i < r.events.size(); ++i) EXPECT_EQ(fixed.events[i].what, r.events[i].what);
     }
 
     // Nothing half-written: a failed write leaves no file behind.
