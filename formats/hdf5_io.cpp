@@ -4,6 +4,7 @@
 #include "atomic_file.h"
 
 #include <algorithm>
+#include <cmath>
 #include <mutex>
 
 namespace heartsim::h5 {
@@ -58,19 +59,41 @@ void Writer::group(const std::string& name) {
     if (!g.valid()) fail("cannot create group " + object_name(name));
 }
 
+namespace {
+
+/// Whether `count` values of `type` at `data` are all finite (integers always are).
+bool all_finite(const ElementType& type, const void* data, std::size_t count) {
+    if (!type.floating || !data) return true;
+    for (std::size_t i = 0; i < count; ++i) {
+        const double v = type.size == 4 ? double(static_cast<const float*>(data)[i]) : static_cast<const double*>(data)[i];
+        if (!std::isfinite(v)) return false;
+    }
+    return true;
+}
+
+}  // namespace
+
 void Writer::write_dataset(const std::string& name, const ElementType& type, const void* data, std::initializer_list<std::size_t> dims) {
+    std::size_t count = 1;
+    for (std::size_t d : dims) count *= d;
+    // No heartsim file holds NaN or infinity: a non-finite value is a diverged simulation or a bug,
+    // and is refused here rather than handed to the next reader.
+    if (!all_finite(type, data, count)) fail("dataset " + name + " holds a non-finite value; nothing was written");
     Handle space = dataspace(dims);
     Handle properties(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
-    std::size_t elements = 1;
-    for (std::size_t d : dims) elements *= d;
-    if (elements >= 4096) {
-        // Chunks of about 64k elements, whole rows each.
+    const std::size_t elements = count;
+    if (elements > 0 && dims.size() > 0) {
+        // Chunks of about 64k elements, whole rows each, each with a Fletcher-32 checksum: a
+        // flipped bit is a read error, not a different simulation.
         std::vector<hsize_t> chunk(dims.begin(), dims.end());
         const std::size_t row = elements / chunk[0];
         chunk[0] = std::min<hsize_t>(chunk[0], std::max<hsize_t>(1, 65536 / row));
         H5Pset_chunk(properties.get(), int(chunk.size()), chunk.data());
-        H5Pset_shuffle(properties.get());
-        H5Pset_deflate(properties.get(), 1);
+        if (elements >= 4096) {
+            H5Pset_shuffle(properties.get());
+            H5Pset_deflate(properties.get(), 1);
+        }
+        H5Pset_fletcher32(properties.get());
     }
     Handle set(H5Dcreate2(file_, name.c_str(), type.file, space.get(), H5P_DEFAULT, properties.get(), H5P_DEFAULT), H5Dclose);
     if (!set.valid()) fail("cannot create dataset " + name);
@@ -100,6 +123,10 @@ void Writer::attribute(const std::string& object, const std::string& name, const
 
 void Writer::write_attribute(const std::string& object, const std::string& name, const ElementType& type, const void* values,
                              std::initializer_list<std::size_t> dims) {
+    std::size_t count = 1;
+    for (std::size_t d : dims) count *= d;
+    if (!all_finite(type, values, count))
+        fail("attribute " + name + " of " + object_name(object) + " is not finite; nothing was written");
     Handle space = dataspace(dims);
     Handle attribute(H5Acreate_by_name(file_, object.c_str(), name.c_str(), type.file, space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
                      H5Aclose);
@@ -120,7 +147,11 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
     quiet();
     const std::string name = path.string();
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
-        Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT), H5Fclose);
+        // The 1.8 file format and later checksum the superblock and object headers, so damaged
+        // metadata is refused too.
+        Handle access(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+        H5Pset_libver_bounds(access.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
+        Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access.get()), H5Fclose);
         if (!file.valid()) throw OutputError(name + ": cannot create the file");
         Writer writer(file.get(), name);
         fill(writer);
@@ -134,6 +165,8 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
 Reader::Reader(const std::filesystem::path& path) : path_(path.string()) {
     quiet();
     if (!std::filesystem::exists(path)) fail("", "file not found");
+    // A FIFO or a device would block or never end: only regular files are read.
+    if (!std::filesystem::is_regular_file(path)) fail("", "not a regular file");
     if (H5Fis_hdf5(path.c_str()) <= 0) fail("", "not an HDF5 file");
     file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
     if (!file_.valid()) fail("", "cannot open (damaged HDF5 file?)");
@@ -196,8 +229,17 @@ void Reader::read_dataset(const std::string& name, const ElementType& type, std:
         if (expected[i] >= 0 && found[i] != expected[i]) fail(name, "has shape " + shape_text(found) + ", expected " + shape_text(expected));
     std::size_t count = 1;
     for (hsize_t d : dims) count *= std::size_t(d);
+    // The declared size against what the file holds, before allocating: deflate compresses at
+    // most about 1032:1, so a dataset declaring far more than that over its stored bytes is
+    // damaged or crafted (unwritten, sparse), and would otherwise cost its declared size in memory.
+    const double declared = double(count) * double(type.size);
+    const double stored = double(H5Dget_storage_size(set.get()));
+    if (declared > 1100.0 * stored + 65536.0)
+        fail(name, "declares " + shape_text(found) + " values (" + std::to_string(std::uint64_t(declared)) + " bytes) but the file stores " +
+                       std::to_string(std::uint64_t(stored)) + " bytes of them (damaged file?)");
     void* data = allocate(count);
-    if (count && H5Dread(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0) fail(name, "cannot be read (damaged file?)");
+    if (count && H5Dread(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+        fail(name, "cannot be read (damaged file: a checksum or the compressed data does not match)");
     if (rows) *rows = dims.empty() ? 1 : std::size_t(dims[0]);
 }
 

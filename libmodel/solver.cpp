@@ -723,6 +723,13 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     load_report_.springs = springs.size();
     if (options_.critical_dt_ms > 0) {
         critical_dt_ms_ = options_.critical_dt_ms;
+        // A stored step is checked against a proven ceiling (one pass over the springs): one
+        // flipped bit in the file must not make the step 2¹⁶ times too long.
+        const double ceiling = critical_step_ceiling_ms(particles, springs);
+        if (!std::isfinite(critical_dt_ms_) || critical_dt_ms_ > ceiling * (1.0 + 1e-6))
+            throw InputError("scenario: /solver critical_dt_ms is " + std::to_string(critical_dt_ms_) +
+                             " ms, above the proven ceiling of " + std::to_string(ceiling) +
+                             " ms for these springs and masses: the file is damaged or not from heartprep (rebuild it)");
     } else {
         critical_dt_ms_ = estimate_critical_time_step(particles, springs).critical_dt_ms;
         load_report_.critical_dt_estimated = true;
@@ -759,7 +766,16 @@ void BasicSolver<Real>::set_time_step(double dt_ms) {
     if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
     const double limit = options_.safety_factor * damped_critical_dt_ms();
     int substeps = 1;
-    if (options_.subdivide && std::isfinite(limit) && limit > 0) substeps = std::max(1, int(std::ceil(dt_ms / limit * (1 - 1e-12))));
+    if (options_.subdivide && std::isfinite(limit) && limit > 0) {
+        // In double first: a huge dt over a tiny limit must not overflow the int.
+        const double needed = std::ceil(dt_ms / limit * (1 - 1e-12));
+        if (!(needed <= double(max_substeps)))
+            throw InputError("solver: the time step of " + std::to_string(dt_ms) + " ms needs " +
+                             (std::isfinite(needed) ? std::to_string(std::llround(needed)) : std::string("unboundedly many")) +
+                             " substeps of the stable " + std::to_string(limit) + " ms (at most " + std::to_string(max_substeps) +
+                             "): use a shorter --dt or rebuild the scenario");
+        substeps = std::max(1, int(needed));
+    }
     const double old_h = h_;
     dt_ms_ = dt_ms;
     substeps_ = substeps;

@@ -161,6 +161,9 @@ public:
     static constexpr int hands = 2;
     static constexpr int slots = 18;
     static constexpr int lanes = 8;  ///< particles per group in the slot tables (docs/solver.md)
+    /// The most substeps one step may take; a longer dt is refused (InputError) rather than run
+    /// for minutes per frame.
+    static constexpr int max_substeps = 10000;
 
     /// Builds the solver from the packed particles and springs. `neighbours` is /packing/neighbours
     /// (N×18, lattice.h slot order, −1 = none); empty = slots assigned from the springs in order.

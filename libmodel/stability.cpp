@@ -92,6 +92,18 @@ Eigen::Vector3d rest_vector(const Particles& particles, const Springs& springs, 
     return {double(xb[0]) - xa[0], double(xb[1]) - xa[1], double(xb[2]) - xa[2]};
 }
 
+/// Spring s at rest: its direction, stiffness and, when the rest state is pre-stressed
+/// (supports.h), t/L with t = k (L − L₀) its tension; a rest length within float rounding (1e-6
+/// relative) of the rest distance is unstressed.
+SpringDirection spring_direction(const Particles& particles, const Springs& springs, std::size_t s) {
+    const Eigen::Vector3d d = rest_vector(particles, springs, s);
+    const double length = d.norm();
+    SpringDirection direction{length > 0 ? Eigen::Vector3d(d / length) : Eigen::Vector3d::Zero(), double(springs.stiffness[s])};
+    const double stretch = length - double(springs.rest_length[s]);
+    if (length > 0 && std::abs(stretch) > 1e-6 * length) direction.tension_over_length = direction.stiffness * stretch / length;
+    return direction;
+}
+
 /// w += the springs' part of M^(−1/2) A M^(−1/2) v for A assembled from one 3×3 block per spring:
 /// `block(s, r)` is that block applied to the scaled relative vector r = v_a/√m_a − v_b/√m_b.
 template <class Block>
@@ -119,14 +131,8 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     std::vector<double> row_bound(3 * n, 0.0);
     for (std::size_t s = 0; s < springs.size(); ++s) {
         const auto [a, b] = springs.pairs[s];
-        const Eigen::Vector3d d = rest_vector(particles, springs, s);
-        const double length = d.norm();
-        direction[s] = {length > 0 ? Eigen::Vector3d(d / length) : Eigen::Vector3d::Zero(), double(springs.stiffness[s])};
-        // A spring stretched at rest (a pre-stressed rest state, supports.h) adds the geometric
-        // stiffness (t/L)(I − n nᵀ), t = k (L − L₀) its tension.
-        // A rest length within float rounding (1e-6 relative) of the rest distance is unstressed.
-        const double stretch = length - double(springs.rest_length[s]);
-        if (length > 0 && std::abs(stretch) > 1e-6 * length) direction[s].tension_over_length = double(springs.stiffness[s]) * stretch / length;
+        // A spring stretched at rest adds the geometric stiffness (t/L)(I − n nᵀ).
+        direction[s] = spring_direction(particles, springs, s);
         // Gershgorin: row (i, r) of the 3×3 block k n nᵀ has absolute sum k |n_r| Σ|n_c|, in the
         // diagonal block scaled by 1/m_i and in the off-diagonal block by 1/sqrt(m_i m_j).
         const Eigen::Vector3d& u = direction[s].unit;
@@ -168,6 +174,25 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     estimate.converged = lanczos.converged;
     if (estimate.max_eigenvalue > 0) estimate.critical_dt_ms = 2.0 / std::sqrt(estimate.max_eigenvalue);
     return estimate;
+}
+
+double critical_step_ceiling_ms(const Particles& particles, const Springs& springs) {
+    // Trace of each particle's 3×3 diagonal block of K: k + 2t/L per spring (the trace of
+    // k n nᵀ + (t/L)(I − n nᵀ)) plus 3 k_s for its support.
+    std::vector<double> trace(particles.size(), 0.0);
+    for (std::size_t s = 0; s < springs.size(); ++s) {
+        const SpringDirection d = spring_direction(particles, springs, s);
+        const double block = d.stiffness + 2.0 * d.tension_over_length;
+        trace[std::size_t(springs.pairs[s][0])] += block;
+        trace[std::size_t(springs.pairs[s][1])] += block;
+    }
+    double lower = 0.0;  // max over free particles of trace/(3m) ≤ λ_max(M⁻¹K)
+    for (std::size_t i = 0; i < particles.size(); ++i) {
+        if (particles.anchored[i] || !(particles.mass[i] > 0)) continue;
+        const double support = particles.supported() ? 3.0 * double(particles.support_stiffness[i]) : 0.0;
+        lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
+    }
+    return lower > 0 ? 2.0 / std::sqrt(lower) : std::numeric_limits<double>::infinity();
 }
 
 double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio) {

@@ -34,6 +34,12 @@ struct StabilityEstimate {
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
                                               int max_iterations = 300, double tolerance = 1e-6);
 
+/// A proven ceiling on the critical step, ms, in one pass over the springs: 2/√ of a proven
+/// lower bound on λ_max(M⁻¹K), the largest over free particles of trace(K_ii)/(3 m_i) (the top
+/// eigenvalue of a diagonal block bounds it from below, Cauchy interlacing). A stored critical
+/// step above it cannot be right: the runtime refuses such a file. Infinite without springs.
+double critical_step_ceiling_ms(const Particles& particles, const Springs& springs);
+
 /// The dashpot of a spring of stiffness k between masses m_a and m_b with damping ratio ζ:
 /// c = 2ζ√(kμ), μ = m_a m_b / (m_a + m_b), N·ms/mm (docs/scenario-format.md).
 double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio);

@@ -482,9 +482,30 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         }
     };
     {
+        // The writer refuses a non-finite force; one put there by hand is refused by the reader.
         Recording d = r;
         d.steps.force_n[1][1][2] = std::numeric_limits<double>::quiet_NaN();
-        refused(d, "steps/force_n: value 11 is not finite");  // row 1, hand 1, z
+        try {
+            write_recording(dir / "nan.h5", d);
+            ADD_FAILURE() << "a NaN force was written";
+        } catch (const OutputError& e) {
+            EXPECT_NE(std::string(e.what()).find("dataset steps/force_n holds a non-finite value"), std::string::npos) << e.what();
+        }
+        EXPECT_FALSE(fs::exists(dir / "nan.h5"));
+        write_recording(dir / "nan.h5", r);
+        std::vector<double> forces(r.steps.size() * 6);
+        std::memcpy(forces.data(), r.steps.force_n.data(), forces.size() * sizeof(double));
+        forces[11] = std::numeric_limits<double>::quiet_NaN();  // row 1, hand 1, z
+        const hid_t file = H5Fopen((dir / "nan.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        const hid_t set = H5Dopen2(file, "steps/force_n", H5P_DEFAULT);
+        ASSERT_GE(H5Dwrite(set, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, forces.data()), 0);
+        H5Dclose(set), H5Fclose(file);
+        try {
+            read_recording(dir / "nan.h5");
+            ADD_FAILURE() << "a NaN force was read";
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find("steps/force_n: value 11 is not finite"), std::string::npos) << e.what();
+        }
     }
     {
         Recording d = r;

@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <memory>
 #include <optional>
@@ -299,6 +300,10 @@ TEST(RuntimeState, RoundTripAndAtomicWrite) {
     EXPECT_EQ(back.particles, state.particles);
     EXPECT_EQ(back.kind, state.kind);
     EXPECT_THROW(write_state(dir / "missing-folder" / "s.h5", state), OutputError);
+    // A diverged state (NaN positions) is refused, not saved for the next reader to trip on.
+    SimulationState diverged = state;
+    diverged.positions[1][2] = std::numeric_limits<float>::quiet_NaN();
+    EXPECT_THROW(write_state(dir / "diverged.h5", diverged), OutputError);
     std::size_t files = 0;
     for (const auto& entry : fs::directory_iterator(dir.path())) files += entry.is_regular_file();
     EXPECT_EQ(files, 1u) << "no temporary file may remain";

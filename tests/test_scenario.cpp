@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <hdf5.h>
+#include <sys/stat.h>
 
 #include <cmath>
 #include <fstream>
@@ -342,4 +343,52 @@ TEST(Csv, FieldsFollowRfc4180QuotingAndAreTrimmed) {
     EXPECT_EQ(csv_fields("1,2,"), (Fields{"1", "2", ""})) << "a trailing comma is an empty last field";
     EXPECT_EQ(csv_fields(""), (Fields{""}));
     EXPECT_EQ(csv_fields("\t0.5\t,\t-1e3"), (Fields{"0.5", "-1e3"}));
+}
+
+TEST(Scenario, AFlippedBitASparseHugeDatasetAndAFifoAreRefused) {
+    test::TempDir dir;
+    const Scenario s = sample_scenario();
+
+    // One flipped bit in the stored masses: the chunk's Fletcher-32 checksum no longer matches.
+    write_scenario(dir / "flipped.h5", s);
+    haddr_t address = 0;
+    hsize_t stored = 0;
+    {
+        const hid_t f = H5Fopen((dir / "flipped.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+        const hid_t d = H5Dopen2(f, "particles/mass", H5P_DEFAULT);
+        hsize_t offset[1] = {0};
+        unsigned filter_mask = 0;
+        ASSERT_GE(H5Dget_chunk_info_by_coord(d, offset, &filter_mask, &address, &stored), 0);
+        H5Dclose(d);
+        H5Fclose(f);
+    }
+    ASSERT_GT(stored, 8u);
+    {
+        std::fstream file(dir / "flipped.h5", std::ios::in | std::ios::out | std::ios::binary);
+        file.seekg(std::streamoff(address + 2));
+        char byte = 0;
+        file.read(&byte, 1);
+        byte ^= 0x10;
+        file.seekp(std::streamoff(address + 2));
+        file.write(&byte, 1);
+    }
+    EXPECT_NE(refusal(dir / "flipped.h5").find("particles/mass: cannot be read (damaged file"), std::string::npos)
+        << refusal(dir / "flipped.h5");
+
+    // A dataset that declares 2²⁸ rows but stores nothing: refused before its 3 GB are allocated.
+    write_scenario(dir / "sparse.h5", s);
+    {
+        const hid_t f = H5Fopen((dir / "sparse.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        H5Ldelete(f, "particles/rest_position", H5P_DEFAULT);
+        const hsize_t dims[2] = {hsize_t(1) << 28, 3};
+        const hid_t space = H5Screate_simple(2, dims, nullptr);
+        const hid_t set = H5Dcreate2(f, "particles/rest_position", H5T_IEEE_F32LE, space, H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT);
+        H5Dclose(set), H5Sclose(space), H5Fclose(f);
+    }
+    EXPECT_NE(refusal(dir / "sparse.h5").find("particles/rest_position: declares [268435456,3] values"), std::string::npos)
+        << refusal(dir / "sparse.h5");
+
+    // A FIFO would block the reader for ever: only regular files are opened.
+    ASSERT_EQ(::mkfifo((dir / "fifo.h5").c_str(), 0600), 0);
+    EXPECT_NE(refusal(dir / "fifo.h5").find("not a regular file"), std::string::npos) << refusal(dir / "fifo.h5");
 }

@@ -1,4 +1,5 @@
 // The critical time step against closed forms and a dense eigen-solver.
+#include "libmodel/errors.h"
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
 #include "libmodel/solver.h"
@@ -188,4 +189,46 @@ TEST(Stability, CriticalStepScalesAsSqrtMassOverStiffness) {
     const auto a = estimate_critical_time_step(fine.particles, fine.springs, 300, 1e-10);
     const auto b = estimate_critical_time_step(coarse.particles, coarse.springs, 300, 1e-10);
     EXPECT_NEAR(b.critical_dt_ms / a.critical_dt_ms, 2.0, 2e-3);
+}
+
+TEST(Stability, TheCeilingBoundsTheExactCriticalStepFromAbove) {
+    // Two masses on one spring: the diagonal block's trace is k, so the ceiling is 2√(3m/k);
+    // the exact step is 2/√(2k/m), √6 below it.
+    {
+        const Lattice pair = block_lattice(2, 1, 1);
+        const double k = pair.springs.stiffness[0], m = pair.particles.mass[0];
+        EXPECT_NEAR(critical_step_ceiling_ms(pair.particles, pair.springs), 2.0 * std::sqrt(3.0 * m / k), 1e-9);
+    }
+    // Blocks, with supports and light particles, and with anchors: always at or above the exact
+    // step, and close enough (within 10×) that a stored step 2¹⁶ times too long cannot pass.
+    std::vector<Lattice> cases{block_lattice(4, 3, 3), mixed_block(), block_lattice(5, 4, 3)};
+    for (std::size_t i = 0; i < cases[2].particles.size(); i += 4) cases[2].particles.anchored[i] = 1;
+    for (const Lattice& lattice : cases) {
+        const double exact = 2.0 / std::sqrt(dense_largest_eigenvalue(lattice.particles, lattice.springs));
+        const double ceiling = critical_step_ceiling_ms(lattice.particles, lattice.springs);
+        EXPECT_GE(ceiling, exact * (1 - 1e-9));
+        EXPECT_LT(ceiling, 10 * exact);
+    }
+}
+
+TEST(Stability, TheSolverRefusesAStoredStepAboveTheCeilingAndTooManySubsteps) {
+    const Lattice lattice = mixed_block();
+    const double exact = 2.0 / std::sqrt(dense_largest_eigenvalue(lattice.particles, lattice.springs));
+    SolverOptions options;
+    options.critical_dt_ms = exact;  // what heartprep stores: accepted
+    EXPECT_NO_THROW(Solver(lattice, {}, options));
+    options.critical_dt_ms = exact * 65536;  // one flipped exponent bit
+    try {
+        Solver solver(lattice, {}, options);
+        ADD_FAILURE() << "a stored critical step 2¹⁶ times too long was accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("critical_dt_ms"), std::string::npos) << e.what();
+    }
+    // A dt a million times the stable step would need a million substeps per step, and 1e300 ms
+    // more than an int holds: both refused, neither overflowed.
+    options.critical_dt_ms = exact;
+    options.dt_ms = 1e6 * exact;
+    EXPECT_THROW(Solver(lattice, {}, options), InputError);
+    options.dt_ms = 1e300;
+    EXPECT_THROW(Solver(lattice, {}, options), InputError);
 }
