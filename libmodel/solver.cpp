@@ -20,6 +20,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <cstdio>
@@ -861,17 +862,57 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
 template <class Real>
 void BasicSolver<Real>::snapshot() {
     good_current_.assign(current_, current_ + 4 * n_pad_);
-    good_motion_.assign(motion_, motion_ + 4 * n_pad_);
     good_time_ms_ = time_ms_;
+    consecutive_restores_ = 0;
 }
 
 template <class Real>
 void BasicSolver<Real>::restore() {
     std::copy(good_current_.begin(), good_current_.end(), current_);
-    std::copy(good_motion_.begin(), good_motion_.end(), motion_);
+    // At rest: replaying the motion that led to the failure would lead to it again.
+    std::fill(motion_, motion_ + 4 * n_pad_, Real(0));
     time_ms_ = good_time_ms_;
     for (auto& list : touched_) list.clear();
     substeps_since_check_ = 0;
+    // Grabs end (the tissue slipped out): the runtime sees no held particles until it grabs again.
+    for (int hand = 0; hand < hands; ++hand)
+        if (hand_[std::size_t(hand)].grabbing) release(hand);
+}
+
+template <class Real>
+Real BasicSolver<Real>::strain_at(std::size_t i, const Real* x, const Real* positions) const {
+    Real worst = 0;
+    for (int s = 0; s < slot_count; ++s) {
+        const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+        const std::size_t j = std::size_t(neighbour_[t]);
+        if (j == i) continue;
+        const Real* xj = positions + 4 * j;
+        const Real dx = x[0] - xj[0], dy = x[1] - xj[1], dz = x[2] - xj[2];
+        worst = std::max(worst, std::abs(std::sqrt(dx * dx + dy * dy + dz * dz) / rest_length_[t] - Real(1)));
+    }
+    return worst;
+}
+
+template <class Real>
+bool BasicSolver<Real>::stretched_beyond(double strain) const {
+    // Squared lengths against ((1 + strain) L₀)²: no root or division, so the check costs about
+    // a spring pass every watchdog_interval substeps (parallel over chunks, as the step).
+    const Real factor2 = Real((1 + strain) * (1 + strain));
+    std::atomic<bool> found{false};
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, groups_), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t g = range.begin(); g != range.end() && !found.load(std::memory_order_relaxed); ++g)
+            for (int s = 0; s < slot_count; ++s)
+                for (std::size_t l = 0; l < lane_count; ++l) {
+                    const std::size_t i = g * lane_count + l, t = (g * slot_count + std::size_t(s)) * lane_count + l;
+                    const std::size_t j = std::size_t(neighbour_[t]);
+                    if (i >= n_ || j == i) continue;
+                    const Real* xi = current_ + 4 * i;
+                    const Real* xj = current_ + 4 * j;
+                    const Real dx = xi[0] - xj[0], dy = xi[1] - xj[1], dz = xi[2] - xj[2];
+                    if (dx * dx + dy * dy + dz * dz > factor2 * rest_length_[t] * rest_length_[t]) found.store(true, std::memory_order_relaxed);
+                }
+    });
+    return found.load();
 }
 
 template <class Real>
@@ -1065,21 +1106,35 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         }
     });
 
-    // Grabbed particles follow the tool rigidly.
+    // Grabbed particles follow the tool rigidly, unless that would stretch one of their springs
+    // past the slip strain: then the particle slips out of the grabber and moves freely (it keeps
+    // the position the integration gave it). In held order, so the result is deterministic.
     for (int hand = 0; hand < hands; ++hand) {
-        const HandState& state = hand_[std::size_t(hand)];
+        HandState& state = hand_[std::size_t(hand)];
         if (!state.grabbing) continue;
         const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
+        std::size_t kept = 0;
         for (std::size_t q = 0; q < state.held.size(); ++q) {
             const Eigen::Vector3d world = poses[hand].position + rotation * state.held_local[q];
             const std::size_t i = std::size_t(state.held[q]);
+            const Real target[3] = {Real(world[0]), Real(world[1]), Real(world[2])};
+            if (options_.grab_slip_strain > 0 && double(strain_at(i, target, next_)) > options_.grab_slip_strain) {
+                held_by_[i] = -1;
+                ++slipped_;
+                continue;
+            }
             Real* x = next_ + 4 * i;
             Real* motion = next_motion_ + 4 * i;
             for (int c = 0; c < 3; ++c) {
-                x[c] = Real(world[c]);
+                x[c] = target[c];
                 motion[c] = Real(world[c] - double(current_[4 * i + std::size_t(c)]));
             }
+            state.held[kept] = state.held[q];
+            state.held_local[kept] = state.held_local[q];
+            ++kept;
         }
+        state.held.resize(kept);
+        state.held_local.resize(kept);
     }
 
     for (std::size_t chunk = 0; chunk < chunks_; ++chunk) bad = bad || chunk_bad_[chunk];
@@ -1093,6 +1148,7 @@ StepReport BasicSolver<Real>::step(int steps) {
     StepReport report;
     if (steps <= 0) return report;
     const long long total = (long long)steps * substeps_;
+    const double start_ms = time_ms_;
     std::array<InstrumentPose, hands> start, poses, previous_poses;
     for (int hand = 0; hand < hands; ++hand) start[std::size_t(hand)] = hand_[std::size_t(hand)].pose;
 
@@ -1102,9 +1158,15 @@ StepReport BasicSolver<Real>::step(int steps) {
         ++watchdog_events_;
         report.diverged = true;
         report.reason = reason;
+        report.gave_up = ++consecutive_restores_ >= options_.max_consecutive_restores;
+        // Only the steps of this call that survived the restore count.
+        report.steps = int(std::max(0.0, std::floor((time_ms_ - start_ms) / dt_ms_ + 1e-9)));
         std::ostringstream message;
         message << "solver watchdog: " << to_string(reason) << " at t = " << failed_at << " ms (substep " << h_
-                << " ms, critical " << critical_dt_ms_ << " ms)" << detail << "; restored the state of t = " << time_ms_ << " ms";
+                << " ms, critical " << critical_dt_ms_ << " ms)" << detail << "; restored the state of t = " << time_ms_
+                << " ms at rest, grabs released";
+        if (report.gave_up)
+            message << "; " << consecutive_restores_ << " restores in a row without a new good state: the simulation cannot recover";
         report.message = message.str();
     };
 
@@ -1139,8 +1201,12 @@ StepReport BasicSolver<Real>::step(int steps) {
                 fire(WatchdogReason::energy, ", energy " + std::to_string(e) + " mJ above the limit " + std::to_string(limit) + " mJ");
                 break;
             }
-            good_energy_ = e;
-            snapshot();
+            // Only an intact state becomes the restore point; a torn one (a spring stretched past
+            // the strain limit) is stepped on from but never returned to.
+            if (options_.restore_strain_limit <= 0 || !stretched_beyond(options_.restore_strain_limit)) {
+                good_energy_ = e;
+                snapshot();
+            }
         }
         if (q % substeps_ == 0) ++report.steps;
     }

@@ -80,6 +80,16 @@ struct SolverOptions {
     /// Energy check: the total energy may grow at most this factor between two checks, over a
     /// floor of ½·Σk(0.1·L₀)² (every spring strained 10%), so instrument work from rest passes.
     double energy_growth_limit = 100.0;
+    /// A held particle slips out of the grabber when one of its springs would be stretched beyond
+    /// (1 + this) × its rest length, as tissue slips out of forceps: a grab cannot stretch the
+    /// tissue without limit. ≤ 0: never slips.
+    double grab_slip_strain = 1.0;
+    /// A state becomes the watchdog's restore point only while every spring's strain |L/L₀ − 1|
+    /// is at most this; a torn state is never restored to (≤ 0: no strain bound).
+    double restore_strain_limit = 1.5;
+    /// After this many restores in a row without a new restore point the simulation cannot
+    /// recover: step() reports gave_up and the runtime stops (exit 6).
+    int max_consecutive_restores = 10;
     SolverKernel kernel = SolverKernel::automatic;
     /// Read one rest length and stiffness per slot instead of per-entry tables when every
     /// spring in a slot has the same (a one-material regular lattice): same results, less traffic.
@@ -124,7 +134,10 @@ const char* to_string(WatchdogReason reason);
 struct StepReport {
     int steps = 0;                ///< steps completed (each of dt_ms)
     long long substeps = 0;       ///< substeps completed
-    bool diverged = false;        ///< the watchdog fired: the state is the last good one
+    bool diverged = false;        ///< the watchdog fired: the state is the last good one, grabs released, at rest
+    /// The watchdog fired max_consecutive_restores times in a row without reaching a new restore
+    /// point: stepping on would replay the same failure.
+    bool gave_up = false;
     WatchdogReason reason = WatchdogReason::none;
     std::string message;          ///< one line: what, when, how large
 };
@@ -243,6 +256,8 @@ public:
     std::uint64_t state_hash() const;
 
     std::size_t watchdog_events() const { return watchdog_events_; }
+    /// Particles that slipped out of a grabber so far (grab_slip_strain).
+    std::size_t slipped_particles() const { return slipped_; }
 
     BasicSolver(const BasicSolver&) = delete;
     BasicSolver& operator=(const BasicSolver&) = delete;
@@ -264,6 +279,10 @@ private:
     void build_step_constants();
     void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad);
     SolverEnergy compute_energy(bool centred) const;
+    /// Whether any spring is stretched beyond (1 + strain) × its rest length.
+    bool stretched_beyond(double strain) const;
+    /// The largest strain of particle i's springs if it stood at `x` (its neighbours in `positions`).
+    Real strain_at(std::size_t i, const Real* x, const Real* positions) const;
     void snapshot();
     void restore();
     Eigen::Vector3d force_on(std::size_t particle) const;
@@ -314,11 +333,13 @@ private:
     std::vector<std::uint8_t> chunk_bad_;
 
     // Watchdog.
-    std::vector<Real> good_current_, good_motion_;
+    std::vector<Real> good_current_;  ///< the restore point (restored at rest: no motion kept)
     double good_time_ms_ = 0.0;
     double good_energy_ = 0.0;
     long long substeps_since_check_ = 0;
     std::size_t watchdog_events_ = 0;
+    int consecutive_restores_ = 0;
+    std::size_t slipped_ = 0;
 };
 
 using Solver = BasicSolver<float>;

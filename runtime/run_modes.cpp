@@ -355,7 +355,9 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     const auto positions = backend.positions();
     const double wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - wall_start).count();
 
-    std::printf("ran %d steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", run.steps,
+    // Steps the watchdog rolled back are not counted: the simulated time says how far the run got.
+    const long long advanced = run.watchdog_events ? std::llround(backend.simulated_time_ms() / backend.time_step_ms()) : run.steps;
+    std::printf("ran %lld steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", advanced,
                 run.substeps, backend.simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend.simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
     {
@@ -380,6 +382,10 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     if (a.stats) print_stats(a, p, run, wall_ms);
     if (!a.stats_csv.empty()) write_stats_csv(a, p, run, wall_ms);
     if (!a.save_state.empty()) save_state(a, p, run, forces, positions, haptic);
+    if (run.gave_up) {
+        std::fprintf(stderr, "heartsim: the simulation could not recover and stopped: %s\n", run.last_watchdog_message.c_str());
+        return 6;
+    }
     if (haptic && haptic->device_faulted()) {
         std::fprintf(stderr, "heartsim: a haptic device faulted during the session (above); the run's outputs were written\n");
         return 4;
@@ -464,7 +470,7 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
     catch_interrupts();
     const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
     const double started = haptic->session().now_ms();
-    while (!interrupted.load() && haptic->session().now_ms() - started < end_ms &&
+    while (!interrupted.load() && !haptic->result().gave_up && haptic->session().now_ms() - started < end_ms &&
            (a.seconds > 0 || haptic->rows() < std::size_t(run.steps))) {
         const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
         if (haptic->step_to_real_time(limit) == 0)

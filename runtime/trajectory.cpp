@@ -154,14 +154,13 @@ ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, c
             hands.apply(backend, hand, t, t_next);
         }
         const StepReport report = backend.step(1);
-        result.steps += report.steps;
-        result.substeps += report.substeps;
-        if (report.diverged) ++result.watchdog_events, result.last_watchdog_message = report.message;
+        result.add(report);
         if (options.forces_every_step && (uses[0] || uses[1])) {
             backend.request_forces();
             if (backend.latest_forces()) ++result.forces_received;
         }
         if (options.on_step) options.on_step(step, report);
+        if (report.gave_up) break;
     }
     result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     return result;

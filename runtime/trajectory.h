@@ -59,6 +59,16 @@ struct ScriptedRunResult {
     std::size_t watchdog_events = 0;
     std::string last_watchdog_message;
     std::size_t forces_received = 0;  ///< asynchronous readbacks that had finished when polled
+    /// The watchdog gave up (StepReport::gave_up): the run stopped stepping; heartsim exits 6.
+    bool gave_up = false;
+
+    /// Counts one step() call's report.
+    void add(const StepReport& report) {
+        steps += report.steps;
+        substeps += report.substeps;
+        if (report.diverged) ++watchdog_events, last_watchdog_message = report.message;
+        gave_up = gave_up || report.gave_up;
+    }
 };
 
 /// Drives `backend` along `trajectory` for `options.steps` steps. Before step k (time t = k·dt):

@@ -142,13 +142,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     auto take = [&](const WindowSimulation::Status& status) {
         result.steps = int(status.steps), result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
         result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
+        result.gave_up = status.gave_up;
     };
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
     long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
     const auto start = std::chrono::steady_clock::now();
     auto last = start;
-    while (!glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps)) {
+    // The window closes when the watchdog gives up too: the tissue cannot move on (heartsim says
+    // why and exits 6).
+    while (!glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps) &&
+           !result.gave_up) {
         glfwPollEvents();
         const auto now = std::chrono::steady_clock::now();
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
@@ -233,9 +237,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 hands.apply(backend, hand, t, t_next);
             }
             const StepReport report = backend.step(1);
-            result.steps += report.steps;
-            result.substeps += report.substeps;
-            if (report.diverged) ++result.watchdog_events, result.last_watchdog_message = report.message;
+            result.add(report);
             if (any_instrument) {
                 backend.request_forces();
                 if (backend.latest_forces()) ++result.forces_received;

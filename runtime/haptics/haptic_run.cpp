@@ -385,13 +385,8 @@ StepReport HapticRun::step() {
     for (int i = 0; i < 2; ++i) grab[i] = hands_[i].grabbing;
 
     const StepReport report = backend_.step(1);
-    result_.steps += report.steps;
-    result_.substeps += report.substeps;
-    if (report.diverged) {
-        ++result_.watchdog_events;
-        result_.last_watchdog_message = report.message;
-        if (recording_on_) recording_.events.push_back({session_->now_ms(), -1, "divergence"});
-    }
+    result_.add(report);
+    if (report.diverged && recording_on_) recording_.events.push_back({session_->now_ms(), -1, "divergence"});
     // Which step each force request follows, and which tool sample each step used, for the
     // last `ring` steps: a gl readback is at most a few requests old.
     const std::size_t slot = std::size_t(step_index) % ring;
@@ -452,7 +447,7 @@ int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
     // the run on time, draw a frame) and the ticks are drained after every step.
     const double until = session_->now_ms() + max_wall_ms;
     int n = 0;
-    while (n < max_steps && ms_until_next_step() <= 0.0) {
+    while (n < max_steps && !result_.gave_up && ms_until_next_step() <= 0.0) {
         step();
         ++n;
         drain();
