@@ -20,7 +20,6 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <cstdio>
@@ -894,28 +893,6 @@ Real BasicSolver<Real>::strain_at(std::size_t i, const Real* x, const Real* posi
 }
 
 template <class Real>
-bool BasicSolver<Real>::stretched_beyond(double strain) const {
-    // Squared lengths against ((1 + strain) L₀)²: no root or division, so the check costs about
-    // a spring pass every watchdog_interval substeps (parallel over chunks, as the step).
-    const Real factor2 = Real((1 + strain) * (1 + strain));
-    std::atomic<bool> found{false};
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, groups_), [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t g = range.begin(); g != range.end() && !found.load(std::memory_order_relaxed); ++g)
-            for (int s = 0; s < slot_count; ++s)
-                for (std::size_t l = 0; l < lane_count; ++l) {
-                    const std::size_t i = g * lane_count + l, t = (g * slot_count + std::size_t(s)) * lane_count + l;
-                    const std::size_t j = std::size_t(neighbour_[t]);
-                    if (i >= n_ || j == i) continue;
-                    const Real* xi = current_ + 4 * i;
-                    const Real* xj = current_ + 4 * j;
-                    const Real dx = xi[0] - xj[0], dy = xi[1] - xj[1], dz = xi[2] - xj[2];
-                    if (dx * dx + dy * dy + dz * dz > factor2 * rest_length_[t] * rest_length_[t]) found.store(true, std::memory_order_relaxed);
-                }
-    });
-    return found.load();
-}
-
-template <class Real>
 void BasicSolver<Real>::set_instrument(int hand, const Instrument& instrument) {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
     for (int c = 0; c < 3; ++c)
@@ -1191,7 +1168,8 @@ StepReport BasicSolver<Real>::step(int steps) {
         }
         if (options_.watchdog && ++substeps_since_check_ >= options_.watchdog_interval) {
             substeps_since_check_ = 0;
-            const double e = compute_energy(false).total();
+            const SolverEnergy energy = compute_energy(false);
+            const double e = energy.total();
             if (!std::isfinite(e)) {
                 fire(WatchdogReason::non_finite, "");
                 break;
@@ -1203,7 +1181,7 @@ StepReport BasicSolver<Real>::step(int steps) {
             }
             // Only an intact state becomes the restore point; a torn one (a spring stretched past
             // the strain limit) is stepped on from but never returned to.
-            if (options_.restore_strain_limit <= 0 || !stretched_beyond(options_.restore_strain_limit)) {
+            if (options_.restore_strain_limit <= 0 || energy.max_strain <= options_.restore_strain_limit) {
                 good_energy_ = e;
                 snapshot();
             }
@@ -1289,12 +1267,12 @@ Eigen::Vector3d BasicSolver<Real>::support_force() const {
 
 template <class Real>
 SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
-    std::vector<std::array<double, 3>> partial(chunks_, {0.0, 0.0, 0.0});
+    std::vector<std::array<double, 4>> partial(chunks_, {0.0, 0.0, 0.0, 0.0});
     const double h = h_, keep = 1.0 - options_.damping * h_;
     const Eigen::Vector3d g = options_.gravity;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
-            double kinetic = 0, elastic = 0, gravity = 0;
+            double kinetic = 0, elastic = 0, gravity = 0, strain = 0;
             const std::size_t end = std::min(n_, (chunk + 1) * chunk_groups * lane_count);
             for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
                 const Real* x = current_ + 4 * i;
@@ -1304,6 +1282,7 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                     const double length = std::sqrt(std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) +
                                                     std::pow(double(y[2]) - x[2], 2));
                     elastic += 0.25 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
+                    if (rest_length_[t] > 0) strain = std::max(strain, length / double(rest_length_[t]) - 1.0);
                 }
                 if (!movable_[i]) continue;
                 if (supported_) {
@@ -1318,11 +1297,11 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                 const Eigen::Vector3d displacement(static_cast<double>(x[0]) - rest_[4 * i], static_cast<double>(x[1]) - rest_[4 * i + 1], static_cast<double>(x[2]) - rest_[4 * i + 2]);
                 gravity -= m * g.dot(displacement);
             }
-            partial[chunk] = {kinetic, elastic, gravity};
+            partial[chunk] = {kinetic, elastic, gravity, strain};
         }
     });
     SolverEnergy e;
-    for (const auto& p : partial) e.kinetic += p[0], e.elastic += p[1], e.gravity += p[2];
+    for (const auto& p : partial) e.kinetic += p[0], e.elastic += p[1], e.gravity += p[2], e.max_strain = std::max(e.max_strain, p[3]);
     return e;
 }
 

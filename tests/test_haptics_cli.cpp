@@ -229,7 +229,7 @@ TEST(HapticsCli, TheGlBackendsForcesArriveAFewStepsLateAndReplayOnCpuWithinToler
 
 TEST(HapticsCli, AYankedGrabSlipsOutOfTheGrabberInsteadOfTearingTheTissue) {
     // A grabber on the apex pulls 5 mm slowly, then is yanked 2 m in 5 ms. The held particles slip
-    // out once their springs would pass twice their rest length (SolverOptions::grab_slip_strain):
+    // out once their springs would pass four times their rest length (SolverOptions::grab_slip_strain):
     // no divergence, no watchdog, the tissue left intact, and the replay gives the same forces.
     // (Before the slip rule the yank stretched springs twenty-fold and the watchdog restored
     // the same failing state step after step.)
