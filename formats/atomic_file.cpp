@@ -3,10 +3,12 @@
 
 #include "libmodel/errors.h"
 
+#include <fcntl.h>
 #include <unistd.h>
 
 #include <atomic>
-#include <fstream>
+#include <cerrno>
+#include <cstring>
 #include <system_error>
 
 namespace heartsim {
@@ -22,6 +24,18 @@ std::filesystem::path temporary_beside(const std::filesystem::path& path, const 
 
 std::filesystem::path temporary_beside(const std::filesystem::path& path) { return temporary_beside(path, path.extension().string()); }
 
+namespace {
+
+/// fsync of an existing file or folder; false when it fails.
+bool sync_to_disk(const std::filesystem::path& path, int flags) {
+    const int fd = ::open(path.c_str(), flags | O_CLOEXEC);
+    if (fd < 0) return false;
+    const bool synced = ::fsync(fd) == 0;
+    return ::close(fd) == 0 && synced;
+}
+
+}  // namespace
+
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
     if (!std::filesystem::is_directory(folder)) throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
@@ -29,6 +43,8 @@ void write_file_atomically(const std::filesystem::path& path, const std::functio
     const auto temporary = temporary_beside(path);
     try {
         fill(temporary);
+        if (!sync_to_disk(temporary, O_RDONLY))
+            throw OutputError(path.string() + ": cannot flush the finished file to the disk: " + std::strerror(errno));
         std::error_code error;
         std::filesystem::rename(temporary, path, error);
         if (error) throw OutputError(path.string() + ": cannot rename the finished file into place: " + error.message());
@@ -37,15 +53,34 @@ void write_file_atomically(const std::filesystem::path& path, const std::functio
         std::filesystem::remove(temporary, ignored);
         throw;
     }
+    // The rename itself reaches the disk with the folder; some file systems cannot sync a folder,
+    // and the file is complete either way, so a failure here is not an error.
+    sync_to_disk(folder, O_RDONLY | O_DIRECTORY);
+}
+
+void write_bytes(const std::filesystem::path& file, const void* data, std::size_t size, const std::string& failure) {
+    const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+    if (fd < 0) throw OutputError(failure + " (cannot create " + file.string() + ": " + std::strerror(errno) + ")");
+    const char* bytes = static_cast<const char*>(data);
+    std::size_t written = 0;
+    while (written < size) {
+        const ssize_t n = ::write(fd, bytes + written, size - written);
+        if (n < 0 && errno == EINTR) continue;
+        if (n <= 0) {
+            const int reason = n < 0 ? errno : ENOSPC;
+            ::close(fd);
+            throw OutputError(failure + " (" + std::strerror(reason) + (reason == ENOSPC || reason == EFBIG ? "; disk full?" : "") + ")");
+        }
+        written += std::size_t(n);
+    }
+    const bool synced = ::fsync(fd) == 0;
+    const int sync_error = errno;
+    if (::close(fd) != 0 || !synced) throw OutputError(failure + " (" + std::strerror(synced ? errno : sync_error) + ")");
 }
 
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what) {
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
-        std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
-        if (!out) throw OutputError(path.string() + ": cannot write " + what + " (cannot create " + temporary.string() + ")");
-        out.write(static_cast<const char*>(data), std::streamsize(size));
-        out.flush();
-        if (!out) throw OutputError(path.string() + ": cannot write " + what + " (disk full?)");
+        write_bytes(temporary, data, size, path.string() + ": cannot write " + what);
     });
 }
 

@@ -17,10 +17,15 @@ std::filesystem::path temporary_beside(const std::filesystem::path& path);
 std::filesystem::path temporary_beside(const std::filesystem::path& path, const std::string& extension);
 
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
-/// then renamed onto `path`. When fill throws or the rename fails, the temporary is removed and
-/// the error passes on. Throws OutputError naming `path` when its folder does not exist or is not
-/// writable, or the rename fails.
+/// flushed to the disk (fsync) and then renamed onto `path`, and the folder is flushed too, so a
+/// crash leaves the old file or the whole new one. When fill throws or the rename fails, the
+/// temporary is removed and the error passes on. Throws OutputError naming `path` when its folder
+/// does not exist or is not writable, or the flush or rename fails.
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill);
+
+/// Writes `size` bytes to `file` (created or truncated) with POSIX calls and flushes them to the
+/// disk; OutputError `failure` + the system's reason when any of it fails (a full disk).
+void write_bytes(const std::filesystem::path& file, const void* data, std::size_t size, const std::string& failure);
 
 /// write_file_atomically of `size` bytes; `what` names the file in errors ("the screenshot").
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what);

@@ -49,6 +49,50 @@ std::string shape_text(const std::vector<long>& shape) {
 
 }  // namespace
 
+std::uint32_t lookup3(const unsigned char* k, std::size_t length) {
+    // Bob Jenkins' lookup3 hashlittle, byte by byte (the same on every endianness), initval 0.
+    auto rot = [](std::uint32_t x, int r) { return (x << r) | (x >> (32 - r)); };
+    std::uint32_t a, b, c;
+    a = b = c = 0xdeadbeefu + std::uint32_t(length);
+    auto word = [&](std::size_t at, std::size_t count) {
+        std::uint32_t w = 0;
+        for (std::size_t i = 0; i < count; ++i) w += std::uint32_t(k[at + i]) << (8 * i);
+        return w;
+    };
+    while (length > 12) {
+        a += word(0, 4), b += word(4, 4), c += word(8, 4);
+        a -= c, a ^= rot(c, 4), c += b;
+        b -= a, b ^= rot(a, 6), a += c;
+        c -= b, c ^= rot(b, 8), b += a;
+        a -= c, a ^= rot(c, 16), c += b;
+        b -= a, b ^= rot(a, 19), a += c;
+        c -= b, c ^= rot(b, 4), b += a;
+        length -= 12, k += 12;
+    }
+    if (length == 0) return c;
+    a += word(0, std::min<std::size_t>(length, 4));
+    if (length > 4) b += word(4, std::min<std::size_t>(length - 4, 4));
+    if (length > 8) c += word(8, length - 8);
+    c ^= b, c -= rot(b, 14);
+    a ^= c, a -= rot(c, 11);
+    b ^= a, b -= rot(a, 25);
+    c ^= b, c -= rot(b, 16);
+    a ^= c, a -= rot(c, 4);
+    b ^= a, b -= rot(a, 14);
+    c ^= b, c -= rot(b, 24);
+    return c;
+}
+
+void repair_superblock_checksum(std::vector<unsigned char>& image) {
+    // Superblock versions 2 and 3: signature (8), version, size of offsets O, size of lengths,
+    // status flags, four addresses of O bytes, then the lookup3 checksum of all before it.
+    if (image.size() < 12 || (image[8] != 2 && image[8] != 3)) return;
+    const std::size_t covered = 12 + 4 * std::size_t(image[9]);
+    if (image.size() < covered + 4) return;
+    const std::uint32_t sum = lookup3(image.data(), covered);
+    for (int i = 0; i < 4; ++i) image[covered + std::size_t(i)] = static_cast<unsigned char>(sum >> (8 * i));
+}
+
 // ---------------------------------------------------------------------------------------------
 // Writing
 
@@ -147,15 +191,30 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
     quiet();
     const std::string name = path.string();
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
-        // The 1.8 file format and later checksum the superblock and object headers, so damaged
-        // metadata is refused too.
-        Handle access(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
-        H5Pset_libver_bounds(access.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
-        Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access.get()), H5Fclose);
-        if (!file.valid()) throw OutputError(name + ": cannot create the file");
-        Writer writer(file.get(), name);
-        fill(writer);
-        if (H5Fflush(file.get(), H5F_SCOPE_GLOBAL) < 0) writer.fail("cannot flush");
+        // The file is built in memory (HDF5's core driver, no backing store) and written out by
+        // write_bytes below: HDF5 itself never writes to the disk, so a full disk is one clear
+        // error here, never a library left holding a half-flushed file that crashes its exit
+        // handler (as HDF5 1.10 did after a failed write).
+        std::vector<unsigned char> image;
+        {
+            Handle access(H5Pcreate(H5P_FILE_ACCESS), H5Pclose);
+            H5Pset_fapl_core(access.get(), 16 << 20, 0);
+            // The 1.8 file format and later checksum the superblock and object headers, so
+            // damaged metadata is refused too.
+            H5Pset_libver_bounds(access.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
+            H5Pset_fclose_degree(access.get(), H5F_CLOSE_STRONG);
+            Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access.get()), H5Fclose);
+            if (!file.valid()) throw OutputError(name + ": cannot create the file in memory");
+            Writer writer(file.get(), name);
+            fill(writer);
+            if (H5Fflush(file.get(), H5F_SCOPE_GLOBAL) < 0) writer.fail("cannot flush");
+            const ssize_t size = H5Fget_file_image(file.get(), nullptr, 0);
+            if (size <= 0) writer.fail("cannot take the file image");
+            image.resize(std::size_t(size));
+            if (H5Fget_file_image(file.get(), image.data(), image.size()) != size) writer.fail("cannot take the file image");
+        }
+        repair_superblock_checksum(image);
+        write_bytes(temporary, image.data(), image.size(), name + ": cannot write the file");
     });
 }
 

@@ -126,6 +126,14 @@ private:
 /// place: nothing half-written remains when fill throws or the disk fills.
 void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill);
 
+/// HDF5's metadata checksum: Bob Jenkins' lookup3 (hashlittle) of `length` bytes, initval 0.
+std::uint32_t lookup3(const unsigned char* data, std::size_t length);
+
+/// Rewrites the checksum of a version 2 or 3 superblock at the start of a file image.
+/// H5Fget_file_image in HDF5 1.10 clears the superblock's "open for writing" flags in the image it
+/// returns but leaves the checksum computed with them set, so the image would not open.
+void repair_superblock_checksum(std::vector<unsigned char>& image);
+
 /// Reads one file, checking what it reads; every refusal is an InputError
 /// "<file>: <object>: <what>".
 class Reader {

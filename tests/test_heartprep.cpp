@@ -272,3 +272,26 @@ TEST_P(RealCase, BuildsWithAClosedSurfaceAndParticlesInTissue) {
 
 INSTANTIATE_TEST_SUITE_P(Hvsmr2016, RealCase,
                          ::testing::Values("hvsmr16_pat0", "hvsmr16_pat1", "hvsmr16_pat5", "hvsmr16_pat6"));
+
+TEST(HeartprepErrors, AFullDiskFailsCleanlyAndKeepsTheOldFile) {
+    // A full disk injected with a file-size limit (the shell ignores SIGXFSZ, so writes fail with
+    // EFBIG as on a full disk): one clear message naming the file, exit 1, not a crash in HDF5's
+    // exit handler (it used to end in a segmentation fault after the message), the scenario
+    // already there untouched and no temporary file left.
+    test::TempDir dir;
+    {
+        std::ofstream old(dir / "out.h5");
+        old << "the previous build";
+    }
+    const auto run = test::run_command("trap '' XFSZ; ulimit -f 400; " + test::quoted(HEARTPREP_EXE) + " build " +
+                                       test::quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " +
+                                       test::quoted(dir / "out.h5") + " -q");
+    EXPECT_EQ(run.exit_code, 1) << run.output;
+    EXPECT_NE(run.output.find("out.h5: cannot write the file (File too large; disk full?)"), std::string::npos) << run.output;
+    std::ifstream kept(dir / "out.h5");
+    const std::string content((std::istreambuf_iterator<char>(kept)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(content, "the previous build");
+    std::size_t entries = 0;
+    for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++entries;
+    EXPECT_EQ(entries, 1u) << "a temporary file was left behind";
+}

@@ -1,6 +1,7 @@
 // The scenario file: a write/read round trip of every dataset, and the reader's refusals.
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
+#include "formats/hdf5_io.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
@@ -391,4 +392,29 @@ TEST(Scenario, AFlippedBitASparseHugeDatasetAndAFifoAreRefused) {
     // A FIFO would block the reader for ever: only regular files are opened.
     ASSERT_EQ(::mkfifo((dir / "fifo.h5").c_str(), 0600), 0);
     EXPECT_NE(refusal(dir / "fifo.h5").find("not a regular file"), std::string::npos) << refusal(dir / "fifo.h5");
+}
+
+TEST(Scenario, TheSuperblockChecksumMatchesTheOneHdf5WritesItself) {
+    // heartsim builds its files in memory and repairs the superblock checksum that HDF5 1.10's
+    // file image leaves stale (hdf5_io.h). The repair's lookup3 must give exactly the checksum
+    // HDF5 writes to a file it creates on disk in the same format.
+    test::TempDir dir;
+    const hid_t access = H5Pcreate(H5P_FILE_ACCESS);
+    H5Pset_libver_bounds(access, H5F_LIBVER_V18, H5F_LIBVER_LATEST);
+    const hid_t file = H5Fcreate((dir / "direct.h5").c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access);
+    ASSERT_GE(file, 0);
+    H5Fclose(file), H5Pclose(access);
+    std::ifstream in(dir / "direct.h5", std::ios::binary);
+    std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    ASSERT_GE(bytes.size(), 48u);
+    ASSERT_TRUE(bytes[8] == 2 || bytes[8] == 3) << "superblock version " << int(bytes[8]);
+    const std::size_t covered = 12 + 4 * std::size_t(bytes[9]);
+    const std::uint32_t stored = std::uint32_t(bytes[covered]) | std::uint32_t(bytes[covered + 1]) << 8 |
+                                 std::uint32_t(bytes[covered + 2]) << 16 | std::uint32_t(bytes[covered + 3]) << 24;
+    EXPECT_EQ(h5::lookup3(bytes.data(), covered), stored);
+    // A stale checksum is put right: the file opens again.
+    const std::vector<unsigned char> good = bytes;
+    bytes[covered] ^= 0xff;
+    h5::repair_superblock_checksum(bytes);
+    EXPECT_EQ(bytes, good);
 }
