@@ -4,10 +4,12 @@
 #include "libmodel/errors.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <system_error>
 
@@ -36,10 +38,30 @@ bool sync_to_disk(const std::filesystem::path& path, int flags) {
 
 }  // namespace
 
+void sweep_stale_temporaries(const std::filesystem::path& path) {
+    const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
+    std::string prefix = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
+    prefix += path.filename().string();
+    prefix += ".tmp-";
+    std::error_code error;
+    for (std::filesystem::directory_iterator it(folder, error), end; !error && it != end; it.increment(error)) {
+        const std::string name = it->path().filename().string();
+        if (name.compare(0, prefix.size(), prefix) != 0) continue;
+        // .<name>.tmp-<pid>-<counter>[extension]: stale when no process <pid> exists any more.
+        char* rest = nullptr;
+        const long pid = std::strtol(name.c_str() + prefix.size(), &rest, 10);
+        if (pid <= 0 || !rest || *rest != '-') continue;
+        if (::kill(pid_t(pid), 0) == 0 || errno != ESRCH) continue;
+        std::error_code ignored;
+        std::filesystem::remove_all(it->path(), ignored);
+    }
+}
+
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
     if (!std::filesystem::is_directory(folder)) throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
     if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
+    sweep_stale_temporaries(path);
     const auto temporary = temporary_beside(path);
     try {
         fill(temporary);

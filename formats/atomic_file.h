@@ -16,6 +16,11 @@ namespace heartsim {
 std::filesystem::path temporary_beside(const std::filesystem::path& path);
 std::filesystem::path temporary_beside(const std::filesystem::path& path, const std::string& extension);
 
+/// Removes the temporaries of `path` (files or staging folders named by temporary_beside) that
+/// a killed writer left behind: those whose process no longer exists. Every atomic write does
+/// this first, so a crash costs disk space only until the next write of the same file.
+void sweep_stale_temporaries(const std::filesystem::path& path);
+
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
 /// flushed to the disk (fsync) and then renamed onto `path`, and the folder is flushed too, so a
 /// crash leaves the old file or the whole new one. When fill throws or the rename fails, the

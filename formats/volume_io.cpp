@@ -747,6 +747,7 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
 
     const bool detached = extension == ".mhd";
     // The temporary keeps the whole extension, so ITK picks the same writer.
+    sweep_stale_temporaries(path);
     const fs::path staging = temporary_beside(path, detached ? "" : extension);
     const fs::path written = detached ? staging / path.filename() : staging;
     std::error_code ignored;

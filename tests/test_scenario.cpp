@@ -13,6 +13,8 @@
 
 #include <hdf5.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <fstream>
@@ -417,4 +419,27 @@ TEST(Scenario, TheSuperblockChecksumMatchesTheOneHdf5WritesItself) {
     bytes[covered] ^= 0xff;
     h5::repair_superblock_checksum(bytes);
     EXPECT_EQ(bytes, good);
+}
+
+TEST(AtomicFile, TemporariesOfKilledWritersAreSweptOnTheNextWrite) {
+    // A writer killed mid-write leaves its temporary (a file, or a MetaImage staging folder).
+    // The next write of the same file removes those whose process is gone, and only those.
+    test::TempDir dir;
+    const auto path = dir / "out.h5";
+    const pid_t child = ::fork();
+    if (child == 0) ::_exit(0);
+    ASSERT_GT(child, 0);
+    ::waitpid(child, nullptr, 0);  // a process that no longer exists
+    const std::string dead = std::to_string(child), alive = std::to_string(::getpid());
+    std::ofstream(dir / (".out.h5.tmp-" + dead + "-0.h5")) << "half";
+    std::filesystem::create_directory(dir / (".out.h5.tmp-" + dead + "-1"));
+    std::ofstream(dir / (".out.h5.tmp-" + dead + "-1") / "out.raw") << "half";
+    std::ofstream(dir / (".out.h5.tmp-" + alive + "-7.h5")) << "in use";  // this process: still writing
+    std::ofstream(dir / (".other.h5.tmp-" + dead + "-0.h5")) << "another file's";
+    write_bytes_atomically(path, "new", 3, "the test file");
+    EXPECT_FALSE(std::filesystem::exists(dir / (".out.h5.tmp-" + dead + "-0.h5")));
+    EXPECT_FALSE(std::filesystem::exists(dir / (".out.h5.tmp-" + dead + "-1")));
+    EXPECT_TRUE(std::filesystem::exists(dir / (".out.h5.tmp-" + alive + "-7.h5")));
+    EXPECT_TRUE(std::filesystem::exists(dir / (".other.h5.tmp-" + dead + "-0.h5")));
+    EXPECT_TRUE(std::filesystem::exists(path));
 }
