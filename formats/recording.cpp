@@ -3,6 +3,8 @@
 
 #include "hdf5_io.h"
 
+#include "libmodel/plausible.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -136,8 +138,10 @@ Recording read_recording(const std::filesystem::path& path) {
             r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe or grabber");
         hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
         for (double a : hand.semi_axes_mm)
-            if (!(a > 0.0)) r.fail(where, "attribute semi_axes_mm must be positive");
+            if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
         hand.max_force_n = r.number<double>(g, "max_force_n");
+        if (!plausible::device_force_n.contains(hand.max_force_n))
+            r.fail(where, "attribute " + plausible::outside("max_force_n", hand.max_force_n, plausible::device_force_n));
         hand.mapping_offset_mm = vector_attribute<3>(r, g, "mapping_offset_mm");
         hand.mapping_rotation = vector_attribute<4>(r, g, "mapping_rotation");
         hand.mapping_scale = r.number<double>(g, "mapping_scale");

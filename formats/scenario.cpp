@@ -4,6 +4,8 @@
 
 #include "hdf5_io.h"
 
+#include "libmodel/plausible.h"
+
 #include "libmodel/errors.h"
 
 #include <openssl/evp.h>
@@ -181,6 +183,13 @@ Eigen::Matrix4d read_matrix(const h5::Reader& r, const std::string& object, cons
     return m;
 }
 
+/// Refuses the first entry of dataset `name` outside its plausible range (plausible.h).
+template <class T>
+void require_plausible(const h5::Reader& r, const char* name, const std::vector<T>& values, const plausible::Range& range) {
+    for (std::size_t n = 0; n < values.size(); ++n)
+        if (!range.contains(double(values[n]))) r.fail(name, plausible::outside("entry " + std::to_string(n), double(values[n]), range));
+}
+
 void require_indices(const h5::Reader& r, const char* name, const std::vector<std::int32_t>& values, std::size_t limit) {
     for (std::size_t n = 0; n < values.size(); ++n)
         if (values[n] < 0 || std::size_t(values[n]) >= limit)
@@ -322,6 +331,8 @@ Scenario read_contents(const h5::Reader& r) {
     {
         lattice.spacing = r.number<double>("lattice", "spacing");
         if (!(lattice.spacing > 0)) r.fail("/lattice", "spacing must be positive");
+        if (!plausible::lattice_spacing_mm.contains(lattice.spacing))
+            r.fail("/lattice", plausible::outside("spacing", lattice.spacing, plausible::lattice_spacing_mm));
         auto dims = r.numbers<std::int32_t>("lattice", "dims", 3);
         for (int a = 0; a < 3; ++a) {
             if (dims[std::size_t(a)] <= 0) r.fail("/lattice", "dims must be positive");
@@ -352,12 +363,16 @@ Scenario read_contents(const h5::Reader& r) {
             material.youngs_modulus_kpa = youngs.empty() ? stiffness[i] / (0.4e-3 * lattice.spacing) : youngs[i];
             lattice.materials.push_back(material);
         }
+        require_plausible(r, "materials/density", density, plausible::density_g_per_mm3);
+        require_plausible(r, "materials/stiffness", stiffness, plausible::stiffness_n_per_mm);
+        require_plausible(r, "materials/damping", damping, plausible::damping_ratio);
     }
     {
         auto& p = lattice.particles;
         std::size_t n = 0;
         auto rest = r.dataset<float>("particles/rest_position", {-1, 3}, &n);
         r.require_finite("particles/rest_position", rest);
+        require_plausible(r, "particles/rest_position", rest, plausible::coordinate_mm);
         p.rest_position = h5::rows_of<3>(rest);
         p.lattice_index = h5::rows_of<3>(r.dataset<std::int32_t>("particles/lattice_index", {long(n), 3}));
         for (std::size_t i = 0; i < n; ++i)
@@ -368,6 +383,7 @@ Scenario read_contents(const h5::Reader& r) {
         for (std::size_t i = 0; i < n; ++i)
             if (!(p.mass[i] > 0) || !std::isfinite(p.mass[i]))
                 r.fail("particles/mass", "entry " + std::to_string(i) + " is not a positive finite mass");
+        require_plausible(r, "particles/mass", p.mass, plausible::particle_mass_g);
         p.material = r.dataset<std::int32_t>("particles/material", {long(n)});
         require_indices(r, "particles/material", p.material, lattice.materials.size());
         p.anchored = r.dataset<std::uint8_t>("particles/anchored", {long(n)});
@@ -386,6 +402,8 @@ Scenario read_contents(const h5::Reader& r) {
                     r.fail("particles/support_stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness (N/mm)");
             auto point = r.dataset<float>("particles/support_point", {long(n), 3});
             r.require_finite("particles/support_point", point);
+            require_plausible(r, "particles/support_point", point, plausible::coordinate_mm);
+            require_plausible(r, "particles/support_stiffness", p.support_stiffness, plausible::stiffness_n_per_mm);
             p.support_point = h5::rows_of<3>(point);
             p.support_damping.assign(n, 0.0f);  // optional: undamped supports
             if (r.exists("particles/support_damping")) {
@@ -393,6 +411,7 @@ Scenario read_contents(const h5::Reader& r) {
                 for (std::size_t i = 0; i < n; ++i)
                     if (!(p.support_damping[i] >= 0) || !std::isfinite(p.support_damping[i]))
                         r.fail("particles/support_damping", "entry " + std::to_string(i) + " is not a non-negative finite damping (N·ms/mm)");
+                require_plausible(r, "particles/support_damping", p.support_damping, plausible::support_damping_n_ms_per_mm);
             }
         }
     }
@@ -414,12 +433,15 @@ Scenario read_contents(const h5::Reader& r) {
             if (!(sp.stiffness[i] >= 0) || !std::isfinite(sp.stiffness[i]))
                 r.fail("springs/stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness");
         }
+        require_plausible(r, "springs/rest_length", sp.rest_length, plausible::rest_length_mm);
+        require_plausible(r, "springs/stiffness", sp.stiffness, plausible::stiffness_n_per_mm);
     }
     if (r.exists("visual")) {
         VisualMesh v;
         std::size_t count = 0;
         auto positions = r.dataset<float>("visual/positions", {-1, 3}, &count);
         r.require_finite("visual/positions", positions);
+        require_plausible(r, "visual/positions", positions, plausible::coordinate_mm);
         auto normals = r.dataset<float>("visual/normals", {long(count), 3});
         r.require_finite("visual/normals", normals);
         auto triangles = r.dataset<std::int32_t>("visual/triangles", {-1, 3});
@@ -452,6 +474,11 @@ Scenario read_contents(const h5::Reader& r) {
         if (solver.substeps < 1) r.fail("/solver", "substeps must be at least 1");
         if (!(solver.damping >= 0)) r.fail("/solver", "damping must be non-negative");
         if (!(solver.critical_dt_ms > 0)) r.fail("/solver", "critical_dt_ms must be positive");
+        using plausible::outside;
+        if (!plausible::time_step_ms.contains(solver.dt_ms)) r.fail("/solver", outside("dt_ms", solver.dt_ms, plausible::time_step_ms));
+        if (!plausible::drag_per_ms.contains(solver.damping)) r.fail("/solver", outside("damping", solver.damping, plausible::drag_per_ms));
+        for (const auto& [name, g] : {std::pair{"|gravity|", solver.gravity.norm()}, std::pair{"|balanced_gravity|", solver.balanced_gravity.norm()}})
+            if (!plausible::gravity_mm_per_ms2.contains(g)) r.fail("/solver", outside(name, g, plausible::gravity_mm_per_ms2));
     }
     return s;
 }

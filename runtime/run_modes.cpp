@@ -10,6 +10,7 @@
 #include "formats/state.h"
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <array>
@@ -77,6 +78,7 @@ void check_arguments(const RunArguments& a) {
     if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
     if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw InputError("--seconds: expected a finite number of seconds up to 10^6");
     if (!std::isfinite(a.max_force)) throw InputError("--max-force: expected a finite force in N");
+    if (a.max_force > 0) plausible::require(a.max_force, plausible::device_force_n, "the force", "--max-force");
     if (a.record_given && a.record.empty()) throw InputError("--record: give the file to write, e.g. --record session.h5");
     if (a.replay_tolerance >= 0 && a.replay.empty()) throw InputError("--replay-tolerance needs --replay");
     if (!a.replay.empty() && (a.steps_given || a.seconds > 0))

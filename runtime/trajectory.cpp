@@ -4,6 +4,7 @@
 #include "formats/csv.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <chrono>
@@ -89,6 +90,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         k.pose.orientation.normalize();
         k.semi_axes = {number(fields[10], where + " column ax"), number(fields[11], where + " column ay"), number(fields[12], where + " column az")};
         if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");
+        for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", where);
         const double grab = number(fields[13], where + " column grab");
         if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
         k.grab = grab == 1;
@@ -122,6 +124,7 @@ InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKin
     k.pose.position = {v[0], v[1], v[2]};
     k.semi_axes = {v[3], v[4], v[5]};
     if (!(k.semi_axes.minCoeff() > 0)) throw InputError(what + ": semi-axes must be positive, mm");
+    for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", what);
     k.grab = kind == InstrumentKind::grabber;
     return k;
 }

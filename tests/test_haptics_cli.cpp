@@ -374,6 +374,11 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --device simulated: --seconds 1", 2, "simulated needs a file"},
         {"--headless --device simulated:/no/such.csv --seconds 1", 2, "/no/such.csv: no such file"},
         {"--headless --device mouse --seconds 1", 4, "--device mouse needs the window"},
+        // Absurd but well-formed values are refused by their plausible range (libmodel/plausible.h).
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument probe:1e30,1,1 --seconds 1", 2,
+         "semi-axis is 1e+30 mm, outside the plausible range [0.001, 500] mm"},
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --max-force 1e30 --seconds 1", 2,
+         "--max-force: the force is 1e+30 N, outside the plausible range [1e-06, 1000] N"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")), 2, "needs --seconds S"},
         {"--headless --device simulated:" + quoted(dir / "bad.csv") + " --seconds 1", 2, "bad.csv:1: start_mm needs 3 numbers, found 2"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --probe 0,0,0,1,1,1 --seconds 1", 2, "not both"},

@@ -443,3 +443,23 @@ TEST(AtomicFile, TemporariesOfKilledWritersAreSweptOnTheNextWrite) {
     EXPECT_TRUE(std::filesystem::exists(dir / (".other.h5.tmp-" + dead + "-0.h5")));
     EXPECT_TRUE(std::filesystem::exists(path));
 }
+
+TEST(Scenario, AbsurdButWellFormedValuesAreRefusedByTheirPlausibleRange) {
+    // A 1e-30 g particle or a 1e9 mm spring are finite and positive, but no heart: each is refused
+    // naming the dataset, the entry, the value and the range (libmodel/plausible.h).
+    test::TempDir dir;
+    const Scenario s = sample_scenario();
+    ASSERT_GT(s.lattice.particles.size(), 3u);
+    write_scenario(dir / "mass.h5", s);
+    std::vector<float> masses(s.lattice.particles.mass.begin(), s.lattice.particles.mass.end());
+    masses[3] = 1e-30f;
+    overwrite(dir / "mass.h5", "particles/mass", masses, H5T_NATIVE_FLOAT);
+    EXPECT_NE(refusal(dir / "mass.h5").find("particles/mass: entry 3 is 1e-30 g, outside the plausible range [1e-12, 10000] g"), std::string::npos)
+        << refusal(dir / "mass.h5");
+    write_scenario(dir / "length.h5", s);
+    std::vector<float> lengths(s.lattice.springs.rest_length.begin(), s.lattice.springs.rest_length.end());
+    lengths[0] = 1e9f;
+    overwrite(dir / "length.h5", "springs/rest_length", lengths, H5T_NATIVE_FLOAT);
+    EXPECT_NE(refusal(dir / "length.h5").find("springs/rest_length: entry 0 is 1e+09 mm, outside the plausible range"), std::string::npos)
+        << refusal(dir / "length.h5");
+}

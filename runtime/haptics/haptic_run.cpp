@@ -8,6 +8,7 @@
 #include "runtime/haptics/openhaptics.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <cmath>
@@ -128,7 +129,7 @@ SimulatedDeviceSettings parse_simulated_device(const std::string& text, const st
                              (expected > 1 ? "s" : "") + ", found " + std::to_string(values.size()));
         if (key == "start_mm") settings.start_mm = Eigen::Vector3d(values[0], values[1], values[2]);
         if (key == "mass_g") {
-            if (!(values[0] > 0.0)) throw InputError(name + ":" + std::to_string(number) + ": mass_g must be positive");
+            plausible::require(values[0], plausible::device_mass_g, "mass_g", name + ":" + std::to_string(number));
             settings.mass_g = values[0];
         }
         if (key == "damping_n_ms_per_mm") {
@@ -136,7 +137,7 @@ SimulatedDeviceSettings parse_simulated_device(const std::string& text, const st
             settings.damping_n_ms_per_mm = values[0];
         }
         if (key == "max_force_n") {
-            if (!(values[0] > 0.0)) throw InputError(name + ":" + std::to_string(number) + ": max_force_n must be positive");
+            plausible::require(values[0], plausible::device_force_n, "max_force_n", name + ":" + std::to_string(number));
             settings.limits.max_force_n = values[0];
         }
         if (key == "workspace_mm") {
@@ -196,6 +197,7 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
         if (std::sscanf(text.c_str() + colon + 1, "%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &extra) != 3 || !(a[0] > 0) || !(a[1] > 0) ||
             !(a[2] > 0) || !std::isfinite(a[0] + a[1] + a[2]))
             throw InputError("--instrument " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
+        for (double axis : a) plausible::require(axis, plausible::semi_axis_mm, "semi-axis", "--instrument " + text);
         instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
     }
     return instrument;

@@ -1,0 +1,50 @@
+/// @file plausible.h
+/// @brief The plausible range of each physical value heartsim reads from a file or a command
+/// line (docs/scenario-format.md "Plausible ranges"). Each is far wider than any heart or haptic
+/// device needs, so a value outside it is a damaged file, a unit mistake or a typo, and is refused
+/// with its name, value and range rather than simulated (a 1e30 mm probe, a 1e-30 g particle).
+#pragma once
+
+#include "errors.h"
+
+#include <cmath>
+#include <sstream>
+#include <string>
+
+namespace heartsim::plausible {
+
+struct Range {
+    double low, high;
+    const char* unit;
+    bool contains(double v) const { return v >= low && v <= high; }  // false for NaN
+};
+
+inline constexpr Range lattice_spacing_mm{0.01, 100.0, "mm"};
+inline constexpr Range particle_mass_g{1e-12, 1e4, "g"};
+inline constexpr Range density_g_per_mm3{1e-6, 0.1, "g/mm³"};
+inline constexpr Range stiffness_n_per_mm{0.0, 1e4, "N/mm"};
+inline constexpr Range damping_ratio{0.0, 100.0, ""};
+inline constexpr Range rest_length_mm{1e-4, 1e4, "mm"};
+inline constexpr Range coordinate_mm{-1e6, 1e6, "mm"};
+inline constexpr Range support_damping_n_ms_per_mm{0.0, 1e4, "N·ms/mm"};
+inline constexpr Range time_step_ms{1e-9, 100.0, "ms"};
+inline constexpr Range gravity_mm_per_ms2{0.0, 1.0, "mm/ms²"};  ///< |g| up to about 100 g
+inline constexpr Range drag_per_ms{0.0, 100.0, "1/ms"};
+inline constexpr Range semi_axis_mm{1e-3, 500.0, "mm"};
+inline constexpr Range device_force_n{1e-6, 1e3, "N"};
+inline constexpr Range device_mass_g{1e-3, 1e6, "g"};
+
+/// "name is V unit, outside the plausible range [low, high] unit".
+inline std::string outside(const std::string& name, double value, const Range& range) {
+    std::ostringstream text;
+    const std::string unit = *range.unit ? std::string(" ") + range.unit : std::string();
+    text << name << " is " << value << unit << ", outside the plausible range [" << range.low << ", " << range.high << "]" << unit;
+    return text.str();
+}
+
+/// InputError(`context` + ": " + outside(...)) unless `value` lies in `range`.
+inline void require(double value, const Range& range, const std::string& name, const std::string& context) {
+    if (!range.contains(value)) throw InputError(context + ": " + outside(name, value, range));
+}
+
+}  // namespace heartsim::plausible
