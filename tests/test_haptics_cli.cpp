@@ -304,6 +304,21 @@ TEST(HapticsCli, ARunThatCannotRecoverStopsWithExit6AndCountsOnlyStepsThatAdvanc
     std::smatch ran;
     ASSERT_TRUE(std::regex_search(run.output, ran, std::regex("ran ([0-9]+) steps"))) << run.output;
     EXPECT_LT(std::stoll(ran[1]), (long long)r.steps.size()) << "rolled-back steps are not counted";
+
+    // The same with a fixed probe and no haptics, on both backends: the gl backend reads its
+    // status asynchronously every step, restores its last verified state on the GPU, and gives
+    // up the same way (it used to carry on silently with a diverged state).
+    for (const char* backend : {"cpu", "gl"}) {
+        const auto fixed = run_heartsim("run " + quoted(dir / "unstable.h5") + " --headless --backend " + backend +
+                                        " --steps 2000 --probe -1.9,-3.0,-47.0,3,3,3");
+        if (std::string(backend) == "gl" && fixed.exit_code == 3) {
+            std::printf("gl skipped: %s\n", fixed.output.c_str());
+            continue;
+        }
+        EXPECT_EQ(fixed.exit_code, 6) << backend << "\n" << fixed.output;
+        EXPECT_NE(fixed.output.find("could not recover"), std::string::npos) << backend << "\n" << fixed.output;
+        EXPECT_NE(fixed.output.find("restored the state of t = "), std::string::npos) << backend << "\n" << fixed.output;
+    }
 }
 
 TEST(HapticsCli, AnOpenHapticsDeviceRunsAndAFaultMidSessionIsReportedWithExit4) {

@@ -30,6 +30,8 @@ namespace sh = gl_shaders;
 constexpr int slot_count = 18, lane_count = 8, hands = 2;
 constexpr int ring_slots = 4;              // force readbacks in flight
 constexpr GLsizeiptr ring_stride = 256;    // ≥ GL_SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT everywhere we know
+constexpr int status_slots = 8;            // watchdog status readbacks in flight (one per step)
+constexpr long long snapshot_substeps = 64;  // substeps between restore-point candidates, as the cpu watchdog_interval
 
 using gl::Buffer;
 
@@ -105,6 +107,7 @@ public:
 
     ~GlBackend() override {
         if (ring_.id()) glUnmapNamedBuffer(ring_.id());
+        if (status_ring_.id()) glUnmapNamedBuffer(status_ring_.id());
     }
 
     BackendKind kind() const override { return BackendKind::gl; }
@@ -184,8 +187,11 @@ public:
         glCopyNamedBufferSubData(rest_current_.id(), position_[next_].id(), 0, 0, bytes);
         glCopyNamedBufferSubData(rest_motion_.id(), motion_[current_].id(), 0, 0, bytes);
         const GLuint zero = 0;
-        for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1)})
+        for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1), GLuint(sh::status)})
             glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, bytes);
+        good_time_ms_ = time_ms_;
+        forget_status();
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         check("reset_tissue");
     }
@@ -194,6 +200,12 @@ public:
         StepReport report;
         harvest_queries(false);
         if (steps <= 0) return report;
+        // The watchdog, as the cpu one but asynchronous: the status of earlier steps arrives here
+        // a step or two late, without waiting. A divergence restores the last verified state.
+        if (poll_status()) {
+            restore(report);
+            return report;
+        }
         Pending timing{};
         gl::generate(timing.queries);
         glQueryCounter(timing.queries[0], GL_TIMESTAMP);
@@ -267,19 +279,14 @@ public:
             ++report.substeps;
         }
         report.steps = steps;
+        substeps_since_snapshot_ += report.substeps;
+        queue_status();
         for (auto& state : hand_) state.pose = state.target;
         glQueryCounter(timing.queries[1], GL_TIMESTAMP);
         timing.is_force = false;
         timing.substeps = report.substeps;
         pending_.push_back(std::move(timing));
         glFlush();
-        if (diverged_seen_ && !diverged_reported_) {
-            diverged_reported_ = true;
-            report.diverged = true;
-            report.reason = WatchdogReason::speed;
-            report.message = "gl backend watchdog: a particle moved more than the displacement bound in one substep (seen in the "
-                             "asynchronous status, not restored on the GPU)";
-        }
         check("step");
         return report;
     }
@@ -459,8 +466,80 @@ private:
             forces.hand[hand].particles = std::size_t(s->force[hand][3]);
             if (!forces.hand[hand].force_n.allFinite()) forces.hand[hand].force_n.setZero();  // never leak a non-finite force
         }
-        if (s->status) diverged_seen_ = true;
         return forces;
+    }
+
+    /// After a step: copies the sticky status word into the next status slot behind a fence, and
+    /// every snapshot_substeps substeps takes the state as a restore-point candidate, which
+    /// becomes the restore point once that slot comes back clean. A full ring skips a step.
+    void queue_status() {
+        const int slot = int(status_sequence_ % status_slots);
+        if (status_fences_[slot]) return;
+        glCopyNamedBufferSubData(counters_.id(), status_ring_.id(), GLintptr(sh::status * 4), GLintptr(slot * 4), 4);
+        if (!candidate_pending_ && substeps_since_snapshot_ >= snapshot_substeps) {
+            glCopyNamedBufferSubData(position_[current_].id(), candidate_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
+            candidate_time_ms_ = time_ms_;
+            candidate_pending_ = true;
+            candidate_slot_sequence_ = status_sequence_;
+            substeps_since_snapshot_ = 0;
+        }
+        glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
+        status_fences_[slot].reset(glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0));
+        ++status_sequence_;
+    }
+
+    /// Reads the finished status slots in order without waiting; true at the first that shows a
+    /// divergence. A clean slot at or after the candidate's makes the candidate the restore point.
+    bool poll_status() {
+        while (polled_sequence_ < status_sequence_) {
+            const int slot = int(polled_sequence_ % status_slots);
+            if (glClientWaitSync(status_fences_[slot], 0, 0) == GL_TIMEOUT_EXPIRED) return false;
+            status_fences_[slot].reset();
+            const std::uint32_t status = static_cast<const std::uint32_t*>(status_map_)[slot];
+            if (status != 0) return true;
+            if (candidate_pending_ && polled_sequence_ >= candidate_slot_sequence_) {
+                std::swap(good_position_, candidate_position_);
+                good_time_ms_ = candidate_time_ms_;
+                candidate_pending_ = false;
+                consecutive_restores_ = 0;
+            }
+            ++polled_sequence_;
+        }
+        return false;
+    }
+
+    /// Drops every status slot and candidate in flight (they belong to a state that is gone).
+    void forget_status() {
+        for (auto& fence : status_fences_) fence.reset();
+        polled_sequence_ = status_sequence_;
+        candidate_pending_ = false;
+        substeps_since_snapshot_ = 0;
+    }
+
+    /// The last verified state, at rest, grabs released, the status cleared; as Solver::restore.
+    void restore(StepReport& report) {
+        const double failed_at = time_ms_;
+        for (int hand = 0; hand < hands; ++hand) release(hand);
+        const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
+        glCopyNamedBufferSubData(good_position_.id(), position_[current_].id(), 0, 0, bytes);
+        glCopyNamedBufferSubData(good_position_.id(), position_[next_].id(), 0, 0, bytes);
+        const float zero4[4] = {0, 0, 0, 0};
+        for (Buffer& motion : motion_) glClearNamedBufferData(motion.id(), GL_RGBA32F, GL_RGBA, GL_FLOAT, zero4);
+        const GLuint zero = 0;
+        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(sh::status * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        forget_status();
+        time_ms_ = good_time_ms_;
+        report.diverged = true;
+        report.reason = WatchdogReason::speed;
+        report.gave_up = ++consecutive_restores_ >= options_.max_consecutive_restores;
+        std::ostringstream message;
+        message << "gl backend watchdog: a particle moved more than the displacement bound in one substep by t = " << failed_at
+                << " ms; restored the state of t = " << time_ms_ << " ms at rest, grabs released";
+        if (report.gave_up)
+            message << "; " << consecutive_restores_ << " restores in a row without a new good state: the simulation cannot recover";
+        report.message = message.str();
+        check("restore");
     }
 
     void harvest_queries(bool wait) {
@@ -577,6 +656,12 @@ private:
         storage(ring_, std::size_t(ring_slots) * ring_stride, ring_flags);
         ring_map_ = glMapNamedBufferRange(ring_.id(), 0, ring_slots * ring_stride, ring_flags);
         if (!ring_map_) throw GlUnavailable("gl backend: cannot map the force readback buffer persistently; run with --backend cpu");
+        storage(good_position_, current, 0);       // the watchdog's restore point, verified clean
+        storage(candidate_position_, current, 0);  // the next restore point, while its status is in flight
+        const GLbitfield status_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+        storage(status_ring_, std::size_t(status_slots) * 4, status_flags);
+        status_map_ = glMapNamedBufferRange(status_ring_.id(), 0, status_slots * 4, status_flags);
+        if (!status_map_) throw GlUnavailable("gl backend: cannot map the status readback buffer persistently; run with --backend cpu");
         memory_bytes_ = estimate_gl_memory_bytes(scenario);
     }
 
@@ -601,7 +686,15 @@ private:
     std::array<std::uint64_t, ring_slots> sequence_of_{};
     std::uint64_t next_sequence_ = 0, latest_sequence_ = 0;
     std::optional<InstrumentForces> latest_;
-    bool diverged_seen_ = false, diverged_reported_ = false;
+    // Watchdog (queue_status, poll_status, restore).
+    Buffer good_position_, candidate_position_, status_ring_;
+    void* status_map_ = nullptr;
+    std::array<gl::Fence, status_slots> status_fences_;
+    std::uint64_t status_sequence_ = 0, polled_sequence_ = 0, candidate_slot_sequence_ = 0;
+    double good_time_ms_ = 0.0, candidate_time_ms_ = 0.0;
+    bool candidate_pending_ = false;
+    long long substeps_since_snapshot_ = 0;
+    int consecutive_restores_ = 0;
     std::deque<Pending> pending_;
     PassTimes times_;
     std::optional<SimulationSurface> surface_;
@@ -614,11 +707,11 @@ private:
 
 std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
     const std::size_t n = scenario.lattice.particles.size(), n_pad = (n + 7) / 8 * 8;
-    return 6 * n_pad * 16            // positions and motions: two float4 buffers each, and the start state of both
+    return 8 * n_pad * 16            // positions and motions: two float4 buffers each, the start state of both, two restore points
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
-           + ring_slots * ring_stride + 32;
+           + ring_slots * ring_stride + status_slots * 4 + 32;
 }
 
 std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options) {
