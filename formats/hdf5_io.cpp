@@ -38,6 +38,16 @@ Handle dataspace(std::initializer_list<std::size_t> dims) {
     return Handle(H5Screate_simple(int(d.size()), d.data(), nullptr), H5Sclose);
 }
 
+/// Whether `count` values of `type` at `data` are all finite (integers always are).
+bool all_finite(const ElementType& type, const void* data, std::size_t count) {
+    if (!type.floating || !data) return true;
+    for (std::size_t i = 0; i < count; ++i) {
+        const double v = type.size == 4 ? double(static_cast<const float*>(data)[i]) : static_cast<const double*>(data)[i];
+        if (!std::isfinite(v)) return false;
+    }
+    return true;
+}
+
 std::string shape_text(const std::vector<long>& shape) {
     std::string text = "[";
     for (std::size_t i = 0; i < shape.size(); ++i) {
@@ -103,37 +113,21 @@ void Writer::group(const std::string& name) {
     if (!g.valid()) fail("cannot create group " + object_name(name));
 }
 
-namespace {
-
-/// Whether `count` values of `type` at `data` are all finite (integers always are).
-bool all_finite(const ElementType& type, const void* data, std::size_t count) {
-    if (!type.floating || !data) return true;
-    for (std::size_t i = 0; i < count; ++i) {
-        const double v = type.size == 4 ? double(static_cast<const float*>(data)[i]) : static_cast<const double*>(data)[i];
-        if (!std::isfinite(v)) return false;
-    }
-    return true;
-}
-
-}  // namespace
-
 void Writer::write_dataset(const std::string& name, const ElementType& type, const void* data, std::initializer_list<std::size_t> dims) {
-    std::size_t count = 1;
-    for (std::size_t d : dims) count *= d;
+    const std::size_t count = element_count(dims);
     // No heartsim file holds NaN or infinity: a non-finite value is a diverged simulation or a bug,
     // and is refused here rather than handed to the next reader.
     if (!all_finite(type, data, count)) fail("dataset " + name + " holds a non-finite value; nothing was written");
     Handle space = dataspace(dims);
     Handle properties(H5Pcreate(H5P_DATASET_CREATE), H5Pclose);
-    const std::size_t elements = count;
-    if (elements > 0 && dims.size() > 0) {
+    if (count > 0 && dims.size() > 0) {
         // Chunks of about 64k elements, whole rows each, each with a Fletcher-32 checksum: a
         // flipped bit is a read error, not a different simulation.
         std::vector<hsize_t> chunk(dims.begin(), dims.end());
-        const std::size_t row = elements / chunk[0];
+        const std::size_t row = count / chunk[0];
         chunk[0] = std::min<hsize_t>(chunk[0], std::max<hsize_t>(1, 65536 / row));
         H5Pset_chunk(properties.get(), int(chunk.size()), chunk.data());
-        if (elements >= 4096) {
+        if (count >= 4096) {
             H5Pset_shuffle(properties.get());
             H5Pset_deflate(properties.get(), 1);
         }
@@ -141,7 +135,7 @@ void Writer::write_dataset(const std::string& name, const ElementType& type, con
     }
     Handle set(H5Dcreate2(file_, name.c_str(), type.file, space.get(), H5P_DEFAULT, properties.get(), H5P_DEFAULT), H5Dclose);
     if (!set.valid()) fail("cannot create dataset " + name);
-    if (elements && H5Dwrite(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
+    if (count && H5Dwrite(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
         fail("cannot write dataset " + name + " (disk full?)");
 }
 
@@ -167,9 +161,7 @@ void Writer::attribute(const std::string& object, const std::string& name, const
 
 void Writer::write_attribute(const std::string& object, const std::string& name, const ElementType& type, const void* values,
                              std::initializer_list<std::size_t> dims) {
-    std::size_t count = 1;
-    for (std::size_t d : dims) count *= d;
-    if (!all_finite(type, values, count))
+    if (!all_finite(type, values, element_count(dims)))
         fail("attribute " + name + " of " + object_name(object) + " is not finite; nothing was written");
     Handle space = dataspace(dims);
     Handle attribute(H5Acreate_by_name(file_, object.c_str(), name.c_str(), type.file, space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
@@ -202,7 +194,6 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
             // The 1.8 file format and later checksum the superblock and object headers, so
             // damaged metadata is refused too.
             H5Pset_libver_bounds(access.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
-            H5Pset_fclose_degree(access.get(), H5F_CLOSE_STRONG);
             Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access.get()), H5Fclose);
             if (!file.valid()) throw OutputError(name + ": cannot create the file in memory");
             Writer writer(file.get(), name);
@@ -260,11 +251,16 @@ int Reader::header(const std::string& format, int oldest, int newest, const std:
     return version;
 }
 
-void Reader::read_dataset(const std::string& name, const ElementType& type, std::initializer_list<long> shape, std::size_t* rows,
-                          const std::function<void*(std::size_t)>& allocate) const {
+Handle Reader::open_dataset(const std::string& name) const {
     if (!exists(name)) fail(name, "missing dataset");
     Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
     if (!set.valid()) fail(name, "is not a dataset");
+    return set;
+}
+
+void Reader::read_dataset(const std::string& name, const ElementType& type, std::initializer_list<long> shape, std::size_t* rows,
+                          const std::function<void*(std::size_t)>& allocate) const {
+    const Handle set = open_dataset(name);
     {
         Handle stored(H5Dget_type(set.get()), H5Tclose);
         const H5T_class_t type_class = H5Tget_class(stored.get());
@@ -303,9 +299,7 @@ void Reader::read_dataset(const std::string& name, const ElementType& type, std:
 }
 
 std::vector<std::string> Reader::strings(const std::string& name, long rows) const {
-    if (!exists(name)) fail(name, "missing dataset");
-    Handle set(H5Dopen2(file_.get(), name.c_str(), H5P_DEFAULT), H5Dclose);
-    if (!set.valid()) fail(name, "is not a dataset");
+    const Handle set = open_dataset(name);
     Handle type(H5Dget_type(set.get()), H5Tclose);
     if (H5Tget_class(type.get()) != H5T_STRING) fail(name, "expected strings");
     Handle space(H5Dget_space(set.get()), H5Sclose);

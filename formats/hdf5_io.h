@@ -64,6 +64,13 @@ template <> inline ElementType element_type<std::int32_t>() { return {H5T_STD_I3
 template <> inline ElementType element_type<std::uint32_t>() { return {H5T_STD_U32LE, H5T_NATIVE_UINT32, "uint32", false, false, 4}; }
 template <> inline ElementType element_type<std::int64_t>() { return {H5T_STD_I64LE, H5T_NATIVE_INT64, "int64", false, true, 8}; }
 
+/// The number of elements of a dataset or attribute of shape `dims` (1 for a scalar).
+inline std::size_t element_count(std::initializer_list<std::size_t> dims) {
+    std::size_t count = 1;
+    for (std::size_t d : dims) count *= d;
+    return count;
+}
+
 /// The number type inside a (nested) std::array.
 template <class E> struct Scalar { using type = E; };
 template <class E, std::size_t K> struct Scalar<std::array<E, K>> { using type = typename Scalar<E>::type; };
@@ -86,9 +93,7 @@ public:
     template <class E> void dataset(const std::string& name, const std::vector<E>& values, std::initializer_list<std::size_t> dims) {
         using T = typename Scalar<E>::type;
         static_assert(sizeof(E) % sizeof(T) == 0, "arrays are packed");
-        std::size_t elements = 1;
-        for (std::size_t d : dims) elements *= d;
-        if (elements != values.size() * (sizeof(E) / sizeof(T))) fail("dataset " + name + " does not match its shape (a bug in heartsim)");
+        if (element_count(dims) != values.size() * (sizeof(E) / sizeof(T))) fail("dataset " + name + " does not match its shape (a bug in heartsim)");
         write_dataset(name, element_type<T>(), values.data(), dims);
     }
     /// One-dimensional dataset of variable-length UTF-8 strings.
@@ -193,6 +198,7 @@ private:
     void read_attribute(const std::string& object, const std::string& name, const ElementType& type, long count,
                         const std::function<void*(std::size_t)>& allocate) const;
     Handle open_attribute(const std::string& object, const std::string& name) const;
+    Handle open_dataset(const std::string& name) const;
     std::string path_;
     Handle file_;
 };
