@@ -181,18 +181,10 @@ public:
     }
 
     void reset_tissue() override {
-        for (int hand = 0; hand < hands; ++hand) release(hand);
-        const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
-        glCopyNamedBufferSubData(rest_current_.id(), position_[current_].id(), 0, 0, bytes);
-        glCopyNamedBufferSubData(rest_current_.id(), position_[next_].id(), 0, 0, bytes);
-        glCopyNamedBufferSubData(rest_motion_.id(), motion_[current_].id(), 0, 0, bytes);
-        const GLuint zero = 0;
-        for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1), GLuint(sh::status)})
-            glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
-        glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, bytes);
+        place_tissue(rest_current_, &rest_motion_);
+        glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
         good_time_ms_ = time_ms_;
-        forget_status();
-        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
         check("reset_tissue");
     }
 
@@ -517,18 +509,30 @@ private:
     }
 
     /// The last verified state, at rest, grabs released, the status cleared; as Solver::restore.
-    void restore(StepReport& report) {
-        const double failed_at = time_ms_;
+    /// Grabs released, the tissue at `positions` (both buffers) with `motion` (null: at rest), the
+    /// touched lists and the watchdog status cleared, nothing of the old state in flight. The
+    /// one way reset_tissue() and restore() put the tissue somewhere.
+    void place_tissue(const Buffer& positions, const Buffer* motion) {
         for (int hand = 0; hand < hands; ++hand) release(hand);
         const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
-        glCopyNamedBufferSubData(good_position_.id(), position_[current_].id(), 0, 0, bytes);
-        glCopyNamedBufferSubData(good_position_.id(), position_[next_].id(), 0, 0, bytes);
-        const float zero4[4] = {0, 0, 0, 0};
-        for (Buffer& motion : motion_) glClearNamedBufferData(motion.id(), GL_RGBA32F, GL_RGBA, GL_FLOAT, zero4);
+        glCopyNamedBufferSubData(positions.id(), position_[current_].id(), 0, 0, bytes);
+        glCopyNamedBufferSubData(positions.id(), position_[next_].id(), 0, 0, bytes);
+        if (motion) {
+            glCopyNamedBufferSubData(motion->id(), motion_[current_].id(), 0, 0, bytes);
+        } else {
+            const float zero4[4] = {0, 0, 0, 0};
+            for (Buffer& m : motion_) glClearNamedBufferData(m.id(), GL_RGBA32F, GL_RGBA, GL_FLOAT, zero4);
+        }
         const GLuint zero = 0;
-        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(sh::status * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        for (GLuint word : {GLuint(sh::touched0), GLuint(sh::touched1), GLuint(sh::status)})
+            glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(word * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         forget_status();
+    }
+
+    void restore(StepReport& report) {
+        const double failed_at = time_ms_;
+        place_tissue(good_position_, nullptr);
         time_ms_ = good_time_ms_;
         report.diverged = true;
         report.reason = WatchdogReason::speed;
