@@ -138,12 +138,6 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     std::vector<std::array<float, 3>> latest_positions;
 
     ScriptedRunResult result;
-    // What the simulation thread has done, as run_scripted reports it.
-    auto take = [&](const WindowSimulation::Status& status) {
-        result.steps = int(status.steps), result.substeps = status.substeps, result.watchdog_events = status.watchdog_events;
-        result.last_watchdog_message = status.last_watchdog_message, result.forces_received = status.forces_received;
-        result.gave_up = status.gave_up;
-    };
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
     long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
@@ -216,7 +210,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             simulation->latest(latest_positions);
             const WindowSimulation::Status status = simulation->status();
             attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
-            take(status);
+            result = status.run;
             if (status.finished) {
                 simulation->latest(latest_positions);  // the final state
                 attempted = std::max(attempted, steps);
@@ -304,7 +298,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             }
         }
     }
-    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    const double wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     const char* pacing = simulation ? (haptic ? "haptic simulation on its own thread, paced to the session clock"
                                               : "simulation on its own thread, paced to the wall clock")
                          : haptic   ? "steps to real time between frames (haptics)"
@@ -313,9 +307,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     if (simulation) {
         const WindowSimulation::Status status = simulation->status();
         simulated_ms = status.simulated_ms;
-        take(status);
+        result = status.run;
         simulation.reset();  // joins the thread before the caller reads the backend
     }
+    result.wall_ms = wall_ms;
     std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
                 frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
     return result;

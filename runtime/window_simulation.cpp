@@ -42,7 +42,7 @@ WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic,
 }
 
 bool WindowSimulation::finish_at_limit() {
-    if (!status_.gave_up && (options_.steps < 0 || status_.attempted < options_.steps)) return false;
+    if (!status_.run.gave_up && (options_.steps < 0 || status_.attempted < options_.steps)) return false;
     status_.finished = true;
     positions_ = backend_.positions();  // the final state, for the last frame
     fresh_ = true;
@@ -154,13 +154,10 @@ void WindowSimulation::run() {
         }
         std::lock_guard lock(mutex_);
         ++status_.attempted;
-        status_.steps += report.steps;
-        status_.substeps += report.substeps;
+        status_.run.add(report);
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
         status_.owed_ms = owed_ms;
-        status_.forces_received += received;
-        if (report.diverged) ++status_.watchdog_events, status_.last_watchdog_message = report.message;
-        status_.gave_up = status_.gave_up || report.gave_up;
+        status_.run.forces_received += received;
         publish_if_wanted();
         if (finish_at_limit()) break;
     }
@@ -191,11 +188,7 @@ void WindowSimulation::run_haptic() {
         }
         std::unique_lock lock(mutex_);
         status_.attempted = (long long)haptic_->rows();
-        status_.steps = haptic_->result().steps;
-        status_.substeps = haptic_->result().substeps;
-        status_.watchdog_events = haptic_->result().watchdog_events;
-        status_.last_watchdog_message = haptic_->result().last_watchdog_message;
-        status_.gave_up = haptic_->result().gave_up;
+        status_.run = haptic_->result();
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
         status_.owed_ms = owed_ms;
         status_.shapes = haptic_->shapes();

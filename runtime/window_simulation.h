@@ -36,11 +36,9 @@ public:
     struct Status {
         double simulated_ms = 0;      ///< simulated time
         double owed_ms = 0;           ///< real time since the start, pauses excluded
-        long long steps = 0, substeps = 0, attempted = 0;
-        std::size_t watchdog_events = 0, forces_received = 0;
-        std::string last_watchdog_message;
+        long long attempted = 0;      ///< step() calls, restored ones too
+        ScriptedRunResult run;        ///< what the steps did, as run_scripted reports it (wall_ms unset)
         bool finished = false;        ///< the step limit was reached, or the watchdog gave up
-        bool gave_up = false;         ///< the watchdog gave up (StepReport::gave_up)
         std::vector<InstrumentShape> shapes;  ///< a haptic session's instruments as last applied
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
