@@ -95,9 +95,8 @@ void write_bytes(const std::filesystem::path& file, const void* data, std::size_
         }
         written += std::size_t(n);
     }
-    const bool synced = ::fsync(fd) == 0;
-    const int sync_error = errno;
-    if (::close(fd) != 0 || !synced) throw OutputError(failure + " (" + std::strerror(synced ? errno : sync_error) + ")");
+    // No fsync here: every caller writes a temporary that write_file_atomically flushes before the rename.
+    if (::close(fd) != 0) throw OutputError(failure + " (" + std::strerror(errno) + ")");
 }
 
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what) {

@@ -28,8 +28,9 @@ void sweep_stale_temporaries(const std::filesystem::path& path);
 /// does not exist or is not writable, or the flush or rename fails.
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill);
 
-/// Writes `size` bytes to `file` (created or truncated) with POSIX calls and flushes them to the
-/// disk; OutputError `failure` + the system's reason when any of it fails (a full disk).
+/// Writes `size` bytes to `file` (created or truncated) with POSIX calls, for a `fill` of
+/// write_file_atomically (which flushes them to the disk); OutputError `failure` + the system's
+/// reason when any of it fails (a full disk).
 void write_bytes(const std::filesystem::path& file, const void* data, std::size_t size, const std::string& failure);
 
 /// write_file_atomically of `size` bytes; `what` names the file in errors ("the screenshot").
