@@ -1085,33 +1085,57 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
 
     // Grabbed particles follow the tool rigidly, unless that would stretch one of their springs
     // past the slip strain: then the particle slips out of the grabber and moves freely (it keeps
-    // the position the integration gave it). In held order, so the result is deterministic.
-    for (int hand = 0; hand < hands; ++hand) {
-        HandState& state = hand_[std::size_t(hand)];
-        if (!state.grabbing) continue;
-        const Eigen::Matrix3d rotation = poses[hand].orientation.toRotationMatrix();
-        std::size_t kept = 0;
-        for (std::size_t q = 0; q < state.held.size(); ++q) {
-            const Eigen::Vector3d world = poses[hand].position + rotation * state.held_local[q];
-            const std::size_t i = std::size_t(state.held[q]);
-            const Real target[3] = {Real(world[0]), Real(world[1]), Real(world[2])};
-            if (options_.grab_slip_strain > 0 && double(strain_at(i, target, next_)) > options_.grab_slip_strain) {
-                held_by_[i] = -1;
-                ++slipped_;
-                continue;
+    // the position the integration gave it, x + u). Order-free, in three passes as the gl
+    // backend's one work group runs them (solver_shaders.h `after_step`): every held particle
+    // moves to its target; each then measures its springs with its held neighbours at their
+    // targets and the free ones where the integration put them; the ones past the slip strain go
+    // back and are free. The held lists keep their order, so the result is deterministic.
+    bool any_grab = false;
+    for (int hand = 0; hand < hands; ++hand) any_grab = any_grab || hand_[std::size_t(hand)].grabbing;
+    if (any_grab) {
+        std::array<Eigen::Matrix3d, hands> rotation;
+        auto world_of = [&](int hand, std::size_t q) {
+            return Eigen::Vector3d(poses[hand].position + rotation[std::size_t(hand)] * hand_[std::size_t(hand)].held_local[q]);
+        };
+        for (int hand = 0; hand < hands; ++hand) {
+            const HandState& state = hand_[std::size_t(hand)];
+            if (!state.grabbing) continue;
+            rotation[std::size_t(hand)] = poses[hand].orientation.toRotationMatrix();
+            for (std::size_t q = 0; q < state.held.size(); ++q) {
+                const Eigen::Vector3d world = world_of(hand, q);
+                Real* x = next_ + 4 * std::size_t(state.held[q]);
+                for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
             }
-            Real* x = next_ + 4 * i;
-            Real* motion = next_motion_ + 4 * i;
-            for (int c = 0; c < 3; ++c) {
-                x[c] = target[c];
-                motion[c] = Real(world[c] - double(current_[4 * i + std::size_t(c)]));
-            }
-            state.held[kept] = state.held[q];
-            state.held_local[kept] = state.held_local[q];
-            ++kept;
         }
-        state.held.resize(kept);
-        state.held_local.resize(kept);
+        constexpr std::int8_t slipping = -2;
+        if (options_.grab_slip_strain > 0)
+            for (int hand = 0; hand < hands; ++hand)
+                for (const std::int32_t i : hand_[std::size_t(hand)].held)
+                    if (double(strain_at(std::size_t(i), next_ + 4 * std::size_t(i), next_)) > options_.grab_slip_strain)
+                        held_by_[std::size_t(i)] = slipping;
+        for (int hand = 0; hand < hands; ++hand) {
+            HandState& state = hand_[std::size_t(hand)];
+            if (!state.grabbing) continue;
+            std::size_t kept = 0;
+            for (std::size_t q = 0; q < state.held.size(); ++q) {
+                const std::size_t i = std::size_t(state.held[q]);
+                Real* x = next_ + 4 * i;
+                Real* motion = next_motion_ + 4 * i;
+                if (held_by_[i] == slipping) {
+                    for (int c = 0; c < 3; ++c) x[c] = current_[4 * i + std::size_t(c)] + motion[c];
+                    held_by_[i] = -1;
+                    ++slipped_;
+                    continue;
+                }
+                const Eigen::Vector3d world = world_of(hand, q);
+                for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[4 * i + std::size_t(c)]));
+                state.held[kept] = state.held[q];
+                state.held_local[kept] = state.held_local[q];
+                ++kept;
+            }
+            state.held.resize(kept);
+            state.held_local.resize(kept);
+        }
     }
 
     for (std::size_t chunk = 0; chunk < chunks_; ++chunk) bad = bad || chunk_bad_[chunk];

@@ -244,6 +244,54 @@ TEST(RuntimeBackend, ResetTissueReturnsToTheBalancedRestStateAndKeepsTheTime) {
     }
 }
 
+TEST(RuntimeBackend, AStretchedStateIsNeverARestorePoint) {
+    // The watchdog's restore point must be a state that passes the strain bound
+    // (SolverOptions::restore_strain_limit), on both backends: a grabber that may not slip pulls
+    // the wall 5 mm out and holds it (well past the restore-point interval), then is yanked 2 m,
+    // which trips the watchdog. With a limit the held stretch exceeds, the state restored is one
+    // from before the pull; with the default limit, the held stretched state itself. (The gl
+    // backend used to take any state whose status came back clean.)
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const auto& rest = scenario.lattice.particles.rest_position;
+    std::size_t front = 0;
+    for (std::size_t i = 0; i < rest.size(); ++i)
+        if (rest[i][1] < rest[front][1]) front = i;
+    const Eigen::Vector3d at(rest[front][0], rest[front][1], rest[front][2]);
+    for (const double limit : {0.05, 4.0}) {
+        SolverOptions options = options_from(scenario.solver);
+        options.grab_slip_strain = 0;  // the grab holds however far it pulls
+        options.restore_strain_limit = limit;
+        auto cpu = make_cpu_backend(scenario, options);
+        auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+        for (Backend* backend : {cpu.get(), gl.get()}) {
+            SCOPED_TRACE(std::string(to_string(backend->kind())) + ", limit " + std::to_string(limit));
+            backend->set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(3.0)});
+            backend->set_pose(0, {at, Eigen::Quaterniond::Identity()});
+            backend->step(20);  // at rest: restore points
+            ASSERT_GT(backend->begin_grab(0), 0u);
+            const double pull_start_ms = backend->simulated_time_ms();
+            for (int k = 1; k <= 20; ++k) {
+                backend->set_pose(0, {at - Eigen::Vector3d(0, 0.25 * k, 0), Eigen::Quaterniond::Identity()});
+                ASSERT_FALSE(backend->step(1).diverged);
+            }
+            for (int k = 0; k < 100; ++k) ASSERT_FALSE(backend->step(1).diverged) << "holding, step " << k;
+            const double hold_end_ms = backend->simulated_time_ms();
+            backend->set_pose(0, {at - Eigen::Vector3d(0, 2000.0, 0), Eigen::Quaterniond::Identity()});
+            StepReport report;
+            for (int k = 0; k < 20 && !report.diverged; ++k) report = backend->step(1);  // gl: the status arrives a step or two late
+            ASSERT_TRUE(report.diverged) << "the yank trips the watchdog";
+            const double restored_ms = backend->simulated_time_ms();
+            std::printf("  %s, limit %.2f: pull from t = %.3f ms, held to %.3f ms; restored t = %.3f ms\n", to_string(backend->kind()), limit,
+                        pull_start_ms, hold_end_ms, restored_ms);
+            if (limit < 1)
+                EXPECT_LE(restored_ms, pull_start_ms) << "a state past the strain limit became the restore point";
+            else
+                EXPECT_GT(restored_ms, pull_start_ms + 0.5 * (hold_end_ms - pull_start_ms)) << "the held stretch was a good state";
+        }
+    }
+}
+
 TEST(RuntimeBackend, AsynchronousForcesArriveWithoutWaiting) {
     REQUIRE_GL();
     const Scenario scenario = read_scenario(phantom_scenario());

@@ -18,6 +18,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <deque>
 #include <limits>
 #include <sstream>
@@ -91,7 +92,8 @@ public:
         build(capture_program_, "grab", {sh::capture});
         build(release_program_, "release", {sh::release});
         build(force_program_, "force", {sh::springs, sh::force_pass});
-        for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_}) {
+        build(strain_program_, "strain", {sh::springs, sh::strain_pass});
+        for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_}) {
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
             glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
         }
@@ -102,6 +104,7 @@ public:
         for (const Program* p : {&step_program_, &force_program_})
             glProgramUniform1i(p->id, p->at("supported"), supported_);
         glProgramUniform1i(force_program_.id, force_program_.at("damped"), damped_);
+        glProgramUniform1f(after_program_.id, after_program_.at("slip_strain"), float(options_.grab_slip_strain));
         check("setting up the gl backend");
     }
 
@@ -462,33 +465,52 @@ private:
     }
 
     /// After a step: copies the sticky status word into the next status slot behind a fence, and
-    /// every snapshot_substeps substeps takes the state as a restore-point candidate, which
-    /// becomes the restore point once that slot comes back clean. A full ring skips a step.
+    /// every snapshot_substeps substeps takes the state as a restore-point candidate, with its
+    /// largest spring stretch (strain_pass) beside the status. The candidate becomes the restore
+    /// point once that slot comes back clean and its stretch within restore_strain_limit, as the
+    /// cpu solver's rule: a torn state is stepped on from but never returned to. A full ring
+    /// skips a step.
     void queue_status() {
         const int slot = int(status_sequence_ % status_slots);
         if (status_fences_[slot]) return;
-        glCopyNamedBufferSubData(counters_.id(), status_ring_.id(), GLintptr(sh::status * 4), GLintptr(slot * 4), 4);
         if (!candidate_pending_ && substeps_since_snapshot_ >= snapshot_substeps) {
+            const GLuint zero = 0;
+            glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr(sh::strain * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+            bind_common();
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id());
+            glUseProgram(strain_program_.id);
+            glDispatchCompute(GLuint((n_ + 63) / 64), 1, 1);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+            glCopyNamedBufferSubData(counters_.id(), status_ring_.id(), GLintptr(sh::strain * 4), GLintptr(slot * 8 + 4), 4);
             glCopyNamedBufferSubData(position_[current_].id(), candidate_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
             candidate_time_ms_ = time_ms_;
             candidate_pending_ = true;
             candidate_slot_sequence_ = status_sequence_;
             substeps_since_snapshot_ = 0;
         }
+        glCopyNamedBufferSubData(counters_.id(), status_ring_.id(), GLintptr(sh::status * 4), GLintptr(slot * 8), 4);
         glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
         status_fences_[slot].reset(glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0));
         ++status_sequence_;
     }
 
     /// Reads the finished status slots in order without waiting; true at the first that shows a
-    /// divergence. A clean slot at or after the candidate's makes the candidate the restore point.
+    /// divergence. The candidate's slot drops it when its stretch is past the limit; a clean slot
+    /// at or after the candidate's makes it the restore point.
     bool poll_status() {
         while (polled_sequence_ < status_sequence_) {
             const int slot = int(polled_sequence_ % status_slots);
             if (glClientWaitSync(status_fences_[slot], 0, 0) == GL_TIMEOUT_EXPIRED) return false;
             status_fences_[slot].reset();
-            const std::uint32_t status = static_cast<const std::uint32_t*>(status_map_)[slot];
-            if (status != 0) return true;
+            const std::uint32_t* words = static_cast<const std::uint32_t*>(status_map_) + 2 * slot;
+            if (words[0] != 0) return true;
+            if (candidate_pending_ && polled_sequence_ == candidate_slot_sequence_ && options_.restore_strain_limit > 0) {
+                float stretch;
+                std::memcpy(&stretch, &words[1], 4);
+                if (!(double(stretch) <= options_.restore_strain_limit)) candidate_pending_ = false;
+            }
             if (candidate_pending_ && polled_sequence_ >= candidate_slot_sequence_) {
                 std::swap(good_position_, candidate_position_);
                 good_time_ms_ = candidate_time_ms_;
@@ -663,8 +685,8 @@ private:
         storage(good_position_, current, 0);       // the watchdog's restore point, verified clean
         storage(candidate_position_, current, 0);  // the next restore point, while its status is in flight
         const GLbitfield status_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
-        storage(status_ring_, std::size_t(status_slots) * 4, status_flags);
-        status_map_ = glMapNamedBufferRange(status_ring_.id(), 0, status_slots * 4, status_flags);
+        storage(status_ring_, std::size_t(status_slots) * 8, status_flags);  // per slot: status, candidate stretch
+        status_map_ = glMapNamedBufferRange(status_ring_.id(), 0, status_slots * 8, status_flags);
         if (!status_map_) throw GlUnavailable("gl backend: cannot map the status readback buffer persistently; run with --backend cpu");
         memory_bytes_ = estimate_gl_memory_bytes(scenario);
     }
@@ -684,7 +706,7 @@ private:
     Buffer position_[2], motion_[2], rest_current_, rest_motion_;
     int current_ = 0, next_ = 1;
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
-    Program step_program_, after_program_, capture_program_, release_program_, force_program_;
+    Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_;
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;
     std::array<std::uint64_t, ring_slots> sequence_of_{};
@@ -715,7 +737,7 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
-           + ring_slots * ring_stride + status_slots * 4 + 32;
+           + ring_slots * ring_stride + status_slots * 8 + 32;
 }
 
 std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options) {

@@ -26,7 +26,8 @@ enum Binding : unsigned {
 };
 
 /// Counter words in the `counters` buffer.
-enum Counter : unsigned { touched0 = 0, touched1 = 1, unused = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
+/// `strain`: the restore-point candidate's largest spring stretch (float bits; strain_pass).
+enum Counter : unsigned { touched0 = 0, touched1 = 1, strain = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
 
 /// The names the shaders see (BINDING_CURRENT, ...): every Binding and Counter word the GLSL
 /// uses. A name missing here makes the shaders that use it fail to compile, which every GL test
@@ -64,6 +65,7 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"COUNTER_TOUCHED0", touched0},
     {"COUNTER_HELD0", held0},
     {"COUNTER_STATUS", status},
+    {"COUNTER_STRAIN", strain},
     {"COUNTER_PICKED0", picked0},
 };
 

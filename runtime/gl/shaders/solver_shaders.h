@@ -154,37 +154,145 @@ void main() {
 )";
 
 /// After a substep (one work group): grabbed particles follow their grabber; their motion is
-/// the step from their current position (double, rounded once, as Solver::substep).
+/// the step from their current position (double, rounded once, as Solver::substep). A held
+/// particle whose springs would pass the slip strain at its target slips out and keeps the
+/// position the integration gave it, x + u. Three passes between barriers, as the cpu solver
+/// runs them: every held particle moves to its target; each measures its springs (held
+/// neighbours at their targets, free ones where the integration put them) and marks itself
+/// slipping (held_by −2); the slipping ones go back and are free. Only when one slipped does
+/// one invocation compact the held lists, in order.
 inline constexpr const char* after_step = R"(
 layout(local_size_x = 256) in;
 layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
 layout(std430, binding = BINDING_NEXT) buffer NextBuffer { vec4 xn[]; };
 layout(std430, binding = BINDING_NEXT_MOTION) buffer NextMotionBuffer { vec4 un[]; };
-layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = BINDING_HELD_LOCAL) readonly buffer HeldLocalBuffer { double held_local[]; };
+layout(std430, binding = BINDING_HELD) buffer HeldBuffer { int held[]; };
+layout(std430, binding = BINDING_HELD_LOCAL) buffer HeldLocalBuffer { double held_local[]; };
+layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = BINDING_REST_LENGTH) readonly buffer RestBuffer { float rest_length[]; };
 uniform bool grabbing[2];
 uniform dvec3 grab_centre[2];
 uniform dmat3 grab_rotation[2];
+uniform float slip_strain;      // ≤ 0: never slips
+shared bool slipped_any;
+
+dvec3 target_of(int hand, uint e) {
+    dmat3 r = grab_rotation[hand];
+    dvec3 v = dvec3(held_local[3u * e], held_local[3u * e + 1u], held_local[3u * e + 2u]);
+    precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
+    precise double b = r[0][1] * v.x + r[1][1] * v.y; b = b + r[2][1] * v.z;
+    precise double c = r[0][2] * v.x + r[1][2] * v.y; c = c + r[2][2] * v.z;
+    precise dvec3 world = grab_centre[hand] + dvec3(a, b, c);
+    return world;
+}
+
+float strain_at(uint i) {       // Solver::strain_at: the largest |L/L0 − 1| of i's springs
+    precise float worst = 0.0;
+    vec4 own = xn[i];
+    uint table = (i / 8u) * 18u * 8u + i % 8u;
+    for (uint s = 0u; s < 18u; ++s) {
+        uint t = table + s * 8u;
+        uint j = uint(neighbour[t]);
+        if (j == i) continue;
+        vec4 other = xn[j];
+        precise float dx = own.x - other.x, dy = own.y - other.y, dz = own.z - other.z;
+        precise float length2 = dx * dx + dy * dy;
+        length2 = length2 + dz * dz;
+        precise float strain = abs(sqrt(length2) / rest_length[t] - 1.0);
+        worst = max(worst, strain);
+    }
+    return worst;
+}
 
 void main() {
     uint lid = gl_LocalInvocationID.x;
+    if (lid == 0u) slipped_any = false;
     for (int hand = 0; hand < 2; ++hand) {
         if (!grabbing[hand]) continue;
         uint count = counter[COUNTER_HELD0 + hand];
-        dmat3 r = grab_rotation[hand];
+        for (uint k = lid; k < count; k += 256u) {
+            uint e = uint(hand) * particle_count + k;
+            xn[uint(held[e])] = vec4(vec3(target_of(hand, e)), 0.0);
+        }
+    }
+    memoryBarrierBuffer();
+    barrier();
+    if (slip_strain > 0.0) {
+        for (int hand = 0; hand < 2; ++hand) {
+            if (!grabbing[hand]) continue;
+            uint count = counter[COUNTER_HELD0 + hand];
+            for (uint k = lid; k < count; k += 256u) {
+                uint i = uint(held[uint(hand) * particle_count + k]);
+                if (strain_at(i) > slip_strain) { held_by[i] = -2; slipped_any = true; }
+            }
+        }
+    }
+    memoryBarrierBuffer();
+    memoryBarrierShared();
+    barrier();
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!grabbing[hand]) continue;
+        uint count = counter[COUNTER_HELD0 + hand];
         for (uint k = lid; k < count; k += 256u) {
             uint e = uint(hand) * particle_count + k;
             uint i = uint(held[e]);
-            dvec3 v = dvec3(held_local[3u * e], held_local[3u * e + 1u], held_local[3u * e + 2u]);
-            precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
-            precise double b = r[0][1] * v.x + r[1][1] * v.y; b = b + r[2][1] * v.z;
-            precise double c = r[0][2] * v.x + r[1][2] * v.y; c = c + r[2][2] * v.z;
-            precise dvec3 world = grab_centre[hand] + dvec3(a, b, c);
-            xn[i] = vec4(vec3(world), 0.0);
-            precise dvec3 step_motion = world - dvec3(x[i].xyz);
+            if (held_by[i] == -2) {
+                precise vec3 integrated = x[i].xyz + un[i].xyz;
+                xn[i] = vec4(integrated, 0.0);
+                continue;
+            }
+            precise dvec3 step_motion = target_of(hand, e) - dvec3(x[i].xyz);
             un[i] = vec4(vec3(step_motion), 0.0);
         }
     }
+    memoryBarrierBuffer();
+    barrier();
+    if (lid != 0u || !slipped_any) return;
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!grabbing[hand]) continue;
+        uint count = counter[COUNTER_HELD0 + hand], kept = 0u;
+        for (uint k = 0u; k < count; ++k) {
+            uint e = uint(hand) * particle_count + k;
+            int i = held[e];
+            if (held_by[i] == -2) { held_by[i] = -1; continue; }
+            uint f = uint(hand) * particle_count + kept;
+            held[f] = i;
+            held_local[3u * f] = held_local[3u * e];
+            held_local[3u * f + 1u] = held_local[3u * e + 1u];
+            held_local[3u * f + 2u] = held_local[3u * e + 2u];
+            ++kept;
+        }
+        counter[COUNTER_HELD0 + hand] = kept;
+    }
+}
+)";
+
+/// The restore-point check (after `springs`): the largest spring stretch L/L0 − 1 of the state
+/// in `current`, as SolverEnergy::max_strain, into the counter word `strain` as float bits (a
+/// stretch here is ≥ 0, so its bits order as its value, and a NaN's above every finite one).
+inline constexpr const char* strain_pass = R"(
+layout(local_size_x = 64) in;
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= particle_count) return;
+    vec4 own = x[i];
+    uint table = (i / 8u) * 18u * 8u + i % 8u;
+    precise float worst = 0.0;
+    for (uint s = 0u; s < 18u; ++s) {
+        uint t = table + s * 8u;
+        uint j = uint(neighbour[t]);
+        if (j == i || !(rest_length[t] > 0.0)) continue;
+        vec4 other = x[j];
+        precise float dx = other.x - own.x, dy = other.y - own.y, dz = other.z - own.z;
+        precise float length2 = dx * dx + dy * dy;
+        length2 = length2 + dz * dz;
+        precise float stretch = sqrt(length2) / rest_length[t] - 1.0;
+        if (!(stretch <= worst)) {
+            worst = stretch;
+            if (isnan(stretch)) break;
+        }
+    }
+    atomicMax(counter[COUNTER_STRAIN], floatBitsToUint(worst));
 }
 )";
 
