@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <memory>
 #include <string>
 
@@ -89,6 +90,11 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
         for (auto index : t)
             if (index < 0 || std::size_t(index) >= mesh.positions.size())
                 throw OutputError("cannot write mesh '" + path.string() + "': a triangle refers to a missing vertex");
+    for (std::size_t v = 0; v < mesh.positions.size(); ++v)
+        for (const auto c : mesh.positions[v])
+            if (!std::isfinite(c))
+                throw OutputError("cannot write mesh '" + path.string() + "': vertex " + std::to_string(v) +
+                                  " has a non-finite coordinate; nothing was written");
 
     const auto scene = scene_of(mesh);
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {

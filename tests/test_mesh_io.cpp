@@ -8,6 +8,8 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
+
 #include <fstream>
 #include <map>
 
@@ -94,6 +96,23 @@ TEST(MeshIo, UnknownExtensionIsAnOutputErrorNamingTheFile) {
         EXPECT_NE(std::string(error.what()).find(path.string()), std::string::npos) << error.what();
     }
     EXPECT_FALSE(std::filesystem::exists(path));
+}
+
+TEST(MeshIo, ANonFiniteVertexIsRefusedAndTheOldFileKept) {
+    // No writer accepts a non-finite value: a NaN vertex is a diverged simulation or a bug.
+    test::TempDir dir;
+    const auto path = dir / "mesh.stl";
+    write_mesh(path, sample_mesh());
+    TriangleMesh broken = sample_mesh();
+    broken.positions[3][1] = std::numeric_limits<float>::quiet_NaN();
+    try {
+        write_mesh(path, broken);
+        FAIL() << "expected OutputError";
+    } catch (const OutputError& error) {
+        EXPECT_NE(std::string(error.what()).find("vertex 3"), std::string::npos) << error.what();
+        EXPECT_NE(std::string(error.what()).find(path.string()), std::string::npos) << error.what();
+    }
+    EXPECT_EQ(read_mesh(path).positions.size(), sample_mesh().positions.size()) << "the old file is intact";
 }
 
 TEST(MeshIo, UnwritablePlaceIsAnOutputErrorNamingTheFile) {
