@@ -1,10 +1,14 @@
 /// @file mesh_io.cpp
-/// @brief Triangle meshes to and from files through assimp's Exporter and Importer.
+/// @brief Triangle meshes to and from files. STL, OBJ and PLY are written here (a few lines
+/// each: true facet normals, a SPACE=LPS header that Slicer reads); glTF through assimp's
+/// exporter, in glTF's own frame (metres, +Y up); every format read through assimp.
 #include "mesh_io.h"
 
 #include "atomic_file.h"
 
 #include "libmodel/errors.h"
+
+#include <Eigen/Geometry>
 
 #include <assimp/Exporter.hpp>
 #include <assimp/Importer.hpp>
@@ -15,6 +19,10 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <fstream>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -29,19 +37,89 @@ std::string lower_case_extension(const std::filesystem::path& path) {
     return extension;
 }
 
-/// assimp exporter id for an extension, or empty when we do not write that format.
-std::string exporter_for(const std::string& extension) {
-    if (extension == ".stl") return "stlb";
-    // "objnomtl": the plain "obj" exporter also writes a .mtl file named after the temporary file.
-    if (extension == ".obj") return "objnomtl";
-    if (extension == ".ply") return "plyb";
-    if (extension == ".glb") return "glb2";
-    return {};
+bool is_gltf(const std::string& extension) { return extension == ".glb" || extension == ".gltf"; }
+
+/// World LPS mm → glTF (metres; +Y up = superior, +Z forward = anterior, +X = left: a proper
+/// rotation, so windings and normals keep their sense), and back.
+Eigen::Vector3d lps_mm_to_gltf(const Eigen::Vector3d& p) { return Eigen::Vector3d(p.x(), p.z(), -p.y()) * 1e-3; }
+Eigen::Vector3d gltf_to_lps_mm(const Eigen::Vector3d& g) { return Eigen::Vector3d(g.x(), -g.z(), g.y()) * 1e3; }
+
+/// The unit normal of triangle t (right-hand rule), computed in double; zero for a degenerate one.
+Eigen::Vector3d facet_normal(const TriangleMesh& mesh, const std::array<std::int32_t, 3>& t) {
+    const Eigen::Vector3d& a = mesh.positions[std::size_t(t[0])];
+    const Eigen::Vector3d u = mesh.positions[std::size_t(t[1])] - a, w = mesh.positions[std::size_t(t[2])] - a;
+    const Eigen::Vector3d n = u.cross(w);
+    const double length = n.norm();
+    return length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
+}
+
+/// The words every header we write carries: Slicer reads the SPACE tag, the rest is for people.
+constexpr const char* header_words = "heartsim " HEARTSIM_VERSION " SPACE=LPS units=mm";
+
+template <class T>
+void put(std::ostream& out, T value) {
+    out.write(reinterpret_cast<const char*>(&value), sizeof value);  // little-endian: x86-64, aarch64
+}
+
+/// Binary STL: 80-byte header, facet count, then per facet its true normal, three corners and a
+/// zero attribute word.
+void write_stl(std::ostream& out, const TriangleMesh& mesh) {
+    char header[80] = {};
+    std::snprintf(header, sizeof header, "%s", header_words);
+    out.write(header, sizeof header);
+    put(out, std::uint32_t(mesh.triangles.size()));
+    for (const auto& t : mesh.triangles) {
+        const Eigen::Vector3d n = facet_normal(mesh, t);
+        for (int c = 0; c < 3; ++c) put(out, float(n[c]));
+        for (const std::int32_t v : t)
+            for (int c = 0; c < 3; ++c) put(out, float(mesh.positions[std::size_t(v)][c]));
+        put(out, std::uint16_t(0));
+    }
+}
+
+/// OBJ: positions (9 significant digits round-trip a float), vertex normals when the mesh has
+/// them, triangles.
+void write_obj(std::ostream& out, const TriangleMesh& mesh) {
+    const bool normals = !mesh.normals.empty() && mesh.normals.size() == mesh.positions.size();
+    out << "# " << header_words << "\n";
+    char line[128];
+    for (const auto& p : mesh.positions) {
+        std::snprintf(line, sizeof line, "v %.9g %.9g %.9g\n", float(p.x()), float(p.y()), float(p.z()));
+        out << line;
+    }
+    if (normals)
+        for (const auto& n : mesh.normals) {
+            std::snprintf(line, sizeof line, "vn %.9g %.9g %.9g\n", float(n.x()), float(n.y()), float(n.z()));
+            out << line;
+        }
+    for (const auto& t : mesh.triangles) {
+        if (normals) out << "f " << t[0] + 1 << "//" << t[0] + 1 << ' ' << t[1] + 1 << "//" << t[1] + 1 << ' ' << t[2] + 1 << "//" << t[2] + 1 << '\n';
+        else out << "f " << t[0] + 1 << ' ' << t[1] + 1 << ' ' << t[2] + 1 << '\n';
+    }
+}
+
+/// Binary little-endian PLY: float positions (and normals when the mesh has them), triangles as
+/// uchar-counted int lists.
+void write_ply(std::ostream& out, const TriangleMesh& mesh) {
+    const bool normals = !mesh.normals.empty() && mesh.normals.size() == mesh.positions.size();
+    out << "ply\nformat binary_little_endian 1.0\ncomment " << header_words << "\nelement vertex " << mesh.positions.size()
+        << "\nproperty float x\nproperty float y\nproperty float z\n";
+    if (normals) out << "property float nx\nproperty float ny\nproperty float nz\n";
+    out << "element face " << mesh.triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
+    for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
+        for (int c = 0; c < 3; ++c) put(out, float(mesh.positions[v][c]));
+        if (normals)
+            for (int c = 0; c < 3; ++c) put(out, float(mesh.normals[v][c]));
+    }
+    for (const auto& t : mesh.triangles) {
+        put(out, std::uint8_t(3));
+        for (const std::int32_t v : t) put(out, v);
+    }
 }
 
 /// A one-mesh scene. aiScene's destructor frees its meshes, materials and nodes with delete /
 /// delete[], so everything below is allocated with new / new[] and owned by the scene.
-std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh) {
+std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh, const std::function<Eigen::Vector3d(const Eigen::Vector3d&)>& to_file) {
     auto scene = std::make_unique<aiScene>();
     scene->mRootNode = new aiNode();
     scene->mRootNode->mNumMeshes = 1;
@@ -58,13 +136,13 @@ std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh) {
     out.mNumVertices = unsigned(mesh.positions.size());
     out.mVertices = new aiVector3D[mesh.positions.size()];
     for (std::size_t v = 0; v < mesh.positions.size(); ++v) {
-        const auto& p = mesh.positions[v];
+        const Eigen::Vector3d p = to_file(mesh.positions[v]);
         out.mVertices[v] = aiVector3D(ai_real(p.x()), ai_real(p.y()), ai_real(p.z()));
     }
     if (mesh.normals.size() == mesh.positions.size() && !mesh.normals.empty()) {
         out.mNormals = new aiVector3D[mesh.normals.size()];
         for (std::size_t v = 0; v < mesh.normals.size(); ++v) {
-            const auto& n = mesh.normals[v];
+            const Eigen::Vector3d n = to_file(mesh.normals[v]).normalized();  // the rotation; the scale does not matter
             out.mNormals[v] = aiVector3D(ai_real(n.x()), ai_real(n.y()), ai_real(n.z()));
         }
     }
@@ -82,8 +160,8 @@ std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh) {
 }  // namespace
 
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
-    const std::string format = exporter_for(lower_case_extension(path));
-    if (format.empty())
+    const std::string extension = lower_case_extension(path);
+    if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
         throw OutputError("cannot write mesh '" + path.string() + "': unknown extension '" + path.extension().string() +
                           "' (expected .stl, .obj, .ply or .glb)");
     for (const auto& t : mesh.triangles)
@@ -96,11 +174,22 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
                 throw OutputError("cannot write mesh '" + path.string() + "': vertex " + std::to_string(v) +
                                   " has a non-finite coordinate; nothing was written");
 
-    const auto scene = scene_of(mesh);
+    if (extension == ".glb") {
+        const auto scene = scene_of(mesh, lps_mm_to_gltf);
+        write_file_atomically(path, [&](const std::filesystem::path& temporary) {
+            Assimp::Exporter exporter;
+            if (exporter.Export(scene.get(), "glb2", temporary.string()) != aiReturn_SUCCESS)
+                throw OutputError("cannot write mesh '" + path.string() + "': " + exporter.GetErrorString());
+        });
+        return;
+    }
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
-        Assimp::Exporter exporter;
-        if (exporter.Export(scene.get(), format, temporary.string()) != aiReturn_SUCCESS)
-            throw OutputError("cannot write mesh '" + path.string() + "': " + exporter.GetErrorString());
+        std::ofstream out(temporary, std::ios::binary);
+        if (extension == ".stl") write_stl(out, mesh);
+        else if (extension == ".obj") write_obj(out, mesh);
+        else write_ply(out, mesh);
+        out.close();
+        if (!out) throw OutputError("cannot write mesh '" + path.string() + "': writing failed (disk full?)");
     });
 }
 
@@ -124,12 +213,16 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
                                              aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
     if (!scene) throw InputError("cannot read mesh '" + path.string() + "': " + importer.GetErrorString());
 
+    // glTF is metres with +Y up (its specification): back to LPS mm by the inverse of what we write.
+    const bool gltf = is_gltf(lower_case_extension(path));
     TriangleMesh mesh;
     for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
         const aiMesh& part = *scene->mMeshes[m];
         const auto first_vertex = std::int32_t(mesh.positions.size());
-        for (unsigned v = 0; v < part.mNumVertices; ++v)
-            mesh.positions.emplace_back(part.mVertices[v].x, part.mVertices[v].y, part.mVertices[v].z);
+        for (unsigned v = 0; v < part.mNumVertices; ++v) {
+            const Eigen::Vector3d p(part.mVertices[v].x, part.mVertices[v].y, part.mVertices[v].z);
+            mesh.positions.push_back(gltf ? gltf_to_lps_mm(p) : p);
+        }
         for (unsigned f = 0; f < part.mNumFaces; ++f) {
             const aiFace& face = part.mFaces[f];
             if (face.mNumIndices != 3) continue;  // points and lines left after triangulation

@@ -1,6 +1,10 @@
 /// @file mesh_io.h
-/// @brief Triangle meshes to and from STL, OBJ, PLY and glTF (.glb/.gltf) through assimp.
-/// Coordinates are written as they are (world LPS, mm); no axis conversion.
+/// @brief Triangle meshes to and from STL, OBJ, PLY and glTF (.glb/.gltf).
+/// STL, OBJ and PLY hold world LPS millimetres as they are, with `SPACE=LPS units=mm` in their
+/// header (STL's 80 bytes, an OBJ comment, a PLY comment: Slicer reads the tag); STL facets carry
+/// their true normals. glTF is metres with +Y up by its specification, so a .glb holds
+/// (x, z, −y) / 1000 of LPS mm: +X left, +Y superior, +Z anterior (the heart faces a glTF
+/// viewer's default camera); reading a .glb/.gltf applies the inverse.
 #pragma once
 
 #include "libmodel/mesh.h"
@@ -9,9 +13,9 @@
 
 namespace heartsim {
 
-/// Writes `mesh` to `path`; the format follows the extension (.stl binary, .obj, .ply binary,
-/// .glb). Atomic: written to a temporary file beside `path` and renamed. Throws OutputError
-/// (unwritable place, unknown extension) naming the file.
+/// Writes `mesh` to `path`; the format follows the extension (.stl binary, .obj, .ply binary
+/// little-endian, .glb). Atomic: written to a temporary file beside `path` and renamed. Throws
+/// OutputError (unwritable place, unknown extension, a non-finite vertex) naming the file.
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh);
 
 /// Reads a triangle mesh (all meshes of the file merged, polygons triangulated, identical

@@ -6,7 +6,14 @@
 #include "libmodel/surface.h"
 #include "test_support.h"
 
+#include <assimp/Importer.hpp>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
 #include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
 
 #include <limits>
 
@@ -25,9 +32,11 @@ TriangleMesh sample_mesh() {
 }
 
 /// Vertex order may change on the way (assimp joins and reorders), so compare triangles as
-/// position triples, matched through each position rounded to float: every format stores float
-/// coordinates (OBJ as text with 9 significant digits, which round-trips a float exactly).
-void expect_same_geometry(const TriangleMesh& expected, const TriangleMesh& actual) {
+/// position triples, matched through each position rounded to float: STL, OBJ and PLY store
+/// float coordinates in mm (OBJ as text with 9 significant digits, which round-trips a float
+/// exactly). glTF stores float metres, so a vertex comes back within `tolerance_mm` (a float's
+/// rounding of the metre value, times 1000) and is matched to the nearest.
+void expect_same_geometry(const TriangleMesh& expected, const TriangleMesh& actual, double tolerance_mm = 0) {
     ASSERT_EQ(expected.triangles.size(), actual.triangles.size());
     ASSERT_EQ(expected.positions.size(), actual.positions.size());
     auto key = [](const Eigen::Vector3d& p) { return std::array<float, 3>{float(p.x()), float(p.y()), float(p.z())}; };
@@ -37,6 +46,15 @@ void expect_same_geometry(const TriangleMesh& expected, const TriangleMesh& actu
 
     std::vector<std::int32_t> expected_of_actual(actual.positions.size(), -1);
     for (std::size_t v = 0; v < actual.positions.size(); ++v) {
+        if (tolerance_mm > 0) {
+            std::size_t nearest = 0;
+            for (std::size_t e = 1; e < expected.positions.size(); ++e)
+                if ((expected.positions[e] - actual.positions[v]).squaredNorm() < (expected.positions[nearest] - actual.positions[v]).squaredNorm())
+                    nearest = e;
+            ASSERT_LE((expected.positions[nearest] - actual.positions[v]).norm(), tolerance_mm) << "vertex " << v;
+            expected_of_actual[v] = std::int32_t(nearest);
+            continue;
+        }
         const auto found = expected_vertex_at.find(key(actual.positions[v]));
         ASSERT_TRUE(found != expected_vertex_at.end()) << "vertex " << v << " moved beyond float rounding";
         expected_of_actual[v] = found->second;
@@ -68,7 +86,8 @@ TEST_P(MeshRoundTrip, KeepsPositionsAndTriangles) {
     // Atomic write: nothing but the target is left beside it.
     EXPECT_EQ(std::distance(std::filesystem::directory_iterator(dir.path()), std::filesystem::directory_iterator()), 1);
     const TriangleMesh back = read_mesh(path);
-    expect_same_geometry(mesh, back);
+    // glTF: float metres; a float's relative rounding 6e-8 of ~0.33 m is 2e-5 mm.
+    expect_same_geometry(mesh, back, GetParam() == ".glb" ? 1e-4 : 0.0);
     const MeshReport report = analyse_mesh(back);
     EXPECT_TRUE(report.closed());
     EXPECT_TRUE(report.manifold());
@@ -77,6 +96,77 @@ TEST_P(MeshRoundTrip, KeepsPositionsAndTriangles) {
 
 INSTANTIATE_TEST_SUITE_P(Formats, MeshRoundTrip, ::testing::Values(".stl", ".obj", ".ply", ".glb"),
                          [](const auto& info) { return info.param.substr(1); });
+
+TEST(MeshIo, StlFacetsCarryTheirTrueNormalsAndTheHeaderSaysLps) {
+    // Read by hand, not through our reader: the 80-byte header, then per facet a normal that is
+    // the unit cross product of its edges (right-hand rule) and points out of the sphere. (assimp's
+    // STL exporter wrote the mean of the corners' vertex normals.)
+    const TriangleMesh mesh = sample_mesh();
+    test::TempDir dir;
+    write_mesh(dir / "sphere.stl", mesh);
+    std::ifstream in(dir / "sphere.stl", std::ios::binary);
+    char header[80];
+    in.read(header, 80);
+    EXPECT_NE(std::string(header, 80).find("SPACE=LPS"), std::string::npos);
+    std::uint32_t count = 0;
+    in.read(reinterpret_cast<char*>(&count), 4);
+    ASSERT_EQ(count, mesh.triangles.size());
+    const Eigen::Vector3d centre(-120.25, 35.5, 310.75);
+    double worst_degrees = 0;
+    for (std::uint32_t f = 0; f < count; ++f) {
+        float values[12];
+        std::uint16_t attribute;
+        in.read(reinterpret_cast<char*>(values), sizeof values);
+        in.read(reinterpret_cast<char*>(&attribute), 2);
+        ASSERT_TRUE(in) << "facet " << f;
+        const Eigen::Vector3d n(values[0], values[1], values[2]), a(values[3], values[4], values[5]), b(values[6], values[7], values[8]),
+            c(values[9], values[10], values[11]);
+        // Facets are written in the mesh's order: the truth from its double corners.
+        const auto& t = mesh.triangles[f];
+        const Eigen::Vector3d& p0 = mesh.positions[std::size_t(t[0])];
+        const Eigen::Vector3d truth = (mesh.positions[std::size_t(t[1])] - p0).cross(mesh.positions[std::size_t(t[2])] - p0).normalized();
+        EXPECT_EQ(a.cast<float>(), p0.cast<float>()) << "facet " << f;
+        EXPECT_NEAR(n.norm(), 1.0, 1e-6) << "facet " << f;
+        worst_degrees = std::max(worst_degrees, std::atan2(n.cross(truth).norm(), n.dot(truth)) * 180.0 / M_PI);  // not acos: flat near 0
+        EXPECT_GT(n.dot((a + b + c) / 3.0 - centre), 0.0) << "facet " << f << " normal points inwards";
+    }
+    EXPECT_LT(worst_degrees, 1e-4) << "largest angle between a written normal and its facet's (a float's rounding)";
+    in.get();
+    EXPECT_TRUE(in.eof()) << "nothing after the last facet";
+}
+
+TEST(MeshIo, ObjAndPlyHeadersSayLps) {
+    test::TempDir dir;
+    for (const char* name : {"sphere.obj", "sphere.ply"}) {
+        write_mesh(dir / name, sample_mesh());
+        std::ifstream in(dir / name, std::ios::binary);
+        std::string head(200, '\0');
+        in.read(head.data(), std::streamsize(head.size()));
+        EXPECT_NE(head.find(std::string(std::string(name) == "sphere.obj" ? "# " : "comment ") + "heartsim"), std::string::npos) << name;
+        EXPECT_NE(head.find("SPACE=LPS units=mm"), std::string::npos) << name;
+    }
+}
+
+TEST(MeshIo, GlbIsInMetresWithYUpAsGltfViewersExpect) {
+    // Read back through assimp directly (no conversion), as a glTF viewer would: metres, +Y the
+    // patient's superior, +Z anterior (−LPS y), +X left.
+    const TriangleMesh mesh = sample_mesh();
+    test::TempDir dir;
+    write_mesh(dir / "sphere.glb", mesh);
+    Assimp::Importer importer;
+    const aiScene* scene = importer.ReadFile((dir / "sphere.glb").string(), aiProcess_PreTransformVertices);
+    ASSERT_NE(scene, nullptr) << importer.GetErrorString();
+    Eigen::AlignedBox3d seen, expected;
+    for (unsigned m = 0; m < scene->mNumMeshes; ++m)
+        for (unsigned v = 0; v < scene->mMeshes[m]->mNumVertices; ++v) {
+            const aiVector3D& p = scene->mMeshes[m]->mVertices[v];
+            seen.extend(Eigen::Vector3d(p.x, p.y, p.z));
+        }
+    for (const auto& p : mesh.positions) expected.extend(Eigen::Vector3d(p.x(), p.z(), -p.y()) / 1000.0);
+    EXPECT_LT((seen.min() - expected.min()).norm(), 1e-7) << seen.min().transpose() << " m, expected " << expected.min().transpose();
+    EXPECT_LT((seen.max() - expected.max()).norm(), 1e-7) << seen.max().transpose() << " m, expected " << expected.max().transpose();
+    EXPECT_NEAR(seen.center().y(), 0.31075, 1e-5) << "the sphere's superior coordinate, in metres, is glTF's up";
+}
 
 TEST(MeshIo, OverwritesAnExistingFile) {
     test::TempDir dir;

@@ -82,7 +82,7 @@ void add_build_command(CLI::App& app) {
                       "Skip the visual surface (the runtime then draws the simulation surface)")
         ->group("Surface");
     command->add_option("--visual-mesh", options->visual_mesh,
-                        "Use this mesh (STL/OBJ/PLY/glTF, LPS mm, e.g. from 3D Slicer) as the visual mesh instead of marching cubes")
+                        "Use this mesh (STL/OBJ/PLY in LPS mm, e.g. from 3D Slicer; glTF in its own metres, +Y up) as the visual mesh instead of marching cubes")
         ->check(CLI::ExistingFile)
         ->group("Surface");
     auto packing = std::make_shared<std::string>("bricks");
@@ -233,8 +233,9 @@ void add_build_command(CLI::App& app) {
 void add_surface_command(CLI::App& app) {
     auto* command = app.add_subcommand("surface", "The detailed tissue surface only: label map -> mesh file (LPS, mm)");
     command->footer("\nExample:\n  heartprep surface case.nii.gz -o heart.stl --smoothing 0.5\n"
-                    "Formats by extension: .stl (binary), .obj, .ply (binary), .glb. Coordinates are LPS mm,\n"
-                    "the default frame of 3D Slicer's model files.");
+                    "Formats by extension: .stl (binary), .obj, .ply (binary), .glb. STL, OBJ and PLY hold LPS mm,\n"
+                    "the default frame of 3D Slicer's model files, and say SPACE=LPS in their header; STL facets\n"
+                    "carry their true normals. A .glb is in glTF's own frame: metres, +Y superior, +Z anterior.");
     auto input = std::make_shared<std::filesystem::path>();
     auto output = std::make_shared<std::string>();
     auto selection = std::make_shared<SelectionOptions>();

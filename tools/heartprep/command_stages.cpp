@@ -121,7 +121,8 @@ void add_stage_commands(CLI::App& app) {
     }
     {
         auto* command = app.add_subcommand("export", "Write a scenario's simulation surface or visual mesh for 3D Slicer / MeshLab");
-        command->footer("\nCoordinates are LPS mm (3D Slicer's default for model files). Formats by extension: .stl .obj .ply .glb");
+        command->footer("\nFormats by extension: .stl .obj .ply (LPS mm, 3D Slicer's default for model files, SPACE=LPS in the\n"
+                        "header) and .glb (glTF's own frame: metres, +Y superior, +Z anterior).");
         auto input = std::make_shared<std::filesystem::path>();
         auto output = std::make_shared<std::filesystem::path>();
         auto what = std::make_shared<std::string>("visual");
