@@ -1,12 +1,12 @@
 // The watchdog soak (docs/benchmarks.md "Soak"): a scenario as heartprep built it, stepped with
-// the shipped solver options for many steps of a hostile two-handed gesture: a 3 mm grabber
-// grabs beside an anchor or a strong support, pulls 20 mm in a random direction over 200 ms and
-// lets go (the gesture that used to freeze the simulation for good), while a probe presses
-// where the grab was. At the end both hands leave and the tissue settles. It reports the steps
-// that advanced against those asked, the watchdog's events and whether it gave up, slipped
-// particles, the largest instrument force, finite positions, and how far the settled tissue is
-// from its rest state.
-//   soak_bench SCENARIO.h5 [--steps N] [--seed S]
+// the shipped solver options for many steps of the gesture that used to freeze the simulation
+// for good: a 3 mm grabber grabs beside an anchor or a strong support, pulls 20 mm in a random
+// direction over 200 ms, lets go and waits 100 ms, then travels (at 2 mm/ms, holding nothing)
+// to the next site. At the end the hand leaves and the tissue settles. It reports the steps that
+// advanced against those asked, the watchdog's events and how often it gave up (heartsim would
+// stop there with exit 6), slipped particles, the largest instrument force, finite positions,
+// and how far the settled tissue is from its rest state.
+//   soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--events]
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/solver.h"
@@ -52,15 +52,20 @@ std::vector<std::size_t> held_hardest(const Scenario& scenario) {
 
 int main(int argc, char** argv) {
     if (argc < 2 || std::string(argv[1]) == "--help") {
-        std::fprintf(stderr, "usage: soak_bench SCENARIO.h5 [--steps N] [--seed S]\n");
+        std::fprintf(stderr, "usage: soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--events]\n");
         return argc < 2 ? 2 : 0;
     }
     long long steps = 100000;
     unsigned seed = 1;
+    double settle_s = 1.0, slip = -1.0;
+    bool events = false;
     for (int a = 2; a < argc; ++a) {
         const std::string arg = argv[a];
         if (arg == "--steps" && a + 1 < argc) steps = std::stoll(argv[++a]);
         else if (arg == "--seed" && a + 1 < argc) seed = unsigned(std::stoul(argv[++a]));
+        else if (arg == "--settle" && a + 1 < argc) settle_s = std::stod(argv[++a]);
+        else if (arg == "--slip" && a + 1 < argc) slip = std::stod(argv[++a]);
+        else if (arg == "--events") events = true;
         else {
             std::fprintf(stderr, "soak_bench: unknown argument %s\n", arg.c_str());
             return 2;
@@ -69,62 +74,71 @@ int main(int argc, char** argv) {
     try {
         const Scenario scenario = read_scenario(argv[1]);
         if (!scenario.packing) throw InputError(std::string(argv[1]) + ": no /packing");
-        Solver solver(scenario.lattice, scenario.packing->neighbours, options_from(scenario.solver));
+        SolverOptions options = options_from(scenario.solver);
+        if (slip >= 0) options.grab_slip_strain = slip;
+        Solver solver(scenario.lattice, scenario.packing->neighbours, options);
         const auto& rest = scenario.lattice.particles.rest_position;
         const std::vector<std::size_t> sites = held_hardest(scenario);
         if (sites.empty()) throw InputError(std::string(argv[1]) + ": nothing anchored or supported to grab beside");
         const double dt = solver.time_step_ms();
-        const long long pull_steps = std::max(1LL, (long long)std::lround(200.0 / dt)), rest_steps = std::max(1LL, (long long)std::lround(100.0 / dt));
-        const long long cycle = pull_steps + rest_steps;
-        std::printf("soak: %s, %zu particles, dt %.4g ms (%d substeps), %zu grab sites (%s), %lld steps: %lld cycles of a 20 mm pull over "
-                    "200 ms and 100 ms let go\n",
+        const long long pull_steps = std::max(1LL, (long long)std::lround(200.0 / dt)), wait_steps = std::max(1LL, (long long)std::lround(100.0 / dt));
+        const double travel_per_step = 2.0 * dt;  // mm: 2 mm/ms, holding nothing
+        std::printf("soak: %s, %zu particles, dt %.4g ms (%d substeps), %zu grab sites (%s), %lld steps of 20 mm pulls over 200 ms, "
+                    "100 ms let go, travel at 2 mm/ms\n",
                     argv[1], solver.size(), dt, solver.substeps_per_step(), sites.size(),
                     std::any_of(scenario.lattice.particles.anchored.begin(), scenario.lattice.particles.anchored.end(), [](auto a) { return a != 0; })
                         ? "beside anchors"
                         : "stiffest supports",
-                    steps, (steps + cycle - 1) / cycle);
+                    steps);
 
-        solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(2, 2, 5)});
         solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(3.0)});
         std::mt19937 random(seed);
         std::uniform_int_distribution<std::size_t> pick(0, sites.size() - 1);
         std::normal_distribution<double> gauss(0, 1);
-        Eigen::Vector3d site = Eigen::Vector3d::Zero(), direction = Eigen::Vector3d::UnitX();
-        long long advanced = 0, gave_up = 0, grabs = 0, held_total = 0;
+        auto rest_of = [&](std::size_t i) { return Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2]); };
+        Eigen::Vector3d hand = rest_of(sites[pick(random)]), site = hand, direction = Eigen::Vector3d::UnitX();
+        solver.set_pose(1, {hand, Eigen::Quaterniond::Identity()});
+        enum class Phase { travel, pull, wait } phase = Phase::travel;
+        long long phase_step = 0, advanced = 0, gave_up = 0, grabs = 0, held_total = 0;
         double largest_force = 0;
         std::string last_message;
         const auto t0 = std::chrono::steady_clock::now();
         for (long long s = 0; s < steps; ++s) {
-            const long long phase = s % cycle;
-            if (phase == 0) {
-                const std::size_t i = sites[pick(random)];
-                site = Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2]);
-                direction = Eigen::Vector3d(gauss(random), gauss(random), gauss(random)).normalized();
-                solver.set_pose(1, {site, Eigen::Quaterniond::Identity()});
-                solver.set_pose(0, {site + 6.0 * direction.unitOrthogonal(), Eigen::Quaterniond::Identity()});
-            } else if (phase == 1) {
-                held_total += long(solver.begin_grab(1));
-                ++grabs;
-            } else if (phase < pull_steps) {
-                const double f = double(phase) / double(pull_steps);
-                solver.set_pose(1, {site + 20.0 * f * direction, Eigen::Quaterniond::Identity()});
-                solver.set_pose(0, {site + (6.0 - 4.0 * f) * direction.unitOrthogonal(), Eigen::Quaterniond::Identity()});
-            } else if (phase == pull_steps) {
-                solver.release(1);
-                solver.set_pose(0, {site + 30.0 * direction.unitOrthogonal(), Eigen::Quaterniond::Identity()});
+            if (phase == Phase::travel) {
+                const Eigen::Vector3d to = site - hand;
+                hand += to.norm() > travel_per_step ? Eigen::Vector3d(to.normalized() * travel_per_step) : to;
+                if (hand == site) {
+                    held_total += long(solver.begin_grab(1));
+                    ++grabs;
+                    direction = Eigen::Vector3d(gauss(random), gauss(random), gauss(random)).normalized();
+                    phase = Phase::pull, phase_step = 0;
+                }
+            } else if (phase == Phase::pull) {
+                hand = site + 20.0 * double(++phase_step) / double(pull_steps) * direction;
+                if (phase_step == pull_steps) {
+                    solver.release(1);
+                    phase = Phase::wait, phase_step = 0;
+                }
+            } else if (++phase_step == wait_steps) {
+                site = rest_of(sites[pick(random)]);
+                phase = Phase::travel;
             }
+            solver.set_pose(1, {hand, Eigen::Quaterniond::Identity()});
             const StepReport report = solver.step();
             advanced += report.steps;
             if (report.diverged) last_message = report.message;
+            if (report.diverged && events)
+                std::printf("soak: event at step %lld, %s step %lld; %zu slipped so far: %s\n", s,
+                            phase == Phase::travel ? "travel" : phase == Phase::pull ? "pull" : "let-go", phase_step, solver.slipped_particles(),
+                            report.message.c_str());
             if (report.gave_up) ++gave_up;
             const InstrumentForces forces = solver.instrument_forces();
-            largest_force = std::max({largest_force, forces.hand[0].force_n.norm(), forces.hand[1].force_n.norm()});
+            largest_force = std::max(largest_force, forces.hand[1].force_n.norm());
         }
         const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-        // Both hands leave; the tissue settles for a second of simulated time.
-        solver.set_instrument(0, {.kind = InstrumentKind::none});
+        // The hand leaves; the tissue settles.
         solver.set_instrument(1, {.kind = InstrumentKind::none});
-        solver.step(int(std::lround(1000.0 / dt)));
+        solver.step(int(std::lround(settle_s * 1000.0 / dt)));
         bool finite = true;
         double settled = 0;
         for (std::size_t i = 0; i < solver.size(); ++i) {
@@ -133,11 +147,11 @@ int main(int argc, char** argv) {
             settled = std::max(settled, (x - Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2])).norm());
         }
         std::printf("soak: %lld of %lld steps advanced in %.1f s (%.0f steps/s); watchdog events %zu, gave up %lld times; %lld grabs held "
-                    "%.1f particles on average, %zu slipped; largest instrument force %.3g N; positions %s; 1 s after the hands left, the "
+                    "%.1f particles on average, %zu slipped; largest grabber force %.3g N; positions %s; %.3g s after the hand left, the "
                     "largest distance from rest %.3g mm\n",
                     advanced, steps, seconds, double(steps) / seconds, solver.watchdog_events(), gave_up, grabs,
                     grabs ? double(held_total) / double(grabs) : 0.0, solver.slipped_particles(), largest_force,
-                    finite ? "finite" : "NOT FINITE", settled);
+                    finite ? "finite" : "NOT FINITE", settle_s, settled);
         if (!last_message.empty()) std::printf("soak: last watchdog message: %s\n", last_message.c_str());
         return finite && gave_up == 0 ? 0 : 1;
     } catch (const std::exception& e) {
