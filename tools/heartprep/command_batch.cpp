@@ -184,9 +184,12 @@ Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executab
         if (fs::exists(output)) {
             try {
                 const Scenario existing = read_scenario(output);
-                if (existing.batch_key == key) {
+                // A file from before scenarios kept their build's warnings is built again, so the
+                // summary can report them.
+                if (existing.batch_key == key && existing.build_warnings) {
                     outcome.status = "skipped";
                     fill_counts(existing, outcome);
+                    outcome.warnings = *existing.build_warnings;
                     return outcome;
                 }
             } catch (const InputError&) {
@@ -196,10 +199,11 @@ Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executab
         std::vector<std::string> arguments{executable.string(), "build", c.input.string(), "-o", output.string(), "--batch-key", key};
         for (auto& word : split_words(c.options)) arguments.push_back(word);
         const int status = run_process(arguments, log);
+        std::vector<std::string> logged_warnings;
         std::ifstream in(log);
         std::string line;
         while (std::getline(in, line)) {
-            if (line.rfind("heartprep: warning: ", 0) == 0) outcome.warnings.push_back(line.substr(20));
+            if (line.rfind("heartprep: warning: ", 0) == 0) logged_warnings.push_back(line.substr(20));
             if (line.rfind("heartprep: error: ", 0) == 0) outcome.message = line.substr(18);
         }
         if (status != 0) {
@@ -207,7 +211,9 @@ Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executab
                 outcome.message = status < 0 ? "killed by signal " + std::to_string(-status) + " (see " + log.string() + ")"
                                              : "exit status " + std::to_string(status) + " (see " + log.string() + ")";
         } else {
-            fill_counts(read_scenario(output), outcome);
+            const Scenario built = read_scenario(output);
+            fill_counts(built, outcome);
+            outcome.warnings = built.build_warnings ? *built.build_warnings : logged_warnings;
             outcome.status = "built";
         }
     } catch (const std::exception& e) {
@@ -235,8 +241,9 @@ void add_batch_command(CLI::App& app) {
         "lines starting with # are ignored; relative paths are relative to the manifest), or a folder of label maps.\n"
         "Each case is written to DIR/<case_id>.h5 by its own `heartprep build` process, its output to\n"
         "DIR/logs/<case_id>.log. Per-case options replace --options. A case whose input bytes, options and\n"
-        "heartprep version are unchanged since its scenario was written is skipped. One failing case does not\n"
-        "stop the others; the exit status is non-zero if any case failed. Summary: DIR/summary.csv, DIR/summary.md.\n"
+        "heartprep version are unchanged since its scenario was written is skipped (its build's warnings,\n"
+        "kept in the scenario, are reported again). One failing case does not stop the others; the exit status\n"
+        "is non-zero if any case failed. Summary: DIR/summary.csv, DIR/summary.md.\n"
         "Example:\n  heartprep batch cases.csv -o scenarios/ -j 2 --options \"--cavity 2 --anchor-border\"");
     auto manifest = std::make_shared<fs::path>();
     auto folder = std::make_shared<fs::path>();
