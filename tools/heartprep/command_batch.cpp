@@ -274,6 +274,11 @@ Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executab
                 // A damaged or foreign file: build the case again.
             }
         }
+        if (stop_signal.load()) {  // stopped while the existing scenario was being checked
+            outcome.status = "not started";
+            outcome.message = "the batch was stopped by " + signal_name(stop_signal.load()) + " first";
+            return outcome;
+        }
         std::vector<std::string> arguments{executable.string(), "build", c.input.string(), "-o", output.string(), "--batch-key", key};
         for (auto& word : split_words(c.options)) arguments.push_back(word);
         const ChildStatus status = run_process(arguments, log, slot);
