@@ -40,6 +40,7 @@ void write_contents(h5::Writer& w, const Scenario& s) {
     w.attribute("/", "generator", s.generator);
     w.attribute("/", "source_sha256", s.source.sha256);
     if (!s.batch_key.empty()) w.attribute("/", "batch_key", s.batch_key);
+    if (s.build_warnings) w.strings("build_warnings", *s.build_warnings);
 
     {
         const std::string g = "source";
@@ -304,6 +305,7 @@ Scenario read_contents(const h5::Reader& r) {
     s.generator = r.string_attribute("/", "generator");
     s.source.sha256 = r.string_attribute("/", "source_sha256");
     if (r.has_attribute("/", "batch_key")) s.batch_key = r.string_attribute("/", "batch_key");
+    if (r.exists("build_warnings")) s.build_warnings = r.strings("build_warnings", -1);
 
     {
         auto& geometry = s.source.geometry;

@@ -61,6 +61,9 @@ struct Scenario {
     /// `heartprep batch`'s key: SHA-256 of (input bytes, build options, generator); empty outside
     /// a batch. A batch skips a case whose existing scenario carries the key it would write.
     std::string batch_key;
+    /// The warnings of the `heartprep build` that wrote the file (/build_warnings), so a batch that
+    /// reuses the file still reports them; nullopt for a file from before the dataset existed.
+    std::optional<std::vector<std::string>> build_warnings;
     ScenarioSource source;
     Lattice lattice;                  ///< spacing, dims, index_to_world, materials, particles, springs
     std::optional<VisualMesh> visual;

@@ -36,7 +36,8 @@ int main(int argc, char** argv) {
     CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)\n\n"
                  "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
                  "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
-                 "  heartsim info                             the OpenGL device, version and limits\n"};
+                 "  heartsim info                             the OpenGL device, version and limits\n"
+                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
     auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
@@ -93,18 +94,24 @@ int main(int argc, char** argv) {
         ->check(CLI::IsMember({"realtime", "normal"}))
         ->capture_default_str();
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
-    run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5)");
+    run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5, written at the end; meanwhile "
+                                         "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`)");
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces")
         ->check(CLI::ExistingFile);
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
         ->check(CLI::NonNegativeNumber);
+    std::string journal, recovered;
+    auto* recover = app.add_subcommand("recover", "Write the recording of a --record session that was killed, from the journal it "
+                                                  "kept beside the recording (OUT.h5.journal: all but its last second); then delete the journal");
+    recover->add_option("journal", journal, "The journal, OUT.h5.journal")->required();
+    recover->add_option("-o,--output", recovered, "Recording to write (default: the journal's name without .journal, the --record file)");
     // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
     // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
     std::vector<char*> arguments(argv, argv + argc);
     static char run_word[] = "run";
     const std::string first = argc >= 2 ? argv[1] : "";
-    if (argc >= 2 && first != "run" && first != "info" && first != "-h" && first != "--help" && first != "--version")
+    if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version")
         arguments.insert(arguments.begin() + 1, run_word);
     CLI11_PARSE(app, int(arguments.size()), arguments.data());
     a.steps_given = run->count("--steps") > 0;
@@ -113,6 +120,7 @@ int main(int argc, char** argv) {
     a.contact_given = run->count("--contact") > 0;
     try {
         if (info->parsed()) return command_info();
+        if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
     } catch (const GlUnavailable& e) {
         std::fprintf(stderr, "heartsim: %s\n", e.what());

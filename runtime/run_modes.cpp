@@ -6,7 +6,9 @@
 #include "runtime/png.h"
 #include "runtime/window_run.h"
 
+#include "formats/atomic_file.h"
 #include "formats/recording.h"
+#include "formats/recording_journal.h"
 #include "formats/state.h"
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
@@ -514,6 +516,50 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
         };
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
     return finish_run(a, run, result, nullptr, wall_start);
+}
+
+int recover_recording(const std::string& journal, const std::string& output) {
+    namespace fs = std::filesystem;
+    const std::string suffix = ".journal";
+    fs::path target = output;
+    if (target.empty()) {
+        if (journal.size() <= suffix.size() || journal.compare(journal.size() - suffix.size(), suffix.size(), suffix) != 0)
+            throw InputError(journal + ": not named OUT.h5.journal; give the recording to write with -o OUT.h5");
+        target = journal.substr(0, journal.size() - suffix.size());
+    }
+    if (journal_in_use(journal))
+        throw InputError(journal + ": a running heartsim session is writing it; it writes its recording itself when it ends");
+    const JournalContents contents = read_recording_journal(journal);
+    const Recording& r = contents.recording;
+    std::size_t ticks = 0;
+    for (const RecordedHand& hand : r.hands) ticks = std::max(ticks, hand.tick_time_ms.size());
+    std::printf("recover: %s: a --record %s session on %s (%s backend, %lld particles) by process %lld\n", journal.c_str(),
+                contents.target.c_str(), r.scenario.c_str(), r.backend.c_str(), (long long)r.particles, (long long)contents.pid);
+    std::printf("recover: %zu chunks: %zu steps (%.4g ms simulated), %zu device ticks, %zu events; %s\n", contents.chunks, r.steps.size(),
+                r.steps.size() ? r.steps.time_ms.back() - r.steps.time_ms.front() + r.dt_ms : 0.0, ticks, r.events.size(),
+                contents.ended ? "the session ended normally (its recording was not written)"
+                               : contents.ignored_bytes ? ("the session was killed while writing its last chunk (" +
+                                                           std::to_string(contents.ignored_bytes) + " bytes, not kept)").c_str()
+                                                        : "the session was killed (an `interrupted` event marks where the journal ends)");
+    if (r.steps.size() == 0)
+        throw InputError(journal + ": holds no step (the session was killed within its first half second): nothing to recover; delete it");
+    // Written beside the target and read back with every check a recording gets before it takes the
+    // name, so what takes the name is a recording that reads.
+    write_file_atomically(target, [&](const fs::path& temporary) {
+        write_recording(temporary, r);
+        try {
+            read_recording(temporary);
+        } catch (const InputError& e) {
+            throw InputError(journal + ": the recovered session does not pass a recording's checks: " + e.what());
+        }
+    });
+    std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", target.c_str(), r.steps.size(), ticks, r.events.size());
+    std::error_code error;
+    fs::remove(journal, error);
+    if (error) std::fprintf(stderr, "heartsim: warning: %s: cannot delete it (%s); delete it before recording to %s again\n", journal.c_str(),
+                            error.message().c_str(), contents.target.c_str());
+    else std::printf("deleted %s\n", journal.c_str());
+    return 0;
 }
 
 }  // namespace heartsim

@@ -91,4 +91,10 @@ int window_mode(const RunArguments& arguments, PreparedRun& run);
 /// after every --screenshot-every steps. 0.
 int headless_scripted_mode(const RunArguments& arguments, PreparedRun& run);
 
+/// `heartsim recover JOURNAL [-o OUT.h5]`: the journal a killed `--record` session left
+/// (OUT.h5.journal) written as its recording, to `output` or, when empty, the journal's name
+/// without `.journal`; then the journal is deleted. 0; InputError when the journal is in use,
+/// is not one, or holds no step.
+int recover_recording(const std::string& journal, const std::string& output);
+
 }  // namespace heartsim

@@ -65,6 +65,8 @@ TEST(HapticsCli, TwoHandsRunForTwoSecondsAndPrintTheHapticRateTable) {
     for (const char* line : {"hand 0: simulated:", "hand 1: scripted:", "haptic period", "pose → force latency", "pose → force, steps", "wrote "})
         EXPECT_NE(s.run.output.find(line), std::string::npos) << line << "\n" << s.run.output;
     std::printf("%s\n", s.run.output.c_str());
+    // A session that ends normally writes its recording and deletes the journal it kept meanwhile.
+    EXPECT_FALSE(fs::exists(fs::path(s.file.string() + ".journal")));
 
     const Recording r = read_recording(s.file);
     ASSERT_TRUE(r.hands[0].used && r.hands[1].used);

@@ -157,6 +157,61 @@ TEST(HeartprepBatch, ThreeGoodOneBrokenThenResume) {
     EXPECT_NE(third.output.find("| case_b | skipped |"), std::string::npos) << third.output;
 }
 
+TEST(HeartprepBatch, ASkippedCaseReportsTheWarningsOfTheBuildThatWroteIt) {
+    test::TempDir dir;
+    small_phantom(dir, "a.nii.gz");
+    // --rest-state imaged warns that the heart sags when the simulation starts.
+    fs::create_directory(dir / "in");
+    fs::rename(dir / "a.nii.gz", dir / "in" / "a.nii.gz");
+    const std::string batch = "batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") +
+                              " --options '--particles 2000 --anchor-border --rest-state imaged'";
+    auto summary_row = [&] {
+        std::ifstream in(dir / "out" / "summary.csv");
+        std::string line, row;
+        while (std::getline(in, line))
+            if (line.rfind("\"a\",", 0) == 0) row = line;
+        return row;
+    };
+    const std::string warning = "--rest-state imaged: the springs are unstressed at the imaged shape";
+    const auto first = heartprep(batch);
+    ASSERT_EQ(first.exit_code, 0) << first.output;
+    EXPECT_NE(summary_row().find(",built,"), std::string::npos) << summary_row();
+    EXPECT_NE(summary_row().find(warning), std::string::npos) << summary_row();
+    // The scenario keeps them, exactly the warnings its build printed (and inspect shows them).
+    const Scenario built = read_scenario(dir / "out" / "a.h5");
+    ASSERT_TRUE(built.build_warnings.has_value());
+    std::vector<std::string> printed;
+    {
+        std::ifstream log(dir / "out" / "logs" / "a.log");
+        for (std::string line; std::getline(log, line);)
+            if (line.rfind("heartprep: warning: ", 0) == 0) printed.push_back(line.substr(20));
+    }
+    EXPECT_EQ(*built.build_warnings, printed);
+    ASSERT_FALSE(built.build_warnings->empty());
+    EXPECT_EQ(built.build_warnings->front().rfind(warning, 0), 0u) << built.build_warnings->front();
+    const auto inspect = heartprep("inspect " + quoted(dir / "out" / "a.h5"));
+    EXPECT_NE(inspect.output.find("warnings    " + warning), std::string::npos) << inspect.output;
+
+    const auto second = heartprep(batch);
+    ASSERT_EQ(second.exit_code, 0) << second.output;
+    EXPECT_NE(summary_row().find(",skipped,"), std::string::npos) << summary_row();
+    EXPECT_NE(summary_row().find(warning), std::string::npos) << "a reused case lost its warnings: " << summary_row();
+    EXPECT_NE(second.output.find("| a | skipped |"), std::string::npos) << second.output;
+    EXPECT_NE(second.output.find(warning), std::string::npos) << second.output;
+
+    // A scenario from before the warnings were kept (no /build_warnings) is built again, so the
+    // summary never reports "no warnings" for a case whose warnings are unknown.
+    Scenario old = read_scenario(dir / "out" / "a.h5");
+    old.build_warnings.reset();
+    write_scenario(dir / "out" / "a.h5", old);
+    EXPECT_FALSE(read_scenario(dir / "out" / "a.h5").build_warnings.has_value());
+    EXPECT_NE(heartprep("inspect " + quoted(dir / "out" / "a.h5")).output.find("warnings    not stored"), std::string::npos);
+    const auto third = heartprep(batch);
+    ASSERT_EQ(third.exit_code, 0) << third.output;
+    EXPECT_NE(summary_row().find(",built,"), std::string::npos) << summary_row();
+    EXPECT_NE(summary_row().find(warning), std::string::npos) << summary_row();
+}
+
 TEST(HeartprepBatch, ManifestErrors) {
     test::TempDir dir;
     small_phantom(dir, "a.nii.gz");

@@ -49,6 +49,17 @@ void check_record_path(const std::string& record, const std::string& scenario, c
     if (record.back() == '/' || fs::is_directory(path)) throw InputError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
     if (!fs::is_directory(folder)) throw InputError("--record " + record + ": folder " + folder.string() + " does not exist");
     std::error_code error;
+    // A journal there is a session that is recording now, or one that was killed before it could
+    // write its recording: never replaced, so nothing of it is lost.
+    const fs::path journal = journal_path(path);
+    if (fs::exists(journal) || fs::is_symlink(journal)) {
+        if (journal_in_use(journal))
+            throw InputError("--record " + record + ": another heartsim session is recording to it now (its journal " + journal.string() +
+                             " is open); give another file");
+        throw InputError("--record " + record + ": " + journal.string() + " holds a session that was killed before it could write " + record +
+                         ": `heartsim recover " + journal.string() + "` writes it (to " + record + ", or -o OTHER.h5), or delete " +
+                         journal.string() + " to record over it");
+    }
     auto same = [&](const std::string& other) { return fs::exists(path) && fs::exists(other) && fs::equivalent(path, other, error); };
     if (same(scenario)) throw InputError("--record " + record + ": that is the scenario being run; give another file");
     for (const std::string& device : devices) {
@@ -67,6 +78,20 @@ void check_record_path(const std::string& record, const std::string& scenario, c
     fs::remove(probe, error);
 }
 std::array<double, 4> to_array(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
+
+/// Appends the device ticks from `begin` on as hand `hand`'s rows of `r`.
+void append_ticks(RecordedHand& r, const std::vector<TickRecord>& ticks, std::size_t begin, int hand) {
+    for (std::size_t k = begin; k < ticks.size(); ++k) {
+        const TickRecord& t = ticks[k];
+        r.tick_time_ms.push_back(t.time_ms);
+        r.position_mm.push_back(to_array(t.pose[hand].position_mm));
+        r.orientation.push_back(to_array(t.pose[hand].orientation));
+        r.buttons.push_back(t.pose[hand].buttons);
+        r.input_n.push_back(to_array(t.input_n[hand]));
+        r.force_n.push_back(to_array(t.force_n[hand]));
+        r.gain.push_back(t.gain[hand]);
+    }
+}
 
 }  // namespace
 
@@ -324,10 +349,14 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         r.mapping_scale = mappings[i].scale;
         r.force_scale = mappings[i].force_scale;
     }
+    if (recording_on_) journal_ = std::make_unique<RecordingJournal>(journal_path(settings.record), recording_, settings.record);
 }
 
 HapticRun::~HapticRun() {
     if (session_) session_->stop();
+    // A session that ended before its first step (a device that would not start) leaves nothing to
+    // recover; one that ended by an error later keeps its journal for `heartsim recover`.
+    if (journal_ && !finished_ && recording_.steps.size() == 0) journal_->remove();
 }
 
 std::string HapticRun::describe(int hand) const {
@@ -481,6 +510,41 @@ void HapticRun::drain() {
         last_estop_ = t.estop;
         last_fresh_ = t.simulation_fresh;
     }
+    if (journal_ && session_->now_ms() - journaled_at_ms_ >= journal_period_ms) journal_rows();
+}
+
+void HapticRun::journal_rows() {
+    journaled_at_ms_ = session_->now_ms();
+    Recording rows;
+    const RecordedSteps& s = recording_.steps;
+    RecordedSteps& c = rows.steps;
+    auto tail = [](auto& to, const auto& from, std::size_t begin) { to.assign(from.begin() + std::ptrdiff_t(begin), from.end()); };
+    tail(c.time_ms, s.time_ms, journaled_steps_);
+    tail(c.wall_ms, s.wall_ms, journaled_steps_);
+    tail(c.tool_time_ms, s.tool_time_ms, journaled_steps_);
+    tail(c.tool_position_mm, s.tool_position_mm, journaled_steps_);
+    tail(c.tool_orientation, s.tool_orientation, journaled_steps_);
+    tail(c.grab, s.grab, journaled_steps_);
+    tail(c.applied, s.applied, journaled_steps_);
+    tail(c.force_n, s.force_n, journaled_steps_);
+    tail(c.force_step, s.force_step, journaled_steps_);
+    tail(c.diverged, s.diverged, journaled_steps_);
+    for (int i = 0; i < 2; ++i) {
+        if (!hands_[i].device) continue;
+        append_ticks(rows.hands[i], ticks_, journaled_ticks_, i);
+    }
+    tail(rows.events, recording_.events, journaled_events_);
+    journaled_steps_ = s.size();
+    journaled_ticks_ = ticks_.size();
+    journaled_events_ = recording_.events.size();
+    journal_->append(rows);
+    if (!journal_failure_reported_) {
+        if (const std::string failure = journal_->failure(); !failure.empty()) {
+            journal_failure_reported_ = true;
+            std::fprintf(stderr, "heartsim: warning: %s; the session goes on and %s is still written at the end, but a crash now would "
+                                 "lose it\n", failure.c_str(), settings_.record.c_str());
+        }
+    }
 }
 
 void HapticRun::poll_device_faults() {
@@ -591,23 +655,26 @@ void HapticRun::finish(ScriptedRunResult& result) {
     recording_.latency_p99_ms = latency.p99_ms;
     recording_.latency_max_ms = latency.max_ms;
     if (session_->dropped_ticks()) recording_.events.push_back({session_->now_ms(), -1, "ticks_dropped"});
-    for (int i = 0; i < 2; ++i) {
-        if (!hands_[i].device) continue;
-        RecordedHand& r = recording_.hands[i];
-        for (const TickRecord& t : ticks_) {
-            r.tick_time_ms.push_back(t.time_ms);
-            r.position_mm.push_back(to_array(t.pose[i].position_mm));
-            r.orientation.push_back(to_array(t.pose[i].orientation));
-            r.buttons.push_back(t.pose[i].buttons);
-            r.input_n.push_back(to_array(t.input_n[i]));
-            r.force_n.push_back(to_array(t.force_n[i]));
-            r.gain.push_back(t.gain[i]);
-        }
-    }
     recording_.events.push_back({session_->now_ms(), -1, "end"});
+    // The journal first gets the rest and the figures, so it holds the whole session should the
+    // recording below fail (a full disk): then `heartsim recover` still writes it.
+    journal_rows();
+    journal_->end(recording_);
+    const std::string journal_failure = journal_->wait();
     std::stable_sort(recording_.events.begin(), recording_.events.end(),
                      [](const RecordedEvent& x, const RecordedEvent& y) { return x.time_ms < y.time_ms; });
-    write_recording(settings_.record, recording_);
+    for (int i = 0; i < 2; ++i) {
+        if (!hands_[i].device) continue;
+        append_ticks(recording_.hands[i], ticks_, 0, i);
+    }
+    try {
+        write_recording(settings_.record, recording_);
+    } catch (const std::exception& e) {
+        if (!journal_failure.empty()) throw;
+        throw OutputError(std::string(e.what()) + "; the whole session is in " + journal_->path().string() + ": `heartsim recover " +
+                          journal_->path().string() + " -o OTHER.h5` writes it elsewhere");
+    }
+    journal_->remove();
     std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", settings_.record.c_str(), recording_.steps.size(), ticks_.size(),
                 recording_.events.size());
 }

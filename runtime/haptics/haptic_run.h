@@ -16,6 +16,7 @@
 #include "runtime/trajectory.h"
 
 #include "formats/recording.h"
+#include "formats/recording_journal.h"
 
 #include <memory>
 #include <string>
@@ -94,7 +95,8 @@ public:
     void drain();
     /// True when a device reported a fault (its force is held at zero); heartsim exits 4.
     bool device_faulted() const;
-    /// Stops the device thread (forces fade first), prints the haptic-rate table, writes --record.
+    /// Stops the device thread (forces fade first), prints the haptic-rate table, writes --record
+    /// and deletes its journal.
     void finish(ScriptedRunResult& result);
 
     /// The instruments to draw (tool poses as the simulation last used them).
@@ -120,6 +122,8 @@ private:
         std::string fault;            ///< a device fault, once reported
     };
     void poll_device_faults();
+    /// Hands the rows recorded since the last chunk to the journal (serialised here, written by its thread).
+    void journal_rows();
 
     Backend& backend_;
     HapticRunSettings settings_;
@@ -128,6 +132,13 @@ private:
     std::unique_ptr<HapticSession> session_;
     Recording recording_;
     std::vector<TickRecord> ticks_;
+    /// --record's journal (OUT.h5.journal): what a killed session keeps. A chunk every
+    /// journal_period_ms of the session clock, so at most the last second is lost.
+    std::unique_ptr<RecordingJournal> journal_;
+    static constexpr double journal_period_ms = 500.0;
+    std::size_t journaled_steps_ = 0, journaled_ticks_ = 0, journaled_events_ = 0;
+    double journaled_at_ms_ = 0.0;
+    bool journal_failure_reported_ = false;
     static constexpr std::size_t ring = 64;
     std::array<long long, ring> step_of_request_{};  ///< force request number mod ring → step index
     std::array<double, ring> step_tool_time_{};      ///< step index mod ring → tool sample time used

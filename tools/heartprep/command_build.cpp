@@ -219,6 +219,7 @@ void add_build_command(CLI::App& app) {
         BuildReport report;
         Scenario scenario = build_scenario(*options, progress, report);
         scenario.batch_key = options->batch_key;
+        scenario.build_warnings = report.warnings;
         {
             ProgressStage stage(progress, "write scenario", 0);
             write_scenario(*output, scenario);

@@ -194,7 +194,15 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
       << "},\n  \"holding\": {\"supported_particles\": " << m.supported << ", \"support_stiffness_n_per_mm\": " << m.support_stiffness
       << ", \"pieces\": " << m.pieces << ", \"free_pieces\": " << m.free_pieces << ", \"max_prestrain\": " << m.max_prestrain
       << ", \"rest_residual_max_particle_n\": " << m.residual.max_particle_n << ", \"rest_residual_total_n\": " << m.residual.total.norm()
-      << "}\n}\n";
+      << "},\n  \"build_warnings\": ";
+    if (s.build_warnings) {
+        o << "[";
+        for (std::size_t i = 0; i < s.build_warnings->size(); ++i) o << (i ? ", " : "") << "\"" << json_escape((*s.build_warnings)[i]) << "\"";
+        o << "]";
+    } else {
+        o << "null";
+    }
+    o << "\n}\n";
     std::fputs(o.str().c_str(), stdout);
 }
 
@@ -251,6 +259,13 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     std::printf("rest state  %s; pre-strain max %.2g%%; force at rest under gravity: max %.3g N on a particle, %.3g N in all\n",
                 b.norm() > 0 ? "balanced under gravity (pre-stressed)" : "unstressed (imaged shape, no pre-stress)", 100 * m.max_prestrain,
                 m.residual.max_particle_n, m.residual.total.norm());
+    if (!s.build_warnings)
+        std::printf("warnings    not stored (a file from before heartprep kept its build's warnings)\n");
+    else if (s.build_warnings->empty())
+        std::printf("warnings    none from the build\n");
+    else
+        for (std::size_t i = 0; i < s.build_warnings->size(); ++i)
+            std::printf("%s %s\n", i ? "           " : "warnings   ", (*s.build_warnings)[i].c_str());
 }
 
 }  // namespace
