@@ -231,7 +231,7 @@ TEST(HapticsCli, TheGlBackendsForcesArriveAFewStepsLateAndReplayOnCpuWithinToler
 
 TEST(HapticsCli, AYankedGrabSlipsOutOfTheGrabberInsteadOfTearingTheTissue) {
     // A grabber on the apex pulls 5 mm slowly, then is yanked 2 m in 5 ms. The held particles slip
-    // out once their springs would pass four times their rest length (SolverOptions::grab_slip_strain):
+    // out once their springs would pass three times their rest length (SolverOptions::grab_slip_strain):
     // no divergence, no watchdog, the tissue left intact, and the replay gives the same forces.
     // On both backends, which run the same order-free slip rule. (Before the slip rule the yank
     // stretched springs twenty-fold: on cpu the watchdog restored the same failing state step

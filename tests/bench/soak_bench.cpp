@@ -6,7 +6,7 @@
 // advanced against those asked, the watchdog's events and how often it gave up (heartsim would
 // stop there with exit 6), slipped particles, the largest instrument force, finite positions,
 // and how far the settled tissue is from its rest state.
-//   soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--events]
+//   soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--restore-strain STRAIN] [--events]
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/solver.h"
@@ -52,12 +52,12 @@ std::vector<std::size_t> held_hardest(const Scenario& scenario) {
 
 int main(int argc, char** argv) {
     if (argc < 2 || std::string(argv[1]) == "--help") {
-        std::fprintf(stderr, "usage: soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--events]\n");
+        std::fprintf(stderr, "usage: soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--restore-strain STRAIN] [--events]\n");
         return argc < 2 ? 2 : 0;
     }
     long long steps = 100000;
     unsigned seed = 1;
-    double settle_s = 1.0, slip = -1.0;
+    double settle_s = 1.0, slip = -1.0, restore_strain = -1.0;
     bool events = false;
     for (int a = 2; a < argc; ++a) {
         const std::string arg = argv[a];
@@ -65,6 +65,7 @@ int main(int argc, char** argv) {
         else if (arg == "--seed" && a + 1 < argc) seed = unsigned(std::stoul(argv[++a]));
         else if (arg == "--settle" && a + 1 < argc) settle_s = std::stod(argv[++a]);
         else if (arg == "--slip" && a + 1 < argc) slip = std::stod(argv[++a]);
+        else if (arg == "--restore-strain" && a + 1 < argc) restore_strain = std::stod(argv[++a]);
         else if (arg == "--events") events = true;
         else {
             std::fprintf(stderr, "soak_bench: unknown argument %s\n", arg.c_str());
@@ -76,6 +77,7 @@ int main(int argc, char** argv) {
         if (!scenario.packing) throw InputError(std::string(argv[1]) + ": no /packing");
         SolverOptions options = options_from(scenario.solver);
         if (slip >= 0) options.grab_slip_strain = slip;
+        if (restore_strain >= 0) options.restore_strain_limit = restore_strain;
         Solver solver(scenario.lattice, scenario.packing->neighbours, options);
         const auto& rest = scenario.lattice.particles.rest_position;
         const std::vector<std::size_t> sites = held_hardest(scenario);
@@ -141,17 +143,20 @@ int main(int argc, char** argv) {
         solver.step(int(std::lround(settle_s * 1000.0 / dt)));
         bool finite = true;
         double settled = 0;
+        std::size_t displaced = 0;  // particles left more than 1 mm from rest: a lattice folded on itself
         for (std::size_t i = 0; i < solver.size(); ++i) {
             const Eigen::Vector3d x = solver.position(i);
             finite = finite && x.allFinite();
-            settled = std::max(settled, (x - Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2])).norm());
+            const double d = (x - Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2])).norm();
+            settled = std::max(settled, d);
+            displaced += d > 1.0;
         }
         std::printf("soak: %lld of %lld steps advanced in %.1f s (%.0f steps/s); watchdog events %zu, gave up %lld times; %lld grabs held "
                     "%.1f particles on average, %zu slipped; largest grabber force %.3g N; positions %s; %.3g s after the hand left, the "
-                    "largest distance from rest %.3g mm\n",
+                    "largest distance from rest %.3g mm, %zu particles more than 1 mm from it\n",
                     advanced, steps, seconds, double(steps) / seconds, solver.watchdog_events(), gave_up, grabs,
                     grabs ? double(held_total) / double(grabs) : 0.0, solver.slipped_particles(), largest_force,
-                    finite ? "finite" : "NOT FINITE", settle_s, settled);
+                    finite ? "finite" : "NOT FINITE", settle_s, settled, displaced);
         if (!last_message.empty()) std::printf("soak: last watchdog message: %s\n", last_message.c_str());
         return finite && gave_up == 0 ? 0 : 1;
     } catch (const std::exception& e) {
