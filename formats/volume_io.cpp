@@ -9,6 +9,26 @@
 #include "formats/atomic_file.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
+
+// Debian's ITK 5.2 ships the compiler detection header generated for GCC, which stops any other
+// compiler with "#error Unsupported compiler". clang (the sanitize preset) speaks GCC's dialect:
+// it reads that header once here posing as GCC 12, and the include guard makes ITK's own include
+// of it a no-op.
+#if defined(__clang__)
+#pragma push_macro("__clang__")
+#pragma push_macro("__GNUC__")
+#pragma push_macro("__GNUC_MINOR__")
+#undef __clang__
+#undef __GNUC__
+#undef __GNUC_MINOR__
+#define __GNUC__ 12
+#define __GNUC_MINOR__ 2
+#include <itk_compiler_detection.h>
+#pragma pop_macro("__GNUC_MINOR__")
+#pragma pop_macro("__GNUC__")
+#pragma pop_macro("__clang__")
+#endif
 
 // ITK 5.2 bundles an older Eigen (itkeigen/) and its headers include modules of it through
 // itkImageIOBase.h; over the system Eigen 3.4 that libmodel uses they do not compile
