@@ -7,7 +7,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <sstream>
 
 namespace heartsim::haptics {
@@ -66,14 +65,6 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const std::
     return rows;
 }
 
-std::string read_text(const std::filesystem::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path.string() + ": cannot open");
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-}
-
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
@@ -99,7 +90,7 @@ std::vector<PoseKeyframe> parse_pose_script(const std::string& text, const std::
     return keyframes;
 }
 
-std::vector<PoseKeyframe> read_pose_script(const std::filesystem::path& path) { return parse_pose_script(read_text(path), path.string()); }
+std::vector<PoseKeyframe> read_pose_script(const std::filesystem::path& path) { return parse_pose_script(read_csv_file(path), path.string()); }
 
 ScriptedDevice::ScriptedDevice(std::vector<PoseKeyframe> keyframes, DeviceLimits limits)
     : keyframes_(std::move(keyframes)), limits_(limits) {
@@ -142,7 +133,7 @@ HandForce parse_hand_force(const std::string& text, const std::string& name) {
     };
 }
 
-HandForce read_hand_force(const std::filesystem::path& path) { return parse_hand_force(read_text(path), path.string()); }
+HandForce read_hand_force(const std::filesystem::path& path) { return parse_hand_force(read_csv_file(path), path.string()); }
 
 // ------------------------------------------------------------------------------------------------
 // simulated
