@@ -82,7 +82,9 @@ std::vector<PoseKeyframe> parse_pose_script(const std::string& text, const std::
         if (q.norm() < 1e-9) throw InputError(name + ": row " + std::to_string(row_number) + ": zero orientation quaternion");
         k.pose.orientation = q.normalized();
         if (row.size() > 8) {
-            if (row[8] < 0 || row[8] != std::floor(row[8])) throw InputError(name + ": row " + std::to_string(row_number) + ": buttons must be a non-negative integer");
+            // Bits of a 32-bit word: a larger number cannot be converted (fuzz_pose_script found 1e49).
+            if (row[8] < 0 || row[8] != std::floor(row[8]) || row[8] > 4294967295.0)
+                throw InputError(name + ": row " + std::to_string(row_number) + ": buttons must be an integer from 0 to 4294967295 (32 button bits)");
             k.pose.buttons = std::uint32_t(row[8]);
         }
         keyframes.push_back(k);
