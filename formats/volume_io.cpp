@@ -874,6 +874,8 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         throw OutputError(path.string() + ": label count " + std::to_string(volume.labels.size()) +
                           " does not match the geometry's " + std::to_string(volume.geometry.voxel_count()) +
                           " voxels");
+    // Before ITK: niftilib reports an output it cannot open on stderr only, in two lines of its own.
+    check_destination(path);
     register_io_factories();
     const auto [lowest, highest] = std::minmax_element(volume.labels.begin(), volume.labels.end());
     const bool fits_uint16 = volume.labels.empty() || (*lowest >= 0 && *highest <= 65535);
@@ -911,6 +913,9 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         fs::remove_all(staging, ignored);
         throw OutputError(path.string() + ": cannot write: " + itk_reason(itk_error));
     } catch (const OutputError&) {
+        fs::remove_all(staging, ignored);
+        throw;
+    } catch (const std::bad_alloc&) {  // out of memory, not a write that failed: the caller says so
         fs::remove_all(staging, ignored);
         throw;
     } catch (const std::exception& error) {
