@@ -57,10 +57,26 @@ void sweep_stale_temporaries(const std::filesystem::path& path) {
     }
 }
 
+void check_destination(const std::filesystem::path& path) {
+    namespace fs = std::filesystem;
+    const auto folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
+    std::error_code error;
+    if (path.filename().empty() || fs::is_directory(path, error))
+        throw OutputError(path.string() + ": is a folder, expected a file name");
+    if (!fs::is_directory(folder, error)) {
+        // Walk up to the part of the path that exists, to name what is in the way.
+        fs::path existing = folder;
+        while (!existing.empty() && existing != existing.root_path() && !fs::exists(existing, error)) existing = existing.parent_path();
+        if (!existing.empty() && fs::exists(existing, error) && !fs::is_directory(existing, error))
+            throw OutputError(path.string() + ": " + existing.string() + " is a file, not a folder");
+        throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
+    }
+    if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
+}
+
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-    if (!std::filesystem::is_directory(folder)) throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
-    if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
+    check_destination(path);
     sweep_stale_temporaries(path);
     const auto temporary = temporary_beside(path);
     try {

@@ -21,11 +21,17 @@ std::filesystem::path temporary_beside(const std::filesystem::path& path, const 
 /// this first, so a crash costs disk space only until the next write of the same file.
 void sweep_stale_temporaries(const std::filesystem::path& path);
 
+/// Throws OutputError naming `path` unless a file can be written there: `path` is a folder, a
+/// part of its folder path is a file ("out.txt/scenario.h5"), its folder does not exist, or the
+/// folder is not writable. write_file_atomically checks this first; commands that work for a long
+/// time before writing check their outputs with it before they start.
+void check_destination(const std::filesystem::path& path);
+
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
 /// flushed to the disk (fsync) and then renamed onto `path`, and the folder is flushed too, so a
 /// crash leaves the old file or the whole new one. When fill throws or the rename fails, the
-/// temporary is removed and the error passes on. Throws OutputError naming `path` when its folder
-/// does not exist or is not writable, or the flush or rename fails.
+/// temporary is removed and the error passes on. Throws OutputError naming `path` when
+/// check_destination refuses it, or the flush or rename fails.
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill);
 
 /// Writes `size` bytes to `file` (created or truncated) with POSIX calls, for a `fill` of

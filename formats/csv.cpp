@@ -1,6 +1,11 @@
 // The CSV line splitter (csv.h).
 #include "csv.h"
 
+#include "libmodel/errors.h"
+
+#include <fstream>
+#include <sstream>
+
 namespace heartsim {
 
 std::vector<std::string> csv_fields(const std::string& line) {
@@ -21,6 +26,21 @@ std::vector<std::string> csv_fields(const std::string& line) {
         f.erase(f.find_last_not_of(" \t") + 1);
     }
     return fields;
+}
+
+std::string read_csv_file(const std::filesystem::path& path) {
+    namespace fs = std::filesystem;
+    std::error_code error;
+    const fs::file_status status = fs::status(path, error);
+    if (!fs::exists(status)) throw InputError(path.string() + ": file not found");
+    if (fs::is_directory(status)) throw InputError(path.string() + ": is a folder; expected a CSV file");
+    if (!fs::is_regular_file(status)) throw InputError(path.string() + ": not a regular file; expected a CSV file");
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot be opened for reading");
+    std::ostringstream text;
+    text << in.rdbuf();
+    if (in.bad()) throw InputError(path.string() + ": cannot be read");
+    return text.str();
 }
 
 }  // namespace heartsim

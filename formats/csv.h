@@ -1,7 +1,9 @@
 /// @file csv.h
-/// @brief The one CSV line splitter behind trajectories, device pose files and batch manifests.
+/// @brief The one CSV line splitter behind trajectories, device pose files and batch manifests,
+/// and the one way those files are read.
 #pragma once
 
+#include <filesystem>
 #include <string>
 #include <vector>
 
@@ -11,5 +13,9 @@ namespace heartsim {
 /// unquoted carriage returns dropped, spaces and tabs around each field trimmed. A trailing comma
 /// gives an empty last field; an empty line gives one empty field.
 std::vector<std::string> csv_fields(const std::string& line);
+
+/// The whole text of a CSV file. Throws InputError naming the file when it does not exist, is a
+/// folder, is not a regular file (a FIFO or a device would block or never end), or cannot be read.
+std::string read_csv_file(const std::filesystem::path& path);
 
 }  // namespace heartsim

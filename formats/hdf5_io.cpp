@@ -5,7 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <mutex>
+#include <new>
 
 namespace heartsim::h5 {
 
@@ -17,6 +20,21 @@ void quiet() {
     std::call_once(once, [] { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); });
 }
 
+/// Whether the HDF5 call that just failed could not allocate memory (its error stack records
+/// "no space available for allocation" or "can't allocate space"): a full memory, not a damaged
+/// file. HDF5 clears the stack when the next API call starts, and H5Ewalk2 does not.
+bool allocation_failed() {
+    bool found = false;
+    H5Ewalk2(
+        H5E_DEFAULT, H5E_WALK_DOWNWARD,
+        [](unsigned, const H5E_error2_t* entry, void* data) -> herr_t {
+            if (entry->min_num == H5E_NOSPACE || entry->min_num == H5E_CANTALLOC) *static_cast<bool*>(data) = true;
+            return 0;
+        },
+        &found);
+    return found;
+}
+
 /// An object path for messages: "/" for the root, "/source" for "source".
 std::string object_name(const std::string& object) {
     if (!object.empty() && object[0] == '/') return object;
@@ -25,9 +43,14 @@ std::string object_name(const std::string& object) {
     return name;
 }
 
-Handle utf8_string_type() {
+/// Fixed-length UTF-8 strings of `width` bytes (at least 1), padded with zeros. Not variable-length:
+/// those live in HDF5's global heap, which the file format does not checksum, and HDF5 1.10's
+/// H5HG_read copies as many bytes as a damaged heap claims (fuzz_scenario found it); fixed-length
+/// strings sit in the object headers, which are checksummed.
+Handle utf8_string_type(std::size_t width) {
     Handle type(H5Tcopy(H5T_C_S1), H5Tclose);
-    H5Tset_size(type.get(), H5T_VARIABLE);
+    H5Tset_size(type.get(), std::max<std::size_t>(width, 1));
+    H5Tset_strpad(type.get(), H5T_STR_NULLPAD);
     H5Tset_cset(type.get(), H5T_CSET_UTF8);
     return type;
 }
@@ -106,7 +129,10 @@ void repair_superblock_checksum(std::vector<unsigned char>& image) {
 // ---------------------------------------------------------------------------------------------
 // Writing
 
-void Writer::fail(const std::string& what) const { throw OutputError(path_ + ": " + what); }
+void Writer::fail(const std::string& what) const {
+    if (allocation_failed()) throw std::bad_alloc();
+    throw OutputError(path_ + ": " + what);
+}
 
 void Writer::group(const std::string& name) {
     Handle g(H5Gcreate2(file_, name.c_str(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Gclose);
@@ -136,26 +162,29 @@ void Writer::write_dataset(const std::string& name, const ElementType& type, con
     Handle set(H5Dcreate2(file_, name.c_str(), type.file, space.get(), H5P_DEFAULT, properties.get(), H5P_DEFAULT), H5Dclose);
     if (!set.valid()) fail("cannot create dataset " + name);
     if (count && H5Dwrite(set.get(), type.memory, H5S_ALL, H5S_ALL, H5P_DEFAULT, data) < 0)
-        fail("cannot write dataset " + name + " (disk full?)");
+        fail("cannot write dataset " + name);
 }
 
 void Writer::strings(const std::string& name, const std::vector<std::string>& values) {
     Handle space = dataspace({values.size()});
-    Handle type = utf8_string_type();
+    std::size_t width = 1;
+    for (const auto& v : values) width = std::max(width, v.size());
+    Handle type = utf8_string_type(width);
     Handle set(H5Dcreate2(file_, name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT), H5Dclose);
-    std::vector<const char*> pointers;
-    for (const auto& v : values) pointers.push_back(v.c_str());
-    if (!set.valid() || (!values.empty() && H5Dwrite(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0))
+    std::vector<char> text(values.size() * width, '\0');
+    for (std::size_t i = 0; i < values.size(); ++i) std::memcpy(text.data() + i * width, values[i].data(), values[i].size());
+    if (!set.valid() || (!values.empty() && H5Dwrite(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, text.data()) < 0))
         fail("cannot write dataset " + name);
 }
 
 void Writer::attribute(const std::string& object, const std::string& name, const std::string& value) {
-    Handle type = utf8_string_type();
+    Handle type = utf8_string_type(value.size());
     Handle space = dataspace({});
     Handle attribute(H5Acreate_by_name(file_, object.c_str(), name.c_str(), type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT, H5P_DEFAULT),
                      H5Aclose);
-    const char* pointer = value.c_str();
-    if (!attribute.valid() || H5Awrite(attribute.get(), type.get(), &pointer) < 0)
+    std::string padded = value;
+    padded.resize(std::max<std::size_t>(value.size(), 1), '\0');
+    if (!attribute.valid() || H5Awrite(attribute.get(), type.get(), padded.data()) < 0)
         fail("cannot write attribute " + name + " of " + object_name(object));
 }
 
@@ -195,7 +224,10 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
             // damaged metadata is refused too.
             H5Pset_libver_bounds(access.get(), H5F_LIBVER_V18, H5F_LIBVER_LATEST);
             Handle file(H5Fcreate(temporary.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, access.get()), H5Fclose);
-            if (!file.valid()) throw OutputError(name + ": cannot create the file in memory");
+            if (!file.valid()) {
+                if (allocation_failed()) throw std::bad_alloc();
+                throw OutputError(name + ": cannot create the file in memory");
+            }
             Writer writer(file.get(), name);
             fill(writer);
             if (H5Fflush(file.get(), H5F_SCOPE_GLOBAL) < 0) writer.fail("cannot flush");
@@ -212,6 +244,44 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
 // ---------------------------------------------------------------------------------------------
 // Reading
 
+std::string global_heap_problem(const std::filesystem::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    static constexpr unsigned char signature[8] = {'G', 'C', 'O', 'L', 1, 0, 0, 0};
+    auto u64 = [&](std::size_t at) {
+        std::uint64_t v = 0;
+        for (int i = 7; i >= 0; --i) v = (v << 8) | bytes[at + std::size_t(i)];
+        return v;
+    };
+    auto where = [](std::size_t at) { return "global heap collection at byte " + std::to_string(at); };
+    for (auto it = bytes.begin(); (it = std::search(it, bytes.end(), std::begin(signature), std::end(signature))) != bytes.end(); ++it) {
+        const std::size_t start = std::size_t(it - bytes.begin());
+        if (bytes.size() - start < 16) return where(start) + ": truncated";
+        const std::uint64_t size = u64(start + 8);
+        if (size < 4096 || size > bytes.size() - start) return where(start) + ": size " + std::to_string(size) + " outside the file";
+        const std::size_t end = start + std::size_t(size);
+        // Objects: index (2), references (2), reserved (4), size (8), data padded to 8 bytes; index 0
+        // is the free space, whose size counts its own header. A tail under 16 bytes is free space.
+        for (std::size_t at = start + 16; end - at >= 16;) {
+            const unsigned index = unsigned(bytes[at]) | unsigned(bytes[at + 1]) << 8;
+            const std::uint64_t object = u64(at + 8);
+            const std::uint64_t need = index == 0 ? object : (object > size ? size + 1 : 16 + ((object + 7) & ~std::uint64_t(7)));
+            if (need < 16 || need > end - at)
+                return where(start) + ": object " + std::to_string(index) + " of " + std::to_string(object) + " bytes at byte " +
+                       std::to_string(at) + " does not fit in it";
+            at += std::size_t(need);
+        }
+    }
+    return {};
+}
+
+void Reader::check_heaps_once() const {
+    if (heaps_checked_) return;
+    heaps_checked_ = true;
+    const std::string problem = global_heap_problem(path_);
+    if (!problem.empty()) fail("", "damaged file: " + problem + " (variable-length strings are not read from it)");
+}
+
 Reader::Reader(const std::filesystem::path& path) : path_(path.string()) {
     quiet();
     if (!std::filesystem::exists(path)) fail("", "file not found");
@@ -223,6 +293,7 @@ Reader::Reader(const std::filesystem::path& path) : path_(path.string()) {
 }
 
 void Reader::fail(const std::string& where, const std::string& what) const {
+    if (allocation_failed()) throw std::bad_alloc();
     throw InputError(path_ + ": " + (where.empty() ? "" : where + ": ") + what);
 }
 
@@ -310,6 +381,7 @@ std::vector<std::string> Reader::strings(const std::string& name, long rows) con
     const std::size_t n = std::size_t(dims[0]);
     std::vector<std::string> values;
     if (H5Tis_variable_str(type.get()) > 0) {
+        check_heaps_once();
         std::vector<char*> pointers(n, nullptr);
         if (n && H5Dread(set.get(), type.get(), H5S_ALL, H5S_ALL, H5P_DEFAULT, pointers.data()) < 0) fail(name, "cannot be read");
         for (char* p : pointers) values.emplace_back(p ? p : "");
@@ -345,6 +417,7 @@ std::string Reader::string_attribute(const std::string& object, const std::strin
         if (H5Sget_simple_extent_npoints(space.get()) != 1) fail(owner, "attribute " + name + " must be a single string");
     }
     if (H5Tis_variable_str(type.get()) > 0) {
+        check_heaps_once();
         char* value = nullptr;
         Handle memory(H5Tcopy(H5T_C_S1), H5Tclose);
         H5Tset_size(memory.get(), H5T_VARIABLE);

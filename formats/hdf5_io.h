@@ -96,10 +96,12 @@ public:
         if (element_count(dims) != values.size() * (sizeof(E) / sizeof(T))) fail("dataset " + name + " does not match its shape (a bug in heartsim)");
         write_dataset(name, element_type<T>(), values.data(), dims);
     }
-    /// One-dimensional dataset of variable-length UTF-8 strings.
+    /// One-dimensional dataset of fixed-length UTF-8 strings, as wide as the longest (zero-padded).
     void strings(const std::string& name, const std::vector<std::string>& values);
 
-    /// A variable-length UTF-8 string attribute of `object`.
+    /// A fixed-length UTF-8 string attribute of `object` (its own length, at least 1; zero-padded).
+    /// Fixed, not variable-length: variable-length strings live in HDF5's global heap, which no
+    /// checksum covers (hdf5_io.cpp, utf8_string_type).
     void attribute(const std::string& object, const std::string& name, const std::string& value);
     void attribute(const std::string& object, const std::string& name, const char* value) { attribute(object, name, std::string(value)); }
     /// A scalar numeric attribute.
@@ -140,7 +142,9 @@ std::uint32_t lookup3(const unsigned char* data, std::size_t length);
 void repair_superblock_checksum(std::vector<unsigned char>& image);
 
 /// Reads one file, checking what it reads; every refusal is an InputError
-/// "<file>: <object>: <what>".
+/// "<file>: <object>: <what>". A call that fails because HDF5 could not allocate memory throws
+/// std::bad_alloc instead (the file is not at fault; the tools say "out of memory while …"), and
+/// so does the Writer.
 class Reader {
 public:
     /// Opens `path` read-only; refuses a missing file and one that is not HDF5.
@@ -199,9 +203,22 @@ private:
                         const std::function<void*(std::size_t)>& allocate) const;
     Handle open_attribute(const std::string& object, const std::string& name) const;
     Handle open_dataset(const std::string& name) const;
+    /// Before the first variable-length string is read (files written before heartsim stored strings
+    /// fixed-length): check_global_heaps, once.
+    void check_heaps_once() const;
     std::string path_;
     Handle file_;
+    mutable bool heaps_checked_ = false;
 };
+
+/// The global heap collections of an HDF5 file (where variable-length strings live, under no
+/// checksum), walked as HDF5 1.10 walks them: every object must advance and end inside its
+/// collection, and the objects must tile it. HDF5 1.10 loops forever on a zero-sized free-space
+/// object and copies out of bounds on an object larger than its collection (fuzz_scenario,
+/// fuzz_recording). Collections are found by their signature "GCOL", version 1 and three zero
+/// bytes; lengths are taken as 8 bytes (HDF5's default, and every heartsim file's). Returns an
+/// empty string when every collection is sound, else what is wrong.
+std::string global_heap_problem(const std::filesystem::path& path);
 
 /// Rows of K values from a flat dataset read in row-major order.
 template <std::size_t K, class T> std::vector<std::array<T, K>> rows_of(const std::vector<T>& flat) {

@@ -9,6 +9,26 @@
 #include "formats/atomic_file.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
+
+// Debian's ITK 5.2 ships the compiler detection header generated for GCC, which stops any other
+// compiler with "#error Unsupported compiler". clang (the sanitize preset) speaks GCC's dialect:
+// it reads that header once here posing as GCC 12, and the include guard makes ITK's own include
+// of it a no-op.
+#if defined(__clang__)
+#pragma push_macro("__clang__")
+#pragma push_macro("__GNUC__")
+#pragma push_macro("__GNUC_MINOR__")
+#undef __clang__
+#undef __GNUC__
+#undef __GNUC_MINOR__
+#define __GNUC__ 12
+#define __GNUC_MINOR__ 2
+#include <itk_compiler_detection.h>
+#pragma pop_macro("__GNUC_MINOR__")
+#pragma pop_macro("__GNUC__")
+#pragma pop_macro("__clang__")
+#endif
 
 // ITK 5.2 bundles an older Eigen (itkeigen/) and its headers include modules of it through
 // itkImageIOBase.h; over the system Eigen 3.4 that libmodel uses they do not compile
@@ -29,6 +49,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <limits>
@@ -83,9 +104,15 @@ std::string describe_bytes(double bytes) {
 }
 
 /// ITK's exception description (without the source-file location ITK's what() adds).
+/// One line: NrrdIO's descriptions run over several lines ("[nrrd] nrrdLoad: trouble …"), and every
+/// error of ours is one line, so the line breaks become "; ".
 std::string itk_reason(const itk::ExceptionObject& error) {
-    std::string text = error.GetDescription();
-    while (!text.empty() && (text.back() == '\n' || text.back() == ' ')) text.pop_back();
+    std::string text;
+    std::istringstream lines(error.GetDescription());
+    for (std::string line; std::getline(lines, line);) {
+        while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == ':')) line.pop_back();
+        if (!line.empty()) text += (text.empty() ? "" : "; ") + line;
+    }
     return text;
 }
 
@@ -99,7 +126,10 @@ struct DataLocation {
     bool compressed = false;       ///< zlib or gzip stream
     bool at_end_of_file = false;   ///< raw data is the last `bytes` bytes (NRRD byte skip -1, MetaImage HeaderSize -1)
     std::uint64_t skip_after_inflate = 0;  ///< bytes before the voxels inside a compressed stream
-    bool checkable = true;         ///< false for encodings we do not verify (ASCII, hex, file lists)
+    bool checkable = true;         ///< false for encodings whose size we cannot verify (bzip2)
+    /// Text encodings (NRRD ascii, hex): the file must hold at least this many bytes per byte of
+    /// voxel data (hex: 2) or per value (ascii: 1 character), so a few bytes cannot declare gigabytes.
+    enum class Text { none, ascii, hex } text = Text::none;
 };
 
 /// The fields of a NIfTI-1 or NIfTI-2 header we check ourselves: niftilib quietly replaces a zero
@@ -111,7 +141,17 @@ struct NiftiFields {
     int datatype = 0;
     std::array<double, 8> pixdim{};
     double vox_offset = 0;
+    /// quatern_b, c, d, qoffset_x, y, z, then srow_x, srow_y, srow_z (4 each): the orientation.
+    std::array<double, 18> orientation{};
 };
+
+/// The names of NiftiFields::orientation's entries, for messages.
+std::string orientation_field(std::size_t index) {
+    static const char* const names[6] = {"quatern_b", "quatern_c", "quatern_d", "qoffset_x", "qoffset_y", "qoffset_z"};
+    if (index < 6) return names[index];
+    const std::size_t row = (index - 6) / 4, column = (index - 6) % 4;
+    return std::string("srow_") + char('x' + row) + "[" + std::to_string(column) + "]";
+}
 
 template <class T>
 T read_value(const unsigned char* bytes, bool swap) {
@@ -144,6 +184,7 @@ NiftiFields read_nifti_fields(const fs::path& path) {
         fields.bitpix = read_value<std::int16_t>(&header[72], swap);
         for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<float>(&header[76 + 4 * d], swap);
         fields.vox_offset = read_value<float>(&header[108], swap);
+        for (std::size_t i = 0; i < 18; ++i) fields.orientation[i] = read_value<float>(&header[256 + 4 * i], swap);
     } else if (sizeof_hdr == 540 || swapped == 540) {
         if (got < 540)
             throw InputError(path.string() + ": NIfTI-2 header truncated: expected 540 bytes, file holds " +
@@ -155,6 +196,7 @@ NiftiFields read_nifti_fields(const fs::path& path) {
         for (int d = 0; d < 8; ++d) fields.dim[d] = read_value<std::int64_t>(&header[16 + 8 * d], swap);
         for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<double>(&header[104 + 8 * d], swap);
         fields.vox_offset = double(read_value<std::int64_t>(&header[168], swap));
+        for (std::size_t i = 0; i < 18; ++i) fields.orientation[i] = read_value<double>(&header[352 + 8 * i], swap);
     } else {
         throw InputError(path.string() + ": not a NIfTI file: sizeof_hdr is " + std::to_string(sizeof_hdr) +
                          "; expected 348 (NIfTI-1) or 540 (NIfTI-2)");
@@ -162,6 +204,30 @@ NiftiFields read_nifti_fields(const fs::path& path) {
     if (fields.dim[0] < 1 || fields.dim[0] > 7)
         throw InputError(path.string() + ": NIfTI dim[0] is " + std::to_string(fields.dim[0]) +
                          "; expected a dimension count from 1 to 7");
+    // A float: 1e31 or infinity cannot become a byte offset (fuzz_volume_nii found the cast).
+    if (!std::isfinite(fields.vox_offset) || fields.vox_offset > 9.0e15) {
+        std::ostringstream value;
+        value << fields.vox_offset;
+        throw InputError(path.string() + ": NIfTI vox_offset is " + value.str() +
+                         "; expected the byte offset of the voxel data (a finite number of bytes)");
+    }
+    // ITK builds the orientation from these and pixdim and hands it to vnl_svd, which aborts the
+    // process on a non-finite entry and never returns on one near the float range's end, such as
+    // -1.7e38 (fuzz_volume_nii): they are checked before ITK reads the header. A kilometre is far
+    // beyond any voxel or scanner coordinate (plausible.h's coordinate range).
+    const plausible::Range& mm = plausible::coordinate_mm;
+    for (int axis = 1; axis <= 3; ++axis) {
+        const double value = fields.pixdim[std::size_t(axis)];
+        if (!std::isfinite(value) || std::abs(value) > mm.high) {
+            std::ostringstream text;
+            text << value;
+            throw InputError(path.string() + ": invalid voxel spacing along " + std::string(1, "ijk"[axis - 1]) + ": NIfTI pixdim[" +
+                             std::to_string(axis) + "] is " + text.str() + "; expected a finite positive size in mm");
+        }
+    }
+    for (std::size_t i = 0; i < fields.orientation.size(); ++i)
+        if (!std::isfinite(fields.orientation[i]) || std::abs(fields.orientation[i]) > mm.high)
+            throw InputError(path.string() + ": NIfTI " + plausible::outside(orientation_field(i), fields.orientation[i], mm));
     return fields;
 }
 
@@ -255,6 +321,17 @@ long long integer_field(const fs::path& path, const TextHeader& header, const st
     }
 }
 
+/// Data in several files (NRRD `data file: LIST` or `data file: img%03d.raw 1 10 1`, MetaImage
+/// `ElementDataFile = LIST` or a pattern): NrrdIO and MetaIO format each name with a printf pattern
+/// taken from the header, and the pieces' sizes cannot be verified one by one. 3D Slicer never
+/// writes it; it is refused, before ITK reads the header.
+void refuse_multi_file_data(const fs::path& path, const std::string& field, const std::string& data_file) {
+    if (data_file.rfind("LIST", 0) == 0 || data_file.find('%') != std::string::npos || data_file.find(' ') != std::string::npos)
+        throw InputError(path.string() + ": " + field + " '" + data_file +
+                         "' spreads the voxels over several files (LIST or a name pattern); expected one data file "
+                         "(save the volume again as a single file)");
+}
+
 DataLocation nrrd_data_location(const fs::path& path) {
     const TextHeader header = read_nrrd_header(path);
     DataLocation location;
@@ -262,11 +339,8 @@ DataLocation nrrd_data_location(const fs::path& path) {
     if (data_file.empty()) {
         location.file = path;
         location.offset = header.end_offset;
-    } else if (data_file.rfind("LIST", 0) == 0 || data_file.find('%') != std::string::npos ||
-               data_file.find(' ') != std::string::npos) {
-        location.checkable = false;  // multi-file data: ITK reads it; we do not verify each piece
-        return location;
     } else {
+        refuse_multi_file_data(path, "NRRD data file", data_file);
         location.file = fs::path(data_file).is_absolute() ? fs::path(data_file) : path.parent_path() / data_file;
         location.offset = 0;
     }
@@ -278,8 +352,12 @@ DataLocation nrrd_data_location(const fs::path& path) {
     } else if (encoding == "gzip" || encoding == "gz") {
         location.compressed = true;
         location.skip_after_inflate = std::uint64_t(std::max(0LL, byte_skip));
+    } else if (encoding == "ascii" || encoding == "text" || encoding == "txt") {
+        location.text = DataLocation::Text::ascii;
+    } else if (encoding == "hex") {
+        location.text = DataLocation::Text::hex;
     } else {
-        location.checkable = false;  // ascii / hex / bzip2: sizes are not byte counts we can verify
+        location.checkable = false;  // bzip2: ITK's NrrdIO has no bzip2 and refuses it itself
     }
     return location;
 }
@@ -291,11 +369,8 @@ DataLocation metaimage_data_location(const fs::path& path) {
     if (lowercase(data_file) == "local") {
         location.file = path;
         location.offset = header.end_offset;
-    } else if (data_file.rfind("LIST", 0) == 0 || data_file.find('%') != std::string::npos ||
-               data_file.find(' ') != std::string::npos) {
-        location.checkable = false;  // one file per slice: ITK reads them; we do not verify each piece
-        return location;
     } else {
+        refuse_multi_file_data(path, "MetaImage ElementDataFile", data_file);
         location.file = fs::path(data_file).is_absolute() ? fs::path(data_file) : path.parent_path() / data_file;
     }
     location.compressed = lowercase(field_or(header, "compresseddata", "false")) == "true";
@@ -359,15 +434,31 @@ std::uint64_t inflate_count(const fs::path& path, std::uint64_t offset, bool& cl
 
 /// Throws unless `location` holds at least `bytes` bytes of voxel data (compressed: a stream that
 /// ends cleanly and inflates to at least that much).
-void check_data_present(const fs::path& path, const DataLocation& location, std::uint64_t bytes) {
+void check_data_present(const fs::path& path, const DataLocation& location, std::uint64_t bytes, std::uint64_t values) {
     if (!location.checkable) return;
-    if (!fs::exists(location.file))
+    std::error_code error;
+    if (!fs::exists(location.file, error))
         throw InputError(path.string() + ": voxel data file " + location.file.string() + " does not exist");
+    // A folder, /dev/zero or a FIFO named as the data file has no size to check (file_size threw
+    // std::filesystem::filesystem_error; fuzz_volume_nrrd) and may never end.
+    if (!fs::is_regular_file(location.file, error))
+        throw InputError(path.string() + ": voxel data file " + location.file.string() + " is not a regular file");
     const std::uint64_t file_size = fs::file_size(location.file);
     const std::string where = location.file == path ? std::string() : " (data file " + location.file.string() + ")";
+    if (location.text != DataLocation::Text::none) {
+        const bool hex = location.text == DataLocation::Text::hex;
+        const long double needed = hex ? 2.0L * bytes : (long double)values;  // ascii: a character per value at least
+        if ((long double)file_size < (long double)location.offset + needed)
+            throw InputError(path.string() + ": voxel data truncated" + where + ": the header declares " + std::to_string(values) +
+                             " values as " + (hex ? "hex" : "text") + ", which need at least " +
+                             std::to_string(std::uint64_t(needed)) + " bytes from byte " + std::to_string(location.offset) +
+                             ", file has only " + std::to_string(file_size) + " bytes (file is damaged or incomplete)");
+        return;
+    }
     if (!location.compressed) {
-        const std::uint64_t needed = location.at_end_of_file ? bytes : location.offset + bytes;
-        if (file_size < needed)
+        // Compared without adding: a byte skip near 2^64 would wrap the sum.
+        const bool short_file = location.at_end_of_file ? file_size < bytes : file_size < location.offset || file_size - location.offset < bytes;
+        if (short_file)
             throw InputError(path.string() + ": voxel data truncated" + where + ": header declares " +
                              std::to_string(bytes) + " bytes from byte " + std::to_string(location.offset) +
                              ", file has only " + std::to_string(file_size) +
@@ -449,6 +540,43 @@ void read_segment_metadata(Probe& probe) {
     }
 }
 
+/// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
+/// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
+/// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
+/// So a MetaImage header is checked here before ITK sees it: every field name (MetaIO's: the text
+/// before '=' or ':') under 255 characters, and NDims from 1 to 4.
+void check_metaimage_header_before_itk(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw InputError(path.string() + ": cannot open for reading");
+    std::string line;
+    for (int number = 1; std::getline(in, line); ++number) {
+        const auto separator = line.find_first_of("=:");
+        const std::string name = trim(line.substr(0, separator));
+        if (name.size() >= 255)
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " has a field name of " +
+                             std::to_string(name.size()) + " characters; expected under 255 (is this a MetaImage file?)");
+        if (separator == std::string::npos) continue;
+        const std::string value = trim(line.substr(separator + 1));
+        if (name == "NDims") {
+            char* end = nullptr;
+            const double dims = std::strtod(value.c_str(), &end);
+            if (end == value.c_str() || !(dims >= 1 && dims < 5))
+                throw InputError(path.string() + ": MetaImage NDims is '" + value + "'; expected 3 (a 3D volume, or 4 with one time point)");
+        }
+        if (name == "ElementDataFile") {  // the header's last field; voxel data may follow
+            refuse_multi_file_data(path, "MetaImage ElementDataFile", value);
+            break;
+        }
+    }
+}
+
+/// A NRRD header's data file, checked before ITK reads the header (refuse_multi_file_data).
+void check_nrrd_header_before_itk(const fs::path& path) {
+    const TextHeader header = read_nrrd_header(path);
+    const std::string data_file = field_or(header, "data file", field_or(header, "datafile", ""));
+    if (!data_file.empty()) refuse_multi_file_data(path, "NRRD data file", data_file);
+}
+
 Probe probe_volume(const fs::path& path) {
     const std::string extension = volume_extension(path);
     if (extension.empty())
@@ -457,7 +585,11 @@ Probe probe_volume(const fs::path& path) {
     std::error_code error;
     if (!fs::exists(path, error)) throw InputError(path.string() + ": file not found");
     if (fs::is_directory(path, error)) throw InputError(path.string() + ": is a folder; expected a volume file");
+    // A FIFO or a device would block or never end: only regular files are read.
+    if (!fs::is_regular_file(path, error)) throw InputError(path.string() + ": not a regular file; expected a volume file");
     if (!std::ifstream(path, std::ios::binary)) throw InputError(path.string() + ": cannot open for reading");
+    if (extension == ".mha" || extension == ".mhd") check_metaimage_header_before_itk(path);
+    if (extension == ".nrrd" || extension == ".seg.nrrd") check_nrrd_header_before_itk(path);
 
     register_io_factories();
     Probe probe;
@@ -484,6 +616,10 @@ Probe probe_volume(const fs::path& path) {
     }
 
     VolumeHeader& header = probe.header;
+    // ITK's size queries throw through a noexcept function (std::terminate) on an unknown element
+    // type (fuzz_volume_mha: "ElementType = MET_" followed by zeros).
+    if (probe.io->GetComponentType() == itk::IOComponentEnum::UNKNOWNCOMPONENTTYPE)
+        throw InputError(path.string() + ": the " + probe.header.format + " header names no element type ITK knows; expected an integer type");
     header.component_type = itk::ImageIOBase::GetComponentTypeAsString(probe.io->GetComponentType());
     header.components = int(probe.io->GetNumberOfComponents());
     probe.itk_dimensions = probe.io->GetNumberOfDimensions();
@@ -509,6 +645,11 @@ Probe probe_volume(const fs::path& path) {
         probe.location = nrrd ? nrrd_data_location(path) : metaimage_data_location(path);
     }
     return probe;
+}
+
+/// Values (voxels × components) the header declares.
+std::uint64_t value_count(const Probe& probe) {
+    return probe.header.data_bytes / std::max<std::uint64_t>(1, probe.io->GetComponentSize());
 }
 
 const char* axis_name(int axis) { return axis == 0 ? "i" : axis == 1 ? "j" : "k"; }
@@ -733,6 +874,8 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         throw OutputError(path.string() + ": label count " + std::to_string(volume.labels.size()) +
                           " does not match the geometry's " + std::to_string(volume.geometry.voxel_count()) +
                           " voxels");
+    // Before ITK: niftilib reports an output it cannot open on stderr only, in two lines of its own.
+    check_destination(path);
     register_io_factories();
     const auto [lowest, highest] = std::minmax_element(volume.labels.begin(), volume.labels.end());
     const bool fits_uint16 = volume.labels.empty() || (*lowest >= 0 && *highest <= 65535);
@@ -759,7 +902,7 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         // Some ITK writers (niftilib) report failure only on stderr: confirm the result is complete.
         if (!fs::exists(written)) throw OutputError(path.string() + ": ITK wrote no file");
         Probe check = probe_volume(written);
-        check_data_present(written, check.location, check.header.data_bytes);
+        check_data_present(written, check.location, check.header.data_bytes, value_count(check));
         if (detached) {
             for (const auto& entry : fs::directory_iterator(staging))
                 if (entry.path() != written) fs::rename(entry.path(), path.parent_path() / entry.path().filename());
@@ -770,6 +913,9 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         fs::remove_all(staging, ignored);
         throw OutputError(path.string() + ": cannot write: " + itk_reason(itk_error));
     } catch (const OutputError&) {
+        fs::remove_all(staging, ignored);
+        throw;
+    } catch (const std::bad_alloc&) {  // out of memory, not a write that failed: the caller says so
         fs::remove_all(staging, ignored);
         throw;
     } catch (const std::exception& error) {
@@ -794,7 +940,7 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
     check_component_type(path, probe);
     check_geometry(path, probe);
     check_memory(path, probe, options);
-    check_data_present(path, probe.location, probe.header.data_bytes);
+    check_data_present(path, probe.location, probe.header.data_bytes, value_count(probe));
     LabelVolume volume = read_voxels(path, probe);
     if (header) *header = probe.header;
     return volume;

@@ -3,8 +3,11 @@
 /// expected, so the command-line tools can print it as the one-line cause of a failure.
 #pragma once
 
+#include <cstring>
+#include <new>
 #include <stdexcept>
 #include <string>
+#include <system_error>
 
 namespace heartsim {
 
@@ -26,5 +29,16 @@ class Cancelled : public std::runtime_error {
 public:
     Cancelled() : std::runtime_error("cancelled") {}
 };
+
+/// Whether `error` means the process ran out of memory (or of address space): std::bad_alloc, or a
+/// thread that could not be started (std::thread's std::system_error with EAGAIN or ENOMEM, or
+/// oneTBB's std::runtime_error "pthread_create has failed: …"). The command-line tools report
+/// these as one line "out of memory while …" rather than their library's own words.
+inline bool is_out_of_memory(const std::exception& error) {
+    if (dynamic_cast<const std::bad_alloc*>(&error)) return true;
+    if (const auto* system = dynamic_cast<const std::system_error*>(&error))
+        return system->code() == std::errc::resource_unavailable_try_again || system->code() == std::errc::not_enough_memory;
+    return std::strncmp(error.what(), "pthread_create has failed", 25) == 0;
+}
 
 }  // namespace heartsim

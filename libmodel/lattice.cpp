@@ -114,7 +114,10 @@ CellGrid make_cell_grid(const VolumeGeometry& g, double spacing) {
 std::vector<float> cell_fractions(const Mask& mask, const CellGrid& grid) {
     const auto& g = mask.geometry;
     const int n1 = g.dims[1], n2 = g.dims[2];
-    const auto [c0, c1, c2] = grid.dims();
+    // Plain variables, not a structured binding: clang 14 (the sanitize preset) cannot capture
+    // those in the lambdas below.
+    const auto cells = grid.dims();
+    const int c0 = cells[0], c1 = cells[1], c2 = cells[2];
     std::vector<float> pass_i(std::size_t(c0) * n1 * n2);
     tbb::parallel_for(0, n2, [&](int k) {
         for (int j = 0; j < n1; ++j) {

@@ -21,9 +21,14 @@ int command_info() {
     return 0;
 }
 
+/// What the command is doing, for the one line an out-of-memory failure prints.
+const char* activity = "starting";
+
 /// One run mode per call (run_modes.h); the arguments decide which.
 int command_run(const RunArguments& a) {
+    activity = "loading the scenario and preparing the run";
     PreparedRun run(a);
+    activity = "running the simulation and writing its outputs";
     if (!a.replay.empty()) return replay_mode(a, run);
     if (!a.headless) return window_mode(a, run);
     if (!a.devices.empty()) return headless_haptic_mode(a, run);
@@ -113,7 +118,15 @@ int main(int argc, char** argv) {
     const std::string first = argc >= 2 ? argv[1] : "";
     if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version")
         arguments.insert(arguments.begin() + 1, run_word);
-    CLI11_PARSE(app, int(arguments.size()), arguments.data());
+    try {
+        app.parse(int(arguments.size()), arguments.data());
+    } catch (const CLI::ParseError& e) {
+        if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
+        // A bad command line is bad input (exit 2, docs/runtime.md), in one line like every other
+        // error, rather than CLI11's own exit code and two lines.
+        std::fprintf(stderr, "heartsim: %s (heartsim run --help lists the options)\n", e.what());
+        return 2;
+    }
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;
     a.record_given = run->count("--record") > 0;
@@ -132,7 +145,10 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "heartsim: %s\n", e.what());
         return 2;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "heartsim: %s\n", e.what());
+        // Out of memory (an allocation, a thread that could not start, HDF5's own allocations):
+        // one line saying so, whatever the library's words were.
+        if (is_out_of_memory(e)) std::fprintf(stderr, "heartsim: out of memory while %s\n", activity);
+        else std::fprintf(stderr, "heartsim: %s\n", e.what());
         return 1;
     }
     return 0;

@@ -96,6 +96,15 @@ void check_arguments(const RunArguments& a) {
         throw InputError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
         throw InputError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
+    // Files written after the run: a place they cannot go is refused now, not after the simulation.
+    for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}}) {
+        if (path.empty()) continue;
+        try {
+            check_destination(path);
+        } catch (const OutputError& e) {
+            throw InputError(std::string(option) + " " + e.what());
+        }
+    }
 }
 
 /// The scenario's solver options, with --gravity instead of its gravity.

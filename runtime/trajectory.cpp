@@ -9,7 +9,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <sstream>
 
 namespace heartsim {
@@ -103,13 +102,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
     return trajectory;
 }
 
-Trajectory read_trajectory(const std::filesystem::path& path) {
-    std::ifstream in(path);
-    if (!in) throw InputError(path.string() + ": cannot open the trajectory file");
-    std::stringstream buffer;
-    buffer << in.rdbuf();
-    return parse_trajectory(buffer.str(), path.string());
-}
+Trajectory read_trajectory(const std::filesystem::path& path) { return parse_trajectory(read_csv_file(path), path.string()); }
 
 InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) {
     const auto fields = csv_fields(text);

@@ -17,6 +17,9 @@ packages=(
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri libpng-dev
   # tests
   googletest libgtest-dev
+  # the sanitizer job (scripts/run-sanitizers.sh): clang with AddressSanitizer, UBSan and
+  # libFuzzer's runtime; llvm for llvm-symbolizer (readable stacks in sanitizer reports)
+  clang libclang-rt-14-dev llvm
   # window tests (heartsim's GLFW window under a virtual X server)
   xvfb xauth
 )

@@ -754,6 +754,20 @@ TEST(HapticsScripted, ReplaysPosesInterpolatedWithButtonsAndRejectsBadRows) {
     EXPECT_NEAR(hand(50).z(), -1.0, 1e-12);
 }
 
+TEST(HapticsScripted, ButtonsOutsideA32BitWordAreRefusedNotConverted) {
+    // fuzz_pose_script: 1e49 buttons were cast to uint32 (undefined behaviour; UBSan's
+    // float-cast-overflow). Up to 2^32 - 1 is read, above is an error naming the row.
+    EXPECT_EQ(parse_pose_script("0,0,0,0,1,0,0,0,4294967295\n", "max.csv").front().pose.buttons, 4294967295u);
+    try {
+        parse_pose_script("0,0,0,0,1,0,0,0,1\n5,0,0,0,1,0,0,0,1e49\n", "big.csv");
+        ADD_FAILURE() << "1e49 buttons were accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("big.csv: row 2: buttons must be an integer from 0 to 4294967295"), std::string::npos)
+            << e.what();
+    }
+    EXPECT_THROW(parse_pose_script("0,0,0,0,1,0,0,0,4294967296\n", "over.csv"), InputError);
+}
+
 TEST(HapticsSimulated, TheVirtualDeviceMovesUnderForceAndKeepsItsEnergyAccount) {
     SimulatedDevice d({.mass_g = 50.0, .damping_n_ms_per_mm = 0.02, .hand_force = [](double) { return Eigen::Vector3d(0.1, 0, 0); },
                        .limits = {.workspace_mm = Eigen::AlignedBox3d()}});  // unbounded

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/LU>
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <regex>
@@ -294,4 +295,53 @@ TEST(HeartprepErrors, AFullDiskFailsCleanlyAndKeepsTheOldFile) {
     std::size_t entries = 0;
     for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++entries;
     EXPECT_EQ(entries, 1u) << "a temporary file was left behind";
+}
+
+TEST(HeartprepErrors, OutOfMemoryIsOneLineNamingTheStageAndLeavesNoFile) {
+    // Out of memory injected with address-space limits rising from 32 MiB until the build fits:
+    // every limit below that ends with exit 1 and the one line "out of memory while running stage
+    // '…'", whether an allocation failed, a worker thread could not start (oneTBB's
+    // "pthread_create has failed") or HDF5 could not build the file in memory (it said "cannot
+    // create the file in memory"); never a signal or a hang; and no output or temporary file is left.
+    if (test::under_address_sanitizer) GTEST_SKIP() << "address-space limits do not work under AddressSanitizer";
+    test::TempDir dir;
+    test::expect_clean_out_of_memory(test::quoted(HEARTPREP_EXE) + " build " +
+                                         test::quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " +
+                                         test::quoted(dir / "out.h5") + " -q",
+                                     "heartprep: error: out of memory while ");
+    // The last run succeeded and wrote out.h5; the failed ones left nothing else.
+    EXPECT_EQ(listing(dir.path()), std::set<std::string>{"out.h5"});
+}
+
+TEST(HeartprepErrors, PathsThatCannotBeOpenedAreOneClearLine) {
+    // Inputs that exist but cannot be read as files, and outputs whose place cannot hold a file
+    // (tests run as root in CI, so permissions would not stop anything: a folder where a file is
+    // expected, a path through a regular file, an output folder that is a file). Each: exit 1, one
+    // line "heartprep: error: …" naming the path and what is wrong, nothing written.
+    test::TempDir dir;
+    std::ofstream(dir / "file.txt") << "a regular file";
+    fs::create_directory(dir / "folder.nii.gz");
+    fs::create_directory(dir / "folder.h5");
+    fs::create_directory(dir / "folder.csv");
+    const std::string phantom = quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz");
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"build " + quoted(dir / "folder.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "folder.nii.gz: is a folder"},
+        {"build " + quoted(dir / "file.txt/x.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "file.txt/x.nii.gz: file not found"},
+        {"build " + phantom + " -o " + quoted(dir / "file.txt/a.h5") + " -q", "file.txt is a file, not a folder"},
+        {"build " + phantom + " -o " + quoted(dir / "folder.h5") + " -q", "folder.h5: is a folder, expected a file name"},
+        {"phantom --size 8 -o " + quoted(dir / "file.txt/p.nii.gz"), "file.txt is a file, not a folder"},
+        {"phantom --size 8 -o " + quoted(dir / "folder.nii.gz"), "folder.nii.gz: is a folder, expected a file name"},
+        {"inspect " + quoted(dir / "folder.h5"), "folder.h5: not a regular file"},
+        {"batch " + quoted(dir / "file.txt/cases.csv") + " -o " + quoted(dir / "out"), "file.txt/cases.csv: file not found"},
+        {"batch " + quoted(dir / "folder.csv") + " -o " + quoted(dir / "out"), "folder.csv: folder holds no label maps"},
+    };
+    const auto before = listing(dir.path());
+    for (const auto& [arguments, message] : cases) {
+        const auto run = test::run_command("(" + quoted(HEARTPREP_EXE) + " " + arguments + " 2>&1 >/dev/null)");
+        EXPECT_EQ(run.exit_code, 1) << arguments << "\n" << run.output;
+        EXPECT_EQ(run.output.rfind("heartprep: error: ", 0), 0u) << arguments << "\n" << run.output;
+        EXPECT_EQ(std::count(run.output.begin(), run.output.end(), '\n'), 1) << arguments << "\n" << run.output;
+        EXPECT_NE(run.output.find(message), std::string::npos) << "'" << message << "' not in: " << run.output;
+    }
+    EXPECT_EQ(listing(dir.path()), before) << "a refused command left files behind";
 }

@@ -8,6 +8,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 
@@ -146,4 +147,65 @@ TEST(HeartsimCli, ErrorsNameTheCause) {
     run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --probe 1,2,3");
     EXPECT_EQ(run.exit_code, 2) << run.output;
     EXPECT_NE(run.output.find("--probe"), std::string::npos) << run.output;
+}
+
+TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit1) {
+    // Out of memory injected with address-space limits rising from 32 MiB until the run fits
+    // (test_support.h): a scripted run that writes its state, and a haptic session with two
+    // devices that writes its recording. Every limit below that ends with exit 1 and the one line
+    // "heartsim: out of memory while …": not "std::bad_alloc", not oneTBB's or std::thread's
+    // "Resource temporarily unavailable", and not a scenario "damaged" (exit 2) because HDF5 could
+    // not allocate the buffer to read it into. The cpu backend: under such limits Mesa's llvmpipe
+    // itself crashes (docs/benchmarks.md, "Fuzzing and injected failures").
+    if (test::under_address_sanitizer) GTEST_SKIP() << "address-space limits do not work under AddressSanitizer";
+    test::TempDir dir;
+    const fs::path samples = fs::path(HEARTSIM_SOURCE_DIR) / "samples";
+    test::expect_clean_out_of_memory(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) +
+                                         " --headless --backend cpu --steps 20 --trajectory " +
+                                         quoted(samples / "probe_and_grab_phantom.csv") + " --save-state " + quoted(dir / "state.h5"),
+                                     "heartsim: out of memory while ");
+    test::expect_clean_out_of_memory(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) + " --headless --backend cpu --seconds 0.1" +
+                                         " --device scripted:" + quoted(samples / "haptics/grab_phantom.csv") +
+                                         " --device simulated:" + quoted(samples / "haptics/press_phantom.csv") +
+                                         " --haptic-priority normal --record " + quoted(dir / "session.h5"),
+                                     "heartsim: out of memory while ");
+}
+
+TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineAndExit2BeforeTheRun) {
+    // Inputs that exist but cannot be read as files (a folder where a file is expected, a path
+    // through a regular file; tests run as root, so permissions would stop nothing) and outputs
+    // whose place cannot hold a file: exit 2 (bad input) with one line naming the path, before any
+    // simulation step (an output used to fail only after the whole run, exit 1; a folder given as a
+    // device file read as "no rows"; a folder given as the scenario was CLI11's exit 105 in two lines).
+    test::TempDir dir;
+    std::ofstream(dir / "file.txt") << "a regular file";
+    fs::create_directory(dir / "folder.h5");
+    fs::create_directory(dir / "folder.csv");
+    const std::string run = "run " + quoted(phantom()) + " --headless --backend cpu ";
+    const std::vector<std::pair<std::string, std::string>> cases = {
+        {"run " + quoted(dir / "folder.h5") + " --headless --backend cpu", "folder.h5"},
+        {"run " + quoted(dir / "file.txt/x.h5") + " --headless --backend cpu", "file.txt/x.h5"},
+        {run + "--trajectory " + quoted(dir / "folder.csv"), "folder.csv"},
+        {run + "--replay " + quoted(dir / "folder.h5"), "folder.h5"},
+        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file"},
+        {run + "--seconds 0.1 --device simulated:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file"},
+        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.h5"), "folder.h5: not a regular file"},
+        {run + "--steps 5 --save-state " + quoted(dir / "file.txt/state.h5"), "--save-state " + (dir / "file.txt/state.h5").string() + ": " + (dir / "file.txt").string() + " is a file, not a folder"},
+        {run + "--steps 5 --save-state " + quoted(dir / "folder.h5"), "--save-state " + (dir / "folder.h5").string() + ": is a folder, expected a file name"},
+        {run + "--steps 5 --screenshot " + quoted(dir / "file.txt/shot.png"), "--screenshot"},
+        {run + "--steps 5 --stats-csv " + quoted(dir / "file.txt/stats.csv"), "--stats-csv"},
+    };
+    for (const auto& [arguments, message] : cases) {
+        const auto result = test::run_command("(" + quoted(HEARTSIM_EXE) + " " + arguments + " 2>&1 >/dev/null)");
+        EXPECT_EQ(result.exit_code, 2) << arguments << "\n" << result.output;
+        EXPECT_EQ(result.output.rfind("heartsim: ", 0), 0u) << arguments << "\n" << result.output;
+        EXPECT_EQ(std::count(result.output.begin(), result.output.end(), '\n'), 1) << arguments << "\n" << result.output;
+        EXPECT_NE(result.output.find(message), std::string::npos) << "'" << message << "' not in: " << result.output;
+    }
+    // Refused before the run: no step was taken.
+    const auto refused = run_heartsim(run + "--steps 5 --save-state " + quoted(dir / "file.txt/state.h5"));
+    EXPECT_EQ(refused.output.find("ran "), std::string::npos) << refused.output;
+    std::size_t entries = 0;
+    for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++entries;
+    EXPECT_EQ(entries, 3u) << "a refused run left files behind";
 }

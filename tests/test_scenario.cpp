@@ -16,6 +16,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <iterator>
@@ -462,4 +463,101 @@ TEST(Scenario, AbsurdButWellFormedValuesAreRefusedByTheirPlausibleRange) {
     overwrite(dir / "length.h5", "springs/rest_length", lengths, H5T_NATIVE_FLOAT);
     EXPECT_NE(refusal(dir / "length.h5").find("springs/rest_length: entry 0 is 1e+09 mm, outside the plausible range"), std::string::npos)
         << refusal(dir / "length.h5");
+}
+
+TEST(Scenario, StringsAreStoredFixedLengthInTheChecksummedObjectHeaders) {
+    // fuzz_scenario: a damaged global heap (where HDF5 keeps variable-length strings, under no
+    // checksum) made HDF5 1.10's H5HG_read copy as many bytes as the heap claimed, out of bounds.
+    // Strings are now fixed-length, stored in the object headers the 1.8 format checksums; they
+    // read back whole, the empty ones included.
+    test::TempDir dir;
+    const auto file = dir / "s.h5";
+    Scenario s = sample_scenario();
+    s.generator = "heartprep 0.1.0, with an ünïcode name";
+    s.batch_key = "";
+    s.source.file_name = "";
+    write_scenario(file, s);
+    {
+        hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+        ASSERT_GE(f, 0);
+        for (const auto& [object, name] : {std::pair{"/", "format"}, {"/", "generator"}, {"/source", "file_name"}}) {
+            hid_t a = H5Aopen_by_name(f, object, name, H5P_DEFAULT, H5P_DEFAULT);
+            hid_t t = H5Aget_type(a);
+            EXPECT_EQ(H5Tget_class(t), H5T_STRING) << object << " " << name;
+            EXPECT_EQ(H5Tis_variable_str(t), 0) << object << " " << name << " is a variable-length string";
+            H5Tclose(t);
+            H5Aclose(a);
+        }
+        hid_t d = H5Dopen2(f, "/materials/name", H5P_DEFAULT);
+        hid_t t = H5Dget_type(d);
+        EXPECT_EQ(H5Tis_variable_str(t), 0) << "/materials/name is a variable-length string";
+        H5Tclose(t);
+        H5Dclose(d);
+        H5Fclose(f);
+    }
+    const Scenario back = read_scenario(file);
+    EXPECT_EQ(back.generator, s.generator);
+    EXPECT_EQ(back.source.file_name, "");
+    ASSERT_EQ(back.lattice.materials.size(), s.lattice.materials.size());
+    for (std::size_t m = 0; m < s.lattice.materials.size(); ++m) EXPECT_EQ(back.lattice.materials[m].name, s.lattice.materials[m].name);
+}
+
+namespace {
+
+/// A file as heartsim wrote them before strings were fixed-length: root attribute `format` a
+/// variable-length string (kept in the global heap).
+void write_variable_length_format(const std::filesystem::path& path) {
+    hid_t file = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    hid_t type = H5Tcopy(H5T_C_S1);
+    H5Tset_size(type, H5T_VARIABLE);
+    hid_t space = H5Screate(H5S_SCALAR);
+    hid_t attribute = H5Acreate2(file, "format", type, space, H5P_DEFAULT, H5P_DEFAULT);
+    const char* value = "heartsim.scenario";
+    H5Awrite(attribute, type, &value);
+    H5Aclose(attribute);
+    H5Sclose(space);
+    H5Tclose(type);
+    H5Fclose(file);
+}
+
+}  // namespace
+
+TEST(Scenario, ADamagedGlobalHeapIsRefusedBeforeHdf5ReadsAVariableLengthString) {
+    // fuzz_scenario / fuzz_recording on files with variable-length strings: HDF5 1.10 looped forever
+    // on a global heap whose free-space object has size 0, and copied out of bounds from an object
+    // larger than its collection. Such files (written before this change) are still read, once
+    // their heaps are walked and found sound.
+    test::TempDir dir;
+    const auto file = dir / "old.h5";
+    write_variable_length_format(file);
+    std::vector<unsigned char> bytes;
+    {
+        std::ifstream in(file, std::ios::binary);
+        bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    EXPECT_EQ(h5::global_heap_problem(file), "");
+    const std::string intact = refusal(file);
+    EXPECT_EQ(intact.find("global heap"), std::string::npos) << intact;
+    EXPECT_NE(intact.find("format_version"), std::string::npos) << "the format string was not read: " << intact;
+
+    const std::string signature("GCOL\1\0\0\0", 8);
+    const auto at = std::search(bytes.begin(), bytes.end(), signature.begin(), signature.end());
+    ASSERT_NE(at, bytes.end()) << "no global heap collection in the file";
+    const std::size_t heap = std::size_t(at - bytes.begin());
+    auto patched = [&](std::size_t offset, std::uint64_t size, const char* name) {
+        std::vector<unsigned char> copy = bytes;
+        for (int i = 0; i < 8; ++i) copy[offset + 8 + std::size_t(i)] = static_cast<unsigned char>(size >> (8 * i));
+        const auto path = dir / name;
+        test::write_bytes(path, copy);
+        return path;
+    };
+    // The first object (the string) claims 10^12 bytes; then the first object is made the free
+    // space (index 0) of size 0.
+    const auto huge = patched(heap + 16, 1000000000000ull, "huge.h5");
+    EXPECT_NE(refusal(huge).find("global heap collection at byte " + std::to_string(heap)), std::string::npos) << refusal(huge);
+    std::vector<unsigned char> zero = bytes;
+    zero[heap + 16] = zero[heap + 17] = 0;
+    for (int i = 0; i < 8; ++i) zero[heap + 24 + std::size_t(i)] = 0;
+    test::write_bytes(dir / "zero.h5", zero);
+    EXPECT_NE(refusal(dir / "zero.h5").find("does not fit in it"), std::string::npos) << refusal(dir / "zero.h5");
 }

@@ -2,6 +2,8 @@
 
 #include "libmodel/select.h"
 
+#include <gtest/gtest.h>
+
 #include <array>
 #include <cstdio>
 #include <fstream>
@@ -77,6 +79,33 @@ CommandResult run_command(const std::string& command) {
     int status = pclose(pipe);
     result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
     return result;
+}
+
+void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix) {
+    std::vector<LimitedRun> runs;
+    for (std::size_t limit = 32; limit <= 4096; limit += 8) {
+        // stderr to the pipe, stdout away: the error must be one line of its own.
+        const CommandResult result =
+            run_command("(ulimit -v " + std::to_string(limit * 1024) + "; timeout 120 " + command + " 2>&1 >/dev/null)");
+        runs.push_back({limit, result});
+        if (result.exit_code == 0) break;
+    }
+    std::string log;
+    for (const auto& run : runs)
+        log += std::to_string(run.limit_mib) + " MiB: exit " + std::to_string(run.result.exit_code) + ": " + run.result.output;
+    ASSERT_EQ(runs.back().result.exit_code, 0) << "never succeeded up to 4 GiB:\n" << log;
+    std::size_t out_of_memory = 0;
+    for (const auto& run : runs) {
+        const std::string& output = run.result.output;
+        if (run.result.exit_code == 0) continue;
+        if (run.result.exit_code == 127 && output.find("error while loading shared libraries") != std::string::npos) continue;
+        const bool one_line = !output.empty() && output.find('\n') == output.size() - 1;
+        const bool clean = run.result.exit_code == 1 && one_line && output.rfind(out_of_memory_prefix, 0) == 0;
+        EXPECT_TRUE(clean) << "under " << run.limit_mib << " MiB: exit " << run.result.exit_code << ", expected 1 and one line \""
+                           << out_of_memory_prefix << "…\":\n" << output;
+        out_of_memory += clean;
+    }
+    EXPECT_GT(out_of_memory, 0u) << "no limit made the program run out of memory in our code:\n" << log;
 }
 
 std::string quoted(const std::filesystem::path& path) { return "'" + path.string() + "'"; }

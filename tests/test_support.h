@@ -49,6 +49,36 @@ struct CommandResult {
 /// Runs `command` through the shell, capturing stdout and stderr together.
 CommandResult run_command(const std::string& command);
 
+/// True in a build with AddressSanitizer. It reserves terabytes of address space for its shadow
+/// memory, so an address-space limit (ulimit -v) stops any program at its start: the tests that
+/// inject an out-of-memory that way skip.
+#if defined(__SANITIZE_ADDRESS__)
+inline constexpr bool under_address_sanitizer = true;
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+inline constexpr bool under_address_sanitizer = true;
+#else
+inline constexpr bool under_address_sanitizer = false;
+#endif
+#else
+inline constexpr bool under_address_sanitizer = false;
+#endif
+
+/// One run of a command under an address-space limit: stderr only (stdout is discarded).
+struct LimitedRun {
+    std::size_t limit_mib = 0;
+    CommandResult result;
+};
+
+/// Out of memory, injected: runs `command` (a shell command line) under address-space limits
+/// (ulimit -v) rising from 32 MiB in 8 MiB steps, each with a 120 s timeout, until a run exits 0
+/// or the limit passes 4 GiB; returns every run. Then checks them: each run either could not
+/// start (the dynamic loader's "error while loading shared libraries", before any of our code),
+/// or exited 1 with exactly one line on stderr that begins with `out_of_memory_prefix` (e.g.
+/// "heartsim: out of memory while "), or was the last and succeeded; and at least one ran out of
+/// memory in our code. Failures are reported through GoogleTest with each run's output.
+void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix);
+
 /// `path` in single quotes, for a shell command line.
 std::string quoted(const std::filesystem::path& path);
 

@@ -401,6 +401,112 @@ TEST(VolumeReadErrors, TooLargeFailsOnTheEstimate) {
     expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "too large", "60000×60000×60000"});
 }
 
+// -------------------------------------------------------------------------------------------
+// Found by fuzzing (tests/fuzz): each was a crash, undefined behaviour, an escaped exception of
+// another type or an allocation of the declared size before the reader refused the file.
+
+fs::path write_text_file(const TempDir& folder, const std::string& name, const std::string& text) {
+    std::vector<unsigned char> bytes;
+    append_text(bytes, text);
+    const fs::path path = folder / name;
+    write_bytes(path, bytes);
+    return path;
+}
+
+TEST(VolumeReadErrors, NiftiVoxOffsetThatIsNoByteOffset) {
+    // fuzz_volume_nii: vox_offset 1e31 (a float) was cast to a 64-bit byte offset, undefined.
+    TempDir folder;
+    for (float offset : {1e31f, std::numeric_limits<float>::infinity()}) {
+        HandNifti nifti({2, 2, 2}, 2, 8);
+        nifti.put<float>(108, offset);
+        nifti.append_voxels(std::vector<std::uint8_t>(8, 1));
+        const fs::path path = folder / "offset.nii";
+        write_bytes(path, nifti.bytes);
+        expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "NIfTI vox_offset is "});
+    }
+}
+
+TEST(VolumeReadErrors, NiftiOrientationOutsideItsRangeIsRefusedBeforeItk) {
+    // fuzz_volume_nii: ITK hands the orientation to vnl_svd, which aborts the process on a NaN and
+    // never returns on -1.7e38.
+    TempDir folder;
+    HandNifti nifti({2, 2, 2}, 2, 8);
+    nifti.set_sform(Eigen::Matrix<float, 3, 4>::Identity());
+    nifti.put<float>(280 + 16 * 1 + 4 * 2, std::numeric_limits<float>::quiet_NaN());  // srow_y[2]
+    nifti.append_voxels(std::vector<std::uint8_t>(8, 1));
+    const fs::path path = folder / "nan-sform.nii";
+    write_bytes(path, nifti.bytes);
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NIfTI srow_y[2] is nan"});
+    expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "NIfTI srow_y[2] is nan"});
+    // Finite but near the end of the float range: vnl_svd never returned.
+    nifti.put<float>(280 + 16 * 1 + 4 * 2, -1.7e38f);
+    write_bytes(path, nifti.bytes);
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NIfTI srow_y[2] is -1.7e+38", "outside the plausible range"});
+}
+
+TEST(VolumeReadErrors, MetaImageElementTypeItkDoesNotKnow) {
+    // fuzz_volume_mha: ITK's size query threw through a noexcept function (std::terminate).
+    TempDir folder;
+    const fs::path path = write_text_file(folder, "type.mha", "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_\n"
+                                                              "ElementDataFile = LOCAL\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "no element type ITK knows"});
+}
+
+TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
+    // fuzz_volume_mha: MetaIO strcpy's a field name into 255 bytes; 300 characters aborted the
+    // process (glibc's buffer overflow check) inside ITK. NDims sizes MetaIO's arrays and matrices.
+    TempDir folder;
+    const std::string header = "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\n";
+    const fs::path named = write_text_file(folder, "name.mha", header + std::string(300, 'K') + " = 1\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_label_volume(named); }, {named.string(), "line 5", "field name of 300 characters"});
+    expect_error<InputError>([&] { read_volume_header(named); }, {named.string(), "field name of 300 characters"});
+    const fs::path dims = write_text_file(folder, "dims.mha", "ObjectType = Image\nNDims = 100\nTransformMatrix = 1\nElementDataFile = LOCAL\n");
+    expect_error<InputError>([&] { read_label_volume(dims); }, {dims.string(), "MetaImage NDims is '100'"});
+}
+
+TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
+    // fuzz_volume_nrrd: `data file: /dev/zero` or a folder made our size check throw
+    // std::filesystem::filesystem_error instead of InputError.
+    TempDir folder;
+    fs::create_directory(folder / "data");
+    for (const std::string data : {std::string("/dev/zero"), std::string("data")}) {
+        const fs::path path = write_text_file(folder, "detached.nrrd",
+                                              "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: " + data + "\n\n");
+        expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "is not a regular file"});
+    }
+}
+
+TEST(VolumeReadErrors, TextEncodedNrrdMustHoldACharacterPerValueBeforeAnyAllocation) {
+    // 10^9 voxels declared in ascii with three values present: refused on the file size, not after
+    // allocating a gigabyte; and NrrdIO's several lines of complaint about a short file become one.
+    TempDir folder;
+    const fs::path huge = write_text_file(folder, "huge.nrrd",
+                                          "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 1000 1000 1000\nencoding: ascii\n\n1 2 3\n");
+    expect_error<InputError>([&] { read_label_volume(huge); }, {huge.string(), "1000000000 values as text", "need at least 1000000000 bytes"});
+    const fs::path hex = write_text_file(folder, "hex.nrrd", "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\nencoding: hex\n\n0102\n");
+    expect_error<InputError>([&] { read_label_volume(hex); }, {hex.string(), "as hex", "need at least 16 bytes"});
+    const fs::path short_text = write_text_file(folder, "short.nrrd",
+                                                "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\nencoding: ascii\n\n1 2 3         \n");
+    try {
+        read_label_volume(short_text);
+        ADD_FAILURE() << "three values read as eight";
+    } catch (const InputError& e) {
+        EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find(short_text.string()), std::string::npos) << e.what();
+    }
+}
+
+TEST(VolumeReadErrors, DataSpreadOverSeveralFilesIsRefused) {
+    // NrrdIO and MetaIO format each file name with a printf pattern from the header.
+    TempDir folder;
+    const fs::path nrrd = write_text_file(folder, "list.nrrd",
+                                          "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\nencoding: raw\ndata file: slice%s%s%n.raw 1 2 1\n\n");
+    expect_error<InputError>([&] { read_label_volume(nrrd); }, {nrrd.string(), "several files"});
+    const fs::path mha = write_text_file(folder, "list.mha",
+                                         "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LIST\na.raw\nb.raw\n");
+    expect_error<InputError>([&] { read_label_volume(mha); }, {mha.string(), "several files"});
+}
+
 TEST(VolumeReadErrors, MemoryLimitOption) {
     TempDir folder;
     const fs::path path = folder / "small.nrrd";

@@ -21,6 +21,7 @@
 #include <cstring>
 #include <deque>
 #include <limits>
+#include <new>
 #include <sstream>
 
 namespace heartsim {
@@ -435,6 +436,7 @@ private:
 
     static void check(const char* what) {
         const GLenum error = glGetError();
+        if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
         if (error != GL_NO_ERROR) {
             std::ostringstream s;
             s << "gl backend: OpenGL error 0x" << std::hex << error << " while " << what;

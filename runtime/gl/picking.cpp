@@ -15,6 +15,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <new>
 #include <set>
 
 namespace heartsim {
@@ -117,6 +118,7 @@ PickingPass::PickingPass(const std::optional<SimulationSurface>& simulation_surf
     make(gl_->picked, std::size_t(hands) * n_ * 4, nullptr, 0);
     set_settings(settings);
     const GLenum error = glGetError();
+    if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
     if (error != GL_NO_ERROR) throw GlUnavailable("picking: OpenGL error " + std::to_string(error) + " while setting up");
 }
 

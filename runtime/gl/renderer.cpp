@@ -20,6 +20,7 @@
 #include <cmath>
 #include <cstddef>
 #include <deque>
+#include <new>
 #include <sstream>
 
 namespace heartsim {
@@ -41,6 +42,7 @@ static_assert(sizeof(VertexRecord) == 116);
 
 void check(const char* what) {
     const GLenum error = glGetError();
+    if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
     if (error != GL_NO_ERROR) {
         std::ostringstream s;
         s << "renderer: OpenGL error 0x" << std::hex << error << " while " << what;

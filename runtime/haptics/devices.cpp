@@ -7,7 +7,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <fstream>
 #include <sstream>
 
 namespace heartsim::haptics {
@@ -66,14 +65,6 @@ std::vector<std::vector<double>> parse_rows(const std::string& text, const std::
     return rows;
 }
 
-std::string read_text(const std::filesystem::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path.string() + ": cannot open");
-    std::ostringstream s;
-    s << in.rdbuf();
-    return s.str();
-}
-
 }  // namespace
 
 // ------------------------------------------------------------------------------------------------
@@ -91,7 +82,9 @@ std::vector<PoseKeyframe> parse_pose_script(const std::string& text, const std::
         if (q.norm() < 1e-9) throw InputError(name + ": row " + std::to_string(row_number) + ": zero orientation quaternion");
         k.pose.orientation = q.normalized();
         if (row.size() > 8) {
-            if (row[8] < 0 || row[8] != std::floor(row[8])) throw InputError(name + ": row " + std::to_string(row_number) + ": buttons must be a non-negative integer");
+            // Bits of a 32-bit word: a larger number cannot be converted (fuzz_pose_script found 1e49).
+            if (row[8] < 0 || row[8] != std::floor(row[8]) || row[8] > 4294967295.0)
+                throw InputError(name + ": row " + std::to_string(row_number) + ": buttons must be an integer from 0 to 4294967295 (32 button bits)");
             k.pose.buttons = std::uint32_t(row[8]);
         }
         keyframes.push_back(k);
@@ -99,7 +92,7 @@ std::vector<PoseKeyframe> parse_pose_script(const std::string& text, const std::
     return keyframes;
 }
 
-std::vector<PoseKeyframe> read_pose_script(const std::filesystem::path& path) { return parse_pose_script(read_text(path), path.string()); }
+std::vector<PoseKeyframe> read_pose_script(const std::filesystem::path& path) { return parse_pose_script(read_csv_file(path), path.string()); }
 
 ScriptedDevice::ScriptedDevice(std::vector<PoseKeyframe> keyframes, DeviceLimits limits)
     : keyframes_(std::move(keyframes)), limits_(limits) {
@@ -142,7 +135,7 @@ HandForce parse_hand_force(const std::string& text, const std::string& name) {
     };
 }
 
-HandForce read_hand_force(const std::filesystem::path& path) { return parse_hand_force(read_text(path), path.string()); }
+HandForce read_hand_force(const std::filesystem::path& path) { return parse_hand_force(read_csv_file(path), path.string()); }
 
 // ------------------------------------------------------------------------------------------------
 // simulated

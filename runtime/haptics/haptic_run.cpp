@@ -7,6 +7,8 @@
 
 #include "runtime/haptics/openhaptics.h"
 
+#include "formats/csv.h"
+
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 
@@ -184,11 +186,7 @@ SimulatedDeviceSettings parse_simulated_device(const std::string& text, const st
 }
 
 SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path) {
-    std::ifstream in(path, std::ios::binary);
-    if (!in) throw InputError(path.string() + ": cannot open");
-    std::ostringstream s;
-    s << in.rdbuf();
-    return parse_simulated_device(s.str(), path.string());
+    return parse_simulated_device(read_csv_file(path), path.string());
 }
 
 std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name) {

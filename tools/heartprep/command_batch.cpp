@@ -5,10 +5,10 @@
 // builds, waits for them and writes the summary before it ends by the same signal; its builds also
 // end when it is killed outright (SIGKILL), through the parent-death signal.
 #include "commands.h"
+#include "manifest.h"
 #include "terminal_progress.h"
 
 #include "formats/atomic_file.h"
-#include "formats/csv.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 
@@ -41,13 +41,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct Case {
-    std::string id;
-    fs::path input;
-    std::string options;  ///< build options for this case (replace the batch's --options)
-    int line = 0;         ///< manifest line, for messages (0 for a folder)
-};
-
 struct Outcome {
     /// pending (not finished yet), built, skipped, failed, interrupted (its build was stopped with
     /// the batch), not started (the batch was stopped first)
@@ -57,93 +50,6 @@ struct Outcome {
     std::vector<std::string> warnings;
     std::string message;
 };
-
-bool is_volume_file(const fs::path& path) {
-    const std::string name = path.filename().string();
-    for (const char* extension : {".nii", ".nii.gz", ".nrrd", ".mha", ".mhd"})
-        if (name.size() > std::strlen(extension) && name.compare(name.size() - std::strlen(extension), std::string::npos, extension) == 0)
-            return true;
-    return false;
-}
-
-/// File name without its volume extension (".nii.gz" and ".seg.nrrd" count as one).
-std::string stem_of(const fs::path& path) {
-    std::string name = path.filename().string();
-    for (const char* extension : {".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"}) {
-        const std::size_t n = std::strlen(extension);
-        if (name.size() > n && name.compare(name.size() - n, n, extension) == 0) return name.substr(0, name.size() - n);
-    }
-    return path.stem().string();
-}
-
-/// Splits build options as a shell would for plain words and quotes ("a b", 'a b'); no expansion.
-std::vector<std::string> split_words(const std::string& text) {
-    std::vector<std::string> words;
-    std::string word;
-    bool in_word = false;
-    char quote = 0;
-    for (char c : text) {
-        if (quote) {
-            if (c == quote) quote = 0;
-            else word += c;
-        } else if (c == '"' || c == '\'') quote = c, in_word = true;
-        else if (c == ' ' || c == '\t') {
-            if (in_word) words.push_back(word), word.clear(), in_word = false;
-        } else word += c, in_word = true;
-    }
-    if (quote) throw InputError("unbalanced quote in build options: " + text);
-    if (in_word) words.push_back(word);
-    return words;
-}
-
-std::vector<Case> read_manifest(const fs::path& manifest, const std::string& default_options) {
-    std::vector<Case> cases;
-    if (fs::is_directory(manifest)) {
-        std::vector<fs::path> files;
-        for (const auto& entry : fs::directory_iterator(manifest))
-            if (entry.is_regular_file() && is_volume_file(entry.path())) files.push_back(entry.path());
-        std::sort(files.begin(), files.end());
-        for (const auto& file : files) cases.push_back({stem_of(file), file, default_options, 0});
-        if (cases.empty()) throw InputError(manifest.string() + ": folder holds no label maps (.nii, .nii.gz, .nrrd, .mha, .mhd)");
-    } else {
-        std::ifstream in(manifest);
-        if (!fs::exists(manifest)) throw InputError(manifest.string() + ": file not found");
-        if (!in) throw InputError(manifest.string() + ": cannot be read");
-        std::string line;
-        int number = 0;
-        while (std::getline(in, line)) {
-            ++number;
-            auto fields = csv_fields(line);
-            if (fields.size() == 1 && fields[0].empty()) continue;
-            if (fields[0].rfind('#', 0) == 0) continue;
-            std::string first = fields[0];
-            std::transform(first.begin(), first.end(), first.begin(), ::tolower);
-            if (cases.empty() && first == "input") continue;  // header line
-            if (fields.size() > 3)
-                throw InputError(manifest.string() + ": line " + std::to_string(number) + " has " + std::to_string(fields.size()) +
-                                 " fields; expected input[,case_id[,options]] (quote options that contain commas)");
-            if (fields[0].empty()) throw InputError(manifest.string() + ": line " + std::to_string(number) + ": no input file");
-            fs::path input = fields[0];
-            if (input.is_relative()) input = manifest.parent_path() / input;
-            Case c{fields.size() > 1 && !fields[1].empty() ? fields[1] : stem_of(input), input,
-                   fields.size() > 2 && !fields[2].empty() ? fields[2] : default_options, number};
-            cases.push_back(c);
-        }
-        if (cases.empty()) throw InputError(manifest.string() + ": no cases (expected lines of input[,case_id[,options]])");
-    }
-    std::map<std::string, int> seen;
-    for (const auto& c : cases) {
-        if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
-            throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
-                             "' may only use letters, digits, '.', '_' and '-' (it names the output file)");
-        auto [it, fresh] = seen.emplace(c.id, c.line);
-        if (!fresh)
-            throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
-                             " and " + std::to_string(c.line));
-        split_words(c.options);  // refuse unbalanced quotes before anything runs
-    }
-    return cases;
-}
 
 fs::path self_executable() {
     std::error_code error;
@@ -246,7 +152,7 @@ void fill_counts(const Scenario& s, Outcome& outcome) {
     outcome.triangles = s.visual ? s.visual->triangles.size() : 0;
 }
 
-Outcome run_case(const Case& c, const fs::path& folder, const fs::path& executable, std::atomic<pid_t>& slot) {
+Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& executable, std::atomic<pid_t>& slot) {
     Outcome outcome;
     outcome.status = "failed";
     const auto start = std::chrono::steady_clock::now();
@@ -325,7 +231,7 @@ void write_text(const fs::path& path, const std::string& text) { write_bytes_ato
 
 /// summary.csv and summary.md for every case of the manifest as the batch stands; returns the table.
 /// `state`: the line under the table that says whether the batch is running, finished or stopped.
-std::string write_summaries(const fs::path& folder, const std::vector<Case>& cases, const std::vector<Outcome>& outcomes,
+std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>& cases, const std::vector<Outcome>& outcomes,
                             const std::string& state) {
     std::ostringstream csv, markdown;
     csv << "case_id,input,status,particles,springs,triangles,seconds,warnings,message\n";

@@ -3,6 +3,7 @@
 #include "pipeline.h"
 #include "terminal_progress.h"
 
+#include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
 #include "libmodel/errors.h"
 
@@ -53,10 +54,7 @@ void add_surface_options(CLI::App& command, SurfaceOptions& o) {
 
 void check_output_path(const std::filesystem::path& output, const std::string& extension_hint) {
     if (output.empty()) throw InputError("no output file given (-o " + extension_hint + ")");
-    const auto folder = output.parent_path().empty() ? std::filesystem::path(".") : output.parent_path();
-    if (!std::filesystem::is_directory(folder))
-        throw OutputError(output.string() + ": folder " + folder.string() + " does not exist");
-    if (std::filesystem::is_directory(output)) throw OutputError(output.string() + ": is a folder, expected a file name");
+    check_destination(output);  // a folder, a path through a file, a missing or read-only folder
 }
 
 }  // namespace

@@ -1,11 +1,13 @@
 // heartprep: a segmented heart MRI (label map) to a heartsim scenario, stage by stage.
 #include "commands.h"
+#include "terminal_progress.h"
 
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
+#include <string>
 
 int main(int argc, char** argv) {
     CLI::App app{"heartprep: turns a segmented heart MRI (a label map: NIfTI, NRRD or MetaImage) into a heartsim\n"
@@ -30,18 +32,26 @@ int main(int argc, char** argv) {
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& error) {
-        return app.exit(error);
+        if (error.get_exit_code() == 0) return app.exit(error);  // --help, --version
+        // One line like every other error (docs/user-guide.md), not CLI11's two and its exit code.
+        std::fprintf(stderr, "heartprep: error: %s (heartprep --help lists the commands and options)\n", error.what());
+        return 1;
     } catch (const heartsim::InputError& error) {
         std::fprintf(stderr, "heartprep: error: %s\n", error.what());
         return 1;
     } catch (const heartsim::OutputError& error) {
         std::fprintf(stderr, "heartprep: error: %s\n", error.what());
         return 1;
-    } catch (const std::bad_alloc&) {
-        std::fprintf(stderr, "heartprep: error: out of memory (try a coarser --spacing or a smaller volume)\n");
-        return 1;
     } catch (const std::exception& error) {
-        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+        if (heartsim::is_out_of_memory(error)) {
+            // Allocations, threads that could not start, HDF5's own allocations (hdf5_io.h): one line
+            // naming the stage (from the progress reporting), whatever the library's words were.
+            const std::string stage = heartsim::cli::TerminalProgress::last_stage();
+            std::fprintf(stderr, "heartprep: error: out of memory while %s (try a coarser --spacing or a smaller volume)\n",
+                         stage.empty() ? "starting" : ("running stage '" + stage + "'").c_str());
+        } else {
+            std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+        }
         return 1;
     }
     return 0;

@@ -155,7 +155,10 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     Scenario scenario;
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
     scenario.source.file_name = options.input.filename().string();
-    auto [volume, selection] = read_and_select(options.input, options.selection, progress, report);
+    // References, not a structured binding: clang 14 (the sanitize preset) cannot capture those in lambdas.
+    SelectedVolume selected = read_and_select(options.input, options.selection, progress, report);
+    const LabelVolume& volume = selected.volume;
+    const Selection& selection = selected.selection;
     scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
     scenario.source.geometry = volume.geometry;
     scenario.source.tissue_labels = options.selection.tissue_labels;

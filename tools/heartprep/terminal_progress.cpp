@@ -7,11 +7,23 @@ namespace heartsim::cli {
 
 namespace {
 constexpr double show_after_seconds = 1.0;
+
+std::mutex last_stage_mutex;
+std::string last_stage_name;
+}  // namespace
+
+std::string TerminalProgress::last_stage() {
+    std::lock_guard lock(last_stage_mutex);
+    return last_stage_name;
 }
 
 TerminalProgress::TerminalProgress(bool quiet) : quiet_(quiet), terminal_(isatty(fileno(stderr)) != 0) {}
 
 void TerminalProgress::begin(std::string_view stage, std::uint64_t total) {
+    {
+        std::lock_guard lock(last_stage_mutex);
+        last_stage_name = stage;
+    }
     std::lock_guard lock(mutex_);
     if (depth_++ > 0) return;
     stage_ = stage;

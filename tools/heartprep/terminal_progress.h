@@ -20,6 +20,10 @@ public:
     void update(std::uint64_t done) override;
     void end() override;
 
+    /// The stage most recently begun by any TerminalProgress of the process ("" before the
+    /// first), kept after it ends: main() names it when the work runs out of memory.
+    static std::string last_stage();
+
 private:
     using Clock = std::chrono::steady_clock;
     void draw(bool final);

@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Writes the seed corpora tests/fuzz/corpus/<target>/ from our own tools and samples (nothing
+# from ../shared/data: its licence is not stated). Needs the release build (heartprep, heartsim).
+# The seeds are committed; rerun this after a format change and commit what it writes.
+#   tests/fuzz/make_seeds.sh [BUILD_DIR]   (default build/release)
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+build="${1:-build/release}"
+heartprep="$build/tools/heartprep"
+heartsim="$build/runtime/heartsim"
+corpus=tests/fuzz/corpus
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+rm -rf "$corpus"
+mkdir -p "$corpus"/{fuzz_volume_nii,fuzz_volume_nii_gz,fuzz_volume_nrrd,fuzz_volume_mha,fuzz_scenario,fuzz_recording}
+mkdir -p "$corpus"/{fuzz_trajectory,fuzz_pose_script,fuzz_simulated_device,fuzz_batch_manifest}
+
+# Label maps: the phantom heart at 16 voxels along its longest axis in every format the writer
+# knows (.nrrd, .seg.nrrd and .mha gzip-compressed), a thick shell and a sphere.
+for name in heart16.nii heart16.nii.gz heart16.nrrd heart16.seg.nrrd heart16.mha heart16.mhd; do
+  "$heartprep" phantom -o "$work/$name" --size 16 >/dev/null
+done
+"$heartprep" phantom -o "$work/shell12.nii" --shape shell --size 12 >/dev/null
+"$heartprep" phantom -o "$work/sphere10.mha" --shape sphere --size 10 >/dev/null
+# Uncompressed single files from the .mhd/.raw pair: a MetaImage with its data inline, and a NRRD
+# with the gzip encoding replaced by raw (the header up to its blank line, then the same voxels).
+sed 's/^ElementDataFile = .*/ElementDataFile = LOCAL/' "$work/heart16.mhd" > "$work/heart16-raw.mha"
+cat "$work/heart16.raw" >> "$work/heart16-raw.mha"
+sed -n '1,/^$/p' "$work/heart16.nrrd" | sed 's/^encoding: gzip$/encoding: raw/' > "$work/heart16-raw.nrrd"
+cat "$work/heart16.raw" >> "$work/heart16-raw.nrrd"
+
+cp "$work/heart16.nii" "$work/shell12.nii" "$corpus/fuzz_volume_nii/"
+# The nii_gz target gzips what it is given unless it is gzip already: both kinds of seed.
+cp "$work/heart16.nii.gz" "$work/shell12.nii" "$corpus/fuzz_volume_nii_gz/"
+cp "$work/heart16.nrrd" "$work/heart16.seg.nrrd" "$work/heart16-raw.nrrd" "$corpus/fuzz_volume_nrrd/"
+cp "$work/heart16.mha" "$work/sphere10.mha" "$work/heart16-raw.mha" "$corpus/fuzz_volume_mha/"
+
+# Scenarios: the phantom at 12 voxels built with 30 particles three ways (every group; no visual
+# mesh with slice packing; the tangent-space mapping, unsupported and unbalanced), the visual
+# surface decimated by 90 % to keep the files near 100 KB.
+"$heartprep" phantom -o "$work/heart12.nii.gz" --size 12 >/dev/null
+"$heartprep" build "$work/heart12.nii.gz" -o "$corpus/fuzz_scenario/full.h5" --particles 30 --cavity 2 --decimate 0.9 -q
+"$heartprep" build "$work/heart12.nii.gz" -o "$corpus/fuzz_scenario/slices-no-visual.h5" --particles 30 --no-visual --packing slices -q
+"$heartprep" build "$work/heart12.nii.gz" -o "$corpus/fuzz_scenario/tangent-imaged.h5" --particles 30 --mapping tangent --decimate 0.9 \
+  --rest-state imaged --support none --allow-free -q
+
+# Recordings: 20 ms of the samples' scripted grab and simulated press on the full scenario, both
+# hands, and the grab alone.
+"$heartsim" run "$corpus/fuzz_scenario/full.h5" --headless --backend cpu --seconds 0.02 \
+  --device scripted:samples/haptics/grab_phantom.csv --device simulated:samples/haptics/press_phantom.csv \
+  --record "$corpus/fuzz_recording/two-hands.h5" >/dev/null
+"$heartsim" run "$corpus/fuzz_scenario/full.h5" --headless --backend cpu --seconds 0.02 \
+  --device scripted:samples/haptics/grab_phantom.csv --record "$corpus/fuzz_recording/one-hand.h5" >/dev/null
+
+# CSV files: the samples.
+cp samples/probe_and_grab_phantom.csv samples/probe_and_grab_pat1.csv "$corpus/fuzz_trajectory/"
+cp samples/haptics/grab_phantom.csv samples/haptics/grab_pat1.csv "$corpus/fuzz_pose_script/"
+cp samples/haptics/press_phantom.csv samples/haptics/press_pat1.csv "$corpus/fuzz_simulated_device/"
+# A batch manifest with a header, a comment, a blank line, ids, quoted options and an option
+# containing a comma.
+cat > "$corpus/fuzz_batch_manifest/cases.csv" <<'CSV'
+input,case_id,options
+# the shipped phantom twice, once with its own options
+phantom.nii.gz
+phantom.nii.gz,phantom-cavity,"--cavity 2 --anchor-border"
+
+/data/labelmaps/pat1-label.nii.gz,pat1,"--gravity 0,0.00981,0 --particles 20000 --mapping 'tangent'"
+CSV
+printf 'a.nii\nb.nrrd,b\n' > "$corpus/fuzz_batch_manifest/plain.csv"
+du -ab "$corpus" | sort -k2

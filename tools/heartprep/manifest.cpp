@@ -1,0 +1,105 @@
+// `heartprep batch`'s manifest (manifest.h).
+#include "manifest.h"
+
+#include "formats/csv.h"
+#include "libmodel/errors.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cstring>
+#include <map>
+#include <sstream>
+
+namespace heartsim::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+
+bool is_volume_file(const fs::path& path) {
+    const std::string name = path.filename().string();
+    for (const char* extension : {".nii", ".nii.gz", ".nrrd", ".mha", ".mhd"})
+        if (name.size() > std::strlen(extension) && name.compare(name.size() - std::strlen(extension), std::string::npos, extension) == 0)
+            return true;
+    return false;
+}
+
+/// File name without its volume extension (".nii.gz" and ".seg.nrrd" count as one).
+std::string stem_of(const fs::path& path) {
+    std::string name = path.filename().string();
+    for (const char* extension : {".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"}) {
+        const std::size_t n = std::strlen(extension);
+        if (name.size() > n && name.compare(name.size() - n, n, extension) == 0) return name.substr(0, name.size() - n);
+    }
+    return path.stem().string();
+}
+
+}  // namespace
+
+std::vector<std::string> split_words(const std::string& text) {
+    std::vector<std::string> words;
+    std::string word;
+    bool in_word = false;
+    char quote = 0;
+    for (char c : text) {
+        if (quote) {
+            if (c == quote) quote = 0;
+            else word += c;
+        } else if (c == '"' || c == '\'') quote = c, in_word = true;
+        else if (c == ' ' || c == '\t') {
+            if (in_word) words.push_back(word), word.clear(), in_word = false;
+        } else word += c, in_word = true;
+    }
+    if (quote) throw InputError("unbalanced quote in build options: " + text);
+    if (in_word) words.push_back(word);
+    return words;
+}
+
+std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string& default_options) {
+    std::vector<BatchCase> cases;
+    if (fs::is_directory(manifest)) {
+        std::vector<fs::path> files;
+        for (const auto& entry : fs::directory_iterator(manifest))
+            if (entry.is_regular_file() && is_volume_file(entry.path())) files.push_back(entry.path());
+        std::sort(files.begin(), files.end());
+        for (const auto& file : files) cases.push_back({stem_of(file), file, default_options, 0});
+        if (cases.empty()) throw InputError(manifest.string() + ": folder holds no label maps (.nii, .nii.gz, .nrrd, .mha, .mhd)");
+    } else {
+        std::istringstream in(read_csv_file(manifest));
+        std::string line;
+        int number = 0;
+        while (std::getline(in, line)) {
+            ++number;
+            auto fields = csv_fields(line);
+            if (fields.size() == 1 && fields[0].empty()) continue;
+            if (fields[0].rfind('#', 0) == 0) continue;
+            std::string first = fields[0];
+            std::transform(first.begin(), first.end(), first.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+            if (cases.empty() && first == "input") continue;  // header line
+            if (fields.size() > 3)
+                throw InputError(manifest.string() + ": line " + std::to_string(number) + " has " + std::to_string(fields.size()) +
+                                 " fields; expected input[,case_id[,options]] (quote options that contain commas)");
+            if (fields[0].empty()) throw InputError(manifest.string() + ": line " + std::to_string(number) + ": no input file");
+            fs::path input = fields[0];
+            if (input.is_relative()) input = manifest.parent_path() / input;
+            BatchCase c{fields.size() > 1 && !fields[1].empty() ? fields[1] : stem_of(input), input,
+                        fields.size() > 2 && !fields[2].empty() ? fields[2] : default_options, number};
+            cases.push_back(c);
+        }
+        if (cases.empty()) throw InputError(manifest.string() + ": no cases (expected lines of input[,case_id[,options]])");
+    }
+    std::map<std::string, int> seen;
+    for (const auto& c : cases) {
+        if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
+            throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
+                             "' may only use letters, digits, '.', '_' and '-' (it names the output file)");
+        auto [it, fresh] = seen.emplace(c.id, c.line);
+        if (!fresh)
+            throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
+                             " and " + std::to_string(c.line));
+        split_words(c.options);  // refuse unbalanced quotes before anything runs
+    }
+    return cases;
+}
+
+}  // namespace heartsim::cli
