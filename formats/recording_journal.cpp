@@ -138,6 +138,9 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
         if (errno == EEXIST) throw InputError(path.string() + ": a journal is already there (another session's); it is never replaced");
         throw OutputError(path.string() + ": cannot create the session's journal: " + std::strerror(errno));
     }
+    // Whatever fails from here on (out of memory while serialising, a thread that cannot start)
+    // leaves no journal: nothing of the session is in it yet.
+    try {
     ::flock(fd_, LOCK_EX | LOCK_NB);
     Bytes b;
     b.put(journal_version);
@@ -178,13 +181,15 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
     std::string error = write_all(fd_, reinterpret_cast<const unsigned char*>(file_magic), sizeof file_magic);
     if (error.empty()) error = write_all(fd_, record.data(), record.size());
     if (error.empty() && ::fsync(fd_) != 0) error = std::strerror(errno);
-    if (!error.empty()) {
-        ::close(fd_);
-        ::unlink(path.c_str());
-        throw OutputError(path.string() + ": cannot write the session's journal (" + error + ")");
-    }
+    if (!error.empty()) throw OutputError(path.string() + ": cannot write the session's journal (" + error + ")");
     sync_folder(path);
     thread_ = std::thread([this] { run(); });
+    } catch (...) {
+        ::close(fd_);
+        fd_ = -1;
+        ::unlink(path.c_str());
+        throw;
+    }
 }
 
 RecordingJournal::~RecordingJournal() { stop(); }

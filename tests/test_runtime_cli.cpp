@@ -168,7 +168,11 @@ TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit1) {
                                          " --device scripted:" + quoted(samples / "haptics/grab_phantom.csv") +
                                          " --device simulated:" + quoted(samples / "haptics/press_phantom.csv") +
                                          " --haptic-priority normal --record " + quoted(dir / "session.h5"),
-                                     "heartsim: out of memory while ");
+                                     "heartsim: out of memory while ",
+                                     // A session that ran out of memory while writing its recording keeps
+                                     // its journal for `heartsim recover`, and the next --record to that
+                                     // path refuses to replace it: each attempt starts without one.
+                                     [&] { fs::remove(dir / "session.h5.journal"); });
 }
 
 TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineAndExit2BeforeTheRun) {

@@ -81,9 +81,11 @@ CommandResult run_command(const std::string& command) {
     return result;
 }
 
-void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix) {
+void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix,
+                                const std::function<void()>& before_each) {
     std::vector<LimitedRun> runs;
     for (std::size_t limit = 32; limit <= 4096; limit += 8) {
+        if (before_each) before_each();
         // stderr to the pipe, stdout away: the error must be one line of its own.
         const CommandResult result =
             run_command("(ulimit -v " + std::to_string(limit * 1024) + "; timeout 120 " + command + " 2>&1 >/dev/null)");

@@ -77,7 +77,10 @@ struct LimitedRun {
 /// or exited 1 with exactly one line on stderr that begins with `out_of_memory_prefix` (e.g.
 /// "heartsim: out of memory while "), or was the last and succeeded; and at least one ran out of
 /// memory in our code. Failures are reported through GoogleTest with each run's output.
-void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix);
+/// `before_each`, when given, runs (in the test, unlimited) before every attempt: e.g. removing
+/// what a run that failed on purpose keeps for the user (a --record journal).
+void expect_clean_out_of_memory(const std::string& command, const std::string& out_of_memory_prefix,
+                                const std::function<void()>& before_each = {});
 
 /// `path` in single quotes, for a shell command line.
 std::string quoted(const std::filesystem::path& path);

@@ -669,7 +669,8 @@ void HapticRun::finish(ScriptedRunResult& result) {
         write_recording(settings_.record, recording_);
     } catch (const std::exception& e) {
         if (!journal_failure.empty()) throw;
-        throw OutputError(std::string(e.what()) + "; the whole session is in " + journal_->path().string() + ": `heartsim recover " +
+        const std::string what = dynamic_cast<const std::bad_alloc*>(&e) ? "out of memory while writing " + settings_.record : e.what();
+        throw OutputError(what + "; the whole session is in " + journal_->path().string() + ": `heartsim recover " +
                           journal_->path().string() + " -o OTHER.h5` writes it elsewhere");
     }
     journal_->remove();
