@@ -543,8 +543,8 @@ void read_segment_metadata(Probe& probe) {
 /// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
 /// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
 /// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
-/// So a MetaImage header is checked here before ITK sees it: every field name (MetaIO's: the text
-/// before '=' or ':') under 255 characters, and NDims from 1 to 4.
+/// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
+/// name (MetaIO's: the text before '=' or ':') under 255 characters, and NDims from 1 to 4.
 void check_metaimage_header_before_itk(const fs::path& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot open for reading");
@@ -555,8 +555,19 @@ void check_metaimage_header_before_itk(const fs::path& path) {
         if (name.size() >= 255)
             throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " has a field name of " +
                              std::to_string(name.size()) + " characters; expected under 255 (is this a MetaImage file?)");
-        if (separator == std::string::npos) continue;
+        // MetaIO looks for a field's value past the end of its line, up to the next '=' or ':'
+        // ("NDims" alone, then "x = 99999999" on the next line reads as NDims 99999999 and arrays of
+        // that length, for minutes: fuzz_volume_mha's 10-minute run), so every line must be
+        // "Key = Value" (blank lines aside), as every MetaImage writer writes them.
+        if (separator == std::string::npos) {
+            if (name.empty()) continue;
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " '" + name.substr(0, 40) +
+                             "' has no '='; expected Key = Value lines");
+        }
         const std::string value = trim(line.substr(separator + 1));
+        if (value.empty())
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + ": " + name.substr(0, 40) +
+                             " has no value; expected Key = Value lines");
         if (name == "NDims") {
             char* end = nullptr;
             const double dims = std::strtod(value.c_str(), &end);

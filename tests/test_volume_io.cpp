@@ -462,6 +462,11 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
     expect_error<InputError>([&] { read_volume_header(named); }, {named.string(), "field name of 300 characters"});
     const fs::path dims = write_text_file(folder, "dims.mha", "ObjectType = Image\nNDims = 100\nTransformMatrix = 1\nElementDataFile = LOCAL\n");
     expect_error<InputError>([&] { read_label_volume(dims); }, {dims.string(), "MetaImage NDims is '100'"});
+    // fuzz_volume_mha, 10-minute run: MetaIO takes a value from the next '=' on, past the line's
+    // end, so "NDims" alone read the next line's 99999999 as NDims and its arrays for minutes.
+    const fs::path split = write_text_file(folder, "split.mha", "ObjectType = Image\nNDims\nx = 99999999\nDimSize = 2 2 2\n"
+                                                               "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(split); }, {split.string(), "line 2 'NDims' has no '='"});
 }
 
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
