@@ -501,6 +501,15 @@ TEST(VolumeReadErrors, TextEncodedNrrdMustHoldACharacterPerValueBeforeAnyAllocat
     }
 }
 
+TEST(VolumeReadErrors, NrrdHeaderLineTooLongForNrrdIOsMessagesIsRefusedBeforeIt) {
+    // fuzz_volume_nrrd, 10-minute run: NrrdIO copies a line it cannot parse into a 1025-byte stack
+    // buffer with its complaint; a 1012-character type line aborted the process (stack protector).
+    TempDir folder;
+    const fs::path path = write_text_file(folder, "long.nrrd", "NRRD0004\ntype: " + std::string(1012, 'u') +
+                                                               "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NRRD header line 2 has 1018 characters"});
+}
+
 TEST(VolumeReadErrors, DataSpreadOverSeveralFilesIsRefused) {
     // NrrdIO and MetaIO format each file name with a printf pattern from the header.
     TempDir folder;
