@@ -352,7 +352,8 @@ void Reader::check_chunks(hid_t set, const std::string& name, std::size_t elemen
         haddr_t address = 0;
         if (H5Dget_chunk_info(set, space.get(), i, offset, &filters, &address, &size) < 0)
             fail(name, "chunk " + std::to_string(i) + " cannot be located (damaged file?)");
-        if (double(size) > most || address == HADDR_UNDEF || address > file_size || size > file_size - address)
+        // A zero-byte chunk: HDF5 reports its empty buffer as a failed allocation (which would read as out of memory).
+        if (size == 0 || double(size) > most || address == HADDR_UNDEF || address > file_size || size > file_size - address)
             fail(name, "chunk " + std::to_string(i) + " claims " + std::to_string(size) + " bytes at byte " + std::to_string(address) +
                            " of a " + std::to_string(file_size) + "-byte file (damaged file?)");
     }
