@@ -550,6 +550,10 @@ void check_metaimage_header_before_itk(const fs::path& path) {
     if (!in) throw InputError(path.string() + ": cannot open for reading");
     std::string line;
     for (int number = 1; std::getline(in, line); ++number) {
+        // MetaIO compares names as C strings: "NDims\0…" is NDims to it, not to a std::string
+        // (fuzz_volume_mha's rerun hid an NDims of millions that way). No header holds a NUL.
+        if (line.find('\0') != std::string::npos)
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " holds a NUL byte (is this a MetaImage file?)");
         const auto separator = line.find_first_of("=:");
         const std::string name = trim(line.substr(0, separator));
         if (name.size() >= 255)

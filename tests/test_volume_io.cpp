@@ -467,6 +467,11 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
     const fs::path split = write_text_file(folder, "split.mha", "ObjectType = Image\nNDims\nx = 99999999\nDimSize = 2 2 2\n"
                                                                "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(split); }, {split.string(), "line 2 'NDims' has no '='"});
+    // The rerun: a name MetaIO reads as "NDims" (it stops at the NUL), with a value of millions.
+    const fs::path nul = write_text_file(folder, "nul.mha", "ObjectType = Image\nNDims = 3\n" + std::string("NDims\0x", 7) +
+                                                           " = 99999999\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                                                           std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(nul); }, {nul.string(), "line 3 holds a NUL byte"});
 }
 
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
