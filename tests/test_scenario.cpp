@@ -603,4 +603,15 @@ TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
     test::write_bytes(dir / "claims.h5", bytes);
     EXPECT_NE(refusal(dir / "claims.h5").find("particles/mass: chunk 0 claims 4278190088 bytes"), std::string::npos)
         << refusal(dir / "claims.h5");
+    // A record of 0 bytes: HDF5 reports the empty buffer as a failed allocation, which read as
+    // "out of memory" (std::bad_alloc out of the reader) before zero-byte chunks were refused.
+    const std::uint32_t nothing = 0;
+    std::memcpy(&bytes[record], &nothing, 4);
+    test::write_bytes(dir / "empty.h5", bytes);
+    try {
+        read_scenario(dir / "empty.h5");
+        ADD_FAILURE() << "a zero-byte chunk was read";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("particles/mass: chunk 0 claims 0 bytes"), std::string::npos) << e.what();
+    }
 }
