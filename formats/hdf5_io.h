@@ -203,6 +203,9 @@ private:
                         const std::function<void*(std::size_t)>& allocate) const;
     Handle open_attribute(const std::string& object, const std::string& name) const;
     Handle open_dataset(const std::string& name) const;
+    /// Refuses a chunked dataset whose chunk index (a checksum-free B-tree) places a chunk outside
+    /// the file or makes it larger than its values could take, before HDF5 allocates for it.
+    void check_chunks(hid_t set, const std::string& name, std::size_t element_size) const;
     /// Before the first variable-length string is read (files written before heartsim stored strings
     /// fixed-length): check_global_heaps, once.
     void check_heaps_once() const;

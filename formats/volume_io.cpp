@@ -543,20 +543,35 @@ void read_segment_metadata(Probe& probe) {
 /// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
 /// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
 /// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
-/// So a MetaImage header is checked here before ITK sees it: every field name (MetaIO's: the text
-/// before '=' or ':') under 255 characters, and NDims from 1 to 4.
+/// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
+/// name (MetaIO's: the text before '=' or ':') under 255 characters, and NDims from 1 to 4.
 void check_metaimage_header_before_itk(const fs::path& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot open for reading");
     std::string line;
     for (int number = 1; std::getline(in, line); ++number) {
+        // MetaIO compares names as C strings: "NDims\0…" is NDims to it, not to a std::string
+        // (fuzz_volume_mha's rerun hid an NDims of millions that way). No header holds a NUL.
+        if (line.find('\0') != std::string::npos)
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " holds a NUL byte (is this a MetaImage file?)");
         const auto separator = line.find_first_of("=:");
         const std::string name = trim(line.substr(0, separator));
         if (name.size() >= 255)
             throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " has a field name of " +
                              std::to_string(name.size()) + " characters; expected under 255 (is this a MetaImage file?)");
-        if (separator == std::string::npos) continue;
+        // MetaIO looks for a field's value past the end of its line, up to the next '=' or ':'
+        // ("NDims" alone, then "x = 99999999" on the next line reads as NDims 99999999 and arrays of
+        // that length, for minutes: fuzz_volume_mha's 10-minute run), so every line must be
+        // "Key = Value" (blank lines aside), as every MetaImage writer writes them.
+        if (separator == std::string::npos) {
+            if (name.empty()) continue;
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + " '" + name.substr(0, 40) +
+                             "' has no '='; expected Key = Value lines");
+        }
         const std::string value = trim(line.substr(separator + 1));
+        if (value.empty())
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + ": " + name.substr(0, 40) +
+                             " has no value; expected Key = Value lines");
         if (name == "NDims") {
             char* end = nullptr;
             const double dims = std::strtod(value.c_str(), &end);
@@ -570,8 +585,22 @@ void check_metaimage_header_before_itk(const fs::path& path) {
     }
 }
 
-/// A NRRD header's data file, checked before ITK reads the header (refuse_multi_file_data).
+/// A NRRD header checked before ITK reads it: NrrdIO formats its complaints about a line into a
+/// 1025-byte stack buffer with the line in it, so a 1012-character `type:` line smashed its stack
+/// (fuzz_volume_nrrd's 10-minute run: glibc's stack protector aborted); field lines (comments
+/// aside) are held to 500 characters. And its data file (refuse_multi_file_data).
 void check_nrrd_header_before_itk(const fs::path& path) {
+    {
+        std::ifstream in(path, std::ios::binary);
+        std::string line;
+        for (int number = 1; std::getline(in, line); ++number) {
+            if (!line.empty() && line.back() == '\r') line.pop_back();
+            if (line.empty() && number > 1) break;  // the blank line that ends the header
+            if (line.size() > 500 && line[0] != '#')
+                throw InputError(path.string() + ": NRRD header line " + std::to_string(number) + " has " + std::to_string(line.size()) +
+                                 " characters; expected at most 500");
+        }
+    }
     const TextHeader header = read_nrrd_header(path);
     const std::string data_file = field_or(header, "data file", field_or(header, "datafile", ""));
     if (!data_file.empty()) refuse_multi_file_data(path, "NRRD data file", data_file);

@@ -18,6 +18,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <fstream>
 #include <iterator>
 
@@ -560,4 +561,57 @@ TEST(Scenario, ADamagedGlobalHeapIsRefusedBeforeHdf5ReadsAVariableLengthString) 
     for (int i = 0; i < 8; ++i) zero[heap + 24 + std::size_t(i)] = 0;
     test::write_bytes(dir / "zero.h5", zero);
     EXPECT_NE(refusal(dir / "zero.h5").find("does not fit in it"), std::string::npos) << refusal(dir / "zero.h5");
+}
+
+TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
+    // fuzz_scenario, fuzz_recording: the chunk index of the 1.8 format is a version-1 B-tree,
+    // outside every checksum; a record claiming a 4 GiB chunk made HDF5 1.10 allocate 4 GiB before
+    // reading it. The record is found by the chunk's address (H5Dget_chunk_info) that follows its
+    // key: chunk size (4 bytes), filter mask (4), offsets (rank + 1 of 8).
+    test::TempDir dir;
+    write_scenario(dir / "s.h5", sample_scenario());
+    haddr_t address = 0;
+    hsize_t stored = 0;
+    {
+        const hid_t f = H5Fopen((dir / "s.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+        const hid_t d = H5Dopen2(f, "particles/mass", H5P_DEFAULT);
+        hsize_t offset[1] = {0};
+        unsigned filter_mask = 0;
+        ASSERT_GE(H5Dget_chunk_info_by_coord(d, offset, &filter_mask, &address, &stored), 0);
+        H5Dclose(d);
+        H5Fclose(f);
+    }
+    std::vector<unsigned char> bytes;
+    {
+        std::ifstream in(dir / "s.h5", std::ios::binary);
+        bytes.assign(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+    }
+    std::string pointer(8, '\0');
+    for (int i = 0; i < 8; ++i) pointer[std::size_t(i)] = char((address >> (8 * i)) & 0xff);
+    std::size_t found = 0, record = 0;
+    for (auto it = bytes.begin(); (it = std::search(it, bytes.end(), pointer.begin(), pointer.end())) != bytes.end(); ++it) {
+        const std::size_t at = std::size_t(it - bytes.begin());
+        if (at < 24) continue;
+        const std::size_t size_at = at - 24;  // rank 1: two offsets, a mask, the size
+        std::uint32_t size = 0;
+        std::memcpy(&size, &bytes[size_at], 4);
+        if (size == stored) ++found, record = size_at;
+    }
+    ASSERT_EQ(found, 1u) << "the chunk's index record was not found";
+    const std::uint32_t claimed = 0xFF000008u;
+    std::memcpy(&bytes[record], &claimed, 4);
+    test::write_bytes(dir / "claims.h5", bytes);
+    EXPECT_NE(refusal(dir / "claims.h5").find("particles/mass: chunk 0 claims 4278190088 bytes"), std::string::npos)
+        << refusal(dir / "claims.h5");
+    // A record of 0 bytes: HDF5 reports the empty buffer as a failed allocation, which read as
+    // "out of memory" (std::bad_alloc out of the reader) before zero-byte chunks were refused.
+    const std::uint32_t nothing = 0;
+    std::memcpy(&bytes[record], &nothing, 4);
+    test::write_bytes(dir / "empty.h5", bytes);
+    try {
+        read_scenario(dir / "empty.h5");
+        ADD_FAILURE() << "a zero-byte chunk was read";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("particles/mass: chunk 0 claims 0 bytes"), std::string::npos) << e.what();
+    }
 }

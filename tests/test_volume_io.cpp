@@ -462,6 +462,16 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
     expect_error<InputError>([&] { read_volume_header(named); }, {named.string(), "field name of 300 characters"});
     const fs::path dims = write_text_file(folder, "dims.mha", "ObjectType = Image\nNDims = 100\nTransformMatrix = 1\nElementDataFile = LOCAL\n");
     expect_error<InputError>([&] { read_label_volume(dims); }, {dims.string(), "MetaImage NDims is '100'"});
+    // fuzz_volume_mha, 10-minute run: MetaIO takes a value from the next '=' on, past the line's
+    // end, so "NDims" alone read the next line's 99999999 as NDims and its arrays for minutes.
+    const fs::path split = write_text_file(folder, "split.mha", "ObjectType = Image\nNDims\nx = 99999999\nDimSize = 2 2 2\n"
+                                                               "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(split); }, {split.string(), "line 2 'NDims' has no '='"});
+    // The rerun: a name MetaIO reads as "NDims" (it stops at the NUL), with a value of millions.
+    const fs::path nul = write_text_file(folder, "nul.mha", "ObjectType = Image\nNDims = 3\n" + std::string("NDims\0x", 7) +
+                                                           " = 99999999\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
+                                                           std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(nul); }, {nul.string(), "line 3 holds a NUL byte"});
 }
 
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
@@ -494,6 +504,15 @@ TEST(VolumeReadErrors, TextEncodedNrrdMustHoldACharacterPerValueBeforeAnyAllocat
         EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
         EXPECT_NE(std::string(e.what()).find(short_text.string()), std::string::npos) << e.what();
     }
+}
+
+TEST(VolumeReadErrors, NrrdHeaderLineTooLongForNrrdIOsMessagesIsRefusedBeforeIt) {
+    // fuzz_volume_nrrd, 10-minute run: NrrdIO copies a line it cannot parse into a 1025-byte stack
+    // buffer with its complaint; a 1012-character type line aborted the process (stack protector).
+    TempDir folder;
+    const fs::path path = write_text_file(folder, "long.nrrd", "NRRD0004\ntype: " + std::string(1012, 'u') +
+                                                               "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NRRD header line 2 has 1018 characters"});
 }
 
 TEST(VolumeReadErrors, DataSpreadOverSeveralFilesIsRefused) {
