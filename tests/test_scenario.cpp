@@ -619,4 +619,10 @@ TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
     std::memcpy(&bytes[record], &three, 4);
     test::write_bytes(dir / "three.h5", bytes);
     EXPECT_NE(refusal(dir / "three.h5").find("particles/mass: chunk 0 claims 3 bytes"), std::string::npos) << refusal(dir / "three.h5");
+    // An uncompressed chunk 4 bytes short: HDF5 copied the whole chunk out of the shorter one.
+    const std::uint32_t short_by_four = std::uint32_t(stored - 4);
+    std::memcpy(&bytes[record], &short_by_four, 4);
+    test::write_bytes(dir / "short.h5", bytes);
+    EXPECT_NE(refusal(dir / "short.h5").find("particles/mass: chunk 0 claims " + std::to_string(stored - 4) + " bytes"), std::string::npos)
+        << refusal(dir / "short.h5");
 }
