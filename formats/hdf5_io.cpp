@@ -335,13 +335,43 @@ void Reader::check_chunks(hid_t set, const std::string& name, std::size_t elemen
     // (fuzz_scenario: 4 GiB from a damaged record). Each chunk must lie inside the file and hold at
     // most what its values take, plus what deflate adds to data it cannot compress.
     Handle create(H5Dget_create_plist(set), H5Pclose);
-    if (H5Pget_layout(create.get()) != H5D_CHUNKED) return;
+    if (H5Pget_layout(create.get()) != H5D_CHUNKED) {
+        // Contiguous or compact: HDF5 copies the declared size out of what is stored (fuzz_recording:
+        // a heap-buffer-overflow in H5VM_memcpyvv), so what is stored must be all of it, or nothing
+        // (never written: fill values).
+        const hsize_t stored = H5Dget_storage_size(set);
+        hssize_t values = 0;
+        {
+            Handle space(H5Dget_space(set), H5Sclose);
+            values = H5Sget_simple_extent_npoints(space.get());
+        }
+        if (stored != 0 && stored != hsize_t(values) * element_size)
+            fail(name, "stores " + std::to_string(stored) + " bytes for " + std::to_string(values) + " values of " +
+                           std::to_string(element_size) + " bytes (damaged file?)");
+        return;
+    }
     hsize_t chunk[H5S_MAX_RANK] = {};
     const int rank = H5Pget_chunk(create.get(), H5S_MAX_RANK, chunk);
     if (rank <= 0) fail(name, "chunked without chunk dimensions (damaged file?)");
     double values = 1.0;
     for (int d = 0; d < rank; ++d) values *= double(chunk[d]);
     const double most = values * double(element_size) * (1.0 + 1.0 / 64.0) + 1024.0;
+    // HDF5 1.10's Fletcher-32 filter checksums a chunk's size minus 4 bytes: a smaller chunk wraps
+    // that to nearly 2^64 and reads off the end (fuzz_scenario, fuzz_recording: SEGV in
+    // H5_checksum_fletcher32). A checksummed chunk holds 4 bytes of checksum and at least one of data.
+    bool checksummed = false, other_filters = false;
+    for (int f = 0, n = H5Pget_nfilters(create.get()); f < n; ++f) {
+        unsigned flags = 0, config = 0;
+        std::size_t elements = 0;
+        const H5Z_filter_t filter = H5Pget_filter2(create.get(), unsigned(f), &flags, &elements, nullptr, 0, nullptr, &config);
+        if (filter == H5Z_FILTER_FLETCHER32) checksummed = true;
+        else other_filters = true;
+    }
+    const hsize_t least = checksummed ? 5 : 1;
+    // Without compression a chunk is exactly its values (and the checksum): HDF5 copies a whole
+    // chunk out of a shorter one (fuzz_recording: a heap-buffer-overflow in H5VM_memcpyvv, where a
+    // truncated all-zero chunk still matched its Fletcher-32 sum of zero).
+    const hsize_t exact = other_filters ? 0 : hsize_t(values) * element_size + (checksummed ? 4 : 0);
     hsize_t chunks = 0, file_size = 0;
     Handle space(H5Dget_space(set), H5Sclose);  // HDF5 1.10 takes no H5S_ALL here
     if (H5Dget_num_chunks(set, space.get(), &chunks) < 0 || H5Fget_filesize(file_.get(), &file_size) < 0)
@@ -352,8 +382,9 @@ void Reader::check_chunks(hid_t set, const std::string& name, std::size_t elemen
         haddr_t address = 0;
         if (H5Dget_chunk_info(set, space.get(), i, offset, &filters, &address, &size) < 0)
             fail(name, "chunk " + std::to_string(i) + " cannot be located (damaged file?)");
-        // A zero-byte chunk: HDF5 reports its empty buffer as a failed allocation (which would read as out of memory).
-        if (size == 0 || double(size) > most || address == HADDR_UNDEF || address > file_size || size > file_size - address)
+        // A zero-byte chunk: HDF5 reports its empty buffer as a failed allocation (which would read as
+        // out of memory); a checksummed one under 5 bytes: the Fletcher-32 overrun above.
+        if (size < least || (exact && size != exact) || double(size) > most || address == HADDR_UNDEF || address > file_size || size > file_size - address)
             fail(name, "chunk " + std::to_string(i) + " claims " + std::to_string(size) + " bytes at byte " + std::to_string(address) +
                            " of a " + std::to_string(file_size) + "-byte file (damaged file?)");
     }

@@ -578,6 +578,16 @@ void check_metaimage_header_before_itk(const fs::path& path) {
             if (end == value.c_str() || !(dims >= 1 && dims < 5))
                 throw InputError(path.string() + ": MetaImage NDims is '" + value + "'; expected 3 (a 3D volume, or 4 with one time point)");
         }
+        if (name == "CompressedDataSize") {
+            // MetaIO allocates this many bytes before reading the compressed data (fuzz_volume_mha: 1 TB).
+            char* end = nullptr;
+            const double bytes = std::strtod(value.c_str(), &end);
+            std::error_code error;
+            const auto file_size = fs::file_size(path, error);
+            if (end == value.c_str() || !(bytes >= 0) || bytes > double(file_size))
+                throw InputError(path.string() + ": MetaImage CompressedDataSize is '" + value + "'; the file holds only " +
+                                 std::to_string(file_size) + " bytes");
+        }
         if (name == "ElementDataFile") {  // the header's last field; voxel data may follow
             refuse_multi_file_data(path, "MetaImage ElementDataFile", value);
             break;

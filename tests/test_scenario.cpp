@@ -614,4 +614,15 @@ TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("particles/mass: chunk 0 claims 0 bytes"), std::string::npos) << e.what();
     }
+    // Three bytes of a Fletcher-32-checksummed chunk: HDF5 checksummed 2^64 - 1 of them (SEGV).
+    const std::uint32_t three = 3;
+    std::memcpy(&bytes[record], &three, 4);
+    test::write_bytes(dir / "three.h5", bytes);
+    EXPECT_NE(refusal(dir / "three.h5").find("particles/mass: chunk 0 claims 3 bytes"), std::string::npos) << refusal(dir / "three.h5");
+    // An uncompressed chunk 4 bytes short: HDF5 copied the whole chunk out of the shorter one.
+    const std::uint32_t short_by_four = std::uint32_t(stored - 4);
+    std::memcpy(&bytes[record], &short_by_four, 4);
+    test::write_bytes(dir / "short.h5", bytes);
+    EXPECT_NE(refusal(dir / "short.h5").find("particles/mass: chunk 0 claims " + std::to_string(stored - 4) + " bytes"), std::string::npos)
+        << refusal(dir / "short.h5");
 }

@@ -472,6 +472,11 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
                                                            " = 99999999\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n" +
                                                            std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(nul); }, {nul.string(), "line 3 holds a NUL byte"});
+    // The confirmation run: MetaIO allocated CompressedDataSize bytes (a terabyte) before reading.
+    const fs::path packed = write_text_file(folder, "packed.mha", "ObjectType = Image\nNDims = 3\nCompressedData = True\n"
+                                                                 "CompressedDataSize = 1000000000000\nDimSize = 2 2 2\n"
+                                                                 "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(packed); }, {packed.string(), "CompressedDataSize is '1000000000000'"});
 }
 
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
