@@ -28,7 +28,12 @@ const std::filesystem::path& folder() {
 
 std::filesystem::path write_input(const std::uint8_t* data, std::size_t size, const std::string& name) {
     const std::filesystem::path path = folder() / name;
-    const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (fd < 0) {  // the folder was removed under us (a cleanup of /dev/shm): make it again
+        std::error_code ignored;
+        std::filesystem::create_directories(folder(), ignored);
+        fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    }
     if (fd < 0) broken("cannot create " + path.string());
     for (std::size_t done = 0; done < size;) {
         const ssize_t n = ::write(fd, data + done, size - done);
