@@ -86,6 +86,24 @@ std::string refusal(const std::filesystem::path& file) {
     return "";
 }
 
+/// Where the first (only) chunk of /particles/mass lies in `file` and how many bytes it holds, as
+/// HDF5's own index says: the place the damage tests write to.
+struct ChunkPlace {
+    haddr_t address = 0;
+    hsize_t stored = 0;
+};
+ChunkPlace mass_chunk(const std::filesystem::path& file) {
+    ChunkPlace place;
+    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    const hid_t d = H5Dopen2(f, "particles/mass", H5P_DEFAULT);
+    hsize_t offset[1] = {0};
+    unsigned filter_mask = 0;
+    EXPECT_GE(H5Dget_chunk_info_by_coord(d, offset, &filter_mask, &place.address, &place.stored), 0) << file;
+    H5Dclose(d);
+    H5Fclose(f);
+    return place;
+}
+
 }  // namespace
 
 TEST(Scenario, RoundTripKeepsEveryDataset) {
@@ -356,17 +374,7 @@ TEST(Scenario, AFlippedBitASparseHugeDatasetAndAFifoAreRefused) {
 
     // One flipped bit in the stored masses: the chunk's Fletcher-32 checksum no longer matches.
     write_scenario(dir / "flipped.h5", s);
-    haddr_t address = 0;
-    hsize_t stored = 0;
-    {
-        const hid_t f = H5Fopen((dir / "flipped.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-        const hid_t d = H5Dopen2(f, "particles/mass", H5P_DEFAULT);
-        hsize_t offset[1] = {0};
-        unsigned filter_mask = 0;
-        ASSERT_GE(H5Dget_chunk_info_by_coord(d, offset, &filter_mask, &address, &stored), 0);
-        H5Dclose(d);
-        H5Fclose(f);
-    }
+    const auto [address, stored] = mass_chunk(dir / "flipped.h5");
     ASSERT_GT(stored, 8u);
     {
         std::fstream file(dir / "flipped.h5", std::ios::in | std::ios::out | std::ios::binary);
@@ -570,17 +578,7 @@ TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
     // key: chunk size (4 bytes), filter mask (4), offsets (rank + 1 of 8).
     test::TempDir dir;
     write_scenario(dir / "s.h5", sample_scenario());
-    haddr_t address = 0;
-    hsize_t stored = 0;
-    {
-        const hid_t f = H5Fopen((dir / "s.h5").c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
-        const hid_t d = H5Dopen2(f, "particles/mass", H5P_DEFAULT);
-        hsize_t offset[1] = {0};
-        unsigned filter_mask = 0;
-        ASSERT_GE(H5Dget_chunk_info_by_coord(d, offset, &filter_mask, &address, &stored), 0);
-        H5Dclose(d);
-        H5Fclose(f);
-    }
+    const auto [address, stored] = mass_chunk(dir / "s.h5");
     std::vector<unsigned char> bytes;
     {
         std::ifstream in(dir / "s.h5", std::ios::binary);
