@@ -7,7 +7,10 @@
 #include "test_support.h"
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
+#include <algorithm>
+#include <cstring>
 #include <fstream>
 #include <regex>
 
@@ -248,4 +251,215 @@ TEST(HeartprepBatch, FolderOfRealCases) {
         const Scenario s = read_scenario(dir / "out" / (std::string(name) + ".h5"));
         EXPECT_TRUE(s.packing && s.simulation_surface && s.visual && s.mapping) << name;
     }
+}
+
+namespace {
+
+nlohmann::json read_json(const fs::path& path) {
+    std::ifstream in(path);
+    return nlohmann::json::parse(in);  // throws on text that is not JSON
+}
+
+/// A PNG's width and height, from its IHDR chunk; {0, 0} when the file is not a PNG.
+std::pair<std::uint32_t, std::uint32_t> png_size(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    unsigned char header[24] = {};
+    in.read(reinterpret_cast<char*>(header), sizeof header);
+    if (!in || std::memcmp(header, "\x89PNG\r\n\x1a\n", 8) != 0 || std::memcmp(header + 12, "IHDR", 4) != 0) return {0, 0};
+    auto big_endian = [&](int at) {
+        return std::uint32_t(header[at]) << 24 | std::uint32_t(header[at + 1]) << 16 | std::uint32_t(header[at + 2]) << 8 | header[at + 3];
+    };
+    return {big_endian(16), big_endian(20)};
+}
+
+std::string read_file_text(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+}  // namespace
+
+// The technician's quality check of a batch: per case the figures of its scenario, and a picture.
+TEST(HeartprepBatch, TheSummaryHasTheScenariosFiguresAndAPicturePerCase) {
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    small_phantom(dir, "in/a-label.nii.gz", 8.0);
+    small_phantom(dir, "in/b-label.nii.gz", 0.0);
+    // An intensity image beside the labels (here another phantom, so that taking it would succeed
+    // and show): --pattern leaves it out.
+    small_phantom(dir, "in/a-image.nii.gz", 4.0);
+    const auto run = heartprep("batch " + quoted(dir / "in") + " --pattern '*-label.nii.gz' -o " + quoted(dir / "out") +
+                               " -j 2 --threads 1 --json --options '--particles 2000 --anchor-border'");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const auto summary = read_json(dir / "out" / "summary.json");
+    ASSERT_EQ(summary["cases"].size(), 2u) << summary.dump(2);
+    EXPECT_FALSE(fs::exists(dir / "out" / "a-image.h5"));
+    // --json prints the same document as summary.json.
+    const auto printed = nlohmann::json::parse(run.output.substr(run.output.find("{\n")));
+    EXPECT_EQ(printed, summary);
+    const std::string markdown = read_file_text(dir / "out" / "summary.md");
+    std::vector<std::string> pictures;
+    for (const auto& entry : summary["cases"]) {
+        const std::string id = entry["case_id"];
+        SCOPED_TRACE(id);
+        EXPECT_EQ(entry["status"], "built");
+        const Scenario s = read_scenario(entry["output"].get<std::string>());
+        const auto& p = s.lattice.particles;
+        EXPECT_EQ(entry["particles"], p.size());
+        EXPECT_EQ(entry["springs"], s.lattice.springs.size());
+        EXPECT_EQ(entry["anchored"], std::count(p.anchored.begin(), p.anchored.end(), 1));
+        EXPECT_GT(entry["anchored"].get<std::size_t>(), 0u) << "--anchor-border anchors the phantom's cut base";
+        EXPECT_EQ(entry["spacing_mm"], s.lattice.spacing);
+        EXPECT_EQ(entry["dt_ms"], s.solver.dt_ms);
+        // The tissue volume from the particles' masses, against the volume enclosed by the
+        // scenario's own detailed surface (divergence theorem): the two discretisations agree to a
+        // few per cent.
+        ASSERT_TRUE(s.visual.has_value());
+        double enclosed_mm3 = 0.0;
+        for (const auto& t : s.visual->triangles) {
+            const auto& a = s.visual->positions[std::size_t(t[0])];
+            const auto& b = s.visual->positions[std::size_t(t[1])];
+            const auto& c = s.visual->positions[std::size_t(t[2])];
+            enclosed_mm3 += (double(a[0]) * (double(b[1]) * c[2] - double(b[2]) * c[1]) - double(a[1]) * (double(b[0]) * c[2] - double(b[2]) * c[0]) +
+                             double(a[2]) * (double(b[0]) * c[1] - double(b[1]) * c[0])) / 6.0;
+        }
+        EXPECT_NEAR(entry["tissue_volume_ml"].get<double>(), std::abs(enclosed_mm3) / 1000.0, 0.15 * std::abs(enclosed_mm3) / 1000.0);
+        // A picture at rest, linked from the markdown summary.
+        ASSERT_TRUE(entry["preview"].is_string()) << entry.dump();
+        const fs::path picture = dir / "out" / entry["preview"].get<std::string>();
+        EXPECT_EQ(png_size(picture), std::make_pair(320u, 240u));
+        EXPECT_NE(markdown.find("![" + id + "](" + entry["preview"].get<std::string>() + ")"), std::string::npos) << markdown;
+        pictures.push_back(read_file_text(picture));
+    }
+    ASSERT_EQ(pictures.size(), 2u);
+    EXPECT_NE(pictures[0], pictures[1]) << "two different hearts gave the same picture";
+    // The CSV has the same columns.
+    const std::string csv = read_file_text(dir / "out" / "summary.csv");
+    EXPECT_EQ(csv.rfind("case_id,input,status,particles,springs,triangles,seconds,warnings,message,output,anchored,supported,"
+                        "tissue_volume_ml,spacing_mm,dt_ms,preview\n", 0), 0u) << csv;
+
+    // --pattern that matches nothing: a clear error, no output folder.
+    const auto none = heartprep("batch " + quoted(dir / "in") + " --pattern '*.mha' -o " + quoted(dir / "none"));
+    EXPECT_NE(none.exit_code, 0);
+    EXPECT_NE(none.output.find("matches --pattern '*.mha'"), std::string::npos) << none.output;
+    EXPECT_FALSE(fs::exists(dir / "none"));
+    // Without a pattern, a-image and a-label are two cases, and a stem shared by two files is refused.
+    std::ofstream(dir / "in" / "a-label.mha") << "x";
+    const auto clash = heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "clash"));
+    EXPECT_NE(clash.exit_code, 0);
+    EXPECT_NE(clash.output.find("would both be case 'a-label'"), std::string::npos) << clash.output;
+}
+
+// `batch --plan` tells what a batch would do, with the content key a build stores: what the
+// Snakemake workflow is built on.
+TEST(HeartprepBatch, ThePlanGivesTheKeyThatTheBuildStores) {
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    small_phantom(dir, "in/a.nii.gz");
+    const std::string batch = "batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") + " --options '--particles 2000' --no-preview";
+    auto plan = nlohmann::json::parse(heartprep(batch + " --plan").output);
+    ASSERT_EQ(plan["cases"].size(), 1u);
+    EXPECT_EQ(plan["cases"][0]["up_to_date"], false);
+    EXPECT_EQ(plan["cases"][0]["options_words"], nlohmann::json::array({"--particles", "2000"}));
+    EXPECT_FALSE(fs::exists(dir / "out")) << "--plan builds nothing";
+    ASSERT_EQ(heartprep(batch).exit_code, 0);
+    EXPECT_EQ(read_scenario(dir / "out" / "a.h5").batch_key, plan["cases"][0]["key"]);
+    EXPECT_EQ(nlohmann::json::parse(heartprep(batch + " --plan").output)["cases"][0]["up_to_date"], true);
+    // Another option, another key.
+    const auto other = nlohmann::json::parse(
+        heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") + " --options '--particles 2500' --plan").output);
+    EXPECT_NE(other["cases"][0]["key"], plan["cases"][0]["key"]);
+    EXPECT_EQ(other["cases"][0]["up_to_date"], false);
+}
+
+// A build's result does not depend on how many threads made it (batch runs cases with --threads).
+TEST(HeartprepBuild, TheThreadCountDoesNotChangeTheScenario) {
+    test::TempDir dir;
+    const auto input = small_phantom(dir, "a.nii.gz");
+    for (const char* threads : {"1", "2"})
+        ASSERT_EQ(heartprep("build " + quoted(input) + " -o " + quoted(dir / (std::string("t") + threads + ".h5")) +
+                            " --particles 2000 --anchor-border -q --threads " + threads)
+                      .exit_code,
+                  0);
+    const Scenario one = read_scenario(dir / "t1.h5"), two = read_scenario(dir / "t2.h5");
+    EXPECT_EQ(one.lattice.particles.rest_position, two.lattice.particles.rest_position);
+    EXPECT_EQ(one.lattice.particles.support_point, two.lattice.particles.support_point);
+    EXPECT_EQ(one.lattice.springs.pairs, two.lattice.springs.pairs);
+    ASSERT_TRUE(one.visual && two.visual);
+    EXPECT_EQ(one.visual->positions, two.visual->positions);
+    EXPECT_EQ(one.solver.dt_ms, two.solver.dt_ms);
+    EXPECT_NE(heartprep("build " + quoted(input) + " -o " + quoted(dir / "x.h5") + " --threads -1").exit_code, 0);
+}
+
+// In a log or a pipe (a batch's case log, CI), a long stage says how far it has come.
+TEST(HeartprepBuild, ALogShowsProgressBeforeAStageEnds) {
+    test::TempDir dir;
+    const auto input = small_phantom(dir, "a.nii.gz");
+    const auto run = test::run_command("HEARTPREP_PROGRESS_SECONDS=0.000001 " + std::string(HEARTPREP_EXE) + " build " + quoted(input) +
+                                       " -o " + quoted(dir / "a.h5") + " --particles 2000 2>&1 | cat");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    std::smatch m;
+    EXPECT_TRUE(std::regex_search(run.output, m, std::regex(R"(heartprep: [a-z ]+: \d+% after \d+ s\n)"))) << run.output;
+    // 0 turns the lines off.
+    const auto off = test::run_command("HEARTPREP_PROGRESS_SECONDS=0 " + std::string(HEARTPREP_EXE) + " build " + quoted(input) +
+                                       " -o " + quoted(dir / "b.h5") + " --particles 2000 2>&1 | cat");
+    EXPECT_FALSE(std::regex_search(off.output, m, std::regex(R"(% after )"))) << off.output;
+}
+
+// The Snakemake workflow: one job per case, the same content key as batch, and a rerun that does
+// nothing; on the phantom and (where the data is) a real case.
+TEST(HeartprepWorkflow, SnakemakeBuildsTheCasesAndARerunDoesNothing) {
+    if (test::run_command("command -v snakemake").exit_code != 0)
+        GTEST_SKIP() << "snakemake (Debian package snakemake) is not installed; scripts/install-deps.sh installs it";
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    small_phantom(dir, "in/phantom.nii.gz");
+    const auto root = test::real_data_dir();
+    if (!root.empty()) fs::create_symlink(test::real_case("hvsmr16_pat0"), dir / "in" / "pat0.nii.gz");
+    else std::fprintf(stderr, "real data not found under %s: the workflow runs on the phantom only\n", HEARTSIM_REAL_DATA);
+    const std::string path = "PATH=" + quoted(fs::path(HEARTPREP_EXE).parent_path()) + ":\"$PATH\" ";
+    auto snakemake = [&](const std::string& config, const std::string& extra) {
+        return test::run_command("cd " + quoted(dir.path()) + " && " + path + "snakemake -s " +
+                                 quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "Snakefile") + " --cores 2 --config manifest=in out=out " +
+                                 config + " " + extra + " 2>&1");
+    };
+    const std::string options = "options='--particles 3000 --anchor-border'";
+    const auto first = snakemake(options, "");
+    ASSERT_EQ(first.exit_code, 0) << first.output;
+    const auto summary = read_json(dir / "out" / "summary.json");
+    const auto plan = nlohmann::json::parse(heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") +
+                                                      " --options '--particles 3000 --anchor-border' --plan")
+                                                .output);
+    ASSERT_EQ(summary["cases"].size(), root.empty() ? 1u : 2u);
+    for (const auto& entry : plan["cases"]) {
+        const std::string id = entry["case_id"];
+        const Scenario s = read_scenario(dir / "out" / (id + ".h5"));
+        EXPECT_EQ(s.batch_key, entry["key"]) << id;
+        EXPECT_EQ(entry["up_to_date"], true) << id;
+        EXPECT_TRUE(s.packing && s.simulation_surface && s.visual && s.mapping) << id;
+        EXPECT_TRUE(fs::exists(dir / "out" / "previews" / (id + ".png"))) << id;
+    }
+    for (const auto& entry : summary["cases"]) EXPECT_EQ(entry["status"], "skipped") << "the summary job builds nothing";
+    const auto modified = fs::last_write_time(dir / "out" / "phantom.h5");
+
+    // A rerun does nothing, also after the input was touched (same bytes, same key).
+    const auto again = snakemake(options, "");
+    EXPECT_EQ(again.exit_code, 0) << again.output;
+    EXPECT_NE(again.output.find("Nothing to be done"), std::string::npos) << again.output;
+    fs::last_write_time(dir / "in" / "phantom.nii.gz", fs::file_time_type::clock::now());
+    const auto touched = snakemake(options, "-n");
+    EXPECT_NE(touched.output.find("Nothing to be done"), std::string::npos) << touched.output;
+    EXPECT_EQ(fs::last_write_time(dir / "out" / "phantom.h5"), modified);
+    // heartprep batch finds the same cases up to date.
+    const auto batch = heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") +
+                                 " --options '--particles 3000 --anchor-border' --no-preview");
+    EXPECT_EQ(batch.exit_code, 0) << batch.output;
+    EXPECT_EQ(batch.output.find("| built |"), std::string::npos) << batch.output;
+
+    // Other options: every case is planned again; the Slurm profile reads (a dry run submits nothing).
+    const auto changed = snakemake("options='--particles 2500 --anchor-border'", "-n --profile " +
+                                   quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "profiles" / "slurm"));
+    EXPECT_EQ(changed.exit_code, 0) << changed.output;
+    EXPECT_NE(changed.output.find("Params have changed since last execution"), std::string::npos) << changed.output;
+    EXPECT_EQ(fs::last_write_time(dir / "out" / "phantom.h5"), modified);
 }

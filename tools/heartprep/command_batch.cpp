@@ -13,12 +13,14 @@
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
+#include <condition_variable>
 #include <csignal>
 #include <cstdio>
 #include <cstring>
@@ -46,10 +48,18 @@ struct Outcome {
     /// the batch), not started (the batch was stopped first)
     std::string status = "pending";
     std::size_t particles = 0, springs = 0, triangles = 0;
+    std::size_t anchored = 0, supported = 0;  ///< particles that do not move / that hang on a support spring
+    double tissue_volume_ml = 0.0;            ///< Σ mass / density over the particles
+    double spacing_mm = 0.0, dt_ms = 0.0;     ///< the lattice spacing and the scenario's time step
     double seconds = 0.0;
     std::vector<std::string> warnings;
     std::string message;
+    std::string preview;       ///< previews/<id>.png, relative to the batch folder; empty when there is none
+    std::string preview_note;  ///< why there is none (or "" when it was not asked for)
 };
+
+/// Where a case's scenario goes.
+fs::path output_of(const BatchCase& c, const fs::path& folder) { return folder / (c.id + ".h5"); }
 
 fs::path self_executable() {
     std::error_code error;
@@ -111,7 +121,8 @@ struct ChildStatus {
 /// fork + exec rather than posix_spawn, for the parent-death signal: the child asks for SIGTERM
 /// when the thread that forked it ends, which a SIGKILL of the batch does, so no build outlives
 /// the batch. The thread that forks also waits for the child, so the signal never fires early.
-ChildStatus run_process(const std::vector<std::string>& arguments, const fs::path& log, std::atomic<pid_t>& slot) {
+ChildStatus run_process(const std::vector<std::string>& arguments, const fs::path& log, std::atomic<pid_t>& slot,
+                        bool append = false) {
     std::vector<char*> argv;
     for (const auto& a : arguments) argv.push_back(const_cast<char*>(a.c_str()));
     argv.push_back(nullptr);
@@ -126,7 +137,7 @@ ChildStatus run_process(const std::vector<std::string>& arguments, const fs::pat
         sigset_t none;
         sigemptyset(&none);
         ::sigprocmask(SIG_SETMASK, &none, nullptr);
-        const int out = ::open(log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        const int out = ::open(log.c_str(), O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0644);
         if (out < 0 || ::dup2(out, STDOUT_FILENO) < 0 || ::dup2(out, STDERR_FILENO) < 0) ::_exit(127);
         if (out > STDERR_FILENO) ::close(out);
         const int null = ::open("/dev/null", O_RDONLY);
@@ -146,38 +157,122 @@ ChildStatus run_process(const std::vector<std::string>& arguments, const fs::pat
     return {.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : 127};
 }
 
-void fill_counts(const Scenario& s, Outcome& outcome) {
-    outcome.particles = s.lattice.particles.size();
+void fill_figures(const Scenario& s, Outcome& outcome) {
+    const auto& p = s.lattice.particles;
+    outcome.particles = p.size();
     outcome.springs = s.lattice.springs.size();
     outcome.triangles = s.visual ? s.visual->triangles.size() : 0;
+    outcome.anchored = outcome.supported = 0;
+    outcome.tissue_volume_ml = 0.0;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        outcome.anchored += p.anchored[i] != 0;
+        if (p.supported()) outcome.supported += p.support_stiffness[i] > 0.0f;
+        const auto row = std::size_t(p.material[i]);
+        const auto& material = row < s.lattice.materials.size() ? s.lattice.materials[row] : s.lattice.materials.front();
+        outcome.tissue_volume_ml += double(p.mass[i]) / material.density * 1e-3;  // mm³ -> mL
+    }
+    outcome.spacing_mm = s.lattice.spacing;
+    outcome.dt_ms = s.solver.dt_ms;
 }
 
-Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& executable, std::atomic<pid_t>& slot) {
+/// The content key of a case: SHA-256 of its input's bytes, its build options and the heartprep
+/// version with the scenario format (a build of a newer format is not skipped as up to date).
+/// `heartprep build --batch-key` stores it in the scenario; batch and the Snakemake workflow
+/// (workflow/Snakefile, through `batch --plan`) skip a case whose scenario carries it.
+std::string content_key(const BatchCase& c) {
+    return sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION + " format " +
+                       std::to_string(scenario_format_version));
+}
+
+/// Whether the scenario at `output` was built from `key` (and kept its build's warnings, so the
+/// summary can report them); fills `outcome` from it when it was.
+bool up_to_date(const fs::path& output, const std::string& key, Outcome* outcome) {
+    if (!fs::exists(output)) return false;
+    try {
+        const Scenario existing = read_scenario(output);
+        if (existing.batch_key != key || !existing.build_warnings) return false;
+        if (outcome) {
+            fill_figures(existing, *outcome);
+            outcome->warnings = *existing.build_warnings;
+        }
+        return true;
+    } catch (const InputError&) {
+        return false;  // a damaged or foreign file: build the case again
+    }
+}
+
+/// heartsim, for the previews: beside heartprep (an install), in the build tree's runtime/ folder,
+/// or on PATH; empty when there is none.
+fs::path find_heartsim(const fs::path& heartprep) {
+    std::error_code error;
+    for (const fs::path& candidate : {heartprep.parent_path() / "heartsim", heartprep.parent_path().parent_path() / "runtime" / "heartsim"})
+        if (fs::is_regular_file(candidate, error) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
+    if (const char* path = std::getenv("PATH")) {
+        std::istringstream folders(path);
+        for (std::string folder; std::getline(folders, folder, ':');) {
+            const fs::path candidate = fs::path(folder.empty() ? "." : folder) / "heartsim";
+            if (fs::is_regular_file(candidate, error) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
+        }
+    }
+    return {};
+}
+
+/// What the batch was asked to do beyond building.
+struct BatchSettings {
+    int threads = 1;          ///< --threads of each build
+    fs::path heartsim;        ///< renders the previews; empty: no previews
+    std::string no_preview;   ///< why there are none, when `heartsim` is empty
+};
+
+/// The picture of a case at rest, previews/<id>.png, rendered headless by heartsim (its output is
+/// appended to the case's log). Kept while newer than the scenario.
+void make_preview(const BatchCase& c, const fs::path& folder, const BatchSettings& settings, std::atomic<pid_t>& slot,
+                  Outcome& outcome) {
+    if (settings.heartsim.empty()) {
+        outcome.preview_note = settings.no_preview;
+        return;
+    }
+    const fs::path output = output_of(c, folder);
+    const std::string relative = "previews/" + c.id + ".png";
+    const fs::path picture = folder / relative;
+    std::error_code error;
+    if (fs::exists(picture, error) && fs::last_write_time(picture, error) >= fs::last_write_time(output, error) && !error) {
+        outcome.preview = relative;
+        return;
+    }
+    fs::remove(picture, error);  // an old picture of an older scenario
+    if (stop_signal.load()) return;
+    const ChildStatus status = run_process({settings.heartsim.string(), "run", output.string(), "--headless", "--backend", "cpu",
+                                            "--steps", "0", "--screenshot", picture.string(), "--size", "320x240"},
+                                           folder / "logs" / (c.id + ".log"), slot, true);
+    if (status.exit_code == 0 && !status.signal && !status.fork_error && fs::exists(picture, error)) {
+        outcome.preview = relative;
+    } else {
+        outcome.preview_note = status.exit_code == 3 ? "no preview: no usable OpenGL (see logs/" + c.id + ".log)"
+                                                     : "no preview: heartsim failed (see logs/" + c.id + ".log)";
+    }
+}
+
+Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& executable, const BatchSettings& settings,
+                 std::atomic<pid_t>& slot) {
     Outcome outcome;
     outcome.status = "failed";
     const auto start = std::chrono::steady_clock::now();
-    const fs::path output = folder / (c.id + ".h5");
+    const fs::path output = output_of(c, folder);
     const fs::path log = folder / "logs" / (c.id + ".log");
     try {
         // Temporaries of builds killed in an earlier run (their process is gone).
         sweep_stale_temporaries(output);
         if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
-        // The format version is in the key: a build of a newer format is not skipped as up to date.
-        const std::string key = sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION +
-                                            " format " + std::to_string(scenario_format_version));
+        const std::string key = content_key(c);
         if (fs::exists(output)) {
-            try {
-                const Scenario existing = read_scenario(output);
-                // A file from before scenarios kept their build's warnings is built again, so the
-                // summary can report them.
-                if (existing.batch_key == key && existing.build_warnings) {
-                    outcome.status = "skipped";
-                    fill_counts(existing, outcome);
-                    outcome.warnings = *existing.build_warnings;
-                    return outcome;
-                }
-            } catch (const InputError&) {
-                // A damaged or foreign file: build the case again.
+            // A file from before scenarios kept their build's warnings is built again, so the
+            // summary can report them.
+            if (up_to_date(output, key, &outcome)) {
+                outcome.status = "skipped";
+                make_preview(c, folder, settings, slot, outcome);
+                outcome.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+                return outcome;
             }
         }
         if (stop_signal.load()) {  // stopped while the existing scenario was being checked
@@ -185,8 +280,11 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
             outcome.message = "the batch was stopped by " + signal_name(stop_signal.load()) + " first";
             return outcome;
         }
-        std::vector<std::string> arguments{executable.string(), "build", c.input.string(), "-o", output.string(), "--batch-key", key};
-        for (auto& word : split_words(c.options)) arguments.push_back(word);
+        std::vector<std::string> arguments{executable.string(), "build",   c.input.string(), "-o", output.string(), "--batch-key",
+                                           key,                 "--threads", std::to_string(settings.threads)};
+        const auto words = split_words(c.options);
+        if (std::find(words.begin(), words.end(), "--threads") != words.end()) arguments.resize(arguments.size() - 2);  // theirs
+        for (const auto& word : words) arguments.push_back(word);
         const ChildStatus status = run_process(arguments, log, slot);
         sweep_stale_temporaries(output);  // what a killed build left beside its output
         std::vector<std::string> logged_warnings;
@@ -209,9 +307,10 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
                                                 : "exit status " + std::to_string(status.exit_code) + " (see " + log.string() + ")";
         } else {
             const Scenario built = read_scenario(output);
-            fill_counts(built, outcome);
+            fill_figures(built, outcome);
             outcome.warnings = built.build_warnings ? *built.build_warnings : logged_warnings;
             outcome.status = "built";
+            make_preview(c, folder, settings, slot, outcome);
         }
     } catch (const std::exception& e) {
         outcome.message = e.what();
@@ -229,31 +328,78 @@ std::string csv_quote(const std::string& text) {
 /// Writes `text` to `path` atomically.
 void write_text(const fs::path& path, const std::string& text) { write_bytes_atomically(path, text.data(), text.size(), "the table"); }
 
-/// summary.csv and summary.md for every case of the manifest as the batch stands; returns the table.
-/// `state`: the line under the table that says whether the batch is running, finished or stopped.
+std::string fixed(double value, int digits) {
+    char text[64];
+    std::snprintf(text, sizeof text, "%.*f", digits, value);
+    return text;
+}
+
+/// The batch as JSON: summary.json, `--json`.
+nlohmann::ordered_json summary_json(const fs::path& folder, const std::vector<BatchCase>& cases, const std::vector<Outcome>& outcomes,
+                                    const std::string& state) {
+    auto list = nlohmann::ordered_json::array();
+    for (std::size_t i = 0; i < cases.size(); ++i) {
+        const auto& c = cases[i];
+        const auto& o = outcomes[i];
+        const bool ended_well = o.status == "built" || o.status == "skipped";
+        nlohmann::ordered_json entry{{"case_id", c.id}, {"input", c.input.string()}, {"output", output_of(c, folder).string()},
+                                     {"status", o.status}};
+        if (ended_well) {
+            entry["particles"] = o.particles;
+            entry["springs"] = o.springs;
+            entry["triangles"] = o.triangles;
+            entry["anchored"] = o.anchored;
+            entry["supported"] = o.supported;
+            entry["tissue_volume_ml"] = o.tissue_volume_ml;
+            entry["spacing_mm"] = o.spacing_mm;
+            entry["dt_ms"] = o.dt_ms;
+        }
+        entry["seconds"] = o.seconds;
+        entry["warnings"] = o.warnings;
+        entry["message"] = o.message;
+        entry["preview"] = o.preview.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(o.preview);
+        if (!o.preview_note.empty()) entry["preview_note"] = o.preview_note;
+        list.push_back(std::move(entry));
+    }
+    return {{"folder", folder.string()}, {"state", state}, {"cases", std::move(list)}};
+}
+
+/// One JSON text: NaN and infinities as null (nlohmann's rule), bytes that are not UTF-8 replaced.
+std::string dump(const nlohmann::ordered_json& json) { return json.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace) + "\n"; }
+
+/// summary.csv, summary.md and summary.json for every case of the manifest as the batch stands;
+/// returns the markdown table. `state`: the line under the table that says whether the batch is
+/// running, finished or stopped.
 std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>& cases, const std::vector<Outcome>& outcomes,
                             const std::string& state) {
     std::ostringstream csv, markdown;
-    csv << "case_id,input,status,particles,springs,triangles,seconds,warnings,message\n";
-    markdown << "| case | status | particles | springs | triangles | time (s) | warnings |\n|---|---|---:|---:|---:|---:|---|\n";
+    // The first nine columns as before the QC columns were added, so readers by position still work.
+    csv << "case_id,input,status,particles,springs,triangles,seconds,warnings,message,"
+           "output,anchored,supported,tissue_volume_ml,spacing_mm,dt_ms,preview\n";
+    markdown << "| case | status | particles | anchored | supported | tissue (mL) | spacing (mm) | dt (ms) | time (s) | warnings | "
+                "preview |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|\n";
     std::map<std::string, std::size_t> counts;
     for (std::size_t i = 0; i < cases.size(); ++i) {
         const auto& c = cases[i];
         const auto& o = outcomes[i];
         ++counts[o.status];
+        const bool ended_well = o.status == "built" || o.status == "skipped";
         std::string warnings;
         for (const auto& w : o.warnings) warnings += (warnings.empty() ? "" : "; ") + w;
-        char seconds[32];
-        std::snprintf(seconds, sizeof seconds, "%.2f", o.seconds);
+        const std::string seconds = fixed(o.seconds, 2);
         csv << csv_quote(c.id) << "," << csv_quote(c.input.string()) << "," << o.status << "," << o.particles << "," << o.springs
-            << "," << o.triangles << "," << seconds << "," << csv_quote(warnings) << "," << csv_quote(o.message) << "\n";
-        const bool ended_well = o.status == "built" || o.status == "skipped";
+            << "," << o.triangles << "," << seconds << "," << csv_quote(warnings) << "," << csv_quote(o.message) << ","
+            << csv_quote(output_of(c, folder).string()) << "," << o.anchored << "," << o.supported << "," << fixed(o.tissue_volume_ml, 3)
+            << "," << fixed(o.spacing_mm, 4) << "," << fixed(o.dt_ms, 5) << "," << csv_quote(o.preview) << "\n";
         std::string cell = ended_well ? warnings : o.message;
         std::replace(cell.begin(), cell.end(), '|', '/');
         if (ended_well && cell.size() > 100)  // the CSV and the log keep the full text
             cell = std::to_string(o.warnings.size()) + " warning(s): " + cell.substr(0, 80) + "… (see logs/" + c.id + ".log)";
-        markdown << "| " << c.id << " | " << o.status << " | " << o.particles << " | " << o.springs << " | " << o.triangles << " | "
-                 << seconds << " | " << cell << " |\n";
+        std::string picture = o.preview.empty() ? o.preview_note : "![" + c.id + "](" + o.preview + ")";
+        std::replace(picture.begin(), picture.end(), '|', '/');
+        markdown << "| " << c.id << " | " << o.status << " | " << o.particles << " | " << o.anchored << " | " << o.supported << " | "
+                 << fixed(o.tissue_volume_ml, 1) << " | " << fixed(o.spacing_mm, 2) << " | " << fixed(o.dt_ms, 4) << " | " << seconds
+                 << " | " << cell << " | " << picture << " |\n";
     }
     markdown << "\n" << cases.size() << " cases: " << counts["built"] << " built, " << counts["skipped"] << " skipped, "
              << counts["failed"] << " failed";
@@ -262,44 +408,92 @@ std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>
     markdown << ". " << state << "\n";
     write_text(folder / "summary.csv", csv.str());
     write_text(folder / "summary.md", markdown.str());
+    write_text(folder / "summary.json", dump(summary_json(folder, cases, outcomes, state)));
     return markdown.str();
 }
 
 }  // namespace
 
 void add_batch_command(CLI::App& app) {
-    auto* command = app.add_subcommand("batch", "Build many cases in parallel: resumable, with a summary table");
+    auto* command = app.add_subcommand("batch", "Build many cases in parallel: resumable, with a summary table and a picture per case");
     command->footer(
         "\nMANIFEST is a CSV file of lines `input[,case_id[,options]]` (a header line starting with `input` and\n"
-        "lines starting with # are ignored; relative paths are relative to the manifest), or a folder of label maps.\n"
-        "Each case is written to DIR/<case_id>.h5 by its own `heartprep build` process, its output to\n"
-        "DIR/logs/<case_id>.log. Per-case options replace --options. A case whose input bytes, options and\n"
-        "heartprep version are unchanged since its scenario was written is skipped (its build's warnings,\n"
-        "kept in the scenario, are reported again). One failing case does not stop the others; the exit status\n"
-        "is non-zero if any case failed. Summary: DIR/summary.csv, DIR/summary.md, rewritten as each case ends\n"
-        "(cases not finished yet are `pending`). SIGINT (Ctrl-C), SIGTERM or SIGHUP stop the running builds\n"
-        "(`interrupted`) and the cases not begun (`not started`), write the summary, and end the batch by the\n"
-        "same signal (a shell reports 128 + its number: 130, 143, 129); run the command again to finish.\n"
-        "Example:\n  heartprep batch cases.csv -o scenarios/ -j 2 --options \"--cavity 2 --anchor-border\"");
+        "lines starting with # are ignored; relative paths are relative to the manifest), or a folder of label maps\n"
+        "(all of them, or those whose name matches --pattern; the case id is the file name without its extension).\n"
+        "Each case is written to DIR/<case_id>.h5 by its own `heartprep build --threads T` process, its output to\n"
+        "DIR/logs/<case_id>.log, and pictured at rest in DIR/previews/<case_id>.png by `heartsim run --headless`\n"
+        "(found beside heartprep or on PATH). Per-case options replace --options. A case whose input bytes,\n"
+        "options and heartprep version are unchanged since its scenario was written is skipped (its build's\n"
+        "warnings, kept in the scenario, are reported again). One failing case does not stop the others; the exit\n"
+        "status is non-zero if any case failed. Summary: DIR/summary.md (with the pictures), DIR/summary.csv and\n"
+        "DIR/summary.json, rewritten as each case ends (cases not finished yet are `pending`). When stderr is not a\n"
+        "terminal, a line every 10 s says which cases are running (HEARTPREP_PROGRESS_SECONDS sets the interval).\n"
+        "SIGINT (Ctrl-C), SIGTERM or SIGHUP stop the running builds (`interrupted`) and the cases not begun\n"
+        "(`not started`), write the summary, and end the batch by the same signal (a shell reports 128 + its\n"
+        "number: 130, 143, 129); run the command again to finish. On a cluster, workflow/Snakefile runs one case\n"
+        "per job with the same skipping (docs/user-guide.md, \"Batch on a cluster\").\n"
+        "Examples:\n  heartprep batch cases.csv -o scenarios/ -j 2 --options \"--cavity 2 --anchor-border\"\n"
+        "  heartprep batch mri/ --pattern '*-label.nii.gz' -o scenarios/ -j 4 --threads 2");
     auto manifest = std::make_shared<fs::path>();
     auto folder = std::make_shared<fs::path>();
     auto jobs = std::make_shared<int>(1);
+    auto threads = std::make_shared<int>(0);
     auto options = std::make_shared<std::string>();
+    auto pattern = std::make_shared<std::string>();
+    auto json = std::make_shared<bool>(false);
+    auto plan = std::make_shared<bool>(false);
+    auto no_preview = std::make_shared<bool>(false);
     command->add_option("manifest", *manifest, "CSV manifest or folder of label maps")->required();
-    command->add_option("-o,--output", *folder, "Folder for the scenarios, logs and summary (created if needed)")->required();
+    command->add_option("-o,--output", *folder, "Folder for the scenarios, logs, previews and summary (created if needed)")->required();
     command->add_option("-j,--jobs", *jobs, "Cases built at the same time")->check(CLI::Range(1, max_jobs))->capture_default_str();
+    command->add_option("--threads", *threads, "Threads of each case's build (default: the cores divided by --jobs, at least 1)")
+        ->check(CLI::Range(1, 4096));
     command->add_option("--options", *options, "heartprep build options for every case, e.g. \"--cavity 2 --anchor-border\"");
+    command->add_option("--pattern", *pattern, "With a folder: only the files whose name matches this shell pattern, e.g. '*-label.nii.gz'");
+    command->add_flag("--json", *json, "Print the summary as JSON (as DIR/summary.json) instead of the table");
+    command->add_flag("--plan", *plan,
+                      "Build nothing: print each case's id, input, output, options, content key and whether it is up to date, as JSON");
+    command->add_flag("--no-preview", *no_preview, "No pictures (previews need heartsim and OpenGL, e.g. Mesa's llvmpipe)");
     command->callback([=] {
-        const auto cases = read_manifest(*manifest, *options);
+        if (!pattern->empty() && !fs::is_directory(*manifest))
+            throw InputError("--pattern chooses files of a folder; " + manifest->string() + " is not a folder");
+        const auto cases = read_manifest(*manifest, *options, *pattern);
+        if (*plan) {
+            auto list = nlohmann::ordered_json::array();
+            for (const auto& c : cases) {
+                const std::string key = fs::exists(c.input) ? content_key(c) : std::string();
+                list.push_back({{"case_id", c.id}, {"input", fs::absolute(c.input).lexically_normal().string()},
+                                {"output", fs::absolute(output_of(c, *folder)).lexically_normal().string()}, {"options", c.options},
+                                {"options_words", split_words(c.options)}, {"key", key},
+                                {"up_to_date", !key.empty() && up_to_date(output_of(c, *folder), key, nullptr)}});
+            }
+            std::fputs(dump(nlohmann::ordered_json{{"cases", std::move(list)}}).c_str(), stdout);
+            return;
+        }
         std::error_code error;
         fs::create_directories(*folder / "logs", error);
+        if (!error && !*no_preview) fs::create_directories(*folder / "previews", error);
         if (error) throw OutputError(folder->string() + ": cannot create the output folder: " + error.message());
         const fs::path executable = self_executable();
+        BatchSettings settings;
+        const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
+        settings.threads = *threads > 0 ? *threads : std::max(1, cores / *jobs);
+        if (*no_preview) {
+            settings.no_preview = "";
+        } else {
+            settings.heartsim = find_heartsim(executable);
+            if (settings.heartsim.empty()) {
+                settings.no_preview = "no preview: heartsim is neither beside heartprep nor on PATH";
+                std::fprintf(stderr, "heartprep: warning: %s\n", settings.no_preview.c_str());
+            }
+        }
 
         std::vector<Outcome> outcomes(cases.size());
         std::atomic<std::size_t> next{0};
         std::size_t done = 0;
-        std::mutex print;  // the progress lines, `outcomes` and the summary files
+        std::mutex print;  // the progress lines, `outcomes`, `running` and the summary files
+        std::condition_variable ended;  // a case ended
+        std::vector<std::pair<std::size_t, std::chrono::steady_clock::time_point>> running(std::size_t(*jobs), {cases.size(), {}});
         TerminalProgress progress(false);
         const auto start = std::chrono::steady_clock::now();
         const int workers_count = std::min<int>(*jobs, int(cases.size()));
@@ -320,8 +514,13 @@ void add_batch_command(CLI::App& app) {
                         outcomes[i].message = "the batch was stopped by " + signal_name(stop_signal.load()) + " first";
                         continue;
                     }
-                    Outcome outcome = run_case(cases[i], *folder, executable, running_children[std::size_t(w)]);
+                    {
+                        std::lock_guard lock(print);
+                        running[std::size_t(w)] = {i, std::chrono::steady_clock::now()};
+                    }
+                    Outcome outcome = run_case(cases[i], *folder, executable, settings, running_children[std::size_t(w)]);
                     std::lock_guard lock(print);
+                    running[std::size_t(w)].first = cases.size();
                     outcomes[i] = std::move(outcome);
                     const auto& o = outcomes[i];
                     const bool ended_well = o.status == "built" || o.status == "skipped";
@@ -333,19 +532,38 @@ void add_batch_command(CLI::App& app) {
                     } catch (const std::exception& e) {
                         std::fprintf(stderr, "heartprep: warning: %s\n", e.what());  // the final write reports it as an error
                     }
+                    ended.notify_all();
                 }
             };
             std::vector<std::thread> workers;
             for (int w = 0; w < workers_count; ++w) workers.emplace_back(worker, w);
+            // In a log or a pipe, nothing else shows that a long case is still going: a line now and then.
+            const double interval = progress_interval_seconds();
+            if (!isatty(fileno(stderr)) && interval > 0.0) {
+                std::unique_lock lock(print);
+                while (done < cases.size() && !stop_signal.load()) {
+                    if (ended.wait_for(lock, std::chrono::duration<double>(interval)) != std::cv_status::timeout) continue;
+                    if (done >= cases.size()) break;
+                    const auto now = std::chrono::steady_clock::now();
+                    std::string names;
+                    for (const auto& [i, since] : running)
+                        if (i < cases.size())
+                            names += (names.empty() ? "" : ", ") + cases[i].id + " (" +
+                                     fixed(std::chrono::duration<double>(now - since).count(), 0) + " s)";
+                    std::fprintf(stderr, "heartprep: batch: %zu of %zu cases finished after %.0f s; running: %s\n", done, cases.size(),
+                                 std::chrono::duration<double>(now - start).count(), names.empty() ? "none" : names.c_str());
+                    std::fflush(stderr);
+                }
+            }
             for (auto& w : workers) w.join();
         }
         const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         const int stopped_by = stop_signal.load();
         std::ostringstream state;
-        state << "In " << std::fixed << std::setprecision(1) << total << " s with -j " << *jobs << ".";
+        state << "In " << std::fixed << std::setprecision(1) << total << " s with -j " << *jobs << " --threads " << settings.threads << ".";
         if (stopped_by) state << " Stopped by " << signal_name(stopped_by) << ": run the same command again to finish.";
         const std::string table = write_summaries(*folder, cases, outcomes, state.str());
-        std::fputs(table.c_str(), stdout);
+        std::fputs(*json ? dump(summary_json(*folder, cases, outcomes, state.str())).c_str() : table.c_str(), stdout);
         std::fflush(stdout);
         if (stopped_by) {
             std::fprintf(stderr, "heartprep: batch stopped by %s; the summary is %s\n", signal_name(stopped_by).c_str(),

@@ -9,8 +9,11 @@
 
 #include <CLI/CLI.hpp>
 
+#include <tbb/global_control.h>
+
 #include <cstdio>
 #include <memory>
+#include <optional>
 
 namespace heartsim::cli {
 
@@ -190,6 +193,10 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Solver");
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+    auto threads = std::make_shared<int>(0);
+    command->add_option("--threads", *threads, "Threads the build may use (0 = every core); `batch` sets it per case")
+        ->check(CLI::Range(0, 4096))
+        ->capture_default_str();
     auto batch_key = std::make_shared<std::string>();
     command->add_option("--batch-key", *batch_key, "Stored in the file so `heartprep batch` can skip unchanged cases")->group("");
 
@@ -213,6 +220,9 @@ void add_build_command(CLI::App& app) {
         options->layout.materials = {*material};
         options->packing.scheme = parse_packing_scheme(*packing);
         options->batch_key = *batch_key;
+        // Every parallel loop of the pipeline is oneTBB's: its global limit is the build's.
+        std::optional<tbb::global_control> thread_limit;
+        if (*threads > 0) thread_limit.emplace(tbb::global_control::max_allowed_parallelism, std::size_t(*threads));
         TerminalProgress progress(*quiet);
         BuildReport report;
         Scenario scenario = build_scenario(*options, progress, report);

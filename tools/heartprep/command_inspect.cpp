@@ -6,6 +6,7 @@
 #include "libmodel/supports.h"
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <array>
@@ -13,7 +14,6 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
-#include <sstream>
 
 namespace heartsim::cli {
 
@@ -127,83 +127,66 @@ Summary summarise(const Scenario& s) {
     return summary;
 }
 
-std::string json_escape(const std::string& text) {
-    std::string out;
-    for (char c : text) {
-        if (c == '"' || c == '\\') out += '\\';
-        if (static_cast<unsigned char>(c) < 0x20) continue;
-        out += c;
-    }
-    return out;
-}
-
 void print_json(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
-    std::ostringstream o;
-    o.precision(9);
-    auto vector = [&](const Eigen::Vector3d& v) { o << "[" << v.x() << ", " << v.y() << ", " << v.z() << "]"; };
-    o << "{\n  \"file\": \"" << json_escape(path.string()) << "\",\n  \"file_bytes\": " << std::filesystem::file_size(path)
-      << ",\n  \"format_version\": " << scenario_format_version << ",\n  \"generator\": \"" << json_escape(s.generator)
-      << "\",\n  \"source\": {\"file_name\": \"" << json_escape(s.source.file_name) << "\", \"sha256\": \"" << s.source.sha256
-      << "\", \"dims\": [" << s.source.geometry.dims[0] << ", " << s.source.geometry.dims[1] << ", " << s.source.geometry.dims[2]
-      << "], \"spacing\": ";
-    vector(s.source.geometry.spacing);
-    o << "},\n  \"lattice\": {\"spacing\": " << s.lattice.spacing << ", \"dims\": [" << s.lattice.dims[0] << ", "
-      << s.lattice.dims[1] << ", " << s.lattice.dims[2] << "]},\n  \"particles\": " << m.particles
-      << ",\n  \"anchored\": " << m.anchored << ",\n  \"springs\": " << m.springs << ",\n  \"face_springs\": " << m.face_springs
-      << ",\n  \"edge_springs\": " << m.edge_springs << ",\n  \"total_mass_g\": " << m.total_mass << ",\n  \"bounds\": {\"min\": ";
-    vector(m.low);
-    o << ", \"max\": ";
-    vector(m.high);
-    o << "},\n  \"visual\": " << (s.visual ? "{\"vertices\": " + std::to_string(m.visual_vertices) + ", \"triangles\": " +
-                                                   std::to_string(m.visual_triangles) + "}"
-                                             : std::string("null"))
-      << ",\n  \"packing\": "
-      << (s.packing ? "{\"scheme\": \"" + std::string(to_string(s.packing->scheme)) + "\", \"width\": " +
-                          std::to_string(s.packing->width) + ", \"height\": " + std::to_string(s.packing->height) +
-                          ", \"occupancy\": " + std::to_string(m.texture_occupancy) + "}"
-                    : std::string("null"))
-      << ",\n  \"simsurface_triangles\": " << m.simsurface_triangles << ",\n  \"mapping_rest_error_mm\": "
-      << (s.mapping ? std::to_string(m.mapping_rest_error_mm) : std::string("null"));
-    auto triple = [&](const std::array<double, 3>& t) { o << "[" << t[0] << ", " << t[1] << ", " << t[2] << "]"; };
-    if (s.mapping) {
-        o << ",\n  \"mapping\": {\"embedded\": " << m.embedded << ", \"tangent\": " << m.tangent
-          << ", \"weight_sum_median_p99_max\": ";
-        triple(m.weight_sum);
-        o << ", \"nearest_carrier_mm_median_p99_max\": ";
-        triple(m.reach);
-        o << ", \"offset_mm_median_p99_max\": ";
-        triple(m.offset);
-        o << "}";
-    }
-    o << ",\n  \"thin_walls\": {\"particles\": " << m.thin_particles << ", \"volume_share\": " << m.thin_volume_share
-      << "},\n  \"materials\": [";
-    for (std::size_t i = 0; i < s.lattice.materials.size(); ++i) {
-        const auto& mat = s.lattice.materials[i];
-        o << (i ? ", " : "") << "{\"label\": " << mat.label << ", \"name\": \"" << json_escape(mat.name)
-          << "\", \"density_g_per_mm3\": " << mat.density << ", \"youngs_modulus_kpa\": " << mat.youngs_modulus_kpa
-          << ", \"face_spring_stiffness_n_per_mm\": " << spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)
-          << ", \"damping_ratio\": " << mat.damping_ratio << "}";
-    }
-    o << "],\n  \"solver\": {\"dt_ms\": " << s.solver.dt_ms << ", \"substeps\": " << s.solver.substeps
-      << ", \"damping\": " << s.solver.damping << ", \"gravity\": ";
-    vector(s.solver.gravity);
-    o << ", \"balanced_gravity\": ";
-    vector(s.solver.balanced_gravity);
-    o << ", \"critical_dt_ms\": " << s.solver.critical_dt_ms << ", \"critical_dt_bound_ms\": " << s.solver.critical_dt_bound_ms
-      << ", \"damped_critical_dt_ms\": " << s.solver.damped_critical_dt_ms
-      << "},\n  \"holding\": {\"supported_particles\": " << m.supported << ", \"support_stiffness_n_per_mm\": " << m.support_stiffness
-      << ", \"pieces\": " << m.pieces << ", \"free_pieces\": " << m.free_pieces << ", \"max_prestrain\": " << m.max_prestrain
-      << ", \"rest_residual_max_particle_n\": " << m.residual.max_particle_n << ", \"rest_residual_total_n\": " << m.residual.total.norm()
-      << "},\n  \"build_warnings\": ";
-    if (s.build_warnings) {
-        o << "[";
-        for (std::size_t i = 0; i < s.build_warnings->size(); ++i) o << (i ? ", " : "") << "\"" << json_escape((*s.build_warnings)[i]) << "\"";
-        o << "]";
-    } else {
-        o << "null";
-    }
-    o << "\n}\n";
-    std::fputs(o.str().c_str(), stdout);
+    using json = nlohmann::ordered_json;
+    auto vector = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
+    const auto& g = s.source.geometry;
+    json o{{"file", path.string()},
+           {"file_bytes", std::filesystem::file_size(path)},
+           {"format_version", scenario_format_version},
+           {"generator", s.generator},
+           {"source", {{"file_name", s.source.file_name}, {"sha256", s.source.sha256}, {"dims", {g.dims[0], g.dims[1], g.dims[2]}},
+                       {"spacing", vector(g.spacing)}}},
+           {"lattice", {{"spacing", s.lattice.spacing}, {"dims", {s.lattice.dims[0], s.lattice.dims[1], s.lattice.dims[2]}}}},
+           {"particles", m.particles},
+           {"anchored", m.anchored},
+           {"springs", m.springs},
+           {"face_springs", m.face_springs},
+           {"edge_springs", m.edge_springs},
+           {"total_mass_g", m.total_mass},
+           {"bounds", {{"min", vector(m.low)}, {"max", vector(m.high)}}},
+           {"visual", s.visual ? json{{"vertices", m.visual_vertices}, {"triangles", m.visual_triangles}} : json()},
+           {"packing", s.packing ? json{{"scheme", to_string(s.packing->scheme)},
+                                        {"width", s.packing->width},
+                                        {"height", s.packing->height},
+                                        {"occupancy", m.texture_occupancy}}
+                                 : json()},
+           {"simsurface_triangles", m.simsurface_triangles},
+           {"mapping_rest_error_mm", s.mapping ? json(m.mapping_rest_error_mm) : json()}};
+    if (s.mapping)
+        o["mapping"] = {{"embedded", m.embedded},
+                        {"tangent", m.tangent},
+                        {"weight_sum_median_p99_max", m.weight_sum},
+                        {"nearest_carrier_mm_median_p99_max", m.reach},
+                        {"offset_mm_median_p99_max", m.offset}};
+    o["thin_walls"] = {{"particles", m.thin_particles}, {"volume_share", m.thin_volume_share}};
+    json materials = json::array();
+    for (const auto& mat : s.lattice.materials)
+        materials.push_back({{"label", mat.label},
+                             {"name", mat.name},
+                             {"density_g_per_mm3", mat.density},
+                             {"youngs_modulus_kpa", mat.youngs_modulus_kpa},
+                             {"face_spring_stiffness_n_per_mm", spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)},
+                             {"damping_ratio", mat.damping_ratio}});
+    o["materials"] = std::move(materials);
+    o["solver"] = {{"dt_ms", s.solver.dt_ms},
+                   {"substeps", s.solver.substeps},
+                   {"damping", s.solver.damping},
+                   {"gravity", vector(s.solver.gravity)},
+                   {"balanced_gravity", vector(s.solver.balanced_gravity)},
+                   {"critical_dt_ms", s.solver.critical_dt_ms},
+                   {"critical_dt_bound_ms", s.solver.critical_dt_bound_ms},
+                   {"damped_critical_dt_ms", s.solver.damped_critical_dt_ms}};
+    o["holding"] = {{"supported_particles", m.supported},
+                    {"support_stiffness_n_per_mm", m.support_stiffness},
+                    {"pieces", m.pieces},
+                    {"free_pieces", m.free_pieces},
+                    {"max_prestrain", m.max_prestrain},
+                    {"rest_residual_max_particle_n", m.residual.max_particle_n},
+                    {"rest_residual_total_n", m.residual.total.norm()}};
+    o["build_warnings"] = s.build_warnings ? json(*s.build_warnings) : json();
+    // nlohmann writes NaN and infinities as null and replaces bytes that are not UTF-8: always valid JSON.
+    std::fputs((o.dump(2, ' ', false, json::error_handler_t::replace) + "\n").c_str(), stdout);
 }
 
 void print_table(const std::filesystem::path& path, const Scenario& s, const Summary& m) {

@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <cctype>
 #include <cstring>
+
+#include <fnmatch.h>
 #include <map>
 #include <sstream>
 
@@ -55,15 +57,28 @@ std::vector<std::string> split_words(const std::string& text) {
     return words;
 }
 
-std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string& default_options) {
+std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string& default_options, const std::string& pattern) {
     std::vector<BatchCase> cases;
     if (fs::is_directory(manifest)) {
         std::vector<fs::path> files;
-        for (const auto& entry : fs::directory_iterator(manifest))
-            if (entry.is_regular_file() && is_volume_file(entry.path())) files.push_back(entry.path());
+        for (const auto& entry : fs::directory_iterator(manifest)) {
+            const std::string name = entry.path().filename().string();
+            if (entry.is_regular_file() && is_volume_file(entry.path()) &&
+                (pattern.empty() || ::fnmatch(pattern.c_str(), name.c_str(), FNM_PERIOD) == 0))
+                files.push_back(entry.path());
+        }
         std::sort(files.begin(), files.end());
-        for (const auto& file : files) cases.push_back({stem_of(file), file, default_options, 0});
-        if (cases.empty()) throw InputError(manifest.string() + ": folder holds no label maps (.nii, .nii.gz, .nrrd, .mha, .mhd)");
+        std::map<std::string, fs::path> by_id;
+        for (const auto& file : files) {
+            const std::string id = stem_of(file);
+            if (const auto [it, added] = by_id.emplace(id, file); !added)
+                throw InputError(manifest.string() + ": " + it->second.filename().string() + " and " + file.filename().string() +
+                                 " would both be case '" + id + "' (choose one with --pattern, or list the cases in a CSV manifest)");
+            cases.push_back({id, file, default_options, 0});
+        }
+        if (cases.empty())
+            throw InputError(manifest.string() + ": folder holds no label maps (.nii, .nii.gz, .nrrd, .mha, .mhd)" +
+                             (pattern.empty() ? std::string() : " whose name matches --pattern '" + pattern + "'"));
     } else {
         std::istringstream in(read_csv_file(manifest));
         std::string line;

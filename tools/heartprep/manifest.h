@@ -19,10 +19,13 @@ struct BatchCase {
 
 /// The cases of `manifest`, a CSV file (a header line starting with `input` and lines starting
 /// with # ignored; quote options that contain commas) or a folder (its label maps in name order,
-/// each with `default_options`). Throws InputError naming the manifest and the line for: a
-/// missing or unreadable manifest, a line of more than three fields or without an input, no
-/// cases, a case id with other characters, a duplicate case id, unbalanced quotes in options.
-std::vector<BatchCase> read_manifest(const std::filesystem::path& manifest, const std::string& default_options);
+/// each with `default_options`; with a `pattern`, only the files whose name matches that shell
+/// pattern, e.g. `*-label.nii.gz`, so an intensity image beside the labels is left out). Throws
+/// InputError naming the manifest and the line for: a missing or unreadable manifest, a line of
+/// more than three fields or without an input, no cases, a case id with other characters, a
+/// duplicate case id (two files of one folder with one stem), unbalanced quotes in options.
+std::vector<BatchCase> read_manifest(const std::filesystem::path& manifest, const std::string& default_options,
+                                     const std::string& pattern = "");
 
 /// Splits build options as a shell would for plain words and quotes ("a b", 'a b'); no expansion.
 /// Throws InputError on an unbalanced quote.

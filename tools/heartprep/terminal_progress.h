@@ -1,6 +1,7 @@
 /// @file terminal_progress.h
 /// @brief heartsim::Progress on stderr: a progress bar on a terminal (shown once a stage has run
-/// for a second), plain timing lines when stderr is a file or a pipe (logs, CI, batch runs).
+/// for a second); when stderr is a file or a pipe (logs, CI, batch runs), plain lines: how far a
+/// long stage has come every progress_interval_seconds(), and each stage's time when it ends.
 #pragma once
 
 #include "libmodel/progress.h"
@@ -11,6 +12,10 @@
 #include <string>
 
 namespace heartsim::cli {
+
+/// Where stderr is not a terminal (a log, a pipe, a batch's case), a long stage and a batch print a
+/// plain line this often, in seconds: HEARTPREP_PROGRESS_SECONDS, default 10; 0 = never.
+double progress_interval_seconds();
 
 class TerminalProgress final : public Progress {
 public:
@@ -34,7 +39,8 @@ private:
     std::uint64_t total_ = 0;
     std::atomic<std::uint64_t> done_{0};
     Clock::time_point start_;
-    Clock::time_point last_draw_;
+    Clock::time_point last_draw_;  ///< the bar drawn, or a plain line printed
+    double interval_;              ///< progress_interval_seconds()
     bool shown_ = false;
     int depth_ = 0;  ///< nested stages: only the outermost prints
 };
