@@ -11,7 +11,7 @@ packages=(
   # geometry and volumes
   libcgal-dev libeigen3-dev libtbb-dev libinsighttoolkit5-dev libgdcm-tools zlib1g-dev
   # files and command line
-  libassimp-dev libhdf5-dev hdf5-tools libcli11-dev libssl-dev
+  libassimp-dev libhdf5-dev hdf5-tools libcli11-dev libssl-dev nlohmann-json3-dev
   # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe (the runtime);
   # libpng for screenshots
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri libpng-dev
@@ -22,6 +22,8 @@ packages=(
   clang libclang-rt-14-dev llvm
   # window tests (heartsim's GLFW window under a virtual X server)
   xvfb xauth
+  # the cluster workflow (workflow/Snakefile) and its test
+  snakemake
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(
