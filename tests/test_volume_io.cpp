@@ -175,6 +175,107 @@ TEST(VolumeRead, HandWrittenNiftiSformGivesNiftiWorldInLps) {
 }
 
 // -------------------------------------------------------------------------------------------
+// A NIfTI with both a qform and a sform (qform_code and sform_code set): where they disagree,
+// heartprep keeps ITK's choice and says which, why, and how far apart they are.
+
+struct TwoTransformNifti {
+    Eigen::Matrix<double, 3, 4> qform_ras;  ///< continuous voxel index -> RAS mm, from the quaternion
+    Eigen::Matrix<double, 3, 4> sform_ras;  ///< from srow
+};
+
+/// Writes a 5×4×3 NIfTI whose sform is its qform turned by `degrees` (about an oblique axis
+/// through the first voxel's centre) and then moved by `mm`.
+TwoTransformNifti write_two_transform_nifti(const fs::path& path, short qform_code, short sform_code, double mm, double degrees) {
+    const Eigen::Vector3d spacing(0.8, 0.9, 1.1);
+    const Eigen::Quaterniond qform_rotation(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -2, 0.5).normalized()));
+    const Eigen::Vector3d qoffset(-30.0, 12.0, 45.0);
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d(0.3, 0.8, -0.5).normalized()).toRotationMatrix();
+    TwoTransformNifti result;
+    result.qform_ras.leftCols<3>() = qform_rotation.toRotationMatrix() * spacing.asDiagonal();
+    result.qform_ras.col(3) = qoffset;
+    result.sform_ras.leftCols<3>() = turn * result.qform_ras.leftCols<3>();
+    result.sform_ras.col(3) = qoffset + mm * Eigen::Vector3d(2, -1, 2) / 3.0;
+
+    HandNifti nifti({5, 4, 3}, 2 /*uint8*/, 8);
+    for (int axis = 0; axis < 3; ++axis) nifti.set_pixdim(axis, float(spacing[axis]));
+    nifti.set_sform(result.sform_ras.cast<float>());
+    nifti.set_sform_code(sform_code);
+    // NIfTI stores a ≥ 0: (x, y, z) of the quaternion with w ≥ 0.
+    const Eigen::Quaterniond q = qform_rotation.w() < 0 ? Eigen::Quaterniond(-qform_rotation.coeffs()) : qform_rotation;
+    nifti.set_qform(qform_code, Eigen::Vector3f(float(q.x()), float(q.y()), float(q.z())), qoffset.cast<float>());
+    std::vector<std::uint8_t> voxels(60, 1);
+    nifti.append_voxels(voxels);
+    write_bytes(path, nifti.bytes);
+    return result;
+}
+
+/// The largest distance between `volume`'s voxel positions and those of `ras` (a NIfTI affine,
+/// RAS), over the eight corner voxels; LPS = diag(−1, −1, 1)·RAS.
+double distance_from(const LabelVolume& volume, const Eigen::Matrix<double, 3, 4>& ras) {
+    const Eigen::Matrix3d ras_to_lps = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+    double largest = 0.0;
+    for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector3d ijk((corner & 1) ? 4 : 0, (corner & 2) ? 3 : 0, (corner & 4) ? 2 : 0);
+        largest = std::max(largest, (volume.geometry.to_world(ijk) - ras_to_lps * (ras * ijk.homogeneous())).norm());
+    }
+    return largest;
+}
+
+TEST(VolumeRead, NiftiQformAndSformThatAgreeGiveNoWarning) {
+    TempDir folder;
+    const fs::path path = folder / "agree.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 0.0, 0.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_TRUE(header.warnings.empty()) << header.warnings.front();
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-4);
+}
+
+/// sform code 2 (aligned anatomy), 20 mm and 25° from the qform: ITK reads the qform.
+TEST(VolumeRead, NiftiSformOfCodeTwoThatDisagreesLeavesTheQformAndWarns) {
+    TempDir folder;
+    const fs::path path = folder / "disagree.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 2, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+    EXPECT_GT(distance_from(volume, transforms.sform_ras), 19.0);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"disagree", "20.00 mm apart at the first voxel", "25.00° apart", "heartprep uses the qform",
+                             "code 2, aligned anatomy", "nibabel would use the sform"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+    EXPECT_EQ(warning.rfind(path.string(), 0), 0u) << warning;
+    // The header alone says the same.
+    EXPECT_EQ(read_volume_header(path).warnings, header.warnings);
+}
+
+/// sform code 1 (scanner anatomy): ITK prefers the sform, and heartprep says so.
+TEST(VolumeRead, NiftiSformOfCodeOneThatDisagreesIsUsedWithAWarning) {
+    TempDir folder;
+    const fs::path path = folder / "disagree-scanner.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.sform_ras), 1e-3);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"20.00 mm apart at the first voxel", "25.00° apart", "heartprep uses the sform", "code 1, scanner anatomy"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+}
+
+/// Only one code set: nothing to compare, whatever the other fields hold.
+TEST(VolumeRead, NiftiWithOnlyAQformGivesNoWarning) {
+    TempDir folder;
+    const fs::path path = folder / "qform-only.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 0, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_TRUE(header.warnings.empty());
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+}
+
+// -------------------------------------------------------------------------------------------
 // Real data: HVSMR 2016 pat0, numbers measured with nibabel (README beside the file).
 
 TEST(VolumeRead, RealHvsmrCaseMatchesNibabel) {
