@@ -281,7 +281,10 @@ TEST(VolumeRead, NiftiWithOnlyAQformGivesNoWarning) {
 TEST(VolumeRead, RealHvsmrCaseMatchesNibabel) {
     const fs::path path = test::real_case("hvsmr16_pat0");
     if (path.empty()) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA << "; skipping";
-    const LabelVolume volume = read_label_volume(path);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    // Its qform (code 2) and sform (code 1) are both set and agree (nibabel): nothing to warn of.
+    EXPECT_TRUE(header.warnings.empty()) << header.warnings.front();
     EXPECT_EQ(volume.geometry.dims, (std::array<int, 3>{127, 207, 141}));
     EXPECT_NEAR(volume.geometry.spacing[0], 0.885417, 1e-5);
     EXPECT_NEAR(volume.geometry.spacing[1], 0.885417, 1e-5);
