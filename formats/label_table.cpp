@@ -63,14 +63,15 @@ std::map<int, std::string> read_label_table(const std::filesystem::path& path) {
         first_content_line = false;
         int label = 0;
         std::string name;
-        if (const auto quote = text.find('"'); quote != std::string::npos) {  // ITK-SNAP
+        const auto quote = text.find('"'), comma = text.find(',');
+        if (quote != std::string::npos && (comma == std::string::npos || quote < comma)) {  // ITK-SNAP
             std::istringstream fields(text.substr(0, quote));
             std::string value;
             fields >> value;
             if (!parse_label(value, label) || text.find('"', quote + 1) == std::string::npos)
                 throw InputError(path.string() + ": line " + std::to_string(number) + " '" + text.substr(0, 60) + "'" + expected);
             name = unquote(text.substr(quote));
-        } else if (const auto comma = text.find(','); comma != std::string::npos) {  // CSV
+        } else if (comma != std::string::npos) {  // CSV, whose names may be quoted
             const std::string value = text.substr(0, comma);
             if (!parse_label(value, label)) {
                 if (header_line) continue;  // "LabelValue,Name,Color_R,…"

@@ -883,21 +883,21 @@ void check_nifti_orientation(const fs::path& path, Probe& probe) {
     const bool used_sform = distance(sform) < distance(qform);
     std::string why;
     if (used_sform && fields.sform_code == 1)
-        why = "ITK, and so 3D Slicer, prefers a sform of code 1 (scanner anatomy) that is a rotation and scaling";
+        why = "as ITK and 3D Slicer do when the sform's code is 1 (scanner anatomy) and it has no shear";
     else if (used_sform)
-        why = "ITK's NIfTI reader chose it";
+        why = "as ITK's NIfTI reader chose";
     else if (!sform.rotation)
-        why = "ITK, and so 3D Slicer, uses the qform when the sform holds shear (its columns are not orthogonal)";
+        why = "as ITK and 3D Slicer do when the sform holds shear (its columns are not orthogonal)";
     else
-        why = "ITK, and so 3D Slicer, uses the qform when the two disagree and the sform's code is not 1 (scanner anatomy); "
-              "nibabel would use the sform";
+        why = "as ITK and 3D Slicer do when the two disagree and the sform's code is not 1 (scanner anatomy); nibabel "
+              "would use the sform";
     std::string how_far = apart.mirrored ? "one is the mirror image of the other"
                                          : fixed(apart.angle_degrees, 2) + "° apart in orientation";
     how_far = fixed(apart.origin_mm, 2) + " mm apart at the first voxel, " + how_far + ", up to " +
               fixed(apart.largest_mm, 2) + " mm apart across the volume";
     probe.header.warnings.push_back(path.string() + ": the NIfTI qform (code " + xform_code_name(fields.qform_code) +
                                     ") and sform (code " + xform_code_name(fields.sform_code) + ") disagree: " + how_far +
-                                    "; heartprep uses the " + (used_sform ? "sform" : "qform") + ", as " + why +
+                                    "; heartprep uses the " + (used_sform ? "sform" : "qform") + ", " + why +
                                     "; check that the label map lies on its image");
 }
 

@@ -59,7 +59,7 @@ TEST(Heartprep, HelpTeachesEveryCommand) {
     EXPECT_EQ(help.exit_code, 0);
     for (const char* command : {"build", "surface", "inspect", "phantom"}) EXPECT_NE(help.output.find(command), std::string::npos);
     const auto build = heartprep("build --help");
-    for (const char* option : {"--tissue", "--cavity", "--anchor-label", "--anchor-border", "--min-island", "--spacing",
+    for (const char* option : {"--tissue", "--cavity", "--anchor-label", "--labels", "--anchor-border", "--min-island", "--spacing",
                                "--particles", "--occupancy", "--smoothing", "--decimate", "--youngs-modulus"})
         EXPECT_NE(build.output.find(option), std::string::npos) << option;
 }

@@ -1,6 +1,7 @@
 /// @file test_volume_io.cpp
 /// @brief Label-map I/O: round trips through every format, hand-written files whose geometry we
 /// compute independently, the real HVSMR case against nibabel's numbers, and damaged inputs.
+#include "formats/label_table.h"
 #include "formats/volume_io.h"
 #include "libmodel/errors.h"
 #include "test_support.h"
@@ -273,6 +274,37 @@ TEST(VolumeRead, NiftiWithOnlyAQformGivesNoWarning) {
     const LabelVolume volume = read_label_volume(path, {}, &header);
     EXPECT_TRUE(header.warnings.empty());
     EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+}
+
+// -------------------------------------------------------------------------------------------
+// Label tables (--labels): names for a NIfTI's labels.
+
+TEST(LabelTable, ReadsSlicerItkSnapAndCsvLayouts) {
+    TempDir folder;
+    std::ofstream(folder / "slicer.ctbl") << "# Color table file\n0 Background 0 0 0 0\n1 blood_pool 255 0 0 255\n\n2 Myocardium 0 255 0 255\n";
+    std::ofstream(folder / "snap.txt") << "################################################\n"
+                                          "    0     0    0    0        0  0  0    \"Clear Label\"\n"
+                                          "    1   255    0    0        1  1  1    \"blood pool\"\n"
+                                          "    2     0  255    0        1  1  1    \"Myocardium\"\n";
+    std::ofstream(folder / "slicer.csv") << "LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n"
+                                            "2,\"Myocardium\",0,255,0,255\n";
+    const std::map<int, std::string> expected = {{0, "Background"}, {1, "blood pool"}, {2, "Myocardium"}};
+    EXPECT_EQ(read_label_table(folder / "slicer.ctbl"), expected);
+    std::map<int, std::string> snap = expected;
+    snap[0] = "Clear Label";
+    EXPECT_EQ(read_label_table(folder / "snap.txt"), snap);
+    EXPECT_EQ(read_label_table(folder / "slicer.csv"), expected);
+}
+
+TEST(LabelTable, BadTablesAreRefusedNamingFileAndLine) {
+    TempDir folder;
+    std::ofstream(folder / "twice.txt") << "1 myocardium 0 0 0 255\n1 blood_pool 0 0 0 255\n";
+    expect_error<InputError>([&] { read_label_table(folder / "twice.txt"); }, {"twice.txt", "line 2", "label 1 is named twice"});
+    std::ofstream(folder / "empty.txt") << "# nothing here\n";
+    expect_error<InputError>([&] { read_label_table(folder / "empty.txt"); }, {"empty.txt", "names no labels"});
+    std::ofstream(folder / "words.txt") << "myocardium is label one\n";
+    expect_error<InputError>([&] { read_label_table(folder / "words.txt"); }, {"words.txt", "line 1", "expected"});
+    expect_error<InputError>([&] { read_label_table(folder / "absent.txt"); }, {"absent.txt", "not found"});
 }
 
 // -------------------------------------------------------------------------------------------

@@ -74,7 +74,13 @@ void check_output_path(const std::filesystem::path& output, const std::string& e
 void add_build_command(CLI::App& app) {
     auto* command = app.add_subcommand("build", "All stages: label map -> scenario (surface, particles, springs, time step)");
     command->footer(
-        "\nExample:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5\n"
+        "\nExamples:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5\n"
+        "  heartprep build case.seg.nrrd -o case.h5 --tissue myocardium --cavity \"blood pool\"\n"
+        "  heartprep build case.nii.gz --labels case-labels.txt -o case.h5 --tissue myocardium\n"
+        "Segment names come from a 3D Slicer .seg.nrrd or --labels; a tissue whose name is not heart muscle\n"
+        "(blood pool, cavity, vessel, ...) is built with a warning (docs/user-guide.md, \"Segment names\").\n"
+        "A NIfTI whose qform and sform disagree is read as ITK and 3D Slicer read it, with a warning saying\n"
+        "which one is used and how far apart they are.\n"
         "By default the heart lies on support springs on its posterior surface and its imaged shape is the\n"
         "equilibrium under gravity: it stays where it was imaged (docs/user-guide.md, \"How the heart is held\").\n"
         "By default the lattice spacing is chosen so the model has at most --particles particles.\n"
