@@ -186,7 +186,9 @@ struct TwoTransformNifti {
 
 /// Writes a 5×4×3 NIfTI whose sform is its qform turned by `degrees` (about an oblique axis
 /// through the first voxel's centre) and then moved by `mm`.
-TwoTransformNifti write_two_transform_nifti(const fs::path& path, short qform_code, short sform_code, double mm, double degrees) {
+/// `shear` adds that multiple of the sform's i axis to its j axis.
+TwoTransformNifti write_two_transform_nifti(const fs::path& path, short qform_code, short sform_code, double mm, double degrees,
+                                            double shear = 0.0) {
     const Eigen::Vector3d spacing(0.8, 0.9, 1.1);
     const Eigen::Quaterniond qform_rotation(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -2, 0.5).normalized()));
     const Eigen::Vector3d qoffset(-30.0, 12.0, 45.0);
@@ -196,6 +198,7 @@ TwoTransformNifti write_two_transform_nifti(const fs::path& path, short qform_co
     result.qform_ras.col(3) = qoffset;
     result.sform_ras.leftCols<3>() = turn * result.qform_ras.leftCols<3>();
     result.sform_ras.col(3) = qoffset + mm * Eigen::Vector3d(2, -1, 2) / 3.0;
+    result.sform_ras.col(1) += shear * result.sform_ras.col(0);
 
     HandNifti nifti({5, 4, 3}, 2 /*uint8*/, 8);
     for (int axis = 0; axis < 3; ++axis) nifti.set_pixdim(axis, float(spacing[axis]));
@@ -262,6 +265,20 @@ TEST(VolumeRead, NiftiSformOfCodeOneThatDisagreesIsUsedWithAWarning) {
     ASSERT_EQ(header.warnings.size(), 1u);
     const std::string& warning = header.warnings.front();
     for (const char* part : {"20.00 mm apart at the first voxel", "25.00° apart", "heartprep uses the sform", "code 1, scanner anatomy"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+}
+
+/// A sform with shear is no rotation: ITK keeps the qform even where the sform's code is 1.
+TEST(VolumeRead, NiftiSformWithShearLeavesTheQformAndWarns) {
+    TempDir folder;
+    const fs::path path = folder / "shear.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 0.0, 0.0, 0.3);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"0.00 mm apart at the first voxel", "heartprep uses the qform", "shear"})
         EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
 }
 
