@@ -753,8 +753,8 @@ void check_geometry(const fs::path& path, const Probe& probe) {
 
 // ---------------------------------------------------------------------------------------------
 // NIfTI qform and sform: both may be set, and they may disagree. ITK's NiftiImageIO picks one
-// (itkNiftiImageIO.cxx, SetImageIOOrientationFromNIfTI, ITK 5.1 and later, so the ITK 5.2 we
-// build with and the ITK inside 3D Slicer 5): the sform when its columns are a rotation times a
+// (itkNiftiImageIO.cxx, SetImageIOOrientationFromNIfTI: the ITK 5.2 we build with, measured by
+// test_volume_io, and the newer ITK inside 3D Slicer 5): the sform when its columns are a rotation times a
 // scaling and either the qform code is 0 or the sform code is 1 (scanner anatomy) or the two
 // agree within 1e-4; otherwise the qform. heartprep keeps ITK's choice, so a label map lands where
 // 3D Slicer shows it, and says so when the two disagree: a file that two tools read differently
