@@ -54,6 +54,7 @@
 #include <fstream>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <optional>
 #include <regex>
 #include <sstream>
@@ -143,6 +144,8 @@ struct NiftiFields {
     double vox_offset = 0;
     /// quatern_b, c, d, qoffset_x, y, z, then srow_x, srow_y, srow_z (4 each): the orientation.
     std::array<double, 18> orientation{};
+    int qform_code = 0;  ///< 0 unknown, 1 scanner, 2 aligned, 3 Talairach, 4 MNI 152, 5 other template
+    int sform_code = 0;
 };
 
 /// The names of NiftiFields::orientation's entries, for messages.
@@ -185,6 +188,8 @@ NiftiFields read_nifti_fields(const fs::path& path) {
         for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<float>(&header[76 + 4 * d], swap);
         fields.vox_offset = read_value<float>(&header[108], swap);
         for (std::size_t i = 0; i < 18; ++i) fields.orientation[i] = read_value<float>(&header[256 + 4 * i], swap);
+        fields.qform_code = read_value<std::int16_t>(&header[252], swap);
+        fields.sform_code = read_value<std::int16_t>(&header[254], swap);
     } else if (sizeof_hdr == 540 || swapped == 540) {
         if (got < 540)
             throw InputError(path.string() + ": NIfTI-2 header truncated: expected 540 bytes, file holds " +
@@ -197,6 +202,8 @@ NiftiFields read_nifti_fields(const fs::path& path) {
         for (int d = 0; d < 8; ++d) fields.pixdim[d] = read_value<double>(&header[104 + 8 * d], swap);
         fields.vox_offset = double(read_value<std::int64_t>(&header[168], swap));
         for (std::size_t i = 0; i < 18; ++i) fields.orientation[i] = read_value<double>(&header[352 + 8 * i], swap);
+        fields.qform_code = read_value<std::int32_t>(&header[344], swap);
+        fields.sform_code = read_value<std::int32_t>(&header[348], swap);
     } else {
         throw InputError(path.string() + ": not a NIfTI file: sizeof_hdr is " + std::to_string(sizeof_hdr) +
                          "; expected 348 (NIfTI-1) or 540 (NIfTI-2)");
@@ -744,6 +751,156 @@ void check_geometry(const fs::path& path, const Probe& probe) {
                          "); expected independent axes");
 }
 
+// ---------------------------------------------------------------------------------------------
+// NIfTI qform and sform: both may be set, and they may disagree. ITK's NiftiImageIO picks one
+// (itkNiftiImageIO.cxx, SetImageIOOrientationFromNIfTI: the ITK 5.2 we build with, measured by
+// test_volume_io, and the newer ITK inside 3D Slicer 5): the sform when its columns are a rotation times a
+// scaling and either the qform code is 0 or the sform code is 1 (scanner anatomy) or the two
+// agree within 1e-4; otherwise the qform. heartprep keeps ITK's choice, so a label map lands where
+// 3D Slicer shows it, and says so when the two disagree: a file that two tools read differently
+// (nibabel takes the sform whenever its code is set) is worth a look.
+
+/// Where a NIfTI transform puts the grid, as ITK uses it: LPS origin and unit axes (the spacing
+/// comes from pixdim either way).
+struct NiftiPlacement {
+    Eigen::Vector3d origin = Eigen::Vector3d::Zero();               ///< LPS mm
+    Eigen::Matrix3d direction = Eigen::Matrix3d::Identity();        ///< unit columns, LPS
+    bool rotation = true;  ///< the columns, normalised, are orthonormal (within ITK's 1e-4)
+};
+
+const Eigen::Matrix3d& ras_to_lps() {
+    static const Eigen::Matrix3d flip = Eigen::Vector3d(-1.0, -1.0, 1.0).asDiagonal();
+    return flip;
+}
+
+/// Normalises the columns of `axes` and says whether they are orthonormal within `tolerance`.
+bool normalise_columns(Eigen::Matrix3d& axes, double tolerance) {
+    for (int column = 0; column < 3; ++column) {
+        const double length = axes.col(column).norm();
+        if (!(length > 0.0)) return false;
+        axes.col(column) /= length;
+    }
+    return (axes * axes.transpose()).isIdentity(tolerance);
+}
+
+/// The qform: NIfTI-1's quaternion (nifti1.h, "METHOD 2"), qfac = pixdim[0]'s sign.
+NiftiPlacement qform_placement(const NiftiFields& fields) {
+    double b = fields.orientation[0], c = fields.orientation[1], d = fields.orientation[2];
+    double a = 1.0 - (b * b + c * c + d * d);
+    if (a < 1e-7) {  // niftilib: a 180° rotation; renormalise (b, c, d)
+        a = 1.0 / std::sqrt(b * b + c * c + d * d);
+        b *= a, c *= a, d *= a;
+        a = 0.0;
+    } else {
+        a = std::sqrt(a);
+    }
+    Eigen::Matrix3d rotation;
+    rotation << a * a + b * b - c * c - d * d, 2 * (b * c - a * d), 2 * (b * d + a * c),
+                2 * (b * c + a * d), a * a + c * c - b * b - d * d, 2 * (c * d - a * b),
+                2 * (b * d - a * c), 2 * (c * d + a * b), a * a + d * d - c * c - b * b;
+    if (fields.pixdim[0] < 0) rotation.col(2) *= -1.0;
+    NiftiPlacement placement;
+    placement.rotation = normalise_columns(rotation, 1e-4);
+    placement.direction = ras_to_lps() * rotation;
+    placement.origin = ras_to_lps() * Eigen::Vector3d(fields.orientation[3], fields.orientation[4], fields.orientation[5]);
+    return placement;
+}
+
+/// The sform: rows srow_x, srow_y, srow_z ("METHOD 3"), its columns normalised as ITK does.
+NiftiPlacement sform_placement(const NiftiFields& fields) {
+    Eigen::Matrix3d axes;
+    Eigen::Vector3d offset;
+    for (int row = 0; row < 3; ++row) {
+        for (int column = 0; column < 3; ++column) axes(row, column) = fields.orientation[std::size_t(6 + 4 * row + column)];
+        offset[row] = fields.orientation[std::size_t(6 + 4 * row + 3)];
+    }
+    NiftiPlacement placement;
+    placement.rotation = normalise_columns(axes, 1e-4);
+    placement.direction = ras_to_lps() * axes;
+    placement.origin = ras_to_lps() * offset;
+    return placement;
+}
+
+std::string xform_code_name(int code) {
+    switch (code) {
+    case 1: return "1, scanner anatomy";
+    case 2: return "2, aligned anatomy";
+    case 3: return "3, Talairach";
+    case 4: return "4, MNI 152";
+    case 5: return "5, template";
+    default: return std::to_string(code);
+    }
+}
+
+/// How far apart two placements put the grid: at the first voxel, in orientation, and at worst
+/// over the volume's eight corner voxels.
+struct PlacementDifference {
+    double origin_mm = 0.0;
+    double angle_degrees = 0.0;
+    double largest_mm = 0.0;
+    bool mirrored = false;  ///< one is the other's mirror image (opposite handedness)
+};
+
+PlacementDifference compare_placements(const NiftiPlacement& first, const NiftiPlacement& second, const VolumeGeometry& grid) {
+    PlacementDifference difference;
+    difference.origin_mm = (first.origin - second.origin).norm();
+    const Eigen::Matrix3d relative = first.direction.transpose() * second.direction;
+    difference.mirrored = relative.determinant() < 0.0;
+    difference.angle_degrees = std::acos(std::clamp((relative.trace() - 1.0) / 2.0, -1.0, 1.0)) * 180.0 / std::numbers::pi;
+    for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector3d ijk((corner & 1) ? grid.dims[0] - 1 : 0, (corner & 2) ? grid.dims[1] - 1 : 0,
+                                  (corner & 4) ? grid.dims[2] - 1 : 0);
+        const Eigen::Vector3d step = grid.spacing.cwiseProduct(ijk);
+        const Eigen::Vector3d a = first.origin + first.direction * step, b = second.origin + second.direction * step;
+        difference.largest_mm = std::max(difference.largest_mm, (a - b).norm());
+    }
+    return difference;
+}
+
+std::string fixed(double value, int decimals) {
+    std::ostringstream text;
+    text.setf(std::ios::fixed);
+    text.precision(decimals);
+    text << value;
+    return text.str();
+}
+
+/// Warns (probe.header.warnings) when both codes are set and the qform and sform disagree by
+/// more than 0.01 mm anywhere in the volume or 0.01° in orientation.
+void check_nifti_orientation(const fs::path& path, Probe& probe) {
+    if (!probe.nifti) return;
+    const NiftiFields& fields = *probe.nifti;
+    if (fields.qform_code <= 0 || fields.sform_code <= 0) return;
+    const VolumeGeometry& geometry = probe.header.geometry;
+    const NiftiPlacement qform = qform_placement(fields), sform = sform_placement(fields);
+    const PlacementDifference apart = compare_placements(qform, sform, geometry);
+    if (apart.largest_mm <= 0.01 && apart.angle_degrees <= 0.01 && !apart.mirrored) return;
+
+    // The one ITK used: the one its origin and axes match.
+    auto distance = [&](const NiftiPlacement& placement) {
+        return (placement.origin - geometry.origin).norm() + 100.0 * (placement.direction - geometry.direction).norm();
+    };
+    const bool used_sform = distance(sform) < distance(qform);
+    std::string why;
+    if (used_sform && fields.sform_code == 1)
+        why = "as ITK and 3D Slicer do when the sform's code is 1 (scanner anatomy) and it has no shear";
+    else if (used_sform)
+        why = "as ITK's NIfTI reader chose";
+    else if (!sform.rotation)
+        why = "as ITK and 3D Slicer do when the sform holds shear (its columns are not orthogonal)";
+    else
+        why = "as ITK and 3D Slicer do when the two disagree and the sform's code is not 1 (scanner anatomy); nibabel "
+              "would use the sform";
+    std::string how_far = apart.mirrored ? "one is the mirror image of the other"
+                                         : fixed(apart.angle_degrees, 2) + "° apart in orientation";
+    how_far = fixed(apart.origin_mm, 2) + " mm apart at the first voxel, " + how_far + ", up to " +
+              fixed(apart.largest_mm, 2) + " mm apart across the volume";
+    probe.header.warnings.push_back(path.string() + ": the NIfTI qform (code " + xform_code_name(fields.qform_code) +
+                                    ") and sform (code " + xform_code_name(fields.sform_code) + ") disagree: " + how_far +
+                                    "; heartprep uses the " + (used_sform ? "sform" : "qform") + ", " + why +
+                                    "; check that the label map lies on its image");
+}
+
 /// Multi-layer .seg.nrrd files hold overlapping segments in separate layers: no single label map.
 void check_single_layer(const fs::path& path, const Probe& probe) {
     if (!probe.segmentation_file) return;
@@ -969,6 +1126,7 @@ VolumeHeader read_volume_header(const std::filesystem::path& path) {
     Probe probe = probe_volume(path);
     check_single_layer(path, probe);
     check_geometry(path, probe);
+    check_nifti_orientation(path, probe);
     return probe.header;
 }
 
@@ -978,6 +1136,7 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
     check_single_layer(path, probe);
     check_component_type(path, probe);
     check_geometry(path, probe);
+    check_nifti_orientation(path, probe);
     check_memory(path, probe, options);
     check_data_present(path, probe.location, probe.header.data_bytes, value_count(probe));
     LabelVolume volume = read_voxels(path, probe);

@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <map>
 #include <string>
+#include <vector>
 
 namespace heartsim {
 
@@ -26,6 +27,9 @@ struct VolumeHeader {
     std::uint64_t data_bytes = 0;  ///< bytes of voxel data the header declares
     /// For 3D Slicer .seg.nrrd: label value -> segment name (empty otherwise).
     std::map<int, std::string> segment_names;
+    /// What the reader noticed but read anyway, one line each, naming the file: a NIfTI whose
+    /// qform and sform disagree (which one is used, why, and how far apart they are).
+    std::vector<std::string> warnings;
 };
 
 struct VolumeReadOptions {

@@ -59,7 +59,7 @@ TEST(Heartprep, HelpTeachesEveryCommand) {
     EXPECT_EQ(help.exit_code, 0);
     for (const char* command : {"build", "surface", "inspect", "phantom"}) EXPECT_NE(help.output.find(command), std::string::npos);
     const auto build = heartprep("build --help");
-    for (const char* option : {"--tissue", "--cavity", "--anchor-label", "--anchor-border", "--min-island", "--spacing",
+    for (const char* option : {"--tissue", "--cavity", "--anchor-label", "--labels", "--anchor-border", "--min-island", "--spacing",
                                "--particles", "--occupancy", "--smoothing", "--decimate", "--youngs-modulus"})
         EXPECT_NE(build.output.find(option), std::string::npos) << option;
 }
@@ -344,4 +344,169 @@ TEST(HeartprepErrors, PathsThatCannotBeOpenedAreOneClearLine) {
         EXPECT_NE(run.output.find(message), std::string::npos) << "'" << message << "' not in: " << run.output;
     }
     EXPECT_EQ(listing(dir.path()), before) << "a refused command left files behind";
+}
+
+// -------------------------------------------------------------------------------------------
+// Segment names: 3D Slicer's .seg.nrrd carries them; a label table (--labels) names a NIfTI's.
+
+namespace {
+
+/// A label map with two disjoint blocks on 1 mm voxels: label 1 a 6×6×6 block, label 2 a
+/// 10×8×6 block, both on even voxel indices so a 2 mm lattice covers them with full cells.
+LabelVolume two_blocks() {
+    LabelVolume v;
+    v.geometry.dims = {28, 16, 16};
+    v.labels.assign(v.geometry.voxel_count(), 0);
+    for (int k = 4; k < 10; ++k)
+        for (int j = 4; j < 10; ++j)
+            for (int i = 2; i < 8; ++i) v.labels[v.geometry.linear(i, j, k)] = 1;
+    for (int k = 4; k < 10; ++k)
+        for (int j = 4; j < 12; ++j)
+            for (int i = 14; i < 24; ++i) v.labels[v.geometry.linear(i, j, k)] = 2;
+    return v;
+}
+
+double total_mass(const Scenario& s) {
+    double mass = 0.0;
+    for (float m : s.lattice.particles.mass) mass += m;
+    return mass;
+}
+
+/// Builds `input` with `options` into `output`; returns heartprep's output (the test fails on a
+/// non-zero exit).
+std::string build(const fs::path& input, const fs::path& output, const std::string& options) {
+    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(output) + " --spacing 2 --thin-walls keep " + options);
+    EXPECT_EQ(run.exit_code, 0) << run.output;
+    return run.output;
+}
+
+bool has_warning(const Scenario& s, const std::string& part) {
+    if (!s.build_warnings) return false;
+    return std::any_of(s.build_warnings->begin(), s.build_warnings->end(),
+                       [&](const std::string& w) { return w.find(part) != std::string::npos; });
+}
+
+}  // namespace
+
+TEST(HeartprepNames, TissueByNameBuildsThatSegmentAndNamesTheMaterial) {
+    test::TempDir dir;
+    const fs::path input = dir / "named.seg.nrrd";
+    write_label_volume(input, two_blocks(), {{1, "blood pool"}, {2, "myocardium"}});
+    const std::string by_name = build(input, dir / "by-name.h5", "--tissue MyoCardium");
+    build(input, dir / "by-number.h5", "--tissue 2");
+    const Scenario named = read_scenario(dir / "by-name.h5"), numbered = read_scenario(dir / "by-number.h5");
+    // The same segment: the same particles, and the mass of the 10×8×6 mm³ block at 1.06 g/cm³.
+    EXPECT_EQ(named.lattice.particles.rest_position, numbered.lattice.particles.rest_position);
+    EXPECT_NEAR(total_mass(named), 480.0 * 1.06e-3, 1e-6);
+    EXPECT_EQ(named.source.tissue_labels, std::vector<int>{2});
+    ASSERT_EQ(named.lattice.materials.size(), 1u);
+    EXPECT_EQ(named.lattice.materials[0].label, 2);
+    EXPECT_EQ(named.lattice.materials[0].name, "myocardium");
+    EXPECT_EQ(numbered.lattice.materials[0].name, "myocardium");  // a number finds the name too
+    EXPECT_NE(by_name.find("tissue      label 2 'myocardium': 480 voxels"), std::string::npos) << by_name;
+    EXPECT_FALSE(has_warning(named, "heart muscle")) << "myocardium is heart muscle";
+    const auto inspect = heartprep("inspect " + quoted(dir / "by-name.h5"));
+    EXPECT_NE(inspect.output.find("material    2 myocardium"), std::string::npos) << inspect.output;
+}
+
+TEST(HeartprepNames, BloodPoolAsTissueWarns) {
+    test::TempDir dir;
+    const fs::path input = dir / "named.seg.nrrd";
+    write_label_volume(input, two_blocks(), {{1, "blood pool"}, {2, "myocardium"}});
+    const std::string output = build(input, dir / "pool.h5", "--tissue 'blood pool'");
+    const Scenario pool = read_scenario(dir / "pool.h5");
+    EXPECT_NEAR(total_mass(pool), 216.0 * 1.06e-3, 1e-6);
+    EXPECT_EQ(pool.lattice.materials[0].name, "blood pool");
+    const std::string warning = "tissue label 1 'blood pool' is not heart muscle by its name";
+    EXPECT_TRUE(has_warning(pool, warning));
+    EXPECT_TRUE(has_warning(pool, "the heart muscle is segment 2 'myocardium'"));
+    EXPECT_NE(output.find("heartprep: warning: " + warning), std::string::npos) << output;
+}
+
+TEST(HeartprepNames, DefaultTissuePrefersTheSegmentNamedMyocardiumOverABloodPoolLabelOne) {
+    test::TempDir dir;
+    const fs::path input = dir / "named.seg.nrrd";
+    write_label_volume(input, two_blocks(), {{1, "blood pool"}, {2, "myocardium"}});
+    build(input, dir / "default.h5", "");
+    const Scenario built = read_scenario(dir / "default.h5");
+    EXPECT_EQ(built.source.tissue_labels, std::vector<int>{2});
+    EXPECT_NEAR(total_mass(built), 480.0 * 1.06e-3, 1e-6);
+    EXPECT_TRUE(has_warning(built, "no --tissue given: label 1 'blood pool' is not heart muscle"));
+    // Without names (HVSMR's files), label 1 as always, and no word about names.
+    write_label_volume(dir / "unnamed.nii.gz", two_blocks());
+    build(dir / "unnamed.nii.gz", dir / "unnamed.h5", "");
+    const Scenario unnamed = read_scenario(dir / "unnamed.h5");
+    EXPECT_EQ(unnamed.source.tissue_labels, std::vector<int>{1});
+    EXPECT_EQ(unnamed.lattice.materials[0].name, "myocardium");
+    EXPECT_FALSE(has_warning(unnamed, "--tissue"));
+}
+
+TEST(HeartprepNames, UnknownNameIsAnErrorListingTheSegments) {
+    test::TempDir dir;
+    const fs::path input = dir / "named.seg.nrrd";
+    write_label_volume(input, two_blocks(), {{1, "blood pool"}, {2, "myocardium"}});
+    expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue aorta",
+                   {"named.seg.nrrd", "--tissue 'aorta' names no segment", "segments: 1 'blood pool', 2 'myocardium'"});
+    write_label_volume(dir / "unnamed.nii", two_blocks());
+    expect_refusal(dir, "build " + quoted(dir / "unnamed.nii") + " -o " + quoted(dir / "out.h5") + " --tissue myocardium",
+                   {"unnamed.nii", "names no segments", "--labels"});
+}
+
+TEST(HeartprepNames, LabelTablesNameANiftisLabels) {
+    test::TempDir dir;
+    const fs::path input = dir / "case.nii.gz";
+    write_label_volume(input, two_blocks());
+    build(input, dir / "by-number.h5", "--tissue 2");
+    std::ofstream(dir / "itksnap.txt") << "# ITK-SNAP Label Description File\n"
+                                          "    0     0    0    0        0  0  0    \"Clear Label\"\n"
+                                          "    1   255    0    0        1  1  1    \"Blood pool\"\n"
+                                          "    2     0  255    0        1  1  1    \"LV myocardium\"\n";
+    std::ofstream(dir / "slicer.ctbl") << "# Color table file\n0 Background 0 0 0 0\n1 blood_pool 255 0 0 255\n2 Myocardium 0 255 0 255\n";
+    std::ofstream(dir / "slicer.csv") << "LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n1,blood pool,255,0,0,255\n2,myocardium,0,255,0,255\n";
+    const Scenario reference = read_scenario(dir / "by-number.h5");
+    for (const auto& [table, name] : std::vector<std::pair<std::string, std::string>>{
+             {"itksnap.txt", "'lv myocardium'"}, {"slicer.ctbl", "myocardium"}, {"slicer.csv", "myocardium"}}) {
+        build(input, dir / "named.h5", "--labels " + quoted(dir / table) + " --tissue " + name);
+        const Scenario named = read_scenario(dir / "named.h5");
+        EXPECT_EQ(named.lattice.particles.rest_position, reference.lattice.particles.rest_position) << table;
+        EXPECT_EQ(named.lattice.materials[0].label, 2) << table;
+        EXPECT_NE(named.lattice.materials[0].name.find("yocardium"), std::string::npos) << table;
+    }
+    // The colour table's blood_pool is "blood pool"; the cavity can be named too.
+    build(input, dir / "pool.h5", "--labels " + quoted(dir / "slicer.ctbl") + " --tissue myocardium --cavity 'Blood Pool'");
+    EXPECT_EQ(read_scenario(dir / "pool.h5").source.cavity_labels, std::vector<int>{1});
+    std::ofstream(dir / "bad.txt") << "1 blood_pool 255 0 0 255\nnot a label line\n";
+    expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --labels " + quoted(dir / "bad.txt"),
+                   {"bad.txt", "line 2", "expected"});
+}
+
+// -------------------------------------------------------------------------------------------
+// A NIfTI whose qform and sform disagree: the build says so, on stderr and in /build_warnings.
+
+TEST(HeartprepNifti, DisagreeingQformAndSformWarnThroughTheBuild) {
+    test::TempDir dir;
+    test::HandNifti nifti({16, 16, 16}, 2 /*uint8*/, 8);
+    Eigen::Matrix<float, 3, 4> srow;
+    srow.leftCols<3>() = Eigen::AngleAxisf(25.0f * float(M_PI) / 180.0f, Eigen::Vector3f::UnitZ()).toRotationMatrix();
+    srow.col(3) = Eigen::Vector3f(20.0f, 0.0f, 0.0f);
+    nifti.set_sform(srow);
+    nifti.set_sform_code(2);
+    nifti.set_qform(1, Eigen::Vector3f::Zero(), Eigen::Vector3f::Zero());
+    std::vector<std::uint8_t> voxels(16 * 16 * 16, 0);
+    for (int k = 4; k < 12; ++k)
+        for (int j = 4; j < 12; ++j)
+            for (int i = 4; i < 12; ++i) voxels[std::size_t((k * 16 + j) * 16 + i)] = 1;
+    nifti.append_voxels(voxels);
+    test::write_bytes(dir / "two-transforms.nii", nifti.bytes);
+    const std::string output = build(dir / "two-transforms.nii", dir / "out.h5", "");
+    const Scenario built = read_scenario(dir / "out.h5");
+    EXPECT_TRUE(has_warning(built, "two-transforms.nii: the NIfTI qform (code 1, scanner anatomy) and sform (code 2, aligned anatomy) disagree"));
+    EXPECT_TRUE(has_warning(built, "20.00 mm apart at the first voxel, 25.00° apart"));
+    EXPECT_NE(output.find("heartprep: warning: " + dir.path().string() + "/two-transforms.nii: the NIfTI qform"), std::string::npos)
+        << output;
+    // The qform is the identity: the particles lie on the block's voxels, LPS = (−x, −y, z) of RAS.
+    for (const auto& p : built.lattice.particles.rest_position) {
+        EXPECT_LE(p[0], -3.0f);
+        EXPECT_GE(p[0], -12.0f);
+    }
 }

@@ -1,6 +1,7 @@
 // Tissue selection: islands, anchors and the errors a technician can run into.
 #include "libmodel/errors.h"
 #include "libmodel/phantom.h"
+#include "libmodel/segment_names.h"
 #include "libmodel/select.h"
 
 #include <gtest/gtest.h>
@@ -120,4 +121,78 @@ TEST(Phantom, MyocardiumIsOnePieceAndShapesHaveTheirVolumes) {
     PhantomOptions bad_shell{.shape = PhantomShape::shell};
     bad_shell.inner_radius_mm = 30.0;
     EXPECT_THROW(make_phantom(bad_shell), InputError);
+}
+
+// -------------------------------------------------------------------------------------------
+// Segment names. The names are those of public label sets, whose meaning their papers give:
+// HVSMR 2016 (1 myocardium, 2 blood pool), ACDC 2017 (1 RV cavity, 2 myocardium, 3 LV cavity),
+// MM-WHS 2017 (myocardium of the left ventricle, left ventricle blood cavity, ascending aorta,
+// pulmonary artery), and 3D Slicer's own placeholder names.
+
+TEST(SegmentNames, PublicLabelSetsAreClassifiedByTheirMeaning) {
+    for (const char* muscle : {"myocardium", "Myocardium", "LV myocardium", "myocardium of the left ventricle", "Myo",
+                               "left ventricular wall", "interventricular septum", "heart muscle"})
+        EXPECT_EQ(classify_segment_name(muscle), SegmentKind::heart_muscle) << muscle;
+    for (const char* other : {"blood pool", "Blood_pool", "RV cavity", "LV cavity", "left ventricle blood cavity",
+                              "ascending aorta", "pulmonary artery", "vessel wall", "aortic wall", "Background", "pericardial fat"})
+        EXPECT_EQ(classify_segment_name(other), SegmentKind::not_muscle) << other;
+    for (const char* placeholder : {"Segment_1", "Segment 12", "Label 3", "7", ""})
+        EXPECT_EQ(classify_segment_name(placeholder), SegmentKind::unnamed) << placeholder;
+    for (const char* unclear : {"heart", "left ventricle", "left atrium"})
+        EXPECT_EQ(classify_segment_name(unclear), SegmentKind::unclear) << unclear;
+}
+
+TEST(SegmentNames, NamesResolveCaseInsensitivelyAndNumbersStayLabels) {
+    const SegmentNames acdc = {{1, "RV cavity"}, {2, "Myocardium"}, {3, "LV cavity"}};
+    EXPECT_EQ(resolve_label_choice({"myocardium"}, acdc, "--tissue"), std::vector<int>{2});
+    EXPECT_EQ(resolve_label_choice({" lv CAVITY ", "rv_cavity"}, acdc, "--cavity"), (std::vector<int>{3, 1}));
+    EXPECT_EQ(resolve_label_choice({"3", "Myocardium", "2"}, acdc, "--tissue"), (std::vector<int>{3, 2}));
+    // A number is a label even where a segment bears that number as its name.
+    EXPECT_EQ(resolve_label_choice({"2"}, {{1, "2"}, {2, "myocardium"}}, "--tissue"), std::vector<int>{2});
+    EXPECT_TRUE(resolve_label_choice({}, acdc, "--cavity").empty());
+    try {
+        resolve_label_choice({"aorta"}, acdc, "--tissue");
+        ADD_FAILURE() << "an unknown name must be refused";
+    } catch (const InputError& error) {
+        EXPECT_STREQ(error.what(), "--tissue 'aorta' names no segment; segments: 1 'RV cavity', 2 'Myocardium', 3 'LV cavity'");
+    }
+    EXPECT_THROW(resolve_label_choice({"myocardium"}, {}, "--tissue"), InputError);
+}
+
+TEST(SegmentNames, DefaultTissueIsLabelOneUnlessItsNameSaysBloodAndAnotherSaysMuscle) {
+    std::string note;
+    EXPECT_EQ(default_tissue_labels({}, &note), std::vector<int>{1});  // HVSMR: no names
+    EXPECT_TRUE(note.empty());
+    EXPECT_EQ(default_tissue_labels({{1, "myocardium"}, {2, "blood pool"}}, &note), std::vector<int>{1});
+    EXPECT_TRUE(note.empty());
+    EXPECT_EQ(default_tissue_labels({{1, "RV cavity"}, {2, "Myocardium"}, {3, "LV cavity"}}, &note), std::vector<int>{2});
+    EXPECT_NE(note.find("label 1 'RV cavity' is not heart muscle"), std::string::npos) << note;
+    note.clear();
+    EXPECT_EQ(default_tissue_labels({{1, "Segment_1"}, {2, "LV myocardium"}, {3, "RV myocardium"}}, &note), (std::vector<int>{2, 3}));
+    EXPECT_FALSE(note.empty());
+    note.clear();
+    // Nothing named as muscle: label 1 stays (and tissue_name_warnings speaks).
+    EXPECT_EQ(default_tissue_labels({{1, "blood pool"}, {2, "aorta"}}, &note), std::vector<int>{1});
+    EXPECT_TRUE(note.empty());
+}
+
+TEST(SegmentNames, WarningsNameTheChoiceAndWhereTheMuscleIs) {
+    const SegmentNames hvsmr = {{1, "myocardium"}, {2, "blood pool"}};
+    EXPECT_TRUE(tissue_name_warnings({1}, hvsmr).empty());
+    EXPECT_TRUE(tissue_name_warnings({1}, {}).empty());
+    const auto pool = tissue_name_warnings({2}, hvsmr);
+    ASSERT_EQ(pool.size(), 1u);
+    EXPECT_NE(pool[0].find("tissue label 2 'blood pool' is not heart muscle by its name ('blood')"), std::string::npos) << pool[0];
+    EXPECT_NE(pool[0].find("the heart muscle is segment 1 'myocardium'"), std::string::npos) << pool[0];
+    EXPECT_EQ(tissue_name_warnings({1}, {{1, "heart"}}).size(), 1u);
+    EXPECT_TRUE(tissue_name_warnings({1}, {{1, "Segment_1"}}).empty());
+    EXPECT_EQ(tissue_name_warnings({1}, {{1, "Segment_1"}, {2, "myocardium"}}).size(), 1u);
+}
+
+TEST(SegmentNames, MaterialsAreNamedAfterTheirSegment) {
+    EXPECT_EQ(material_name(2, {{2, " LV myocardium "}}), "LV myocardium");
+    EXPECT_EQ(material_name(1, {}), "myocardium");  // HVSMR's label 1
+    EXPECT_EQ(material_name(3, {}), "label_3");
+    EXPECT_EQ(material_name(1, {{1, "Segment_1"}}), "myocardium");
+    EXPECT_EQ(material_name(1, {{1, "blood pool"}}), "blood pool");
 }

@@ -132,6 +132,17 @@ struct HandNifti {
         for (int row = 0; row < 3; ++row)
             for (int column = 0; column < 4; ++column) put<float>(280 + 16 * row + 4 * column, rows(row, column));
     }
+    /// qform_code `code`: the rotation of quaternion (a, b, c, d) with a = √(1 − b² − c² − d²) ≥ 0,
+    /// qfac pixdim[0], offsets qoffset_x, y, z (RAS mm). Leaves the sform as it is.
+    void set_qform(short code, const Eigen::Vector3f& bcd, const Eigen::Vector3f& offset, float qfac = 1.0f) {
+        put<short>(252, code);
+        put<float>(76, qfac);
+        for (int i = 0; i < 3; ++i) {
+            put<float>(256 + 4 * i, bcd[i]);
+            put<float>(268 + 4 * i, offset[i]);
+        }
+    }
+    void set_sform_code(short code) { put<short>(254, code); }
     template <class T>
     void append_voxels(const std::vector<T>& values) {
         const auto* raw = reinterpret_cast<const unsigned char*>(values.data());

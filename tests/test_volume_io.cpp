@@ -1,6 +1,7 @@
 /// @file test_volume_io.cpp
 /// @brief Label-map I/O: round trips through every format, hand-written files whose geometry we
 /// compute independently, the real HVSMR case against nibabel's numbers, and damaged inputs.
+#include "formats/label_table.h"
 #include "formats/volume_io.h"
 #include "libmodel/errors.h"
 #include "test_support.h"
@@ -175,12 +176,164 @@ TEST(VolumeRead, HandWrittenNiftiSformGivesNiftiWorldInLps) {
 }
 
 // -------------------------------------------------------------------------------------------
+// A NIfTI with both a qform and a sform (qform_code and sform_code set): where they disagree,
+// heartprep keeps ITK's choice and says which, why, and how far apart they are.
+
+struct TwoTransformNifti {
+    Eigen::Matrix<double, 3, 4> qform_ras;  ///< continuous voxel index -> RAS mm, from the quaternion
+    Eigen::Matrix<double, 3, 4> sform_ras;  ///< from srow
+};
+
+/// Writes a 5×4×3 NIfTI whose sform is its qform turned by `degrees` (about an oblique axis
+/// through the first voxel's centre) and then moved by `mm`.
+/// `shear` adds that multiple of the sform's i axis to its j axis.
+TwoTransformNifti write_two_transform_nifti(const fs::path& path, short qform_code, short sform_code, double mm, double degrees,
+                                            double shear = 0.0) {
+    const Eigen::Vector3d spacing(0.8, 0.9, 1.1);
+    const Eigen::Quaterniond qform_rotation(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, -2, 0.5).normalized()));
+    const Eigen::Vector3d qoffset(-30.0, 12.0, 45.0);
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(degrees * M_PI / 180.0, Eigen::Vector3d(0.3, 0.8, -0.5).normalized()).toRotationMatrix();
+    TwoTransformNifti result;
+    result.qform_ras.leftCols<3>() = qform_rotation.toRotationMatrix() * spacing.asDiagonal();
+    result.qform_ras.col(3) = qoffset;
+    result.sform_ras.leftCols<3>() = turn * result.qform_ras.leftCols<3>();
+    result.sform_ras.col(3) = qoffset + mm * Eigen::Vector3d(2, -1, 2) / 3.0;
+    result.sform_ras.col(1) += shear * result.sform_ras.col(0);
+
+    HandNifti nifti({5, 4, 3}, 2 /*uint8*/, 8);
+    for (int axis = 0; axis < 3; ++axis) nifti.set_pixdim(axis, float(spacing[axis]));
+    nifti.set_sform(result.sform_ras.cast<float>());
+    nifti.set_sform_code(sform_code);
+    // NIfTI stores a ≥ 0: (x, y, z) of the quaternion with w ≥ 0.
+    const Eigen::Quaterniond q = qform_rotation.w() < 0 ? Eigen::Quaterniond(-qform_rotation.coeffs()) : qform_rotation;
+    nifti.set_qform(qform_code, Eigen::Vector3f(float(q.x()), float(q.y()), float(q.z())), qoffset.cast<float>());
+    std::vector<std::uint8_t> voxels(60, 1);
+    nifti.append_voxels(voxels);
+    write_bytes(path, nifti.bytes);
+    return result;
+}
+
+/// The largest distance between `volume`'s voxel positions and those of `ras` (a NIfTI affine,
+/// RAS), over the eight corner voxels; LPS = diag(−1, −1, 1)·RAS.
+double distance_from(const LabelVolume& volume, const Eigen::Matrix<double, 3, 4>& ras) {
+    const Eigen::Matrix3d ras_to_lps = Eigen::Vector3d(-1, -1, 1).asDiagonal();
+    double largest = 0.0;
+    for (int corner = 0; corner < 8; ++corner) {
+        const Eigen::Vector3d ijk((corner & 1) ? 4 : 0, (corner & 2) ? 3 : 0, (corner & 4) ? 2 : 0);
+        largest = std::max(largest, (volume.geometry.to_world(ijk) - ras_to_lps * (ras * ijk.homogeneous())).norm());
+    }
+    return largest;
+}
+
+TEST(VolumeRead, NiftiQformAndSformThatAgreeGiveNoWarning) {
+    TempDir folder;
+    const fs::path path = folder / "agree.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 0.0, 0.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_TRUE(header.warnings.empty()) << header.warnings.front();
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-4);
+}
+
+/// sform code 2 (aligned anatomy), 20 mm and 25° from the qform: ITK reads the qform.
+TEST(VolumeRead, NiftiSformOfCodeTwoThatDisagreesLeavesTheQformAndWarns) {
+    TempDir folder;
+    const fs::path path = folder / "disagree.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 2, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+    EXPECT_GT(distance_from(volume, transforms.sform_ras), 19.0);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"disagree", "20.00 mm apart at the first voxel", "25.00° apart", "heartprep uses the qform",
+                             "code 2, aligned anatomy", "nibabel would use the sform"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+    EXPECT_EQ(warning.rfind(path.string(), 0), 0u) << warning;
+    // The header alone says the same.
+    EXPECT_EQ(read_volume_header(path).warnings, header.warnings);
+}
+
+/// sform code 1 (scanner anatomy): ITK prefers the sform, and heartprep says so.
+TEST(VolumeRead, NiftiSformOfCodeOneThatDisagreesIsUsedWithAWarning) {
+    TempDir folder;
+    const fs::path path = folder / "disagree-scanner.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.sform_ras), 1e-3);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"20.00 mm apart at the first voxel", "25.00° apart", "heartprep uses the sform", "code 1, scanner anatomy"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+}
+
+/// A sform with shear is no rotation: ITK keeps the qform even where the sform's code is 1.
+TEST(VolumeRead, NiftiSformWithShearLeavesTheQformAndWarns) {
+    TempDir folder;
+    const fs::path path = folder / "shear.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 1, 0.0, 0.0, 0.3);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+    ASSERT_EQ(header.warnings.size(), 1u);
+    const std::string& warning = header.warnings.front();
+    for (const char* part : {"0.00 mm apart at the first voxel", "heartprep uses the qform", "shear"})
+        EXPECT_NE(warning.find(part), std::string::npos) << "'" << part << "' not in: " << warning;
+}
+
+/// Only one code set: nothing to compare, whatever the other fields hold.
+TEST(VolumeRead, NiftiWithOnlyAQformGivesNoWarning) {
+    TempDir folder;
+    const fs::path path = folder / "qform-only.nii";
+    const TwoTransformNifti transforms = write_two_transform_nifti(path, 1, 0, 20.0, 25.0);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    EXPECT_TRUE(header.warnings.empty());
+    EXPECT_LT(distance_from(volume, transforms.qform_ras), 1e-3);
+}
+
+// -------------------------------------------------------------------------------------------
+// Label tables (--labels): names for a NIfTI's labels.
+
+TEST(LabelTable, ReadsSlicerItkSnapAndCsvLayouts) {
+    TempDir folder;
+    std::ofstream(folder / "slicer.ctbl") << "# Color table file\n0 Background 0 0 0 0\n1 blood_pool 255 0 0 255\n\n2 Myocardium 0 255 0 255\n";
+    std::ofstream(folder / "snap.txt") << "################################################\n"
+                                          "    0     0    0    0        0  0  0    \"Clear Label\"\n"
+                                          "    1   255    0    0        1  1  1    \"blood pool\"\n"
+                                          "    2     0  255    0        1  1  1    \"Myocardium\"\n";
+    std::ofstream(folder / "slicer.csv") << "LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n"
+                                            "2,\"Myocardium\",0,255,0,255\n";
+    const std::map<int, std::string> expected = {{0, "Background"}, {1, "blood pool"}, {2, "Myocardium"}};
+    EXPECT_EQ(read_label_table(folder / "slicer.ctbl"), expected);
+    std::map<int, std::string> snap = expected;
+    snap[0] = "Clear Label";
+    EXPECT_EQ(read_label_table(folder / "snap.txt"), snap);
+    EXPECT_EQ(read_label_table(folder / "slicer.csv"), expected);
+}
+
+TEST(LabelTable, BadTablesAreRefusedNamingFileAndLine) {
+    TempDir folder;
+    std::ofstream(folder / "twice.txt") << "1 myocardium 0 0 0 255\n1 blood_pool 0 0 0 255\n";
+    expect_error<InputError>([&] { read_label_table(folder / "twice.txt"); }, {"twice.txt", "line 2", "label 1 is named twice"});
+    std::ofstream(folder / "empty.txt") << "# nothing here\n";
+    expect_error<InputError>([&] { read_label_table(folder / "empty.txt"); }, {"empty.txt", "names no labels"});
+    std::ofstream(folder / "words.txt") << "myocardium is label one\n";
+    expect_error<InputError>([&] { read_label_table(folder / "words.txt"); }, {"words.txt", "line 1", "expected"});
+    expect_error<InputError>([&] { read_label_table(folder / "absent.txt"); }, {"absent.txt", "not found"});
+}
+
+// -------------------------------------------------------------------------------------------
 // Real data: HVSMR 2016 pat0, numbers measured with nibabel (README beside the file).
 
 TEST(VolumeRead, RealHvsmrCaseMatchesNibabel) {
     const fs::path path = test::real_case("hvsmr16_pat0");
     if (path.empty()) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA << "; skipping";
-    const LabelVolume volume = read_label_volume(path);
+    VolumeHeader header;
+    const LabelVolume volume = read_label_volume(path, {}, &header);
+    // Its qform (code 2) and sform (code 1) are both set and agree (nibabel): nothing to warn of.
+    EXPECT_TRUE(header.warnings.empty()) << header.warnings.front();
     EXPECT_EQ(volume.geometry.dims, (std::array<int, 3>{127, 207, 141}));
     EXPECT_NEAR(volume.geometry.spacing[0], 0.885417, 1e-5);
     EXPECT_NEAR(volume.geometry.spacing[1], 0.885417, 1e-5);

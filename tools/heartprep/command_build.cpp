@@ -19,16 +19,28 @@ namespace heartsim::cli {
 
 namespace {
 
-void add_selection_options(CLI::App& command, SelectionOptions& o) {
-    command.add_option("--tissue", o.tissue_labels, "Labels that become simulated tissue (HVSMR: 1 = myocardium)")
+void add_selection_options(CLI::App& command, LabelChoice& labels, SelectionOptions& o) {
+    command.add_option("--tissue", labels.tissue,
+                       "Labels that become simulated tissue: numbers, or segment names (case-insensitive) from a 3D Slicer "
+                       ".seg.nrrd or --labels (e.g. --tissue myocardium). Default: 1 (HVSMR: 1 = myocardium), unless the "
+                       "segments are named and label 1 is not heart muscle by name: then the segments named as heart muscle")
         ->delimiter(',')
-        ->capture_default_str()
+        ->type_name("L[,L...]")
         ->group("Tissue");
-    command.add_option("--cavity", o.cavity_labels, "Labels of blood-filled cavities (HVSMR: 2 = blood pool), reported")
+    command.add_option("--cavity", labels.cavity, "Labels (numbers or segment names) of blood-filled cavities (HVSMR: 2 = blood pool), reported")
         ->delimiter(',')
+        ->type_name("L[,L...]")
         ->group("Tissue");
-    command.add_option("--anchor-label", o.anchor_labels, "Tissue touching voxels of these labels is anchored (does not move)")
+    command.add_option("--anchor-label", labels.anchor,
+                       "Tissue touching voxels of these labels (numbers or segment names) is anchored (does not move)")
         ->delimiter(',')
+        ->type_name("L[,L...]")
+        ->group("Tissue");
+    command.add_option("--labels", labels.label_table,
+                       "Label names for a volume that carries none (NIfTI, MetaImage, NRRD), or to rename a .seg.nrrd's: a 3D "
+                       "Slicer colour table (VALUE NAME R G B A), an ITK-SNAP label description file (VALUE R G B A VIS MSH "
+                       "\"NAME\") or a CSV (VALUE,NAME,...)")
+        ->type_name("FILE")
         ->group("Tissue");
     command.add_flag("--anchor-border", o.anchor_border,
                      "Anchor tissue where it touches the volume border (vessels cut by the crop)")
@@ -65,7 +77,13 @@ void check_output_path(const std::filesystem::path& output, const std::string& e
 void add_build_command(CLI::App& app) {
     auto* command = app.add_subcommand("build", "All stages: label map -> scenario (surface, particles, springs, time step)");
     command->footer(
-        "\nExample:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5\n"
+        "\nExamples:\n  heartprep build training_axial_crop_pat1-label.nii.gz -o pat1.h5\n"
+        "  heartprep build case.seg.nrrd -o case.h5 --tissue myocardium --cavity \"blood pool\"\n"
+        "  heartprep build case.nii.gz --labels case-labels.txt -o case.h5 --tissue myocardium\n"
+        "Segment names come from a 3D Slicer .seg.nrrd or --labels; a tissue whose name is not heart muscle\n"
+        "(blood pool, cavity, vessel, ...) is built with a warning (docs/user-guide.md, \"Segment names\").\n"
+        "A NIfTI whose qform and sform disagree is read as ITK and 3D Slicer read it, with a warning saying\n"
+        "which one is used and how far apart they are.\n"
         "By default the heart lies on support springs on its posterior surface and its imaged shape is the\n"
         "equilibrium under gravity: it stays where it was imaged (docs/user-guide.md, \"How the heart is held\").\n"
         "By default the lattice spacing is chosen so the model has at most --particles particles.\n"
@@ -77,7 +95,7 @@ void add_build_command(CLI::App& app) {
     auto quiet = std::make_shared<bool>(false);
     command->add_option("input", options->input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
     command->add_option("-o,--output", *output, "Scenario file to write (.h5)")->required();
-    add_selection_options(*command, options->selection);
+    add_selection_options(*command, options->labels, options->selection);
     add_surface_options(*command, options->surface);
     command->add_flag("--no-visual", [options](std::int64_t) { options->visual = false; },
                       "Skip the visual surface (the runtime then draws the simulation surface)")
@@ -215,9 +233,7 @@ void add_build_command(CLI::App& app) {
         options->layout.thicken_walls = *thin_walls == "thicken";
         options->mapping = parse_mapping_method(*mapping);
         material->density = *density * 1e-3;
-        material->label = options->selection.tissue_labels.empty() ? 1 : options->selection.tissue_labels.front();
-        material->name = material->label == 1 ? "myocardium" : "label_" + std::to_string(material->label);
-        options->layout.materials = {*material};
+        options->layout.materials = {*material};  // label and name follow the tissue chosen (build_scenario)
         options->packing.scheme = parse_packing_scheme(*packing);
         options->batch_key = *batch_key;
         // Every parallel loop of the pipeline is oneTBB's: its global limit is the build's.
@@ -247,12 +263,13 @@ void add_surface_command(CLI::App& app) {
                     "carry their true normals. A .glb is in glTF's own frame: metres, +Y superior, +Z anterior.");
     auto input = std::make_shared<std::filesystem::path>();
     auto output = std::make_shared<std::string>();
+    auto labels = std::make_shared<LabelChoice>();
     auto selection = std::make_shared<SelectionOptions>();
     auto surface = std::make_shared<SurfaceOptions>();
     auto quiet = std::make_shared<bool>(false);
     command->add_option("input", *input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
     command->add_option("-o,--output", *output, "Mesh file to write: .stl, .obj, .ply, .glb")->required();
-    add_selection_options(*command, *selection);
+    add_selection_options(*command, *labels, *selection);
     add_surface_options(*command, *surface);
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
     command->callback([=] {
@@ -262,7 +279,7 @@ void add_surface_command(CLI::App& app) {
             throw InputError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
         TerminalProgress progress(*quiet);
         BuildReport report;
-        auto selected = read_and_select(*input, *selection, progress, report);
+        auto selected = read_and_select(*input, *labels, *selection, progress, report);
         TriangleMesh mesh = extract_surface(selected.selection.tissue, *surface, progress, &report.surface);
         const MeshReport check = analyse_mesh(mesh);
         {

@@ -1,5 +1,6 @@
 #include "pipeline.h"
 
+#include "formats/label_table.h"
 #include "formats/mesh_io.h"
 #include "libmodel/errors.h"
 
@@ -33,13 +34,32 @@ void append(std::vector<std::string>& to, const std::vector<std::string>& from) 
 
 }  // namespace
 
-SelectedVolume read_and_select(const std::filesystem::path& input, const SelectionOptions& options, Progress& progress,
-                               BuildReport& report) {
+SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
+                               Progress& progress, BuildReport& report) {
     SelectedVolume result;
+    // The table first: a bad --labels file is reported before a long read.
+    const SegmentNames table = labels.label_table.empty() ? SegmentNames{} : read_label_table(labels.label_table);
     result.volume = timed(report, "read", [&] {
         ProgressStage stage(progress, "read volume", 0);
         return read_label_volume(input, {}, &report.header);
     });
+    append(report.warnings, report.header.warnings);
+    report.segment_names = report.header.segment_names;
+    for (const auto& [label, name] : table) report.segment_names[label] = name;
+    try {
+        if (labels.tissue.empty()) {
+            std::string note;
+            options.tissue_labels = default_tissue_labels(report.segment_names, &note);
+            if (!note.empty()) report.warnings.push_back(note);
+        } else {
+            options.tissue_labels = resolve_label_choice(labels.tissue, report.segment_names, "--tissue");
+        }
+        options.cavity_labels = resolve_label_choice(labels.cavity, report.segment_names, "--cavity");
+        options.anchor_labels = resolve_label_choice(labels.anchor, report.segment_names, "--anchor-label");
+    } catch (const InputError& error) {
+        throw InputError(input.string() + ": " + error.what());
+    }
+    append(report.warnings, tissue_name_warnings(options.tissue_labels, report.segment_names));
     result.selection = timed(report, "select", [&] { return select_tissue(result.volume, options, progress, &report.selection); });
     append(report.warnings, report.selection.warnings);
     return result;
@@ -156,15 +176,30 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
     scenario.source.file_name = options.input.filename().string();
     // References, not a structured binding: clang 14 (the sanitize preset) cannot capture those in lambdas.
-    SelectedVolume selected = read_and_select(options.input, options.selection, progress, report);
+    SelectionOptions chosen = options.selection;
+    SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report);
     const LabelVolume& volume = selected.volume;
     const Selection& selection = selected.selection;
     scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
     scenario.source.geometry = volume.geometry;
-    scenario.source.tissue_labels = options.selection.tissue_labels;
-    scenario.source.cavity_labels = options.selection.cavity_labels;
-    scenario.source.anchor_labels = options.selection.anchor_labels;
-    scenario.source.anchor_border = options.selection.anchor_border;
+    scenario.source.tissue_labels = chosen.tissue_labels;
+    scenario.source.cavity_labels = chosen.cavity_labels;
+    scenario.source.anchor_labels = chosen.anchor_labels;
+    scenario.source.anchor_border = chosen.anchor_border;
+    // One material per tissue label, named after its segment (segment_names.h material_name),
+    // with the values given for that label or else the first material's.
+    LayoutOptions layout = options.layout;
+    layout.materials.clear();
+    for (int label : chosen.tissue_labels) {
+        auto given = std::find_if(options.layout.materials.begin(), options.layout.materials.end(),
+                                  [&](const Material& m) { return m.label == label; });
+        Material material = given != options.layout.materials.end() ? *given
+                            : options.layout.materials.empty()      ? Material{}
+                                                                    : options.layout.materials.front();
+        material.label = label;
+        material.name = material_name(label, report.segment_names);
+        layout.materials.push_back(material);
+    }
 
     if (options.visual && options.visual_mesh.empty()) {
         TriangleMesh mesh = timed(report, "surface",
@@ -179,7 +214,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     }
 
     scenario.lattice = timed(report, "layout", [&] {
-        return layout_particles(selection, options.selection.tissue_labels, volume, options.layout, progress, &report.layout);
+        return layout_particles(selection, chosen.tissue_labels, volume, layout, progress, &report.layout);
     });
     append(report.warnings, report.layout.warnings);
     scenario.solver = options.solver;  // gravity, drag, safety; hold_stage and the critical step fill in the rest
@@ -226,7 +261,10 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
                 g.spacing[0], g.spacing[1], g.spacing[2]);
     const auto& s = report.selection;
-    std::printf("tissue      %zu voxels, %.1f mL; cavity %.1f mL; %zu islands, %zu dropped (%zu voxels)\n", s.tissue_voxels,
+    std::string tissue;
+    for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
+    std::printf("tissue      label %s: %zu voxels, %.1f mL; cavity %.1f mL; %zu islands, %zu dropped (%zu voxels)\n", tissue.c_str(),
+                s.tissue_voxels,
                 s.tissue_volume_mm3 / 1000.0, s.cavity_volume_mm3 / 1000.0, s.islands.size(), s.islands_dropped,
                 s.voxels_dropped);
     if (scenario.visual)

@@ -10,6 +10,7 @@
 #include "libmodel/packing.h"
 #include "libmodel/simulation_surface.h"
 #include "libmodel/mesh.h"
+#include "libmodel/segment_names.h"
 #include "libmodel/select.h"
 #include "libmodel/stability.h"
 #include "libmodel/supports.h"
@@ -21,9 +22,21 @@
 
 namespace heartsim::cli {
 
+/// Labels as given on the command line, each a label number or a segment name (case-insensitive),
+/// resolved against the volume's segment names once it is read (read_and_select).
+struct LabelChoice {
+    std::vector<std::string> tissue;   ///< --tissue; empty = default_tissue_labels (label 1 unless names say otherwise)
+    std::vector<std::string> cavity;   ///< --cavity
+    std::vector<std::string> anchor;   ///< --anchor-label
+    /// --labels: a label table (formats/label_table.h) naming the labels of a volume that carries
+    /// no names, or renaming those of a .seg.nrrd; empty = none.
+    std::filesystem::path label_table;
+};
+
 struct BuildOptions {
     std::filesystem::path input;
-    SelectionOptions selection;
+    LabelChoice labels;              ///< resolved into `selection`'s label lists by read_and_select
+    SelectionOptions selection;      ///< the label lists here are replaced by `labels`' resolution
     SurfaceOptions surface;
     bool visual = true;              ///< extract the visual mesh (the marching-cubes surface)
     LayoutOptions layout;
@@ -48,6 +61,7 @@ struct StageTime {
 
 struct BuildReport {
     VolumeHeader header;
+    SegmentNames segment_names;         ///< the volume's segment names, with --labels' table over them
     SelectionReport selection;
     SurfaceReport surface;
     MeshReport mesh;
@@ -64,11 +78,15 @@ struct BuildReport {
 };
 
 /// Reads a label volume and selects tissue: the first stages shared by `build` and `surface`.
+/// Resolves `labels` against the volume's segment names (and --labels' table) into `options`'
+/// tissue, cavity and anchor labels; warns (report.warnings) about the reader's findings and a
+/// tissue whose name is not heart muscle. Throws InputError naming `input` for a name that
+/// names no segment.
 struct SelectedVolume {
     LabelVolume volume;
     Selection selection;
 };
-SelectedVolume read_and_select(const std::filesystem::path& input, const SelectionOptions& options,
+SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
                                Progress& progress, BuildReport& report);
 
 /// Packs the scenario's particles (re-packs a packed one); the simulation surface follows.
