@@ -251,6 +251,7 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"build " + quoted(input) + out + " --gravity 0 nan 0", 2, "--gravity"},
         {"build " + quoted(input) + out + " --tissue 1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
         {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
+        {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
         {"batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "batch") + " -j 0", 2, "--jobs"},
         {"build " + quoted(dir / "missing.nii.gz") + out, 1, "missing.nii.gz: file not found"},     // a missing file

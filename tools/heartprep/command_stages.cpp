@@ -4,10 +4,12 @@
 #include "terminal_progress.h"
 
 #include "formats/mesh_io.h"
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
 
+#include <cctype>
 #include <cstdio>
 #include <memory>
 
@@ -132,6 +134,10 @@ void add_stage_commands(CLI::App& app) {
         command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
         command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .glb")->required();
         command->callback([=] {
+            std::string extension = output->extension().string();
+            for (char& c : extension) c = char(std::tolower(static_cast<unsigned char>(c)));
+            if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
+                throw UsageError(output->string() + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
             const Scenario scenario = read_scenario(*input);
             TriangleMesh mesh;
             if (*what == "simsurface") {
