@@ -77,7 +77,8 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
     return shapes;
 }
 
-/// The combinations of options no mode accepts, refused before anything is read.
+/// The combinations of options no mode accepts (UsageError, exit 2) and output places that cannot
+/// hold a file (OutputError, exit 7), refused before anything is read.
 void check_arguments(const RunArguments& a) {
     if (a.steps > 0 && a.seconds > 0) throw UsageError("give --steps or --seconds, not both");
     if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw UsageError("--seconds: expected a finite number of seconds up to 10^6");
