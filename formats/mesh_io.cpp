@@ -196,7 +196,7 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
 TriangleMesh read_mesh(const std::filesystem::path& path) {
     std::error_code error;
     if (!std::filesystem::is_regular_file(path, error))
-        throw InputError("cannot read mesh '" + path.string() + "': no such file");
+        throw InputError(path.string() + ": cannot read the mesh: no such file");
 
     Assimp::Importer importer;
     // Per-face normals (STL), colours and texture coordinates would keep JoinIdenticalVertices
@@ -211,7 +211,7 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
     const aiScene* scene =
         importer.ReadFile(path.string(), aiProcess_RemoveComponent | aiProcess_Triangulate |
                                              aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
-    if (!scene) throw InputError("cannot read mesh '" + path.string() + "': " + importer.GetErrorString());
+    if (!scene) throw InputError(path.string() + ": cannot read the mesh: " + importer.GetErrorString());
 
     // glTF is metres with +Y up (its specification): back to LPS mm by the inverse of what we write.
     const bool gltf = is_gltf(lower_case_extension(path));
@@ -231,7 +231,7 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
                                       first_vertex + std::int32_t(face.mIndices[2])});
         }
     }
-    if (mesh.triangles.empty()) throw InputError("cannot read mesh '" + path.string() + "': it holds no triangles");
+    if (mesh.triangles.empty()) throw InputError(path.string() + ": cannot read the mesh: it holds no triangles");
     return mesh;
 }
 

@@ -1,5 +1,6 @@
 #include "select.h"
 
+#include "command_errors.h"
 #include "errors.h"
 
 #include <algorithm>
@@ -64,10 +65,10 @@ std::vector<std::int32_t> label_components(const Mask& mask, std::vector<Island>
 Selection select_tissue(const LabelVolume& volume, const SelectionOptions& options, Progress& progress,
                         SelectionReport* report_out) {
     const auto& g = volume.geometry;
-    if (options.tissue_labels.empty()) throw InputError("no tissue labels given (--tissue)");
+    if (options.tissue_labels.empty()) throw UsageError("no tissue labels given (--tissue)");
     for (int label : options.tissue_labels)
         if (std::find(options.cavity_labels.begin(), options.cavity_labels.end(), label) != options.cavity_labels.end())
-            throw InputError("label " + std::to_string(label) + " is given both as tissue and as cavity");
+            throw UsageError("label " + std::to_string(label) + " is given both as tissue and as cavity");
 
     ProgressStage stage(progress, "select tissue", 3);
     // Roles per label through a lookup table for the usual label range (label maps are 8- or

@@ -4,7 +4,9 @@
 #include "runtime/haptics/haptics.h"
 #include "runtime/run_modes.h"
 
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
+#include "libmodel/exit_codes.h"
 
 #include <CLI/CLI.hpp>
 
@@ -48,14 +50,14 @@ int main(int argc, char** argv) {
     auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
     RunArguments a;
     auto* run = app.add_subcommand("run", "Simulate a scenario");
-    run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required()->check(CLI::ExistingFile);
+    run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
     run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference)")->check(CLI::IsMember({"gl", "cpu"}));
     run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms)")->check(CLI::NonNegativeNumber);
     run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(CLI::NonNegativeNumber);
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
-    run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)")->check(CLI::ExistingFile);
+    run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
     run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5)");
     run->add_option("--gravity", a.gravity,
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
@@ -101,8 +103,7 @@ int main(int argc, char** argv) {
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
     run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5, written at the end; meanwhile "
                                          "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`)");
-    run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces")
-        ->check(CLI::ExistingFile);
+    run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces");
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
         ->check(CLI::NonNegativeNumber);
@@ -118,38 +119,46 @@ int main(int argc, char** argv) {
     const std::string first = argc >= 2 ? argv[1] : "";
     if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version")
         arguments.insert(arguments.begin() + 1, run_word);
+    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + exit_status_help);
+    app.footer(exit_status_help);
+    // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in
+    // libmodel/exit_codes.h (docs/user-guide.md, "Exit status").
+    auto fail = [](ExitCode code, const std::string& message) {
+        std::fprintf(stderr, "heartsim: error: %s\n", one_line(message).c_str());
+        return exit_status(code);
+    };
     try {
         app.parse(int(arguments.size()), arguments.data());
     } catch (const CLI::ParseError& e) {
         if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
-        // A bad command line is bad input (exit 2, docs/runtime.md), in one line like every other
-        // error, rather than CLI11's own exit code and two lines.
-        std::fprintf(stderr, "heartsim: %s (heartsim run --help lists the options)\n", e.what());
-        return 2;
+        // Not CLI11's two lines and its own exit codes (104-114).
+        return fail(ExitCode::usage, std::string(e.what()) + " (heartsim run --help lists the options)");
     }
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;
     a.record_given = run->count("--record") > 0;
     a.contact_given = run->count("--contact") > 0;
+    // The file an error that names none comes from: the scenario run, or the journal recovered.
+    const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : "";
     try {
         if (info->parsed()) return command_info();
         if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
     } catch (const GlUnavailable& e) {
-        std::fprintf(stderr, "heartsim: %s\n", e.what());
-        return 3;
+        return fail(ExitCode::no_opengl, e.what());
     } catch (const haptics::DeviceUnavailable& e) {
-        std::fprintf(stderr, "heartsim: %s\n", e.what());
-        return 4;
+        return fail(ExitCode::haptic_device, e.what());
+    } catch (const UsageError& e) {
+        return fail(ExitCode::usage, e.what());
     } catch (const InputError& e) {
-        std::fprintf(stderr, "heartsim: %s\n", e.what());
-        return 2;
+        return fail(ExitCode::input_error, with_file(file, e).what());
+    } catch (const OutputError& e) {
+        return fail(ExitCode::internal_error, e.what());
     } catch (const std::exception& e) {
         // Out of memory (an allocation, a thread that could not start, HDF5's own allocations):
         // one line saying so, whatever the library's words were.
-        if (is_out_of_memory(e)) std::fprintf(stderr, "heartsim: out of memory while %s\n", activity);
-        else std::fprintf(stderr, "heartsim: %s\n", e.what());
-        return 1;
+        if (is_out_of_memory(e)) return fail(ExitCode::internal_error, std::string("out of memory while ") + activity);
+        return fail(ExitCode::internal_error, e.what());
     }
-    return 0;
+    return exit_status(ExitCode::success);
 }

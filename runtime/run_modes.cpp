@@ -10,7 +10,9 @@
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 #include "formats/state.h"
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
+#include "libmodel/exit_codes.h"
 #include "libmodel/mapping.h"
 #include "libmodel/plausible.h"
 
@@ -52,7 +54,7 @@ std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fall
     char x = 0, extra = 0;
     if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 || h < 16 || w > 16384 ||
         h > 16384)
-        throw InputError("--size '" + text + "': expected WxH pixels, e.g. 1024x768");
+        throw UsageError("--size '" + text + "': expected WxH pixels, e.g. 1024x768");
     return {w, h};
 }
 
@@ -75,34 +77,41 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
     return shapes;
 }
 
-/// The combinations of options no mode accepts, refused before anything is read.
+/// The combinations of options no mode accepts (UsageError, exit 2) and output places that cannot
+/// hold a file (OutputError, exit 7), refused before anything is read.
 void check_arguments(const RunArguments& a) {
-    if (a.steps > 0 && a.seconds > 0) throw InputError("give --steps or --seconds, not both");
-    if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw InputError("--seconds: expected a finite number of seconds up to 10^6");
-    if (!std::isfinite(a.max_force)) throw InputError("--max-force: expected a finite force in N");
-    if (a.max_force > 0) plausible::require(a.max_force, plausible::device_force_n, "the force", "--max-force");
-    if (a.record_given && a.record.empty()) throw InputError("--record: give the file to write, e.g. --record session.h5");
-    if (a.replay_tolerance >= 0 && a.replay.empty()) throw InputError("--replay-tolerance needs --replay");
+    if (a.steps > 0 && a.seconds > 0) throw UsageError("give --steps or --seconds, not both");
+    if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw UsageError("--seconds: expected a finite number of seconds up to 10^6");
+    if (!std::isfinite(a.max_force)) throw UsageError("--max-force: expected a finite force in N");
+    if (a.max_force > 0) {
+        try {
+            plausible::require(a.max_force, plausible::device_force_n, "the force", "--max-force");
+        } catch (const InputError& e) {
+            throw UsageError(e.what());
+        }
+    }
+    if (a.record_given && a.record.empty()) throw UsageError("--record: give the file to write, e.g. --record session.h5");
+    if (a.replay_tolerance >= 0 && a.replay.empty()) throw UsageError("--replay-tolerance needs --replay");
     if (!a.replay.empty() && (a.steps_given || a.seconds > 0))
-        throw InputError("--replay runs the recording's own steps: no --steps or --seconds with it");
-    if (a.screenshot_every > 0 && a.screenshot.empty()) throw InputError("--screenshot-every needs --screenshot OUT.png");
+        throw UsageError("--replay runs the recording's own steps: no --steps or --seconds with it");
+    if (a.screenshot_every > 0 && a.screenshot.empty()) throw UsageError("--screenshot-every needs --screenshot OUT.png");
     const bool haptic_run = !a.devices.empty();
-    if (a.devices.size() > 2) throw InputError("--device: at most two (hand 0, hand 1)");
+    if (a.devices.size() > 2) throw UsageError("--device: at most two (hand 0, hand 1)");
     if (haptic_run && (!a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
-        throw InputError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
+        throw UsageError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
     if (!haptic_run && (!a.instruments.empty() || !a.record.empty()))
-        throw InputError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
+        throw UsageError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
-        throw InputError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
+        throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
-        throw InputError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
+        throw UsageError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
     for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}}) {
         if (path.empty()) continue;
         try {
             check_destination(path);
         } catch (const OutputError& e) {
-            throw InputError(std::string(option) + " " + e.what());
+            throw OutputError(std::string(option) + " " + e.what());
         }
     }
 }
@@ -112,7 +121,7 @@ SolverOptions solver_options(const RunArguments& a, const Scenario& scenario) {
     SolverOptions options = options_from(scenario.solver);
     if (!a.gravity.empty()) {
         const Eigen::Vector3d g(a.gravity[0], a.gravity[1], a.gravity[2]);
-        if (!g.allFinite()) throw InputError("--gravity must be three finite numbers, mm/ms²");
+        if (!g.allFinite()) throw UsageError("--gravity must be three finite numbers, mm/ms²");
         if (g != options.gravity) {
             std::printf("gravity: (%.4g, %.4g, %.4g) mm/ms² instead of the scenario's (%.4g, %.4g, %.4g)%s\n", g.x(), g.y(), g.z(),
                         options.gravity.x(), options.gravity.y(), options.gravity.z(),
@@ -177,6 +186,8 @@ void set_contact(const RunArguments& a, PreparedRun& p) {
     ContactSettings contact;
     contact.mode = parse_contact_mode(a.contact);
     contact.picking_refresh = a.picking_refresh;
+    // Options that contradict each other (exit 2); the backend refuses it too, for its other callers.
+    if (contact.mode != ContactMode::direct && p.kind != BackendKind::gl) throw UsageError("--contact picking|search needs --backend gl");
     if (contact.mode != ContactMode::direct && p.kind == BackendKind::gl)
         std::printf("contact: %s%s, %.2f MiB more device memory\n", to_string(contact.mode),
                     contact.mode == ContactMode::picking ? (" (buffer rendered every " + std::to_string(contact.picking_refresh) +
@@ -189,7 +200,7 @@ void set_contact(const RunArguments& a, PreparedRun& p) {
 /// the keyboard's probe on hand 0.
 void script_instruments(const RunArguments& a, PreparedRun& p) {
     if (!a.trajectory.empty()) {
-        if (!a.probe.empty() || !a.grab.empty()) throw InputError("give --trajectory or --probe/--grab, not both");
+        if (!a.probe.empty() || !a.grab.empty()) throw UsageError("give --trajectory or --probe/--grab, not both");
         p.trajectory = read_trajectory(a.trajectory);
     } else {
         if (!a.probe.empty()) p.trajectory.keyframes.push_back(parse_fixed_instrument(a.probe, InstrumentKind::probe, 0));
@@ -396,12 +407,12 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     if (!a.stats_csv.empty()) write_stats_csv(a, p, run, wall_ms);
     if (!a.save_state.empty()) save_state(a, p, run, forces, positions, haptic);
     if (run.gave_up) {
-        std::fprintf(stderr, "heartsim: the simulation could not recover and stopped: %s\n", run.last_watchdog_message.c_str());
-        return 6;
+        std::fprintf(stderr, "heartsim: error: the simulation could not recover and stopped: %s\n", one_line(run.last_watchdog_message).c_str());
+        return exit_status(ExitCode::unrecoverable);
     }
     if (haptic && haptic->device_faulted()) {
-        std::fprintf(stderr, "heartsim: a haptic device faulted during the session (above); the run's outputs were written\n");
-        return 4;
+        std::fprintf(stderr, "heartsim: error: a haptic device faulted during the session (above); the run's outputs were written\n");
+        return exit_status(ExitCode::haptic_device);
     }
     return 0;
 }
@@ -467,9 +478,9 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
         std::printf("wrote %s\n", a.screenshot.c_str());
     }
     if (r.max_difference_n > tolerance) {
-        std::fprintf(stderr, "heartsim: replay of %s: forces differ from the recording by up to %.3g N (tolerance %.3g N%s)\n",
+        std::fprintf(stderr, "heartsim: error: %s: the replay's forces differ from the recording by up to %.3g N (tolerance %.3g N%s)\n",
                      a.replay.c_str(), r.max_difference_n, tolerance, exact ? ": a cpu recording replayed on cpu must be identical" : "");
-        return 5;
+        return exit_status(ExitCode::replay_mismatch);
     }
     std::printf("replay: the forces %s\n", r.identical == r.compared ? "match the recording bit for bit"
                                                                     : ("match the recording within " + std::to_string(tolerance) + " N").c_str());
@@ -533,7 +544,7 @@ int recover_recording(const std::string& journal, const std::string& output) {
     fs::path target = output;
     if (target.empty()) {
         if (journal.size() <= suffix.size() || journal.compare(journal.size() - suffix.size(), suffix.size(), suffix) != 0)
-            throw InputError(journal + ": not named OUT.h5.journal; give the recording to write with -o OUT.h5");
+            throw UsageError(journal + ": not named OUT.h5.journal; give the recording to write with -o OUT.h5");
         target = journal.substr(0, journal.size() - suffix.size());
     }
     if (journal_in_use(journal))

@@ -3,6 +3,7 @@
 
 #include "formats/csv.h"
 
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 
@@ -104,7 +105,8 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
 
 Trajectory read_trajectory(const std::filesystem::path& path) { return parse_trajectory(read_csv_file(path), path.string()); }
 
-InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) {
+// --probe and --grab are options: a value that is not one is a UsageError (exit 2).
+InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) try {
     const auto fields = csv_fields(text);
     const std::string what = kind == InstrumentKind::probe ? "--probe" : "--grab";
     if (fields.size() != 6 && !(kind == InstrumentKind::grabber && fields.size() == 9))
@@ -120,6 +122,10 @@ InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKin
     for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", what);
     k.grab = kind == InstrumentKind::grabber;
     return k;
+} catch (const UsageError&) {
+    throw;
+} catch (const InputError& e) {
+    throw UsageError(e.what());
 }
 
 void ScriptedHands::apply(Backend& backend, int hand, double t_ms, double t_next_ms) {

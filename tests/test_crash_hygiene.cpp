@@ -395,7 +395,7 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
     ASSERT_TRUE(fs::exists(journal));
     const auto refused = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom) + " --headless --backend cpu --device simulated:" +
                                            quoted(samples / "press_phantom.csv") + " --seconds 1 --record " + quoted(record));
-    EXPECT_EQ(refused.exit_code, 2) << refused.output;
+    EXPECT_EQ(refused.exit_code, 1) << refused.output;
     EXPECT_NE(refused.output.find("rec.h5.journal holds a session that was killed"), std::string::npos) << refused.output;
     EXPECT_NE(refused.output.find("heartsim recover"), std::string::npos) << refused.output;
     EXPECT_EQ(read_text(journal), kept) << "the refused session touched the journal";
@@ -427,14 +427,14 @@ TEST(CrashHygiene, RecoverRefusesWhatIsNotAJournal) {
     test::TempDir dir;
     std::ofstream(dir / "rec.h5.journal") << "not a journal";
     auto run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "rec.h5.journal"));
-    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_EQ(run.exit_code, 1) << run.output;  // input error: the file
     EXPECT_NE(run.output.find("rec.h5.journal: not a heartsim --record journal"), std::string::npos) << run.output;
     EXPECT_FALSE(fs::exists(dir / "rec.h5"));
     run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "other.bin"));
-    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_EQ(run.exit_code, 2) << run.output;  // usage: the command line must say where to write
     EXPECT_NE(run.output.find("not named OUT.h5.journal"), std::string::npos) << run.output;
     run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "absent.h5.journal"));
-    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_EQ(run.exit_code, 1) << run.output;
     EXPECT_NE(run.output.find("absent.h5.journal: file not found"), std::string::npos) << run.output;
 }
 

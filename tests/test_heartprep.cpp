@@ -205,12 +205,110 @@ TEST(HeartprepErrors, VolumeTooLargeForMemory) {
 
 TEST(HeartprepErrors, UnknownOptionsAndMissingArguments) {
     test::TempDir dir;
-    EXPECT_NE(heartprep("build").exit_code, 0);
-    EXPECT_NE(heartprep("frobnicate").exit_code, 0);
+    EXPECT_EQ(heartprep("build").exit_code, 2);
+    EXPECT_EQ(heartprep("frobnicate").exit_code, 2);
     const auto bad = heartprep("build x.nii.gz -o y.h5 --occupancy 2");
-    EXPECT_NE(bad.exit_code, 0);
+    EXPECT_EQ(bad.exit_code, 2);
     EXPECT_NE(bad.output.find("--occupancy"), std::string::npos) << bad.output;
     expect_refusal(dir, "inspect " + quoted(dir / "nothing.h5"), {"nothing.h5", "file not found"});
+}
+
+namespace {
+
+/// heartprep `arguments` with stderr alone (stdout dropped): the exit status and the error text.
+test::CommandResult heartprep_stderr(const std::string& arguments) {
+    return test::run_command("(" + quoted(HEARTPREP_EXE) + " " + arguments + " 2>&1 >/dev/null)");
+}
+
+/// `output` is exactly one line that begins with `prefix`.
+void expect_one_line(const test::CommandResult& run, const std::string& prefix, const std::string& arguments) {
+    EXPECT_EQ(run.output.rfind(prefix, 0), 0u) << arguments << "\n" << run.output;
+    EXPECT_EQ(std::count(run.output.begin(), run.output.end(), '\n'), 1) << arguments << "\n" << run.output;
+}
+
+}  // namespace
+
+TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
+    // docs/user-guide.md, "Exit status": 1 input, 2 usage (CLI11's own 104-114 never leak out),
+    // 7 an output that cannot be written; each with one line "heartprep: error: …".
+    test::TempDir dir;
+    const auto input = write_block(dir, "block.nii.gz");
+    std::ofstream(dir / "file.txt") << "a regular file";
+    std::ofstream(dir / "corrupt.nii.gz") << "not a label map";
+    const std::string out = " -o " + quoted(dir / "out.h5");
+    struct Case {
+        std::string arguments;
+        int exit_code;
+        std::string mentions;
+    };
+    const std::vector<Case> cases = {
+        {"build " + quoted(input) + out + " --frobnicate", 2, "--frobnicate"},                      // unknown option
+        {"frobnicate", 2, "subcommand"},                                                            // unknown subcommand
+        {"build " + quoted(input), 2, "--output"},                                                  // missing argument
+        {"build " + quoted(input) + out + " --occupancy 2", 2, "--occupancy"},                      // out of range
+        {"build " + quoted(input) + out + " --rest-state sideways", 2, "--rest-state"},             // not one of its values
+        {"build " + quoted(input) + out + " --packing diagonal", 2, "--packing"},
+        {"build " + quoted(input) + out + " --gravity 0 nan 0", 2, "--gravity"},
+        {"build " + quoted(input) + out + " --tissue 1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
+        {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
+        {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
+        {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
+        {"batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "batch") + " -j 0", 2, "--jobs"},
+        {"build " + quoted(dir / "missing.nii.gz") + out, 1, "missing.nii.gz: file not found"},     // a missing file
+        {"build " + quoted(dir / "corrupt.nii.gz") + out, 1, "corrupt.nii.gz: "},                   // a corrupt one
+        {"build " + quoted(input) + out + " --visual-mesh " + quoted(dir / "nowhere.stl"), 1, "nowhere.stl: cannot read the mesh"},
+        {"inspect " + quoted(input), 1, "block.nii.gz: "},                                          // not a scenario
+        {"build " + quoted(input) + " -o " + quoted(dir / "file.txt/out.h5"), 7, "file.txt is a file, not a folder"},
+        {"surface " + quoted(input) + " -o " + quoted(dir / "nowhere/heart.stl"), 7, "does not exist"},
+        {"batch " + quoted(input.parent_path()) + " -o " + quoted(dir / "file.txt/batch"), 7, "cannot create the output folder"},
+    };
+    const auto before = listing(dir.path());
+    for (const auto& [arguments, exit_code, mentions] : cases) {
+        const auto run = heartprep_stderr(arguments);
+        EXPECT_EQ(run.exit_code, exit_code) << arguments << "\n" << run.output;
+        expect_one_line(run, "heartprep: error: ", arguments);
+        EXPECT_NE(run.output.find(mentions), std::string::npos) << "'" << mentions << "' not in: " << run.output;
+    }
+    EXPECT_EQ(listing(dir.path()), before) << "a refused command left files behind";
+}
+
+TEST(HeartprepExitStatus, ALibmodelErrorNamesTheInputFileOnce) {
+    // select_tissue (libmodel, which opens no file) says "tissue label 3 does not occur in the
+    // volume (labels present: 0,1)"; the build adds the file it was given, once.
+    test::TempDir dir;
+    const auto input = write_block(dir, "block.nii.gz");  // labels 0 and 1
+    const auto run = heartprep_stderr("build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue 3 -q");
+    EXPECT_EQ(run.exit_code, 1) << run.output;
+    EXPECT_EQ(run.output, "heartprep: error: " + input.string() + ": tissue label 3 does not occur in the volume (labels present: 0,1)\n");
+    // A message that names its file already does not get it twice.
+    std::ofstream(dir / "cut.nii.gz") << "not gzip";
+    const auto cut = heartprep_stderr("build " + quoted(dir / "cut.nii.gz") + " -o " + quoted(dir / "out.h5"));
+    EXPECT_EQ(cut.exit_code, 1) << cut.output;
+    const std::string named = (dir / "cut.nii.gz").string() + ": ";
+    EXPECT_EQ(cut.output.rfind("heartprep: error: " + named, 0), 0u) << cut.output;
+    EXPECT_EQ(cut.output.find(named + named), std::string::npos) << cut.output;
+    EXPECT_FALSE(fs::exists(dir / "out.h5"));
+}
+
+TEST(HeartprepExitStatus, BatchExitsOneForAFailedCaseAndSaysWhenItPassedABadOption) {
+    test::TempDir dir;
+    write_block(dir, "block.nii.gz");
+    // A case whose options the build refuses (exit 2 of the build): the case fails, the summary says
+    // the options were refused, and the batch exits 1.
+    std::ofstream(dir / "cases.csv") << "block.nii.gz,bad,--occupancy 7\n";
+    const auto run = heartprep("batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "out"));
+    EXPECT_EQ(run.exit_code, 1) << run.output;
+    EXPECT_NE(run.output.find("bad: failed: heartprep build refused the options (--occupancy 7"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("--occupancy"), std::string::npos) << run.output;
+    EXPECT_FALSE(fs::exists(dir / "out" / "bad.h5"));
+}
+
+TEST(HeartprepExitStatus, HelpEndsWithTheTable) {
+    for (const char* arguments : {"--help", "build --help", "batch --help"}) {
+        const auto help = heartprep(arguments);
+        EXPECT_EQ(help.exit_code, 0) << arguments;
+        EXPECT_NE(help.output.find("Exit status: 0 success, 1 input error"), std::string::npos) << arguments << "\n" << help.output;
+    }
 }
 
 // -------------------------------------------------------------------------------------------
@@ -276,7 +374,7 @@ INSTANTIATE_TEST_SUITE_P(Hvsmr2016, RealCase,
 
 TEST(HeartprepErrors, AFullDiskFailsCleanlyAndKeepsTheOldFile) {
     // A full disk injected with a file-size limit (the shell ignores SIGXFSZ, so writes fail with
-    // EFBIG as on a full disk): one clear message naming the file, exit 1, not a crash in HDF5's
+    // EFBIG as on a full disk): one clear message naming the file, exit 7, not a crash in HDF5's
     // exit handler (it used to end in a segmentation fault after the message), the scenario
     // already there untouched and no temporary file left.
     test::TempDir dir;
@@ -287,7 +385,7 @@ TEST(HeartprepErrors, AFullDiskFailsCleanlyAndKeepsTheOldFile) {
     const auto run = test::run_command("trap '' XFSZ; ulimit -f 400; " + test::quoted(HEARTPREP_EXE) + " build " +
                                        test::quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " +
                                        test::quoted(dir / "out.h5") + " -q");
-    EXPECT_EQ(run.exit_code, 1) << run.output;
+    EXPECT_EQ(run.exit_code, 7) << run.output;  // an output that could not be written (docs/user-guide.md, "Exit status")
     EXPECT_NE(run.output.find("out.h5: cannot write the file (File too large; disk full?)"), std::string::npos) << run.output;
     std::ifstream kept(dir / "out.h5");
     const std::string content((std::istreambuf_iterator<char>(kept)), std::istreambuf_iterator<char>());
@@ -299,7 +397,7 @@ TEST(HeartprepErrors, AFullDiskFailsCleanlyAndKeepsTheOldFile) {
 
 TEST(HeartprepErrors, OutOfMemoryIsOneLineNamingTheStageAndLeavesNoFile) {
     // Out of memory injected with address-space limits rising from 32 MiB until the build fits:
-    // every limit below that ends with exit 1 and the one line "out of memory while running stage
+    // every limit below that ends with exit 7 and the one line "out of memory while running stage
     // '…'", whether an allocation failed, a worker thread could not start (oneTBB's
     // "pthread_create has failed") or HDF5 could not build the file in memory (it said "cannot
     // create the file in memory"); never a signal or a hang; and no output or temporary file is left.
@@ -316,29 +414,34 @@ TEST(HeartprepErrors, OutOfMemoryIsOneLineNamingTheStageAndLeavesNoFile) {
 TEST(HeartprepErrors, PathsThatCannotBeOpenedAreOneClearLine) {
     // Inputs that exist but cannot be read as files, and outputs whose place cannot hold a file
     // (tests run as root in CI, so permissions would not stop anything: a folder where a file is
-    // expected, a path through a regular file, an output folder that is a file). Each: exit 1, one
-    // line "heartprep: error: …" naming the path and what is wrong, nothing written.
+    // expected, a path through a regular file, an output folder that is a file). Each: one line
+    // "heartprep: error: …" naming the path and what is wrong, nothing written; exit 1 for an input,
+    // 7 for an output (docs/user-guide.md, "Exit status").
     test::TempDir dir;
     std::ofstream(dir / "file.txt") << "a regular file";
     fs::create_directory(dir / "folder.nii.gz");
     fs::create_directory(dir / "folder.h5");
     fs::create_directory(dir / "folder.csv");
     const std::string phantom = quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz");
-    const std::vector<std::pair<std::string, std::string>> cases = {
-        {"build " + quoted(dir / "folder.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "folder.nii.gz: is a folder"},
-        {"build " + quoted(dir / "file.txt/x.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "file.txt/x.nii.gz: file not found"},
-        {"build " + phantom + " -o " + quoted(dir / "file.txt/a.h5") + " -q", "file.txt is a file, not a folder"},
-        {"build " + phantom + " -o " + quoted(dir / "folder.h5") + " -q", "folder.h5: is a folder, expected a file name"},
-        {"phantom --size 8 -o " + quoted(dir / "file.txt/p.nii.gz"), "file.txt is a file, not a folder"},
-        {"phantom --size 8 -o " + quoted(dir / "folder.nii.gz"), "folder.nii.gz: is a folder, expected a file name"},
-        {"inspect " + quoted(dir / "folder.h5"), "folder.h5: not a regular file"},
-        {"batch " + quoted(dir / "file.txt/cases.csv") + " -o " + quoted(dir / "out"), "file.txt/cases.csv: file not found"},
-        {"batch " + quoted(dir / "folder.csv") + " -o " + quoted(dir / "out"), "folder.csv: folder holds no label maps"},
+    struct Case {
+        std::string arguments, message;
+        int exit_code;
+    };
+    const std::vector<Case> cases = {
+        {"build " + quoted(dir / "folder.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "folder.nii.gz: is a folder", 1},
+        {"build " + quoted(dir / "file.txt/x.nii.gz") + " -o " + quoted(dir / "a.h5") + " -q", "file.txt/x.nii.gz: file not found", 1},
+        {"build " + phantom + " -o " + quoted(dir / "file.txt/a.h5") + " -q", "file.txt is a file, not a folder", 7},
+        {"build " + phantom + " -o " + quoted(dir / "folder.h5") + " -q", "folder.h5: is a folder, expected a file name", 7},
+        {"phantom --size 8 -o " + quoted(dir / "file.txt/p.nii.gz"), "file.txt is a file, not a folder", 7},
+        {"phantom --size 8 -o " + quoted(dir / "folder.nii.gz"), "folder.nii.gz: is a folder, expected a file name", 7},
+        {"inspect " + quoted(dir / "folder.h5"), "folder.h5: not a regular file", 1},
+        {"batch " + quoted(dir / "file.txt/cases.csv") + " -o " + quoted(dir / "out"), "file.txt/cases.csv: file not found", 1},
+        {"batch " + quoted(dir / "folder.csv") + " -o " + quoted(dir / "out"), "folder.csv: folder holds no label maps", 1},
     };
     const auto before = listing(dir.path());
-    for (const auto& [arguments, message] : cases) {
+    for (const auto& [arguments, message, exit_code] : cases) {
         const auto run = test::run_command("(" + quoted(HEARTPREP_EXE) + " " + arguments + " 2>&1 >/dev/null)");
-        EXPECT_EQ(run.exit_code, 1) << arguments << "\n" << run.output;
+        EXPECT_EQ(run.exit_code, exit_code) << arguments << "\n" << run.output;
         EXPECT_EQ(run.output.rfind("heartprep: error: ", 0), 0u) << arguments << "\n" << run.output;
         EXPECT_EQ(std::count(run.output.begin(), run.output.end(), '\n'), 1) << arguments << "\n" << run.output;
         EXPECT_NE(run.output.find(message), std::string::npos) << "'" << message << "' not in: " << run.output;

@@ -134,7 +134,7 @@ TEST(HeartprepBatch, ThreeGoodOneBrokenThenResume) {
     const std::string command = "batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "out") +
                                 " -j 2 --options '--particles 2000 --anchor-border'";
     auto first = heartprep(command);
-    EXPECT_NE(first.exit_code, 0) << first.output;
+    EXPECT_EQ(first.exit_code, 1) << first.output;  // a case failed (docs/user-guide.md, "Exit status")
     for (const char* id : {"case_a", "case_b", "case_c"}) {
         EXPECT_TRUE(fs::exists(dir / "out" / (std::string(id) + ".h5"))) << id;
         EXPECT_NE(first.output.find(std::string("| ") + id + " | built |"), std::string::npos) << first.output;
@@ -149,7 +149,7 @@ TEST(HeartprepBatch, ThreeGoodOneBrokenThenResume) {
     EXPECT_GT(read_scenario(dir / "out" / "case_b.h5").lattice.particles.size(), 2000u);
 
     auto second = heartprep(command);
-    EXPECT_NE(second.exit_code, 0);
+    EXPECT_EQ(second.exit_code, 1);
     for (const char* id : {"case_a", "case_b", "case_c"})
         EXPECT_NE(second.output.find(std::string("| ") + id + " | skipped |"), std::string::npos) << second.output;
 
@@ -220,19 +220,19 @@ TEST(HeartprepBatch, ManifestErrors) {
     small_phantom(dir, "a.nii.gz");
     std::ofstream(dir / "duplicate.csv") << "a.nii.gz,same\na.nii.gz,same\n";
     auto run = heartprep("batch " + quoted(dir / "duplicate.csv") + " -o " + quoted(dir / "out"));
-    EXPECT_NE(run.exit_code, 0);
+    EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("duplicate case id 'same' on lines 1 and 2"), std::string::npos) << run.output;
     EXPECT_FALSE(fs::exists(dir / "out"));
 
     std::ofstream(dir / "missing.csv") << "a.nii.gz,good\nnowhere.nii.gz,lost\n";
     run = heartprep("batch " + quoted(dir / "missing.csv") + " -o " + quoted(dir / "out2"));
-    EXPECT_NE(run.exit_code, 0);
+    EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("lost: failed: "), std::string::npos) << run.output;
     EXPECT_NE(run.output.find("nowhere.nii.gz: file not found"), std::string::npos) << run.output;
     EXPECT_TRUE(fs::exists(dir / "out2" / "good.h5"));
 
     run = heartprep("batch " + quoted(dir / "absent.csv") + " -o " + quoted(dir / "out3"));
-    EXPECT_NE(run.exit_code, 0);
+    EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("absent.csv: file not found"), std::string::npos) << run.output;
 }
 

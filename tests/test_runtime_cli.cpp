@@ -132,7 +132,7 @@ TEST(HeartsimCli, ErrorsNameTheCause) {
     scenario.mapping.reset();
     write_scenario(dir / "unpacked.h5", scenario);
     auto run = run_heartsim("run " + quoted(dir / "unpacked.h5") + " --headless --backend cpu --steps 1");
-    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_EQ(run.exit_code, 1) << run.output;
     EXPECT_NE(run.output.find("/packing is missing"), std::string::npos) << run.output;
 
     // Without a display the window mode cannot start: it must say so and point to --headless.
@@ -149,12 +149,12 @@ TEST(HeartsimCli, ErrorsNameTheCause) {
     EXPECT_NE(run.output.find("--probe"), std::string::npos) << run.output;
 }
 
-TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit1) {
+TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit7) {
     // Out of memory injected with address-space limits rising from 32 MiB until the run fits
     // (test_support.h): a scripted run that writes its state, and a haptic session with two
-    // devices that writes its recording. Every limit below that ends with exit 1 and the one line
-    // "heartsim: out of memory while …": not "std::bad_alloc", not oneTBB's or std::thread's
-    // "Resource temporarily unavailable", and not a scenario "damaged" (exit 2) because HDF5 could
+    // devices that writes its recording. Every limit below that ends with exit 7 and the one line
+    // "heartsim: error: out of memory while …": not "std::bad_alloc", not oneTBB's or std::thread's
+    // "Resource temporarily unavailable", and not a scenario "damaged" (exit 1) because HDF5 could
     // not allocate the buffer to read it into. The cpu backend: under such limits Mesa's llvmpipe
     // itself crashes (docs/benchmarks.md, "Fuzzing and injected failures").
     if (test::under_address_sanitizer) GTEST_SKIP() << "address-space limits do not work under AddressSanitizer";
@@ -163,46 +163,51 @@ TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit1) {
     test::expect_clean_out_of_memory(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) +
                                          " --headless --backend cpu --steps 20 --trajectory " +
                                          quoted(samples / "probe_and_grab_phantom.csv") + " --save-state " + quoted(dir / "state.h5"),
-                                     "heartsim: out of memory while ");
+                                     "heartsim: error: out of memory while ");
     test::expect_clean_out_of_memory(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) + " --headless --backend cpu --seconds 0.1" +
                                          " --device scripted:" + quoted(samples / "haptics/grab_phantom.csv") +
                                          " --device simulated:" + quoted(samples / "haptics/press_phantom.csv") +
                                          " --haptic-priority normal --record " + quoted(dir / "session.h5"),
-                                     "heartsim: out of memory while ",
+                                     "heartsim: error: out of memory while ",
                                      // A session that ran out of memory while writing its recording keeps
                                      // its journal for `heartsim recover`, and the next --record to that
                                      // path refuses to replace it: each attempt starts without one.
                                      [&] { fs::remove(dir / "session.h5.journal"); });
 }
 
-TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineAndExit2BeforeTheRun) {
+TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineBeforeTheRun) {
     // Inputs that exist but cannot be read as files (a folder where a file is expected, a path
-    // through a regular file; tests run as root, so permissions would stop nothing) and outputs
-    // whose place cannot hold a file: exit 2 (bad input) with one line naming the path, before any
-    // simulation step (an output used to fail only after the whole run, exit 1; a folder given as a
-    // device file read as "no rows"; a folder given as the scenario was CLI11's exit 105 in two lines).
+    // through a regular file; tests run as root, so permissions would stop nothing): exit 1; outputs
+    // whose place cannot hold a file: exit 7 (docs/user-guide.md, "Exit status"). Each with one line
+    // naming the path, before any simulation step (an output used to fail only after the whole run;
+    // a folder given as a device file read as "no rows"; a folder given as the scenario was CLI11's
+    // exit 105 in two lines).
     test::TempDir dir;
     std::ofstream(dir / "file.txt") << "a regular file";
     fs::create_directory(dir / "folder.h5");
     fs::create_directory(dir / "folder.csv");
     const std::string run = "run " + quoted(phantom()) + " --headless --backend cpu ";
-    const std::vector<std::pair<std::string, std::string>> cases = {
-        {"run " + quoted(dir / "folder.h5") + " --headless --backend cpu", "folder.h5"},
-        {"run " + quoted(dir / "file.txt/x.h5") + " --headless --backend cpu", "file.txt/x.h5"},
-        {run + "--trajectory " + quoted(dir / "folder.csv"), "folder.csv"},
-        {run + "--replay " + quoted(dir / "folder.h5"), "folder.h5"},
-        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file"},
-        {run + "--seconds 0.1 --device simulated:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file"},
-        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.h5"), "folder.h5: not a regular file"},
-        {run + "--steps 5 --save-state " + quoted(dir / "file.txt/state.h5"), "--save-state " + (dir / "file.txt/state.h5").string() + ": " + (dir / "file.txt").string() + " is a file, not a folder"},
-        {run + "--steps 5 --save-state " + quoted(dir / "folder.h5"), "--save-state " + (dir / "folder.h5").string() + ": is a folder, expected a file name"},
-        {run + "--steps 5 --screenshot " + quoted(dir / "file.txt/shot.png"), "--screenshot"},
-        {run + "--steps 5 --stats-csv " + quoted(dir / "file.txt/stats.csv"), "--stats-csv"},
+    struct Case {
+        std::string arguments, message;
+        int exit_code;
     };
-    for (const auto& [arguments, message] : cases) {
+    const std::vector<Case> cases = {
+        {"run " + quoted(dir / "folder.h5") + " --headless --backend cpu", "folder.h5", 1},
+        {"run " + quoted(dir / "file.txt/x.h5") + " --headless --backend cpu", "file.txt/x.h5", 1},
+        {run + "--trajectory " + quoted(dir / "folder.csv"), "folder.csv", 1},
+        {run + "--replay " + quoted(dir / "folder.h5"), "folder.h5", 1},
+        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file", 1},
+        {run + "--seconds 0.1 --device simulated:" + quoted(dir / "folder.csv"), "folder.csv: is a folder; expected a CSV file", 1},
+        {run + "--seconds 0.1 --device scripted:" + quoted(dir / "folder.h5"), "folder.h5: not a regular file", 1},
+        {run + "--steps 5 --save-state " + quoted(dir / "file.txt/state.h5"), "--save-state " + (dir / "file.txt/state.h5").string() + ": " + (dir / "file.txt").string() + " is a file, not a folder", 7},
+        {run + "--steps 5 --save-state " + quoted(dir / "folder.h5"), "--save-state " + (dir / "folder.h5").string() + ": is a folder, expected a file name", 7},
+        {run + "--steps 5 --screenshot " + quoted(dir / "file.txt/shot.png"), "--screenshot", 7},
+        {run + "--steps 5 --stats-csv " + quoted(dir / "file.txt/stats.csv"), "--stats-csv", 7},
+    };
+    for (const auto& [arguments, message, exit_code] : cases) {
         const auto result = test::run_command("(" + quoted(HEARTSIM_EXE) + " " + arguments + " 2>&1 >/dev/null)");
-        EXPECT_EQ(result.exit_code, 2) << arguments << "\n" << result.output;
-        EXPECT_EQ(result.output.rfind("heartsim: ", 0), 0u) << arguments << "\n" << result.output;
+        EXPECT_EQ(result.exit_code, exit_code) << arguments << "\n" << result.output;
+        EXPECT_EQ(result.output.rfind("heartsim: error: ", 0), 0u) << arguments << "\n" << result.output;
         EXPECT_EQ(std::count(result.output.begin(), result.output.end(), '\n'), 1) << arguments << "\n" << result.output;
         EXPECT_NE(result.output.find(message), std::string::npos) << "'" << message << "' not in: " << result.output;
     }
@@ -212,4 +217,41 @@ TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineAndExit2BeforeTheRun) {
     std::size_t entries = 0;
     for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++entries;
     EXPECT_EQ(entries, 3u) << "a refused run left files behind";
+}
+
+TEST(HeartsimCli, ExitStatusFollowsTheTable) {
+    // docs/user-guide.md, "Exit status", the codes of the command line and of the input files (3-6
+    // and 7: HapticsCli, HeartsimCli.ErrorsNameTheCause, …PathsThatCannotBeOpened…); each failure
+    // one line "heartsim: error: …", CLI11's own 104-114 never.
+    test::TempDir dir;
+    std::ofstream(dir / "corrupt.h5") << "not a scenario";
+    const std::string run = "run " + quoted(phantom()) + " --headless --backend cpu ";
+    struct Case {
+        std::string arguments;
+        int exit_code;
+        std::string mentions;
+    };
+    const std::vector<Case> cases = {
+        {run + "--steps 1 --frobnicate", 2, "--frobnicate"},                    // unknown option
+        {"run", 2, "scenario"},                                                 // missing argument
+        {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range
+        {run + "--steps 1 --view sideways", 2, "--view"},                       // not one of its values
+        {run + "--steps 1 --seconds 1", 2, "give --steps or --seconds"},        // contradictory
+        {run + "--steps 1 --size 10x", 2, "--size"},
+        {run + "--steps 1 --contact picking", 2, "--contact picking|search needs --backend gl"},
+        {run + "--steps 1 --probe 1,2,3", 2, "--probe"},
+        {"run " + quoted(dir / "missing.h5") + " --headless --backend cpu --steps 1", 1, "missing.h5: file not found"},
+        {"run " + quoted(dir / "corrupt.h5") + " --headless --backend cpu --steps 1", 1, "corrupt.h5: not an HDF5 file"},
+        {run + "--steps 1 --trajectory " + quoted(dir / "none.csv"), 1, "none.csv: file not found"},
+    };
+    for (const auto& [arguments, exit_code, mentions] : cases) {
+        const auto result = test::run_command("(" + quoted(HEARTSIM_EXE) + " " + arguments + " 2>&1 >/dev/null)");
+        EXPECT_EQ(result.exit_code, exit_code) << arguments << "\n" << result.output;
+        EXPECT_EQ(result.output.rfind("heartsim: error: ", 0), 0u) << arguments << "\n" << result.output;
+        EXPECT_EQ(std::count(result.output.begin(), result.output.end(), '\n'), 1) << arguments << "\n" << result.output;
+        EXPECT_NE(result.output.find(mentions), std::string::npos) << "'" << mentions << "' not in: " << result.output;
+    }
+    const auto help = run_heartsim("run --help");
+    EXPECT_EQ(help.exit_code, 0);
+    EXPECT_NE(help.output.find("Exit status: 0 success, 1 input error"), std::string::npos) << help.output;
 }

@@ -102,8 +102,8 @@ void expect_clean_out_of_memory(const std::string& command, const std::string& o
         if (run.result.exit_code == 0) continue;
         if (run.result.exit_code == 127 && output.find("error while loading shared libraries") != std::string::npos) continue;
         const bool one_line = !output.empty() && output.find('\n') == output.size() - 1;
-        const bool clean = run.result.exit_code == 1 && one_line && output.rfind(out_of_memory_prefix, 0) == 0;
-        EXPECT_TRUE(clean) << "under " << run.limit_mib << " MiB: exit " << run.result.exit_code << ", expected 1 and one line \""
+        const bool clean = run.result.exit_code == 7 && one_line && output.rfind(out_of_memory_prefix, 0) == 0;
+        EXPECT_TRUE(clean) << "under " << run.limit_mib << " MiB: exit " << run.result.exit_code << ", expected 7 and one line \""
                            << out_of_memory_prefix << "…\":\n" << output;
         out_of_memory += clean;
     }

@@ -74,8 +74,8 @@ struct LimitedRun {
 /// (ulimit -v) rising from 32 MiB in 8 MiB steps, each with a 120 s timeout, until a run exits 0
 /// or the limit passes 4 GiB; returns every run. Then checks them: each run either could not
 /// start (the dynamic loader's "error while loading shared libraries", before any of our code),
-/// or exited 1 with exactly one line on stderr that begins with `out_of_memory_prefix` (e.g.
-/// "heartsim: out of memory while "), or was the last and succeeded; and at least one ran out of
+/// or exited 7 (docs/user-guide.md, "Exit status") with exactly one line on stderr that begins with `out_of_memory_prefix` (e.g.
+/// "heartsim: error: out of memory while "), or was the last and succeeded; and at least one ran out of
 /// memory in our code. Failures are reported through GoogleTest with each run's output.
 /// `before_each`, when given, runs (in the test, unlimited) before every attempt: e.g. removing
 /// what a run that failed on purpose keeps for the user (a --record journal).

@@ -9,6 +9,7 @@
 
 #include "formats/csv.h"
 
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 
@@ -48,8 +49,8 @@ void check_record_path(const std::string& record, const std::string& scenario, c
     namespace fs = std::filesystem;
     const fs::path path(record);
     const fs::path folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
-    if (record.back() == '/' || fs::is_directory(path)) throw InputError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
-    if (!fs::is_directory(folder)) throw InputError("--record " + record + ": folder " + folder.string() + " does not exist");
+    if (record.back() == '/' || fs::is_directory(path)) throw UsageError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
+    if (!fs::is_directory(folder)) throw OutputError("--record " + record + ": folder " + folder.string() + " does not exist");
     std::error_code error;
     // A journal there is a session that is recording now, or one that was killed before it could
     // write its recording: never replaced, so nothing of it is lost.
@@ -63,19 +64,19 @@ void check_record_path(const std::string& record, const std::string& scenario, c
                          journal.string() + " to record over it");
     }
     auto same = [&](const std::string& other) { return fs::exists(path) && fs::exists(other) && fs::equivalent(path, other, error); };
-    if (same(scenario)) throw InputError("--record " + record + ": that is the scenario being run; give another file");
+    if (same(scenario)) throw UsageError("--record " + record + ": that is the scenario being run; give another file");
     for (const std::string& device : devices) {
         const auto colon = device.find(':');
         if (colon == std::string::npos) continue;
         std::string file = device.substr(colon + 1);
         if (const auto at = file.rfind('@'); at != std::string::npos && !fs::exists(file)) file = file.substr(0, at);
-        if (same(file)) throw InputError("--record " + record + ": that is the file of --device " + device + "; give another file");
+        if (same(file)) throw UsageError("--record " + record + ": that is the file of --device " + device + "; give another file");
     }
     // Writable? A probe file beside it, removed at once.
     const fs::path probe = folder / (".heartsim-record-check-" + std::to_string(::getpid()));
     {
         std::ofstream out(probe);
-        if (!out) throw InputError("--record " + record + ": cannot write in folder " + folder.string());
+        if (!out) throw OutputError("--record " + record + ": cannot write in folder " + folder.string());
     }
     fs::remove(probe, error);
 }
@@ -109,14 +110,14 @@ DeviceSpec parse_device_spec(const std::string& text) {
     const char* usage = "expected scripted:FILE, simulated:FILE, mouse or openhaptics[:NAME]";
     if (kind == "scripted" || kind == "simulated") {
         spec.kind = kind == "scripted" ? DeviceSpec::Kind::scripted : DeviceSpec::Kind::simulated;
-        if (spec.argument.empty()) throw InputError("--device " + text + ": " + kind + " needs a file (" + usage + ")");
+        if (spec.argument.empty()) throw UsageError("--device " + text + ": " + kind + " needs a file (" + usage + ")");
     } else if (kind == "mouse") {
         spec.kind = DeviceSpec::Kind::mouse;
-        if (!spec.argument.empty()) throw InputError("--device " + text + ": mouse takes no argument");
+        if (!spec.argument.empty()) throw UsageError("--device " + text + ": mouse takes no argument");
     } else if (kind == "openhaptics") {
         spec.kind = DeviceSpec::Kind::openhaptics;
     } else {
-        throw InputError("--device " + text + ": unknown device '" + kind + "'; " + usage);
+        throw UsageError("--device " + text + ": unknown device '" + kind + "'; " + usage);
     }
     return spec;
 }
@@ -212,15 +213,19 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
     const std::string kind = text.substr(0, colon);
     if (kind == "probe") instrument.kind = InstrumentKind::probe;
     else if (kind == "grabber") instrument.kind = InstrumentKind::grabber;
-    else throw InputError("--instrument " + text + ": expected probe or grabber, optionally :AX,AY,AZ (semi-axes, mm)");
+    else throw UsageError("--instrument " + text + ": expected probe or grabber, optionally :AX,AY,AZ (semi-axes, mm)");
     instrument.semi_axes = Eigen::Vector3d::Constant(default_semi_axis_mm);
     if (colon != std::string::npos) {
         double a[3];
         char extra = 0;
         if (std::sscanf(text.c_str() + colon + 1, "%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &extra) != 3 || !(a[0] > 0) || !(a[1] > 0) ||
             !(a[2] > 0) || !std::isfinite(a[0] + a[1] + a[2]))
-            throw InputError("--instrument " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
-        for (double axis : a) plausible::require(axis, plausible::semi_axis_mm, "semi-axis", "--instrument " + text);
+            throw UsageError("--instrument " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
+        try {
+            for (double axis : a) plausible::require(axis, plausible::semi_axis_mm, "semi-axis", "--instrument " + text);
+        } catch (const InputError& e) {
+            throw UsageError(e.what());
+        }
         instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
     }
     return instrument;
@@ -247,9 +252,9 @@ void apply_tool(Backend& backend, int hand, const Instrument& instrument, const 
 HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::string& scenario_name, const HapticRunSettings& settings,
                      const HapticRunContext& context)
     : backend_(backend), settings_(settings) {
-    if (settings.devices.empty() || settings.devices.size() > 2) throw InputError("--device: give one or two devices (hand 0, hand 1)");
+    if (settings.devices.empty() || settings.devices.size() > 2) throw UsageError("--device: give one or two devices (hand 0, hand 1)");
     if (settings.instruments.size() > settings.devices.size())
-        throw InputError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
+        throw UsageError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
     if (!settings.record.empty()) check_record_path(settings.record, scenario_name, settings.devices);
     std::array<DeviceMapping, 2> mappings;
     const double semi_axis = 1.5 * scenario.lattice.spacing;
@@ -266,7 +271,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
             if (const auto at = file.rfind('@'); at != std::string::npos && (lower_extension(file.substr(0, at)) == ".h5" ||
                                                                               lower_extension(file.substr(0, at)) == ".hdf5")) {
                 const std::string which = file.substr(at + 1);
-                if (which != "0" && which != "1") throw InputError("--device " + h.spec.text + ": @HAND must be @0 or @1");
+                if (which != "0" && which != "1") throw UsageError("--device " + h.spec.text + ": @HAND must be @0 or @1");
                 recorded_hand = which[0] - '0';
                 file = file.substr(0, at);
             }
@@ -297,7 +302,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         case DeviceSpec::Kind::mouse: {
             if (context.headless)
                 throw DeviceUnavailable("--device mouse needs the window; run without --headless, or use scripted:FILE / simulated:FILE");
-            if (window_device_) throw InputError("--device mouse: only one hand can follow the mouse");
+            if (window_device_) throw UsageError("--device mouse: only one hand can follow the mouse");
             auto device = std::make_unique<WindowDevice>();
             window_device_ = device.get();
             DevicePose start;
@@ -553,7 +558,7 @@ void HapticRun::poll_device_faults() {
             const std::string fault = touch->fault();
             if (fault.empty()) continue;
             h.fault = fault;
-            std::fprintf(stderr, "heartsim: hand %d (%s): device fault: %s; its force is held at zero\n", i, h.spec.text.c_str(), fault.c_str());
+            std::fprintf(stderr, "heartsim: warning: hand %d (%s): device fault: %s; its force is held at zero\n", i, h.spec.text.c_str(), fault.c_str());
             if (recording_on_) recording_.events.push_back({session_->now_ms(), i, "device_fault"});
         }
     }

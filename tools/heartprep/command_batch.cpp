@@ -11,6 +11,7 @@
 #include "formats/atomic_file.h"
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
+#include "libmodel/exit_codes.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -301,6 +302,11 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
             outcome.message = "stopped by " + signal_name(stop_signal.load()) + " to the batch";
         } else if (status.fork_error) {
             outcome.message = "cannot start " + executable.string() + ": " + std::strerror(status.fork_error);
+        } else if (status.exit_code == exit_status(ExitCode::usage)) {
+            // The build refused its command line: the batch passed it a bad option, from --options or
+            // the case's options in the manifest (the build checks them; the batch does not).
+            outcome.message = "heartprep build refused the options (" + (c.options.empty() ? std::string("none") : c.options) +
+                              "; from --options or the manifest): " + (outcome.message.empty() ? "see " + log.string() : outcome.message);
         } else if (status.signal || status.exit_code != 0) {
             if (outcome.message.empty())
                 outcome.message = status.signal ? "killed by " + signal_name(status.signal) + " (see " + log.string() + ")"

@@ -5,6 +5,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
@@ -68,7 +69,7 @@ void add_surface_options(CLI::App& command, SurfaceOptions& o) {
 }
 
 void check_output_path(const std::filesystem::path& output, const std::string& extension_hint) {
-    if (output.empty()) throw InputError("no output file given (-o " + extension_hint + ")");
+    if (output.empty()) throw UsageError("no output file given (-o " + extension_hint + ")");
     check_destination(output);  // a folder, a path through a file, a missing or read-only folder
 }
 
@@ -102,10 +103,10 @@ void add_build_command(CLI::App& app) {
         ->group("Surface");
     command->add_option("--visual-mesh", options->visual_mesh,
                         "Use this mesh (STL/OBJ/PLY in LPS mm, e.g. from 3D Slicer; glTF in its own metres, +Y up) as the visual mesh instead of marching cubes")
-        ->check(CLI::ExistingFile)
         ->group("Surface");
     auto packing = std::make_shared<std::string>("bricks");
     command->add_option("--packing", *packing, "GPU layout: bricks (Morton-ordered 4³ bricks) or slices (Sørensen & Mosegaard's z-slice texture)")
+        ->check(CLI::IsMember({"bricks", "slices"}))
         ->capture_default_str()
         ->group("Particles");
     command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")
@@ -126,6 +127,7 @@ void add_build_command(CLI::App& app) {
                         "axis the neighbour cell on the side with more tissue also gets one (if it holds at least "
                         "--thicken-fraction), so the wall can bend and the visual mesh has a cell of particles to follow; "
                         "keep: only cells reaching --occupancy")
+        ->check(CLI::IsMember({"thicken", "keep"}))
         ->capture_default_str()
         ->group("Particles");
     command->add_option("--ridge-fraction", options->layout.ridge_fraction,
@@ -144,6 +146,7 @@ void add_build_command(CLI::App& app) {
                         "weighted sum of up to 8 particles, exact under any affine motion; in tangent space only where no "
                         "cell embeds it well and that is less sensitive to particle motion), or tangent (the "
                         "tangent-space mapping of Mosegaard & Sørensen alone, for comparison)")
+        ->check(CLI::IsMember({"auto", "tangent"}))
         ->capture_default_str()
         ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
@@ -164,6 +167,7 @@ void add_build_command(CLI::App& app) {
                         "How the heart is held besides its anchors: posterior (springs on the heart's back, where it lies "
                         "on the posterior mediastinum), boundary (springs on every surface particle: the whole pericardium) "
                         "or none")
+        ->check(CLI::IsMember({"posterior", "boundary", "none"}))
         ->capture_default_str()
         ->group("Holding the heart");
     command->add_option("--support-stiffness", options->supports.stiffness_kpa_per_mm,
@@ -187,6 +191,7 @@ void add_build_command(CLI::App& app) {
     command->add_option("--rest-state", *rest_state,
                         "balanced: the imaged shape is the static equilibrium under gravity (pre-stressed springs: nothing "
                         "sags at t = 0); imaged: unstressed springs at the imaged shape (it sags when the simulation starts)")
+        ->check(CLI::IsMember({"balanced", "imaged"}))
         ->capture_default_str()
         ->group("Holding the heart");
     command->add_option("--drop-free-below", options->free_pieces.drop_below_particles,
@@ -220,16 +225,19 @@ void add_build_command(CLI::App& app) {
 
     command->callback([=] {
         check_output_path(*output, "OUT.h5");
+        // A file given but missing (exit 1, docs/user-guide.md) is refused now, not after the surface is built.
+        if (!options->visual_mesh.empty() && !std::filesystem::is_regular_file(options->visual_mesh))
+            throw InputError(options->visual_mesh.string() + ": cannot read the mesh: no such file");
         if (!gravity->empty()) {
             options->solver.gravity = Eigen::Vector3d((*gravity)[0], (*gravity)[1], (*gravity)[2]);
-            if (!options->solver.gravity.allFinite()) throw InputError("--gravity must be three finite numbers");
+            if (!options->solver.gravity.allFinite()) throw UsageError("--gravity must be three finite numbers");
         }
         options->supports.region = parse_support_region(*support);
         if (*rest_state != "balanced" && *rest_state != "imaged")
-            throw InputError("--rest-state must be balanced or imaged, got '" + *rest_state + "'");
+            throw UsageError("--rest-state must be balanced or imaged, got '" + *rest_state + "'");
         options->balance_rest_state = *rest_state == "balanced";
         if (*thin_walls != "thicken" && *thin_walls != "keep")
-            throw InputError("--thin-walls must be thicken or keep, got '" + *thin_walls + "'");
+            throw UsageError("--thin-walls must be thicken or keep, got '" + *thin_walls + "'");
         options->layout.thicken_walls = *thin_walls == "thicken";
         options->mapping = parse_mapping_method(*mapping);
         material->density = *density * 1e-3;
@@ -276,7 +284,7 @@ void add_surface_command(CLI::App& app) {
         check_output_path(*output, "OUT.stl");
         const auto extension = std::filesystem::path(*output).extension().string();
         if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
-            throw InputError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
+            throw UsageError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
         TerminalProgress progress(*quiet);
         BuildReport report;
         auto selected = read_and_select(*input, *labels, *selection, progress, report);

@@ -2,6 +2,8 @@
 #include "commands.h"
 
 #include "formats/volume_io.h"
+#include "libmodel/command_errors.h"
+#include "libmodel/errors.h"
 #include "libmodel/phantom.h"
 
 #include <CLI/CLI.hpp>
@@ -21,7 +23,7 @@ void add_phantom_command(CLI::App& app) {
     auto output = std::make_shared<std::string>();
     auto shape = std::make_shared<std::string>("heart");
     command->add_option("-o,--output", *output, "Label map to write: .nii.gz, .nii, .nrrd, .mha, .mhd")->required();
-    command->add_option("--shape", *shape, "heart, sphere or shell")->capture_default_str();
+    command->add_option("--shape", *shape, "heart, sphere or shell")->check(CLI::IsMember({"heart", "sphere", "shell"}))->capture_default_str();
     command->add_option("--voxel", o->voxel_mm, "Voxel size, mm")->check(CLI::PositiveNumber)->capture_default_str();
     command->add_option("--size", o->size, "Voxels along the longest axis (overrides --voxel)")->check(CLI::Range(8, 2048));
     command->add_option("--margin", o->margin_mm, "Background around the shape, mm")->check(CLI::NonNegativeNumber)->capture_default_str();
@@ -38,8 +40,13 @@ void add_phantom_command(CLI::App& app) {
     command->add_option("--radius", o->radius_mm, "Sphere radius or shell outer radius, mm")->capture_default_str()->group("Sphere and shell");
     command->add_option("--inner-radius", o->inner_radius_mm, "Shell inner radius, mm")->capture_default_str()->group("Sphere and shell");
     command->callback([=] {
-        o->shape = parse_phantom_shape(*shape);
-        const LabelVolume volume = make_phantom(*o);
+        LabelVolume volume;
+        try {
+            o->shape = parse_phantom_shape(*shape);
+            volume = make_phantom(*o);
+        } catch (const InputError& e) {
+            throw UsageError(e.what());  // the phantom's only input is its options: a wrong one is a usage error
+        }
         write_label_volume(*output, volume);
         std::map<int, std::size_t> counts;
         for (auto label : volume.labels) ++counts[label];

@@ -4,10 +4,12 @@
 #include "terminal_progress.h"
 
 #include "formats/mesh_io.h"
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
 
+#include <cctype>
 #include <cstdio>
 #include <memory>
 
@@ -35,6 +37,7 @@ std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
 std::shared_ptr<std::string> add_mapping_option(CLI::App& command) {
     auto method = std::make_shared<std::string>("auto");
     command.add_option("--mapping", *method, "auto (visual vertices embedded in lattice cells) or tangent (the tangent-space mapping alone)")
+        ->check(CLI::IsMember({"auto", "tangent"}))
         ->capture_default_str();
     return method;
 }
@@ -58,6 +61,7 @@ void add_stage_commands(CLI::App& app) {
         auto files = add_stage_files(*command);
         auto scheme = std::make_shared<std::string>("bricks");
         command->add_option("--packing", *scheme, "bricks (Morton-ordered 4³ bricks) or slices (Sørensen & Mosegaard's z-slice texture)")
+            ->check(CLI::IsMember({"bricks", "slices"}))
             ->capture_default_str();
         auto width = std::make_shared<int>(0);
         command->add_option("--texture-width", *width, "Texture width for bricks, texels (0: power of two ≥ √N)")
@@ -101,7 +105,7 @@ void add_stage_commands(CLI::App& app) {
         command->footer("\nWith --visual-mesh, a mesh made elsewhere (e.g. exported from 3D Slicer, LPS mm) replaces /visual.");
         auto files = add_stage_files(*command);
         auto mesh = std::make_shared<std::filesystem::path>();
-        command->add_option("--visual-mesh", *mesh, "STL/OBJ/PLY/glTF mesh to use as the visual mesh")->check(CLI::ExistingFile);
+        command->add_option("--visual-mesh", *mesh, "STL/OBJ/PLY/glTF mesh to use as the visual mesh");
         auto method = add_mapping_option(*command);
         command->callback([=] {
             TerminalProgress progress(files->quiet);
@@ -130,6 +134,10 @@ void add_stage_commands(CLI::App& app) {
         command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
         command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .glb")->required();
         command->callback([=] {
+            std::string extension = output->extension().string();
+            for (char& c : extension) c = char(std::tolower(static_cast<unsigned char>(c)));
+            if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
+                throw UsageError(output->string() + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
             const Scenario scenario = read_scenario(*input);
             TriangleMesh mesh;
             if (*what == "simsurface") {

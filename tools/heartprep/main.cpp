@@ -2,12 +2,28 @@
 #include "commands.h"
 #include "terminal_progress.h"
 
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
+#include "libmodel/exit_codes.h"
 
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
 #include <string>
+
+namespace {
+
+/// The file the command that ran was given (its positional argument: a label map, a scenario, a
+/// manifest); empty for a command without one.
+std::string command_file(const CLI::App& app) {
+    for (const CLI::App* command : app.get_subcommands())
+        for (const char* name : {"input", "scenario", "file", "manifest"})
+            if (const CLI::Option* option = command->get_option_no_throw(name); option && !option->results().empty())
+                return option->results().front();
+    return "";
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
     CLI::App app{"heartprep: turns a segmented heart MRI (a label map: NIfTI, NRRD or MetaImage) into a heartsim\n"
@@ -29,30 +45,38 @@ int main(int argc, char** argv) {
     heartsim::cli::add_phantom_command(app);
     heartsim::cli::add_stage_commands(app);
     heartsim::cli::add_batch_command(app);
+    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim::exit_status_help);
+    app.footer(heartsim::exit_status_help);
+    using heartsim::ExitCode;
+    using heartsim::exit_status;
+    // Every failure is one line `heartprep: error: FILE: what` and an exit status of the table in
+    // libmodel/exit_codes.h (docs/user-guide.md, "Exit status").
+    auto fail = [](ExitCode code, const std::string& message) {
+        std::fprintf(stderr, "heartprep: error: %s\n", heartsim::one_line(message).c_str());
+        return exit_status(code);
+    };
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& error) {
         if (error.get_exit_code() == 0) return app.exit(error);  // --help, --version
-        // One line like every other error (docs/user-guide.md), not CLI11's two and its exit code.
-        std::fprintf(stderr, "heartprep: error: %s (heartprep --help lists the commands and options)\n", error.what());
-        return 1;
+        // Not CLI11's two lines and its own exit codes (104-114).
+        return fail(ExitCode::usage, std::string(error.what()) + " (heartprep --help lists the commands and options)");
+    } catch (const heartsim::UsageError& error) {
+        return fail(ExitCode::usage, error.what());
     } catch (const heartsim::InputError& error) {
-        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
-        return 1;
+        // libmodel names no file: the one the command was given is the one at fault.
+        return fail(ExitCode::input_error, heartsim::with_file(command_file(app), error).what());
     } catch (const heartsim::OutputError& error) {
-        std::fprintf(stderr, "heartprep: error: %s\n", error.what());
-        return 1;
+        return fail(ExitCode::internal_error, error.what());
     } catch (const std::exception& error) {
         if (heartsim::is_out_of_memory(error)) {
             // Allocations, threads that could not start, HDF5's own allocations (hdf5_io.h): one line
             // naming the stage (from the progress reporting), whatever the library's words were.
             const std::string stage = heartsim::cli::TerminalProgress::last_stage();
-            std::fprintf(stderr, "heartprep: error: out of memory while %s (try a coarser --spacing or a smaller volume)\n",
-                         stage.empty() ? "starting" : ("running stage '" + stage + "'").c_str());
-        } else {
-            std::fprintf(stderr, "heartprep: error: %s\n", error.what());
+            return fail(ExitCode::internal_error, "out of memory while " + (stage.empty() ? std::string("starting") : "running stage '" + stage + "'") +
+                                                      " (try a coarser --spacing or a smaller volume)");
         }
-        return 1;
+        return fail(ExitCode::internal_error, error.what());
     }
-    return 0;
+    return exit_status(ExitCode::success);
 }

@@ -1,0 +1,58 @@
+/// @file command_errors.h
+/// @brief How heartprep and heartsim tell the user what went wrong: UsageError for a command line
+/// that is wrong, and the helpers that make every error one line `PROGRAM: error: FILE: what`
+/// (exit_codes.h has the exit status of each kind).
+#pragma once
+
+#include "libmodel/errors.h"
+
+#include <string>
+
+namespace heartsim {
+
+/// A command line that is wrong: an option value out of its range or set, options that contradict
+/// each other. A kind of InputError (code that refuses bad input catches both), but the programs
+/// exit 2 for it, as for the command lines their parser refuses, and name no file in it.
+class UsageError : public InputError {
+public:
+    using InputError::InputError;
+};
+
+/// Whether `message` already says where it comes from: it begins with `file`, with another file
+/// name ("mesh.stl: …", "case.h5:/lattice/…: …": a first field without spaces that holds a '.' or
+/// a '/'), or with an option ("--device …").
+inline bool names_its_source(const std::string& message, const std::string& file) {
+    if (!file.empty() && message.rfind(file, 0) == 0) return true;
+    if (message.rfind("-", 0) == 0) return true;
+    const auto colon = message.find(':');
+    if (colon == std::string::npos || colon == 0) return false;
+    const std::string first = message.substr(0, colon);
+    return first.find(' ') == std::string::npos && first.find_first_of("./") != std::string::npos;
+}
+
+/// `error` as an error of `file`, "FILE: what", unless its message names its source already
+/// (names_its_source). For the commands: libmodel opens no file, so its errors name none, and the
+/// command knows which file it read the data from. A UsageError is about the command line, not a
+/// file: it is returned as it is.
+inline InputError with_file(const std::string& file, const InputError& error) {
+    if (file.empty() || dynamic_cast<const UsageError*>(&error) || names_its_source(error.what(), file)) return error;
+    return InputError(file + ": " + error.what());
+}
+
+/// `text` on one line, as the programs print an error: each line break (with the indentation
+/// after it) becomes "; ", or a space after a colon; trailing breaks are dropped.
+inline std::string one_line(const std::string& text) {
+    std::string out;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        if (text[i] != '\n' && text[i] != '\r') {
+            out += text[i];
+            continue;
+        }
+        while (i + 1 < text.size() && (text[i + 1] == '\n' || text[i + 1] == '\r' || text[i + 1] == ' ' || text[i + 1] == '\t')) ++i;
+        if (i + 1 >= text.size() || out.empty()) continue;
+        out += out.back() == ':' || out.back() == ';' ? " " : "; ";
+    }
+    return out;
+}
+
+}  // namespace heartsim
