@@ -551,7 +551,7 @@ void read_segment_metadata(Probe& probe) {
 /// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
 /// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
 /// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
-/// name (MetaIO's: the text before '=' or ':') under 255 characters, and NDims from 1 to 4.
+/// name (MetaIO's: the text before '=' or ':') and value under 255 characters, and NDims from 1 to 4.
 void check_metaimage_header_before_itk(const fs::path& path) {
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot open for reading");
@@ -579,6 +579,12 @@ void check_metaimage_header_before_itk(const fs::path& path) {
         if (value.empty())
             throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + ": " + name.substr(0, 40) +
                              " has no value; expected Key = Value lines");
+        // And each string field's value (ObjectType, Name, Comment, …) into 255 bytes in
+        // MetaObject::M_Read (fuzz_volume_mha's next 10-minute run); no field of a volume's header
+        // needs more.
+        if (value.size() >= 255)
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(number) + ": " + name.substr(0, 40) +
+                             " has a value of " + std::to_string(value.size()) + " characters; expected under 255");
         if (name == "NDims") {
             char* end = nullptr;
             const double dims = std::strtod(value.c_str(), &end);

@@ -630,6 +630,14 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
                                                                  "CompressedDataSize = 1000000000000\nDimSize = 2 2 2\n"
                                                                  "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(packed); }, {packed.string(), "CompressedDataSize is '1000000000000'"});
+    // The run after that (2026-11-24): MetaIO strcpy's a string field's value (ObjectType, Name,
+    // Comment, …) into 255 bytes too; a 300-character ObjectType aborted in MetaObject::M_Read.
+    for (const std::string field : {"ObjectType", "Comment", "Name", "AnatomicalOrientation"}) {
+        const fs::path long_value = write_text_file(folder, "value.mha", field + " = " + std::string(300, 'v') + "\n" + header +
+                                                                            "ElementDataFile = LOCAL\n" + std::string(8, '\1'));
+        expect_error<InputError>([&] { read_volume_header(long_value); },
+                                 {long_value.string(), "line 1", field + " has a value of 300 characters"});
+    }
 }
 
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
