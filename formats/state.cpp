@@ -2,6 +2,7 @@
 #include "state.h"
 
 #include "hdf5_io.h"
+#include "xdmf.h"
 
 namespace heartsim {
 
@@ -21,6 +22,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
             w.dataset("visual/positions", state.visual_positions, {state.visual_positions.size(), 3});
         }
     });
+    write_state_xdmf(path, state);
 }
 
 SimulationState read_state(const std::filesystem::path& path) {
