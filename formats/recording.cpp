@@ -103,8 +103,9 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r)
 }
 
 void write_recording(const std::filesystem::path& path, const Recording& recording) {
+    const std::string xdmf = recording_xdmf(path.filename().string(), recording);
     write_recording_data(path, recording);
-    write_recording_xdmf(path, recording);
+    write_xdmf(path, xdmf);
 }
 
 Recording read_recording(const std::filesystem::path& path) {

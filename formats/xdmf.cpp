@@ -9,6 +9,7 @@
 
 #include "libmodel/errors.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <vector>
 #include <sstream>
@@ -106,11 +107,6 @@ std::string number(double value) {
     return text;
 }
 
-void write_text(const std::filesystem::path& h5, const std::string& text) {
-    const auto path = xdmf_beside(h5);
-    write_bytes_atomically(path, text.data(), text.size(), "the XDMF description " + path.string());
-}
-
 }  // namespace
 
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5) {
@@ -166,7 +162,11 @@ std::size_t xdmf_step_stride(std::size_t steps) {
 }
 
 std::string recording_xdmf(const std::string& h5, const Recording& r) {
-    const std::size_t steps = r.steps.size(), stride = xdmf_step_stride(steps);
+    // The columns agree in a recording that write_recording_data accepts; the shortest bounds the
+    // rows read here in case they do not (that writer then refuses the recording).
+    const std::size_t steps = std::min({r.steps.time_ms.size(), r.steps.tool_position_mm.size(), r.steps.force_n.size(),
+                                        r.steps.applied.size(), r.steps.grab.size()}),
+                      stride = xdmf_step_stride(steps);
     std::string grids = "    <Grid Name=\"instruments\" GridType=\"Collection\" CollectionType=\"Temporal\">\n";
     const std::string in = "          ";
     for (std::size_t s = 0; s < steps; s += stride) {
@@ -202,16 +202,21 @@ std::string recording_xdmf(const std::string& h5, const Recording& r) {
                     grids);
 }
 
+void write_xdmf(const std::filesystem::path& h5, const std::string& text) {
+    const auto path = xdmf_beside(h5);
+    write_bytes_atomically(path, text.data(), text.size(), "the XDMF description " + path.string());
+}
+
 void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenario) {
-    write_text(h5, scenario_xdmf(h5.filename().string(), scenario));
+    write_xdmf(h5, scenario_xdmf(h5.filename().string(), scenario));
 }
 
 void write_state_xdmf(const std::filesystem::path& h5, const SimulationState& state) {
-    write_text(h5, state_xdmf(h5.filename().string(), state, h5.parent_path()));
+    write_xdmf(h5, state_xdmf(h5.filename().string(), state, h5.parent_path()));
 }
 
 void write_recording_xdmf(const std::filesystem::path& h5, const Recording& recording) {
-    write_text(h5, recording_xdmf(h5.filename().string(), recording));
+    write_xdmf(h5, recording_xdmf(h5.filename().string(), recording));
 }
 
 }  // namespace heartsim

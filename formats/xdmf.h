@@ -46,8 +46,11 @@ inline constexpr std::size_t xdmf_max_time_steps = 2000;
 /// xdmf_max_time_steps, else every k-th (k = ceil(S / xdmf_max_time_steps)) and the last.
 std::size_t xdmf_step_stride(std::size_t steps);
 
-/// Writes scenario_xdmf / state_xdmf / recording_xdmf of the file at `h5` to xdmf_beside(h5),
-/// atomically. Throws OutputError naming the .xdmf.
+/// Writes `text` to xdmf_beside(h5), atomically. The writers of the .h5 files make the text
+/// before they write the .h5 and write it after, so running out of memory cannot leave an .h5
+/// without its .xdmf. Throws OutputError naming the .xdmf.
+void write_xdmf(const std::filesystem::path& h5, const std::string& text);
+/// write_xdmf of scenario_xdmf / state_xdmf / recording_xdmf of the file at `h5`.
 void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenario);
 void write_state_xdmf(const std::filesystem::path& h5, const SimulationState& state);
 void write_recording_xdmf(const std::filesystem::path& h5, const Recording& recording);
