@@ -41,7 +41,10 @@ constexpr Type f32{"Float", 4}, f64{"Float", 8}, i32{"Int", 4}, u8{"UChar", 1};
 
 std::string dims_text(std::initializer_list<std::size_t> dims) {
     std::string text;
-    for (const std::size_t d : dims) text += (text.empty() ? "" : " ") + std::to_string(d);
+    for (const std::size_t d : dims) {
+        if (!text.empty()) text += ' ';
+        text += std::to_string(d);
+    }
     return text;
 }
 
@@ -59,7 +62,8 @@ std::string inline_values(const std::vector<T>& values, std::initializer_list<st
     for (const T value : values) {
         char number[40];
         std::snprintf(number, sizeof number, "%.17g", double(value));
-        text += (text.empty() ? "" : " ") + std::string(number);
+        if (!text.empty()) text += ' ';
+        text += number;
     }
     return indent + "<DataItem Dimensions=\"" + dims_text(dims) + "\" NumberType=\"" + type.number + "\" Precision=\"" +
            std::to_string(type.precision) + "\" Format=\"XML\">" + text + "</DataItem>\n";
@@ -111,7 +115,9 @@ std::string number(double value) {
 
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5) {
     std::filesystem::path path = h5;
-    return path.replace_extension(".xdmf");
+    path.replace_extension(".xdmf");
+    // An .h5 someone named `x.xdmf` keeps its data: its description is `x.xdmf.xdmf`.
+    return path == h5 ? std::filesystem::path(h5.string() + ".xdmf") : path;
 }
 
 std::string scenario_xdmf(const std::string& h5, const Scenario& s) {
@@ -169,8 +175,11 @@ std::string recording_xdmf(const std::string& h5, const Recording& r) {
                       stride = xdmf_step_stride(steps);
     std::string grids = "    <Grid Name=\"instruments\" GridType=\"Collection\" CollectionType=\"Temporal\">\n";
     const std::string in = "          ";
-    for (std::size_t s = 0; s < steps; s += stride) {
-        const std::size_t step = s + stride >= steps ? steps - 1 : s;  // the last shown step is the last step
+    // Steps 0, k, 2k, … and the last.
+    std::vector<std::size_t> shown;
+    for (std::size_t step = 0; step < steps; step += stride) shown.push_back(step);
+    if (steps > 0 && shown.back() != steps - 1) shown.push_back(steps - 1);
+    for (const std::size_t step : shown) {
         // The step's values are copied into the XML: VTK's Xdmf3 reader reads no HyperSlab of the
         // [S,2,3] datasets (it makes no points of one) and its XDMF 2 reader logs an error for each.
         std::vector<double> position, force;
@@ -193,7 +202,6 @@ std::string recording_xdmf(const std::string& h5, const Recording& r) {
         std::istringstream lines(grid);
         for (std::string line; std::getline(lines, line);) indented += "  " + line + "\n";
         grids += indented;
-        if (step == steps - 1) break;
     }
     grids += "    </Grid>\n";
     return document("heartsim recording " + escaped(h5) + " (" + escaped(r.scenario) +

@@ -18,7 +18,7 @@ struct Scenario;
 struct SimulationState;
 struct Recording;
 
-/// `case.h5` → `case.xdmf` (the same folder, the extension replaced).
+/// `case.h5` → `case.xdmf` (the same folder, the extension replaced; `x.xdmf` → `x.xdmf.xdmf`).
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
 
 /// The scenario file's grids: `detailed_mesh` (/visual, with its normals), `simulation_surface`

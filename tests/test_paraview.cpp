@@ -1,7 +1,8 @@
 // ParaView can open what heartsim writes (issue #14): the .xdmf beside a scenario, a saved state
 // and a recording, and `heartprep export`'s .vtp/.stl/.obj/.ply, each opened by VTK's own readers
-// (tests/vtk_open.py under /usr/bin/python3) and compared with what our readers find in the files.
-// Skips with a message where that Python has no VTK or its VTK no XDMF reader.
+// (tests/vtk_open.py under /usr/bin/python3) and by ParaView's own File > Open (tests/paraview_open.py
+// under pvpython), and compared with what our readers find in the files. Skips with a message
+// where that Python has no VTK or its VTK no XDMF reader; without pvpython that part is left out.
 #include "formats/recording.h"
 #include "formats/scenario.h"
 #include "formats/state.h"
@@ -58,8 +59,12 @@ Opened vtk_open(const std::vector<fs::path>& files) {
         opened.output = "/usr/bin/python3 is absent";
         return opened;
     }
-    std::string command = "cd / && /usr/bin/python3 " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/vtk_open.py");
-    for (const auto& f : files) command += " " + quoted(f);
+    std::string command = "cd / && /usr/bin/python3 ";
+    command += quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/vtk_open.py");
+    for (const auto& f : files) {
+        command += ' ';
+        command += quoted(f);
+    }
     const auto run = test::run_command(command);
     opened.output = run.output;
     if (run.exit_code == 3) {
@@ -78,6 +83,26 @@ Opened vtk_open(const std::vector<fs::path>& files) {
         if (!words.empty()) opened.lines.push_back(words);
     }
     return opened;
+}
+
+/// What ParaView's File > Open shows of `file` (tests/paraview_open.py under pvpython: the reader
+/// ParaView picks by itself, at the first time step, points and cells summed over the blocks);
+/// empty, with a message, where pvpython is absent.
+Words paraview_open(const fs::path& file) {
+    if (test::run_command("command -v pvpython").exit_code != 0) {
+        std::printf("pvpython absent: ParaView's own File > Open not tried on %s\n", file.c_str());
+        return {};
+    }
+    const auto run = test::run_command("cd / && pvpython " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/paraview_open.py") + " " +
+                                       quoted(file) + " 2>&1 | grep '^file=\\|^paraview_open'");
+    Words words;
+    std::istringstream in(run.output);
+    for (std::string word; in >> word;) {
+        const auto equals = word.find('=');
+        if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+    }
+    EXPECT_TRUE(words.count("reader")) << "ParaView did not open " << file << ": " << run.output;
+    return words;
 }
 
 std::size_t count(const Words& w, const std::string& key) { return w.count(key) ? std::stoull(w.at(key)) : std::size_t(-1); }
@@ -141,6 +166,11 @@ TEST(ParaView, ScenarioXdmfOpensInVtkAndStaysWithItsH5WhenBothMove) {
     EXPECT_NE(text.find(">" + phantom().filename().string() + ":/visual/positions<"), std::string::npos) << text;
     EXPECT_EQ(text.find(phantom().parent_path().string()), std::string::npos) << "an absolute path in " << xdmf;
     expect_scenario_grids(xdmf, s);
+    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
+        const std::size_t n = s.lattice.particles.size();
+        EXPECT_EQ(count(pv, "points"), s.visual->positions.size() + 2 * n) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + n) << pv.at("reader");
+    }
     // Moved together elsewhere, under another name for the folder, they still open.
     test::TempDir dir;
     fs::create_directory(dir / "moved");
@@ -179,6 +209,10 @@ TEST(ParaView, StateXdmfShowsTheDeformedParticlesSurfaceAndDetailedMesh) {
         expect_bounds(blocks.at("particles"), state.positions, 1e-3, reader + " particles");
         expect_bounds(blocks.at("detailed_mesh"), state.visual_positions, 1e-3, reader + " detailed_mesh");
     }
+    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
+        EXPECT_EQ(count(pv, "points"), state.visual_positions.size() + 2 * state.positions.size()) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + state.positions.size()) << pv.at("reader");
+    }
 }
 
 TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
@@ -214,20 +248,26 @@ TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
             expect_bounds(tools, std::vector<std::array<double, 3>>(step.begin(), step.end()), 1e-9, reader + " tools");
         }
     }
+    if (const Words pv = paraview_open(dir / "rec.xdmf"); !pv.empty()) {
+        EXPECT_EQ(count(pv, "times"), shown) << pv.at("reader");
+        EXPECT_EQ(count(pv, "points"), 2u) << pv.at("reader");
+    }
 }
 
-TEST(ParaView, RecoveredRecordingGetsItsXdmfUnderTheFinalName) {
-    test::TempDir dir;
+namespace {
+
+/// A recording of `steps` steps, hand 0 moving along x, written by our writer.
+Recording synthetic_recording(int steps) {
     Recording r;
     r.scenario = "phantom.h5";
     r.particles = 10;
     r.dt_ms = 0.1;
     r.substeps = 1;
-    for (int s = 0; s < 5; ++s) {
+    for (int s = 0; s < steps; ++s) {
         r.steps.time_ms.push_back(0.1 * (s + 1));
         r.steps.wall_ms.push_back(s);
         r.steps.tool_time_ms.push_back(s);
-        r.steps.tool_position_mm.push_back({{{1.0 * s, 2, 3}, {4, 5, 6.0 * s}}});
+        r.steps.tool_position_mm.push_back({{{0.01 * s, 2, 3}, {4, 5, 6}}});
         r.steps.tool_orientation.push_back({{{1, 0, 0, 0}, {1, 0, 0, 0}}});
         r.steps.grab.push_back({0, 0});
         r.steps.applied.push_back({1, 0});
@@ -235,13 +275,35 @@ TEST(ParaView, RecoveredRecordingGetsItsXdmfUnderTheFinalName) {
         r.steps.force_step.push_back(s - 1);
         r.steps.diverged.push_back(0);
     }
+    return r;
+}
+
+}  // namespace
+
+TEST(ParaView, RecoveredRecordingGetsItsXdmfUnderTheFinalNameAndLongOnesShowEveryKthStepAndTheLast) {
+    test::TempDir dir;
+    const Recording r = synthetic_recording(5);
     write_recording_data(dir / "plain.h5", r);
     EXPECT_FALSE(fs::exists(dir / "plain.xdmf")) << "write_recording_data writes the HDF5 alone";
     write_recording(dir / "rec.h5", r);
-    const Opened opened = vtk_open({dir / "rec.xdmf"});
+    // Longer than xdmf_max_time_steps, by a count that is not a multiple of the stride.
+    const Recording longer = synthetic_recording(int(2 * xdmf_max_time_steps + 1));
+    write_recording(dir / "long.h5", longer);
+    const Opened opened = vtk_open({dir / "rec.xdmf", dir / "long.xdmf"});
     if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    std::vector<Words> series;
     for (const auto& w : opened.lines)
-        if (!w.count("name") && w.count("reader")) EXPECT_EQ(count(w, "times"), r.steps.size()) << opened.output;
+        if (!w.count("name") && w.count("reader")) series.push_back(w);
+    ASSERT_EQ(series.size() % 2, 0u) << opened.output;
+    for (std::size_t i = 0; i < series.size(); ++i) {
+        const Recording& expected = i < series.size() / 2 ? r : longer;
+        const std::size_t k = (expected.steps.size() + xdmf_max_time_steps - 1) / xdmf_max_time_steps;  // ⌈S / 2000⌉
+        const std::size_t every_kth = (expected.steps.size() - 1) / k + 1;
+        const bool last_extra = (expected.steps.size() - 1) % k != 0;
+        EXPECT_EQ(count(series[i], "times"), every_kth + last_extra) << opened.output;
+        EXPECT_EQ(std::stod(series[i].at("first")), expected.steps.time_ms.front());
+        EXPECT_EQ(std::stod(series[i].at("last")), expected.steps.time_ms.back());
+    }
 }
 
 TEST(ParaView, ExportsOpenInVtkReadersWithTheCountsOfTheScenario) {
@@ -285,6 +347,10 @@ TEST(ParaView, ExportsOpenInVtkReadersWithTheCountsOfTheScenario) {
         expect_bounds(w, used, 1e-3, file);
     }
     EXPECT_EQ(seen, files.size()) << opened.output;
+    if (const Words pv = paraview_open(dir / "visual.vtp"); !pv.empty()) {
+        EXPECT_EQ(count(pv, "points"), visual.positions.size()) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), visual.triangles.size()) << pv.at("reader");
+    }
 }
 
 TEST(ParaView, RealCaseScenarioOpens) {

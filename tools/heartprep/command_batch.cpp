@@ -10,6 +10,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/scenario.h"
+#include "formats/xdmf.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>
@@ -161,6 +162,7 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
     try {
         // Temporaries of builds killed in an earlier run (their process is gone).
         sweep_stale_temporaries(output);
+        sweep_stale_temporaries(xdmf_beside(output));
         if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
         // The format version is in the key: a build of a newer format is not skipped as up to date.
         const std::string key = sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION +
@@ -171,6 +173,8 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
                 // A file from before scenarios kept their build's warnings is built again, so the
                 // summary can report them.
                 if (existing.batch_key == key && existing.build_warnings) {
+                    // A scenario built before .xdmf files were written gets its description.
+                    if (!fs::exists(xdmf_beside(output))) write_scenario_xdmf(output, existing);
                     outcome.status = "skipped";
                     fill_counts(existing, outcome);
                     outcome.warnings = *existing.build_warnings;
@@ -189,6 +193,7 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
         for (auto& word : split_words(c.options)) arguments.push_back(word);
         const ChildStatus status = run_process(arguments, log, slot);
         sweep_stale_temporaries(output);  // what a killed build left beside its output
+        sweep_stale_temporaries(xdmf_beside(output));
         std::vector<std::string> logged_warnings;
         {
             std::ifstream in(log);
