@@ -22,9 +22,10 @@ packages=(
   clang libclang-rt-14-dev llvm
   # window tests (heartsim's GLFW window under a virtual X server)
   xvfb xauth
-  # ParaView opens our files (tests/test_paraview.cpp runs tests/vtk_open.py under /usr/bin/python3):
-  # VTK's Python module with the XDMF readers. python3-vtk9 (VTK 9.1) has no XDMF reader and
-  # conflicts with python3-paraview, whose VTK (9.2) has them and serves the benchmarks too.
+  # ParaView opens our files (tests/test_paraview.cpp runs tests/vtk_open.py under /usr/bin/python3
+  # and tests/paraview_open.py under pvpython): VTK's Python module with the XDMF readers, and
+  # ParaView itself. python3-vtk9 (VTK 9.1) has no XDMF reader and conflicts with python3-paraview
+  # (it is removed), whose VTK (9.2) has them and serves the benchmarks too.
   python3 python3-paraview
 )
 if [ "${1:-}" = "--bench" ]; then
