@@ -1,6 +1,7 @@
 /// @file mesh_io.cpp
 /// @brief Triangle meshes to and from files. STL, OBJ and PLY are written here (a few lines
-/// each: true facet normals, a SPACE=LPS header that Slicer reads); glTF through assimp's
+/// each: true facet normals, a SPACE=LPS header that Slicer reads), and so is VTK's XML PolyData
+/// (.vtp, for ParaView); glTF through assimp's
 /// exporter, in glTF's own frame (metres, +Y up); every format read through assimp.
 #include "mesh_io.h"
 
@@ -117,6 +118,69 @@ void write_ply(std::ostream& out, const TriangleMesh& mesh) {
     }
 }
 
+/// Base64 (RFC 4648, padded), as VTK's XML readers decode a binary DataArray.
+std::string base64(const unsigned char* data, std::size_t size) {
+    static const char* digits = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    std::string text;
+    text.reserve((size + 2) / 3 * 4);
+    for (std::size_t i = 0; i < size; i += 3) {
+        const std::uint32_t a = data[i], b = i + 1 < size ? data[i + 1] : 0, c = i + 2 < size ? data[i + 2] : 0;
+        const std::uint32_t word = (a << 16) | (b << 8) | c;
+        text += digits[(word >> 18) & 63];
+        text += digits[(word >> 12) & 63];
+        text += i + 1 < size ? digits[(word >> 6) & 63] : '=';
+        text += i + 2 < size ? digits[word & 63] : '=';
+    }
+    return text;
+}
+
+/// One binary DataArray of VTK's XML format: its byte count (UInt64) and its bytes, each
+/// base64-encoded on its own, as vtkXMLWriter writes uncompressed inline data.
+template <class T>
+void vtk_array(std::ostream& out, const char* type, const char* name, int components, const std::vector<T>& values) {
+    out << "        <DataArray type=\"" << type << "\"";
+    if (name) out << " Name=\"" << name << "\"";
+    out << " NumberOfComponents=\"" << components << "\" format=\"binary\">\n          ";
+    const std::uint64_t bytes = values.size() * sizeof(T);
+    out << base64(reinterpret_cast<const unsigned char*>(&bytes), sizeof bytes)
+        << base64(reinterpret_cast<const unsigned char*>(values.data()), bytes) << "\n        </DataArray>\n";
+}
+
+/// VTK XML PolyData (.vtp): float32 points (and normals when the mesh has them), triangles as
+/// connectivity and offsets, base64 binary inline (little-endian, UInt64 headers).
+void write_vtp(std::ostream& out, const TriangleMesh& mesh) {
+    const bool normals = !mesh.normals.empty() && mesh.normals.size() == mesh.positions.size();
+    out << "<?xml version=\"1.0\"?>\n<!-- " << header_words << " -->\n"
+        << "<VTKFile type=\"PolyData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <PolyData>\n"
+        << "    <Piece NumberOfPoints=\"" << mesh.positions.size() << "\" NumberOfVerts=\"0\" NumberOfLines=\"0\" NumberOfStrips=\"0\" "
+        << "NumberOfPolys=\"" << mesh.triangles.size() << "\">\n";
+    auto floats = [](const std::vector<Eigen::Vector3d>& rows) {
+        std::vector<float> values;
+        values.reserve(3 * rows.size());
+        for (const auto& p : rows)
+            for (int c = 0; c < 3; ++c) values.push_back(float(p[c]));
+        return values;
+    };
+    if (normals) {
+        out << "      <PointData Normals=\"Normals\">\n";
+        vtk_array(out, "Float32", "Normals", 3, floats(mesh.normals));
+        out << "      </PointData>\n";
+    }
+    out << "      <Points>\n";
+    vtk_array(out, "Float32", "Points", 3, floats(mesh.positions));
+    out << "      </Points>\n      <Polys>\n";
+    std::vector<std::int32_t> connectivity, offsets;
+    connectivity.reserve(3 * mesh.triangles.size());
+    offsets.reserve(mesh.triangles.size());
+    for (const auto& t : mesh.triangles) {
+        connectivity.insert(connectivity.end(), t.begin(), t.end());
+        offsets.push_back(std::int32_t(connectivity.size()));
+    }
+    vtk_array(out, "Int32", "connectivity", 1, connectivity);
+    vtk_array(out, "Int32", "offsets", 1, offsets);
+    out << "      </Polys>\n    </Piece>\n  </PolyData>\n</VTKFile>\n";
+}
+
 /// A one-mesh scene. aiScene's destructor frees its meshes, materials and nodes with delete /
 /// delete[], so everything below is allocated with new / new[] and owned by the scene.
 std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh, const std::function<Eigen::Vector3d(const Eigen::Vector3d&)>& to_file) {
@@ -161,9 +225,9 @@ std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh, const std::function<
 
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
     const std::string extension = lower_case_extension(path);
-    if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
+    if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".vtp" && extension != ".glb")
         throw OutputError("cannot write mesh '" + path.string() + "': unknown extension '" + path.extension().string() +
-                          "' (expected .stl, .obj, .ply or .glb)");
+                          "' (expected .stl, .obj, .ply, .vtp or .glb)");
     for (const auto& t : mesh.triangles)
         for (auto index : t)
             if (index < 0 || std::size_t(index) >= mesh.positions.size())
@@ -187,6 +251,7 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
         std::ofstream out(temporary, std::ios::binary);
         if (extension == ".stl") write_stl(out, mesh);
         else if (extension == ".obj") write_obj(out, mesh);
+        else if (extension == ".vtp") write_vtp(out, mesh);
         else write_ply(out, mesh);
         out.close();
         if (!out) throw OutputError("cannot write mesh '" + path.string() + "': writing failed (disk full?)");

@@ -1,6 +1,6 @@
 /// @file mesh_io.h
-/// @brief Triangle meshes to and from STL, OBJ, PLY and glTF (.glb/.gltf).
-/// STL, OBJ and PLY hold world LPS millimetres as they are, with `SPACE=LPS units=mm` in their
+/// @brief Triangle meshes to and from STL, OBJ, PLY and glTF (.glb/.gltf), and to VTK XML
+/// PolyData (.vtp). STL, OBJ, PLY and VTP hold world LPS millimetres as they are, with `SPACE=LPS units=mm` in their
 /// header (STL's 80 bytes, an OBJ comment, a PLY comment: Slicer reads the tag); STL facets carry
 /// their true normals. glTF is metres with +Y up by its specification, so a .glb holds
 /// (x, z, −y) / 1000 of LPS mm: +X left, +Y superior, +Z anterior (the heart faces a glTF
@@ -14,7 +14,8 @@
 namespace heartsim {
 
 /// Writes `mesh` to `path`; the format follows the extension (.stl binary, .obj, .ply binary
-/// little-endian, .glb). Atomic: written to a temporary file beside `path` and renamed. Throws
+/// little-endian, .vtp VTK XML PolyData with base64 binary arrays, .glb). read_mesh does not read
+/// .vtp (assimp has no reader for it). Atomic: written to a temporary file beside `path` and renamed. Throws
 /// OutputError (unwritable place, unknown extension, a non-finite vertex) naming the file.
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh);
 

@@ -2,6 +2,7 @@
 #include "recording.h"
 
 #include "hdf5_io.h"
+#include "xdmf.h"
 
 #include "libmodel/plausible.h"
 
@@ -25,7 +26,7 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
-void write_recording(const std::filesystem::path& path, const Recording& r) {
+void write_recording_data(const std::filesystem::path& path, const Recording& r) {
     const std::string file = path.string();
     const RecordedSteps& s = r.steps;
     const std::size_t n = s.size();
@@ -99,6 +100,12 @@ void write_recording(const std::filesystem::path& path, const Recording& r) {
         w.dataset("events/hand", hands, {hands.size()});
         w.strings("events/what", what);
     });
+}
+
+void write_recording(const std::filesystem::path& path, const Recording& recording) {
+    const std::string xdmf = recording_xdmf(path.filename().string(), recording);
+    write_recording_data(path, recording);
+    write_xdmf(path, xdmf);
 }
 
 Recording read_recording(const std::filesystem::path& path) {

@@ -96,8 +96,12 @@ struct Recording {
     std::vector<RecordedEvent> events;
 };
 
-/// Writes atomically; throws OutputError naming the file.
+/// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xdmf`, a
+/// time series for ParaView); throws OutputError naming the file.
 void write_recording(const std::filesystem::path& path, const Recording& recording);
+/// The HDF5 file alone, no .xdmf: for a caller that writes a temporary and renames it itself
+/// (`heartsim recover`), then calls write_recording_xdmf for the final name.
+void write_recording_data(const std::filesystem::path& path, const Recording& recording);
 /// Reads and validates (shapes agree, values finite where they must be); throws InputError
 /// naming the file and the dataset.
 Recording read_recording(const std::filesystem::path& path);

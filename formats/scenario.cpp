@@ -3,6 +3,7 @@
 #include "scenario.h"
 
 #include "hdf5_io.h"
+#include "xdmf.h"
 
 #include "libmodel/plausible.h"
 
@@ -504,7 +505,9 @@ VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
 }
 
 void write_scenario(const std::filesystem::path& path, const Scenario& scenario) {
+    const std::string xdmf = scenario_xdmf(path.filename().string(), scenario);
     h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); });
+    write_xdmf(path, xdmf);
 }
 
 Scenario read_scenario(const std::filesystem::path& path) {

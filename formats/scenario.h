@@ -84,7 +84,8 @@ SolverOptions options_from(const SolverSettings& settings);
 VisualMesh to_visual_mesh(const TriangleMesh& mesh);
 
 /// Writes `scenario` to `path` atomically (a temporary file beside it, then rename): a failed
-/// write leaves no file and no partial file. Throws OutputError naming the file.
+/// write leaves no file and no partial file. Then the XDMF description beside it (xdmf.h:
+/// `case.h5` → `case.xdmf`, for ParaView), atomically too. Throws OutputError naming the file.
 void write_scenario(const std::filesystem::path& path, const Scenario& scenario);
 
 /// Reads and validates a scenario. Throws InputError naming the file, the dataset or attribute,

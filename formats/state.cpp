@@ -2,10 +2,12 @@
 #include "state.h"
 
 #include "hdf5_io.h"
+#include "xdmf.h"
 
 namespace heartsim {
 
 void write_state(const std::filesystem::path& path, const SimulationState& state) {
+    const std::string xdmf = state_xdmf(path.filename().string(), state, path.parent_path());
     h5::write_file(path, [&](h5::Writer& w) {
         w.header("heartsim.state", 1, "mm g ms");
         w.attribute("/", "backend", state.backend);
@@ -21,6 +23,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
             w.dataset("visual/positions", state.visual_positions, {state.visual_positions.size(), 3});
         }
     });
+    write_xdmf(path, xdmf);
 }
 
 SimulationState read_state(const std::filesystem::path& path) {

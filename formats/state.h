@@ -8,6 +8,7 @@
 ///   /instrument_forces  float64 [2,3]  N, the force the tissue exerts on each hand's instrument
 ///   /instrument_particles int32 [2]    particles held or touched per hand
 ///   /instrument_kind    int32 [2]      0 none, 1 probe, 2 grabber
+///   /visual/positions   float32 [V,3]  mm, the deformed detailed mesh (when the scenario has one)
 #pragma once
 
 #include <array>
@@ -30,9 +31,16 @@ struct SimulationState {
     /// The deformed detailed mesh, V×3 mm (the scenario's mapping evaluated at `positions`, as the
     /// runtime draws it): /visual/positions. Empty when the scenario has no visual mesh.
     std::vector<std::array<float, 3>> visual_positions;
+    /// Not stored in the file, read back empty: the scenario the state came from and its triangle
+    /// counts, for the .xdmf written beside the state (xdmf.h), which shows the deformed
+    /// simulation surface and detailed mesh with the scenario's triangles. Empty: the .xdmf shows
+    /// the particles only.
+    std::filesystem::path scenario_path;
+    std::size_t scenario_simsurface_triangles = 0, scenario_visual_triangles = 0;
 };
 
-/// Writes atomically; throws OutputError naming the file.
+/// Writes atomically, and the XDMF description beside it (xdmf.h: `state.h5` → `state.xdmf`);
+/// throws OutputError naming the file.
 void write_state(const std::filesystem::path& path, const SimulationState& state);
 /// Reads and validates; throws InputError naming the file and dataset.
 SimulationState read_state(const std::filesystem::path& path);

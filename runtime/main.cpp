@@ -58,7 +58,7 @@ int main(int argc, char** argv) {
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
-    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5)");
+    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xdmf beside it for ParaView (the deformed heart)");
     run->add_option("--gravity", a.gravity,
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
         ->expected(3);
@@ -102,7 +102,8 @@ int main(int argc, char** argv) {
         ->capture_default_str();
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
     run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5, written at the end; meanwhile "
-                                         "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`)");
+                                         "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`), and OUT.xdmf "
+                                         "beside it for ParaView (the tools over time)");
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces");
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")

@@ -10,6 +10,7 @@
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 #include "formats/state.h"
+#include "formats/xdmf.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
@@ -360,6 +361,9 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         state.visual_positions.reserve(visual.size());
         for (const auto& v : visual) state.visual_positions.push_back({v.x(), v.y(), v.z()});
     }
+    state.scenario_path = a.scenario;
+    if (p.scenario.simulation_surface) state.scenario_simsurface_triangles = p.scenario.simulation_surface->size();
+    if (p.scenario.visual) state.scenario_visual_triangles = p.scenario.visual->triangles.size();
     write_state(a.save_state, state);
     std::printf("wrote %s\n", a.save_state.c_str());
 }
@@ -566,13 +570,14 @@ int recover_recording(const std::string& journal, const std::string& output) {
     // Written beside the target and read back with every check a recording gets before it takes the
     // name, so what takes the name is a recording that reads.
     write_file_atomically(target, [&](const fs::path& temporary) {
-        write_recording(temporary, r);
+        write_recording_data(temporary, r);
         try {
             read_recording(temporary);
         } catch (const InputError& e) {
             throw InputError(journal + ": the recovered session does not pass a recording's checks: " + e.what());
         }
     });
+    write_recording_xdmf(target, r);
     std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", target.c_str(), r.steps.size(), ticks, r.events.size());
     std::error_code error;
     fs::remove(journal, error);

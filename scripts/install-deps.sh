@@ -24,10 +24,15 @@ packages=(
   xvfb xauth
   # the cluster workflow (workflow/Snakefile) and its test
   snakemake
+  # ParaView opens our files (tests/test_paraview.cpp runs tests/vtk_open.py under /usr/bin/python3
+  # and tests/paraview_open.py under pvpython): VTK's Python module with the XDMF readers, and
+  # ParaView itself. python3-vtk9 (VTK 9.1) has no XDMF reader and conflicts with python3-paraview
+  # (it is removed), whose VTK (9.2) has them and serves the benchmarks too.
+  python3 python3-paraview
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(
-    python3 python3-vtk9 python3-numpy  # the surface peer: VTK flying edges + windowed sinc (3D Slicer's pipeline)
+    python3-numpy                       # with VTK (python3-paraview, above): the surface peer, flying edges + windowed sinc
     time                                # GNU /usr/bin/time -f %M: peak memory of a run
     libbullet-dev                       # the solver peer: Bullet's btSoftBody
   )

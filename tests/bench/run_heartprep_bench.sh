@@ -19,11 +19,11 @@ if [ -z "${HEARTPREP:-}" ] || [ ! -x "$HEARTPREP" ]; then
   exit 1
 fi
 
-# Debian's interpreter on purpose: python3-vtk9 and python3-numpy are installed for it, and a
+# Debian's interpreter on purpose: VTK (python3-paraview) and python3-numpy are installed for it, and a
 # pyenv or venv python3 earlier in PATH would not see them.
 PY=/usr/bin/python3
 if ! "$PY" -c "import vtk, numpy" 2>/dev/null || [ ! -x /usr/bin/time ]; then
-  echo "run_heartprep_bench: python3-vtk9, python3-numpy or GNU time missing; run scripts/install-deps.sh --bench" >&2
+  echo "run_heartprep_bench: VTK (python3-paraview), python3-numpy or GNU time missing; run scripts/install-deps.sh --bench" >&2
   exit 1
 fi
 

@@ -10,6 +10,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/scenario.h"
+#include "formats/xdmf.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
 
@@ -193,6 +194,8 @@ bool up_to_date(const fs::path& output, const std::string& key, Outcome* outcome
         const Scenario existing = read_scenario(output);
         if (existing.batch_key != key || !existing.build_warnings) return false;
         if (outcome) {
+            // A scenario built before .xdmf files were written gets its description.
+            if (!fs::exists(xdmf_beside(output))) write_scenario_xdmf(output, existing);
             fill_figures(existing, *outcome);
             outcome->warnings = *existing.build_warnings;
         }
@@ -264,6 +267,7 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
     try {
         // Temporaries of builds killed in an earlier run (their process is gone).
         sweep_stale_temporaries(output);
+        sweep_stale_temporaries(xdmf_beside(output));
         if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
         const std::string key = content_key(c);
         if (fs::exists(output)) {
@@ -288,6 +292,7 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
         for (const auto& word : words) arguments.push_back(word);
         const ChildStatus status = run_process(arguments, log, slot);
         sweep_stale_temporaries(output);  // what a killed build left beside its output
+        sweep_stale_temporaries(xdmf_beside(output));
         std::vector<std::string> logged_warnings;
         {
             std::ifstream in(log);

@@ -266,9 +266,10 @@ void add_build_command(CLI::App& app) {
 void add_surface_command(CLI::App& app) {
     auto* command = app.add_subcommand("surface", "The detailed tissue surface only: label map -> mesh file (LPS, mm)");
     command->footer("\nExample:\n  heartprep surface case.nii.gz -o heart.stl --smoothing 0.5\n"
-                    "Formats by extension: .stl (binary), .obj, .ply (binary), .glb. STL, OBJ and PLY hold LPS mm,\n"
-                    "the default frame of 3D Slicer's model files, and say SPACE=LPS in their header; STL facets\n"
-                    "carry their true normals. A .glb is in glTF's own frame: metres, +Y superior, +Z anterior.");
+                    "Formats by extension: .stl (binary), .obj, .ply (binary), .vtp (VTK XML PolyData, for ParaView), .glb.\n"
+                    "STL, OBJ, PLY and VTP hold LPS mm, the default frame of 3D Slicer's model files (STL, OBJ and PLY\n"
+                    "say SPACE=LPS in their header; STL facets carry their true normals). A .glb is in glTF's own frame:\n"
+                    "metres, +Y superior, +Z anterior.");
     auto input = std::make_shared<std::filesystem::path>();
     auto output = std::make_shared<std::string>();
     auto labels = std::make_shared<LabelChoice>();
@@ -276,15 +277,15 @@ void add_surface_command(CLI::App& app) {
     auto surface = std::make_shared<SurfaceOptions>();
     auto quiet = std::make_shared<bool>(false);
     command->add_option("input", *input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
-    command->add_option("-o,--output", *output, "Mesh file to write: .stl, .obj, .ply, .glb")->required();
+    command->add_option("-o,--output", *output, "Mesh file to write: .stl, .obj, .ply, .vtp, .glb")->required();
     add_selection_options(*command, *labels, *selection);
     add_surface_options(*command, *surface);
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
     command->callback([=] {
         check_output_path(*output, "OUT.stl");
         const auto extension = std::filesystem::path(*output).extension().string();
-        if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
-            throw UsageError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
+        if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".vtp" && extension != ".glb")
+            throw UsageError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply, .vtp or .glb)");
         TerminalProgress progress(*quiet);
         BuildReport report;
         auto selected = read_and_select(*input, *labels, *selection, progress, report);

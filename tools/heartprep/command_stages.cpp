@@ -124,15 +124,17 @@ void add_stage_commands(CLI::App& app) {
         });
     }
     {
-        auto* command = app.add_subcommand("export", "Write a scenario's simulation surface or visual mesh for 3D Slicer / MeshLab");
+        auto* command = app.add_subcommand("export", "Write a scenario's simulation surface or visual mesh for 3D Slicer / MeshLab / ParaView");
         command->footer("\nFormats by extension: .stl .obj .ply (LPS mm, 3D Slicer's default for model files, SPACE=LPS in the\n"
-                        "header) and .glb (glTF's own frame: metres, +Y superior, +Z anterior).");
+                        "header), .vtp (VTK XML PolyData for ParaView, LPS mm as stored, no transform) and .glb (glTF's own\n"
+                        "frame: metres, +Y superior, +Z anterior). ParaView also opens the scenario itself through the\n"
+                        "case.xdmf written beside case.h5.");
         auto input = std::make_shared<std::filesystem::path>();
         auto output = std::make_shared<std::filesystem::path>();
         auto what = std::make_shared<std::string>("visual");
         command->add_option("scenario", *input, "Scenario file (.h5)")->required();
         command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
-        command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .glb")->required();
+        command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .vtp, .glb")->required();
         command->callback([=] {
             std::string extension = output->extension().string();
             for (char& c : extension) c = char(std::tolower(static_cast<unsigned char>(c)));

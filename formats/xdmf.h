@@ -1,0 +1,58 @@
+/// @file xdmf.h
+/// @brief The XDMF description written beside every scenario, saved state and recording
+/// (`case.h5` → `case.xdmf`), so ParaView (File ▸ Open, "XDMF Reader" or "Xdmf3 Reader") shows
+/// what the .h5 holds without a plugin. XDMF 2: a small XML file whose DataItems name datasets
+/// inside the .h5 by a path relative to the .xdmf's folder (`case.h5:/visual/positions`); it
+/// copies no data but a recording's per-step tool values and the particle grid's vertex list. Coordinates are as stored: world millimetres, LPS (ParaView applies no
+/// transform). What each file shows: docs/scenario-format.md ("Opening in ParaView") and
+/// docs/runtime.md.
+#pragma once
+
+#include <cstddef>
+#include <filesystem>
+#include <string>
+
+namespace heartsim {
+
+struct Scenario;
+struct SimulationState;
+struct Recording;
+
+/// `case.h5` → `case.xdmf` (the same folder, the extension replaced; `x.xdmf` → `x.xdmf.xdmf`).
+std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
+
+/// The scenario file's grids: `detailed_mesh` (/visual, with its normals), `simulation_surface`
+/// (/simsurface/triangles over /particles/rest_position) and `particles` (one vertex per particle,
+/// with material, anchored and mass), each only when the file holds it.
+std::string scenario_xdmf(const std::string& h5_name, const Scenario& scenario);
+
+/// The saved state's grids: `particles` (/positions, deformed) and, when the state names its
+/// scenario (SimulationState::scenario_path), the deformed `simulation_surface` and
+/// `detailed_mesh`: the state's positions with the scenario's triangles, which the state does not
+/// hold (the .xdmf refers to the scenario by its path relative to the .xdmf's folder).
+/// `xdmf_folder` is where the .xdmf will lie.
+std::string state_xdmf(const std::string& h5_name, const SimulationState& state, const std::filesystem::path& xdmf_folder);
+
+/// The recording's `instruments`: a temporal collection with one grid per simulation step (at
+/// most xdmf_max_time_steps: a longer recording is shown every k-th step, and its last), two
+/// points per step (the hands' tool positions, world mm, /steps/tool_position_mm) carrying
+/// force_n (N, world), applied and grab; the time is /steps/time_ms (simulated ms). These few
+/// values are copied into the XML rather than named in the .h5: VTK's Xdmf3 reader reads no
+/// HyperSlab (the row of a step in the [S,2,3] datasets) and its XDMF 2 reader logs an error
+/// for each.
+std::string recording_xdmf(const std::string& h5_name, const Recording& recording);
+inline constexpr std::size_t xdmf_max_time_steps = 2000;
+/// The steps recording_xdmf shows, in order: every one when there are at most
+/// xdmf_max_time_steps, else every k-th (k = ceil(S / xdmf_max_time_steps)) and the last.
+std::size_t xdmf_step_stride(std::size_t steps);
+
+/// Writes `text` to xdmf_beside(h5), atomically. The writers of the .h5 files make the text
+/// before they write the .h5 and write it after, so running out of memory cannot leave an .h5
+/// without its .xdmf. Throws OutputError naming the .xdmf.
+void write_xdmf(const std::filesystem::path& h5, const std::string& text);
+/// write_xdmf of scenario_xdmf / state_xdmf / recording_xdmf of the file at `h5`.
+void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenario);
+void write_state_xdmf(const std::filesystem::path& h5, const SimulationState& state);
+void write_recording_xdmf(const std::filesystem::path& h5, const Recording& recording);
+
+}  // namespace heartsim

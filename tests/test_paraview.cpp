@@ -1,0 +1,365 @@
+// ParaView can open what heartsim writes (issue #14): the .xdmf beside a scenario, a saved state
+// and a recording, and `heartprep export`'s .vtp/.stl/.obj/.ply, each opened by VTK's own readers
+// (tests/vtk_open.py under /usr/bin/python3) and by ParaView's own File > Open (tests/paraview_open.py
+// under pvpython), and compared with what our readers find in the files. Skips with a message
+// where that Python has no VTK or its VTK no XDMF reader; without pvpython that part is left out.
+#include "formats/recording.h"
+#include "formats/scenario.h"
+#include "formats/state.h"
+#include "formats/xdmf.h"
+#include "libmodel/mesh.h"
+#include "libmodel/simulation_surface.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <sstream>
+
+namespace heartsim {
+namespace {
+
+namespace fs = std::filesystem;
+using test::quoted;
+
+test::CommandResult run_heartsim(const std::string& arguments) { return test::run_command(quoted(HEARTSIM_EXE) + " " + arguments); }
+const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border"); }
+fs::path samples() { return fs::path(HEARTSIM_SOURCE_DIR) / "samples"; }
+
+/// One line of vtk_open.py: its `key=value` words.
+using Words = std::map<std::string, std::string>;
+
+struct Opened {
+    bool skipped = false;
+    std::string output;
+    std::vector<Words> lines;  ///< every line with at least one key=value word
+    /// The blocks of `reader` at time index `time`, by name.
+    std::map<std::string, Words> blocks(const std::string& reader, int time = 0) const {
+        std::map<std::string, Words> found;
+        for (const auto& w : lines)
+            if (w.count("name") && w.at("reader") == reader && w.at("time") == std::to_string(time)) found[w.at("name")] = w;
+        return found;
+    }
+    std::vector<std::string> readers() const {
+        std::vector<std::string> names;
+        for (const auto& w : lines)
+            if (!w.count("name") && w.count("reader")) names.push_back(w.at("reader"));
+        return names;
+    }
+};
+
+/// Runs tests/vtk_open.py on `files`; skipped when it exits 3 (no VTK, or no reader for a kind).
+Opened vtk_open(const std::vector<fs::path>& files) {
+    Opened opened;
+    if (!fs::exists("/usr/bin/python3")) {
+        opened.skipped = true;
+        opened.output = "/usr/bin/python3 is absent";
+        return opened;
+    }
+    std::string command = "cd / && /usr/bin/python3 ";
+    command += quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/vtk_open.py");
+    for (const auto& f : files) {
+        command += ' ';
+        command += quoted(f);
+    }
+    const auto run = test::run_command(command);
+    opened.output = run.output;
+    if (run.exit_code == 3) {
+        opened.skipped = true;
+        return opened;
+    }
+    EXPECT_EQ(run.exit_code, 0) << run.output;
+    std::istringstream lines(run.output);
+    for (std::string line; std::getline(lines, line);) {
+        Words words;
+        std::istringstream in(line);
+        for (std::string word; in >> word;) {
+            const auto equals = word.find('=');
+            if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+        }
+        if (!words.empty()) opened.lines.push_back(words);
+    }
+    return opened;
+}
+
+/// What ParaView's File > Open shows of `file` (tests/paraview_open.py under pvpython: the reader
+/// ParaView picks by itself, at the first time step, points and cells summed over the blocks);
+/// empty, with a message, where pvpython is absent.
+Words paraview_open(const fs::path& file) {
+    if (test::run_command("command -v pvpython").exit_code != 0) {
+        std::printf("pvpython absent: ParaView's own File > Open not tried on %s\n", file.c_str());
+        return {};
+    }
+    const auto run = test::run_command("cd / && pvpython " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/paraview_open.py") + " " +
+                                       quoted(file) + " 2>&1 | grep '^file=\\|^paraview_open'");
+    Words words;
+    std::istringstream in(run.output);
+    for (std::string word; in >> word;) {
+        const auto equals = word.find('=');
+        if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+    }
+    EXPECT_TRUE(words.count("reader")) << "ParaView did not open " << file << ": " << run.output;
+    return words;
+}
+
+std::size_t count(const Words& w, const std::string& key) { return w.count(key) ? std::stoull(w.at(key)) : std::size_t(-1); }
+
+/// VTK's bounds text "x0,x1,y0,y1,z0,z1" against the extent of `points`.
+template <class P>
+void expect_bounds(const Words& w, const std::vector<P>& points, double tolerance_mm, const std::string& what) {
+    ASSERT_TRUE(w.count("bounds")) << what;
+    std::vector<double> bounds;
+    std::stringstream in(w.at("bounds"));
+    for (std::string item; std::getline(in, item, ',');) bounds.push_back(std::stod(item));
+    ASSERT_EQ(bounds.size(), 6u) << what;
+    for (int a = 0; a < 3; ++a) {
+        double low = std::numeric_limits<double>::max(), high = -low;
+        for (const auto& p : points) low = std::min(low, double(p[a])), high = std::max(high, double(p[a]));
+        EXPECT_NEAR(bounds[std::size_t(2 * a)], low, tolerance_mm) << what << " axis " << a;
+        EXPECT_NEAR(bounds[std::size_t(2 * a + 1)], high, tolerance_mm) << what << " axis " << a;
+    }
+}
+
+std::string text_of(const fs::path& path) {
+    std::ifstream in(path);
+    return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+/// The scenario's grids as every XDMF reader sees them, against the scenario read by our reader.
+void expect_scenario_grids(const fs::path& xdmf, const Scenario& s) {
+    const Opened opened = vtk_open({xdmf});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    ASSERT_FALSE(opened.readers().empty()) << opened.output;
+    const std::size_t n = s.lattice.particles.size();
+    for (const auto& reader : opened.readers()) {
+        const auto blocks = opened.blocks(reader);
+        ASSERT_TRUE(blocks.count("detailed_mesh") && blocks.count("simulation_surface") && blocks.count("particles"))
+            << reader << "\n" << opened.output;
+        const Words& mesh = blocks.at("detailed_mesh");
+        EXPECT_EQ(count(mesh, "points"), s.visual->positions.size()) << reader;
+        EXPECT_EQ(count(mesh, "cells"), s.visual->triangles.size()) << reader;
+        EXPECT_NE(mesh.at("arrays").find("normals"), std::string::npos) << reader;
+        expect_bounds(mesh, s.visual->positions, 1e-3, reader + " detailed_mesh");
+        const Words& surface = blocks.at("simulation_surface");
+        EXPECT_EQ(count(surface, "points"), n) << reader;
+        EXPECT_EQ(count(surface, "cells"), s.simulation_surface->size()) << reader;
+        const Words& particles = blocks.at("particles");
+        EXPECT_EQ(count(particles, "points"), n) << reader;
+        EXPECT_EQ(count(particles, "cells"), n) << reader;
+        for (const char* array : {"material", "anchored", "mass_g"}) EXPECT_NE(particles.at("arrays").find(array), std::string::npos) << reader;
+        expect_bounds(particles, s.lattice.particles.rest_position, 1e-3, reader + " particles");
+    }
+}
+
+}  // namespace
+
+TEST(ParaView, ScenarioXdmfOpensInVtkAndStaysWithItsH5WhenBothMove) {
+    const Scenario s = read_scenario(phantom());
+    ASSERT_TRUE(s.visual && s.simulation_surface);
+    const fs::path xdmf = xdmf_beside(phantom());
+    ASSERT_TRUE(fs::exists(xdmf)) << "heartprep build wrote no " << xdmf;
+    // The .h5 is named by its final name relative to the .xdmf's folder: no folder, no temporary.
+    const std::string text = text_of(xdmf);
+    EXPECT_NE(text.find(">" + phantom().filename().string() + ":/visual/positions<"), std::string::npos) << text;
+    EXPECT_EQ(text.find(phantom().parent_path().string()), std::string::npos) << "an absolute path in " << xdmf;
+    expect_scenario_grids(xdmf, s);
+    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
+        const std::size_t n = s.lattice.particles.size();
+        EXPECT_EQ(count(pv, "points"), s.visual->positions.size() + 2 * n) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + n) << pv.at("reader");
+    }
+    // Moved together elsewhere, under another name for the folder, they still open.
+    test::TempDir dir;
+    fs::create_directory(dir / "moved");
+    fs::copy_file(phantom(), dir / "moved" / phantom().filename());
+    fs::copy_file(xdmf, dir / "moved" / xdmf.filename());
+    expect_scenario_grids(dir / "moved" / xdmf.filename(), s);
+}
+
+TEST(ParaView, StateXdmfShowsTheDeformedParticlesSurfaceAndDetailedMesh) {
+    const Scenario s = read_scenario(phantom());
+    test::TempDir dir;
+    const fs::path state_file = dir / "state.h5";
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --steps 40 --trajectory " +
+                                  quoted(samples() / "probe_and_grab_phantom.csv") + " --save-state " + quoted(state_file));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const SimulationState state = read_state(state_file);
+    ASSERT_EQ(state.visual_positions.size(), s.visual->positions.size());
+    const fs::path xdmf = dir / "state.xdmf";
+    ASSERT_TRUE(fs::exists(xdmf));
+    // The triangles come from the scenario, in another folder: named relative to the .xdmf's.
+    const std::string text = text_of(xdmf);
+    EXPECT_NE(text.find(">" + fs::relative(phantom(), dir.path()).generic_string() + ":/simsurface/triangles<"), std::string::npos) << text;
+    const Opened opened = vtk_open({xdmf});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    ASSERT_FALSE(opened.readers().empty()) << opened.output;
+    for (const auto& reader : opened.readers()) {
+        const auto blocks = opened.blocks(reader);
+        ASSERT_TRUE(blocks.count("detailed_mesh") && blocks.count("simulation_surface") && blocks.count("particles"))
+            << reader << "\n" << opened.output;
+        EXPECT_EQ(count(blocks.at("particles"), "points"), state.positions.size()) << reader;
+        EXPECT_EQ(count(blocks.at("simulation_surface"), "points"), state.positions.size()) << reader;
+        EXPECT_EQ(count(blocks.at("simulation_surface"), "cells"), s.simulation_surface->size()) << reader;
+        EXPECT_EQ(count(blocks.at("detailed_mesh"), "points"), state.visual_positions.size()) << reader;
+        EXPECT_EQ(count(blocks.at("detailed_mesh"), "cells"), s.visual->triangles.size()) << reader;
+        // Deformed, not at rest: the extents are the state's.
+        expect_bounds(blocks.at("particles"), state.positions, 1e-3, reader + " particles");
+        expect_bounds(blocks.at("detailed_mesh"), state.visual_positions, 1e-3, reader + " detailed_mesh");
+    }
+    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
+        EXPECT_EQ(count(pv, "points"), state.visual_positions.size() + 2 * state.positions.size()) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + state.positions.size()) << pv.at("reader");
+    }
+}
+
+TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
+    test::TempDir dir;
+    const fs::path file = dir / "rec.h5";
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --device scripted:" +
+                                  quoted(samples() / "haptics/grab_phantom.csv") + " --seconds 1 --record " + quoted(file));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const Recording r = read_recording(file);
+    ASSERT_GT(r.steps.size(), 1u);
+    // The steps shown: every one, or every k-th and the last (xdmf.h).
+    const std::size_t stride = xdmf_step_stride(r.steps.size());
+    const std::size_t shown = (r.steps.size() - 1) / stride + 1 + ((r.steps.size() - 1) % stride != 0);
+    const Opened opened = vtk_open({dir / "rec.xdmf"});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    ASSERT_FALSE(opened.readers().empty()) << opened.output;
+    for (const auto& w : opened.lines) {
+        if (w.count("name") || !w.count("reader")) continue;
+        const std::string reader = w.at("reader");
+        EXPECT_EQ(count(w, "times"), shown) << reader << " for " << r.steps.size() << " steps\n" << opened.output;
+        ASSERT_TRUE(w.count("first") && w.count("last")) << opened.output;
+        EXPECT_EQ(std::stod(w.at("first")), r.steps.time_ms.front()) << reader;
+        EXPECT_EQ(std::stod(w.at("last")), r.steps.time_ms.back()) << reader;
+        for (const int time : {0, 1}) {
+            const auto blocks = opened.blocks(reader, time);
+            ASSERT_EQ(blocks.size(), 1u) << reader << "\n" << opened.output;
+            const Words& tools = blocks.begin()->second;
+            EXPECT_EQ(count(tools, "points"), 2u) << reader;
+            EXPECT_EQ(count(tools, "cells"), 2u) << reader;
+            for (const char* array : {"force_n", "applied", "grab"}) EXPECT_NE(tools.at("arrays").find(array), std::string::npos) << reader;
+            // The two hands' tool positions of that step.
+            const auto& step = time == 0 ? r.steps.tool_position_mm.front() : r.steps.tool_position_mm.back();
+            expect_bounds(tools, std::vector<std::array<double, 3>>(step.begin(), step.end()), 1e-9, reader + " tools");
+        }
+    }
+    if (const Words pv = paraview_open(dir / "rec.xdmf"); !pv.empty()) {
+        EXPECT_EQ(count(pv, "times"), shown) << pv.at("reader");
+        EXPECT_EQ(count(pv, "points"), 2u) << pv.at("reader");
+    }
+}
+
+namespace {
+
+/// A recording of `steps` steps, hand 0 moving along x, written by our writer.
+Recording synthetic_recording(int steps) {
+    Recording r;
+    r.scenario = "phantom.h5";
+    r.particles = 10;
+    r.dt_ms = 0.1;
+    r.substeps = 1;
+    for (int s = 0; s < steps; ++s) {
+        r.steps.time_ms.push_back(0.1 * (s + 1));
+        r.steps.wall_ms.push_back(s);
+        r.steps.tool_time_ms.push_back(s);
+        r.steps.tool_position_mm.push_back({{{0.01 * s, 2, 3}, {4, 5, 6}}});
+        r.steps.tool_orientation.push_back({{{1, 0, 0, 0}, {1, 0, 0, 0}}});
+        r.steps.grab.push_back({0, 0});
+        r.steps.applied.push_back({1, 0});
+        r.steps.force_n.push_back({{{0, 0, 0.5 * s}, {0, 0, 0}}});
+        r.steps.force_step.push_back(s - 1);
+        r.steps.diverged.push_back(0);
+    }
+    return r;
+}
+
+}  // namespace
+
+TEST(ParaView, RecoveredRecordingGetsItsXdmfUnderTheFinalNameAndLongOnesShowEveryKthStepAndTheLast) {
+    test::TempDir dir;
+    const Recording r = synthetic_recording(5);
+    write_recording_data(dir / "plain.h5", r);
+    EXPECT_FALSE(fs::exists(dir / "plain.xdmf")) << "write_recording_data writes the HDF5 alone";
+    write_recording(dir / "rec.h5", r);
+    // Longer than xdmf_max_time_steps, by a count that is not a multiple of the stride.
+    const Recording longer = synthetic_recording(int(2 * xdmf_max_time_steps + 1));
+    write_recording(dir / "long.h5", longer);
+    const Opened opened = vtk_open({dir / "rec.xdmf", dir / "long.xdmf"});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    std::vector<Words> series;
+    for (const auto& w : opened.lines)
+        if (!w.count("name") && w.count("reader")) series.push_back(w);
+    ASSERT_EQ(series.size() % 2, 0u) << opened.output;
+    for (std::size_t i = 0; i < series.size(); ++i) {
+        const Recording& expected = i < series.size() / 2 ? r : longer;
+        const std::size_t k = (expected.steps.size() + xdmf_max_time_steps - 1) / xdmf_max_time_steps;  // ⌈S / 2000⌉
+        const std::size_t every_kth = (expected.steps.size() - 1) / k + 1;
+        const bool last_extra = (expected.steps.size() - 1) % k != 0;
+        EXPECT_EQ(count(series[i], "times"), every_kth + last_extra) << opened.output;
+        EXPECT_EQ(std::stod(series[i].at("first")), expected.steps.time_ms.front());
+        EXPECT_EQ(std::stod(series[i].at("last")), expected.steps.time_ms.back());
+    }
+}
+
+TEST(ParaView, ExportsOpenInVtkReadersWithTheCountsOfTheScenario) {
+    const Scenario s = read_scenario(phantom());
+    TriangleMesh visual_mesh;
+    for (const auto& p : s.visual->positions) visual_mesh.positions.emplace_back(p[0], p[1], p[2]);
+    visual_mesh.triangles = s.visual->triangles;
+    const TriangleMesh& visual = visual_mesh;
+    const TriangleMesh surface = simulation_surface_mesh(s.lattice.particles.rest_position, s.simulation_surface->triangles);
+    test::TempDir dir;
+    std::vector<fs::path> files;
+    std::map<std::string, const TriangleMesh*> meshes;
+    for (const auto& [what, mesh] : {std::pair{"visual", &visual}, std::pair{"simsurface", &surface}})
+        for (const char* extension : {".vtp", ".stl", ".obj", ".ply"}) {
+            const fs::path out = dir / (std::string(what) + extension);
+            const auto run = test::heartprep("export " + quoted(phantom()) + " --what " + what + " -o " + quoted(out));
+            ASSERT_EQ(run.exit_code, 0) << run.output;
+            files.push_back(out);
+            meshes[out.string()] = mesh;
+        }
+    const Opened opened = vtk_open(files);
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    std::size_t seen = 0;
+    for (const auto& w : opened.lines) {
+        if (!w.count("file")) continue;
+        ++seen;
+        const std::string& file = w.at("file");
+        const TriangleMesh& mesh = *meshes.at(file);
+        const MeshReport report = analyse_mesh(mesh);
+        EXPECT_EQ(count(w, "cells"), mesh.triangles.size()) << file;
+        // STL stores corners per facet; merged, they are the vertices the triangles use.
+        const bool stl = fs::path(file).extension() == ".stl";
+        EXPECT_EQ(count(w, "points"), stl ? report.vertices : mesh.positions.size()) << file;
+        EXPECT_EQ(count(w, "open_edges"), report.boundary_edges + report.nonmanifold_edges) << file;
+        if (report.closed() && report.manifold()) {
+            EXPECT_EQ(count(w, "open_edges"), 0u) << file;
+        }
+        std::vector<Eigen::Vector3d> used;
+        for (const auto& t : mesh.triangles)
+            for (const auto v : t) used.push_back(mesh.positions[std::size_t(v)]);
+        expect_bounds(w, used, 1e-3, file);
+    }
+    EXPECT_EQ(seen, files.size()) << opened.output;
+    if (const Words pv = paraview_open(dir / "visual.vtp"); !pv.empty()) {
+        EXPECT_EQ(count(pv, "points"), visual.positions.size()) << pv.at("reader");
+        EXPECT_EQ(count(pv, "cells"), visual.triangles.size()) << pv.at("reader");
+    }
+}
+
+TEST(ParaView, RealCaseScenarioOpens) {
+    const fs::path input = test::real_case("hvsmr16_pat1");
+    if (input.empty() || !fs::exists(input)) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA;
+    test::TempDir dir;
+    const auto build = test::heartprep("build " + quoted(input) + " -o " + quoted(dir / "pat1.h5") + " --cavity 2 --anchor-border -q");
+    ASSERT_EQ(build.exit_code, 0) << build.output;
+    expect_scenario_grids(dir / "pat1.xdmf", read_scenario(dir / "pat1.h5"));
+}
+
+}  // namespace heartsim
