@@ -223,11 +223,16 @@ std::unique_ptr<aiScene> scene_of(const TriangleMesh& mesh, const std::function<
 
 }  // namespace
 
-void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
+bool is_writable_mesh_path(const std::filesystem::path& path) {
     const std::string extension = lower_case_extension(path);
-    if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".vtp" && extension != ".glb")
-        throw OutputError("cannot write mesh '" + path.string() + "': unknown extension '" + path.extension().string() +
-                          "' (expected .stl, .obj, .ply, .vtp or .glb)");
+    return extension == ".stl" || extension == ".obj" || extension == ".ply" || extension == ".vtp" || extension == ".glb";
+}
+
+void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
+    if (!is_writable_mesh_path(path))
+        throw OutputError("cannot write mesh '" + path.string() + "': unknown extension '" + path.extension().string() + "' (expected " +
+                          writable_mesh_formats + ")");
+    const std::string extension = lower_case_extension(path);
     for (const auto& t : mesh.triangles)
         for (auto index : t)
             if (index < 0 || std::size_t(index) >= mesh.positions.size())

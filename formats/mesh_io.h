@@ -19,6 +19,13 @@ namespace heartsim {
 /// OutputError (unwritable place, unknown extension, a non-finite vertex) naming the file.
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh);
 
+/// The mesh formats write_mesh writes, as the commands name them: ".stl, .obj, .ply, .vtp or .glb".
+inline constexpr const char* writable_mesh_formats = ".stl, .obj, .ply, .vtp or .glb";
+
+/// Whether write_mesh writes a file named `path` (by its extension, in any case), so a command can
+/// refuse a wrong -o before its work starts.
+bool is_writable_mesh_path(const std::filesystem::path& path);
+
 /// Reads a triangle mesh (all meshes of the file merged, polygons triangulated, identical
 /// vertices joined). Throws InputError naming the file when it is missing, unreadable or holds
 /// no triangles.

@@ -283,9 +283,9 @@ void add_surface_command(CLI::App& app) {
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
     command->callback([=] {
         check_output_path(*output, "OUT.stl");
-        const auto extension = std::filesystem::path(*output).extension().string();
-        if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".vtp" && extension != ".glb")
-            throw UsageError(*output + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply, .vtp or .glb)");
+        if (!is_writable_mesh_path(*output))
+            throw UsageError(*output + ": unsupported mesh format '" + std::filesystem::path(*output).extension().string() +
+                             "' (expected " + writable_mesh_formats + ")");
         TerminalProgress progress(*quiet);
         BuildReport report;
         auto selected = read_and_select(*input, *labels, *selection, progress, report);

@@ -136,10 +136,9 @@ void add_stage_commands(CLI::App& app) {
         command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
         command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .vtp, .glb")->required();
         command->callback([=] {
-            std::string extension = output->extension().string();
-            for (char& c : extension) c = char(std::tolower(static_cast<unsigned char>(c)));
-            if (extension != ".stl" && extension != ".obj" && extension != ".ply" && extension != ".glb")
-                throw UsageError(output->string() + ": unsupported mesh format '" + extension + "' (expected .stl, .obj, .ply or .glb)");
+            if (!is_writable_mesh_path(*output))
+                throw UsageError(output->string() + ": unsupported mesh format '" + output->extension().string() + "' (expected " +
+                                 writable_mesh_formats + ")");
             const Scenario scenario = read_scenario(*input);
             TriangleMesh mesh;
             if (*what == "simsurface") {
