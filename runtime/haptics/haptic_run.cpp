@@ -567,8 +567,10 @@ bool HapticRun::device_faulted() const {
 
 std::vector<InstrumentShape> HapticRun::shapes() const {
     std::vector<InstrumentShape> shapes;
-    for (const Hand& h : hands_)
-        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes});
+    for (int hand = 0; hand < 2; ++hand) {
+        const Hand& h = hands_[hand];
+        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes, hand});
+    }
     return shapes;
 }
 

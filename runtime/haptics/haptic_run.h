@@ -109,6 +109,10 @@ public:
     InstrumentKind instrument(int hand) const { return hands_[hand].instrument.kind; }
     /// The hand's device description for printing.
     std::string describe(int hand) const;
+    /// The hand's --device spec as given ("mouse", "simulated:FILE", …); fixed once constructed.
+    const std::string& device_spec(int hand) const { return hands_[hand].spec.text; }
+    /// The largest force the hand's device is sent, N (--max-force or the device's own maximum).
+    double max_force_n(int hand) const { return recording_.hands[hand].max_force_n; }
 
 private:
     struct Hand {
