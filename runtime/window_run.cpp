@@ -345,7 +345,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             state.backend = to_string(backend.kind());
             state.paused = input.paused;
             state.emergency_stop = input.estop;
-            state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : -1;
+            state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
             const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
             for (int hand = 0; hand < 2; ++hand) {
                 HudHand& h = state.hands[hand];

@@ -43,7 +43,7 @@ public:
         bool paused = false;          ///< the thread has seen the pause: no step runs until resumed (or step_once)
         bool has_forces = false;      ///< forces holds a force pass's result (scripted or keyboard instruments)
         std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world
-        double haptic_period_p99_ms = -1;  ///< not measured live (HapticSession's statistics are read after stop())
+        double haptic_period_p99_ms = -1;  ///< a haptic session's device period p99 so far, ms (< 0: none yet)
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };

@@ -8,7 +8,9 @@
 #include "formats/recording.h"
 #include "formats/scenario.h"
 #include "runtime/png.h"
+#include "runtime/gl/hud.h"
 #include "runtime/window_keys.h"
+#include "runtime/window_run.h"
 
 #include <gtest/gtest.h>
 
@@ -375,4 +377,30 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueFeelsAForceAndTheEmergencyStopZe
     // (the camera's axes are float: a move of T mm strays by ~1e-7·T off them)
     EXPECT_NEAR(p.back()[2], p.front()[2], 1e-5 * travel) << "neither the drag nor the wheel moves it up or down";
     EXPECT_GT(p.back()[1], p.front()[1]) << "the wheel moved it into the screen (posterior in the anterior view)";
+}
+
+TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
+    // For every scale, the bar is 1, 2 or 5 × 10^k mm and on screen within a factor √2.5 of the
+    // target (the series' widest step is 2 → 5: the nearest value in log scale is within √2.5).
+    for (const double mm_per_pixel : {0.001, 0.0137, 0.1, 0.25, 0.9, 3.3, 12.0, 70.0}) {
+        const double target = 96.0, bar = scale_bar_mm(mm_per_pixel, target);
+        const double mantissa = bar / std::pow(10.0, std::floor(std::log10(bar) + 1e-9));
+        EXPECT_TRUE(std::abs(mantissa - 1) < 1e-9 || std::abs(mantissa - 2) < 1e-9 || std::abs(mantissa - 5) < 1e-9) << bar;
+        const double pixels = bar / mm_per_pixel;
+        EXPECT_LE(std::abs(std::log(pixels / target)), std::log(std::sqrt(2.5)) + 1e-9) << mm_per_pixel << " mm/px: " << bar << " mm";
+    }
+}
+
+TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
+    test::TempDir dir;
+    std::tm t{};
+    t.tm_year = 2026 - 1900, t.tm_mon = 10, t.tm_mday = 24, t.tm_hour = 5, t.tm_min = 7, t.tm_sec = 9;
+    const std::string scenario = (dir / "pat1.h5").string();
+    const fs::path first = timestamped_screenshot(scenario, t);
+    EXPECT_EQ(first, dir / "pat1-20261124-050709.png");
+    std::ofstream(first) << "x";
+    const fs::path second = timestamped_screenshot(scenario, t);
+    EXPECT_EQ(second, dir / "pat1-20261124-050709-2.png");
+    std::ofstream(second) << "x";
+    EXPECT_EQ(fs::path(timestamped_screenshot(scenario, t)), dir / "pat1-20261124-050709-3.png");
 }

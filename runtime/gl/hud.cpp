@@ -181,12 +181,12 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         const ImVec2 size = ImGui::CalcTextSize(label);
         outlined_text(draw, ImVec2(right.x - size.x, left.y - 20), white, label);
 
-        // Force arrows: from each instrument, length ∝ N (a quarter of the model radius per
-        // device maximum, 1 N when no maximum is known), with the scale in the legend.
-        double full_scale_n = 0;
-        for (const HudHand& hh : s.hands) full_scale_n = std::max(full_scale_n, hh.used && hh.has_force ? hh.max_force_n : 0.0);
-        if (full_scale_n <= 0) full_scale_n = 1.0;
-        const double mm_per_n = 0.25 * camera.radius / full_scale_n;
+        // Force arrows: from each instrument, length ∝ N with the scale in the legend: the
+        // largest force so far is about a third of the model radius long (a 1-2-5 scale, so
+        // it changes seldom; tissue forces are often a few percent of the device's maximum).
+        for (const HudHand& hh : s.hands)
+            if (hh.used && hh.has_force) largest_force_n_ = std::max(largest_force_n_, hh.force_n.norm());
+        const double mm_per_n = largest_force_n_ > 0 ? scale_bar_mm(1.0, camera.radius / 3.0 / largest_force_n_) : 1.0;
         bool any_arrow = false;
         for (const HudHand& hh : s.hands) {
             if (!hh.used || !hh.has_force || hh.force_n.norm() < 1e-4) continue;

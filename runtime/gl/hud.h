@@ -62,6 +62,7 @@ public:
 private:
     void frame(const HudState& state, const Camera& camera, int width, int height, bool render);
     bool hud_shown_ = false, help_shown_ = false;
+    double largest_force_n_ = 0;  ///< the force arrows' scale follows the largest force so far
 };
 
 /// The default framebuffer's back buffer as drawn so far (before the swap), RGB, rows top to bottom.
