@@ -145,6 +145,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     glfwSwapInterval(1);
     Hud hud(window);
     bool said_paused = false;
+    long long resets_said = 0;  // T on the cpu thread: resets done and said
     double paused_simulated_ms = 0;       // the simulated time while paused, as last seen
     long long steps_before_single = -1;  // attempted steps when the pending N was handed on
     double largest_mouse_force_n = 0;     // the mouse device's force, largest seen at a frame
@@ -193,9 +194,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
         last = now;
         if (input.reset_tissue) {
-            if (simulation) simulation->request_reset_tissue();
-            else backend.reset_tissue();
+            if (simulation) {
+                simulation->request_reset_tissue();
+            } else {
+                backend.reset_tissue();
+                say("tissue reset to its rest state\n");
+            }
             input.reset_tissue = false;
+        }
+        if (simulation && simulation->status().resets > resets_said) {  // said once the thread has done it
+            resets_said = simulation->status().resets;
             say("tissue reset to its rest state\n");
         }
         // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing

@@ -135,7 +135,11 @@ void WindowSimulation::run() {
             if (step_once) --single_steps_;
             if (!paused) single_steps_ = 0;
         }
-        if (reset) backend_.reset_tissue();
+        if (reset) {
+            backend_.reset_tissue();
+            std::lock_guard lock(mutex_);
+            ++status_.resets;
+        }
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         const double simulated_ms = backend_.simulated_time_ms() - start_ms;
         if ((paused && !step_once) || (!paused && simulated_ms + dt > owed_ms)) {
@@ -198,7 +202,11 @@ void WindowSimulation::run_haptic() {
         }
         haptic_->set_paused(paused);  // no-op unless it changed
         const double owed_ms = clock.owed_ms(paused, Clock::now());
-        if (reset) backend_.reset_tissue();
+        if (reset) {
+            backend_.reset_tissue();
+            std::lock_guard lock(mutex_);
+            ++status_.resets;
+        }
         int stepped = 0;
         if (paused) {
             haptic_->drain();

@@ -40,6 +40,7 @@ public:
         ScriptedRunResult run;        ///< what the steps did, as run_scripted reports it (wall_ms unset)
         bool finished = false;        ///< the step limit was reached, or the watchdog gave up
         std::vector<InstrumentShape> shapes;  ///< a haptic session's instruments as last applied
+        long long resets = 0;         ///< tissue resets done (request_reset_tissue)
         bool paused = false;          ///< the thread has seen the pause: no step runs until resumed (or step_once)
         bool has_forces = false;      ///< forces holds a force pass's result (scripted or keyboard instruments)
         std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world

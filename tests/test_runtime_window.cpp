@@ -3,6 +3,7 @@
 // observables (docs/runtime.md "Window mode"). Every wait polls for the effect with a generous
 // limit; nothing asserts how long anything took. Also: the key table in docs/runtime.md is the
 // code's (runtime/window_keys.h), and `heartsim run --help` prints it.
+#include "runtime_test_support.h"
 #include "test_support.h"
 
 #include "formats/recording.h"
@@ -229,13 +230,14 @@ TEST(WindowKeys, RunHelpPrintsEveryKey) {
     }
 }
 
-TEST(WindowInput, SpacePausesTheSimulatedTimeNStepsOnceTResets) {
-    REQUIRE_WINDOW_TOOLS();
+/// Space, N and T in a window on `backend` (cpu: the simulation's own thread; gl: between frames).
+void pause_step_and_reset(const std::string& backend) {
+    SCOPED_TRACE(backend + " backend");
     test::TempDir dir;
     XServer x(dir.path());
     ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
     const double dt = read_scenario(phantom()).solver.dt_ms;
-    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300");
+    Window window(x, dir.path(), quoted(phantom()) + " --backend " + backend + " --size 400x300");
     ASSERT_TRUE(window.focus()) << window.output();
     ASSERT_EQ(window.xdotool("key space"), 0);
     auto at = window.wait_for("paused at ");
@@ -255,6 +257,7 @@ TEST(WindowInput, SpacePausesTheSimulatedTimeNStepsOnceTResets) {
         EXPECT_NEAR(after - before, dt, 1e-6 * std::max(1.0, after)) << window.output();
         before = after;
     }
+    // T puts the tissue back to rest; the simulated time goes on from where it stood.
     const std::size_t from = window.output().size();
     ASSERT_EQ(window.xdotool("key t"), 0);
     ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
@@ -264,6 +267,17 @@ TEST(WindowInput, SpacePausesTheSimulatedTimeNStepsOnceTResets) {
     EXPECT_NEAR(number_after(window.output(), "resumed at ", at), before, 1e-6 * std::max(1.0, before)) << window.output();
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     EXPECT_EQ(window.wait_exit(), 0) << window.output();
+}
+
+TEST(WindowInput, SpacePausesTheSimulatedTimeAndNStepsOnceOnTheCpuBackend) {
+    REQUIRE_WINDOW_TOOLS();
+    pause_step_and_reset("cpu");
+}
+
+TEST(WindowInput, SpacePausesTheSimulatedTimeAndNStepsOnceOnTheGlBackend) {
+    REQUIRE_WINDOW_TOOLS();
+    REQUIRE_GL();
+    pause_step_and_reset("gl");
 }
 
 TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
@@ -317,7 +331,7 @@ TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
     EXPECT_EQ(window.wait_exit(), 0) << window.output();
 }
 
-TEST(WindowInput, TheMouseDeviceTouchesTheTissueFeelsAForceAndTheEmergencyStopZeroesIt) {
+TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTResetsTheTissue) {
     REQUIRE_WINDOW_TOOLS();
     test::TempDir dir;
     XServer x(dir.path());
@@ -355,10 +369,19 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueFeelsAForceAndTheEmergencyStopZe
     ASSERT_NE(at, std::string::npos) << window.output();
     EXPECT_NE(window.wait_for("mouse device: touching the tissue", at), std::string::npos) << window.output();
 
+    // Paused, T puts the tissue back to its rest state, and no step runs after it: the state at
+    // exit is the rest state itself, though the probe is still pressed in.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key space"), 0);
+    ASSERT_NE(window.wait_for("paused at ", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key t"), 0);
+    ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     ASSERT_EQ(window.wait_exit(), 0) << window.output();
     const std::string out = window.output();
     EXPECT_GT(number_after(out, "mouse device: largest force sent "), 0.01) << out;
+    EXPECT_EQ(number_after(out, "displacement from rest: max "), 0.0) << out;
 
     const Recording r = read_recording(dir / "session.h5");
     ASSERT_EQ(r.hands[0].device_name, "mouse");
