@@ -109,7 +109,9 @@ public:
         return std::string::npos;
     }
     /// xdotool with this display; its exit status.
-    int xdotool(const std::string& arguments) const { return test::run_command("DISPLAY=" + display_ + " xdotool " + arguments).exit_code; }
+    int xdotool(const std::string& arguments) const {
+        return test::run_command("DISPLAY=" + display_ + " timeout 120 xdotool " + arguments).exit_code;
+    }
     /// The window's X id (decimal), or "" when it does not show within 60 s.
     std::string id() const {
         const auto r = test::run_command("DISPLAY=" + display_ + " timeout 60 xdotool search --sync --onlyvisible --name heartsim");
@@ -363,6 +365,19 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTR
     auto at = window.wait_for("emergency stop latched", from);
     ASSERT_NE(at, std::string::npos) << window.output();
     ASSERT_NE(window.wait_for("mouse device: free", at), std::string::npos) << window.output();
+    // … and a red banner across the middle of the window says so.
+    const Image banner = screenshot(window);
+    ASSERT_EQ(banner.width, 400) << window.output();
+    int red_rows = 0;
+    for (int y = 0; y < banner.height; ++y) {
+        int red = 0;
+        for (int x = 0; x < banner.width; ++x) {
+            const std::uint8_t* px = &banner.pixels[(std::size_t(y) * banner.width + x) * 3];
+            red += px[0] > 150 && px[1] < 30 && px[2] < 30;  // the banner: (200, 0, 0) at 92 %
+        }
+        red_rows += red > banner.width / 2;
+    }
+    EXPECT_GE(red_rows, 15) << "rows more than half red (the banner)";
     from = window.output().size();
     ASSERT_EQ(window.xdotool("key e"), 0);
     at = window.wait_for("emergency stop released", from);
