@@ -363,9 +363,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                     h.used = haptic->uses_hand(hand);
                     if (!h.used) continue;
                     h.device = haptic->device_spec(hand);
+                    if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
+                        h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
                     h.instrument = instrument_word(haptic->instrument(hand));
                     h.max_force_n = haptic->max_force_n(hand);
+                    // The simulation's force on the instrument (what the session sends on, before
+                    // safety); for the mouse device what it was sent.
+                    h.has_force = simulation ? status.has_forces : true;
+                    h.force_n = simulation ? status.forces[hand] : haptic->latest_published_forces().hand[hand].force_n;
+                    h.force_source = "on the instrument";
                     if (input.device && h.device == "mouse") {
+                        h.force_source = "sent to the device";
                         // The force sent to the mouse device (world frame: its mapping is the identity).
                         h.has_force = true;
                         h.force_n = input.device->latest_force();

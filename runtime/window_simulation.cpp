@@ -217,6 +217,8 @@ void WindowSimulation::run_haptic() {
         std::unique_lock lock(mutex_);
         status_.paused = paused;
         status_.haptic_period_p99_ms = haptic_->session().live_period_p99_ms();
+        status_.has_forces = true;
+        for (int hand = 0; hand < 2; ++hand) status_.forces[hand] = haptic_->latest_published_forces().hand[hand].force_n;
         status_.attempted = (long long)haptic_->rows();
         status_.run = haptic_->result();
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;

@@ -42,7 +42,7 @@ public:
         std::vector<InstrumentShape> shapes;  ///< a haptic session's instruments as last applied
         long long resets = 0;         ///< tissue resets done (request_reset_tissue)
         bool paused = false;          ///< the thread has seen the pause: no step runs until resumed (or step_once)
-        bool has_forces = false;      ///< forces holds a force pass's result (scripted or keyboard instruments)
+        bool has_forces = false;      ///< forces holds a force pass's result (the haptic session's last published, with one)
         std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world
         double haptic_period_p99_ms = -1;  ///< a haptic session's device period p99 so far, ms (< 0: none yet)
         /// Simulated per real time over the run so far (1 when it keeps up).

@@ -148,6 +148,7 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
             if (!hh.used) continue;
             ImGui::Separator();
             ImGui::Text("hand %d: %s, %s%s", hand, hh.device.c_str(), hh.instrument.c_str(), hh.grabbing ? ", GRAB" : "");
+            if (hh.has_force) ImGui::TextDisabled("force %s", hh.force_source.c_str());
             if (!hh.has_force) {
                 ImGui::TextDisabled("force not known here");
                 continue;

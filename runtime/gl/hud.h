@@ -28,6 +28,7 @@ struct HudHand {
     std::string instrument;   ///< "probe", "grabber"
     bool has_force = false;   ///< false: the force is not known here (shown as such)
     Eigen::Vector3d force_n = Eigen::Vector3d::Zero();  ///< world frame, N
+    std::string force_source = "on the instrument";      ///< or "sent to the device" (after safety)
     double max_force_n = 0;   ///< the bar's full scale, N (the device's maximum or --max-force); 0: no bar
     bool grabbing = false;
     Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();  ///< the instrument's centre, world LPS (arrow origin)

@@ -433,6 +433,7 @@ StepReport HapticRun::step() {
             forces = *latest;
             if (request != last_published_request_) {  // a gl readback that has not advanced is not a new sample
                 last_published_request_ = request;
+                last_published_forces_ = forces;
                 ++result_.forces_received;
                 // Steps from the one that first used the newest pose to the one whose forces these
                 // are, inclusive: 1 when the forces come from the step that used the pose.
