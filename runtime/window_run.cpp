@@ -308,17 +308,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         const bool paused_seen = simulation ? simulation->status().paused : input.paused;
         if (input.paused && paused_seen && !said_paused && steps_before_single < 0) {
             said_paused = true;
-            say("paused at %.6g ms simulated (Space resumes, N steps once)\n", simulated_now_ms);
+            say("paused at %.10g ms simulated (Space resumes, N steps once)\n", simulated_now_ms);
         }
         if (input.paused && paused_seen) paused_simulated_ms = simulated_now_ms;
         if (!input.paused && said_paused) {
             said_paused = false;
-            say("resumed at %.6g ms simulated\n", paused_simulated_ms);  // the time it stood at while paused
+            say("resumed at %.10g ms simulated\n", paused_simulated_ms);  // the time it stood at while paused
         }
         if (steps_before_single >= 0) {
             const long long now_attempted = simulation ? simulation->status().attempted : attempted;
             if (now_attempted > steps_before_single || !input.paused) {
-                if (now_attempted > steps_before_single) say("one step: %.6g ms simulated\n", simulated_now_ms);
+                if (now_attempted > steps_before_single) say("one step: %.10g ms simulated\n", simulated_now_ms);
                 steps_before_single = -1;
             }
         }
