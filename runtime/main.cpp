@@ -3,6 +3,7 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/haptics/haptics.h"
 #include "runtime/run_modes.h"
+#include "runtime/window_keys.h"
 
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
@@ -50,6 +51,7 @@ int main(int argc, char** argv) {
     auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
     RunArguments a;
     auto* run = app.add_subcommand("run", "Simulate a scenario");
+    run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
     run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference)")->check(CLI::IsMember({"gl", "cpu"}));

@@ -515,6 +515,7 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
     const auto wall_start = Clock::now();
     if (haptic) catch_interrupts();
     const WindowRunOptions window{.scenario_name = std::filesystem::path(a.scenario).filename().string(),
+                                  .scenario_path = a.scenario,
                                   .screenshot = a.screenshot,
                                   .screenshot_every = a.screenshot_every,
                                   .draw_share = a.draw_share,

@@ -1,7 +1,9 @@
 // The window mode's loop: docs/runtime.md "Window mode".
 #include "runtime/window_run.h"
 
+#include "runtime/gl/hud.h"
 #include "runtime/png.h"
+#include "runtime/window_keys.h"
 #include "runtime/window_simulation.h"
 
 #define GLFW_INCLUDE_NONE
@@ -11,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <limits>
 #include <optional>
@@ -25,7 +28,22 @@ std::string numbered_screenshot(const std::string& path, long long step) {
     return (p.parent_path() / (p.stem().string() + suffix + p.extension().string())).string();
 }
 
+std::string timestamped_screenshot(const std::string& scenario, const std::tm& local_time) {
+    const std::filesystem::path p(scenario);
+    char stamp[32];
+    std::strftime(stamp, sizeof stamp, "-%Y%m%d-%H%M%S", &local_time);
+    const std::filesystem::path first = p.parent_path() / (p.stem().string() + stamp + ".png");
+    std::filesystem::path path = first;
+    for (int n = 2; std::filesystem::exists(path); ++n)  // two in the same second: -2, -3, …
+        path = p.parent_path() / (p.stem().string() + stamp + "-" + std::to_string(n) + ".png");
+    return path.string();
+}
+
 namespace {
+
+const char* instrument_word(InstrumentKind kind) {
+    return kind == InstrumentKind::grabber ? "grabber" : kind == InstrumentKind::probe ? "probe" : "none";
+}
 
 /// The window's mouse and keyboard state (GLFW callbacks write it).
 struct WindowInput {
@@ -39,7 +57,17 @@ struct WindowInput {
     haptics::DevicePose device_pose;
     bool dragging_device = false, estop = false;
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
+    bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
+    int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
+    bool screenshot = false;    ///< P: write the window as seen after the next frame
 };
+
+/// An event line on stdout at once (tests and logs read it while the window runs).
+template <class... Args>
+void say(const char* format, Args... args) {
+    std::printf(format, args...);
+    std::fflush(stdout);
+}
 
 /// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
 /// thread, the gl backend between frames, haptics through `haptic`) with the script or the
@@ -101,15 +129,28 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
         if (key == GLFW_KEY_R) in->renderer->reset_camera();
         if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
+        if (key == GLFW_KEY_N && in->paused) ++in->single_steps;
         if (key == GLFW_KEY_T) in->reset_tissue = true;
+        if (key == GLFW_KEY_P) in->screenshot = true;
+        if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
+        if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
         if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
         if (key == GLFW_KEY_E && in->session) {
             in->estop = !in->estop;
             if (in->estop) in->session->emergency_stop();
             else in->session->release_emergency_stop();
+            say(in->estop ? "emergency stop latched: every device's force is zero (E releases)\n" : "emergency stop released\n");
         }
     });
     glfwSwapInterval(1);
+    Hud hud(window);
+    bool said_paused = false;
+    long long resets_said = 0;  // T on the cpu thread: resets done and said
+    double paused_simulated_ms = 0;       // the simulated time while paused, as last seen
+    long long steps_before_single = -1;  // attempted steps when the pending N was handed on
+    double largest_mouse_force_n = 0;     // the mouse device's force, largest seen at a frame
+    bool mouse_touching = false;          // the mouse device's force was above 0.01 N at a frame (and not zero since)
+    std::optional<InstrumentForces> gl_forces;  // the gl loop's newest force pass
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
     ScriptedHands hands(trajectory);
@@ -153,10 +194,17 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
         last = now;
         if (input.reset_tissue) {
-            if (simulation) simulation->request_reset_tissue();
-            else backend.reset_tissue();
+            if (simulation) {
+                simulation->request_reset_tissue();
+            } else {
+                backend.reset_tissue();
+                say("tissue reset to its rest state\n");
+            }
             input.reset_tissue = false;
-            std::printf("tissue reset to its rest state\n");
+        }
+        if (simulation && simulation->status().resets > resets_said) {  // said once the thread has done it
+            resets_said = simulation->status().resets;
+            say("tissue reset to its rest state\n");
         }
         // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
         // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
@@ -164,6 +212,19 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (!simulation && !haptic && !input.paused) {
             const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
             n = int(std::clamp(std::floor(owed_ms / dt) - double(attempted), 0.0, 1e6));
+        }
+        // N while paused: one step (the gl loop here, the cpu thread by request); not with a
+        // haptic session, whose steps follow the session clock.
+        if (!input.paused) input.single_steps = 0;
+        if (input.single_steps > 0 && haptic) {
+            say("N: single steps need a run without --device (a haptic session follows its own clock)\n");
+            input.single_steps = 0;
+        }
+        if (input.single_steps > 0 && steps_before_single < 0) {
+            steps_before_single = attempted;
+            --input.single_steps;
+            if (simulation) simulation->request_single_step();
+            else n = 1;
         }
         if (steps >= 0) n = std::min(n, steps - attempted);
         const double step_budget_ms = std::max(12.0, 2.0 * last_draw_ms);
@@ -234,7 +295,31 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             result.add(report);
             if (any_instrument) {
                 backend.request_forces();
-                if (backend.latest_forces()) ++result.forces_received;
+                if (auto forces = backend.latest_forces()) {
+                    ++result.forces_received;
+                    gl_forces = forces;
+                }
+            }
+        }
+
+        // Event lines once the simulation has taken them in: paused (no step runs from here on),
+        // resumed, one step done.
+        const double simulated_now_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+        const bool paused_seen = simulation ? simulation->status().paused : input.paused;
+        if (input.paused && paused_seen && !said_paused && steps_before_single < 0) {
+            said_paused = true;
+            say("paused at %.10g ms simulated (Space resumes, N steps once)\n", simulated_now_ms);
+        }
+        if (input.paused && paused_seen) paused_simulated_ms = simulated_now_ms;
+        if (!input.paused && said_paused) {
+            said_paused = false;
+            say("resumed at %.10g ms simulated\n", paused_simulated_ms);  // the time it stood at while paused
+        }
+        if (steps_before_single >= 0) {
+            const long long now_attempted = simulation ? simulation->status().attempted : attempted;
+            if (now_attempted > steps_before_single || !input.paused) {
+                if (now_attempted > steps_before_single) say("one step: %.10g ms simulated\n", simulated_now_ms);
+                steps_before_single = -1;
             }
         }
 
@@ -247,12 +332,85 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (!trajectory.uses_hand(hand)) continue;
             const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
             const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
-            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes});
+            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand});
         }
         const auto draw_start = std::chrono::steady_clock::now();
         if (simulation) renderer.render(latest_positions, shapes);
         else renderer.render(backend, shapes);
         renderer.present(width, height);
+        {
+            // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
+            const double s = std::max(1e-9, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+            HudState state;
+            state.show_hud = input.show_hud, state.show_help = input.show_help;
+            const WindowSimulation::Status status = simulation ? simulation->status() : WindowSimulation::Status{};
+            const double owed_ms = simulation ? status.owed_ms : 1e3 * s - paused_ms;
+            state.simulated_ms = simulation ? status.simulated_ms : backend.simulated_time_ms();
+            state.real_time_factor = haptic && !simulation ? 1.0 : owed_ms > 0 ? state.simulated_ms / owed_ms : 1.0;
+            state.frames_per_s = frames / s;
+            state.steps_per_s = result.steps / s;
+            state.particles = backend.size();
+            state.backend = to_string(backend.kind());
+            state.paused = input.paused;
+            state.emergency_stop = input.estop;
+            state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
+            const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
+            for (int hand = 0; hand < 2; ++hand) {
+                HudHand& h = state.hands[hand];
+                for (const InstrumentShape& shape : shapes)
+                    if (shape.hand == hand) h.position_mm = shape.pose.position;
+                if (haptic) {
+                    h.used = haptic->uses_hand(hand);
+                    if (!h.used) continue;
+                    h.device = haptic->device_spec(hand);
+                    if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
+                        h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
+                    h.instrument = instrument_word(haptic->instrument(hand));
+                    h.max_force_n = haptic->max_force_n(hand);
+                    // The simulation's force on the instrument (what the session sends on, before
+                    // safety); for the mouse device what it was sent.
+                    h.has_force = simulation ? status.has_forces : true;
+                    h.force_n = simulation ? status.forces[hand] : haptic->latest_published_forces().hand[hand].force_n;
+                    h.force_source = "on the instrument";
+                    if (input.device && h.device == "mouse") {
+                        h.force_source = "sent to the device";
+                        // The force sent to the mouse device (world frame: its mapping is the identity).
+                        h.has_force = true;
+                        h.force_n = input.device->latest_force();
+                        h.grabbing = (input.device_pose.buttons & 1u) != 0;
+                        largest_mouse_force_n = std::max(largest_mouse_force_n, h.force_n.norm());
+                        // Contact as the hand feels it, on the terminal too (a log, the tests).
+                        if (!mouse_touching && h.force_n.norm() > 0.01) say("mouse device: touching the tissue, %.3f N\n", h.force_n.norm());
+                        if (mouse_touching && h.force_n.norm() == 0.0) say("mouse device: free\n");
+                        mouse_touching = h.force_n.norm() > 0.01 || (mouse_touching && h.force_n.norm() > 0.0);
+                    }
+                    continue;
+                }
+                h.used = trajectory.uses_hand(hand);
+                if (!h.used) continue;
+                h.device = hand == 0 && keyboard_hand0 ? "keyboard" : "script";
+                const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, state.simulated_ms);
+                h.instrument = instrument_word(k.kind);
+                h.grabbing = k.grab;
+                h.has_force = has_forces;
+                h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
+            }
+            hud.draw(state, renderer.camera(), width, height);
+        }
+        if (input.screenshot) {
+            // P: the window as seen, HUD included, beside the scenario (written atomically).
+            input.screenshot = false;
+            const std::time_t wall = std::time(nullptr);
+            std::tm local{};
+            localtime_r(&wall, &local);
+            const std::string path = timestamped_screenshot(a.scenario_path, local);
+            try {
+                write_png(path, read_window_pixels(width, height));
+                say("screenshot: wrote %s (%dx%d)\n", path.c_str(), width, height);
+            } catch (const std::exception& e) {
+                say("screenshot: could not write %s: %s\n", path.c_str(), e.what());
+            }
+        }
         glfwSwapBuffers(window);
         last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
         ++frames;
@@ -263,7 +421,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
             while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
                 glfwWaitEventsTimeout(0.01);
-                if (input.reset_tissue || input.paused) break;
+                if (input.reset_tissue || input.paused || input.screenshot || input.single_steps > 0) break;
             }
         }
         if (next_shot > 0 && result.steps >= next_shot) {
@@ -311,6 +469,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         simulation.reset();  // joins the thread before the caller reads the backend
     }
     result.wall_ms = wall_ms;
+    if (input.device) std::printf("mouse device: largest force sent %.4g N (at a frame)\n", largest_mouse_force_n);
     std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
                 frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
     return result;

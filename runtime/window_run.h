@@ -11,12 +11,14 @@
 #include "runtime/trajectory.h"
 
 #include <atomic>
+#include <ctime>
 #include <string>
 
 namespace heartsim {
 
 struct WindowRunOptions {
     std::string scenario_name;      ///< for the title
+    std::string scenario_path;      ///< the P key's screenshots go beside it
     std::string screenshot;         ///< OUT.png; with screenshot_every, numbered frames too
     int screenshot_every = 0;       ///< also OUT-000123.png after every N steps
     double draw_share = 0.1;        ///< drawing takes at most this fraction of the wall clock (cpu backend)
@@ -28,6 +30,10 @@ struct WindowRunOptions {
 /// haptic session (its devices move the instruments). Returns what run_scripted would.
 ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
                              int steps, const WindowRunOptions& options, haptics::HapticRun* haptic);
+
+/// The P key's screenshot: SCENARIO-YYYYmmdd-HHMMSS.png beside `scenario` (the .h5) at
+/// `local_time`, with -2, -3, … appended when that name exists already.
+std::string timestamped_screenshot(const std::string& scenario, const std::tm& local_time);
 
 /// OUT.png → OUT-000123.png for step 123.
 std::string numbered_screenshot(const std::string& path, long long step);

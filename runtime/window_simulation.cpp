@@ -91,6 +91,15 @@ void WindowSimulation::request_reset_tissue() {
     reset_ = true;
 }
 
+void WindowSimulation::request_single_step() {
+    {
+        std::lock_guard lock(mutex_);
+        if (haptic_) return;
+        ++single_steps_;
+    }
+    published_.notify_all();
+}
+
 bool WindowSimulation::latest(std::vector<std::array<float, 3>>& positions) {
     std::unique_lock lock(mutex_);
     if (!status_.finished && !stop_ && !paused_) {
@@ -116,23 +125,32 @@ void WindowSimulation::run() {
     publish_start();
     for (;;) {
         InstrumentPose keyboard;
-        bool keyboard_set = false, reset = false, paused = false;
+        bool keyboard_set = false, reset = false, paused = false, step_once = false;
         {
             std::unique_lock lock(mutex_);
             if (stop_) break;
             keyboard = keyboard_pose_, keyboard_set = keyboard_set_, reset = reset_, paused = paused_;
             reset_ = false;
+            step_once = paused && single_steps_ > 0;
+            if (step_once) --single_steps_;
+            if (!paused) single_steps_ = 0;
         }
-        if (reset) backend_.reset_tissue();
+        if (reset) {
+            backend_.reset_tissue();
+            std::lock_guard lock(mutex_);
+            ++status_.resets;
+        }
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         const double simulated_ms = backend_.simulated_time_ms() - start_ms;
-        if (paused || simulated_ms + dt > owed_ms) {
+        if ((paused && !step_once) || (!paused && simulated_ms + dt > owed_ms)) {
             // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
             std::unique_lock lock(mutex_);
             status_.owed_ms = owed_ms;
+            status_.paused = paused;
             publish_if_wanted();
             const double wait_ms = paused ? 5.0 : std::min(5.0, simulated_ms + dt - owed_ms);
-            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });
+            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms),
+                                [&] { return stop_ || want_positions_ || reset_ || single_steps_ > 0 || paused_ != paused; });
             continue;
         }
         // One step, the hands posed as run_scripted poses them.
@@ -147,12 +165,18 @@ void WindowSimulation::run() {
             hands_->apply(backend_, hand, t, t_next);
         }
         const StepReport report = backend_.step(1);
-        bool received = false;
+        std::optional<InstrumentForces> forces;
         if (any_instrument) {
             backend_.request_forces();
-            received = backend_.latest_forces().has_value();
+            forces = backend_.latest_forces();
         }
+        const bool received = forces.has_value();
         std::lock_guard lock(mutex_);
+        if (forces) {
+            status_.has_forces = true;
+            for (int hand = 0; hand < 2; ++hand) status_.forces[hand] = forces->hand[hand].force_n;
+        }
+        status_.paused = paused;
         ++status_.attempted;
         status_.run.add(report);
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
@@ -178,7 +202,11 @@ void WindowSimulation::run_haptic() {
         }
         haptic_->set_paused(paused);  // no-op unless it changed
         const double owed_ms = clock.owed_ms(paused, Clock::now());
-        if (reset) backend_.reset_tissue();
+        if (reset) {
+            backend_.reset_tissue();
+            std::lock_guard lock(mutex_);
+            ++status_.resets;
+        }
         int stepped = 0;
         if (paused) {
             haptic_->drain();
@@ -187,6 +215,10 @@ void WindowSimulation::run_haptic() {
             stepped = haptic_->step_to_real_time(int(std::clamp(left, 0LL, 100000LL)), 2.0);
         }
         std::unique_lock lock(mutex_);
+        status_.paused = paused;
+        status_.haptic_period_p99_ms = haptic_->session().live_period_p99_ms();
+        status_.has_forces = true;
+        for (int hand = 0; hand < 2; ++hand) status_.forces[hand] = haptic_->latest_published_forces().hand[hand].force_n;
         status_.attempted = (long long)haptic_->rows();
         status_.run = haptic_->result();
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
@@ -196,7 +228,8 @@ void WindowSimulation::run_haptic() {
         if (finish_at_limit()) break;
         if (stepped == 0) {
             const double wait_ms = paused ? 5.0 : std::clamp(haptic_->ms_until_next_step(), 0.05, 1.0);
-            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms), [&] { return stop_ || want_positions_ || reset_; });
+            published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms),
+                                [&] { return stop_ || want_positions_ || reset_ || paused_ != paused; });
         }
     }
 }

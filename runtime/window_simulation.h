@@ -40,6 +40,11 @@ public:
         ScriptedRunResult run;        ///< what the steps did, as run_scripted reports it (wall_ms unset)
         bool finished = false;        ///< the step limit was reached, or the watchdog gave up
         std::vector<InstrumentShape> shapes;  ///< a haptic session's instruments as last applied
+        long long resets = 0;         ///< tissue resets done (request_reset_tissue)
+        bool paused = false;          ///< the thread has seen the pause: no step runs until resumed (or step_once)
+        bool has_forces = false;      ///< forces holds a force pass's result (the haptic session's last published, with one)
+        std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world
+        double haptic_period_p99_ms = -1;  ///< a haptic session's device period p99 so far, ms (< 0: none yet)
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };
@@ -58,6 +63,8 @@ public:
     /// While paused the simulation stops and the paused time is not owed afterwards.
     void set_paused(bool paused);
     void request_reset_tissue();
+    /// While paused: one step (the hands posed for it as usual). Not with a haptic session (ignored).
+    void request_single_step();
     /// The newest positions (N×3, mm): asks the thread for a copy after its next step and waits
     /// for it (at most one step). False once the thread has stopped and nothing new exists.
     bool latest(std::vector<std::array<float, 3>>& positions);
@@ -80,6 +87,7 @@ private:
     mutable std::mutex mutex_;
     std::condition_variable published_;
     bool stop_ = false, paused_ = false, reset_ = false, want_positions_ = false, fresh_ = false;
+    int single_steps_ = 0;
     InstrumentPose keyboard_pose_;
     bool keyboard_set_ = false;
     std::vector<std::array<float, 3>> positions_;

@@ -15,13 +15,15 @@ packages=(
   # OpenGL through EGL/epoxy, window through GLFW; Mesa for headless llvmpipe (the runtime);
   # libpng for screenshots
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri libpng-dev
+  # the window's HUD and help (Dear ImGui with its GLFW and OpenGL3 backends)
+  libimgui-dev
   # tests
   googletest libgtest-dev
   # the sanitizer job (scripts/run-sanitizers.sh): clang with AddressSanitizer, UBSan and
   # libFuzzer's runtime; llvm for llvm-symbolizer (readable stacks in sanitizer reports)
   clang libclang-rt-14-dev llvm
-  # window tests (heartsim's GLFW window under a virtual X server)
-  xvfb xauth
+  # window tests (heartsim's GLFW window under a virtual X server, driven by real input events)
+  xvfb xauth xdotool
   # the cluster workflow (workflow/Snakefile) and its test
   snakemake
   # ParaView opens our files (tests/test_paraview.cpp runs tests/vtk_open.py under /usr/bin/python3

@@ -75,6 +75,7 @@ struct InstrumentShape {
     InstrumentKind kind = InstrumentKind::probe;
     InstrumentPose pose;
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
+    int hand = -1;  ///< 0 or 1 where known (the HUD's force arrows), -1 otherwise
 };
 
 /// Rendering times so far, ms summed (GPU timer queries; the cpu backend's position upload in

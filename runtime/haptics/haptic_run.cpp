@@ -438,6 +438,7 @@ StepReport HapticRun::step() {
             forces = *latest;
             if (request != last_published_request_) {  // a gl readback that has not advanced is not a new sample
                 last_published_request_ = request;
+                last_published_forces_ = forces;
                 ++result_.forces_received;
                 // Steps from the one that first used the newest pose to the one whose forces these
                 // are, inclusive: 1 when the forces come from the step that used the pose.
@@ -572,8 +573,10 @@ bool HapticRun::device_faulted() const {
 
 std::vector<InstrumentShape> HapticRun::shapes() const {
     std::vector<InstrumentShape> shapes;
-    for (const Hand& h : hands_)
-        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes});
+    for (int hand = 0; hand < 2; ++hand) {
+        const Hand& h = hands_[hand];
+        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes, hand});
+    }
     return shapes;
 }
 

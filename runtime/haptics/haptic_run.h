@@ -109,6 +109,13 @@ public:
     InstrumentKind instrument(int hand) const { return hands_[hand].instrument.kind; }
     /// The hand's device description for printing.
     std::string describe(int hand) const;
+    /// The hand's --device spec as given ("mouse", "simulated:FILE", …); fixed once constructed.
+    const std::string& device_spec(int hand) const { return hands_[hand].spec.text; }
+    /// The forces last published to the devices (world frame, N, before safety and coupling): the
+    /// tissue's force on each instrument. Read by the thread that steps.
+    const InstrumentForces& latest_published_forces() const { return last_published_forces_; }
+    /// The largest force the hand's device is sent, N (--max-force or the device's own maximum).
+    double max_force_n(int hand) const { return recording_.hands[hand].max_force_n; }
 
 private:
     struct Hand {
@@ -129,6 +136,7 @@ private:
     HapticRunSettings settings_;
     std::array<Hand, 2> hands_;
     WindowDevice* window_device_ = nullptr;
+    InstrumentForces last_published_forces_{};
     std::unique_ptr<HapticSession> session_;
     Recording recording_;
     std::vector<TickRecord> ticks_;

@@ -223,6 +223,7 @@ void HapticSession::run_thread() {
         const auto start = clock::now();
         if (!first) {
             periods_.add(std::chrono::duration<double, std::milli>(start - previous).count());
+            if (periods_.count() % 500 == 0) live_period_p99_ms_.store(periods_.quantile_ms(0.99), std::memory_order_relaxed);
         }
         first = false;
         previous = start;

@@ -164,6 +164,9 @@ public:
 
     /// After stop() (or from the ticking thread).
     PeriodStats period_stats() const;
+    /// From any thread while running: the p99 of the device thread's periods so far, ms, refreshed
+    /// every 500 periods (the window's HUD); < 0 before the first refresh.
+    double live_period_p99_ms() const { return live_period_p99_ms_.load(std::memory_order_relaxed); }
     LatencyStats latency_stats() const;
     /// How the device thread is scheduled, e.g. "SCHED_FIFO priority 80" or "normal (SCHED_FIFO
     /// refused: Operation not permitted)"; empty before start().
@@ -214,6 +217,7 @@ private:
     // Written by the device thread only: periods in 1 µs bins up to 20 ms, pose → force latency
     // in 10 µs bins up to 1 s.
     DurationHistogram periods_{1000, 20.0};
+    std::atomic<double> live_period_p99_ms_{-1.0};
     std::uint64_t overruns_ = 0;
     DurationHistogram latencies_{100, 1000.0};
     SpscQueue<TickRecord> ticks_queue_;

@@ -1,0 +1,76 @@
+/// @file hud.h
+/// @brief The window's heads-up display (docs/runtime.md "Window mode"), drawn over the scene with
+/// Dear ImGui (kept inside hud.cpp): the session's figures, each hand's device, instrument and
+/// force with a bar against the device's maximum, a red banner while the emergency stop is
+/// latched, the orientation axes (LPS), a scale bar in mm, force arrows at the instruments, and
+/// the key help (window_keys.h). Display only: it takes no input.
+///
+///     Hud hud(glfw_window);                       // the window's context current
+///     renderer.present(width, height);
+///     hud.draw(state, renderer.camera(), width, height);
+///     glfwSwapBuffers(glfw_window);
+#pragma once
+
+#include "runtime/gl/renderer.h"
+#include "runtime/png.h"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <string>
+
+namespace heartsim {
+
+/// One hand as the HUD shows it.
+struct HudHand {
+    bool used = false;
+    std::string device;       ///< e.g. "mouse", "simulated:press.csv", "script", "keyboard"
+    std::string instrument;   ///< "probe", "grabber"
+    bool has_force = false;   ///< false: the force is not known here (shown as such)
+    Eigen::Vector3d force_n = Eigen::Vector3d::Zero();  ///< world frame, N
+    std::string force_source = "on the instrument";      ///< or "sent to the device" (after safety)
+    double max_force_n = 0;   ///< the bar's full scale, N (the device's maximum or --max-force); 0: no bar
+    bool grabbing = false;
+    Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();  ///< the instrument's centre, world LPS (arrow origin)
+};
+
+/// What the HUD shows in one frame.
+struct HudState {
+    bool show_hud = true, show_help = false;
+    double real_time_factor = 1, frames_per_s = 0, steps_per_s = 0, simulated_ms = 0;
+    std::size_t particles = 0;
+    std::string backend;
+    bool paused = false;
+    bool emergency_stop = false;   ///< latched: the banner
+    double haptic_period_p99_ms = -1;  ///< < 0: not available
+    std::array<HudHand, 2> hands;
+};
+
+class Hud {
+public:
+    /// Sets Dear ImGui up on `glfw_window` (a GLFWwindow*, its context current). It installs no
+    /// GLFW callbacks (the window's own stay).
+    explicit Hud(void* glfw_window);
+    ~Hud();
+    Hud(const Hud&) = delete;
+    Hud& operator=(const Hud&) = delete;
+
+    /// Draws `state` over the current default framebuffer, `width`×`height` pixels, projecting
+    /// world points with `camera` (axes, scale bar, force arrows). Nothing when neither the HUD
+    /// nor the help is on.
+    void draw(const HudState& state, const Camera& camera, int width, int height);
+
+private:
+    void frame(const HudState& state, const Camera& camera, int width, int height, bool render);
+    bool hud_shown_ = false, help_shown_ = false;
+    double largest_force_n_ = 0;  ///< the force arrows' scale follows the largest force so far
+};
+
+/// The default framebuffer's back buffer as drawn so far (before the swap), RGB, rows top to bottom.
+Image read_window_pixels(int width, int height);
+
+/// A scale bar length, mm: the 1-2-5 series value whose length on screen is nearest to
+/// `target_pixels` at `mm_per_pixel`.
+double scale_bar_mm(double mm_per_pixel, double target_pixels);
+
+}  // namespace heartsim

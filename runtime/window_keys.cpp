@@ -1,0 +1,50 @@
+// The window's keys: one table for the help, --help and the docs (window_keys.h).
+#include "runtime/window_keys.h"
+
+#include <algorithm>
+#include <cstring>
+
+namespace heartsim {
+
+const std::vector<WindowKey>& window_keys() {
+    static const std::vector<WindowKey> keys = {
+        {"left drag", "orbit", "horizontal about the view's up axis (superior for the default view), vertical about the camera's right axis"},
+        {"right or middle drag, Shift + left drag", "pan", "moves the orbit centre in the view plane"},
+        {"wheel", "zoom", "0.05 to 20 model radii"},
+        {"R", "reset the view", "back to the fitted default view (--view)"},
+        {"arrows", "move instrument 0", "in the view plane, 0.25 model radius per second (Shift: 5x slower); the mouse device with --device mouse"},
+        {"PgUp / PgDn", "move instrument 0 in depth", "into / out of the screen"},
+        {"Space", "pause / resume", "the simulation stops (rendering and the camera go on); paused time is not owed afterwards"},
+        {"N", "one step while paused", "advances the paused simulation by one time step (not with --device)"},
+        {"T", "reset the tissue", "back to its rest state (grabs released; the simulated time and the instruments go on)"},
+        {"P", "screenshot", "the window as seen (HUD included) to SCENARIO-YYYYmmdd-HHMMSS.png beside the scenario; the path is printed"},
+        {"F2 or Tab", "HUD on / off", "real-time factor, fps, steps/s, particles, each hand's device, instrument and force, axes, scale bar"},
+        {"H or F1", "help on / off", "this table in the window"},
+        {"E", "emergency stop", "with --device: every device's force to zero, latched until E again (a red banner says so)"},
+        {"G", "mouse device button 1", "with --device mouse: a grabber holds while it is on"},
+        {"Ctrl + left drag", "move the mouse device", "with --device mouse: in the view plane, one pixel per pixel at the orbit centre's depth"},
+        {"Ctrl + wheel", "mouse device in depth", "with --device mouse: wheel up moves it into the screen (2 % of the model radius a notch)"},
+        {"Esc, closing the window", "quit", "the state file, the stats and --record are still written"},
+    };
+    return keys;
+}
+
+std::string window_keys_markdown() {
+    std::string out = "| input | action | details |\n|---|---|---|\n";
+    for (const WindowKey& k : window_keys()) out += std::string("| ") + k.input + " | " + k.action + " | " + k.description + " |\n";
+    return out;
+}
+
+std::string window_keys_text() {
+    std::size_t width = 0;
+    for (const WindowKey& k : window_keys()) width = std::max(width, std::strlen(k.input));
+    std::string out = "Window keys and mouse (also on screen: H):\n";
+    for (const WindowKey& k : window_keys()) {
+        std::string input = k.input;
+        input.resize(width, ' ');
+        out += "  " + input + "  " + k.action + ": " + k.description + "\n";
+    }
+    return out;
+}
+
+}  // namespace heartsim

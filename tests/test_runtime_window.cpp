@@ -1,0 +1,444 @@
+// The window driven as training staff drive it: real X input events (xdotool, XTEST) into
+// heartsim's GLFW window under Xvfb, its stdout event lines and its P-key screenshots as the
+// observables (docs/runtime.md "Window mode"). Every wait polls for the effect with a generous
+// limit; nothing asserts how long anything took. Also: the key table in docs/runtime.md is the
+// code's (runtime/window_keys.h), and `heartsim run --help` prints it.
+#include "runtime_test_support.h"
+#include "test_support.h"
+
+#include "formats/recording.h"
+#include "formats/scenario.h"
+#include "runtime/png.h"
+#include "runtime/gl/hud.h"
+#include "runtime/window_keys.h"
+#include "runtime/window_run.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+extern char** environ;
+
+using namespace heartsim;
+using test::quoted;
+namespace fs = std::filesystem;
+
+namespace {
+
+const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border"); }
+
+pid_t spawn_shell(const std::string& command) {
+    pid_t pid = -1;
+    const char* argv[] = {"/bin/sh", "-c", command.c_str(), nullptr};
+    if (posix_spawn(&pid, "/bin/sh", nullptr, nullptr, const_cast<char**>(argv), environ) != 0) return -1;
+    return pid;
+}
+
+/// Ends `pid` (TERM, then KILL after 10 s) and reaps it; returns its exit status or -1.
+int end_process(pid_t pid) {
+    int status = 0;
+    if (waitpid(pid, &status, WNOHANG) == pid) return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    kill(pid, SIGTERM);
+    for (int i = 0; i < 100; ++i) {
+        if (waitpid(pid, &status, WNOHANG) == pid) return -1;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &status, 0);
+    return -1;
+}
+
+/// An Xvfb server of its own (640×480×24) on the first free display it finds (-displayfd).
+class XServer {
+public:
+    explicit XServer(const fs::path& dir) {
+        const fs::path number = dir / "display";
+        pid_ = spawn_shell("exec Xvfb -displayfd 3 -screen 0 640x480x24 -nolisten tcp 3>" + quoted(number) + " 2>" + quoted(dir / "xvfb.log"));
+        for (int i = 0; i < 300 && display_.empty(); ++i) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+            std::ifstream in(number);
+            std::string n;
+            if (std::getline(in, n) && !n.empty()) display_ = ":" + n;
+        }
+    }
+    ~XServer() {
+        if (pid_ > 0) end_process(pid_);
+    }
+    const std::string& display() const { return display_; }
+
+private:
+    pid_t pid_ = -1;
+    std::string display_;
+};
+
+/// heartsim in a window on `display`, its stdout and stderr in a file.
+class Window {
+public:
+    Window(const XServer& x, const fs::path& dir, const std::string& arguments) : display_(x.display()), log_(dir / "heartsim.log") {
+        pid_ = spawn_shell("ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" DISPLAY=" + display_ + " exec timeout 600 " +
+                           quoted(HEARTSIM_EXE) + " run " + arguments + " >" + quoted(log_) + " 2>&1");
+    }
+    ~Window() {
+        if (pid_ > 0) end_process(pid_);
+    }
+    std::string output() const {
+        std::ifstream in(log_);
+        std::stringstream text;
+        text << in.rdbuf();
+        return text.str();
+    }
+    /// Polls the output for `text` at or after `from` (at most `seconds`); its position or npos.
+    std::size_t wait_for(const std::string& text, std::size_t from = 0, double seconds = 180) {
+        const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+        while (std::chrono::steady_clock::now() < until) {
+            const std::string out = output();
+            if (const auto at = out.find(text, from); at != std::string::npos) return at;
+            if (exited()) return output().find(text, from);
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        }
+        return std::string::npos;
+    }
+    /// xdotool with this display; its exit status.
+    int xdotool(const std::string& arguments) const {
+        return test::run_command("DISPLAY=" + display_ + " timeout 120 xdotool " + arguments).exit_code;
+    }
+    /// The window's X id (decimal), or "" when it does not show within 60 s.
+    std::string id() const {
+        const auto r = test::run_command("DISPLAY=" + display_ + " timeout 60 xdotool search --sync --onlyvisible --name heartsim");
+        const auto end = r.output.find('\n');
+        return r.exit_code == 0 ? r.output.substr(0, end) : "";
+    }
+    /// Waits for the window and gives it the keyboard focus (no window manager: XSetInputFocus).
+    bool focus() const { return xdotool("search --sync --onlyvisible --name heartsim windowfocus --sync %1") == 0; }
+    bool exited() {
+        if (exit_code_ >= -1 && reaped_) return true;
+        int status = 0;
+        if (waitpid(pid_, &status, WNOHANG) == pid_) {
+            reaped_ = true, pid_ = -1;
+            exit_code_ = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+            return true;
+        }
+        return false;
+    }
+    /// Waits for the process to end (at most `seconds`); its exit status, -2 if it did not end.
+    int wait_exit(double seconds = 180) {
+        const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+        while (std::chrono::steady_clock::now() < until) {
+            if (exited()) return exit_code_;
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+        }
+        return -2;
+    }
+
+private:
+    std::string display_;
+    fs::path log_;
+    pid_t pid_ = -1;
+    bool reaped_ = false;
+    int exit_code_ = -2;
+};
+
+/// The number after `prefix` in `text` at or after `from` (NaN if absent).
+double number_after(const std::string& text, const std::string& prefix, std::size_t from = 0) {
+    const auto at = text.find(prefix, from);
+    if (at == std::string::npos) return std::nan("");
+    return std::strtod(text.c_str() + at + prefix.size(), nullptr);
+}
+
+/// The path in "screenshot: wrote PATH (WxH)" at or after `from`.
+fs::path screenshot_path(const std::string& text, std::size_t from) {
+    const std::string prefix = "screenshot: wrote ";
+    const auto at = text.find(prefix, from);
+    if (at == std::string::npos) return {};
+    const auto end = text.find(" (", at);
+    return text.substr(at + prefix.size(), end - at - prefix.size());
+}
+
+/// Presses P and returns the screenshot it wrote (read back), or an empty image.
+Image screenshot(Window& window, std::string* path_out = nullptr) {
+    const std::size_t from = window.output().size();
+    if (window.xdotool("key p") != 0) return {};
+    const auto at = window.wait_for("screenshot: wrote ", from);
+    if (at == std::string::npos) return {};
+    if (window.wait_for(")\n", at) == std::string::npos) return {};
+    const fs::path path = screenshot_path(window.output(), at);
+    if (path_out) *path_out = path.string();
+    return read_png(path);
+}
+
+/// The fraction of pixels in [x0, x1)×[y0, y1) whose colour differs by more than 24 in a channel.
+double changed(const Image& a, const Image& b, int x0, int y0, int x1, int y1) {
+    if (a.width != b.width || a.height != b.height) return 1.0;
+    long long differing = 0, total = 0;
+    for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x, ++total) {
+            const std::size_t i = (std::size_t(y) * a.width + x) * 3;
+            for (int c = 0; c < 3; ++c)
+                if (std::abs(int(a.pixels[i + c]) - int(b.pixels[i + c])) > 24) {
+                    ++differing;
+                    break;
+                }
+        }
+    return total ? double(differing) / double(total) : 0.0;
+}
+
+bool have_window_tools(std::string* why) {
+    if (test::run_command("command -v Xvfb && command -v xdotool").exit_code != 0) {
+        *why = "Xvfb or xdotool is not installed (Debian: xvfb xdotool; scripts/install-deps.sh)";
+        return false;
+    }
+    return true;
+}
+
+#define REQUIRE_WINDOW_TOOLS()                                   \
+    do {                                                         \
+        std::string why_;                                        \
+        if (!have_window_tools(&why_)) GTEST_SKIP() << why_;     \
+    } while (0)
+
+}  // namespace
+
+TEST(WindowKeys, TheDocumentsKeyTableIsTheCodes) {
+    // docs/runtime.md holds the table between two markers; it must be window_keys_markdown()
+    // byte for byte (regenerate it from the expected text below when a key changes).
+    std::ifstream in(fs::path(HEARTSIM_SOURCE_DIR) / "docs/runtime.md");
+    std::stringstream text;
+    text << in.rdbuf();
+    const std::string doc = text.str(), begin = "<!-- window-keys: begin (runtime/window_keys.cpp; a test checks) -->\n",
+                      end = "<!-- window-keys: end -->";
+    const auto b = doc.find(begin), e = doc.find(end);
+    ASSERT_NE(b, std::string::npos) << "docs/runtime.md has no '" << begin << "'";
+    ASSERT_NE(e, std::string::npos);
+    EXPECT_EQ(doc.substr(b + begin.size(), e - b - begin.size()), window_keys_markdown()) << "expected:\n" << window_keys_markdown();
+}
+
+TEST(WindowKeys, RunHelpPrintsEveryKey) {
+    const auto help = test::run_command(quoted(HEARTSIM_EXE) + " run --help");
+    ASSERT_EQ(help.exit_code, 0) << help.output;
+    EXPECT_FALSE(window_keys().empty());
+    for (const WindowKey& k : window_keys()) {
+        EXPECT_NE(help.output.find(k.input), std::string::npos) << k.input;
+        EXPECT_NE(help.output.find(std::string(k.action) + ": " + k.description), std::string::npos) << k.action;
+    }
+}
+
+/// Space, N and T in a window on `backend` (cpu: the simulation's own thread; gl: between frames).
+void pause_step_and_reset(const std::string& backend) {
+    SCOPED_TRACE(backend + " backend");
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    const double dt = read_scenario(phantom()).solver.dt_ms;
+    Window window(x, dir.path(), quoted(phantom()) + " --backend " + backend + " --size 400x300");
+    ASSERT_TRUE(window.focus()) << window.output();
+    ASSERT_EQ(window.xdotool("key space"), 0);
+    auto at = window.wait_for("paused at ");
+    ASSERT_NE(at, std::string::npos) << window.output();
+    const double paused = number_after(window.output(), "paused at ", at);
+    // Frames go by while paused (a screenshot is one), and the simulated time stands still:
+    // only N moves it, by exactly one time step each.
+    ASSERT_FALSE(screenshot(window).pixels.empty()) << window.output();
+    std::this_thread::sleep_for(std::chrono::seconds(1));
+    double before = paused;
+    for (int n = 0; n < 2; ++n) {
+        const std::size_t from = window.output().size();
+        ASSERT_EQ(window.xdotool("key n"), 0);
+        at = window.wait_for("one step: ", from);
+        ASSERT_NE(at, std::string::npos) << window.output();
+        const double after = number_after(window.output(), "one step: ", at);
+        EXPECT_NEAR(after - before, dt, 1e-6 * std::max(1.0, after)) << window.output();
+        before = after;
+    }
+    // T puts the tissue back to rest; the simulated time goes on from where it stood.
+    const std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key t"), 0);
+    ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key space"), 0);
+    at = window.wait_for("resumed at ", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    EXPECT_NEAR(number_after(window.output(), "resumed at ", at), before, 1e-6 * std::max(1.0, before)) << window.output();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+}
+
+TEST(WindowInput, SpacePausesTheSimulatedTimeAndNStepsOnceOnTheCpuBackend) {
+    REQUIRE_WINDOW_TOOLS();
+    pause_step_and_reset("cpu");
+}
+
+TEST(WindowInput, SpacePausesTheSimulatedTimeAndNStepsOnceOnTheGlBackend) {
+    REQUIRE_WINDOW_TOOLS();
+    REQUIRE_GL();
+    pause_step_and_reset("gl");
+}
+
+TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    // The scenario in this test's folder: P writes beside it.
+    fs::copy_file(phantom(), dir / "case.h5");
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300");
+    ASSERT_TRUE(window.focus()) << window.output();
+    ASSERT_EQ(window.xdotool("key space"), 0);  // paused: the tissue stands still between pictures
+    ASSERT_NE(window.wait_for("paused at "), std::string::npos) << window.output();
+
+    std::string path;
+    const Image hud = screenshot(window, &path);
+    ASSERT_EQ(hud.width, 400) << window.output();
+    ASSERT_EQ(hud.height, 300);
+    const fs::path written = path;
+    EXPECT_EQ(fs::absolute(written).parent_path(), fs::absolute(dir.path())) << path;
+    const std::string name = written.filename().string();  // case-YYYYmmdd-HHMMSS.png
+    EXPECT_EQ(name.size(), std::string("case-20260101-000000.png").size()) << name;
+    EXPECT_EQ(name.rfind("case-", 0), 0u) << name;
+    EXPECT_EQ(written.extension(), ".png");
+
+    ASSERT_EQ(window.xdotool("key h"), 0);
+    const Image help = screenshot(window);
+    ASSERT_EQ(help.width, 400) << window.output();
+    EXPECT_GT(changed(hud, help, 100, 75, 300, 225), 0.2) << "the help should cover the middle of the window";
+
+    ASSERT_EQ(window.xdotool("key h F2"), 0);  // help and HUD off
+    const Image bare = screenshot(window);
+    ASSERT_EQ(bare.width, 400) << window.output();
+    EXPECT_LT(changed(hud, bare, 100, 150, 300, 225), 0.02) << "the scene alone, as before, below the HUD panel";
+    EXPECT_GT(changed(hud, bare, 8, 8, 150, 50), 0.1) << "F2 should hide the HUD panel (top left)";
+
+    // Orbit: a left drag across the middle; zoom: the wheel. Each changes the picture.
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 mousedown 1"), 0);
+    for (int k = 1; k <= 8; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 10 * k) + " 150"), 0);
+    ASSERT_EQ(window.xdotool("mouseup 1"), 0);
+    const Image orbited = screenshot(window);
+    ASSERT_EQ(orbited.width, 400) << window.output();
+    EXPECT_GT(changed(bare, orbited, 0, 0, 400, 300), 0.03) << "the orbit should turn the model";
+    ASSERT_EQ(window.xdotool("click --repeat 5 --delay 50 5"), 0);  // wheel down: farther away
+    const Image zoomed = screenshot(window);
+    ASSERT_EQ(zoomed.width, 400) << window.output();
+    EXPECT_GT(changed(orbited, zoomed, 0, 0, 400, 300), 0.03) << "the zoom should shrink the model";
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+}
+
+TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTResetsTheTissue) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "session.h5"));
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+
+    // Ctrl + left drag to the right: the device moves along the camera's right axis only (the
+    // anterior view: +x, the patient's left), as the recording of its poses shows below.
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl mousedown 1"), 0);
+    for (int k = 1; k <= 4; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 5 * k) + " 150"), 0);
+    ASSERT_EQ(window.xdotool("mouseup 1 keyup ctrl"), 0);
+
+    // Ctrl + wheel up, a notch at a time, until the device reaches the tissue and feels it.
+    std::size_t touching = std::string::npos;
+    for (int notch = 0; notch < 80 && touching == std::string::npos; ++notch) {
+        ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+        touching = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+    }
+    ASSERT_NE(touching, std::string::npos) << "the probe should reach the phantom within 80 notches\n" << window.output();
+    EXPECT_GT(number_after(window.output(), "mouse device: touching the tissue, ", touching), 0.01);
+
+    // E latches the emergency stop: the force sent drops to zero (free) while the probe stays in
+    // the tissue; E again releases it and the force comes back.
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key e"), 0);
+    auto at = window.wait_for("emergency stop latched", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    ASSERT_NE(window.wait_for("mouse device: free", at), std::string::npos) << window.output();
+    // … and a red banner across the middle of the window says so.
+    const Image banner = screenshot(window);
+    ASSERT_EQ(banner.width, 400) << window.output();
+    int red_rows = 0;
+    for (int y = 0; y < banner.height; ++y) {
+        int red = 0;
+        for (int x = 0; x < banner.width; ++x) {
+            const std::uint8_t* px = &banner.pixels[(std::size_t(y) * banner.width + x) * 3];
+            red += px[0] > 150 && px[1] < 30 && px[2] < 30;  // the banner: (200, 0, 0) at 92 %
+        }
+        red_rows += red > banner.width / 2;
+    }
+    EXPECT_GE(red_rows, 15) << "rows more than half red (the banner)";
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key e"), 0);
+    at = window.wait_for("emergency stop released", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    EXPECT_NE(window.wait_for("mouse device: touching the tissue", at), std::string::npos) << window.output();
+
+    // Paused, T puts the tissue back to its rest state, and no step runs after it: the state at
+    // exit is the rest state itself, though the probe is still pressed in.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key space"), 0);
+    ASSERT_NE(window.wait_for("paused at ", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key t"), 0);
+    ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    const std::string out = window.output();
+    EXPECT_GT(number_after(out, "mouse device: largest force sent "), 0.01) << out;
+    EXPECT_EQ(number_after(out, "displacement from rest: max "), 0.0) << out;
+
+    const Recording r = read_recording(dir / "session.h5");
+    ASSERT_EQ(r.hands[0].device_name, "mouse");
+    double max_sent = 0;
+    for (const auto& f : r.hands[0].force_n) max_sent = std::max(max_sent, std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]));
+    EXPECT_GT(max_sent, 0.01) << "the session sent the device a force";
+    bool latched = false, released = false;
+    for (const auto& e : r.events) latched |= e.what == "emergency_stop", released |= latched && e.what == "emergency_stop_released";
+    EXPECT_TRUE(latched && released) << "the session saw the stop latched, then released";
+    // The drag: x grew, y stayed; the wheel moved z only (into the screen: -y is anterior, so the
+    // device moved towards +y, posterior). Poses in the device frame = world for the mouse.
+    const auto& p = r.hands[0].position_mm;
+    ASSERT_FALSE(p.empty());
+    EXPECT_GT(p.back()[0], p.front()[0] + 0.1) << "Ctrl + drag to the right moves the device towards the patient's left";
+    const double travel = std::abs(p.back()[0] - p.front()[0]) + std::abs(p.back()[1] - p.front()[1]);
+    // (the camera's axes are float: a move of T mm strays by ~1e-7·T off them)
+    EXPECT_NEAR(p.back()[2], p.front()[2], 1e-5 * travel) << "neither the drag nor the wheel moves it up or down";
+    EXPECT_GT(p.back()[1], p.front()[1]) << "the wheel moved it into the screen (posterior in the anterior view)";
+}
+
+TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
+    // For every scale, the bar is 1, 2 or 5 × 10^k mm and on screen within a factor √2.5 of the
+    // target (the series' widest step is 2 → 5: the nearest value in log scale is within √2.5).
+    for (const double mm_per_pixel : {0.001, 0.0137, 0.1, 0.25, 0.9, 3.3, 12.0, 70.0}) {
+        const double target = 96.0, bar = scale_bar_mm(mm_per_pixel, target);
+        const double mantissa = bar / std::pow(10.0, std::floor(std::log10(bar) + 1e-9));
+        EXPECT_TRUE(std::abs(mantissa - 1) < 1e-9 || std::abs(mantissa - 2) < 1e-9 || std::abs(mantissa - 5) < 1e-9) << bar;
+        const double pixels = bar / mm_per_pixel;
+        EXPECT_LE(std::abs(std::log(pixels / target)), std::log(std::sqrt(2.5)) + 1e-9) << mm_per_pixel << " mm/px: " << bar << " mm";
+    }
+}
+
+TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
+    test::TempDir dir;
+    std::tm t{};
+    t.tm_year = 2026 - 1900, t.tm_mon = 10, t.tm_mday = 24, t.tm_hour = 5, t.tm_min = 7, t.tm_sec = 9;
+    const std::string scenario = (dir / "pat1.h5").string();
+    const fs::path first = timestamped_screenshot(scenario, t);
+    EXPECT_EQ(first, dir / "pat1-20261124-050709.png");
+    std::ofstream(first) << "x";
+    const fs::path second = timestamped_screenshot(scenario, t);
+    EXPECT_EQ(second, dir / "pat1-20261124-050709-2.png");
+    std::ofstream(second) << "x";
+    EXPECT_EQ(fs::path(timestamped_screenshot(scenario, t)), dir / "pat1-20261124-050709-3.png");
+}
