@@ -14,7 +14,7 @@ trap 'rm -rf "$work"' EXIT
 
 rm -rf "$corpus"
 mkdir -p "$corpus"/{fuzz_volume_nii,fuzz_volume_nii_gz,fuzz_volume_nrrd,fuzz_volume_mha,fuzz_scenario,fuzz_recording}
-mkdir -p "$corpus"/{fuzz_trajectory,fuzz_pose_script,fuzz_simulated_device,fuzz_batch_manifest}
+mkdir -p "$corpus"/{fuzz_trajectory,fuzz_pose_script,fuzz_simulated_device,fuzz_batch_manifest,fuzz_label_table}
 
 # Label maps: the phantom heart at 16 voxels along its longest axis in every format the writer
 # knows (.nrrd, .seg.nrrd and .mha gzip-compressed), a thick shell and a sphere.
@@ -68,4 +68,13 @@ phantom.nii.gz,phantom-cavity,"--cavity 2 --anchor-border"
 /data/labelmaps/pat1-label.nii.gz,pat1,"--gravity 0,0.00981,0 --particles 20000 --mapping 'tangent'"
 CSV
 printf 'a.nii\nb.nrrd,b\n' > "$corpus/fuzz_batch_manifest/plain.csv"
+
+# Label tables in the three layouts read_label_table knows (formats/label_table.h), with a
+# comment, a blank line and an underscore that stands for a blank.
+printf '# Color table file\n0 Background 0 0 0 0\n1 blood_pool 255 0 0 255\n\n2 Myocardium 0 255 0 255\n' \
+  > "$corpus/fuzz_label_table/slicer.ctbl"
+printf '# ITK-SNAP Label Description File\n    0     0    0    0        0  0  0    "Clear Label"\n    1   255    0    0        1  1  1    "blood pool"\n    2     0  255    0        1  1  1    "Myocardium"\n' \
+  > "$corpus/fuzz_label_table/itksnap.txt"
+printf 'LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n2,"Myocardium",0,255,0,255\n' \
+  > "$corpus/fuzz_label_table/slicer.csv"
 du -ab "$corpus" | sort -k2
