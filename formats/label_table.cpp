@@ -1,9 +1,9 @@
 #include "formats/label_table.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/segment_names.h"
 
 #include <fstream>
-#include <limits>
 #include <sstream>
 #include <vector>
 
@@ -17,19 +17,6 @@ std::string trim(const std::string& text) {
     return text.substr(first, text.find_last_not_of(" \t\r\n") - first + 1);
 }
 
-bool parse_label(const std::string& text, int& value) {
-    const std::string t = trim(text);
-    if (t.empty()) return false;
-    try {
-        std::size_t used = 0;
-        const long long parsed = std::stoll(t, &used);
-        if (used != t.size() || parsed < std::numeric_limits<int>::min() || parsed > std::numeric_limits<int>::max()) return false;
-        value = int(parsed);
-        return true;
-    } catch (const std::exception&) {
-        return false;
-    }
-}
 
 std::string unquote(std::string text) {
     text = trim(text);
@@ -68,12 +55,12 @@ std::map<int, std::string> read_label_table(const std::filesystem::path& path) {
             std::istringstream fields(text.substr(0, quote));
             std::string value;
             fields >> value;
-            if (!parse_label(value, label) || text.find('"', quote + 1) == std::string::npos)
+            if (!parse_label_value(value, label) || text.find('"', quote + 1) == std::string::npos)
                 throw InputError(path.string() + ": line " + std::to_string(number) + " '" + text.substr(0, 60) + "'" + expected);
             name = unquote(text.substr(quote));
         } else if (comma != std::string::npos) {  // CSV, whose names may be quoted
             const std::string value = text.substr(0, comma);
-            if (!parse_label(value, label)) {
+            if (!parse_label_value(value, label)) {
                 if (header_line) continue;  // "LabelValue,Name,Color_R,…"
                 throw InputError(path.string() + ": line " + std::to_string(number) + " '" + text.substr(0, 60) + "'" + expected);
             }
@@ -83,7 +70,7 @@ std::map<int, std::string> read_label_table(const std::filesystem::path& path) {
             std::istringstream fields(text);
             std::string value;
             fields >> value >> name;
-            if (!parse_label(value, label) || name.empty())
+            if (!parse_label_value(value, label) || name.empty())
                 throw InputError(path.string() + ": line " + std::to_string(number) + " '" + text.substr(0, 60) + "'" + expected);
             for (char& c : name)
                 if (c == '_') c = ' ';

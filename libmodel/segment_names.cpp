@@ -37,20 +37,6 @@ std::string comparable(const std::string& name) {
     return text;
 }
 
-/// An integer and nothing else (surrounding blanks allowed).
-bool parse_integer(const std::string& text, int& value) {
-    const std::string t = trim(text);
-    if (t.empty()) return false;
-    std::size_t used = 0;
-    try {
-        const long long parsed = std::stoll(t, &used);
-        if (used != t.size() || parsed < std::numeric_limits<int>::min() || parsed > std::numeric_limits<int>::max()) return false;
-        value = int(parsed);
-        return true;
-    } catch (const std::exception&) {
-        return false;
-    }
-}
 
 std::string list_segments(const SegmentNames& names) {
     std::string text;
@@ -72,6 +58,20 @@ std::string describe_labels(const std::vector<int>& labels, const SegmentNames& 
 }
 
 }  // namespace
+
+bool parse_label_value(const std::string& text, int& value) {
+    const std::string t = trim(text);
+    if (t.empty()) return false;
+    std::size_t used = 0;
+    try {
+        const long long parsed = std::stoll(t, &used);
+        if (used != t.size() || parsed < std::numeric_limits<int>::min() || parsed > std::numeric_limits<int>::max()) return false;
+        value = int(parsed);
+        return true;
+    } catch (const std::exception&) {
+        return false;
+    }
+}
 
 std::string non_muscle_word(const std::string& name) {
     const std::string lower = lowercase(name);
@@ -101,7 +101,7 @@ std::vector<int> resolve_label_choice(const std::vector<std::string>& given, con
     std::vector<int> labels;
     for (const std::string& text : given) {
         int label = 0;
-        if (!parse_integer(text, label)) {
+        if (!parse_label_value(text, label)) {
             const std::string wanted = comparable(text);
             auto found = std::find_if(names.begin(), names.end(),
                                       [&](const auto& entry) { return comparable(entry.second) == wanted; });

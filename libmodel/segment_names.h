@@ -30,6 +30,11 @@ enum class SegmentKind {
 /// What `name` says about its segment (the word lists above; case-insensitive).
 SegmentKind classify_segment_name(const std::string& name);
 
+/// A label value: an integer and nothing else (surrounding blanks allowed), in int's range. False
+/// (and `value` untouched) otherwise. How --tissue tells a number from a name, and how a label
+/// table's values are read.
+bool parse_label_value(const std::string& text, int& value);
+
 /// The word of `name` that made classify_segment_name call it not heart muscle ("blood",
 /// "cavity", …), or empty.
 std::string non_muscle_word(const std::string& name);
