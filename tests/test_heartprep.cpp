@@ -607,6 +607,11 @@ TEST(HeartprepNifti, DisagreeingQformAndSformWarnThroughTheBuild) {
     EXPECT_TRUE(has_warning(built, "20.00 mm apart at the first voxel, 25.00° apart"));
     EXPECT_NE(output.find("heartprep: warning: " + dir.path().string() + "/two-transforms.nii: the NIfTI qform"), std::string::npos)
         << output;
+    // -q silences the summary, not the warning.
+    const std::string quiet = build(dir / "two-transforms.nii", dir / "quiet.h5", "-q");
+    EXPECT_NE(quiet.find("heartprep: warning: " + dir.path().string() + "/two-transforms.nii: the NIfTI qform"), std::string::npos)
+        << quiet;
+    EXPECT_EQ(quiet.find("wrote "), std::string::npos) << quiet;
     // The qform is the identity: the particles lie on the block's voxels, LPS = (−x, −y, z) of RAS.
     for (const auto& p : built.lattice.particles.rest_position) {
         EXPECT_LE(p[0], -3.0f);

@@ -215,7 +215,7 @@ void add_build_command(CLI::App& app) {
         ->check(CLI::Range(1e-3, 0.99))
         ->capture_default_str()
         ->group("Solver");
-    command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+    command->add_flag("-q,--quiet", *quiet, "No progress and no summary (warnings are still printed)");
     auto threads = std::make_shared<int>(0);
     command->add_option("--threads", *threads, "Threads the build may use (0 = every core); `batch` sets it per case")
         ->check(CLI::Range(0, 4096))
@@ -259,6 +259,10 @@ void add_build_command(CLI::App& app) {
         if (!*quiet) {
             print_build_summary(report, scenario);
             std::printf("wrote       %s (%.1f MB)\n", output->c_str(), double(std::filesystem::file_size(*output)) / 1e6);
+        } else {
+            // -q silences the progress and the summary, not what the user must hear (a qform that
+            // disagrees with the sform, a segment that is not heart muscle, a heart that sags).
+            for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
         }
     });
 }
@@ -280,7 +284,7 @@ void add_surface_command(CLI::App& app) {
     command->add_option("-o,--output", *output, "Mesh file to write: .stl, .obj, .ply, .vtp, .glb")->required();
     add_selection_options(*command, *labels, *selection);
     add_surface_options(*command, *surface);
-    command->add_flag("-q,--quiet", *quiet, "No progress and no summary");
+    command->add_flag("-q,--quiet", *quiet, "No progress and no summary (warnings are still printed)");
     command->callback([=] {
         check_output_path(*output, "OUT.stl");
         if (!is_writable_mesh_path(*output))
@@ -303,9 +307,9 @@ void add_surface_command(CLI::App& app) {
             std::printf("time     marching cubes %.3f s, smoothing %.3f s, decimation %.3f s\n", report.surface.seconds_marching_cubes,
                         report.surface.seconds_smoothing, report.surface.seconds_decimation);
             std::printf("wrote    %s (LPS, mm)\n", output->c_str());
-            for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
-            for (const auto& w : report.surface.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
         }
+        for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+        for (const auto& w : report.surface.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
     });
 }
 
