@@ -9,6 +9,7 @@
 #include "formats/atomic_file.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/segment_names.h"
 #include "libmodel/plausible.h"
 
 // Debian's ITK 5.2 ships the compiler detection header generated for GCC, which stops any other
@@ -529,19 +530,27 @@ void read_segment_metadata(Probe& probe) {
         std::string value;
         if (!std::regex_match(key, match, key_pattern) || !itk::ExposeMetaData<std::string>(dictionary, key, value))
             continue;
-        const int segment = std::stoi(match[1].str());
-        if (match[2] == "Name") names[segment] = value;
-        else if (match[2] == "LabelValue") label_values[segment] = value;
-        else probe.max_segment_layer = std::max(probe.max_segment_layer, std::atoi(value.c_str()));
+        // Numbers out of int's range are refused, not thrown as std::out_of_range (fuzz_volume_nrrd).
+        int segment = 0;
+        if (!parse_label_value(match[1].str(), segment))
+            throw InputError(probe.header.format + " file: " + key.substr(0, 60) + ": the segment number is out of range");
+        if (match[2] == "Name") {
+            names[segment] = value;
+        } else if (match[2] == "LabelValue") {
+            label_values[segment] = value;
+        } else {
+            int layer = 0;
+            if (!parse_label_value(value, layer) || layer < 0)
+                throw InputError(probe.header.format + " file: " + key + " is '" + value.substr(0, 40) +
+                                 "'; expected a layer number (0, 1, …)");
+            probe.max_segment_layer = std::max(probe.max_segment_layer, layer);
+        }
     }
     for (const auto& [segment, text] : label_values) {
         int label = 0;
-        try {
-            label = std::stoi(text);
-        } catch (const std::exception&) {
+        if (!parse_label_value(text, label))
             throw InputError(probe.header.format + " file: Segment" + std::to_string(segment) + "_LabelValue is '" +
-                             text + "'; expected an integer");
-        }
+                             text.substr(0, 40) + "'; expected an integer");
         auto name = names.find(segment);
         probe.header.segment_names[label] = name != names.end() ? name->second : "Segment" + std::to_string(segment);
     }

@@ -407,6 +407,27 @@ TEST(VolumeRead, SingleLayerSegNrrdGivesLabelsAndSegmentNames) {
     EXPECT_NEAR(volume.geometry.origin[2], 3.0, 1e-12);
 }
 
+// fuzz_volume_nrrd (10-minute run, 2026-11-24): a segment number or layer beyond int's range made
+// std::stoi throw std::out_of_range out of the reader instead of a refusal naming the field.
+TEST(VolumeReadErrors, SegNrrdNumbersOutOfRangeAreRefused) {
+    const std::string dimensions = "dimension: 3\nspace: left-posterior-superior\nsizes: 4 3 2\n"
+                                   "space directions: (0.5,0,0) (0,0.75,0) (0,0,1.25)\nkinds: domain domain domain\n";
+    TempDir folder;
+    const std::pair<std::string, std::string> cases[] = {
+        {"Segment99999999999_Name:=Far\nSegment1_Layer:=0\n", "Segment99999999999_Name"},
+        {"Segment1_Layer:=99999999999\n", "Segment1_Layer is '99999999999'"},
+        {"Segment1_Layer:=one\n", "Segment1_Layer is 'one'"},
+        {"Segment2_LabelValue:=99999999999\nSegment1_Layer:=0\n", "Segment2_LabelValue is '99999999999'"}};
+    for (const auto& [extra, expected] : cases) {
+        std::vector<unsigned char> bytes;
+        append_text(bytes, segmentation_header(dimensions) + extra + "\n");
+        bytes.resize(bytes.size() + 24, 1);
+        const fs::path path = folder / "odd.seg.nrrd";
+        write_bytes(path, bytes);
+        expect_error<InputError>([&] { read_volume_header(path); }, {expected});
+    }
+}
+
 TEST(VolumeRead, MultiLayerSegNrrdIsRefused) {
     std::vector<unsigned char> bytes;
     append_text(bytes, segmentation_header("dimension: 4\n"
