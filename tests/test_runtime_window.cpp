@@ -293,6 +293,8 @@ TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
     ASSERT_TRUE(window.focus()) << window.output();
     ASSERT_EQ(window.xdotool("key space"), 0);  // paused: the tissue stands still between pictures
     ASSERT_NE(window.wait_for("paused at "), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key F5"), 0);  // no device: nothing to record, and it says so
+    ASSERT_NE(window.wait_for("recording: needs a haptic session"), std::string::npos) << window.output();
 
     std::string path;
     const Image hud = screenshot(window, &path);
@@ -384,6 +386,11 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTR
     ASSERT_NE(at, std::string::npos) << window.output();
     EXPECT_NE(window.wait_for("mouse device: touching the tissue", at), std::string::npos) << window.output();
 
+    // --record records the whole session: F5 is refused (the session's recording goes on).
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key F5"), 0);
+    ASSERT_NE(window.wait_for("records the whole session already; F5 is off", from), std::string::npos) << window.output();
+
     // Paused, T puts the tissue back to its rest state, and no step runs after it: the state at
     // exit is the rest state itself, though the probe is still pressed in.
     from = window.output().size();
@@ -415,6 +422,102 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTR
     // (the camera's axes are float: a move of T mm strays by ~1e-7·T off them)
     EXPECT_NEAR(p.back()[2], p.front()[2], 1e-5 * travel) << "neither the drag nor the wheel moves it up or down";
     EXPECT_GT(p.back()[1], p.front()[1]) << "the wheel moved it into the screen (posterior in the anterior view)";
+}
+
+/// The path in "recording: wrote PATH (N steps)" at or after `from`, and N.
+fs::path recording_path(const std::string& text, std::size_t from, long long* steps = nullptr) {
+    const std::string prefix = "recording: wrote ";
+    const auto at = text.find(prefix, from);
+    if (at == std::string::npos) return {};
+    const auto end = text.find(" (", at);
+    if (end == std::string::npos) return {};
+    if (steps) *steps = std::atoll(text.c_str() + end + 2);
+    return text.substr(at + prefix.size(), end - at - prefix.size());
+}
+
+/// F5 and F5 again: the path written and its steps (empty path on failure).
+fs::path record_from_window(Window& window, int notches, long long* steps) {
+    std::size_t from = window.output().size();
+    if (window.xdotool("key F5") != 0) return {};
+    const auto started = window.wait_for("recording: started at ", from);
+    if (started == std::string::npos || window.wait_for("\n", started) == std::string::npos) return {};
+    // The device moves while recording: a few Ctrl + wheel notches into the tissue and back.
+    for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 4 keyup ctrl");
+    for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 5 keyup ctrl");
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    from = window.output().size();
+    if (window.xdotool("key F5") != 0) return {};
+    const auto wrote = window.wait_for("recording: wrote ", from);
+    if (wrote == std::string::npos || window.wait_for(" steps)\n", wrote) == std::string::npos) return {};
+    return recording_path(window.output(), wrote, steps);
+}
+
+TEST(WindowInput, F5RecordsFromTheRestStateAndTheRecordingReplaysBitForBit) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    fs::copy_file(phantom(), dir / "case.h5");  // the recordings go beside the scenario
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300 --device mouse");
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+
+    // The probe pressed into the tissue before the recording starts: the tissue is deformed, so
+    // only a recording that starts from the rest state (F5 resets it) replays bit for bit.
+    std::size_t touching = std::string::npos;
+    for (int notch = 0; notch < 80 && touching == std::string::npos; ++notch) {
+        ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+        touching = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+    }
+    ASSERT_NE(touching, std::string::npos) << "the probe should reach the phantom within 80 notches\n" << window.output();
+    ASSERT_EQ(window.xdotool("keydown ctrl click 4 click 4 keyup ctrl"), 0);  // deeper in
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+
+    long long steps1 = 0, steps2 = 0;
+    const fs::path first = record_from_window(window, 2, &steps1);
+    ASSERT_FALSE(first.empty()) << window.output();
+    const fs::path second = record_from_window(window, 1, &steps2);
+    ASSERT_FALSE(second.empty()) << window.output();
+    // T is refused while recording (a reset could not be replayed): start a third, press T, close
+    // the window while it records: it is written too.
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key F5"), 0);
+    ASSERT_NE(window.wait_for("recording: started at ", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key t"), 0);
+    ASSERT_NE(window.wait_for("T: not while recording", from), std::string::npos) << window.output();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    long long steps3 = 0;
+    const fs::path third = recording_path(window.output(), from, &steps3);
+    ASSERT_FALSE(third.empty()) << "closing the window writes the recording that is on\n" << window.output();
+
+    const std::vector<fs::path> paths = {first, second, third};
+    const std::vector<long long> steps = {steps1, steps2, steps3};
+    EXPECT_NE(first, second);
+    EXPECT_NE(second, third);
+    EXPECT_NE(first, third);
+    for (std::size_t k = 0; k < paths.size(); ++k) {
+        SCOPED_TRACE(paths[k].string());
+        const std::string name = paths[k].filename().string();  // case-YYYYmmdd-HHMMSS[-N].rec.h5
+        EXPECT_EQ(fs::absolute(paths[k]).parent_path(), fs::absolute(dir.path()));
+        EXPECT_EQ(name.rfind("case-", 0), 0u) << name;
+        EXPECT_EQ(name.substr(name.size() - 7), ".rec.h5") << name;
+        EXPECT_TRUE(fs::exists(fs::path(paths[k]).replace_extension(".xdmf"))) << "the .xdmf beside it";
+        EXPECT_FALSE(fs::exists(paths[k].string() + ".journal")) << "the journal is deleted once written";
+        const Recording r = read_recording(paths[k]);
+        ASSERT_EQ(r.hands[0].device_name, "mouse");
+        EXPECT_EQ((long long)r.steps.size(), steps[k]);
+        ASSERT_GT(r.steps.size(), 0u);
+        double largest = 0;
+        for (const auto& f : r.steps.force_n) largest = std::max(largest, std::sqrt(f[0][0] * f[0][0] + f[0][1] * f[0][1] + f[0][2] * f[0][2]));
+        EXPECT_GT(largest, 0.01) << "the probe pressed in the tissue while recording";
+        const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(dir / "case.h5") + " --headless --replay " + quoted(paths[k]));
+        EXPECT_EQ(replay.exit_code, 0) << replay.output;
+        EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+    }
 }
 
 TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
