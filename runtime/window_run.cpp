@@ -14,6 +14,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <ctime>
 #include <filesystem>
 #include <limits>
@@ -154,6 +155,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     });
     glfwSwapInterval(1);
     Hud hud(window);
+    const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
     bool said_paused = false;
     long long resets_said = 0;  // T on the cpu thread: resets done and said
     double paused_simulated_ms = 0;       // the simulated time while paused, as last seen
@@ -453,6 +455,13 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 h.grabbing = k.grab;
                 h.has_force = has_forces;
                 h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
+            }
+            if (hud_fixed) {
+                // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
+                // machine's speed and on timing shown as fixed values, so the picture is the same
+                // on every run (docs/runtime.md "Window mode").
+                state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
+                if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
             }
             hud.draw(state, renderer.camera(), width, height);
         }

@@ -18,6 +18,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdlib>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -84,8 +85,10 @@ private:
 /// heartsim in a window on `display`, its stdout and stderr in a file.
 class Window {
 public:
-    Window(const XServer& x, const fs::path& dir, const std::string& arguments) : display_(x.display()), log_(dir / "heartsim.log") {
-        pid_ = spawn_shell("ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" DISPLAY=" + display_ + " exec timeout 600 " +
+    /// `environment`: more NAME=VALUE words for its environment.
+    Window(const XServer& x, const fs::path& dir, const std::string& arguments, const std::string& environment = "")
+        : display_(x.display()), log_(dir / "heartsim.log") {
+        pid_ = spawn_shell("ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" DISPLAY=" + display_ + " " + environment + " exec timeout 600 " +
                            quoted(HEARTSIM_EXE) + " run " + arguments + " >" + quoted(log_) + " 2>&1");
     }
     ~Window() {
@@ -530,6 +533,82 @@ TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
         const double pixels = bar / mm_per_pixel;
         EXPECT_LE(std::abs(std::log(pixels / target)), std::log(std::sqrt(2.5)) + 1e-9) << mm_per_pixel << " mm/px: " << bar << " mm";
     }
+}
+
+TEST(WindowHud, TheHudMatchesItsGoldenImage) {
+    // The window as seen (P), HUD included: the phantom at rest (paused after a step, then T), the
+    // keyboard's probe, the HUD panel, the LPS axes and the scale bar. HEARTSIM_HUD_FIXED shows
+    // the figures that depend on the machine's speed (real-time factor, fps, steps/s, simulated
+    // time) as fixed values; everything else is what the window draws. Regenerate (after an
+    // intended change of the picture) with
+    // HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_window --gtest_filter='*Golden*'; look at it first.
+    REQUIRE_WINDOW_TOOLS();
+    const fs::path golden = fs::path(HEARTSIM_SOURCE_DIR) / "tests/data/golden/window_hud.png";
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    fs::copy_file(phantom(), dir / "case.h5");
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300", "HEARTSIM_HUD_FIXED=1");
+    ASSERT_TRUE(window.focus()) << window.output();
+    // Paused once a step has run (the HUD then shows the force pass's result, not "not known").
+    for (int attempt = 0;; ++attempt) {
+        ASSERT_LT(attempt, 20) << window.output();
+        std::size_t from = window.output().size();
+        ASSERT_EQ(window.xdotool("key space"), 0);
+        const auto at = window.wait_for("paused at ", from);
+        ASSERT_NE(at, std::string::npos) << window.output();
+        if (number_after(window.output(), "paused at ", at) > 0) break;
+        from = window.output().size();
+        ASSERT_EQ(window.xdotool("key space"), 0);
+        ASSERT_NE(window.wait_for("resumed at ", from), std::string::npos) << window.output();
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    }
+    const std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key t"), 0);  // the rest state exactly
+    ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+    const Image image = screenshot(window);
+    ASSERT_EQ(image.width, 400) << window.output();
+    ASSERT_EQ(image.height, 300);
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+
+    if (std::getenv("HEARTSIM_UPDATE_GOLDEN")) {
+        fs::create_directories(golden.parent_path());
+        write_png(golden, image);
+        std::printf("  updated the golden image %s\n", golden.c_str());
+    }
+    if (!fs::exists(golden)) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
+    const Image reference = read_png(golden);
+    ASSERT_EQ(reference.width, image.width);
+    ASSERT_EQ(reference.height, image.height);
+    ASSERT_EQ(reference.channels, 3);
+    Image diff;
+    const test::ImageDifference whole = test::compare_images(image, reference, 16, &diff);
+    // The HUD panel (top left, where its text is) on its own: a changed word or figure moves a few
+    // dozen of its pixels, lost in the whole picture's share.
+    auto crop = [](const Image& from, int x0, int y0, int x1, int y1) {
+        Image out{x1 - x0, y1 - y0, 3, {}};
+        for (int y = y0; y < y1; ++y)
+            for (int x = x0; x < x1; ++x)
+                for (int c = 0; c < 3; ++c) out.pixels.push_back(from.pixels[(std::size_t(y) * from.width + x) * 3 + c]);
+        return out;
+    };
+    const int px1 = 360, py1 = 150;
+    const test::ImageDifference panel = test::compare_images(crop(image, 0, 0, px1, py1), crop(reference, 0, 0, px1, py1), 16, nullptr);
+    const long long panel_pixels = (long long)std::llround(panel.fraction_over * px1 * py1);
+    std::printf("  whole window: mean |difference| %.4f / 255, %.4f %% of pixels differ by more than 16 / 255; HUD panel: %lld pixels\n",
+                whole.mean_abs, 100 * whole.fraction_over, panel_pixels);
+    // Tolerance: the scene as the render test's (llvmpipe on another CPU or Mesa may round edges
+    // and shading differently); the HUD's text is drawn from ImGui's own font atlas and differs
+    // by a handful of pixels at most, where one changed character moves dozens.
+    const bool pass = whole.mean_abs < 2.0 && whole.fraction_over < 0.01 && panel_pixels <= 12;
+    if (!pass) {
+        const fs::path out = fs::current_path() / "window_hud.diff.png", actual = fs::current_path() / "window_hud.actual.png";
+        write_png(out, diff);
+        write_png(actual, image);
+        std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
+    }
+    EXPECT_TRUE(pass) << "mean " << whole.mean_abs << ", fraction " << whole.fraction_over << ", HUD panel pixels " << panel_pixels;
 }
 
 TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
