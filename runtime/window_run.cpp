@@ -164,6 +164,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     bool mouse_touching = false;          // the mouse device's force was above 0.01 N at a frame (and not zero since)
     std::optional<InstrumentForces> gl_forces;  // the gl loop's newest force pass
     std::atomic<bool> recording_now{false};     // F5's recording is on (set by the thread that steps)
+    std::atomic<int> toggles_pending{0};        // F5 presses the thread that steps has not handled yet
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
     ScriptedHands hands(trajectory);
@@ -206,7 +207,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
         if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
         last = now;
-        if (input.reset_tissue && recording_now) {
+        if (input.reset_tissue && (recording_now || toggles_pending > 0)) {
             // The reset is no step input a replay could repeat: the recording would not replay.
             say("T: not while recording (a reset inside a recording could not be replayed); F5 stops the recording, F5 again starts a new one from rest\n");
             input.reset_tissue = false;
@@ -223,7 +224,13 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             } else {
                 // F5 toggles what the stepping thread has: on → stop and write; off → start.
                 const std::string scenario_path = a.scenario_path;
-                auto toggle = [haptic, &backend, &recording_now, scenario_path] {
+                ++toggles_pending;
+                auto toggle = [haptic, &backend, &recording_now, &toggles_pending, scenario_path] {
+                    // Handled once recording_now says what it did (T is refused until then).
+                    struct Handled {
+                        std::atomic<int>& pending;
+                        ~Handled() { --pending; }
+                    } handled{toggles_pending};
                     if (!haptic->window_recording()) {
                         const std::time_t wall = std::time(nullptr);
                         std::tm local{};
@@ -459,7 +466,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (hud_fixed) {
                 // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
                 // machine's speed and on timing shown as fixed values, so the picture is the same
-                // on every run (docs/runtime.md "Window mode").
+                // on every run (docs/runtime.md "Screenshots and the golden image").
                 state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
                 if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
             }

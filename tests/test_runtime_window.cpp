@@ -623,4 +623,9 @@ TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
     EXPECT_EQ(second, dir / "pat1-20261124-050709-2.png");
     std::ofstream(second) << "x";
     EXPECT_EQ(fs::path(timestamped_screenshot(scenario, t)), dir / "pat1-20261124-050709-3.png");
+    // F5's recordings: a name whose journal exists (a recording under way, or a killed one) is taken too.
+    const fs::path recording = timestamped_path(scenario, t, ".rec.h5");
+    EXPECT_EQ(recording, dir / "pat1-20261124-050709.rec.h5");
+    std::ofstream(recording.string() + ".journal") << "x";
+    EXPECT_EQ(fs::path(timestamped_path(scenario, t, ".rec.h5")), dir / "pat1-20261124-050709-2.rec.h5");
 }
