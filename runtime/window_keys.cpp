@@ -18,13 +18,14 @@ const std::vector<WindowKey>& window_keys() {
         {"N", "one step while paused", "advances the paused simulation by one time step (not with --device)"},
         {"T", "reset the tissue", "back to its rest state (grabs released; the simulated time and the instruments go on)"},
         {"P", "screenshot", "the window as seen (HUD included) to SCENARIO-YYYYmmdd-HHMMSS.png beside the scenario; the path is printed"},
+        {"F5", "start / stop recording", "with --device (not with --record): resets the tissue to rest (as T) and records from there; F5 again writes SCENARIO-YYYYmmdd-HHMMSS.rec.h5 beside the scenario for --replay; the path is printed"},
         {"F2 or Tab", "HUD on / off", "real-time factor, fps, steps/s, particles, each hand's device, instrument and force, axes, scale bar"},
         {"H or F1", "help on / off", "this table in the window"},
         {"E", "emergency stop", "with --device: every device's force to zero, latched until E again (a red banner says so)"},
         {"G", "mouse device button 1", "with --device mouse: a grabber holds while it is on"},
         {"Ctrl + left drag", "move the mouse device", "with --device mouse: in the view plane, one pixel per pixel at the orbit centre's depth"},
         {"Ctrl + wheel", "mouse device in depth", "with --device mouse: wheel up moves it into the screen (2 % of the model radius a notch)"},
-        {"Esc, closing the window", "quit", "the state file, the stats and --record are still written"},
+        {"Esc, closing the window", "quit", "the state file, the stats, --record and an F5 recording that is on are still written"},
     };
     return keys;
 }

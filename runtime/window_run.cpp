@@ -10,9 +10,11 @@
 #include <GLFW/glfw3.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <ctime>
 #include <filesystem>
 #include <limits>
@@ -28,15 +30,22 @@ std::string numbered_screenshot(const std::string& path, long long step) {
     return (p.parent_path() / (p.stem().string() + suffix + p.extension().string())).string();
 }
 
-std::string timestamped_screenshot(const std::string& scenario, const std::tm& local_time) {
+std::string timestamped_path(const std::string& scenario, const std::tm& local_time, const std::string& ending) {
     const std::filesystem::path p(scenario);
     char stamp[32];
     std::strftime(stamp, sizeof stamp, "-%Y%m%d-%H%M%S", &local_time);
-    const std::filesystem::path first = p.parent_path() / (p.stem().string() + stamp + ".png");
-    std::filesystem::path path = first;
-    for (int n = 2; std::filesystem::exists(path); ++n)  // two in the same second: -2, -3, …
-        path = p.parent_path() / (p.stem().string() + stamp + "-" + std::to_string(n) + ".png");
+    // A name is taken when the file, or a recording's journal for it, exists.
+    auto taken = [](const std::filesystem::path& path) {
+        return std::filesystem::exists(path) || std::filesystem::exists(path.string() + ".journal");
+    };
+    std::filesystem::path path = p.parent_path() / (p.stem().string() + stamp + ending);
+    for (int n = 2; taken(path); ++n)  // two in the same second: -2, -3, …
+        path = p.parent_path() / (p.stem().string() + stamp + "-" + std::to_string(n) + ending);
     return path.string();
+}
+
+std::string timestamped_screenshot(const std::string& scenario, const std::tm& local_time) {
+    return timestamped_path(scenario, local_time, ".png");
 }
 
 namespace {
@@ -60,6 +69,7 @@ struct WindowInput {
     bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
     int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
     bool screenshot = false;    ///< P: write the window as seen after the next frame
+    bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)
 };
 
 /// An event line on stdout at once (tests and logs read it while the window runs).
@@ -132,6 +142,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_N && in->paused) ++in->single_steps;
         if (key == GLFW_KEY_T) in->reset_tissue = true;
         if (key == GLFW_KEY_P) in->screenshot = true;
+        if (key == GLFW_KEY_F5) in->toggle_recording = true;
         if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
         if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
         if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
@@ -144,6 +155,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     });
     glfwSwapInterval(1);
     Hud hud(window);
+    const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
     bool said_paused = false;
     long long resets_said = 0;  // T on the cpu thread: resets done and said
     double paused_simulated_ms = 0;       // the simulated time while paused, as last seen
@@ -151,6 +163,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     double largest_mouse_force_n = 0;     // the mouse device's force, largest seen at a frame
     bool mouse_touching = false;          // the mouse device's force was above 0.01 N at a frame (and not zero since)
     std::optional<InstrumentForces> gl_forces;  // the gl loop's newest force pass
+    std::atomic<bool> recording_now{false};     // F5's recording is on (set by the thread that steps)
+    std::atomic<int> toggles_pending{0};        // F5 presses the thread that steps has not handled yet
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
     ScriptedHands hands(trajectory);
@@ -193,6 +207,59 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
         if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
         last = now;
+        if (input.reset_tissue && (recording_now || toggles_pending > 0)) {
+            // The reset is no step input a replay could repeat: the recording would not replay.
+            say("T: not while recording (a reset inside a recording could not be replayed); F5 stops the recording, F5 again starts a new one from rest\n");
+            input.reset_tissue = false;
+        }
+        if (input.toggle_recording) {
+            // F5: a recording from the tissue's rest state (T, grabs released) to the next F5,
+            // written beside the scenario (docs/haptics.md "Recording from the window"). Started
+            // and stopped on the thread that steps, between two steps.
+            input.toggle_recording = false;
+            if (!haptic) {
+                say("recording: needs a haptic session (--device mouse, scripted:FILE, …): nothing to record\n");
+            } else if (haptic->records_session()) {
+                say("recording: --record %s records the whole session already; F5 is off\n", haptic->recording_path().c_str());
+            } else {
+                // F5 toggles what the stepping thread has: on → stop and write; off → start.
+                const std::string scenario_path = a.scenario_path;
+                ++toggles_pending;
+                auto toggle = [haptic, &backend, &recording_now, &toggles_pending, scenario_path] {
+                    // Handled once recording_now says what it did (T is refused until then).
+                    struct Handled {
+                        std::atomic<int>& pending;
+                        ~Handled() { --pending; }
+                    } handled{toggles_pending};
+                    if (!haptic->window_recording()) {
+                        const std::time_t wall = std::time(nullptr);
+                        std::tm local{};
+                        localtime_r(&wall, &local);
+                        // Named on this thread, once the previous recording is written: never the same name.
+                        const std::string path = timestamped_path(scenario_path, local, ".rec.h5");
+                        try {
+                            haptic->start_recording(path);
+                            recording_now = true;
+                            say("recording: started at %.10g ms simulated, to %s (the tissue reset to its rest state; F5 stops and writes it)\n",
+                                backend.simulated_time_ms(), path.c_str());
+                        } catch (const std::exception& e) {
+                            say("recording: could not start %s: %s\n", path.c_str(), e.what());
+                        }
+                        return;
+                    }
+                    const std::string path = haptic->recording_path();
+                    recording_now = false;
+                    try {
+                        const std::size_t steps = haptic->stop_recording();
+                        say("recording: wrote %s (%zu steps)\n", path.c_str(), steps);
+                    } catch (const std::exception& e) {
+                        say("recording: could not write %s: %s\n", path.c_str(), e.what());
+                    }
+                };
+                if (simulation) simulation->run_between_steps(toggle);
+                else toggle();
+            }
+        }
         if (input.reset_tissue) {
             if (simulation) {
                 simulation->request_reset_tissue();
@@ -353,6 +420,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             state.backend = to_string(backend.kind());
             state.paused = input.paused;
             state.emergency_stop = input.estop;
+            state.recording = recording_now;
             state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
             const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
             for (int hand = 0; hand < 2; ++hand) {
@@ -395,6 +463,13 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 h.has_force = has_forces;
                 h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
             }
+            if (hud_fixed) {
+                // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
+                // machine's speed and on timing shown as fixed values, so the picture is the same
+                // on every run (docs/runtime.md "Screenshots and the golden image").
+                state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
+                if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
+            }
             hud.draw(state, renderer.camera(), width, height);
         }
         if (input.screenshot) {
@@ -421,7 +496,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
             while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
                 glfwWaitEventsTimeout(0.01);
-                if (input.reset_tissue || input.paused || input.screenshot || input.single_steps > 0) break;
+                if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0) break;
             }
         }
         if (next_shot > 0 && result.steps >= next_shot) {

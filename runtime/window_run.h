@@ -31,6 +31,10 @@ struct WindowRunOptions {
 ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
                              int steps, const WindowRunOptions& options, haptics::HapticRun* haptic);
 
+/// SCENARIO-YYYYmmdd-HHMMSS`ending` beside `scenario` (the .h5) at `local_time`, with -2, -3, …
+/// appended while that name, or its recording journal (NAME.journal), exists already.
+std::string timestamped_path(const std::string& scenario, const std::tm& local_time, const std::string& ending);
+
 /// The P key's screenshot: SCENARIO-YYYYmmdd-HHMMSS.png beside `scenario` (the .h5) at
 /// `local_time`, with -2, -3, … appended when that name exists already.
 std::string timestamped_screenshot(const std::string& scenario, const std::tm& local_time);

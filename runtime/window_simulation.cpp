@@ -91,6 +91,14 @@ void WindowSimulation::request_reset_tissue() {
     reset_ = true;
 }
 
+void WindowSimulation::run_between_steps(std::function<void()> action) {
+    {
+        std::lock_guard lock(mutex_);
+        actions_.push_back(std::move(action));
+    }
+    published_.notify_all();
+}
+
 void WindowSimulation::request_single_step() {
     {
         std::lock_guard lock(mutex_);
@@ -194,12 +202,15 @@ void WindowSimulation::run_haptic() {
     publish_start();
     for (;;) {
         bool reset = false, paused = false;
+        std::vector<std::function<void()>> actions;
         {
             std::lock_guard lock(mutex_);
             if (stop_) break;
             reset = reset_, paused = paused_;
             reset_ = false;
+            actions.swap(actions_);
         }
+        for (auto& action : actions) action();
         haptic_->set_paused(paused);  // no-op unless it changed
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         if (reset) {
@@ -229,7 +240,7 @@ void WindowSimulation::run_haptic() {
         if (stepped == 0) {
             const double wait_ms = paused ? 5.0 : std::clamp(haptic_->ms_until_next_step(), 0.05, 1.0);
             published_.wait_for(lock, std::chrono::duration<double, std::milli>(wait_ms),
-                                [&] { return stop_ || want_positions_ || reset_ || paused_ != paused; });
+                                [&] { return stop_ || want_positions_ || reset_ || !actions_.empty() || paused_ != paused; });
         }
     }
 }

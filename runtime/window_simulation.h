@@ -18,6 +18,7 @@
 #include <array>
 #include <atomic>
 #include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -63,6 +64,9 @@ public:
     /// While paused the simulation stops and the paused time is not owed afterwards.
     void set_paused(bool paused);
     void request_reset_tissue();
+    /// A haptic session: runs `action` on the simulation's thread between two steps (in the
+    /// order asked; the window's recording toggle, which must happen on a step boundary).
+    void run_between_steps(std::function<void()> action);
     /// While paused: one step (the hands posed for it as usual). Not with a haptic session (ignored).
     void request_single_step();
     /// The newest positions (N×3, mm): asks the thread for a copy after its next step and waits
@@ -88,6 +92,7 @@ private:
     std::condition_variable published_;
     bool stop_ = false, paused_ = false, reset_ = false, want_positions_ = false, fresh_ = false;
     int single_steps_ = 0;
+    std::vector<std::function<void()>> actions_;  ///< run_between_steps, not yet run
     InstrumentPose keyboard_pose_;
     bool keyboard_set_ = false;
     std::vector<std::array<float, 3>> positions_;

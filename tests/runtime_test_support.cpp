@@ -1,5 +1,7 @@
 #include "runtime_test_support.h"
 
+#include <algorithm>
+#include <cstdlib>
 #include <optional>
 
 namespace heartsim::test {
@@ -21,5 +23,27 @@ GlContext* shared_gl_context(std::string* reason) {
     if (reason) *reason = why;
     return context ? &*context : nullptr;
 }
+
+ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff) {
+    ImageDifference d;
+    const std::size_t pixels = std::size_t(a.width) * std::size_t(a.height);
+    if (diff) *diff = Image{a.width, a.height, 3, std::vector<std::uint8_t>(pixels * 3, 0)};
+    double sum = 0;
+    std::size_t over = 0;
+    for (std::size_t p = 0; p < pixels; ++p) {
+        int largest = 0;
+        for (int c = 0; c < 3; ++c) {
+            const int delta = std::abs(int(a.pixels[p * 3 + std::size_t(c)]) - int(b.pixels[p * 3 + std::size_t(c)]));
+            sum += delta;
+            largest = std::max(largest, delta);
+            if (diff) diff->pixels[p * 3 + std::size_t(c)] = std::uint8_t(std::min(255, 4 * delta));
+        }
+        if (largest > threshold) ++over;
+    }
+    d.mean_abs = sum / double(3 * pixels);
+    d.fraction_over = double(over) / double(pixels);
+    return d;
+}
+
 
 }  // namespace heartsim::test

@@ -3,6 +3,7 @@
 #pragma once
 
 #include "runtime/gl/gl_context.h"
+#include "runtime/png.h"
 
 #include <gtest/gtest.h>
 
@@ -13,6 +14,14 @@ namespace heartsim::test {
 /// One headless context for the whole test program (creating EGL displays repeatedly is slow
 /// on llvmpipe), checked for OpenGL 4.3 compute; null with the reason when there is none.
 GlContext* shared_gl_context(std::string* reason = nullptr);
+
+/// Two images compared for a golden-image test: the mean absolute difference (0–255, over all
+/// channels) and the fraction of pixels whose largest channel difference exceeds a threshold.
+struct ImageDifference {
+    double mean_abs = 0, fraction_over = 0;
+};
+/// `a` and `b` of the same size, RGB; writes the difference (4× amplified) to `diff` if given.
+ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff);
 
 }  // namespace heartsim::test
 

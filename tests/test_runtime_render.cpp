@@ -31,6 +31,8 @@
 #include <optional>
 
 using namespace heartsim;
+using test::compare_images;
+using test::ImageDifference;
 using test::quoted;
 namespace fs = std::filesystem;
 
@@ -116,33 +118,6 @@ MappingCheck check_mapping(Backend& backend, const Scenario& scenario, int steps
                 "max |normals pass - particle_normals| %.3g\n",
                 c.vertices, steps, c.max_displacement_mm, c.max_vertex_error_mm, c.max_normal_error);
     return c;
-}
-
-/// Mean absolute difference (0–255, over all channels) and the fraction of pixels whose largest
-/// channel difference exceeds `threshold`; writes the amplified difference to `diff`.
-struct ImageDifference {
-    double mean_abs = 0, fraction_over = 0;
-};
-
-ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff) {
-    ImageDifference d;
-    const std::size_t pixels = std::size_t(a.width) * std::size_t(a.height);
-    if (diff) *diff = Image{a.width, a.height, 3, std::vector<std::uint8_t>(pixels * 3, 0)};
-    double sum = 0;
-    std::size_t over = 0;
-    for (std::size_t p = 0; p < pixels; ++p) {
-        int largest = 0;
-        for (int c = 0; c < 3; ++c) {
-            const int delta = std::abs(int(a.pixels[p * 3 + std::size_t(c)]) - int(b.pixels[p * 3 + std::size_t(c)]));
-            sum += delta;
-            largest = std::max(largest, delta);
-            if (diff) diff->pixels[p * 3 + std::size_t(c)] = std::uint8_t(std::min(255, 4 * delta));
-        }
-        if (largest > threshold) ++over;
-    }
-    d.mean_abs = sum / double(3 * pixels);
-    d.fraction_over = double(over) / double(pixels);
-    return d;
 }
 
 /// Pixels that differ from the background colour (the model or an instrument).

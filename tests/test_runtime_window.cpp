@@ -18,6 +18,7 @@
 #include <chrono>
 #include <cmath>
 #include <csignal>
+#include <cstdlib>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -84,8 +85,10 @@ private:
 /// heartsim in a window on `display`, its stdout and stderr in a file.
 class Window {
 public:
-    Window(const XServer& x, const fs::path& dir, const std::string& arguments) : display_(x.display()), log_(dir / "heartsim.log") {
-        pid_ = spawn_shell("ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" DISPLAY=" + display_ + " exec timeout 600 " +
+    /// `environment`: more NAME=VALUE words for its environment.
+    Window(const XServer& x, const fs::path& dir, const std::string& arguments, const std::string& environment = "")
+        : display_(x.display()), log_(dir / "heartsim.log") {
+        pid_ = spawn_shell("ASAN_OPTIONS=\"${ASAN_OPTIONS:+$ASAN_OPTIONS:}detect_leaks=0\" DISPLAY=" + display_ + " " + environment + " exec timeout 600 " +
                            quoted(HEARTSIM_EXE) + " run " + arguments + " >" + quoted(log_) + " 2>&1");
     }
     ~Window() {
@@ -293,6 +296,8 @@ TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
     ASSERT_TRUE(window.focus()) << window.output();
     ASSERT_EQ(window.xdotool("key space"), 0);  // paused: the tissue stands still between pictures
     ASSERT_NE(window.wait_for("paused at "), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key F5"), 0);  // no device: nothing to record, and it says so
+    ASSERT_NE(window.wait_for("recording: needs a haptic session"), std::string::npos) << window.output();
 
     std::string path;
     const Image hud = screenshot(window, &path);
@@ -384,6 +389,11 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTR
     ASSERT_NE(at, std::string::npos) << window.output();
     EXPECT_NE(window.wait_for("mouse device: touching the tissue", at), std::string::npos) << window.output();
 
+    // --record records the whole session: F5 is refused (the session's recording goes on).
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key F5"), 0);
+    ASSERT_NE(window.wait_for("records the whole session already; F5 is off", from), std::string::npos) << window.output();
+
     // Paused, T puts the tissue back to its rest state, and no step runs after it: the state at
     // exit is the rest state itself, though the probe is still pressed in.
     from = window.output().size();
@@ -417,6 +427,102 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTR
     EXPECT_GT(p.back()[1], p.front()[1]) << "the wheel moved it into the screen (posterior in the anterior view)";
 }
 
+/// The path in "recording: wrote PATH (N steps)" at or after `from`, and N.
+fs::path recording_path(const std::string& text, std::size_t from, long long* steps = nullptr) {
+    const std::string prefix = "recording: wrote ";
+    const auto at = text.find(prefix, from);
+    if (at == std::string::npos) return {};
+    const auto end = text.find(" (", at);
+    if (end == std::string::npos) return {};
+    if (steps) *steps = std::atoll(text.c_str() + end + 2);
+    return text.substr(at + prefix.size(), end - at - prefix.size());
+}
+
+/// F5 and F5 again: the path written and its steps (empty path on failure).
+fs::path record_from_window(Window& window, int notches, long long* steps) {
+    std::size_t from = window.output().size();
+    if (window.xdotool("key F5") != 0) return {};
+    const auto started = window.wait_for("recording: started at ", from);
+    if (started == std::string::npos || window.wait_for("\n", started) == std::string::npos) return {};
+    // The device moves while recording: a few Ctrl + wheel notches into the tissue and back.
+    for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 4 keyup ctrl");
+    for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 5 keyup ctrl");
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    from = window.output().size();
+    if (window.xdotool("key F5") != 0) return {};
+    const auto wrote = window.wait_for("recording: wrote ", from);
+    if (wrote == std::string::npos || window.wait_for(" steps)\n", wrote) == std::string::npos) return {};
+    return recording_path(window.output(), wrote, steps);
+}
+
+TEST(WindowInput, F5RecordsFromTheRestStateAndTheRecordingReplaysBitForBit) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    fs::copy_file(phantom(), dir / "case.h5");  // the recordings go beside the scenario
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300 --device mouse");
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+
+    // The probe pressed into the tissue before the recording starts: the tissue is deformed, so
+    // only a recording that starts from the rest state (F5 resets it) replays bit for bit.
+    std::size_t touching = std::string::npos;
+    for (int notch = 0; notch < 80 && touching == std::string::npos; ++notch) {
+        ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+        touching = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+    }
+    ASSERT_NE(touching, std::string::npos) << "the probe should reach the phantom within 80 notches\n" << window.output();
+    ASSERT_EQ(window.xdotool("keydown ctrl click 4 click 4 keyup ctrl"), 0);  // deeper in
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+
+    long long steps1 = 0, steps2 = 0;
+    const fs::path first = record_from_window(window, 2, &steps1);
+    ASSERT_FALSE(first.empty()) << window.output();
+    const fs::path second = record_from_window(window, 1, &steps2);
+    ASSERT_FALSE(second.empty()) << window.output();
+    // T is refused while recording (a reset could not be replayed): start a third, press T, close
+    // the window while it records: it is written too.
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key F5"), 0);
+    ASSERT_NE(window.wait_for("recording: started at ", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key t"), 0);
+    ASSERT_NE(window.wait_for("T: not while recording", from), std::string::npos) << window.output();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    long long steps3 = 0;
+    const fs::path third = recording_path(window.output(), from, &steps3);
+    ASSERT_FALSE(third.empty()) << "closing the window writes the recording that is on\n" << window.output();
+
+    const std::vector<fs::path> paths = {first, second, third};
+    const std::vector<long long> steps = {steps1, steps2, steps3};
+    EXPECT_NE(first, second);
+    EXPECT_NE(second, third);
+    EXPECT_NE(first, third);
+    for (std::size_t k = 0; k < paths.size(); ++k) {
+        SCOPED_TRACE(paths[k].string());
+        const std::string name = paths[k].filename().string();  // case-YYYYmmdd-HHMMSS[-N].rec.h5
+        EXPECT_EQ(fs::absolute(paths[k]).parent_path(), fs::absolute(dir.path()));
+        EXPECT_EQ(name.rfind("case-", 0), 0u) << name;
+        EXPECT_EQ(name.substr(name.size() - 7), ".rec.h5") << name;
+        EXPECT_TRUE(fs::exists(fs::path(paths[k]).replace_extension(".xdmf"))) << "the .xdmf beside it";
+        EXPECT_FALSE(fs::exists(paths[k].string() + ".journal")) << "the journal is deleted once written";
+        const Recording r = read_recording(paths[k]);
+        ASSERT_EQ(r.hands[0].device_name, "mouse");
+        EXPECT_EQ((long long)r.steps.size(), steps[k]);
+        ASSERT_GT(r.steps.size(), 0u);
+        double largest = 0;
+        for (const auto& f : r.steps.force_n) largest = std::max(largest, std::sqrt(f[0][0] * f[0][0] + f[0][1] * f[0][1] + f[0][2] * f[0][2]));
+        EXPECT_GT(largest, 0.01) << "the probe pressed in the tissue while recording";
+        const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(dir / "case.h5") + " --headless --replay " + quoted(paths[k]));
+        EXPECT_EQ(replay.exit_code, 0) << replay.output;
+        EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+    }
+}
+
 TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
     // For every scale, the bar is 1, 2 or 5 × 10^k mm and on screen within a factor √2.5 of the
     // target (the series' widest step is 2 → 5: the nearest value in log scale is within √2.5).
@@ -427,6 +533,82 @@ TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
         const double pixels = bar / mm_per_pixel;
         EXPECT_LE(std::abs(std::log(pixels / target)), std::log(std::sqrt(2.5)) + 1e-9) << mm_per_pixel << " mm/px: " << bar << " mm";
     }
+}
+
+TEST(WindowHud, TheHudMatchesItsGoldenImage) {
+    // The window as seen (P), HUD included: the phantom at rest (paused after a step, then T), the
+    // keyboard's probe, the HUD panel, the LPS axes and the scale bar. HEARTSIM_HUD_FIXED shows
+    // the figures that depend on the machine's speed (real-time factor, fps, steps/s, simulated
+    // time) as fixed values; everything else is what the window draws. Regenerate (after an
+    // intended change of the picture) with
+    // HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_window --gtest_filter='*Golden*'; look at it first.
+    REQUIRE_WINDOW_TOOLS();
+    const fs::path golden = fs::path(HEARTSIM_SOURCE_DIR) / "tests/data/golden/window_hud.png";
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    fs::copy_file(phantom(), dir / "case.h5");
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300", "HEARTSIM_HUD_FIXED=1");
+    ASSERT_TRUE(window.focus()) << window.output();
+    // Paused once a step has run (the HUD then shows the force pass's result, not "not known").
+    for (int attempt = 0;; ++attempt) {
+        ASSERT_LT(attempt, 20) << window.output();
+        std::size_t from = window.output().size();
+        ASSERT_EQ(window.xdotool("key space"), 0);
+        const auto at = window.wait_for("paused at ", from);
+        ASSERT_NE(at, std::string::npos) << window.output();
+        if (number_after(window.output(), "paused at ", at) > 0) break;
+        from = window.output().size();
+        ASSERT_EQ(window.xdotool("key space"), 0);
+        ASSERT_NE(window.wait_for("resumed at ", from), std::string::npos) << window.output();
+        std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    }
+    const std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key t"), 0);  // the rest state exactly
+    ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+    const Image image = screenshot(window);
+    ASSERT_EQ(image.width, 400) << window.output();
+    ASSERT_EQ(image.height, 300);
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+
+    if (std::getenv("HEARTSIM_UPDATE_GOLDEN")) {
+        fs::create_directories(golden.parent_path());
+        write_png(golden, image);
+        std::printf("  updated the golden image %s\n", golden.c_str());
+    }
+    if (!fs::exists(golden)) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
+    const Image reference = read_png(golden);
+    ASSERT_EQ(reference.width, image.width);
+    ASSERT_EQ(reference.height, image.height);
+    ASSERT_EQ(reference.channels, 3);
+    Image diff;
+    const test::ImageDifference whole = test::compare_images(image, reference, 16, &diff);
+    // The HUD panel (top left, where its text is) on its own: a changed word or figure moves a few
+    // dozen of its pixels, lost in the whole picture's share.
+    auto crop = [](const Image& from, int x0, int y0, int x1, int y1) {
+        Image out{x1 - x0, y1 - y0, 3, {}};
+        for (int y = y0; y < y1; ++y)
+            for (int x = x0; x < x1; ++x)
+                for (int c = 0; c < 3; ++c) out.pixels.push_back(from.pixels[(std::size_t(y) * from.width + x) * 3 + c]);
+        return out;
+    };
+    const int px1 = 360, py1 = 150;
+    const test::ImageDifference panel = test::compare_images(crop(image, 0, 0, px1, py1), crop(reference, 0, 0, px1, py1), 16, nullptr);
+    const long long panel_pixels = (long long)std::llround(panel.fraction_over * px1 * py1);
+    std::printf("  whole window: mean |difference| %.4f / 255, %.4f %% of pixels differ by more than 16 / 255; HUD panel: %lld pixels\n",
+                whole.mean_abs, 100 * whole.fraction_over, panel_pixels);
+    // Tolerance: the scene as the render test's (llvmpipe on another CPU or Mesa may round edges
+    // and shading differently); the HUD's text is drawn from ImGui's own font atlas and differs
+    // by a handful of pixels at most, where one changed character moves dozens.
+    const bool pass = whole.mean_abs < 2.0 && whole.fraction_over < 0.01 && panel_pixels <= 12;
+    if (!pass) {
+        const fs::path out = fs::current_path() / "window_hud.diff.png", actual = fs::current_path() / "window_hud.actual.png";
+        write_png(out, diff);
+        write_png(actual, image);
+        std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
+    }
+    EXPECT_TRUE(pass) << "mean " << whole.mean_abs << ", fraction " << whole.fraction_over << ", HUD panel pixels " << panel_pixels;
 }
 
 TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
@@ -441,4 +623,9 @@ TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
     EXPECT_EQ(second, dir / "pat1-20261124-050709-2.png");
     std::ofstream(second) << "x";
     EXPECT_EQ(fs::path(timestamped_screenshot(scenario, t)), dir / "pat1-20261124-050709-3.png");
+    // F5's recordings: a name whose journal exists (a recording under way, or a killed one) is taken too.
+    const fs::path recording = timestamped_path(scenario, t, ".rec.h5");
+    EXPECT_EQ(recording, dir / "pat1-20261124-050709.rec.h5");
+    std::ofstream(recording.string() + ".journal") << "x";
+    EXPECT_EQ(fs::path(timestamped_path(scenario, t, ".rec.h5")), dir / "pat1-20261124-050709-2.rec.h5");
 }

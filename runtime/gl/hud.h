@@ -42,6 +42,7 @@ struct HudState {
     std::string backend;
     bool paused = false;
     bool emergency_stop = false;   ///< latched: the banner
+    bool recording = false;        ///< F5's recording is on: a red "REC" line
     double haptic_period_p99_ms = -1;  ///< < 0: not available
     std::array<HudHand, 2> hands;
 };

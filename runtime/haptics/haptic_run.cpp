@@ -326,7 +326,11 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     for (int i = 0; i < 2; ++i)
         if (hands_[i].device) session_->attach(i, hands_[i].device.get(), mappings[i]);
     recording_on_ = !settings.record.empty();
-    if (recording_on_) session_->enable_tick_recording(std::size_t(4.0 * settings.session.rate_hz) + 1024);  // ≥ 4 s of ticks
+    record_path_ = settings.record;
+    // A window session keeps the ticks too (drained and dropped while nothing records), so F5 can
+    // start a recording at any time.
+    if (recording_on_ || !context.headless)
+        session_->enable_tick_recording(std::size_t(4.0 * settings.session.rate_hz) + 1024);  // ≥ 4 s of ticks
 
     recording_.scenario = std::filesystem::path(scenario_name).filename().string();
     recording_.particles = std::int64_t(backend.size());
@@ -352,7 +356,37 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         r.mapping_scale = mappings[i].scale;
         r.force_scale = mappings[i].force_scale;
     }
+    recording_header_ = recording_;
     if (recording_on_) journal_ = std::make_unique<RecordingJournal>(journal_path(settings.record), recording_, settings.record);
+}
+
+void HapticRun::start_recording(const std::string& path) {
+    if (recording_on_) throw UsageError("haptics: a recording is on already (" + record_path_ + ")");
+    Recording fresh = recording_header_;
+    auto journal = std::make_unique<RecordingJournal>(journal_path(path), fresh, path);  // throws: nothing started
+    // The tissue at rest, no grab, the instruments placed afresh by the next step: exactly the
+    // state `--replay` starts from (the scenario's rest state, nothing placed), so the recording's
+    // step 0 is the replay's step 0 and a cpu replay reproduces its forces bit for bit.
+    backend_.reset_tissue();
+    for (Hand& h : hands_) h.placed = false, h.grabbing = false;
+    drain();  // the ticks so far are not this recording's
+    ticks_.clear();
+    recording_ = std::move(fresh);
+    journal_ = std::move(journal);
+    journaled_steps_ = journaled_ticks_ = journaled_events_ = 0;
+    journaled_at_ms_ = session_->now_ms();
+    journal_failure_reported_ = false;
+    last_estop_ = last_fresh_ = false;
+    record_first_row_ = rows_;
+    record_path_ = path;
+    recording_on_ = window_recording_ = true;
+}
+
+std::size_t HapticRun::stop_recording() {
+    if (!window_recording_) throw UsageError("haptics: no recording from the window is on");
+    drain();
+    recording_on_ = window_recording_ = false;
+    return write_recording_now();
 }
 
 HapticRun::~HapticRun() {
@@ -467,7 +501,9 @@ StepReport HapticRun::step() {
     s.grab.push_back({std::int8_t(grab[0]), std::int8_t(grab[1])});
     s.applied.push_back({std::int8_t(applied[0]), std::int8_t(applied[1])});
     s.force_n.push_back(force);
-    s.force_step.push_back(force_step);
+    // Steps count from the recording's first (a window recording starts mid-session); a force
+    // from a step before it is none of the recording's.
+    s.force_step.push_back(force_step >= (long long)record_first_row_ ? force_step - (long long)record_first_row_ : -1);
     s.diverged.push_back(std::int8_t(report.diverged));
     return report;
 }
@@ -546,7 +582,7 @@ void HapticRun::journal_rows() {
         if (const std::string failure = journal_->failure(); !failure.empty()) {
             journal_failure_reported_ = true;
             std::fprintf(stderr, "heartsim: warning: %s; the session goes on and %s is still written at the end, but a crash now would "
-                                 "lose it\n", failure.c_str(), settings_.record.c_str());
+                                 "lose it\n", failure.c_str(), record_path_.c_str());
         }
     }
 }
@@ -651,6 +687,16 @@ void HapticRun::finish(ScriptedRunResult& result) {
                     (unsigned long long)session_->dropped_ticks());
 
     if (!recording_on_) return;
+    recording_on_ = false;
+    const bool window = window_recording_;
+    window_recording_ = false;
+    const std::size_t steps = write_recording_now();
+    if (window) std::printf("recording: wrote %s (%zu steps)\n", record_path_.c_str(), steps);
+}
+
+std::size_t HapticRun::write_recording_now() {
+    const PeriodStats period = session_->period_stats();
+    const LatencyStats latency = session_->latency_stats();
     recording_.period_p50_ms = period.p50_ms;
     recording_.period_p99_ms = period.p99_ms;
     recording_.period_max_ms = period.max_ms;
@@ -674,17 +720,23 @@ void HapticRun::finish(ScriptedRunResult& result) {
         append_ticks(recording_.hands[i], ticks_, 0, i);
     }
     try {
-        write_recording(settings_.record, recording_);
+        write_recording(record_path_, recording_);
     } catch (const std::exception& e) {
         if (!journal_failure.empty()) throw;
-        const std::string what = dynamic_cast<const std::bad_alloc*>(&e) ? "out of memory while writing " + settings_.record : e.what();
+        const std::string what = dynamic_cast<const std::bad_alloc*>(&e) ? "out of memory while writing " + record_path_ : e.what();
         throw OutputError(what + "; the whole session is in " + journal_->path().string() + ": `heartsim recover " +
                           journal_->path().string() + " -o OTHER.h5` writes it elsewhere");
     }
     journal_->remove();
-    std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", settings_.record.c_str(), recording_.steps.size(), ticks_.size(),
+    journal_.reset();
+    std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", record_path_.c_str(), recording_.steps.size(), ticks_.size(),
                 recording_.events.size());
+    std::fflush(stdout);
+    const std::size_t steps = recording_.steps.size();
+    ticks_.clear();
+    return steps;
 }
+
 
 // ------------------------------------------------------------------------------------------------
 // Replay

@@ -117,6 +117,24 @@ public:
     /// The largest force the hand's device is sent, N (--max-force or the device's own maximum).
     double max_force_n(int hand) const { return recording_.hands[hand].max_force_n; }
 
+    /// A recording started and stopped from the window (F5, docs/haptics.md "Recording from the
+    /// window"); a window session only (not headless), and not with --record (records_session()).
+    /// Called on the thread that steps, between steps. start_recording puts the tissue back to
+    /// its rest state (grabs released: what T does), places the instruments afresh at the next
+    /// step, and records from that step on into a new Recording, its journal `path`.journal:
+    /// so the recording starts from the rest state at its step 0 and `--replay` reproduces it.
+    /// Throws (the journal cannot be made) with nothing started.
+    void start_recording(const std::string& path);
+    /// Writes the recording start_recording began (atomically, its .xdmf beside it) and deletes
+    /// its journal; returns the steps written. Throws OutputError when the write fails (the
+    /// journal stays for `heartsim recover`); the recording is off afterwards either way.
+    std::size_t stop_recording();
+    /// --record records the whole session (the window's toggle is off).
+    bool records_session() const { return !settings_.record.empty(); }
+    /// A recording from the window is on; where it goes.
+    bool window_recording() const { return window_recording_; }
+    const std::string& recording_path() const { return record_path_; }
+
 private:
     struct Hand {
         std::unique_ptr<Device> device;
@@ -131,6 +149,9 @@ private:
     void poll_device_faults();
     /// Hands the rows recorded since the last chunk to the journal (serialised here, written by its thread).
     void journal_rows();
+    /// The period and latency figures, the end event and the ticks into recording_, then
+    /// writes it to record_path_ and deletes the journal; returns the steps written.
+    std::size_t write_recording_now();
 
     Backend& backend_;
     HapticRunSettings settings_;
@@ -139,6 +160,10 @@ private:
     InstrumentForces last_published_forces_{};
     std::unique_ptr<HapticSession> session_;
     Recording recording_;
+    Recording recording_header_;  ///< recording_'s attributes and hands, no rows (a window recording starts from it)
+    std::string record_path_;     ///< where recording_ goes: --record, or the window's recording
+    bool window_recording_ = false;
+    std::size_t record_first_row_ = 0;  ///< rows_ at the recording's step 0
     std::vector<TickRecord> ticks_;
     /// --record's journal (OUT.h5.journal): what a killed session keeps. A chunk every
     /// journal_period_ms of the session clock, so at most the last second is lost.
