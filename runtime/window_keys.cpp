@@ -16,7 +16,7 @@ const std::vector<WindowKey>& window_keys() {
         {"PgUp / PgDn", "move instrument 0 in depth", "into / out of the screen"},
         {"Space", "pause / resume", "the simulation stops (rendering and the camera go on); paused time is not owed afterwards"},
         {"N", "one step while paused", "advances the paused simulation by one time step (not with --device)"},
-        {"T", "reset the tissue", "back to its rest state (grabs released; the simulated time and the instruments go on)"},
+        {"T", "reset the tissue", "back to its rest state (grabs released; the simulated time and the instruments go on); not while a recording runs (F5 or --record): a replay could not repeat it"},
         {"P", "screenshot", "the window as seen (HUD included) to SCENARIO-YYYYmmdd-HHMMSS.png beside the scenario; the path is printed"},
         {"F5", "start / stop recording", "with --device (not with --record): resets the tissue to rest (as T) and records from there; F5 again writes SCENARIO-YYYYmmdd-HHMMSS.rec.h5 beside the scenario for --replay; the path is printed"},
         {"F2 or Tab", "HUD on / off", "real-time factor, fps, steps/s, particles, each hand's device, instrument and force, axes, scale bar"},

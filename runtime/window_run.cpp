@@ -212,6 +212,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             say("T: not while recording (a reset inside a recording could not be replayed); F5 stops the recording, F5 again starts a new one from rest\n");
             input.reset_tissue = false;
         }
+        if (input.reset_tissue && haptic && haptic->records_session()) {
+            // The same for --record's whole-session recording.
+            say("T: not while --record records the session (a reset inside a recording could not be replayed)\n");
+            input.reset_tissue = false;
+        }
         if (input.toggle_recording) {
             // F5: a recording from the tissue's rest state (T, grabs released) to the next F5,
             // written beside the scenario (docs/haptics.md "Recording from the window"). Started
