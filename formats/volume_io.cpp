@@ -277,13 +277,18 @@ TextHeader read_nrrd_header(const fs::path& path) {
     std::getline(in, line);
     if (line.rfind("NRRD", 0) != 0) throw InputError(path.string() + ": not a NRRD file: first line should start with NRRD");
     TextHeader header;
-    while (std::getline(in, line)) {
+    for (int number = 2; std::getline(in, line); ++number) {
         if (!line.empty() && line.back() == '\r') line.pop_back();
         if (line.empty()) break;
         if (line[0] == '#' || line.find(":=") != std::string::npos) continue;
         const auto colon = line.find(": ");
         if (colon == std::string::npos) continue;
-        header.fields[lowercase(trim(line.substr(0, colon)))] = trim(line.substr(colon + 2));
+        // The NRRD format allows each field once; a second one leaves NrrdIO and this reader
+        // disagreeing on what the file declares (fuzz_volume_nrrd: two `encoding` lines).
+        const std::string key = lowercase(trim(line.substr(0, colon)));
+        if (!header.fields.emplace(key, trim(line.substr(colon + 2))).second)
+            throw InputError(path.string() + ": NRRD header line " + std::to_string(number) + " gives the field '" + key.substr(0, 40) +
+                             "' a second time; a field may appear once");
     }
     // tellg is -1 at end of file (a header with no data after it).
     const auto position = in.tellg();
@@ -364,8 +369,11 @@ DataLocation nrrd_data_location(const fs::path& path) {
         location.text = DataLocation::Text::ascii;
     } else if (encoding == "hex") {
         location.text = DataLocation::Text::hex;
+    } else if (encoding == "bzip2" || encoding == "bz2") {
+        location.checkable = false;  // ITK's NrrdIO has no bzip2 and refuses it itself
     } else {
-        location.checkable = false;  // bzip2: ITK's NrrdIO has no bzip2 and refuses it itself
+        // An encoding this reader cannot check must not reach NrrdIO unchecked (fuzz_volume_nrrd).
+        throw InputError(path.string() + ": NRRD encoding '" + encoding.substr(0, 40) + "'; expected raw, gzip, ascii or hex");
     }
     return location;
 }

@@ -661,6 +661,22 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
     }
 }
 
+// fuzz_volume_nrrd (10-minute run after the fix above): a second `encoding:` line that this
+// reader did not know as gzip left the voxel data unchecked, and NrrdIO then allocated 2 GB for
+// the sizes it had read. Fields given twice and encodings it cannot check are refused.
+TEST(VolumeReadErrors, NrrdFieldGivenTwiceOrUnknownEncodingIsRefused) {
+    TempDir folder;
+    const std::string start = "NRRD0004\ntype: unsigned char\ndimension: 3\nspace: left-posterior-superior\nsizes: 4 3 2\n"
+                              "space directions: (1,0,0) (0,1,0) (0,0,1)\nkinds: domain domain domain\n";
+    const fs::path twice = write_text_file(folder, "twice.nrrd", start + "encoding: raw\nencoding: gz   x\n\n" + std::string(24, '\1'));
+    expect_error<InputError>([&] { read_volume_header(twice); }, {twice.string(), "line 9 gives the field 'encoding' a second time"});
+    const fs::path odd = write_text_file(folder, "odd.nrrd", start + "encoding: gz   x\n\n" + std::string(24, '\1'));
+    expect_error<InputError>([&] { read_volume_header(odd); }, {odd.string(), "encoding"});  // NrrdIO's refusal or ours
+    // The same header with one known encoding reads.
+    const fs::path good = write_text_file(folder, "good.nrrd", start + "encoding: raw\n\n" + std::string(24, '\1'));
+    EXPECT_EQ(read_label_volume(good).labels.size(), 24u);
+}
+
 TEST(VolumeReadErrors, DataFileThatIsNoRegularFile) {
     // fuzz_volume_nrrd: `data file: /dev/zero` or a folder made our size check throw
     // std::filesystem::filesystem_error instead of InputError.
