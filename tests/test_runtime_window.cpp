@@ -428,6 +428,51 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTI
     EXPECT_GT(p.back()[1], p.front()[1]) << "the wheel moved it into the screen (posterior in the anterior view)";
 }
 
+// G: the mouse device's button 1 with a grabber instrument. Pressed inside the tissue, the grabber
+// takes hold of it; drawn back out, it pulls the tissue along (a force on the device); G again lets
+// go. The recording says when the grabber held.
+TEST(WindowInput, GGrabsTheTissueWithTheMouseDeviceAndLetsGoAgain) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --instrument grabber --record " +
+                                     quoted(dir / "grab.h5"));
+    ASSERT_TRUE(window.focus()) << window.output();
+    // Ctrl + wheel up into the phantom's wall: the probe of the test above touches its surface
+    // after about 20 notches of 2 % of the model radius; a few more put the grabber in the wall.
+    for (int k = 0; k < 24; ++k) ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+    window.wait_for("no such line", 0, 2.0);  // the simulation takes the device there
+    ASSERT_EQ(window.xdotool("key g"), 0);   // button 1 on: the grabber takes hold
+    window.wait_for("no such line", 0, 2.0);
+    // Back out a notch at a time until the held tissue pulls on the device.
+    std::size_t pulling = std::string::npos;
+    for (int notch = 0; notch < 15 && pulling == std::string::npos; ++notch) {
+        ASSERT_EQ(window.xdotool("keydown ctrl click 5 keyup ctrl"), 0);
+        pulling = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+    }
+    ASSERT_NE(pulling, std::string::npos) << "the held tissue should pull on the device\n" << window.output();
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key g"), 0);  // let go
+    ASSERT_NE(window.wait_for("mouse device: free", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+
+    const Recording r = read_recording(dir / "grab.h5");
+    ASSERT_EQ(r.hands[0].instrument, "grabber");
+    std::size_t held = 0, last_held = 0;
+    for (std::size_t step = 0; step < r.steps.grab.size(); ++step)
+        if (r.steps.grab[step][0]) ++held, last_held = step;
+    EXPECT_GT(held, 0u) << "the grabber held tissue for some steps";
+    EXPECT_LT(last_held + 1, r.steps.grab.size()) << "and let go before the end";
+    bool grabbed = false, released = false;
+    for (const auto& e : r.events) grabbed |= e.what == "grab", released |= grabbed && e.what == "release";
+    EXPECT_TRUE(grabbed && released) << "the session saw the grab, then the release";
+    double max_sent = 0;
+    for (const auto& f : r.hands[0].force_n) max_sent = std::max(max_sent, std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]));
+    EXPECT_GT(max_sent, 0.01) << "the held tissue pulled on the device";
+}
+
 /// The path in "recording: wrote PATH (N steps)" at or after `from`, and N.
 fs::path recording_path(const std::string& text, std::size_t from, long long* steps = nullptr) {
     const std::string prefix = "recording: wrote ";
