@@ -212,17 +212,20 @@ bool have_window_tools(std::string* why) {
 }  // namespace
 
 TEST(WindowKeys, TheDocumentsKeyTableIsTheCodes) {
-    // docs/runtime.md holds the table between two markers; it must be window_keys_markdown()
-    // byte for byte (regenerate it from the expected text below when a key changes).
-    std::ifstream in(fs::path(HEARTSIM_SOURCE_DIR) / "docs/runtime.md");
-    std::stringstream text;
-    text << in.rdbuf();
-    const std::string doc = text.str(), begin = "<!-- window-keys: begin (runtime/window_keys.cpp; a test checks) -->\n",
-                      end = "<!-- window-keys: end -->";
-    const auto b = doc.find(begin), e = doc.find(end);
-    ASSERT_NE(b, std::string::npos) << "docs/runtime.md has no '" << begin << "'";
-    ASSERT_NE(e, std::string::npos);
-    EXPECT_EQ(doc.substr(b + begin.size(), e - b - begin.size()), window_keys_markdown()) << "expected:\n" << window_keys_markdown();
+    // README.md and docs/runtime.md hold the table between two markers; each must be
+    // window_keys_markdown() byte for byte (regenerate it from the expected text below when a key changes).
+    for (const char* name : {"README.md", "docs/runtime.md"}) {
+        std::ifstream in(fs::path(HEARTSIM_SOURCE_DIR) / name);
+        std::stringstream text;
+        text << in.rdbuf();
+        const std::string doc = text.str(), begin = "<!-- window-keys: begin (runtime/window_keys.cpp; a test checks) -->\n",
+                          end = "<!-- window-keys: end -->";
+        const auto b = doc.find(begin), e = doc.find(end);
+        ASSERT_NE(b, std::string::npos) << name << " has no '" << begin << "'";
+        ASSERT_NE(e, std::string::npos) << name;
+        EXPECT_EQ(doc.substr(b + begin.size(), e - b - begin.size()), window_keys_markdown()) << name << ", expected:\n"
+                                                                                             << window_keys_markdown();
+    }
 }
 
 TEST(WindowKeys, RunHelpPrintsEveryKey) {
