@@ -1,6 +1,7 @@
 #include "runtime_test_support.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <optional>
 
@@ -45,5 +46,23 @@ ImageDifference compare_images(const Image& a, const Image& b, int threshold, Im
     return d;
 }
 
+
+std::optional<Image> golden_reference(const std::filesystem::path& golden, const Image& image, bool may_update) {
+    if (may_update && std::getenv("HEARTSIM_UPDATE_GOLDEN")) {
+        std::filesystem::create_directories(golden.parent_path());
+        write_png(golden, image);
+        std::printf("  updated the golden image %s\n", golden.c_str());
+    }
+    if (!std::filesystem::exists(golden)) return std::nullopt;
+    return read_png(golden);
+}
+
+void write_golden_failure(const std::string& name, const Image& diff, const Image& image) {
+    const std::filesystem::path out = std::filesystem::current_path() / (name + ".diff.png");
+    const std::filesystem::path actual = std::filesystem::current_path() / (name + ".actual.png");
+    write_png(out, diff);
+    write_png(actual, image);
+    std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
+}
 
 }  // namespace heartsim::test

@@ -7,6 +7,8 @@
 
 #include <gtest/gtest.h>
 
+#include <filesystem>
+#include <optional>
 #include <string>
 
 namespace heartsim::test {
@@ -22,6 +24,15 @@ struct ImageDifference {
 };
 /// `a` and `b` of the same size, RGB; writes the difference (4× amplified) to `diff` if given.
 ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff);
+
+/// The golden image a test compares `image` with. With HEARTSIM_UPDATE_GOLDEN set and `may_update`,
+/// `image` becomes the golden first (the folder made if needed, the path printed). Empty when
+/// there is no golden file: the caller skips, saying so.
+std::optional<Image> golden_reference(const std::filesystem::path& golden, const Image& image, bool may_update = true);
+
+/// After a failed comparison: NAME.diff.png (the difference, 4× amplified) and NAME.actual.png in
+/// the current folder, and a line saying where.
+void write_golden_failure(const std::string& name, const Image& diff, const Image& image);
 
 }  // namespace heartsim::test
 

@@ -33,6 +33,8 @@
 using namespace heartsim;
 using test::compare_images;
 using test::ImageDifference;
+using test::golden_reference;
+using test::write_golden_failure;
 using test::quoted;
 namespace fs = std::filesystem;
 
@@ -226,7 +228,6 @@ TEST(RenderGolden, HeadlessScreenshotOfThePhantomMatchesTheGoldenImage) {
     REQUIRE_GL();
     const fs::path golden = fs::path(HEARTSIM_SOURCE_DIR) / "tests/data/golden/phantom_rest.png";
     const std::string arguments = golden_arguments(phantom_scenario());
-    const bool update = std::getenv("HEARTSIM_UPDATE_GOLDEN") != nullptr;
     for (const char* backend : {"gl", "cpu"}) {
         const fs::path shot = scratch() / (std::string("phantom_rest_") + backend + ".png");
         const auto run = run_heartsim("run " + quoted(phantom()) + arguments + " --backend " + backend + " --screenshot " + quoted(shot) + " --stats");
@@ -236,13 +237,9 @@ TEST(RenderGolden, HeadlessScreenshotOfThePhantomMatchesTheGoldenImage) {
         ASSERT_EQ(image.width, 256);
         ASSERT_EQ(image.height, 256);
         EXPECT_GT(coverage(image), 0.15) << "the phantom should fill a good part of the frame";
-        if (update && std::string(backend) == "gl") {
-            fs::create_directories(golden.parent_path());
-            write_png(golden, image);
-            std::printf("  updated the golden image %s\n", golden.c_str());
-        }
-        if (!fs::exists(golden)) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
-        const Image reference = read_png(golden);
+        const std::optional<Image> golden_image = golden_reference(golden, image, std::string(backend) == "gl");
+        if (!golden_image) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
+        const Image& reference = *golden_image;
         ASSERT_EQ(reference.width, image.width);
         ASSERT_EQ(reference.height, image.height);
         ASSERT_EQ(reference.channels, 3);
@@ -253,13 +250,7 @@ TEST(RenderGolden, HeadlessScreenshotOfThePhantomMatchesTheGoldenImage) {
         // Tolerance: llvmpipe on another CPU or Mesa version may round edges and shading
         // differently; a wrong view, mapping or lighting moves far more than this.
         const bool pass = d.mean_abs < 2.0 && d.fraction_over < 0.01;
-        if (!pass) {
-            const fs::path out = fs::current_path() / (std::string("phantom_rest_") + backend + ".diff.png");
-            const fs::path actual = fs::current_path() / (std::string("phantom_rest_") + backend + ".actual.png");
-            write_png(out, diff);
-            write_png(actual, image);
-            std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
-        }
+        if (!pass) write_golden_failure(std::string("phantom_rest_") + backend, diff, image);
         EXPECT_TRUE(pass) << backend << ": mean " << d.mean_abs << ", fraction " << d.fraction_over;
     }
 }

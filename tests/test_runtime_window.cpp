@@ -621,13 +621,9 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     EXPECT_EQ(window.wait_exit(), 0) << window.output();
 
-    if (std::getenv("HEARTSIM_UPDATE_GOLDEN")) {
-        fs::create_directories(golden.parent_path());
-        write_png(golden, image);
-        std::printf("  updated the golden image %s\n", golden.c_str());
-    }
-    if (!fs::exists(golden)) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
-    const Image reference = read_png(golden);
+    const std::optional<Image> golden_image = test::golden_reference(golden, image);
+    if (!golden_image) GTEST_SKIP() << "no golden image " << golden << " (HEARTSIM_UPDATE_GOLDEN=1 writes it)";
+    const Image& reference = *golden_image;
     ASSERT_EQ(reference.width, image.width);
     ASSERT_EQ(reference.height, image.height);
     ASSERT_EQ(reference.channels, 3);
@@ -651,12 +647,7 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     // and shading differently); the HUD's text is drawn from ImGui's own font atlas and differs
     // by a handful of pixels at most, where one changed character moves dozens.
     const bool pass = whole.mean_abs < 2.0 && whole.fraction_over < 0.01 && panel_pixels <= 12;
-    if (!pass) {
-        const fs::path out = fs::current_path() / "window_hud.diff.png", actual = fs::current_path() / "window_hud.actual.png";
-        write_png(out, diff);
-        write_png(actual, image);
-        std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
-    }
+    if (!pass) test::write_golden_failure("window_hud", diff, image);
     EXPECT_TRUE(pass) << "mean " << whole.mean_abs << ", fraction " << whole.fraction_over << ", HUD panel pixels " << panel_pixels;
 }
 
