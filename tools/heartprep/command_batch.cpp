@@ -208,16 +208,14 @@ bool up_to_date(const fs::path& output, const std::string& key, Outcome* outcome
 /// heartsim, for the previews: beside heartprep (an install), in the build tree's runtime/ folder,
 /// or on PATH; empty when there is none.
 fs::path find_heartsim(const fs::path& heartprep) {
-    std::error_code error;
-    for (const fs::path& candidate : {heartprep.parent_path() / "heartsim", heartprep.parent_path().parent_path() / "runtime" / "heartsim"})
-        if (fs::is_regular_file(candidate, error) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
+    std::vector<fs::path> candidates{heartprep.parent_path() / "heartsim", heartprep.parent_path().parent_path() / "runtime" / "heartsim"};
     if (const char* path = std::getenv("PATH")) {
         std::istringstream folders(path);
-        for (std::string folder; std::getline(folders, folder, ':');) {
-            const fs::path candidate = fs::path(folder.empty() ? "." : folder) / "heartsim";
-            if (fs::is_regular_file(candidate, error) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
-        }
+        for (std::string folder; std::getline(folders, folder, ':');) candidates.push_back(fs::path(folder.empty() ? "." : folder) / "heartsim");
     }
+    std::error_code error;
+    for (const fs::path& candidate : candidates)
+        if (fs::is_regular_file(candidate, error) && ::access(candidate.c_str(), X_OK) == 0) return candidate;
     return {};
 }
 
@@ -489,9 +487,7 @@ void add_batch_command(CLI::App& app) {
         BatchSettings settings;
         const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
         settings.threads = *threads > 0 ? *threads : std::max(1, cores / *jobs);
-        if (*no_preview) {
-            settings.no_preview = "";
-        } else {
+        if (!*no_preview) {
             settings.heartsim = find_heartsim(executable);
             if (settings.heartsim.empty()) {
                 settings.no_preview = "no preview: heartsim is neither beside heartprep nor on PATH";
