@@ -48,11 +48,24 @@ std::string dims_text(std::initializer_list<std::size_t> dims) {
     return text;
 }
 
+std::string number(double value) {
+    char text[40];
+    std::snprintf(text, sizeof text, "%.17g", value);
+    return text;
+}
+
+/// A DataItem of `type` and `dims` whose content is `content` in `format` (HDF: a dataset's path;
+/// XML: the values themselves).
+std::string data_item(std::initializer_list<std::size_t> dims, Type type, const char* format, const std::string& content,
+                      const std::string& indent) {
+    return indent + "<DataItem Dimensions=\"" + dims_text(dims) + "\" NumberType=\"" + type.number + "\" Precision=\"" +
+           std::to_string(type.precision) + "\" Format=\"" + format + "\">" + content + "</DataItem>\n";
+}
+
 /// A DataItem reading dataset `dataset` of `file` (a path relative to the .xdmf's folder).
 std::string hdf(const std::string& file, const std::string& dataset, std::initializer_list<std::size_t> dims, Type type,
                 const std::string& indent) {
-    return indent + "<DataItem Dimensions=\"" + dims_text(dims) + "\" NumberType=\"" + type.number + "\" Precision=\"" +
-           std::to_string(type.precision) + "\" Format=\"HDF\">" + escaped(file) + ":" + dataset + "</DataItem>\n";
+    return data_item(dims, type, "HDF", escaped(file) + ":" + dataset, indent);
 }
 
 /// A DataItem holding `values` in the XML itself.
@@ -60,13 +73,10 @@ template <class T>
 std::string inline_values(const std::vector<T>& values, std::initializer_list<std::size_t> dims, Type type, const std::string& indent) {
     std::string text;
     for (const T value : values) {
-        char number[40];
-        std::snprintf(number, sizeof number, "%.17g", double(value));
         if (!text.empty()) text += ' ';
-        text += number;
+        text += number(double(value));
     }
-    return indent + "<DataItem Dimensions=\"" + dims_text(dims) + "\" NumberType=\"" + type.number + "\" Precision=\"" +
-           std::to_string(type.precision) + "\" Format=\"XML\">" + text + "</DataItem>\n";
+    return data_item(dims, type, "XML", text, indent);
 }
 
 const char* header = "<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n";
@@ -96,19 +106,12 @@ std::string vertex_grid(const std::string& name, std::size_t count, const std::s
     }
     if (!indices.empty()) indices.pop_back();
     return "    <Grid Name=\"" + name + "\" GridType=\"Uniform\">\n" + time + "      <Topology TopologyType=\"Polyvertex\" NumberOfElements=\"" +
-           std::to_string(count) + "\" NodesPerElement=\"1\">\n        <DataItem Dimensions=\"" + std::to_string(count) +
-           "\" NumberType=\"Int\" Precision=\"4\" Format=\"XML\">" + indices + "</DataItem>\n      </Topology>\n" +
+           std::to_string(count) + "\" NodesPerElement=\"1\">\n" + data_item({count}, i32, "XML", indices, "        ") + "      </Topology>\n" +
            "      <Geometry GeometryType=\"XYZ\">\n" + geometry + "      </Geometry>\n" + attributes + "    </Grid>\n";
 }
 
 std::string attribute(const std::string& name, const char* kind, const std::string& item) {
     return "      <Attribute Name=\"" + name + "\" AttributeType=\"" + kind + "\" Center=\"Node\">\n" + item + "      </Attribute>\n";
-}
-
-std::string number(double value) {
-    char text[40];
-    std::snprintf(text, sizeof text, "%.17g", value);
-    return text;
 }
 
 }  // namespace
