@@ -2,6 +2,7 @@
 
 #include "libmodel/errors.h"
 #include "libmodel/segment_names.h"
+#include "libmodel/text.h"
 
 #include <fstream>
 #include <sstream>
@@ -11,12 +12,7 @@ namespace heartsim {
 
 namespace {
 
-std::string trim(const std::string& text) {
-    const auto first = text.find_first_not_of(" \t\r\n");
-    if (first == std::string::npos) return {};
-    return text.substr(first, text.find_last_not_of(" \t\r\n") - first + 1);
-}
-
+using text::trim;
 
 std::string unquote(std::string text) {
     text = trim(text);

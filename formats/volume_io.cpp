@@ -10,6 +10,7 @@
 
 #include "libmodel/errors.h"
 #include "libmodel/segment_names.h"
+#include "libmodel/text.h"
 #include "libmodel/plausible.h"
 
 // Debian's ITK 5.2 ships the compiler detection header generated for GCC, which stops any other
@@ -70,10 +71,7 @@ namespace fs = std::filesystem;
 constexpr std::array<const char*, 6> supported_extensions = {".seg.nrrd", ".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"};
 constexpr const char* supported_list = ".nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd";
 
-std::string lowercase(std::string text) {
-    std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    return text;
-}
+using text::lowercase;
 
 /// The supported extension `path` ends with (lower case), or empty.
 std::string volume_extension(const fs::path& path) {

@@ -1,6 +1,7 @@
 #include "segment_names.h"
 
 #include "errors.h"
+#include "text.h"
 
 #include <algorithm>
 #include <array>
@@ -12,16 +13,8 @@ namespace heartsim {
 
 namespace {
 
-std::string lowercase(std::string text) {
-    std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    return text;
-}
-
-std::string trim(const std::string& text) {
-    const auto first = text.find_first_not_of(" \t\r\n");
-    if (first == std::string::npos) return {};
-    return text.substr(first, text.find_last_not_of(" \t\r\n") - first + 1);
-}
+using text::lowercase;
+using text::trim;
 
 // The word lists of segment_names.h; substrings of the lower-case name.
 constexpr std::array<const char*, 17> non_muscle_words = {"blood", "cavity", "pool",  "lumen",  "chamber",  "aort",
@@ -37,13 +30,6 @@ std::string comparable(const std::string& name) {
     return text;
 }
 
-
-std::string list_segments(const SegmentNames& names) {
-    std::string text;
-    for (const auto& [label, name] : names) text += (text.empty() ? "" : ", ") + describe_label(label, names);
-    return text;
-}
-
 std::vector<int> muscle_labels(const SegmentNames& names) {
     std::vector<int> labels;
     for (const auto& [label, name] : names)
@@ -55,6 +41,12 @@ std::string describe_labels(const std::vector<int>& labels, const SegmentNames& 
     std::string text;
     for (int label : labels) text += (text.empty() ? "" : ", ") + describe_label(label, names);
     return text;
+}
+
+std::string list_segments(const SegmentNames& names) {
+    std::vector<int> labels;
+    for (const auto& entry : names) labels.push_back(entry.first);
+    return describe_labels(labels, names);
 }
 
 }  // namespace
