@@ -50,6 +50,14 @@ std::string timestamped_screenshot(const std::string& scenario, const std::tm& l
 
 namespace {
 
+/// The local time now, for the names of screenshots and recordings.
+std::tm local_time_now() {
+    const std::time_t wall = std::time(nullptr);
+    std::tm local{};
+    localtime_r(&wall, &local);
+    return local;
+}
+
 const char* instrument_word(InstrumentKind kind) {
     return kind == InstrumentKind::grabber ? "grabber" : kind == InstrumentKind::probe ? "probe" : "none";
 }
@@ -237,11 +245,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                         ~Handled() { --pending; }
                     } handled{toggles_pending};
                     if (!haptic->window_recording()) {
-                        const std::time_t wall = std::time(nullptr);
-                        std::tm local{};
-                        localtime_r(&wall, &local);
                         // Named on this thread, once the previous recording is written: never the same name.
-                        const std::string path = timestamped_path(scenario_path, local, ".rec.h5");
+                        const std::string path = timestamped_path(scenario_path, local_time_now(), ".rec.h5");
                         try {
                             haptic->start_recording(path);
                             recording_now = true;
@@ -480,10 +485,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (input.screenshot) {
             // P: the window as seen, HUD included, beside the scenario (written atomically).
             input.screenshot = false;
-            const std::time_t wall = std::time(nullptr);
-            std::tm local{};
-            localtime_r(&wall, &local);
-            const std::string path = timestamped_screenshot(a.scenario_path, local);
+            const std::string path = timestamped_screenshot(a.scenario_path, local_time_now());
             try {
                 write_png(path, read_window_pixels(width, height));
                 say("screenshot: wrote %s (%dx%d)\n", path.c_str(), width, height);
