@@ -12,6 +12,7 @@
 
 #include "solver.h"
 
+#include "ellipsoid.h"
 #include "errors.h"
 #include "packing.h"
 #include "stability.h"
@@ -1026,11 +1027,9 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
         const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
         if (!(r2 < 1.0)) return;
-        if (r2 > 0) local /= std::sqrt(r2);
-        else local = Eigen::Vector3d(0, 0, p.semi_axes.z());
-        // Radial projection in the ellipsoid's scaled frame (the closest point for a sphere), to
-        // just outside the boundary (1e-6 relative) so that float rounding and a caller's own
-        // evaluation of the pose cannot see it inside.
+        // To the nearest point of the surface (ellipsoid.h), then just outside it (1e-6 relative)
+        // so that float rounding and a caller's own evaluation of the pose cannot see it inside.
+        local = nearest_point_on_ellipsoid(local, p.semi_axes);
         double factor = 1.0 + 1e-6;
         Eigen::Vector3d stored;
         for (int attempt = 0; attempt < 60; ++attempt) {

@@ -1,6 +1,7 @@
 // The CPU solver against truths: closed-form oscillators, conservation laws, convergence order,
 // analytic static deflections, exact instrument constraints, force balance, the critical step,
 // determinism across thread counts and kernels, and a stress run on a real heart.
+#include "libmodel/ellipsoid.h"
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
@@ -385,11 +386,15 @@ TEST(Solver, StableBelowTheCriticalStepWatchdogAboveNeverNonFinite) {
             solver.set_state(x0, zeros(solver.size()));
             StepReport report;
             for (int i = 0; i < 30 && !report.diverged; ++i) report = solver.step(100);
-            if (watchdog) EXPECT_EQ(report.diverged, factor > 1) << "dt = " << factor << " × critical: " << report.message;
+            if (watchdog) {
+                EXPECT_EQ(report.diverged, factor > 1) << "dt = " << factor << " × critical: " << report.message;
+            }
             for (std::size_t i = 0; i < solver.size(); ++i) ASSERT_TRUE(solver.position(i).allFinite()) << factor;
             ASSERT_TRUE(solver.anchor_force().allFinite());
             ASSERT_TRUE(solver.instrument_forces().hand[0].force_n.allFinite());
-            if (report.diverged) EXPECT_NE(report.message.find("watchdog"), std::string::npos);
+            if (report.diverged) {
+                EXPECT_NE(report.message.find("watchdog"), std::string::npos);
+            }
         }
     }
 }
@@ -503,4 +508,44 @@ TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
     EXPECT_LT(resident_bytes(), memory_after_warmup + (std::size_t(2) << 20)) << "memory grows with steps";
     RecordProperty("watchdog_events", int(events));
     EXPECT_LT(events, 30u) << "the watchdog should rarely need to step in at hand speeds";
+}
+
+// The probe's projection target: the nearest surface point, checked against a search over the
+// surface (no sample may be nearer) and against closed forms on the degenerate axes.
+TEST(Ellipsoid, NearestPointIsOnTheSurfaceAndNoSurfaceSampleIsNearer) {
+    const std::vector<Eigen::Vector3d> shapes{{3, 3, 8}, {2, 3, 1.5}, {2, 2, 2}, {4, 4, 1}, {1, 5, 2.5}};
+    std::mt19937 random(11);
+    std::uniform_real_distribution<double> unit(-1, 1);
+    for (const Eigen::Vector3d& a : shapes) {
+        // The surface sampled on a fine (θ, φ) grid: spacing below 0.04 mm on these sizes.
+        std::vector<Eigen::Vector3d> surface;
+        const int rings = 600, segments = 1200;
+        for (int r = 0; r <= rings; ++r)
+            for (int s = 0; s < segments; ++s) {
+                const double theta = M_PI * r / rings, phi = 2 * M_PI * s / segments;
+                surface.emplace_back(a.x() * std::sin(theta) * std::cos(phi), a.y() * std::sin(theta) * std::sin(phi), a.z() * std::cos(theta));
+            }
+        for (int trial = 0; trial < 40; ++trial) {
+            Eigen::Vector3d y(unit(random), unit(random), unit(random));
+            y = y.cwiseProduct(a) * 0.999;
+            if (y.cwiseQuotient(a).squaredNorm() >= 1) continue;
+            if (trial < 4) y[trial % 3] = 0;  // on a plane of symmetry
+            const Eigen::Vector3d x = nearest_point_on_ellipsoid(y, a);
+            ASSERT_NEAR(x.cwiseQuotient(a).squaredNorm(), 1.0, 1e-9) << "shape " << a.transpose() << " point " << y.transpose();
+            double best = std::numeric_limits<double>::infinity();
+            for (const Eigen::Vector3d& q : surface) best = std::min(best, (q - y).norm());
+            EXPECT_LE((x - y).norm(), best + 1e-9) << "a surface sample is nearer: shape " << a.transpose() << " point " << y.transpose();
+            EXPECT_GE((x - y).norm(), best - 0.02) << "shape " << a.transpose() << " point " << y.transpose();
+        }
+    }
+    // On a needle's axis the nearest surface is to the side: (0, 0, z) inside a 3 × 3 × 8 needle
+    // is 3·√(1 − z²/55) mm from it for |z| up to 8 − 9/8 (the end of the medial axis), where a
+    // radial projection would go 8 − |z| to the tip.
+    for (double z : {0.0, 1.0, -4.0, 6.5}) {
+        const Eigen::Vector3d x = nearest_point_on_ellipsoid(Eigen::Vector3d(0, 0, z), Eigen::Vector3d(3, 3, 8));
+        EXPECT_NEAR((x - Eigen::Vector3d(0, 0, z)).norm(), 3 * std::sqrt(1 - z * z / (8 * 8 - 9)), 1e-9) << "z " << z;
+        EXPECT_NEAR(x.z(), z * 64 / (64 - 9), 1e-9);
+    }
+    // The centre of a sphere: its radius along z.
+    EXPECT_TRUE(nearest_point_on_ellipsoid(Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(2)).isApprox(Eigen::Vector3d(0, 0, 2)));
 }

@@ -67,6 +67,42 @@ dvec3 rotate_back(dmat3 r, dvec3 v) {     // rᵀ · v
 double squared_norm(dvec3 v) { precise double s = v.x * v.x + v.y * v.y; s = s + v.z * v.z; return s; }
 double dot3(dvec3 a, dvec3 b) { precise double s = a.x * b.x + a.y * b.y; s = s + a.z * b.z; return s; }
 
+// The nearest surface point of the ellipsoid with semi-axes a from y inside it, in its frame:
+// libmodel/ellipsoid.cpp nearest_point_on_ellipsoid, the same steps in double.
+dvec3 ellipsoid_nearest(dvec3 y, dvec3 a) {
+    dvec3 a2 = a * a;
+    double m = min(min(a2.x, a2.y), a2.z);
+    bool shortest[3];
+    precise double w2 = 0.0lf, g = 0.0lf;
+    for (int i = 0; i < 3; ++i) {
+        shortest[i] = a2[i] <= m * (1.0lf + 1e-12lf);
+        if (shortest[i]) w2 = w2 + y[i] * y[i];
+        else { precise double q = a[i] * y[i] / (a2[i] - m); g = g + q * q; }
+    }
+    dvec3 x;
+    if (g <= 1.0lf && w2 <= 1e-18lf * m) {
+        double w = sqrt(w2);
+        int fallback = shortest[2] ? 2 : (shortest[0] ? 0 : 1);
+        double along = sqrt(m * (1.0lf - g));
+        for (int i = 0; i < 3; ++i) {
+            if (!shortest[i]) x[i] = a2[i] * y[i] / (a2[i] - m);
+            else if (w > 0.0lf) x[i] = along * y[i] / w;
+            else x[i] = i == fallback ? along : 0.0lf;
+        }
+        return x;
+    }
+    double low = -m, high = 0.0lf;
+    for (int iteration = 0; iteration < 80; ++iteration) {
+        precise double middle = 0.5lf * (low + high);
+        if (middle <= low || middle >= high) break;
+        precise double f = 0.0lf;
+        for (int i = 0; i < 3; ++i) { precise double q = a[i] * y[i] / (a2[i] + middle); f = f + q * q; }
+        if (f - 1.0lf > 0.0lf) low = middle; else high = middle;
+    }
+    for (int i = 0; i < 3; ++i) x[i] = a2[i] * y[i] / (a2[i] + high);
+    return x;
+}
+
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= padded_count) return;
@@ -127,8 +163,7 @@ void main() {
             precise dvec3 local = rotate_back(r, world - probe_centre[q]);
             precise double r2 = squared_norm(local / semi);
             if (!(r2 < 1.0lf)) continue;
-            if (r2 > 0.0lf) local = local / sqrt(r2);
-            else local = dvec3(0.0lf, 0.0lf, semi.z);
+            local = ellipsoid_nearest(local, semi);
             precise double factor = 1.0lf + 1e-6lf;
             dvec3 stored;
             for (int attempt = 0; attempt < 60; ++attempt) {
