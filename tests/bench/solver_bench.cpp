@@ -282,11 +282,17 @@ int main(int argc, char** argv) {
             return 2;
         }
     }
-    if (std::filesystem::is_directory(real))
-        for (const auto& entry : std::filesystem::directory_iterator(real)) {
-            const std::string name = entry.path().filename().string();
-            if (name.find("label") != std::string::npos || name.find(".nii") != std::string::npos) real = entry.path();
+    if (std::filesystem::is_directory(real)) {
+        // A case folder holds the label map (…-label.nii.gz) beside the MRI itself: take the labels.
+        std::filesystem::path labels;
+        for (const auto& entry : std::filesystem::directory_iterator(real))
+            if (entry.path().filename().string().find("label") != std::string::npos) labels = entry.path();
+        if (labels.empty()) {
+            std::cerr << "solver_bench: " << real << " holds no label map (a file with 'label' in its name)\n";
+            return 1;
         }
+        real = labels;
+    }
     tbb::global_control control(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
     const double min_seconds = quick ? 0.5 : 2.0;
     std::ofstream csv(out / "solver_bench.csv");
