@@ -1084,9 +1084,7 @@ void write_with_itk(const fs::path& path, const LabelVolume& volume, bool compre
 void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
                              const std::map<int, std::string>* segment_names) {
     const std::string extension = volume_extension(path);
-    if (extension.empty())
-        throw OutputError(path.string() + ": unsupported file type '" + path.extension().string() +
-                          "'; expected one of " + supported_list);
+    if (extension.empty()) throw OutputError(label_volume_path_problem(path));
     if (volume.labels.size() != volume.geometry.voxel_count())
         throw OutputError(path.string() + ": label count " + std::to_string(volume.labels.size()) +
                           " does not match the geometry's " + std::to_string(volume.geometry.voxel_count()) +
@@ -1163,6 +1161,11 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
     LabelVolume volume = read_voxels(path, probe);
     if (header) *header = probe.header;
     return volume;
+}
+
+std::string label_volume_path_problem(const std::filesystem::path& path) {
+    if (!volume_extension(path).empty()) return {};
+    return path.string() + ": unsupported file type '" + path.extension().string() + "'; expected one of " + supported_list;
 }
 
 void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume) {

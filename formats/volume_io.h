@@ -50,6 +50,11 @@ VolumeHeader read_volume_header(const std::filesystem::path& path);
 LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeReadOptions& options = {},
                               VolumeHeader* header = nullptr);
 
+/// Empty when `path` ends with an extension the label-map readers and writers know (.nii,
+/// .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd); else the reason, "PATH: unsupported file type …",
+/// so that a command can refuse an output name before it does any work.
+std::string label_volume_path_problem(const std::filesystem::path& path);
+
 /// Writes a label map (stored as unsigned 16-bit when every label fits, else signed 32-bit);
 /// the format follows the extension. Atomic: temporary file, then rename. Throws OutputError.
 void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume);

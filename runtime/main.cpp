@@ -8,10 +8,12 @@
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
+#include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
 
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 
 using namespace heartsim;
@@ -120,8 +122,16 @@ int main(int argc, char** argv) {
     std::vector<char*> arguments(argv, argv + argc);
     static char run_word[] = "run";
     const std::string first = argc >= 2 ? argv[1] : "";
-    if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version")
+    if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version") {
+        // A mistyped command ("heartsim rn case.h5") is no scenario: say so rather than "file not found".
+        if (first[0] != '-' && first.find('.') == std::string::npos && !std::filesystem::exists(first))
+            if (const std::string nearest = text::nearest_word(first, {"run", "info", "recover"}); !nearest.empty()) {
+                std::fprintf(stderr, "heartsim: error: unknown command '%s' (did you mean '%s'?); the commands are run, info, recover "
+                                     "(heartsim --help)\n", first.c_str(), nearest.c_str());
+                return exit_status(ExitCode::usage);
+            }
         arguments.insert(arguments.begin() + 1, run_word);
+    }
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + exit_status_help);
     app.footer(exit_status_help);
     // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in

@@ -243,7 +243,8 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
     };
     const std::vector<Case> cases = {
         {"build " + quoted(input) + out + " --frobnicate", 2, "--frobnicate"},                      // unknown option
-        {"frobnicate", 2, "subcommand"},                                                            // unknown subcommand
+        {"frobnicate", 2, "unknown command 'frobnicate'; the commands are build, surface"},         // unknown subcommand
+        {"biuld " + quoted(input) + out, 2, "unknown command 'biuld' (did you mean 'build'?)"},      // a typo of one
         {"build " + quoted(input), 2, "--output"},                                                  // missing argument
         {"build " + quoted(input) + out + " --occupancy 2", 2, "--occupancy"},                      // out of range
         {"build " + quoted(input) + out + " --rest-state sideways", 2, "--rest-state"},             // not one of its values
@@ -253,6 +254,8 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
+        {"phantom -o " + quoted(dir / "p.vtk"), 2, "p.vtk: unsupported file type '.vtk'"},         // refused before it generates
+        {"batch " + quoted(dir / "cases.csv") + " --pattern '*.nii.gz' -o " + quoted(dir / "batch"), 2, "--pattern chooses files of a folder"},
         {"batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "batch") + " -j 0", 2, "--jobs"},
         {"build " + quoted(dir / "missing.nii.gz") + out, 1, "missing.nii.gz: file not found"},     // a missing file
         {"build " + quoted(dir / "corrupt.nii.gz") + out, 1, "corrupt.nii.gz: "},                   // a corrupt one

@@ -234,6 +234,7 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     const std::vector<Case> cases = {
         {run + "--steps 1 --frobnicate", 2, "--frobnicate"},                    // unknown option
         {"run", 2, "scenario"},                                                 // missing argument
+        {"rn " + quoted(phantom()), 2, "unknown command 'rn' (did you mean 'run'?)"},  // a typo of a command
         {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range
         {run + "--steps 1 --view sideways", 2, "--view"},                       // not one of its values
         {run + "--steps 1 --seconds 1", 2, "give --steps or --seconds"},        // contradictory

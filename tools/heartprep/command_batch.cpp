@@ -11,6 +11,7 @@
 #include "formats/atomic_file.h"
 #include "formats/scenario.h"
 #include "formats/xdmf.h"
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
 
@@ -465,7 +466,7 @@ void add_batch_command(CLI::App& app) {
     command->add_flag("--no-preview", *no_preview, "No pictures (previews need heartsim and OpenGL, e.g. Mesa's llvmpipe)");
     command->callback([=] {
         if (!pattern->empty() && !fs::is_directory(*manifest))
-            throw InputError("--pattern chooses files of a folder; " + manifest->string() + " is not a folder");
+            throw UsageError("--pattern chooses files of a folder; " + manifest->string() + " is not a folder");
         const auto cases = read_manifest(*manifest, *options, *pattern);
         if (*plan) {
             auto list = nlohmann::ordered_json::array();

@@ -40,6 +40,7 @@ void add_phantom_command(CLI::App& app) {
     command->add_option("--radius", o->radius_mm, "Sphere radius or shell outer radius, mm")->capture_default_str()->group("Sphere and shell");
     command->add_option("--inner-radius", o->inner_radius_mm, "Shell inner radius, mm")->capture_default_str()->group("Sphere and shell");
     command->callback([=] {
+        if (const std::string problem = label_volume_path_problem(*output); !problem.empty()) throw UsageError(problem);
         LabelVolume volume;
         try {
             o->shape = parse_phantom_shape(*shape);

@@ -5,11 +5,14 @@
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
+#include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <cstdio>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -55,6 +58,19 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "heartprep: error: %s\n", heartsim::one_line(message).c_str());
         return exit_status(code);
     };
+    // A word where the command goes that names none: say which word, list the commands and
+    // suggest the nearest (CLI11 would only say that a subcommand is required).
+    std::vector<std::string> words;
+    std::string names;
+    for (const CLI::App* command : app.get_subcommands({})) {
+        words.push_back(command->get_name());
+        names += (names.empty() ? "" : ", ") + command->get_name();
+    }
+    if (argc > 1 && argv[1][0] != '-' && std::find(words.begin(), words.end(), argv[1]) == words.end()) {
+        const std::string nearest = heartsim::text::nearest_word(argv[1], words);
+        return fail(ExitCode::usage, "unknown command '" + std::string(argv[1]) + "'" + (nearest.empty() ? "" : " (did you mean '" + nearest + "'?)") +
+                                         "; the commands are " + names + " (heartprep --help)");
+    }
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& error) {
