@@ -45,6 +45,15 @@ const char* to_string(SolverKernel kernel) {
     return "?";
 }
 
+const char* to_string(InstrumentKind kind) {
+    switch (kind) {
+    case InstrumentKind::none: return "none";
+    case InstrumentKind::probe: return "probe";
+    case InstrumentKind::grabber: return "grabber";
+    }
+    return "none";
+}
+
 const char* to_string(WatchdogReason reason) {
     switch (reason) {
     case WatchdogReason::none: return "none";

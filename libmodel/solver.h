@@ -109,6 +109,9 @@ enum class InstrumentKind {
     grabber,  ///< begin_grab() captures the particles inside; they follow the pose rigidly
 };
 
+/// "none", "probe" or "grabber": the word of trajectories, recordings and the window's HUD.
+const char* to_string(InstrumentKind kind);
+
 /// An instrument's volume: an ellipsoid with semi-axes along the tool frame's x, y, z, mm.
 struct Instrument {
     InstrumentKind kind = InstrumentKind::none;

@@ -58,10 +58,6 @@ std::tm local_time_now() {
     return local;
 }
 
-const char* instrument_word(InstrumentKind kind) {
-    return kind == InstrumentKind::grabber ? "grabber" : kind == InstrumentKind::probe ? "probe" : "none";
-}
-
 /// The window's mouse and keyboard state (GLFW callbacks write it).
 struct WindowInput {
     Renderer* renderer = nullptr;
@@ -443,7 +439,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                     h.device = haptic->device_spec(hand);
                     if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
                         h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
-                    h.instrument = instrument_word(haptic->instrument(hand));
+                    h.instrument = to_string(haptic->instrument(hand));
                     h.max_force_n = haptic->max_force_n(hand);
                     // The simulation's force on the instrument (what the session sends on, before
                     // safety); for the mouse device what it was sent.
@@ -468,7 +464,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 if (!h.used) continue;
                 h.device = hand == 0 && keyboard_hand0 ? "keyboard" : "script";
                 const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, state.simulated_ms);
-                h.instrument = instrument_word(k.kind);
+                h.instrument = to_string(k.kind);
                 h.grabbing = k.grab;
                 h.has_force = has_forces;
                 h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
