@@ -8,6 +8,7 @@
 #include "atomic_file.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/text.h"
 
 #include <Eigen/Geometry>
 
@@ -31,12 +32,7 @@ namespace heartsim {
 
 namespace {
 
-std::string lower_case_extension(const std::filesystem::path& path) {
-    std::string extension = path.extension().string();
-    std::transform(extension.begin(), extension.end(), extension.begin(),
-                   [](unsigned char c) { return char(std::tolower(c)); });
-    return extension;
-}
+std::string lower_case_extension(const std::filesystem::path& path) { return text::lowercase(path.extension().string()); }
 
 bool is_gltf(const std::string& extension) { return extension == ".glb" || extension == ".gltf"; }
 

@@ -72,6 +72,7 @@ constexpr std::array<const char*, 6> supported_extensions = {".seg.nrrd", ".nii.
 constexpr const char* supported_list = ".nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd";
 
 using text::lowercase;
+using text::trim;  // the header lines come from getline: no line feed inside
 
 /// The supported extension `path` ends with (lower case), or empty.
 std::string volume_extension(const fs::path& path) {
@@ -259,13 +260,6 @@ struct TextHeader {
     std::map<std::string, std::string> fields;  ///< lower-case key -> value
     std::uint64_t end_offset = 0;               ///< byte after the header
 };
-
-std::string trim(const std::string& text) {
-    const auto first = text.find_first_not_of(" \t\r");
-    if (first == std::string::npos) return {};
-    const auto last = text.find_last_not_of(" \t\r");
-    return text.substr(first, last - first + 1);
-}
 
 /// NRRD: magic line, then "field: value" lines (key/values use ":=") up to a blank line.
 TextHeader read_nrrd_header(const fs::path& path) {

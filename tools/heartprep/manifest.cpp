@@ -3,6 +3,7 @@
 
 #include "formats/csv.h"
 #include "libmodel/errors.h"
+#include "libmodel/text.h"
 
 #include <algorithm>
 #include <cctype>
@@ -88,8 +89,7 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
             auto fields = csv_fields(line);
             if (fields.size() == 1 && fields[0].empty()) continue;
             if (fields[0].rfind('#', 0) == 0) continue;
-            std::string first = fields[0];
-            std::transform(first.begin(), first.end(), first.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+            const std::string first = text::lowercase(fields[0]);
             if (cases.empty() && first == "input") continue;  // header line
             if (fields.size() > 3)
                 throw InputError(manifest.string() + ": line " + std::to_string(number) + " has " + std::to_string(fields.size()) +
