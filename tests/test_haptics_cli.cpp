@@ -170,6 +170,27 @@ TEST(HapticsCli, AScriptedDeviceReplaysTheDevicePosesOfARecording) {
     EXPECT_LT((a - b).norm(), 1e-3);
 }
 
+TEST(HapticsCli, ARecordingThatBeganLateInASessionPlaysFromItsStart) {
+    // What the window's F5 writes 40 s into a session: ticks from 40,000 ms. As a scripted device
+    // it starts at once, at its first pose, and moves as recorded, not after 40 s of holding still.
+    Recording late;
+    RecordedHand& h = late.hands[0];
+    h.used = true;
+    for (int i = 0; i <= 100; ++i) {
+        h.tick_time_ms.push_back(40000.0 + i);
+        h.position_mm.push_back({0.1 * i, -0.05 * i, 2.0});
+        h.orientation.push_back({1, 0, 0, 0});
+        h.buttons.push_back(i >= 50 ? 1u : 0u);
+    }
+    for (int i = 1; i <= 500; ++i) late.steps.time_ms.push_back(40000.0 + 0.2 * i);  // steps of 0.2 ms from 40 s
+    const ScriptedDevice device(recorded_pose_script(late, 0, "late.h5"));
+    EXPECT_NEAR((device.pose_at(0.0).position_mm - Eigen::Vector3d(0, 0, 2)).norm(), 0.0, 1e-9);
+    EXPECT_NEAR((device.pose_at(25.5).position_mm - Eigen::Vector3d(2.55, -1.275, 2)).norm(), 0.0, 1e-9) << "between ticks 25 and 26";
+    EXPECT_NEAR((device.pose_at(100.0).position_mm - Eigen::Vector3d(10, -5, 2)).norm(), 0.0, 1e-9);
+    EXPECT_EQ(device.pose_at(49.5).buttons, 0u);
+    EXPECT_EQ(device.pose_at(50.5).buttons, 1u);
+}
+
 TEST(HapticsCli, MaxForceClampsEveryForceSentButNotWhatTheSimulationComputed) {
     test::TempDir dir;
     // A firm 0.3 N push; the devices may render at most 0.01 N.

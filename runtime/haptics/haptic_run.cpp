@@ -12,6 +12,7 @@
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
+#include "libmodel/text.h"
 
 #include <algorithm>
 #include <cmath>
@@ -27,18 +28,7 @@ namespace heartsim::haptics {
 
 namespace {
 
-std::string lower_extension(const std::string& file) {
-    std::string e = std::filesystem::path(file).extension().string();
-    std::transform(e.begin(), e.end(), e.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-    return e;
-}
-
-std::string trim(const std::string& s) {
-    const auto b = s.find_first_not_of(" \t\r"), e = s.find_last_not_of(" \t\r");
-    return b == std::string::npos ? "" : s.substr(b, e - b + 1);
-}
-
-const char* instrument_name(InstrumentKind kind) { return kind == InstrumentKind::grabber ? "grabber" : "probe"; }
+std::string lower_extension(const std::string& file) { return text::lowercase(std::filesystem::path(file).extension().string()); }
 
 std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 
@@ -133,7 +123,7 @@ SimulatedDeviceSettings parse_simulated_device(const std::string& text, const st
         ++number;
         std::string content = line;
         if (const auto hash = content.find('#'); hash != std::string::npos) content.erase(hash);
-        const std::string key = trim(content.substr(0, content.find(',')));
+        const std::string key = text::trim(content.substr(0, content.find(',')));
         const bool is_setting = key == "start_mm" || key == "mass_g" || key == "damping_n_ms_per_mm" || key == "max_force_n" || key == "workspace_mm";
         if (!is_setting) {
             forces += line + '\n';
@@ -144,7 +134,7 @@ SimulatedDeviceSettings parse_simulated_device(const std::string& text, const st
         std::istringstream fields(content.substr(content.find(',') == std::string::npos ? content.size() : content.find(',') + 1));
         std::string field;
         while (std::getline(fields, field, ',')) {
-            const std::string f = trim(field);
+            const std::string f = text::trim(field);
             char* end = nullptr;
             const double v = std::strtod(f.c_str(), &end);
             if (f.empty() || *end != '\0' || !std::isfinite(v))
@@ -196,8 +186,14 @@ std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int h
     const RecordedHand& h = recording.hands[hand];
     if (h.tick_time_ms.empty()) throw InputError(name + ":/hand" + std::to_string(hand) + ": no ticks recorded");
     std::vector<PoseKeyframe> keyframes(h.tick_time_ms.size());
+    // The script's time 0 is where the recording began, the start of its first simulation step (a
+    // step's time is its end): 0 for a --record session, 40,000 ms for one the window's F5 began
+    // 40 s into a session, which then plays from its start rather than holding its first pose
+    // for 40 s. Without two steps to tell, the session's own clock.
+    const std::vector<double>& steps = recording.steps.time_ms;
+    const double start_ms = steps.size() >= 2 ? std::clamp(2 * steps[0] - steps[1], 0.0, h.tick_time_ms.front()) : 0.0;
     for (std::size_t i = 0; i < keyframes.size(); ++i) {
-        keyframes[i].time_ms = h.tick_time_ms[i];
+        keyframes[i].time_ms = h.tick_time_ms[i] - start_ms;
         keyframes[i].pose.position_mm = Eigen::Vector3d(h.position_mm[i][0], h.position_mm[i][1], h.position_mm[i][2]);
         Eigen::Quaterniond q(h.orientation[i][0], h.orientation[i][1], h.orientation[i][2], h.orientation[i][3]);
         if (q.norm() < 1e-9) throw InputError(name + ":/hand" + std::to_string(hand) + "/orientation row " + std::to_string(i) + " is zero");
@@ -347,7 +343,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         r.used = true;
         r.device = hands_[i].spec.text;
         r.device_name = hands_[i].device->name();
-        r.instrument = instrument_name(hands_[i].instrument.kind);
+        r.instrument = to_string(hands_[i].instrument.kind);
         r.semi_axes_mm = to_array(hands_[i].instrument.semi_axes);
         r.max_force_n = std::min(hands_[i].device->limits().max_force_n,
                                  settings.session.safety.max_force_n > 0 ? settings.session.safety.max_force_n : 1e300);
@@ -401,7 +397,7 @@ std::string HapticRun::describe(int hand) const {
     char line[512];
     const CouplingSettings& c = session_->coupling(hand);
     std::snprintf(line, sizeof line, "hand %d: %s (%s) → %s %.3g×%.3g×%.3g mm, max force %.3g N%s", hand, h.spec.text.c_str(),
-                  h.device->name().c_str(), instrument_name(h.instrument.kind), h.instrument.semi_axes.x(), h.instrument.semi_axes.y(),
+                  h.device->name().c_str(), to_string(h.instrument.kind), h.instrument.semi_axes.x(), h.instrument.semi_axes.y(),
                   h.instrument.semi_axes.z(), recording_.hands[hand].max_force_n,
                   c.enabled ? (", coupling K " + std::to_string(c.stiffness_n_per_mm) + " N/mm, B " + std::to_string(c.damping_n_ms_per_mm) +
                                " N·ms/mm").c_str()

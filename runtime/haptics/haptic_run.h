@@ -45,7 +45,8 @@ DeviceSpec parse_device_spec(const std::string& text);
 SimulatedDeviceSettings parse_simulated_device(const std::string& text, const std::string& name);
 SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path);
 
-/// The device poses of one hand of a recording as a pose script (scripted:REC.h5@HAND).
+/// The device poses of one hand of a recording as a pose script (scripted:REC.h5@HAND), its
+/// times counted from the recording's start (that of its first simulation step).
 std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name);
 
 /// `--instrument KIND[:AX,AY,AZ]`: probe or grabber, semi-axes mm (default 1.5 lattice spacings).
