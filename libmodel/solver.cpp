@@ -267,6 +267,20 @@ HEARTSIM_AVX2 inline void load_gather8(const float* base, const std::int32_t* i,
     transpose_in8(pair(at(0), at(4)), pair(at(1), at(5)), pair(at(2), at(6)), pair(at(3), at(7)), x, y, z);
 }
 
+/// load_gather8 of positions and motions at once, each offset computed once for both loads (as
+/// load_gather16_both): the same loads, so the same values.
+HEARTSIM_AVX2 inline void load_gather8_both(const float* x, const float* u, const std::int32_t* i, __m256& xj, __m256& yj, __m256& zj,
+                                            __m256& uxj, __m256& uyj, __m256& uzj) {
+    __m256 xq[4], uq[4];
+    for (int q = 0; q < 4; ++q) {
+        const std::size_t o0 = 4 * std::size_t(i[q]), o1 = 4 * std::size_t(i[q + 4]);
+        xq[q] = pair(x + o0, x + o1);
+        uq[q] = pair(u + o0, u + o1);
+    }
+    transpose_in8(xq[0], xq[1], xq[2], xq[3], xj, yj, zj);
+    transpose_in8(uq[0], uq[1], uq[2], uq[3], uxj, uyj, uzj);
+}
+
 HEARTSIM_AVX2 inline void load_own8(const float* p, __m256& x, __m256& y, __m256& z) {
     transpose_in8(pair(p, p + 16), pair(p + 4, p + 20), pair(p + 8, p + 24), pair(p + 12, p + 28), x, y, z);
 }
@@ -299,8 +313,9 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     const std::size_t table = group * slot_count * lane_count, parameters = group * k.parameter_group_stride;
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = table + std::size_t(s) * lane_count, u = parameters + std::size_t(s) * lane_count;
-        __m256 xj, yj, zj;
-        load_gather8(k.x, k.neighbour + t, xj, yj, zj);
+        __m256 xj, yj, zj, uxj, uyj, uzj;
+        if constexpr (Damped) load_gather8_both(k.x, k.u, k.neighbour + t, xj, yj, zj, uxj, uyj, uzj);
+        else load_gather8(k.x, k.neighbour + t, xj, yj, zj);
         const __m256 dx = _mm256_sub_ps(xj, xi), dy = _mm256_sub_ps(yj, yi), dz = _mm256_sub_ps(zj, zi);
         __m256 length2 = _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy));
         length2 = _mm256_add_ps(length2, _mm256_mul_ps(dz, dz));
@@ -308,8 +323,6 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
         const __m256 inverse = _mm256_div_ps(one, length);
         __m256 scale = _mm256_mul_ps(_mm256_mul_ps(_mm256_loadu_ps(k.stiffness + u), _mm256_sub_ps(length, _mm256_loadu_ps(k.rest_length + u))), inverse);
         if constexpr (Damped) {
-            __m256 uxj, uyj, uzj;
-            load_gather8(k.u, k.neighbour + t, uxj, uyj, uzj);
             const __m256 dux = _mm256_sub_ps(uxj, uxi), duy = _mm256_sub_ps(uyj, uyi), duz = _mm256_sub_ps(uzj, uzi);
             __m256 along = _mm256_add_ps(_mm256_mul_ps(dux, dx), _mm256_mul_ps(duy, dy));
             along = _mm256_mul_ps(_mm256_add_ps(along, _mm256_mul_ps(duz, dz)), inverse);
@@ -372,6 +385,21 @@ HEARTSIM_AVX512 inline void load_gather16(const float* base, const std::int32_t*
                    quad(at(3), at(7), at(11), at(15)), x, y, z);
 }
 
+/// load_gather16 of positions and motions at once: each particle's byte offset is computed once
+/// and used for both loads, four particles at a time (16 offsets live across two gathers spill
+/// to the stack). The same loads as two load_gather16 calls, so the same values.
+HEARTSIM_AVX512 inline void load_gather16_both(const float* x, const float* u, const std::int32_t* low, const std::int32_t* high, __m512& xj,
+                                               __m512& yj, __m512& zj, __m512& uxj, __m512& uyj, __m512& uzj) {
+    __m512 xq[4], uq[4];
+    for (int q = 0; q < 4; ++q) {
+        const std::size_t o0 = 4 * std::size_t(low[q]), o1 = 4 * std::size_t(low[q + 4]), o2 = 4 * std::size_t(high[q]), o3 = 4 * std::size_t(high[q + 4]);
+        xq[q] = quad(x + o0, x + o1, x + o2, x + o3);
+        uq[q] = quad(u + o0, u + o1, u + o2, u + o3);
+    }
+    transpose_in16(xq[0], xq[1], xq[2], xq[3], xj, yj, zj);
+    transpose_in16(uq[0], uq[1], uq[2], uq[3], uxj, uyj, uzj);
+}
+
 /// x, y, z of 16 consecutive particles (float4 each, from p).
 HEARTSIM_AVX512 inline void load_own16(const float* p, __m512& x, __m512& y, __m512& z) {
     transpose_in16(quad(p, p + 16, p + 32, p + 48), quad(p + 4, p + 20, p + 36, p + 52), quad(p + 8, p + 24, p + 40, p + 56),
@@ -428,8 +456,9 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = table + std::size_t(s) * lane_count, t2 = next_table + std::size_t(s) * lane_count;
         const std::size_t u = parameters + std::size_t(s) * lane_count, u2 = next_parameters + std::size_t(s) * lane_count;
-        __m512 xj, yj, zj;
-        load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
+        __m512 xj, yj, zj, uxj, uyj, uzj;
+        if constexpr (Damped) load_gather16_both(k.x, k.u, k.neighbour + t, k.neighbour + t2, xj, yj, zj, uxj, uyj, uzj);
+        else load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
         const __m512 dx = _mm512_sub_ps(xj, xi), dy = _mm512_sub_ps(yj, yi), dz = _mm512_sub_ps(zj, zi);
         __m512 length2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
         length2 = _mm512_add_ps(length2, _mm512_mul_ps(dz, dz));
@@ -439,8 +468,6 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
                                                    _mm512_sub_ps(length, load_two(k.rest_length + u, k.rest_length + u2))),
                                      inverse);
         if constexpr (Damped) {
-            __m512 uxj, uyj, uzj;
-            load_gather16(k.u, k.neighbour + t, k.neighbour + t2, uxj, uyj, uzj);
             const __m512 dux = _mm512_sub_ps(uxj, uxi), duy = _mm512_sub_ps(uyj, uyi), duz = _mm512_sub_ps(uzj, uzi);
             __m512 along = _mm512_add_ps(_mm512_mul_ps(dux, dx), _mm512_mul_ps(duy, dy));
             along = _mm512_mul_ps(_mm512_add_ps(along, _mm512_mul_ps(duz, dz)), inverse);
@@ -521,21 +548,21 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool
     return supported ? choose_group_function<Real, true>(kernel, damped) : choose_group_function<Real, false>(kernel, damped);
 }
 
-/// Above this many particles `automatic` prefers avx2 to avx512: measured on the development VM
-/// (docs/benchmarks-solver.md), the 16-lane kernel is 1.3–1.6× faster at 30k particles and
-/// 0.8× as fast at 100k, 0.7× at 300k and 1M, where the step streams its tables from memory.
-/// The crossover lies between 30k and 100k; 50k is not itself measured.
-constexpr std::size_t avx512_particle_limit = 50000;
-
+/// `automatic` is the widest kernel the CPU has. Measured on the development VM
+/// (docs/benchmarks-solver.md), the 16-lane kernel is the fastest at every size since it gathers
+/// positions and motions together: 1.1–1.3× avx2 at 30k and 100k particles, 1.0–1.15× at 300k
+/// and 1M, where the step streams its tables from memory. (Before, it spilled its gather offsets
+/// and was 0.7× avx2 at 300k and 1M, and `automatic` took avx2 above 50,000 particles.)
 SolverKernel resolve_kernel(SolverKernel wanted, bool is_float, std::size_t particles) {
+    (void)particles;
     if (!is_float) return SolverKernel::portable;
 #ifdef HEARTSIM_SOLVER_X86
-    if (wanted == SolverKernel::automatic) wanted = particles <= avx512_particle_limit ? SolverKernel::avx512 : SolverKernel::avx2;
+    if (wanted == SolverKernel::automatic) wanted = SolverKernel::avx512;
     if (wanted == SolverKernel::avx512 && !cpu_has_avx512()) wanted = SolverKernel::avx2;
     if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) wanted = SolverKernel::sse2;
     return wanted;
 #else
-    (void)wanted, (void)particles;
+    (void)wanted;
     return SolverKernel::portable;
 #endif
 }
@@ -1309,11 +1336,14 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
             for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
                 const Real* x = current_ + 4 * i;
                 for (int s = 0; s < slot_count; ++s) {
+                    // Each spring once, from its end of lower index (it is in both ends' tables; an
+                    // empty slot points at the particle itself).
                     const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                    if (std::size_t(neighbour_[t]) <= i) continue;
                     const Real* y = current_ + 4 * std::size_t(neighbour_[t]);
                     const double length = std::sqrt(std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) +
                                                     std::pow(double(y[2]) - x[2], 2));
-                    elastic += 0.25 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
+                    elastic += 0.5 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
                     if (rest_length_[t] > 0) strain = std::max(strain, length / double(rest_length_[t]) - 1.0);
                 }
                 if (!movable_[i]) continue;

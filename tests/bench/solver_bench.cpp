@@ -5,6 +5,7 @@
 // in float and double, and the slices vs bricks packings. Prints tables; writes CSV.
 //
 //   solver_bench [--real PATH] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F]
+//                [--phantoms N,N,...]   phantom sizes of the full run (default 300000,1000000; 0 = none)
 //
 // Results and the exact commands: docs/benchmarks-solver.md.
 #include "formats/volume_io.h"
@@ -37,6 +38,7 @@
 #include <iostream>
 #include <memory>
 #include <random>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -269,6 +271,7 @@ int main(int argc, char** argv) {
     bool quick = false;
     int threads = 2;
     long long stress_steps = 0;
+    std::vector<std::size_t> phantom_sizes{300000, 1000000};
     for (int a = 1; a < argc; ++a) {
         const std::string arg = argv[a];
         if (arg == "--real" && a + 1 < argc) real = argv[++a];
@@ -277,8 +280,13 @@ int main(int argc, char** argv) {
         else if (arg == "--threads" && a + 1 < argc) threads = std::stoi(argv[++a]);
         else if (arg == "--stress" && a + 1 < argc) stress_steps = std::stoll(argv[++a]);
         else if (arg == "--safety" && a + 1 < argc) safety_factor = std::stod(argv[++a]);
+        else if (arg == "--phantoms" && a + 1 < argc) {
+            phantom_sizes.clear();
+            std::stringstream list(argv[++a]);
+            for (std::string item; std::getline(list, item, ',');) phantom_sizes.push_back(std::size_t(std::stoull(item)));
+        }
         else {
-            std::cerr << "usage: solver_bench [--real DIR_OR_FILE] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F]\n";
+            std::cerr << "usage: solver_bench [--real DIR_OR_FILE] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F] [--phantoms N,N,...]\n";
             return 2;
         }
     }
@@ -311,7 +319,8 @@ int main(int argc, char** argv) {
     std::cout << "real case " << real << ": " << cases[0].lattice.particles.size() << " particles, " << cases[0].lattice.springs.size()
               << " springs (layout " << seconds_since(t_layout) << " s)\n";
     if (!quick && stress_steps == 0) {
-        for (std::size_t budget : {std::size_t(300000), std::size_t(1000000)}) {
+        for (std::size_t budget : phantom_sizes) {
+            if (budget == 0) continue;
             const auto t0 = Clock::now();
             cases.push_back(phantom_case(budget));
             std::cout << cases.back().name << ": " << cases.back().lattice.particles.size() << " particles (layout " << seconds_since(t0) << " s)\n";
