@@ -549,10 +549,10 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool
 }
 
 /// `automatic` is the widest kernel the CPU has. Measured on the development VM
-/// (docs/benchmarks-solver.md), the 16-lane kernel is the fastest at every size since it gathers
-/// positions and motions together: 1.1–1.3× avx2 at 30k and 100k particles, 1.0–1.15× at 300k
-/// and 1M, where the step streams its tables from memory. (Before, it spilled its gather offsets
-/// and was 0.7× avx2 at 300k and 1M, and `automatic` took avx2 above 50,000 particles.)
+/// (docs/benchmarks-solver.md), since the 16-lane kernel gathers positions and motions together
+/// it is 1.3–1.4× avx2 at 30k particles, 1.0–1.3× at 100k and 300k, and even at 1M (0.9–1.1×,
+/// within the VM's noise), where the step streams its tables from memory. (Before, it spilled
+/// its gather offsets and was 0.7× avx2 at 300k and 1M, and `automatic` took avx2 above 50,000.)
 SolverKernel resolve_kernel(SolverKernel wanted, bool is_float, std::size_t particles) {
     (void)particles;
     if (!is_float) return SolverKernel::portable;

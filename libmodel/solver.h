@@ -29,7 +29,7 @@ namespace heartsim {
 /// Which inner loop runs the step. All of them give the same bits for float: they evaluate the
 /// same IEEE operations in the same order (no FMA contraction, exact sqrt and division).
 enum class SolverKernel {
-    automatic,  ///< the widest the CPU has: avx512, else avx2, else sse2 (the fastest at every size measured)
+    automatic,  ///< the widest the CPU has: avx512, else avx2, else sse2 (docs/solver.md "Kernels")
     portable,   ///< plain C++, what the compiler makes of it (the only kernel for double)
     sse2,       ///< x86-64 baseline intrinsics, 4 lanes
     avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2
