@@ -34,19 +34,18 @@ Eigen::Vector3d nearest_point_on_ellipsoid(const Eigen::Vector3d& y, const Eigen
         }
         return x;
     }
-    auto f = [&](double t) {
-        double sum = 0;
-        for (int i = 0; i < 3; ++i) {
-            const double q = semi_axes[i] * y[i] / (a2[i] + t);
-            sum += q * q;
-        }
-        return sum - 1;
+    // F(t) > 0 without a division (the gl backend runs this in double, slow on many GPUs): with
+    // d_i = (a_i² + t)² > 0 and p_i = (a_i y_i)², Σ p_i / d_i > 1  ⇔  Σ p_i Π_{j≠i} d_j > Π d_j.
+    const Eigen::Vector3d p = semi_axes.cwiseProduct(y).cwiseAbs2();
+    auto above = [&](double t) {
+        const double d0 = (a2[0] + t) * (a2[0] + t), d1 = (a2[1] + t) * (a2[1] + t), d2 = (a2[2] + t) * (a2[2] + t);
+        return p[0] * d1 * d2 + p[1] * d0 * d2 + p[2] * d0 * d1 > d0 * d1 * d2;
     };
-    double low = -m, high = 0;  // f(low⁺) > 0 ≥ f(high)
+    double low = -m, high = 0;  // F(low⁺) > 0 ≥ F(high)
     for (int iteration = 0; iteration < 80; ++iteration) {
         const double middle = 0.5 * (low + high);
         if (middle <= low || middle >= high) break;
-        (f(middle) > 0 ? low : high) = middle;
+        (above(middle) ? low : high) = middle;
     }
     for (int i = 0; i < 3; ++i) x[i] = a2[i] * y[i] / (a2[i] + high);
     return x;

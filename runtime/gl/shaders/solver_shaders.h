@@ -91,13 +91,16 @@ dvec3 ellipsoid_nearest(dvec3 y, dvec3 a) {
         }
         return x;
     }
+    // F(t) > 0 without a division (ellipsoid.cpp): Σ p_i Π_{j≠i} d_j > Π d_j, d_i = (a_i² + t)².
+    precise dvec3 p = (a * y) * (a * y);
     double low = -m, high = 0.0lf;
     for (int iteration = 0; iteration < 80; ++iteration) {
         precise double middle = 0.5lf * (low + high);
         if (middle <= low || middle >= high) break;
-        precise double f = 0.0lf;
-        for (int i = 0; i < 3; ++i) { precise double q = a[i] * y[i] / (a2[i] + middle); f = f + q * q; }
-        if (f - 1.0lf > 0.0lf) low = middle; else high = middle;
+        precise double d0 = (a2[0] + middle) * (a2[0] + middle), d1 = (a2[1] + middle) * (a2[1] + middle), d2 = (a2[2] + middle) * (a2[2] + middle);
+        precise double n = p[0] * d1 * d2 + p[1] * d0 * d2;
+        n = n + p[2] * d0 * d1;
+        if (n > d0 * d1 * d2) low = middle; else high = middle;
     }
     for (int i = 0; i < 3; ++i) x[i] = a2[i] * y[i] / (a2[i] + high);
     return x;
