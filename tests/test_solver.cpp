@@ -309,6 +309,27 @@ TEST(Solver, NoParticleIsInsideTheProbeAfterAStepAndTheForcePushesTheProbeOut) {
     EXPECT_GT(forces.hand[1].force_n.z(), 0) << "the tissue pushes the probe back up: " << forces.hand[1].force_n.transpose();
 }
 
+TEST(Solver, AProbePutsAParticleAtTheNearestPointOfItsSurface) {
+    // A needle (1 × 1 × 4 mm) placed around a particle 0.15 mm from its axis: the particle goes
+    // 0.85 mm to the side, where the surface is nearest, not 2 mm along the needle towards a tip
+    // (where a radial projection in the needle's scaled frame would put it: local z 2.56).
+    Model model = block(4, 4, 4);
+    Solver solver(model.lattice, model.packing.neighbours, quiet(0.5, model));
+    const Eigen::Vector3d semi_axes(1, 1, 4);
+    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = semi_axes});
+    const std::size_t i = 21;
+    const Eigen::Vector3d start = solver.position(i);
+    const InstrumentPose pose{start - Eigen::Vector3d(0.15, 0, 0.5), Eigen::Quaterniond::Identity()};
+    solver.set_pose(0, pose);
+    { const StepReport r = solver.step(); ASSERT_FALSE(r.diverged) << r.message; }
+    const Eigen::Vector3d local = solver.position(i) - pose.position;
+    const Eigen::Vector3d nearest = nearest_point_on_ellipsoid(Eigen::Vector3d(0.15, 0, 0.5), semi_axes);
+    EXPECT_FALSE(inside(solver.position(i), pose, semi_axes));
+    EXPECT_LT((local - nearest).norm(), 1e-4) << "at " << local.transpose() << ", the nearest surface point is " << nearest.transpose();
+    EXPECT_NEAR(local.z(), 0.5, 0.1) << "pushed along the needle";
+    EXPECT_LT((solver.position(i) - start).norm(), 0.9);
+}
+
 TEST(Solver, GrabbedParticlesFollowTheToolExactlyAndAreFreeAfterRelease) {
     Model model = block(6, 6, 4);
     SolverOptions o = quiet(0.5, model, 0.2);
