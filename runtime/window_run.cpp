@@ -99,6 +99,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         input.device = haptic->window_device();
         if (input.device) input.device_pose = input.device->last_set();
     }
+    glfwGetCursorPos(window, &input.last_x, &input.last_y);  // then every motion event keeps them
     glfwSetWindowUserPointer(window, &input);
     glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
@@ -108,7 +109,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
             in->panning = down;
         if (!down) in->orbiting = in->panning = in->dragging_device = false;
-        glfwGetCursorPos(w, &in->last_x, &in->last_y);
+        // No glfwGetCursorPos here: it asks the X server where the pointer is *now*, which, when
+        // frames are slow and events queue up, is already the end of the drag, and the queued
+        // motion events then cancel out (a lost orbit). last_x/last_y follow the motion events
+        // in order instead.
     });
     glfwSetCursorPosCallback(window, [](GLFWwindow* w, double x, double y) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
