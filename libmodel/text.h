@@ -22,6 +22,13 @@ inline std::string lowercase(std::string text) {
     return text;
 }
 
+/// `words` joined by `separator`.
+inline std::string join(const std::vector<std::string>& words, const std::string& separator = ", ") {
+    std::string text;
+    for (const std::string& word : words) text += (text.empty() ? "" : separator) + word;
+    return text;
+}
+
 /// Levenshtein distance: the fewest single-character insertions, deletions and substitutions
 /// that turn `a` into `b` (for "did you mean" suggestions).
 inline std::size_t edit_distance(const std::string& a, const std::string& b) {

@@ -12,9 +12,11 @@
 
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <vector>
 
 using namespace heartsim;
 
@@ -122,12 +124,15 @@ int main(int argc, char** argv) {
     std::vector<char*> arguments(argv, argv + argc);
     static char run_word[] = "run";
     const std::string first = argc >= 2 ? argv[1] : "";
-    if (argc >= 2 && first != "run" && first != "info" && first != "recover" && first != "-h" && first != "--help" && first != "--version") {
+    std::vector<std::string> commands;
+    for (const CLI::App* command : app.get_subcommands({})) commands.push_back(command->get_name());
+    const bool is_command = std::find(commands.begin(), commands.end(), first) != commands.end();
+    if (argc >= 2 && !is_command && first != "-h" && first != "--help" && first != "--version") {
         // A mistyped command ("heartsim rn case.h5") is no scenario: say so rather than "file not found".
         if (first[0] != '-' && first.find('.') == std::string::npos && !std::filesystem::exists(first))
-            if (const std::string nearest = text::nearest_word(first, {"run", "info", "recover"}); !nearest.empty()) {
-                std::fprintf(stderr, "heartsim: error: unknown command '%s' (did you mean '%s'?); the commands are run, info, recover "
-                                     "(heartsim --help)\n", first.c_str(), nearest.c_str());
+            if (const std::string nearest = text::nearest_word(first, commands); !nearest.empty()) {
+                std::fprintf(stderr, "heartsim: error: unknown command '%s' (did you mean '%s'?); the commands are %s (heartsim --help)\n",
+                             first.c_str(), nearest.c_str(), text::join(commands).c_str());
                 return exit_status(ExitCode::usage);
             }
         arguments.insert(arguments.begin() + 1, run_word);

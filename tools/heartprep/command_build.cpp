@@ -259,11 +259,8 @@ void add_build_command(CLI::App& app) {
         if (!*quiet) {
             print_build_summary(report, scenario);
             std::printf("wrote       %s (%.1f MB)\n", output->c_str(), double(std::filesystem::file_size(*output)) / 1e6);
-        } else {
-            // -q silences the progress and the summary, not what the user must hear (a qform that
-            // disagrees with the sform, a segment that is not heart muscle, a heart that sags).
-            for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
         }
+        print_warnings(report.warnings);
     });
 }
 
@@ -308,8 +305,8 @@ void add_surface_command(CLI::App& app) {
                         report.surface.seconds_smoothing, report.surface.seconds_decimation);
             std::printf("wrote    %s (LPS, mm)\n", output->c_str());
         }
-        for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
-        for (const auto& w : report.surface.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+        print_warnings(report.warnings);
+        print_warnings(report.surface.warnings);
     });
 }
 

@@ -30,7 +30,7 @@ std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
     auto files = std::make_shared<StageFiles>();
     command.add_option("scenario", files->input, "Scenario file (.h5) made by `heartprep build`")->required();
     command.add_option("-o,--output", files->output, "Write here instead of updating the input in place");
-    command.add_flag("-q,--quiet", files->quiet, "No progress and no summary");
+    command.add_flag("-q,--quiet", files->quiet, "No progress and no summary (warnings are still printed)");
     return files;
 }
 
@@ -47,9 +47,9 @@ void finish(const StageFiles& files, const BuildReport& report, const Scenario& 
         ProgressStage stage(progress, "write scenario", 0);
         write_scenario(files.target(), scenario);
     }
+    print_warnings(report.warnings);
     if (files.quiet) return;
     for (const auto& t : report.times) std::printf("%-14s %.3f s\n", t.stage.c_str(), t.seconds);
-    for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
     std::printf("wrote          %s\n", files.target().c_str());
 }
 

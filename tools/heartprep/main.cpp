@@ -61,15 +61,11 @@ int main(int argc, char** argv) {
     // A word where the command goes that names none: say which word, list the commands and
     // suggest the nearest (CLI11 would only say that a subcommand is required).
     std::vector<std::string> words;
-    std::string names;
-    for (const CLI::App* command : app.get_subcommands({})) {
-        words.push_back(command->get_name());
-        names += (names.empty() ? "" : ", ") + command->get_name();
-    }
+    for (const CLI::App* command : app.get_subcommands({})) words.push_back(command->get_name());
     if (argc > 1 && argv[1][0] != '-' && std::find(words.begin(), words.end(), argv[1]) == words.end()) {
         const std::string nearest = heartsim::text::nearest_word(argv[1], words);
         return fail(ExitCode::usage, "unknown command '" + std::string(argv[1]) + "'" + (nearest.empty() ? "" : " (did you mean '" + nearest + "'?)") +
-                                         "; the commands are " + names + " (heartprep --help)");
+                                         "; the commands are " + heartsim::text::join(words) + " (heartprep --help)");
     }
     try {
         app.parse(argc, argv);

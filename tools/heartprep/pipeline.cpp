@@ -338,7 +338,10 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
         total += t.seconds;
     }
     std::printf(" total %.3f s\n", total);
-    for (const auto& w : report.warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+}
+
+void print_warnings(const std::vector<std::string>& warnings) {
+    for (const auto& w : warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
 }
 
 }  // namespace heartsim::cli

@@ -110,4 +110,9 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
 /// Prints a human summary of `report` (and the scenario) to stdout.
 void print_build_summary(const BuildReport& report, const Scenario& scenario);
 
+/// Each warning as `heartprep: warning: …` on stderr. Printed with and without -q: -q silences the
+/// progress and the summary, not what the user must hear (a qform that disagrees with the sform, a
+/// segment that is not heart muscle, a heart that sags).
+void print_warnings(const std::vector<std::string>& warnings);
+
 }  // namespace heartsim::cli
