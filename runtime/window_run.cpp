@@ -124,8 +124,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             // One pixel = the model's view height / window height at the target's depth.
             const Camera& camera = in->renderer->camera();
             const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-            const double mm_per_pixel = 2.0 * camera.distance * std::tan(camera.fov_y_degrees * M_PI / 360.0) / std::max(height, 1);
-            in->device_pose.position_mm += mm_per_pixel * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
+            in->device_pose.position_mm += camera.mm_per_pixel(height) * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
             return;
         }
         if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);

@@ -172,7 +172,7 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         // Orientation axes (bottom left) and the scale bar at the orbit centre's depth (bottom right).
         const float axes = std::min(40.0f, 0.08f * std::min(w, h));
         orientation_axes(draw, camera, ImVec2(axes + 16, h - axes - 34), axes);
-        const double mm_per_pixel = 2.0 * camera.distance * std::tan(camera.fov_y_degrees * M_PI / 360.0) / std::max(h, 1.0f);
+        const double mm_per_pixel = camera.mm_per_pixel(height);
         const double bar_mm = scale_bar_mm(mm_per_pixel, 0.15 * w);
         const float bar = float(bar_mm / mm_per_pixel);
         const ImVec2 right(w - 16, h - 24), left(w - 16 - bar, h - 24);
@@ -220,20 +220,6 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     glViewport(0, 0, width, height);
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
-}
-
-Image read_window_pixels(int width, int height) {
-    Image image;
-    image.width = width, image.height = height, image.channels = 3;
-    std::vector<std::uint8_t> flipped(std::size_t(width) * height * 3);
-    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
-    glReadBuffer(GL_BACK);
-    glPixelStorei(GL_PACK_ALIGNMENT, 1);
-    glReadPixels(0, 0, width, height, GL_RGB, GL_UNSIGNED_BYTE, flipped.data());
-    image.pixels.resize(flipped.size());
-    const std::size_t row = std::size_t(width) * 3;
-    for (int y = 0; y < height; ++y) std::copy_n(flipped.data() + (height - 1 - y) * row, row, image.pixels.data() + y * row);
-    return image;
 }
 
 }  // namespace heartsim

@@ -67,9 +67,6 @@ private:
     double largest_force_n_ = 0;  ///< the force arrows' scale follows the largest force so far
 };
 
-/// The default framebuffer's back buffer as drawn so far (before the swap), RGB, rows top to bottom.
-Image read_window_pixels(int width, int height);
-
 /// A scale bar length, mm: the 1-2-5 series value whose length on screen is nearest to
 /// `target_pixels` at `mm_per_pixel`.
 double scale_bar_mm(double mm_per_pixel, double target_pixels);

@@ -148,9 +148,13 @@ void Camera::orbit(float yaw, float pitch) {
     orientation.normalize();
 }
 
+double Camera::mm_per_pixel(int height) const {
+    return 2.0 * double(distance) * std::tan(double(fov_y_degrees) * M_PI / 360.0) / double(std::max(height, 1));
+}
+
 void Camera::pan(float dx, float dy, int height) {
-    const float mm_per_pixel = 2.0f * distance * std::tan(0.5f * fov_y_degrees * float(M_PI) / 180.0f) / float(std::max(height, 1));
-    target += orientation * Eigen::Vector3f(-dx * mm_per_pixel, dy * mm_per_pixel, 0.0f);
+    const float size = float(mm_per_pixel(height));
+    target += orientation * Eigen::Vector3f(-dx * size, dy * size, 0.0f);
 }
 
 void Camera::zoom(float factor) { distance = std::clamp(distance * factor, 0.05f * radius, 20.0f * radius); }
@@ -509,25 +513,41 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     check("rendering a frame");
 }
 
-Image Renderer::read_pixels() {
-    State& s = *state_;
+namespace {
+
+/// The framebuffer bound for reading, RGB, rows top to bottom (GL's go bottom to top).
+Image read_bound_framebuffer(int width, int height) {
     Image image;
-    image.width = s.width;
-    image.height = s.height;
+    image.width = width;
+    image.height = height;
     image.channels = 3;
-    std::vector<std::uint8_t> raw(std::size_t(s.width) * std::size_t(s.height) * 3);
-    glBindFramebuffer(GL_READ_FRAMEBUFFER, s.fbo);
-    glNamedFramebufferReadBuffer(s.fbo, GL_COLOR_ATTACHMENT0);
+    std::vector<std::uint8_t> raw(std::size_t(width) * std::size_t(height) * 3);
     glPixelStorei(GL_PACK_ALIGNMENT, 1);
-    glReadPixels(0, 0, s.width, s.height, GL_RGB, GL_UNSIGNED_BYTE, raw.data());
-    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
-    check("reading the frame back");
+    glReadPixels(0, 0, width, height, GL_RGB, GL_UNSIGNED_BYTE, raw.data());
     image.pixels.resize(raw.size());
-    const std::size_t stride = std::size_t(s.width) * 3;
-    for (int y = 0; y < s.height; ++y)  // GL rows go bottom to top
-        std::copy_n(raw.begin() + std::ptrdiff_t(std::size_t(s.height - 1 - y) * stride), stride,
+    const std::size_t stride = std::size_t(width) * 3;
+    for (int y = 0; y < height; ++y)
+        std::copy_n(raw.begin() + std::ptrdiff_t(std::size_t(height - 1 - y) * stride), stride,
                     image.pixels.begin() + std::ptrdiff_t(std::size_t(y) * stride));
     return image;
+}
+
+}  // namespace
+
+Image Renderer::read_pixels() {
+    State& s = *state_;
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, s.fbo);
+    glNamedFramebufferReadBuffer(s.fbo, GL_COLOR_ATTACHMENT0);
+    Image image = read_bound_framebuffer(s.width, s.height);
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    check("reading the frame back");
+    return image;
+}
+
+Image read_window_pixels(int width, int height) {
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    glReadBuffer(GL_BACK);
+    return read_bound_framebuffer(width, height);
 }
 
 void Renderer::present(int window_width, int window_height) {

@@ -57,6 +57,8 @@ struct Camera {
     void orbit(float yaw, float pitch);
     /// Moves the target in the view plane by a drag of (dx, dy) pixels in a viewport `height` pixels high.
     void pan(float dx, float dy, int height);
+    /// The size of one pixel at the target's depth, mm, in a viewport `height` pixels high.
+    double mm_per_pixel(int height) const;
     /// Multiplies the distance by `factor` (clamped to 0.05–20 model radii).
     void zoom(float factor);
 };
@@ -64,6 +66,10 @@ struct Camera {
 /// The camera that shows the whole box from `view`: the nearest distance at which all eight
 /// corners lie inside the frustum at `aspect` (width / height), plus 5 %.
 Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspect);
+
+/// The current context's default framebuffer, its back buffer as drawn so far (before the swap),
+/// RGB, rows top to bottom: the window as seen, HUD included (the P key).
+Image read_window_pixels(int width, int height);
 
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
