@@ -46,6 +46,14 @@ ImageDifference compare_images(const Image& a, const Image& b, int threshold, Im
     return d;
 }
 
+Image crop(const Image& image, int x0, int y0, int x1, int y1) {
+    Image out{x1 - x0, y1 - y0, 3, {}};
+    out.pixels.reserve(std::size_t(out.width) * std::size_t(out.height) * 3);
+    for (int y = y0; y < y1; ++y)
+        for (int x = x0; x < x1; ++x)
+            for (int c = 0; c < 3; ++c) out.pixels.push_back(image.pixels[(std::size_t(y) * std::size_t(image.width) + std::size_t(x)) * 3 + std::size_t(c)]);
+    return out;
+}
 
 std::optional<Image> golden_reference(const std::filesystem::path& golden, const Image& image, bool may_update) {
     if (may_update && std::getenv("HEARTSIM_UPDATE_GOLDEN")) {

@@ -25,6 +25,9 @@ struct ImageDifference {
 /// `a` and `b` of the same size, RGB; writes the difference (4× amplified) to `diff` if given.
 ImageDifference compare_images(const Image& a, const Image& b, int threshold, Image* diff);
 
+/// The rectangle [x0, x1)×[y0, y1) of an RGB image.
+Image crop(const Image& image, int x0, int y0, int x1, int y1);
+
 /// The golden image a test compares `image` with. With HEARTSIM_UPDATE_GOLDEN set and `may_update`,
 /// `image` becomes the golden first (the folder made if needed, the path printed). Empty when
 /// there is no golden file: the caller skips, saying so.

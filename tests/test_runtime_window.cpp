@@ -182,17 +182,8 @@ Image screenshot(Window& window, std::string* path_out = nullptr) {
 /// The fraction of pixels in [x0, x1)×[y0, y1) whose colour differs by more than 24 in a channel.
 double changed(const Image& a, const Image& b, int x0, int y0, int x1, int y1) {
     if (a.width != b.width || a.height != b.height) return 1.0;
-    long long differing = 0, total = 0;
-    for (int y = y0; y < y1; ++y)
-        for (int x = x0; x < x1; ++x, ++total) {
-            const std::size_t i = (std::size_t(y) * a.width + x) * 3;
-            for (int c = 0; c < 3; ++c)
-                if (std::abs(int(a.pixels[i + c]) - int(b.pixels[i + c])) > 24) {
-                    ++differing;
-                    break;
-                }
-        }
-    return total ? double(differing) / double(total) : 0.0;
+    if (x1 <= x0 || y1 <= y0) return 0.0;
+    return test::compare_images(test::crop(a, x0, y0, x1, y1), test::crop(b, x0, y0, x1, y1), 24, nullptr).fraction_over;
 }
 
 bool have_window_tools(std::string* why) {
@@ -631,15 +622,8 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     const test::ImageDifference whole = test::compare_images(image, reference, 16, &diff);
     // The HUD panel (top left, where its text is) on its own: a changed word or figure moves a few
     // dozen of its pixels, lost in the whole picture's share.
-    auto crop = [](const Image& from, int x0, int y0, int x1, int y1) {
-        Image out{x1 - x0, y1 - y0, 3, {}};
-        for (int y = y0; y < y1; ++y)
-            for (int x = x0; x < x1; ++x)
-                for (int c = 0; c < 3; ++c) out.pixels.push_back(from.pixels[(std::size_t(y) * from.width + x) * 3 + c]);
-        return out;
-    };
     const int px1 = 360, py1 = 150;
-    const test::ImageDifference panel = test::compare_images(crop(image, 0, 0, px1, py1), crop(reference, 0, 0, px1, py1), 16, nullptr);
+    const test::ImageDifference panel = test::compare_images(test::crop(image, 0, 0, px1, py1), test::crop(reference, 0, 0, px1, py1), 16, nullptr);
     const long long panel_pixels = (long long)std::llround(panel.fraction_over * px1 * py1);
     std::printf("  whole window: mean |difference| %.4f / 255, %.4f %% of pixels differ by more than 16 / 255; HUD panel: %lld pixels\n",
                 whole.mean_abs, 100 * whole.fraction_over, panel_pixels);
