@@ -5,6 +5,7 @@
 #include "runtime/run_modes.h"
 #include "runtime/window_keys.h"
 
+#include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
@@ -49,7 +50,8 @@ int main(int argc, char** argv) {
                  "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
                  "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
                  "  heartsim info                             the OpenGL device, version and limits\n"
-                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"};
+                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n",
+                 "heartsim"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
     auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
@@ -58,25 +60,30 @@ int main(int argc, char** argv) {
     run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
-    run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference)")->check(CLI::IsMember({"gl", "cpu"}));
-    run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms)")->check(CLI::NonNegativeNumber);
+    run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and for a "
+                                            "haptic session where OpenGL is software (llvmpipe)")->check(CLI::IsMember({"gl", "cpu"}));
+    run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms). Default: 1 headless, no limit in a window")->check(CLI::NonNegativeNumber);
     run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(CLI::NonNegativeNumber);
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
-    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xdmf beside it for ParaView (the deformed heart)");
+    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xdmf beside it for ParaView (the deformed heart)")
+        ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the state is an HDF5 file"));
     run->add_option("--gravity", a.gravity,
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
         ->expected(3);
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
                                             "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
-        ->check(CLI::IsMember({"direct", "picking", "search"}));
+        ->check(CLI::IsMember({"direct", "picking", "search"}))
+        ->capture_default_str();
     run->add_option("--picking-refresh", a.picking_refresh, "Render the picking buffer every K force requests (stale in between)")
-        ->check(CLI::Range(1, 1 << 20));
+        ->check(CLI::Range(1, 1 << 20))
+        ->capture_default_str();
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as Sørensen & Mosegaard's Table 1");
     run->add_option("--stats-csv", a.stats_csv, "Write the --stats timings as CSV, one row per pass (tests/bench/run_runtime_bench.sh)");
-    run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)");
-    run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step)")
+    run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)")
+        ->check(cli_messages::output_extension({".png"}, "the screenshot is a PNG picture"));
+    run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step; 0: only the last frame)")
         ->check(CLI::NonNegativeNumber);
     run->add_option("--draw-share", a.draw_share,
                     "Window with the cpu backend: drawing takes at most this fraction of the wall clock, the simulation the rest "
@@ -109,7 +116,8 @@ int main(int argc, char** argv) {
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
     run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5, written at the end; meanwhile "
                                          "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`), and OUT.xdmf "
-                                         "beside it for ParaView (the tools over time)");
+                                         "beside it for ParaView (the tools over time)")
+        ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the recording is an HDF5 file"));
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces");
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
@@ -118,7 +126,8 @@ int main(int argc, char** argv) {
     auto* recover = app.add_subcommand("recover", "Write the recording of a --record session that was killed, from the journal it "
                                                   "kept beside the recording (OUT.h5.journal: all but its last second); then delete the journal");
     recover->add_option("journal", journal, "The journal, OUT.h5.journal")->required();
-    recover->add_option("-o,--output", recovered, "Recording to write (default: the journal's name without .journal, the --record file)");
+    recover->add_option("-o,--output", recovered, "Recording to write (default: the journal's name without .journal, the --record file)")
+        ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the recording is an HDF5 file"));
     // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
     // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
     std::vector<char*> arguments(argv, argv + argc);
@@ -150,7 +159,7 @@ int main(int argc, char** argv) {
     } catch (const CLI::ParseError& e) {
         if (e.get_exit_code() == 0) return app.exit(e);  // --help, --version
         // Not CLI11's two lines and its own exit codes (104-114).
-        return fail(ExitCode::usage, std::string(e.what()) + " (heartsim run --help lists the options)");
+        return fail(ExitCode::usage, cli_messages::parse_error_message(app, e, int(arguments.size()), arguments.data()));
     }
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;

@@ -243,6 +243,13 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
     };
     const std::vector<Case> cases = {
         {"build " + quoted(input) + out + " --frobnicate", 2, "--frobnicate"},                      // unknown option
+        // A mistyped option: the words as typed, the nearest option, the command's own --help.
+        {"build " + quoted(input) + out + " --smothing 0.3", 2,
+         "not expected: --smothing 0.3 (--smothing: did you mean --smoothing?) (heartprep build --help lists the options)"},
+        {"build " + quoted(input) + out + " --particels=3000", 2, "--particels: did you mean --particles?"},
+        // An output named for another format: a scenario named .stl would mislead its next reader.
+        {"build " + quoted(input) + " -o " + quoted(dir / "heart.stl"), 2, "heart.stl: a scenario is an HDF5 file"},
+        {"pack " + quoted(input) + " -o " + quoted(dir / "packed.ply"), 2, "packed.ply: a scenario is an HDF5 file"},
         {"frobnicate", 2, "unknown command 'frobnicate'; the commands are build, surface"},         // unknown subcommand
         {"biuld " + quoted(input) + out, 2, "unknown command 'biuld' (did you mean 'build'?)"},      // a typo of one
         {"build " + quoted(input), 2, "--output"},                                                  // missing argument

@@ -233,6 +233,10 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     };
     const std::vector<Case> cases = {
         {run + "--steps 1 --frobnicate", 2, "--frobnicate"},                    // unknown option
+        {run + "--stepps 1", 2, "not expected: --stepps 1 (--stepps: did you mean --steps?) (heartsim run --help"},
+        {"recover", 2, "journal is required (heartsim recover --help lists the options)"},
+        {run + "--steps 1 --save-state " + quoted(dir / "state.png"), 2, "state.png: the state is an HDF5 file"},
+        {run + "--steps 1 --screenshot " + quoted(dir / "shot.jpg"), 2, "shot.jpg: the screenshot is a PNG picture"},
         {"run", 2, "scenario"},                                                 // missing argument
         {"rn " + quoted(phantom()), 2, "unknown command 'rn' (did you mean 'run'?)"},  // a typo of a command
         {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range

@@ -5,6 +5,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
+#include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
@@ -95,7 +96,9 @@ void add_build_command(CLI::App& app) {
     auto density = std::make_shared<double>(1.06);
     auto quiet = std::make_shared<bool>(false);
     command->add_option("input", options->input, "Label map: .nii, .nii.gz, .nrrd, .seg.nrrd, .mha, .mhd")->required();
-    command->add_option("-o,--output", *output, "Scenario file to write (.h5)")->required();
+    command->add_option("-o,--output", *output, "Scenario file to write (.h5)")
+        ->required()
+        ->check(cli_messages::output_extension({".h5", ".hdf5"}, "a scenario is an HDF5 file (meshes: heartprep surface or export)"));
     add_selection_options(*command, options->labels, options->selection);
     add_surface_options(*command, options->surface);
     command->add_flag("--no-visual", [options](std::int64_t) { options->visual = false; },

@@ -4,6 +4,7 @@
 #include "terminal_progress.h"
 
 #include "formats/mesh_io.h"
+#include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
@@ -29,7 +30,8 @@ struct StageFiles {
 std::shared_ptr<StageFiles> add_stage_files(CLI::App& command) {
     auto files = std::make_shared<StageFiles>();
     command.add_option("scenario", files->input, "Scenario file (.h5) made by `heartprep build`")->required();
-    command.add_option("-o,--output", files->output, "Write here instead of updating the input in place");
+    command.add_option("-o,--output", files->output, "Write here instead of updating the input in place")
+        ->check(cli_messages::output_extension({".h5", ".hdf5"}, "a scenario is an HDF5 file"));
     command.add_flag("-q,--quiet", files->quiet, "No progress and no summary (warnings are still printed)");
     return files;
 }
@@ -65,7 +67,8 @@ void add_stage_commands(CLI::App& app) {
             ->capture_default_str();
         auto width = std::make_shared<int>(0);
         command->add_option("--texture-width", *width, "Texture width for bricks, texels (0: power of two ≥ √N)")
-            ->check(CLI::Range(0, 16384));
+            ->check(CLI::Range(0, 16384))
+            ->capture_default_str();
         command->callback([=] {
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);

@@ -2,6 +2,7 @@
 #include "commands.h"
 #include "terminal_progress.h"
 
+#include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/exit_codes.h"
@@ -72,7 +73,7 @@ int main(int argc, char** argv) {
     } catch (const CLI::ParseError& error) {
         if (error.get_exit_code() == 0) return app.exit(error);  // --help, --version
         // Not CLI11's two lines and its own exit codes (104-114).
-        return fail(ExitCode::usage, std::string(error.what()) + " (heartprep --help lists the commands and options)");
+        return fail(ExitCode::usage, heartsim::cli_messages::parse_error_message(app, error, argc, argv));
     } catch (const heartsim::UsageError& error) {
         return fail(ExitCode::usage, error.what());
     } catch (const heartsim::InputError& error) {

@@ -1,0 +1,82 @@
+/// @file cli_messages.h
+/// @brief What heartprep and heartsim say about a command line their parser (CLI11) refused: the
+/// words it did not expect in the order they were typed, the nearest option for each mistyped
+/// one, and the --help of the command that was being parsed. Header-only, for the two programs
+/// (libmodel itself does not use CLI11).
+#pragma once
+
+#include "libmodel/text.h"
+
+#include <CLI/CLI.hpp>
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace heartsim::cli_messages {
+
+/// The innermost subcommand of `app` that the parse reached (`app` itself when none).
+inline const CLI::App* parsed_command(const CLI::App& app) {
+    for (const CLI::App* command : app.get_subcommands())
+        if (command->parsed()) return parsed_command(*command);
+    return &app;
+}
+
+/// "--name" and "-n" spellings of every option of `command` and of the commands around it.
+inline std::vector<std::string> option_names(const CLI::App* command) {
+    std::vector<std::string> names;
+    for (; command != nullptr; command = command->get_parent())
+        for (const CLI::Option* option : command->get_options()) {
+            for (const std::string& name : option->get_lnames()) names.push_back("--" + name);
+            for (const std::string& name : option->get_snames()) names.push_back("-" + name);
+        }
+    return names;
+}
+
+/// The message for `error`, thrown by `app.parse(argc, argv)`. For words the parser did not
+/// expect: "not expected: --smothing 0.3 (did you mean --smoothing?)", in the order typed (CLI11
+/// lists them backwards). Always ends by naming the --help that lists the options, as
+/// "(heartprep build --help lists the options)".
+inline std::string parse_error_message(const CLI::App& app, const CLI::ParseError& error, int argc, const char* const* argv) {
+    const CLI::App* command = parsed_command(app);
+    std::string usage;
+    for (const CLI::App* c = command; c != nullptr; c = c->get_parent()) usage = c->get_name() + (usage.empty() ? "" : " " + usage);
+    const std::string help = " (" + usage + " --help lists the " + (command == &app ? "commands and options" : "options") + ")";
+    if (dynamic_cast<const CLI::ExtrasError*>(&error) == nullptr) return std::string(error.what()) + help;
+
+    std::vector<std::string> left = app.remaining(true);  // the whole tree's unexpected words
+    std::vector<std::string> typed, suggestions;
+    const std::vector<std::string> names = option_names(command);
+    for (int a = 1; a < argc; ++a) {
+        const std::string word = argv[a];
+        const auto found = std::find(left.begin(), left.end(), word);
+        if (found == left.end()) continue;
+        left.erase(found);
+        typed.push_back(word);
+        if (word.size() < 2 || word[0] != '-') continue;
+        const std::string name = word.substr(0, word.find('='));  // --smothing=0.3
+        if (const std::string nearest = text::nearest_word(name, names); !nearest.empty() && nearest != name)
+            suggestions.push_back(name + ": did you mean " + nearest + "?");
+    }
+    if (typed.empty()) return std::string(error.what()) + help;
+    return "not expected: " + text::join(typed, " ") + (suggestions.empty() ? "" : " (" + text::join(suggestions, "; ") + ")") + help;
+}
+
+/// A validator for an output file's name: it must end in one of `extensions` (lower case, with
+/// the dot; any case accepted), since the programs write one format whatever the name says and a
+/// scenario named z.stl would mislead whoever opens it next. `what` says what is written and,
+/// where useful, which command writes the other formats.
+inline CLI::Validator output_extension(std::vector<std::string> extensions, std::string what) {
+    return CLI::Validator(
+        [extensions, what](std::string& value) -> std::string {
+            std::error_code error;
+            if (std::filesystem::is_directory(value, error)) return {};  // "is a folder" comes later, from check_destination
+            const std::string name = text::lowercase(value);
+            for (const std::string& e : extensions)
+                if (name.size() > e.size() && name.compare(name.size() - e.size(), e.size(), e) == 0) return {};
+            return value + ": " + what + ", so the name must end in " + text::join(extensions, " or ");
+        },
+        "", "output extension");
+}
+
+}  // namespace heartsim::cli_messages
