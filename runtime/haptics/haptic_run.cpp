@@ -658,8 +658,8 @@ void HapticRun::finish(ScriptedRunResult& result) {
     std::printf("simulation: %d steps, %.4g ms simulated in %.4g ms wall (real-time factor %.3g)\n", result_.steps, simulated,
                 result_.wall_ms, result_.wall_ms > 0 ? simulated / result_.wall_ms : 0.0);
     if (result_.wall_ms > 0 && simulated / result_.wall_ms < 0.95)
-        std::printf("warning: the simulation ran slower than real time; forces lag the devices (fewer particles, or the gl backend "
-                    "on a GPU)\n");
+        std::fprintf(stderr, "heartsim: warning: the simulation ran slower than real time; forces lag the devices (fewer particles, "
+                             "or the gl backend on a GPU)\n");
     std::printf("%-6s %12s %12s %10s %10s %10s %10s %8s   %s\n", "hand", "forces sent", "max sent N", "clamped", "rate-lim", "non-finite",
                 "faults", "e-stop", "last sent N");
     for (int i = 0; i < 2; ++i) {
@@ -676,11 +676,11 @@ void HapticRun::finish(ScriptedRunResult& result) {
     }
     for (int i = 0; i < 2; ++i)
         if (hands_[i].bad_poses)
-            std::printf("warning: hand %d: %llu tool poses from the device were not finite or out of range and were not applied\n", i,
-                        (unsigned long long)hands_[i].bad_poses);
+            std::fprintf(stderr, "heartsim: warning: hand %d: %llu tool poses from the device were not finite or out of range and were not applied\n",
+                         i, (unsigned long long)hands_[i].bad_poses);
     if (session_->dropped_ticks())
-        std::printf("warning: %llu device ticks were not recorded (the simulation thread fell behind draining them)\n",
-                    (unsigned long long)session_->dropped_ticks());
+        std::fprintf(stderr, "heartsim: warning: %llu device ticks were not recorded (the simulation thread fell behind draining them)\n",
+                     (unsigned long long)session_->dropped_ticks());
 
     if (!recording_on_) return;
     recording_on_ = false;
