@@ -16,6 +16,7 @@
 #include "libmodel/exit_codes.h"
 #include "libmodel/mapping.h"
 #include "libmodel/plausible.h"
+#include "libmodel/text.h"
 
 #include <algorithm>
 #include <array>
@@ -107,6 +108,23 @@ void check_arguments(const RunArguments& a) {
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
         throw UsageError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
+    // An output must not replace an input: the scenario, the trajectory, the recording replayed.
+    const std::vector<std::string> inputs = {a.scenario, a.trajectory, a.replay};
+    const std::vector<std::pair<const char*, std::string>> outputs = {
+        {"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}, {"--record", a.record}};
+    for (const auto& [option, path] : outputs) {
+        if (path.empty()) continue;
+        std::error_code error;
+        for (const std::string& input : inputs)
+            if (!input.empty() && std::filesystem::exists(path, error) && std::filesystem::exists(input, error) &&
+                std::filesystem::equivalent(path, input, error))
+                throw UsageError(std::string(option) + " " + path + ": that is " +
+                                 (input == a.scenario ? "the scenario being run" : input == a.trajectory ? "the --trajectory file" : "the recording replayed") +
+                                 "; give another file");
+        for (const auto& [other_option, other] : outputs)
+            if (other_option != option && other == path)
+                throw UsageError(std::string(option) + " and " + other_option + " name the same file, " + path + "; give each its own");
+    }
     for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}}) {
         if (path.empty()) continue;
         try {
@@ -551,7 +569,16 @@ int recover_recording(const std::string& journal, const std::string& output) {
         if (journal.size() <= suffix.size() || journal.compare(journal.size() - suffix.size(), suffix.size(), suffix) != 0)
             throw UsageError(journal + ": not named OUT.h5.journal; give the recording to write with -o OUT.h5");
         target = journal.substr(0, journal.size() - suffix.size());
+        const std::string name = text::lowercase(target.filename().string());
+        if (!name.ends_with(".h5") && !name.ends_with(".hdf5"))
+            throw UsageError(journal + ": not named OUT.h5.journal, so the recording's name cannot be " + target.string() +
+                             "; give it with -o OUT.h5");
     }
+    // A recording is a new file: whatever holds the name already (a scenario, an earlier
+    // recording, anything) is left alone.
+    if (std::error_code error; fs::exists(target, error))
+        throw UsageError(target.string() + " exists; `heartsim recover` writes a new file: give another with -o OTHER.h5, or delete " +
+                         target.string() + " first");
     if (journal_in_use(journal))
         throw InputError(journal + ": a running heartsim session is writing it; it writes its recording itself when it ends");
     const JournalContents contents = read_recording_journal(journal);

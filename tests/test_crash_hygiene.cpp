@@ -445,6 +445,33 @@ TEST(CrashHygiene, RecoverRefusesWhatIsNotAJournal) {
     run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "absent.h5.journal"));
     EXPECT_EQ(run.exit_code, 1) << run.output;
     EXPECT_NE(run.output.find("absent.h5.journal: file not found"), std::string::npos) << run.output;
+    // A journal whose name gives no .h5 recording name: no file named "j3" without an extension.
+    std::ofstream(dir / "j3.journal") << "not a journal";
+    run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "j3.journal"));
+    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_NE(run.output.find("not named OUT.h5.journal"), std::string::npos) << run.output;
+    EXPECT_FALSE(fs::exists(dir / "j3"));
+}
+
+TEST(CrashHygiene, RecoverNeverReplacesAFile) {
+    // The recording is a new file: a scenario or anything else already at its name stays as it is,
+    // whether the name comes from the journal or from -o.
+    test::TempDir dir;
+    std::ofstream(dir / "rec.h5.journal") << "not a journal";
+    std::ofstream(dir / "rec.h5") << "precious";
+    std::ofstream(dir / "scenario.h5") << "precious too";
+    auto run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "rec.h5.journal"));
+    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_NE(run.output.find("rec.h5 exists"), std::string::npos) << run.output;
+    run = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(dir / "rec.h5.journal") + " -o " + quoted(dir / "scenario.h5"));
+    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_NE(run.output.find("scenario.h5 exists"), std::string::npos) << run.output;
+    auto text = [](const fs::path& path) {
+        std::ifstream in(path);
+        return std::string(std::istreambuf_iterator<char>(in), {});
+    };
+    EXPECT_EQ(text(dir / "rec.h5"), "precious");
+    EXPECT_EQ(text(dir / "scenario.h5"), "precious too");
 }
 
 // ------------------------------------------------------------------------------------------------

@@ -175,6 +175,34 @@ TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit7) {
                                      [&] { fs::remove(dir / "session.h5.journal"); });
 }
 
+TEST(HeartsimCli, AnOutputNeverReplacesAnInput) {
+    // --save-state or --stats-csv naming the scenario being run (or two outputs naming one file)
+    // is refused before the run, and the scenario is left as it was, byte for byte.
+    test::TempDir dir;
+    const fs::path scenario = dir / "case.h5";
+    fs::copy_file(phantom(), scenario);
+    auto bytes = [](const fs::path& path) {
+        std::ifstream in(path, std::ios::binary);
+        return std::string(std::istreambuf_iterator<char>(in), {});
+    };
+    const std::string before = bytes(scenario);
+    const std::string run = "run " + quoted(scenario) + " --headless --backend cpu --steps 1 ";
+    struct Case {
+        std::string arguments, mentions;
+    };
+    for (const Case& c : std::vector<Case>{
+             {"--save-state " + quoted(scenario), "--save-state " + scenario.string() + ": that is the scenario being run"},
+             {"--stats-csv " + quoted(scenario), "--stats-csv " + scenario.string() + ": that is the scenario being run"},
+             {"--save-state " + quoted(dir / "s.h5") + " --stats-csv " + quoted(dir / "s.h5"), "name the same file"},
+         }) {
+        const auto result = test::run_command("(" + quoted(HEARTSIM_EXE) + " " + run + c.arguments + " 2>&1 >/dev/null)");
+        EXPECT_EQ(result.exit_code, 2) << c.arguments << "\n" << result.output;
+        EXPECT_NE(result.output.find(c.mentions), std::string::npos) << "'" << c.mentions << "' not in: " << result.output;
+    }
+    EXPECT_EQ(bytes(scenario), before) << "the scenario was changed";
+    EXPECT_FALSE(fs::exists(dir / "s.h5"));
+}
+
 TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineBeforeTheRun) {
     // Inputs that exist but cannot be read as files (a folder where a file is expected, a path
     // through a regular file; tests run as root, so permissions would stop nothing): exit 1; outputs
