@@ -9,6 +9,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cmath>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -77,6 +78,48 @@ inline CLI::Validator output_extension(std::vector<std::string> extensions, std:
             return value + ": " + what + ", so the name must end in " + text::join(extensions, " or ");
         },
         "", "output extension");
+}
+
+/// A number option's value must be finite: CLI11 reads "nan" and "inf" as numbers, and its Range
+/// lets NaN through (every comparison with it is false).
+inline CLI::Validator finite_number() {
+    return CLI::Validator(
+        [](std::string& value) -> std::string {
+            double number = 0;
+            if (!CLI::detail::lexical_cast(value, number)) return {};  // not a number: the option's own conversion says so
+            return std::isfinite(number) ? std::string() : "'" + value + "' is not a finite number";
+        },
+        "", "finite");
+}
+
+/// Adds finite_number() to every floating-point option of `app` and of its subcommands (CLI11
+/// names their type FLOAT), so no NaN or infinity reaches a build or a session through an option.
+inline void require_finite_numbers(CLI::App& app) {
+    for (CLI::Option* option : app.get_options())
+        if (option->get_type_name().rfind("FLOAT", 0) == 0) option->check(finite_number());
+    for (CLI::App* command : app.get_subcommands({})) require_finite_numbers(*command);
+}
+
+/// ≥ 0 (CLI::NonNegativeNumber's message prints the largest double in full).
+inline CLI::Validator non_negative() {
+    return CLI::Validator(
+        [](std::string& value) -> std::string {
+            double number = 0;
+            if (!CLI::detail::lexical_cast(value, number)) return {};
+            return number >= 0 ? std::string() : "must be 0 or more, not " + value;
+        },
+        "≥ 0", "non-negative");
+}
+
+/// > 0.
+inline CLI::Validator positive() {
+    return CLI::Validator(
+        [](std::string& value) -> std::string {
+            double number = 0;
+            if (!CLI::detail::lexical_cast(value, number)) return {};
+            return number > 0 ? std::string() : "must be more than 0, not " + value;
+        },
+        "> 0", "positive");
 }
 
 }  // namespace heartsim::cli_messages

@@ -62,8 +62,8 @@ int main(int argc, char** argv) {
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
     run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and for a "
                                             "haptic session where OpenGL is software (llvmpipe)")->check(CLI::IsMember({"gl", "cpu"}));
-    run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms). Default: 1 headless, no limit in a window")->check(CLI::NonNegativeNumber);
-    run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(CLI::NonNegativeNumber);
+    run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms). Default: 1 headless, no limit in a window")->check(cli_messages::non_negative());
+    run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(cli_messages::non_negative());
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
@@ -84,7 +84,7 @@ int main(int argc, char** argv) {
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)")
         ->check(cli_messages::output_extension({".png"}, "the screenshot is a PNG picture"));
     run->add_option("--screenshot-every", a.screenshot_every, "Also write OUT-000123.png after every N steps (numbered by step; 0: only the last frame)")
-        ->check(CLI::NonNegativeNumber);
+        ->check(cli_messages::non_negative());
     run->add_option("--draw-share", a.draw_share,
                     "Window with the cpu backend: drawing takes at most this fraction of the wall clock, the simulation the rest "
                     "(a software renderer then draws fewer frames)")
@@ -106,7 +106,7 @@ int main(int argc, char** argv) {
         ->allow_extra_args(false);
     run->add_option("--haptic-rate", a.haptic_rate, "Device thread rate, Hz")->check(CLI::Range(100.0, 10000.0))->capture_default_str();
     run->add_option("--max-force", a.max_force, "Largest force sent to any device, N (default: each device's own maximum; never above it)")
-        ->check(CLI::NonNegativeNumber);
+        ->check(cli_messages::non_negative());
     run->add_option("--interpolation", a.interpolation, "Force between simulation updates: hold (zero order) or extrapolate (first order)")
         ->check(CLI::IsMember({"hold", "extrapolate"}))->capture_default_str();
     run->add_option("--haptic-priority", a.haptic_priority,
@@ -121,7 +121,7 @@ int main(int argc, char** argv) {
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces");
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
-        ->check(CLI::NonNegativeNumber);
+        ->check(cli_messages::non_negative());
     std::string journal, recovered;
     auto* recover = app.add_subcommand("recover", "Write the recording of a --record session that was killed, from the journal it "
                                                   "kept beside the recording (OUT.h5.journal: all but its last second); then delete the journal");
@@ -147,6 +147,7 @@ int main(int argc, char** argv) {
         arguments.insert(arguments.begin() + 1, run_word);
     }
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + exit_status_help);
+    cli_messages::require_finite_numbers(app);
     app.footer(exit_status_help);
     // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in
     // libmodel/exit_codes.h (docs/user-guide.md, "Exit status").

@@ -261,6 +261,8 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     };
     const std::vector<Case> cases = {
         {run + "--steps 1 --frobnicate", 2, "--frobnicate"},                    // unknown option
+        {run + "--steps 1 --draw-share nan", 2, "--draw-share: 'nan' is not a finite number"},
+        {run + "--steps -1", 2, "--steps: must be 0 or more, not -1"},
         {run + "--stepps 1", 2, "not expected: --stepps 1 (--stepps: did you mean --steps?) (heartsim run --help"},
         {"recover", 2, "journal is required (heartsim recover --help lists the options)"},
         {run + "--steps 1 --save-state " + quoted(dir / "state.png"), 2, "state.png: the state is an HDF5 file"},

@@ -2,6 +2,7 @@
 #include "commands.h"
 
 #include "formats/volume_io.h"
+#include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/phantom.h"
@@ -24,9 +25,9 @@ void add_phantom_command(CLI::App& app) {
     auto shape = std::make_shared<std::string>("heart");
     command->add_option("-o,--output", *output, "Label map to write: .nii.gz, .nii, .nrrd, .mha, .mhd")->required();
     command->add_option("--shape", *shape, "heart, sphere or shell")->check(CLI::IsMember({"heart", "sphere", "shell"}))->capture_default_str();
-    command->add_option("--voxel", o->voxel_mm, "Voxel size, mm")->check(CLI::PositiveNumber)->capture_default_str();
+    command->add_option("--voxel", o->voxel_mm, "Voxel size, mm")->check(cli_messages::positive())->capture_default_str();
     command->add_option("--size", o->size, "Voxels along the longest axis (overrides --voxel)")->check(CLI::Range(8, 2048));
-    command->add_option("--margin", o->margin_mm, "Background around the shape, mm")->check(CLI::NonNegativeNumber)->capture_default_str();
+    command->add_option("--margin", o->margin_mm, "Background around the shape, mm")->check(cli_messages::non_negative())->capture_default_str();
     command->add_option("--lv-radius", o->lv_radius_mm, "Left-ventricle cavity radius, mm")->capture_default_str()->group("Heart");
     command->add_option("--lv-length", o->lv_length_mm, "Left-ventricle cavity long semi-axis, mm")->capture_default_str()->group("Heart");
     command->add_option("--wall", o->wall_mm, "LV wall and septum thickness, mm")->capture_default_str()->group("Heart");

@@ -50,6 +50,7 @@ int main(int argc, char** argv) {
     heartsim::cli::add_stage_commands(app);
     heartsim::cli::add_batch_command(app);
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim::exit_status_help);
+    heartsim::cli_messages::require_finite_numbers(app);
     app.footer(heartsim::exit_status_help);
     using heartsim::ExitCode;
     using heartsim::exit_status;
