@@ -208,7 +208,8 @@ void Writer::header(const std::string& format, int version, const std::string& u
     attribute("/", "frame", "LPS");
 }
 
-void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill) {
+void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill,
+                const std::function<void(const std::filesystem::path&)>& check) {
     quiet();
     const std::string name = path.string();
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
@@ -238,6 +239,7 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
         }
         repair_superblock_checksum(image);
         write_bytes(temporary, image.data(), image.size(), name + ": cannot write the file");
+        if (check) check(temporary);
     });
 }
 

@@ -504,10 +504,31 @@ VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
     return v;
 }
 
-void write_scenario(const std::filesystem::path& path, const Scenario& scenario) {
+namespace {
+
+void write_scenario_file(const std::filesystem::path& path, const Scenario& scenario,
+                         const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = scenario_xdmf(path.filename().string(), scenario);
-    h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); });
+    h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); }, check);
     write_xdmf(path, xdmf);
+}
+
+}  // namespace
+
+void write_scenario(const std::filesystem::path& path, const Scenario& scenario) { write_scenario_file(path, scenario, {}); }
+
+void write_readable_scenario(const std::filesystem::path& path, const Scenario& scenario) {
+    write_scenario_file(path, scenario, [&](const std::filesystem::path& temporary) {
+        try {
+            read_scenario(temporary);
+        } catch (const InputError& e) {
+            // The reader names the temporary file: keep only the dataset and the reason.
+            std::string reason = e.what();
+            if (const auto at = reason.find(temporary.string()); at != std::string::npos)
+                reason.erase(at, temporary.string().size() + (reason.compare(at + temporary.string().size(), 2, ": ") == 0 ? 2 : 0));
+            throw InputError("the scenario would not be readable (" + reason + "); nothing was written to " + path.string());
+        }
+    });
 }
 
 Scenario read_scenario(const std::filesystem::path& path) {

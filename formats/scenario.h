@@ -88,6 +88,12 @@ VisualMesh to_visual_mesh(const TriangleMesh& mesh);
 /// `case.h5` → `case.xdmf`, for ParaView), atomically too. Throws OutputError naming the file.
 void write_scenario(const std::filesystem::path& path, const Scenario& scenario);
 
+/// write_scenario, but the file is read back with read_scenario's every check before it takes its
+/// name, so what heartprep writes is a scenario that heartsim and inspect read. A value outside
+/// their plausible ranges (a voxel spacing in metres, an absurd option) throws InputError
+/// "the scenario would not be readable: …; nothing was written", and no file is left.
+void write_readable_scenario(const std::filesystem::path& path, const Scenario& scenario);
+
 /// Reads and validates a scenario. Throws InputError naming the file, the dataset or attribute,
 /// and what was expected, for: a missing file, not HDF5, a wrong `format`, a newer
 /// `format_version`, a missing or misshapen dataset, a wrong element type, an index out of

@@ -755,6 +755,10 @@ void check_geometry(const fs::path& path, const Probe& probe) {
         if (!std::isfinite(value) || value <= 0)
             throw InputError(file + "invalid voxel spacing along " + axis_name(axis) + ": " + number(value) +
                              "; expected a finite positive size in mm");
+        // A voxel in metres read as millimetres, or 1e-6 mm (whose lattice would not fit in memory).
+        if (!plausible::voxel_spacing_mm.contains(value))
+            throw InputError(file + plausible::outside(std::string("voxel spacing along ") + axis_name(axis), value, plausible::voxel_spacing_mm) +
+                             " (check the header's spacing and units)");
     }
     if (!geometry.origin.allFinite())
         throw InputError(file + "origin is not finite (" + number(geometry.origin.x()) + ", " +

@@ -5,6 +5,7 @@
 #include <tbb/parallel_for.h>
 
 #include <cmath>
+#include <cstdio>
 
 namespace heartsim {
 
@@ -40,14 +41,21 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
     const double voxel = o.size > 0 ? extent.maxCoeff() / o.size : o.voxel_mm;
     LabelVolume volume;
     auto& g = volume.geometry;
+    // Counted in double first: a radius of 1e12 mm would overflow int and wrap to one voxel.
+    double voxels = 1;
+    for (int a = 0; a < 3; ++a) voxels *= std::max(1.0, std::ceil(extent[a] / voxel - 1e-9));
+    if (!(voxels <= 2.0e9)) {
+        char count[32];
+        std::snprintf(count, sizeof count, "%.3g", voxels);
+        throw InputError(std::string("phantom of ") + count + " voxels is too large (at most 2e9): " +
+                         (o.size > 0 ? "lower --size" : "raise --voxel or shrink the shape"));
+    }
     for (int a = 0; a < 3; ++a) g.dims[std::size_t(a)] = std::max(1, int(std::ceil(extent[a] / voxel - 1e-9)));
     g.spacing = Eigen::Vector3d::Constant(voxel);
     // Centre the grid on the box so the shape sits symmetrically; a cut top face stays at high.z.
     const Eigen::Vector3d covered(g.dims[0] * voxel, g.dims[1] * voxel, g.dims[2] * voxel);
     g.origin = 0.5 * (low + high) - 0.5 * covered + Eigen::Vector3d::Constant(0.5 * voxel);
     if (cut_at_top) g.origin.z() = high.z() - covered.z() + 0.5 * voxel;
-    const double voxels = double(g.dims[0]) * g.dims[1] * g.dims[2];
-    if (voxels > 2.0e9) throw InputError("phantom of " + std::to_string(voxels) + " voxels is too large: raise --voxel");
     volume.labels.assign(g.voxel_count(), 0);
     tbb::parallel_for(0, g.dims[2], [&](int k) {
         for (int j = 0; j < g.dims[1]; ++j)

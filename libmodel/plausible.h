@@ -20,6 +20,7 @@ struct Range {
 };
 
 inline constexpr Range lattice_spacing_mm{0.01, 100.0, "mm"};
+inline constexpr Range voxel_spacing_mm{1e-3, 100.0, "mm"};  ///< a label map's voxels: µm-scale micro-CT to 10 cm
 inline constexpr Range particle_mass_g{1e-12, 1e4, "g"};
 inline constexpr Range density_g_per_mm3{1e-6, 0.1, "g/mm³"};
 inline constexpr Range stiffness_n_per_mm{0.0, 1e4, "N/mm"};

@@ -257,11 +257,18 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"build " + quoted(input) + out + " --rest-state sideways", 2, "--rest-state"},             // not one of its values
         {"build " + quoted(input) + out + " --packing diagonal", 2, "--packing"},
         {"build " + quoted(input) + out + " --gravity 0 nan 0", 2, "--gravity"},
+        {"build " + quoted(input) + out + " --drag nan", 2, "--drag"},                              // NaN passes CLI11's ranges
+        {"build " + quoted(input) + out + " --dt-safety nan", 2, "--dt-safety: 'nan' is not a finite number"},
+        {"build " + quoted(input) + out + " --spacing -1", 2, "--spacing: must be more than 0, not -1"},
+        // A scenario that heartsim would refuse is not written: read back before it takes its name.
+        {"build " + quoted(input) + out + " -q --density 1e-30", 1, "the scenario would not be readable (materials/density"},
         {"build " + quoted(input) + out + " --tissue 1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
         {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
-        {"phantom -o " + quoted(dir / "p.vtk"), 2, "p.vtk: unsupported file type '.vtk'"},         // refused before it generates
+        {"phantom -o " + quoted(dir / "p.vtk"), 2, "p.vtk: unsupported file type '.vtk'"},
+        // A radius whose voxel count overflows int used to wrap to a 1×1×1 phantom and exit 0.
+        {"phantom -o " + quoted(dir / "p.nii.gz") + " --shape sphere --radius 1e12", 2, "voxels is too large (at most 2e9): raise --voxel"},         // refused before it generates
         {"batch " + quoted(dir / "cases.csv") + " --pattern '*.nii.gz' -o " + quoted(dir / "batch"), 2, "--pattern chooses files of a folder"},
         {"batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "batch") + " -j 0", 2, "--jobs"},
         {"build " + quoted(dir / "missing.nii.gz") + out, 1, "missing.nii.gz: file not found"},     // a missing file

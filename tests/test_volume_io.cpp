@@ -537,6 +537,16 @@ TEST(VolumeReadErrors, NanSpacing) {
     expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "pixdim[3]"});
 }
 
+TEST(VolumeReadErrors, ImplausibleSpacing) {
+    // 1e-6 mm voxels (whose lattice would not fit in memory: heartprep hung) and metre-sized ones
+    // (a unit mistake) are refused at reading, by plausible.h's voxel range.
+    TempDir folder;
+    const fs::path tiny = nifti_with_spacing(folder, "tiny.nii", 0, 1e-6f);
+    expect_error<InputError>([&] { read_label_volume(tiny); }, {tiny.string(), "voxel spacing along i", "outside the plausible range"});
+    const fs::path huge = nifti_with_spacing(folder, "huge.nii", 2, 1000.0f);
+    expect_error<InputError>([&] { read_label_volume(huge); }, {huge.string(), "voxel spacing along k is 1000 mm", "outside the plausible range"});
+}
+
 TEST(VolumeReadErrors, ZeroSpacingNrrd) {
     // A zero space-direction vector: ITK's NRRD reader reports spacing 0 for that axis.
     std::vector<unsigned char> bytes;

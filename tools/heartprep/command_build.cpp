@@ -48,7 +48,7 @@ void add_selection_options(CLI::App& command, LabelChoice& labels, SelectionOpti
                      "Anchor tissue where it touches the volume border (vessels cut by the crop)")
         ->group("Tissue");
     command.add_option("--min-island", o.min_island_mm3, "Drop detached tissue islands smaller than this, mm³")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Tissue");
 }
@@ -113,7 +113,7 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Particles");
     command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")
-        ->check(CLI::PositiveNumber)
+        ->check(cli_messages::positive())
         ->group("Particles");
     command->add_option("--particles", options->layout.particle_budget, "Particle budget when the spacing is chosen")
         ->check(CLI::Range(std::size_t(1), std::size_t(50'000'000)))
@@ -153,16 +153,16 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
-        ->check(CLI::PositiveNumber)
+        ->check(cli_messages::positive())
         ->capture_default_str()
         ->group("Material");
     command->add_option("--youngs-modulus", material->youngs_modulus_kpa,
                         "Young's modulus, kPa (passive myocardium: 10-50); spring stiffness k = 0.4·E·spacing")
-        ->check(CLI::PositiveNumber)
+        ->check(cli_messages::positive())
         ->capture_default_str()
         ->group("Material");
     command->add_option("--damping-ratio", material->damping_ratio, "Spring damping as a fraction of critical damping")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Material");
     auto support = std::make_shared<std::string>("posterior");
@@ -175,19 +175,19 @@ void add_build_command(CLI::App& app) {
         ->group("Holding the heart");
     command->add_option("--support-stiffness", options->supports.stiffness_kpa_per_mm,
                         "Support stiffness per supported area, kPa/mm (N/mm per mm² × 1000)")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Holding the heart");
     command->add_option("--embedding-stiffness", options->supports.embedding_kpa_per_mm2,
                         "Weak elastic foundation on every free particle (surrounding tissue and fluid), kPa/mm² "
                         "(N/mm per mm³ × 1000); holds the one-particle-thick parts of a wall; 0 = off")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Holding the heart");
     command->add_option("--support-damping", options->supports.damping_ratio,
                         "Damping ratio of each support against its particle's mass (a dashpot c = 2ζ√(k·m)): the viscous "
                         "tissue around the heart; 0 lets the heart ring on its supports")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Holding the heart");
     auto rest_state = std::make_shared<std::string>("balanced");
@@ -210,7 +210,7 @@ void add_build_command(CLI::App& app) {
         ->expected(3)
         ->group("Solver");
     command->add_option("--drag", options->solver.damping, "Global velocity damping rate, 1/ms")
-        ->check(CLI::NonNegativeNumber)
+        ->check(cli_messages::non_negative())
         ->capture_default_str()
         ->group("Solver");
     command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the damped critical step (dashpots and supports included); "
@@ -257,7 +257,7 @@ void add_build_command(CLI::App& app) {
         scenario.build_warnings = report.warnings;
         {
             ProgressStage stage(progress, "write scenario", 0);
-            write_scenario(*output, scenario);
+            write_readable_scenario(*output, scenario);
         }
         if (!*quiet) {
             print_build_summary(report, scenario);

@@ -47,7 +47,7 @@ std::shared_ptr<std::string> add_mapping_option(CLI::App& command) {
 void finish(const StageFiles& files, const BuildReport& report, const Scenario& scenario, TerminalProgress& progress) {
     {
         ProgressStage stage(progress, "write scenario", 0);
-        write_scenario(files.target(), scenario);
+        write_readable_scenario(files.target(), scenario);
     }
     print_warnings(report.warnings);
     if (files.quiet) return;
