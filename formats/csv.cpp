@@ -40,7 +40,11 @@ std::string read_csv_file(const std::filesystem::path& path) {
     std::ostringstream text;
     text << in.rdbuf();
     if (in.bad()) throw InputError(path.string() + ": cannot be read");
-    return text.str();
+    // Spreadsheets' "CSV UTF-8" begins with a byte order mark, which would make the header's
+    // first name "\xEF\xBB\xBFtime_ms".
+    std::string contents = text.str();
+    if (contents.rfind("\xEF\xBB\xBF", 0) == 0) contents.erase(0, 3);
+    return contents;
 }
 
 }  // namespace heartsim

@@ -87,6 +87,8 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         k.pose.orientation = Eigen::Quaterniond(number(fields[6], where + " column qw"), number(fields[7], where + " column qx"),
                                                 number(fields[8], where + " column qy"), number(fields[9], where + " column qz"));
         if (k.pose.orientation.norm() < 1e-6) throw InputError(where + ": the orientation quaternion is zero");
+        if (!std::isfinite(k.pose.orientation.norm()))
+            throw InputError(where + ": the orientation quaternion is too large to normalise (its length overflows)");
         k.pose.orientation.normalize();
         k.semi_axes = {number(fields[10], where + " column ax"), number(fields[11], where + " column ay"), number(fields[12], where + " column az")};
         if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");

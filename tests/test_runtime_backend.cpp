@@ -15,6 +15,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <fstream>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -375,4 +376,21 @@ TEST(RuntimeTrajectory, ParsesAndInterpolates) {
     EXPECT_THROW(parse_trajectory("0,0,probe,0,0,0,1,0,0,0,2,2,6\n", "bad.csv"), InputError);
     EXPECT_THROW(parse_trajectory("0,2,probe,0,0,0,1,0,0,0,2,2,6,0\n", "bad.csv"), InputError);
     EXPECT_THROW(parse_trajectory("0,0,probe,0,0,0,1,0,0,0,2,2,6,1\n", "bad.csv"), InputError);
+    // A quaternion whose length overflows is refused by file and line, not later as a NaN pose.
+    try {
+        parse_trajectory("0,0,probe,0,0,0,1e300,1e300,0,0,2,2,6,0\n", "big.csv");
+        ADD_FAILURE() << "a quaternion of length 1e300·√2 was accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("big.csv line 1: the orientation quaternion is too large"), std::string::npos) << e.what();
+    }
+}
+
+TEST(RuntimeTrajectory, AFileSavedAsCsvUtf8WithAByteOrderMarkReads) {
+    // Excel's and LibreOffice's "CSV UTF-8" start with EF BB BF, before the header's first name.
+    test::TempDir dir;
+    std::ofstream(dir / "bom.csv") << "\xEF\xBB\xBFtime_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n"
+                                      "0,0,probe,1,2,3,1,0,0,0,2,2,6,0\n";
+    const Trajectory t = read_trajectory(dir / "bom.csv");
+    ASSERT_EQ(t.keyframes.size(), 1u);
+    EXPECT_EQ(t.keyframes[0].pose.position.z(), 3.0);
 }
