@@ -274,10 +274,21 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
                                                             aiComponent_CAMERAS | aiComponent_MATERIALS);
     // PreTransformVertices bakes node transforms in, so meshes placed by a scene graph (glTF)
     // come out where the file puts them.
-    const aiScene* scene =
-        importer.ReadFile(path.string(), aiProcess_RemoveComponent | aiProcess_Triangulate |
-                                             aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
-    if (!scene) throw InputError(path.string() + ": cannot read the mesh: " + importer.GetErrorString());
+    // ValidateDataStructure refuses what a loader let through (a face index past the vertices).
+    const aiScene* scene = nullptr;
+    try {
+        scene = importer.ReadFile(path.string(), aiProcess_ValidateDataStructure | aiProcess_RemoveComponent | aiProcess_Triangulate |
+                                                     aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
+    } catch (const std::bad_alloc&) {
+        scene = nullptr;
+    }
+    if (!scene) {
+        // assimp catches an allocation that failed and reports only "std::bad_alloc".
+        const std::string reason = importer.GetErrorString();
+        if (reason.empty() || reason.find("bad_alloc") != std::string::npos)
+            throw InputError(path.string() + ": cannot read the mesh: it declares more vertices or faces than memory holds (a damaged header?)");
+        throw InputError(path.string() + ": cannot read the mesh: " + reason);
+    }
 
     // glTF is metres with +Y up (its specification): back to LPS mm by the inverse of what we write.
     const bool gltf = is_gltf(lower_case_extension(path));
@@ -292,6 +303,10 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
         for (unsigned f = 0; f < part.mNumFaces; ++f) {
             const aiFace& face = part.mFaces[f];
             if (face.mNumIndices != 3) continue;  // points and lines left after triangulation
+            for (unsigned c = 0; c < 3; ++c)
+                if (face.mIndices[c] >= part.mNumVertices)
+                    throw InputError(path.string() + ": cannot read the mesh: face " + std::to_string(f) + " uses vertex " +
+                                     std::to_string(face.mIndices[c]) + " of " + std::to_string(part.mNumVertices));
             mesh.triangles.push_back({first_vertex + std::int32_t(face.mIndices[0]),
                                       first_vertex + std::int32_t(face.mIndices[1]),
                                       first_vertex + std::int32_t(face.mIndices[2])});
