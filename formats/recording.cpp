@@ -175,6 +175,7 @@ Recording read_recording(const std::filesystem::path& path) {
         r.require_finite(g + "/force_n", force);
         hand.force_n = h5::rows_of<3>(force);
         hand.gain = r.dataset<float>(g + "/gain", {ticks});
+        r.require_finite(g + "/gain", hand.gain);
         for (std::size_t i = 1; i < hand.tick_time_ms.size(); ++i)
             if (hand.tick_time_ms[i] < hand.tick_time_ms[i - 1]) r.fail(g + "/tick_time_ms", "goes backwards at row " + std::to_string(i));
     }
@@ -185,6 +186,9 @@ Recording read_recording(const std::filesystem::path& path) {
     const long steps = long(n);
     s.wall_ms = r.dataset<double>("steps/wall_ms", {steps});
     s.tool_time_ms = r.dataset<double>("steps/tool_time_ms", {steps});
+    r.require_finite("steps/time_ms", s.time_ms);
+    r.require_finite("steps/wall_ms", s.wall_ms);
+    r.require_finite("steps/tool_time_ms", s.tool_time_ms);
     const auto position = r.dataset<double>("steps/tool_position_mm", {steps, 2, 3});
     const auto orientation = r.dataset<double>("steps/tool_orientation", {steps, 2, 4});
     r.require_finite("steps/tool_position_mm", position);
@@ -223,6 +227,7 @@ Recording read_recording(const std::filesystem::path& path) {
 
     std::size_t e = 0;
     const auto times = r.dataset<double>("events/time_ms", {-1}, &e);
+    r.require_finite("events/time_ms", times);
     const auto hands = r.dataset<std::int32_t>("events/hand", {long(e)});
     const auto what = r.strings("events/what", long(e));
     for (std::size_t i = 0; i < e; ++i) rec.events.push_back({times[i], hands[i], what[i]});

@@ -352,7 +352,11 @@ Scenario read_contents(const h5::Reader& r) {
         auto damping = r.dataset<float>("materials/damping", {long(m)});
         if (m == 0) r.fail("materials/label", "no material");
         std::vector<float> youngs;
-        if (r.exists("materials/youngs_modulus_kpa")) youngs = r.dataset<float>("materials/youngs_modulus_kpa", {long(m)});
+        if (r.exists("materials/youngs_modulus_kpa")) {
+            youngs = r.dataset<float>("materials/youngs_modulus_kpa", {long(m)});
+            for (std::size_t i = 0; i < m; ++i)  // informative (the stiffness is the contract), but printed by inspect
+                if (!(youngs[i] > 0) || !std::isfinite(youngs[i])) r.fail("materials/youngs_modulus_kpa", "must be positive and finite");
+        }
         for (std::size_t i = 0; i < m; ++i) {
             if (!(density[i] > 0) || !std::isfinite(density[i])) r.fail("materials/density", "must be positive and finite");
             if (!(stiffness[i] > 0) || !std::isfinite(stiffness[i])) r.fail("materials/stiffness", "must be positive and finite");

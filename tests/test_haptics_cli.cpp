@@ -632,6 +632,23 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         refused(d, "grab row 1, hand 1 is not 0 or 1");
     }
     {
+        // A NaN step time put there by hand (the writer refuses one) is refused by the reader, as
+        // a NaN force is.
+        write_recording(dir / "nan-time.h5", r);
+        std::vector<double> times = r.steps.time_ms;
+        times[1] = std::numeric_limits<double>::quiet_NaN();
+        const hid_t file = H5Fopen((dir / "nan-time.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        const hid_t set = H5Dopen2(file, "steps/time_ms", H5P_DEFAULT);
+        ASSERT_GE(H5Dwrite(set, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, times.data()), 0);
+        H5Dclose(set), H5Fclose(file);
+        try {
+            read_recording(dir / "nan-time.h5");
+            ADD_FAILURE() << "a NaN step time was read";
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find("steps/time_ms: value 1 is not finite"), std::string::npos) << e.what();
+        }
+    }
+    {
         Recording d = r;
         d.steps.applied[1][0] = 1;  // hand 0 has no device
         refused(d, "applied row 1, hand 0 applies a hand without a device");
