@@ -69,7 +69,12 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
     for (int label : options.tissue_labels)
         if (std::find(options.cavity_labels.begin(), options.cavity_labels.end(), label) != options.cavity_labels.end())
             throw UsageError("label " + std::to_string(label) + " is given both as tissue and as cavity");
-
+    // Label 0 is the background of every label map (HVSMR, 3D Slicer, ITK-SNAP): as tissue it
+    // would simulate the air around the heart, as a cavity fill everything outside it.
+    for (const auto* labels : {&options.tissue_labels, &options.cavity_labels})
+        if (std::find(labels->begin(), labels->end(), 0) != labels->end())
+            throw UsageError(std::string(labels == &options.tissue_labels ? "--tissue" : "--cavity") +
+                             ": label 0 is the background of a label map, not a structure; give the labels of the heart");
     ProgressStage stage(progress, "select tissue", 3);
     // Roles per label through a lookup table for the usual label range (label maps are 8- or
     // 16-bit), a search only for labels outside it: one pass over a 57-million-voxel volume

@@ -138,12 +138,16 @@ int main(int argc, char** argv) {
     const bool is_command = std::find(commands.begin(), commands.end(), first) != commands.end();
     if (argc >= 2 && !is_command && first != "-h" && first != "--help" && first != "--version") {
         // A mistyped command ("heartsim rn case.h5") is no scenario: say so rather than "file not found".
-        if (first[0] != '-' && first.find('.') == std::string::npos && !std::filesystem::exists(first))
-            if (const std::string nearest = text::nearest_word(first, commands); !nearest.empty()) {
+        if (first[0] != '-' && first.find('.') == std::string::npos && !std::filesystem::exists(first)) {
+            const std::string nearest = text::nearest_word(first, commands);
+            if (!nearest.empty())
                 std::fprintf(stderr, "heartsim: error: unknown command '%s' (did you mean '%s'?); the commands are %s (heartsim --help)\n",
                              first.c_str(), nearest.c_str(), text::join(commands).c_str());
-                return exit_status(ExitCode::usage);
-            }
+            else
+                std::fprintf(stderr, "heartsim: error: '%s' is neither a command (%s) nor a scenario file (heartsim --help)\n", first.c_str(),
+                             text::join(commands).c_str());
+            return exit_status(ExitCode::usage);
+        }
         arguments.insert(arguments.begin() + 1, run_word);
     }
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + exit_status_help);

@@ -24,7 +24,8 @@ double number(const std::string& text, const std::string& where) {
     } catch (const std::exception&) {
         used = 0;
     }
-    if (used == 0 || used != text.size() || !std::isfinite(value)) throw InputError(where + ": '" + text + "' is not a finite number");
+    if (used == 0 || used != text.size() || !std::isfinite(value))  // a long field is shown by its start
+        throw InputError(where + ": '" + (text.size() > 40 ? text.substr(0, 40) + "…" : text) + "' is not a finite number");
     return value;
 }
 

@@ -1,4 +1,5 @@
 // Tissue selection: islands, anchors and the errors a technician can run into.
+#include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/phantom.h"
 #include "libmodel/segment_names.h"
@@ -81,6 +82,15 @@ TEST(Select, ClearErrors) {
     }
     EXPECT_THROW(select_tissue(v, {.tissue_labels = {1}, .cavity_labels = {1}}), InputError);
     EXPECT_THROW(select_tissue(v, {.cavity_labels = {9}}), InputError);
+    // Label 0 occurs (it is the background) but is no structure: refused, not simulated as tissue.
+    for (const SelectionOptions& zero : {SelectionOptions{.tissue_labels = {0}}, SelectionOptions{.tissue_labels = {1}, .cavity_labels = {0}}}) {
+        try {
+            select_tissue(v, zero);
+            ADD_FAILURE() << "label 0 was accepted";
+        } catch (const UsageError& e) {
+            EXPECT_NE(std::string(e.what()).find("label 0 is the background"), std::string::npos) << e.what();
+        }
+    }
     try {
         select_tissue(v, {.min_island_mm3 = 1e6});
         FAIL() << "expected an error";
