@@ -556,6 +556,13 @@ void read_segment_metadata(Probe& probe) {
     }
 }
 
+/// Whether a header's numeric field holds a NaN or an infinity: ITK replaces such a spacing by 1 mm
+/// without a word (the NIfTI reader checks pixdim itself).
+bool holds_non_finite_number(const std::string& value) {
+    const std::string text = text::lowercase(value);
+    return text.find("nan") != std::string::npos || text.find("inf") != std::string::npos;
+}
+
 /// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
 /// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
 /// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
@@ -610,6 +617,10 @@ void check_metaimage_header_before_itk(const fs::path& path) {
                 throw InputError(path.string() + ": MetaImage CompressedDataSize is '" + value + "'; the file holds only " +
                                  std::to_string(file_size) + " bytes");
         }
+        if ((name == "ElementSpacing" || name == "ElementSize" || name == "Offset" || name == "Origin" || name == "Position" ||
+             name == "TransformMatrix" || name == "Orientation" || name == "Rotation") &&
+            holds_non_finite_number(value))
+            throw InputError(path.string() + ": MetaImage " + name + " is '" + value.substr(0, 60) + "'; expected finite numbers");
         if (name == "ElementDataFile") {  // the header's last field; voxel data may follow
             refuse_multi_file_data(path, "MetaImage ElementDataFile", value);
             break;
@@ -634,6 +645,9 @@ void check_nrrd_header_before_itk(const fs::path& path) {
         }
     }
     const TextHeader header = read_nrrd_header(path);
+    for (const char* field : {"spacings", "space directions", "space origin", "axis mins", "axis maxs", "thicknesses"})
+        if (const std::string value = field_or(header, field, ""); holds_non_finite_number(value))
+            throw InputError(path.string() + ": NRRD field '" + field + "' is '" + value.substr(0, 60) + "'; expected finite numbers");
     const std::string data_file = field_or(header, "data file", field_or(header, "datafile", ""));
     if (!data_file.empty()) refuse_multi_file_data(path, "NRRD data file", data_file);
 }

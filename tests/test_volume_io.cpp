@@ -559,6 +559,22 @@ TEST(VolumeReadErrors, ZeroSpacingNrrd) {
     expect_error<InputError>([&] { read_label_volume(path); }, {path.string(), "spacing along i", "expected a finite positive"});
 }
 
+TEST(VolumeReadErrors, NanSpacingNrrdAndMetaImage) {
+    // ITK reads a NaN spacing as 1 mm without a word: the header is refused before ITK sees it.
+    TempDir folder;
+    std::vector<unsigned char> nrrd;
+    append_text(nrrd, "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\nspacings: nan 1 1\nencoding: raw\n\n");
+    nrrd.resize(nrrd.size() + 8, 1);
+    write_bytes(folder / "nan.nrrd", nrrd);
+    expect_error<InputError>([&] { read_label_volume(folder / "nan.nrrd"); }, {"nan.nrrd", "NRRD field 'spacings' is 'nan 1 1'", "finite"});
+    std::vector<unsigned char> mha;
+    append_text(mha, "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n"
+                     "ElementSpacing = nan 1 1\nDimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
+    mha.resize(mha.size() + 8, 1);
+    write_bytes(folder / "nan.mha", mha);
+    expect_error<InputError>([&] { read_label_volume(folder / "nan.mha"); }, {"nan.mha", "MetaImage ElementSpacing is 'nan 1 1'", "finite"});
+}
+
 TEST(VolumeReadErrors, NegativeSpacingMetaImage) {
     // MetaIO reports the -2 as written; ITK's reader would quietly make it +2.
     std::vector<unsigned char> bytes;
