@@ -8,6 +8,7 @@
 #include "atomic_file.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 #include "libmodel/text.h"
 
 #include <Eigen/Geometry>
@@ -287,6 +288,8 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
         const std::string reason = importer.GetErrorString();
         if (reason.empty() || reason.find("bad_alloc") != std::string::npos)
             throw InputError(path.string() + ": cannot read the mesh: it declares more vertices or faces than memory holds (a damaged header?)");
+        if (reason.find("orphaned") != std::string::npos || reason.find("contains no faces") != std::string::npos)  // assimp's words
+            throw InputError(path.string() + ": cannot read the mesh: it holds no faces (cut short, or only vertices)");
         throw InputError(path.string() + ": cannot read the mesh: " + reason);
     }
 
@@ -298,7 +301,14 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
         const auto first_vertex = std::int32_t(mesh.positions.size());
         for (unsigned v = 0; v < part.mNumVertices; ++v) {
             const Eigen::Vector3d p(part.mVertices[v].x, part.mVertices[v].y, part.mVertices[v].z);
-            mesh.positions.push_back(gltf ? gltf_to_lps_mm(p) : p);
+            if (!p.allFinite())
+                throw InputError(path.string() + ": cannot read the mesh: vertex " + std::to_string(mesh.positions.size()) + " is not finite");
+            const Eigen::Vector3d mm = gltf ? gltf_to_lps_mm(p) : p;
+            for (int c = 0; c < 3; ++c)
+                if (!plausible::coordinate_mm.contains(mm[c]))
+                    throw InputError(path.string() + ": cannot read the mesh: " +
+                                     plausible::outside("vertex " + std::to_string(mesh.positions.size()) + " coordinate", mm[c], plausible::coordinate_mm));
+            mesh.positions.push_back(mm);
         }
         for (unsigned f = 0; f < part.mNumFaces; ++f) {
             const aiFace& face = part.mFaces[f];

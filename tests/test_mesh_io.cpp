@@ -266,6 +266,15 @@ TEST(MeshIo, AFaceIndexPastTheVerticesIsRefused) {
     expect_unreadable_mesh(dir / "oob.ply", "out of range");
 }
 
+TEST(MeshIo, ANonFiniteOrImplausiblyFarVertexIsRefusedNamingTheMeshFile) {
+    // It used to pass, and `heartprep map` then blamed the scenario for "visual vertex 0".
+    test::TempDir dir;
+    write_ascii_ply(dir / "nan.ply", "3", "nan 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+    expect_unreadable_mesh(dir / "nan.ply", "vertex 0 is not finite");
+    write_ascii_ply(dir / "far.ply", "3", "0 0 0\n1e30 0 0\n0 1 0\n3 0 1 2\n");  // a unit mistake, not a heart
+    expect_unreadable_mesh(dir / "far.ply", "vertex 1 coordinate is 1e+30 mm, outside the plausible range");
+}
+
 TEST(MeshIo, AHeaderDeclaringBillionsOfVerticesIsAnInputErrorNotBadAlloc) {
     if (test::under_address_sanitizer) GTEST_SKIP() << "AddressSanitizer stops the process at a 48 GB allocation instead of throwing bad_alloc";
     test::TempDir dir;
