@@ -108,19 +108,26 @@ void check_arguments(const RunArguments& a) {
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
         throw UsageError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
-    // An output must not replace an input: the scenario, the trajectory, the recording replayed.
-    const std::vector<std::string> inputs = {a.scenario, a.trajectory, a.replay};
+    // An output must not replace an input: the scenario, the trajectory, the recording replayed,
+    // a device's script (simulated:FILE[@…], scripted:FILE).
+    std::vector<std::pair<std::string, std::string>> inputs = {
+        {a.scenario, "the scenario being run"}, {a.trajectory, "the --trajectory file"}, {a.replay, "the recording replayed"}};
+    for (const std::string& device : a.devices) {
+        const auto colon = device.find(':');
+        if (colon == std::string::npos) continue;
+        std::string file = device.substr(colon + 1);
+        if (const auto at = file.rfind('@'); at != std::string::npos && !std::filesystem::exists(file)) file = file.substr(0, at);
+        inputs.push_back({file, "the file of --device " + device});
+    }
     const std::vector<std::pair<const char*, std::string>> outputs = {
         {"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}, {"--record", a.record}};
     for (const auto& [option, path] : outputs) {
         if (path.empty()) continue;
         std::error_code error;
-        for (const std::string& input : inputs)
+        for (const auto& [input, what] : inputs)
             if (!input.empty() && std::filesystem::exists(path, error) && std::filesystem::exists(input, error) &&
                 std::filesystem::equivalent(path, input, error))
-                throw UsageError(std::string(option) + " " + path + ": that is " +
-                                 (input == a.scenario ? "the scenario being run" : input == a.trajectory ? "the --trajectory file" : "the recording replayed") +
-                                 "; give another file");
+                throw UsageError(std::string(option) + " " + path + ": that is " + what + "; give another file");
         for (const auto& [other_option, other] : outputs)
             if (other_option != option && other == path)
                 throw UsageError(std::string(option) + " and " + other_option + " name the same file, " + path + "; give each its own");

@@ -185,7 +185,9 @@ TEST(HeartsimCli, AnOutputNeverReplacesAnInput) {
         std::ifstream in(path, std::ios::binary);
         return std::string(std::istreambuf_iterator<char>(in), {});
     };
-    const std::string before = bytes(scenario);
+    const fs::path script = dir / "press.csv";
+    fs::copy_file(fs::path(HEARTSIM_SOURCE_DIR) / "samples/haptics/press_phantom.csv", script);
+    const std::string before = bytes(scenario), script_before = bytes(script);
     const std::string run = "run " + quoted(scenario) + " --headless --backend cpu --steps 1 ";
     struct Case {
         std::string arguments, mentions;
@@ -194,12 +196,15 @@ TEST(HeartsimCli, AnOutputNeverReplacesAnInput) {
              {"--save-state " + quoted(scenario), "--save-state " + scenario.string() + ": that is the scenario being run"},
              {"--stats-csv " + quoted(scenario), "--stats-csv " + scenario.string() + ": that is the scenario being run"},
              {"--save-state " + quoted(dir / "s.h5") + " --stats-csv " + quoted(dir / "s.h5"), "name the same file"},
+             {"--device simulated:" + quoted(script) + " --stats-csv " + quoted(script),
+              "--stats-csv " + script.string() + ": that is the file of --device simulated:" + script.string()},
          }) {
         const auto result = test::run_command("(" + quoted(HEARTSIM_EXE) + " " + run + c.arguments + " 2>&1 >/dev/null)");
         EXPECT_EQ(result.exit_code, 2) << c.arguments << "\n" << result.output;
         EXPECT_NE(result.output.find(c.mentions), std::string::npos) << "'" << c.mentions << "' not in: " << result.output;
     }
     EXPECT_EQ(bytes(scenario), before) << "the scenario was changed";
+    EXPECT_EQ(bytes(script), script_before) << "the device's script was changed";
     EXPECT_FALSE(fs::exists(dir / "s.h5"));
 }
 

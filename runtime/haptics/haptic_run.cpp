@@ -32,10 +32,11 @@ std::string lower_extension(const std::string& file) { return text::lowercase(st
 
 std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(), v.z()}; }
 
-/// --record OUT.h5 must be a new or replaceable file: not the scenario or a device's script
-/// (it would be replaced at the end), not a folder, and its folder writable. Checked before the
-/// session, so nothing is lost at the end.
-void check_record_path(const std::string& record, const std::string& scenario, const std::vector<std::string>& devices) {
+/// --record OUT.h5 must be a new or replaceable file: not a folder, no journal of another session
+/// beside it, and its folder writable. Checked before the session, so nothing is lost at the end.
+/// (That it is none of the run's inputs, the scenario or a device's script, check_arguments in
+/// run_modes.cpp checks for every output.)
+void check_record_path(const std::string& record) {
     namespace fs = std::filesystem;
     const fs::path path(record);
     const fs::path folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
@@ -52,15 +53,6 @@ void check_record_path(const std::string& record, const std::string& scenario, c
         throw InputError("--record " + record + ": " + journal.string() + " holds a session that was killed before it could write " + record +
                          ": `heartsim recover " + journal.string() + "` writes it (to " + record + ", or -o OTHER.h5), or delete " +
                          journal.string() + " to record over it");
-    }
-    auto same = [&](const std::string& other) { return fs::exists(path) && fs::exists(other) && fs::equivalent(path, other, error); };
-    if (same(scenario)) throw UsageError("--record " + record + ": that is the scenario being run; give another file");
-    for (const std::string& device : devices) {
-        const auto colon = device.find(':');
-        if (colon == std::string::npos) continue;
-        std::string file = device.substr(colon + 1);
-        if (const auto at = file.rfind('@'); at != std::string::npos && !fs::exists(file)) file = file.substr(0, at);
-        if (same(file)) throw UsageError("--record " + record + ": that is the file of --device " + device + "; give another file");
     }
     // Writable? A probe file beside it, removed at once.
     const fs::path probe = folder / (".heartsim-record-check-" + std::to_string(::getpid()));
@@ -251,7 +243,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     if (settings.devices.empty() || settings.devices.size() > 2) throw UsageError("--device: give one or two devices (hand 0, hand 1)");
     if (settings.instruments.size() > settings.devices.size())
         throw UsageError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
-    if (!settings.record.empty()) check_record_path(settings.record, scenario_name, settings.devices);
+    if (!settings.record.empty()) check_record_path(settings.record);
     std::array<DeviceMapping, 2> mappings;
     const double semi_axis = 1.5 * scenario.lattice.spacing;
     for (int i = 0; i < int(settings.devices.size()); ++i) {
