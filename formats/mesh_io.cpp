@@ -313,10 +313,6 @@ TriangleMesh read_mesh(const std::filesystem::path& path) {
         for (unsigned f = 0; f < part.mNumFaces; ++f) {
             const aiFace& face = part.mFaces[f];
             if (face.mNumIndices != 3) continue;  // points and lines left after triangulation
-            for (unsigned c = 0; c < 3; ++c)
-                if (face.mIndices[c] >= part.mNumVertices)
-                    throw InputError(path.string() + ": cannot read the mesh: face " + std::to_string(f) + " uses vertex " +
-                                     std::to_string(face.mIndices[c]) + " of " + std::to_string(part.mNumVertices));
             mesh.triangles.push_back({first_vertex + std::int32_t(face.mIndices[0]),
                                       first_vertex + std::int32_t(face.mIndices[1]),
                                       first_vertex + std::int32_t(face.mIndices[2])});

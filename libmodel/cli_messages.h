@@ -74,7 +74,7 @@ inline CLI::Validator output_extension(std::vector<std::string> extensions, std:
             if (std::filesystem::is_directory(value, error)) return {};  // "is a folder" comes later, from check_destination
             const std::string name = text::lowercase(value);
             for (const std::string& e : extensions)
-                if (name.size() > e.size() && name.compare(name.size() - e.size(), e.size(), e) == 0) return {};
+                if (name.size() > e.size() && name.ends_with(e)) return {};
             return value + ": " + what + ", so the name must end in " + text::join(extensions, " or ");
         },
         "", "output extension");
@@ -100,26 +100,19 @@ inline void require_finite_numbers(CLI::App& app) {
     for (CLI::App* command : app.get_subcommands({})) require_finite_numbers(*command);
 }
 
-/// ≥ 0 (CLI::NonNegativeNumber's message prints the largest double in full).
-inline CLI::Validator non_negative() {
+/// A number option's value at or above 0 (`strictly`: above it), said in a few words
+/// (CLI::NonNegativeNumber's message prints the largest double in full).
+inline CLI::Validator above_zero(bool strictly) {
     return CLI::Validator(
-        [](std::string& value) -> std::string {
+        [strictly](std::string& value) -> std::string {
             double number = 0;
-            if (!CLI::detail::lexical_cast(value, number)) return {};
-            return number >= 0 ? std::string() : "must be 0 or more, not " + value;
+            if (!CLI::detail::lexical_cast(value, number)) return {};  // not a number: the option's own conversion says so
+            if (strictly ? number > 0 : number >= 0) return {};
+            return std::string(strictly ? "must be more than 0" : "must be 0 or more") + ", not " + value;
         },
-        "≥ 0", "non-negative");
+        strictly ? "> 0" : "≥ 0", strictly ? "positive" : "non-negative");
 }
-
-/// > 0.
-inline CLI::Validator positive() {
-    return CLI::Validator(
-        [](std::string& value) -> std::string {
-            double number = 0;
-            if (!CLI::detail::lexical_cast(value, number)) return {};
-            return number > 0 ? std::string() : "must be more than 0, not " + value;
-        },
-        "> 0", "positive");
-}
+inline CLI::Validator non_negative() { return above_zero(false); }
+inline CLI::Validator positive() { return above_zero(true); }
 
 }  // namespace heartsim::cli_messages

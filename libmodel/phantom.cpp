@@ -42,15 +42,16 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
     LabelVolume volume;
     auto& g = volume.geometry;
     // Counted in double first: a radius of 1e12 mm would overflow int and wrap to one voxel.
-    double voxels = 1;
-    for (int a = 0; a < 3; ++a) voxels *= std::max(1.0, std::ceil(extent[a] / voxel - 1e-9));
+    Eigen::Vector3d counts;
+    for (int a = 0; a < 3; ++a) counts[a] = std::max(1.0, std::ceil(extent[a] / voxel - 1e-9));
+    const double voxels = counts.prod();
     if (!(voxels <= 2.0e9)) {
         char count[32];
         std::snprintf(count, sizeof count, "%.3g", voxels);
         throw InputError(std::string("phantom of ") + count + " voxels is too large (at most 2e9): " +
                          (o.size > 0 ? "lower --size" : "raise --voxel or shrink the shape"));
     }
-    for (int a = 0; a < 3; ++a) g.dims[std::size_t(a)] = std::max(1, int(std::ceil(extent[a] / voxel - 1e-9)));
+    for (int a = 0; a < 3; ++a) g.dims[std::size_t(a)] = int(counts[a]);
     g.spacing = Eigen::Vector3d::Constant(voxel);
     // Centre the grid on the box so the shape sits symmetrically; a cut top face stays at high.z.
     const Eigen::Vector3d covered(g.dims[0] * voxel, g.dims[1] * voxel, g.dims[2] * voxel);
