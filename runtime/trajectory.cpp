@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 namespace heartsim {
@@ -67,6 +68,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
     std::istringstream in(text);
     std::string line;
     int line_number = 0;
+    std::map<std::pair<int, double>, int> line_of;  // (hand, time) → the line that gave it
     while (std::getline(in, line)) {
         ++line_number;
         const auto hash = line.find('#');
@@ -98,6 +100,11 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
         k.grab = grab == 1;
         if (k.grab && k.kind != InstrumentKind::grabber) throw InputError(where + ": grab is 1 but the kind is not grabber");
+        // Two poses of one hand at one time would make the instrument jump there in one step (the
+        // earlier line only bends the approach): almost always a typing slip, so it is refused.
+        if (const auto [it, fresh] = line_of.emplace(std::make_pair(k.hand, k.time_ms), line_number); !fresh)
+            throw InputError(where + ": hand " + std::to_string(k.hand) + " already has a keyframe at " + fields[0] + " ms (line " +
+                             std::to_string(it->second) + "); give each of a hand's keyframes its own time");
         trajectory.keyframes.push_back(k);
     }
     std::stable_sort(trajectory.keyframes.begin(), trajectory.keyframes.end(),

@@ -383,6 +383,16 @@ TEST(RuntimeTrajectory, ParsesAndInterpolates) {
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("big.csv line 1: the orientation quaternion is too large"), std::string::npos) << e.what();
     }
+    // Two keyframes of one hand at one time are refused naming both lines; the other hand may
+    // share the time.
+    try {
+        parse_trajectory("0,0,probe,0,0,0,1,0,0,0,2,2,6,0\n0,1,probe,9,0,0,1,0,0,0,2,2,6,0\n10,0,probe,1,0,0,1,0,0,0,2,2,6,0\n"
+                         "10,0,probe,5,0,0,1,0,0,0,2,2,6,0\n",
+                         "twice.csv");
+        ADD_FAILURE() << "two poses of hand 0 at 10 ms were accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("twice.csv line 4: hand 0 already has a keyframe at 10 ms (line 3)"), std::string::npos) << e.what();
+    }
 }
 
 TEST(RuntimeTrajectory, AFileSavedAsCsvUtf8WithAByteOrderMarkReads) {
