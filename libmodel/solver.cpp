@@ -68,15 +68,19 @@ namespace {
 
 constexpr int slot_count = 18;
 constexpr int lane_count = 8;
+/// Floats per particle in a state buffer: its position (x, y, z, 0), then its motion u
+/// (x, y, z, 0), side by side so that one 32-byte load (one cache line) brings a neighbour's
+/// position and motion together (the dashpot needs both).
+constexpr std::size_t state_stride = 8;
 constexpr std::size_t chunk_groups = 32;  // 256 particles per parallel task
 
 /// Everything one substep's inner loop reads, as raw pointers.
 template <class Real>
 struct KernelData {
-    const Real* x;          // current positions, 4 per particle
-    const Real* u;          // motion of the last substep, x_n − x_{n−1}, 4 per particle
+    const Real* x;          // current positions, state_stride apart
+    const Real* u;          // motion of the last substep, x_n − x_{n−1}: x + 4 (load_gather16_both reads it from x)
     Real* xn;               // next positions (written)
-    Real* un;               // next motion, x_{n+1} − x_n (written)
+    Real* un;               // next motion, x_{n+1} − x_n (written): xn + 4
     const std::int32_t* neighbour;
     const Real* rest_length;
     const Real* stiffness;
@@ -103,8 +107,8 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
     Real xi[W], yi[W], zi[W], uxi[W], uyi[W], uzi[W], fx[W], fy[W], fz[W];
     const std::size_t base = group * W;
     for (int l = 0; l < W; ++l) {
-        const Real* p = k.x + 4 * (base + l);
-        const Real* q = k.u + 4 * (base + l);
+        const Real* p = k.x + state_stride * (base + l);
+        const Real* q = k.u + state_stride * (base + l);
         xi[l] = p[0], yi[l] = p[1], zi[l] = p[2];
         uxi[l] = q[0], uyi[l] = q[1], uzi[l] = q[2];
         fx[l] = fy[l] = fz[l] = Real(0);
@@ -114,7 +118,7 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
         for (int l = 0; l < W; ++l) {
             const std::size_t t = table + std::size_t(s) * W + l, u = parameters + std::size_t(s) * W + l;
             const std::size_t j = std::size_t(k.neighbour[t]);
-            const Real* pj = k.x + 4 * j;
+            const Real* pj = k.x + state_stride * j;
             const Real dx = pj[0] - xi[l], dy = pj[1] - yi[l], dz = pj[2] - zi[l];
             Real length2 = dx * dx + dy * dy;
             length2 = length2 + dz * dz;
@@ -122,7 +126,7 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
             const Real inverse = Real(1) / length;
             Real scale = (k.stiffness[u] * (length - k.rest_length[u])) * inverse;
             if constexpr (Damped) {
-                const Real* qj = k.u + 4 * j;
+                const Real* qj = k.u + state_stride * j;
                 const Real dux = qj[0] - uxi[l], duy = qj[1] - uyi[l], duz = qj[2] - uzi[l];
                 Real along = dux * dx + duy * dy;
                 along = (along + duz * dz) * inverse;
@@ -151,9 +155,9 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
         const Real ex = k.keep * uxi[l] + (fx[l] + m * k.gravity[0]) * w;
         const Real ey = k.keep * uyi[l] + (fy[l] + m * k.gravity[1]) * w;
         const Real ez = k.keep * uzi[l] + (fz[l] + m * k.gravity[2]) * w;
-        Real* out = k.xn + 4 * i;
+        Real* out = k.xn + state_stride * i;
         out[0] = xi[l] + ex, out[1] = yi[l] + ey, out[2] = zi[l] + ez, out[3] = Real(0);
-        Real* motion = k.un + 4 * i;
+        Real* motion = k.un + state_stride * i;
         motion[0] = ex, motion[1] = ey, motion[2] = ez, motion[3] = Real(0);
         Real d2 = ex * ex + ey * ey;
         d2 = d2 + ez * ez;
@@ -172,24 +176,26 @@ inline void transpose_in(__m128 a, __m128 b, __m128 c, __m128 d, __m128& x, __m1
     z = _mm_movelh_ps(t2, t3);
 }
 
+/// x, y, z of the 4 particles `index` names, from a state buffer (state_stride apart).
 inline void load_gather4(const float* base, const std::int32_t* index, __m128& x, __m128& y, __m128& z) {
-    transpose_in(_mm_loadu_ps(base + 4 * std::size_t(index[0])), _mm_loadu_ps(base + 4 * std::size_t(index[1])),
-                 _mm_loadu_ps(base + 4 * std::size_t(index[2])), _mm_loadu_ps(base + 4 * std::size_t(index[3])), x, y, z);
+    transpose_in(_mm_loadu_ps(base + state_stride * std::size_t(index[0])), _mm_loadu_ps(base + state_stride * std::size_t(index[1])),
+                 _mm_loadu_ps(base + state_stride * std::size_t(index[2])), _mm_loadu_ps(base + state_stride * std::size_t(index[3])), x, y, z);
 }
 
-inline void load_own4(const float* p, __m128& x, __m128& y, __m128& z) {
-    transpose_in(_mm_loadu_ps(p), _mm_loadu_ps(p + 4), _mm_loadu_ps(p + 8), _mm_loadu_ps(p + 12), x, y, z);
+/// x, y, z of 4 consecutive particles whose float4 lie `stride` floats apart.
+inline void load_own4(const float* p, std::size_t stride, __m128& x, __m128& y, __m128& z) {
+    transpose_in(_mm_loadu_ps(p), _mm_loadu_ps(p + stride), _mm_loadu_ps(p + 2 * stride), _mm_loadu_ps(p + 3 * stride), x, y, z);
 }
 
-/// Stores x, y, z of 4 particles as float4 (x, y, z, 0).
+/// Stores x, y, z of 4 particles as float4 (x, y, z, 0) in a state buffer.
 inline void store_own4(float* out, __m128 x, __m128 y, __m128 z) {
     const __m128 zero = _mm_setzero_ps();
     const __m128 t0 = _mm_unpacklo_ps(x, y), t1 = _mm_unpacklo_ps(z, zero);
     const __m128 t2 = _mm_unpackhi_ps(x, y), t3 = _mm_unpackhi_ps(z, zero);
     _mm_storeu_ps(out, _mm_movelh_ps(t0, t1));
-    _mm_storeu_ps(out + 4, _mm_movehl_ps(t1, t0));
-    _mm_storeu_ps(out + 8, _mm_movelh_ps(t2, t3));
-    _mm_storeu_ps(out + 12, _mm_movehl_ps(t3, t2));
+    _mm_storeu_ps(out + state_stride, _mm_movehl_ps(t1, t0));
+    _mm_storeu_ps(out + 2 * state_stride, _mm_movelh_ps(t2, t3));
+    _mm_storeu_ps(out + 3 * state_stride, _mm_movehl_ps(t3, t2));
 }
 
 template <bool Damped, bool Supported>
@@ -199,8 +205,8 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
     for (int half = 0; half < 2; ++half) {
         const std::size_t base = group * lane_count + std::size_t(half) * 4;
         __m128 xi, yi, zi, uxi, uyi, uzi;
-        load_own4(k.x + 4 * base, xi, yi, zi);
-        load_own4(k.u + 4 * base, uxi, uyi, uzi);
+        load_own4(k.x + state_stride * base, state_stride, xi, yi, zi);
+        load_own4(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
         __m128 fx = zero, fy = zero, fz = zero;
         const std::size_t table = group * slot_count * lane_count + std::size_t(half) * 4;
         const std::size_t parameters = group * k.parameter_group_stride + std::size_t(half) * 4;
@@ -229,7 +235,7 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
         }
         if constexpr (Supported) {
             __m128 sx, sy, sz;
-            load_own4(k.support_point + 4 * base, sx, sy, sz);
+            load_own4(k.support_point + 4 * base, 4, sx, sy, sz);
             const __m128 ks = _mm_loadu_ps(k.support_stiffness + base), cs = _mm_loadu_ps(k.support_damping + base);
             fx = _mm_add_ps(fx, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sx, xi)), _mm_mul_ps(cs, uxi)));
             fy = _mm_add_ps(fy, _mm_sub_ps(_mm_mul_ps(ks, _mm_sub_ps(sy, yi)), _mm_mul_ps(cs, uyi)));
@@ -239,8 +245,8 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
         const __m128 ex = _mm_add_ps(_mm_mul_ps(keep, uxi), _mm_mul_ps(_mm_add_ps(fx, _mm_mul_ps(m, _mm_set1_ps(k.gravity[0]))), w));
         const __m128 ey = _mm_add_ps(_mm_mul_ps(keep, uyi), _mm_mul_ps(_mm_add_ps(fy, _mm_mul_ps(m, _mm_set1_ps(k.gravity[1]))), w));
         const __m128 ez = _mm_add_ps(_mm_mul_ps(keep, uzi), _mm_mul_ps(_mm_add_ps(fz, _mm_mul_ps(m, _mm_set1_ps(k.gravity[2]))), w));
-        store_own4(k.xn + 4 * base, _mm_add_ps(xi, ex), _mm_add_ps(yi, ey), _mm_add_ps(zi, ez));
-        store_own4(k.un + 4 * base, ex, ey, ez);
+        store_own4(k.xn + state_stride * base, _mm_add_ps(xi, ex), _mm_add_ps(yi, ey), _mm_add_ps(zi, ez));
+        store_own4(k.un + state_stride * base, ex, ey, ez);
         __m128 d2 = _mm_add_ps(_mm_mul_ps(ex, ex), _mm_mul_ps(ey, ey));
         d2 = _mm_add_ps(d2, _mm_mul_ps(ez, ez));
         bad |= _mm_movemask_ps(_mm_cmpnle_ps(d2, _mm_set1_ps(k.max_displacement2))) != 0;
@@ -263,7 +269,7 @@ HEARTSIM_AVX2 inline void transpose_in8(__m256 a, __m256 b, __m256 c, __m256 d, 
 }
 
 HEARTSIM_AVX2 inline void load_gather8(const float* base, const std::int32_t* i, __m256& x, __m256& y, __m256& z) {
-    auto at = [&](int l) { return base + 4 * std::size_t(i[l]); };
+    auto at = [&](int l) { return base + state_stride * std::size_t(i[l]); };
     transpose_in8(pair(at(0), at(4)), pair(at(1), at(5)), pair(at(2), at(6)), pair(at(3), at(7)), x, y, z);
 }
 
@@ -273,7 +279,7 @@ HEARTSIM_AVX2 inline void load_gather8_both(const float* x, const float* u, cons
                                             __m256& uxj, __m256& uyj, __m256& uzj) {
     __m256 xq[4], uq[4];
     for (int q = 0; q < 4; ++q) {
-        const std::size_t o0 = 4 * std::size_t(i[q]), o1 = 4 * std::size_t(i[q + 4]);
+        const std::size_t o0 = state_stride * std::size_t(i[q]), o1 = state_stride * std::size_t(i[q + 4]);
         xq[q] = pair(x + o0, x + o1);
         uq[q] = pair(u + o0, u + o1);
     }
@@ -281,11 +287,12 @@ HEARTSIM_AVX2 inline void load_gather8_both(const float* x, const float* u, cons
     transpose_in8(uq[0], uq[1], uq[2], uq[3], uxj, uyj, uzj);
 }
 
-HEARTSIM_AVX2 inline void load_own8(const float* p, __m256& x, __m256& y, __m256& z) {
-    transpose_in8(pair(p, p + 16), pair(p + 4, p + 20), pair(p + 8, p + 24), pair(p + 12, p + 28), x, y, z);
+/// x, y, z of 8 consecutive particles whose float4 lie `s` floats apart.
+HEARTSIM_AVX2 inline void load_own8(const float* p, std::size_t s, __m256& x, __m256& y, __m256& z) {
+    transpose_in8(pair(p, p + 4 * s), pair(p + s, p + 5 * s), pair(p + 2 * s, p + 6 * s), pair(p + 3 * s, p + 7 * s), x, y, z);
 }
 
-/// Stores x, y, z of 8 particles as float4 (x, y, z, 0).
+/// Stores x, y, z of 8 particles as float4 (x, y, z, 0) in a state buffer.
 HEARTSIM_AVX2 inline void store_own8(float* out, __m256 x, __m256 y, __m256 z) {
     const __m256 zero = _mm256_setzero_ps();
     const __m256 t0 = _mm256_unpacklo_ps(x, y), t1 = _mm256_unpacklo_ps(z, zero);
@@ -294,10 +301,11 @@ HEARTSIM_AVX2 inline void store_own8(float* out, __m256 x, __m256 y, __m256 z) {
     const __m256 p1 = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5
     const __m256 p2 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6
     const __m256 p3 = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7
-    _mm256_storeu_ps(out, _mm256_permute2f128_ps(p0, p1, 0x20));       // 0 1
-    _mm256_storeu_ps(out + 8, _mm256_permute2f128_ps(p2, p3, 0x20));   // 2 3
-    _mm256_storeu_ps(out + 16, _mm256_permute2f128_ps(p0, p1, 0x31));  // 4 5
-    _mm256_storeu_ps(out + 24, _mm256_permute2f128_ps(p2, p3, 0x31));  // 6 7
+    const __m256 particles[4] = {p0, p1, p2, p3};
+    for (std::size_t q = 0; q < 4; ++q) {
+        _mm_storeu_ps(out + state_stride * q, _mm256_castps256_ps128(particles[q]));
+        _mm_storeu_ps(out + state_stride * (q + 4), _mm256_extractf128_ps(particles[q], 1));
+    }
 }
 
 /// The 8-lane body, inlined into group_avx2 (compiled for AVX2) and into groups_avx512 for an odd
@@ -307,8 +315,8 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     const __m256 tiny = _mm256_set1_ps(tiny_length2<float>()), one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
     const std::size_t base = group * lane_count;
     __m256 xi, yi, zi, uxi, uyi, uzi;
-    load_own8(k.x + 4 * base, xi, yi, zi);
-    load_own8(k.u + 4 * base, uxi, uyi, uzi);
+    load_own8(k.x + state_stride * base, state_stride, xi, yi, zi);
+    load_own8(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m256 fx = zero, fy = zero, fz = zero;
     const std::size_t table = group * slot_count * lane_count, parameters = group * k.parameter_group_stride;
     for (int s = 0; s < slot_count; ++s) {
@@ -335,7 +343,7 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     }
     if constexpr (Supported) {
         __m256 sx, sy, sz;
-        load_own8(k.support_point + 4 * base, sx, sy, sz);
+        load_own8(k.support_point + 4 * base, 4, sx, sy, sz);
         const __m256 ks = _mm256_loadu_ps(k.support_stiffness + base), cs = _mm256_loadu_ps(k.support_damping + base);
         fx = _mm256_add_ps(fx, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sx, xi)), _mm256_mul_ps(cs, uxi)));
         fy = _mm256_add_ps(fy, _mm256_sub_ps(_mm256_mul_ps(ks, _mm256_sub_ps(sy, yi)), _mm256_mul_ps(cs, uyi)));
@@ -345,8 +353,8 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     const __m256 ex = _mm256_add_ps(_mm256_mul_ps(keep, uxi), _mm256_mul_ps(_mm256_add_ps(fx, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[0]))), w));
     const __m256 ey = _mm256_add_ps(_mm256_mul_ps(keep, uyi), _mm256_mul_ps(_mm256_add_ps(fy, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[1]))), w));
     const __m256 ez = _mm256_add_ps(_mm256_mul_ps(keep, uzi), _mm256_mul_ps(_mm256_add_ps(fz, _mm256_mul_ps(m, _mm256_set1_ps(k.gravity[2]))), w));
-    store_own8(k.xn + 4 * base, _mm256_add_ps(xi, ex), _mm256_add_ps(yi, ey), _mm256_add_ps(zi, ez));
-    store_own8(k.un + 4 * base, ex, ey, ez);
+    store_own8(k.xn + state_stride * base, _mm256_add_ps(xi, ex), _mm256_add_ps(yi, ey), _mm256_add_ps(zi, ez));
+    store_own8(k.un + state_stride * base, ex, ey, ez);
     __m256 d2 = _mm256_add_ps(_mm256_mul_ps(ex, ex), _mm256_mul_ps(ey, ey));
     d2 = _mm256_add_ps(d2, _mm256_mul_ps(ez, ez));
     return _mm256_movemask_ps(_mm256_cmp_ps(d2, _mm256_set1_ps(k.max_displacement2), _CMP_NLE_UQ)) != 0;
@@ -380,56 +388,61 @@ HEARTSIM_AVX512 inline void transpose_in16(__m512 a, __m512 b, __m512 c, __m512 
 /// Gathers the float4 of 16 particles: indices 0..7 from `low`, 8..15 from `high`.
 HEARTSIM_AVX512 inline void load_gather16(const float* base, const std::int32_t* low, const std::int32_t* high, __m512& x, __m512& y,
                                           __m512& z) {
-    auto at = [&](int l) { return base + 4 * std::size_t(l < 8 ? low[l] : high[l - 8]); };
+    auto at = [&](int l) { return base + state_stride * std::size_t(l < 8 ? low[l] : high[l - 8]); };
     transpose_in16(quad(at(0), at(4), at(8), at(12)), quad(at(1), at(5), at(9), at(13)), quad(at(2), at(6), at(10), at(14)),
                    quad(at(3), at(7), at(11), at(15)), x, y, z);
 }
 
-/// load_gather16 of positions and motions at once: each particle's byte offset is computed once
-/// and used for both loads, four particles at a time (16 offsets live across two gathers spill
-/// to the stack). The same loads as two load_gather16 calls, so the same values.
-HEARTSIM_AVX512 inline void load_gather16_both(const float* x, const float* u, const std::int32_t* low, const std::int32_t* high, __m512& xj,
-                                               __m512& yj, __m512& zj, __m512& uxj, __m512& uyj, __m512& uzj) {
+/// load_gather16 of positions and motions at once, from a state buffer where a particle's motion
+/// follows its position (state_stride): one 32-byte load per particle brings both, two particles
+/// per register, and one lane shuffle parts positions from motions into the quads that
+/// transpose_in16 takes. The same values as two load_gather16 calls.
+HEARTSIM_AVX512 inline void load_gather16_both(const float* x, const std::int32_t* low, const std::int32_t* high, __m512& xj, __m512& yj,
+                                               __m512& zj, __m512& uxj, __m512& uyj, __m512& uzj) {
     __m512 xq[4], uq[4];
     for (int q = 0; q < 4; ++q) {
-        const std::size_t o0 = 4 * std::size_t(low[q]), o1 = 4 * std::size_t(low[q + 4]), o2 = 4 * std::size_t(high[q]), o3 = 4 * std::size_t(high[q + 4]);
-        xq[q] = quad(x + o0, x + o1, x + o2, x + o3);
-        uq[q] = quad(u + o0, u + o1, u + o2, u + o3);
+        // Particles q, q + 4 (low table) and q + 8, q + 12 (high table): (x, u) of two in each.
+        const __m512 a = _mm512_insertf32x8(_mm512_castps256_ps512(_mm256_loadu_ps(x + state_stride * std::size_t(low[q]))),
+                                            _mm256_loadu_ps(x + state_stride * std::size_t(low[q + 4])), 1);
+        const __m512 b = _mm512_insertf32x8(_mm512_castps256_ps512(_mm256_loadu_ps(x + state_stride * std::size_t(high[q]))),
+                                            _mm256_loadu_ps(x + state_stride * std::size_t(high[q + 4])), 1);
+        xq[q] = _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(2, 0, 2, 0));  // positions of q, q + 4, q + 8, q + 12
+        uq[q] = _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(3, 1, 3, 1));  // their motions
     }
     transpose_in16(xq[0], xq[1], xq[2], xq[3], xj, yj, zj);
     transpose_in16(uq[0], uq[1], uq[2], uq[3], uxj, uyj, uzj);
 }
 
-/// x, y, z of 16 consecutive particles (float4 each, from p).
-HEARTSIM_AVX512 inline void load_own16(const float* p, __m512& x, __m512& y, __m512& z) {
-    transpose_in16(quad(p, p + 16, p + 32, p + 48), quad(p + 4, p + 20, p + 36, p + 52), quad(p + 8, p + 24, p + 40, p + 56),
-                   quad(p + 12, p + 28, p + 44, p + 60), x, y, z);
+/// x, y, z of 16 consecutive particles whose float4 lie `s` floats apart.
+HEARTSIM_AVX512 inline void load_own16(const float* p, std::size_t s, __m512& x, __m512& y, __m512& z) {
+    transpose_in16(quad(p, p + 4 * s, p + 8 * s, p + 12 * s), quad(p + s, p + 5 * s, p + 9 * s, p + 13 * s),
+                   quad(p + 2 * s, p + 6 * s, p + 10 * s, p + 14 * s), quad(p + 3 * s, p + 7 * s, p + 11 * s, p + 15 * s), x, y, z);
 }
 
+/// The four float4 of `p` to particles 0, 4, 8, 12 of a state buffer from `out`.
+HEARTSIM_AVX512 inline void store_quad(float* out, __m512 p) {
+    _mm_storeu_ps(out, _mm512_castps512_ps128(p));
+    _mm_storeu_ps(out + 4 * state_stride, _mm512_extractf32x4_ps(p, 1));
+    _mm_storeu_ps(out + 8 * state_stride, _mm512_extractf32x4_ps(p, 2));
+    _mm_storeu_ps(out + 12 * state_stride, _mm512_extractf32x4_ps(p, 3));
+}
+
+/// Stores x, y, z of 16 particles as float4 (x, y, z, 0) in a state buffer.
 HEARTSIM_AVX512 inline void store_own16(float* out, __m512 x, __m512 y, __m512 z) {
     const __m512 zero = _mm512_setzero_ps();
     const __m512 t0 = _mm512_unpacklo_ps(x, y), t1 = _mm512_unpacklo_ps(z, zero);
     const __m512 t2 = _mm512_unpackhi_ps(x, y), t3 = _mm512_unpackhi_ps(z, zero);
-    const __m512 p0 = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));  // particles 0 | 4 | 8 | 12
-    const __m512 p1 = _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));  // 1 | 5 | 9 | 13
-    const __m512 p2 = _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 | 6 | 10 | 14
-    const __m512 p3 = _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));  // 3 | 7 | 11 | 15
-    // 4×4 transpose of 128-bit lanes: q_k = particles 4k .. 4k+3.
-    const __m512 a = _mm512_shuffle_f32x4(p0, p1, _MM_SHUFFLE(1, 0, 1, 0));  // 0 4 1 5
-    const __m512 b = _mm512_shuffle_f32x4(p2, p3, _MM_SHUFFLE(1, 0, 1, 0));  // 2 6 3 7
-    const __m512 c = _mm512_shuffle_f32x4(p0, p1, _MM_SHUFFLE(3, 2, 3, 2));  // 8 12 9 13
-    const __m512 d = _mm512_shuffle_f32x4(p2, p3, _MM_SHUFFLE(3, 2, 3, 2));  // 10 14 11 15
-    _mm512_storeu_ps(out, _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(2, 0, 2, 0)));       // 0 1 2 3
-    _mm512_storeu_ps(out + 16, _mm512_shuffle_f32x4(a, b, _MM_SHUFFLE(3, 1, 3, 1)));  // 4 5 6 7
-    _mm512_storeu_ps(out + 32, _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(2, 0, 2, 0)));  // 8 9 10 11
-    _mm512_storeu_ps(out + 48, _mm512_shuffle_f32x4(c, d, _MM_SHUFFLE(3, 1, 3, 1)));  // 12 13 14 15
+    store_quad(out, _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0)));                     // particles 0 | 4 | 8 | 12
+    store_quad(out + state_stride, _mm512_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2)));      // 1 | 5 | 9 | 13
+    store_quad(out + 2 * state_stride, _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0)));  // 2 | 6 | 10 | 14
+    store_quad(out + 3 * state_stride, _mm512_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2)));  // 3 | 7 | 11 | 15
 }
 
-/// Bit l set when particle l of the 16 from `x` (float4 each) lies within √bound2 of c: the
+/// Bit l set when particle l of the 16 from `x` (a state buffer) lies within √bound2 of c: the
 /// probe's candidate test, (dx² + dy²) + dz² < bound2 in float as the scalar loop evaluates it.
 HEARTSIM_AVX512 unsigned near_probe16(const float* x, float cx, float cy, float cz, float bound2) {
     __m512 px, py, pz;
-    load_own16(x, px, py, pz);
+    load_own16(x, state_stride, px, py, pz);
     const __m512 dx = _mm512_sub_ps(px, _mm512_set1_ps(cx)), dy = _mm512_sub_ps(py, _mm512_set1_ps(cy)), dz = _mm512_sub_ps(pz, _mm512_set1_ps(cz));
     __m512 d2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
     d2 = _mm512_add_ps(d2, _mm512_mul_ps(dz, dz));
@@ -448,8 +461,8 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     const __m512 tiny = _mm512_set1_ps(tiny_length2<float>()), one = _mm512_set1_ps(1.0f), zero = _mm512_setzero_ps();
     const std::size_t base = group * lane_count;
     __m512 xi, yi, zi, uxi, uyi, uzi;
-    load_own16(k.x + 4 * base, xi, yi, zi);
-    load_own16(k.u + 4 * base, uxi, uyi, uzi);
+    load_own16(k.x + state_stride * base, state_stride, xi, yi, zi);
+    load_own16(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m512 fx = zero, fy = zero, fz = zero;
     const std::size_t table = group * slot_count * lane_count, next_table = table + slot_count * lane_count;
     const std::size_t parameters = group * k.parameter_group_stride, next_parameters = parameters + k.parameter_group_stride;
@@ -457,7 +470,7 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
         const std::size_t t = table + std::size_t(s) * lane_count, t2 = next_table + std::size_t(s) * lane_count;
         const std::size_t u = parameters + std::size_t(s) * lane_count, u2 = next_parameters + std::size_t(s) * lane_count;
         __m512 xj, yj, zj, uxj, uyj, uzj;
-        if constexpr (Damped) load_gather16_both(k.x, k.u, k.neighbour + t, k.neighbour + t2, xj, yj, zj, uxj, uyj, uzj);
+        if constexpr (Damped) load_gather16_both(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj, uxj, uyj, uzj);
         else load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
         const __m512 dx = _mm512_sub_ps(xj, xi), dy = _mm512_sub_ps(yj, yi), dz = _mm512_sub_ps(zj, zi);
         __m512 length2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
@@ -480,7 +493,7 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     }
     if constexpr (Supported) {
         __m512 sx, sy, sz;
-        load_own16(k.support_point + 4 * base, sx, sy, sz);
+        load_own16(k.support_point + 4 * base, 4, sx, sy, sz);
         const __m512 ks = _mm512_loadu_ps(k.support_stiffness + base), cs = _mm512_loadu_ps(k.support_damping + base);
         fx = _mm512_add_ps(fx, _mm512_sub_ps(_mm512_mul_ps(ks, _mm512_sub_ps(sx, xi)), _mm512_mul_ps(cs, uxi)));
         fy = _mm512_add_ps(fy, _mm512_sub_ps(_mm512_mul_ps(ks, _mm512_sub_ps(sy, yi)), _mm512_mul_ps(cs, uyi)));
@@ -490,8 +503,8 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     const __m512 ex = _mm512_add_ps(_mm512_mul_ps(keep, uxi), _mm512_mul_ps(_mm512_add_ps(fx, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[0]))), w));
     const __m512 ey = _mm512_add_ps(_mm512_mul_ps(keep, uyi), _mm512_mul_ps(_mm512_add_ps(fy, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[1]))), w));
     const __m512 ez = _mm512_add_ps(_mm512_mul_ps(keep, uzi), _mm512_mul_ps(_mm512_add_ps(fz, _mm512_mul_ps(m, _mm512_set1_ps(k.gravity[2]))), w));
-    store_own16(k.xn + 4 * base, _mm512_add_ps(xi, ex), _mm512_add_ps(yi, ey), _mm512_add_ps(zi, ez));
-    store_own16(k.un + 4 * base, ex, ey, ez);
+    store_own16(k.xn + state_stride * base, _mm512_add_ps(xi, ex), _mm512_add_ps(yi, ey), _mm512_add_ps(zi, ez));
+    store_own16(k.un + state_stride * base, ex, ey, ez);
     __m512 d2 = _mm512_add_ps(_mm512_mul_ps(ex, ex), _mm512_mul_ps(ey, ey));
     d2 = _mm512_add_ps(d2, _mm512_mul_ps(ez, ez));
     return _mm512_cmp_ps_mask(d2, _mm512_set1_ps(k.max_displacement2), _CMP_NLE_UQ) != 0;
@@ -670,7 +683,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     }
 
     // Per-particle arrays.
-    for (auto& b : buffer_) b.assign(4 * n_pad_, Real(0));
+    for (auto& b : state_) b.assign(state_stride * n_pad_ + 64 / sizeof(Real), Real(0));  // room to align the start
     rest_.assign(4 * n_pad_, Real(0));
     mass_.assign(n_pad_, Real(1));
     inverse_mass_h2_.assign(n_pad_, Real(0));
@@ -789,10 +802,16 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         dt = options_.safety_factor * damped_critical_dt_ms();
         if (!std::isfinite(dt) || !(dt > 0)) throw InputError("solver: dt_ms must be given for a network without a finite critical step");
     }
-    current_ = buffer_[0].data();
-    next_ = buffer_[1].data();
-    motion_ = buffer_[2].data();
-    next_motion_ = buffer_[3].data();
+    // 64-byte aligned, so that no particle's 32 bytes straddle two cache lines.
+    auto aligned = [&](std::vector<Real>& b) {
+        void* start = b.data();
+        std::size_t space = b.size() * sizeof(Real);
+        return static_cast<Real*>(std::align(64, state_stride * n_pad_ * sizeof(Real), start, space));
+    };
+    current_ = aligned(state_[0]);
+    next_ = aligned(state_[1]);
+    motion_ = current_ + 4;
+    next_motion_ = next_ + 4;
     h_ = 0.0;
     set_time_step(dt);
     reset();
@@ -823,7 +842,8 @@ void BasicSolver<Real>::set_time_step(double dt_ms) {
     if (old_h > 0 && old_h != h_) {
         // Keep velocities: the Verlet state stores displacement per substep, u = v·h.
         const Real ratio = Real(h_ / old_h);
-        for (std::size_t i = 0; i < 4 * n_pad_; ++i) motion_[i] = motion_[i] * ratio;
+        for (std::size_t i = 0; i < n_pad_; ++i)
+            for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = motion_[state_stride * i + std::size_t(c)] * ratio;
         snapshot();
     }
 }
@@ -846,17 +866,18 @@ void BasicSolver<Real>::reset() {
 
 template <class Real>
 void BasicSolver<Real>::reset_tissue() {
-    std::copy(rest_.begin(), rest_.end(), current_);
-    std::copy(rest_.begin(), rest_.end(), next_);
-    std::fill(motion_, motion_ + 4 * n_pad_, Real(0));
-    std::fill(next_motion_, next_motion_ + 4 * n_pad_, Real(0));
+    for (std::size_t i = 0; i < n_pad_; ++i)
+        for (std::size_t c = 0; c < 4; ++c) {
+            current_[state_stride * i + c] = next_[state_stride * i + c] = rest_[4 * i + c];
+            motion_[state_stride * i + c] = next_motion_[state_stride * i + c] = Real(0);
+        }
     // At rest the springs and supports balance the gravity the rest state was built for
     // (`balanced_gravity`; zero for an unbalanced rest state, where they exert nothing): the rest
     // acceleration is g − g_balanced, and u₀ = x₀ − x₋₁ = −½·a·h² starts the motion at second order.
     const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
     for (std::size_t i = 0; i < n_pad_; ++i)
         if (movable_[i])
-            for (int c = 0; c < 3; ++c) motion_[4 * i + std::size_t(c)] = Real(-0.5 * rest_acceleration[c] * h_ * h_);
+            for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = Real(-0.5 * rest_acceleration[c] * h_ * h_);
     for (int hand = 0; hand < hands; ++hand) release(hand);
     for (auto& list : touched_) list.clear();
     good_energy_ = 0.0;
@@ -872,8 +893,8 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
     for (std::size_t i = 0; i < n_; ++i) {
         const Eigen::Vector3d v = movable_[i] ? velocities[i] : Eigen::Vector3d::Zero();
         for (int c = 0; c < 3; ++c) {
-            current_[4 * i + std::size_t(c)] = Real(positions[i][c]);
-            motion_[4 * i + std::size_t(c)] = Real(v[c] * h_);
+            current_[state_stride * i + std::size_t(c)] = Real(positions[i][c]);
+            motion_[state_stride * i + std::size_t(c)] = Real(v[c] * h_);
         }
     }
     // Taylor start: u₀ = x₀ − x₋₁ = v·h − ½·a·h², a = (f + m·g)/m − γ·v (Verlet is then second order
@@ -887,7 +908,7 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
     }
     for (std::size_t i = 0; i < n_; ++i) {
         const Eigen::Vector3d v = movable_[i] ? velocities[i] : Eigen::Vector3d::Zero();
-        for (int c = 0; c < 3; ++c) motion_[4 * i + std::size_t(c)] = Real(v[c] * h_ - half_step[i][c]);
+        for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = Real(v[c] * h_ - half_step[i][c]);
     }
     for (auto& list : touched_) list.clear();
     good_energy_ = compute_energy(false).total();
@@ -897,16 +918,21 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
 
 template <class Real>
 void BasicSolver<Real>::snapshot() {
-    good_current_.assign(current_, current_ + 4 * n_pad_);
+    good_current_.resize(4 * n_pad_);
+    for (std::size_t i = 0; i < n_pad_; ++i)
+        for (std::size_t c = 0; c < 4; ++c) good_current_[4 * i + c] = current_[state_stride * i + c];
     good_time_ms_ = time_ms_;
     consecutive_restores_ = 0;
 }
 
 template <class Real>
 void BasicSolver<Real>::restore() {
-    std::copy(good_current_.begin(), good_current_.end(), current_);
     // At rest: replaying the motion that led to the failure would lead to it again.
-    std::fill(motion_, motion_ + 4 * n_pad_, Real(0));
+    for (std::size_t i = 0; i < n_pad_; ++i)
+        for (std::size_t c = 0; c < 4; ++c) {
+            current_[state_stride * i + c] = good_current_[4 * i + c];
+            motion_[state_stride * i + c] = Real(0);
+        }
     time_ms_ = good_time_ms_;
     for (auto& list : touched_) list.clear();
     substeps_since_check_ = 0;
@@ -922,7 +948,7 @@ Real BasicSolver<Real>::strain_at(std::size_t i, const Real* x, const Real* posi
         const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
         const std::size_t j = std::size_t(neighbour_[t]);
         if (j == i) continue;
-        const Real* xj = positions + 4 * j;
+        const Real* xj = positions + state_stride * j;
         const Real dx = x[0] - xj[0], dy = x[1] - xj[1], dz = x[2] - xj[2];
         worst = std::max(worst, std::abs(std::sqrt(dx * dx + dy * dy + dz * dz) / rest_length_[t] - Real(1)));
     }
@@ -970,7 +996,7 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
     const Eigen::Matrix3d tool_from_world = state.pose.orientation.toRotationMatrix().transpose();
     for (std::size_t i = 0; i < n_; ++i) {
         if (!movable_[i] || held_by_[i] >= 0) continue;
-        const Eigen::Vector3d x(static_cast<double>(current_[4 * i]), double(current_[4 * i + 1]), double(current_[4 * i + 2]));
+        const Eigen::Vector3d x(static_cast<double>(current_[state_stride * i]), double(current_[state_stride * i + 1]), double(current_[state_stride * i + 2]));
         const Eigen::Vector3d local = tool_from_world * (x - state.pose.position);
         if (local.cwiseQuotient(state.instrument.semi_axes).squaredNorm() > 1.0) continue;
         state.held.push_back(std::int32_t(i));
@@ -1058,7 +1084,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     // fling particles out at penetration/h. Only this particle's next position and motion change
     // (nothing else reads them during the substep).
     auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched) {
-        Real* x = next_ + 4 * i;
+        Real* x = next_ + state_stride * i;
         const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
         Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
         const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
@@ -1077,11 +1103,11 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         }
         const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
         const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
-        const Real* xc = current_ + 4 * i;
+        const Real* xc = current_ + state_stride * i;
         Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));
         u += std::max(0.0, (surface_motion - u).dot(normal)) * normal;
         touched.push_back(std::int32_t(i));
-        Real* motion = next_motion_ + 4 * i;
+        Real* motion = next_motion_ + state_stride * i;
         for (int c = 0; c < 3; ++c) motion[c] = Real(u[c]);
     };
 
@@ -1102,14 +1128,14 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
                     // 16 particles per test where the avx512 kernel runs (same operations as below).
                     if (load_report_.kernel == SolverKernel::avx512)
                         for (; i + 16 <= last * lane_count; i += 16)
-                            for (unsigned mask = near_probe16(next_ + 4 * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
+                            for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
                                 const std::size_t q = i + std::size_t(__builtin_ctz(mask));
                                 if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched);
                             }
                 }
 #endif
                 for (; i < end; ++i) {
-                    const Real* x = next_ + 4 * i;
+                    const Real* x = next_ + state_stride * i;
                     const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
                     if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched);
                 }
@@ -1138,7 +1164,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
             rotation[std::size_t(hand)] = poses[hand].orientation.toRotationMatrix();
             for (std::size_t q = 0; q < state.held.size(); ++q) {
                 const Eigen::Vector3d world = world_of(hand, q);
-                Real* x = next_ + 4 * std::size_t(state.held[q]);
+                Real* x = next_ + state_stride * std::size_t(state.held[q]);
                 for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
             }
         }
@@ -1146,7 +1172,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         if (options_.grab_slip_strain > 0)
             for (int hand = 0; hand < hands; ++hand)
                 for (const std::int32_t i : hand_[std::size_t(hand)].held)
-                    if (double(strain_at(std::size_t(i), next_ + 4 * std::size_t(i), next_)) > options_.grab_slip_strain)
+                    if (double(strain_at(std::size_t(i), next_ + state_stride * std::size_t(i), next_)) > options_.grab_slip_strain)
                         held_by_[std::size_t(i)] = slipping;
         for (int hand = 0; hand < hands; ++hand) {
             HandState& state = hand_[std::size_t(hand)];
@@ -1154,16 +1180,16 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
             std::size_t kept = 0;
             for (std::size_t q = 0; q < state.held.size(); ++q) {
                 const std::size_t i = std::size_t(state.held[q]);
-                Real* x = next_ + 4 * i;
-                Real* motion = next_motion_ + 4 * i;
+                Real* x = next_ + state_stride * i;
+                Real* motion = next_motion_ + state_stride * i;
                 if (held_by_[i] == slipping) {
-                    for (int c = 0; c < 3; ++c) x[c] = current_[4 * i + std::size_t(c)] + motion[c];
+                    for (int c = 0; c < 3; ++c) x[c] = current_[state_stride * i + std::size_t(c)] + motion[c];
                     held_by_[i] = -1;
                     ++slipped_;
                     continue;
                 }
                 const Eigen::Vector3d world = world_of(hand, q);
-                for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[4 * i + std::size_t(c)]));
+                for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[state_stride * i + std::size_t(c)]));
                 state.held[kept] = state.held[q];
                 state.held_local[kept] = state.held_local[q];
                 ++kept;
@@ -1218,7 +1244,7 @@ StepReport BasicSolver<Real>::step(int steps) {
         ++report.substeps;
         if (bad && options_.watchdog) {
             bool finite = true;
-            for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]);
+            for (std::size_t i = 0; i < state_stride * n_ && finite; ++i) finite = std::isfinite(current_[i]);  // positions and motions
             fire(finite ? WatchdogReason::speed : WatchdogReason::non_finite,
                  finite ? ", a particle moved more than " + std::to_string(options_.max_displacement_fraction) +
                               " of the shortest rest length in one substep"
@@ -1250,7 +1276,7 @@ StepReport BasicSolver<Real>::step(int steps) {
     if (!options_.watchdog) {
         // Even unguarded, nothing non-finite leaves the solver.
         bool finite = true;
-        for (std::size_t i = 0; i < 4 * n_ && finite; ++i) finite = std::isfinite(current_[i]) && std::isfinite(motion_[i]);
+        for (std::size_t i = 0; i < state_stride * n_ && finite; ++i) finite = std::isfinite(current_[i]);  // positions and motions
         if (!finite) fire(WatchdogReason::non_finite, "");
     }
     for (auto& state : hand_) state.pose = state.target;
@@ -1260,14 +1286,14 @@ StepReport BasicSolver<Real>::step(int steps) {
 template <class Real>
 Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
-    const Real* xi = current_ + 4 * i;
-    const Real* ui = motion_ + 4 * i;
+    const Real* xi = current_ + state_stride * i;
+    const Real* ui = motion_ + state_stride * i;
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
         const std::size_t j = std::size_t(neighbour_[t]);
         if (j == i) continue;
-        const Real* xj = current_ + 4 * j;
-        const Real* uj = motion_ + 4 * j;
+        const Real* xj = current_ + state_stride * j;
+        const Real* uj = motion_ + state_stride * j;
         const Eigen::Vector3d d(double(xj[0]) - xi[0], double(xj[1]) - xi[1], double(xj[2]) - xi[2]);
         const double length = std::max(d.norm(), 1e-15);
         double scale = double(stiffness_[t]) * (length - double(rest_length_[t])) / length;
@@ -1317,7 +1343,7 @@ Eigen::Vector3d BasicSolver<Real>::support_force() const {
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
     if (!supported_) return force;
     for (std::size_t i = 0; i < n_; ++i) {
-        const Real* x = current_ + 4 * i;
+        const Real* x = current_ + state_stride * i;
         const Real* y = support_point_.data() + 4 * i;
         force += double(support_stiffness_[i]) * Eigen::Vector3d(double(y[0]) - x[0], double(y[1]) - x[1], double(y[2]) - x[2]);
     }
@@ -1334,13 +1360,13 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
             double kinetic = 0, elastic = 0, gravity = 0, strain = 0;
             const std::size_t end = std::min(n_, (chunk + 1) * chunk_groups * lane_count);
             for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
-                const Real* x = current_ + 4 * i;
+                const Real* x = current_ + state_stride * i;
                 for (int s = 0; s < slot_count; ++s) {
                     // Each spring once, from its end of lower index (it is in both ends' tables; an
                     // empty slot points at the particle itself).
                     const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
                     if (std::size_t(neighbour_[t]) <= i) continue;
-                    const Real* y = current_ + 4 * std::size_t(neighbour_[t]);
+                    const Real* y = current_ + state_stride * std::size_t(neighbour_[t]);
                     const double length = std::sqrt(std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) +
                                                     std::pow(double(y[2]) - x[2], 2));
                     elastic += 0.5 * double(stiffness_[t]) * std::pow(length - double(rest_length_[t]), 2);
@@ -1353,7 +1379,7 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                                (std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) + std::pow(double(y[2]) - x[2], 2));
                 }
                 const double m = double(mass_[i]);
-                Eigen::Vector3d u(static_cast<double>(motion_[4 * i]), static_cast<double>(motion_[4 * i + 1]), static_cast<double>(motion_[4 * i + 2]));
+                Eigen::Vector3d u(static_cast<double>(motion_[state_stride * i]), static_cast<double>(motion_[state_stride * i + 1]), static_cast<double>(motion_[state_stride * i + 2]));
                 if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / m));
                 kinetic += 0.5 * m * u.squaredNorm() / (h * h);
                 const Eigen::Vector3d displacement(static_cast<double>(x[0]) - rest_[4 * i], static_cast<double>(x[1]) - rest_[4 * i + 1], static_cast<double>(x[2]) - rest_[4 * i + 2]);
@@ -1375,23 +1401,27 @@ SolverEnergy BasicSolver<Real>::energy() const {
 template <class Real>
 Eigen::Vector3d BasicSolver<Real>::position(std::size_t particle) const {
     if (particle >= n_) throw InputError("solver: particle index out of range");
-    const Real* x = current_ + 4 * particle;
+    const Real* x = current_ + state_stride * particle;
     return {static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2])};
 }
 
 template <class Real>
 std::vector<std::array<float, 3>> BasicSolver<Real>::positions() const {
     std::vector<std::array<float, 3>> out(n_);
-    for (std::size_t i = 0; i < n_; ++i) out[i] = {float(current_[4 * i]), float(current_[4 * i + 1]), float(current_[4 * i + 2])};
+    for (std::size_t i = 0; i < n_; ++i) out[i] = {float(current_[state_stride * i]), float(current_[state_stride * i + 1]), float(current_[state_stride * i + 2])};
     return out;
 }
 
 template <class Real>
 std::uint64_t BasicSolver<Real>::state_hash() const {
     std::uint64_t hash = 1469598103934665603ull;
+    // Every position's 4 values in order, then every motion's: the same bytes in the same order
+    // as when each had a buffer of its own, so recorded hashes still match.
     auto mix = [&](const Real* data) {
-        const auto* bytes = reinterpret_cast<const unsigned char*>(data);
-        for (std::size_t b = 0; b < 4 * n_pad_ * sizeof(Real); ++b) hash = (hash ^ bytes[b]) * 1099511628211ull;
+        for (std::size_t i = 0; i < n_pad_; ++i) {
+            const auto* bytes = reinterpret_cast<const unsigned char*>(data + state_stride * i);
+            for (std::size_t b = 0; b < 4 * sizeof(Real); ++b) hash = (hash ^ bytes[b]) * 1099511628211ull;
+        }
     };
     mix(current_);
     mix(motion_);

@@ -182,6 +182,7 @@ struct SolverLoadReport {
 template <class Real>
 class BasicSolver {
 public:
+    using Scalar = Real;  ///< float for Solver, double for ReferenceSolver
     static constexpr int hands = 2;
     static constexpr int slots = 18;
     static constexpr int lanes = 8;  ///< particles per group in the slot tables (docs/solver.md)
@@ -260,9 +261,6 @@ public:
     Eigen::Vector3d position(std::size_t particle) const;
     /// Current positions, N×3 float32 in packed order, mm.
     std::vector<std::array<float, 3>> positions() const;
-    /// The position buffer as the GPU holds it: 4 Real per particle (x, y, z, 0), padded to a
-    /// multiple of `lanes` particles. Valid until the next step().
-    const Real* position_texture() const { return current_; }
     /// FNV-1a over the bits of the current positions and motions: equal states, equal hashes.
     std::uint64_t state_hash() const;
 
@@ -306,11 +304,13 @@ private:
     double damped_critical_dt_ms_ = 0.0;  ///< given, or from λ_max of M^(−1/2) C M^(−1/2) (stability.h)
     bool damped_ = false;
 
-    // Per particle (n_pad_), float4 each: positions and the motion of the last substep
-    // (u = x_n − x_{n−1} = v·h), each in two buffers that swap after a substep; rest positions.
-    // Keeping u apart from x keeps the velocity exact to float rounding of u itself, not of the
-    // absolute coordinates (docs/solver.md "Precision").
-    std::vector<Real> buffer_[4];
+    // Per particle (n_pad_): the position (x, y, z, 0) and, beside it, the motion of the last
+    // substep (u = x_n − x_{n−1} = v·h, x, y, z, 0), 8 values at a 64-byte aligned start, in two
+    // buffers that swap after a substep; current_ and next_ point at the positions, motion_ and
+    // next_motion_ four values on (the same stride). Keeping u apart from x keeps the velocity
+    // exact to float rounding of u itself, not of the absolute coordinates (docs/solver.md
+    // "Precision").
+    std::vector<Real> state_[2];
     Real* current_ = nullptr;
     Real* next_ = nullptr;
     Real* motion_ = nullptr;

@@ -157,7 +157,7 @@ TEST(Solver, MomentumIsConservedToRoundOffWithoutAnchorsOrGravity) {
         double largest = 0, mass = 0;
         for (std::size_t i = 0; i < v.size(); ++i) largest = std::max(largest, solver.position(i).cwiseAbs().maxCoeff());
         for (float m : model.lattice.particles.mass) mass += m;
-        using Real = std::remove_cvref_t<decltype(*solver.position_texture())>;
+        using Real = typename std::remove_cvref_t<decltype(solver)>::Scalar;
         const double bound = steps * mass * 0.5 * largest * std::numeric_limits<Real>::epsilon() / solver.substep_ms();
         EXPECT_LT((final - initial).norm(), tolerance * bound) << initial.transpose() << " -> " << final.transpose() << " |P| scale " << scale;
     };
