@@ -568,7 +568,9 @@ bool holds_non_finite_number(const std::string& value) {
 /// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
 /// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
 /// name (MetaIO's: the text before '=' or ':') and value under 255 characters, and NDims from 1 to 4.
-void check_metaimage_header_before_itk(const fs::path& path) {
+/// Returns whether the header gives the voxel size (ElementSpacing or ElementSize).
+bool check_metaimage_header_before_itk(const fs::path& path) {
+    bool spacing_given = false;
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot open for reading");
     std::string line;
@@ -621,18 +623,21 @@ void check_metaimage_header_before_itk(const fs::path& path) {
              name == "TransformMatrix" || name == "Orientation" || name == "Rotation") &&
             holds_non_finite_number(value))
             throw InputError(path.string() + ": MetaImage " + name + " is '" + value.substr(0, 60) + "'; expected finite numbers");
+        if (name == "ElementSpacing" || name == "ElementSize") spacing_given = true;
         if (name == "ElementDataFile") {  // the header's last field; voxel data may follow
             refuse_multi_file_data(path, "MetaImage ElementDataFile", value);
             break;
         }
     }
+    return spacing_given;
 }
 
 /// A NRRD header checked before ITK reads it: NrrdIO formats its complaints about a line into a
 /// 1025-byte stack buffer with the line in it, so a 1012-character `type:` line smashed its stack
 /// (fuzz_volume_nrrd's 10-minute run: glibc's stack protector aborted); field lines (comments
-/// aside) are held to 500 characters. And its data file (refuse_multi_file_data).
-void check_nrrd_header_before_itk(const fs::path& path) {
+/// aside) are held to 500 characters. And its data file (refuse_multi_file_data). Returns whether
+/// the header gives the voxel size ('spacings' or 'space directions').
+bool check_nrrd_header_before_itk(const fs::path& path) {
     {
         std::ifstream in(path, std::ios::binary);
         std::string line;
@@ -650,6 +655,7 @@ void check_nrrd_header_before_itk(const fs::path& path) {
             throw InputError(path.string() + ": NRRD field '" + field + "' is '" + value.substr(0, 60) + "'; expected finite numbers");
     const std::string data_file = field_or(header, "data file", field_or(header, "datafile", ""));
     if (!data_file.empty()) refuse_multi_file_data(path, "NRRD data file", data_file);
+    return !field_or(header, "spacings", "").empty() || !field_or(header, "space directions", "").empty();
 }
 
 Probe probe_volume(const fs::path& path) {
@@ -663,8 +669,9 @@ Probe probe_volume(const fs::path& path) {
     // A FIFO or a device would block or never end: only regular files are read.
     if (!fs::is_regular_file(path, error)) throw InputError(path.string() + ": not a regular file; expected a volume file");
     if (!std::ifstream(path, std::ios::binary)) throw InputError(path.string() + ": cannot open for reading");
-    if (extension == ".mha" || extension == ".mhd") check_metaimage_header_before_itk(path);
-    if (extension == ".nrrd" || extension == ".seg.nrrd") check_nrrd_header_before_itk(path);
+    bool spacing_given = true;  // a NIfTI header always holds pixdim
+    if (extension == ".mha" || extension == ".mhd") spacing_given = check_metaimage_header_before_itk(path);
+    if (extension == ".nrrd" || extension == ".seg.nrrd") spacing_given = check_nrrd_header_before_itk(path);
 
     register_io_factories();
     Probe probe;
@@ -691,6 +698,12 @@ Probe probe_volume(const fs::path& path) {
     }
 
     VolumeHeader& header = probe.header;
+    // Both formats then default to 1 mm voxels, which for an MRI is often wrong by half or more:
+    // the lattice and every length in the scenario would be off by that factor.
+    if (!spacing_given)
+        header.warnings.push_back(path.string() + ": the " + header.format + " header gives no voxel size (" +
+                                  (meta ? "ElementSpacing" : "spacings or space directions") +
+                                  "): 1 mm voxels assumed, the format's default; if the scan's voxels are not 1 mm, add the field");
     // ITK's size queries throw through a noexcept function (std::terminate) on an unknown element
     // type (fuzz_volume_mha: "ElementType = MET_" followed by zeros).
     if (probe.io->GetComponentType() == itk::IOComponentEnum::UNKNOWNCOMPONENTTYPE)

@@ -575,6 +575,39 @@ TEST(VolumeReadErrors, NanSpacingNrrdAndMetaImage) {
     expect_error<InputError>([&] { read_label_volume(folder / "nan.mha"); }, {"nan.mha", "MetaImage ElementSpacing is 'nan 1 1'", "finite"});
 }
 
+TEST(VolumeHeaderWarnings, AMetaImageOrNrrdWithoutAVoxelSizeReadsAsOneMillimetreAndSaysSo) {
+    // Both formats default to 1 mm voxels: the file reads, with ITK's 1 mm, and one warning names
+    // the file and the field to add. With the field there is no warning.
+    TempDir folder;
+    auto mha = [&](const std::string& name, const std::string& spacing_line) {
+        std::vector<unsigned char> bytes;
+        append_text(bytes, "ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n" + spacing_line +
+                               "DimSize = 2 2 2\nElementType = MET_UCHAR\nElementDataFile = LOCAL\n");
+        bytes.resize(bytes.size() + 8, 1);
+        write_bytes(folder / name, bytes);
+        return read_volume_header(folder / name);
+    };
+    auto nrrd = [&](const std::string& name, const std::string& spacing_line) {
+        std::vector<unsigned char> bytes;
+        append_text(bytes, "NRRD0004\ntype: unsigned char\ndimension: 3\nsizes: 2 2 2\n" + spacing_line + "encoding: raw\n\n");
+        bytes.resize(bytes.size() + 8, 1);
+        write_bytes(folder / name, bytes);
+        return read_volume_header(folder / name);
+    };
+    for (const VolumeHeader& header : {mha("bare.mha", ""), nrrd("bare.nrrd", "")}) {
+        for (int a = 0; a < 3; ++a) EXPECT_EQ(header.geometry.spacing[std::size_t(a)], 1.0) << header.format;
+        ASSERT_EQ(header.warnings.size(), 1u) << header.format;
+        EXPECT_NE(header.warnings.front().find("gives no voxel size"), std::string::npos) << header.warnings.front();
+        EXPECT_NE(header.warnings.front().find(header.format == "NRRD" ? "bare.nrrd" : "bare.mha"), std::string::npos) << header.warnings.front();
+        EXPECT_NE(header.warnings.front().find("1 mm voxels assumed"), std::string::npos) << header.warnings.front();
+    }
+    for (const VolumeHeader& header : {mha("spaced.mha", "ElementSpacing = 0.9 0.9 0.9\n"), nrrd("spaced.nrrd", "spacings: 0.9 0.9 0.9\n"),
+                                       nrrd("directed.nrrd", "space: left-posterior-superior\nspace directions: (0.9,0,0) (0,0.9,0) (0,0,0.9)\n")}) {
+        EXPECT_TRUE(header.warnings.empty()) << header.warnings.front();
+        EXPECT_NEAR(header.geometry.spacing[0], 0.9, 1e-6) << header.format;
+    }
+}
+
 TEST(VolumeReadErrors, NegativeSpacingMetaImage) {
     // MetaIO reports the -2 as written; ITK's reader would quietly make it +2.
     std::vector<unsigned char> bytes;
