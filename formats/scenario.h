@@ -45,7 +45,7 @@ struct ScenarioSource {
 /// scenario's choices; SolverOptions' other fields (kernel, watchdog, damping_ratio: from the
 /// materials) keep their defaults when read. Units: ms, mm/ms².
 struct SolverSettings : SolverOptions {
-    int substeps = 1;                 ///< steps per runtime frame update
+    int substeps = 1;                 ///< written as 1; not used by heartsim (docs/scenario-format.md)
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
 };
 

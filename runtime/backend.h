@@ -6,7 +6,7 @@
 ///     auto backend = make_backend(BackendKind::gl, scenario, options_from(scenario.solver), &gl);
 ///     backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = {2, 2, 6}});
 ///     backend->set_pose(0, pose);
-///     backend->step(scenario.solver.substeps);
+///     backend->step(1);                                 // one step of dt_ms (its substeps inside)
 ///     backend->request_forces();                       // asynchronous, both hands
 ///     if (auto f = backend->latest_forces()) use(*f);  // never waits
 #pragma once

@@ -3,6 +3,7 @@
 #include "formats/volume_io.h"
 #include "libmodel/lattice.h"
 #include "libmodel/phantom.h"
+#include "libmodel/solver.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -91,6 +92,13 @@ TEST(Heartprep, BuildsThePhantomIntoAScenarioWhoseReportMatchesTheFile) {
     const auto inspect = heartprep("inspect --json " + quoted(dir / "p.h5"));
     ASSERT_EQ(inspect.exit_code, 0) << inspect.output;
     EXPECT_NE(inspect.output.find("\"particles\": " + std::to_string(s.lattice.particles.size())), std::string::npos);
+    // The text says how many substeps heartsim's solver takes per step of dt: the solver's own count.
+    ASSERT_TRUE(s.packing.has_value());
+    const Solver solver(s.lattice, s.packing->neighbours, s.solver);
+    const int substeps = solver.load_report().substeps;
+    const auto text = heartprep("inspect " + quoted(dir / "p.h5"));
+    EXPECT_NE(text.output.find(std::to_string(substeps) + (substeps == 1 ? " substep," : " substeps,")), std::string::npos)
+        << "the solver takes " << substeps << "\n" << text.output;
 }
 
 TEST(Heartprep, H5dumpShowsTheContractNames) {

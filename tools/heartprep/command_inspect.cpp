@@ -230,10 +230,17 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
         std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
                     mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,
                     spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing), mat.damping_ratio);
-    std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms, damped %s ms), %d substep(s), drag %.3g /ms, "
+    // The substeps heartsim takes per step of dt: the fewest within safety_factor × the damped
+    // critical step (libmodel/solver.cpp set_time_step). /solver substeps is not that number.
+    std::string substeps = "substeps as the stable step needs";
+    if (const double limit = s.solver.safety_factor * s.solver.damped_critical_dt_ms; limit > 0 && s.solver.dt_ms > 0) {
+        const double needed = std::max(1.0, std::ceil(s.solver.dt_ms / limit * (1 - 1e-12)));
+        substeps = needed <= 1e9 ? std::to_string(std::llround(needed)) + (needed == 1 ? " substep" : " substeps") : "too many substeps";
+    }
+    std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms, damped %s ms), %s, drag %.3g /ms, "
                 "gravity (%.3g, %.3g, %.3g) mm/ms²\n",
                 s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms,
-                s.solver.damped_critical_dt_ms > 0 ? std::to_string(s.solver.damped_critical_dt_ms).c_str() : "not stored", s.solver.substeps,
+                s.solver.damped_critical_dt_ms > 0 ? std::to_string(s.solver.damped_critical_dt_ms).c_str() : "not stored", substeps.c_str(),
                 s.solver.damping,
                 s.solver.gravity.x(), s.solver.gravity.y(), s.solver.gravity.z());
     std::printf("holding     %zu anchored; %zu particles on supports, %.3g N/mm in all; %zu piece(s), %zu held by nothing\n", m.anchored,
