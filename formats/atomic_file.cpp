@@ -72,6 +72,13 @@ void check_destination(const std::filesystem::path& path) {
         throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
     }
     if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
+    // access() says yes to root almost everywhere (/proc, /sys); only creating a file there shows
+    // that the folder takes one, before a run or a build that would end unable to save.
+    const auto trial = temporary_beside(path);
+    const int fd = ::open(trial.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    if (fd < 0) throw OutputError(path.string() + ": cannot create a file in folder " + folder.string() + ": " + std::strerror(errno));
+    ::close(fd);
+    ::unlink(trial.c_str());
 }
 
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {

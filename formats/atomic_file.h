@@ -23,7 +23,8 @@ void sweep_stale_temporaries(const std::filesystem::path& path);
 
 /// Throws OutputError naming `path` unless a file can be written there: `path` is a folder, a
 /// part of its folder path is a file ("out.txt/scenario.h5"), its folder does not exist, or the
-/// folder is not writable. write_file_atomically checks this first; commands that work for a long
+/// folder is not writable or takes no new file (tried with a temporary file, removed at once:
+/// /proc passes root's access check). write_file_atomically checks this first; commands that work for a long
 /// time before writing check their outputs with it before they start.
 void check_destination(const std::filesystem::path& path);
 

@@ -431,6 +431,25 @@ TEST(Scenario, TheSuperblockChecksumMatchesTheOneHdf5WritesItself) {
     EXPECT_EQ(bytes, good);
 }
 
+TEST(AtomicFile, AFolderThatTakesNoFileIsRefusedBeforeTheWorkAndATrialLeavesNothing) {
+    // /proc takes no new file, and root's access(W_OK) says yes there: check_destination must
+    // find out by trying, so a run or build that would end unable to save is refused first.
+    if (!std::filesystem::is_directory("/proc")) GTEST_SKIP() << "no /proc on this machine";
+    try {
+        check_destination("/proc/heartsim-check.h5");
+        ADD_FAILURE() << "/proc/heartsim-check.h5 was accepted as a destination";
+    } catch (const OutputError& e) {
+        const std::string message = e.what();
+        EXPECT_NE(message.find("/proc/heartsim-check.h5: "), std::string::npos) << message;
+        EXPECT_TRUE(message.find("cannot create a file in folder /proc") != std::string::npos || message.find("not writable") != std::string::npos)
+            << message;
+    }
+    // Where a file can go, the trial file is gone again and the destination not yet made.
+    test::TempDir dir;
+    check_destination(dir / "out.h5");
+    EXPECT_TRUE(std::filesystem::is_empty(dir.path())) << "check_destination left a file behind";
+}
+
 TEST(AtomicFile, TemporariesOfKilledWritersAreSweptOnTheNextWrite) {
     // A writer killed mid-write leaves its temporary (a file, or a MetaImage staging folder).
     // The next write of the same file removes those whose process is gone, and only those.
