@@ -74,9 +74,14 @@ void check_destination(const std::filesystem::path& path) {
     if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
     // access() says yes to root almost everywhere (/proc, /sys); only creating a file there shows
     // that the folder takes one, before a run or a build that would end unable to save.
-    const auto trial = temporary_beside(path);
+    // A short name of its own, so that a long destination name is not blamed on the folder.
+    static std::atomic<unsigned> trials{0};
+    const auto trial = folder / (".heartsim-trial-" + std::to_string(::getpid()) + "-" + std::to_string(trials++));
     const int fd = ::open(trial.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-    if (fd < 0) throw OutputError(path.string() + ": cannot create a file in folder " + folder.string() + ": " + std::strerror(errno));
+    if (fd < 0) {
+        const std::string reason = std::strerror(errno);
+        throw OutputError(path.string() + ": cannot create a file in folder " + folder.string() + ": " + reason);
+    }
     ::close(fd);
     ::unlink(trial.c_str());
 }

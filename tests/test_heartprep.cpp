@@ -99,6 +99,7 @@ TEST(Heartprep, BuildsThePhantomIntoAScenarioWhoseReportMatchesTheFile) {
     const auto text = heartprep("inspect " + quoted(dir / "p.h5"));
     EXPECT_NE(text.output.find(std::to_string(substeps) + (substeps == 1 ? " substep," : " substeps,")), std::string::npos)
         << "the solver takes " << substeps << "\n" << text.output;
+    EXPECT_NE(inspect.output.find("\"substeps\": " + std::to_string(substeps)), std::string::npos) << inspect.output;
 }
 
 TEST(Heartprep, H5dumpShowsTheContractNames) {

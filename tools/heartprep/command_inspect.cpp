@@ -3,6 +3,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/mapping.h"
+#include "libmodel/solver.h"
 #include "libmodel/supports.h"
 
 #include <CLI/CLI.hpp>
@@ -14,6 +15,7 @@
 #include <cstdio>
 #include <limits>
 #include <memory>
+#include <optional>
 
 namespace heartsim::cli {
 
@@ -127,6 +129,26 @@ Summary summarise(const Scenario& s) {
     return summary;
 }
 
+/// The substeps heartsim's solver takes per step of dt (libmodel/solver.cpp set_time_step): the
+/// fewest within safety_factor × the damped critical step, that step no longer than the critical
+/// one. Nothing when the file stores no damped step (the solver estimates it at load), and more
+/// than Solver::max_substeps where heartsim refuses the step. /solver substeps is not this number.
+std::optional<long long> runtime_substeps(const SolverSettings& solver) {
+    const double damped = std::min(solver.damped_critical_dt_ms, solver.critical_dt_ms);
+    const double limit = solver.safety_factor * damped;
+    if (!(solver.damped_critical_dt_ms > 0) || !(limit > 0) || !std::isfinite(limit) || !(solver.dt_ms > 0)) return std::nullopt;
+    const double needed = std::max(1.0, std::ceil(solver.dt_ms / limit * (1 - 1e-12)));
+    return needed <= double(Solver::max_substeps) ? std::llround(needed) : Solver::max_substeps + 1LL;
+}
+
+std::string substeps_text(const SolverSettings& solver) {
+    const auto n = runtime_substeps(solver);
+    if (!n) return "substeps as the stable step needs";
+    if (*n > Solver::max_substeps)
+        return "a step heartsim refuses (over " + std::to_string(Solver::max_substeps) + " substeps of the stable step)";
+    return std::to_string(*n) + (*n == 1 ? " substep" : " substeps");
+}
+
 void print_json(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
     using json = nlohmann::ordered_json;
     auto vector = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
@@ -170,7 +192,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                              {"damping_ratio", mat.damping_ratio}});
     o["materials"] = std::move(materials);
     o["solver"] = {{"dt_ms", s.solver.dt_ms},
-                   {"substeps", s.solver.substeps},
+                   {"substeps", runtime_substeps(s.solver) ? nlohmann::json(*runtime_substeps(s.solver)) : nlohmann::json()},
                    {"damping", s.solver.damping},
                    {"gravity", vector(s.solver.gravity)},
                    {"balanced_gravity", vector(s.solver.balanced_gravity)},
@@ -230,13 +252,7 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
         std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
                     mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,
                     spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing), mat.damping_ratio);
-    // The substeps heartsim takes per step of dt: the fewest within safety_factor × the damped
-    // critical step (libmodel/solver.cpp set_time_step). /solver substeps is not that number.
-    std::string substeps = "substeps as the stable step needs";
-    if (const double limit = s.solver.safety_factor * s.solver.damped_critical_dt_ms; limit > 0 && s.solver.dt_ms > 0) {
-        const double needed = std::max(1.0, std::ceil(s.solver.dt_ms / limit * (1 - 1e-12)));
-        substeps = needed <= 1e9 ? std::to_string(std::llround(needed)) + (needed == 1 ? " substep" : " substeps") : "too many substeps";
-    }
+    const std::string substeps = substeps_text(s.solver);
     std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms, damped %s ms), %s, drag %.3g /ms, "
                 "gravity (%.3g, %.3g, %.3g) mm/ms²\n",
                 s.solver.dt_ms, s.solver.critical_dt_ms, s.solver.critical_dt_bound_ms,
