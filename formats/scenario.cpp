@@ -341,6 +341,19 @@ Scenario read_contents(const h5::Reader& r) {
             if (dims[std::size_t(a)] <= 0) r.fail("/lattice", "dims must be positive");
             lattice.dims[std::size_t(a)] = dims[std::size_t(a)];
         }
+        // heartprep's lattice covers the source volume: ceil(voxels × voxel size / spacing) cells
+        // per axis (lattice.cpp axis_weights). One more is allowed for the rounding of the stored
+        // values; a larger count is damage, and readers that size a grid by it would ask for
+        // gigabytes (a 2e9 read as "out of memory").
+        for (int a = 0; a < 3; ++a) {
+            const double extent = double(s.source.geometry.dims[std::size_t(a)]) * s.source.geometry.spacing[a];
+            const double most = std::ceil(extent / lattice.spacing) + 1;
+            if (double(lattice.dims[std::size_t(a)]) > most)
+                r.fail("/lattice", "dims " + std::to_string(lattice.dims[0]) + " x " + std::to_string(lattice.dims[1]) + " x " +
+                                       std::to_string(lattice.dims[2]) + ": at most " + std::to_string(std::llround(most)) + " cells of " +
+                                       std::to_string(lattice.spacing) + " mm fit the " + std::to_string(extent) +
+                                       " mm of the source volume along axis " + std::to_string(a));
+        }
         lattice.index_to_world = read_matrix(r, "lattice", "index_to_world");
     }
     {

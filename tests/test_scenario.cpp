@@ -106,6 +106,33 @@ ChunkPlace mass_chunk(const std::filesystem::path& file) {
 
 }  // namespace
 
+TEST(Scenario, LatticeDimsBeyondTheSourceVolumeAreRefusedNamingTheAttribute) {
+    // The builder's lattice covers the source volume, ceil(extent / spacing) cells per axis; a
+    // damaged count (2e9) made readers that size a grid by it fail with "out of memory".
+    test::TempDir dir;
+    const Scenario s = sample_scenario();
+    const auto file = dir / "s.h5";
+    write_scenario(file, s);
+    for (int a = 0; a < 3; ++a) {
+        const double extent = s.source.geometry.dims[std::size_t(a)] * s.source.geometry.spacing[a];
+        EXPECT_EQ(s.lattice.dims[std::size_t(a)], int(std::ceil(extent / s.lattice.spacing - 1e-9))) << "axis " << a;
+    }
+    EXPECT_EQ(refusal(file), "");
+    const std::int32_t damaged[3] = {2000000000, s.lattice.dims[1], s.lattice.dims[2]};
+    {
+        hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        hid_t g = H5Gopen2(f, "lattice", H5P_DEFAULT);
+        hid_t attribute = H5Aopen(g, "dims", H5P_DEFAULT);
+        ASSERT_GE(H5Awrite(attribute, H5T_NATIVE_INT32, damaged), 0);
+        H5Aclose(attribute);
+        H5Gclose(g);
+        H5Fclose(f);
+    }
+    const std::string message = refusal(file);
+    for (const char* part : {"s.h5", "/lattice", "dims 2000000000 x", "at most", "source volume along axis 0"})
+        EXPECT_NE(message.find(part), std::string::npos) << part << " in: " << message;
+}
+
 TEST(Scenario, RoundTripKeepsEveryDataset) {
     test::TempDir dir;
     const Scenario s = sample_scenario();
