@@ -234,6 +234,10 @@ void read_packing_and_mapping(const h5::Reader& r, Scenario& s) {
             r.fail("/packing/texture_coord", std::string("attribute scheme: ") + e.what());
         }
         if (p.width <= 0 || p.height <= 0) r.fail("/packing/texture_coord", "width and height must be positive");
+        if (p.width > max_texture_side || p.height > max_texture_side)
+            r.fail("/packing/texture_coord", "width x height " + std::to_string(p.width) + " x " + std::to_string(p.height) +
+                                                 ": at most " + std::to_string(max_texture_side) +
+                                                 " texels a side (what heartprep packs and every GPU holds)");
         std::vector<std::uint8_t> used(std::size_t(p.width) * std::size_t(p.height), 0);
         for (std::size_t i = 0; i < n; ++i) {
             const auto [x, y] = p.texture_coord[i];

@@ -31,8 +31,6 @@ std::uint32_t morton(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
     return spread(x) | (spread(y) << 1) | (spread(z) << 2);
 }
 
-constexpr int max_texture_side = 16384;
-
 }  // namespace
 
 std::vector<std::array<std::int32_t, 18>> neighbour_table(const Lattice& lattice) {

@@ -28,6 +28,10 @@ enum class PackingScheme {
 PackingScheme parse_packing_scheme(const std::string& name);
 const char* to_string(PackingScheme scheme);
 
+/// The largest position texture side every GL 4.3 GPU supports (GL_MAX_TEXTURE_SIZE ≥ 16384):
+/// pack_particles refuses a larger layout and a scenario reader a larger /packing.
+inline constexpr int max_texture_side = 16384;
+
 /// /packing in the scenario.
 struct Packing {
     PackingScheme scheme = PackingScheme::bricks;

@@ -133,6 +133,29 @@ TEST(Scenario, LatticeDimsBeyondTheSourceVolumeAreRefusedNamingTheAttribute) {
         EXPECT_NE(message.find(part), std::string::npos) << part << " in: " << message;
 }
 
+TEST(Scenario, APositionTextureWiderThanAnyGpuHoldsIsRefusedNamingTheAttribute) {
+    // A width of 1e9 made the reader's texel check ask for gigabytes ("out of memory").
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    s.packing = pack_particles(s.lattice);
+    const auto file = dir / "s.h5";
+    write_scenario(file, s);
+    EXPECT_EQ(refusal(file), "");
+    {
+        hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        hid_t g = H5Dopen2(f, "packing/texture_coord", H5P_DEFAULT);
+        hid_t attribute = H5Aopen(g, "width", H5P_DEFAULT);
+        const std::int32_t width = 1000000000;
+        ASSERT_GE(H5Awrite(attribute, H5T_NATIVE_INT32, &width), 0);
+        H5Aclose(attribute);
+        H5Dclose(g);
+        H5Fclose(f);
+    }
+    const std::string message = refusal(file);
+    for (const char* part : {"s.h5", "/packing/texture_coord", "width x height 1000000000 x", "at most 16384"})
+        EXPECT_NE(message.find(part), std::string::npos) << part << " in: " << message;
+}
+
 TEST(Scenario, RoundTripKeepsEveryDataset) {
     test::TempDir dir;
     const Scenario s = sample_scenario();
