@@ -57,7 +57,11 @@ void sweep_stale_temporaries(const std::filesystem::path& path) {
     }
 }
 
-void check_destination(const std::filesystem::path& path) {
+namespace {
+
+/// check_destination without the trial file: what write_file_atomically checks before it creates
+/// its own temporary file, which is the trial.
+void check_destination_folder(const std::filesystem::path& path) {
     namespace fs = std::filesystem;
     const auto folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
     std::error_code error;
@@ -72,6 +76,13 @@ void check_destination(const std::filesystem::path& path) {
         throw OutputError(path.string() + ": folder " + folder.string() + " does not exist");
     }
     if (::access(folder.c_str(), W_OK) != 0) throw OutputError(path.string() + ": folder " + folder.string() + " is not writable");
+}
+
+}  // namespace
+
+void check_destination(const std::filesystem::path& path) {
+    check_destination_folder(path);
+    const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
     // access() says yes to root almost everywhere (/proc, /sys); only creating a file there shows
     // that the folder takes one, before a run or a build that would end unable to save.
     // A short name of its own, so that a long destination name is not blamed on the folder.
@@ -88,7 +99,7 @@ void check_destination(const std::filesystem::path& path) {
 
 void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-    check_destination(path);
+    check_destination_folder(path);
     sweep_stale_temporaries(path);
     const auto temporary = temporary_beside(path);
     try {

@@ -24,8 +24,9 @@ void sweep_stale_temporaries(const std::filesystem::path& path);
 /// Throws OutputError naming `path` unless a file can be written there: `path` is a folder, a
 /// part of its folder path is a file ("out.txt/scenario.h5"), its folder does not exist, or the
 /// folder is not writable or takes no new file (tried with a temporary file, removed at once:
-/// /proc passes root's access check). write_file_atomically checks this first; commands that work for a long
-/// time before writing check their outputs with it before they start.
+/// /proc passes root's access check). write_file_atomically checks the same, less the trial (its
+/// own temporary file is one); commands that work for a long time before writing check their
+/// outputs with it before they start.
 void check_destination(const std::filesystem::path& path);
 
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is

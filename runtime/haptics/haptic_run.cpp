@@ -7,6 +7,7 @@
 
 #include "runtime/haptics/openhaptics.h"
 
+#include "formats/atomic_file.h"
 #include "formats/csv.h"
 
 #include "libmodel/command_errors.h"
@@ -17,12 +18,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <limits>
 #include <sstream>
 #include <thread>
 
-#include <unistd.h>
 
 namespace heartsim::haptics {
 
@@ -39,10 +38,12 @@ std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(),
 void check_record_path(const std::string& record) {
     namespace fs = std::filesystem;
     const fs::path path(record);
-    const fs::path folder = path.parent_path().empty() ? fs::path(".") : path.parent_path();
     if (record.back() == '/' || fs::is_directory(path)) throw UsageError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
-    if (!fs::is_directory(folder)) throw OutputError("--record " + record + ": folder " + folder.string() + " does not exist");
-    std::error_code error;
+    try {
+        check_destination(path);  // the folder exists and takes a file
+    } catch (const OutputError& e) {
+        throw OutputError("--record " + std::string(e.what()));
+    }
     // A journal there is a session that is recording now, or one that was killed before it could
     // write its recording: never replaced, so nothing of it is lost.
     const fs::path journal = journal_path(path);
@@ -54,13 +55,6 @@ void check_record_path(const std::string& record) {
                          ": `heartsim recover " + journal.string() + "` writes it (to " + record + ", or -o OTHER.h5), or delete " +
                          journal.string() + " to record over it");
     }
-    // Writable? A probe file beside it, removed at once.
-    const fs::path probe = folder / (".heartsim-record-check-" + std::to_string(::getpid()));
-    {
-        std::ofstream out(probe);
-        if (!out) throw OutputError("--record " + record + ": cannot write in folder " + folder.string());
-    }
-    fs::remove(probe, error);
 }
 std::array<double, 4> to_array(const Eigen::Quaterniond& q) { return {q.w(), q.x(), q.y(), q.z()}; }
 

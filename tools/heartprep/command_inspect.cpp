@@ -191,8 +191,9 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                              {"face_spring_stiffness_n_per_mm", spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)},
                              {"damping_ratio", mat.damping_ratio}});
     o["materials"] = std::move(materials);
+    const auto substeps = runtime_substeps(s.solver);
     o["solver"] = {{"dt_ms", s.solver.dt_ms},
-                   {"substeps", runtime_substeps(s.solver) ? nlohmann::json(*runtime_substeps(s.solver)) : nlohmann::json()},
+                   {"substeps", substeps ? nlohmann::json(*substeps) : nlohmann::json()},
                    {"damping", s.solver.damping},
                    {"gravity", vector(s.solver.gravity)},
                    {"balanced_gravity", vector(s.solver.balanced_gravity)},
