@@ -54,6 +54,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <iostream>
 #include <limits>
 #include <mutex>
 #include <numbers>
@@ -104,17 +105,64 @@ std::string describe_bytes(double bytes) {
     return text.str();
 }
 
-/// ITK's exception description (without the source-file location ITK's what() adds).
-/// One line: NrrdIO's descriptions run over several lines ("[nrrd] nrrdLoad: trouble …"), and every
-/// error of ours is one line, so the line breaks become "; ".
-std::string itk_reason(const itk::ExceptionObject& error) {
-    std::string text;
-    std::istringstream lines(error.GetDescription());
-    for (std::string line; std::getline(lines, line);) {
-        while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == ':')) line.pop_back();
-        if (!line.empty()) text += (text.empty() ? "" : "; ") + line;
+/// ITK's exception description (without the source-file location ITK's what() adds), as one line
+/// a user can act on. ITK prefixes "ITK ERROR: NrrdImageIO(0x55…): " (an object's address) and
+/// may end with "Reason: <strerror(errno)>", where errno is stale (the file exists: it was opened
+/// before ITK saw it); both go. NrrdIO's description is a chain, outermost first ("[nrrd] nrrdLoad:
+/// trouble reading …", …, "[nrrd] _nrrdReadNrrdParse_sizes: parsed 2 values, but dimension is 3"):
+/// the links that only say that reading failed go, and the function names with them. `captured` is what the
+/// reader printed on std::cerr meanwhile (MetaIO explains itself there, not in the exception):
+/// its first line leads.
+std::string itk_reason(const itk::ExceptionObject& error, const std::string& captured = {}) {
+    static const std::regex prefix(R"((ITK ERROR|itk::ERROR|itk::ExceptionObject)?:?\s*[A-Za-z]+\(0x[0-9a-fA-F]+\):\s*)");
+    static const std::regex nrrd_link(R"(^\[nrrd\] [A-Za-z_0-9]+: ?)");
+    std::vector<std::string> parts;
+    auto add = [&](std::string part) {
+        while (!part.empty() && (part.back() == '\r' || part.back() == ' ' || part.back() == ':' || part.back() == ';' || part.back() == '.'))
+            part.pop_back();
+        while (!part.empty() && part.front() == ' ') part.erase(part.begin());
+        // Links that only say that reading failed, or name the file again.
+        for (const char* generic : {"trouble reading", "ReadImageInformation: Error reading", "File cannot be read"})
+            if (part.rfind(generic, 0) == 0) return;
+        if (part.empty() || part == "trouble" || part == "finished reading header, but there were problems") return;
+        if (std::find(parts.begin(), parts.end(), part) == parts.end()) parts.push_back(part);
+    };
+    if (const auto end = captured.find('\n'); !captured.empty()) add("MetaIO: " + captured.substr(0, end));
+    std::string description = std::regex_replace(error.GetDescription(), prefix, "");
+    if (const auto reason = description.find("Reason: "); reason != std::string::npos) description.erase(reason);
+    // NrrdIO joins its links with "; " or line breaks: split on both.
+    std::string link;
+    auto flush = [&] {
+        add(std::regex_replace(link, nrrd_link, ""));
+        link.clear();
+    };
+    for (std::size_t i = 0; i < description.size(); ++i) {
+        const char c = description[i];
+        if (c == '\n' || (c == ';' && i + 1 < description.size() && description[i + 1] == ' ')) flush();
+        else link += c;
     }
-    return text;
+    flush();
+    std::string text;
+    for (const std::string& part : parts) text += (text.empty() ? "" : "; ") + part;
+    return text.empty() ? std::string("ITK gave no reason") : text;
+}
+
+/// Runs `read` with std::cerr captured into `printed` (MetaIO prints its parse errors there), also
+/// when `read` throws. Volume headers are read on one thread (heartprep batch runs each case in its
+/// own process).
+template <class Read>
+void with_cerr_captured(std::string& printed, Read&& read) {
+    std::ostringstream captured;
+    std::streambuf* const original = std::cerr.rdbuf(captured.rdbuf());
+    try {
+        read();
+    } catch (...) {
+        std::cerr.rdbuf(original);
+        printed = captured.str();
+        throw;
+    }
+    std::cerr.rdbuf(original);
+    printed = captured.str();
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -569,8 +617,26 @@ bool holds_non_finite_number(const std::string& value) {
 /// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
 /// name (MetaIO's: the text before '=' or ':') and value under 255 characters, and NDims from 1 to 4.
 /// Returns whether the header gives the voxel size (ElementSpacing or ElementSize).
+/// The leading whitespace-separated numbers of a header value ("4 4 x 4" has two).
+std::size_t leading_numbers(const std::string& value) {
+    std::istringstream tokens(value);
+    std::size_t count = 0;
+    for (std::string token; tokens >> token; ++count) {
+        char* end = nullptr;
+        std::strtod(token.c_str(), &end);
+        if (end == token.c_str() || *end != '\0') break;
+    }
+    return count;
+}
+
 bool check_metaimage_header_before_itk(const fs::path& path) {
     bool spacing_given = false;
+    // MetaIO reads NDims numbers for the per-axis fields (NDims² for the matrices) and, when a line
+    // holds fewer, takes the next field's name as the missing value: "DimSize = 10 10" with NDims 3
+    // failed as "ElementType required and not defined". Checked after the loop (NDims may follow).
+    int ndims = 0;
+    struct Counted { int line; std::string name, value; bool matrix; };
+    std::vector<Counted> counted;
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(path.string() + ": cannot open for reading");
     std::string line;
@@ -608,7 +674,12 @@ bool check_metaimage_header_before_itk(const fs::path& path) {
             const double dims = std::strtod(value.c_str(), &end);
             if (end == value.c_str() || !(dims >= 1 && dims < 5))
                 throw InputError(path.string() + ": MetaImage NDims is '" + value + "'; expected 3 (a 3D volume, or 4 with one time point)");
+            ndims = int(dims);
         }
+        if (name == "DimSize" || name == "ElementSpacing" || name == "ElementSize" || name == "Offset" || name == "Origin" ||
+            name == "Position" || name == "CenterOfRotation")
+            counted.push_back({number, name, value, false});
+        if (name == "TransformMatrix" || name == "Orientation" || name == "Rotation") counted.push_back({number, name, value, true});
         if (name == "CompressedDataSize") {
             // MetaIO allocates this many bytes before reading the compressed data (fuzz_volume_mha: 1 TB).
             char* end = nullptr;
@@ -628,6 +699,13 @@ bool check_metaimage_header_before_itk(const fs::path& path) {
             refuse_multi_file_data(path, "MetaImage ElementDataFile", value);
             break;
         }
+    }
+    for (const Counted& field : counted) {
+        const std::size_t needed = field.matrix ? std::size_t(ndims * ndims) : std::size_t(ndims);
+        if (const std::size_t found = leading_numbers(field.value); found < needed)
+            throw InputError(path.string() + ": MetaImage header line " + std::to_string(field.line) + ": " + field.name + " is '" +
+                             field.value.substr(0, 60) + "', " + std::to_string(found) + (found == 1 ? " number" : " numbers") +
+                             "; NDims = " + std::to_string(ndims) + " needs " + std::to_string(needed));
     }
     return spacing_given;
 }
@@ -691,13 +769,16 @@ Probe probe_volume(const fs::path& path) {
     if (nifti) probe.nifti = read_nifti_fields(path);
 
     probe.io->SetFileName(path.string());
+    std::string printed;
     try {
-        probe.io->ReadImageInformation();
+        with_cerr_captured(printed, [&] { probe.io->ReadImageInformation(); });
     } catch (const itk::ExceptionObject& itk_error) {
-        throw InputError(path.string() + ": cannot read " + probe.header.format + " header: " + itk_reason(itk_error));
+        throw InputError(path.string() + ": cannot read the " + probe.header.format + " header: " + itk_reason(itk_error, meta ? printed : ""));
     }
 
     VolumeHeader& header = probe.header;
+    if (const auto end = printed.find('\n'); !printed.empty())
+        header.warnings.push_back(path.string() + ": the " + header.format + " reader said: " + printed.substr(0, end));
     // Both formats then default to 1 mm voxels, which for an MRI is often wrong by half or more:
     // the lattice and every length in the scenario would be off by that factor.
     if (!spacing_given)

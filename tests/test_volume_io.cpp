@@ -720,6 +720,59 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
     }
 }
 
+// A damaged header's message names the file and the field, in words a technician can act on:
+// not ITK's object addresses, NrrdIO's chain of function names, a stale errno, or MetaIO's own
+// lines on stderr ahead of the error.
+TEST(VolumeReadErrors, DamagedHeadersAreExplainedWithoutTheLibrariesInternals) {
+    TempDir folder;
+    auto message_of = [](const fs::path& path) {
+        testing::internal::CaptureStderr();
+        std::string message;
+        try {
+            read_volume_header(path);
+        } catch (const InputError& error) {
+            message = error.what();
+        }
+        const std::string printed = testing::internal::GetCapturedStderr();
+        EXPECT_EQ(printed, "") << path;
+        EXPECT_EQ(message.find("0x"), std::string::npos) << message;
+        EXPECT_EQ(message.find("[nrrd]"), std::string::npos) << message;
+        EXPECT_EQ(message.find("Reason:"), std::string::npos) << message;
+        EXPECT_NE(message.find(path.string()), std::string::npos) << message;
+        return message;
+    };
+    const std::string voxels(64, '\1');
+    // MetaIO took the next line's "ElementType" as the missing size, then said that ElementType
+    // was missing; ours counts the numbers against NDims first.
+    for (const auto& [field, line, expected] :
+         std::vector<std::array<std::string, 3>>{{"DimSize", "DimSize = 4 4\nElementSpacing = 1 1 1\n", "2 numbers; NDims = 3 needs 3"},
+                                                 {"ElementSpacing", "DimSize = 4 4 4\nElementSpacing = 1 1\n", "2 numbers; NDims = 3 needs 3"},
+                                                 {"TransformMatrix", "DimSize = 4 4 4\nTransformMatrix = 1 0 0 0 1 0\n", "6 numbers; NDims = 3 needs 9"}}) {
+        const fs::path path = write_text_file(folder, field + ".mha", "ObjectType = Image\nNDims = 3\n" + line +
+                                                                      "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + voxels);
+        const std::string message = message_of(path);
+        EXPECT_NE(message.find(std::string(field == "DimSize" ? "line 3: " : "line 4: ") + field), std::string::npos) << message;
+        EXPECT_NE(message.find(expected), std::string::npos) << message;
+    }
+    // More numbers than NDims are what MetaIO (and so every reader built on it) accepts.
+    const fs::path extra = write_text_file(folder, "extra.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4 4\nElementSpacing = 1 1 1\n"
+                                                                "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + voxels);
+    EXPECT_EQ(read_label_volume(extra).labels.size(), 64u);
+    // What MetaIO finds itself (no ElementType at all) comes from its own line, once, in the error.
+    const fs::path untyped = write_text_file(folder, "untyped.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementSpacing = 1 1 1\n"
+                                                                    "ElementDataFile = LOCAL\n" + voxels);
+    EXPECT_NE(message_of(untyped).find("cannot read the MetaImage header: MetaIO: ElementType required and not defined"), std::string::npos);
+    // NrrdIO's innermost reasons, without the links that only say that reading failed.
+    const fs::path sizes = write_text_file(folder, "sizes.nrrd", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4\nspacings: 1 1 1\n"
+                                                                 "encoding: raw\n\n" + voxels);
+    const std::string sizes_message = message_of(sizes);
+    EXPECT_NE(sizes_message.find("cannot read the NRRD header: trouble parsing sizes info |4 4|; parsed 2 values, but dimension is 3"),
+              std::string::npos) << sizes_message;
+    const fs::path endian = write_text_file(folder, "endian.nrrd", "NRRD0004\ntype: short\ndimension: 3\nsizes: 4 4 2\nspacings: 1 1 1\n"
+                                                                   "encoding: raw\n\n" + voxels);
+    EXPECT_NE(message_of(endian).find("type (short) and encoding (raw) require endian info"), std::string::npos);
+}
+
 // fuzz_volume_nrrd (10-minute run after the fix above): a second `encoding:` line that this
 // reader did not know as gzip left the voxel data unchecked, and NrrdIO then allocated 2 GB for
 // the sizes it had read. Fields given twice and encodings it cannot check are refused.
