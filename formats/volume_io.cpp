@@ -259,6 +259,12 @@ NiftiFields read_nifti_fields(const fs::path& path) {
     if (fields.dim[0] < 1 || fields.dim[0] > 7)
         throw InputError(path.string() + ": NIfTI dim[0] is " + std::to_string(fields.dim[0]) +
                          "; expected a dimension count from 1 to 7");
+    // niftilib refuses other codes with a line of its own on stderr, and ITK then calls the file
+    // "not recognized as a NIFTI file".
+    static constexpr int datatypes[] = {2, 4, 8, 16, 32, 64, 128, 256, 512, 768, 1024, 1280, 1536, 1792, 2048, 2304};
+    if (std::find(std::begin(datatypes), std::end(datatypes), fields.datatype) == std::end(datatypes))
+        throw InputError(path.string() + ": NIfTI datatype is " + std::to_string(fields.datatype) +
+                         "; expected a NIfTI type code (2 for unsigned 8-bit labels, 4, 8, 256, 512, 768, …)");
     // A float: 1e31 or infinity cannot become a byte offset (fuzz_volume_nii found the cast).
     if (!std::isfinite(fields.vox_offset) || fields.vox_offset > 9.0e15) {
         std::ostringstream value;

@@ -762,6 +762,20 @@ TEST(VolumeReadErrors, DamagedHeadersAreExplainedWithoutTheLibrariesInternals) {
     const fs::path untyped = write_text_file(folder, "untyped.mha", "ObjectType = Image\nNDims = 3\nDimSize = 4 4 4\nElementSpacing = 1 1 1\n"
                                                                     "ElementDataFile = LOCAL\n" + voxels);
     EXPECT_NE(message_of(untyped).find("cannot read the MetaImage header: MetaIO: ElementType required and not defined"), std::string::npos);
+    // niftilib refused an unknown datatype on stderr, and ITK called the file no NIfTI file.
+    std::string nifti(352, '\0');
+    const std::int32_t sizeof_hdr = 348;
+    const std::int16_t dim[8] = {3, 4, 4, 4, 1, 1, 1, 1}, datatype = 9999, bitpix = 8;
+    const float pixdim[8] = {1, 1, 1, 1, 1, 1, 1, 1}, vox_offset = 352;
+    std::memcpy(&nifti[0], &sizeof_hdr, 4);
+    std::memcpy(&nifti[40], dim, sizeof dim);
+    std::memcpy(&nifti[70], &datatype, 2);
+    std::memcpy(&nifti[72], &bitpix, 2);
+    std::memcpy(&nifti[76], pixdim, sizeof pixdim);
+    std::memcpy(&nifti[108], &vox_offset, 4);
+    std::memcpy(&nifti[344], "n+1", 4);
+    const fs::path typed = write_text_file(folder, "typed.nii", nifti + voxels);
+    EXPECT_NE(message_of(typed).find("NIfTI datatype is 9999; expected a NIfTI type code"), std::string::npos);
     // NrrdIO's innermost reasons, without the links that only say that reading failed.
     const fs::path sizes = write_text_file(folder, "sizes.nrrd", "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4\nspacings: 1 1 1\n"
                                                                  "encoding: raw\n\n" + voxels);
