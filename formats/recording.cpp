@@ -26,7 +26,7 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
-void write_recording_data(const std::filesystem::path& path, const Recording& r) {
+void write_recording_data(const std::filesystem::path& path, const Recording& r, const std::function<void(const std::filesystem::path&)>& check) {
     const std::string file = path.string();
     const RecordedSteps& s = r.steps;
     const std::size_t n = s.size();
@@ -99,7 +99,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r)
         w.dataset("events/time_ms", times, {times.size()});
         w.dataset("events/hand", hands, {hands.size()});
         w.strings("events/what", what);
-    });
+    }, check);
 }
 
 void write_recording(const std::filesystem::path& path, const Recording& recording) {

@@ -36,6 +36,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -99,9 +100,11 @@ struct Recording {
 /// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xdmf`, a
 /// time series for ParaView); throws OutputError naming the file.
 void write_recording(const std::filesystem::path& path, const Recording& recording);
-/// The HDF5 file alone, no .xdmf: for a caller that writes a temporary and renames it itself
-/// (`heartsim recover`), then calls write_recording_xdmf for the final name.
-void write_recording_data(const std::filesystem::path& path, const Recording& recording);
+/// The HDF5 file alone (atomically), no .xdmf: `check`, when given, reads the complete temporary
+/// file before it takes the name (`heartsim recover` reads it back as a recording), and what it
+/// throws leaves no file; the caller then calls write_recording_xdmf.
+void write_recording_data(const std::filesystem::path& path, const Recording& recording,
+                          const std::function<void(const std::filesystem::path&)>& check = {});
 /// Reads and validates (shapes agree, values finite where they must be); throws InputError
 /// naming the file and the dataset.
 Recording read_recording(const std::filesystem::path& path);

@@ -588,6 +588,7 @@ int recover_recording(const std::string& journal, const std::string& output) {
                          target.string() + " first");
     if (journal_in_use(journal))
         throw InputError(journal + ": a running heartsim session is writing it; it writes its recording itself when it ends");
+    check_destination(target);  // before the journal is read (seconds for a long session)
     const JournalContents contents = read_recording_journal(journal);
     const Recording& r = contents.recording;
     std::size_t ticks = 0;
@@ -604,8 +605,7 @@ int recover_recording(const std::string& journal, const std::string& output) {
         throw InputError(journal + ": holds no step (the session was killed within its first half second): nothing to recover; delete it");
     // Written beside the target and read back with every check a recording gets before it takes the
     // name, so what takes the name is a recording that reads.
-    write_file_atomically(target, [&](const fs::path& temporary) {
-        write_recording_data(temporary, r);
+    write_recording_data(target, r, [&](const fs::path& temporary) {
         try {
             read_recording(temporary);
         } catch (const InputError& e) {

@@ -404,6 +404,14 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
     EXPECT_NE(refused.output.find("heartsim recover"), std::string::npos) << refused.output;
     EXPECT_EQ(read_text(journal), kept) << "the refused session touched the journal";
 
+    // A place no file can take (root may write almost anywhere, but not in /proc) is refused before
+    // the journal is read, naming the place and no temporary file, and the journal stays.
+    const auto nowhere = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(journal) + " -o /proc/rec.h5");
+    EXPECT_EQ(nowhere.exit_code, 7) << nowhere.output;
+    EXPECT_NE(nowhere.output.find("/proc/rec.h5: cannot create a file in folder /proc"), std::string::npos) << nowhere.output;
+    EXPECT_EQ(nowhere.output.find("tmp"), std::string::npos) << nowhere.output;
+    EXPECT_EQ(read_text(journal), kept);
+
     const auto recovered = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(journal));
     ASSERT_EQ(recovered.exit_code, 0) << recovered.output;
     std::printf("%s\n", recovered.output.c_str());
