@@ -4,6 +4,7 @@
 #include "libmodel/errors.h"
 
 #include <chrono>
+#include <cmath>
 
 namespace heartsim {
 
@@ -14,6 +15,15 @@ BackendKind parse_backend_kind(const std::string& name) {
 }
 
 const char* to_string(BackendKind kind) { return kind == BackendKind::cpu ? "cpu" : "gl"; }
+
+std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind) {
+    const std::string gpu = kind == BackendKind::cpu ? "the gl backend on a GPU" : "a faster GPU";
+    if (!(factor > 0) || !std::isfinite(factor) || particles == 0) return "fewer particles (heartprep build --particles) or " + gpu;
+    const double keeps_up = double(particles) * std::pow(factor / 1.1, 0.75);
+    const long long thousands = (long long)std::floor(keeps_up / 1000.0);
+    if (thousands < 1) return gpu + " (fewer particles than 1000 would not keep up here either)";
+    return "heartprep build --particles " + std::to_string(thousands * 1000) + " would keep up here, or " + gpu;
+}
 
 void require_runnable(const Scenario& scenario, const std::string& file_name) {
     if (!scenario.packing)

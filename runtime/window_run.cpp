@@ -532,8 +532,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
                 said_slow = true;
                 std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
-                            "the hand. Fewer particles (heartprep build --particles) or a GPU (--backend gl on one) would keep up\n",
-                            factor, backend.size(), to_string(backend.kind()));
+                            "the hand: %s\n",
+                            factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind()).c_str());
             }
         }
     }

@@ -644,8 +644,8 @@ void HapticRun::finish(ScriptedRunResult& result) {
     std::printf("simulation: %d steps, %.4g ms simulated in %.4g ms wall (real-time factor %.3g)\n", result_.steps, simulated,
                 result_.wall_ms, result_.wall_ms > 0 ? simulated / result_.wall_ms : 0.0);
     if (result_.wall_ms > 0 && simulated / result_.wall_ms < 0.95)
-        std::fprintf(stderr, "heartsim: warning: the simulation ran slower than real time; forces lag the devices (fewer particles, "
-                             "or the gl backend on a GPU)\n");
+        std::fprintf(stderr, "heartsim: warning: the simulation ran slower than real time; forces lag the devices: %s\n",
+                     keep_up_advice(simulated / result_.wall_ms, backend_.size(), backend_.kind()).c_str());
     std::printf("%-6s %12s %12s %10s %10s %10s %10s %8s   %s\n", "hand", "forces sent", "max sent N", "clamped", "rate-lim", "non-finite",
                 "faults", "e-stop", "last sent N");
     for (int i = 0; i < 2; ++i) {
