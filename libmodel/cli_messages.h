@@ -5,12 +5,14 @@
 /// (libmodel itself does not use CLI11).
 #pragma once
 
+#include "libmodel/plausible.h"
 #include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
 
 #include <cmath>
 #include <filesystem>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -114,5 +116,22 @@ inline CLI::Validator above_zero(bool strictly) {
 }
 inline CLI::Validator non_negative() { return above_zero(false); }
 inline CLI::Validator positive() { return above_zero(true); }
+
+/// A number option's value within a plausible range (plausible.h): far wider than any heart
+/// needs, so what lies outside is a unit mistake or a typo, refused at once instead of after a
+/// build that runs out of memory or ends in a NaN.
+inline CLI::Validator within(const plausible::Range& range) {
+    return CLI::Validator(
+        [range](std::string& value) -> std::string {
+            double number = 0;
+            if (!CLI::detail::lexical_cast(value, number)) return {};  // not a number: the option's own conversion says so
+            if (range.contains(number)) return {};
+            std::ostringstream text;
+            const std::string unit = *range.unit ? std::string(" ") + range.unit : std::string();
+            text << "must lie in the plausible range [" << range.low << ", " << range.high << "]" << unit << ", not " << value;
+            return text.str();
+        },
+        "", "plausible");
+}
 
 }  // namespace heartsim::cli_messages

@@ -1,6 +1,7 @@
 #include "phantom.h"
 
 #include "errors.h"
+#include "plausible.h"
 
 #include <tbb/parallel_for.h>
 
@@ -39,6 +40,11 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
     if (cut_at_top) high.z() -= o.margin_mm;
     const Eigen::Vector3d extent = high - low;
     const double voxel = o.size > 0 ? extent.maxCoeff() / o.size : o.voxel_mm;
+    // A label map's voxels must be ones a reader accepts (written, the file would be refused, or
+    // an infinite one would not be written at all).
+    if (!plausible::voxel_spacing_mm.contains(voxel))
+        throw InputError(plausible::outside("the voxel size", voxel, plausible::voxel_spacing_mm) +
+                         (o.size > 0 ? ": the shape's extent divided by --size; shrink the shape or change --size" : ": change --voxel"));
     LabelVolume volume;
     auto& g = volume.geometry;
     // Counted in double first: a radius of 1e12 mm would overflow int and wrap to one voxel.

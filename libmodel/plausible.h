@@ -34,6 +34,11 @@ inline constexpr Range drag_per_ms{0.0, 100.0, "1/ms"};
 inline constexpr Range semi_axis_mm{1e-3, 500.0, "mm"};
 inline constexpr Range device_force_n{1e-6, 1e3, "N"};
 inline constexpr Range device_mass_g{1e-3, 1e6, "g"};
+/// heartprep build's material options: density as typed (g/cm³; within density_g_per_mm3 × 1000 after
+/// float rounding: from foam to twice lead), and
+/// Young's modulus from a gel (1 Pa) to a stiff plastic (1 GPa).
+inline constexpr Range density_g_per_cm3{0.01, 50.0, "g/cm³"};
+inline constexpr Range youngs_modulus_kpa{1e-3, 1e6, "kPa"};
 
 /// "name is V unit, outside the plausible range [low, high] unit".
 inline std::string outside(const std::string& name, double value, const Range& range) {

@@ -268,13 +268,26 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"build " + quoted(input) + out + " --gravity 0 nan 0", 2, "--gravity"},
         {"build " + quoted(input) + out + " --drag nan", 2, "--drag"},                              // NaN passes CLI11's ranges
         {"build " + quoted(input) + out + " --dt-safety nan", 2, "--dt-safety: 'nan' is not a finite number"},
-        {"build " + quoted(input) + out + " --spacing -1", 2, "--spacing: must be more than 0, not -1"},
+        {"build " + quoted(input) + out + " --spacing -1", 2, "--spacing: must lie in the plausible range [0.01, 100] mm, not -1"},
+        // Physical values outside plausible.h's ranges are refused at once, naming the option and
+        // the range: a spacing of 1e10 mm grabbed 16.8 GB before "out of memory", and the others
+        // ended in NaN residuals or messages about supports, after the work.
+        {"build " + quoted(input) + out + " --spacing 1e10", 2, "--spacing: must lie in the plausible range [0.01, 100] mm, not 1e10"},
+        {"build " + quoted(input) + out + " --youngs-modulus 1e300", 2, "--youngs-modulus: must lie in the plausible range [0.001, 1e+06] kPa"},
+        {"build " + quoted(input) + out + " --density 1e-30", 2, "--density: must lie in the plausible range [0.01, 50] g/cm³, not 1e-30"},
+        {"build " + quoted(input) + out + " --damping-ratio 1e150", 2, "--damping-ratio: must lie in the plausible range [0, 100]"},
+        {"build " + quoted(input) + out + " --support-damping 1e150", 2, "--support-damping: must lie in the plausible range [0, 100]"},
+        {"build " + quoted(input) + out + " --drag 1e300", 2, "--drag: must lie in the plausible range [0, 100] 1/ms"},
+        {"build " + quoted(input) + out + " --gravity 1e300 0 0", 2, "--gravity: its length is 1e+300 mm/ms², outside the plausible range [0, 1]"},
+        {"build " + quoted(input) + out + " --drop-free-below -1", 2, "--drop-free-below"},
         // A scenario that heartsim would refuse is not written: read back before it takes its name.
-        {"build " + quoted(input) + out + " -q --density 1e-30", 1, "the scenario would not be readable (materials/density"},
+        {"build " + quoted(input) + out + " -q --support-stiffness 1e30", 1, "the scenario would not be readable (particles/support_stiffness"},
         {"build " + quoted(input) + out + " --tissue 1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
         {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
+        // A voxel no reader accepts: the write failed with a temporary file's name and NIfTI's pixdim.
+        {"phantom -o " + quoted(dir / "p.nii.gz") + " --voxel 1e300", 2, "the voxel size is 1e+300 mm, outside the plausible range [0.001, 100] mm: change --voxel"},
         {"phantom -o " + quoted(dir / "p.vtk"), 2, "p.vtk: unsupported file type '.vtk'"},
         // A radius whose voxel count overflows int used to wrap to a 1×1×1 phantom and exit 0.
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --shape sphere --radius 1e12", 2, "voxels is too large (at most 2e9): raise --voxel"},         // refused before it generates

@@ -6,6 +6,7 @@
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
 #include "libmodel/cli_messages.h"
+#include "libmodel/plausible.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
 
@@ -113,7 +114,7 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Particles");
     command->add_option("--spacing", options->layout.spacing_mm, "Lattice spacing, mm (default: chosen to meet --particles)")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::lattice_spacing_mm))
         ->group("Particles");
     command->add_option("--particles", options->layout.particle_budget, "Particle budget when the spacing is chosen")
         ->check(CLI::Range(std::size_t(1), std::size_t(50'000'000)))
@@ -153,16 +154,16 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Surface");
     command->add_option("--density", *density, "Tissue density, g/cm³ (stored as g/mm³)")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::density_g_per_cm3))
         ->capture_default_str()
         ->group("Material");
     command->add_option("--youngs-modulus", material->youngs_modulus_kpa,
                         "Young's modulus, kPa (passive myocardium: 10-50); spring stiffness k = 0.4·E·spacing")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::youngs_modulus_kpa))
         ->capture_default_str()
         ->group("Material");
     command->add_option("--damping-ratio", material->damping_ratio, "Spring damping as a fraction of critical damping")
-        ->check(cli_messages::non_negative())
+        ->check(cli_messages::within(plausible::damping_ratio))
         ->capture_default_str()
         ->group("Material");
     auto support = std::make_shared<std::string>("posterior");
@@ -187,7 +188,7 @@ void add_build_command(CLI::App& app) {
     command->add_option("--support-damping", options->supports.damping_ratio,
                         "Damping ratio of each support against its particle's mass (a dashpot c = 2ζ√(k·m)): the viscous "
                         "tissue around the heart; 0 lets the heart ring on its supports")
-        ->check(cli_messages::non_negative())
+        ->check(cli_messages::within(plausible::damping_ratio))
         ->capture_default_str()
         ->group("Holding the heart");
     auto rest_state = std::make_shared<std::string>("balanced");
@@ -200,6 +201,7 @@ void add_build_command(CLI::App& app) {
     command->add_option("--drop-free-below", options->free_pieces.drop_below_particles,
                         "Lattice pieces held by nothing (no anchor, no support) with fewer particles are dropped; larger "
                         "ones are an error")
+        ->check(CLI::Range(std::size_t(0), std::size_t(50'000'000)))
         ->capture_default_str()
         ->group("Holding the heart");
     command->add_flag("--allow-free", options->free_pieces.allow_free,
@@ -210,7 +212,7 @@ void add_build_command(CLI::App& app) {
         ->expected(3)
         ->group("Solver");
     command->add_option("--drag", options->solver.damping, "Global velocity damping rate, 1/ms")
-        ->check(cli_messages::non_negative())
+        ->check(cli_messages::within(plausible::drag_per_ms))
         ->capture_default_str()
         ->group("Solver");
     command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the damped critical step (dashpots and supports included); "
@@ -234,6 +236,9 @@ void add_build_command(CLI::App& app) {
         if (!gravity->empty()) {
             options->solver.gravity = Eigen::Vector3d((*gravity)[0], (*gravity)[1], (*gravity)[2]);
             if (!options->solver.gravity.allFinite()) throw UsageError("--gravity must be three finite numbers");
+            if (!plausible::gravity_mm_per_ms2.contains(options->solver.gravity.stableNorm()))
+                throw UsageError("--gravity: " + plausible::outside("its length", options->solver.gravity.stableNorm(), plausible::gravity_mm_per_ms2) +
+                                 " (9.81 m/s² is 0.00981 mm/ms²)");
         }
         options->supports.region = parse_support_region(*support);
         if (*rest_state != "balanced" && *rest_state != "imaged")
