@@ -104,6 +104,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
 
 void write_recording(const std::filesystem::path& path, const Recording& recording) {
     const std::string xdmf = recording_xdmf(path.filename().string(), recording);
+    check_xdmf_destination(path);
     write_recording_data(path, recording);
     write_xdmf(path, xdmf);
 }

@@ -530,6 +530,7 @@ namespace {
 void write_scenario_file(const std::filesystem::path& path, const Scenario& scenario,
                          const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = scenario_xdmf(path.filename().string(), scenario);
+    check_xdmf_destination(path);
     h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); }, check);
     write_xdmf(path, xdmf);
 }

@@ -8,6 +8,7 @@ namespace heartsim {
 
 void write_state(const std::filesystem::path& path, const SimulationState& state) {
     const std::string xdmf = state_xdmf(path.filename().string(), state, path.parent_path());
+    check_xdmf_destination(path);
     h5::write_file(path, [&](h5::Writer& w) {
         w.header("heartsim.state", 1, "mm g ms");
         w.attribute("/", "backend", state.backend);

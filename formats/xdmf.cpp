@@ -123,6 +123,15 @@ std::filesystem::path xdmf_beside(const std::filesystem::path& h5) {
     return path == h5 ? std::filesystem::path(h5.string() + ".xdmf") : path;
 }
 
+void check_xdmf_destination(const std::filesystem::path& h5) {
+    const auto path = xdmf_beside(h5);
+    try {
+        check_destination(path);
+    } catch (const OutputError& e) {
+        throw OutputError(std::string(e.what()) + " (the ParaView description written beside " + h5.string() + ")");
+    }
+}
+
 std::string scenario_xdmf(const std::string& h5, const Scenario& s) {
     std::string grids;
     const std::size_t n = s.lattice.particles.size();

@@ -21,6 +21,12 @@ struct Recording;
 /// `case.h5` → `case.xdmf` (the same folder, the extension replaced; `x.xdmf` → `x.xdmf.xdmf`).
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
 
+/// Throws OutputError unless the description beside `h5` can be written (check_destination: not
+/// a folder, a folder that takes a file), naming it as the description of `h5`. Called by the
+/// writers below before they write the .h5, so a description that cannot be written leaves no .h5
+/// without one, and by the commands before their work starts.
+void check_xdmf_destination(const std::filesystem::path& h5);
+
 /// The scenario file's grids: `detailed_mesh` (/visual, with its normals), `simulation_surface`
 /// (/simsurface/triangles over /particles/rest_position) and `particles` (one vertex per particle,
 /// with material, anchored and mass), each only when the file holds it.

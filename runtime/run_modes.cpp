@@ -132,12 +132,44 @@ void check_arguments(const RunArguments& a) {
             if (other_option != option && other == path)
                 throw UsageError(std::string(option) + " and " + other_option + " name the same file, " + path + "; give each its own");
     }
+    // --save-state and --record also write a ParaView description beside their file (xdmf.h): it
+    // must not be another output, an input, or the scenario's own description, and its place must
+    // take a file, all before the run (a folder there failed after the run, leaving the .h5).
+    namespace fs = std::filesystem;
+    auto same = [](const fs::path& x, const fs::path& y) {
+        std::error_code error;
+        return fs::absolute(x, error).lexically_normal() == fs::absolute(y, error).lexically_normal();
+    };
+    const fs::path scenario_description = xdmf_beside(a.scenario);
+    for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--record", a.record}}) {
+        if (path.empty()) continue;
+        const fs::path description = xdmf_beside(path);
+        const std::string what = std::string(option) + " " + path + ": its ParaView description " + description.string();
+        if (same(description, scenario_description))
+            throw UsageError(what + " would replace the scenario's own; give another name");
+        for (const auto& [input, input_what] : inputs)
+            if (!input.empty() && same(description, input)) throw UsageError(what + " would replace " + input_what + "; give another name");
+        for (const auto& [other_option, other] : outputs)
+            if (!other.empty() && same(description, other))
+                throw UsageError(what + " is the file " + other_option + " names; give each its own");
+        for (const auto& [other_option, other] : {std::pair{"--save-state", a.save_state}, {"--record", a.record}})
+            if (other_option != option && !other.empty() && same(description, xdmf_beside(other)))
+                throw UsageError(what + " is also " + other_option + "'s; give them different names");
+    }
     for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}}) {
         if (path.empty()) continue;
         try {
             check_destination(path);
+            if (option == std::string("--save-state")) check_xdmf_destination(path);
         } catch (const OutputError& e) {
             throw OutputError(std::string(option) + " " + e.what());
+        }
+    }
+    if (!a.record.empty()) {
+        try {
+            check_xdmf_destination(a.record);
+        } catch (const OutputError& e) {
+            throw OutputError(std::string("--record ") + e.what());
         }
     }
 }

@@ -197,6 +197,11 @@ TEST(HeartprepErrors, UnwritableOutput) {
     test::TempDir dir;
     const auto input = write_block(dir, "block.nii.gz");
     expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "missing" / "out.h5"), {"missing", "does not exist"});
+    // The ParaView description written beside the scenario: a folder there failed after the whole
+    // build and left the .h5 without it; now refused before the build, leaving nothing.
+    fs::create_directory(dir / "described.xdmf");
+    expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "described.h5"),
+                   {"described.xdmf: is a folder", "(the ParaView description written beside", "described.h5)"});
     if (geteuid() != 0) {  // root writes anywhere; the permission case is then untestable
         fs::create_directory(dir / "locked");
         fs::permissions(dir / "locked", fs::perms::owner_read | fs::perms::owner_exec);

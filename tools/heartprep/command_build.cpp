@@ -5,6 +5,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
+#include "formats/xdmf.h"
 #include "libmodel/cli_messages.h"
 #include "libmodel/plausible.h"
 #include "libmodel/command_errors.h"
@@ -73,6 +74,12 @@ void add_surface_options(CLI::App& command, SurfaceOptions& o) {
 void check_output_path(const std::filesystem::path& output, const std::string& extension_hint) {
     if (output.empty()) throw UsageError("no output file given (-o " + extension_hint + ")");
     check_destination(output);  // a folder, a path through a file, a missing or read-only folder
+}
+
+/// A scenario's output and the ParaView description written beside it (OUT.xdmf).
+void check_scenario_output_path(const std::filesystem::path& output) {
+    check_output_path(output, "OUT.h5");
+    check_xdmf_destination(output);
 }
 
 }  // namespace
@@ -229,7 +236,7 @@ void add_build_command(CLI::App& app) {
     command->add_option("--batch-key", *batch_key, "Stored in the file so `heartprep batch` can skip unchanged cases")->group("");
 
     command->callback([=] {
-        check_output_path(*output, "OUT.h5");
+        check_scenario_output_path(*output);
         // A file given but missing (exit 1, docs/user-guide.md) is refused now, not after the surface is built.
         if (!options->visual_mesh.empty() && !std::filesystem::is_regular_file(options->visual_mesh))
             throw InputError(options->visual_mesh.string() + ": cannot read the mesh: no such file");
