@@ -33,8 +33,8 @@ const char* to_string(BackendKind kind);
 /// up here, from the measured real-time factor `factor` with `particles` particles, and, on the
 /// cpu backend, a GPU. A simulated second costs about particles^(4/3) (particles per substep, and
 /// the stable substep shrinks with the lattice spacing, particles^(−1/3)); the count is rounded
-/// down to a thousand and leaves 10 % of margin. One clause: "heartprep build --particles 20000
-/// would keep up here, or the gl backend on a GPU".
+/// down to two significant digits and leaves 10 % of margin. One clause: "heartprep build
+/// --particles 19000 would keep up here, or the gl backend on a GPU".
 std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind);
 
 /// Time spent per pass, ms, summed over the run (GPU timer queries for gl, wall clock for cpu).

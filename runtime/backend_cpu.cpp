@@ -20,9 +20,11 @@ std::string keep_up_advice(double factor, std::size_t particles, BackendKind kin
     const std::string gpu = kind == BackendKind::cpu ? "the gl backend on a GPU" : "a faster GPU";
     if (!(factor > 0) || !std::isfinite(factor) || particles == 0) return "fewer particles (heartprep build --particles) or " + gpu;
     const double keeps_up = double(particles) * std::pow(factor / 1.1, 0.75);
-    const long long thousands = (long long)std::floor(keeps_up / 1000.0);
-    if (thousands < 1) return gpu + " (fewer particles than 1000 would not keep up here either)";
-    return "heartprep build --particles " + std::to_string(thousands * 1000) + " would keep up here, or " + gpu;
+    if (!(keeps_up >= 100)) return gpu + " (fewer particles than 100 would not keep up here either)";
+    // Two significant digits, rounded down: 16,605 → 16,000; 1,604 → 1,600.
+    const double unit = std::pow(10.0, std::floor(std::log10(keeps_up)) - 1);
+    const long long count = (long long)(std::floor(keeps_up / unit) * unit);
+    return "heartprep build --particles " + std::to_string(count) + " would keep up here, or " + gpu;
 }
 
 void require_runnable(const Scenario& scenario, const std::string& file_name) {

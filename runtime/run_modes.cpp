@@ -85,7 +85,7 @@ void check_arguments(const RunArguments& a) {
     if (a.steps > 0 && a.seconds > 0) throw UsageError("give --steps or --seconds, not both");
     if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw UsageError("--seconds: expected a finite number of seconds up to 10^6");
     if (!std::isfinite(a.max_force)) throw UsageError("--max-force: expected a finite force in N");
-    if (a.max_force > 0) {
+    if (a.max_force_given) {  // 0 is no limit of its own, not "send nothing": refused with the range
         try {
             plausible::require(a.max_force, plausible::device_force_n, "the force", "--max-force");
         } catch (const InputError& e) {
@@ -103,6 +103,9 @@ void check_arguments(const RunArguments& a) {
         throw UsageError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
     if (!haptic_run && (!a.instruments.empty() || !a.record.empty()))
         throw UsageError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
+    // The device options change nothing without a device: said, rather than ignored.
+    if (!haptic_run)
+        for (const std::string& option : a.device_options_given) throw UsageError(option + " sets how forces reach a haptic device: it needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
@@ -621,6 +624,7 @@ int recover_recording(const std::string& journal, const std::string& output) {
     if (journal_in_use(journal))
         throw InputError(journal + ": a running heartsim session is writing it; it writes its recording itself when it ends");
     check_destination(target);  // before the journal is read (seconds for a long session)
+    check_xdmf_destination(target);
     const JournalContents contents = read_recording_journal(journal);
     const Recording& r = contents.recording;
     std::size_t ticks = 0;

@@ -441,6 +441,13 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --probe 0,0,0,1,1,1 --seconds 1", 2, "not both"},
         {"--headless --device scripted:a --device scripted:b --device scripted:c --seconds 1", 2, "at most two"},
         {"--headless --record x.h5 --steps 1", 2, "--record needs --device"},
+        // 0 read as "no limit given" and the device's own maximum was sent; the device options
+        // without a device were ignored.
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --max-force 0 --seconds 1", 2,
+         "--max-force: the force is 0 N, outside the plausible range [1e-06, 1000] N"},
+        {"--headless --max-force 2 --steps 1", 2, "--max-force sets how forces reach a haptic device: it needs --device"},
+        {"--headless --coupling --steps 1", 2, "--coupling sets how forces reach a haptic device: it needs --device"},
+        {"--headless --haptic-rate 500 --steps 1", 2, "--haptic-rate sets how forces reach a haptic device: it needs --device"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument scalpel --seconds 1", 2,
          "expected probe or grabber"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record /no/such/folder/r.h5", 7,
