@@ -102,6 +102,20 @@ inline void require_finite_numbers(CLI::App& app) {
     for (CLI::App* command : app.get_subcommands({})) require_finite_numbers(*command);
 }
 
+/// The first option of `command` given with an empty value ("--trajectory \"\"", a script's unset
+/// variable), as "--trajectory: the value is empty; …"; "" when none. Such a value read as the
+/// option not given, so a run lost its gesture without a word.
+inline std::string empty_value_given(const CLI::App& command) {
+    for (const CLI::Option* option : command.get_options()) {
+        if (option->count() == 0 || option->get_expected_min() == 0) continue;  // not given, or a flag
+        for (const std::string& value : option->results())
+            if (value.empty())
+                return option->nonpositional() ? option->get_name(false, true) + ": the value is empty; give one, or leave the option out"
+                                               : "the " + option->get_name() + " given is an empty name; give a file";
+    }
+    return {};
+}
+
 /// A number option's value at or above 0 (`strictly`: above it), said in a few words
 /// (CLI::NonNegativeNumber's message prints the largest double in full).
 inline CLI::Validator above_zero(bool strictly) {

@@ -166,6 +166,9 @@ int main(int argc, char** argv) {
         // Not CLI11's two lines and its own exit codes (104-114).
         return fail(ExitCode::usage, cli_messages::parse_error_message(app, e, int(arguments.size()), arguments.data()));
     }
+    for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover)})
+        if (const std::string empty = cli_messages::empty_value_given(*command); command->parsed() && !empty.empty())
+            return fail(ExitCode::usage, empty);
     a.steps_given = run->count("--steps") > 0;
     a.backend_given = run->count("--backend") > 0;
     a.record_given = run->count("--record") > 0;

@@ -283,6 +283,13 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         {run + "--steps 1 --save-state " + quoted(dir / "state.png"), 2, "state.png: the state is an HDF5 file"},
         {run + "--steps 1 --screenshot " + quoted(dir / "shot.jpg"), 2, "shot.jpg: the screenshot is a PNG picture"},
         {"run", 2, "scenario"},                                                 // missing argument
+        // An empty value (a script's unset variable) read as the option not given: the run went on
+        // without its gesture, its state or its stats.
+        {"run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --trajectory ''", 2,
+         "--trajectory: the value is empty; give one, or leave the option out"},
+        {"run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --stats-csv ''", 2, "--stats-csv: the value is empty"},
+        {"run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --probe ''", 2, "--probe: the value is empty"},
+        {"run '' --headless", 2, "the scenario given is an empty name; give a file"},
         {"rn " + quoted(phantom()), 2, "unknown command 'rn' (did you mean 'run'?)"},  // a typo of a command
         {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range
         {run + "--steps 1 --view sideways", 2, "--view"},                       // not one of its values
