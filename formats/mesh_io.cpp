@@ -225,6 +225,10 @@ bool is_writable_mesh_path(const std::filesystem::path& path) {
     return extension == ".stl" || extension == ".obj" || extension == ".ply" || extension == ".vtp" || extension == ".glb";
 }
 
+const char* written_mesh_frame(const std::filesystem::path& path) {
+    return text::lowercase(path.extension().string()) == ".glb" ? "glTF's frame, metres, +Y superior, +Z anterior" : "LPS mm";
+}
+
 void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
     if (!is_writable_mesh_path(path))
         throw OutputError("cannot write mesh '" + path.string() + "': unknown extension '" + path.extension().string() + "' (expected " +

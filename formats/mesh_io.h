@@ -26,6 +26,10 @@ inline constexpr const char* writable_mesh_formats = ".stl, .obj, .ply, .vtp or 
 /// refuse a wrong -o before its work starts.
 bool is_writable_mesh_path(const std::filesystem::path& path);
 
+/// The frame and unit write_mesh uses for `path`, for the commands' "wrote" line: "glTF's frame,
+/// metres, +Y superior, +Z anterior" for a .glb, else "LPS mm".
+const char* written_mesh_frame(const std::filesystem::path& path);
+
 /// Reads a triangle mesh (all meshes of the file merged, polygons triangulated, identical
 /// vertices joined). Throws InputError naming the file when it is missing, unreadable or holds
 /// no triangles.

@@ -132,6 +132,9 @@ TEST(Heartprep, SurfaceWritesEveryMeshFormat) {
         EXPECT_EQ(run.exit_code, 0) << run.output;
         EXPECT_NE(run.output.find("closed 2-manifold"), std::string::npos) << run.output;
         EXPECT_GT(fs::file_size(out), 100u);
+        // The line names the frame the file holds: a .glb is in glTF's metres, +Y up (it said LPS mm).
+        EXPECT_NE(run.output.find(std::string(extension) == ".glb" ? "(glTF's frame, metres, +Y superior, +Z anterior)" : "(LPS mm)"),
+                  std::string::npos) << run.output;
     }
 }
 
@@ -304,6 +307,8 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"inspect " + quoted(input), 1, "block.nii.gz: "},                                          // not a scenario
         {"build " + quoted(input) + " -o " + quoted(dir / "file.txt/out.h5"), 7, "file.txt is a file, not a folder"},
         {"surface " + quoted(input) + " -o " + quoted(dir / "nowhere/heart.stl"), 7, "does not exist"},
+        // export's place: a folder read as "unsupported mesh format ''", /proc as "disk full?" after the work.
+        {"export " + quoted(input) + " -o " + quoted(dir / "file.txt/heart.stl"), 7, "file.txt is a file, not a folder"},
         {"batch " + quoted(input.parent_path()) + " -o " + quoted(dir / "file.txt/batch"), 7, "cannot create the output folder"},
     };
     const auto before = listing(dir.path());

@@ -318,7 +318,7 @@ void add_surface_command(CLI::App& app) {
                         check.euler_characteristic, check.components, check.area, check.volume / 1000.0);
             std::printf("time     marching cubes %.3f s, smoothing %.3f s, decimation %.3f s\n", report.surface.seconds_marching_cubes,
                         report.surface.seconds_smoothing, report.surface.seconds_decimation);
-            std::printf("wrote    %s (LPS, mm)\n", output->c_str());
+            std::printf("wrote    %s (%s)\n", output->c_str(), written_mesh_frame(*output));
         }
         print_warnings(report.warnings);
         print_warnings(report.surface.warnings);

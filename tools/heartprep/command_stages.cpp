@@ -3,6 +3,7 @@
 #include "pipeline.h"
 #include "terminal_progress.h"
 
+#include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
 #include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
@@ -139,6 +140,7 @@ void add_stage_commands(CLI::App& app) {
         command->add_option("--what", *what, "simsurface or visual")->check(CLI::IsMember({"simsurface", "visual"}))->capture_default_str();
         command->add_option("-o,--output", *output, "Mesh file: .stl, .obj, .ply, .vtp, .glb")->required();
         command->callback([=] {
+            check_destination(*output);  // a folder ("unsupported mesh format ''"), /proc ("disk full?" after the work)
             if (!is_writable_mesh_path(*output))
                 throw UsageError(output->string() + ": unsupported mesh format '" + output->extension().string() + "' (expected " +
                                  writable_mesh_formats + ")");
@@ -155,8 +157,9 @@ void add_stage_commands(CLI::App& app) {
             }
             write_mesh(*output, mesh);
             const MeshReport check = analyse_mesh(mesh);
-            std::printf("wrote %s: %s, %zu vertices, %zu triangles, %s, LPS mm\n", output->c_str(), what->c_str(), check.vertices,
-                        check.faces, check.closed() && check.manifold() ? "closed 2-manifold" : "not a closed 2-manifold");
+            std::printf("wrote %s: %s, %zu vertices, %zu triangles, %s, %s\n", output->c_str(), what->c_str(), check.vertices,
+                        check.faces, check.closed() && check.manifold() ? "closed 2-manifold" : "not a closed 2-manifold",
+                        written_mesh_frame(*output));
         });
     }
 }
