@@ -3,6 +3,7 @@
 
 #include "libmodel/errors.h"
 
+#include <algorithm>
 #include <fstream>
 #include <sstream>
 
@@ -44,6 +45,13 @@ std::string read_csv_file(const std::filesystem::path& path) {
     // first name "\xEF\xBB\xBFtime_ms".
     std::string contents = text.str();
     if (contents.rfind("\xEF\xBB\xBF", 0) == 0) contents.erase(0, 3);
+    // No text holds a NUL: a label map or a recording given where a CSV belongs read as "line 7 has
+    // 5 fields", and a NUL inside a field cut the message that quoted it.
+    if (const auto nul = contents.find('\0'); nul != std::string::npos)
+        throw InputError(path.string() + ": holds binary data (a NUL byte on line " +
+                         std::to_string(1 + std::count(contents.begin(), contents.begin() + std::ptrdiff_t(nul), '\n')) +
+                         "); expected a CSV text file" +
+                         (contents.rfind("\x1f\x8b", 0) == 0 ? " (this one is gzip-compressed: a .nii.gz label map?)" : ""));
     return contents;
 }
 

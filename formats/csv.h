@@ -16,7 +16,8 @@ std::vector<std::string> csv_fields(const std::string& line);
 
 /// The whole text of a CSV file. Throws InputError naming the file when it does not exist, is a
 /// folder, is not a regular file (a FIFO or a device would block or never end), or cannot be read.
-/// A UTF-8 byte order mark at its start (a spreadsheet's "CSV UTF-8") is dropped.
+/// A UTF-8 byte order mark at its start (a spreadsheet's "CSV UTF-8") is dropped; a file holding a
+/// NUL byte (binary data: a label map given as a manifest) is refused naming the line.
 std::string read_csv_file(const std::filesystem::path& path);
 
 }  // namespace heartsim

@@ -223,6 +223,18 @@ TEST(HeartprepBatch, ManifestErrors) {
     EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("duplicate case id 'same' on lines 1 and 2"), std::string::npos) << run.output;
     EXPECT_FALSE(fs::exists(dir / "out"));
+    // "." and ".." wrote the hidden files "..h5" and "...h5".
+    std::ofstream(dir / "dots.csv") << "a.nii.gz,..\n";
+    run = heartprep("batch " + quoted(dir / "dots.csv") + " -o " + quoted(dir / "out"));
+    EXPECT_EQ(run.exit_code, 1);
+    EXPECT_NE(run.output.find("dots.csv: line 1: case id '..' begins with '.'"), std::string::npos) << run.output;
+    EXPECT_FALSE(fs::exists(dir / "out"));
+    // A label map given where the manifest belongs read as "line 7 has 5 fields".
+    run = heartprep("batch " + quoted(dir / "a.nii.gz") + " -o " + quoted(dir / "out"));
+    EXPECT_EQ(run.exit_code, 1);
+    EXPECT_NE(run.output.find("a.nii.gz: holds binary data (a NUL byte on line"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("gzip-compressed: a .nii.gz label map?"), std::string::npos) << run.output;
+    EXPECT_FALSE(fs::exists(dir / "out"));
 
     std::ofstream(dir / "missing.csv") << "a.nii.gz,good\nnowhere.nii.gz,lost\n";
     run = heartprep("batch " + quoted(dir / "missing.csv") + " -o " + quoted(dir / "out2"));

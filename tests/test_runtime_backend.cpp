@@ -421,6 +421,20 @@ TEST(RuntimeTrajectory, ParsesAndInterpolates) {
     }
 }
 
+TEST(RuntimeTrajectory, BinaryDataIsRefusedNamingTheLine) {
+    // A NUL inside a field cut the message that quoted the field ("column grab: '0" and no more).
+    test::TempDir dir;
+    std::ofstream(dir / "nul.csv") << "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n0,0,probe,1,2,3,1,0,0,0,2,2,6,0"
+                                   << '\0' << "\n";
+    try {
+        read_trajectory(dir / "nul.csv");
+        ADD_FAILURE() << "a trajectory holding a NUL byte was read";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find((dir / "nul.csv").string() + ": holds binary data (a NUL byte on line 2); expected a CSV text file"),
+                  std::string::npos) << e.what();
+    }
+}
+
 TEST(RuntimeTrajectory, AFileSavedAsCsvUtf8WithAByteOrderMarkReads) {
     // Excel's and LibreOffice's "CSV UTF-8" start with EF BB BF, before the header's first name.
     test::TempDir dir;

@@ -108,6 +108,9 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
         if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
             throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
                              "' may only use letters, digits, '.', '_' and '-' (it names the output file)");
+        if (c.id.front() == '.')  // "." and ".." wrote "..h5" and "...h5": hidden files
+            throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
+                             "' begins with '.', which would hide its output file; begin it with a letter or digit");
         auto [it, fresh] = seen.emplace(c.id, c.line);
         if (!fresh)
             throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
