@@ -12,6 +12,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <regex>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -36,6 +37,40 @@ inline std::vector<std::string> option_names(const CLI::App* command) {
     return names;
 }
 
+/// CLI11's own wording of a refused value, in the programs' words: "Could not convert: --steps =
+/// abc", "--gravity: At Most 3 required but received 4" and "--haptic-rate: Value 99 not in range
+/// 100.000000 to 10000.000000" become "--steps: 'abc' is not a whole number it takes", "--gravity
+/// takes 3 values, not 4" and "--haptic-rate: 99 is outside [100, 10000]". Other texts unchanged.
+inline std::string plain_words(const CLI::App* command, const std::string& text) {
+    std::smatch m;
+    static const std::regex conversion(R"(^Could not convert: (\S+) = (.*)$)");
+    static const std::regex count(R"(^(\S+): At (Most|Least) (\d+) required but received (\d+)$)");
+    static const std::regex range(R"(^(\S+): Value (\S+) not in range (\S+) to (\S+)$)");
+    auto trimmed = [](std::string number) {  // "100.000000" → "100"
+        if (number.find('.') != std::string::npos && number.find_first_of("eE") == std::string::npos) {
+            number.erase(number.find_last_not_of('0') + 1);
+            if (number.back() == '.') number.pop_back();
+        }
+        return number;
+    };
+    if (std::regex_match(text, m, conversion)) {
+        std::string kind = "a value";
+        for (const CLI::App* c = command; c != nullptr; c = c->get_parent())
+            if (const CLI::Option* option = c->get_option_no_throw(m[1].str())) {
+                const std::string type = option->get_type_name();
+                kind = type.rfind("INT", 0) == 0 || type.rfind("UINT", 0) == 0 ? "a whole number" : type.rfind("FLOAT", 0) == 0 ? "a number" : kind;
+                break;
+            }
+        return m[1].str() + ": '" + m[2].str() + "' is not " + kind + " it takes";
+    }
+    if (std::regex_match(text, m, count))
+        return m[1].str() + " takes " + (m[2] == "Most" ? "at most " : "at least ") + m[3].str() + " value" + (m[3] == "1" ? "" : "s") +
+               ", not " + m[4].str();
+    if (std::regex_match(text, m, range))
+        return m[1].str() + ": " + m[2].str() + " is outside [" + trimmed(m[3].str()) + ", " + trimmed(m[4].str()) + "]";
+    return text;
+}
+
 /// The message for `error`, thrown by `app.parse(argc, argv)`. For words the parser did not
 /// expect: "not expected: --smothing 0.3 (did you mean --smoothing?)", in the order typed (CLI11
 /// lists them backwards). Always ends by naming the --help that lists the options, as
@@ -45,7 +80,7 @@ inline std::string parse_error_message(const CLI::App& app, const CLI::ParseErro
     std::string usage;
     for (const CLI::App* c = command; c != nullptr; c = c->get_parent()) usage = c->get_name() + (usage.empty() ? "" : " " + usage);
     const std::string help = " (" + usage + " --help lists the " + (command == &app ? "commands and options" : "options") + ")";
-    if (dynamic_cast<const CLI::ExtrasError*>(&error) == nullptr) return std::string(error.what()) + help;
+    if (dynamic_cast<const CLI::ExtrasError*>(&error) == nullptr) return plain_words(command, error.what()) + help;
 
     std::vector<std::string> left = app.remaining(true);  // the whole tree's unexpected words
     std::vector<std::string> typed, suggestions;

@@ -56,7 +56,7 @@ std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fall
     char x = 0, extra = 0;
     if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 16 || h < 16 || w > 16384 ||
         h > 16384)
-        throw UsageError("--size '" + text + "': expected WxH pixels, e.g. 1024x768");
+        throw UsageError("--size '" + text + "': expected WxH pixels, each from 16 to 16384, e.g. 1024x768");
     return {w, h};
 }
 

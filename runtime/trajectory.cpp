@@ -87,6 +87,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         k.hand = int(hand);
         k.kind = parse_kind(fields[2], where + " column kind");
         k.pose.position = {number(fields[3], where + " column x"), number(fields[4], where + " column y"), number(fields[5], where + " column z")};
+        for (int a = 0; a < 3; ++a) plausible::require(k.pose.position[a], plausible::coordinate_mm, std::string(1, "xyz"[a]), where);
         k.pose.orientation = Eigen::Quaterniond(number(fields[6], where + " column qw"), number(fields[7], where + " column qx"),
                                                 number(fields[8], where + " column qy"), number(fields[9], where + " column qz"));
         if (k.pose.orientation.norm() < 1e-6) throw InputError(where + ": the orientation quaternion is zero");
@@ -127,6 +128,7 @@ InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKin
     k.hand = hand;
     k.kind = kind;
     k.pose.position = {v[0], v[1], v[2]};
+    for (int a = 0; a < 3; ++a) plausible::require(k.pose.position[a], plausible::coordinate_mm, std::string(1, "XYZ"[a]), what);
     k.semi_axes = {v[3], v[4], v[5]};
     if (!(k.semi_axes.minCoeff() > 0)) throw InputError(what + ": semi-axes must be positive, mm");
     for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", what);

@@ -749,6 +749,18 @@ TEST(HapticsScripted, ReplaysPosesInterpolatedWithButtonsAndRejectsBadRows) {
     EXPECT_THROW(parse_pose_script("0,0,0,0,1,0,0,0\n0,1,x,0,1,0,0,0\n", "bad.csv"), InputError);
     EXPECT_THROW(parse_pose_script("5,0,0,0,1,0,0,0\n1,0,0,0,1,0,0,0\n", "bad.csv"), InputError);
     EXPECT_THROW(parse_pose_script("0,0,0,0,0,0,0,0\n", "bad.csv"), InputError);
+    // Finite but absurd: a quaternion whose length overflows read, and every step then dropped the
+    // pose; a position of 1e300 mm read too. Both are refused naming the row.
+    for (const auto& [row, message] : std::vector<std::pair<std::string, std::string>>{
+             {"0,0,0,0,1e300,1e300,0,0\n", "big.csv: row 1: the orientation quaternion is too large to normalise"},
+             {"0,0,1e300,0,1,0,0,0\n", "big.csv: row 1: y is 1e+300 mm, outside the plausible range"}}) {
+        try {
+            parse_pose_script(row, "big.csv");
+            ADD_FAILURE() << row;
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find(message), std::string::npos) << e.what();
+        }
+    }
     const HandForce hand = parse_hand_force("time_ms,fx,fy,fz\n0,0,0,0\n10,0,0,-1\n", "hand.csv");
     EXPECT_NEAR(hand(5).z(), -0.5, 1e-12);
     EXPECT_NEAR(hand(50).z(), -1.0, 1e-12);

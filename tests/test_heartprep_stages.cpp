@@ -85,7 +85,8 @@ TEST(HeartprepStages, ExportedMeshesReadBackClosed) {
             const auto out = dir / (std::string(what) + extension);
             const auto run = heartprep("export " + quoted(file) + " --what " + what + " -o " + quoted(out));
             ASSERT_EQ(run.exit_code, 0) << run.output;
-            EXPECT_NE(run.output.find("LPS"), std::string::npos);
+            // The frame the file holds: glTF's metres, +Y up, for a .glb (docs/user-guide.md).
+            EXPECT_NE(run.output.find(std::string(extension) == ".glb" ? "glTF's frame, metres" : "LPS mm"), std::string::npos) << run.output;
             const MeshReport report = analyse_mesh(read_mesh(out));  // assimp, as MeshLab-style readers do
             EXPECT_TRUE(report.closed()) << what << extension << ": " << report.boundary_edges << " boundary edges";
         }

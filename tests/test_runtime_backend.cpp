@@ -421,6 +421,16 @@ TEST(RuntimeTrajectory, ParsesAndInterpolates) {
     }
 }
 
+TEST(RuntimeTrajectory, APositionBeyondThePlausibleRangeIsRefused) {
+    try {
+        parse_trajectory("0,0,probe,1e300,0,0,1,0,0,0,2,2,6,0\n", "far.csv");
+        ADD_FAILURE() << "a keyframe 1e300 mm away was accepted";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("far.csv line 1: x is 1e+300 mm, outside the plausible range [-1e+06, 1e+06] mm"), std::string::npos)
+            << e.what();
+    }
+}
+
 TEST(RuntimeTrajectory, BinaryDataIsRefusedNamingTheLine) {
     // A NUL inside a field cut the message that quoted the field ("column grab: '0" and no more).
     test::TempDir dir;

@@ -290,6 +290,11 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         {"run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --stats-csv ''", 2, "--stats-csv: the value is empty"},
         {"run " + quoted(phantom()) + " --headless --backend cpu --steps 1 --probe ''", 2, "--probe: the value is empty"},
         {"run '' --headless", 2, "the scenario given is an empty name; give a file"},
+        // CLI11's own wording ("Could not convert: --steps = …", "At Most 3 required but received
+        // 4", "Value 99 not in range 100.000000 to 10000.000000"), said in the programs' words.
+        {"run " + quoted(phantom()) + " --headless --steps 99999999999999", 2, "--steps: '99999999999999' is not a whole number it takes"},
+        {"run " + quoted(phantom()) + " --headless --steps 1 --gravity 1 2 3 4", 2, "--gravity takes at most 3 values, not 4"},
+        {"run " + quoted(phantom()) + " --headless --steps 1 --haptic-rate 99", 2, "--haptic-rate: 99 is outside [100, 10000]"},
         {"rn " + quoted(phantom()), 2, "unknown command 'rn' (did you mean 'run'?)"},  // a typo of a command
         {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range
         {run + "--steps 1 --view sideways", 2, "--view"},                       // not one of its values

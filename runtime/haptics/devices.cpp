@@ -4,6 +4,7 @@
 #include "formats/csv.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <cmath>
@@ -78,8 +79,13 @@ std::vector<PoseKeyframe> parse_pose_script(const std::string& text, const std::
         PoseKeyframe k;
         k.time_ms = row[0];
         k.pose.position_mm = Eigen::Vector3d(row[1], row[2], row[3]);
+        for (int a = 0; a < 3; ++a)
+            plausible::require(row[std::size_t(1 + a)], plausible::coordinate_mm, std::string(1, "xyz"[a]), name + ": row " + std::to_string(row_number));
         Eigen::Quaterniond q(row[4], row[5], row[6], row[7]);
         if (q.norm() < 1e-9) throw InputError(name + ": row " + std::to_string(row_number) + ": zero orientation quaternion");
+        // 1e300 overflowed the length to infinity: the pose read, then every step dropped it.
+        if (!std::isfinite(q.norm()))
+            throw InputError(name + ": row " + std::to_string(row_number) + ": the orientation quaternion is too large to normalise (its length overflows)");
         k.pose.orientation = q.normalized();
         if (row.size() > 8) {
             // Bits of a 32-bit word: a larger number cannot be converted (fuzz_pose_script found 1e49).
