@@ -19,15 +19,19 @@ public:
 };
 
 /// Whether `message` already says where it comes from: it begins with `file`, with another file
-/// name ("mesh.stl: …", "case.h5:/lattice/…: …": a first field without spaces that holds a '.' or
-/// a '/'), or with an option ("--device …").
+/// name ("mesh.stl: …", "case.h5:/lattice/…: …", "path.csv line 4: …": a first word that holds a
+/// '.' or a '/', alone or followed by " line "), or with an option ("--device …").
 inline bool names_its_source(const std::string& message, const std::string& file) {
     if (!file.empty() && message.rfind(file, 0) == 0) return true;
     if (message.rfind("-", 0) == 0) return true;
     const auto colon = message.find(':');
     if (colon == std::string::npos || colon == 0) return false;
     const std::string first = message.substr(0, colon);
-    return first.find(' ') == std::string::npos && first.find_first_of("./") != std::string::npos;
+    const auto space = first.find(' ');
+    // "t2.csv line 2 column z: …" names its file too (the trajectory reader's form).
+    const std::string word = first.substr(0, space);
+    if (space != std::string::npos && first.compare(space, 6, " line ") != 0) return false;
+    return word.find_first_of("./") != std::string::npos;
 }
 
 /// `error` as an error of `file`, "FILE: what", unless its message names its source already

@@ -267,6 +267,7 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     // one line "heartsim: error: …", CLI11's own 104-114 never.
     test::TempDir dir;
     std::ofstream(dir / "corrupt.h5") << "not a scenario";
+    std::ofstream(dir / "bad.csv") << "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n0,0,probe,0,0,x,1,0,0,0,3,3,3,0\n";
     const std::string run = "run " + quoted(phantom()) + " --headless --backend cpu ";
     struct Case {
         std::string arguments;
@@ -274,6 +275,9 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         std::string mentions;
     };
     const std::vector<Case> cases = {
+        // The trajectory's own error names its file and line, with no scenario before it
+        // ("phantom.h5: bad.csv line 2 …" named the wrong file first).
+        {run + "--steps 1 --trajectory " + quoted(dir / "bad.csv"), 1, "heartsim: error: " + (dir / "bad.csv").string() + " line 2 column z: 'x'"},
         {run + "--steps 1 --frobnicate", 2, "--frobnicate"},                    // unknown option
         {run + "--steps 1 --draw-share nan", 2, "--draw-share: 'nan' is not a finite number"},
         {run + "--steps -1", 2, "--steps: must be 0 or more, not -1"},
