@@ -74,6 +74,19 @@ constexpr int lane_count = 8;
 constexpr std::size_t state_stride = 8;
 constexpr std::size_t chunk_groups = 32;  // 256 particles per parallel task
 
+/// The per-entry tables (neighbour, rest length, stiffness, dashpot) hold two groups of 8 side by
+/// side in each slot: [pair of groups][slot][16 lanes], so that the avx512 kernel reads a slot of
+/// its 16 particles with one load instead of two halves joined by a lane insert. Slot s of group g
+/// begins at group_entries(g) + s·slot_stride; lane l of it is l entries on.
+constexpr std::size_t slot_stride = 2 * lane_count;
+constexpr std::size_t group_entries(std::size_t group) {
+    return group / 2 * (slot_count * slot_stride) + group % 2 * lane_count;
+}
+/// The entry of particle i's slot s.
+constexpr std::size_t entry_of(std::size_t i, int s) {
+    return group_entries(i / lane_count) + std::size_t(s) * slot_stride + i % lane_count;
+}
+
 /// Everything one substep's inner loop reads, as raw pointers.
 template <class Real>
 struct KernelData {
@@ -85,7 +98,7 @@ struct KernelData {
     const Real* rest_length;
     const Real* stiffness;
     const Real* dashpot;    // c/h
-    std::size_t parameter_group_stride;  // 18·8 for per-entry rest length and stiffness, 0 when uniform per slot
+    bool per_entry_parameters;  // rest length and stiffness per entry (as the neighbours), else per slot: [slot][16]
     const Real* mass;
     const Real* inverse_mass_h2;
     const Real* support_point;      // 4 per particle (x, y, z, 0), mm
@@ -113,10 +126,10 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
         uxi[l] = q[0], uyi[l] = q[1], uzi[l] = q[2];
         fx[l] = fy[l] = fz[l] = Real(0);
     }
-    const std::size_t table = group * slot_count * W, parameters = group * k.parameter_group_stride;
+    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : group % 2 * lane_count;
     for (int s = 0; s < slot_count; ++s) {
         for (int l = 0; l < W; ++l) {
-            const std::size_t t = table + std::size_t(s) * W + l, u = parameters + std::size_t(s) * W + l;
+            const std::size_t t = table + std::size_t(s) * slot_stride + l, u = parameters + std::size_t(s) * slot_stride + l;
             const std::size_t j = std::size_t(k.neighbour[t]);
             const Real* pj = k.x + state_stride * j;
             const Real dx = pj[0] - xi[l], dy = pj[1] - yi[l], dz = pj[2] - zi[l];
@@ -208,10 +221,10 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
         load_own4(k.x + state_stride * base, state_stride, xi, yi, zi);
         load_own4(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
         __m128 fx = zero, fy = zero, fz = zero;
-        const std::size_t table = group * slot_count * lane_count + std::size_t(half) * 4;
-        const std::size_t parameters = group * k.parameter_group_stride + std::size_t(half) * 4;
+        const std::size_t table = group_entries(group) + std::size_t(half) * 4;
+        const std::size_t parameters = (k.per_entry_parameters ? group_entries(group) : group % 2 * lane_count) + std::size_t(half) * 4;
         for (int s = 0; s < slot_count; ++s) {
-            const std::size_t t = table + std::size_t(s) * lane_count, u = parameters + std::size_t(s) * lane_count;
+            const std::size_t t = table + std::size_t(s) * slot_stride, u = parameters + std::size_t(s) * slot_stride;
             __m128 xj, yj, zj;
             load_gather4(k.x, k.neighbour + t, xj, yj, zj);
             const __m128 dx = _mm_sub_ps(xj, xi), dy = _mm_sub_ps(yj, yi), dz = _mm_sub_ps(zj, zi);
@@ -318,9 +331,9 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     load_own8(k.x + state_stride * base, state_stride, xi, yi, zi);
     load_own8(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m256 fx = zero, fy = zero, fz = zero;
-    const std::size_t table = group * slot_count * lane_count, parameters = group * k.parameter_group_stride;
+    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : group % 2 * lane_count;
     for (int s = 0; s < slot_count; ++s) {
-        const std::size_t t = table + std::size_t(s) * lane_count, u = parameters + std::size_t(s) * lane_count;
+        const std::size_t t = table + std::size_t(s) * slot_stride, u = parameters + std::size_t(s) * slot_stride;
         __m256 xj, yj, zj, uxj, uyj, uzj;
         if constexpr (Damped) load_gather8_both(k.x, k.u, k.neighbour + t, xj, yj, zj, uxj, uyj, uzj);
         else load_gather8(k.x, k.neighbour + t, xj, yj, zj);
@@ -449,11 +462,6 @@ HEARTSIM_AVX512 unsigned near_probe16(const float* x, float cx, float cy, float 
     return _mm512_cmp_ps_mask(d2, _mm512_set1_ps(bound2), _CMP_LT_OQ);
 }
 
-/// 8 values from each of two groups' tables: lanes 0..7 from `low`, 8..15 from `high`.
-HEARTSIM_AVX512 inline __m512 load_two(const float* low, const float* high) {
-    return _mm512_insertf32x8(_mm512_castps256_ps512(_mm256_loadu_ps(low)), _mm256_loadu_ps(high), 1);
-}
-
 /// Two groups (16 particles) at once in 512-bit registers: the same operations in the same order
 /// per particle as group_portable, so the same bits.
 template <bool Damped, bool Supported>
@@ -464,11 +472,11 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     load_own16(k.x + state_stride * base, state_stride, xi, yi, zi);
     load_own16(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m512 fx = zero, fy = zero, fz = zero;
-    const std::size_t table = group * slot_count * lane_count, next_table = table + slot_count * lane_count;
-    const std::size_t parameters = group * k.parameter_group_stride, next_parameters = parameters + k.parameter_group_stride;
+    // `group` is even: it and the next share each slot's 16 entries.
+    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : 0;
     for (int s = 0; s < slot_count; ++s) {
-        const std::size_t t = table + std::size_t(s) * lane_count, t2 = next_table + std::size_t(s) * lane_count;
-        const std::size_t u = parameters + std::size_t(s) * lane_count, u2 = next_parameters + std::size_t(s) * lane_count;
+        const std::size_t t = table + std::size_t(s) * slot_stride, t2 = t + lane_count;
+        const std::size_t u = parameters + std::size_t(s) * slot_stride;
         __m512 xj, yj, zj, uxj, uyj, uzj;
         if constexpr (Damped) load_gather16_both(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj, uxj, uyj, uzj);
         else load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
@@ -477,15 +485,14 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
         length2 = _mm512_add_ps(length2, _mm512_mul_ps(dz, dz));
         const __m512 length = _mm512_sqrt_ps(_mm512_max_ps(length2, tiny));
         const __m512 inverse = _mm512_div_ps(one, length);
-        __m512 scale = _mm512_mul_ps(_mm512_mul_ps(load_two(k.stiffness + u, k.stiffness + u2),
-                                                   _mm512_sub_ps(length, load_two(k.rest_length + u, k.rest_length + u2))),
+        __m512 scale = _mm512_mul_ps(_mm512_mul_ps(_mm512_loadu_ps(k.stiffness + u), _mm512_sub_ps(length, _mm512_loadu_ps(k.rest_length + u))),
                                      inverse);
         if constexpr (Damped) {
             const __m512 dux = _mm512_sub_ps(uxj, uxi), duy = _mm512_sub_ps(uyj, uyi), duz = _mm512_sub_ps(uzj, uzi);
             __m512 along = _mm512_add_ps(_mm512_mul_ps(dux, dx), _mm512_mul_ps(duy, dy));
             along = _mm512_mul_ps(_mm512_add_ps(along, _mm512_mul_ps(duz, dz)), inverse);
             along = _mm512_mul_ps(along, inverse);
-            scale = _mm512_add_ps(scale, _mm512_mul_ps(load_two(k.dashpot + t, k.dashpot + t2), along));
+            scale = _mm512_add_ps(scale, _mm512_mul_ps(_mm512_loadu_ps(k.dashpot + t), along));
         }
         fx = _mm512_add_ps(fx, _mm512_mul_ps(scale, dx));
         fy = _mm512_add_ps(fy, _mm512_mul_ps(scale, dy));
@@ -713,8 +720,8 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         }
     }
 
-    // Per-slot tables in [group][slot][lane] order.
-    const std::size_t entries = groups_ * slot_count * lane_count;
+    // Per-slot tables in [pair of groups][slot][16 lanes] order (entry_of).
+    const std::size_t entries = (groups_ + 1) / 2 * slot_count * slot_stride;
     neighbour_.assign(entries, 0);
     rest_length_.assign(entries, Real(0));
     stiffness_.assign(entries, Real(0));
@@ -723,7 +730,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     damped_ = false;
     for (std::size_t i = 0; i < n_pad_; ++i) {
         for (int s = 0; s < slot_count; ++s) {
-            const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+            const std::size_t t = entry_of(i, s);
             neighbour_[t] = std::int32_t(i);
             if (i >= n_) continue;
             const std::int32_t q = slot_spring[i * slot_count + std::size_t(s)];
@@ -750,18 +757,18 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         bool uniform = true;
         for (std::size_t i = 0; i < n_ && uniform; ++i)
             for (int s = 0; s < slot_count; ++s) {
-                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                const std::size_t t = entry_of(i, s);
                 if (std::size_t(neighbour_[t]) == i) continue;
                 if (!seen[std::size_t(s)]) seen[std::size_t(s)] = true, rest[std::size_t(s)] = rest_length_[t], stiff[std::size_t(s)] = stiffness_[t];
                 else if (rest[std::size_t(s)] != rest_length_[t] || stiff[std::size_t(s)] != stiffness_[t]) uniform = false;
             }
         uniform_slots_ = uniform && options_.compact_uniform_slots;
-        slot_rest_length_.assign(std::size_t(slot_count) * lane_count, Real(0));
-        slot_stiffness_.assign(std::size_t(slot_count) * lane_count, Real(0));
+        slot_rest_length_.assign(std::size_t(slot_count) * slot_stride, Real(0));
+        slot_stiffness_.assign(std::size_t(slot_count) * slot_stride, Real(0));
         for (int s = 0; s < slot_count; ++s)
-            for (int l = 0; l < lane_count; ++l) {
-                slot_rest_length_[std::size_t(s * lane_count + l)] = rest[std::size_t(s)];
-                slot_stiffness_[std::size_t(s * lane_count + l)] = stiff[std::size_t(s)];
+            for (std::size_t l = 0; l < slot_stride; ++l) {  // both groups of a pair read the same 18 constants
+                slot_rest_length_[std::size_t(s) * slot_stride + l] = rest[std::size_t(s)];
+                slot_stiffness_[std::size_t(s) * slot_stride + l] = stiff[std::size_t(s)];
             }
         load_report_.uniform_slots = uniform_slots_;
     }
@@ -945,7 +952,7 @@ template <class Real>
 Real BasicSolver<Real>::strain_at(std::size_t i, const Real* x, const Real* positions) const {
     Real worst = 0;
     for (int s = 0; s < slot_count; ++s) {
-        const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+        const std::size_t t = entry_of(i, s);
         const std::size_t j = std::size_t(neighbour_[t]);
         if (j == i) continue;
         const Real* xj = positions + state_stride * j;
@@ -1040,11 +1047,11 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     if (uniform_slots_) {
         k.rest_length = slot_rest_length_.data();
         k.stiffness = slot_stiffness_.data();
-        k.parameter_group_stride = 0;
+        k.per_entry_parameters = false;
     } else {
         k.rest_length = rest_length_.data();
         k.stiffness = stiffness_.data();
-        k.parameter_group_stride = std::size_t(slot_count) * lane_count;
+        k.per_entry_parameters = true;
     }
     k.dashpot = dashpot_over_h_.data();
     k.mass = mass_.data();
@@ -1289,7 +1296,7 @@ Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
     const Real* xi = current_ + state_stride * i;
     const Real* ui = motion_ + state_stride * i;
     for (int s = 0; s < slot_count; ++s) {
-        const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+        const std::size_t t = entry_of(i, s);
         const std::size_t j = std::size_t(neighbour_[t]);
         if (j == i) continue;
         const Real* xj = current_ + state_stride * j;
@@ -1364,7 +1371,7 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                 for (int s = 0; s < slot_count; ++s) {
                     // Each spring once, from its end of lower index (it is in both ends' tables; an
                     // empty slot points at the particle itself).
-                    const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                    const std::size_t t = entry_of(i, s);
                     if (std::size_t(neighbour_[t]) <= i) continue;
                     const Real* y = current_ + state_stride * std::size_t(neighbour_[t]);
                     const double length = std::sqrt(std::pow(double(y[0]) - x[0], 2) + std::pow(double(y[1]) - x[1], 2) +
