@@ -174,6 +174,7 @@ int main(int argc, char** argv) {
     a.record_given = run->count("--record") > 0;
     a.contact_given = run->count("--contact") > 0;
     a.max_force_given = run->count("--max-force") > 0;
+    a.picking_refresh_given = run->count("--picking-refresh") > 0;
     for (const char* option : {"--max-force", "--haptic-rate", "--interpolation", "--haptic-priority", "--coupling"})
         if (run->count(option) > 0) a.device_options_given.push_back(option);
     // The file an error that names none comes from: the scenario run, or the journal recovered.

@@ -249,6 +249,9 @@ void set_contact(const RunArguments& a, PreparedRun& p) {
     contact.picking_refresh = a.picking_refresh;
     // Options that contradict each other (exit 2); the backend refuses it too, for its other callers.
     if (contact.mode != ContactMode::direct && p.kind != BackendKind::gl) throw UsageError("--contact picking|search needs --backend gl");
+    // The refresh only paces the picking buffer: with any other contact it changed nothing, unsaid.
+    if (a.picking_refresh_given && contact.mode != ContactMode::picking)
+        throw UsageError("--picking-refresh paces the picking buffer: it needs --contact picking");
     if (contact.mode != ContactMode::direct && p.kind == BackendKind::gl)
         std::printf("contact: %s%s, %.2f MiB more device memory\n", to_string(contact.mode),
                     contact.mode == ContactMode::picking ? (" (buffer rendered every " + std::to_string(contact.picking_refresh) +

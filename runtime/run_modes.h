@@ -51,7 +51,7 @@ struct RunArguments {
     std::string haptic_priority = "realtime";
     std::string record, replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
-    bool backend_given = false, record_given = false, contact_given = false, max_force_given = false;
+    bool backend_given = false, record_given = false, contact_given = false, max_force_given = false, picking_refresh_given = false;
     std::vector<std::string> device_options_given;  // --max-force, --haptic-rate, --interpolation, --coupling, --haptic-priority as typed
 };
 

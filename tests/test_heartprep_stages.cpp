@@ -53,6 +53,12 @@ TEST(HeartprepStages, PackRewritesTheLayoutAndKeepsTheFileValid) {
     test::TempDir dir;
     const auto file = built(dir, "heart");
     const Scenario before = read_scenario(file);
+    // A place that cannot take the output's ParaView description is refused before the stage runs.
+    fs::create_directory(dir / "blocked.xdmf");
+    const auto blocked = heartprep("pack " + quoted(file) + " --packing slices -o " + quoted(dir / "blocked.h5"));
+    EXPECT_EQ(blocked.exit_code, 7) << blocked.output;
+    EXPECT_NE(blocked.output.find("blocked.xdmf: is a folder"), std::string::npos) << blocked.output;
+    EXPECT_FALSE(fs::exists(dir / "blocked.h5"));
     const auto run = heartprep("pack " + quoted(file) + " --packing slices -o " + quoted(dir / "slices.h5"));
     ASSERT_EQ(run.exit_code, 0) << run.output;
     const Scenario after = read_scenario(dir / "slices.h5");  // neighbours symmetric, springs consistent
@@ -229,6 +235,12 @@ TEST(HeartprepBatch, ManifestErrors) {
     run = heartprep("batch " + quoted(dir / "dots.csv") + " -o " + quoted(dir / "out"));
     EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("dots.csv: line 1: case id '..' begins with '.'"), std::string::npos) << run.output;
+    EXPECT_FALSE(fs::exists(dir / "out"));
+    // Ids that differ only in case name one file on macOS and Windows.
+    std::ofstream(dir / "cased.csv") << "a.nii.gz,heart\na.nii.gz,Heart\n";
+    run = heartprep("batch " + quoted(dir / "cased.csv") + " -o " + quoted(dir / "out"));
+    EXPECT_EQ(run.exit_code, 1);
+    EXPECT_NE(run.output.find("case ids 'heart' (line 1) and 'Heart' (line 2) differ only in case"), std::string::npos) << run.output;
     EXPECT_FALSE(fs::exists(dir / "out"));
     // A label map given where the manifest belongs read as "line 7 has 5 fields".
     run = heartprep("batch " + quoted(dir / "a.nii.gz") + " -o " + quoted(dir / "out"));

@@ -299,6 +299,7 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         {"run " + quoted(phantom()) + " --headless --steps 99999999999999", 2, "--steps: '99999999999999' is not a whole number it takes"},
         {"run " + quoted(phantom()) + " --headless --steps 1 --gravity 1 2 3 4", 2, "--gravity takes at most 3 values, not 4"},
         {"run " + quoted(phantom()) + " --headless --steps 1 --haptic-rate 99", 2, "--haptic-rate: 99 is outside [100, 10000]"},
+        {run + "--steps 1 --picking-refresh 5", 2, "--picking-refresh paces the picking buffer: it needs --contact picking"},
         {"rn " + quoted(phantom()), 2, "unknown command 'rn' (did you mean 'run'?)"},  // a typo of a command
         {run + "--steps 1 --draw-share 5", 2, "--draw-share"},                  // out of range
         {run + "--steps 1 --view sideways", 2, "--view"},                       // not one of its values

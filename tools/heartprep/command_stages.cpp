@@ -5,6 +5,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
+#include "formats/xdmf.h"
 #include "libmodel/cli_messages.h"
 #include "libmodel/command_errors.h"
 #include "libmodel/errors.h"
@@ -45,6 +46,13 @@ std::shared_ptr<std::string> add_mapping_option(CLI::App& command) {
     return method;
 }
 
+/// The scenario a stage writes and its ParaView description: places that cannot take them are
+/// refused before the stage's work, as heartprep build does.
+void check_stage_output(const StageFiles& files) {
+    if (!files.output.empty()) check_destination(files.output);
+    check_xdmf_destination(files.target());
+}
+
 void finish(const StageFiles& files, const BuildReport& report, const Scenario& scenario, TerminalProgress& progress) {
     {
         ProgressStage stage(progress, "write scenario", 0);
@@ -71,6 +79,7 @@ void add_stage_commands(CLI::App& app) {
             ->check(CLI::Range(0, 16384))
             ->capture_default_str();
         command->callback([=] {
+            check_stage_output(*files);
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);
             BuildReport report;
@@ -90,6 +99,7 @@ void add_stage_commands(CLI::App& app) {
         auto files = add_stage_files(*command);
         auto method = add_mapping_option(*command);
         command->callback([=] {
+            check_stage_output(*files);
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);
             BuildReport report;
@@ -112,6 +122,7 @@ void add_stage_commands(CLI::App& app) {
         command->add_option("--visual-mesh", *mesh, "STL/OBJ/PLY/glTF mesh to use as the visual mesh");
         auto method = add_mapping_option(*command);
         command->callback([=] {
+            check_stage_output(*files);
             TerminalProgress progress(files->quiet);
             Scenario scenario = read_scenario(files->input);
             if (!scenario.visual && mesh->empty())

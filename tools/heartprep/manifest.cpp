@@ -104,6 +104,7 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
         if (cases.empty()) throw InputError(manifest.string() + ": no cases (expected lines of input[,case_id[,options]])");
     }
     std::map<std::string, int> seen;
+    std::map<std::string, const BatchCase*> folded;  // ids by lower case: a.h5 and A.h5 are one file on macOS and Windows
     for (const auto& c : cases) {
         if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
             throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
@@ -115,6 +116,12 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
         if (!fresh)
             throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
                              " and " + std::to_string(c.line));
+        if (auto [other, fresh_folded] = folded.emplace(text::lowercase(c.id), &c); !fresh_folded)
+        {
+            auto where = [](const BatchCase& b) { return b.line > 0 ? "line " + std::to_string(b.line) : b.input.filename().string(); };
+            throw InputError(manifest.string() + ": case ids '" + other->second->id + "' (" + where(*other->second) + ") and '" + c.id + "' (" +
+                             where(c) + ") differ only in case: their files would be one on macOS and Windows");
+        }
         split_words(c.options);  // refuse unbalanced quotes before anything runs
     }
     return cases;
