@@ -102,10 +102,11 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
     }, check);
 }
 
-void write_recording(const std::filesystem::path& path, const Recording& recording) {
+void write_recording(const std::filesystem::path& path, const Recording& recording,
+                     const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = recording_xdmf(path.filename().string(), recording);
     check_xdmf_destination(path);
-    write_recording_data(path, recording);
+    write_recording_data(path, recording, check);
     write_xdmf(path, xdmf);
 }
 

@@ -98,11 +98,12 @@ struct Recording {
 };
 
 /// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xdmf`, a
-/// time series for ParaView); throws OutputError naming the file.
-void write_recording(const std::filesystem::path& path, const Recording& recording);
-/// The HDF5 file alone (atomically), no .xdmf: `check`, when given, reads the complete temporary
-/// file before it takes the name (`heartsim recover` reads it back as a recording), and what it
-/// throws leaves no file; the caller then calls write_recording_xdmf.
+/// time series for ParaView); throws OutputError naming the file. `check`, when given, reads the
+/// complete temporary file before it takes the name (`heartsim recover` reads it back as a
+/// recording), and what it throws leaves no file.
+void write_recording(const std::filesystem::path& path, const Recording& recording,
+                     const std::function<void(const std::filesystem::path&)>& check = {});
+/// The HDF5 file alone (atomically, `check` as above), no .xdmf.
 void write_recording_data(const std::filesystem::path& path, const Recording& recording,
                           const std::function<void(const std::filesystem::path&)>& check = {});
 /// Reads and validates (shapes agree, values finite where they must be); throws InputError

@@ -617,12 +617,6 @@ bool holds_non_finite_number(const std::string& value) {
     return text.find("nan") != std::string::npos || text.find("inf") != std::string::npos;
 }
 
-/// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
-/// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
-/// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
-/// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
-/// name (MetaIO's: the text before '=' or ':') and value under 255 characters, and NDims from 1 to 4.
-/// Returns whether the header gives the voxel size (ElementSpacing or ElementSize).
 /// The leading whitespace-separated numbers of a header value ("4 4 x 4" has two).
 std::size_t leading_numbers(const std::string& value) {
     std::istringstream tokens(value);
@@ -635,6 +629,12 @@ std::size_t leading_numbers(const std::string& value) {
     return count;
 }
 
+/// ITK 5.2's MetaIO copies each header field's name into a 255-byte buffer without a bound (strcpy
+/// in MET_InitReadField: a longer name overflows it; fuzz_volume_mha found glibc's fortify check
+/// aborting there) and reads NDims values per array and NDims² per matrix into 4096-value buffers.
+/// So a MetaImage header is checked here before ITK sees it: every line "Key = Value", every field
+/// name (MetaIO's: the text before '=' or ':') and value under 255 characters, and NDims from 1 to 4.
+/// Returns whether the header gives the voxel size (ElementSpacing or ElementSize).
 bool check_metaimage_header_before_itk(const fs::path& path) {
     bool spacing_given = false;
     // MetaIO reads NDims numbers for the per-axis fields (NDims² for the matrices) and, when a line

@@ -231,12 +231,5 @@ void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenar
     write_xdmf(h5, scenario_xdmf(h5.filename().string(), scenario));
 }
 
-void write_state_xdmf(const std::filesystem::path& h5, const SimulationState& state) {
-    write_xdmf(h5, state_xdmf(h5.filename().string(), state, h5.parent_path()));
-}
-
-void write_recording_xdmf(const std::filesystem::path& h5, const Recording& recording) {
-    write_xdmf(h5, recording_xdmf(h5.filename().string(), recording));
-}
 
 }  // namespace heartsim

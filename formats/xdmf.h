@@ -56,9 +56,8 @@ std::size_t xdmf_step_stride(std::size_t steps);
 /// before they write the .h5 and write it after, so running out of memory cannot leave an .h5
 /// without its .xdmf. Throws OutputError naming the .xdmf.
 void write_xdmf(const std::filesystem::path& h5, const std::string& text);
-/// write_xdmf of scenario_xdmf / state_xdmf / recording_xdmf of the file at `h5`.
+/// write_xdmf of scenario_xdmf of the file at `h5` (heartprep batch, for a scenario built without
+/// one); the state's and the recording's writers write theirs themselves.
 void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenario);
-void write_state_xdmf(const std::filesystem::path& h5, const SimulationState& state);
-void write_recording_xdmf(const std::filesystem::path& h5, const Recording& recording);
 
 }  // namespace heartsim

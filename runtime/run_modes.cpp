@@ -144,7 +144,8 @@ void check_arguments(const RunArguments& a) {
         return fs::absolute(x, error).lexically_normal() == fs::absolute(y, error).lexically_normal();
     };
     const fs::path scenario_description = xdmf_beside(a.scenario);
-    for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--record", a.record}}) {
+    const std::pair<const char*, std::string> described[] = {{"--save-state", a.save_state}, {"--record", a.record}};
+    for (const auto& [option, path] : described) {
         if (path.empty()) continue;
         const fs::path description = xdmf_beside(path);
         const std::string what = std::string(option) + " " + path + ": its ParaView description " + description.string();
@@ -155,7 +156,7 @@ void check_arguments(const RunArguments& a) {
         for (const auto& [other_option, other] : outputs)
             if (!other.empty() && same(description, other))
                 throw UsageError(what + " is the file " + other_option + " names; give each its own");
-        for (const auto& [other_option, other] : {std::pair{"--save-state", a.save_state}, {"--record", a.record}})
+        for (const auto& [other_option, other] : described)
             if (other_option != option && !other.empty() && same(description, xdmf_beside(other)))
                 throw UsageError(what + " is also " + other_option + "'s; give them different names");
     }
@@ -163,16 +164,17 @@ void check_arguments(const RunArguments& a) {
         if (path.empty()) continue;
         try {
             check_destination(path);
-            if (option == std::string("--save-state")) check_xdmf_destination(path);
         } catch (const OutputError& e) {
             throw OutputError(std::string(option) + " " + e.what());
         }
     }
-    if (!a.record.empty()) {
+    // The places of the descriptions (--record's own place is check_record_path's).
+    for (const auto& [option, path] : described) {
+        if (path.empty()) continue;
         try {
-            check_xdmf_destination(a.record);
+            check_xdmf_destination(path);
         } catch (const OutputError& e) {
-            throw OutputError(std::string("--record ") + e.what());
+            throw OutputError(std::string(option) + " " + e.what());
         }
     }
 }
@@ -643,15 +645,14 @@ int recover_recording(const std::string& journal, const std::string& output) {
     if (r.steps.size() == 0)
         throw InputError(journal + ": holds no step (the session was killed within its first half second): nothing to recover; delete it");
     // Written beside the target and read back with every check a recording gets before it takes the
-    // name, so what takes the name is a recording that reads.
-    write_recording_data(target, r, [&](const fs::path& temporary) {
+    // name, so what takes the name is a recording that reads; then its .xdmf under that name.
+    write_recording(target, r, [&](const fs::path& temporary) {
         try {
             read_recording(temporary);
         } catch (const InputError& e) {
             throw InputError(journal + ": the recovered session does not pass a recording's checks: " + e.what());
         }
     });
-    write_recording_xdmf(target, r);
     std::printf("wrote %s (%zu steps, %zu device ticks, %zu events)\n", target.c_str(), r.steps.size(), ticks, r.events.size());
     std::error_code error;
     fs::remove(journal, error);
