@@ -76,7 +76,7 @@ int main(int argc, char** argv) {
                                             "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}))
         ->capture_default_str();
-    run->add_option("--picking-refresh", a.picking_refresh, "Render the picking buffer every K force requests (stale in between)")
+    run->add_option("--picking-refresh", a.picking_refresh, "With --contact picking: render the picking buffer every K force requests (stale in between)")
         ->check(CLI::Range(1, 1 << 20))
         ->capture_default_str();
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as Sørensen & Mosegaard's Table 1");
