@@ -1,14 +1,20 @@
 // The CPU spring-mass solver. Formulas, layout and sign conventions: docs/solver.md.
 //
-// Floating-point contract: the four float kernels (portable, SSE2, AVX2, AVX-512) evaluate the
-// same IEEE operations in the same order, with exact sqrt and division and no FMA, so they give
-// the same bits; fp-contract is off in this file so a -march=native build cannot fuse a multiply
-// and an add in one kernel and not in another.
+// Floating-point contract: the portable, AVX2 and AVX-512 kernels evaluate the same IEEE
+// operations in the same order, with exact sqrt and division and a fused multiply-add (one
+// rounding) in the same five places of a slot (std::fma in group_portable), so they give the
+// same bits. The SSE2 kernel, for CPUs without AVX2 and FMA, rounds those products and sums
+// apart: it differs from the others by rounding (docs/solver.md "Kernels"). fp-contract is off
+// in this file so that a compiler cannot fuse any other multiply and add, in one kernel and not
+// another.
 //
 // Why this file is long (about 1,300 lines): the four kernels are one loop spelled out four
 // times, deliberately (the SIMD variants docs/architecture.md names), and they must stay side by
 // side with the scalar reference they are checked against bit for bit.
 #pragma GCC optimize("fp-contract=off")
+#ifdef __clang__
+#pragma clang fp contract(off)
+#endif
 
 #include "solver.h"
 
@@ -115,7 +121,7 @@ constexpr Real tiny_length2() { return Real(1e-30); }
 /// One group of 8 particles: gather the 18 slots, integrate, store, check the displacement.
 /// Returns true when a displacement is past the bound or not finite.
 template <class Real, bool Damped, bool Supported>
-bool group_portable(const KernelData<Real>& k, std::size_t group) {
+__attribute__((always_inline)) inline bool group_portable_body(const KernelData<Real>& k, std::size_t group) {
     constexpr int W = lane_count;
     Real xi[W], yi[W], zi[W], uxi[W], uyi[W], uzi[W], fx[W], fy[W], fz[W];
     const std::size_t base = group * W;
@@ -133,22 +139,22 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
             const std::size_t j = std::size_t(k.neighbour[t]);
             const Real* pj = k.x + state_stride * j;
             const Real dx = pj[0] - xi[l], dy = pj[1] - yi[l], dz = pj[2] - zi[l];
-            Real length2 = dx * dx + dy * dy;
-            length2 = length2 + dz * dz;
+            Real length2 = std::fma(dy, dy, dx * dx);
+            length2 = std::fma(dz, dz, length2);
             const Real length = std::sqrt(length2 > tiny_length2<Real>() ? length2 : tiny_length2<Real>());
             const Real inverse = Real(1) / length;
             Real scale = (k.stiffness[u] * (length - k.rest_length[u])) * inverse;
             if constexpr (Damped) {
                 const Real* qj = k.u + state_stride * j;
                 const Real dux = qj[0] - uxi[l], duy = qj[1] - uyi[l], duz = qj[2] - uzi[l];
-                Real along = dux * dx + duy * dy;
-                along = (along + duz * dz) * inverse;
+                Real along = std::fma(duy, dy, dux * dx);
+                along = std::fma(duz, dz, along) * inverse;
                 along = along * inverse;
-                scale = scale + k.dashpot[t] * along;
+                scale = std::fma(k.dashpot[t], along, scale);
             }
-            fx[l] = fx[l] + scale * dx;
-            fy[l] = fy[l] + scale * dy;
-            fz[l] = fz[l] + scale * dz;
+            fx[l] = std::fma(scale, dx, fx[l]);
+            fy[l] = std::fma(scale, dy, fy[l]);
+            fz[l] = std::fma(scale, dz, fz[l]);
         }
     }
     if constexpr (Supported) {
@@ -178,6 +184,21 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
     }
     return bad;
 }
+
+template <class Real, bool Damped, bool Supported>
+bool group_portable(const KernelData<Real>& k, std::size_t group) {
+    return group_portable_body<Real, Damped, Supported>(k, group);
+}
+
+#ifdef HEARTSIM_SOLVER_X86
+/// group_portable compiled for a CPU with FMA, so that std::fma is one instruction instead of a
+/// call into libm (3× faster; used for the double reference too). The same bits: std::fma rounds
+/// once either way.
+template <class Real, bool Damped, bool Supported>
+__attribute__((target("fma"))) bool group_portable_fma(const KernelData<Real>& k, std::size_t group) {
+    return group_portable_body<Real, Damped, Supported>(k, group);
+}
+#endif
 
 #ifdef HEARTSIM_SOLVER_X86
 
@@ -211,6 +232,8 @@ inline void store_own4(float* out, __m128 x, __m128 y, __m128 z) {
     _mm_storeu_ps(out + 3 * state_stride, _mm_movehl_ps(t3, t2));
 }
 
+/// SSE2 has no fused multiply-add: the five a slot's other kernels fuse are rounded apart here
+/// (the one kernel not bit-equal to the others; docs/solver.md "Kernels").
 template <bool Damped, bool Supported>
 bool group_sse2(const KernelData<float>& k, std::size_t group) {
     bool bad = false;
@@ -267,7 +290,7 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
     return bad;
 }
 
-#define HEARTSIM_AVX2 __attribute__((target("avx2")))
+#define HEARTSIM_AVX2 __attribute__((target("avx2,fma")))
 
 HEARTSIM_AVX2 inline __m256 pair(const float* a, const float* b) {
     return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(a)), _mm_loadu_ps(b), 1);
@@ -338,21 +361,21 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
         if constexpr (Damped) load_gather8_both(k.x, k.u, k.neighbour + t, xj, yj, zj, uxj, uyj, uzj);
         else load_gather8(k.x, k.neighbour + t, xj, yj, zj);
         const __m256 dx = _mm256_sub_ps(xj, xi), dy = _mm256_sub_ps(yj, yi), dz = _mm256_sub_ps(zj, zi);
-        __m256 length2 = _mm256_add_ps(_mm256_mul_ps(dx, dx), _mm256_mul_ps(dy, dy));
-        length2 = _mm256_add_ps(length2, _mm256_mul_ps(dz, dz));
+        __m256 length2 = _mm256_fmadd_ps(dy, dy, _mm256_mul_ps(dx, dx));
+        length2 = _mm256_fmadd_ps(dz, dz, length2);
         const __m256 length = _mm256_sqrt_ps(_mm256_max_ps(length2, tiny));
         const __m256 inverse = _mm256_div_ps(one, length);
         __m256 scale = _mm256_mul_ps(_mm256_mul_ps(_mm256_loadu_ps(k.stiffness + u), _mm256_sub_ps(length, _mm256_loadu_ps(k.rest_length + u))), inverse);
         if constexpr (Damped) {
             const __m256 dux = _mm256_sub_ps(uxj, uxi), duy = _mm256_sub_ps(uyj, uyi), duz = _mm256_sub_ps(uzj, uzi);
-            __m256 along = _mm256_add_ps(_mm256_mul_ps(dux, dx), _mm256_mul_ps(duy, dy));
-            along = _mm256_mul_ps(_mm256_add_ps(along, _mm256_mul_ps(duz, dz)), inverse);
+            __m256 along = _mm256_fmadd_ps(duy, dy, _mm256_mul_ps(dux, dx));
+            along = _mm256_mul_ps(_mm256_fmadd_ps(duz, dz, along), inverse);
             along = _mm256_mul_ps(along, inverse);
-            scale = _mm256_add_ps(scale, _mm256_mul_ps(_mm256_loadu_ps(k.dashpot + t), along));
+            scale = _mm256_fmadd_ps(_mm256_loadu_ps(k.dashpot + t), along, scale);
         }
-        fx = _mm256_add_ps(fx, _mm256_mul_ps(scale, dx));
-        fy = _mm256_add_ps(fy, _mm256_mul_ps(scale, dy));
-        fz = _mm256_add_ps(fz, _mm256_mul_ps(scale, dz));
+        fx = _mm256_fmadd_ps(scale, dx, fx);
+        fy = _mm256_fmadd_ps(scale, dy, fy);
+        fz = _mm256_fmadd_ps(scale, dz, fz);
     }
     if constexpr (Supported) {
         __m256 sx, sy, sz;
@@ -378,7 +401,7 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
     return group_avx2_body<Damped, Supported>(k, group);
 }
 
-#define HEARTSIM_AVX512 __attribute__((target("avx2,avx512f,avx512vl,avx512dq")))
+#define HEARTSIM_AVX512 __attribute__((target("avx2,fma,avx512f,avx512vl,avx512dq")))
 
 /// Four float4 (16 bytes each) into one 512-bit register, one per 128-bit lane.
 HEARTSIM_AVX512 inline __m512 quad(const float* a, const float* b, const float* c, const float* d) {
@@ -481,22 +504,22 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
         if constexpr (Damped) load_gather16_both(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj, uxj, uyj, uzj);
         else load_gather16(k.x, k.neighbour + t, k.neighbour + t2, xj, yj, zj);
         const __m512 dx = _mm512_sub_ps(xj, xi), dy = _mm512_sub_ps(yj, yi), dz = _mm512_sub_ps(zj, zi);
-        __m512 length2 = _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy));
-        length2 = _mm512_add_ps(length2, _mm512_mul_ps(dz, dz));
+        __m512 length2 = _mm512_fmadd_ps(dy, dy, _mm512_mul_ps(dx, dx));
+        length2 = _mm512_fmadd_ps(dz, dz, length2);
         const __m512 length = _mm512_sqrt_ps(_mm512_max_ps(length2, tiny));
         const __m512 inverse = _mm512_div_ps(one, length);
         __m512 scale = _mm512_mul_ps(_mm512_mul_ps(_mm512_loadu_ps(k.stiffness + u), _mm512_sub_ps(length, _mm512_loadu_ps(k.rest_length + u))),
                                      inverse);
         if constexpr (Damped) {
             const __m512 dux = _mm512_sub_ps(uxj, uxi), duy = _mm512_sub_ps(uyj, uyi), duz = _mm512_sub_ps(uzj, uzi);
-            __m512 along = _mm512_add_ps(_mm512_mul_ps(dux, dx), _mm512_mul_ps(duy, dy));
-            along = _mm512_mul_ps(_mm512_add_ps(along, _mm512_mul_ps(duz, dz)), inverse);
+            __m512 along = _mm512_fmadd_ps(duy, dy, _mm512_mul_ps(dux, dx));
+            along = _mm512_mul_ps(_mm512_fmadd_ps(duz, dz, along), inverse);
             along = _mm512_mul_ps(along, inverse);
-            scale = _mm512_add_ps(scale, _mm512_mul_ps(_mm512_loadu_ps(k.dashpot + t), along));
+            scale = _mm512_fmadd_ps(_mm512_loadu_ps(k.dashpot + t), along, scale);
         }
-        fx = _mm512_add_ps(fx, _mm512_mul_ps(scale, dx));
-        fy = _mm512_add_ps(fy, _mm512_mul_ps(scale, dy));
-        fz = _mm512_add_ps(fz, _mm512_mul_ps(scale, dz));
+        fx = _mm512_fmadd_ps(scale, dx, fx);
+        fy = _mm512_fmadd_ps(scale, dy, fy);
+        fz = _mm512_fmadd_ps(scale, dz, fz);
     }
     if constexpr (Supported) {
         __m512 sx, sy, sz;
@@ -527,9 +550,10 @@ HEARTSIM_AVX512 bool groups_avx512(const KernelData<float>& k, std::size_t first
     return bad;
 }
 
-bool cpu_has_avx2() { return __builtin_cpu_supports("avx2"); }
+bool cpu_has_fma() { return __builtin_cpu_supports("fma"); }
+bool cpu_has_avx2() { return __builtin_cpu_supports("avx2") && cpu_has_fma(); }
 bool cpu_has_avx512() {
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+    return cpu_has_avx2() && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
            __builtin_cpu_supports("avx512dq");
 }
 
@@ -560,6 +584,10 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped) {
             return damped ? &each_group<float, &group_sse2<true, Supported>> : &each_group<float, &group_sse2<false, Supported>>;
 #endif
     }
+#ifdef HEARTSIM_SOLVER_X86
+    if (cpu_has_fma())
+        return damped ? &each_group<Real, &group_portable_fma<Real, true, Supported>> : &each_group<Real, &group_portable_fma<Real, false, Supported>>;
+#endif
     return damped ? &each_group<Real, &group_portable<Real, true, Supported>> : &each_group<Real, &group_portable<Real, false, Supported>>;
 }
 

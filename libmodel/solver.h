@@ -26,13 +26,15 @@
 
 namespace heartsim {
 
-/// Which inner loop runs the step. All of them give the same bits for float: they evaluate the
-/// same IEEE operations in the same order (no FMA contraction, exact sqrt and division).
+/// Which inner loop runs the step. portable, avx2 and avx512 give the same bits for float: they
+/// evaluate the same IEEE operations in the same order (exact sqrt and division, a fused
+/// multiply-add in the same five places of a slot, no other contraction). sse2 has no fused
+/// multiply-add: it rounds those products apart, a few ulps from the others (docs/solver.md).
 enum class SolverKernel {
     automatic,  ///< the widest the CPU has: avx512, else avx2, else sse2 (docs/solver.md "Kernels")
     portable,   ///< plain C++, what the compiler makes of it (the only kernel for double)
     sse2,       ///< x86-64 baseline intrinsics, 4 lanes
-    avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2
+    avx2,       ///< 8 lanes; falls back to sse2 on a CPU without AVX2 and FMA
     /// 16 lanes (two groups per 512-bit register; AVX-512F/VL/DQ); falls back to avx2.
     avx512,
 };

@@ -1,8 +1,9 @@
 /// @file solver_shaders.h
 /// @brief GLSL 4.30 compute shaders of the GL backend (backend_gl.cpp): each program is `common`
 /// and one pass, after the preamble compile_shader puts first (bindings.h). Every arithmetic
-/// expression mirrors libmodel/solver.cpp operation for operation (same order, `precise` so no
-/// FMA is fused), so the GPU step is the CPU step: float for the springs and integration, double
+/// expression mirrors libmodel/solver.cpp operation for operation (same order, `precise` so that
+/// no multiply-add is fused except the five fma() of a spring slot, where the CPU kernels fuse
+/// them too), so the GPU step is the CPU step: float for the springs and integration, double
 /// for the instrument geometry (probe projection, grab capture and follow, forces), as on the CPU.
 #pragma once
 
@@ -120,22 +121,22 @@ void main() {
         uint j = uint(neighbour[t]);
         vec4 pj = x[j];
         precise float dx = pj.x - xi, dy = pj.y - yi, dz = pj.z - zi;
-        precise float length2 = dx * dx + dy * dy;
-        length2 = length2 + dz * dz;
+        precise float length2 = fma(dy, dy, dx * dx);
+        length2 = fma(dz, dz, length2);
         precise float len = sqrt(length2 > 1e-30 ? length2 : 1e-30);
         precise float inverse = 1.0 / len;
         precise float scale = (stiffness[t] * (len - rest_length[t])) * inverse;
         if (damped) {
             vec4 qj = u[j];
             precise float dux = qj.x - uxi, duy = qj.y - uyi, duz = qj.z - uzi;
-            precise float along = dux * dx + duy * dy;
-            along = (along + duz * dz) * inverse;
+            precise float along = fma(duy, dy, dux * dx);
+            along = fma(duz, dz, along) * inverse;
             along = along * inverse;
-            scale = scale + dashpot[t] * along;
+            scale = fma(dashpot[t], along, scale);
         }
-        fx = fx + scale * dx;
-        fy = fy + scale * dy;
-        fz = fz + scale * dz;
+        fx = fma(scale, dx, fx);
+        fy = fma(scale, dy, fy);
+        fz = fma(scale, dz, fz);
     }
     Particle p = particle[i];
     if (supported) {  // zero-rest-length support spring, after the 18 slots (solver.cpp order)
