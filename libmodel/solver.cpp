@@ -11,9 +11,10 @@
 // Why this file is long (about 1,300 lines): the four kernels are one loop spelled out four
 // times, deliberately (the SIMD variants docs/architecture.md names), and they must stay side by
 // side with the scalar reference they are checked against bit for bit.
-#pragma GCC optimize("fp-contract=off")
-#ifdef __clang__
+#if defined(__clang__)
 #pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
 #endif
 
 #include "solver.h"
