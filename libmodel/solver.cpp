@@ -193,7 +193,7 @@ bool group_portable(const KernelData<Real>& k, std::size_t group) {
 
 #ifdef HEARTSIM_SOLVER_X86
 /// group_portable compiled for a CPU with FMA, so that std::fma is one instruction instead of a
-/// call into libm (3× faster; used for the double reference too). The same bits: std::fma rounds
+/// call into libm (about 4× faster; used for the double reference too). The same bits: std::fma rounds
 /// once either way.
 template <class Real, bool Damped, bool Supported>
 __attribute__((target("fma"))) bool group_portable_fma(const KernelData<Real>& k, std::size_t group) {
