@@ -42,6 +42,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.attribute("/", "backend", r.backend);
         w.attribute("/", "contact", r.contact);
         w.attribute("/", "interpolation", r.interpolation);
+        w.attribute("/", "arithmetic", r.arithmetic);
         w.attribute("/", "rate_hz", r.rate_hz);
         w.attribute("/", "coupling", std::int32_t(r.coupling ? 1 : 0));
         const std::pair<const char*, double> figures[] = {
@@ -121,6 +122,10 @@ Recording read_recording(const std::filesystem::path& path) {
     rec.backend = r.string_attribute("/", "backend");
     rec.contact = r.string_attribute("/", "contact");
     rec.interpolation = r.string_attribute("/", "interpolation");
+    // Absent in recordings made before the slot's multiply-adds were fused: rounded apart then.
+    rec.arithmetic = r.has_attribute("/", "arithmetic") ? r.string_attribute("/", "arithmetic") : "separate";
+    if (rec.arithmetic != "fused" && rec.arithmetic != "separate")
+        r.fail("/", "attribute arithmetic must be fused or separate, not '" + rec.arithmetic + "'");
     rec.rate_hz = r.number<double>("/", "rate_hz");
     rec.coupling = r.number<std::int32_t>("/", "coupling") != 0;
     rec.period_p50_ms = r.number<double>("/", "period_p50_ms");

@@ -87,6 +87,10 @@ struct Recording {
     double dt_ms = 0.0;
     std::int32_t substeps = 0;
     std::string backend, contact, interpolation;
+    /// The spring slot's multiply-adds in the recorded run: "fused", or "separate" (the sse2
+    /// kernel, and every recording made before they were fused, which has no such attribute). A
+    /// cpu replay takes the same, so that it reproduces the forces to the bit (docs/haptics.md).
+    std::string arithmetic = "fused";
     double rate_hz = 0.0;
     bool coupling = false;
     double period_p50_ms = 0, period_p99_ms = 0, period_max_ms = 0, period_mean_ms = 0;

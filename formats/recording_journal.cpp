@@ -25,7 +25,9 @@ namespace {
 constexpr char file_magic[16] = {'h', 'e', 'a', 'r', 't', 's', 'i', 'm', ' ', 'j', 'o', 'u', 'r', 'n', 'a', 'l'};
 constexpr std::uint32_t record_magic = 0x524a5348u;  // "HSJR"
 constexpr std::size_t record_header = 20;           // magic, kind, bytes, checksum
-constexpr std::uint32_t journal_version = 1;
+/// 2 adds the recording's arithmetic after its interpolation; a version-1 journal (written before
+/// the slot's multiply-adds were fused) is read with "separate".
+constexpr std::uint32_t journal_version = 2;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
 /// A payload being built.
@@ -153,6 +155,7 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
     b.text(session.backend);
     b.text(session.contact);
     b.text(session.interpolation);
+    b.text(session.arithmetic);
     b.put(session.rate_hz);
     b.put<std::int32_t>(session.coupling ? 1 : 0);
     for (const RecordedHand& hand : session.hands) {
@@ -355,8 +358,8 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             throw InputError(where + ": " + (used.empty() ? "the journal does not start with its session record" : "a second session record"));
         if (kind == session_record) {
             const auto version = c.get<std::uint32_t>();
-            if (version != journal_version)
-                throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads version 1)");
+            if (version != 1 && version != journal_version)
+                throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 and 2)");
             contents.target = c.text();
             contents.pid = c.get<std::int64_t>();
             r.scenario = c.text();
@@ -366,6 +369,9 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             r.backend = c.text();
             r.contact = c.text();
             r.interpolation = c.text();
+            r.arithmetic = version == 1 ? "separate" : c.text();
+            if (r.arithmetic != "fused" && r.arithmetic != "separate")
+                throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
             r.rate_hz = c.get<double>();
             r.coupling = c.get<std::int32_t>() != 0;
             for (RecordedHand& hand : r.hands) {

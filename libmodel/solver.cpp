@@ -10,7 +10,7 @@
 //
 // Why this file is long (about 1,300 lines): the four kernels are one loop spelled out four
 // times, deliberately (the SIMD variants docs/architecture.md names), and they must stay side by
-// side with the scalar reference they are checked against bit for bit.
+// side with the scalar reference they are checked against (bit for bit; SSE2 within rounding).
 #if defined(__clang__)
 #pragma clang fp contract(off)
 #elif defined(__GNUC__)
@@ -602,16 +602,21 @@ GroupFunction<Real> choose_group_function(SolverKernel kernel, bool damped, bool
 /// it is 1.3–1.4× avx2 at 30k particles, 1.0–1.3× at 100k and 300k, and even at 1M (0.9–1.1×,
 /// within the VM's noise), where the step streams its tables from memory. (Before, it spilled
 /// its gather offsets and was 0.7× avx2 at 300k and 1M, and `automatic` took avx2 above 50,000.)
-SolverKernel resolve_kernel(SolverKernel wanted, bool is_float, std::size_t particles) {
+/// `arithmetic` (SlotArithmetic) overrides the kernel where a result must be reproduced: separate
+/// takes sse2, fused takes portable where the choice would have been sse2. (Off x86 every kernel
+/// is the fused portable one, so `separate` cannot be honoured there.)
+SolverKernel resolve_kernel(SolverKernel wanted, bool is_float, std::size_t particles, SlotArithmetic arithmetic) {
     (void)particles;
     if (!is_float) return SolverKernel::portable;
 #ifdef HEARTSIM_SOLVER_X86
+    if (arithmetic == SlotArithmetic::separate) return SolverKernel::sse2;
     if (wanted == SolverKernel::automatic) wanted = SolverKernel::avx512;
     if (wanted == SolverKernel::avx512 && !cpu_has_avx512()) wanted = SolverKernel::avx2;
     if (wanted == SolverKernel::avx2 && !cpu_has_avx2()) wanted = SolverKernel::sse2;
+    if (arithmetic == SlotArithmetic::fused && !fuses_multiply_adds(wanted)) wanted = SolverKernel::portable;
     return wanted;
 #else
-    (void)wanted;
+    (void)wanted, (void)arithmetic;
     return SolverKernel::portable;
 #endif
 }
@@ -828,7 +833,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
         damped_critical_dt_ms_ = stable_step_ms(4.0 / (critical_dt_ms_ * critical_dt_ms_),
                                                 estimate_damping_eigenvalue(particles, springs, options_.damping_ratio, options_.damping));
     load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
-    load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>, n_);
+    load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>, n_, options_.arithmetic);
 
     touched_.assign(chunks_ * hands, {});
     chunk_bad_.assign(chunks_, 0);

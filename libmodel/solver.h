@@ -39,6 +39,14 @@ enum class SolverKernel {
     avx512,
 };
 const char* to_string(SolverKernel kernel);
+/// Whether a kernel fuses the spring slot's five multiply-adds: every one but sse2.
+inline bool fuses_multiply_adds(SolverKernel kernel) { return kernel != SolverKernel::sse2; }
+
+/// The spring slot's multiply-adds, when a result must be reproduced to the bit (replaying a
+/// recording): `fused` takes a fusing kernel even where the CPU lacks AVX2 and FMA (portable,
+/// through libm: slow, the same bits); `separate` takes the sse2 kernel (x86), which rounds them
+/// apart as every kernel did before they were fused. `as_kernel`: whatever the kernel does.
+enum class SlotArithmetic { as_kernel, fused, separate };
 
 /// Solver options. The scenario's /solver attributes are these (formats/scenario.h
 /// `SolverSettings` derives from this struct and adds the file-only fields); the rest is what only
@@ -100,6 +108,7 @@ struct SolverOptions {
     /// recover: step() reports gave_up and the runtime stops (exit 6).
     int max_consecutive_restores = 10;
     SolverKernel kernel = SolverKernel::automatic;
+    SlotArithmetic arithmetic = SlotArithmetic::as_kernel;
     /// Read one rest length and stiffness per slot instead of per-entry tables when every
     /// spring in a slot has the same (a one-material regular lattice): same results, less traffic.
     bool compact_uniform_slots = true;

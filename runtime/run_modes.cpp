@@ -227,7 +227,16 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
                              std::to_string(info.max_ssbo_bytes) + " bytes); run with --backend cpu");
         p.backend = make_gl_backend(*p.context, p.scenario, options);
     } else {
-        p.backend = make_cpu_backend(p.scenario, options);
+        SolverOptions cpu = options;
+        if (p.replayed && p.replayed->backend == "cpu") {
+            // Reproduce a cpu recording's forces to the bit: its slot arithmetic, whatever this CPU's
+            // fastest kernel would do (docs/haptics.md "Replay").
+            cpu.arithmetic = p.replayed->arithmetic == "fused" ? SlotArithmetic::fused : SlotArithmetic::separate;
+            if (cpu.arithmetic == SlotArithmetic::separate)
+                std::printf("replay: recorded with the spring slot's multiply-adds rounded apart (the sse2 kernel, or heartsim before "
+                            "2026-11-25): replaying with the sse2 kernel\n");
+        }
+        p.backend = make_cpu_backend(p.scenario, cpu);
         if (render && !p.context) p.context.emplace(GlContext::create_headless());  // screenshots of the cpu backend
     }
 }
@@ -499,6 +508,7 @@ PreparedRun::PreparedRun(const RunArguments& a) {
 
     scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);
+    if (!a.replay.empty()) replayed = read_recording(a.replay);
     make_context_and_backend(a, render, *this);
     if (render) make_renderer(*this);
     set_contact(a, *this);
@@ -516,7 +526,7 @@ PreparedRun::PreparedRun(const RunArguments& a) {
 
 int replay_mode(const RunArguments& a, PreparedRun& run) {
     Backend& backend = *run.backend;
-    const Recording recording = read_recording(a.replay);
+    const Recording& recording = *run.replayed;
     std::printf("replay: %s (%s backend, %zu steps of %.4g ms, %s%s%s) on the %s backend\n", a.replay.c_str(), recording.backend.c_str(),
                 recording.steps.size(), recording.dt_ms, recording.hands[0].used ? ("hand 0 " + recording.hands[0].instrument).c_str() : "",
                 recording.hands[0].used && recording.hands[1].used ? ", " : "",

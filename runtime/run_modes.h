@@ -13,6 +13,7 @@
 #include "runtime/gl/renderer.h"
 #include "runtime/trajectory.h"
 
+#include "formats/recording.h"
 #include "formats/scenario.h"
 
 #include <memory>
@@ -68,6 +69,7 @@ struct PreparedRun {
     // The renderer and the backend are declared after the context, so their GL objects are
     // deleted while it still exists.
     Scenario scenario;
+    std::optional<Recording> replayed;  ///< --replay's recording, read before the backend is made
     int frame_width = 0, frame_height = 0;  ///< pixels of the window or the offscreen frame
     ViewDirection view = ViewDirection::anterior;
     std::optional<GlContext> context;

@@ -603,6 +603,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         full.period_p99_ms = 1.03;
         full.periods = 90;
         full.latency_max_ms = 4.5;
+        full.arithmetic = seed == 1 ? "fused" : "separate";
         const fs::path path = dir / "rec.h5.journal";
         {
             RecordingJournal journal(path, full, "rec.h5");
@@ -627,9 +628,11 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         EXPECT_EQ(c.recording.periods, 90);
         EXPECT_EQ(c.recording.latency_max_ms, 4.5);
         EXPECT_EQ(c.recording.dt_ms, 0.2);
+        EXPECT_EQ(c.recording.arithmetic, full.arithmetic);
         // What recover writes reads back as a recording.
         write_recording(dir / "rec.h5", c.recording);
         expect_same_rows(read_recording(dir / "rec.h5"), full);
+        EXPECT_EQ(read_recording(dir / "rec.h5").arithmetic, full.arithmetic);
     }
 }
 

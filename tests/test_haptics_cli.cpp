@@ -120,6 +120,30 @@ TEST(HapticsCli, TheRecordingReplaysToTheSameForcesBitForBitOnTheCpuBackend) {
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
 }
 
+// A cpu replay takes the recorded slot arithmetic (fused, or rounded apart as before heartsim
+// fused it, and as sse2 does), not this CPU's fastest kernel's: the recording's attribute decides.
+TEST(HapticsCli, ACpuReplayTakesTheRecordedArithmetic) {
+    const RecordedSession& s = two_hands();
+    ASSERT_EQ(s.run.exit_code, 0) << s.run.output;
+    const Recording recorded = read_recording(s.file);
+    if (recorded.arithmetic != "fused") GTEST_SKIP() << "this CPU has no AVX2 with FMA: the session ran with separate rounding";
+    // The same session with its arithmetic attribute removed, as in a recording made before the
+    // fusing: it replays with sse2, whose last digits differ from the recorded fused ones.
+    test::TempDir dir;
+    const fs::path old_style = dir / "old-style.h5";
+    fs::copy_file(s.file, old_style);
+    {
+        const hid_t file = H5Fopen(old_style.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+        ASSERT_GE(file, 0);
+        ASSERT_GE(H5Adelete(file, "arithmetic"), 0);
+        H5Fclose(file);
+    }
+    EXPECT_EQ(read_recording(old_style).arithmetic, "separate");
+    const auto replay = run_heartsim("run " + quoted(phantom()) + " --headless --replay " + quoted(old_style));
+    EXPECT_NE(replay.output.find("replaying with the sse2 kernel"), std::string::npos) << replay.output;
+    EXPECT_EQ(replay.exit_code, 5) << "fused forces replayed with separate rounding must differ somewhere\n" << replay.output;
+}
+
 TEST(HapticsCli, ReplayCatchesARecordingWhoseForcesWereChanged) {
     const RecordedSession& s = two_hands();
     ASSERT_EQ(s.run.exit_code, 0) << s.run.output;
@@ -586,6 +610,22 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     EXPECT_EQ(back.events[1].what, "emergency_stop");
     EXPECT_EQ(back.events[0].hand, 1);
     EXPECT_EQ(back.period_p99_ms, 1.25);
+    EXPECT_EQ(back.arithmetic, "fused");
+    {
+        Recording separate = r;
+        separate.arithmetic = "separate";
+        write_recording(dir / "separate.h5", separate);
+        EXPECT_EQ(read_recording(dir / "separate.h5").arithmetic, "separate");
+        Recording unknown = r;
+        unknown.arithmetic = "fast";
+        write_recording(dir / "unknown.h5", unknown);
+        try {
+            read_recording(dir / "unknown.h5");
+            ADD_FAILURE() << "an unknown arithmetic was read";
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find("attribute arithmetic must be fused or separate, not 'fast'"), std::string::npos) << e.what();
+        }
+    }
 
     // A force that names a later step than its own is refused by dataset name.
     Recording bad = r;

@@ -439,14 +439,24 @@ TEST(Solver, AutomaticSubstepsKeepTheStepBelowTheSafetyFraction) {
 // The portable, AVX2 and AVX-512 kernels fuse the same five multiply-adds of a slot (one rounding
 // each): the same bits, with one or two threads. SSE2 has no fused multiply-add and rounds them
 // apart: the same bits for one and two threads, and positions within rounding of the others'.
+// Every kernel is requested on every CPU; one the CPU lacks falls back (avx512 → avx2 → sse2)
+// and must give its fallback's bits. SlotArithmetic, for replays, overrides the kernel.
 TEST(Solver, SameBitsForOneAndTwoThreadsAndEveryFusedKernel) {
     Model model = block(20, 16, 16, 1.5, 0.1);
     const Eigen::AlignedBox3d box = bounds(model.lattice.particles);
     const Eigen::Vector3d c = box.center(), corner = box.min();
-    auto run = [&](int threads, SolverKernel kernel, bool compact = true) {
+    const bool has_avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    const bool has_avx512 = has_avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq");
+    struct Result {
+        std::uint64_t hash;
+        std::vector<std::array<float, 3>> positions;
+        SolverKernel kernel;
+    };
+    auto run = [&](int threads, SolverKernel kernel, bool compact = true, SlotArithmetic arithmetic = SlotArithmetic::as_kernel) {
         tbb::global_control control(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
         SolverOptions o;
         o.kernel = kernel;
+        o.arithmetic = arithmetic;
         o.compact_uniform_slots = compact;
         o.damping = 0.01;
         Solver solver(model.lattice, model.packing.neighbours, o);
@@ -461,38 +471,39 @@ TEST(Solver, SameBitsForOneAndTwoThreadsAndEveryFusedKernel) {
             { const StepReport r = solver.step(); EXPECT_FALSE(r.diverged) << r.message; }
         }
         EXPECT_EQ(solver.load_report().uniform_slots, compact);
-        SolverKernel expected = kernel;
-        if (expected == SolverKernel::avx512 && !(__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl")))
-            expected = SolverKernel::avx2;
-        if (expected == SolverKernel::avx2 && !(__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))) expected = SolverKernel::sse2;
-        EXPECT_EQ(solver.load_report().kernel, expected) << to_string(kernel);
-        return std::make_pair(solver.state_hash(), solver.positions());
+        return Result{solver.state_hash(), solver.positions(), solver.load_report().kernel};
     };
-    const auto one = run(1, SolverKernel::portable);
-    EXPECT_EQ(run(2, SolverKernel::portable).first, one.first);
-    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) {
-        EXPECT_EQ(run(1, SolverKernel::avx2).first, one.first);
-        EXPECT_EQ(run(2, SolverKernel::avx2).first, one.first);
-        EXPECT_EQ(run(2, SolverKernel::avx2, false).first, one.first) << "per-slot constants and per-entry tables must agree";
-    } else {
-        std::printf("  this CPU has no AVX2 with FMA: avx2 and avx512 fall back to sse2, checked below\n");
-    }
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq")) {
-        EXPECT_EQ(run(1, SolverKernel::avx512).first, one.first);
-        EXPECT_EQ(run(2, SolverKernel::avx512).first, one.first);
-        EXPECT_EQ(run(2, SolverKernel::avx512, false).first, one.first) << "per-slot constants and per-entry tables must agree";
-    } else {
-        std::printf("  this CPU has no AVX-512: the avx512 kernel is not checked\n");
-    }
-    const auto sse2 = run(1, SolverKernel::sse2);
-    EXPECT_EQ(run(2, SolverKernel::sse2).first, sse2.first);
-    EXPECT_EQ(run(2, SolverKernel::sse2, false).first, sse2.first) << "per-slot constants and per-entry tables must agree";
+    const Result fused = run(1, SolverKernel::portable), separate = run(1, SolverKernel::sse2);
+    EXPECT_EQ(fused.kernel, SolverKernel::portable);
+    EXPECT_EQ(separate.kernel, SolverKernel::sse2);
+    EXPECT_EQ(run(2, SolverKernel::sse2).hash, separate.hash);
+    EXPECT_EQ(run(2, SolverKernel::sse2, false).hash, separate.hash) << "per-slot constants and per-entry tables must agree";
+    const SolverKernel avx2_runs_as = has_avx2 ? SolverKernel::avx2 : SolverKernel::sse2;
+    const SolverKernel avx512_runs_as = has_avx512 ? SolverKernel::avx512 : avx2_runs_as;
+    if (!has_avx512) std::printf("  this CPU has no AVX-512 (F, VL, DQ): avx512 must fall back to %s and give its bits\n", to_string(avx512_runs_as));
+    if (!has_avx2) std::printf("  this CPU has no AVX2 with FMA: avx2 and avx512 must fall back to sse2 and give its bits\n");
+    for (const SolverKernel kernel : {SolverKernel::avx2, SolverKernel::avx512})
+        for (const bool compact : {true, false}) {
+            const Result r = run(2, kernel, compact);
+            const SolverKernel expected = kernel == SolverKernel::avx2 ? avx2_runs_as : avx512_runs_as;
+            EXPECT_EQ(r.kernel, expected) << to_string(kernel);
+            EXPECT_EQ(r.hash, fuses_multiply_adds(expected) ? fused.hash : separate.hash)
+                << to_string(kernel) << (compact ? ", per-slot constants" : ", per-entry tables");
+        }
+    // A replay's arithmetic overrides the kernel: separate runs as sse2, fused never as sse2.
+    const Result as_recorded_before = run(2, SolverKernel::avx512, true, SlotArithmetic::separate);
+    EXPECT_EQ(as_recorded_before.kernel, SolverKernel::sse2);
+    EXPECT_EQ(as_recorded_before.hash, separate.hash);
+    const Result fused_on_request = run(2, SolverKernel::sse2, true, SlotArithmetic::fused);
+    EXPECT_EQ(fused_on_request.kernel, SolverKernel::portable);
+    EXPECT_EQ(fused_on_request.hash, fused.hash);
     // Rounding apart from fused: positions a few ulps of the coordinates (~1e-6 mm each) apart,
     // far below the motion (the probe presses 10 mm, the grabber pulls 3 mm).
     double largest = 0;
-    for (std::size_t i = 0; i < one.second.size(); ++i)
-        for (int a = 0; a < 3; ++a) largest = std::max(largest, double(std::abs(one.second[i][a] - sse2.second[i][a])));
+    for (std::size_t i = 0; i < fused.positions.size(); ++i)
+        for (int a = 0; a < 3; ++a) largest = std::max(largest, double(std::abs(fused.positions[i][a] - separate.positions[i][a])));
     std::printf("  largest |x_sse2 - x_fused| after 1000 steps: %.3g mm\n", largest);
+    EXPECT_GT(largest, 0.0) << "sse2 rounds five operations per slot apart: some bit must differ";
     EXPECT_LT(largest, 1e-3);
 }
 
