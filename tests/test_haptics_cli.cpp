@@ -616,15 +616,6 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         separate.arithmetic = "separate";
         write_recording(dir / "separate.h5", separate);
         EXPECT_EQ(read_recording(dir / "separate.h5").arithmetic, "separate");
-        Recording unknown = r;
-        unknown.arithmetic = "fast";
-        write_recording(dir / "unknown.h5", unknown);
-        try {
-            read_recording(dir / "unknown.h5");
-            ADD_FAILURE() << "an unknown arithmetic was read";
-        } catch (const InputError& e) {
-            EXPECT_NE(std::string(e.what()).find("attribute arithmetic must be fused or separate, not 'fast'"), std::string::npos) << e.what();
-        }
     }
 
     // A force that names a later step than its own is refused by dataset name.
@@ -647,6 +638,12 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
             EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
         }
     };
+    {
+        Recording unknown = r;
+        unknown.arithmetic = "fast";
+        refused(unknown, "attribute arithmetic must be fused or separate, not 'fast'");
+    }
+
     // A value the writer refuses, put into a written file by hand: the reader must refuse it.
     auto refused_by_hand = [&](const std::string& dataset, const std::vector<double>& values, const std::string& expected) {
         write_recording(dir / "by-hand.h5", r);
