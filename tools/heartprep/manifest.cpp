@@ -103,8 +103,7 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
         }
         if (cases.empty()) throw InputError(manifest.string() + ": no cases (expected lines of input[,case_id[,options]])");
     }
-    std::map<std::string, int> seen;
-    std::map<std::string, const BatchCase*> folded;  // ids by lower case: a.h5 and A.h5 are one file on macOS and Windows
+    std::map<std::string, const BatchCase*> seen;  // ids by lower case: a.h5 and A.h5 are one file on macOS and Windows
     for (const auto& c : cases) {
         if (c.id.empty() || c.id.find_first_not_of("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789._-") != std::string::npos)
             throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
@@ -112,15 +111,14 @@ std::vector<BatchCase> read_manifest(const fs::path& manifest, const std::string
         if (c.id.front() == '.')  // "." and ".." wrote "..h5" and "...h5": hidden files
             throw InputError(manifest.string() + ": line " + std::to_string(c.line) + ": case id '" + c.id +
                              "' begins with '.', which would hide its output file; begin it with a letter or digit");
-        auto [it, fresh] = seen.emplace(c.id, c.line);
-        if (!fresh)
-            throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(it->second) +
-                             " and " + std::to_string(c.line));
-        if (auto [other, fresh_folded] = folded.emplace(text::lowercase(c.id), &c); !fresh_folded)
-        {
+        if (const auto [other, fresh] = seen.emplace(text::lowercase(c.id), &c); !fresh) {
+            const BatchCase& first = *other->second;
+            if (first.id == c.id)
+                throw InputError(manifest.string() + ": duplicate case id '" + c.id + "' on lines " + std::to_string(first.line) + " and " +
+                                 std::to_string(c.line));
             auto where = [](const BatchCase& b) { return b.line > 0 ? "line " + std::to_string(b.line) : b.input.filename().string(); };
-            throw InputError(manifest.string() + ": case ids '" + other->second->id + "' (" + where(*other->second) + ") and '" + c.id + "' (" +
-                             where(c) + ") differ only in case: their files would be one on macOS and Windows");
+            throw InputError(manifest.string() + ": case ids '" + first.id + "' (" + where(first) + ") and '" + c.id + "' (" + where(c) +
+                             ") differ only in case: their files would be one on macOS and Windows");
         }
         split_words(c.options);  // refuse unbalanced quotes before anything runs
     }
