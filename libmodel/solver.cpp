@@ -119,6 +119,13 @@ struct KernelData {
 template <class Real>
 constexpr Real tiny_length2() { return Real(1e-30); }
 
+/// Where group `group`'s rest lengths and stiffnesses begin: its own entries in the per-entry
+/// tables, or its lanes of the per-slot constants ([slot][16], both groups of a pair alike).
+template <class Real>
+std::size_t parameter_entries(const KernelData<Real>& k, std::size_t group) {
+    return k.per_entry_parameters ? group_entries(group) : group % 2 * lane_count;
+}
+
 /// One group of 8 particles: gather the 18 slots, integrate, store, check the displacement.
 /// Returns true when a displacement is past the bound or not finite.
 template <class Real, bool Damped, bool Supported>
@@ -133,7 +140,7 @@ __attribute__((always_inline)) inline bool group_portable_body(const KernelData<
         uxi[l] = q[0], uyi[l] = q[1], uzi[l] = q[2];
         fx[l] = fy[l] = fz[l] = Real(0);
     }
-    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : group % 2 * lane_count;
+    const std::size_t table = group_entries(group), parameters = parameter_entries(k, group);
     for (int s = 0; s < slot_count; ++s) {
         for (int l = 0; l < W; ++l) {
             const std::size_t t = table + std::size_t(s) * slot_stride + l, u = parameters + std::size_t(s) * slot_stride + l;
@@ -246,7 +253,7 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
         load_own4(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
         __m128 fx = zero, fy = zero, fz = zero;
         const std::size_t table = group_entries(group) + std::size_t(half) * 4;
-        const std::size_t parameters = (k.per_entry_parameters ? group_entries(group) : group % 2 * lane_count) + std::size_t(half) * 4;
+        const std::size_t parameters = parameter_entries(k, group) + std::size_t(half) * 4;
         for (int s = 0; s < slot_count; ++s) {
             const std::size_t t = table + std::size_t(s) * slot_stride, u = parameters + std::size_t(s) * slot_stride;
             __m128 xj, yj, zj;
@@ -355,7 +362,7 @@ HEARTSIM_AVX2 __attribute__((always_inline)) inline bool group_avx2_body(const K
     load_own8(k.x + state_stride * base, state_stride, xi, yi, zi);
     load_own8(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m256 fx = zero, fy = zero, fz = zero;
-    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : group % 2 * lane_count;
+    const std::size_t table = group_entries(group), parameters = parameter_entries(k, group);
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = table + std::size_t(s) * slot_stride, u = parameters + std::size_t(s) * slot_stride;
         __m256 xj, yj, zj, uxj, uyj, uzj;
@@ -497,7 +504,7 @@ HEARTSIM_AVX512 bool group_pair_avx512(const KernelData<float>& k, std::size_t g
     load_own16(k.u + state_stride * base, state_stride, uxi, uyi, uzi);
     __m512 fx = zero, fy = zero, fz = zero;
     // `group` is even: it and the next share each slot's 16 entries.
-    const std::size_t table = group_entries(group), parameters = k.per_entry_parameters ? table : 0;
+    const std::size_t table = group_entries(group), parameters = parameter_entries(k, group);
     for (int s = 0; s < slot_count; ++s) {
         const std::size_t t = table + std::size_t(s) * slot_stride, t2 = t + lane_count;
         const std::size_t u = parameters + std::size_t(s) * slot_stride;
