@@ -124,7 +124,7 @@ Recording read_recording(const std::filesystem::path& path) {
     rec.interpolation = r.string_attribute("/", "interpolation");
     // Absent in recordings made before the slot's multiply-adds were fused: rounded apart then.
     rec.arithmetic = r.has_attribute("/", "arithmetic") ? r.string_attribute("/", "arithmetic") : "separate";
-    if (rec.arithmetic != "fused" && rec.arithmetic != "separate")
+    if (!known_arithmetic(rec.arithmetic))
         r.fail("/", "attribute arithmetic must be fused or separate, not '" + rec.arithmetic + "'");
     rec.rate_hz = r.number<double>("/", "rate_hz");
     rec.coupling = r.number<std::int32_t>("/", "coupling") != 0;

@@ -101,6 +101,10 @@ struct Recording {
     std::vector<RecordedEvent> events;
 };
 
+/// Whether `arithmetic` is one Recording::arithmetic takes ("fused" or "separate"); the recording's
+/// and the journal's readers refuse any other.
+inline bool known_arithmetic(const std::string& arithmetic) { return arithmetic == "fused" || arithmetic == "separate"; }
+
 /// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xdmf`, a
 /// time series for ParaView); throws OutputError naming the file. `check`, when given, reads the
 /// complete temporary file before it takes the name (`heartsim recover` reads it back as a

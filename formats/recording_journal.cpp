@@ -370,7 +370,7 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             r.contact = c.text();
             r.interpolation = c.text();
             r.arithmetic = version == 1 ? "separate" : c.text();
-            if (r.arithmetic != "fused" && r.arithmetic != "separate")
+            if (!known_arithmetic(r.arithmetic))
                 throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
             r.rate_hz = c.get<double>();
             r.coupling = c.get<std::int32_t>() != 0;

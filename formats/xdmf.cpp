@@ -231,5 +231,4 @@ void write_scenario_xdmf(const std::filesystem::path& h5, const Scenario& scenar
     write_xdmf(h5, scenario_xdmf(h5.filename().string(), scenario));
 }
 
-
 }  // namespace heartsim

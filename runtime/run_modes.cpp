@@ -230,7 +230,7 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
         SolverOptions cpu = options;
         if (p.replayed && p.replayed->backend == "cpu") {
             // Reproduce a cpu recording's forces to the bit: its slot arithmetic, whatever this CPU's
-            // fastest kernel would do (docs/haptics.md "Replay").
+            // fastest kernel would do (docs/haptics.md "Recording and replay").
             cpu.arithmetic = p.replayed->arithmetic == "fused" ? SlotArithmetic::fused : SlotArithmetic::separate;
             if (cpu.arithmetic == SlotArithmetic::separate)
                 std::printf("replay: recorded with the spring slot's multiply-adds rounded apart (the sse2 kernel, or heartsim before "
