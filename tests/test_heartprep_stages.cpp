@@ -225,25 +225,21 @@ TEST(HeartprepBatch, ASkippedCaseReportsTheWarningsOfTheBuildThatWroteIt) {
 TEST(HeartprepBatch, ManifestErrors) {
     test::TempDir dir;
     small_phantom(dir, "a.nii.gz");
-    std::ofstream(dir / "duplicate.csv") << "a.nii.gz,same\na.nii.gz,same\n";
-    auto run = heartprep("batch " + quoted(dir / "duplicate.csv") + " -o " + quoted(dir / "out"));
-    EXPECT_EQ(run.exit_code, 1);
-    EXPECT_NE(run.output.find("duplicate case id 'same' on lines 1 and 2"), std::string::npos) << run.output;
-    EXPECT_FALSE(fs::exists(dir / "out"));
+    // A manifest refused before any case runs: exit 1, the reason, no output folder.
+    auto refused = [&](const std::string& name, const std::string& text, const std::string& expected) {
+        std::ofstream(dir / name) << text;
+        const auto run = heartprep("batch " + quoted(dir / name) + " -o " + quoted(dir / "out"));
+        EXPECT_EQ(run.exit_code, 1) << name;
+        EXPECT_NE(run.output.find(expected), std::string::npos) << run.output;
+        EXPECT_FALSE(fs::exists(dir / "out")) << name;
+    };
+    refused("duplicate.csv", "a.nii.gz,same\na.nii.gz,same\n", "duplicate case id 'same' on lines 1 and 2");
     // "." and ".." wrote the hidden files "..h5" and "...h5".
-    std::ofstream(dir / "dots.csv") << "a.nii.gz,..\n";
-    run = heartprep("batch " + quoted(dir / "dots.csv") + " -o " + quoted(dir / "out"));
-    EXPECT_EQ(run.exit_code, 1);
-    EXPECT_NE(run.output.find("dots.csv: line 1: case id '..' begins with '.'"), std::string::npos) << run.output;
-    EXPECT_FALSE(fs::exists(dir / "out"));
+    refused("dots.csv", "a.nii.gz,..\n", "dots.csv: line 1: case id '..' begins with '.'");
     // Ids that differ only in case name one file on macOS and Windows.
-    std::ofstream(dir / "cased.csv") << "a.nii.gz,heart\na.nii.gz,Heart\n";
-    run = heartprep("batch " + quoted(dir / "cased.csv") + " -o " + quoted(dir / "out"));
-    EXPECT_EQ(run.exit_code, 1);
-    EXPECT_NE(run.output.find("case ids 'heart' (line 1) and 'Heart' (line 2) differ only in case"), std::string::npos) << run.output;
-    EXPECT_FALSE(fs::exists(dir / "out"));
+    refused("cased.csv", "a.nii.gz,heart\na.nii.gz,Heart\n", "case ids 'heart' (line 1) and 'Heart' (line 2) differ only in case");
     // A label map given where the manifest belongs read as "line 7 has 5 fields".
-    run = heartprep("batch " + quoted(dir / "a.nii.gz") + " -o " + quoted(dir / "out"));
+    auto run = heartprep("batch " + quoted(dir / "a.nii.gz") + " -o " + quoted(dir / "out"));
     EXPECT_EQ(run.exit_code, 1);
     EXPECT_NE(run.output.find("a.nii.gz: holds binary data (a NUL byte on line"), std::string::npos) << run.output;
     EXPECT_NE(run.output.find("gzip-compressed: a .nii.gz label map?"), std::string::npos) << run.output;
