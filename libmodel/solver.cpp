@@ -844,6 +844,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
 
     touched_.assign(chunks_ * hands, {});
     chunk_bad_.assign(chunks_, 0);
+    chunk_pierced_.assign(chunks_, 0);
 
     double dt = options_.dt_ms;
     if (!(dt > 0)) {
@@ -1034,6 +1035,24 @@ void BasicSolver<Real>::set_pose(int hand, const InstrumentPose& pose) {
     state.placed = true;
 }
 
+std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
+                                     const Eigen::Vector3d& semi_axes, double reach) {
+    std::vector<std::uint8_t> keep(local.size(), 1);
+    if (!(reach > 0) || local.empty()) return keep;
+    std::size_t anchor = 0;
+    double nearest = std::numeric_limits<double>::infinity();
+    for (std::size_t q = 0; q < local.size(); ++q) {
+        const double r2 = local[q].cwiseQuotient(semi_axes).squaredNorm();
+        if (r2 < nearest) {
+            nearest = r2;
+            anchor = q;
+        }
+    }
+    const double limit = reach * semi_axes.maxCoeff();
+    for (std::size_t q = 0; q < local.size(); ++q) keep[q] = (rest[q] - rest[anchor]).squaredNorm() <= limit * limit;
+    return keep;
+}
+
 template <class Real>
 std::size_t BasicSolver<Real>::begin_grab(int hand) {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
@@ -1050,6 +1069,24 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
         state.held.push_back(std::int32_t(i));
         state.held_local.push_back(local);
         held_by_[i] = std::int8_t(hand);
+    }
+    if (options_.grab_reach > 0 && !state.held.empty()) {
+        std::vector<Eigen::Vector3d> rest(state.held.size());
+        for (std::size_t q = 0; q < state.held.size(); ++q)
+            for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_[4 * std::size_t(state.held[q]) + std::size_t(c)]);
+        const std::vector<std::uint8_t> keep = grab_piece(state.held_local, rest, state.instrument.semi_axes, options_.grab_reach);
+        std::size_t kept = 0;
+        for (std::size_t q = 0; q < state.held.size(); ++q) {
+            if (!keep[q]) {
+                held_by_[std::size_t(state.held[q])] = -1;
+                continue;
+            }
+            state.held[kept] = state.held[q];
+            state.held_local[kept] = state.held_local[q];
+            ++kept;
+        }
+        state.held.resize(kept);
+        state.held_local.resize(kept);
     }
     return state.held.size();
 }
@@ -1131,7 +1168,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     // normal component becomes at least the probe surface's, so a deep or sudden probe does not
     // fling particles out at penetration/h. Only this particle's next position and motion change
     // (nothing else reads them during the substep).
-    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched) {
+    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched, std::size_t& pierced) {
         Real* x = next_ + state_stride * i;
         const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
         Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
@@ -1148,6 +1185,14 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
             stored = Eigen::Vector3d(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
             if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(p.semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
             factor *= 1 + 1e-6 * double(1 << std::min(attempt, 20));
+        }
+        // Pierced (SolverOptions::probe_pierce_strain): the surface point would stretch one of its
+        // springs too far, measured against the neighbours' positions at the start of the substep
+        // (the ones this pass does not write), so the particle stays inside, untouched.
+        if (options_.probe_pierce_strain > 0 && double(strain_at(i, x, current_)) > options_.probe_pierce_strain) {
+            for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
+            ++pierced;
+            return;
         }
         const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
         const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
@@ -1178,14 +1223,14 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
                         for (; i + 16 <= last * lane_count; i += 16)
                             for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
                                 const std::size_t q = i + std::size_t(__builtin_ctz(mask));
-                                if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched);
+                                if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched, chunk_pierced_[chunk]);
                             }
                 }
 #endif
                 for (; i < end; ++i) {
                     const Real* x = next_ + state_stride * i;
                     const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
-                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched);
+                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, chunk_pierced_[chunk]);
                 }
             }
             chunk_bad_[chunk] = chunk_bad;
@@ -1247,7 +1292,11 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         }
     }
 
-    for (std::size_t chunk = 0; chunk < chunks_; ++chunk) bad = bad || chunk_bad_[chunk];
+    for (std::size_t chunk = 0; chunk < chunks_; ++chunk) {
+        bad = bad || chunk_bad_[chunk];
+        pierced_ += chunk_pierced_[chunk];
+        chunk_pierced_[chunk] = 0;
+    }
     std::swap(current_, next_);
     std::swap(motion_, next_motion_);
     time_ms_ += h_;

@@ -98,6 +98,22 @@ struct SolverOptions {
     /// springs four-fold, which made the soak's lattice unstable and folded it (docs/benchmarks.md
     /// "Soak"). ≤ 0: never slips.
     double grab_slip_strain = 2.0;
+    /// A free particle that a probe would push to where one of its springs is stretched beyond
+    /// (1 + this) × its rest length (measured against its neighbours where they were at the start
+    /// of the substep) is not pushed: the probe pierces the tissue there, as a needle does, and the
+    /// particle stays where the integration put it. Without it a probe driven through the tissue
+    /// drags what it meets tens of millimetres along its surface, and the springs, stretched
+    /// five-fold, fling it out when the probe turns (docs/solver.md "Instruments"). 2, as the
+    /// grab's slip: a press of the real-time benchmark stretches no spring half as far. ≤ 0: never
+    /// pierces.
+    double probe_pierce_strain = 2.0;
+    /// begin_grab() takes one piece of tissue: of the particles inside the grabber, only those
+    /// whose rest position lies within (this × the grabber's largest semi-axis) of the rest
+    /// position of the one nearest its centre. 2 is the grabber's diameter, so a grab of tissue
+    /// at rest (or stretched) takes everything inside; a grab of tissue that a probe crumpled
+    /// together from far apart takes the piece under the jaws instead of a rigid clump of
+    /// thousands of particles. ≤ 0: everything inside.
+    double grab_reach = 2.0;
     /// A state becomes the watchdog's restore point only while no spring is longer than
     /// (1 + this) × its rest length: a state stretched further, released at rest, diverges again
     /// at once (geometric stiffening shortens the stable step), and restoring to it froze the
@@ -190,6 +206,15 @@ struct SolverLoadReport {
 /// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
 /// the converged reference for convergence tests). Not thread-safe: one caller drives it;
 /// step() itself runs on TBB's workers and gives the same bits for any thread count.
+/// begin_grab()'s piece of tissue (SolverOptions::grab_reach), shared by the cpu and gl
+/// backends: of the particles captured inside a grabber with `semi_axes` (their tool-frame
+/// positions `local` and rest positions `rest`, in ascending particle order), which it keeps:
+/// those whose rest position lies within reach × the largest semi-axis of the rest position of
+/// the one nearest the centre (in the ellipsoid's scaled metric; the first of equals). reach ≤ 0:
+/// all.
+std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
+                                     const Eigen::Vector3d& semi_axes, double reach);
+
 template <class Real>
 class BasicSolver {
 public:
@@ -234,7 +259,8 @@ public:
     /// The first pose after set_instrument() places the instrument there at once.
     void set_pose(int hand, const InstrumentPose& pose);
     /// Starts a grab gesture: captures the free particles inside the grabber at its current
-    /// pose; they then follow it rigidly. Returns how many. Throws if the hand is no grabber.
+    /// pose (one piece of tissue: SolverOptions::grab_reach); they then follow it rigidly, in
+    /// ascending index order. Returns how many. Throws if the hand is no grabber.
     std::size_t begin_grab(int hand);
     void release(int hand);
     /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
@@ -278,6 +304,8 @@ public:
     std::size_t watchdog_events() const { return watchdog_events_; }
     /// Particles that slipped out of a grabber so far (grab_slip_strain).
     std::size_t slipped_particles() const { return slipped_; }
+    /// Times a probe pierced the tissue instead of pushing a particle, so far (probe_pierce_strain).
+    std::size_t pierced_particles() const { return pierced_; }
 
     BasicSolver(const BasicSolver&) = delete;
     BasicSolver& operator=(const BasicSolver&) = delete;
@@ -360,6 +388,8 @@ private:
     std::size_t watchdog_events_ = 0;
     int consecutive_restores_ = 0;
     std::size_t slipped_ = 0;
+    std::size_t pierced_ = 0;
+    std::vector<std::size_t> chunk_pierced_;  ///< this substep's pierces per chunk (summed in order)
 };
 
 using Solver = BasicSolver<float>;

@@ -3,6 +3,7 @@
 
 #include "libmodel/errors.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -74,6 +75,11 @@ public:
     std::uint64_t latest_forces_request() const override { return latest_request_; }
     InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
     std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
+    std::vector<std::int32_t> contact_particles(int hand) override {
+        std::vector<std::int32_t> list = solver_.contact_particles(hand);
+        std::sort(list.begin(), list.end());
+        return list;
+    }
     PassTimes pass_times() override { return times_; }
     std::size_t memory_bytes() const override {
         // Three float4 position buffers, rest, per-particle constants, five per-entry tables.

@@ -232,6 +232,71 @@ TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
     expect_agreement(c);
 }
 
+// The probe's pierce and the grab's one piece (SolverOptions::probe_pierce_strain, grab_reach)
+// on the gl backend as on the cpu: a paddle driven from the phantom's centre out through its wall
+// and 15 mm on, without piercing so that it carries tissue out on its face, then a grabber over
+// that face; then the same with piercing. Both backends hold the same particles and end where
+// each other does.
+TEST(RuntimeBackend, GlPiercesAndGrabsOnePieceOfTissueAsTheCpuDoes) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const auto& rest = scenario.lattice.particles.rest_position;
+    Eigen::AlignedBox3d box;
+    for (const auto& r : rest) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
+    const double size = box.diagonal().norm();
+    const Eigen::Vector3d paddle(0.3 * box.sizes().x(), 2.0, 0.3 * box.sizes().z());
+    for (const double pierce : {0.0, SolverOptions{}.probe_pierce_strain}) {
+        SCOPED_TRACE("probe_pierce_strain " + std::to_string(pierce));
+        SolverOptions options = options_from(scenario.solver);
+        options.probe_pierce_strain = pierce;
+        auto cpu = make_cpu_backend(scenario, options);
+        auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+        std::vector<std::vector<std::int32_t>> held;
+        std::vector<std::size_t> inside_grabber;
+        std::vector<std::vector<std::array<float, 3>>> end;
+        for (Backend* backend : {cpu.get(), gl.get()}) {
+            backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = paddle});
+            InstrumentPose pose{box.center(), Eigen::Quaterniond::Identity()};
+            backend->set_pose(0, pose);
+            const double start = pose.position.y(), stop = box.max().y() + 15.0;
+            for (int s = 1; s <= 80; ++s) {
+                pose.position.y() = start + (stop - start) * std::min(1.0, s / 60.0);
+                backend->set_pose(0, pose);
+                backend->step(1);
+            }
+            // The grabber over the paddle's leading face.
+            const Eigen::Vector3d grab_at = pose.position + Eigen::Vector3d(0, paddle.y() + 1.0, 0);
+            const Eigen::Vector3d grab_axes = Eigen::Vector3d::Constant(2.5);
+            const auto x = backend->positions();
+            std::size_t count = 0;
+            for (std::size_t i = 0; i < x.size(); ++i)
+                if (!scenario.lattice.particles.anchored[i])
+                    count += (Eigen::Vector3d(x[i][0], x[i][1], x[i][2]) - grab_at).cwiseQuotient(grab_axes).squaredNorm() <= 1.0;
+            inside_grabber.push_back(count);
+            backend->set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = grab_axes});
+            backend->set_pose(1, {grab_at, Eigen::Quaterniond::Identity()});
+            backend->begin_grab(1);
+            backend->instrument_forces();  // the force pass lists what each hand holds
+            held.push_back(backend->contact_particles(1));
+            for (int s = 0; s < 20; ++s) {
+                backend->set_pose(1, {grab_at + Eigen::Vector3d(0, 0.1 * s, 0), Eigen::Quaterniond::Identity()});
+                backend->step(1);
+            }
+            end.push_back(backend->positions());
+        }
+        std::printf("  pierce %.1f: inside the grabber cpu %zu, gl %zu; held cpu %zu, gl %zu\n", pierce, inside_grabber[0], inside_grabber[1], held[0].size(),
+                    held[1].size());
+        EXPECT_EQ(inside_grabber[0], inside_grabber[1]);
+        EXPECT_LT(held[0].size(), inside_grabber[0]) << "the carried tissue should hold particles from beyond the grab's reach";
+        EXPECT_GT(held[0].size(), 0u);
+        EXPECT_EQ(held[0], held[1]);
+        double error = 0;
+        for (std::size_t i = 0; i < end[0].size(); ++i)
+            for (int c = 0; c < 3; ++c) error = std::max(error, double(std::abs(end[0][i][c] - end[1][i][c])));
+        EXPECT_LE(error, 1e-4 * size);
+    }
+}
+
 TEST(RuntimeBackend, ResetTissueReturnsToTheBalancedRestStateAndKeepsTheTime) {
     // The window's T key: after a press, both backends put every particle back at its imaged
     // place, the simulated time goes on, and the (balanced) rest state then stays put.

@@ -364,6 +364,129 @@ TEST(Solver, GrabbedParticlesFollowTheToolExactlyAndAreFreeAfterRelease) {
     EXPECT_GT((solver.position(std::size_t(held[0])) - before).norm(), 1e-3) << "released particles move again";
 }
 
+namespace {
+
+/// A paddle (8 × 3 × 8 mm, broadside) starting in the middle of a 16.5 × 13.5 × 16.5 mm block
+/// whose back and side faces are anchored, driven out through its free face and 20 mm on in 60
+/// steps, then held still. Records the largest spring strain in the block at any step, and after every step
+/// checks the rule itself: no particle the probe pushed has a spring stretched past the pierce
+/// strain, measured against its neighbours where they were before the step (one substep per step).
+struct Sweep {
+    double strain = 0, pushed_strain = 0;
+    std::size_t pierced = 0;
+};
+Sweep needle_out_of_a_block(double pierce_strain) {
+    Model model = block(12, 10, 12);
+    for (std::size_t i = 0; i < model.lattice.particles.size(); ++i) {
+        const auto& c = model.lattice.particles.lattice_index[i];
+        model.lattice.particles.anchored[i] = c[0] == 0 || c[0] == 11 || c[2] == 0 || c[2] == 11 || c[1] == 0;
+    }
+    SolverOptions o = quiet(0.5, model);
+    o.probe_pierce_strain = pierce_strain;
+    Solver solver(model.lattice, model.packing.neighbours, o);
+    EXPECT_EQ(solver.substeps_per_step(), 1);
+    const Eigen::AlignedBox3d box = bounds(model.lattice.particles);
+    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(4, 1.5, 4)});
+    InstrumentPose pose{box.center() + Eigen::Vector3d(0.3, 0, 0.2), Eigen::Quaterniond::Identity()};
+    solver.set_pose(0, pose);
+    const double start = pose.position.y(), end = box.max().y() + 20.0;
+    const auto& springs = model.lattice.springs;
+    std::vector<std::vector<std::size_t>> springs_of(solver.size());
+    for (std::size_t q = 0; q < springs.pairs.size(); ++q) {
+        springs_of[std::size_t(springs.pairs[q][0])].push_back(q);
+        springs_of[std::size_t(springs.pairs[q][1])].push_back(q);
+    }
+    Sweep result;
+    for (int s = 1; s <= 500; ++s) {
+        pose.position.y() = start + (end - start) * std::min(1.0, s / 60.0);
+        solver.set_pose(0, pose);
+        const std::vector<Eigen::Vector3d> before = all_positions(solver);
+        const StepReport r = solver.step();
+        EXPECT_FALSE(r.diverged) << r.message;
+        for (std::size_t q = 0; q < springs.pairs.size(); ++q) {
+            const auto [a, b] = springs.pairs[q];
+            const double length = (solver.position(std::size_t(a)) - solver.position(std::size_t(b))).norm();
+            result.strain = std::max(result.strain, length / double(springs.rest_length[q]) - 1);
+        }
+        for (const std::int32_t i : solver.contact_particles(0))
+            for (const std::size_t q : springs_of[std::size_t(i)]) {
+                const auto [a, b] = springs.pairs[q];
+                const std::size_t j = std::size_t(a) == std::size_t(i) ? std::size_t(b) : std::size_t(a);
+                const double length = (solver.position(std::size_t(i)) - before[j]).norm();
+                result.pushed_strain = std::max(result.pushed_strain, std::abs(length / double(springs.rest_length[q]) - 1));
+            }
+    }
+    result.pierced = solver.pierced_particles();
+    std::printf("  pierce strain %.1f: largest strain in the block %.3f, of a pushed particle %.3f; pierced %zu times\n", pierce_strain, result.strain,
+                result.pushed_strain, result.pierced);
+    return result;
+}
+
+}  // namespace
+
+// A needle driven out of the tissue pierces it (SolverOptions::probe_pierce_strain) where pushing
+// a particle on would stretch one of its springs past the limit, instead of carrying it along
+// (in the stress gesture, until its springs were five times their rest length and flung it back).
+TEST(Solver, ANeedleDrivenOutOfTheTissuePiercesItInsteadOfStretchingItPastTheLimit) {
+    const double limit = SolverOptions{}.probe_pierce_strain;
+    const Sweep pierced = needle_out_of_a_block(limit);
+    const Sweep dragged = needle_out_of_a_block(0.0);
+    EXPECT_GT(pierced.pierced, 0u);
+    EXPECT_EQ(dragged.pierced, 0u);
+    EXPECT_LE(pierced.pushed_strain, limit * (1 + 1e-5)) << "a pushed particle's spring past the pierce strain";
+    EXPECT_GT(dragged.pushed_strain, limit) << "without piercing the needle should stretch what it pushes past the limit";
+}
+
+// A grab takes one piece of tissue (SolverOptions::grab_reach): at rest everything inside the
+// grabber, and of a row of particles crumpled together from 19.5 mm apart, the run of
+// neighbours within reach of the one nearest the centre.
+TEST(Solver, AGrabTakesOnePieceOfTissueNotAClumpCrumpledFromFarApart) {
+    Model model = block(14, 4, 4);
+    const Particles& particles = model.lattice.particles;
+    const Eigen::Vector3d semi_axes(2.0, 2.0, 2.0);
+    for (const double reach : {SolverOptions{}.grab_reach, 0.0}) {
+        SCOPED_TRACE("grab_reach " + std::to_string(reach));
+        SolverOptions o = quiet(0.5, model);
+        o.grab_reach = reach;
+        Solver solver(model.lattice, model.packing.neighbours, o);
+        solver.set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = semi_axes});
+        // At rest, inside the block: every particle inside is held.
+        const Eigen::AlignedBox3d box = bounds(particles);
+        const InstrumentPose middle{box.center() + Eigen::Vector3d(0.2, 0.1, -0.1), Eigen::Quaterniond::Identity()};
+        solver.set_pose(0, middle);
+        std::size_t inside_at_rest = 0;
+        for (std::size_t i = 0; i < solver.size(); ++i) inside_at_rest += inside(solver.position(i), middle, semi_axes);
+        EXPECT_EQ(solver.begin_grab(0), inside_at_rest);
+        EXPECT_GT(inside_at_rest, 4u);
+        solver.release(0);
+        // The row y = z = 0 crumpled into a 1 mm ball 4 mm off the block's -y face, in rest order.
+        const Eigen::Vector3d clump(box.center().x(), box.min().y() - 4.0, box.min().z());
+        std::vector<Eigen::Vector3d> x(particles.size()), v = zeros(particles.size());
+        std::vector<std::size_t> row;
+        for (std::size_t i = 0; i < particles.size(); ++i) {
+            x[i] = Eigen::Vector3d(particles.rest_position[i][0], particles.rest_position[i][1], particles.rest_position[i][2]);
+            if (particles.lattice_index[i][1] == 0 && particles.lattice_index[i][2] == 0) {
+                row.push_back(i);
+                x[i] = clump + Eigen::Vector3d(0.07 * particles.lattice_index[i][0] - 0.45, 0.0, 0.0);
+            }
+        }
+        ASSERT_EQ(row.size(), 14u);
+        solver.set_state(x, v);
+        solver.set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = semi_axes});  // placed at once by the next pose
+        solver.set_pose(0, {clump, Eigen::Quaterniond::Identity()});
+        const std::size_t held = solver.begin_grab(0);
+        if (reach <= 0) {
+            EXPECT_EQ(held, row.size()) << "without a reach the grab holds the whole clump";
+            continue;
+        }
+        // The nearest to the centre is lattice x 6 (0.07·x − 0.45 is nearest 0 there): it and the
+        // row's particles up to 2 × 2 mm from it at rest, 1.5 mm apart: x 4 … 8.
+        std::vector<int> held_x;
+        for (const std::int32_t i : solver.contact_particles(0)) held_x.push_back(particles.lattice_index[std::size_t(i)][0]);
+        EXPECT_EQ(held_x, (std::vector<int>{4, 5, 6, 7, 8}));
+    }
+}
+
 TEST(Solver, ProbeForceBalancesTheAnchorReactionAtEquilibrium) {
     Model model = block(6, 6, 3);
     auto& p = model.lattice.particles;

@@ -106,6 +106,7 @@ public:
             glProgramUniform1i(p->id, p->at("supported"), supported_);
         glProgramUniform1i(force_program_.id, force_program_.at("damped"), damped_);
         glProgramUniform1f(after_program_.id, after_program_.at("slip_strain"), float(options_.grab_slip_strain));
+        glProgramUniform1d(step_program_.id, step_program_.at("pierce_strain"), options_.probe_pierce_strain);
         check("setting up the gl backend");
     }
 
@@ -168,8 +169,60 @@ public:
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         GLuint count = 0;
         glGetNamedBufferSubData(counters_.id(), GLintptr((sh::held0 + hand) * 4), 4, &count);
+        if (count > 0) count = keep_one_piece(hand, count);
         check("begin_grab");
         return count;
+    }
+
+    /// The captured list (in the atomics' order) in ascending particle order, as the cpu solver
+    /// holds it, and only the piece of tissue the cpu solver keeps (SolverOptions::grab_reach,
+    /// libmodel grab_piece, on host copies of the rest positions): the others are freed by the
+    /// release pass run over just them. Returns the count kept.
+    GLuint keep_one_piece(int hand, GLuint count) {
+        const std::size_t base = std::size_t(hand) * n_;
+        std::vector<std::int32_t> index(count);
+        std::vector<double> local(3 * std::size_t(count));
+        glGetNamedBufferSubData(held_.id(), GLintptr(base * 4), GLsizeiptr(count * 4), index.data());
+        glGetNamedBufferSubData(held_local_.id(), GLintptr(base * 3 * 8), GLsizeiptr(std::size_t(count) * 3 * 8), local.data());
+        std::vector<std::size_t> order(count);
+        for (std::size_t q = 0; q < count; ++q) order[q] = q;
+        std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return index[a] < index[b]; });
+        std::vector<Eigen::Vector3d> sorted_local(count), rest(count);
+        for (std::size_t q = 0; q < count; ++q) {
+            const std::size_t from = order[q], i = std::size_t(index[from]);
+            sorted_local[q] = Eigen::Vector3d(local[3 * from], local[3 * from + 1], local[3 * from + 2]);
+            for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_position_[3 * i + std::size_t(c)]);
+        }
+        const std::vector<std::uint8_t> keep = grab_piece(sorted_local, rest, hand_[hand].instrument.semi_axes, options_.grab_reach);
+        std::vector<std::int32_t> kept, dropped;
+        std::vector<double> kept_local;
+        for (std::size_t q = 0; q < count; ++q) {
+            const std::int32_t i = index[order[q]];
+            if (!keep[q]) {
+                dropped.push_back(i);
+                continue;
+            }
+            kept.push_back(i);
+            for (int c = 0; c < 3; ++c) kept_local.push_back(sorted_local[q][c]);
+        }
+        auto set_list = [&](const std::vector<std::int32_t>& list) {
+            const GLuint size = GLuint(list.size());
+            if (size > 0) glNamedBufferSubData(held_.id(), GLintptr(base * 4), GLsizeiptr(size * 4), list.data());
+            glNamedBufferSubData(counters_.id(), GLintptr((sh::held0 + hand) * 4), 4, &size);
+        };
+        if (!dropped.empty()) {  // the release pass frees the hand's listed particles and zeroes its count
+            set_list(dropped);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+            glProgramUniform1i(release_program_.id, release_program_.at("hand"), hand);
+            glUseProgram(release_program_.id);
+            glDispatchCompute(1, 1, 1);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        }
+        set_list(kept);
+        if (!kept.empty())
+            glNamedBufferSubData(held_local_.id(), GLintptr(base * 3 * 8), GLsizeiptr(kept_local.size() * 8), kept_local.data());
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        return GLuint(kept.size());
     }
 
     void release(int hand) override {
@@ -678,8 +731,11 @@ private:
         storage(held_by_, std::vector<std::int32_t>(n_pad_, -1));
         storage(counters_, std::vector<std::uint32_t>(sh::counter_words, 0u), GL_DYNAMIC_STORAGE_BIT);
         storage(touched_, std::size_t(hands) * n_ * 4, 0);
-        storage(held_, std::size_t(hands) * n_ * 4, 0);
-        storage(held_local_, std::size_t(hands) * n_ * 3 * 8, 0);
+        storage(held_, std::size_t(hands) * n_ * 4, GL_DYNAMIC_STORAGE_BIT);              // begin_grab rewrites it
+        storage(held_local_, std::size_t(hands) * n_ * 3 * 8, GL_DYNAMIC_STORAGE_BIT);
+        rest_position_.resize(3 * n_);  // begin_grab's piece of tissue (keep_one_piece)
+        for (std::size_t i = 0; i < n_; ++i)
+            for (int c = 0; c < 3; ++c) rest_position_[3 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
         const GLbitfield ring_flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
         storage(ring_, std::size_t(ring_slots) * ring_stride, ring_flags);
         ring_map_ = glMapNamedBufferRange(ring_.id(), 0, ring_slots * ring_stride, ring_flags);
@@ -708,6 +764,7 @@ private:
     Buffer position_[2], motion_[2], rest_current_, rest_motion_;
     int current_ = 0, next_ = 1;
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
+    std::vector<float> rest_position_;  ///< 3 per particle, host copy for begin_grab
     Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_;
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;

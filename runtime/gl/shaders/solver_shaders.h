@@ -52,6 +52,7 @@ uniform dvec3 probe_previous_centre[2];
 uniform dmat3 probe_previous_rotation[2];
 uniform dvec3 probe_semi_axes[2];
 uniform float probe_bound2[2];
+uniform double pierce_strain;   // SolverOptions::probe_pierce_strain; ≤ 0: never pierces
 
 dvec3 rotate(dmat3 r, dvec3 v) {          // r · v, Eigen's order
     precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
@@ -176,6 +177,25 @@ void main() {
                 stored = dvec3(double(nx), double(ny), double(nz));
                 if (squared_norm(rotate_back(r, stored - probe_centre[q]) / semi) >= 1.0lf + 1e-6lf) break;
                 factor = factor * (1.0lf + 1e-6lf * double(1 << min(attempt, 20)));
+            }
+            if (pierce_strain > 0.0lf) {  // Solver's `project`: strain_at against the current positions
+                precise float worst = 0.0;
+                uint table = group * 18u * 8u + lane;
+                for (uint s = 0u; s < 18u; ++s) {
+                    uint t = table + s * 8u;
+                    uint j = uint(neighbour[t]);
+                    if (j == i) continue;
+                    vec4 other = x[j];
+                    precise float dx = nx - other.x, dy = ny - other.y, dz = nz - other.z;
+                    precise float length2 = dx * dx + dy * dy;
+                    length2 = length2 + dz * dz;
+                    precise float strain = abs(sqrt(length2) / rest_length[t] - 1.0);
+                    worst = max(worst, strain);
+                }
+                if (double(worst) > pierce_strain) {  // pierced: back where the integration put it
+                    nx = float(world.x); ny = float(world.y); nz = float(world.z);
+                    continue;
+                }
             }
             precise dvec3 normal = rotate(r, local / (semi * semi));
             normal = normal / sqrt(squared_norm(normal));
