@@ -6,6 +6,8 @@
 //
 //   solver_bench [--real PATH] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F]
 //                [--phantoms N,N,...]   phantom sizes (default 300000,1000000 in a full run, none with --quick)
+//                [--seeds N,N,...]      the stress gesture's random seeds, one run each (default 5)
+//                [--stress-only]        with --stress: no rate, peer or accuracy tables
 //
 // Results and the exact commands: docs/benchmarks-solver.md.
 #include "formats/volume_io.h"
@@ -266,12 +268,53 @@ void accuracy_table(const Case& c, std::ostream& csv, bool quick, double damping
 
 }  // namespace
 
+// The two-handed stress gesture (tests/stress_gesture.h) for `steps` steps from one seed: prints
+// one line, adds one CSV row, returns the watchdog events.
+std::size_t stress_run(const Case& c, long long steps, unsigned seed, std::ostream& csv) {
+    SolverOptions o = scenario_options();
+    o.damping = 0.01;
+    Solver solver(c.lattice, c.packing.neighbours, o);
+    Eigen::AlignedBox3d box;
+    for (const auto& r : c.lattice.particles.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
+    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 3, 8)});
+    solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(4, 4, 4)});
+    std::mt19937 random(seed);
+    std::uniform_real_distribution<double> unit(0, 1);
+    auto pose = [&] {
+        return InstrumentPose{box.min() + box.diagonal().cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random))), Eigen::Quaterniond::UnitRandom()};
+    };
+    std::size_t events = 0, largest_grab = 0;
+    std::array<std::size_t, 4> reasons{};
+    double largest_force = 0;
+    const auto t0 = Clock::now();
+    test::StressGesture gesture(solver, pose);  // tests/stress_gesture.h
+    for (long long s = 0; s < steps; ++s) {
+        gesture.before_step(solver, s);
+        largest_grab = std::max(largest_grab, solver.contact_particles(1).size());
+        const StepReport report = solver.step();
+        events += report.diverged;
+        if (report.diverged) ++reasons[int(report.reason)];
+        const auto f = solver.instrument_forces();
+        largest_force = std::max({largest_force, f.hand[0].force_n.norm(), f.hand[1].force_n.norm()});
+    }
+    bool finite = true;
+    for (std::size_t i = 0; i < solver.size(); ++i) finite = finite && solver.position(i).allFinite();
+    std::cout << "  seed " << std::setw(3) << seed << ": " << seconds_since(t0) << " s, positions " << (finite ? "finite" : "NOT FINITE") << ", watchdog events "
+              << events << " (non-finite " << reasons[1] << ", speed " << reasons[2] << ", energy " << reasons[3] << "), largest grab " << largest_grab
+              << " particles, slipped " << solver.slipped_particles() << ", pierced " << solver.pierced_particles() << ", largest instrument force "
+              << largest_force << " N\n";
+    csv << "stress," << c.name << "," << seed << "," << events << "," << largest_grab << "," << solver.pierced_particles() << "," << largest_force << "\n";
+    return events;
+}
+
 int main(int argc, char** argv) {
     std::filesystem::path real = std::filesystem::path(HEARTSIM_REAL_DATA) / "hvsmr16_pat1";
     std::filesystem::path out = ".";
     bool quick = false;
     int threads = 2;
     long long stress_steps = 0;
+    std::vector<unsigned> seeds{5};
+    bool stress_only = false;
     std::vector<std::size_t> phantom_sizes{300000, 1000000};
     bool phantoms_given = false;  // --phantoms: also with --quick
     for (int a = 1; a < argc; ++a) {
@@ -282,6 +325,12 @@ int main(int argc, char** argv) {
         else if (arg == "--threads" && a + 1 < argc) threads = std::stoi(argv[++a]);
         else if (arg == "--stress" && a + 1 < argc) stress_steps = std::stoll(argv[++a]);
         else if (arg == "--safety" && a + 1 < argc) safety_factor = std::stod(argv[++a]);
+        else if (arg == "--stress-only") stress_only = true;
+        else if (arg == "--seeds" && a + 1 < argc) {
+            seeds.clear();
+            std::stringstream list(argv[++a]);
+            for (std::string item; std::getline(list, item, ',');) seeds.push_back(unsigned(std::stoul(item)));
+        }
         else if (arg == "--phantoms" && a + 1 < argc) {
             phantom_sizes.clear();
             phantoms_given = true;
@@ -289,7 +338,7 @@ int main(int argc, char** argv) {
             for (std::string item; std::getline(list, item, ',');) phantom_sizes.push_back(std::size_t(std::stoull(item)));
         }
         else {
-            std::cerr << "usage: solver_bench [--real DIR_OR_FILE] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F] [--phantoms N,N,...]\n";
+            std::cerr << "usage: solver_bench [--real DIR_OR_FILE] [--out DIR] [--quick] [--threads N] [--stress STEPS] [--safety F] [--phantoms N,N,...] [--seeds N,N,...] [--stress-only]\n";
             return 2;
         }
     }
@@ -310,9 +359,12 @@ int main(int argc, char** argv) {
     csv << "table,case,a,b,c,d,e\n";
 
     std::cout << "heartsim solver benchmark, " << threads << " threads (TBB)\n";
-    const double copy_gbs = stream_copy_gbs(std::size_t(256) << 20);
-    std::cout << "STREAM-style copy (2 × 256 MiB arrays, read + write counted): " << copy_gbs << " GB/s\n";
-    csv << "copy,," << copy_gbs << ",,,,\n";
+    double copy_gbs = 0;
+    if (!stress_only) {
+        copy_gbs = stream_copy_gbs(std::size_t(256) << 20);
+        std::cout << "STREAM-style copy (2 × 256 MiB arrays, read + write counted): " << copy_gbs << " GB/s\n";
+        csv << "copy,," << copy_gbs << ",,,,\n";
+    }
 
     // ~30k: the real heart at the default budget, both packings.
     std::vector<Case> cases;
@@ -321,7 +373,7 @@ int main(int argc, char** argv) {
     cases.push_back(real_case(real, PackingScheme::slices));
     std::cout << "real case " << real << ": " << cases[0].lattice.particles.size() << " particles, " << cases[0].lattice.springs.size()
               << " springs (layout " << seconds_since(t_layout) << " s)\n";
-    if ((!quick || phantoms_given) && stress_steps == 0) {
+    if ((!quick || phantoms_given) && stress_steps == 0 && !stress_only) {
         for (std::size_t budget : phantom_sizes) {
             if (budget == 0) continue;
             const auto t0 = Clock::now();
@@ -330,91 +382,69 @@ int main(int argc, char** argv) {
         }
     }
 
-    std::cout << "\nSteps per second (float, dt = " << safety_factor << " × the damped critical step, ζ = 0.1 dashpots, gravity off; substeps counted)\n";
-    std::cout << "  case                 particles  kernel    steps/s    ns/particle  GB/s moved  fraction of copy  (bytes/particle/step: "
-              << bytes_per_particle(true, true) << " with per-slot constants, " << bytes_per_particle(true, false) << " with per-entry tables)\n";
     double rate_30k = 0;
-    for (const Case& c : cases) {
-        for (SolverKernel kernel : {SolverKernel::avx512, SolverKernel::avx2, SolverKernel::sse2, SolverKernel::portable}) {
-            if (c.lattice.particles.size() > 100000 && kernel == SolverKernel::portable) continue;
-            SolverOptions o = scenario_options();
-            o.kernel = kernel;
-            Solver solver(c.lattice, c.packing.neighbours, o);
-            const Timing t = time_steps(solver, min_seconds);
-            const double n = double(c.lattice.particles.size());
-            const double gbs = t.steps_per_second * n * bytes_per_particle(true, solver.load_report().uniform_slots) / 1e9;
-            const char* kernel_name = to_string(solver.load_report().kernel);
-            if (kernel == SolverKernel::avx2) std::cout << "  (" << c.name << ": per-slot constants " << (solver.load_report().uniform_slots ? "yes" : "no") << ")\n";
-            std::cout << "  " << std::left << std::setw(20) << c.name << std::right << std::setw(10) << std::size_t(n) << "  " << std::setw(8) << kernel_name
-                      << std::setw(11) << std::fixed << std::setprecision(0) << t.steps_per_second << std::setw(13) << std::setprecision(2)
-                      << 1e9 / (t.steps_per_second * n) << std::setw(12) << gbs << std::setw(12) << gbs / copy_gbs << std::defaultfloat
-                      << std::setprecision(6) << "\n";
-            csv << "steps," << c.name << "," << std::size_t(n) << "," << kernel_name << "," << t.steps_per_second << "," << gbs << "," << gbs / copy_gbs << "\n";
-            if (&c == &cases[0] && kernel == SolverKernel::avx512) rate_30k = t.steps_per_second;
+    if (!stress_only) {
+        std::cout << "\nSteps per second (float, dt = " << safety_factor << " × the damped critical step, ζ = 0.1 dashpots, gravity off; substeps counted)\n";
+        std::cout << "  case                 particles  kernel    steps/s    ns/particle  GB/s moved  fraction of copy  (bytes/particle/step: "
+                  << bytes_per_particle(true, true) << " with per-slot constants, " << bytes_per_particle(true, false) << " with per-entry tables)\n";
+        for (const Case& c : cases) {
+            for (SolverKernel kernel : {SolverKernel::avx512, SolverKernel::avx2, SolverKernel::sse2, SolverKernel::portable}) {
+                if (c.lattice.particles.size() > 100000 && kernel == SolverKernel::portable) continue;
+                SolverOptions o = scenario_options();
+                o.kernel = kernel;
+                Solver solver(c.lattice, c.packing.neighbours, o);
+                const Timing t = time_steps(solver, min_seconds);
+                const double n = double(c.lattice.particles.size());
+                const double gbs = t.steps_per_second * n * bytes_per_particle(true, solver.load_report().uniform_slots) / 1e9;
+                const char* kernel_name = to_string(solver.load_report().kernel);
+                if (kernel == SolverKernel::avx2) std::cout << "  (" << c.name << ": per-slot constants " << (solver.load_report().uniform_slots ? "yes" : "no") << ")\n";
+                std::cout << "  " << std::left << std::setw(20) << c.name << std::right << std::setw(10) << std::size_t(n) << "  " << std::setw(8) << kernel_name
+                          << std::setw(11) << std::fixed << std::setprecision(0) << t.steps_per_second << std::setw(13) << std::setprecision(2)
+                          << 1e9 / (t.steps_per_second * n) << std::setw(12) << gbs << std::setw(12) << gbs / copy_gbs << std::defaultfloat
+                          << std::setprecision(6) << "\n";
+                csv << "steps," << c.name << "," << std::size_t(n) << "," << kernel_name << "," << t.steps_per_second << "," << gbs << "," << gbs / copy_gbs << "\n";
+                if (&c == &cases[0] && kernel == SolverKernel::avx512) rate_30k = t.steps_per_second;
+            }
         }
-    }
 
-    // Undamped (no dashpot gathers) on the real case, for the record.
-    {
-        SolverOptions o = scenario_options();
-        o.damping_ratio = {0.0};
-        Solver solver(cases[0].lattice, cases[0].packing.neighbours, o);
-        const Timing t = time_steps(solver, min_seconds);
-        std::cout << "  " << cases[0].name << " without dashpots (ζ = 0): " << std::fixed << std::setprecision(0) << t.steps_per_second << std::defaultfloat
-                  << std::setprecision(6) << " steps/s\n";
-        csv << "steps_undamped," << cases[0].name << ",," << t.steps_per_second << ",,,\n";
-    }
+        // Undamped (no dashpot gathers) on the real case, for the record.
+        {
+            SolverOptions o = scenario_options();
+            o.damping_ratio = {0.0};
+            Solver solver(cases[0].lattice, cases[0].packing.neighbours, o);
+            const Timing t = time_steps(solver, min_seconds);
+            std::cout << "  " << cases[0].name << " without dashpots (ζ = 0): " << std::fixed << std::setprecision(0) << t.steps_per_second << std::defaultfloat
+                      << std::setprecision(6) << " steps/s\n";
+            csv << "steps_undamped," << cases[0].name << ",," << t.steps_per_second << ",,,\n";
+        }
 
 #ifdef HEARTSIM_HAVE_BULLET
-    {
-        const Case& c = cases[0];
-        Solver solver(c.lattice, c.packing.neighbours, scenario_options());
-        const double bullet = bullet_steps_per_second(c, solver.substep_ms(), min_seconds);
-        std::cout << "\nPeer: Bullet 3.24 btSoftBody on the same lattice (" << c.lattice.particles.size() << " nodes, " << c.lattice.springs.size()
-                  << " links, same masses, dt = " << solver.substep_ms() << " ms, 1 iteration, collisions off, 1 thread)\n";
-        std::cout << "  Bullet: " << bullet << " steps/s; heartsim: " << rate_30k << " steps/s; ratio " << rate_30k / bullet << "x\n";
-        csv << "bullet," << c.name << "," << bullet << "," << rate_30k << "," << rate_30k / bullet << ",,\n";
-    }
+        {
+            const Case& c = cases[0];
+            Solver solver(c.lattice, c.packing.neighbours, scenario_options());
+            const double bullet = bullet_steps_per_second(c, solver.substep_ms(), min_seconds);
+            std::cout << "\nPeer: Bullet 3.24 btSoftBody on the same lattice (" << c.lattice.particles.size() << " nodes, " << c.lattice.springs.size()
+                      << " links, same masses, dt = " << solver.substep_ms() << " ms, 1 iteration, collisions off, 1 thread)\n";
+            std::cout << "  Bullet: " << bullet << " steps/s; heartsim: " << rate_30k << " steps/s; ratio " << rate_30k / bullet << "x\n";
+            csv << "bullet," << c.name << "," << bullet << "," << rate_30k << "," << rate_30k / bullet << ",,\n";
+        }
 #else
-    std::cout << "\nPeer: Bullet not built in (configure with libbullet-dev; HEARTSIM_HAVE_BULLET)\n";
+        std::cout << "\nPeer: Bullet not built in (configure with libbullet-dev; HEARTSIM_HAVE_BULLET)\n";
 #endif
 
-    for (double zeta : {0.0, 0.1}) accuracy_table(cases[0], csv, quick, zeta);
-
-    if (stress_steps > 0) {
-        const Case& c = cases[0];
-        SolverOptions o = scenario_options();
-        o.damping = 0.01;
-        Solver solver(c.lattice, c.packing.neighbours, o);
-        Eigen::AlignedBox3d box;
-        for (const auto& r : c.lattice.particles.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
-        solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 3, 8)});
-        solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(4, 4, 4)});
-        std::mt19937 random(5);
-        std::uniform_real_distribution<double> unit(0, 1);
-        auto pose = [&] {
-            return InstrumentPose{box.min() + box.diagonal().cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random))), Eigen::Quaterniond::UnitRandom()};
-        };
-        std::size_t events = 0;
-        std::array<std::size_t, 4> reasons{};
-        double largest_force = 0;
-        const auto t0 = Clock::now();
-        test::StressGesture gesture(solver, pose);  // tests/stress_gesture.h
-        for (long long s = 0; s < stress_steps; ++s) {
-            gesture.before_step(solver, s);
-            const StepReport report = solver.step();
-            events += report.diverged;
-            if (report.diverged) ++reasons[int(report.reason)];
-            const auto f = solver.instrument_forces();
-            largest_force = std::max({largest_force, f.hand[0].force_n.norm(), f.hand[1].force_n.norm()});
-        }
-        bool finite = true;
-        for (std::size_t i = 0; i < solver.size(); ++i) finite = finite && solver.position(i).allFinite();
-        std::cout << "\nStress: " << stress_steps << " steps with two instruments chasing random targets at 2 mm/ms in " << seconds_since(t0) << " s: positions "
-                  << (finite ? "finite" : "NOT FINITE") << ", watchdog events " << events << " (non-finite " << reasons[1] << ", speed " << reasons[2] << ", energy " << reasons[3] << "), largest instrument force " << largest_force << " N\n";
+        for (double zeta : {0.0, 0.1}) accuracy_table(cases[0], csv, quick, zeta);
     }
 
-    std::cout << "\nTargets: >= 4000 steps/s at ~30k on 2 cores: " << (rate_30k >= 4000 ? "met" : "MISSED") << " (" << rate_30k << ")\n";
+    if (stress_steps > 0) {
+        std::cout << "\nStress: " << stress_steps << " steps of two instruments chasing random targets at 2 mm/ms (tests/stress_gesture.h), "
+                  << cases[0].lattice.particles.size() << " particles\n";
+        std::size_t events = 0;
+        for (unsigned seed : seeds) events += stress_run(cases[0], stress_steps, seed, csv);
+        std::cout << "  watchdog events over " << seeds.size() << " seed(s): " << events << "\n";
+    }
+
+    if (!stress_only)
+        std::cout << "\nTargets: >= 4000 steps/s at ~30k on 2 cores: " << (rate_30k >= 4000 ? "met" : "MISSED") << " (" << rate_30k << ")\n";
     std::cout << "CSV: " << (out / "solver_bench.csv") << "\n";
     return 0;
 }
