@@ -203,9 +203,6 @@ struct SolverLoadReport {
     bool uniform_slots = false;                  ///< rest length and stiffness read as 18 per-slot constants
 };
 
-/// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
-/// the converged reference for convergence tests). Not thread-safe: one caller drives it;
-/// step() itself runs on TBB's workers and gives the same bits for any thread count.
 /// begin_grab()'s piece of tissue (SolverOptions::grab_reach), shared by the cpu and gl
 /// backends: of the particles captured inside a grabber with `semi_axes` (their tool-frame
 /// positions `local` and rest positions `rest`, in ascending particle order), which it keeps:
@@ -215,6 +212,9 @@ struct SolverLoadReport {
 std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
                                      const Eigen::Vector3d& semi_axes, double reach);
 
+/// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
+/// the converged reference for convergence tests). Not thread-safe: one caller drives it;
+/// step() itself runs on TBB's workers and gives the same bits for any thread count.
 template <class Real>
 class BasicSolver {
 public:
