@@ -1,7 +1,8 @@
 // How a heart is held (libmodel/supports.h) against truths: the closed-form sag of a block on
 // support springs, a balanced rest state that does not move, Newton's third law between the
 // probe, the anchors, the supports and the weight, the critical step of a support, free pieces
-// dropped or refused, the scenario file's round trip, and a real heart held where it was imaged.
+// dropped or refused, the scenario file's round trip, a real heart held where it was imaged, and
+// the same heart pulled hard beside its supports without the watchdog taking folds for divergence.
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
@@ -10,6 +11,7 @@
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
 #include "libmodel/supports.h"
+#include "soak_gesture.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -277,4 +279,52 @@ TEST(Supports, ARealHeartBuiltWithTheDefaultsStaysWhereItWasImagedForFiveSeconds
     for (std::size_t i = 0; i < solver.size(); ++i) largest = std::max(largest, (solver.position(i) - rest(s.lattice.particles, i)).norm());
     EXPECT_LE(largest, 0.5) << "mm after 5 s with no instrument";
     std::printf("[pat1 default build] %zu particles, largest displacement after 5 s: %.3g mm\n", solver.size(), largest);
+}
+
+// The soak's 20 mm pulls beside the stiffest supports of a real heart (tests/soak_gesture.h)
+// fold its lattice, and a stable step then snaps a light surface particle through a neighbour
+// faster than twice the shortest rest length per substep: the old speed bound took that for
+// divergence and restored the heart at rest with the grab released. A snap is one fast substep,
+// slower in the next; a diverging particle would move faster every substep.
+TEST(Supports, FoldSnapsOfARealHeartPulledBesideItsStiffestSupportsAreNotDivergence) {
+    const auto input = test::real_case("hvsmr16_pat5");
+    if (input.empty()) GTEST_SKIP() << "real data absent (../shared/data/real/hvsmr16_pat5): the soak's pulls are not checked";
+    test::TempDir dir;
+    const auto output = dir / "pat5.h5";
+    const auto run = test::heartprep("build " + test::quoted(input) + " -o " + test::quoted(output) + " --no-visual -q");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const Scenario s = read_scenario(output);
+    const SolverOptions options = options_from(s.solver);
+    Solver solver(s.lattice, s.packing->neighbours, options);
+    ASSERT_EQ(solver.substeps_per_step(), 1) << "a step is one substep here, so a step's displacement is a substep's";
+    const double shortest = *std::min_element(s.lattice.springs.rest_length.begin(), s.lattice.springs.rest_length.end());
+    test::SoakGesture gesture(solver, s, test::held_hardest(s), 1);
+
+    std::vector<std::array<float, 3>> before = solver.positions();
+    std::vector<double> moved(solver.size(), 0.0);  // each particle's last step, in shortest rest lengths
+    double fastest = 0;
+    int snaps = 0, growing = 0;
+    for (int step = 0; step < 4000; ++step) {
+        gesture.before_step(solver);
+        const StepReport report = solver.step();
+        ASSERT_FALSE(report.diverged) << "step " << step << ": " << report.message;
+        const std::vector<std::array<float, 3>> after = solver.positions();
+        for (std::size_t i = 0; i < after.size(); ++i) {
+            const double d = std::sqrt(std::pow(double(after[i][0]) - before[i][0], 2) + std::pow(double(after[i][1]) - before[i][1], 2) +
+                                       std::pow(double(after[i][2]) - before[i][2], 2)) /
+                             shortest;
+            ASSERT_TRUE(std::isfinite(d)) << "particle " << i << " at step " << step;
+            if (moved[i] > 2.0) growing += d >= moved[i];  // the step after a snap
+            snaps += d > 2.0;
+            fastest = std::max(fastest, d);
+            moved[i] = d;
+        }
+        before = after;
+    }
+    std::printf("[pat5 soak, 4000 steps] %lld grabs, %zu slipped, %d snaps past 2 shortest rest lengths in a substep, the fastest %.3g\n",
+                gesture.grabs(), solver.slipped_particles(), snaps, fastest);
+    EXPECT_EQ(solver.watchdog_events(), 0u);
+    EXPECT_GT(snaps, 0) << "the pulls should fold the lattice into snaps the old bound of 2 refused";
+    EXPECT_EQ(growing, 0) << "a snap followed by a faster step is growth, not a snap";
+    EXPECT_LT(fastest, options.max_displacement_fraction);
 }

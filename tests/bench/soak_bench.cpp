@@ -10,6 +10,7 @@
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/solver.h"
+#include "tests/soak_gesture.h"
 
 #include <algorithm>
 #include <chrono>
@@ -21,34 +22,6 @@
 #include <vector>
 
 using namespace heartsim;
-
-namespace {
-
-/// Free particles beside an anchor (a spring to one), or, where nothing is anchored, the 2 % with
-/// the stiffest support springs: where a pull is held hardest.
-std::vector<std::size_t> held_hardest(const Scenario& scenario) {
-    const Particles& p = scenario.lattice.particles;
-    const auto& neighbours = scenario.packing->neighbours;
-    std::vector<std::size_t> sites;
-    for (std::size_t i = 0; i < p.size(); ++i) {
-        if (p.anchored[i]) continue;
-        for (std::int32_t j : neighbours[i])
-            if (j >= 0 && p.anchored[std::size_t(j)]) {
-                sites.push_back(i);
-                break;
-            }
-    }
-    if (!sites.empty() || !p.supported()) return sites;
-    std::vector<std::size_t> order(p.size());
-    for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
-    const std::size_t keep = std::max<std::size_t>(1, order.size() / 50);
-    std::partial_sort(order.begin(), order.begin() + std::ptrdiff_t(keep), order.end(),
-                      [&](std::size_t a, std::size_t b) { return p.support_stiffness[a] > p.support_stiffness[b]; });
-    order.resize(keep);
-    return order;
-}
-
-}  // namespace
 
 int main(int argc, char** argv) {
     if (argc < 2 || std::string(argv[1]) == "--help") {
@@ -80,58 +53,32 @@ int main(int argc, char** argv) {
         if (restore_strain >= 0) options.restore_strain_limit = restore_strain;
         Solver solver(scenario.lattice, scenario.packing->neighbours, options);
         const auto& rest = scenario.lattice.particles.rest_position;
-        const std::vector<std::size_t> sites = held_hardest(scenario);
+        const std::vector<std::size_t> sites = test::held_hardest(scenario);
         if (sites.empty()) throw InputError(std::string(argv[1]) + ": nothing anchored or supported to grab beside");
-        const double dt = solver.time_step_ms();
-        const long long pull_steps = std::max(1LL, (long long)std::lround(200.0 / dt)), wait_steps = std::max(1LL, (long long)std::lround(100.0 / dt));
-        const double travel_per_step = 2.0 * dt;  // mm: 2 mm/ms, holding nothing
         std::printf("soak: %s, %zu particles, dt %.4g ms (%d substeps), %zu grab sites (%s), %lld steps of 20 mm pulls over 200 ms, "
                     "100 ms let go, travel at 2 mm/ms\n",
-                    argv[1], solver.size(), dt, solver.substeps_per_step(), sites.size(),
+                    argv[1], solver.size(), solver.time_step_ms(), solver.substeps_per_step(), sites.size(),
                     std::any_of(scenario.lattice.particles.anchored.begin(), scenario.lattice.particles.anchored.end(), [](auto a) { return a != 0; })
                         ? "beside anchors"
                         : "stiffest supports",
                     steps);
 
-        solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(3.0)});
-        std::mt19937 random(seed);
-        std::uniform_int_distribution<std::size_t> pick(0, sites.size() - 1);
-        std::normal_distribution<double> gauss(0, 1);
-        auto rest_of = [&](std::size_t i) { return Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2]); };
-        Eigen::Vector3d hand = rest_of(sites[pick(random)]), site = hand, direction = Eigen::Vector3d::UnitX();
-        solver.set_pose(1, {hand, Eigen::Quaterniond::Identity()});
-        enum class Phase { travel, pull, wait } phase = Phase::travel;
-        long long phase_step = 0, advanced = 0, gave_up = 0, grabs = 0, held_total = 0;
+        test::SoakGesture gesture(solver, scenario, sites, seed);
+        long long advanced = 0, gave_up = 0;
         double largest_force = 0;
         std::string last_message;
         const auto t0 = std::chrono::steady_clock::now();
         for (long long s = 0; s < steps; ++s) {
-            if (phase == Phase::travel) {
-                const Eigen::Vector3d to = site - hand;
-                hand += to.norm() > travel_per_step ? Eigen::Vector3d(to.normalized() * travel_per_step) : to;
-                if (hand == site) {
-                    held_total += long(solver.begin_grab(1));
-                    ++grabs;
-                    direction = Eigen::Vector3d(gauss(random), gauss(random), gauss(random)).normalized();
-                    phase = Phase::pull, phase_step = 0;
-                }
-            } else if (phase == Phase::pull) {
-                hand = site + 20.0 * double(++phase_step) / double(pull_steps) * direction;
-                if (phase_step == pull_steps) {
-                    solver.release(1);
-                    phase = Phase::wait, phase_step = 0;
-                }
-            } else if (++phase_step == wait_steps) {
-                site = rest_of(sites[pick(random)]);
-                phase = Phase::travel;
-            }
-            solver.set_pose(1, {hand, Eigen::Quaterniond::Identity()});
+            gesture.before_step(solver);
             const StepReport report = solver.step();
             advanced += report.steps;
             if (report.diverged) last_message = report.message;
             if (report.diverged && events)
                 std::printf("soak: event at step %lld, %s step %lld; %zu slipped so far: %s\n", s,
-                            phase == Phase::travel ? "travel" : phase == Phase::pull ? "pull" : "let-go", phase_step, solver.slipped_particles(),
+                            gesture.phase() == test::SoakGesture::Phase::travel ? "travel"
+                            : gesture.phase() == test::SoakGesture::Phase::pull ? "pull"
+                                                                                 : "let-go",
+                            gesture.phase_step(), solver.slipped_particles(),
                             report.message.c_str());
             if (report.gave_up) ++gave_up;
             const InstrumentForces forces = solver.instrument_forces();
@@ -140,7 +87,7 @@ int main(int argc, char** argv) {
         const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         // The hand leaves; the tissue settles.
         solver.set_instrument(1, {.kind = InstrumentKind::none});
-        solver.step(int(std::lround(settle_s * 1000.0 / dt)));
+        solver.step(int(std::lround(settle_s * 1000.0 / solver.time_step_ms())));
         bool finite = true;
         double settled = 0;
         std::size_t displaced = 0;  // particles left more than 1 mm from rest: a lattice folded on itself
@@ -154,8 +101,8 @@ int main(int argc, char** argv) {
         std::printf("soak: %lld of %lld steps advanced in %.1f s (%.0f steps/s); watchdog events %zu, gave up %lld times; %lld grabs held "
                     "%.1f particles on average, %zu slipped; largest grabber force %.3g N; positions %s; %.3g s after the hand left, the "
                     "largest distance from rest %.3g mm, %zu particles more than 1 mm from it\n",
-                    advanced, steps, seconds, double(steps) / seconds, solver.watchdog_events(), gave_up, grabs,
-                    grabs ? double(held_total) / double(grabs) : 0.0, solver.slipped_particles(), largest_force,
+                    advanced, steps, seconds, double(steps) / seconds, solver.watchdog_events(), gave_up, gesture.grabs(),
+                    gesture.grabs() ? double(gesture.held_total()) / double(gesture.grabs()) : 0.0, solver.slipped_particles(), largest_force,
                     finite ? "finite" : "NOT FINITE", settle_s, settled, displaced);
         if (!last_message.empty()) std::printf("soak: last watchdog message: %s\n", last_message.c_str());
         return finite && gave_up == 0 ? 0 : 1;
