@@ -352,8 +352,11 @@ TEST(CrashHygiene, ABatchKilledOutrightTakesItsBuildsWithIt) {
     for (const auto& [id, row] : rows) {
         const fs::path file = out / (id + ".h5");
         EXPECT_TRUE(row.first == "built" || row.first == "pending") << id << ": " << row.first;
-        if (row.first == "built") EXPECT_EQ(read_scenario(file).lattice.particles.size(), row.second) << id;
-        else if (fs::exists(file)) EXPECT_NO_THROW(read_scenario(file)) << id;
+        if (row.first == "built") {
+            EXPECT_EQ(read_scenario(file).lattice.particles.size(), row.second) << id;
+        } else if (fs::exists(file)) {
+            EXPECT_NO_THROW(read_scenario(file)) << id;
+        }
     }
     EXPECT_NE(read_text(out / "summary.md").find("The batch is running"), std::string::npos);
 

@@ -210,8 +210,9 @@ TEST(RuntimePicking, StalePickingBufferErrorAgainstRefresh) {
         // window no longer covers; it does not shrink as K grows, and stays bounded while the
         // probe moves less than its radius between renders.
         EXPECT_LE(mean_errors[1], mean_errors[3] + 1e-9);
-        if (speed * 8 < semi_axes.minCoeff())
+        if (speed * 8 < semi_axes.minCoeff()) {
             for (double e : max_errors) EXPECT_LE(e, 0.25);
+        }
     }
 }
 

@@ -44,7 +44,9 @@ Scenario sample_scenario() {
     s.source.tissue_labels = {1};
     s.source.cavity_labels = {2, 3};
     s.source.anchor_border = true;
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
+    SelectionOptions keep_all;
+    keep_all.min_island_mm3 = 0;
+    const Selection selection = select_tissue(v, keep_all);
     s.lattice = layout_particles(selection, {1}, v, {.spacing_mm = 1.7, .occupancy = 0.3});
     s.lattice.particles.anchored[0] = 1;
     VisualMesh mesh;

@@ -686,7 +686,9 @@ TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
     }
     EXPECT_LT(resident_bytes(), memory_after_warmup + (std::size_t(2) << 20)) << "memory grows with steps";
     RecordProperty("watchdog_events", int(events));
-    EXPECT_LT(events, 30u) << "the watchdog should rarely need to step in at hand speeds";
+    // The probe's pierce, the one-piece grab and the speed bound of 4 took the stress gesture to
+    // no event in 40 runs of 10,000 steps on the four real hearts at 30k (docs/benchmarks.md).
+    EXPECT_EQ(events, 0u) << "the watchdog should not need to step in at hand speeds";
 }
 
 // The probe's projection target: the nearest surface point, checked against a search over the

@@ -197,7 +197,9 @@ TEST(Supports, ASmallFreePieceIsDroppedAndCountedALargeOneIsRefused) {
         for (int j = 0; j < 4; ++j)
             for (int i = 0; i < 12; ++i)
                 if (i < 7 || (i >= 10 && j < 2 && k < 2)) v.labels[v.geometry.linear(i, j, k)] = 1;
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
+    SelectionOptions keep_all;
+    keep_all.min_island_mm3 = 0;
+    const Selection selection = select_tissue(v, keep_all);
     Lattice lattice = layout_particles(selection, {1}, v, {.spacing_mm = 1.5, .occupancy = 0.5});
     for (std::size_t i = 0; i < lattice.particles.size(); ++i) lattice.particles.anchored[i] = lattice.particles.lattice_index[i][0] == 0;
     ASSERT_EQ(lattice.particles.size(), 7u * 16u + 8u);
