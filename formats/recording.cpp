@@ -26,6 +26,50 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
+RecordedRules rules_of(const SolverOptions& o) {
+    return {.max_displacement_fraction = o.max_displacement_fraction,
+            .energy_growth_limit = o.energy_growth_limit,
+            .grab_slip_strain = o.grab_slip_strain,
+            .probe_pierce_strain = o.probe_pierce_strain,
+            .grab_reach = o.grab_reach,
+            .restore_strain_limit = o.restore_strain_limit,
+            .watchdog_interval = o.watchdog_interval,
+            .max_consecutive_restores = o.max_consecutive_restores};
+}
+
+void apply_rules(const RecordedRules& r, SolverOptions& o) {
+    o.max_displacement_fraction = r.max_displacement_fraction;
+    o.energy_growth_limit = r.energy_growth_limit;
+    o.grab_slip_strain = r.grab_slip_strain;
+    o.probe_pierce_strain = r.probe_pierce_strain;
+    o.grab_reach = r.grab_reach;
+    o.restore_strain_limit = r.restore_strain_limit;
+    o.watchdog_interval = r.watchdog_interval;
+    o.max_consecutive_restores = r.max_consecutive_restores;
+}
+
+RecordedRules rules_before_recorded() {
+    RecordedRules r = rules_of(SolverOptions{});
+    r.max_displacement_fraction = 2.0;
+    r.probe_pierce_strain = 0.0;  // never pierces
+    r.grab_reach = 0.0;           // everything inside
+    return r;
+}
+
+std::string check_rules(const RecordedRules& r) {
+    std::string wrong;
+    for_each_rule(r, [&](const char* name, const auto& value) {
+        if (!wrong.empty()) return;
+        if (!std::isfinite(double(value))) wrong = std::string(name) + " must be finite";
+    });
+    if (!wrong.empty()) return wrong;
+    if (!(r.max_displacement_fraction > 0)) return "max_displacement_fraction must be positive, not " + std::to_string(r.max_displacement_fraction);
+    if (!(r.energy_growth_limit > 1)) return "energy_growth_limit must be above 1, not " + std::to_string(r.energy_growth_limit);
+    if (r.watchdog_interval < 1) return "watchdog_interval must be at least 1, not " + std::to_string(r.watchdog_interval);
+    if (r.max_consecutive_restores < 1) return "max_consecutive_restores must be at least 1, not " + std::to_string(r.max_consecutive_restores);
+    return {};
+}
+
 void write_recording_data(const std::filesystem::path& path, const Recording& r, const std::function<void(const std::filesystem::path&)>& check) {
     const std::string file = path.string();
     const RecordedSteps& s = r.steps;
@@ -43,6 +87,10 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.attribute("/", "contact", r.contact);
         w.attribute("/", "interpolation", r.interpolation);
         w.attribute("/", "arithmetic", r.arithmetic);
+        if (r.rules) {
+            w.group("rules");
+            for_each_rule(*r.rules, [&](const char* name, const auto& value) { w.attribute("rules", name, value); });
+        }
         w.attribute("/", "rate_hz", r.rate_hz);
         w.attribute("/", "coupling", std::int32_t(r.coupling ? 1 : 0));
         const std::pair<const char*, double> figures[] = {
@@ -126,6 +174,13 @@ Recording read_recording(const std::filesystem::path& path) {
     rec.arithmetic = r.has_attribute("/", "arithmetic") ? r.string_attribute("/", "arithmetic") : "separate";
     if (!known_arithmetic(rec.arithmetic))
         r.fail("/", "attribute arithmetic must be fused or separate, not '" + rec.arithmetic + "'");
+    // Absent in recordings made before they kept the solver's rules.
+    if (r.exists("rules")) {
+        RecordedRules rules;
+        for_each_rule(rules, [&](const char* name, auto& value) { value = r.number<std::remove_reference_t<decltype(value)>>("rules", name); });
+        if (const std::string wrong = check_rules(rules); !wrong.empty()) r.fail("/rules", wrong);
+        rec.rules = rules;
+    }
     rec.rate_hz = r.number<double>("/", "rate_hz");
     rec.coupling = r.number<std::int32_t>("/", "coupling") != 0;
     rec.period_p50_ms = r.number<double>("/", "period_p50_ms");

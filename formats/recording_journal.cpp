@@ -26,8 +26,9 @@ constexpr char file_magic[16] = {'h', 'e', 'a', 'r', 't', 's', 'i', 'm', ' ', 'j
 constexpr std::uint32_t record_magic = 0x524a5348u;  // "HSJR"
 constexpr std::size_t record_header = 20;           // magic, kind, bytes, checksum
 /// 2 adds the recording's arithmetic after its interpolation; a version-1 journal (written before
-/// the slot's multiply-adds were fused) is read with "separate".
-constexpr std::uint32_t journal_version = 2;
+/// the slot's multiply-adds were fused) is read with "separate". 3 adds the solver's rules after
+/// the arithmetic (a byte, 1 when they follow); a journal before it is read without them.
+constexpr std::uint32_t journal_version = 3;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
 /// A payload being built.
@@ -156,6 +157,8 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
     b.text(session.contact);
     b.text(session.interpolation);
     b.text(session.arithmetic);
+    b.put<std::uint8_t>(session.rules ? 1 : 0);
+    if (session.rules) for_each_rule(*session.rules, [&](const char*, const auto& value) { b.put(value); });
     b.put(session.rate_hz);
     b.put<std::int32_t>(session.coupling ? 1 : 0);
     for (const RecordedHand& hand : session.hands) {
@@ -358,8 +361,9 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             throw InputError(where + ": " + (used.empty() ? "the journal does not start with its session record" : "a second session record"));
         if (kind == session_record) {
             const auto version = c.get<std::uint32_t>();
-            if (version != 1 && version != journal_version)
-                throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 and 2)");
+            if (version < 1 || version > journal_version)
+                throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 to " +
+                                 std::to_string(journal_version) + ")");
             contents.target = c.text();
             contents.pid = c.get<std::int64_t>();
             r.scenario = c.text();
@@ -372,6 +376,12 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             r.arithmetic = version == 1 ? "separate" : c.text();
             if (!known_arithmetic(r.arithmetic))
                 throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
+            if (version >= 3 && c.get<std::uint8_t>() != 0) {
+                RecordedRules rules;
+                for_each_rule(rules, [&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); });
+                if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
+                r.rules = rules;
+            }
             r.rate_hz = c.get<double>();
             r.coupling = c.get<std::int32_t>() != 0;
             for (RecordedHand& hand : r.hands) {

@@ -241,6 +241,8 @@ public:
                 const SolverOptions& options = {});
 
     const SolverLoadReport& load_report() const { return load_report_; }
+    /// The options it was made with.
+    const SolverOptions& options() const { return options_; }
     std::size_t size() const { return n_; }
 
     /// Sets the time of one step, ms (recomputes substeps and the per-substep constants).

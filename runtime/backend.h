@@ -56,6 +56,7 @@ public:
     virtual BackendKind kind() const = 0;
     virtual std::size_t size() const = 0;                  ///< particles
     virtual const SolverLoadReport& load_report() const = 0;
+    virtual const SolverOptions& options() const = 0;        ///< the options it was made with
     virtual double time_step_ms() const = 0;               ///< one step()
     virtual double substep_ms() const = 0;
     virtual int substeps_per_step() const = 0;

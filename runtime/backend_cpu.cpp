@@ -46,6 +46,7 @@ public:
     BackendKind kind() const override { return BackendKind::cpu; }
     std::size_t size() const override { return solver_.size(); }
     const SolverLoadReport& load_report() const override { return solver_.load_report(); }
+    const SolverOptions& options() const override { return solver_.options(); }
     double time_step_ms() const override { return solver_.time_step_ms(); }
     double substep_ms() const override { return solver_.substep_ms(); }
     int substeps_per_step() const override { return solver_.substeps_per_step(); }

@@ -196,10 +196,33 @@ SolverOptions solver_options(const RunArguments& a, const Scenario& scenario) {
     return options;
 }
 
+/// A replay steps with the solver's rules of the build that recorded (docs/haptics.md "Recording
+/// and replay"), and says which differ from this build's.
+void replay_rules(const Recording& recording, SolverOptions& options) {
+    const RecordedRules recorded = recording.rules.value_or(rules_before_recorded()), own = rules_of(options);
+    if (!recording.rules)
+        std::printf("replay: recorded before recordings kept the solver's rules: replaying with those heartsim had before the "
+                    "probe's pierce and the one-piece grab\n");
+    std::string differ;
+    std::vector<double> own_values;
+    for_each_rule(own, [&](const char*, const auto& value) { own_values.push_back(double(value)); });
+    std::size_t k = 0;
+    for_each_rule(recorded, [&](const char* name, const auto& value) {
+        if (double(value) != own_values[k++]) {
+            std::ostringstream item;
+            item << (differ.empty() ? "" : ", ") << name << " " << double(value) << " (this build: " << own_values[k - 1] << ")";
+            differ += item.str();
+        }
+    });
+    if (!differ.empty()) std::printf("replay: the recorded solver rules: %s\n", differ.c_str());
+    apply_rules(recorded, options);
+}
+
 /// The GL context (a window unless --headless; a headless one where the backend or the
 /// screenshots need it) and the backend.
 void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p) {
-    const SolverOptions options = solver_options(a, p.scenario);
+    SolverOptions options = solver_options(a, p.scenario);
+    if (p.replayed) replay_rules(*p.replayed, options);
     if (!a.headless)
         p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
                                                    "heartsim — " + std::filesystem::path(a.scenario).filename().string()));

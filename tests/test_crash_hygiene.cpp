@@ -610,6 +610,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         full.periods = 90;
         full.latency_max_ms = 4.5;
         full.arithmetic = seed == 1 ? "fused" : "separate";
+        if (seed == 1) full.rules = rules_before_recorded();  // seed 2: a session without rules, as before they were kept
         const fs::path path = dir / "rec.h5.journal";
         {
             RecordingJournal journal(path, full, "rec.h5");
@@ -635,10 +636,12 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         EXPECT_EQ(c.recording.latency_max_ms, 4.5);
         EXPECT_EQ(c.recording.dt_ms, 0.2);
         EXPECT_EQ(c.recording.arithmetic, full.arithmetic);
+        EXPECT_EQ(c.recording.rules, full.rules);
         // What recover writes reads back as a recording.
         write_recording(dir / "rec.h5", c.recording);
         expect_same_rows(read_recording(dir / "rec.h5"), full);
         EXPECT_EQ(read_recording(dir / "rec.h5").arithmetic, full.arithmetic);
+        EXPECT_EQ(read_recording(dir / "rec.h5").rules, full.rules);
     }
 }
 

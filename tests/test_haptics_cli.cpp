@@ -18,6 +18,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <fstream>
 #include <regex>
@@ -51,6 +52,14 @@ const RecordedSession& two_hands() {
                                    " --device scripted:" + quoted(sample("grab_phantom.csv")) + " --seconds 2 --record " + quoted(session.file));
     }
     return session;
+}
+
+/// A grabber on the phantom's apex (scripted device) pulls 5 mm slowly from 10 ms to 40 ms, then
+/// is yanked 2 m in 5 ms.
+void write_yank(const fs::path& path) {
+    std::ofstream out(path);
+    out << "0, -1.9, -3.0, -47.0, 1,0,0,0, 1\n10, -1.9, -3.0, -47.0, 1,0,0,0, 1\n40, -1.9, -3.0, -52.0, 1,0,0,0, 1\n"
+           "45, -1.9, -3.0, -2052.0, 1,0,0,0, 1\n";
 }
 
 double norm3(const std::array<double, 3>& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
@@ -283,11 +292,7 @@ TEST(HapticsCli, AYankedGrabSlipsOutOfTheGrabberInsteadOfTearingTheTissue) {
     // stretched springs twenty-fold: on cpu the watchdog restored the same failing state step
     // after step; on gl the yank tripped the watchdog, which threw the session back to t = 0.)
     test::TempDir dir;
-    {
-        std::ofstream out(dir / "yank.csv");
-        out << "0, -1.9, -3.0, -47.0, 1,0,0,0, 1\n10, -1.9, -3.0, -47.0, 1,0,0,0, 1\n40, -1.9, -3.0, -52.0, 1,0,0,0, 1\n"
-               "45, -1.9, -3.0, -2052.0, 1,0,0,0, 1\n";
-    }
+    write_yank(dir / "yank.csv");
     for (const std::string backend : {"cpu", "gl"}) {
         SCOPED_TRACE(backend);
         const fs::path recording = dir / (backend + ".h5");
@@ -326,6 +331,46 @@ TEST(HapticsCli, AYankedGrabSlipsOutOfTheGrabberInsteadOfTearingTheTissue) {
             EXPECT_NE(replay.output.find("bit for bit"), std::string::npos) << replay.output;
         }
     }
+}
+
+// A recording keeps the solver's rules it ran with (how instruments pierce, grab and slip, when the
+// watchdog steps in), and a replay takes them: a recording still replays as it ran after a rule
+// changes. Here the yank of the test above, whose grab slips: the replay with the recorded rules
+// gives the same forces; the same file with "never slips" in its rules does not, since it is
+// now the recorded rule that the replay follows.
+TEST(HapticsCli, AReplayTakesTheSolverRulesTheSessionWasRecordedWith) {
+    test::TempDir dir;
+    write_yank(dir / "yank.csv");
+    const fs::path recording = dir / "yank.h5";
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --device scripted:" + quoted(dir / "yank.csv") +
+                                  " --instrument grabber --steps 400 --record " + quoted(recording));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const Recording recorded = read_recording(recording);
+    ASSERT_TRUE(recorded.rules.has_value());
+    EXPECT_EQ(*recorded.rules, rules_of(SolverOptions{})) << "the phantom's scenario takes the build's rules";
+    const auto same = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --replay " + quoted(recording));
+    EXPECT_EQ(same.exit_code, 0) << same.output;
+    EXPECT_EQ(same.output.find("the recorded solver rules"), std::string::npos) << "no rule differs\n" << same.output;
+
+    auto edited = [&](const std::string& name, const std::function<void(Recording&)>& edit) {
+        Recording r = recorded;
+        edit(r);
+        write_recording(dir / name, r);
+        return dir / name;
+    };
+    const fs::path never_slips = edited("never-slips.h5", [](Recording& r) { r.rules->grab_slip_strain = 0; });
+    const auto held = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --replay " + quoted(never_slips));
+    EXPECT_NE(held.output.find("the recorded solver rules: grab_slip_strain 0 (this build: 2)"), std::string::npos) << held.output;
+    EXPECT_EQ(held.exit_code, 5) << "a grab that never slips pulls on after the yank: other forces\n" << held.output;
+
+    // A recording from before recordings kept their rules replays with those of that time.
+    const fs::path old_style = edited("old-style.h5", [](Recording& r) { r.rules.reset(); });
+    EXPECT_FALSE(read_recording(old_style).rules.has_value());
+    const auto old = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --replay " + quoted(old_style));
+    EXPECT_NE(old.output.find("recorded before recordings kept the solver's rules"), std::string::npos) << old.output;
+    EXPECT_NE(old.output.find("max_displacement_fraction 2 (this build: 4), probe_pierce_strain 0 (this build: 2), grab_reach 0 (this build: 2)"),
+              std::string::npos)
+        << old.output;
 }
 
 TEST(HapticsCli, ARunThatCannotRecoverStopsWithExit6AndCountsOnlyStepsThatAdvanced) {
@@ -563,6 +608,8 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     r.interpolation = "hold";
     r.rate_hz = 1000;
     r.period_p99_ms = 1.25;
+    r.rules = rules_before_recorded();
+    r.rules->energy_growth_limit = 12.5;
     r.hands[1].used = true;
     r.hands[1].device = "scripted:a.csv";
     r.hands[1].device_name = "scripted";
@@ -611,6 +658,14 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     EXPECT_EQ(back.events[0].hand, 1);
     EXPECT_EQ(back.period_p99_ms, 1.25);
     EXPECT_EQ(back.arithmetic, "fused");
+    ASSERT_TRUE(back.rules.has_value());
+    EXPECT_EQ(*back.rules, *r.rules);
+    {
+        Recording unruled = r;
+        unruled.rules.reset();
+        write_recording(dir / "unruled.h5", unruled);
+        EXPECT_FALSE(read_recording(dir / "unruled.h5").rules.has_value());
+    }
     {
         Recording separate = r;
         separate.arithmetic = "separate";
@@ -638,6 +693,14 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
             EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
         }
     };
+    {
+        Recording damaged = r;
+        damaged.rules->watchdog_interval = 0;
+        refused(damaged, "/rules: watchdog_interval must be at least 1");
+        damaged = r;
+        damaged.rules->energy_growth_limit = 0.5;
+        refused(damaged, "/rules: energy_growth_limit must be above 1");
+    }
     {
         Recording unknown = r;
         unknown.arithmetic = "fast";

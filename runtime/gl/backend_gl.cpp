@@ -118,6 +118,7 @@ public:
     BackendKind kind() const override { return BackendKind::gl; }
     std::size_t size() const override { return n_; }
     const SolverLoadReport& load_report() const override { return load_report_; }
+    const SolverOptions& options() const override { return options_; }
     double time_step_ms() const override { return dt_ms_; }
     double substep_ms() const override { return h_; }
     int substeps_per_step() const override { return substeps_; }

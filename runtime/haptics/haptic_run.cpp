@@ -320,6 +320,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     recording_.substeps = backend.substeps_per_step();
     recording_.backend = to_string(backend.kind());
     recording_.arithmetic = backend.kind() == BackendKind::cpu && !fuses_multiply_adds(backend.load_report().kernel) ? "separate" : "fused";
+    recording_.rules = rules_of(backend.options());
     recording_.contact = settings.contact;
     recording_.interpolation = to_string(settings.session.interpolation);
     recording_.rate_hz = settings.session.rate_hz;
