@@ -10,6 +10,7 @@
 
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
+#include "formats/hdf5_io.h"
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 #include "formats/scenario.h"
@@ -20,6 +21,7 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <random>
@@ -643,6 +645,65 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         EXPECT_EQ(read_recording(dir / "rec.h5").arithmetic, full.arithmetic);
         EXPECT_EQ(read_recording(dir / "rec.h5").rules, full.rules);
     }
+}
+
+// A journal that a heartsim from before the solver's rules were recorded left behind (version 2:
+// no rules byte after the arithmetic) still recovers, without rules. Made here from a version-3
+// journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
+// magic, a record is magic, kind (u32), payload bytes (u64), lookup3 checksum of kind, bytes and
+// payload (u32), then the payload; the session's payload starts with the version (u32).
+TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
+    test::TempDir dir;
+    Recording full = sample_recording(20, 40, 2);
+    full.arithmetic = "fused";
+    const fs::path path = dir / "rec.h5.journal";
+    {
+        RecordingJournal journal(path, full, "rec.h5");
+        journal.append(rows_of(full, 0, 20, 0, 40, 0, full.events.size()));
+        journal.end(full);
+        EXPECT_EQ(journal.wait(), "");
+    }
+    std::string bytes = read_text(path);
+    const std::size_t header = 16, payload = header + 20;
+    std::uint32_t version = 0;
+    std::memcpy(&version, bytes.data() + payload, 4);
+    ASSERT_EQ(version, 3u) << "this test turns a version-3 journal into a version-2 one";
+    // The rules byte follows version, target, pid, scenario, particles, dt, substeps, backend,
+    // contact, interpolation and arithmetic (strings: a u64 length, then the bytes).
+    std::size_t at = payload + 4;
+    auto skip_text = [&] {
+        std::uint64_t n = 0;
+        std::memcpy(&n, bytes.data() + at, 8);
+        at += 8 + n;
+    };
+    skip_text();       // target
+    at += 8;           // pid
+    skip_text();       // scenario
+    at += 8 + 8 + 4;   // particles, dt_ms, substeps
+    for (int text = 0; text < 4; ++text) skip_text();  // backend, contact, interpolation, arithmetic
+    ASSERT_EQ(bytes[at], '\0') << "a session without rules";
+    bytes.erase(at, 1);
+    version = 2;
+    std::memcpy(bytes.data() + payload, &version, 4);
+    std::uint64_t size = 0;
+    std::memcpy(&size, bytes.data() + header + 8, 8);
+    --size;
+    std::memcpy(bytes.data() + header + 8, &size, 8);
+    std::string covered(12 + size, '\0');
+    std::memcpy(covered.data(), bytes.data() + header + 4, 12);  // kind, then the new size
+    std::memcpy(covered.data() + 12, bytes.data() + payload, size);
+    const std::uint32_t sum = h5::lookup3(reinterpret_cast<const unsigned char*>(covered.data()), covered.size());
+    std::memcpy(bytes.data() + header + 16, &sum, 4);
+    {
+        std::ofstream out(path, std::ios::binary | std::ios::trunc);
+        out.write(bytes.data(), std::streamsize(bytes.size()));
+    }
+    const JournalContents c = read_recording_journal(path);
+    EXPECT_TRUE(c.ended);
+    EXPECT_EQ(c.ignored_bytes, 0u) << "every record reads";
+    EXPECT_EQ(c.recording.arithmetic, "fused");
+    EXPECT_FALSE(c.recording.rules.has_value());
+    expect_same_rows(c.recording, full);
 }
 
 TEST(RecordingJournal, ARecordCutShortOrDamagedEndsTheJournalAndWhatPrecedesItIsKept) {
