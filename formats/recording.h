@@ -9,7 +9,7 @@
 ///               interpolation, arithmetic, coupling (0/1), period_p50_ms, period_p99_ms, period_max_ms,
 ///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
-///               (RecordedRules; absent in recordings made before 2026-11-25)
+///               (RecordedRules; absent in recordings made before heartsim kept them)
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
 ///               instrument ("probe" | "grabber"), semi_axes_mm [3], max_force_n,
 ///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
