@@ -61,6 +61,8 @@
 #include <optional>
 #include <regex>
 #include <sstream>
+#include <string>
+#include <string_view>
 #include <utility>
 
 namespace heartsim {
@@ -719,18 +721,33 @@ bool check_metaimage_header_before_itk(const fs::path& path) {
 /// A NRRD header checked before ITK reads it: NrrdIO formats its complaints about a line into a
 /// 1025-byte stack buffer with the line in it, so a 1012-character `type:` line smashed its stack
 /// (fuzz_volume_nrrd's 10-minute run: glibc's stack protector aborted); field lines (comments
-/// aside) are held to 500 characters. And its data file (refuse_multi_file_data). Returns whether
-/// the header gives the voxel size ('spacings' or 'space directions').
+/// aside) are held to 500 characters. NrrdIO ends a line at a line feed, a carriage return or
+/// both, so a lone carriage return inside what getline returns starts a new line: a comment line
+/// with one in it hid a 1,248-character field line from this check (fuzz_volume_nrrd, CI of
+/// 2026-11-25). And its data file (refuse_multi_file_data). Returns whether the header gives the
+/// voxel size ('spacings' or 'space directions').
 bool check_nrrd_header_before_itk(const fs::path& path) {
     {
         std::ifstream in(path, std::ios::binary);
-        std::string line;
-        for (int number = 1; std::getline(in, line); ++number) {
-            if (!line.empty() && line.back() == '\r') line.pop_back();
-            if (line.empty() && number > 1) break;  // the blank line that ends the header
-            if (line.size() > 500 && line[0] != '#')
-                throw InputError(path.string() + ": NRRD header line " + std::to_string(number) + " has " + std::to_string(line.size()) +
-                                 " characters; expected at most 500");
+        std::string text;
+        int number = 0;
+        bool ended = false;
+        while (!ended && std::getline(in, text)) {
+            if (!text.empty() && text.back() == '\r') text.pop_back();  // CR LF: one line break
+            for (std::size_t start = 0;;) {
+                const std::size_t end = std::min(text.find('\r', start), text.size());
+                const std::string_view line(text.data() + start, end - start);
+                ++number;
+                if (line.empty() && number > 1) {  // the blank line that ends the header
+                    ended = true;
+                    break;
+                }
+                if (line.size() > 500 && line[0] != '#')
+                    throw InputError(path.string() + ": NRRD header line " + std::to_string(number) + " has " + std::to_string(line.size()) +
+                                     " characters; expected at most 500");
+                if (end == text.size()) break;
+                start = end + 1;
+            }
         }
     }
     const TextHeader header = read_nrrd_header(path);

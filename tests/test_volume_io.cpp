@@ -842,6 +842,16 @@ TEST(VolumeReadErrors, NrrdHeaderLineTooLongForNrrdIOsMessagesIsRefusedBeforeIt)
     const fs::path path = write_text_file(folder, "long.nrrd", "NRRD0004\ntype: " + std::string(1012, 'u') +
                                                                "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NRRD header line 2 has 1018 characters"});
+    // NrrdIO also ends a line at a lone carriage return: a comment with one in it hid a long field
+    // line behind it (fuzz_volume_nrrd in CI, 2026-11-25: a 116-character comment, then 1,248
+    // characters, the stack protector again). The pieces count as lines, as NrrdIO counts them.
+    const fs::path hidden = write_text_file(folder, "hidden.nrrd", "NRRD0004\n# a comment\r+" + std::string(1247, 'u') +
+                                                                   "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));
+    expect_error<InputError>([&] { read_volume_header(hidden); }, {hidden.string(), "NRRD header line 3 has 1248 characters"});
+    // CR LF line breaks are one break each, not a blank line that would end the header early.
+    const fs::path crlf = write_text_file(folder, "crlf.nrrd", "NRRD0004\r\ntype: unsigned char\r\ndimension: 3\r\nsizes: 2 2 2\r\nencoding: raw\r\n"
+                                                               "spacings: 1 1 1\r\n\r\n" + std::string(8, '\1'));
+    EXPECT_NO_THROW(read_label_volume(crlf));
 }
 
 TEST(VolumeReadErrors, DataSpreadOverSeveralFilesIsRefused) {
