@@ -27,25 +27,13 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 }  // namespace
 
 RecordedRules rules_of(const SolverOptions& o) {
-    return {.max_displacement_fraction = o.max_displacement_fraction,
-            .energy_growth_limit = o.energy_growth_limit,
-            .grab_slip_strain = o.grab_slip_strain,
-            .probe_pierce_strain = o.probe_pierce_strain,
-            .grab_reach = o.grab_reach,
-            .restore_strain_limit = o.restore_strain_limit,
-            .watchdog_interval = o.watchdog_interval,
-            .max_consecutive_restores = o.max_consecutive_restores};
+    RecordedRules r;
+    for_each_rule([](const char*, auto& to, const auto& from) { to = from; }, r, o);
+    return r;
 }
 
 void apply_rules(const RecordedRules& r, SolverOptions& o) {
-    o.max_displacement_fraction = r.max_displacement_fraction;
-    o.energy_growth_limit = r.energy_growth_limit;
-    o.grab_slip_strain = r.grab_slip_strain;
-    o.probe_pierce_strain = r.probe_pierce_strain;
-    o.grab_reach = r.grab_reach;
-    o.restore_strain_limit = r.restore_strain_limit;
-    o.watchdog_interval = r.watchdog_interval;
-    o.max_consecutive_restores = r.max_consecutive_restores;
+    for_each_rule([](const char*, auto& to, const auto& from) { to = from; }, o, r);
 }
 
 RecordedRules rules_before_recorded() {
@@ -58,10 +46,11 @@ RecordedRules rules_before_recorded() {
 
 std::string check_rules(const RecordedRules& r) {
     std::string wrong;
-    for_each_rule(r, [&](const char* name, const auto& value) {
-        if (!wrong.empty()) return;
-        if (!std::isfinite(double(value))) wrong = std::string(name) + " must be finite";
-    });
+    for_each_rule(
+        [&](const char* name, const auto& value) {
+            if (wrong.empty() && !std::isfinite(double(value))) wrong = std::string(name) + " must be finite";
+        },
+        r);
     if (!wrong.empty()) return wrong;
     if (!(r.max_displacement_fraction > 0)) return "max_displacement_fraction must be positive, not " + std::to_string(r.max_displacement_fraction);
     if (!(r.energy_growth_limit > 1)) return "energy_growth_limit must be above 1, not " + std::to_string(r.energy_growth_limit);
@@ -89,7 +78,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.attribute("/", "arithmetic", r.arithmetic);
         if (r.rules) {
             w.group("rules");
-            for_each_rule(*r.rules, [&](const char* name, const auto& value) { w.attribute("rules", name, value); });
+            for_each_rule([&](const char* name, const auto& value) { w.attribute("rules", name, value); }, *r.rules);
         }
         w.attribute("/", "rate_hz", r.rate_hz);
         w.attribute("/", "coupling", std::int32_t(r.coupling ? 1 : 0));
@@ -177,7 +166,7 @@ Recording read_recording(const std::filesystem::path& path) {
     // Absent in recordings made before they kept the solver's rules.
     if (r.exists("rules")) {
         RecordedRules rules;
-        for_each_rule(rules, [&](const char* name, auto& value) { value = r.number<std::remove_reference_t<decltype(value)>>("rules", name); });
+        for_each_rule([&](const char* name, auto& value) { value = r.number<std::remove_reference_t<decltype(value)>>("rules", name); }, rules);
         if (const std::string wrong = check_rules(rules); !wrong.empty()) r.fail("/rules", wrong);
         rec.rules = rules;
     }

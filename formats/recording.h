@@ -97,16 +97,18 @@ struct RecordedRules {
     bool operator==(const RecordedRules&) const = default;
 };
 
-/// Calls f(name, field) for each rule, in the order the recording and the journal keep them.
-template <class Rules, class F> void for_each_rule(Rules& rules, F&& f) {
-    f("max_displacement_fraction", rules.max_displacement_fraction);
-    f("energy_growth_limit", rules.energy_growth_limit);
-    f("grab_slip_strain", rules.grab_slip_strain);
-    f("probe_pierce_strain", rules.probe_pierce_strain);
-    f("grab_reach", rules.grab_reach);
-    f("restore_strain_limit", rules.restore_strain_limit);
-    f("watchdog_interval", rules.watchdog_interval);
-    f("max_consecutive_restores", rules.max_consecutive_restores);
+/// Calls f(name, field of each of `rules`…) for each rule, in the order the recording and the
+/// journal keep them. The rules are RecordedRules or SolverOptions, which name the fields alike,
+/// so one list serves the file, the copies between the two, and their comparison.
+template <class F, class... Rules> void for_each_rule(F&& f, Rules&... rules) {
+    f("max_displacement_fraction", rules.max_displacement_fraction...);
+    f("energy_growth_limit", rules.energy_growth_limit...);
+    f("grab_slip_strain", rules.grab_slip_strain...);
+    f("probe_pierce_strain", rules.probe_pierce_strain...);
+    f("grab_reach", rules.grab_reach...);
+    f("restore_strain_limit", rules.restore_strain_limit...);
+    f("watchdog_interval", rules.watchdog_interval...);
+    f("max_consecutive_restores", rules.max_consecutive_restores...);
 }
 
 /// The rules `options` holds.

@@ -158,7 +158,7 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
     b.text(session.interpolation);
     b.text(session.arithmetic);
     b.put<std::uint8_t>(session.rules ? 1 : 0);
-    if (session.rules) for_each_rule(*session.rules, [&](const char*, const auto& value) { b.put(value); });
+    if (session.rules) for_each_rule([&](const char*, const auto& value) { b.put(value); }, *session.rules);
     b.put(session.rate_hz);
     b.put<std::int32_t>(session.coupling ? 1 : 0);
     for (const RecordedHand& hand : session.hands) {
@@ -378,7 +378,7 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
                 throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
             if (version >= 3 && c.get<std::uint8_t>() != 0) {
                 RecordedRules rules;
-                for_each_rule(rules, [&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); });
+                for_each_rule([&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); }, rules);
                 if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
                 r.rules = rules;
             }

@@ -199,22 +199,18 @@ SolverOptions solver_options(const RunArguments& a, const Scenario& scenario) {
 /// A replay steps with the solver's rules of the build that recorded (docs/haptics.md "Recording
 /// and replay"), and says which differ from this build's.
 void replay_rules(const Recording& recording, SolverOptions& options) {
-    const RecordedRules recorded = recording.rules.value_or(rules_before_recorded()), own = rules_of(options);
+    const RecordedRules recorded = recording.rules.value_or(rules_before_recorded());
     if (!recording.rules)
         std::printf("replay: recorded before recordings kept the solver's rules: replaying with those heartsim had before the "
                     "probe's pierce and the one-piece grab\n");
-    std::string differ;
-    std::vector<double> own_values;
-    for_each_rule(own, [&](const char*, const auto& value) { own_values.push_back(double(value)); });
-    std::size_t k = 0;
-    for_each_rule(recorded, [&](const char* name, const auto& value) {
-        if (double(value) != own_values[k++]) {
-            std::ostringstream item;
-            item << (differ.empty() ? "" : ", ") << name << " " << double(value) << " (this build: " << own_values[k - 1] << ")";
-            differ += item.str();
-        }
-    });
-    if (!differ.empty()) std::printf("replay: the recorded solver rules: %s\n", differ.c_str());
+    std::ostringstream differ;
+    for_each_rule(
+        [&](const char* name, const auto& value, const auto& this_build) {
+            if (double(value) != double(this_build))
+                differ << (differ.tellp() > 0 ? ", " : "") << name << " " << double(value) << " (this build: " << double(this_build) << ")";
+        },
+        recorded, options);
+    if (differ.tellp() > 0) std::printf("replay: the recorded solver rules: %s\n", differ.str().c_str());
     apply_rules(recorded, options);
 }
 
