@@ -1075,18 +1075,10 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
         for (std::size_t q = 0; q < state.held.size(); ++q)
             for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_[4 * std::size_t(state.held[q]) + std::size_t(c)]);
         const std::vector<std::uint8_t> keep = grab_piece(state.held_local, rest, state.instrument.semi_axes, options_.grab_reach);
-        std::size_t kept = 0;
-        for (std::size_t q = 0; q < state.held.size(); ++q) {
-            if (!keep[q]) {
-                held_by_[std::size_t(state.held[q])] = -1;
-                continue;
-            }
-            state.held[kept] = state.held[q];
-            state.held_local[kept] = state.held_local[q];
-            ++kept;
-        }
-        state.held.resize(kept);
-        state.held_local.resize(kept);
+        state.keep_held([&](std::size_t q) {
+            if (!keep[q]) held_by_[std::size_t(state.held[q])] = -1;
+            return keep[q] != 0;
+        });
     }
     return state.held.size();
 }
@@ -1270,8 +1262,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         for (int hand = 0; hand < hands; ++hand) {
             HandState& state = hand_[std::size_t(hand)];
             if (!state.grabbing) continue;
-            std::size_t kept = 0;
-            for (std::size_t q = 0; q < state.held.size(); ++q) {
+            state.keep_held([&](std::size_t q) {
                 const std::size_t i = std::size_t(state.held[q]);
                 Real* x = next_ + state_stride * i;
                 Real* motion = next_motion_ + state_stride * i;
@@ -1279,16 +1270,12 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
                     for (int c = 0; c < 3; ++c) x[c] = current_[state_stride * i + std::size_t(c)] + motion[c];
                     held_by_[i] = -1;
                     ++slipped_;
-                    continue;
+                    return false;
                 }
                 const Eigen::Vector3d world = world_of(hand, q);
                 for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[state_stride * i + std::size_t(c)]));
-                state.held[kept] = state.held[q];
-                state.held_local[kept] = state.held_local[q];
-                ++kept;
-            }
-            state.held.resize(kept);
-            state.held_local.resize(kept);
+                return true;
+            });
         }
     }
 

@@ -328,6 +328,20 @@ private:
         bool placed = false;        ///< a pose was set since set_instrument
         std::vector<std::int32_t> held;            ///< packed indices
         std::vector<Eigen::Vector3d> held_local;   ///< tool-frame positions at capture
+
+        /// Keeps, in order, the held particles for which keep(q) is true (q their place in the
+        /// list before; keep is called once each, in order, and may read held_local[q]).
+        template <class Keep> void keep_held(Keep&& keep) {
+            std::size_t kept = 0;
+            for (std::size_t q = 0; q < held.size(); ++q) {
+                if (!keep(q)) continue;
+                held[kept] = held[q];
+                held_local[kept] = held_local[q];
+                ++kept;
+            }
+            held.resize(kept);
+            held_local.resize(kept);
+        }
     };
 
     void build_step_constants();
