@@ -659,18 +659,9 @@ TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
     Eigen::AlignedBox3d box;
     for (const auto& r : lattice.particles.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
     const double diagonal = box.diagonal().norm();
-    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 3, 8)});
-    solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(4, 4, 4)});
-    std::mt19937 random(11);
-    std::srand(11);  // Eigen's Quaterniond::UnitRandom draws from std::rand: the same run whichever tests ran before
-    std::uniform_real_distribution<double> unit(0.0, 1.0);
-    auto random_pose = [&] {
-        const Eigen::Vector3d p = box.min() + box.diagonal().cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random)));
-        return InstrumentPose{p, Eigen::Quaterniond::UnitRandom()};
-    };
     std::size_t memory_after_warmup = 0;
     std::size_t events = 0;
-    test::StressGesture gesture(solver, random_pose);  // tests/stress_gesture.h
+    test::StressGesture gesture(solver, lattice.particles, 11);  // tests/stress_gesture.h
     for (int s = 0; s < 600; ++s) {
         gesture.before_step(solver, s);
         const StepReport report = solver.step();

@@ -273,21 +273,11 @@ std::size_t stress_run(const Case& c, long long steps, unsigned seed, std::ostre
     SolverOptions o = scenario_options();
     o.damping = 0.01;
     Solver solver(c.lattice, c.packing.neighbours, o);
-    Eigen::AlignedBox3d box;
-    for (const auto& r : c.lattice.particles.rest_position) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
-    solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d(3, 3, 8)});
-    solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d(4, 4, 4)});
-    std::mt19937 random(seed);
-    std::srand(seed);  // Eigen's Quaterniond::UnitRandom draws from std::rand: without this a seed's run depended on the seeds before it
-    std::uniform_real_distribution<double> unit(0, 1);
-    auto pose = [&] {
-        return InstrumentPose{box.min() + box.diagonal().cwiseProduct(Eigen::Vector3d(unit(random), unit(random), unit(random))), Eigen::Quaterniond::UnitRandom()};
-    };
     std::size_t events = 0, largest_grab = 0;
     std::array<std::size_t, 4> reasons{};
     double largest_force = 0;
     const auto t0 = Clock::now();
-    test::StressGesture gesture(solver, pose);  // tests/stress_gesture.h
+    test::StressGesture gesture(solver, c.lattice.particles, seed);  // tests/stress_gesture.h
     for (long long s = 0; s < steps; ++s) {
         gesture.before_step(solver, s);
         largest_grab = std::max(largest_grab, solver.contact_particles(1).size());
