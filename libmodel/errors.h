@@ -18,6 +18,16 @@ public:
     using std::runtime_error::runtime_error;
 };
 
+/// Options that are wrong in themselves or contradict each other, whatever the data: an option
+/// value outside its set, labels given both as tissue and as cavity. The caller's request is at
+/// fault, not a file. libmodel names an option by its meaning, in braces: `{LayoutOptions::occupancy}`,
+/// `{SelectionOptions::tissue_labels}`; a program spells it as its own flag (cli/option_flags.h),
+/// in this message and in a report's warnings alike.
+class OptionError : public InputError {
+public:
+    using InputError::InputError;
+};
+
 /// An output that could not be written (permissions, disk full). Nothing half-written remains.
 class OutputError : public std::runtime_error {
 public:

@@ -252,15 +252,15 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
                          LayoutReport* report_out) {
     const auto& g = selection.tissue.geometry;
     if (!(options.occupancy > 0.0 && options.occupancy <= 1.0))
-        throw InputError("--occupancy must be in (0, 1], got " + std::to_string(options.occupancy));
+        throw InputError("{LayoutOptions::occupancy} must be in (0, 1], got " + std::to_string(options.occupancy));
     if (!(options.thicken_fraction > 0.0 && options.thicken_fraction <= 1.0))
-        throw InputError("--thicken-fraction must be in (0, 1], got " + std::to_string(options.thicken_fraction));
+        throw InputError("{LayoutOptions::thicken_fraction} must be in (0, 1], got " + std::to_string(options.thicken_fraction));
     if (!(options.ridge_fraction > 0.0 && options.ridge_fraction <= 1.0))
-        throw InputError("--ridge-fraction must be in (0, 1], got " + std::to_string(options.ridge_fraction));
+        throw InputError("{LayoutOptions::ridge_fraction} must be in (0, 1], got " + std::to_string(options.ridge_fraction));
     if (!std::isfinite(options.spacing_mm) || options.spacing_mm < 0.0)
-        throw InputError("--spacing must be a positive number of mm, got " + std::to_string(options.spacing_mm));
+        throw InputError("{LayoutOptions::spacing_mm} must be a positive number of mm, got " + std::to_string(options.spacing_mm));
     if (options.spacing_mm == 0.0 && options.particle_budget == 0)
-        throw InputError("--particles must be at least 1");
+        throw InputError("{LayoutOptions::particle_budget} must be at least 1");
     if (options.materials.empty()) throw InputError("no material given");
     for (const auto& m : options.materials)
         if (!(m.density > 0) || !(m.youngs_modulus_kpa > 0) || !(m.damping_ratio >= 0) || !std::isfinite(m.density) ||
@@ -340,10 +340,10 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
                 report.anchored += p.anchored.back();
             }
     if (p.size() == 0)
-        throw InputError("no lattice cell reaches --occupancy " + std::to_string(options.occupancy) +
+        throw InputError("no lattice cell reaches {LayoutOptions::occupancy} " + std::to_string(options.occupancy) +
                          " at spacing " + std::to_string(spacing) + " mm: lower the spacing or the occupancy");
     if (p.size() > std::size_t(std::numeric_limits<std::int32_t>::max() / 18))
-        throw InputError("too many particles (" + std::to_string(p.size()) + "): raise --spacing");
+        throw InputError("too many particles (" + std::to_string(p.size()) + "): raise {LayoutOptions::spacing_mm}");
     stage.update(2);
 
     // Springs: each particle to the neighbours at the 9 offsets whose first non-zero component
@@ -366,7 +366,7 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
             s.rest_length.push_back(float(offset.norm()));
             const double ka = stiffness_of_material[std::size_t(p.material[i])];
             const double kb = stiffness_of_material[std::size_t(p.material[std::size_t(j)])];
-            // A thin-wall particle's cell holds less tissue than --occupancy: its springs carry
+            // A thin-wall particle's cell holds less tissue than the occupancy threshold (LayoutOptions::occupancy): its springs carry
             // that much less material, in proportion (so k/m, and the stable time step, stay
             // those of a cell at the occupancy).
             const double full = double(float(options.occupancy));  // the float the occupancy test compares with

@@ -5,7 +5,7 @@
 /// (λa = 1 − λb − λc, m = Σ λ·n), started from the closest point. Among exact solutions the one
 /// with all weights in [0, 1] and the smallest |d| wins; else the least extrapolated. Particle
 /// normals count only the triangles of normal weight 1 (one side of each thin-wall sheet).
-/// About 750 lines in one file because the per-vertex solve, the driver that falls back to lattice
+/// One file because the per-vertex solve, the driver that falls back to lattice
 /// embedding, and the runtime's evaluation of the result all share the Problem/Solution types and
 /// the exact formula, which must not drift apart; the candidate search and the lattice embedding
 /// live in mapping_candidates.cpp and mapping_embedding.cpp.
@@ -416,7 +416,7 @@ std::vector<Eigen::Vector3f> particle_normals(const std::vector<std::array<float
 MappingMethod parse_mapping_method(const std::string& text) {
     if (text == "auto") return MappingMethod::automatic;
     if (text == "tangent") return MappingMethod::tangent;
-    throw InputError("--mapping must be auto or tangent, got '" + text + "'");
+    throw InputError("{MappingOptions::method} must be auto or tangent, got '" + text + "'");
 }
 
 void mapping_carriers(const VisualMapping& mapping, const SimulationSurface& surface, std::size_t v,

@@ -82,7 +82,7 @@ enum class MappingMethod {
     tangent,    ///< tangent space only: Mosegaard & Sørensen's method (for comparison)
 };
 
-/// "auto" or "tangent" (the command-line spelling); throws InputError naming --mapping otherwise.
+/// "auto" or "tangent" (the command-line spelling); throws InputError naming MappingOptions::method otherwise.
 MappingMethod parse_mapping_method(const std::string& text);
 
 struct MappingOptions {

@@ -113,7 +113,7 @@ Packing pack_particles(Lattice& lattice, const PackingOptions& options, Progress
     if (packing.width > max_texture_side || packing.height > max_texture_side)
         throw InputError("the position texture would be " + std::to_string(packing.width) + " x " + std::to_string(packing.height) +
                          " texels, above the " + std::to_string(max_texture_side) +
-                         " a GPU guarantees: use --packing bricks or a coarser --spacing");
+                         " a GPU guarantees: use {PackingOptions::scheme} bricks or a coarser {LayoutOptions::spacing_mm}");
 
     // The permutation: new position r holds old particle order[r]. Keys are unique per cell.
     std::vector<std::int32_t> order(n);

@@ -44,7 +44,7 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
     // an infinite one would not be written at all).
     if (!plausible::voxel_spacing_mm.contains(voxel))
         throw InputError(plausible::outside("the voxel size", voxel, plausible::voxel_spacing_mm) +
-                         (o.size > 0 ? ": the shape's extent divided by --size; shrink the shape or change --size" : ": change --voxel"));
+                         (o.size > 0 ? ": the shape's extent divided by {PhantomOptions::size}; shrink the shape or change {PhantomOptions::size}" : ": change {PhantomOptions::voxel_mm}"));
     LabelVolume volume;
     auto& g = volume.geometry;
     // Counted in double first: a radius of 1e12 mm would overflow int and wrap to one voxel.
@@ -55,7 +55,7 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
         char count[32];
         std::snprintf(count, sizeof count, "%.3g", voxels);
         throw InputError(std::string("phantom of ") + count + " voxels is too large (at most 2e9): " +
-                         (o.size > 0 ? "lower --size" : "raise --voxel or shrink the shape"));
+                         (o.size > 0 ? "lower {PhantomOptions::size}" : "raise {PhantomOptions::voxel_mm} or shrink the shape"));
     }
     for (int a = 0; a < 3; ++a) g.dims[std::size_t(a)] = int(counts[a]);
     g.spacing = Eigen::Vector3d::Constant(voxel);
@@ -73,19 +73,19 @@ LabelVolume sample(const PhantomOptions& o, Eigen::Vector3d low, Eigen::Vector3d
 }
 
 LabelVolume make_heart(const PhantomOptions& o) {
-    require_positive(o.lv_radius_mm, "--lv-radius");
-    require_positive(o.lv_length_mm, "--lv-length");
-    require_positive(o.wall_mm, "--wall");
-    require_positive(o.rv_wall_mm, "--rv-wall");
+    require_positive(o.lv_radius_mm, "{PhantomOptions::lv_radius_mm}");
+    require_positive(o.lv_length_mm, "{PhantomOptions::lv_length_mm}");
+    require_positive(o.wall_mm, "{PhantomOptions::wall_mm}");
+    require_positive(o.rv_wall_mm, "{PhantomOptions::rv_wall_mm}");
     if (!(o.vsd_diameter_mm >= 0.0) || !std::isfinite(o.vsd_diameter_mm))
-        throw InputError("--vsd-diameter must be 0 (no defect) or a positive number of mm");
+        throw InputError("{PhantomOptions::vsd_diameter_mm} must be 0 (no defect) or a positive number of mm");
     if (!(o.vsd_position >= 0.0 && o.vsd_position <= 1.0))
-        throw InputError("--vsd-position must be in [0, 1] (0 apex, 1 base), got " + std::to_string(o.vsd_position));
+        throw InputError("{PhantomOptions::vsd_position} must be in [0, 1] (0 apex, 1 base), got " + std::to_string(o.vsd_position));
 
     const double r = o.lv_radius_mm, length = o.lv_length_mm, w = o.wall_mm;
     // LV centred at the origin; the base plane cuts both ventricles open at 60% of the long
     // semi-axis above the equator, as the valve planes open a real heart. The base lies on the
-    // volume's top face, so `--anchor-border` anchors it as it anchors cut vessels in a crop.
+    // volume's top face, so anchoring the border (SelectionOptions::anchor_border) anchors it as it anchors cut vessels in a crop.
     const Eigen::Vector3d lv_centre(0, 0, 0);
     const Eigen::Vector3d lv_cavity(r, r, length);
     const Eigen::Vector3d lv_outer = lv_cavity + Eigen::Vector3d::Constant(w);
@@ -104,7 +104,7 @@ LabelVolume make_heart(const PhantomOptions& o) {
     if (o.vsd_diameter_mm > 0) {
         const double rv_apex_z = rv_centre.z() - rv_cavity.z();
         if (vsd_z - vsd_radius < rv_apex_z || vsd_z + vsd_radius > base_z)
-            throw InputError("the VSD (--vsd-diameter " + std::to_string(o.vsd_diameter_mm) + " mm at --vsd-position " +
+            throw InputError("the VSD ({PhantomOptions::vsd_diameter_mm} " + std::to_string(o.vsd_diameter_mm) + " mm at {PhantomOptions::vsd_position} " +
                              std::to_string(o.vsd_position) + ") does not fit in the septum between the RV apex and the base");
     }
 
@@ -128,21 +128,21 @@ LabelVolume make_heart(const PhantomOptions& o) {
 }  // namespace
 
 LabelVolume make_phantom(const PhantomOptions& o) {
-    if (o.size < 0) throw InputError("--size must be positive");
-    if (o.size == 0) require_positive(o.voxel_mm, "--voxel");
-    if (!(o.margin_mm >= 0.0)) throw InputError("--margin must be non-negative");
+    if (o.size < 0) throw InputError("{PhantomOptions::size} must be positive");
+    if (o.size == 0) require_positive(o.voxel_mm, "{PhantomOptions::voxel_mm}");
+    if (!(o.margin_mm >= 0.0)) throw InputError("{PhantomOptions::margin_mm} must be non-negative");
     switch (o.shape) {
     case PhantomShape::heart:
         return make_heart(o);
     case PhantomShape::sphere: {
-        require_positive(o.radius_mm, "--radius");
+        require_positive(o.radius_mm, "{PhantomOptions::radius_mm}");
         const Eigen::Vector3d extent = Eigen::Vector3d::Constant(o.radius_mm);
         return sample(o, -extent, extent, [&](const Eigen::Vector3d& x) { return std::int32_t(x.norm() <= o.radius_mm); });
     }
     case PhantomShape::shell: {
-        require_positive(o.radius_mm, "--radius");
-        require_positive(o.inner_radius_mm, "--inner-radius");
-        if (o.inner_radius_mm >= o.radius_mm) throw InputError("--inner-radius must be smaller than --radius");
+        require_positive(o.radius_mm, "{PhantomOptions::radius_mm}");
+        require_positive(o.inner_radius_mm, "{PhantomOptions::inner_radius_mm}");
+        if (o.inner_radius_mm >= o.radius_mm) throw InputError("{PhantomOptions::inner_radius_mm} must be smaller than {PhantomOptions::radius_mm}");
         const Eigen::Vector3d extent = Eigen::Vector3d::Constant(o.radius_mm);
         return sample(o, -extent, extent, [&](const Eigen::Vector3d& x) -> std::int32_t {
             const double d = x.norm();

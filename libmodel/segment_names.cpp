@@ -101,7 +101,7 @@ std::vector<int> resolve_label_choice(const std::vector<std::string>& given, con
                 if (names.empty())
                     throw InputError(option + " '" + text +
                                      "' is not a label number, and the volume names no segments (a 3D Slicer .seg.nrrd "
-                                     "names them; for another format give a label table with --labels FILE)");
+                                     "names them; for another format give a label table with {label_table})");
                 throw InputError(option + " '" + text + "' names no segment; segments: " + list_segments(names));
             }
             label = found->first;
@@ -119,12 +119,12 @@ std::vector<int> default_tissue_labels(const SegmentNames& names, std::string* n
     if (names.empty() || first_kind == SegmentKind::heart_muscle || first_kind == SegmentKind::unclear || muscle.empty())
         return {1};
     if (note)
-        *note = "no --tissue given: label " +
+        *note = "no {SelectionOptions::tissue_labels} given: label " +
                 (first == names.end() ? std::string("1 is no segment")
                                       : describe_label(1, names) + (first_kind == SegmentKind::not_muscle ? " is not heart muscle"
                                                                                                           : " has no name")) +
                 "; built the segment(s) named as heart muscle instead: " + describe_labels(muscle, names) +
-                " (give --tissue to choose)";
+                " (give {SelectionOptions::tissue_labels} to choose)";
     return muscle;
 }
 
@@ -147,7 +147,7 @@ std::vector<std::string> tissue_name_warnings(const std::vector<int>& tissue_lab
         case SegmentKind::unclear:
             warnings.push_back("tissue label " + describe_label(label, names) +
                                " does not name heart muscle (no word such as myocardium, muscle, wall or septum); check "
-                               "that --tissue chose the myocardium" + elsewhere);
+                               "that {SelectionOptions::tissue_labels} chose the myocardium" + elsewhere);
             break;
         case SegmentKind::unnamed:
             if (!others.empty())

@@ -31,7 +31,7 @@ enum class SegmentKind {
 SegmentKind classify_segment_name(const std::string& name);
 
 /// A label value: an integer and nothing else (surrounding blanks allowed), in int's range. False
-/// (and `value` untouched) otherwise. How --tissue tells a number from a name, and how a label
+/// (and `value` untouched) otherwise. How a tissue choice tells a number from a name, and how a label
 /// table's values are read.
 bool parse_label_value(const std::string& text, int& value);
 
@@ -48,7 +48,7 @@ std::string non_muscle_word(const std::string& name);
 std::vector<int> resolve_label_choice(const std::vector<std::string>& given, const SegmentNames& names,
                                       const std::string& option);
 
-/// The tissue labels when --tissue is not given: label 1 (HVSMR: 1 = myocardium), unless the
+/// The tissue labels when none are chosen: label 1 (HVSMR: 1 = myocardium), unless the
 /// volume names its segments, some are named as heart muscle, and label 1 is not (a non-muscle
 /// name, a placeholder name, or no segment 1 at all): then those segments, and `note` says so.
 /// Label maps without names (HVSMR) always get label 1.

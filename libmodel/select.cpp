@@ -1,6 +1,5 @@
 #include "select.h"
 
-#include "command_errors.h"
 #include "errors.h"
 
 #include <algorithm>
@@ -65,15 +64,15 @@ std::vector<std::int32_t> label_components(const Mask& mask, std::vector<Island>
 Selection select_tissue(const LabelVolume& volume, const SelectionOptions& options, Progress& progress,
                         SelectionReport* report_out) {
     const auto& g = volume.geometry;
-    if (options.tissue_labels.empty()) throw UsageError("no tissue labels given (--tissue)");
+    if (options.tissue_labels.empty()) throw OptionError("no tissue labels given ({SelectionOptions::tissue_labels})");
     for (int label : options.tissue_labels)
         if (std::find(options.cavity_labels.begin(), options.cavity_labels.end(), label) != options.cavity_labels.end())
-            throw UsageError("label " + std::to_string(label) + " is given both as tissue and as cavity");
+            throw OptionError("label " + std::to_string(label) + " is given both as tissue and as cavity");
     // Label 0 is the background of every label map (HVSMR, 3D Slicer, ITK-SNAP): as tissue it
     // would simulate the air around the heart, as a cavity fill everything outside it.
     for (const auto* labels : {&options.tissue_labels, &options.cavity_labels})
         if (std::find(labels->begin(), labels->end(), 0) != labels->end())
-            throw UsageError(std::string(labels == &options.tissue_labels ? "--tissue" : "--cavity") +
+            throw OptionError(std::string(labels == &options.tissue_labels ? "{SelectionOptions::tissue_labels}" : "{SelectionOptions::cavity_labels}") +
                              ": label 0 is the background of a label map, not a structure; give the labels of the heart");
     ProgressStage stage(progress, "select tissue", 3);
     // Roles per label through a lookup table for the usual label range (label maps are 8- or
@@ -153,7 +152,7 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
     if (report.tissue_voxels == 0) {
         std::ostringstream message;
         message << "empty selection: tissue labels " << join(options.tissue_labels) << " have "
-                << report.voxels_dropped << " voxels, all in islands smaller than --min-island "
+                << report.voxels_dropped << " voxels, all in islands smaller than {SelectionOptions::min_island_mm3} "
                 << options.min_island_mm3 << " mm³";
         throw InputError(message.str());
     }
@@ -177,7 +176,7 @@ Selection select_tissue(const LabelVolume& volume, const SelectionOptions& optio
             }
     report.anchor_voxels = selection.anchors.count();
     if (options.anchor_border && report.anchor_voxels == 0 && options.anchor_labels.empty())
-        report.warnings.push_back("--anchor-border: the tissue does not touch the volume border; nothing is anchored");
+        report.warnings.push_back("{SelectionOptions::anchor_border}: the tissue does not touch the volume border; nothing is anchored");
     stage.update(3);
 
     if (report_out) *report_out = std::move(report);

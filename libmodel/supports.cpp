@@ -28,7 +28,7 @@ SupportRegion parse_support_region(const std::string& text) {
     if (text == "none") return SupportRegion::none;
     if (text == "posterior") return SupportRegion::posterior;
     if (text == "boundary") return SupportRegion::boundary;
-    throw InputError("--support must be posterior, boundary or none, got '" + text + "'");
+    throw InputError("{SupportOptions::region} must be posterior, boundary or none, got '" + text + "'");
 }
 
 SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
@@ -44,12 +44,12 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         return report;
     }
     if (!(options.stiffness_kpa_per_mm >= 0) || !std::isfinite(options.stiffness_kpa_per_mm))
-        throw InputError("--support-stiffness must be a non-negative number of kPa/mm");
+        throw InputError("{SupportOptions::stiffness_kpa_per_mm} must be a non-negative number of kPa/mm");
     if (!(options.embedding_kpa_per_mm2 >= 0) || !std::isfinite(options.embedding_kpa_per_mm2))
-        throw InputError("--embedding-stiffness must be a non-negative number of kPa/mm²");
+        throw InputError("{SupportOptions::embedding_kpa_per_mm2} must be a non-negative number of kPa/mm²");
     if (!(options.posterior.norm() > 0) || !options.posterior.allFinite()) throw InputError("supports: the posterior direction is zero");
     if (!(options.damping_ratio >= 0) || !std::isfinite(options.damping_ratio))
-        throw InputError("--support-damping must be a non-negative damping ratio");
+        throw InputError("{SupportOptions::damping_ratio} must be a non-negative damping ratio");
     const std::size_t n = p.size();
     std::vector<double> area(n, 0.0);
     const double face = lattice.spacing * lattice.spacing;
@@ -191,9 +191,9 @@ FreePieceReport drop_free_pieces(Lattice& lattice, const FreePieceOptions& optio
         } else {
             throw InputError("a piece of " + std::to_string(pieces.size[k]) + " of the " + std::to_string(p.size()) +
                              " particles is held by nothing (no anchored and no supported particle): it would fall away. "
-                             "Hold it with --support posterior or --support boundary, anchor it (--anchor-label, --anchor-border), "
-                             "raise --drop-free-below above " + std::to_string(pieces.size[k]) + " particles to drop it, "
-                             "or keep it free with --allow-free");
+                             "Hold it with {SupportOptions::region} posterior or {SupportOptions::region} boundary, anchor it ({SelectionOptions::anchor_labels}, {SelectionOptions::anchor_border}), "
+                             "raise {FreePieceOptions::drop_below_particles} above " + std::to_string(pieces.size[k]) + " particles to drop it, "
+                             "or keep it free with {FreePieceOptions::allow_free}");
         }
     }
     if (report.dropped_particles == 0) return report;
@@ -381,8 +381,8 @@ RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gr
     if (!(residual <= std::max(options.tolerance, 1e-6)))
         throw InputError("the rest state cannot be balanced under gravity (conjugate gradients stopped at a relative residual of " +
                          std::to_string(residual) + " after " + std::to_string(iteration) +
-                         " iterations): a part of the heart is held at too few points to resist rotation. Use --support boundary, "
-                         "anchor more, or --rest-state imaged");
+                         " iterations): a part of the heart is held at too few points to resist rotation. Use {SupportOptions::region} boundary, "
+                         "anchor more, or {rest_state} imaged");
 
     // Pre-stress: each spring keeps the tension of the sagged shape at the rest positions.
     double sag_sum = 0;

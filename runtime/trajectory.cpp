@@ -3,7 +3,7 @@
 
 #include "formats/csv.h"
 
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 

@@ -1,5 +1,5 @@
 // Tissue selection: islands, anchors and the errors a technician can run into.
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/phantom.h"
 #include "libmodel/segment_names.h"

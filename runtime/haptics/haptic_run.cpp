@@ -1,6 +1,5 @@
 // The simulation side of a haptic session: devices from --device specs, the real-time step loop,
-// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md). One file over
-// 600 lines because it is one header's implementation whose parts change together: the run is
+// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md). One file because it is one header's implementation whose parts change together: the run is
 // built from the --device and --instrument words, and the replay must apply the tools exactly as
 // the live run does (apply_tool), or a cpu replay would not reproduce the forces bit for bit.
 #include "runtime/haptics/haptic_run.h"
@@ -10,7 +9,7 @@
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
 
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 #include "libmodel/text.h"
@@ -320,7 +319,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     recording_.substeps = backend.substeps_per_step();
     recording_.backend = to_string(backend.kind());
     recording_.arithmetic = backend.kind() == BackendKind::cpu && !fuses_multiply_adds(backend.load_report().kernel) ? "separate" : "fused";
-    recording_.rules = rules_of(backend.options());
+    recording_.rules = static_cast<const SolverRules&>(backend.options());
     recording_.contact = settings.contact;
     recording_.interpolation = to_string(settings.session.interpolation);
     recording_.rate_hz = settings.session.rate_hz;

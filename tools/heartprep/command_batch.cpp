@@ -11,9 +11,9 @@
 #include "formats/atomic_file.h"
 #include "formats/scenario.h"
 #include "formats/xdmf.h"
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
-#include "libmodel/exit_codes.h"
+#include "cli/exit_codes.h"
 
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
@@ -251,7 +251,7 @@ void make_preview(const BatchCase& c, const fs::path& folder, const BatchSetting
     if (status.exit_code == 0 && !status.signal && !status.fork_error && fs::exists(picture, error)) {
         outcome.preview = relative;
     } else {
-        outcome.preview_note = status.exit_code == 3 ? "no preview: no usable OpenGL (see logs/" + c.id + ".log)"
+        outcome.preview_note = status.exit_code == exit_status(ExitCode::no_opengl) ? "no preview: no usable OpenGL (see logs/" + c.id + ".log)"
                                                      : "no preview: heartsim failed (see logs/" + c.id + ".log)";
     }
 }

@@ -6,9 +6,9 @@
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
 #include "formats/xdmf.h"
-#include "libmodel/cli_messages.h"
+#include "cli/cli_messages.h"
 #include "libmodel/plausible.h"
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>

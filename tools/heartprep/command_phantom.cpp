@@ -2,8 +2,8 @@
 #include "commands.h"
 
 #include "formats/volume_io.h"
-#include "libmodel/cli_messages.h"
-#include "libmodel/command_errors.h"
+#include "cli/cli_messages.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/phantom.h"
 

@@ -6,8 +6,8 @@
 #include "formats/atomic_file.h"
 #include "formats/mesh_io.h"
 #include "formats/xdmf.h"
-#include "libmodel/cli_messages.h"
-#include "libmodel/command_errors.h"
+#include "cli/cli_messages.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <CLI/CLI.hpp>

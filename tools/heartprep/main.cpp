@@ -2,10 +2,11 @@
 #include "commands.h"
 #include "terminal_progress.h"
 
-#include "libmodel/cli_messages.h"
-#include "libmodel/command_errors.h"
+#include "cli/cli_messages.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
-#include "libmodel/exit_codes.h"
+#include "cli/exit_codes.h"
+#include "cli/option_flags.h"
 #include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
@@ -49,15 +50,17 @@ int main(int argc, char** argv) {
     heartsim::cli::add_phantom_command(app);
     heartsim::cli::add_stage_commands(app);
     heartsim::cli::add_batch_command(app);
-    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim::exit_status_help);
+    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim::heartprep_exit_status_help);
     heartsim::cli_messages::require_finite_numbers(app);
-    app.footer(heartsim::exit_status_help);
+    app.footer(heartsim::heartprep_exit_status_help);
     using heartsim::ExitCode;
     using heartsim::exit_status;
     // Every failure is one line `heartprep: error: FILE: what` and an exit status of the table in
-    // libmodel/exit_codes.h (docs/user-guide.md, "Exit status").
+    // cli/exit_codes.h (docs/user-guide.md, "Exit status"); an option libmodel names by its meaning
+    // is spelled as heartprep's flag (cli/option_flags.h).
     auto fail = [](ExitCode code, const std::string& message) {
-        std::fprintf(stderr, "heartprep: error: %s\n", heartsim::one_line(message).c_str());
+        const std::string spelled = heartsim::cli::spell_options(message, heartsim::cli::heartprep_flags);
+        std::fprintf(stderr, "heartprep: error: %s\n", heartsim::one_line(spelled).c_str());
         return exit_status(code);
     };
     // A word where the command goes that names none: say which word, list the commands and
@@ -75,7 +78,7 @@ int main(int argc, char** argv) {
         if (error.get_exit_code() == 0) return app.exit(error);  // --help, --version
         // Not CLI11's two lines and its own exit codes (104-114).
         return fail(ExitCode::usage, heartsim::cli_messages::parse_error_message(app, error, argc, argv));
-    } catch (const heartsim::UsageError& error) {
+    } catch (const heartsim::OptionError& error) {
         return fail(ExitCode::usage, error.what());
     } catch (const heartsim::InputError& error) {
         // libmodel names no file: the one the command was given is the one at fault.

@@ -11,19 +11,20 @@
 namespace heartsim {
 
 /// A command line that is wrong: an option value out of its range or set, options that contradict
-/// each other. A kind of InputError (code that refuses bad input catches both), but the programs
-/// exit 2 for it, as for the command lines their parser refuses, and name no file in it.
-class UsageError : public InputError {
+/// each other. A kind of OptionError, as libmodel throws for options that are wrong whatever the
+/// data: the programs exit 2 for both, as for the command lines their parser refuses, and name no
+/// file in them.
+class UsageError : public OptionError {
 public:
-    using InputError::InputError;
+    using OptionError::OptionError;
 };
 
 /// Whether `message` already says where it comes from: it begins with `file`, with another file
 /// name ("mesh.stl: …", "case.h5:/lattice/…: …", "path.csv line 4: …": a first word that holds a
-/// '.' or a '/', alone or followed by " line "), or with an option ("--device …").
+/// '.' or a '/', alone or followed by " line "), or with an option ("--device …", or libmodel's "{LayoutOptions::occupancy} …").
 inline bool names_its_source(const std::string& message, const std::string& file) {
     if (!file.empty() && message.rfind(file, 0) == 0) return true;
-    if (message.rfind("-", 0) == 0) return true;
+    if (message.rfind("-", 0) == 0 || message.rfind("{", 0) == 0) return true;  // a flag, or an option by its meaning
     const auto colon = message.find(':');
     if (colon == std::string::npos || colon == 0) return false;
     const std::string first = message.substr(0, colon);
@@ -36,10 +37,10 @@ inline bool names_its_source(const std::string& message, const std::string& file
 
 /// `error` as an error of `file`, "FILE: what", unless its message names its source already
 /// (names_its_source). For the commands: libmodel opens no file, so its errors name none, and the
-/// command knows which file it read the data from. A UsageError is about the command line, not a
-/// file: it is returned as it is.
+/// command knows which file it read the data from. An OptionError (a UsageError too) is about the
+/// command line, not a file: it is returned as it is.
 inline InputError with_file(const std::string& file, const InputError& error) {
-    if (file.empty() || dynamic_cast<const UsageError*>(&error) || names_its_source(error.what(), file)) return error;
+    if (file.empty() || dynamic_cast<const OptionError*>(&error) || names_its_source(error.what(), file)) return error;
     return InputError(file + ": " + error.what());
 }
 

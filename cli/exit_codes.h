@@ -1,6 +1,6 @@
 /// @file exit_codes.h
-/// @brief The exit status of heartprep and heartsim: one table for both (docs/user-guide.md, "Exit
-/// status"). Each failure is one line on stderr, `PROGRAM: error: FILE: what`.
+/// @brief The exit status of heartprep and heartsim: one numbering (docs/user-guide.md, "Exit
+/// status"), and each program's part of it for its --help. Each failure is one line on stderr, `PROGRAM: error: FILE: what`.
 #pragma once
 
 namespace heartsim {
@@ -19,8 +19,14 @@ enum class ExitCode : int {
 /// The process exit status of `code`, for `return exit_status(…)` from main().
 constexpr int exit_status(ExitCode code) { return static_cast<int>(code); }
 
-/// The table, for the end of `--help`.
-inline constexpr const char* exit_status_help =
+/// heartprep's part of the table, for the end of its `--help` (its batch reads heartsim's
+/// no_opengl from the preview it runs, but heartprep itself never exits with 3 to 6).
+inline constexpr const char* heartprep_exit_status_help =
+    "Exit status: 0 success, 1 input error (a file or a value in it; batch: a case failed), 2 usage (the command line),\n"
+    "7 an output could not be written, out of memory, or an internal error (docs/user-guide.md, \"Exit status\").";
+
+/// heartsim's, for the end of its `--help`.
+inline constexpr const char* heartsim_exit_status_help =
     "Exit status: 0 success, 1 input error (a file or a value in it), 2 usage (the command line), 3 no usable OpenGL,\n"
     "4 haptic device unusable, 5 --replay forces beyond the tolerance, 6 the simulation could not recover,\n"
     "7 an output could not be written, out of memory, or an internal error (docs/user-guide.md, \"Exit status\").";
