@@ -26,25 +26,15 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
-RecordedRules rules_of(const SolverOptions& o) {
-    RecordedRules r;
-    for_each_rule([](const char*, auto& to, const auto& from) { to = from; }, r, o);
-    return r;
-}
-
-void apply_rules(const RecordedRules& r, SolverOptions& o) {
-    for_each_rule([](const char*, auto& to, const auto& from) { to = from; }, o, r);
-}
-
-RecordedRules rules_before_recorded() {
-    RecordedRules r = rules_of(SolverOptions{});
+SolverRules rules_before_recorded() {
+    SolverRules r;
     r.max_displacement_fraction = 2.0;
     r.probe_pierce_strain = 0.0;  // never pierces
     r.grab_reach = 0.0;           // everything inside
     return r;
 }
 
-std::string check_rules(const RecordedRules& r) {
+std::string check_rules(const SolverRules& r) {
     std::string wrong;
     for_each_rule(
         [&](const char* name, const auto& value) {
@@ -165,7 +155,7 @@ Recording read_recording(const std::filesystem::path& path) {
         r.fail("/", "attribute arithmetic must be fused or separate, not '" + rec.arithmetic + "'");
     // Absent in recordings made before they kept the solver's rules.
     if (r.exists("rules")) {
-        RecordedRules rules;
+        SolverRules rules;
         for_each_rule([&](const char* name, auto& value) { value = r.number<std::remove_reference_t<decltype(value)>>("rules", name); }, rules);
         if (const std::string wrong = check_rules(rules); !wrong.empty()) r.fail("/rules", wrong);
         rec.rules = rules;

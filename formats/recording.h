@@ -9,7 +9,7 @@
 ///               interpolation, arithmetic, coupling (0/1), period_p50_ms, period_p99_ms, period_max_ms,
 ///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
-///               (RecordedRules; absent in recordings made before heartsim kept them)
+///               (libmodel/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
 ///               instrument ("probe" | "grabber"), semi_axes_mm [3], max_force_n,
 ///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
@@ -86,42 +86,13 @@ struct RecordedEvent {
     std::string what;
 };
 
-/// The solver's rules that come from heartsim, not from the scenario (SolverOptions' defaults in
-/// the build that recorded): how instruments pierce, grab and slip, and when the watchdog steps
-/// in. They change between versions (the speed bound went from 2 to 4 on 2026-11-25); a replay
-/// takes the recorded ones, so that a recording still replays as it ran (docs/haptics.md).
-struct RecordedRules {
-    double max_displacement_fraction = 0, energy_growth_limit = 0, grab_slip_strain = 0, probe_pierce_strain = 0, grab_reach = 0,
-           restore_strain_limit = 0;
-    std::int32_t watchdog_interval = 0, max_consecutive_restores = 0;
-    bool operator==(const RecordedRules&) const = default;
-};
-
-/// Calls f(name, field of each of `rules`…) for each rule, in the order the recording and the
-/// journal keep them. The rules are RecordedRules or SolverOptions, which name the fields alike,
-/// so one list serves the file, the copies between the two, and their comparison.
-template <class F, class... Rules> void for_each_rule(F&& f, Rules&... rules) {
-    f("max_displacement_fraction", rules.max_displacement_fraction...);
-    f("energy_growth_limit", rules.energy_growth_limit...);
-    f("grab_slip_strain", rules.grab_slip_strain...);
-    f("probe_pierce_strain", rules.probe_pierce_strain...);
-    f("grab_reach", rules.grab_reach...);
-    f("restore_strain_limit", rules.restore_strain_limit...);
-    f("watchdog_interval", rules.watchdog_interval...);
-    f("max_consecutive_restores", rules.max_consecutive_restores...);
-}
-
-/// The rules `options` holds.
-RecordedRules rules_of(const SolverOptions& options);
-/// `options` with the recorded rules in place of its own.
-void apply_rules(const RecordedRules& rules, SolverOptions& options);
 /// What a replay of a recording without /rules takes: the rules heartsim had before the probe's
 /// pierce and the one-piece grab, with the speed bound at 2 (since the slip at 2 and the restore
 /// bound at 1 of docs/benchmarks.md "Soak"). The recordings made with the pierce and the
 /// one-piece grab but before /rules replay the same wherever neither acted.
-RecordedRules rules_before_recorded();
+SolverRules rules_before_recorded();
 /// Empty when the rules are ones a solver takes, else which is wrong and what was expected.
-std::string check_rules(const RecordedRules& rules);
+std::string check_rules(const SolverRules& rules);
 
 struct Recording {
     std::string scenario;
@@ -134,7 +105,7 @@ struct Recording {
     /// cpu replay takes the same, so that it reproduces the forces to the bit (docs/haptics.md).
     std::string arithmetic = "fused";
     /// nullopt: made before recordings kept their rules (replayed with rules_before_recorded()).
-    std::optional<RecordedRules> rules;
+    std::optional<SolverRules> rules;
     double rate_hz = 0.0;
     bool coupling = false;
     double period_p50_ms = 0, period_p99_ms = 0, period_max_ms = 0, period_mean_ms = 0;

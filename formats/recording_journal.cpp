@@ -377,7 +377,7 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             if (!known_arithmetic(r.arithmetic))
                 throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
             if (version >= 3 && c.get<std::uint8_t>() != 0) {
-                RecordedRules rules;
+                SolverRules rules;
                 for_each_rule([&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); }, rules);
                 if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
                 r.rules = rules;

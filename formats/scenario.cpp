@@ -510,7 +510,11 @@ Scenario read_contents(const h5::Reader& r) {
 
 }  // namespace
 
-SolverOptions options_from(const SolverSettings& settings) { return settings; }
+SolverOptions options_from(const SolverSettings& settings) {
+    SolverOptions options;
+    static_cast<StepSettings&>(options) = settings;
+    return options;
+}
 
 VisualMesh to_visual_mesh(const TriangleMesh& mesh) {
     VisualMesh v;

@@ -39,12 +39,11 @@ struct ScenarioSource {
     bool anchor_border = false;
 };
 
-/// /solver attributes: the solver's own options (libmodel/solver.h: dt_ms, damping, gravity,
-/// balanced_gravity, critical_dt_ms, damped_critical_dt_ms, safety_factor; same names, units and
-/// defaults as the file's attributes) plus what only the file holds. The file stores the
-/// scenario's choices; SolverOptions' other fields (kernel, watchdog, damping_ratio: from the
-/// materials) keep their defaults when read. Units: ms, mm/ms².
-struct SolverSettings : SolverOptions {
+/// /solver attributes: the step settings (libmodel/solver_options.h StepSettings: dt_ms, damping,
+/// gravity, balanced_gravity, critical_dt_ms, damped_critical_dt_ms, safety_factor; same names,
+/// units and defaults as the file's attributes) plus what only the file holds. The solver's rules
+/// and kernel options are heartsim's, not the scenario's (options_from). Units: ms, mm/ms².
+struct SolverSettings : StepSettings {
     int substeps = 1;                 ///< written as 1; not used by heartsim (docs/scenario-format.md)
     double critical_dt_bound_ms = 0.0;///< proven lower bound on the critical step (Gershgorin)
 };
@@ -77,7 +76,7 @@ struct Scenario {
     std::optional<VisualMapping> mapping;
 };
 
-/// The solver options of a scenario: its settings without the file-only fields.
+/// The solver options of a scenario: its step settings, with heartsim's rules and kernel options.
 SolverOptions options_from(const SolverSettings& settings);
 
 /// Converts a world-space mesh to the file's float32 layout.

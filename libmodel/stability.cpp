@@ -254,4 +254,13 @@ double stable_step_ms(double max_eigenvalue, double damping_eigenvalue) {
     return 4.0 / (b + std::sqrt(b * b + 4.0 * lambda));  // the root of λh² + 2bh − 4, without cancellation
 }
 
+TimeStepLimits time_step_limits(double critical_dt_ms, double stored_damped_dt_ms, double safety_factor,
+                                const std::function<double()>& damping_eigenvalue) {
+    TimeStepLimits limits;
+    limits.damped_critical_dt_ms = stored_damped_dt_ms > 0 ? std::min(stored_damped_dt_ms, critical_dt_ms)
+                                                           : stable_step_ms(4.0 / (critical_dt_ms * critical_dt_ms), damping_eigenvalue());
+    limits.dt_ms = safety_factor * limits.damped_critical_dt_ms;
+    return limits;
+}
+
 }  // namespace heartsim

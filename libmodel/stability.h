@@ -4,6 +4,8 @@
 /// and the stable step with dashpots, drag and support dampers (docs/solver.md "Step policy").
 #pragma once
 
+#include <functional>
+
 #include "lattice.h"
 
 #include <vector>
@@ -65,5 +67,19 @@ double estimate_damping_eigenvalue(const Particles& particles, const Springs& sp
 /// λ_C = estimate_damping_eigenvalue (1/ms). Equals the critical step 2/√λ_K without damping;
 /// infinite when both are 0.
 double stable_step_ms(double max_eigenvalue, double damping_eigenvalue);
+
+/// The step policy, one for heartprep (which stores it in /solver) and the solver (which takes
+/// what the file gives and derives the rest), docs/solver.md "Step policy".
+struct TimeStepLimits {
+    double damped_critical_dt_ms = 0.0;  ///< the stable step with dashpots, supports and drag, ms
+    double dt_ms = 0.0;                  ///< safety_factor × damped_critical_dt_ms, ms
+};
+
+/// The damped critical step from the undamped `critical_dt_ms` (2/√λ_K) and the damping
+/// eigenvalue λ_C (stable_step_ms), and the step, `safety_factor` × that. A stored damped step
+/// (`stored_damped_dt_ms` > 0) is kept instead, capped at `critical_dt_ms`; then
+/// `damping_eigenvalue` (a Lanczos estimate, costly) is not called.
+TimeStepLimits time_step_limits(double critical_dt_ms, double stored_damped_dt_ms, double safety_factor,
+                                const std::function<double()>& damping_eigenvalue);
 
 }  // namespace heartsim

@@ -349,7 +349,7 @@ TEST(HapticsCli, AReplayTakesTheSolverRulesTheSessionWasRecordedWith) {
     ASSERT_EQ(run.exit_code, 0) << run.output;
     const Recording recorded = read_recording(recording);
     ASSERT_TRUE(recorded.rules.has_value());
-    EXPECT_EQ(*recorded.rules, rules_of(SolverOptions{})) << "the phantom's scenario takes the build's rules";
+    EXPECT_EQ(*recorded.rules, SolverRules{}) << "the phantom's scenario takes the build's rules";
     const auto same = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --replay " + quoted(recording));
     EXPECT_EQ(same.exit_code, 0) << same.output;
     EXPECT_EQ(same.output.find("the recorded solver rules"), std::string::npos) << "no rule differs\n" << same.output;

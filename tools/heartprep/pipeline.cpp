@@ -1,4 +1,5 @@
 #include "pipeline.h"
+#include "cli/option_flags.h"
 
 #include "formats/label_table.h"
 #include "formats/mesh_io.h"
@@ -237,11 +238,13 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     if (unbounded) {
         // No free particle or no spring: nothing limits the step; choose one that keeps a free
         // particle's fall per step tiny and say so.
-        solver.critical_dt_ms = solver.critical_dt_bound_ms = solver.damped_critical_dt_ms = 1.0;
-    } else {
-        solver.damped_critical_dt_ms = stable_step_ms(4.0 / (solver.critical_dt_ms * solver.critical_dt_ms), damping_eigenvalue);
+        solver.critical_dt_ms = solver.critical_dt_bound_ms = 1.0;
     }
-    solver.dt_ms = solver.safety_factor * solver.damped_critical_dt_ms;
+    // The solver's own policy (stability.h), so that a step of dt_ms is one substep in heartsim.
+    const TimeStepLimits limits = time_step_limits(solver.critical_dt_ms, unbounded ? 1.0 : 0.0, solver.safety_factor,
+                                                   [&] { return damping_eigenvalue; });
+    solver.damped_critical_dt_ms = limits.damped_critical_dt_ms;
+    solver.dt_ms = limits.dt_ms;
     if (unbounded) {
         char message[160];
         std::snprintf(message, sizeof message, "no spring between free particles: the critical time step is unbounded; dt set to %g ms",
@@ -252,6 +255,8 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     pack_stage(scenario, options.packing, progress, report);
     simulation_surface_stage(scenario, progress, report);
     if (options.visual) mapping_stage(scenario, options.visual_mesh, progress, report, options.mapping);
+    // libmodel names options by their meaning; the scenario keeps the warnings as heartprep says them.
+    for (std::string& warning : report.warnings) warning = spell_options(warning, heartprep_flags);
     return scenario;
 }
 
@@ -341,7 +346,7 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
 }
 
 void print_warnings(const std::vector<std::string>& warnings) {
-    for (const auto& w : warnings) std::fprintf(stderr, "heartprep: warning: %s\n", w.c_str());
+    for (const auto& w : warnings) std::fprintf(stderr, "heartprep: warning: %s\n", spell_options(w, heartprep_flags).c_str());
 }
 
 }  // namespace heartsim::cli

@@ -1,6 +1,9 @@
 /// @file pipeline.h
 /// @brief The heartprep stages wired together: read → select → surface → layout → stability →
-/// scenario. Each stage is a libmodel function; this file only sequences, times and reports.
+/// scenario. Each stage is a libmodel function; this file sequences, times and reports them, and
+/// holds what only a build decides: the tissue labels when none are given, which warnings a
+/// technician sees (with heartprep's flags), the step when nothing bounds it. The step policy
+/// itself is libmodel's (stability.h time_step_limits), shared with the solver.
 #pragma once
 
 #include "formats/scenario.h"

@@ -1,0 +1,36 @@
+// The AVX2 kernel: 8 lanes, FMA in the five places the portable kernel fuses.
+// The floating-point contract and the layout: solver_kernels.h.
+#if defined(__clang__)
+#pragma clang fp contract(off)
+#elif defined(__GNUC__)
+#pragma GCC optimize("fp-contract=off")
+#endif
+
+#include "solver_kernels.h"
+#include "solver_kernel_avx2.h"
+
+namespace heartsim::solver_kernels {
+
+#ifdef HEARTSIM_SOLVER_X86
+
+template <bool Damped, bool Supported>
+HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
+    return group_avx2_body<Damped, Supported>(k, group);
+}
+
+namespace {
+
+template <bool Supported>
+GroupFunction<float> avx2_variant(bool damped) {
+    return damped ? &each_group<float, &group_avx2<true, Supported>> : &each_group<float, &group_avx2<false, Supported>>;
+}
+
+}  // namespace
+
+GroupFunction<float> avx2_kernel(bool damped, bool supported) {
+    return supported ? avx2_variant<true>(damped) : avx2_variant<false>(damped);
+}
+
+#endif
+
+}  // namespace heartsim::solver_kernels
