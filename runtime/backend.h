@@ -1,9 +1,10 @@
 /// @file backend.h
 /// @brief The simulation behind one interface: `cpu` (libmodel's Solver, the reference) and
-/// `gl` (compute shaders on the same packed layout). Both do the same step with the same
+/// `gl` (compute shaders on the same packed layout; runtime/gl/backend_gl.h). This interface knows
+/// no GL: the gl part (heartsim_gl) builds on it. Both do the same step with the same
 /// formulas, instrument semantics and force sign (docs/solver.md, docs/runtime.md).
 ///
-///     auto backend = make_backend(BackendKind::gl, scenario, options_from(scenario.solver), &gl);
+///     auto backend = make_gl_backend(gl, scenario, options_from(scenario.solver));  // runtime/gl/backend_gl.h
 ///     backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = {2, 2, 6}});
 ///     backend->set_pose(0, pose);
 ///     backend->step(1);                                 // one step of dt_ms (its substeps inside)
@@ -13,7 +14,9 @@
 
 #include "formats/scenario.h"
 #include "libmodel/solver.h"
-#include "runtime/gl/picking.h"
+#include "runtime/contact.h"
+
+#include "libmodel/errors.h"
 
 #include <memory>
 #include <optional>
@@ -21,8 +24,6 @@
 #include <vector>
 
 namespace heartsim {
-
-class GlContext;
 
 enum class BackendKind { cpu, gl };
 /// "cpu" or "gl"; throws InputError otherwise.
@@ -91,29 +92,18 @@ public:
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
     virtual std::size_t memory_bytes() const = 0;
-    /// How the force pass finds a probe's contact particles (runtime/gl/picking.h): gl only; the cpu
+    /// How the force pass finds a probe's contact particles (runtime/contact.h): gl only; the cpu
     /// backend always uses its solver's touched list (`direct`) and rejects the others.
     virtual void set_contact(const ContactSettings& settings) {
         if (settings.mode != ContactMode::direct) throw InputError("--contact picking|search needs --backend gl");
     }
     /// The particles the last force pass summed for `hand`, sorted (gl: waits for the GPU).
     virtual std::vector<std::int32_t> contact_particles(int hand) { (void)hand; return {}; }
-    /// gl: the GL name of the shader storage buffer holding the current positions (float4 per
-    /// particle, packed order, w unused), for passes that read them in place (visualisation);
-    /// valid until the next step(), which rotates the buffers. 0 for the cpu backend.
-    virtual unsigned gl_position_buffer() const { return 0; }
 };
 
 /// The CPU backend: libmodel's Solver on the scenario's packed particles. Throws InputError if
 /// the scenario has no /packing.
 std::unique_ptr<Backend> make_cpu_backend(const Scenario& scenario, const SolverOptions& options);
-
-/// Device memory the GL backend will allocate for `scenario`, bytes (printed before allocating).
-std::size_t estimate_gl_memory_bytes(const Scenario& scenario);
-
-/// The GL backend on the current context of `context`. Throws InputError if the scenario has no
-/// /packing, GlUnavailable if the context cannot run it (or a shader fails to build).
-std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options);
 
 /// Throws InputError naming the group when the scenario lacks what a run needs (/packing).
 void require_runnable(const Scenario& scenario, const std::string& file_name);

@@ -5,10 +5,11 @@
 #include "runtime/run_modes.h"
 #include "runtime/window_keys.h"
 
-#include "libmodel/cli_messages.h"
-#include "libmodel/command_errors.h"
+#include "cli/cli_messages.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
-#include "libmodel/exit_codes.h"
+#include "cli/exit_codes.h"
+#include "cli/option_flags.h"
 #include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
@@ -75,10 +76,10 @@ int main(int argc, char** argv) {
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
                                             "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}))
-        ->capture_default_str();
+        ->default_str("direct");
     run->add_option("--picking-refresh", a.picking_refresh, "With --contact picking: render the picking buffer every K force requests (stale in between)")
         ->check(CLI::Range(1, 1 << 20))
-        ->capture_default_str();
+        ->default_str("1");
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as Sørensen & Mosegaard's Table 1");
     run->add_option("--stats-csv", a.stats_csv, "Write the --stats timings as CSV, one row per pass (tests/bench/run_runtime_bench.sh)");
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)")
@@ -150,13 +151,13 @@ int main(int argc, char** argv) {
         }
         arguments.insert(arguments.begin() + 1, run_word);
     }
-    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + exit_status_help);
+    for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim_exit_status_help);
     cli_messages::require_finite_numbers(app);
-    app.footer(exit_status_help);
+    app.footer(heartsim_exit_status_help);
     // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in
-    // libmodel/exit_codes.h (docs/user-guide.md, "Exit status").
+    // cli/exit_codes.h (docs/user-guide.md, "Exit status").
     auto fail = [](ExitCode code, const std::string& message) {
-        std::fprintf(stderr, "heartsim: error: %s\n", one_line(message).c_str());
+        std::fprintf(stderr, "heartsim: error: %s\n", one_line(cli::spell_options(message, cli::heartsim_flags)).c_str());
         return exit_status(code);
     };
     try {
@@ -169,12 +170,6 @@ int main(int argc, char** argv) {
     for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover)})
         if (const std::string empty = cli_messages::empty_value_given(*command); command->parsed() && !empty.empty())
             return fail(ExitCode::usage, empty);
-    a.steps_given = run->count("--steps") > 0;
-    a.backend_given = run->count("--backend") > 0;
-    a.record_given = run->count("--record") > 0;
-    a.contact_given = run->count("--contact") > 0;
-    a.max_force_given = run->count("--max-force") > 0;
-    a.picking_refresh_given = run->count("--picking-refresh") > 0;
     for (const char* option : {"--max-force", "--haptic-rate", "--interpolation", "--haptic-priority", "--coupling"})
         if (run->count(option) > 0) a.device_options_given.push_back(option);
     // The file an error that names none comes from: the scenario run, or the journal recovered.
@@ -187,7 +182,7 @@ int main(int argc, char** argv) {
         return fail(ExitCode::no_opengl, e.what());
     } catch (const haptics::DeviceUnavailable& e) {
         return fail(ExitCode::haptic_device, e.what());
-    } catch (const UsageError& e) {
+    } catch (const OptionError& e) {
         return fail(ExitCode::usage, e.what());
     } catch (const InputError& e) {
         return fail(ExitCode::input_error, with_file(file, e).what());

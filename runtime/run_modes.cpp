@@ -2,6 +2,9 @@
 // command's output that tests/test_runtime_cli.cpp and tests/test_haptics_cli.cpp check.
 #include "runtime/run_modes.h"
 
+#include "runtime/gl/backend_gl.h"
+#include "runtime/gl/picking.h"
+
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/png.h"
 #include "runtime/window_run.h"
@@ -11,9 +14,9 @@
 #include "formats/recording_journal.h"
 #include "formats/state.h"
 #include "formats/xdmf.h"
-#include "libmodel/command_errors.h"
+#include "cli/command_errors.h"
 #include "libmodel/errors.h"
-#include "libmodel/exit_codes.h"
+#include "cli/exit_codes.h"
 #include "libmodel/mapping.h"
 #include "libmodel/plausible.h"
 #include "libmodel/text.h"
@@ -82,33 +85,33 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
 /// The combinations of options no mode accepts (UsageError, exit 2) and output places that cannot
 /// hold a file (OutputError, exit 7), refused before anything is read.
 void check_arguments(const RunArguments& a) {
-    if (a.steps > 0 && a.seconds > 0) throw UsageError("give --steps or --seconds, not both");
+    if (a.steps.value_or(0) > 0 && a.seconds > 0) throw UsageError("give --steps or --seconds, not both");
     if (!std::isfinite(a.seconds) || a.seconds > 1e6) throw UsageError("--seconds: expected a finite number of seconds up to 10^6");
-    if (!std::isfinite(a.max_force)) throw UsageError("--max-force: expected a finite force in N");
-    if (a.max_force_given) {  // 0 is no limit of its own, not "send nothing": refused with the range
+    if (a.max_force && !std::isfinite(*a.max_force)) throw UsageError("--max-force: expected a finite force in N");
+    if (a.max_force) {  // 0 is no limit of its own, not "send nothing": refused with the range
         try {
-            plausible::require(a.max_force, plausible::device_force_n, "the force", "--max-force");
+            plausible::require(*a.max_force, plausible::device_force_n, "the force", "--max-force");
         } catch (const InputError& e) {
             throw UsageError(e.what());
         }
     }
-    if (a.record_given && a.record.empty()) throw UsageError("--record: give the file to write, e.g. --record session.h5");
+    if (a.record && a.record->empty()) throw UsageError("--record: give the file to write, e.g. --record session.h5");
     if (a.replay_tolerance >= 0 && a.replay.empty()) throw UsageError("--replay-tolerance needs --replay");
-    if (!a.replay.empty() && (a.steps_given || a.seconds > 0))
+    if (!a.replay.empty() && (a.steps || a.seconds > 0))
         throw UsageError("--replay runs the recording's own steps: no --steps or --seconds with it");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw UsageError("--screenshot-every needs --screenshot OUT.png");
     const bool haptic_run = !a.devices.empty();
     if (a.devices.size() > 2) throw UsageError("--device: at most two (hand 0, hand 1)");
     if (haptic_run && (!a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--device moves the instruments: give --device or --trajectory/--probe/--grab, not both");
-    if (!haptic_run && (!a.instruments.empty() || !a.record.empty()))
-        throw UsageError(std::string(a.record.empty() ? "--instrument" : "--record") + " needs --device");
+    if (!haptic_run && (!a.instruments.empty() || a.record))
+        throw UsageError(std::string(!a.record ? "--instrument" : "--record") + " needs --device");
     // The device options change nothing without a device: said, rather than ignored.
     if (!haptic_run)
         for (const std::string& option : a.device_options_given) throw UsageError(option + " sets how forces reach a haptic device: it needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
-    if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps_given && a.steps > 0))
+    if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps.value_or(0) > 0))
         throw UsageError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
     // An output must not replace an input: the scenario, the trajectory, the recording replayed,
@@ -123,7 +126,7 @@ void check_arguments(const RunArguments& a) {
         inputs.push_back({file, "the file of --device " + device});
     }
     const std::vector<std::pair<const char*, std::string>> outputs = {
-        {"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}, {"--record", a.record}};
+        {"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}, {"--record", a.record.value_or("")}};
     for (const auto& [option, path] : outputs) {
         if (path.empty()) continue;
         std::error_code error;
@@ -144,7 +147,7 @@ void check_arguments(const RunArguments& a) {
         return fs::absolute(x, error).lexically_normal() == fs::absolute(y, error).lexically_normal();
     };
     const fs::path scenario_description = xdmf_beside(a.scenario);
-    const std::pair<const char*, std::string> described[] = {{"--save-state", a.save_state}, {"--record", a.record}};
+    const std::pair<const char*, std::string> described[] = {{"--save-state", a.save_state}, {"--record", a.record.value_or("")}};
     for (const auto& [option, path] : described) {
         if (path.empty()) continue;
         const fs::path description = xdmf_beside(path);
@@ -199,7 +202,7 @@ SolverOptions solver_options(const RunArguments& a, const Scenario& scenario) {
 /// A replay steps with the solver's rules of the build that recorded (docs/haptics.md "Recording
 /// and replay"), and says which differ from this build's.
 void replay_rules(const Recording& recording, SolverOptions& options) {
-    const RecordedRules recorded = recording.rules.value_or(rules_before_recorded());
+    const SolverRules recorded = recording.rules.value_or(rules_before_recorded());
     if (!recording.rules)
         std::printf("replay: recorded before recordings kept the solver's rules: replaying with those heartsim had before the "
                     "probe's pierce and the one-piece grab\n");
@@ -211,7 +214,7 @@ void replay_rules(const Recording& recording, SolverOptions& options) {
         },
         recorded, options);
     if (differ.tellp() > 0) std::printf("replay: the recorded solver rules: %s\n", differ.str().c_str());
-    apply_rules(recorded, options);
+    static_cast<SolverRules&>(options) = recorded;
 }
 
 /// The GL context (a window unless --headless; a headless one where the backend or the
@@ -222,7 +225,7 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     if (!a.headless)
         p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
                                                    "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
-    if (!a.devices.empty() && p.kind == BackendKind::gl && !a.backend_given) {
+    if (!a.devices.empty() && p.kind == BackendKind::gl && !a.backend) {
         // Haptics need the simulation near real time. On a software rasteriser (Mesa llvmpipe,
         // softpipe) the compute shaders run on the CPU cores, far slower than the cpu backend:
         // choose it, and say so.
@@ -252,8 +255,8 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
             // fastest kernel would do (docs/haptics.md "Recording and replay").
             cpu.arithmetic = p.replayed->arithmetic == "fused" ? SlotArithmetic::fused : SlotArithmetic::separate;
             if (cpu.arithmetic == SlotArithmetic::separate)
-                std::printf("replay: recorded with the spring slot's multiply-adds rounded apart (the sse2 kernel, or heartsim before "
-                            "2026-11-25): replaying with the sse2 kernel\n");
+                std::printf("replay: recorded with the spring slot's multiply-adds rounded apart (the sse2 kernel, or a heartsim "
+                            "whose kernels did not fuse them): replaying with the sse2 kernel\n");
         }
         p.backend = make_cpu_backend(p.scenario, cpu);
         if (render && !p.context) p.context.emplace(GlContext::create_headless());  // screenshots of the cpu backend
@@ -275,12 +278,12 @@ void make_renderer(PreparedRun& p) {
 
 void set_contact(const RunArguments& a, PreparedRun& p) {
     ContactSettings contact;
-    contact.mode = parse_contact_mode(a.contact);
-    contact.picking_refresh = a.picking_refresh;
+    contact.mode = parse_contact_mode(a.contact.value_or("direct"));
+    contact.picking_refresh = a.picking_refresh.value_or(1);
     // Options that contradict each other (exit 2); the backend refuses it too, for its other callers.
     if (contact.mode != ContactMode::direct && p.kind != BackendKind::gl) throw UsageError("--contact picking|search needs --backend gl");
     // The refresh only paces the picking buffer: with any other contact it changed nothing, unsaid.
-    if (a.picking_refresh_given && contact.mode != ContactMode::picking)
+    if (a.picking_refresh && contact.mode != ContactMode::picking)
         throw UsageError("--picking-refresh paces the picking buffer: it needs --contact picking");
     if (contact.mode != ContactMode::direct && p.kind == BackendKind::gl)
         std::printf("contact: %s%s, %.2f MiB more device memory\n", to_string(contact.mode),
@@ -336,13 +339,13 @@ std::unique_ptr<haptics::HapticRun> start_haptics(const RunArguments& a, Prepare
     settings.devices = a.devices;
     settings.instruments = a.instruments;
     settings.session.rate_hz = a.haptic_rate;
-    settings.session.safety.max_force_n = a.max_force;
+    settings.session.safety.max_force_n = a.max_force.value_or(0.0);  // 0: each device's own maximum
     settings.session.interpolation = a.interpolation == "extrapolate" ? haptics::ForceInterpolation::extrapolate
                                                                       : haptics::ForceInterpolation::hold;
     settings.session.coupling.enabled = a.coupling;  // K, B chosen per device within the passivity bound
     settings.session.realtime = a.haptic_priority == "realtime";
-    settings.record = a.record;
-    settings.contact = a.contact;
+    settings.record = a.record.value_or("");
+    settings.contact = a.contact.value_or("direct");
     haptics::HapticRunContext context_settings{.headless = a.headless};
     context_settings.camera = p.renderer ? p.renderer->camera()
                                          : fit_camera(model_box(p.scenario), p.view, float(p.frame_width) / float(p.frame_height));
@@ -383,7 +386,7 @@ void print_stats(const RunArguments& a, PreparedRun& p, const ScriptedRunResult&
     }
     if (t.picking_calls)
         std::printf("%-22s %12.4f %12lld   (%s; %lld buffer renders)\n", "picking buffer", t.picking_ms / double(t.picking_calls),
-                    t.picking_calls, a.contact.c_str(), t.picking_renders);
+                    t.picking_calls, a.contact.value_or("direct").c_str(), t.picking_renders);
     else
         std::printf("%-22s %12s %12s\n", "picking buffer", "-", "none (--contact direct: the step's own probe test)");
     std::printf("%-22s %12.4f %12lld\n", "force buffer", t.force_calls ? t.force_ms / double(t.force_calls) : 0.0, t.force_calls);
@@ -405,8 +408,8 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     const double seconds = std::max(wall_ms * 1e-3, 1e-9);
     const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
     char run_columns[512];
-    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact.c_str(),
-                  a.picking_refresh, quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
+    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact.value_or("direct").c_str(),
+                  a.picking_refresh.value_or(1), quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
                   run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames);
     std::ofstream out(a.stats_csv);
     if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
@@ -518,7 +521,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
 
 PreparedRun::PreparedRun(const RunArguments& a) {
     // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
-    kind = parse_backend_kind(!a.replay.empty() && !a.backend_given ? "cpu" : a.backend);
+    kind = parse_backend_kind(!a.replay.empty() && !a.backend ? "cpu" : a.backend.value_or("gl"));
     check_arguments(a);
     // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
     const bool render = !a.headless || !a.screenshot.empty();
@@ -532,11 +535,11 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     if (render) make_renderer(*this);
     set_contact(a, *this);
     const SolverLoadReport& load = backend->load_report();
-    steps = a.steps;
+    steps = a.steps.value_or(0);
     if (a.seconds > 0) steps = int(std::ceil(a.seconds * 1000.0 / backend->time_step_ms() - 1e-9));
     // --steps 0: no step (the rest state, e.g. for a screenshot); no --steps: 1 step headless,
     // no limit in a window.
-    if (steps <= 0) steps = (a.steps_given && a.steps == 0) ? 0 : a.headless ? 1 : -1;
+    if (steps <= 0) steps = a.steps == 0 ? 0 : a.headless ? 1 : -1;
     std::printf("%s backend: %zu particles, %zu springs, %zu anchored; step %.4g ms = %d substeps of %.4g ms (critical %.4g ms)\n",
                 to_string(kind), load.particles, load.springs, load.anchored, backend->time_step_ms(), backend->substeps_per_step(),
                 backend->substep_ms(), load.critical_dt_ms);
@@ -552,7 +555,7 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
                 recording.hands[1].used ? ("hand 1 " + recording.hands[1].instrument).c_str() : "", to_string(backend.kind()));
     // The recording's contact mode, unless --contact says otherwise (the cpu backend has only
     // `direct`: a gl recording made with another mode is compared as is and may differ).
-    if (!a.contact_given && recording.contact != "direct") {
+    if (!a.contact && recording.contact != "direct") {
         if (backend.kind() == BackendKind::gl) {
             ContactSettings contact;
             contact.mode = parse_contact_mode(recording.contact);

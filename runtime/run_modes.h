@@ -23,36 +23,36 @@
 
 namespace heartsim {
 
-/// The options of `heartsim run`, as main.cpp's CLI11 definitions fill them.
+/// The options of `heartsim run`, as main.cpp's CLI11 definitions fill them. An option whose
+/// absence means something of its own is optional: nullopt when not given.
 struct RunArguments {
     std::string scenario;
     bool headless = false;
-    std::string backend = "gl";
-    int steps = 0;
+    std::optional<std::string> backend;  ///< gl or cpu; nullopt: gl, or cpu for --replay and on a software rasteriser with --device
+    std::optional<int> steps;            ///< nullopt: 1 headless, no limit in a window; 0 is the rest state
     double seconds = 0.0;
     std::string probe, grab, trajectory, save_state;
     std::vector<double> gravity;  ///< --gravity X Y Z, mm/ms²; empty = the scenario's
     bool stats = false;
     std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
-    std::string contact = "direct";  // probe contacts: direct | picking | search (runtime/gl/picking.h)
-    int picking_refresh = 1;
+    std::optional<std::string> contact;  ///< probe contacts: direct | picking | search (runtime/contact.h); nullopt: direct, or a replay's own
+    std::optional<int> picking_refresh;  ///< nullopt: 1
     // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
     std::string screenshot;          // OUT.png: the last frame
     int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
     double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
-    bool steps_given = false;        // --steps 0 (the rest state) differs from no --steps
     // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
     std::vector<std::string> devices, instruments;
     double haptic_rate = 1000.0;
-    double max_force = 0.0;          // 0 = each device's own maximum
+    std::optional<double> max_force;     ///< N; nullopt: each device's own maximum
     std::string interpolation = "hold";
     bool coupling = false;
     std::string haptic_priority = "realtime";
-    std::string record, replay;
+    std::optional<std::string> record;
+    std::string replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
-    bool backend_given = false, record_given = false, contact_given = false, max_force_given = false, picking_refresh_given = false;
     std::vector<std::string> device_options_given;  // --max-force, --haptic-rate, --interpolation, --coupling, --haptic-priority as typed
 };
 

@@ -9,6 +9,7 @@
 #include "formats/state.h"
 #include "libmodel/errors.h"
 #include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/trajectory.h"
 
@@ -169,7 +170,7 @@ void expect_agreement(const Comparison& c) {
 // The count it suggests is the largest of two significant digits at which the particles^(4/3) law (particles per
 // substep times substeps per simulated second, the substep following the lattice spacing) puts
 // the real-time factor at 1.1 or more; measured on the real hearts, 30k → 20k particles raised it
-// 1.77–2.01× against the law's 1.72× (docs/benchmarks.md, session 10).
+// 1.77–2.01× against the law's 1.72× (docs/benchmarks-solver.md "Real time on the real hearts").
 TEST(KeepUpAdvice, SuggestsTheLargestThousandThatThePowerLawPutsAboveRealTime) {
     for (const double factor : {0.07, 0.2, 0.5, 0.65, 0.94})
         for (const std::size_t particles : {12000u, 30000u, 100000u}) {

@@ -9,6 +9,7 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/picking.h"
 
@@ -44,7 +45,7 @@ const Scenario& block_scenario() {
     const fs::path input = dir / "block.nrrd", output = dir / "block.h5";
     write_label_volume(input, volume);
     const auto run = test::run_command(std::string("'") + HEARTPREP_EXE + "' build '" + input.string() + "' -o '" + output.string() +
-                                       "' --tissue 1 --anchor-label 2 --spacing 1 --no-visual -q");
+                                       "' --tissue=1 --anchor-label 2 --spacing 1 --no-visual -q");
     if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
     scenario = read_scenario(output);
     return *scenario;

@@ -14,6 +14,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
 #include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/png.h"
 #include "runtime/gl/renderer.h"

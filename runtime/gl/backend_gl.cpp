@@ -1,8 +1,9 @@
 // The GL backend: the CPU solver's substep as OpenGL 4.3 compute shaders on shader storage
 // buffers in the same packed layout. Shaders and the arithmetic contract: shaders/solver_shaders.h.
-// Design and deviations: docs/runtime.md. One file over 600 lines because it is one class,
+// Design and deviations: docs/runtime.md. One file because it is one class,
 // GlBackend: every pass reads and writes the same buffers and hand state, kept private here.
-#include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
+#include "runtime/gl/picking.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
@@ -36,7 +37,6 @@ constexpr int status_slots = 8;            // watchdog status readbacks in fligh
 constexpr long long snapshot_substeps = 64;  // substeps between restore-point candidates, as the cpu watchdog_interval
 
 using gl::Buffer;
-
 /// A compute program and its uniform lookup.
 struct Program {
     gl::Program id;
@@ -51,21 +51,7 @@ void build(Program& program, const char* name, std::initializer_list<const char*
     program.id = link_program({compile_shader(GL_COMPUTE_SHADER, sources, what, "run with --backend cpu")}, what, "run with --backend cpu");
 }
 
-template <class T>
-void storage(Buffer& buffer, const std::vector<T>& data, GLbitfield flags = 0) {
-    glCreateBuffers(1, buffer.create());
-    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(data.size() * sizeof(T), 16)), data.empty() ? nullptr : data.data(),
-                         flags);
-}
-
-void storage(Buffer& buffer, std::size_t bytes, GLbitfield flags) {
-    glCreateBuffers(1, buffer.create());
-    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(bytes, 16)), nullptr, flags);
-}
-
-InstrumentPose interpolate(const InstrumentPose& a, const InstrumentPose& b, double t) {
-    return {a.position + t * (b.position - a.position), a.orientation.slerp(t, b.orientation)};
-}
+using gl::storage;
 
 struct ForceSlot {
     double force[2][4];
@@ -124,7 +110,7 @@ public:
     int substeps_per_step() const override { return substeps_; }
     double simulated_time_ms() const override { return time_ms_; }
     std::size_t memory_bytes() const override { return memory_bytes_; }
-    unsigned gl_position_buffer() const override { return position_[current_].id(); }
+    unsigned position_buffer() const { return position_[current_].id(); }
 
     void set_instrument(int hand, const Instrument& instrument) override {
         check_hand(hand);
@@ -804,6 +790,11 @@ std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& sce
     require_runnable(scenario, "scenario");
     context.make_current();
     return std::make_unique<GlBackend>(scenario, options);
+}
+
+unsigned gl_position_buffer(const Backend& backend) {
+    const auto* gl = dynamic_cast<const GlBackend*>(&backend);
+    return gl ? gl->position_buffer() : 0;
 }
 
 }  // namespace heartsim

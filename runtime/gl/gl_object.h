@@ -12,7 +12,9 @@
 
 #include <epoxy/gl.h>
 
+#include <algorithm>
 #include <array>
+#include <vector>
 #include <cstddef>
 #include <utility>
 
@@ -69,6 +71,20 @@ using Framebuffer = Object<delete_framebuffer>;
 using Renderbuffer = Object<delete_renderbuffer>;
 using Texture = Object<delete_texture>;
 using Query = Object<delete_query>;
+
+/// A new immutable buffer holding `data` (at least 16 bytes: a zero-sized buffer cannot be bound).
+template <class T>
+void storage(Buffer& buffer, const std::vector<T>& data, GLbitfield flags = 0) {
+    glCreateBuffers(1, buffer.create());
+    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(data.size() * sizeof(T), 16)), data.empty() ? nullptr : data.data(),
+                         flags);
+}
+
+/// A new immutable buffer of `bytes` (at least 16), uninitialised.
+inline void storage(Buffer& buffer, std::size_t bytes, GLbitfield flags) {
+    glCreateBuffers(1, buffer.create());
+    glNamedBufferStorage(buffer, GLsizeiptr(std::max<std::size_t>(bytes, 16)), nullptr, flags);
+}
 
 /// Fresh query names for all of `queries` (e.g. the GL_TIMESTAMP pair around a pass).
 template <std::size_t N> void generate(std::array<Query, N>& queries) {

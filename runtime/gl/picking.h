@@ -19,6 +19,8 @@
 /// mm, depth from the base to 3c + one lattice spacing beyond the centre. docs/runtime.md.
 #pragma once
 
+#include "runtime/contact.h"
+
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
 #include "libmodel/solver.h"
@@ -30,19 +32,6 @@
 #include <vector>
 
 namespace heartsim {
-
-enum class ContactMode { direct, picking, search };
-/// "direct", "picking" or "search"; throws InputError otherwise.
-ContactMode parse_contact_mode(const std::string& name);
-const char* to_string(ContactMode mode);
-
-struct ContactSettings {
-    ContactMode mode = ContactMode::direct;
-    int picking_refresh = 1;       ///< K: the picking buffer is rendered every K force requests (≥ 1)
-    int picking_resolution = 128;  ///< pixels per side of the picking buffer
-    int sampling_grid = 64;        ///< sampling points: a G×G grid over the probe's silhouette, lifted onto its front half, + a rim ring of 4G
-    double tolerance_mm = 0.0;     ///< a particle within this of the probe is in contact; 0 = 1e-3 × lattice spacing
-};
 
 /// Device memory the picking pass allocates for `scenario` at `settings` (both hands), bytes.
 std::size_t estimate_picking_memory_bytes(const Scenario& scenario, const ContactSettings& settings);

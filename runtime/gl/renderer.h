@@ -21,6 +21,8 @@
 #pragma once
 
 #include "runtime/backend.h"
+#include "runtime/camera.h"
+#include "runtime/instrument_shape.h"
 #include "runtime/png.h"
 
 #include "formats/scenario.h"
@@ -34,39 +36,6 @@
 
 namespace heartsim {
 
-/// The default views, named by where the camera stands (world frame LPS: +x left, +y posterior,
-/// +z superior). anterior (the default): the camera in front of the patient looking posterior,
-/// superior up, the patient's left on the image's right (as facing the patient).
-enum class ViewDirection { anterior, posterior, left, right, superior, inferior };
-/// "anterior", "posterior", "left", "right", "superior" or "inferior"; throws InputError otherwise.
-ViewDirection parse_view_direction(const std::string& name);
-
-/// An orbiting perspective camera (mm, world frame).
-struct Camera {
-    Eigen::Vector3f target = Eigen::Vector3f::Zero();            ///< orbit centre
-    float distance = 100.0f;                                     ///< eye to target
-    Eigen::Quaternionf orientation = Eigen::Quaternionf::Identity();  ///< camera → world (x right, y up, z back)
-    Eigen::Vector3f turntable_axis = Eigen::Vector3f::UnitZ();  ///< horizontal drags turn about this world axis
-    float fov_y_degrees = 30.0f;
-    float radius = 50.0f;                                        ///< the model's bounding-sphere radius (near/far, zoom limits)
-
-    Eigen::Vector3f eye() const;
-    Eigen::Matrix4f view() const;
-    Eigen::Matrix4f projection(float aspect) const;
-    /// Turns about the turntable axis by `yaw` and about the camera's right axis by `pitch` (radians).
-    void orbit(float yaw, float pitch);
-    /// Moves the target in the view plane by a drag of (dx, dy) pixels in a viewport `height` pixels high.
-    void pan(float dx, float dy, int height);
-    /// The size of one pixel at the target's depth, mm, in a viewport `height` pixels high.
-    double mm_per_pixel(int height) const;
-    /// Multiplies the distance by `factor` (clamped to 0.05–20 model radii).
-    void zoom(float factor);
-};
-
-/// The camera that shows the whole box from `view`: the nearest distance at which all eight
-/// corners lie inside the frustum at `aspect` (width / height), plus 5 %.
-Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspect);
-
 /// The current context's default framebuffer, its back buffer as drawn so far (before the swap),
 /// RGB, rows top to bottom: the window as seen, HUD included (the P key).
 Image read_window_pixels(int width, int height);
@@ -74,14 +43,6 @@ Image read_window_pixels(int width, int height);
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
     ViewDirection view = ViewDirection::anterior;
-};
-
-/// An instrument to draw: the ellipsoid of `semi_axes` (mm, tool frame) at `pose`.
-struct InstrumentShape {
-    InstrumentKind kind = InstrumentKind::probe;
-    InstrumentPose pose;
-    Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
-    int hand = -1;  ///< 0 or 1 where known (the HUD's force arrows), -1 otherwise
 };
 
 /// Rendering times so far, ms summed (GPU timer queries; the cpu backend's position upload in

@@ -12,7 +12,8 @@
 
 #include "runtime/backend.h"
 #include "runtime/haptics/haptics.h"
-#include "runtime/gl/renderer.h"
+#include "runtime/camera.h"
+#include "runtime/instrument_shape.h"
 #include "runtime/trajectory.h"
 
 #include "formats/recording.h"

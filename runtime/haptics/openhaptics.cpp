@@ -1,5 +1,5 @@
 // The openhaptics device (runtime/haptics/openhaptics.h): the OpenHaptics HD C API through dlopen.
-// One file of about 600 lines because the hand-written HD declarations, the servo callback and
+// One file because the hand-written HD declarations, the servo callback and
 // the device all share OpenHapticsDevice::State, which no other file should see.
 #include "runtime/haptics/openhaptics.h"
 
