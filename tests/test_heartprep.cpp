@@ -94,7 +94,7 @@ TEST(Heartprep, BuildsThePhantomIntoAScenarioWhoseReportMatchesTheFile) {
     EXPECT_NE(inspect.output.find("\"particles\": " + std::to_string(s.lattice.particles.size())), std::string::npos);
     // The text says how many substeps heartsim's solver takes per step of dt: the solver's own count.
     ASSERT_TRUE(s.packing.has_value());
-    const Solver solver(s.lattice, s.packing->neighbours, s.solver);
+    const Solver solver(s.lattice, s.packing->neighbours, options_from(s.solver));
     const int substeps = solver.load_report().substeps;
     const auto text = heartprep("inspect " + quoted(dir / "p.h5"));
     EXPECT_NE(text.output.find(std::to_string(substeps) + (substeps == 1 ? " substep," : " substeps,")), std::string::npos)
@@ -160,7 +160,7 @@ TEST(HeartprepErrors, FloatImage) {
 TEST(HeartprepErrors, LabelThatDoesNotOccur) {
     test::TempDir dir;
     const auto input = write_block(dir, "block.nii.gz");
-    expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue 5", {"tissue label 5 does not occur"});
+    expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue=5", {"tissue label 5 does not occur"});
     expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --cavity 9", {"cavity label 9 does not occur"});
 }
 
@@ -290,7 +290,7 @@ TEST(HeartprepExitStatus, EachCodeOfTheTableFromARealRun) {
         {"build " + quoted(input) + out + " --drop-free-below -1", 2, "--drop-free-below"},
         // A scenario that heartsim would refuse is not written: read back before it takes its name.
         {"build " + quoted(input) + out + " -q --support-stiffness 1e30", 1, "the scenario would not be readable (particles/support_stiffness"},
-        {"build " + quoted(input) + out + " --tissue 1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
+        {"build " + quoted(input) + out + " --tissue=1 --cavity 1", 2, "both as tissue and as cavity"},  // contradictory
         {"surface " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"export " + quoted(input) + " -o " + quoted(dir / "heart.vtk"), 2, "unsupported mesh format"},
         {"phantom -o " + quoted(dir / "p.nii.gz") + " --vsd-position 3", 2, "--vsd-position"},
@@ -326,7 +326,7 @@ TEST(HeartprepExitStatus, ALibmodelErrorNamesTheInputFileOnce) {
     // volume (labels present: 0,1)"; the build adds the file it was given, once.
     test::TempDir dir;
     const auto input = write_block(dir, "block.nii.gz");  // labels 0 and 1
-    const auto run = heartprep_stderr("build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue 3 -q");
+    const auto run = heartprep_stderr("build " + quoted(input) + " -o " + quoted(dir / "out.h5") + " --tissue=3 -q");
     EXPECT_EQ(run.exit_code, 1) << run.output;
     EXPECT_EQ(run.output, "heartprep: error: " + input.string() + ": tissue label 3 does not occur in the volume (labels present: 0,1)\n");
     // A message that names its file already does not get it twice.
@@ -545,7 +545,7 @@ TEST(HeartprepNames, TissueByNameBuildsThatSegmentAndNamesTheMaterial) {
     const fs::path input = dir / "named.seg.nrrd";
     write_label_volume(input, two_blocks(), {{1, "blood pool"}, {2, "myocardium"}});
     const std::string by_name = build(input, dir / "by-name.h5", "--tissue MyoCardium");
-    build(input, dir / "by-number.h5", "--tissue 2");
+    build(input, dir / "by-number.h5", "--tissue=2");
     const Scenario named = read_scenario(dir / "by-name.h5"), numbered = read_scenario(dir / "by-number.h5");
     // The same segment: the same particles, and the mass of the 10×8×6 mm³ block at 1.06 g/cm³.
     EXPECT_EQ(named.lattice.particles.rest_position, numbered.lattice.particles.rest_position);
@@ -608,7 +608,7 @@ TEST(HeartprepNames, LabelTablesNameANiftisLabels) {
     test::TempDir dir;
     const fs::path input = dir / "case.nii.gz";
     write_label_volume(input, two_blocks());
-    build(input, dir / "by-number.h5", "--tissue 2");
+    build(input, dir / "by-number.h5", "--tissue=2");
     std::ofstream(dir / "itksnap.txt") << "# ITK-SNAP Label Description File\n"
                                           "    0     0    0    0        0  0  0    \"Clear Label\"\n"
                                           "    1   255    0    0        1  1  1    \"Blood pool\"\n"

@@ -1,4 +1,4 @@
-// ParaView can open what heartsim writes (issue #14): the .xdmf beside a scenario, a saved state
+// ParaView can open what heartsim writes: the .xdmf beside a scenario, a saved state
 // and a recording, and `heartprep export`'s .vtp/.stl/.obj/.ply, each opened by VTK's own readers
 // (tests/vtk_open.py under /usr/bin/python3) and by ParaView's own File > Open (tests/paraview_open.py
 // under pvpython), and compared with what our readers find in the files. Skips with a message

@@ -156,7 +156,7 @@ TEST(HeartsimCli, OutOfMemoryIsOneLineAndExit7) {
     // "heartsim: error: out of memory while …": not "std::bad_alloc", not oneTBB's or std::thread's
     // "Resource temporarily unavailable", and not a scenario "damaged" (exit 1) because HDF5 could
     // not allocate the buffer to read it into. The cpu backend: under such limits Mesa's llvmpipe
-    // itself crashes (docs/benchmarks.md, "Fuzzing and injected failures").
+    // itself crashes (docs/benchmarks.md, "Fuzzing").
     if (test::under_address_sanitizer) GTEST_SKIP() << "address-space limits do not work under AddressSanitizer";
     test::TempDir dir;
     const fs::path samples = fs::path(HEARTSIM_SOURCE_DIR) / "samples";

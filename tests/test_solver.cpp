@@ -678,7 +678,7 @@ TEST(Solver, StressRealHeartWithTwoFastDeepInstruments) {
     EXPECT_LT(resident_bytes(), memory_after_warmup + (std::size_t(2) << 20)) << "memory grows with steps";
     RecordProperty("watchdog_events", int(events));
     // The probe's pierce, the one-piece grab and the speed bound of 4 took the stress gesture to
-    // no event in 40 runs of 10,000 steps on the four real hearts at 30k (docs/benchmarks.md).
+    // no event in 40 runs of 10,000 steps on the four real hearts at 30k (docs/benchmarks-solver.md "Stress").
     EXPECT_EQ(events, 0u) << "the watchdog should not need to step in at hand speeds";
 }
 

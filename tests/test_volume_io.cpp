@@ -407,7 +407,7 @@ TEST(VolumeRead, SingleLayerSegNrrdGivesLabelsAndSegmentNames) {
     EXPECT_NEAR(volume.geometry.origin[2], 3.0, 1e-12);
 }
 
-// fuzz_volume_nrrd (10-minute run, 2026-11-24): a segment number or layer beyond int's range made
+// Found by fuzz_volume_nrrd: a segment number or layer beyond int's range made
 // std::stoi throw std::out_of_range out of the reader instead of a refusal naming the field.
 TEST(VolumeReadErrors, SegNrrdNumbersOutOfRangeAreRefused) {
     const std::string dimensions = "dimension: 3\nspace: left-posterior-superior\nsizes: 4 3 2\n"
@@ -710,7 +710,7 @@ TEST(VolumeReadErrors, MetaImageFieldNameTooLongForMetaIOIsRefusedBeforeIt) {
                                                                  "CompressedDataSize = 1000000000000\nDimSize = 2 2 2\n"
                                                                  "ElementType = MET_UCHAR\nElementDataFile = LOCAL\n" + std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(packed); }, {packed.string(), "CompressedDataSize is '1000000000000'"});
-    // The run after that (2026-11-24): MetaIO strcpy's a string field's value (ObjectType, Name,
+    // Found by fuzz_volume_mha: MetaIO strcpy's a string field's value (ObjectType, Name,
     // Comment, …) into 255 bytes too; a 300-character ObjectType aborted in MetaObject::M_Read.
     for (const std::string field : {"ObjectType", "Comment", "Name", "AnatomicalOrientation"}) {
         const fs::path long_value = write_text_file(folder, "value.mha", field + " = " + std::string(300, 'v') + "\n" + header +
@@ -843,7 +843,7 @@ TEST(VolumeReadErrors, NrrdHeaderLineTooLongForNrrdIOsMessagesIsRefusedBeforeIt)
                                                                "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));
     expect_error<InputError>([&] { read_volume_header(path); }, {path.string(), "NRRD header line 2 has 1018 characters"});
     // NrrdIO also ends a line at a lone carriage return: a comment with one in it hid a long field
-    // line behind it (fuzz_volume_nrrd in CI, 2026-11-25: a 116-character comment, then 1,248
+    // line behind it (found by fuzz_volume_nrrd: a 116-character comment, then 1,248
     // characters, the stack protector again). The pieces count as lines, as NrrdIO counts them.
     const fs::path hidden = write_text_file(folder, "hidden.nrrd", "NRRD0004\n# a comment\r+" + std::string(1247, 'u') +
                                                                    "\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n" + std::string(8, '\1'));

@@ -313,7 +313,7 @@ if want picking; then
     # minutes (the last row is held): the pose script runs in wall time, and the llvmpipe
     # simulation ~40× slower than real time, so the tool moves ~0.1–0.2 mm per step, where a
     # stale picking buffer shows. The session is --k-steps steps (heartsim's --seconds is not
-    # used: a simulation slower than real time overshoots it, see docs/benchmarks.md).
+    # used: the step count fixes the gesture whatever the speed).
     probe="$out/scenarios/k_probe.csv"
     awk 'BEGIN { print "# time_ms, x, y, z, qw, qx, qy, qz (run_haptics_bench.sh: press, then slide along z)"
       print "0, -24.6, -42.0, 2.7, 1, 0, 0, 0"; t = 300; print t ", -24.6, -37.5, 2.7, 1, 0, 0, 0"

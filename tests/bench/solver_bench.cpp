@@ -100,8 +100,7 @@ double stream_copy_gbs(std::size_t bytes, int repeats = 10) {
 
 /// Bytes a substep must move at least: read the positions and the motions of the last substep
 /// (16 B each), write the next of both (16 B each), the 18-slot tables (neighbour, rest length,
-/// stiffness, and dashpot if damped, 4 B each), mass and h²/m (4 B each). (Until 2026-11-24 this
-/// counted 48 B for the state, from before the motions were kept apart from the positions.)
+/// stiffness, and dashpot if damped, 4 B each), mass and h²/m (4 B each).
 double bytes_per_particle(bool damped, bool uniform_slots) {
     return 64.0 + 18.0 * 4.0 * ((damped ? 2.0 : 1.0) + (uniform_slots ? 0.0 : 2.0)) + 8.0;
 }
