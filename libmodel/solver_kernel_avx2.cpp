@@ -18,17 +18,9 @@ HEARTSIM_AVX2 bool group_avx2(const KernelData<float>& k, std::size_t group) {
     return group_avx2_body<Damped, Supported>(k, group);
 }
 
-namespace {
-
-template <bool Supported>
-GroupFunction<float> avx2_variant(bool damped) {
-    return damped ? &each_group<float, &group_avx2<true, Supported>> : &each_group<float, &group_avx2<false, Supported>>;
-}
-
-}  // namespace
-
 GroupFunction<float> avx2_kernel(bool damped, bool supported) {
-    return supported ? avx2_variant<true>(damped) : avx2_variant<false>(damped);
+    return variant<float>(damped, supported, &each_group<float, &group_avx2<false, false>>, &each_group<float, &group_avx2<true, false>>,
+                          &each_group<float, &group_avx2<false, true>>, &each_group<float, &group_avx2<true, true>>);
 }
 
 #endif

@@ -162,17 +162,9 @@ HEARTSIM_AVX512 bool groups_avx512(const KernelData<float>& k, std::size_t first
     return bad;
 }
 
-namespace {
-
-template <bool Supported>
-GroupFunction<float> avx512_variant(bool damped) {
-    return damped ? &groups_avx512<true, Supported> : &groups_avx512<false, Supported>;
-}
-
-}  // namespace
-
 GroupFunction<float> avx512_kernel(bool damped, bool supported) {
-    return supported ? avx512_variant<true>(damped) : avx512_variant<false>(damped);
+    return variant<float>(damped, supported, &groups_avx512<false, false>, &groups_avx512<true, false>,
+                          &groups_avx512<false, true>, &groups_avx512<true, true>);
 }
 
 #endif

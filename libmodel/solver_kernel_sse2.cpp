@@ -101,17 +101,9 @@ bool group_sse2(const KernelData<float>& k, std::size_t group) {
     }
     return bad;
 }
-namespace {
-
-template <bool Supported>
-GroupFunction<float> sse2_variant(bool damped) {
-    return damped ? &each_group<float, &group_sse2<true, Supported>> : &each_group<float, &group_sse2<false, Supported>>;
-}
-
-}  // namespace
-
 GroupFunction<float> sse2_kernel(bool damped, bool supported) {
-    return supported ? sse2_variant<true>(damped) : sse2_variant<false>(damped);
+    return variant<float>(damped, supported, &each_group<float, &group_sse2<false, false>>, &each_group<float, &group_sse2<true, false>>,
+                          &each_group<float, &group_sse2<false, true>>, &each_group<float, &group_sse2<true, true>>);
 }
 
 #endif

@@ -88,6 +88,14 @@ bool each_group(const KernelData<Real>& k, std::size_t first, std::size_t last) 
     return bad;
 }
 
+/// The runner of one (damped, supported) variant among a kernel's four, given in the order
+/// (damped, supported) = (no, no), (yes, no), (no, yes), (yes, yes).
+template <class Real>
+GroupFunction<Real> variant(bool damped, bool supported, GroupFunction<Real> plain, GroupFunction<Real> damped_only,
+                            GroupFunction<Real> supported_only, GroupFunction<Real> both) {
+    return supported ? (damped ? both : supported_only) : (damped ? damped_only : plain);
+}
+
 /// Each kernel's group runner for one (damped, supported) variant. The portable kernel serves
 /// float and double; `fma`: compiled for a CPU with FMA (std::fma one instruction, the same bits).
 template <class Real>
