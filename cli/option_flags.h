@@ -1,8 +1,9 @@
 /// @file option_flags.h
 /// @brief From an option's meaning to a program's flag. libmodel names the option a message is
 /// about by what it means, in braces (`{LayoutOptions::occupancy} must be in (0, 1]`), since it
-/// knows no command line (libmodel/errors.h OptionError); each program spells it as its own flag
-/// (`--occupancy must be in (0, 1]`) where it prints an error or a warning.
+/// knows no command line (libmodel/errors.h OptionError); heartprep spells it as its flag
+/// (`--occupancy must be in (0, 1]`) where it prints an error or a warning. heartsim has none of
+/// these options (its scenario holds what they chose), so only heartprep has a table.
 #pragma once
 
 #include <span>
@@ -18,9 +19,8 @@ struct OptionFlag {
     std::string_view flag;
 };
 
-/// `text` with every `{meaning}` that `flags` lists spelled as its flag. A meaning the table does
-/// not list loses its braces only, so a reader still sees what was meant; text without braces is
-/// returned unchanged.
+/// `text` with every `{meaning}` that `flags` lists spelled as its flag. Anything else in braces is
+/// left as it is: a file name or a segment name may hold braces of its own.
 inline std::string spell_options(std::string_view text, std::span<const OptionFlag> flags) {
     std::string out;
     out.reserve(text.size());
@@ -31,7 +31,7 @@ inline std::string spell_options(std::string_view text, std::span<const OptionFl
         if (close == std::string_view::npos) break;
         out.append(text, at, open - at);
         const std::string_view meaning = text.substr(open + 1, close - open - 1);
-        std::string_view spelled = meaning;
+        std::string_view spelled = text.substr(open, close - open + 1);
         for (const OptionFlag& f : flags)
             if (f.option == meaning) spelled = f.flag;
         out.append(spelled);
@@ -75,9 +75,5 @@ inline constexpr OptionFlag heartprep_flags[] = {
     {"PhantomOptions::radius_mm", "--radius"},
     {"PhantomOptions::inner_radius_mm", "--inner-radius"},
 };
-
-/// heartsim's: none of libmodel's options is a flag of heartsim (its scenario holds them), so a
-/// message about one keeps the option's meaning.
-inline constexpr std::span<const OptionFlag> heartsim_flags{};
 
 }  // namespace heartsim::cli

@@ -21,7 +21,7 @@ public:
 /// Options that are wrong in themselves or contradict each other, whatever the data: an option
 /// value outside its set, labels given both as tissue and as cavity. The caller's request is at
 /// fault, not a file. libmodel names an option by its meaning, in braces: `{LayoutOptions::occupancy}`,
-/// `{SelectionOptions::tissue_labels}`; a program spells it as its own flag (cli/option_flags.h),
+/// `{SelectionOptions::tissue_labels}`; heartprep spells it as its flag (cli/option_flags.h),
 /// in this message and in a report's warnings alike.
 class OptionError : public InputError {
 public:

@@ -9,7 +9,6 @@
 #include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "cli/exit_codes.h"
-#include "cli/option_flags.h"
 #include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
@@ -76,10 +75,10 @@ int main(int argc, char** argv) {
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
                                             "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}))
-        ->default_str("direct");
+        ->default_str(RunArguments::default_contact);
     run->add_option("--picking-refresh", a.picking_refresh, "With --contact picking: render the picking buffer every K force requests (stale in between)")
         ->check(CLI::Range(1, 1 << 20))
-        ->default_str("1");
+        ->default_str(std::to_string(RunArguments::default_picking_refresh));
     run->add_flag("--stats", a.stats, "Print per-pass timings (GPU timer queries) as Sørensen & Mosegaard's Table 1");
     run->add_option("--stats-csv", a.stats_csv, "Write the --stats timings as CSV, one row per pass (tests/bench/run_runtime_bench.sh)");
     run->add_option("--screenshot", a.screenshot, "Write the last frame as a PNG (headless: offscreen rendering)")
@@ -157,7 +156,7 @@ int main(int argc, char** argv) {
     // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in
     // cli/exit_codes.h (docs/user-guide.md, "Exit status").
     auto fail = [](ExitCode code, const std::string& message) {
-        std::fprintf(stderr, "heartsim: error: %s\n", one_line(cli::spell_options(message, cli::heartsim_flags)).c_str());
+        std::fprintf(stderr, "heartsim: error: %s\n", one_line(message).c_str());
         return exit_status(code);
     };
     try {

@@ -25,11 +25,11 @@ TEST(OptionFlags, SpellsEachMeaningAsItsFlag) {
     EXPECT_EQ(spell_options("", table), "");
 }
 
-TEST(OptionFlags, AMeaningWithoutAFlagLosesOnlyItsBraces) {
-    EXPECT_EQ(spell_options("{SolverOptions::dt_ms} too long", table), "SolverOptions::dt_ms too long");
-    EXPECT_EQ(spell_options("{SolverOptions::dt_ms} too long", heartsim_flags), "SolverOptions::dt_ms too long");
+TEST(OptionFlags, BracesThatNameNoOptionOfTheTableStayAsTheyAre) {
+    EXPECT_EQ(spell_options("{SolverOptions::dt_ms} too long", table), "{SolverOptions::dt_ms} too long");
+    EXPECT_EQ(spell_options("case{1}.nii.gz: {LayoutOptions::occupancy} too low", table), "case{1}.nii.gz: --occupancy too low");
     EXPECT_EQ(spell_options("an open { brace stays", table), "an open { brace stays");
-    EXPECT_EQ(spell_options("{}", table), "");
+    EXPECT_EQ(spell_options("{}", table), "{}");
 }
 
 /// The meanings libmodel's string literals name: {Struct::field} or {plain_name}.
