@@ -278,8 +278,8 @@ void make_renderer(PreparedRun& p) {
 
 void set_contact(const RunArguments& a, PreparedRun& p) {
     ContactSettings contact;
-    contact.mode = parse_contact_mode(a.contact.value_or("direct"));
-    contact.picking_refresh = a.picking_refresh.value_or(1);
+    contact.mode = parse_contact_mode(a.contact_mode());
+    contact.picking_refresh = a.picking_refresh_every();
     // Options that contradict each other (exit 2); the backend refuses it too, for its other callers.
     if (contact.mode != ContactMode::direct && p.kind != BackendKind::gl) throw UsageError("--contact picking|search needs --backend gl");
     // The refresh only paces the picking buffer: with any other contact it changed nothing, unsaid.
@@ -345,7 +345,7 @@ std::unique_ptr<haptics::HapticRun> start_haptics(const RunArguments& a, Prepare
     settings.session.coupling.enabled = a.coupling;  // K, B chosen per device within the passivity bound
     settings.session.realtime = a.haptic_priority == "realtime";
     settings.record = a.record.value_or("");
-    settings.contact = a.contact.value_or("direct");
+    settings.contact = a.contact_mode();
     haptics::HapticRunContext context_settings{.headless = a.headless};
     context_settings.camera = p.renderer ? p.renderer->camera()
                                          : fit_camera(model_box(p.scenario), p.view, float(p.frame_width) / float(p.frame_height));
@@ -386,7 +386,7 @@ void print_stats(const RunArguments& a, PreparedRun& p, const ScriptedRunResult&
     }
     if (t.picking_calls)
         std::printf("%-22s %12.4f %12lld   (%s; %lld buffer renders)\n", "picking buffer", t.picking_ms / double(t.picking_calls),
-                    t.picking_calls, a.contact.value_or("direct").c_str(), t.picking_renders);
+                    t.picking_calls, a.contact_mode().c_str(), t.picking_renders);
     else
         std::printf("%-22s %12s %12s\n", "picking buffer", "-", "none (--contact direct: the step's own probe test)");
     std::printf("%-22s %12.4f %12lld\n", "force buffer", t.force_calls ? t.force_ms / double(t.force_calls) : 0.0, t.force_calls);
@@ -408,8 +408,8 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     const double seconds = std::max(wall_ms * 1e-3, 1e-9);
     const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
     char run_columns[512];
-    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact.value_or("direct").c_str(),
-                  a.picking_refresh.value_or(1), quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
+    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact_mode().c_str(),
+                  a.picking_refresh_every(), quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
                   run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames);
     std::ofstream out(a.stats_csv);
     if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);

@@ -36,7 +36,7 @@ struct RunArguments {
     bool stats = false;
     std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
     std::optional<std::string> contact;  ///< probe contacts: direct | picking | search (runtime/contact.h); nullopt: direct, or a replay's own
-    std::optional<int> picking_refresh;  ///< nullopt: 1
+    std::optional<int> picking_refresh;  ///< the picking buffer is rendered every K force requests; nullopt: 1
     // Rendering (docs/runtime.md "Rendering"): screenshots, window, view.
     std::string screenshot;          // OUT.png: the last frame
     int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
@@ -54,6 +54,12 @@ struct RunArguments {
     std::string replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
     std::vector<std::string> device_options_given;  // --max-force, --haptic-rate, --interpolation, --coupling, --haptic-priority as typed
+
+    static constexpr const char* default_contact = "direct";
+    static constexpr int default_picking_refresh = 1;
+    /// The contact mode and picking refresh the run uses (the defaults where not given).
+    std::string contact_mode() const { return contact.value_or(default_contact); }
+    int picking_refresh_every() const { return picking_refresh.value_or(default_picking_refresh); }
 };
 
 /// What every mode starts from. The constructor checks the arguments (InputError), reads the
