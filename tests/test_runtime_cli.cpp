@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <fstream>
 
@@ -47,6 +48,32 @@ TEST(HeartsimCli, InfoPrintsRendererAndLimits) {
     EXPECT_EQ(run.exit_code, 0) << run.output;
     for (const char* word : {"renderer", "version", "max SSBO size", "work groups", "texture size"})
         EXPECT_NE(run.output.find(word), std::string::npos) << word << "\n" << run.output;
+}
+
+// Both headless ways in reach the same GL: the EGL device platform (NVIDIA's headless way, here
+// Mesa's software device) and Mesa's surfaceless platform; the run's state is the same on both.
+TEST(HeartsimCli, BothHeadlessEglPlatformsGiveTheSameRun) {
+    std::string reason;
+    if (!have_gl(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;
+    test::TempDir dir;
+    std::vector<std::vector<std::array<float, 3>>> positions;
+    for (const char* platform : {"device", "surfaceless"}) {
+        const std::string env = std::string("HEARTSIM_EGL=") + platform + " ";
+        const auto info = test::run_command(env + quoted(HEARTSIM_EXE) + " info");
+        if (info.exit_code == 3 && std::string(platform) == "device") GTEST_SKIP() << "this EGL has no device platform: " << info.output;
+        ASSERT_EQ(info.exit_code, 0) << info.output;
+        EXPECT_NE(info.output.find(std::string("EGL ") + platform), std::string::npos) << info.output;
+        const fs::path state = dir.path() / (std::string(platform) + ".h5");
+        const auto run = test::run_command(env + quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) +
+                                           " --headless --backend gl --steps 20 --gravity 0 0.02 0 --save-state " + quoted(state));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        positions.push_back(read_state(state).positions);
+    }
+    ASSERT_EQ(positions[0].size(), positions[1].size());
+    EXPECT_TRUE(positions[0] == positions[1]) << "the same GL driver on two platforms ran differently";
+    const auto bogus = test::run_command("HEARTSIM_EGL=vulkan " + std::string(quoted(HEARTSIM_EXE)) + " info");
+    EXPECT_EQ(bogus.exit_code, 3) << bogus.output;
+    EXPECT_NE(bogus.output.find("HEARTSIM_EGL=vulkan"), std::string::npos) << bogus.output;
 }
 
 TEST(HeartsimCli, HeadlessRunOnBothBackendsWritesTheState) {

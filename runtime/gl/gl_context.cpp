@@ -1,4 +1,4 @@
-// The GL context: headless EGL (Mesa surfaceless platform) or a GLFW window. docs/runtime.md.
+// The GL context: headless EGL (a GPU's EGL device, else Mesa's surfaceless platform) or a GLFW window. docs/runtime.md.
 #include "runtime/gl/gl_context.h"
 
 #include <epoxy/egl.h>
@@ -6,12 +6,16 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
+#include <cstdlib>
 #include <cstring>
 #include <sstream>
 #include <vector>
 
 #ifndef EGL_PLATFORM_SURFACELESS_MESA
 #define EGL_PLATFORM_SURFACELESS_MESA 0x31DD
+#endif
+#ifndef EGL_PLATFORM_DEVICE_EXT
+#define EGL_PLATFORM_DEVICE_EXT 0x313F
 #endif
 
 namespace heartsim {
@@ -63,21 +67,94 @@ GlContext::GlContext(GlContext&&) noexcept = default;
 GlContext& GlContext::operator=(GlContext&&) noexcept = default;
 GlContext::~GlContext() = default;
 
-GlContext GlContext::create_headless() {
-    const char* client_extensions = eglQueryString(EGL_NO_DISPLAY, EGL_EXTENSIONS);
-    if (!has_word(client_extensions, "EGL_EXT_platform_base") || !has_word(client_extensions, "EGL_MESA_platform_surfaceless"))
-        throw GlUnavailable("headless OpenGL needs EGL with EGL_MESA_platform_surfaceless (Mesa's libegl-mesa0); this machine's EGL "
-                            "offers: " + std::string(client_extensions ? client_extensions : "no EGL at all") +
-                            "; run with --backend cpu");
-    auto state = std::make_unique<State>();
-    state->platform = "EGL surfaceless";
-    state->display = eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
-    if (state->display == EGL_NO_DISPLAY) throw GlUnavailable(egl_error("eglGetPlatformDisplayEXT(surfaceless)") + "; run with --backend cpu");
-    EGLint major = 0, minor = 0;
-    if (!eglInitialize(state->display, &major, &minor)) {
-        state->display = EGL_NO_DISPLAY;
-        throw GlUnavailable(egl_error("eglInitialize") + "; run with --backend cpu");
+namespace {
+
+// Which EGL platforms to try, in order. HEARTSIM_EGL=device|surfaceless picks one alone (a test,
+// or a machine where the default order picks the wrong one).
+struct HeadlessDisplay {
+    EGLDisplay display = EGL_NO_DISPLAY;
+    std::string platform;
+};
+
+// EGL_EXT_platform_device: one display per GPU, the way into NVIDIA's driver on a machine with no
+// display server. `hardware` false also takes Mesa's software device (EGL_MESA_device_software).
+HeadlessDisplay device_display(bool hardware, std::string& tried) {
+    if (!eglQueryDevicesEXT || !eglQueryDeviceStringEXT) return {};
+    EGLint count = 0;
+    if (!eglQueryDevicesEXT(0, nullptr, &count) || count <= 0) {
+        tried += "; EGL device platform: no devices";
+        return {};
     }
+    std::vector<EGLDeviceEXT> devices(static_cast<std::size_t>(count));
+    if (!eglQueryDevicesEXT(count, devices.data(), &count)) return {};
+    for (EGLint i = 0; i < count; ++i) {
+        const char* extensions = eglQueryDeviceStringEXT(devices[std::size_t(i)], EGL_EXTENSIONS);
+        const bool software = has_word(extensions, "EGL_MESA_device_software");
+        if (hardware && software) continue;
+        EGLDisplay display = eglGetPlatformDisplayEXT(EGL_PLATFORM_DEVICE_EXT, devices[std::size_t(i)], nullptr);
+        if (display == EGL_NO_DISPLAY) continue;
+        EGLint major = 0, minor = 0;
+        if (!eglInitialize(display, &major, &minor)) {
+            tried += "; EGL device " + std::to_string(i) + ": " + egl_error("eglInitialize");
+            continue;
+        }
+        return {display, "EGL device " + std::to_string(i) + " of " + std::to_string(count) + (software ? " (software)" : "")};
+    }
+    if (hardware) tried += "; EGL device platform: no hardware device among " + std::to_string(count);
+    return {};
+}
+
+HeadlessDisplay surfaceless_display(std::string& tried) {
+    EGLDisplay display = eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
+    if (display == EGL_NO_DISPLAY) {
+        tried += "; " + egl_error("eglGetPlatformDisplayEXT(surfaceless)");
+        return {};
+    }
+    EGLint major = 0, minor = 0;
+    if (!eglInitialize(display, &major, &minor)) {
+        tried += "; surfaceless: " + egl_error("eglInitialize");
+        return {};
+    }
+    return {display, "EGL surfaceless"};
+}
+
+// A GPU's own device first (NVIDIA headless, or Mesa on a machine with a DRM device), then Mesa's
+// surfaceless platform (its hardware driver where there is one, else llvmpipe), then any device.
+HeadlessDisplay open_headless_display() {
+    const char* client_extensions = eglQueryString(EGL_NO_DISPLAY, EGL_EXTENSIONS);
+    const std::string offered = client_extensions && *client_extensions
+                                    ? client_extensions
+                                    : "nothing (no GPU driver's EGL library: NVIDIA's libEGL_nvidia or Mesa's libEGL_mesa)";
+    const bool platform_base = has_word(client_extensions, "EGL_EXT_platform_base");
+    const bool device = platform_base && has_word(client_extensions, "EGL_EXT_platform_device") &&
+                        (has_word(client_extensions, "EGL_EXT_device_enumeration") || has_word(client_extensions, "EGL_EXT_device_base"));
+    const bool surfaceless = platform_base && has_word(client_extensions, "EGL_MESA_platform_surfaceless");
+    const char* forced = std::getenv("HEARTSIM_EGL");
+    const std::string only = forced ? forced : "";
+    if (!only.empty() && only != "device" && only != "surfaceless")
+        throw GlUnavailable("HEARTSIM_EGL=" + only + " is not an EGL platform heartsim knows: device or surfaceless (or unset: both, device first)");
+    std::string tried;
+    if (device && only != "surfaceless")
+        if (auto d = device_display(true, tried); d.display != EGL_NO_DISPLAY) return d;
+    if (surfaceless && only != "device")
+        if (auto d = surfaceless_display(tried); d.display != EGL_NO_DISPLAY) return d;
+    if (device && only != "surfaceless")
+        if (auto d = device_display(false, tried); d.display != EGL_NO_DISPLAY) return d;
+    if (!device && !surfaceless)
+        throw GlUnavailable("headless OpenGL needs EGL with EGL_EXT_platform_device (a GPU driver, e.g. NVIDIA's) or "
+                            "EGL_MESA_platform_surfaceless (Mesa's libegl-mesa0); this machine's EGL offers: " + offered +
+                            "; run with --backend cpu");
+    throw GlUnavailable("no headless EGL display" + (only.empty() ? std::string() : " (HEARTSIM_EGL=" + only + ")") + tried +
+                        "; run with --backend cpu");
+}
+
+}  // namespace
+
+GlContext GlContext::create_headless() {
+    auto state = std::make_unique<State>();
+    HeadlessDisplay opened = open_headless_display();
+    state->display = opened.display;
+    state->platform = opened.platform;
     if (!eglBindAPI(EGL_OPENGL_API)) throw GlUnavailable(egl_error("eglBindAPI(OpenGL)") + "; run with --backend cpu");
     const char* display_extensions = eglQueryString(state->display, EGL_EXTENSIONS);
     EGLConfig config = nullptr;  // EGL_NO_CONFIG_KHR where the driver allows it

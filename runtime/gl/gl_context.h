@@ -1,6 +1,6 @@
 /// @file gl_context.h
-/// @brief An OpenGL 4.3+ core context for the runtime: headless (EGL on Mesa's surfaceless
-/// platform: no X, no display, no environment variables) or a GLFW window. Both give the same
+/// @brief An OpenGL 4.3+ core context for the runtime: headless (EGL with no X and no display: a
+/// GPU's EGL device, as NVIDIA's driver offers, else Mesa's surfaceless platform) or a GLFW window. Both give the same
 /// GL: compute shaders on shader storage buffers, timer queries, persistent mapped buffers.
 ///
 ///     GlContext gl = GlContext::create_headless();   // throws GlUnavailable with the reason
@@ -23,7 +23,7 @@ public:
 /// What `heartsim info` prints.
 struct GlInfo {
     std::string vendor, renderer, version, shading_language;
-    std::string platform;                   ///< "EGL surfaceless" or "GLFW window"
+    std::string platform;                   ///< "EGL device 0 of 1", "EGL surfaceless" or "GLFW window"
     int major = 0, minor = 0;
     long long max_ssbo_bytes = 0;           ///< GL_MAX_SHADER_STORAGE_BLOCK_SIZE
     int max_ssbo_bindings = 0;              ///< GL_MAX_SHADER_STORAGE_BUFFER_BINDINGS
@@ -39,8 +39,10 @@ struct GlInfo {
 /// Owns a GL context and keeps it current on the creating thread. Move-only.
 class GlContext {
 public:
-    /// Headless: eglGetPlatformDisplayEXT(EGL_PLATFORM_SURFACELESS_MESA), a 4.5 (else 4.3) core
-    /// context with no surface. Throws GlUnavailable naming what failed.
+    /// Headless: a 4.6, 4.5 (else 4.3) core context with no surface on the first EGL display of:
+    /// a hardware EGL device (EGL_EXT_platform_device), Mesa's surfaceless platform, any EGL device
+    /// (Mesa's software one). HEARTSIM_EGL=device or surfaceless tries that platform alone.
+    /// Throws GlUnavailable naming what failed.
     static GlContext create_headless();
     /// A window of `width`×`height` pixels through GLFW (needs a display). Throws GlUnavailable.
     static GlContext create_window(int width, int height, const std::string& title);
