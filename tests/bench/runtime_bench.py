@@ -221,6 +221,9 @@ def main():
     ap.add_argument("--frames", type=int, default=8, help="rendered frames in a table-1 run (--screenshot-every steps/frames)")
     ap.add_argument("--slide-mm", type=float, default=2.0, help="probe slide over the second half of the run")
     ap.add_argument("--refresh", default="1,2,4,8", help="picking refresh K values")
+    ap.add_argument("--label", action="append", default=[], metavar="NAME=PATH",
+                    help="a label map to run instead of the phantom and the real cases (repeatable)")
+    ap.add_argument("--prep-args", default="", help="more heartprep build options, e.g. '--particles 20270'")
     args = ap.parse_args()
 
     steps = max(8, (args.steps + 7) // 8 * 8)
@@ -254,21 +257,26 @@ def main():
 
     cases = [("phantom", os.path.join(repo, "samples/phantom.nii.gz"))]
     real = sorted(glob.glob(os.path.join(args.data, "*", "*-label.nii.gz")))
-    if not real:
+    if args.label:
+        cases = [tuple(item.split("=", 1)) for item in args.label]
+        if any(len(c) != 2 or not c[0] for c in cases):
+            sys.exit("runtime_bench: --label takes NAME=PATH")
+    elif not real:
         print(f"real cases: no *-label.nii.gz under {args.data}, skipped")
-    for path in real:
+    for path in [] if args.label else real:
         name = os.path.basename(path).replace("-label.nii.gz", "")
         cases.append((re.sub(r"^training_axial_crop_", "", name), path))
     if keep:
         cases = [c for c in cases if c[0] in keep]
 
-    table1, speed, contact = [], [], []
+    table1, speed, contact, agreement = [], [], [], []
     for name, label in cases:
         work = os.path.join(out, "runs", name)
         os.makedirs(work, exist_ok=True)
         h5 = os.path.join(out, "scenarios", name + ".h5")
         os.makedirs(os.path.dirname(h5), exist_ok=True)
-        run([args.heartprep, "build", label, "-o", h5, "--cavity", "2", "--anchor-border", "-q"], os.path.join(work, "heartprep.log"))
+        run([args.heartprep, "build", label, "-o", h5, "--cavity", "2", "--anchor-border", "-q"] + args.prep_args.split(),
+            os.path.join(work, "heartprep.log"))
         traj = os.path.join(work, "trajectory.csv")
         geo = write_trajectory(traj, h5, steps, args.slide_mm)
         print(f"{name}: {geo['particles']} particles, {geo['anchored']} anchored, h {geo['spacing_mm']:.3g} mm, "
@@ -315,13 +323,26 @@ def main():
                     "wall_ms": float(row["wall_ms"]), "steps_per_s": float(row["steps_per_s"]),
                     "substeps_per_s": float(row["substeps_per_s"]), "step_pass_substeps_per_s": sub or None,
                     "real_time_factor": float(row["steps_per_s"]) * geo["dt_ms"] * 1e-3})
+            if "gl" in states and "cpu" in states:
+                # The same gesture on both backends (tests/test_runtime_backend.cpp's criterion: positions within
+                # 1e-4 of the model's size).
+                rest = h5_values(h5, "/particles/rest_position").reshape(-1, 3)
+                size = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))
+                dx = float(np.abs(states["gl"]["positions"] - states["cpu"]["positions"]).max())
+                moved = float(np.abs(states["cpu"]["positions"] - rest).max())
+                fg, fc = states["gl"]["forces"], states["cpu"]["forces"]
+                df = [float(np.linalg.norm(fg[h] - fc[h]) / max(np.linalg.norm(fc[h]), 1e-30)) for h in range(2)]
+                agree = dx <= 1e-4 * size
+                agreement.append({"case": name, "particles": geo["particles"], "size_mm": size, "max_displacement_mm": moved,
+                                  "max_position_diff_mm": dx, "relative_to_size": dx / size, "probe_force_rel_diff": df[0],
+                                  "grab_force_rel_diff": df[1], "agrees": agree})
 
         if "contact" in parts and "gl" in backends:
             runs = [("direct", 1, "speed_gl")]
             modes = [("search", 1)] + [("picking", k) for k in refresh]
             for mode, k in modes:
                 tag = f"contact_{mode}" + (f"_k{k}" if mode == "picking" else "")
-                heartsim(tag, "gl", ["--contact", mode, "--picking-refresh", str(k)], state=True)
+                heartsim(tag, "gl", ["--contact", mode] + (["--picking-refresh", str(k)] if mode == "picking" else []), state=True)
                 states[tag] = read_state(os.path.join(work, f"{tag}.state.h5"))
                 runs.append((mode, k, tag))
             states["speed_gl"] = states["gl"]
@@ -375,6 +396,15 @@ def main():
                          g and g["real_time_factor"], c and c["real_time_factor"]])
         md_table(["case", "particles", "substeps/step", "dt ms", "gl steps/s", "gl substeps/s (step pass)", "cpu steps/s",
                   "cpu substeps/s (step pass)", "gl / cpu", "gl real-time factor", "cpu real-time factor"], rows)
+    if agreement:
+        write_csv(os.path.join(out, "runtime_gl_cpu.csv"), agreement)
+        print(f"\ngl = cpu: the speed runs' final states ({steps} steps of the same gesture); agrees when max |x_gl − x_cpu| "
+              f"≤ 1e-4 of the model's size (tests/test_runtime_backend.cpp)\n")
+        md_table(["case", "particles", "size mm", "max displacement mm", "max |x_gl − x_cpu| mm", "of the size",
+                  "probe |ΔF|/|F|", "grab |ΔF|/|F|", "agrees"],
+                 [[r["case"], r["particles"], r["size_mm"], r["max_displacement_mm"], r["max_position_diff_mm"],
+                   r["relative_to_size"], r["probe_force_rel_diff"], r["grab_force_rel_diff"], "yes" if r["agrees"] else "NO"]
+                  for r in agreement])
     if contact:
         write_csv(os.path.join(out, "runtime_contact.csv"), contact)
         print(f"\nContact (gl): picking-buffer row per force request (render + collect; search: its pass), final probe force "
@@ -385,7 +415,7 @@ def main():
                  [[r["case"], r["mode"], r["K"], r["picking_ms"], r["force_ms"], r["simulation_substep_ms"], r["probe_force_n"],
                    r["probe_particles"], r["rel_diff_vs_search"], r["rel_diff_vs_direct"], r["max_position_diff_vs_direct_mm"]]
                   for r in contact])
-    return 0
+    return 0 if all(r["agrees"] for r in agreement) else 1
 
 
 if __name__ == "__main__":
