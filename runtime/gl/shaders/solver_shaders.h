@@ -70,10 +70,14 @@ double squared_norm(dvec3 v) { precise double s = v.x * v.x + v.y * v.y; s = s +
 double dot3(dvec3 a, dvec3 b) { precise double s = a.x * b.x + a.y * b.y; s = s + a.z * b.z; return s; }
 
 // The nearest surface point of the ellipsoid with semi-axes a from y inside it, in its frame:
-// libmodel/ellipsoid.cpp nearest_point_on_ellipsoid, the same steps in double.
-dvec3 ellipsoid_nearest(dvec3 y, dvec3 a) {
-    dvec3 a2 = a * a;
-    double m = min(min(a2.x, a2.y), a2.z);
+// libmodel/ellipsoid.cpp nearest_point_on_ellipsoid, the same steps in double. Components by a
+// loop index go through double[3] arrays: NVIDIA's GLSL compiler cannot write a dvec3 component
+// by a variable index (it fails to link with "can't find __setVectorIndex").
+dvec3 ellipsoid_nearest(dvec3 y_in, dvec3 a_in) {
+    double a[3] = double[3](a_in.x, a_in.y, a_in.z);
+    double y[3] = double[3](y_in.x, y_in.y, y_in.z);
+    double a2[3] = double[3](a[0] * a[0], a[1] * a[1], a[2] * a[2]);
+    double m = min(min(a2[0], a2[1]), a2[2]);
     bool shortest[3];
     precise double w2 = 0.0lf, g = 0.0lf;
     for (int i = 0; i < 3; ++i) {
@@ -81,7 +85,7 @@ dvec3 ellipsoid_nearest(dvec3 y, dvec3 a) {
         if (shortest[i]) w2 = w2 + y[i] * y[i];
         else { precise double q = a[i] * y[i] / (a2[i] - m); g = g + q * q; }
     }
-    dvec3 x;
+    double x[3];
     if (g <= 1.0lf && w2 <= 1e-18lf * m) {
         double w = sqrt(w2);
         int fallback = shortest[2] ? 2 : (shortest[0] ? 0 : 1);
@@ -91,21 +95,21 @@ dvec3 ellipsoid_nearest(dvec3 y, dvec3 a) {
             else if (w > 0.0lf) x[i] = along * y[i] / w;
             else x[i] = i == fallback ? along : 0.0lf;
         }
-        return x;
+        return dvec3(x[0], x[1], x[2]);
     }
     // F(t) > 0 without a division (ellipsoid.cpp): Σ p_i Π_{j≠i} d_j > Π d_j, d_i = (a_i² + t)².
-    precise dvec3 p = (a * y) * (a * y);
+    precise dvec3 p = (a_in * y_in) * (a_in * y_in);
     double low = -m, high = 0.0lf;
     for (int iteration = 0; iteration < 80; ++iteration) {
         precise double middle = 0.5lf * (low + high);
         if (middle <= low || middle >= high) break;
         precise double d0 = (a2[0] + middle) * (a2[0] + middle), d1 = (a2[1] + middle) * (a2[1] + middle), d2 = (a2[2] + middle) * (a2[2] + middle);
-        precise double n = p[0] * d1 * d2 + p[1] * d0 * d2;
-        n = n + p[2] * d0 * d1;
+        precise double n = p.x * d1 * d2 + p.y * d0 * d2;
+        n = n + p.z * d0 * d1;
         if (n > d0 * d1 * d2) low = middle; else high = middle;
     }
     for (int i = 0; i < 3; ++i) x[i] = a2[i] * y[i] / (a2[i] + high);
-    return x;
+    return dvec3(x[0], x[1], x[2]);
 }
 
 void main() {
@@ -170,7 +174,7 @@ void main() {
             if (!(r2 < 1.0lf)) continue;
             local = ellipsoid_nearest(local, semi);
             precise double factor = 1.0lf + 1e-6lf;
-            dvec3 stored;
+            dvec3 stored = world;  // the loop below sets it at its first attempt
             for (int attempt = 0; attempt < 60; ++attempt) {
                 precise dvec3 out_position = probe_centre[q] + rotate(r, local * factor);
                 nx = float(out_position.x); ny = float(out_position.y); nz = float(out_position.z);

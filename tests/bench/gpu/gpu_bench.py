@@ -149,7 +149,12 @@ def main():
     if "sizes" not in skip:
         log(f"== gl at {', '.join(str(n) for n in sizes)} particles")
         for n in sizes:
-            r = headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}")
+            try:
+                r = headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}")
+            except (RuntimeError, subprocess.TimeoutExpired) as error:
+                log(f"gl at {n}: {error}")
+                status = 1
+                continue
             r.update(budget=n)
             rows.append(r)
             log(f"gl {r['particles']} particles: {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
@@ -171,7 +176,12 @@ def main():
                 log(f"{t} cores: the machine has {have}, skipped")
                 continue
             prefix = ["taskset", "-c", f"0-{t - 1}"] if shutil.which("taskset") else []
-            r = headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work, f"cpu{n}_t{t}", prefix)
+            try:
+                r = headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work, f"cpu{n}_t{t}", prefix)
+            except (RuntimeError, subprocess.TimeoutExpired) as error:
+                log(f"cpu on {t} cores: {error}")
+                status = 1
+                continue
             r.update(cores=t)
             cpu_rows.append(r)
             log(f"cpu {t} cores: {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
