@@ -81,6 +81,17 @@ def headless_run(heartsim, h5, backend, seconds, work, tag, prefix=()):
             "renderer": step["renderer"], "process_s": wall}
 
 
+def measured(what, run_it):
+    """One headless run's figures, logged; None (logged with the reason) when it failed."""
+    try:
+        r = run_it()
+    except (RuntimeError, subprocess.TimeoutExpired) as error:
+        log(f"{what}: {error}")
+        return None
+    log(f"{what}: {r['particles']} particles, {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
+    return r
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--heartsim", required=True)
@@ -149,15 +160,12 @@ def main():
     if "sizes" not in skip:
         log(f"== gl at {', '.join(str(n) for n in sizes)} particles")
         for n in sizes:
-            try:
-                r = headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}")
-            except (RuntimeError, subprocess.TimeoutExpired) as error:
-                log(f"gl at {n}: {error}")
+            r = measured(f"gl at {n}", lambda: headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}"))
+            if r is None:
                 status = 1
                 continue
             r.update(budget=n)
             rows.append(r)
-            log(f"gl {r['particles']} particles: {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
         write_csv(os.path.join(out, "gpu_sizes.csv"), rows)
         print(f"\ngl backend on {renderer} ({egl}), headless, no rendering, {seconds} s simulated per run\n")
         md_table(["particles", "substep ms", "steps", "substeps", "substeps/s", "step-pass substeps/s", "real-time factor", "wall s"],
@@ -176,15 +184,13 @@ def main():
                 log(f"{t} cores: the machine has {have}, skipped")
                 continue
             prefix = ["taskset", "-c", f"0-{t - 1}"] if shutil.which("taskset") else []
-            try:
-                r = headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work, f"cpu{n}_t{t}", prefix)
-            except (RuntimeError, subprocess.TimeoutExpired) as error:
-                log(f"cpu on {t} cores: {error}")
+            r = measured(f"cpu on {t} cores", lambda: headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work,
+                                                                      f"cpu{n}_t{t}", prefix))
+            if r is None:
                 status = 1
                 continue
             r.update(cores=t)
             cpu_rows.append(r)
-            log(f"cpu {t} cores: {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
         write_csv(os.path.join(out, "cpu_threads.csv"), cpu_rows)
         base = cpu_rows[0]["substeps_per_s"] if cpu_rows else 1
         print(f"\ncpu backend at {n} particles (budget), {cpu}, cores chosen with taskset\n")
