@@ -21,6 +21,7 @@ struct Range {
 
 inline constexpr Range lattice_spacing_mm{0.01, 100.0, "mm"};
 inline constexpr Range voxel_spacing_mm{1e-3, 100.0, "mm"};  ///< a label map's voxels: µm-scale micro-CT to 10 cm
+inline constexpr int max_voxels_per_axis = 65536;  ///< a label map's dims, each axis (a 2¹⁶-voxel edge: far beyond any scanner)
 inline constexpr Range particle_mass_g{1e-12, 1e4, "g"};
 inline constexpr Range density_g_per_mm3{1e-6, 0.1, "g/mm³"};
 inline constexpr Range stiffness_n_per_mm{0.0, 1e4, "N/mm"};

@@ -176,7 +176,10 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     return estimate;
 }
 
-double critical_step_ceiling_ms(const Particles& particles, const Springs& springs) {
+namespace {
+
+/// max over free particles of trace(K_ii)/(3 m_i): a lower bound on λ_max(M⁻¹K).
+double stiffness_eigenvalue_floor(const Particles& particles, const Springs& springs) {
     // Trace of each particle's 3×3 diagonal block of K: k + 2t/L per spring (the trace of
     // k n nᵀ + (t/L)(I − n nᵀ)) plus 3 k_s for its support.
     std::vector<double> trace(particles.size(), 0.0);
@@ -192,7 +195,34 @@ double critical_step_ceiling_ms(const Particles& particles, const Springs& sprin
         const double support = particles.supported() ? 3.0 * double(particles.support_stiffness[i]) : 0.0;
         lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
     }
+    return lower;
+}
+
+}  // namespace
+
+double critical_step_ceiling_ms(const Particles& particles, const Springs& springs) {
+    const double lower = stiffness_eigenvalue_floor(particles, springs);
     return lower > 0 ? 2.0 / std::sqrt(lower) : std::numeric_limits<double>::infinity();
+}
+
+double damped_step_ceiling_ms(const Particles& particles, const Springs& springs, const std::vector<double>& damping_ratio,
+                              double drag_per_ms) {
+    // Trace of each particle's diagonal block of C: c per spring dashpot (c n nᵀ), 3 c_s for its
+    // support damper; M^(−½)(γM)M^(−½) = γI adds γ to every block's eigenvalues.
+    std::vector<double> trace(particles.size(), 0.0);
+    for (std::size_t s = 0; s < springs.size(); ++s) {
+        const auto [a, b] = springs.pairs[s];
+        const double c = spring_dashpot(particles, damping_ratio, double(springs.stiffness[s]), std::size_t(a), std::size_t(b));
+        trace[std::size_t(a)] += c;
+        trace[std::size_t(b)] += c;
+    }
+    double lower = 0.0;
+    for (std::size_t i = 0; i < particles.size(); ++i) {
+        if (particles.anchored[i] || !(particles.mass[i] > 0)) continue;
+        const double support = particles.support_damping.empty() ? 0.0 : 3.0 * double(particles.support_damping[i]);
+        lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
+    }
+    return stable_step_ms(stiffness_eigenvalue_floor(particles, springs), lower + std::max(0.0, drag_per_ms));
 }
 
 double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio) {

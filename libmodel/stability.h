@@ -42,6 +42,13 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
 /// step above it cannot be right: the runtime refuses such a file. Infinite without springs.
 double critical_step_ceiling_ms(const Particles& particles, const Springs& springs);
 
+/// A proven ceiling on the damped stable step (stable_step_ms), ms, in one pass over the
+/// springs: stable_step_ms of lower bounds on λ_K (as critical_step_ceiling_ms) and on λ_C (the
+/// largest over free particles of trace(C_ii)/(3 m_i): the particle's spring dashpots and
+/// support damper, plus the drag γ). A stored damped step above it is stale or damaged (damping
+/// raised without the step recomputed); the scenario reader refuses it.
+double damped_step_ceiling_ms(const Particles& particles, const Springs& springs, const std::vector<double>& damping_ratio,
+                              double drag_per_ms);
 /// The dashpot of a spring of stiffness k between masses m_a and m_b with damping ratio ζ:
 /// c = 2ζ√(kμ), μ = m_a m_b / (m_a + m_b), N·ms/mm (docs/scenario-format.md).
 double dashpot_coefficient(double stiffness, double mass_a, double mass_b, double damping_ratio);
@@ -68,6 +75,9 @@ double estimate_damping_eigenvalue(const Particles& particles, const Springs& sp
 /// infinite when both are 0.
 double stable_step_ms(double max_eigenvalue, double damping_eigenvalue);
 
+/// The range of the step's safety factor (a fraction of the damped critical step), heartprep's
+/// option and the scenario reader's check.
+inline constexpr double min_safety_factor = 1e-3, max_safety_factor = 0.99;
 /// The step policy, one for heartprep (which stores it in /solver) and the solver (which takes
 /// what the file gives and derives the rest), docs/solver.md "Step policy".
 struct TimeStepLimits {

@@ -7,6 +7,7 @@
 #include "formats/mesh_io.h"
 #include "formats/xdmf.h"
 #include "cli/cli_messages.h"
+#include "libmodel/stability.h"
 #include "libmodel/plausible.h"
 #include "cli/command_errors.h"
 #include "libmodel/errors.h"
@@ -224,7 +225,7 @@ void add_build_command(CLI::App& app) {
         ->group("Solver");
     command->add_option("--dt-safety", options->solver.safety_factor, "Default dt as a fraction of the damped critical step (dashpots and supports included); "
                         "the runtime keeps every substep within the same fraction")
-        ->check(CLI::Range(1e-3, 0.99))
+        ->check(CLI::Range(min_safety_factor, max_safety_factor))
         ->capture_default_str()
         ->group("Solver");
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary (warnings are still printed)");
