@@ -4,8 +4,10 @@
 
 #include "hdf5_io.h"
 #include "xdmf.h"
+#include "volume_io.h"
 
 #include "libmodel/plausible.h"
+#include "libmodel/stability.h"
 
 #include "libmodel/errors.h"
 
@@ -19,6 +21,7 @@
 #include <fstream>
 #include <functional>
 #include <sstream>
+#include <unordered_map>
 
 namespace heartsim {
 
@@ -283,6 +286,20 @@ void read_packing_and_mapping(const h5::Reader& r, Scenario& s) {
         }
         m.offset = r.dataset<float>("mapping/offset", {v});
         r.require_finite("mapping/offset", m.offset);
+        {  // |offset| is a distance to the nearest simulation-surface point: never beyond the model's extent
+            Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), high = -low;
+            for (const auto* points : {&s.lattice.particles.rest_position, &s.visual->positions})
+                for (const auto& x : *points) {
+                    const Eigen::Vector3d y(x[0], x[1], x[2]);
+                    low = low.cwiseMin(y), high = high.cwiseMax(y);
+                }
+            const double reach = (high - low).norm();
+            for (std::size_t i = 0; i < m.offset.size(); ++i)
+                if (!(std::abs(double(m.offset[i])) <= reach * (1 + 1e-6)))
+                    r.fail("mapping/offset", "entry " + std::to_string(i) + " is " + std::to_string(m.offset[i]) +
+                                                 " mm, farther than the " + std::to_string(reach) +
+                                                 " mm across the particles and the visual mesh");
+        }
         // ➕ The carriers (format_version 3). A file without them reads as the triangle's three.
         const bool has_particles = r.exists("mapping/particles"), has_weights = r.exists("mapping/weights");
         if (has_particles != has_weights)
@@ -304,6 +321,35 @@ void read_packing_and_mapping(const h5::Reader& r, Scenario& s) {
     }
 }
 
+/// The step policy's cross-field rules (docs/scenario-format.md "/solver"): the stored critical
+/// and damped steps within their proven ceilings for these springs, masses and dampers, the
+/// damped step within the undamped one, the safety factor in heartprep's range. (dt_ms needs no
+/// rule: the solver splits it into substeps of at most safety_factor × the damped step.)
+void check_time_steps(const h5::Reader& r, const Scenario& s) {
+    const auto& solver = s.solver;
+    const auto& lattice = s.lattice;
+    auto ms = [](double value) { return std::to_string(value) + " ms"; };
+    if (!(solver.safety_factor >= min_safety_factor && solver.safety_factor <= max_safety_factor))
+        r.fail("/solver", "safety_factor is " + std::to_string(solver.safety_factor) + ": it must lie in [" +
+                              std::to_string(min_safety_factor) + ", " + std::to_string(max_safety_factor) +
+                              "] (a fraction of the stable step)");
+    const double ceiling = critical_step_ceiling_ms(lattice.particles, lattice.springs);
+    if (!std::isfinite(solver.critical_dt_ms) || solver.critical_dt_ms > ceiling * (1.0 + 1e-6))
+        r.fail("/solver", "critical_dt_ms is " + ms(solver.critical_dt_ms) + ", above the proven ceiling of " + ms(ceiling) +
+                              " for these springs and masses: the file is damaged or not from heartprep (rebuild it)");
+    if (solver.damped_critical_dt_ms != 0) {
+        const double damped = solver.damped_critical_dt_ms;
+        if (!(damped > 0) || !std::isfinite(damped)) r.fail("/solver", "damped_critical_dt_ms must be positive and finite");
+        if (damped > solver.critical_dt_ms * (1.0 + 1e-12))
+            r.fail("/solver", "damped_critical_dt_ms " + ms(damped) + " exceeds critical_dt_ms " + ms(solver.critical_dt_ms) +
+                                  ": damping never lengthens the stable step");
+        const double damped_ceiling = damped_step_ceiling_ms(lattice.particles, lattice.springs, damping_ratios(lattice.materials), solver.damping);
+        if (damped > damped_ceiling * (1.0 + 1e-6))
+            r.fail("/solver", "damped_critical_dt_ms is " + ms(damped) + ", above the proven ceiling of " + ms(damped_ceiling) +
+                                  " for these springs, masses and dampers: the damping changed without the step recomputed (rebuild it)");
+    }
+}
+
 Scenario read_contents(const h5::Reader& r) {
     Scenario s;
     r.header("heartsim.scenario", scenario_oldest_format_version, scenario_format_version, "mm g ms");
@@ -319,6 +365,11 @@ Scenario read_contents(const h5::Reader& r) {
         auto spacing = r.numbers<double>("source", "spacing", 3);
         for (int a = 0; a < 3; ++a) {
             if (dims[std::size_t(a)] <= 0 || spacing[std::size_t(a)] <= 0) r.fail("/source", "dims and spacing must be positive");
+            if (dims[std::size_t(a)] > plausible::max_voxels_per_axis)
+                r.fail("/source", "dims " + std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " + std::to_string(dims[2]) +
+                                      ": at most " + std::to_string(plausible::max_voxels_per_axis) + " voxels along an axis");
+            if (!plausible::voxel_spacing_mm.contains(spacing[std::size_t(a)]))
+                r.fail("/source", plausible::outside("spacing", spacing[std::size_t(a)], plausible::voxel_spacing_mm));
             geometry.dims[std::size_t(a)] = dims[std::size_t(a)];
             geometry.spacing[a] = spacing[std::size_t(a)];
         }
@@ -359,6 +410,18 @@ Scenario read_contents(const h5::Reader& r) {
                                        " mm of the source volume along axis " + std::to_string(a));
         }
         lattice.index_to_world = read_matrix(r, "lattice", "index_to_world");
+        // An affine map whose three axes are the lattice spacing long (a rotation times the spacing).
+        const Eigen::Matrix4d& m = lattice.index_to_world;
+        if (!m.allFinite() || m.row(3) != Eigen::RowVector4d(0, 0, 0, 1))
+            r.fail("/lattice", "index_to_world must be a finite affine matrix (last row 0 0 0 1)");
+        for (int a = 0; a < 3; ++a) {
+            const double length = m.block<3, 1>(0, a).norm();
+            if (!(std::abs(length - lattice.spacing) <= 1e-3 * lattice.spacing))
+                r.fail("/lattice", "index_to_world axis " + std::to_string(a) + " is " + std::to_string(length) +
+                                       " mm long, not the lattice spacing of " + std::to_string(lattice.spacing) + " mm");
+        }
+        if (!(std::abs(m.topLeftCorner<3, 3>().determinant()) > 0.5 * std::pow(lattice.spacing, 3)))
+            r.fail("/lattice", "index_to_world is degenerate: its axes do not span 3D space");
     }
     {
         std::size_t m = 0;
@@ -403,6 +466,19 @@ Scenario read_contents(const h5::Reader& r) {
             for (int a = 0; a < 3; ++a)
                 if (p.lattice_index[i][std::size_t(a)] < 0 || p.lattice_index[i][std::size_t(a)] >= lattice.dims[std::size_t(a)])
                     r.fail("particles/lattice_index", "row " + std::to_string(i) + " lies outside /lattice dims");
+        {  // one particle per lattice node
+            std::unordered_map<std::uint64_t, std::size_t> owner;
+            owner.reserve(n);
+            for (std::size_t i = 0; i < n; ++i) {
+                const auto& c = p.lattice_index[i];
+                const std::uint64_t key = (std::uint64_t(c[2]) * std::uint64_t(lattice.dims[1]) + std::uint64_t(c[1])) *
+                                              std::uint64_t(lattice.dims[0]) + std::uint64_t(c[0]);
+                if (const auto [at, fresh] = owner.emplace(key, i); !fresh)
+                    r.fail("particles/lattice_index", "rows " + std::to_string(at->second) + " and " + std::to_string(i) +
+                                                          " name the same lattice node (" + std::to_string(c[0]) + ", " +
+                                                          std::to_string(c[1]) + ", " + std::to_string(c[2]) + ")");
+            }
+        }
         p.mass = r.dataset<float>("particles/mass", {long(n)});
         for (std::size_t i = 0; i < n; ++i)
             if (!(p.mass[i] > 0) || !std::isfinite(p.mass[i]))
@@ -428,6 +504,10 @@ Scenario read_contents(const h5::Reader& r) {
             r.require_finite("particles/support_point", point);
             require_plausible(r, "particles/support_point", point, plausible::coordinate_mm);
             require_plausible(r, "particles/support_stiffness", p.support_stiffness, plausible::stiffness_n_per_mm);
+            for (std::size_t i = 0; i < n; ++i)
+                if (p.anchored[i] && p.support_stiffness[i] > 0)
+                    r.fail("particles/support_stiffness", "entry " + std::to_string(i) +
+                                                              " supports an anchored particle (a particle is held by one or the other)");
             p.support_point = h5::rows_of<3>(point);
             p.support_damping.assign(n, 0.0f);  // optional: undamped supports
             if (r.exists("particles/support_damping")) {
@@ -449,6 +529,17 @@ Scenario read_contents(const h5::Reader& r) {
         for (std::size_t i = 0; i < count; ++i)
             if (sp.pairs[i][0] >= sp.pairs[i][1])
                 r.fail("springs/pairs", "row " + std::to_string(i) + " is not ordered first < second");
+        {  // each pair once: a duplicate would replace the other's slot in /packing
+            std::vector<std::pair<std::uint64_t, std::size_t>> keys(count);
+            for (std::size_t i = 0; i < count; ++i) keys[i] = {(std::uint64_t(sp.pairs[i][0]) << 32) | std::uint32_t(sp.pairs[i][1]), i};
+            std::sort(keys.begin(), keys.end());
+            for (std::size_t k = 1; k < count; ++k)
+                if (keys[k].first == keys[k - 1].first) {
+                    const std::size_t a = std::min(keys[k - 1].second, keys[k].second), b = std::max(keys[k - 1].second, keys[k].second);
+                    r.fail("springs/pairs", "rows " + std::to_string(a) + " and " + std::to_string(b) + " join the same particles (" +
+                                                std::to_string(sp.pairs[a][0]) + ", " + std::to_string(sp.pairs[a][1]) + ")");
+                }
+        }
         sp.rest_length = r.dataset<float>("springs/rest_length", {long(count)});
         sp.stiffness = r.dataset<float>("springs/stiffness", {long(count)});
         for (std::size_t i = 0; i < count; ++i) {
@@ -503,6 +594,7 @@ Scenario read_contents(const h5::Reader& r) {
         if (!plausible::drag_per_ms.contains(solver.damping)) r.fail("/solver", outside("damping", solver.damping, plausible::drag_per_ms));
         for (const auto& [name, g] : {std::pair{"|gravity|", solver.gravity.norm()}, std::pair{"|balanced_gravity|", solver.balanced_gravity.norm()}})
             if (!plausible::gravity_mm_per_ms2.contains(g)) r.fail("/solver", outside(name, g, plausible::gravity_mm_per_ms2));
+        check_time_steps(r, s);
     }
     return s;
 }
@@ -535,8 +627,7 @@ void write_scenario_file(const std::filesystem::path& path, const Scenario& scen
                          const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = scenario_xdmf(path.filename().string(), scenario);
     check_xdmf_destination(path);
-    h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); }, check);
-    write_xdmf(path, xdmf);
+    h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); }, check, {xdmf_file_beside(path, xdmf)});
 }
 
 }  // namespace
@@ -596,6 +687,12 @@ std::string sha256_file(const std::filesystem::path& path) {
         hash.add(buffer.data(), std::size_t(in.gcount()));
     }
     return hash.hex();
+}
+
+std::string label_map_sha256(const std::filesystem::path& path) {
+    const VolumeHeader header = read_volume_header(path);
+    if (header.data_file.empty()) return sha256_file(path);
+    return sha256_text(sha256_file(path) + "\n" + sha256_file(header.data_file));
 }
 
 std::string sha256_text(const std::string& text) {

@@ -103,6 +103,11 @@ Scenario read_scenario(const std::filesystem::path& path);
 
 /// SHA-256 of a file's bytes, lowercase hex. Throws InputError if it cannot be read.
 std::string sha256_file(const std::filesystem::path& path);
+/// SHA-256 of a label map's content, lowercase hex: of the file; for a detached header (a NRRD
+/// `data file`, a MetaImage `ElementDataFile`: volume_io.h VolumeHeader::data_file), of the
+/// header's hash and the data file's hash, one per line, so a changed voxel file changes it.
+/// What a scenario's source_sha256 and a batch's content key use.
+std::string label_map_sha256(const std::filesystem::path& path);
 
 /// SHA-256 of a string's bytes, lowercase hex.
 std::string sha256_text(const std::string& text);
