@@ -9,18 +9,43 @@
 
 #include <atomic>
 #include <cerrno>
+#include <cstdint>
 #include <cstdlib>
 #include <cstring>
 #include <system_error>
 
 namespace heartsim {
 
+namespace {
+
+/// ".<name>.tmp-": what every temporary of `path` starts with. A file name may take 255 bytes;
+/// the process id, counter and extension after this prefix take at most 46, so a name longer
+/// than 203 bytes is shortened to its first 194 and a hash of the whole (FNV-1a, 8 hex digits):
+/// a legal 255-byte output name still gets a temporary, and the same one on every run.
+std::string temporary_prefix(const std::filesystem::path& path) {
+    constexpr std::size_t longest = 203, kept = 194;
+    std::string name = path.filename().string();
+    if (name.size() > longest) {
+        std::uint32_t hash = 2166136261u;
+        for (unsigned char c : name) hash = (hash ^ c) * 16777619u;
+        static const char* digits = "0123456789abcdef";
+        std::string tail = "~";
+        for (int shift = 28; shift >= 0; shift -= 4) tail += digits[(hash >> shift) & 15u];
+        name = name.substr(0, kept) + tail;
+    }
+    std::string prefix = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
+    prefix += name;
+    prefix += ".tmp-";
+    return prefix;
+}
+
+}  // namespace
+
 std::filesystem::path temporary_beside(const std::filesystem::path& path, const std::string& extension) {
     static std::atomic<unsigned> counter{0};
-    std::string name = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
-    name += path.filename().string();
-    name += ".tmp-" + std::to_string(::getpid()) + "-" + std::to_string(counter++);
-    name += extension;
+    std::string name = temporary_prefix(path);
+    name += std::to_string(::getpid()) + "-" + std::to_string(counter++);
+    name += extension.size() <= 24 ? extension : extension.substr(extension.size() - 24);
     return path.parent_path() / name;
 }
 
@@ -40,9 +65,7 @@ bool sync_to_disk(const std::filesystem::path& path, int flags) {
 
 void sweep_stale_temporaries(const std::filesystem::path& path) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
-    std::string prefix = ".";  // built by appends: GCC 12 warns (-Wrestrict, a false positive) on "." + std::string&&
-    prefix += path.filename().string();
-    prefix += ".tmp-";
+    const std::string prefix = temporary_prefix(path);
     std::error_code error;
     for (std::filesystem::directory_iterator it(folder, error), end; !error && it != end; it.increment(error)) {
         const std::string name = it->path().filename().string();
@@ -97,21 +120,39 @@ void check_destination(const std::filesystem::path& path) {
     ::unlink(trial.c_str());
 }
 
-void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill) {
+void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill,
+                           const std::vector<FileBeside>& beside) {
     const auto folder = path.parent_path().empty() ? std::filesystem::path(".") : path.parent_path();
     check_destination_folder(path);
+    for (const FileBeside& file : beside) check_destination_folder(file.path);
     sweep_stale_temporaries(path);
+    for (const FileBeside& file : beside) sweep_stale_temporaries(file.path);
     const auto temporary = temporary_beside(path);
+    std::vector<std::filesystem::path> temporaries;
+    for (const FileBeside& file : beside) temporaries.push_back(temporary_beside(file.path));
+    std::size_t renamed = 0;  // the temporaries of `beside` already in place
     try {
         fill(temporary);
         if (!sync_to_disk(temporary, O_RDONLY))
             throw OutputError(path.string() + ": cannot flush the finished file to the disk: " + std::strerror(errno));
+        for (std::size_t k = 0; k < beside.size(); ++k) {
+            const std::string failure = path.string() + ": cannot write " + beside[k].what + " " + beside[k].path.string();
+            write_bytes(temporaries[k], beside[k].bytes.data(), beside[k].bytes.size(), failure);
+            if (!sync_to_disk(temporaries[k], O_RDONLY)) throw OutputError(failure + " (cannot flush it: " + std::strerror(errno) + ")");
+        }
         std::error_code error;
         std::filesystem::rename(temporary, path, error);
         if (error) throw OutputError(path.string() + ": cannot rename the finished file into place: " + error.message());
+        for (; renamed < beside.size(); ++renamed) {
+            std::filesystem::rename(temporaries[renamed], beside[renamed].path, error);
+            if (error)
+                throw OutputError(path.string() + " was written, but " + beside[renamed].what + " " + beside[renamed].path.string() +
+                                  " could not be renamed into place: " + error.message());
+        }
     } catch (...) {
         std::error_code ignored;
         std::filesystem::remove(temporary, ignored);
+        for (std::size_t k = renamed; k < temporaries.size(); ++k) std::filesystem::remove(temporaries[k], ignored);
         throw;
     }
     // The rename itself reaches the disk with the folder; some file systems cannot sync a folder,

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <vector>
 
 namespace heartsim {
 
@@ -29,12 +30,23 @@ void sweep_stale_temporaries(const std::filesystem::path& path);
 /// outputs with it before they start.
 void check_destination(const std::filesystem::path& path);
 
+/// A small file that belongs with the one written (the ParaView description beside an HDF5
+/// file): written to a temporary of its own and flushed before either file takes its name.
+struct FileBeside {
+    std::filesystem::path path;
+    std::string bytes;
+    std::string what;  ///< names it in errors ("the XDMF description")
+};
+
 /// Writes `path` atomically: `fill(temporary)` writes a file at temporary_beside(path), which is
 /// flushed to the disk (fsync) and then renamed onto `path`, and the folder is flushed too, so a
 /// crash leaves the old file or the whole new one. When fill throws or the rename fails, the
 /// temporary is removed and the error passes on. Throws OutputError naming `path` when
 /// check_destination refuses it, or the flush or rename fails.
-void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill);
+/// With `beside`, each of those files is written and flushed too before any rename, and renamed
+/// into place after `path`: a full disk at any of them leaves every old file as it was.
+void write_file_atomically(const std::filesystem::path& path, const std::function<void(const std::filesystem::path&)>& fill,
+                           const std::vector<FileBeside>& beside = {});
 
 /// Writes `size` bytes to `file` (created or truncated) with POSIX calls, for a `fill` of
 /// write_file_atomically (which flushes them to the disk); OutputError `failure` + the system's

@@ -209,7 +209,7 @@ void Writer::header(const std::string& format, int version, const std::string& u
 }
 
 void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill,
-                const std::function<void(const std::filesystem::path&)>& check) {
+                const std::function<void(const std::filesystem::path&)>& check, const std::vector<FileBeside>& beside) {
     quiet();
     const std::string name = path.string();
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
@@ -240,7 +240,7 @@ void write_file(const std::filesystem::path& path, const std::function<void(Writ
         repair_superblock_checksum(image);
         write_bytes(temporary, image.data(), image.size(), name + ": cannot write the file");
         if (check) check(temporary);
-    });
+    }, beside);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@
 /// their schemas.
 #pragma once
 
+#include "formats/atomic_file.h"
 #include "libmodel/errors.h"
 
 #include <hdf5.h>
@@ -132,8 +133,9 @@ private:
 /// Creates `path` through `fill` in a temporary file beside it, flushes, then renames it into
 /// place: nothing half-written remains when fill throws or the disk fills. `check`, when given,
 /// reads the complete temporary file before it takes the name; what it throws leaves no file.
+/// `beside`: files that belong with it (the .xdmf), written and flushed before either is renamed.
 void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill,
-                const std::function<void(const std::filesystem::path&)>& check = {});
+                const std::function<void(const std::filesystem::path&)>& check = {}, const std::vector<FileBeside>& beside = {});
 
 /// HDF5's metadata checksum: Bob Jenkins' lookup3 (hashlittle) of `length` bytes, initval 0.
 std::uint32_t lookup3(const unsigned char* data, std::size_t length);

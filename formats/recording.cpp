@@ -49,7 +49,8 @@ std::string check_rules(const SolverRules& r) {
     return {};
 }
 
-void write_recording_data(const std::filesystem::path& path, const Recording& r, const std::function<void(const std::filesystem::path&)>& check) {
+void write_recording_data(const std::filesystem::path& path, const Recording& r, const std::function<void(const std::filesystem::path&)>& check,
+                          const std::vector<FileBeside>& beside) {
     const std::string file = path.string();
     const RecordedSteps& s = r.steps;
     const std::size_t n = s.size();
@@ -127,15 +128,14 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.dataset("events/time_ms", times, {times.size()});
         w.dataset("events/hand", hands, {hands.size()});
         w.strings("events/what", what);
-    }, check);
+    }, check, beside);
 }
 
 void write_recording(const std::filesystem::path& path, const Recording& recording,
                      const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = recording_xdmf(path.filename().string(), recording);
     check_xdmf_destination(path);
-    write_recording_data(path, recording, check);
-    write_xdmf(path, xdmf);
+    write_recording_data(path, recording, check, {xdmf_file_beside(path, xdmf)});
 }
 
 Recording read_recording(const std::filesystem::path& path) {

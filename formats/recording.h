@@ -35,6 +35,8 @@
 ///     time_ms float64 [E], hand int32 [E] (−1: both), what (UTF-8 strings) [E]
 #pragma once
 
+#include "formats/atomic_file.h"
+
 #include "libmodel/solver.h"
 
 #include <array>
@@ -126,9 +128,9 @@ inline bool known_arithmetic(const std::string& arithmetic) { return arithmetic 
 /// recording), and what it throws leaves no file.
 void write_recording(const std::filesystem::path& path, const Recording& recording,
                      const std::function<void(const std::filesystem::path&)>& check = {});
-/// The HDF5 file alone (atomically, `check` as above), no .xdmf.
+/// The HDF5 file (atomically, `check` as above), with `beside` (write_recording's .xdmf) or alone.
 void write_recording_data(const std::filesystem::path& path, const Recording& recording,
-                          const std::function<void(const std::filesystem::path&)>& check = {});
+                          const std::function<void(const std::filesystem::path&)>& check = {}, const std::vector<FileBeside>& beside = {});
 /// Reads and validates (shapes agree, values finite where they must be); throws InputError
 /// naming the file and the dataset.
 Recording read_recording(const std::filesystem::path& path);

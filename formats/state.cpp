@@ -23,8 +23,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
             w.group("visual");
             w.dataset("visual/positions", state.visual_positions, {state.visual_positions.size(), 3});
         }
-    });
-    write_xdmf(path, xdmf);
+    }, {}, {xdmf_file_beside(path, xdmf)});
 }
 
 SimulationState read_state(const std::filesystem::path& path) {

@@ -222,6 +222,10 @@ std::string recording_xdmf(const std::string& h5, const Recording& r) {
                     grids);
 }
 
+FileBeside xdmf_file_beside(const std::filesystem::path& h5, const std::string& text) {
+    return {xdmf_beside(h5), text, "the XDMF description"};
+}
+
 void write_xdmf(const std::filesystem::path& h5, const std::string& text) {
     const auto path = xdmf_beside(h5);
     write_bytes_atomically(path, text.data(), text.size(), "the XDMF description " + path.string());

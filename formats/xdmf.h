@@ -8,6 +8,8 @@
 /// docs/runtime.md.
 #pragma once
 
+#include "formats/atomic_file.h"
+
 #include <cstddef>
 #include <filesystem>
 #include <string>
@@ -20,6 +22,9 @@ struct Recording;
 
 /// `case.h5` → `case.xdmf` (the same folder, the extension replaced; `x.xdmf` → `x.xdmf.xdmf`).
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
+/// The description `text` as a file written together with `h5` (atomic_file.h FileBeside): a
+/// failure at either leaves both old files as they were.
+FileBeside xdmf_file_beside(const std::filesystem::path& h5, const std::string& text);
 
 /// Throws OutputError unless the description beside `h5` can be written (check_destination: not
 /// a folder, a folder that takes a file), naming it as the description of `h5`. Called by the
