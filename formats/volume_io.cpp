@@ -235,6 +235,19 @@ void read_segment_metadata(Probe& probe) {
 /// Whether a header's numeric field holds a NaN or an infinity: ITK replaces such a spacing by 1 mm
 /// without a word (the NIfTI reader checks pixdim itself).
 
+/// A detached header's data file (VolumeHeader::data_file); outside the header's folder it is
+/// read, as ITK does, with a warning: the technician sees that the voxels come from elsewhere.
+void note_data_file(const fs::path& path, Probe& probe) {
+    probe.header.data_file = probe.location.file;
+    std::error_code error;
+    const fs::path folder = fs::weakly_canonical(path.parent_path().empty() ? fs::path(".") : path.parent_path(), error);
+    const fs::path data = fs::weakly_canonical(probe.location.file, error);
+    const auto [end, ignored] = std::mismatch(folder.begin(), folder.end(), data.begin(), data.end());
+    if (error || end != folder.end())
+        probe.header.warnings.push_back(path.string() + ": its voxel data file " + probe.location.file.string() +
+                                        " lies outside the header's folder; check that it is this image's data");
+}
+
 Probe probe_volume(const fs::path& path) {
     const std::string extension = volume_extension(path);
     if (extension.empty())
@@ -311,6 +324,7 @@ Probe probe_volume(const fs::path& path) {
     } else {
         probe.header.data_bytes = probe.io->GetImageSizeInBytes();
         probe.location = nrrd ? nrrd_data_location(path) : metaimage_data_location(path);
+        if (probe.location.file != path) note_data_file(path, probe);
     }
     return probe;
 }

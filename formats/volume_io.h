@@ -25,6 +25,10 @@ struct VolumeHeader {
     std::string component_type;  ///< ITK's name, e.g. "unsigned_short"
     int components = 1;          ///< values per voxel
     std::uint64_t data_bytes = 0;  ///< bytes of voxel data the header declares
+    /// The separate voxel file a detached header names (NRRD `data file`, MetaImage
+    /// `ElementDataFile`), as the reader opens it; empty when the voxels are in the file itself.
+    /// One outside the header's folder is read, with a warning below.
+    std::filesystem::path data_file;
     /// For 3D Slicer .seg.nrrd: label value -> segment name (empty otherwise).
     std::map<int, std::string> segment_names;
     /// What the reader noticed but read anyway, one line each, naming the file: a NIfTI whose
@@ -42,6 +46,7 @@ struct VolumeReadOptions {
 
 /// Reads the header only. Throws InputError naming the file and the problem.
 VolumeHeader read_volume_header(const std::filesystem::path& path);
+
 
 /// Reads an integer label map. Throws InputError naming the file and the problem for: a missing
 /// or unreadable file, an unsupported format, a non-integer component type, more than one

@@ -10,9 +10,14 @@ namespace heartsim {
 
 namespace {
 
+/// "1,2,5"; past 24 values the first 12 and the count: a volume of every byte value (not a label
+/// map: an image, or a data file that is not the header's) gets one line, not hundreds of numbers.
 std::string join(const std::vector<int>& values) {
+    constexpr std::size_t most = 24, shown = 12;
     std::ostringstream out;
-    for (std::size_t n = 0; n < values.size(); ++n) out << (n ? "," : "") << values[n];
+    const std::size_t count = values.size() > most ? shown : values.size();
+    for (std::size_t n = 0; n < count; ++n) out << (n ? "," : "") << values[n];
+    if (count < values.size()) out << ", ... (" << values.size() << " different values: is this a label map?)";
     return out.str();
 }
 

@@ -178,12 +178,19 @@ void fill_figures(const Scenario& s, Outcome& outcome) {
     outcome.dt_ms = s.solver.dt_ms;
 }
 
-/// The content key of a case: SHA-256 of its input's bytes, its build options and the heartprep
+/// The content key of a case: SHA-256 of its input's content (label_map_sha256: a detached
+/// header's data file too), its build options and the heartprep
 /// version with the scenario format (a build of a newer format is not skipped as up to date).
 /// `heartprep build --batch-key` stores it in the scenario; batch and the Snakemake workflow
 /// (workflow/Snakefile, through `batch --plan`) skip a case whose scenario carries it.
 std::string content_key(const BatchCase& c) {
-    return sha256_text(sha256_file(c.input) + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION + " format " +
+    std::string content;
+    try {
+        content = label_map_sha256(c.input);
+    } catch (const InputError&) {
+        content = sha256_file(c.input);  // a header the reader refuses: its build fails and says why
+    }
+    return sha256_text(content + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION + " format " +
                        std::to_string(scenario_format_version));
 }
 

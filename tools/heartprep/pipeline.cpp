@@ -181,7 +181,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report);
     const LabelVolume& volume = selected.volume;
     const Selection& selection = selected.selection;
-    scenario.source.sha256 = timed(report, "hash", [&] { return sha256_file(options.input); });
+    scenario.source.sha256 = timed(report, "hash", [&] { return label_map_sha256(options.input); });
     scenario.source.geometry = volume.geometry;
     scenario.source.tissue_labels = chosen.tissue_labels;
     scenario.source.cavity_labels = chosen.cavity_labels;
@@ -265,6 +265,7 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     std::printf("input       %s (%s, %s), %d x %d x %d voxels of %.3f x %.3f x %.3f mm\n", scenario.source.file_name.c_str(),
                 report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
                 g.spacing[0], g.spacing[1], g.spacing[2]);
+    if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
     const auto& s = report.selection;
     std::string tissue;
     for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
