@@ -111,6 +111,9 @@ void check_arguments(const RunArguments& a) {
         for (const std::string& option : a.device_options_given) throw UsageError(option + " sets how forces reach a haptic device: it needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
+    if (haptic_run && a.headless && a.seconds <= 0 && a.steps && *a.steps == 0)
+        throw UsageError("--steps 0 runs no step: a headless haptic run needs --steps N of at least 1, or --seconds S "
+                         "(wall clock: the simulation follows real time)");
     if (haptic_run && a.headless && a.seconds <= 0 && !(a.steps.value_or(0) > 0))
         throw UsageError("a headless haptic run needs --seconds S (wall clock: the simulation follows real time) or --steps N");
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
