@@ -1,0 +1,305 @@
+// Promises the docs make about inputs and outputs (docs/reliability.md), each checked where a
+// user's run broke it: a detached label map's data file in the batch key and source_sha256, the
+// .xdmf written with its .h5 or not at all, the step policy's cross-field rules, the mapping's
+// offsets and the structure a scenario promises, long output names, and the --steps 0 refusal.
+#include "formats/scenario.h"
+#include "formats/volume_io.h"
+#include "libmodel/errors.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <hdf5.h>
+#include <sys/mount.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+using namespace heartsim;
+using test::quoted;
+namespace fs = std::filesystem;
+
+namespace {
+
+/// A copy of the default build of the shipped phantom (supports, a visual mesh and its mapping).
+fs::path phantom_copy(const test::TempDir& dir, const std::string& name) {
+    const fs::path& built = test::built_phantom("--particles 2000");
+    fs::copy_file(built, dir / name);
+    return dir / name;
+}
+
+std::string refusal(const fs::path& file) {
+    try {
+        read_scenario(file);
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+template <class T>
+std::vector<T> read_values(const fs::path& file, const char* dataset, hid_t type, std::size_t count) {
+    std::vector<T> values(count);
+    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    const hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+    EXPECT_GE(H5Dread(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0) << dataset;
+    H5Dclose(d);
+    H5Fclose(f);
+    return values;
+}
+
+template <class T>
+void overwrite(const fs::path& file, const char* dataset, const std::vector<T>& values, hid_t type) {
+    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    const hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
+    EXPECT_GE(H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0) << dataset;
+    H5Dclose(d);
+    H5Fclose(f);
+}
+
+template <class T>
+void overwrite_attribute(const fs::path& file, const char* object, const char* name, const std::vector<T>& values, hid_t type) {
+    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    const hid_t g = H5Gopen2(f, object, H5P_DEFAULT);
+    const hid_t a = H5Aopen(g, name, H5P_DEFAULT);
+    EXPECT_GE(a, 0) << object << " " << name;
+    EXPECT_GE(H5Awrite(a, type, values.data()), 0) << object << " " << name;
+    H5Aclose(a);
+    H5Gclose(g);
+    H5Fclose(f);
+}
+
+void expect_refused(const fs::path& file, std::initializer_list<const char*> parts) {
+    const std::string message = refusal(file);
+    EXPECT_FALSE(message.empty()) << file << " was read";
+    for (const char* part : parts) EXPECT_NE(message.find(part), std::string::npos) << part << " in: " << message;
+}
+
+std::string file_text(const fs::path& path) {
+    std::ifstream in(path, std::ios::binary);
+    std::ostringstream text;
+    text << in.rdbuf();
+    return text.str();
+}
+
+/// A tmpfs of `bytes` mounted on a fresh folder for as long as it lives; empty() where this
+/// machine does not let the test mount one (not root, no privilege).
+class SmallDisk {
+public:
+    SmallDisk(const fs::path& folder, std::size_t bytes) : folder_(folder) {
+        fs::create_directories(folder);
+        resize(bytes);
+    }
+    ~SmallDisk() {
+        if (mounted_) ::umount(folder_.c_str());
+    }
+    bool empty() const { return !mounted_; }
+    bool resize(std::size_t bytes) {
+        const std::string options = "size=" + std::to_string(bytes);
+        const unsigned long flags = mounted_ ? MS_REMOUNT : 0;
+        if (::mount("heartsim-test", folder_.c_str(), "tmpfs", flags, options.c_str()) != 0) return false;
+        mounted_ = true;
+        return true;
+    }
+private:
+    fs::path folder_;
+    bool mounted_ = false;
+};
+
+std::size_t pages(std::size_t bytes) {
+    const auto page = std::size_t(::sysconf(_SC_PAGESIZE));
+    return (bytes + page - 1) / page * page;
+}
+
+}  // namespace
+
+TEST(Reliability, TheStepPolicyIsCheckedAgainstItsCrossFieldRules) {
+    test::TempDir dir;
+    const fs::path good = phantom_copy(dir, "good.h5");
+    ASSERT_EQ(refusal(good), "");
+    const Scenario s = read_scenario(good);
+    ASSERT_GT(s.solver.damped_critical_dt_ms, 0.0);
+
+    // A safety factor of 50 ran "1 substeps of 5 ms (critical 1.018 ms)" and blew up.
+    const fs::path unsafe = phantom_copy(dir, "unsafe.h5");
+    overwrite_attribute<double>(unsafe, "/solver", "safety_factor", {50.0}, H5T_NATIVE_DOUBLE);
+    expect_refused(unsafe, {"unsafe.h5", "/solver", "safety_factor is 50", "[0.001"});
+
+    // A damped step above the undamped one: damping never lengthens the stable step.
+    const fs::path longer = phantom_copy(dir, "longer.h5");
+    overwrite_attribute<double>(longer, "/solver", "damped_critical_dt_ms", {1.5 * s.solver.critical_dt_ms}, H5T_NATIVE_DOUBLE);
+    expect_refused(longer, {"longer.h5", "/solver", "exceeds critical_dt_ms"});
+
+    // Damping raised within its plausible range, the stored step left as it was.
+    const fs::path stale = phantom_copy(dir, "stale.h5");
+    std::vector<float> damping(s.lattice.materials.size(), 50.0f);
+    overwrite(stale, "materials/damping", damping, H5T_NATIVE_FLOAT);
+    expect_refused(stale, {"stale.h5", "/solver", "damped_critical_dt_ms is", "proven ceiling", "rebuild"});
+
+    // The ceiling is a bound, not a guess: the file's own damped step lies within it.
+    const double ceiling = damped_step_ceiling_ms(s.lattice.particles, s.lattice.springs, damping_ratios(s.lattice.materials), s.solver.damping);
+    EXPECT_LE(s.solver.damped_critical_dt_ms, ceiling);
+    EXPECT_GT(s.solver.damped_critical_dt_ms, 0.3 * ceiling) << "a ceiling far above the step would catch nothing";
+}
+
+TEST(Reliability, MappingOffsetsAndTheScenarioStructureAreChecked) {
+    test::TempDir dir;
+    const Scenario s = read_scenario(phantom_copy(dir, "reference.h5"));
+    ASSERT_TRUE(s.mapping && s.visual);
+    const std::size_t n = s.lattice.particles.size(), v = s.visual->positions.size();
+
+    const fs::path far = phantom_copy(dir, "far.h5");
+    std::vector<float> offset(v, 0.0f);
+    offset[7] = 1e30f;
+    overwrite(far, "mapping/offset", offset, H5T_NATIVE_FLOAT);
+    expect_refused(far, {"far.h5", "mapping/offset", "entry 7", "farther than"});
+
+    const fs::path twice = phantom_copy(dir, "twice.h5");
+    auto pairs = read_values<std::int32_t>(twice, "springs/pairs", H5T_NATIVE_INT32, 2 * s.lattice.springs.size());
+    pairs[2] = pairs[0], pairs[3] = pairs[1];
+    overwrite(twice, "springs/pairs", pairs, H5T_NATIVE_INT32);
+    expect_refused(twice, {"twice.h5", "springs/pairs", "rows 0 and 1 join the same particles"});
+
+    const fs::path one_node = phantom_copy(dir, "one_node.h5");
+    overwrite(one_node, "particles/lattice_index", std::vector<std::int32_t>(3 * n, 0), H5T_NATIVE_INT32);
+    expect_refused(one_node, {"one_node.h5", "particles/lattice_index", "rows 0 and 1 name the same lattice node (0, 0, 0)"});
+
+    const fs::path both = phantom_copy(dir, "both.h5");
+    std::size_t supported = n;
+    for (std::size_t i = 0; i < n && supported == n; ++i)
+        if (s.lattice.particles.support_stiffness[i] > 0) supported = i;
+    ASSERT_LT(supported, n) << "the default build holds the heart on supports";
+    std::vector<std::uint8_t> anchored(s.lattice.particles.anchored.begin(), s.lattice.particles.anchored.end());
+    anchored[supported] = 1;
+    overwrite(both, "particles/anchored", anchored, H5T_NATIVE_UINT8);
+    expect_refused(both, {"both.h5", "particles/support_stiffness", ("entry " + std::to_string(supported)).c_str(), "anchored"});
+
+    const fs::path flat = phantom_copy(dir, "flat.h5");
+    overwrite_attribute(flat, "/lattice", "index_to_world", std::vector<double>(16, 0.0), H5T_NATIVE_DOUBLE);
+    expect_refused(flat, {"flat.h5", "/lattice", "index_to_world"});
+
+    const fs::path huge = phantom_copy(dir, "huge.h5");
+    overwrite_attribute<std::int32_t>(huge, "/source", "dims", {1 << 30, 10, 10}, H5T_NATIVE_INT32);
+    expect_refused(huge, {"huge.h5", "/source", "at most 65536 voxels along an axis"});
+}
+
+TEST(Reliability, AFullDiskAtTheXdmfLeavesNeitherNewFileAndKeepsTheOldPair) {
+    test::TempDir dir;
+    const fs::path input = dir / "phantom.nii.gz";
+    ASSERT_EQ(test::heartprep("phantom -o " + quoted(input) + " --voxel 2").exit_code, 0);
+    SmallDisk disk(dir / "disk", 64 << 20);
+    if (disk.empty()) GTEST_SKIP() << "cannot mount a tmpfs here (needs root): " << std::strerror(errno);
+    const fs::path out = dir / "disk" / "case.h5", xdmf = dir / "disk" / "case.xdmf";
+    auto build = [&](const std::string& options) {
+        return test::heartprep("build " + quoted(input) + " -o " + quoted(out) + " -q " + options);
+    };
+    // The sizes of the pair this build writes.
+    ASSERT_EQ(build("--particles 1500").exit_code, 0);
+    const std::size_t h5_bytes = fs::file_size(out), xdmf_bytes = fs::file_size(xdmf);
+    fs::remove(out), fs::remove(xdmf);
+
+    // No old file: room for the .h5 and not one page more. Nothing may be left.
+    ASSERT_TRUE(disk.resize(pages(h5_bytes)));
+    auto failed = build("--particles 1500");
+    EXPECT_EQ(failed.exit_code, 7) << failed.output;
+    EXPECT_NE(failed.output.find("XDMF"), std::string::npos) << failed.output;
+    EXPECT_TRUE(fs::is_empty(dir / "disk")) << "left behind: " << (fs::exists(out) ? "case.h5 " : "") << (fs::exists(xdmf) ? "case.xdmf" : "");
+
+    // An old pair (another build): the new .h5 fits beside it, its .xdmf does not.
+    ASSERT_TRUE(disk.resize(64 << 20));
+    ASSERT_EQ(build("--particles 1200").exit_code, 0);
+    const std::string old_h5 = sha256_file(out), old_xdmf = file_text(xdmf);
+    ASSERT_TRUE(disk.resize(pages(fs::file_size(out)) + pages(fs::file_size(xdmf)) + pages(h5_bytes)));
+    failed = build("--particles 1500");
+    EXPECT_EQ(failed.exit_code, 7) << failed.output;
+    EXPECT_EQ(sha256_file(out), old_h5) << "the old scenario was replaced";
+    EXPECT_EQ(file_text(xdmf), old_xdmf) << "the old description was replaced";
+    std::size_t files = 0;
+    for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir / "disk")) ++files;
+    EXPECT_EQ(files, 2u) << "a temporary was left behind";
+    EXPECT_GT(xdmf_bytes, 0u);
+}
+
+TEST(Reliability, ADetachedLabelMapsDataFileIsInTheBatchKeyTheHashAndTheSummary) {
+    test::TempDir dir;
+    fs::create_directories(dir / "in");
+    const fs::path header = dir / "in" / "case.mhd";
+    ASSERT_EQ(test::heartprep("phantom -o " + quoted(header) + " --voxel 2").exit_code, 0);
+    const VolumeHeader read = read_volume_header(header);
+    ASSERT_FALSE(read.data_file.empty()) << "a .mhd written by heartprep keeps its voxels in a .raw beside it";
+    const fs::path raw = read.data_file;
+    EXPECT_EQ(label_map_sha256(header), sha256_text(sha256_file(header) + "\n" + sha256_file(raw)));
+
+    std::ofstream(dir / "cases.csv") << "input,case_id,options\nin/case.mhd,detached,--particles 1500\n";
+    const std::string batch = "batch " + quoted(dir / "cases.csv") + " -o " + quoted(dir / "out") + " --no-preview";
+    auto first = test::heartprep(batch);
+    ASSERT_EQ(first.exit_code, 0) << first.output;
+    const std::string first_hash = read_scenario(dir / "out" / "detached.h5").source.sha256;
+    EXPECT_EQ(first_hash, label_map_sha256(header));
+
+    // Another heart of the same size: the header's bytes stay, the voxel file changes.
+    const fs::path other = dir / "other.mhd";
+    ASSERT_EQ(test::heartprep("phantom -o " + quoted(other) + " --voxel 2 --vsd-diameter 14 --vsd-position 0.4").exit_code, 0);
+    const VolumeHeader other_header = read_volume_header(other);
+    ASSERT_EQ(other_header.geometry.dims, read.geometry.dims);
+    fs::copy_file(other_header.data_file, raw, fs::copy_options::overwrite_existing);
+    auto second = test::heartprep(batch);
+    ASSERT_EQ(second.exit_code, 0) << second.output;
+    EXPECT_NE(second.output.find("| detached | built |"), std::string::npos) << "a changed voxel file was skipped:\n" << second.output;
+    const std::string second_hash = read_scenario(dir / "out" / "detached.h5").source.sha256;
+    EXPECT_NE(second_hash, first_hash);
+    EXPECT_EQ(second_hash, label_map_sha256(header));
+
+    // A header whose data file lies outside its folder is read, named, and warned about.
+    fs::create_directories(dir / "headers");
+    std::string text = file_text(header);
+    const auto at = text.find("ElementDataFile");
+    ASSERT_NE(at, std::string::npos) << text;
+    text = text.substr(0, at) + "ElementDataFile = ../in/" + raw.filename().string() + "\n";
+    std::ofstream(dir / "headers" / "elsewhere.mhd") << text;
+    auto build = test::heartprep("build " + quoted(dir / "headers" / "elsewhere.mhd") + " -o " + quoted(dir / "elsewhere.h5") +
+                                 " --particles 1500");
+    EXPECT_EQ(build.exit_code, 0) << build.output;
+    EXPECT_NE(build.output.find("voxels      from"), std::string::npos) << build.output;
+    EXPECT_NE(build.output.find("lies outside the header's folder"), std::string::npos) << build.output;
+
+    // A data file that is not a label map (every byte value): one short line, not 256 numbers.
+    std::vector<unsigned char> noise(read.geometry.voxel_count());
+    for (std::size_t i = 0; i < noise.size(); ++i) noise[i] = static_cast<unsigned char>((i * 2654435761u) >> 13);
+    test::write_bytes(dir / "headers" / "noise.raw", noise);
+    std::string noise_header = text.substr(0, at) + "ElementDataFile = noise.raw\n";
+    for (const char* type : {"MET_USHORT", "MET_SHORT", "MET_UINT", "MET_INT"})
+        if (const auto t = noise_header.find(type); t != std::string::npos) noise_header.replace(t, std::strlen(type), "MET_UCHAR");
+    std::ofstream(dir / "headers" / "noise.mhd") << noise_header;
+    auto refused = test::heartprep("build " + quoted(dir / "headers" / "noise.mhd") + " -o " + quoted(dir / "noise.h5") + " --tissue=300");
+    EXPECT_EQ(refused.exit_code, 1) << refused.output;
+    EXPECT_NE(refused.output.find("different values: is this a label map?"), std::string::npos) << refused.output;
+    EXPECT_LT(refused.output.size(), 1200u) << refused.output;
+}
+
+TEST(Reliability, ALegalOutputNameOf253CharactersIsWritten) {
+    test::TempDir dir;
+    const fs::path input = dir / "phantom.nii.gz";
+    ASSERT_EQ(test::heartprep("phantom -o " + quoted(input) + " --voxel 2").exit_code, 0);
+    const std::string name = std::string(250, 'h') + ".h5";  // 253 bytes; its .xdmf 255
+    const auto run = test::heartprep("build " + quoted(input) + " -o " + quoted(dir / name) + " --particles 1200 -q");
+    EXPECT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_TRUE(fs::exists(dir / name));
+    EXPECT_TRUE(fs::exists(dir / (std::string(250, 'h') + ".xdmf")));
+    EXPECT_EQ(refusal(dir / name), "");
+    std::size_t files = 0;
+    for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++files;
+    EXPECT_EQ(files, 3u) << "a temporary was left behind";
+}
+
+TEST(Reliability, AHapticRunWithStepsZeroSaysWhatZeroMeans) {
+    test::TempDir dir;
+    const auto run = test::run_command(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(test::built_phantom("--particles 2000")) +
+                                       " --headless --device scripted:" + quoted(dir / "poses.csv") + " --steps 0");
+    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_NE(run.output.find("--steps 0 runs no step"), std::string::npos) << run.output;
+}
