@@ -4,7 +4,7 @@
 
 #include "hdf5_io.h"
 #include "xdmf.h"
-#include "volume_io.h"
+#include "volume_header_checks.h"
 
 #include "libmodel/plausible.h"
 #include "libmodel/stability.h"
@@ -14,6 +14,7 @@
 #include <openssl/evp.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -690,9 +691,15 @@ std::string sha256_file(const std::filesystem::path& path) {
 }
 
 std::string label_map_sha256(const std::filesystem::path& path) {
-    const VolumeHeader header = read_volume_header(path);
-    if (header.data_file.empty()) return sha256_file(path);
-    return sha256_text(sha256_file(path) + "\n" + sha256_file(header.data_file));
+    // The header parsers of volume_header_checks.h, not ITK: a batch hashes its cases from several
+    // threads, and ITK's image IO factories are not for concurrent first use.
+    std::string extension = path.extension().string();
+    std::transform(extension.begin(), extension.end(), extension.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    std::filesystem::path data;
+    if (extension == ".nrrd" || extension == ".nhdr") data = volume_header_checks::nrrd_data_location(path).file;
+    else if (extension == ".mhd" || extension == ".mha") data = volume_header_checks::metaimage_data_location(path).file;
+    if (data.empty() || data == path) return sha256_file(path);
+    return sha256_text(sha256_file(path) + "\n" + sha256_file(data));
 }
 
 std::string sha256_text(const std::string& text) {
