@@ -178,7 +178,21 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
 
 namespace {
 
-/// max over free particles of trace(K_ii)/(3 m_i): a lower bound on λ_max(M⁻¹K).
+/// max over free particles of (trace[i] + 3·own[i]) / (3 m_i), with `trace` the summed spring
+/// terms of each particle's 3×3 diagonal block and `own` its support's isotropic term (absent:
+/// none): the largest eigenvalue of one diagonal block of M^(−½)AM^(−½) is at least its mean,
+/// and bounds λ_max(M⁻¹A) from below (Cauchy interlacing).
+double diagonal_block_floor(const Particles& particles, const std::vector<double>& trace, const std::vector<float>& own) {
+    double lower = 0.0;
+    for (std::size_t i = 0; i < particles.size(); ++i) {
+        if (particles.anchored[i] || !(particles.mass[i] > 0)) continue;
+        const double support = own.empty() ? 0.0 : 3.0 * double(own[i]);
+        lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
+    }
+    return lower;
+}
+
+/// A lower bound on λ_max(M⁻¹K).
 double stiffness_eigenvalue_floor(const Particles& particles, const Springs& springs) {
     // Trace of each particle's 3×3 diagonal block of K: k + 2t/L per spring (the trace of
     // k n nᵀ + (t/L)(I − n nᵀ)) plus 3 k_s for its support.
@@ -189,13 +203,8 @@ double stiffness_eigenvalue_floor(const Particles& particles, const Springs& spr
         trace[std::size_t(springs.pairs[s][0])] += block;
         trace[std::size_t(springs.pairs[s][1])] += block;
     }
-    double lower = 0.0;  // max over free particles of trace/(3m) ≤ λ_max(M⁻¹K)
-    for (std::size_t i = 0; i < particles.size(); ++i) {
-        if (particles.anchored[i] || !(particles.mass[i] > 0)) continue;
-        const double support = particles.supported() ? 3.0 * double(particles.support_stiffness[i]) : 0.0;
-        lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
-    }
-    return lower;
+    const std::vector<float> none;
+    return diagonal_block_floor(particles, trace, particles.supported() ? particles.support_stiffness : none);
 }
 
 }  // namespace
@@ -216,12 +225,7 @@ double damped_step_ceiling_ms(const Particles& particles, const Springs& springs
         trace[std::size_t(a)] += c;
         trace[std::size_t(b)] += c;
     }
-    double lower = 0.0;
-    for (std::size_t i = 0; i < particles.size(); ++i) {
-        if (particles.anchored[i] || !(particles.mass[i] > 0)) continue;
-        const double support = particles.support_damping.empty() ? 0.0 : 3.0 * double(particles.support_damping[i]);
-        lower = std::max(lower, (trace[i] + support) / (3.0 * double(particles.mass[i])));
-    }
+    const double lower = diagonal_block_floor(particles, trace, particles.support_damping);
     return stable_step_ms(stiffness_eigenvalue_floor(particles, springs), lower + std::max(0.0, drag_per_ms));
 }
 
