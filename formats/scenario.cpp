@@ -8,13 +8,13 @@
 
 #include "libmodel/plausible.h"
 #include "libmodel/stability.h"
+#include "libmodel/text.h"
 
 #include "libmodel/errors.h"
 
 #include <openssl/evp.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -693,8 +693,7 @@ std::string sha256_file(const std::filesystem::path& path) {
 std::string label_map_sha256(const std::filesystem::path& path) {
     // The header parsers of volume_header_checks.h, not ITK: a batch hashes its cases from several
     // threads, and ITK's image IO factories are not for concurrent first use.
-    std::string extension = path.extension().string();
-    std::transform(extension.begin(), extension.end(), extension.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    const std::string extension = text::lowercase(path.extension().string());
     std::filesystem::path data;
     if (extension == ".nrrd" || extension == ".nhdr") data = volume_header_checks::nrrd_data_location(path).file;
     else if (extension == ".mhd" || extension == ".mha") data = volume_header_checks::metaimage_data_location(path).file;

@@ -79,7 +79,6 @@ struct HeadlessDisplay {
 // EGL_EXT_platform_device: one display per GPU, the way into NVIDIA's driver on a machine with no
 // display server. `hardware` false also takes Mesa's software device (EGL_MESA_device_software).
 HeadlessDisplay device_display(bool hardware, std::string& tried) {
-    if (!eglQueryDevicesEXT || !eglQueryDeviceStringEXT) return {};
     EGLint count = 0;
     if (!eglQueryDevicesEXT(0, nullptr, &count) || count <= 0) {
         tried += "; EGL device platform: no devices";
