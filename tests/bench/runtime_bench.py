@@ -29,7 +29,6 @@ Every run's --stats-csv, state file, stdout and screenshot are kept under OUT/ru
 """
 
 import argparse
-import csv
 import glob
 import math
 import os
@@ -37,9 +36,8 @@ import platform
 import re
 import subprocess
 import sys
-import time
 
-from bench_common import write_csv
+from bench_common import md_table, read_stats, run, write_csv
 
 try:
     import numpy as np
@@ -67,29 +65,11 @@ def h5_values(path, name, attribute=False):
 # Running the programs
 
 
-def run(cmd, log=None):
-    start = time.perf_counter()
-    proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    wall = time.perf_counter() - start
-    if log:
-        with open(log, "w") as f:
-            f.write(" ".join(cmd) + "\n\n" + proc.stdout)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-4000:]}")
-    return wall, proc.stdout
-
-
 def load_average():
     try:
         return " ".join(open("/proc/loadavg").read().split()[:3])
     except OSError:
         return "?"
-
-
-def read_stats(path):
-    """--stats-csv → {pass: row} (rows keep the run's columns)."""
-    with open(path, newline="") as f:
-        return {r["pass"]: r for r in csv.DictReader(f)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -168,31 +148,6 @@ def read_state(path):
 
 # ---------------------------------------------------------------------------------------------
 # Output
-
-
-def fmt(v):
-    if v is None or v == "":
-        return "—"
-    if isinstance(v, float):
-        if v == 0:
-            return "0"
-        if math.isnan(v):
-            return "—"
-        if abs(v) >= 1000:
-            return f"{v:,.0f}".replace(",", " ")
-        if abs(v) >= 10:
-            return f"{v:.1f}"
-        if abs(v) >= 0.01:
-            return f"{v:.3g}"
-        return f"{v:.2g}"
-    return str(v)
-
-
-def md_table(header, rows):
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(fmt(v) for v in r) + " |")
 
 
 def mean_ms(stats, name):

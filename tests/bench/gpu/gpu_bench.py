@@ -14,7 +14,6 @@ fails or the gl backend disagrees with the cpu backend.
 """
 
 import argparse
-import csv
 import os
 import platform
 import re
@@ -25,7 +24,7 @@ import time
 
 here = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, here)
-from bench_common import write_csv  # noqa: E402
+from bench_common import md_table, read_stats, run, write_csv  # noqa: E402
 
 RAN = re.compile(r"ran (\d+) steps \((\d+) substeps\), ([0-9.e+-]+) ms simulated in ([0-9.e+-]+) ms wall: "
                  r"([0-9.e+-]+) substeps/s, real-time factor ([0-9.e+-]+)")
@@ -35,44 +34,15 @@ def log(text):
     print(text, flush=True)
 
 
-def run(cmd, out_path=None, timeout=None, env=None):
-    start = time.time()
-    proc = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=timeout, env=env)
-    if out_path:
-        with open(out_path, "w") as f:
-            f.write(proc.stdout)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{proc.stdout[-3000:]}")
-    return proc.stdout, time.time() - start
-
-
-def md_table(header, rows):
-    def cell(v):
-        if isinstance(v, float):
-            return f"{v:.4g}"
-        return "—" if v is None else str(v)
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for r in rows:
-        print("| " + " | ".join(cell(v) for v in r) + " |")
-    sys.stdout.flush()
-
-
-def stats_row(path):
-    with open(path, newline="") as f:
-        rows = {r["pass"]: r for r in csv.DictReader(f)}
-    return rows
-
-
 def headless_run(heartsim, h5, backend, seconds, work, tag, prefix=()):
     stats = os.path.join(work, f"{tag}.stats.csv")
     cmd = list(prefix) + [heartsim, "run", h5, "--headless", "--backend", backend, "--seconds", str(seconds),
                           "--stats", "--stats-csv", stats]
-    text, wall = run(cmd, os.path.join(work, f"{tag}.log"), timeout=300)
+    wall, text = run(cmd, os.path.join(work, f"{tag}.log"), timeout=300)
     m = RAN.search(text)
     if not m:
         raise RuntimeError(f"{tag}: no 'ran N steps' line in heartsim's output:\n{text[-2000:]}")
-    s = stats_row(stats)
+    s = read_stats(stats)
     step = s["simulation step"]
     return {"steps": int(m.group(1)), "substeps": int(m.group(2)), "simulated_ms": float(m.group(3)),
             "wall_ms": float(m.group(4)), "substeps_per_s": float(m.group(5)), "real_time_factor": float(m.group(6)),
@@ -81,15 +51,18 @@ def headless_run(heartsim, h5, backend, seconds, work, tag, prefix=()):
             "renderer": step["renderer"], "process_s": wall}
 
 
-def measured(what, run_it):
-    """One headless run's figures, logged; None (logged with the reason) when it failed."""
+def measured(what, rows, extra, run_it):
+    """Appends one headless run's figures and `extra` to `rows`, logged; False (logged with the
+    reason) when the run failed."""
     try:
         r = run_it()
     except (RuntimeError, subprocess.TimeoutExpired) as error:
         log(f"{what}: {error}")
-        return None
+        return False
+    r.update(extra)
+    rows.append(r)
     log(f"{what}: {r['particles']} particles, {r['substeps_per_s']:.0f} substeps/s, real-time factor {r['real_time_factor']:.3g}")
-    return r
+    return True
 
 
 def main():
@@ -125,7 +98,7 @@ def main():
         cpu = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    info, _ = run([args.heartsim, "info"])
+    _, info = run([args.heartsim, "info"])
     log(f"GPU: {gpu}\nCPU: {os.cpu_count()} × {cpu}\n\nheartsim info:\n{info.strip()}\n")
     renderer = next((l.split(None, 1)[1] for l in info.splitlines() if l.startswith("renderer")), "?")
     egl = next((l.split(None, 1)[1] for l in info.splitlines() if l.startswith("platform")), "?")
@@ -153,19 +126,16 @@ def main():
         wanted = sorted(set(sizes if "sizes" not in skip else []) | ({sizes[0]} if "threads" not in skip else set()))
         for n in wanted:
             h5 = os.path.join(work, f"phantom{n}.h5")
-            _, took = run([args.heartprep, "build", label, "-o", h5, "--particles", str(n), "--gravity", "0", "0", "0", "--no-visual",
+            took, _ = run([args.heartprep, "build", label, "-o", h5, "--particles", str(n), "--gravity", "0", "0", "0", "--no-visual",
                            "-q"], os.path.join(work, f"build{n}.log"), timeout=400)
             scenarios[n] = h5
             log(f"built {n}-particle budget scenario in {took:.1f} s [{time.time() - t0:.0f} s]")
     if "sizes" not in skip:
         log(f"== gl at {', '.join(str(n) for n in sizes)} particles")
         for n in sizes:
-            r = measured(f"gl at {n}", lambda: headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}"))
-            if r is None:
+            if not measured(f"gl at {n}", rows, {"budget": n},
+                            lambda: headless_run(args.heartsim, scenarios[n], "gl", seconds, work, f"gl{n}")):
                 status = 1
-                continue
-            r.update(budget=n)
-            rows.append(r)
         write_csv(os.path.join(out, "gpu_sizes.csv"), rows)
         print(f"\ngl backend on {renderer} ({egl}), headless, no rendering, {seconds} s simulated per run\n")
         md_table(["particles", "substep ms", "steps", "substeps", "substeps/s", "step-pass substeps/s", "real-time factor", "wall s"],
@@ -184,13 +154,9 @@ def main():
                 log(f"{t} cores: the machine has {have}, skipped")
                 continue
             prefix = ["taskset", "-c", f"0-{t - 1}"] if shutil.which("taskset") else []
-            r = measured(f"cpu on {t} cores", lambda: headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work,
-                                                                      f"cpu{n}_t{t}", prefix))
-            if r is None:
+            if not measured(f"cpu on {t} cores", cpu_rows, {"cores": t},
+                            lambda: headless_run(args.heartsim, scenarios[n], "cpu", seconds / 2, work, f"cpu{n}_t{t}", prefix)):
                 status = 1
-                continue
-            r.update(cores=t)
-            cpu_rows.append(r)
         write_csv(os.path.join(out, "cpu_threads.csv"), cpu_rows)
         base = cpu_rows[0]["substeps_per_s"] if cpu_rows else 1
         print(f"\ncpu backend at {n} particles (budget), {cpu}, cores chosen with taskset\n")
