@@ -4,6 +4,7 @@
 // and the errors a user sees. Plus the command-line vocabulary in process (device specs, the
 // simulated device file, instruments, the recording file's round trip).
 #include "runtime_test_support.h"
+#include "scenario_damage.h"
 #include "test_support.h"
 
 #include "formats/recording.h"
@@ -391,33 +392,14 @@ TEST(HapticsCli, ARunThatCannotRecoverStopsWithExit6AndCountsOnlyStepsThatAdvanc
     const double ceiling = critical_step_ceiling_ms(scenario.lattice.particles, scenario.lattice.springs);
     const double critical = 1.3 * scenario.solver.critical_dt_ms;
     ASSERT_LT(critical, ceiling) << "the test needs room under the ceiling";
-    {
-        const hid_t file = H5Fopen((dir / "unstable.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-        ASSERT_GE(file, 0);
-        const std::pair<const char*, double> values[] = {
-            {"critical_dt_ms", critical}, {"damped_critical_dt_ms", critical}, {"dt_ms", scenario.solver.safety_factor * critical}};
-        // Through the group: HDF5 1.10's H5Awrite fails on an attribute opened with H5Aopen_by_name
-        // in a 1.8-format file ("can't locate open attribute").
-        const hid_t solver = H5Gopen2(file, "solver", H5P_DEFAULT);
-        for (const auto& [name, value] : values) {
-            const hid_t attribute = H5Aopen(solver, name, H5P_DEFAULT);
-            ASSERT_GE(attribute, 0) << name;
-            ASSERT_GE(H5Awrite(attribute, H5T_NATIVE_DOUBLE, &value), 0) << name;
-            H5Aclose(attribute);
-        }
-        H5Gclose(solver);
-        // Undamped (no dashpots, no support dampers): the damped step then has the undamped
-        // step's proven ceiling, which the reader checks, and 1.3 × critical stays under it.
-        const std::vector<float> no_damping(scenario.lattice.materials.size(), 0.0f);
-        const std::vector<float> no_support_damping(scenario.lattice.particles.size(), 0.0f);
-        for (const auto& [name, zeros] : {std::pair{"materials/damping", &no_damping}, std::pair{"particles/support_damping", &no_support_damping}}) {
-            const hid_t dataset = H5Dopen2(file, name, H5P_DEFAULT);
-            ASSERT_GE(dataset, 0) << name;
-            ASSERT_GE(H5Dwrite(dataset, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, zeros->data()), 0) << name;
-            H5Dclose(dataset);
-        }
-        H5Fclose(file);
-    }
+    for (const auto& [name, value] : {std::pair{"critical_dt_ms", critical}, std::pair{"damped_critical_dt_ms", critical},
+                                      std::pair{"dt_ms", scenario.solver.safety_factor * critical}})
+        test::overwrite_attribute(dir / "unstable.h5", "solver", name, std::vector<double>{value}, H5T_NATIVE_DOUBLE);
+    // Undamped (no dashpots, no support dampers): the damped step then has the undamped step's
+    // proven ceiling, which the reader checks, and 1.3 × critical stays under it.
+    test::overwrite(dir / "unstable.h5", "materials/damping", std::vector<float>(scenario.lattice.materials.size(), 0.0f), H5T_NATIVE_FLOAT);
+    test::overwrite(dir / "unstable.h5", "particles/support_damping", std::vector<float>(scenario.lattice.particles.size(), 0.0f),
+                    H5T_NATIVE_FLOAT);
     {
         std::ofstream out(dir / "press.csv");
         out << "0, -1.9, -3.0, -47.0, 1,0,0,0, 0\n";
@@ -726,10 +708,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     // A value the writer refuses, put into a written file by hand: the reader must refuse it.
     auto refused_by_hand = [&](const std::string& dataset, const std::vector<double>& values, const std::string& expected) {
         write_recording(dir / "by-hand.h5", r);
-        const hid_t file = H5Fopen((dir / "by-hand.h5").c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-        const hid_t set = H5Dopen2(file, dataset.c_str(), H5P_DEFAULT);
-        ASSERT_GE(H5Dwrite(set, H5T_NATIVE_DOUBLE, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
-        H5Dclose(set), H5Fclose(file);
+        test::overwrite(dir / "by-hand.h5", dataset.c_str(), values, H5T_NATIVE_DOUBLE);
         try {
             read_recording(dir / "by-hand.h5");
             ADD_FAILURE() << "read; expected: " << expected;

@@ -5,6 +5,7 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "libmodel/errors.h"
+#include "scenario_damage.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -20,7 +21,10 @@
 #include <sstream>
 
 using namespace heartsim;
+using test::overwrite;
+using test::overwrite_attribute;
 using test::quoted;
+using test::refusal;
 namespace fs = std::filesystem;
 
 namespace {
@@ -32,15 +36,6 @@ fs::path phantom_copy(const test::TempDir& dir, const std::string& name) {
     return dir / name;
 }
 
-std::string refusal(const fs::path& file) {
-    try {
-        read_scenario(file);
-    } catch (const InputError& e) {
-        return e.what();
-    }
-    return "";
-}
-
 template <class T>
 std::vector<T> read_values(const fs::path& file, const char* dataset, hid_t type, std::size_t count) {
     std::vector<T> values(count);
@@ -50,27 +45,6 @@ std::vector<T> read_values(const fs::path& file, const char* dataset, hid_t type
     H5Dclose(d);
     H5Fclose(f);
     return values;
-}
-
-template <class T>
-void overwrite(const fs::path& file, const char* dataset, const std::vector<T>& values, hid_t type) {
-    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-    const hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
-    EXPECT_GE(H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0) << dataset;
-    H5Dclose(d);
-    H5Fclose(f);
-}
-
-template <class T>
-void overwrite_attribute(const fs::path& file, const char* object, const char* name, const std::vector<T>& values, hid_t type) {
-    const hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-    const hid_t g = H5Gopen2(f, object, H5P_DEFAULT);
-    const hid_t a = H5Aopen(g, name, H5P_DEFAULT);
-    EXPECT_GE(a, 0) << object << " " << name;
-    EXPECT_GE(H5Awrite(a, type, values.data()), 0) << object << " " << name;
-    H5Aclose(a);
-    H5Gclose(g);
-    H5Fclose(f);
 }
 
 void expect_refused(const fs::path& file, std::initializer_list<const char*> parts) {

@@ -7,6 +7,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
 #include "libmodel/simulation_surface.h"
+#include "scenario_damage.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -23,6 +24,8 @@
 #include <iterator>
 
 using namespace heartsim;
+using test::overwrite;
+using test::refusal;
 
 namespace {
 
@@ -63,29 +66,10 @@ Scenario sample_scenario() {
     return s;
 }
 
-/// Rewrites one dataset of an existing file in place (to damage it on purpose).
-template <class T>
-void overwrite(const std::filesystem::path& file, const char* dataset, const std::vector<T>& values, hid_t type) {
-    hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-    hid_t d = H5Dopen2(f, dataset, H5P_DEFAULT);
-    ASSERT_GE(H5Dwrite(d, type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
-    H5Dclose(d);
-    H5Fclose(f);
-}
-
 void remove_object(const std::filesystem::path& file, const char* name) {
     hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
     H5Ldelete(f, name, H5P_DEFAULT);
     H5Fclose(f);
-}
-
-std::string refusal(const std::filesystem::path& file) {
-    try {
-        read_scenario(file);
-    } catch (const InputError& e) {
-        return e.what();
-    }
-    return "";
 }
 
 /// Where the first (only) chunk of /particles/mass lies in `file` and how many bytes it holds, as
@@ -120,16 +104,8 @@ TEST(Scenario, LatticeDimsBeyondTheSourceVolumeAreRefusedNamingTheAttribute) {
         EXPECT_EQ(s.lattice.dims[std::size_t(a)], int(std::ceil(extent / s.lattice.spacing - 1e-9))) << "axis " << a;
     }
     EXPECT_EQ(refusal(file), "");
-    const std::int32_t damaged[3] = {2000000000, s.lattice.dims[1], s.lattice.dims[2]};
-    {
-        hid_t f = H5Fopen(file.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
-        hid_t g = H5Gopen2(f, "lattice", H5P_DEFAULT);
-        hid_t attribute = H5Aopen(g, "dims", H5P_DEFAULT);
-        ASSERT_GE(H5Awrite(attribute, H5T_NATIVE_INT32, damaged), 0);
-        H5Aclose(attribute);
-        H5Gclose(g);
-        H5Fclose(f);
-    }
+    test::overwrite_attribute(file, "lattice", "dims", std::vector<std::int32_t>{2000000000, s.lattice.dims[1], s.lattice.dims[2]},
+                              H5T_NATIVE_INT32);
     const std::string message = refusal(file);
     for (const char* part : {"s.h5", "/lattice", "dims 2000000000 x", "at most", "source volume along axis 0"})
         EXPECT_NE(message.find(part), std::string::npos) << part << " in: " << message;
