@@ -55,7 +55,8 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
     const RecordedSteps& s = r.steps;
     const std::size_t n = s.size();
     if (s.wall_ms.size() != n || s.tool_time_ms.size() != n || s.tool_position_mm.size() != n || s.tool_orientation.size() != n ||
-        s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n)
+        s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n ||
+        (!s.mass_scale.empty() && s.mass_scale.size() != n))
         throw OutputError(file + ": the step columns have different lengths (a bug in heartsim)");
     h5::write_file(path, [&](h5::Writer& w) {
         w.header("heartsim.recording", 1, "mm g ms N");
@@ -119,6 +120,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.dataset("steps/force_n", s.force_n, {n, 2, 3});
         w.dataset("steps/force_step", s.force_step, {n});
         w.dataset("steps/diverged", s.diverged, {n});
+        if (!s.mass_scale.empty()) w.dataset("steps/mass_scale", s.mass_scale, {n});
 
         w.group("events");
         std::vector<double> times;
@@ -248,6 +250,14 @@ Recording read_recording(const std::filesystem::path& path) {
     if (n) std::memcpy(s.force_n.data(), force.data(), force.size() * sizeof(double));
     s.force_step = r.dataset<std::int64_t>("steps/force_step", {steps});
     s.diverged = r.dataset<std::int8_t>("steps/diverged", {steps});
+    // Absent in recordings made before heartsim scaled mass: 1 throughout.
+    if (r.exists("steps/mass_scale")) {
+        s.mass_scale = r.dataset<double>("steps/mass_scale", {steps});
+        for (std::size_t i = 0; i < n; ++i)
+            if (!(s.mass_scale[i] >= min_mass_scale && s.mass_scale[i] <= max_mass_scale))
+                r.fail("steps/mass_scale", "row " + std::to_string(i) + " is " + std::to_string(s.mass_scale[i]) + ", expected " +
+                                               std::to_string(min_mass_scale) + " … " + std::to_string(max_mass_scale));
+    }
     for (std::size_t i = 0; i < n; ++i)
         for (int h = 0; h < 2; ++h) {
             const std::string row = "row " + std::to_string(i) + ", hand " + std::to_string(h);

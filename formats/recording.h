@@ -31,6 +31,8 @@
 ///     force_n        float64 [S,2,3]  forces published after the step (world frame)
 ///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
 ///     diverged       int8    [S]      the step hit the watchdog
+///     mass_scale     float64 [S]      the explicit mass scaling S the step ran with (absent in
+///                                     recordings made before heartsim scaled mass: 1 throughout)
 ///   /events
 ///     time_ms float64 [E], hand int32 [E] (−1: both), what (UTF-8 strings) [E]
 #pragma once
@@ -79,7 +81,11 @@ struct RecordedSteps {
     std::vector<std::array<std::array<double, 3>, 2>> force_n;
     std::vector<std::int64_t> force_step;
     std::vector<std::int8_t> diverged;
+    /// The mass scale each step ran with (SolverOptions::mass_scale); empty: 1 throughout.
+    std::vector<double> mass_scale;
     std::size_t size() const { return time_ms.size(); }
+    /// The mass scale of step k (1 where the column is empty).
+    double mass_scale_at(std::size_t k) const { return mass_scale.empty() ? 1.0 : mass_scale[k]; }
 };
 
 struct RecordedEvent {
@@ -99,7 +105,7 @@ std::string check_rules(const SolverRules& rules);
 struct Recording {
     std::string scenario;
     std::int64_t particles = 0;
-    double dt_ms = 0.0;
+    double dt_ms = 0.0;  ///< the scenario's step at mass scale 1 (a step at S is longer: stability.h scaled_step_ms)
     std::int32_t substeps = 0;
     std::string backend, contact, interpolation;
     /// The spring slot's multiply-adds in the recorded run: "fused", or "separate" (the sse2

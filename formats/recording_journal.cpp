@@ -27,8 +27,10 @@ constexpr std::uint32_t record_magic = 0x524a5348u;  // "HSJR"
 constexpr std::size_t record_header = 20;           // magic, kind, bytes, checksum
 /// 2 adds the recording's arithmetic after its interpolation; a version-1 journal (written before
 /// the slot's multiply-adds were fused) is read with "separate". 3 adds the solver's rules after
-/// the arithmetic (a byte, 1 when they follow); a journal before it is read without them.
-constexpr std::uint32_t journal_version = 3;
+/// the arithmetic (a byte, 1 when they follow); a journal before it is read without them. 4 adds
+/// to each chunk, after the diverged column, a byte (1 when the mass-scale column follows) and the
+/// column.
+constexpr std::uint32_t journal_version = 4;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
 /// A payload being built.
@@ -232,7 +234,8 @@ void RecordingJournal::append(const Recording& rows) {
     const RecordedSteps& s = rows.steps;
     const std::size_t n = s.size();
     if (s.wall_ms.size() != n || s.tool_time_ms.size() != n || s.tool_position_mm.size() != n || s.tool_orientation.size() != n ||
-        s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n)
+        s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n ||
+        (!s.mass_scale.empty() && s.mass_scale.size() != n))
         throw OutputError(path_.string() + ": the step columns have different lengths (a bug in heartsim)");
     Bytes b;
     b.put<std::uint64_t>(n);
@@ -246,6 +249,8 @@ void RecordingJournal::append(const Recording& rows) {
     b.column(s.force_n);
     b.column(s.force_step);
     b.column(s.diverged);
+    b.put<std::uint8_t>(s.mass_scale.empty() ? 0 : 1);
+    b.column(s.mass_scale);
     for (std::size_t h = 0; h < used_hands_.size(); ++h) {
         if (!used_hands_[h]) continue;
         const RecordedHand& hand = rows.hands[h];
@@ -343,6 +348,7 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
     std::vector<bool> used;
     std::size_t at = sizeof file_magic;
     double last_ms = 0.0;
+    std::uint32_t version = 0;  // the session record's, for the chunks after it
     while (at < bytes.size()) {
         // A record cut short or failing its checksum ends the journal.
         if (bytes.size() - at < record_header) break;
@@ -360,7 +366,7 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
         if ((kind == session_record) != used.empty())
             throw InputError(where + ": " + (used.empty() ? "the journal does not start with its session record" : "a second session record"));
         if (kind == session_record) {
-            const auto version = c.get<std::uint32_t>();
+            version = c.get<std::uint32_t>();
             if (version < 1 || version > journal_version)
                 throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 to " +
                                  std::to_string(journal_version) + ")");
@@ -411,6 +417,17 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             c.column(s.force_n, n);
             c.column(s.force_step, n);
             c.column(s.diverged, n);
+            if (version >= 4 && c.get<std::uint8_t>() != 0) {
+                const std::size_t before = s.mass_scale.size();
+                // Rows of earlier chunks without the column ran at 1.
+                if (before < s.diverged.size() - n) s.mass_scale.resize(s.diverged.size() - n, 1.0);
+                c.column(s.mass_scale, n);
+                for (std::size_t k = s.mass_scale.size() - n; k < s.mass_scale.size(); ++k)
+                    if (!(s.mass_scale[k] >= min_mass_scale && s.mass_scale[k] <= max_mass_scale))
+                        throw InputError(where + ": a step's mass scale is " + std::to_string(s.mass_scale[k]) + ", expected 1 … 1024");
+            } else if (!s.mass_scale.empty()) {
+                s.mass_scale.resize(s.diverged.size(), 1.0);
+            }
             if (n) last_ms = std::max(last_ms, s.wall_ms.back());
             for (std::size_t h = 0; h < used.size(); ++h) {
                 if (!used[h]) continue;

@@ -4,6 +4,10 @@
 #include "hdf5_io.h"
 #include "xdmf.h"
 
+#include "libmodel/stability.h"
+
+#include <string>
+
 namespace heartsim {
 
 void write_state(const std::filesystem::path& path, const SimulationState& state) {
@@ -15,6 +19,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
         w.attribute("/", "scenario", state.scenario);
         w.attribute("/", "time_ms", state.time_ms);
         w.attribute("/", "steps", std::int64_t(state.steps));
+        w.attribute("/", "mass_scale", state.mass_scale);
         w.dataset("positions", state.positions, {state.positions.size(), 3});
         w.dataset("instrument_forces", state.force_n.data()->data(), {2, 3});
         w.dataset("instrument_particles", state.particles.data(), {2});
@@ -34,6 +39,11 @@ SimulationState read_state(const std::filesystem::path& path) {
     state.scenario = r.string_attribute("/", "scenario");
     state.time_ms = r.number<double>("/", "time_ms");
     state.steps = r.number<std::int64_t>("/", "steps");
+    if (r.has_attribute("/", "mass_scale")) {
+        state.mass_scale = r.number<double>("/", "mass_scale");
+        if (!(state.mass_scale >= min_mass_scale && state.mass_scale <= max_mass_scale))
+            r.fail("/", "attribute mass_scale must lie in [1, 1024], not " + std::to_string(state.mass_scale));
+    }
     const auto positions = r.dataset<float>("positions", {-1, 3});
     r.require_finite("positions", positions);
     state.positions = h5::rows_of<3>(positions);

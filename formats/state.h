@@ -3,7 +3,8 @@
 /// positions and the last forces of each instrument. HDF5, written atomically (a temporary file
 /// beside it, then rename). Layout (docs/runtime.md):
 ///   root attrs  format = "heartsim.state", format_version = 1, units = "mm g ms", frame = "LPS",
-///               backend, scenario (file name), time_ms (simulated), steps
+///               backend, scenario (file name), time_ms (simulated), steps, mass_scale (the explicit
+///               mass scaling S at the end of the run; absent in states written before: 1)
 ///   /positions          float32 [N,3]  mm, packed order (as /particles/rest_position)
 ///   /instrument_forces  float64 [2,3]  N, the force the tissue exerts on each hand's instrument
 ///   /instrument_particles int32 [2]    particles held or touched per hand
@@ -24,6 +25,7 @@ struct SimulationState {
     std::string scenario;                              ///< scenario file name
     double time_ms = 0.0;                              ///< simulated time, ms
     long long steps = 0;
+    double mass_scale = 1.0;                           ///< SolverOptions::mass_scale at the end
     std::vector<std::array<float, 3>> positions;       ///< N×3, mm
     std::array<std::array<double, 3>, 2> force_n{};    ///< per hand, N
     std::array<std::int32_t, 2> particles{};           ///< per hand

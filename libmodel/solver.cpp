@@ -79,18 +79,15 @@ struct ProbeFrame {
 template <class Real>
 void BasicSolver<Real>::set_time_step(double dt_ms) {
     if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
-    const double limit = options_.safety_factor * damped_critical_dt_ms();
-    int substeps = 1;
-    if (options_.subdivide && std::isfinite(limit) && limit > 0) {
-        // In double first: a huge dt over a tiny limit must not overflow the int.
-        const double needed = std::ceil(dt_ms / limit * (1 - 1e-12));
-        if (!(needed <= double(max_substeps)))
-            throw InputError("solver: the time step of " + std::to_string(dt_ms) + " ms needs " +
-                             (std::isfinite(needed) ? std::to_string(std::llround(needed)) : std::string("unboundedly many")) +
-                             " substeps of the stable " + std::to_string(limit) + " ms (at most " + std::to_string(max_substeps) +
-                             "): use a shorter step or rebuild the scenario");
-        substeps = std::max(1, int(needed));
-    }
+    apply_time_step(scaled_step_ms(dt_ms, options_.safety_factor, base_damped_dt_ms_, damped_critical_dt_ms_));
+    base_dt_ms_ = dt_ms;
+    load_report_.unscaled_dt_ms = dt_ms;
+}
+
+template <class Real>
+void BasicSolver<Real>::apply_time_step(double dt_ms) {
+    if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
+    const int substeps = substeps_for_step(dt_ms, options_.safety_factor * damped_critical_dt_ms(), options_.subdivide, max_substeps);
     const double old_h = h_;
     dt_ms_ = dt_ms;
     substeps_ = substeps;
@@ -108,9 +105,31 @@ void BasicSolver<Real>::set_time_step(double dt_ms) {
 }
 
 template <class Real>
+void BasicSolver<Real>::set_mass_scale(double mass_scale) {
+    const double before = options_.mass_scale;
+    options_.mass_scale = mass_scale;
+    try {
+        apply_mass_scale();
+    } catch (const InputError&) {
+        options_.mass_scale = before;
+        apply_mass_scale();
+        throw;
+    }
+    try {
+        apply_time_step(scaled_step_ms(base_dt_ms_, options_.safety_factor, base_damped_dt_ms_, damped_critical_dt_ms_));
+    } catch (const InputError&) {  // more substeps than a step may take: back to where it was
+        options_.mass_scale = before;
+        apply_mass_scale();
+        throw;
+    }
+    snapshot();
+}
+
+template <class Real>
 void BasicSolver<Real>::build_step_constants() {
-    const double h2 = h_ * h_;
-    for (std::size_t i = 0; i < n_pad_; ++i) inverse_mass_h2_[i] = movable_[i] ? Real(h2 / double(mass_[i])) : Real(0);
+    // The inertia is S·m (mass scaling); the kernel's weight term m·g stays physical.
+    const double h2 = h_ * h_, s = options_.mass_scale;
+    for (std::size_t i = 0; i < n_pad_; ++i) inverse_mass_h2_[i] = movable_[i] ? Real(h2 / (double(mass_[i]) * s)) : Real(0);
     support_damping_over_h_.resize(support_damping_.size());
     for (std::size_t i = 0; i < support_damping_.size(); ++i) support_damping_over_h_[i] = Real(double(support_damping_[i]) / h_);
     dashpot_over_h_.resize(dashpot_.size());
@@ -133,7 +152,7 @@ void BasicSolver<Real>::reset_tissue() {
     // At rest the springs and supports balance the gravity the rest state was built for
     // (`balanced_gravity`; zero for an unbalanced rest state, where they exert nothing): the rest
     // acceleration is g − g_balanced, and u₀ = x₀ − x₋₁ = −½·a·h² starts the motion at second order.
-    const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
+    const Eigen::Vector3d rest_acceleration = (options_.gravity - options_.balanced_gravity) / options_.mass_scale;
     for (std::size_t i = 0; i < n_pad_; ++i)
         if (movable_[i])
             for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = Real(-0.5 * rest_acceleration[c] * h_ * h_);
@@ -162,7 +181,7 @@ void BasicSolver<Real>::set_state(const std::vector<Eigen::Vector3d>& positions,
     for (std::size_t i = 0; i < n_; ++i) {
         if (!movable_[i]) continue;
         const double m = double(mass_[i]);
-        const Eigen::Vector3d a = (force_on(i) + m * options_.gravity) / m - options_.damping * velocities[i];
+        const Eigen::Vector3d a = ((force_on(i) + m * options_.gravity) / m - options_.damping * velocities[i]) / options_.mass_scale;
         half_step[i] = 0.5 * h_ * h_ * a;
     }
     for (std::size_t i = 0; i < n_; ++i) {
@@ -336,7 +355,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     k.dashpot = dashpot_over_h_.data();
     k.mass = mass_.data();
     k.inverse_mass_h2 = inverse_mass_h2_.data();
-    k.keep = Real(1.0 - options_.damping * h_);
+    k.keep = Real(1.0 - options_.damping * h_ / options_.mass_scale);  // the drag force γ·m·v on the inertia S·m
     for (int c = 0; c < 3; ++c) k.gravity[c] = Real(options_.gravity[c]);
     double max_displacement = options_.max_displacement_fraction * double(min_rest_length_);
     for (const HandState& state : hand_)
@@ -647,7 +666,8 @@ Eigen::Vector3d BasicSolver<Real>::support_force() const {
 template <class Real>
 SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
     std::vector<std::array<double, 4>> partial(chunks_, {0.0, 0.0, 0.0, 0.0});
-    const double h = h_, keep = 1.0 - options_.damping * h_;
+    // Kinetic energy with the inertia the step integrates (S·m): what the step conserves.
+    const double h = h_, s = options_.mass_scale, keep = 1.0 - options_.damping * h_ / s;
     const Eigen::Vector3d g = options_.gravity;
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
@@ -674,8 +694,8 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
                 }
                 const double m = double(mass_[i]);
                 Eigen::Vector3d u(static_cast<double>(motion_[state_stride * i]), static_cast<double>(motion_[state_stride * i + 1]), static_cast<double>(motion_[state_stride * i + 2]));
-                if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / m));
-                kinetic += 0.5 * m * u.squaredNorm() / (h * h);
+                if (centred) u = 0.5 * (u + keep * u + (force_on(i) + m * g) * (h * h / (m * s)));
+                kinetic += 0.5 * s * m * u.squaredNorm() / (h * h);
                 const Eigen::Vector3d displacement(static_cast<double>(x[0]) - rest_[4 * i], static_cast<double>(x[1]) - rest_[4 * i + 1], static_cast<double>(x[2]) - rest_[4 * i + 2]);
                 gravity -= m * g.dot(displacement);
             }

@@ -105,6 +105,11 @@ struct SolverLoadReport {
     double substep_ms = 0.0;
     SolverKernel kernel = SolverKernel::portable;///< the one chosen
     bool uniform_slots = false;                  ///< rest length and stiffness read as 18 per-slot constants
+    /// Explicit mass scaling S (SolverOptions::mass_scale); the critical steps above include it.
+    double mass_scale = 1.0;
+    double unscaled_critical_dt_ms = 0.0;         ///< the critical steps at S = 1
+    double unscaled_damped_critical_dt_ms = 0.0;
+    double unscaled_dt_ms = 0.0;                  ///< the step at S = 1 (stability.h scaled_step_ms)
 };
 
 /// begin_grab()'s piece of tissue (SolverOptions::grab_reach), shared by the cpu and gl
@@ -145,7 +150,9 @@ public:
     const SolverOptions& options() const { return options_; }
     std::size_t size() const { return n_; }
 
-    /// Sets the time of one step, ms (recomputes substeps and the per-substep constants).
+    /// Sets the time of one step at mass scale 1, ms (under mass scaling a step of one substep
+    /// grows with the stable step: stability.h scaled_step_ms); recomputes the substeps and the
+    /// per-substep constants, keeping velocities.
     void set_time_step(double dt_ms);
     double time_step_ms() const { return dt_ms_; }
     double substep_ms() const { return h_; }
@@ -156,6 +163,12 @@ public:
     /// stable_step_ms), λ_K = 4/critical², λ_C the largest eigenvalue of M^(−1/2) C M^(−1/2)
     /// estimated at load. Equals the critical step undamped.
     double damped_critical_dt_ms() const { return damped_critical_dt_ms_; }
+    /// Changes the explicit mass scaling S (SolverOptions::mass_scale, in [1, 1024]) during a run:
+    /// the critical steps, the step (stability.h scaled_step_ms), the substeps and the per-substep
+    /// constants follow; positions and velocities are kept. Throws InputError outside the range
+    /// (nothing changed then).
+    void set_mass_scale(double mass_scale);
+    double mass_scale() const { return options_.mass_scale; }
 
     /// Instruments: hand 0 or 1. Changing an instrument releases what it held.
     void set_instrument(int hand, const Instrument& instrument);
@@ -250,6 +263,8 @@ private:
     void load_springs(const Particles& particles, const Springs& springs, const std::vector<std::array<std::int32_t, 18>>& table,
                       const std::vector<std::int32_t>& slot_spring);
     void load_time_steps(const Particles& particles, const Springs& springs);
+    void apply_mass_scale();
+    void apply_time_step(double dt_ms);  ///< the step as taken (scaled): substeps and constants
     void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad);
     SolverEnergy compute_energy(bool centred) const;
     /// The largest strain of particle i's springs if it stood at `x` (its neighbours in `positions`).
@@ -262,6 +277,7 @@ private:
     SolverLoadReport load_report_;
     std::size_t n_ = 0, n_pad_ = 0, groups_ = 0, chunks_ = 0;
     double dt_ms_ = 0.0, h_ = 0.0, critical_dt_ms_ = 0.0, time_ms_ = 0.0;
+    double base_critical_dt_ms_ = 0.0, base_damped_dt_ms_ = 0.0, base_dt_ms_ = 0.0;  ///< without mass scaling
     int substeps_ = 1;
     Real min_rest_length_ = 0;
     double energy_floor_ = 0.0;

@@ -135,7 +135,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
 
     double dt = options_.dt_ms;
     if (!(dt > 0)) {
-        dt = time_step_limits_.dt_ms;
+        dt = options_.safety_factor * base_damped_dt_ms_;  // the step at S = 1 (set_time_step scales it)
         if (!std::isfinite(dt) || !(dt > 0)) throw InputError("solver: dt_ms must be given for a network without a finite critical step");
     }
     // 64-byte aligned, so that no particle's 32 bytes straddle two cache lines.
@@ -272,8 +272,28 @@ void BasicSolver<Real>::load_time_steps(const Particles& particles, const Spring
     time_step_limits_ = time_step_limits(critical_dt_ms_, stored, options_.safety_factor, [&] {
         return estimate_damping_eigenvalue(particles, springs, options_.damping_ratio, options_.damping);
     });
-    damped_critical_dt_ms_ = time_step_limits_.damped_critical_dt_ms;
+    base_critical_dt_ms_ = critical_dt_ms_;
+    base_damped_dt_ms_ = time_step_limits_.damped_critical_dt_ms;
+    apply_mass_scale();
+}
+
+/// The critical and damped steps, the step policy's and the load report's, for
+/// options_.mass_scale (stability.h scale_time_steps) from the unscaled ones.
+template <class Real>
+void BasicSolver<Real>::apply_mass_scale() {
+    const double s = options_.mass_scale;
+    if (!(s >= min_mass_scale && s <= max_mass_scale))
+        throw InputError("solver: the mass scale must lie in [" + std::to_string(min_mass_scale) + ", " + std::to_string(max_mass_scale) +
+                         "], not " + std::to_string(s));
+    const ScaledTimeSteps scaled = scale_time_steps(base_critical_dt_ms_, base_damped_dt_ms_, s);
+    critical_dt_ms_ = scaled.critical_dt_ms;
+    damped_critical_dt_ms_ = scaled.damped_critical_dt_ms;
+    time_step_limits_ = {damped_critical_dt_ms_, options_.safety_factor * damped_critical_dt_ms_};
+    load_report_.critical_dt_ms = critical_dt_ms_;
     load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
+    load_report_.mass_scale = s;
+    load_report_.unscaled_critical_dt_ms = base_critical_dt_ms_;
+    load_report_.unscaled_damped_critical_dt_ms = base_damped_dt_ms_;
 }
 
 // The set-up's members for the two solvers (solver.cpp instantiates the rest).
@@ -284,7 +304,8 @@ void BasicSolver<Real>::load_time_steps(const Particles& particles, const Spring
     template void BasicSolver<Real>::load_particles(const Particles&);                                                         \
     template void BasicSolver<Real>::load_springs(const Particles&, const Springs&, const std::vector<std::array<std::int32_t, 18>>&, \
                                                   const std::vector<std::int32_t>&);                                           \
-    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&);
+    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&);                                        \
+    template void BasicSolver<Real>::apply_mass_scale();
 HEARTSIM_SOLVER_SETUP(float)
 HEARTSIM_SOLVER_SETUP(double)
 #undef HEARTSIM_SOLVER_SETUP

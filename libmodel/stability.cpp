@@ -1,5 +1,7 @@
 #include "stability.h"
 
+#include "errors.h"
+
 #include <Eigen/Core>
 #include <Eigen/Eigenvalues>
 
@@ -295,6 +297,36 @@ TimeStepLimits time_step_limits(double critical_dt_ms, double stored_damped_dt_m
                                                            : stable_step_ms(4.0 / (critical_dt_ms * critical_dt_ms), damping_eigenvalue());
     limits.dt_ms = safety_factor * limits.damped_critical_dt_ms;
     return limits;
+}
+
+int substeps_for_step(double dt_ms, double limit, bool subdivide, int max_substeps) {
+    if (!subdivide || !std::isfinite(limit) || !(limit > 0)) return 1;
+    // In double first: a huge dt over a tiny limit must not overflow the int.
+    const double needed = std::ceil(dt_ms / limit * (1 - 1e-12));
+    if (!(needed <= double(max_substeps)))
+        throw InputError("solver: the time step of " + std::to_string(dt_ms) + " ms needs " +
+                         (std::isfinite(needed) ? std::to_string(std::llround(needed)) : std::string("unboundedly many")) +
+                         " substeps of the stable " + std::to_string(limit) + " ms (at most " + std::to_string(max_substeps) +
+                         "): use a shorter step or rebuild the scenario");
+    return std::max(1, int(needed));
+}
+
+double scaled_step_ms(double unscaled_dt_ms, double safety_factor, double unscaled_damped_dt_ms, double scaled_damped_dt_ms) {
+    if (scaled_damped_dt_ms == unscaled_damped_dt_ms || !std::isfinite(scaled_damped_dt_ms) || !std::isfinite(unscaled_damped_dt_ms) ||
+        !(unscaled_damped_dt_ms > 0) || !(unscaled_dt_ms <= safety_factor * unscaled_damped_dt_ms * (1 + 1e-9)))
+        return unscaled_dt_ms;
+    return unscaled_dt_ms * (scaled_damped_dt_ms / unscaled_damped_dt_ms);
+}
+
+ScaledTimeSteps scale_time_steps(double critical_dt_ms, double damped_critical_dt_ms, double mass_scale) {
+    if (mass_scale == 1.0 || !std::isfinite(critical_dt_ms)) return {critical_dt_ms, damped_critical_dt_ms};
+    const double lambda_k = 4.0 / (critical_dt_ms * critical_dt_ms);
+    // From h²λ_K + 2hλ_C = 4 at h = the damped step; rounding may leave a tiny negative: none.
+    const double lambda_c = std::isfinite(damped_critical_dt_ms) && damped_critical_dt_ms > 0
+                                ? std::max(0.0, (4.0 - damped_critical_dt_ms * damped_critical_dt_ms * lambda_k) / (2.0 * damped_critical_dt_ms))
+                                : 0.0;
+    return {critical_dt_ms * std::sqrt(mass_scale),
+            std::min(critical_dt_ms * std::sqrt(mass_scale), stable_step_ms(lambda_k / mass_scale, lambda_c / mass_scale))};
 }
 
 }  // namespace heartsim

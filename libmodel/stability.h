@@ -92,4 +92,31 @@ struct TimeStepLimits {
 TimeStepLimits time_step_limits(double critical_dt_ms, double stored_damped_dt_ms, double safety_factor,
                                 const std::function<double()>& damping_eigenvalue);
 
+/// The limits under explicit mass scaling: the inertia of every particle × `mass_scale` (S ≥ 1),
+/// its weight, the dashpots and the drag force unchanged. λ_K of M⁻¹K and λ_C of M^(−½)CM^(−½)
+/// both divide by S, so the critical step grows by √S and the damped one solves
+/// h²λ_K + 2hλ_C = 4S, λ_K and λ_C recovered from the unscaled `critical_dt_ms` (2/√λ_K) and
+/// `damped_critical_dt_ms` (stable_step_ms). S = 1 gives the unscaled limits, the same bits.
+/// docs/solver.md "Mass scaling".
+struct ScaledTimeSteps {
+    double critical_dt_ms = 0.0;
+    double damped_critical_dt_ms = 0.0;
+};
+ScaledTimeSteps scale_time_steps(double critical_dt_ms, double damped_critical_dt_ms, double mass_scale);
+
+/// The substeps of one step of `dt_ms`: the fewest equal ones no longer than `limit_ms` (the
+/// safety factor × the damped critical step), 1 when `subdivide` is false or the limit is not
+/// finite. Throws InputError when that needs more than `max_substeps`. One rule for both backends.
+int substeps_for_step(double dt_ms, double limit_ms, bool subdivide, int max_substeps);
+
+/// The step under mass scaling, from the step at S = 1 (`unscaled_dt_ms`): a step that fits in
+/// one substep at S = 1 (≤ safety × the unscaled damped step: heartprep's policy) grows with the
+/// stable step, × scaled_damped / unscaled_damped (≈ √S), so that each substep still covers as
+/// much as the stability bound allows and a simulated second takes ≈ √S fewer substeps; a longer
+/// step stays as it is and takes fewer substeps (substeps_for_step). S = 1: `unscaled_dt_ms`.
+double scaled_step_ms(double unscaled_dt_ms, double safety_factor, double unscaled_damped_dt_ms, double scaled_damped_dt_ms);
+
+/// The range `heartsim run --mass-scale` and the readers of recordings and states take.
+inline constexpr double min_mass_scale = 1.0, max_mass_scale = 1024.0;
+
 }  // namespace heartsim

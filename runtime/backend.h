@@ -73,6 +73,10 @@ public:
     /// The tissue back to its rest state (rest positions, at rest, grabs released); the
     /// simulated time and the instruments are kept.
     virtual void reset_tissue() = 0;
+    /// Explicit mass scaling S in [1, 1024] from the next step on (Solver::set_mass_scale): the
+    /// substeps, the load report's critical steps and options().mass_scale follow; positions and
+    /// velocities are kept. Throws InputError outside the range (nothing changed then).
+    virtual void set_mass_scale(double mass_scale) = 0;
     /// Advances `steps` steps of time_step_ms(). gl: queued on the GPU, returns at once.
     virtual StepReport step(int steps = 1) = 0;
 

@@ -56,6 +56,7 @@ public:
     std::size_t begin_grab(int hand) override { return solver_.begin_grab(hand); }
     void release(int hand) override { solver_.release(hand); }
     void reset_tissue() override { solver_.reset_tissue(); }
+    void set_mass_scale(double mass_scale) override { solver_.set_mass_scale(mass_scale); }
 
     StepReport step(int steps) override {
         const auto start = Clock::now();

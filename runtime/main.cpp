@@ -72,6 +72,16 @@ int main(int argc, char** argv) {
     run->add_option("--gravity", a.gravity,
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
         ->expected(3);
+    run->add_option("--mass-scale", a.mass_scale,
+                    "Explicit mass scaling S (1 to 1024): inertia × S in the step, so a step takes about √S fewer substeps; weight, "
+                    "dashpots and stiffness unchanged: the tissue rests and feels the same, fast transients run √S slower "
+                    "(docs/solver.md \"Mass scaling\"). Fixes S: --real-time off");
+    run->add_option("--real-time", a.real_time,
+                    "auto: measure the speed over the first half second and take the smallest S of 1, 2, 4, 8, 16 that keeps "
+                    "the simulation at or above real time (raised again if the machine slows; said on the terminal and the HUD). "
+                    "off: S stays 1 (or --mass-scale). Default: auto in a window and in haptic sessions, off for scripted "
+                    "--headless runs and replays")
+        ->check(CLI::IsMember({"auto", "off"}));
     run->add_option("--contact", a.contact, "Probe contacts for the force pass: direct (the step's test, as the cpu solver), "
                                             "picking (Sørensen & Mosegaard's picking buffer) or search (every surface particle)")
         ->check(CLI::IsMember({"direct", "picking", "search"}))

@@ -100,6 +100,12 @@ void check_arguments(const RunArguments& a) {
     if (!a.replay.empty() && (a.steps || a.seconds > 0))
         throw UsageError("--replay runs the recording's own steps: no --steps or --seconds with it");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw UsageError("--screenshot-every needs --screenshot OUT.png");
+    if (a.mass_scale && !(*a.mass_scale >= min_mass_scale && *a.mass_scale <= max_mass_scale))
+        throw UsageError("--mass-scale: expected a number from 1 (no scaling) to 1024, not " + std::to_string(*a.mass_scale));
+    if (a.mass_scale && a.real_time == "auto")
+        throw UsageError("--mass-scale fixes S and --real-time auto chooses it: give one of them");
+    if (!a.replay.empty() && (a.mass_scale || a.real_time == "auto"))
+        throw UsageError("--replay steps with the recording's own mass scale: no --mass-scale or --real-time auto with it");
     const bool haptic_run = !a.devices.empty();
     if (a.devices.size() > 2) throw UsageError("--device: at most two (hand 0, hand 1)");
     if (haptic_run && (!a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
@@ -225,6 +231,8 @@ void replay_rules(const Recording& recording, SolverOptions& options) {
 void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p) {
     SolverOptions options = solver_options(a, p.scenario);
     if (p.replayed) replay_rules(*p.replayed, options);
+    // A replay starts with the mass scale its first step ran with (and follows the recording's changes).
+    options.mass_scale = p.replayed ? (p.replayed->steps.size() ? p.replayed->steps.mass_scale_at(0) : 1.0) : a.mass_scale.value_or(1.0);
     if (!a.headless)
         p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
                                                    "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
@@ -349,6 +357,7 @@ std::unique_ptr<haptics::HapticRun> start_haptics(const RunArguments& a, Prepare
     settings.session.realtime = a.haptic_priority == "realtime";
     settings.record = a.record.value_or("");
     settings.contact = a.contact_mode();
+    settings.real_time_auto = a.real_time_mode() == RealTimeMode::automatic;
     haptics::HapticRunContext context_settings{.headless = a.headless};
     context_settings.camera = p.renderer ? p.renderer->camera()
                                          : fit_camera(model_box(p.scenario), p.view, float(p.frame_width) / float(p.frame_height));
@@ -411,13 +420,14 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     const double seconds = std::max(wall_ms * 1e-3, 1e-9);
     const double per_substep = t.substeps ? t.step_ms / double(t.substeps) : 0.0;
     char run_columns[512];
-    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld", to_string(p.kind), a.contact_mode().c_str(),
-                  a.picking_refresh_every(), quote(device).c_str(), p.backend->load_report().particles, run.steps, run.substeps, wall_ms,
-                  run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames);
+    std::snprintf(run_columns, sizeof run_columns, "%s,%s,%d,%s,%zu,%d,%lld,%.6f,%.6g,%.6g,%.6g,%lld,%.6g", to_string(p.kind),
+                  a.contact_mode().c_str(), a.picking_refresh_every(), quote(device).c_str(), p.backend->load_report().particles, run.steps,
+                  run.substeps, wall_ms, run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames,
+                  p.backend->options().mass_scale);
     std::ofstream out(a.stats_csv);
     if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
     out << "pass,calls,total_ms,mean_ms,per,timing,backend,contact,picking_refresh,renderer,particles,steps,substeps,wall_ms,"
-           "steps_per_s,substeps_per_s,step_pass_substeps_per_s,frames\n";
+           "steps_per_s,substeps_per_s,step_pass_substeps_per_s,frames,mass_scale\n";
     const char* timing = t.gpu_timed ? "gpu" : "wall";
     auto row = [&](const char* pass, long long calls, double total_ms, const char* per, const char* how) {
         char line[256];
@@ -443,6 +453,7 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
     state.scenario = std::filesystem::path(a.scenario).filename().string();
     state.time_ms = p.backend->simulated_time_ms();
     state.steps = run.steps;
+    state.mass_scale = p.backend->options().mass_scale;
     state.positions = positions;
     for (int hand = 0; hand < 2; ++hand) {
         for (int c = 0; c < 3; ++c) state.force_n[hand][c] = forces.hand[hand].force_n[c];
@@ -546,6 +557,11 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     std::printf("%s backend: %zu particles, %zu springs, %zu anchored; step %.4g ms = %d substeps of %.4g ms (critical %.4g ms)\n",
                 to_string(kind), load.particles, load.springs, load.anchored, backend->time_step_ms(), backend->substeps_per_step(),
                 backend->substep_ms(), load.critical_dt_ms);
+    if (load.mass_scale != 1.0)
+        std::printf("mass scale %g: inertia × %g in the step (critical %.4g ms unscaled); %s\n", load.mass_scale, load.mass_scale,
+                    load.unscaled_critical_dt_ms, mass_scale_cost(load.mass_scale).c_str());
+    else if (a.real_time_mode() == RealTimeMode::automatic)
+        std::printf("real time: auto: measuring this machine's speed over the first half second; mass scale 1 until then\n");
     script_instruments(a, *this);
 }
 
@@ -619,7 +635,9 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .screenshot = a.screenshot,
                                   .screenshot_every = a.screenshot_every,
                                   .draw_share = a.draw_share,
-                                  .interrupted = &interrupted};
+                                  .interrupted = &interrupted,
+                                  .real_time_auto = a.real_time_mode() == RealTimeMode::automatic,
+                                  .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {
@@ -633,12 +651,23 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
 int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
     const auto wall_start = Clock::now();
     ScriptedRunOptions scripted{.steps = run.steps, .forces_every_step = !run.trajectory.keyframes.empty()};
+    if (a.seconds > 0) scripted.end_ms = a.seconds * 1000.0;  // the steps lengthen when --real-time auto scales mass
     if (run.renderer && a.screenshot_every > 0)
         scripted.on_step = [&](int step, const StepReport&) {
             if ((step + 1) % a.screenshot_every != 0) return;
             run.renderer->render(*run.backend, shapes_at(run.trajectory, run.backend->simulated_time_ms()));
             write_png(numbered_screenshot(a.screenshot, step + 1), run.renderer->read_pixels());
         };
+    // --real-time auto on a scripted run: the wall clock the run has taken against the simulated time.
+    std::optional<MassScaleGovernor> governor;
+    if (a.real_time_mode() == RealTimeMode::automatic) {
+        governor.emplace(*run.backend);
+        scripted.on_step = [&, screenshots = scripted.on_step](int step, const StepReport& report) {
+            if (screenshots) screenshots(step, report);
+            const double wall_ms = std::chrono::duration<double, std::milli>(Clock::now() - wall_start).count();
+            if (auto change = governor->observe(wall_ms, run.backend->simulated_time_ms())) std::printf("%s\n", change->c_str());
+        };
+    }
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
     return finish_run(a, run, result, nullptr, wall_start);
 }

@@ -11,6 +11,7 @@
 #include "runtime/backend.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/renderer.h"
+#include "runtime/real_time.h"
 #include "runtime/trajectory.h"
 
 #include "formats/recording.h"
@@ -33,6 +34,8 @@ struct RunArguments {
     double seconds = 0.0;
     std::string probe, grab, trajectory, save_state;
     std::vector<double> gravity;  ///< --gravity X Y Z, mm/ms²; empty = the scenario's
+    std::optional<double> mass_scale;    ///< --mass-scale S (fixed explicit mass scaling); nullopt: 1, or --real-time auto's choice
+    std::optional<std::string> real_time;  ///< --real-time auto|off; nullopt: real_time_default()
     bool stats = false;
     std::string stats_csv;           // --stats-csv FILE: the --stats table as CSV, one row per pass
     std::optional<std::string> contact;  ///< probe contacts: direct | picking | search (runtime/contact.h); nullopt: direct, or a replay's own
@@ -57,6 +60,12 @@ struct RunArguments {
 
     static constexpr const char* default_contact = "direct";
     static constexpr int default_picking_refresh = 1;
+    /// --real-time when not given: auto for the window and haptic sessions (they follow the wall
+    /// clock), off for scripted headless runs, replays and a fixed --mass-scale.
+    RealTimeMode real_time_mode() const {
+        if (real_time) return parse_real_time_mode(*real_time);
+        return replay.empty() && !mass_scale && (!headless || !devices.empty()) ? RealTimeMode::automatic : RealTimeMode::off;
+    }
     /// The contact mode and picking refresh the run uses (the defaults where not given).
     std::string contact_mode() const { return contact.value_or(default_contact); }
     int picking_refresh_every() const { return picking_refresh.value_or(default_picking_refresh); }

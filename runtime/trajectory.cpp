@@ -159,10 +159,11 @@ ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, c
     ScriptedRunResult result;
     ScriptedHands hands(trajectory);
     const bool uses[2] = {trajectory.uses_hand(0), trajectory.uses_hand(1)};
-    const double dt = backend.time_step_ms();
+    StepClock clock(backend.time_step_ms());
     const auto start = std::chrono::steady_clock::now();
     for (int step = 0; step < options.steps; ++step) {
-        const double t = step * dt, t_next = (step + 1) * dt;
+        const auto [t, t_next] = clock.at(step, backend.time_step_ms());
+        if (options.end_ms > 0 && clock.changed() && t >= options.end_ms * (1 - 1e-12)) break;
         for (int hand = 0; hand < 2; ++hand) {
             if (!uses[hand]) continue;
             hands.apply(backend, hand, t, t_next);

@@ -16,6 +16,7 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace heartsim {
@@ -50,6 +51,9 @@ struct ScriptedRunOptions {
     int steps = 0;                    ///< backend steps of time_step_ms() each
     bool forces_every_step = true;    ///< queue the force pass after each step (asynchronous readback)
     std::function<void(int step, const StepReport&)> on_step{};  ///< optional, after each step
+    /// > 0: once the step has changed on the way (--real-time auto with --seconds), stop where the
+    /// simulated time reaches this (ms from the run's start) instead of after `steps`.
+    double end_ms = 0.0;
 };
 
 struct ScriptedRunResult {
@@ -75,6 +79,30 @@ struct ScriptedRunResult {
 /// a hand whose kind or semi-axes change gets set_instrument and is placed at its pose at t; a
 /// grab flag turning on calls begin_grab at t, turning off calls release; then set_pose with the
 /// pose at t + dt, reached at the end of the step.
+/// The simulated start and end of each step of a run whose step may change on the way (mass
+/// scaling, runtime/real_time.h): step k starts where the steps before it ended. While the step
+/// does not change these are k·dt and (k + 1)·dt, to the bit.
+class StepClock {
+public:
+    explicit StepClock(double dt_ms) : dt_(dt_ms) {}
+    /// Step `step` (counted from 0) of length `dt_ms`, the backend's step now.
+    std::pair<double, double> at(long long step, double dt_ms) {
+        if (dt_ms != dt_) {
+            origin_ += double(step - origin_step_) * dt_;
+            origin_step_ = step;
+            dt_ = dt_ms;
+        }
+        return {origin_ + double(step - origin_step_) * dt_, origin_ + double(step + 1 - origin_step_) * dt_};
+    }
+    /// The step has changed during the run (then a run for a simulated time ends by time, not by
+    /// the count of steps it began with).
+    bool changed() const { return origin_step_ > 0; }
+
+private:
+    double dt_, origin_ = 0.0;
+    long long origin_step_ = 0;
+};
+
 /// Applies a trajectory's keyframes to a backend step by step, remembering what each hand holds:
 /// (re)places a hand whose kind or semi-axes change, begins or releases a grab when the flag
 /// turns, then sets the pose the solver should reach by the end of the step. Shared by the

@@ -1,6 +1,8 @@
 // The window mode's loop: docs/runtime.md "Window mode".
 #include "runtime/window_run.h"
 
+#include "runtime/real_time.h"
+
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
 #include "runtime/window_keys.h"
@@ -175,7 +177,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
     ScriptedHands hands(trajectory);
-    const double dt = backend.time_step_ms();
+    StepClock step_clock(backend.time_step_ms());
+    const double start_simulated_ms = backend.simulated_time_ms();
     InstrumentKeyframe keyboard;
     if (keyboard_hand0) {
         keyboard = trajectory.at(0, 0.0);
@@ -189,7 +192,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     // backend (one GL context) between frames within a time budget. Drawing takes at most
     // --draw-share of the wall clock (docs/runtime.md "Window mode").
     std::optional<WindowSimulation> simulation;
-    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps};
+    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps,
+                                                     .real_time_auto = a.real_time_auto && !haptic, .end_ms = a.end_ms};
+    // The gl backend steps here, between frames: its governor runs here too.
+    std::optional<MassScaleGovernor> gl_governor;
+    if (a.real_time_auto && !haptic && backend.kind() != BackendKind::cpu) gl_governor.emplace(backend);
     if (backend.kind() == BackendKind::cpu) {
         if (haptic) simulation.emplace(backend, *haptic, simulation_options);
         else simulation.emplace(backend, trajectory, simulation_options);
@@ -207,7 +214,14 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     auto last = start;
     // The window closes when the watchdog gives up too: the tissue cannot move on (heartsim says
     // why and exits 6).
-    while (!glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps) &&
+    const double start_mass_scale = backend.options().mass_scale;
+    // --seconds when the step has changed with the mass scale: the simulated time decides (gl and
+    // a haptic session here; the cpu thread decides for itself).
+    auto past_end = [&] {
+        return !simulation && a.end_ms > 0 && backend.options().mass_scale != start_mass_scale &&
+               backend.simulated_time_ms() - start_simulated_ms >= a.end_ms * (1 - 1e-12);
+    };
+    while (!glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps) && !past_end() &&
            !result.gave_up) {
         glfwPollEvents();
         const auto now = std::chrono::steady_clock::now();
@@ -287,8 +301,13 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         int n = 0;
         if (!simulation && !haptic && !input.paused) {
             const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
-            n = int(std::clamp(std::floor(owed_ms / dt) - double(attempted), 0.0, 1e6));
+            // The steps that fit in the time owed and not yet simulated (the step changes with the mass scale).
+            n = int(std::clamp(std::floor((owed_ms - (backend.simulated_time_ms() - start_simulated_ms)) / backend.time_step_ms() + 1e-9),
+                               0.0, 1e6));
+            if (gl_governor)
+                if (auto change = gl_governor->observe(owed_ms, backend.simulated_time_ms())) say("%s\n", change->c_str());
         }
+        if (gl_governor && input.paused) gl_governor->restart();
         // N while paused: one step (the gl loop here, the cpu thread by request); not with a
         // haptic session, whose steps follow the session clock.
         if (!input.paused) input.single_steps = 0;
@@ -354,10 +373,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             }
         }
         const auto step_start = std::chrono::steady_clock::now();
-        for (int k = 0; k < n; ++k) {
+        for (int k = 0; k < n && !past_end(); ++k) {
             if (k > 0 && std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - step_start).count() > step_budget_ms) break;
             const int step = attempted++;
-            const double t = step * dt, t_next = (step + 1) * dt;
+            const auto [t, t_next] = step_clock.at(step, backend.time_step_ms());
             for (int hand = 0; hand < 2; ++hand) {
                 if (!trajectory.uses_hand(hand)) continue;
                 if (hand == 0 && keyboard_hand0) {
@@ -427,6 +446,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             state.steps_per_s = result.steps / s;
             state.particles = backend.size();
             state.backend = to_string(backend.kind());
+            state.mass_scale = simulation ? status.mass_scale : backend.options().mass_scale;
             state.paused = input.paused;
             state.emergency_stop = input.estop;
             state.recording = recording_now;

@@ -23,6 +23,12 @@ struct WindowRunOptions {
     int screenshot_every = 0;       ///< also OUT-000123.png after every N steps
     double draw_share = 0.1;        ///< drawing takes at most this fraction of the wall clock (cpu backend)
     const std::atomic<bool>* interrupted = nullptr;  ///< ends the loop when set (Ctrl-C)
+    /// --real-time auto: a MassScaleGovernor keeps the simulation at real time (a haptic session
+    /// steers its own: HapticRunSettings::real_time_auto).
+    bool real_time_auto = false;
+    /// > 0 (--seconds): once the mass scale has changed (and with it the step), the run ends where
+    /// the simulated time reaches this, ms, rather than after `steps`.
+    double end_ms = 0.0;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

@@ -1,6 +1,8 @@
 // The window's simulation thread: docs/runtime.md "The window".
 #include "runtime/window_simulation.h"
 
+#include "runtime/real_time.h"
+
 #include <algorithm>
 #include <chrono>
 
@@ -31,18 +33,21 @@ private:
 }  // namespace
 
 WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
-    : backend_(backend), hands_(std::in_place, trajectory), trajectory_(&trajectory), options_(options) {
+    : backend_(backend), hands_(std::in_place, trajectory), trajectory_(&trajectory), options_(options),
+      start_mass_scale_(backend.options().mass_scale) {
     thread_ = std::thread([this] { run(); });
 }
 
 WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options)
-    : backend_(backend), haptic_(&haptic), options_(options) {
+    : backend_(backend), haptic_(&haptic), options_(options), start_mass_scale_(backend.options().mass_scale) {
     status_.shapes = haptic.shapes();
     thread_ = std::thread([this] { run_haptic(); });
 }
 
 bool WindowSimulation::finish_at_limit() {
-    if (!status_.run.gave_up && (options_.steps < 0 || status_.attempted < options_.steps)) return false;
+    const bool at_end = options_.end_ms > 0 && backend_.options().mass_scale != start_mass_scale_ &&
+                        status_.simulated_ms >= options_.end_ms * (1 - 1e-12);
+    if (!status_.run.gave_up && !at_end && (options_.steps < 0 || status_.attempted < options_.steps)) return false;
     status_.finished = true;
     positions_ = backend_.positions();  // the final state, for the last frame
     fresh_ = true;
@@ -126,10 +131,13 @@ WindowSimulation::Status WindowSimulation::status() const {
 }
 
 void WindowSimulation::run() {
-    const double dt = backend_.time_step_ms();
+    StepClock step_clock(backend_.time_step_ms());
     const bool any_instrument = trajectory_->uses_hand(0) || trajectory_->uses_hand(1);
     const double start_ms = backend_.simulated_time_ms();
     OwedClock clock;
+    std::optional<MassScaleGovernor> governor;
+    if (options_.real_time_auto) governor.emplace(backend_);
+    bool was_paused = false;
     publish_start();
     for (;;) {
         InstrumentPose keyboard;
@@ -150,6 +158,9 @@ void WindowSimulation::run() {
         }
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         const double simulated_ms = backend_.simulated_time_ms() - start_ms;
+        const double dt = backend_.time_step_ms();  // changes with the mass scale
+        if (governor && paused != was_paused) governor->restart();  // a pause is no measure of speed
+        was_paused = paused;
         if ((paused && !step_once) || (!paused && simulated_ms + dt > owed_ms)) {
             // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
             std::unique_lock lock(mutex_);
@@ -163,7 +174,7 @@ void WindowSimulation::run() {
         }
         // One step, the hands posed as run_scripted poses them.
         const long long step = status_.attempted;
-        const double t = step * dt, t_next = (step + 1) * dt;
+        const auto [t, t_next] = step_clock.at(step, dt);
         for (int hand = 0; hand < 2; ++hand) {
             if (!trajectory_->uses_hand(hand)) continue;
             if (hand == 0 && options_.keyboard_hand0) {
@@ -178,6 +189,8 @@ void WindowSimulation::run() {
             backend_.request_forces();
             forces = backend_.latest_forces();
         }
+        if (governor && !paused)
+            if (auto change = governor->observe(owed_ms, backend_.simulated_time_ms() - start_ms)) std::printf("%s\n", change->c_str());
         const bool received = forces.has_value();
         std::lock_guard lock(mutex_);
         if (forces) {
@@ -189,6 +202,7 @@ void WindowSimulation::run() {
         status_.run.add(report);
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
         status_.owed_ms = owed_ms;
+        status_.mass_scale = backend_.options().mass_scale;
         status_.run.forces_received += received;
         publish_if_wanted();
         if (finish_at_limit()) break;
@@ -234,6 +248,7 @@ void WindowSimulation::run_haptic() {
         status_.run = haptic_->result();
         status_.simulated_ms = backend_.simulated_time_ms() - start_ms;
         status_.owed_ms = owed_ms;
+        status_.mass_scale = backend_.options().mass_scale;
         status_.shapes = haptic_->shapes();
         publish_if_wanted();
         if (finish_at_limit()) break;

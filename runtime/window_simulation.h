@@ -30,6 +30,10 @@ namespace heartsim {
 struct WindowSimulationOptions {
     bool keyboard_hand0 = false;  ///< hand 0 follows set_keyboard_pose instead of the trajectory
     long long steps = -1;         ///< stop after this many steps (< 0: until destroyed)
+    bool real_time_auto = false;  ///< --real-time auto: a MassScaleGovernor on the thread (not with a haptic session: its own)
+    /// > 0 (--seconds): once the mass scale has changed (and with it the step), the run ends where
+    /// the simulated time reaches this, ms, rather than after `steps`.
+    double end_ms = 0.0;
 };
 
 class WindowSimulation {
@@ -46,6 +50,7 @@ public:
         bool has_forces = false;      ///< forces holds a force pass's result (the haptic session's last published, with one)
         std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world
         double haptic_period_p99_ms = -1;  ///< a haptic session's device period p99 so far, ms (< 0: none yet)
+        double mass_scale = 1.0;      ///< the backend's mass scale after the last step
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };
@@ -86,6 +91,7 @@ private:
     const Trajectory* trajectory_ = nullptr;
     haptics::HapticRun* haptic_ = nullptr;
     WindowSimulationOptions options_;
+    double start_mass_scale_ = 1.0;
     std::thread thread_;
 
     mutable std::mutex mutex_;

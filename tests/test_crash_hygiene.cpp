@@ -559,6 +559,7 @@ Recording rows_of(const Recording& r, std::size_t s0, std::size_t s1, std::size_
     cut(c.steps.force_n, s.force_n, s0, s1);
     cut(c.steps.force_step, s.force_step, s0, s1);
     cut(c.steps.diverged, s.diverged, s0, s1);
+    if (!s.mass_scale.empty()) cut(c.steps.mass_scale, s.mass_scale, s0, s1);
     for (int h : {0, 1}) {
         const RecordedHand& from = r.hands[h];
         RecordedHand& to = c.hands[h];
@@ -587,6 +588,7 @@ void expect_same_rows(const Recording& a, const Recording& b) {
     EXPECT_EQ(a.steps.force_n, b.steps.force_n);
     EXPECT_EQ(a.steps.force_step, b.steps.force_step);
     EXPECT_EQ(a.steps.diverged, b.steps.diverged);
+    EXPECT_EQ(a.steps.mass_scale, b.steps.mass_scale);
     for (int h : {0, 1}) {
         EXPECT_EQ(a.hands[h].used, b.hands[h].used);
         EXPECT_EQ(a.hands[h].device, b.hands[h].device);
@@ -613,6 +615,8 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         full.latency_max_ms = 4.5;
         full.arithmetic = seed == 1 ? "fused" : "separate";
         if (seed == 1) full.rules = rules_before_recorded();  // seed 2: a session without rules, as before they were kept
+        if (seed == 1)  // --real-time auto's mass scale, changed mid-session (seed 2: none, as before heartsim scaled mass)
+            for (std::size_t k = 0; k < full.steps.size(); ++k) full.steps.mass_scale.push_back(k < 25 ? 1.0 : 4.0);
         const fs::path path = dir / "rec.h5.journal";
         {
             RecordingJournal journal(path, full, "rec.h5");
@@ -648,8 +652,8 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
 }
 
 // A journal that a heartsim from before the solver's rules were recorded left behind (version 2:
-// no rules byte after the arithmetic) still recovers, without rules. Made here from a version-3
-// journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
+// no rules byte after the arithmetic, no mass-scale byte in its chunks) still recovers, without
+// rules. Made here from a version-4 journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
 // magic, a record is magic, kind (u32), payload bytes (u64), lookup3 checksum of kind, bytes and
 // payload (u32), then the payload; the session's payload starts with the version (u32).
 TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
@@ -664,10 +668,34 @@ TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
         EXPECT_EQ(journal.wait(), "");
     }
     std::string bytes = read_text(path);
+    // Erases one byte of the payload of the record at `record`, and fixes its size and checksum.
+    auto erase_in_record = [&](std::size_t record, std::size_t offset) {
+        const std::size_t payload_at = record + 20;
+        bytes.erase(payload_at + offset, 1);
+        std::uint64_t size = 0;
+        std::memcpy(&size, bytes.data() + record + 8, 8);
+        --size;
+        std::memcpy(bytes.data() + record + 8, &size, 8);
+        std::string covered(12 + size, '\0');
+        std::memcpy(covered.data(), bytes.data() + record + 4, 12);  // kind, then the new size
+        std::memcpy(covered.data() + 12, bytes.data() + payload_at, size);
+        const std::uint32_t sum = h5::lookup3(reinterpret_cast<const unsigned char*>(covered.data()), covered.size());
+        std::memcpy(bytes.data() + record + 16, &sum, 4);
+    };
     const std::size_t header = 16, payload = header + 20;
     std::uint32_t version = 0;
     std::memcpy(&version, bytes.data() + payload, 4);
-    ASSERT_EQ(version, 3u) << "this test turns a version-3 journal into a version-2 one";
+    ASSERT_EQ(version, 4u) << "this test turns a version-4 journal into a version-2 one";
+    // The chunk after the session record: its step count (u64), the step columns (197 bytes a row:
+    // times 3 × 8, tool poses 2 × (24 + 32), grab 2, applied 2, forces 48, force_step 8, diverged 1),
+    // then version 4's mass-scale byte, 0: none follows. Erased first (it lies after the session's).
+    std::uint64_t session_size = 0, steps = 0;
+    std::memcpy(&session_size, bytes.data() + header + 8, 8);
+    const std::size_t chunk = payload + session_size;
+    std::memcpy(&steps, bytes.data() + chunk + 20, 8);
+    ASSERT_EQ(steps, 20u);
+    ASSERT_EQ(bytes[chunk + 20 + 8 + 197 * steps], '\0') << "a chunk without a mass-scale column";
+    erase_in_record(chunk, 8 + 197 * steps);
     // The rules byte follows version, target, pid, scenario, particles, dt, substeps, backend,
     // contact, interpolation and arithmetic (strings: a u64 length, then the bytes).
     std::size_t at = payload + 4;
@@ -682,18 +710,18 @@ TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
     at += 8 + 8 + 4;   // particles, dt_ms, substeps
     for (int text = 0; text < 4; ++text) skip_text();  // backend, contact, interpolation, arithmetic
     ASSERT_EQ(bytes[at], '\0') << "a session without rules";
-    bytes.erase(at, 1);
+    erase_in_record(header, at - payload);
     version = 2;
     std::memcpy(bytes.data() + payload, &version, 4);
-    std::uint64_t size = 0;
-    std::memcpy(&size, bytes.data() + header + 8, 8);
-    --size;
-    std::memcpy(bytes.data() + header + 8, &size, 8);
-    std::string covered(12 + size, '\0');
-    std::memcpy(covered.data(), bytes.data() + header + 4, 12);  // kind, then the new size
-    std::memcpy(covered.data() + 12, bytes.data() + payload, size);
-    const std::uint32_t sum = h5::lookup3(reinterpret_cast<const unsigned char*>(covered.data()), covered.size());
-    std::memcpy(bytes.data() + header + 16, &sum, 4);
+    {  // the version changed: the session's checksum again
+        std::uint64_t size = 0;
+        std::memcpy(&size, bytes.data() + header + 8, 8);
+        std::string covered(12 + size, '\0');
+        std::memcpy(covered.data(), bytes.data() + header + 4, 12);
+        std::memcpy(covered.data() + 12, bytes.data() + payload, size);
+        const std::uint32_t sum = h5::lookup3(reinterpret_cast<const unsigned char*>(covered.data()), covered.size());
+        std::memcpy(bytes.data() + header + 16, &sum, 4);
+    }
     {
         std::ofstream out(path, std::ios::binary | std::ios::trunc);
         out.write(bytes.data(), std::streamsize(bytes.size()));

@@ -130,6 +130,41 @@ TEST(HapticsCli, TheRecordingReplaysToTheSameForcesBitForBitOnTheCpuBackend) {
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
 }
 
+// --real-time auto changes the mass scale during a session (here from the speed injected as a
+// third of real time, so it changes after the first half second whatever this machine does): every
+// step records the scale it ran with, and the replay changes it at the same steps, bit for bit. A
+// session at a fixed --mass-scale replays bit for bit too.
+TEST(HapticsCli, ASessionWhoseMassScaleChangesReplaysBitForBit) {
+    test::TempDir dir;
+    const std::string devices = " --headless --backend cpu --device simulated:" + quoted(sample("press_phantom.csv")) +
+                                " --device scripted:" + quoted(sample("grab_phantom.csv")) + " --seconds 1.5";
+    const auto live = test::run_command("HEARTSIM_ASSUME_REAL_TIME_FACTOR=0.3 " + std::string(quoted(HEARTSIM_EXE)) + " run " +
+                                        quoted(phantom()) + devices + " --record " + quoted(dir / "auto.h5"));
+    ASSERT_EQ(live.exit_code, 0) << live.output;
+    EXPECT_NE(live.output.find("at mass scale 1: mass scale "), std::string::npos) << live.output;
+    const Recording r = read_recording(dir / "auto.h5");
+    ASSERT_EQ(r.steps.mass_scale.size(), r.steps.size());
+    EXPECT_EQ(r.steps.mass_scale.front(), 1.0);
+    EXPECT_GT(r.steps.mass_scale.back(), 1.0);
+    const auto replay = run_heartsim("run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "auto.h5"));
+    EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+
+    const auto fixed = run_heartsim("run " + quoted(phantom()) + devices + " --mass-scale 4 --record " + quoted(dir / "fixed.h5"));
+    ASSERT_EQ(fixed.exit_code, 0) << fixed.output;
+    EXPECT_NE(fixed.output.find("mass scale 4: inertia × 4"), std::string::npos) << fixed.output;
+    const Recording f = read_recording(dir / "fixed.h5");
+    ASSERT_FALSE(f.steps.mass_scale.empty());
+    for (double s : f.steps.mass_scale) ASSERT_EQ(s, 4.0);
+    const auto again = run_heartsim("run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "fixed.h5"));
+    EXPECT_EQ(again.exit_code, 0) << again.output;
+    EXPECT_NE(again.output.find("match the recording bit for bit"), std::string::npos) << again.output;
+    // A replay takes the recording's scale, not one of its own.
+    const auto refused = run_heartsim("run " + quoted(phantom()) + " --headless --mass-scale 2 --replay " + quoted(dir / "fixed.h5"));
+    EXPECT_EQ(refused.exit_code, 2) << refused.output;
+    EXPECT_NE(refused.output.find("the recording's own mass scale"), std::string::npos) << refused.output;
+}
+
 // A cpu replay takes the recorded slot arithmetic (fused, or rounded apart as before heartsim
 // fused it, and as sse2 does), not this CPU's fastest kernel's: the recording's attribute decides.
 TEST(HapticsCli, ACpuReplayTakesTheRecordedArithmetic) {
@@ -669,6 +704,23 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         separate.arithmetic = "separate";
         write_recording(dir / "separate.h5", separate);
         EXPECT_EQ(read_recording(dir / "separate.h5").arithmetic, "separate");
+    }
+    EXPECT_TRUE(back.steps.mass_scale.empty()) << "no column written: 1 throughout";
+    EXPECT_EQ(back.steps.mass_scale_at(1), 1.0);
+    {
+        Recording scaled = r;
+        scaled.steps.mass_scale = {1.0, 8.0};
+        write_recording(dir / "scaled.h5", scaled);
+        EXPECT_EQ(read_recording(dir / "scaled.h5").steps.mass_scale, scaled.steps.mass_scale);
+        scaled.steps.mass_scale = {1.0, 0.5};
+        write_recording(dir / "scaled.h5", scaled);
+        try {
+            read_recording(dir / "scaled.h5");
+            ADD_FAILURE() << "accepted a mass scale below 1";
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find("steps/mass_scale"), std::string::npos) << e.what();
+            EXPECT_NE(std::string(e.what()).find("row 1"), std::string::npos) << e.what();
+        }
     }
 
     // A force that names a later step than its own is refused by dataset name.

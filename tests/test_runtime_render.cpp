@@ -313,7 +313,12 @@ TEST(RenderWindow, TheCpuBackendSimulatesOnItsOwnThreadPacedToTheWallClock) {
     ASSERT_NE(ran, std::string::npos) << run.output;
     ASSERT_EQ(std::sscanf(run.output.c_str() + ran, "ran %lld steps", &steps), 1) << run.output;
     std::printf("  %lld frames, %lld steps, %.1f ms simulated in %.2f s of wall clock\n", frames, steps, simulated_ms, wall_s);
-    EXPECT_NEAR(simulated_ms, 500.0, phantom_scenario().solver.dt_ms) << "the whole --seconds";
+    // Within one step of the end; --real-time auto may lengthen the step on a slow machine ("real
+    // time: … mass scale S, steps of X ms …").
+    double step_ms = phantom_scenario().solver.dt_ms;
+    for (std::size_t at = run.output.find(", steps of "); at != std::string::npos; at = run.output.find(", steps of ", at + 1))
+        step_ms = std::max(step_ms, std::stod(run.output.substr(at + 11)));
+    EXPECT_NEAR(simulated_ms, 500.0, step_ms) << "the whole --seconds";
     EXPECT_GE(wall_s * 1e3, simulated_ms * 0.99) << "never ahead of the wall clock";
     EXPECT_GT(steps, 3 * frames) << "not one step per frame";
 }

@@ -84,7 +84,7 @@ public:
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
             glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
         }
-        glProgramUniform1f(step_program_.id, step_program_.at("keep"), float(1.0 - options_.damping * h_));
+        glProgramUniform1f(step_program_.id, step_program_.at("keep"), keep());
         glProgramUniform3f(step_program_.id, step_program_.at("gravity"), float(options_.gravity.x()), float(options_.gravity.y()),
                            float(options_.gravity.z()));
         glProgramUniform1i(step_program_.id, step_program_.at("damped"), damped_);
@@ -222,6 +222,75 @@ public:
         glDispatchCompute(1, 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
         state.grabbing = false;
+    }
+
+    /// 1 − γh/S, as Solver's kernel constants (the drag force γ·m·v on the inertia S·m).
+    float keep() const { return float(1.0 - options_.damping * h_ / options_.mass_scale); }
+
+    void set_mass_scale(double mass_scale) override {
+        if (!(mass_scale >= min_mass_scale && mass_scale <= max_mass_scale))
+            throw InputError("solver: the mass scale must lie in [" + std::to_string(min_mass_scale) + ", " +
+                             std::to_string(max_mass_scale) + "], not " + std::to_string(mass_scale));
+        // Solver::set_mass_scale: the same limits, substeps, constants and velocity rescale.
+        const ScaledTimeSteps scaled =
+            scale_time_steps(load_report_.unscaled_critical_dt_ms, load_report_.unscaled_damped_critical_dt_ms, mass_scale);
+        const double dt = scaled_step_ms(load_report_.unscaled_dt_ms, options_.safety_factor, load_report_.unscaled_damped_critical_dt_ms,
+                                         scaled.damped_critical_dt_ms);
+        const int substeps = substeps_for_step(dt, options_.safety_factor * scaled.damped_critical_dt_ms, options_.subdivide,
+                                               Solver::max_substeps);
+        const double old_h = h_;
+        options_.mass_scale = mass_scale;
+        dt_ms_ = dt;
+        substeps_ = substeps;
+        h_ = dt_ms_ / substeps;
+        load_report_.mass_scale = mass_scale;
+        load_report_.critical_dt_ms = scaled.critical_dt_ms;
+        load_report_.damped_critical_dt_ms = scaled.damped_critical_dt_ms;
+        load_report_.substeps = substeps_;
+        load_report_.substep_ms = h_;
+        upload_step_constants();
+        glProgramUniform1f(step_program_.id, step_program_.at("keep"), keep());
+        if (old_h != h_) {  // velocities kept: u = v·h, scaled in float as the cpu solver does
+            const float ratio = float(h_ / old_h);
+            std::vector<float> motion(4 * n_pad_);
+            glGetNamedBufferSubData(motion_[current_].id(), 0, GLsizeiptr(motion.size() * sizeof(float)), motion.data());
+            for (std::size_t i = 0; i < n_pad_; ++i)
+                for (int c = 0; c < 3; ++c) motion[4 * i + std::size_t(c)] = motion[4 * i + std::size_t(c)] * ratio;
+            glNamedBufferSubData(motion_[current_].id(), 0, GLsizeiptr(motion.size() * sizeof(float)), motion.data());
+        }
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+        check("set_mass_scale");
+    }
+
+    /// The constants that depend on h and the mass scale (Solver::build_step_constants, and the
+    /// start motion of reset()): h²/(S·m), the support and spring dashpots c/h, u₀ = −½·a·h².
+    void upload_step_constants() {
+        std::vector<ParticleConstants> constants = particle_host_;
+        for (std::size_t i = 0; i < n_; ++i) {
+            ParticleConstants& p = constants[i];
+            p.inverse_mass_h2 = p.movable ? float(h_ * h_ / (double(p.mass) * options_.mass_scale)) : 0.0f;
+            p.support_point[3] = p.support_stiffness > 0.0f ? float(support_damping_host_[i] / h_) : 0.0f;
+        }
+        std::vector<float> dashpot_over_h(dashpot_host_.size());
+        for (std::size_t t = 0; t < dashpot_host_.size(); ++t) dashpot_over_h[t] = float(double(dashpot_host_[t]) / h_);
+        // Solver::reset(): at rest the springs and supports balance `balanced_gravity`, so the
+        // motion starts with acceleration (g − g_balanced)/S: u₀ = x₀ − x₋₁ = −½·a·h².
+        const Eigen::Vector3d rest_acceleration = (options_.gravity - options_.balanced_gravity) / options_.mass_scale;
+        std::vector<float> motion(4 * n_pad_, 0.0f);
+        for (std::size_t i = 0; i < n_; ++i)
+            if (constants[i].movable)
+                for (int c = 0; c < 3; ++c) motion[4 * i + std::size_t(c)] = float(-0.5 * rest_acceleration[c] * h_ * h_);
+        if (!particle_.id()) {
+            storage(particle_, constants, GL_DYNAMIC_STORAGE_BIT);
+            storage(dashpot_, dashpot_over_h, GL_DYNAMIC_STORAGE_BIT);
+            storage(rest_motion_, motion, GL_DYNAMIC_STORAGE_BIT);
+            storage(motion_[0], motion, GL_DYNAMIC_STORAGE_BIT);
+            storage(motion_[1], motion, GL_DYNAMIC_STORAGE_BIT);
+            return;
+        }
+        glNamedBufferSubData(particle_.id(), 0, GLsizeiptr(constants.size() * sizeof(ParticleConstants)), constants.data());
+        glNamedBufferSubData(dashpot_.id(), 0, GLsizeiptr(dashpot_over_h.size() * sizeof(float)), dashpot_over_h.data());
+        glNamedBufferSubData(rest_motion_.id(), 0, GLsizeiptr(motion.size() * sizeof(float)), motion.data());
     }
 
     void reset_tissue() override {
@@ -657,7 +726,8 @@ private:
         const std::vector<std::int32_t> slot_spring = spring_of_slot(table, springs);  // throws for non-neighbours
         const std::size_t entries = n_pad_ * slot_count;
         std::vector<std::int32_t> neighbour(entries);
-        std::vector<float> rest(entries, 0.0f), stiff(entries, 0.0f), dashpot_over_h(entries, 0.0f);
+        std::vector<float> rest(entries, 0.0f), stiff(entries, 0.0f);
+        dashpot_host_.assign(entries, 0.0f);
         min_rest_length_ = std::numeric_limits<float>::infinity();
         damped_ = false;
         for (std::size_t i = 0; i < n_pad_; ++i)
@@ -674,47 +744,35 @@ private:
                 stiff[t] = springs.stiffness[std::size_t(q)];
                 const float c = float(spring_dashpot(particles, damping_ratio, double(springs.stiffness[std::size_t(q)]), i, j));
                 damped_ = damped_ || c != 0.0f;
-                dashpot_over_h[t] = float(double(c) / h_);
+                dashpot_host_[t] = c;
                 min_rest_length_ = std::min(min_rest_length_, rest[t]);
             }
-        struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
-        static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in shaders/solver_shaders.h
-        std::vector<ParticleConstants> constants(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
-        std::vector<float> current(4 * n_pad_, 0.0f), motion(4 * n_pad_, 0.0f);
+        std::vector<ParticleConstants>& constants = particle_host_;
+        constants.assign(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
+        support_damping_host_.assign(n_, 0.0);
+        std::vector<float> current(4 * n_pad_, 0.0f);
         supported_ = false;
         for (std::size_t i = 0; i < n_; ++i) {
             const bool movable = !particles.anchored[i];
             constants[i].mass = particles.mass[i];
             constants[i].movable = movable;
-            constants[i].inverse_mass_h2 = movable ? float(h_ * h_ / double(constants[i].mass)) : 0.0f;
             const std::array<float, 3>& y = particles.supported() ? particles.support_point[i] : particles.rest_position[i];
             for (int c = 0; c < 3; ++c) constants[i].support_point[c] = y[std::size_t(c)];
             if (movable && particles.supported() && particles.support_stiffness[i] > 0.0f) {
                 constants[i].support_stiffness = particles.support_stiffness[i];
-                // Solver::build_step_constants(): c/h rounded from double.
-                if (!particles.support_damping.empty())
-                    constants[i].support_point[3] = float(double(particles.support_damping[i]) / h_);
+                // Solver::build_step_constants(): c/h rounded from double (upload_step_constants).
+                if (!particles.support_damping.empty()) support_damping_host_[i] = double(particles.support_damping[i]);
                 supported_ = true;
             }
             for (int c = 0; c < 3; ++c) current[4 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
         }
-        // Solver::reset(): at rest the springs and supports balance `balanced_gravity`, so the
-        // motion starts with acceleration g − g_balanced: u₀ = x₀ − x₋₁ = −½·a·h².
-        const Eigen::Vector3d rest_acceleration = options_.gravity - options_.balanced_gravity;
-        for (std::size_t i = 0; i < n_; ++i)
-            if (constants[i].movable)
-                for (int c = 0; c < 3; ++c) motion[4 * i + std::size_t(c)] = float(-0.5 * rest_acceleration[c] * h_ * h_);
         storage(position_[0], current, 0);
         storage(position_[1], current, 0);
-        storage(motion_[0], motion, 0);
-        storage(motion_[1], motion, 0);
         storage(rest_current_, current, 0);    // the start state again, for reset_tissue()
-        storage(rest_motion_, motion, 0);
+        upload_step_constants();               // particle constants, dashpots c/h, the start motion (both buffers)
         storage(neighbour_, neighbour);
         storage(rest_length_, rest);
         storage(stiffness_, stiff);
-        storage(dashpot_, dashpot_over_h);
-        storage(particle_, constants);
         storage(held_by_, std::vector<std::int32_t>(n_pad_, -1));
         storage(counters_, std::vector<std::uint32_t>(sh::counter_words, 0u), GL_DYNAMIC_STORAGE_BIT);
         storage(touched_, std::size_t(hands) * n_ * 4, 0);
@@ -752,6 +810,12 @@ private:
     int current_ = 0, next_ = 1;
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
     std::vector<float> rest_position_;  ///< 3 per particle, host copy for begin_grab
+    /// Host copies of what upload_step_constants() derives the h- and S-dependent constants from.
+    struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
+    static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in shaders/solver_shaders.h
+    std::vector<ParticleConstants> particle_host_;
+    std::vector<double> support_damping_host_;  ///< c_s per particle, N·ms/mm (0 where unsupported)
+    std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
     Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_;
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;

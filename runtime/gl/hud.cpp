@@ -142,6 +142,8 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         ImGui::Text("%.2fx real time%s", s.real_time_factor, s.paused ? "  PAUSED (Space resumes, N steps)" : "");
         ImGui::Text("%.1f fps, %.0f steps/s, %.1f ms simulated", s.frames_per_s, s.steps_per_s, s.simulated_ms);
         ImGui::Text("%zu particles, %s backend", s.particles, s.backend.c_str());
+        if (s.mass_scale != 1.0)
+            ImGui::Text("mass scale %g: transients %.2gx slower, forces at rest unchanged", s.mass_scale, std::sqrt(s.mass_scale));
         if (s.recording) ImGui::TextColored(ImVec4(1.0f, 0.25f, 0.25f, 1), "REC (F5 stops and writes it)");
         if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
         for (int hand = 0; hand < 2; ++hand) {

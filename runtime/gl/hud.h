@@ -40,6 +40,7 @@ struct HudState {
     double real_time_factor = 1, frames_per_s = 0, steps_per_s = 0, simulated_ms = 0;
     std::size_t particles = 0;
     std::string backend;
+    double mass_scale = 1.0;       ///< shown with its cost when not 1 (--real-time auto, --mass-scale)
     bool paused = false;
     bool emergency_stop = false;   ///< latched: the banner
     bool recording = false;        ///< F5's recording is on: a red "REC" line

@@ -315,12 +315,13 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
 
     recording_.scenario = std::filesystem::path(scenario_name).filename().string();
     recording_.particles = std::int64_t(backend.size());
-    recording_.dt_ms = backend.time_step_ms();
+    recording_.dt_ms = backend.load_report().unscaled_dt_ms;  // the scenario's step (the mass scale lengthens it: /steps/mass_scale)
     recording_.substeps = backend.substeps_per_step();
     recording_.backend = to_string(backend.kind());
     recording_.arithmetic = backend.kind() == BackendKind::cpu && !fuses_multiply_adds(backend.load_report().kernel) ? "separate" : "fused";
     recording_.rules = static_cast<const SolverRules&>(backend.options());
     recording_.contact = settings.contact;
+    if (settings.real_time_auto) governor_.emplace(backend);
     recording_.interpolation = to_string(settings.session.interpolation);
     recording_.rate_hz = settings.session.rate_hz;
     recording_.coupling = settings.session.coupling.enabled;
@@ -435,6 +436,7 @@ StepReport HapticRun::step() {
     }
     for (int i = 0; i < 2; ++i) grab[i] = hands_[i].grabbing;
 
+    const double step_mass_scale = backend_.options().mass_scale;
     const StepReport report = backend_.step(1);
     result_.add(report);
     if (report.diverged && recording_on_) recording_.events.push_back({session_->now_ms(), -1, "divergence"});
@@ -488,6 +490,7 @@ StepReport HapticRun::step() {
     // from a step before it is none of the recording's.
     s.force_step.push_back(force_step >= (long long)record_first_row_ ? force_step - (long long)record_first_row_ : -1);
     s.diverged.push_back(std::int8_t(report.diverged));
+    s.mass_scale.push_back(step_mass_scale);
     return report;
 }
 
@@ -505,6 +508,11 @@ int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
         step();
         ++n;
         drain();
+        if (governor_)  // the real time owed (pauses excluded) against the simulated time
+            if (auto change = governor_->observe(session_->now_ms() - wall_start_ms_, backend_.simulated_time_ms() - start_sim_ms_)) {
+                std::printf("%s\n", change->c_str());
+                if (recording_on_) recording_.events.push_back({session_->now_ms(), -1, "mass_scale"});
+            }
         if (session_->now_ms() >= until) break;
     }
     return n;
@@ -515,6 +523,7 @@ void HapticRun::set_paused(bool paused) {
     const double now = session_->now_ms();
     if (paused) paused_at_ms_ = now;
     else wall_start_ms_ += now - paused_at_ms_;  // the paused interval does not count as simulation time owed
+    if (governor_) governor_->restart();
     paused_ = paused;
 }
 
@@ -552,6 +561,7 @@ void HapticRun::journal_rows() {
     tail(c.force_n, s.force_n, journaled_steps_);
     tail(c.force_step, s.force_step, journaled_steps_);
     tail(c.diverged, s.diverged, journaled_steps_);
+    tail(c.mass_scale, s.mass_scale, journaled_steps_);
     for (int i = 0; i < 2; ++i) {
         if (!hands_[i].device) continue;
         append_ticks(rows.hands[i], ticks_, journaled_ticks_, i);
@@ -727,9 +737,10 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     if (recording.particles != std::int64_t(backend.size()))
         throw InputError(name + ": recorded on " + recording.scenario + " with " + std::to_string(recording.particles) +
                          " particles; this scenario has " + std::to_string(backend.size()));
-    if (std::abs(recording.dt_ms - backend.time_step_ms()) > 1e-12 * recording.dt_ms) {
+    const double step = backend.load_report().unscaled_dt_ms;  // at mass scale 1, as recorded
+    if (std::abs(recording.dt_ms - step) > 1e-12 * recording.dt_ms) {
         char text[160];
-        std::snprintf(text, sizeof text, "recorded with a step of %.17g ms; this scenario's step is %.17g ms", recording.dt_ms, backend.time_step_ms());
+        std::snprintf(text, sizeof text, "recorded with a step of %.17g ms; this scenario's step is %.17g ms", recording.dt_ms, step);
         throw InputError(name + ": " + text + " (another scenario, or other solver settings)");
     }
     if (!recording.hands[0].used && !recording.hands[1].used) throw InputError(name + ": the recording has no hand (/hand0, /hand1): nothing to replay");
@@ -747,6 +758,8 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     forces.reserve(s.size());
     std::array<bool, 2> placed{false, false}, grabbing{false, false};
     for (std::size_t k = 0; k < s.size(); ++k) {
+        // The mass scale the live step ran with (--real-time auto changes it between steps).
+        if (s.mass_scale_at(k) != backend.options().mass_scale) backend.set_mass_scale(s.mass_scale_at(k));
         for (int i = 0; i < 2; ++i) {
             // Exactly where the live step applied the hand's tool (not before its first usable pose).
             if (!recording.hands[i].used || !s.applied[k][i]) continue;

@@ -13,6 +13,7 @@
 #include "runtime/backend.h"
 #include "runtime/haptics/haptics.h"
 #include "runtime/camera.h"
+#include "runtime/real_time.h"
 #include "runtime/instrument_shape.h"
 #include "runtime/trajectory.h"
 
@@ -20,6 +21,7 @@
 #include "formats/recording_journal.h"
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -59,6 +61,9 @@ struct HapticRunSettings {
     HapticSettings session{};              ///< rate, interpolation, coupling, safety (max force)
     std::string record;                    ///< --record OUT.h5 ("" = none)
     std::string contact = "direct";        ///< recorded with the session
+    /// --real-time auto: a MassScaleGovernor steers the mass scale from the session's clock
+    /// (runtime/real_time.h); every step records the scale it ran with.
+    bool real_time_auto = false;
 };
 
 struct HapticRunContext {
@@ -161,6 +166,7 @@ private:
     WindowDevice* window_device_ = nullptr;
     InstrumentForces last_published_forces_{};
     std::unique_ptr<HapticSession> session_;
+    std::optional<MassScaleGovernor> governor_;  ///< --real-time auto
     Recording recording_;
     Recording recording_header_;  ///< recording_'s attributes and hands, no rows (a window recording starts from it)
     std::string record_path_;     ///< where recording_ goes: --record, or the window's recording

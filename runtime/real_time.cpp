@@ -1,0 +1,115 @@
+#include "runtime/real_time.h"
+
+#include "cli/command_errors.h"
+#include "libmodel/errors.h"
+#include "libmodel/stability.h"
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+
+namespace heartsim {
+
+RealTimeMode parse_real_time_mode(const std::string& text) {
+    if (text == "auto") return RealTimeMode::automatic;
+    if (text == "off") return RealTimeMode::off;
+    throw UsageError("--real-time must be auto or off, not '" + text + "'");
+}
+
+std::string mass_scale_cost(double mass_scale) {
+    if (mass_scale == 1.0) return "no mass scaling: transients as physical";
+    char text[128];
+    std::snprintf(text, sizeof text, "transients %.2g× slower, forces at rest unchanged", std::sqrt(mass_scale));
+    return text;
+}
+
+double MassScaleGovernor::assumed_factor_from_environment() {
+    const char* text = std::getenv("HEARTSIM_ASSUME_REAL_TIME_FACTOR");
+    if (!text || !*text) return 0.0;
+    char* end = nullptr;
+    const double value = std::strtod(text, &end);
+    if (end == text || *end != '\0' || !(value > 0) || !std::isfinite(value))
+        throw UsageError(std::string("HEARTSIM_ASSUME_REAL_TIME_FACTOR must be a positive number, not '") + text + "'");
+    return value;
+}
+
+MassScaleGovernor::MassScaleGovernor(Backend& backend, double assumed_factor) : backend_(backend), assumed_factor_(assumed_factor) {}
+
+double MassScaleGovernor::mass_scale() const { return backend_.options().mass_scale; }
+
+MassScaleGovernor::Plan MassScaleGovernor::plan(double scale) const {
+    const SolverLoadReport& r = backend_.load_report();
+    const SolverOptions& o = backend_.options();
+    const ScaledTimeSteps steps = scale_time_steps(r.unscaled_critical_dt_ms, r.unscaled_damped_critical_dt_ms, scale);
+    Plan p;
+    p.dt_ms = scaled_step_ms(r.unscaled_dt_ms, o.safety_factor, r.unscaled_damped_critical_dt_ms, steps.damped_critical_dt_ms);
+    try {
+        p.substeps = substeps_for_step(p.dt_ms, o.safety_factor * steps.damped_critical_dt_ms, o.subdivide, Solver::max_substeps);
+    } catch (const InputError&) {
+        p.substeps = std::numeric_limits<int>::max();
+    }
+    return p;
+}
+
+double MassScaleGovernor::predict(double factor, double measured_at, double scale) const {
+    // The cost of a substep stays; the simulated time per substep is what S changes.
+    const Plan from = plan(measured_at), to = plan(scale);
+    return factor * (to.dt_ms / double(to.substeps)) / (from.dt_ms / double(from.substeps));
+}
+
+double MassScaleGovernor::choose(double factor) const {
+    const double now = mass_scale();
+    double best = now, best_factor = predict(factor, now, now);
+    for (double scale : ladder) {
+        if (scale < now) continue;
+        const double predicted = predict(factor, now, scale);
+        if (predicted >= margin) return scale;
+        if (predicted > best_factor) best = scale, best_factor = predicted;  // none reaches it: the fastest, smallest first
+    }
+    return best;
+}
+
+std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double simulated_ms) {
+    if (!window_open_) {
+        window_open_ = true;
+        window_wall_ms_ = wall_ms;
+        window_simulated_ms_ = simulated_ms;
+        return std::nullopt;
+    }
+    const double length = first_done_ ? recheck_window_ms : first_window_ms;
+    const double wall = wall_ms - window_wall_ms_;
+    if (wall < length) return std::nullopt;
+    const double now = mass_scale();
+    double factor = (simulated_ms - window_simulated_ms_) / wall;
+    if (assumed_factor_ > 0) factor = predict(assumed_factor_, 1.0, now);
+    measured_ = factor;
+    window_wall_ms_ = wall_ms;
+    window_simulated_ms_ = simulated_ms;
+    const bool first = !first_done_;
+    first_done_ = true;
+    if (!first && factor >= 1.0) return std::nullopt;  // keeps up
+    const double next = choose(factor);
+    char line[512];
+    if (next == now) {
+        // Later windows say nothing unless the top of the ladder is not enough (once).
+        if (!first && (now < ladder.back() || told_slow_at_top_)) return std::nullopt;
+        told_slow_at_top_ = !first;
+        if (factor >= 1.0)
+            std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g: kept (%s)", factor, now, mass_scale_cost(now).c_str());
+        else
+            std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g, and a larger one would not help: %s", factor, now,
+                          keep_up_advice(factor, backend_.size(), backend_.kind()).c_str());
+        return std::string(line);
+    }
+    backend_.set_mass_scale(next);
+    const double predicted = predict(factor, now, next);
+    const Plan before = plan(now), after = plan(next);
+    std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g: mass scale %g, steps of %.4g ms in %d substeps "
+                                     "instead of %.4g ms in %d (%.2f× predicted; %s)%s",
+                  factor, now, next, after.dt_ms, after.substeps, before.dt_ms, before.substeps, predicted, mass_scale_cost(next).c_str(),
+                  predicted < 1.0 ? "; still slower than real time" : "");
+    return std::string(line);
+}
+
+}  // namespace heartsim
