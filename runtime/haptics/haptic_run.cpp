@@ -438,6 +438,7 @@ StepReport HapticRun::step() {
 
     const double step_mass_scale = backend_.options().mass_scale;
     const StepReport report = backend_.step(1);
+    last_step_wall_ms_ = session_->now_ms();
     result_.add(report);
     if (report.diverged && recording_on_) recording_.events.push_back({session_->now_ms(), -1, "divergence"});
     // Which step each force request follows, and which tool sample each step used, for the
@@ -654,6 +655,9 @@ void HapticRun::finish(ScriptedRunResult& result) {
     }
     std::printf("simulation: %d steps, %.4g ms simulated in %.4g ms wall (real-time factor %.3g)\n", result_.steps, simulated,
                 result_.wall_ms, result_.wall_ms > 0 ? simulated / result_.wall_ms : 0.0);
+    if (rows_ > 0)  // the session steps when due, never ahead: what it owed at its last step says whether it kept up
+        std::printf("simulation: %.3g ms behind real time at the last step (mass scale %g)\n",
+                    std::max(0.0, last_step_wall_ms_ - wall_start_ms_ - simulated), backend_.options().mass_scale);
     if (result_.wall_ms > 0 && simulated / result_.wall_ms < 0.95)
         std::fprintf(stderr, "heartsim: warning: the simulation ran slower than real time; forces lag the devices: %s\n",
                      keep_up_advice(simulated / result_.wall_ms, backend_.size(), backend_.kind()).c_str());

@@ -185,7 +185,7 @@ private:
     std::array<double, ring> step_tool_time_{};      ///< step index mod ring → tool sample time used
     std::uint64_t requests_ = 0, last_published_request_ = ~std::uint64_t(0);
     ScriptedRunResult result_;
-    double start_sim_ms_ = 0.0, wall_start_ms_ = 0.0;
+    double start_sim_ms_ = 0.0, wall_start_ms_ = 0.0, last_step_wall_ms_ = 0.0;
     std::array<std::uint64_t, 65> latency_steps_{};  ///< published forces by pose → force steps (64 = more)
     bool recording_on_ = false, last_estop_ = false, last_fresh_ = false, finished_ = false, paused_ = false;
     std::size_t rows_ = 0;
