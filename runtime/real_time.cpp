@@ -38,6 +38,11 @@ MassScaleGovernor::MassScaleGovernor(Backend& backend, double assumed_factor) : 
 
 double MassScaleGovernor::mass_scale() const { return backend_.options().mass_scale; }
 
+double MassScaleGovernor::busy_ms() const {
+    const PassTimes t = backend_.pass_times();  // gl: GPU timer queries (waits for those in flight)
+    return t.step_ms + t.force_ms + t.picking_ms;
+}
+
 MassScaleGovernor::Plan MassScaleGovernor::plan(double scale) const {
     const SolverLoadReport& r = backend_.load_report();
     const SolverOptions& o = backend_.options();
@@ -75,17 +80,25 @@ std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double sim
         window_open_ = true;
         window_wall_ms_ = wall_ms;
         window_simulated_ms_ = simulated_ms;
+        window_busy_ms_ = busy_ms();
         return std::nullopt;
     }
     const double length = first_done_ ? recheck_window_ms : first_window_ms;
     const double wall = wall_ms - window_wall_ms_;
     if (wall < length) return std::nullopt;
     const double now = mass_scale();
-    double factor = (simulated_ms - window_simulated_ms_) / wall;
+    const double simulated = simulated_ms - window_simulated_ms_, busy = busy_ms() - window_busy_ms_;
+    double factor = simulated / wall;
+    // A run paced to the wall clock (a window, a haptic session) steps only when due: over a window
+    // in which it kept up (fell behind by no more than 5 % of it) the wall clock says only "at
+    // least 1", and its capacity is the simulated time over the time spent stepping. One that fell
+    // behind was stepping flat out: the wall clock is the measure (drawing and all).
+    if (wall - simulated <= 0.05 * wall && busy > 0) factor = std::max(factor, simulated / busy);
     if (assumed_factor_ > 0) factor = predict(assumed_factor_, 1.0, now);
     measured_ = factor;
     window_wall_ms_ = wall_ms;
     window_simulated_ms_ = simulated_ms;
+    window_busy_ms_ = busy_ms();
     const bool first = !first_done_;
     first_done_ = true;
     if (!first && factor >= 1.0) return std::nullopt;  // keeps up

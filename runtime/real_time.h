@@ -44,7 +44,10 @@ public:
     /// machine's speed, so that tests choose without timing anything).
     explicit MassScaleGovernor(Backend& backend, double assumed_factor = assumed_factor_from_environment());
 
-    /// After steps: the wall clock now (ms, any origin, non-decreasing) and the simulated time.
+    /// After steps: the wall clock now (ms, any origin, non-decreasing; the real time owed, pauses
+    /// excluded) and the simulated time. A run that kept up with the wall clock over a window is
+    /// measured by the time its backend spent stepping (PassTimes), one that fell behind by the
+    /// wall clock.
     /// When a measuring window closes it may change the backend's S; then it returns the line
     /// that says so (what was measured, the S taken, its cost). Steps while paused must not be
     /// observed (call restart() on resuming).
@@ -72,11 +75,13 @@ private:
     };
     /// The step and its substeps at `scale` (what the backend's set_mass_scale would take).
     Plan plan(double scale) const;
+    /// The backend's time spent stepping and gathering forces so far, ms (PassTimes).
+    double busy_ms() const;
 
     Backend& backend_;
     double assumed_factor_ = 0.0;
     bool window_open_ = false, first_done_ = false, told_slow_at_top_ = false;
-    double window_wall_ms_ = 0.0, window_simulated_ms_ = 0.0;
+    double window_wall_ms_ = 0.0, window_simulated_ms_ = 0.0, window_busy_ms_ = 0.0;
     double measured_ = 0.0;
 };
 
