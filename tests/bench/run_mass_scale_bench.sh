@@ -2,7 +2,7 @@
 # Run time against error with the mass scale S as the knob (docs/benchmarks.md "Mass scaling: run
 # time against error"): every case in ../shared/data/real built with heartprep's defaults (30k
 # particles, E = 10 kPa; MM-WHS CT 1002's myocardium is label 205), the standard press-and-grab
-# gesture of tests/bench/run_realtime_bench.sh (a 3 mm probe pressing the most anterior particle 13 mm
+# gesture of tests/bench/press_and_grab_gesture.py (a 3 mm probe pressing the most anterior particle 13 mm
 # along +y from 11 mm in front of it, a 3 mm grabber pulling the most inferior particle 10 mm inferior,
 # both over the first 100 ms, then held), run on the cpu backend at S = 1, 2, 4, 8, 16 by
 # tests/bench/mass_scale_bench.cpp. Writes OUT/mass_scale.csv, prints a Markdown table, and draws
@@ -31,20 +31,7 @@ for label in "$data"/*/*label.nii.gz; do
   [ "$case" = mmwhs_ct1002 ] && tissue="--tissue 205"
   [ -f "$out/$case.h5" ] || $heartprep build "$label" -o "$out/$case.h5" -q $tissue
   h5dump -d /particles/rest_position -y -w 0 -o "$out/$case.rest.txt" "$out/$case.h5" >/dev/null
-  python3 - "$out/$case.rest.txt" "$out/$case.csv" <<'PY'
-import re, sys
-values = [float(v) for v in re.findall(r"-?\d+\.?\d*(?:[eE][-+]?\d+)?", open(sys.argv[1]).read())]
-points = [values[i:i + 3] for i in range(0, len(values) - 2, 3)]
-front = min(points, key=lambda p: p[1])
-low = min(points, key=lambda p: p[2])
-with open(sys.argv[2], "w") as f:
-    f.write("# run_mass_scale_bench.sh: probe pressing the most anterior particle, grabber pulling the most inferior one\n")
-    f.write("time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab\n")
-    f.write(f"0, 0, probe, {front[0]}, {front[1] - 11}, {front[2]}, 1, 0, 0, 0, 3, 3, 3, 0\n")
-    f.write(f"100, 0, probe, {front[0]}, {front[1] + 2}, {front[2]}, 1, 0, 0, 0, 3, 3, 3, 0\n")
-    f.write(f"0, 1, grabber, {low[0]}, {low[1]}, {low[2]}, 1, 0, 0, 0, 3, 3, 3, 1\n")
-    f.write(f"100, 1, grabber, {low[0]}, {low[1]}, {low[2] - 10}, 1, 0, 0, 0, 3, 3, 3, 1\n")
-PY
+  python3 tests/bench/press_and_grab_gesture.py "$out/$case.rest.txt" "$out/$case.csv"
   echo "$case" >&2
   $bench "$out/$case.h5" "$out/$case.csv" "$seconds" 300 "$case" "$out/mass_scale.csv" >&2
 done

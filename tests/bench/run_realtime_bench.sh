@@ -32,20 +32,7 @@ for label in "$data"/*/*-label.nii.gz; do
   # The gesture from the rest positions: the most anterior (least y, LPS) and most inferior
   # (least z) particles.
   h5dump -d /particles/rest_position -y -w 0 -o "$out/$case.rest.txt" "$out/$case.h5" >/dev/null
-  python3 - "$out/$case.rest.txt" "$out/$case.csv" <<'PY'
-import re, sys
-values = [float(v) for v in re.findall(r"-?\d+\.?\d*(?:[eE][-+]?\d+)?", open(sys.argv[1]).read())]
-points = [values[i:i + 3] for i in range(0, len(values) - 2, 3)]
-front = min(points, key=lambda p: p[1])
-low = min(points, key=lambda p: p[2])
-with open(sys.argv[2], "w") as f:
-    f.write("# run_realtime_bench.sh: probe pressing the most anterior particle, grabber pulling the most inferior one\n")
-    f.write("time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab\n")
-    f.write(f"0, 0, probe, {front[0]}, {front[1] - 11}, {front[2]}, 1, 0, 0, 0, 3, 3, 3, 0\n")
-    f.write(f"100, 0, probe, {front[0]}, {front[1] + 2}, {front[2]}, 1, 0, 0, 0, 3, 3, 3, 0\n")
-    f.write(f"0, 1, grabber, {low[0]}, {low[1]}, {low[2]}, 1, 0, 0, 0, 3, 3, 3, 1\n")
-    f.write(f"100, 1, grabber, {low[0]}, {low[1]}, {low[2] - 10}, 1, 0, 0, 0, 3, 3, 3, 1\n")
-PY
+  python3 tests/bench/press_and_grab_gesture.py "$out/$case.rest.txt" "$out/$case.csv"
   log="$out/$case.log"
   $heartsim run "$out/$case.h5" --headless --backend cpu --seconds "$seconds" --trajectory "$out/$case.csv" --stats >"$log" 2>&1
   step=$(grep -oE "step [0-9.e-]+ ms = [0-9]+ substeps of [0-9.e-]+ ms \(critical [0-9.e-]+ ms\)" "$log")
