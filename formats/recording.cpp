@@ -254,7 +254,7 @@ Recording read_recording(const std::filesystem::path& path) {
     if (r.exists("steps/mass_scale")) {
         s.mass_scale = r.dataset<double>("steps/mass_scale", {steps});
         for (std::size_t i = 0; i < n; ++i)
-            if (!(s.mass_scale[i] >= min_mass_scale && s.mass_scale[i] <= max_mass_scale))
+            if (!valid_mass_scale(s.mass_scale[i]))
                 r.fail("steps/mass_scale", "row " + std::to_string(i) + " is " + std::to_string(s.mass_scale[i]) + ", expected " +
                                                std::to_string(min_mass_scale) + " … " + std::to_string(max_mass_scale));
     }

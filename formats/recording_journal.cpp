@@ -418,12 +418,10 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
             c.column(s.force_step, n);
             c.column(s.diverged, n);
             if (version >= 4 && c.get<std::uint8_t>() != 0) {
-                const std::size_t before = s.mass_scale.size();
-                // Rows of earlier chunks without the column ran at 1.
-                if (before < s.diverged.size() - n) s.mass_scale.resize(s.diverged.size() - n, 1.0);
+                s.mass_scale.resize(s.diverged.size() - n, 1.0);  // rows of earlier chunks without the column ran at 1
                 c.column(s.mass_scale, n);
                 for (std::size_t k = s.mass_scale.size() - n; k < s.mass_scale.size(); ++k)
-                    if (!(s.mass_scale[k] >= min_mass_scale && s.mass_scale[k] <= max_mass_scale))
+                    if (!valid_mass_scale(s.mass_scale[k]))
                         throw InputError(where + ": a step's mass scale is " + std::to_string(s.mass_scale[k]) + ", expected 1 … 1024");
             } else if (!s.mass_scale.empty()) {
                 s.mass_scale.resize(s.diverged.size(), 1.0);

@@ -41,7 +41,7 @@ SimulationState read_state(const std::filesystem::path& path) {
     state.steps = r.number<std::int64_t>("/", "steps");
     if (r.has_attribute("/", "mass_scale")) {
         state.mass_scale = r.number<double>("/", "mass_scale");
-        if (!(state.mass_scale >= min_mass_scale && state.mass_scale <= max_mass_scale))
+        if (!valid_mass_scale(state.mass_scale))
             r.fail("/", "attribute mass_scale must lie in [1, 1024], not " + std::to_string(state.mass_scale));
     }
     const auto positions = r.dataset<float>("positions", {-1, 3});

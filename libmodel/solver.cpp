@@ -79,19 +79,32 @@ struct ProbeFrame {
 template <class Real>
 void BasicSolver<Real>::set_time_step(double dt_ms) {
     if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
-    apply_time_step(scaled_step_ms(dt_ms, options_.safety_factor, base_damped_dt_ms_, damped_critical_dt_ms_));
-    base_dt_ms_ = dt_ms;
+    SolverLoadReport report = load_report_;
+    report.unscaled_dt_ms = dt_ms;
+    const ScaledStep step = scaled_step(report, options_, options_.mass_scale);  // throws before anything changes
     load_report_.unscaled_dt_ms = dt_ms;
+    apply_step(step);
 }
 
 template <class Real>
-void BasicSolver<Real>::apply_time_step(double dt_ms) {
-    if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("solver: the time step must be positive and finite");
-    const int substeps = substeps_for_step(dt_ms, options_.safety_factor * damped_critical_dt_ms(), options_.subdivide, max_substeps);
+void BasicSolver<Real>::set_mass_scale(double mass_scale) {
+    const ScaledStep step = scaled_step(load_report_, options_, mass_scale);  // throws before anything changes
+    options_.mass_scale = mass_scale;
+    apply_step(step);
+    snapshot();
+}
+
+template <class Real>
+void BasicSolver<Real>::apply_step(const ScaledStep& step) {
+    critical_dt_ms_ = step.critical_dt_ms;
+    damped_critical_dt_ms_ = step.damped_critical_dt_ms;
+    load_report_.critical_dt_ms = critical_dt_ms_;
+    load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
+    load_report_.mass_scale = options_.mass_scale;
     const double old_h = h_;
-    dt_ms_ = dt_ms;
-    substeps_ = substeps;
-    h_ = dt_ms / substeps;
+    dt_ms_ = step.dt_ms;
+    substeps_ = step.substeps;
+    h_ = dt_ms_ / substeps_;
     load_report_.substeps = substeps_;
     load_report_.substep_ms = h_;
     build_step_constants();
@@ -102,27 +115,6 @@ void BasicSolver<Real>::apply_time_step(double dt_ms) {
             for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = motion_[state_stride * i + std::size_t(c)] * ratio;
         snapshot();
     }
-}
-
-template <class Real>
-void BasicSolver<Real>::set_mass_scale(double mass_scale) {
-    const double before = options_.mass_scale;
-    options_.mass_scale = mass_scale;
-    try {
-        apply_mass_scale();
-    } catch (const InputError&) {
-        options_.mass_scale = before;
-        apply_mass_scale();
-        throw;
-    }
-    try {
-        apply_time_step(scaled_step_ms(base_dt_ms_, options_.safety_factor, base_damped_dt_ms_, damped_critical_dt_ms_));
-    } catch (const InputError&) {  // more substeps than a step may take: back to where it was
-        options_.mass_scale = before;
-        apply_mass_scale();
-        throw;
-    }
-    snapshot();
 }
 
 template <class Real>

@@ -112,6 +112,19 @@ struct SolverLoadReport {
     double unscaled_dt_ms = 0.0;                  ///< the step at S = 1 (stability.h scaled_step_ms)
 };
 
+/// The step at mass scale `mass_scale` of the network `report` describes (its unscaled critical,
+/// damped and step figures) under `options` (safety factor, subdivide): the scaled limits
+/// (stability.h scale_time_steps), the step (scaled_step_ms) and its substeps (substeps_for_step).
+/// One rule for both backends and for --real-time auto's predictions. Throws InputError for a
+/// scale outside [1, 1024] or a step of more than BasicSolver::max_substeps substeps.
+struct ScaledStep {
+    double critical_dt_ms = 0.0;
+    double damped_critical_dt_ms = 0.0;
+    double dt_ms = 0.0;
+    int substeps = 1;
+};
+ScaledStep scaled_step(const SolverLoadReport& report, const SolverOptions& options, double mass_scale);
+
 /// begin_grab()'s piece of tissue (SolverOptions::grab_reach), shared by the cpu and gl
 /// backends: of the particles captured inside a grabber with `semi_axes` (their tool-frame
 /// positions `local` and rest positions `rest`, in ascending particle order), which it keeps:
@@ -263,8 +276,9 @@ private:
     void load_springs(const Particles& particles, const Springs& springs, const std::vector<std::array<std::int32_t, 18>>& table,
                       const std::vector<std::int32_t>& slot_spring);
     void load_time_steps(const Particles& particles, const Springs& springs);
-    void apply_mass_scale();
-    void apply_time_step(double dt_ms);  ///< the step as taken (scaled): substeps and constants
+    /// Takes `step` (scaled_step): the limits, the step, its substeps and the per-substep
+    /// constants; keeps velocities.
+    void apply_step(const ScaledStep& step);
     void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad);
     SolverEnergy compute_energy(bool centred) const;
     /// The largest strain of particle i's springs if it stood at `x` (its neighbours in `positions`).
@@ -277,11 +291,9 @@ private:
     SolverLoadReport load_report_;
     std::size_t n_ = 0, n_pad_ = 0, groups_ = 0, chunks_ = 0;
     double dt_ms_ = 0.0, h_ = 0.0, critical_dt_ms_ = 0.0, time_ms_ = 0.0;
-    double base_critical_dt_ms_ = 0.0, base_damped_dt_ms_ = 0.0, base_dt_ms_ = 0.0;  ///< without mass scaling
     int substeps_ = 1;
     Real min_rest_length_ = 0;
     double energy_floor_ = 0.0;
-    TimeStepLimits time_step_limits_;     ///< the step policy's figures for this network
     double damped_critical_dt_ms_ = 0.0;  ///< given, or from λ_max of M^(−1/2) C M^(−1/2) (stability.h)
     bool damped_ = false;
 

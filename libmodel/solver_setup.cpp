@@ -135,7 +135,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
 
     double dt = options_.dt_ms;
     if (!(dt > 0)) {
-        dt = options_.safety_factor * base_damped_dt_ms_;  // the step at S = 1 (set_time_step scales it)
+        dt = options_.safety_factor * load_report_.unscaled_damped_critical_dt_ms;  // the step at S = 1 (set_time_step scales it)
         if (!std::isfinite(dt) || !(dt > 0)) throw InputError("solver: dt_ms must be given for a network without a finite critical step");
     }
     // 64-byte aligned, so that no particle's 32 bytes straddle two cache lines.
@@ -250,50 +250,43 @@ void BasicSolver<Real>::load_springs(const Particles& particles, const Springs& 
 }
 
 /// The critical step (stored and checked against a proven ceiling, or estimated) and the damped
-/// one, by the policy heartprep stores (stability.h time_step_limits).
+/// one, by the policy heartprep stores (stability.h time_step_limits), unscaled: set_time_step
+/// scales them (scaled_step).
 template <class Real>
 void BasicSolver<Real>::load_time_steps(const Particles& particles, const Springs& springs) {
+    double critical = 0.0;
     if (options_.critical_dt_ms > 0) {
-        critical_dt_ms_ = options_.critical_dt_ms;
+        critical = options_.critical_dt_ms;
         // A stored step is checked against a proven ceiling (one pass over the springs): one
         // flipped bit in the file must not make the step 2¹⁶ times too long.
         const double ceiling = critical_step_ceiling_ms(particles, springs);
-        if (!std::isfinite(critical_dt_ms_) || critical_dt_ms_ > ceiling * (1.0 + 1e-6))
-            throw InputError("scenario: /solver critical_dt_ms is " + std::to_string(critical_dt_ms_) +
-                             " ms, above the proven ceiling of " + std::to_string(ceiling) +
+        if (!std::isfinite(critical) || critical > ceiling * (1.0 + 1e-6))
+            throw InputError("scenario: /solver critical_dt_ms is " + std::to_string(critical) + " ms, above the proven ceiling of " +
+                             std::to_string(ceiling) +
                              " ms for these springs and masses: the file is damaged or not from heartprep (rebuild it)");
     } else {
-        critical_dt_ms_ = estimate_critical_time_step(particles, springs).critical_dt_ms;
+        critical = estimate_critical_time_step(particles, springs).critical_dt_ms;
         load_report_.critical_dt_estimated = true;
     }
-    load_report_.critical_dt_ms = critical_dt_ms_;
     // The dashpots, support dampers and drag shorten the stable step (stability.h stable_step_ms).
     const double stored = options_.damped_critical_dt_ms > 0 && std::isfinite(options_.damped_critical_dt_ms) ? options_.damped_critical_dt_ms : 0.0;
-    time_step_limits_ = time_step_limits(critical_dt_ms_, stored, options_.safety_factor, [&] {
+    load_report_.unscaled_critical_dt_ms = critical;
+    load_report_.unscaled_damped_critical_dt_ms = time_step_limits(critical, stored, options_.safety_factor, [&] {
         return estimate_damping_eigenvalue(particles, springs, options_.damping_ratio, options_.damping);
-    });
-    base_critical_dt_ms_ = critical_dt_ms_;
-    base_damped_dt_ms_ = time_step_limits_.damped_critical_dt_ms;
-    apply_mass_scale();
+    }).damped_critical_dt_ms;
 }
 
-/// The critical and damped steps, the step policy's and the load report's, for
-/// options_.mass_scale (stability.h scale_time_steps) from the unscaled ones.
-template <class Real>
-void BasicSolver<Real>::apply_mass_scale() {
-    const double s = options_.mass_scale;
-    if (!(s >= min_mass_scale && s <= max_mass_scale))
+ScaledStep scaled_step(const SolverLoadReport& report, const SolverOptions& options, double mass_scale) {
+    if (!valid_mass_scale(mass_scale))
         throw InputError("solver: the mass scale must lie in [" + std::to_string(min_mass_scale) + ", " + std::to_string(max_mass_scale) +
-                         "], not " + std::to_string(s));
-    const ScaledTimeSteps scaled = scale_time_steps(base_critical_dt_ms_, base_damped_dt_ms_, s);
-    critical_dt_ms_ = scaled.critical_dt_ms;
-    damped_critical_dt_ms_ = scaled.damped_critical_dt_ms;
-    time_step_limits_ = {damped_critical_dt_ms_, options_.safety_factor * damped_critical_dt_ms_};
-    load_report_.critical_dt_ms = critical_dt_ms_;
-    load_report_.damped_critical_dt_ms = damped_critical_dt_ms_;
-    load_report_.mass_scale = s;
-    load_report_.unscaled_critical_dt_ms = base_critical_dt_ms_;
-    load_report_.unscaled_damped_critical_dt_ms = base_damped_dt_ms_;
+                         "], not " + std::to_string(mass_scale));
+    const ScaledTimeSteps limits = scale_time_steps(report.unscaled_critical_dt_ms, report.unscaled_damped_critical_dt_ms, mass_scale);
+    ScaledStep step;
+    step.critical_dt_ms = limits.critical_dt_ms;
+    step.damped_critical_dt_ms = limits.damped_critical_dt_ms;
+    step.dt_ms = scaled_step_ms(report.unscaled_dt_ms, options.safety_factor, report.unscaled_damped_critical_dt_ms, limits.damped_critical_dt_ms);
+    step.substeps = substeps_for_step(step.dt_ms, options.safety_factor * step.damped_critical_dt_ms, options.subdivide, Solver::max_substeps);
+    return step;
 }
 
 // The set-up's members for the two solvers (solver.cpp instantiates the rest).
@@ -304,8 +297,7 @@ void BasicSolver<Real>::apply_mass_scale() {
     template void BasicSolver<Real>::load_particles(const Particles&);                                                         \
     template void BasicSolver<Real>::load_springs(const Particles&, const Springs&, const std::vector<std::array<std::int32_t, 18>>&, \
                                                   const std::vector<std::int32_t>&);                                           \
-    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&);                                        \
-    template void BasicSolver<Real>::apply_mass_scale();
+    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&);
 HEARTSIM_SOLVER_SETUP(float)
 HEARTSIM_SOLVER_SETUP(double)
 #undef HEARTSIM_SOLVER_SETUP

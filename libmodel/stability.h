@@ -118,5 +118,6 @@ double scaled_step_ms(double unscaled_dt_ms, double safety_factor, double unscal
 
 /// The range `heartsim run --mass-scale` and the readers of recordings and states take.
 inline constexpr double min_mass_scale = 1.0, max_mass_scale = 1024.0;
+inline bool valid_mass_scale(double mass_scale) { return mass_scale >= min_mass_scale && mass_scale <= max_mass_scale; }
 
 }  // namespace heartsim

@@ -2,7 +2,6 @@
 
 #include "cli/command_errors.h"
 #include "libmodel/errors.h"
-#include "libmodel/stability.h"
 
 #include <cmath>
 #include <cstdio>
@@ -43,23 +42,20 @@ double MassScaleGovernor::busy_ms() const {
     return t.step_ms + t.force_ms + t.picking_ms;
 }
 
-MassScaleGovernor::Plan MassScaleGovernor::plan(double scale) const {
-    const SolverLoadReport& r = backend_.load_report();
-    const SolverOptions& o = backend_.options();
-    const ScaledTimeSteps steps = scale_time_steps(r.unscaled_critical_dt_ms, r.unscaled_damped_critical_dt_ms, scale);
-    Plan p;
-    p.dt_ms = scaled_step_ms(r.unscaled_dt_ms, o.safety_factor, r.unscaled_damped_critical_dt_ms, steps.damped_critical_dt_ms);
+ScaledStep MassScaleGovernor::plan(double scale) const {
     try {
-        p.substeps = substeps_for_step(p.dt_ms, o.safety_factor * steps.damped_critical_dt_ms, o.subdivide, Solver::max_substeps);
-    } catch (const InputError&) {
-        p.substeps = std::numeric_limits<int>::max();
+        return scaled_step(backend_.load_report(), backend_.options(), scale);
+    } catch (const InputError&) {  // a step that would need too many substeps: never a choice
+        ScaledStep none;
+        none.dt_ms = backend_.time_step_ms();
+        none.substeps = std::numeric_limits<int>::max();
+        return none;
     }
-    return p;
 }
 
 double MassScaleGovernor::predict(double factor, double measured_at, double scale) const {
     // The cost of a substep stays; the simulated time per substep is what S changes.
-    const Plan from = plan(measured_at), to = plan(scale);
+    const ScaledStep from = plan(measured_at), to = plan(scale);
     return factor * (to.dt_ms / double(to.substeps)) / (from.dt_ms / double(from.substeps));
 }
 
@@ -87,7 +83,8 @@ std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double sim
     const double wall = wall_ms - window_wall_ms_;
     if (wall < length) return std::nullopt;
     const double now = mass_scale();
-    const double simulated = simulated_ms - window_simulated_ms_, busy = busy_ms() - window_busy_ms_;
+    const double busy_now = busy_ms();
+    const double simulated = simulated_ms - window_simulated_ms_, busy = busy_now - window_busy_ms_;
     double factor = simulated / wall;
     // A run paced to the wall clock (a window, a haptic session) steps only when due: over a window
     // in which it kept up (fell behind by no more than 5 % of it) the wall clock says only "at
@@ -98,7 +95,7 @@ std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double sim
     measured_ = factor;
     window_wall_ms_ = wall_ms;
     window_simulated_ms_ = simulated_ms;
-    window_busy_ms_ = busy_ms();
+    window_busy_ms_ = busy_now;
     const bool first = !first_done_;
     first_done_ = true;
     if (!first && factor >= 1.0) return std::nullopt;  // keeps up
@@ -117,7 +114,7 @@ std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double sim
     }
     backend_.set_mass_scale(next);
     const double predicted = predict(factor, now, next);
-    const Plan before = plan(now), after = plan(next);
+    const ScaledStep before = plan(now), after = plan(next);
     std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g: mass scale %g, steps of %.4g ms in %d substeps "
                                      "instead of %.4g ms in %d (%.2f× predicted; %s)%s",
                   factor, now, next, after.dt_ms, after.substeps, before.dt_ms, before.substeps, predicted, mass_scale_cost(next).c_str(),

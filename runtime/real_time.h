@@ -69,12 +69,8 @@ public:
     static double assumed_factor_from_environment();
 
 private:
-    struct Plan {
-        double dt_ms = 0.0;
-        int substeps = 1;
-    };
     /// The step and its substeps at `scale` (what the backend's set_mass_scale would take).
-    Plan plan(double scale) const;
+    ScaledStep plan(double scale) const;
     /// The backend's time spent stepping and gathering forces so far, ms (PassTimes).
     double busy_ms() const;
 

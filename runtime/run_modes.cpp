@@ -100,7 +100,7 @@ void check_arguments(const RunArguments& a) {
     if (!a.replay.empty() && (a.steps || a.seconds > 0))
         throw UsageError("--replay runs the recording's own steps: no --steps or --seconds with it");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw UsageError("--screenshot-every needs --screenshot OUT.png");
-    if (a.mass_scale && !(*a.mass_scale >= min_mass_scale && *a.mass_scale <= max_mass_scale))
+    if (a.mass_scale && !valid_mass_scale(*a.mass_scale))
         throw UsageError("--mass-scale: expected a number from 1 (no scaling) to 1024, not " + std::to_string(*a.mass_scale));
     if (a.mass_scale && a.real_time == "auto")
         throw UsageError("--mass-scale fixes S and --real-time auto chooses it: give one of them");

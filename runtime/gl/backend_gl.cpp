@@ -228,24 +228,15 @@ public:
     float keep() const { return float(1.0 - options_.damping * h_ / options_.mass_scale); }
 
     void set_mass_scale(double mass_scale) override {
-        if (!(mass_scale >= min_mass_scale && mass_scale <= max_mass_scale))
-            throw InputError("solver: the mass scale must lie in [" + std::to_string(min_mass_scale) + ", " +
-                             std::to_string(max_mass_scale) + "], not " + std::to_string(mass_scale));
-        // Solver::set_mass_scale: the same limits, substeps, constants and velocity rescale.
-        const ScaledTimeSteps scaled =
-            scale_time_steps(load_report_.unscaled_critical_dt_ms, load_report_.unscaled_damped_critical_dt_ms, mass_scale);
-        const double dt = scaled_step_ms(load_report_.unscaled_dt_ms, options_.safety_factor, load_report_.unscaled_damped_critical_dt_ms,
-                                         scaled.damped_critical_dt_ms);
-        const int substeps = substeps_for_step(dt, options_.safety_factor * scaled.damped_critical_dt_ms, options_.subdivide,
-                                               Solver::max_substeps);
+        const ScaledStep step = scaled_step(load_report_, options_, mass_scale);  // Solver::set_mass_scale's rule; throws first
         const double old_h = h_;
         options_.mass_scale = mass_scale;
-        dt_ms_ = dt;
-        substeps_ = substeps;
-        h_ = dt_ms_ / substeps;
+        dt_ms_ = step.dt_ms;
+        substeps_ = step.substeps;
+        h_ = dt_ms_ / substeps_;
         load_report_.mass_scale = mass_scale;
-        load_report_.critical_dt_ms = scaled.critical_dt_ms;
-        load_report_.damped_critical_dt_ms = scaled.damped_critical_dt_ms;
+        load_report_.critical_dt_ms = step.critical_dt_ms;
+        load_report_.damped_critical_dt_ms = step.damped_critical_dt_ms;
         load_report_.substeps = substeps_;
         load_report_.substep_ms = h_;
         upload_step_constants();
