@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Run time against error with the mass scale S as the knob (docs/benchmarks.md "Mass scaling: run
 # time against error"): every case in ../shared/data/real built with heartprep's defaults (30k
-# particles, E = 10 kPa; MM-WHS CT 1002's myocardium is label 205), the standard press-and-grab
+# particles, E = 10 kPa; MM-WHS CT 1002's myocardium is label 205: --tissue=205), the standard press-and-grab
 # gesture of tests/bench/press_and_grab_gesture.py (a 3 mm probe pressing the most anterior particle 13 mm
 # along +y from 11 mm in front of it, a 3 mm grabber pulling the most inferior particle 10 mm inferior,
 # both over the first 100 ms, then held), run on the cpu backend at S = 1, 2, 4, 8, 16 by
@@ -28,7 +28,7 @@ heartprep=build/release/tools/heartprep bench=build/release/tests/bench/mass_sca
 for label in "$data"/*/*label.nii.gz; do
   case=$(basename "$(dirname "$label")")
   tissue=""
-  [ "$case" = mmwhs_ct1002 ] && tissue="--tissue 205"
+  [ "$case" = mmwhs_ct1002 ] && tissue="--tissue=205"
   [ -f "$out/$case.h5" ] || $heartprep build "$label" -o "$out/$case.h5" -q $tissue
   h5dump -d /particles/rest_position -y -w 0 -o "$out/$case.rest.txt" "$out/$case.h5" >/dev/null
   python3 tests/bench/press_and_grab_gesture.py "$out/$case.rest.txt" "$out/$case.csv"
