@@ -477,7 +477,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                         h.grabbing = (input.device_pose.buttons & 1u) != 0;
                         largest_mouse_force_n = std::max(largest_mouse_force_n, h.force_n.norm());
                         // Contact as the hand feels it, on the terminal too (a log, the tests).
-                        if (!mouse_touching && h.force_n.norm() > 0.01) say("mouse device: touching the tissue, %.3f N\n", h.force_n.norm());
+                        if (!mouse_touching && h.force_n.norm() > 0.01) say("mouse device: touching the tissue, %.4g N\n", h.force_n.norm());
                         if (mouse_touching && h.force_n.norm() == 0.0) say("mouse device: free\n");
                         mouse_touching = h.force_n.norm() > 0.01 || (mouse_touching && h.force_n.norm() > 0.0);
                     }
