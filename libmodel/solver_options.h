@@ -131,8 +131,9 @@ template <class F, class... Rules> void for_each_rule(F&& f, Rules&... rules) {
 /// kept by recordings and saved states, so that a replay steps the same).
 struct KernelOptions {
     /// Explicit mass scaling S ≥ 1 (docs/solver.md "Mass scaling"): the inertia in the step is
-    /// S × each particle's mass, so the critical step grows by √S and a step needs about √S fewer
-    /// substeps, while the weight (m·g), the dashpots and the drag force stay physical: the
+    /// S × each particle's mass, so the critical step grows by √S and a simulated second takes √S
+    /// (stiffness-limited) to S (damping-limited) times fewer substeps, while the weight (m·g), the
+    /// dashpots and the drag force stay physical: the
     /// tissue rests where it rested and feels as stiff; only fast transients slow by √S.
     /// 1: no scaling (the same bits as a solver without it). heartsim run --mass-scale, --real-time.
     double mass_scale = 1.0;

@@ -111,8 +111,9 @@ int substeps_for_step(double dt_ms, double limit_ms, bool subdivide, int max_sub
 
 /// The step under mass scaling, from the step at S = 1 (`unscaled_dt_ms`): a step that fits in
 /// one substep at S = 1 (≤ safety × the unscaled damped step: heartprep's policy) grows with the
-/// stable step, × scaled_damped / unscaled_damped (≈ √S), so that each substep still covers as
-/// much as the stability bound allows and a simulated second takes ≈ √S fewer substeps; a longer
+/// stable step, × scaled_damped / unscaled_damped (√S where stiffness limits the step, up to S
+/// where damping does), so that each substep still covers as much as the stability bound allows
+/// and a simulated second takes that many times fewer substeps; a longer
 /// step stays as it is and takes fewer substeps (substeps_for_step). S = 1: `unscaled_dt_ms`.
 double scaled_step_ms(double unscaled_dt_ms, double safety_factor, double unscaled_damped_dt_ms, double scaled_damped_dt_ms);
 

@@ -73,7 +73,8 @@ int main(int argc, char** argv) {
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
         ->expected(3);
     run->add_option("--mass-scale", a.mass_scale,
-                    "Explicit mass scaling S (1 to 1024): inertia × S in the step, so a step takes about √S fewer substeps; weight, "
+                    "Explicit mass scaling S (1 to 1024): inertia × S in the step, so a simulated second takes √S to S times fewer "
+                    "substeps; weight, "
                     "dashpots and stiffness unchanged: the tissue rests and feels the same, fast transients run √S slower "
                     "(docs/solver.md \"Mass scaling\"). Fixes S: --real-time off");
     run->add_option("--real-time", a.real_time,
