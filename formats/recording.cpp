@@ -184,8 +184,8 @@ Recording read_recording(const std::filesystem::path& path) {
         hand.device = r.string_attribute(g, "device");
         hand.device_name = r.string_attribute(g, "device_name");
         hand.instrument = r.string_attribute(g, "instrument");
-        if (hand.instrument != "probe" && hand.instrument != "grabber")
-            r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe or grabber");
+        if (hand.instrument != "probe" && hand.instrument != "grabber" && hand.instrument != "scalpel")
+            r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber or scalpel");
         hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
         for (double a : hand.semi_axes_mm)
             if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
@@ -264,8 +264,8 @@ Recording read_recording(const std::filesystem::path& path) {
             if (s.grab[i][h] != 0 && s.grab[i][h] != 1) r.fail("/steps", "dataset grab " + row + " is not 0 or 1");
             if (s.applied[i][h] != 0 && s.applied[i][h] != 1) r.fail("/steps", "dataset applied " + row + " is not 0 or 1");
             if (s.applied[i][h] && !rec.hands[h].used) r.fail("/steps", "dataset applied " + row + " applies a hand without a device");
-            if (s.grab[i][h] && (!rec.hands[h].used || rec.hands[h].instrument != "grabber"))
-                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber");
+            if (s.grab[i][h] && (!rec.hands[h].used || (rec.hands[h].instrument != "grabber" && rec.hands[h].instrument != "scalpel")))
+                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber or scalpel");
             if (!rec.hands[h].used) continue;
             const auto& q = s.tool_orientation[i][h];
             if (!(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 1e-12))

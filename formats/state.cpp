@@ -24,6 +24,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
         w.dataset("instrument_forces", state.force_n.data()->data(), {2, 3});
         w.dataset("instrument_particles", state.particles.data(), {2});
         w.dataset("instrument_kind", state.kind.data(), {2});
+        if (!state.cut_springs.empty()) w.dataset("cut_springs", state.cut_springs, {state.cut_springs.size(), 2});
         if (!state.visual_positions.empty()) {
             w.group("visual");
             w.dataset("visual/positions", state.visual_positions, {state.visual_positions.size(), 3});
@@ -52,7 +53,17 @@ SimulationState read_state(const std::filesystem::path& path) {
         for (int c = 0; c < 3; ++c) state.force_n[h][c] = forces[std::size_t(3 * h + c)];
     const auto particles = r.dataset<std::int32_t>("instrument_particles", {2});
     const auto kind = r.dataset<std::int32_t>("instrument_kind", {2});
-    for (int h = 0; h < 2; ++h) state.particles[h] = particles[h], state.kind[h] = kind[h];
+    for (int h = 0; h < 2; ++h) {
+        state.particles[h] = particles[h], state.kind[h] = kind[h];
+        if (kind[h] < 0 || kind[h] > 3) r.fail("instrument_kind", "hand " + std::to_string(h) + " is " + std::to_string(kind[h]) + ", expected 0 to 3");
+    }
+    if (r.exists("cut_springs")) {
+        const auto cuts = r.dataset<std::int32_t>("cut_springs", {-1, 2});
+        state.cut_springs = h5::rows_of<2>(cuts);
+        for (const auto& [a, b] : state.cut_springs)
+            if (a < 0 || b <= a || std::size_t(b) >= state.positions.size())
+                r.fail("cut_springs", "pair (" + std::to_string(a) + ", " + std::to_string(b) + ") is not two particle indices, lower first");
+    }
     if (r.exists("visual")) {
         const auto visual = r.dataset<float>("visual/positions", {-1, 3});
         r.require_finite("visual/positions", visual);

@@ -9,6 +9,7 @@
 #endif
 
 #include "solver.h"
+#include "cutting.h"
 #include "solver_kernels.h"
 
 #include "ellipsoid.h"
@@ -44,6 +45,7 @@ const char* to_string(InstrumentKind kind) {
     case InstrumentKind::none: return "none";
     case InstrumentKind::probe: return "probe";
     case InstrumentKind::grabber: return "grabber";
+    case InstrumentKind::scalpel: return "scalpel";
     }
     return "none";
 }
@@ -136,6 +138,9 @@ void BasicSolver<Real>::reset() {
 
 template <class Real>
 void BasicSolver<Real>::reset_tissue() {
+    neighbour_ = uncut_neighbour_;
+    cut_.clear();
+    last_cuts_ = 0;
     for (std::size_t i = 0; i < n_pad_; ++i)
         for (std::size_t c = 0; c < 4; ++c) {
             current_[state_stride * i + c] = next_[state_stride * i + c] = rest_[4 * i + c];
@@ -206,9 +211,10 @@ void BasicSolver<Real>::restore() {
     time_ms_ = good_time_ms_;
     for (auto& list : touched_) list.clear();
     substeps_since_check_ = 0;
-    // Grabs end (the tissue slipped out): the runtime sees no held particles until it grabs again.
+    // Grabs end (the tissue slipped out) and blades lift: the runtime sees no held particles and
+    // cuts nothing until it grabs again.
     for (int hand = 0; hand < hands; ++hand)
-        if (hand_[std::size_t(hand)].grabbing) release(hand);
+        if (hand_[std::size_t(hand)].grabbing || hand_[std::size_t(hand)].cutting) release(hand);
 }
 
 template <class Real>
@@ -278,7 +284,11 @@ template <class Real>
 std::size_t BasicSolver<Real>::begin_grab(int hand) {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
     HandState& state = hand_[std::size_t(hand)];
-    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber");
+    if (state.instrument.kind == InstrumentKind::scalpel) {
+        state.cutting = true;
+        return 0;
+    }
+    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber or scalpel");
     release(hand);
     state.grabbing = true;
     const Eigen::Matrix3d tool_from_world = state.pose.orientation.toRotationMatrix().transpose();
@@ -312,6 +322,44 @@ void BasicSolver<Real>::release(int hand) {
     state.held.clear();
     state.held_local.clear();
     state.grabbing = false;
+    state.cutting = false;
+}
+
+template <class Real>
+std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
+    if (!sweep.cuts_anything) return 0;
+    // Each spring once, from its end of lower index, in particle order per chunk; the chunks'
+    // lists joined in order: the same list for any thread count.
+    std::vector<std::vector<std::array<std::int32_t, 2>>> found(chunks_);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
+            const std::size_t end = std::min(n_, (chunk + 1) * chunk_groups * lane_count);
+            for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
+                const Real* xi = current_ + state_stride * i;
+                const float p[3] = {float(xi[0]), float(xi[1]), float(xi[2])};
+                for (int s = 0; s < slot_count; ++s) {
+                    const std::size_t j = std::size_t(neighbour_[entry_of(i, s)]);
+                    if (j <= i) continue;
+                    const Real* xj = current_ + state_stride * j;
+                    const float q[3] = {float(xj[0]), float(xj[1]), float(xj[2])};
+                    if (spring_crosses(sweep, p, q)) found[chunk].push_back({std::int32_t(i), std::int32_t(j)});
+                }
+            }
+        }
+    });
+    std::size_t count = 0;
+    for (const auto& list : found)
+        for (const auto& [i, j] : list) {
+            // Both ends' table entries point at themselves: an empty slot, zero force in every pass.
+            for (const auto& [from, to] : {std::array<std::int32_t, 2>{i, j}, std::array<std::int32_t, 2>{j, i}})
+                for (int s = 0; s < slot_count; ++s) {
+                    const std::size_t t = entry_of(std::size_t(from), s);
+                    if (neighbour_[t] == to) neighbour_[t] = from;
+                }
+            cut_.push_back({i, j});
+            ++count;
+        }
+    return count;
 }
 
 template <class Real>
@@ -518,6 +566,12 @@ StepReport BasicSolver<Real>::step(int steps) {
     const double start_ms = time_ms_;
     std::array<InstrumentPose, hands> start, poses, previous_poses;
     for (int hand = 0; hand < hands; ++hand) start[std::size_t(hand)] = hand_[std::size_t(hand)].pose;
+    // A lowered scalpel cuts what its blade sweeps from this call's start pose to its target,
+    // before the substeps: the springs it crosses exert nothing from the first substep on.
+    last_cuts_ = 0;
+    for (const HandState& state : hand_)
+        if (state.cutting && state.placed)
+            last_cuts_ += cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z()));
 
     auto fire = [&](WatchdogReason reason, const std::string& detail) {
         const double failed_at = time_ms_;

@@ -28,13 +28,20 @@
 
 namespace heartsim {
 
+struct BladeSweep;  // cutting.h
+
 enum class InstrumentKind {
     none,
     probe,    ///< particles inside the ellipsoid are projected to its boundary after every substep
     grabber,  ///< begin_grab() captures the particles inside; they follow the pose rigidly
+    /// A blade from the pose's position (the tip) along the tool's +z axis, 2·az long (ax, ay: its
+    /// half-width and half-thickness, for drawing). From begin_grab() until release() each step
+    /// cuts, for good, every spring that crosses the surface the blade swept during the step
+    /// (cutting.h); lifted, it touches nothing. It neither pushes nor holds tissue.
+    scalpel,
 };
 
-/// "none", "probe" or "grabber": the word of trajectories, recordings and the window's HUD.
+/// "none", "probe", "grabber" or "scalpel": the word of trajectories, recordings and the window's HUD.
 const char* to_string(InstrumentKind kind);
 
 /// An instrument's volume: an ellipsoid with semi-axes along the tool frame's x, y, z, mm.
@@ -192,18 +199,26 @@ public:
     void set_pose(int hand, const InstrumentPose& pose);
     /// Starts a grab gesture: captures the free particles inside the grabber at its current
     /// pose (one piece of tissue: SolverOptions::grab_reach); they then follow it rigidly, in
-    /// ascending index order. Returns how many. Throws if the hand is no grabber.
+    /// ascending index order. Returns how many. On a scalpel it lowers the blade: the steps from
+    /// now on cut (returns 0). Throws if the hand is neither.
     std::size_t begin_grab(int hand);
+    /// Ends a grab, or lifts a scalpel's blade.
     void release(int hand);
+    /// The springs cut so far, each as its two packed particle indices (lower first), in the
+    /// order they were cut (particle order within a step). reset() and reset_tissue() heal them.
+    const std::vector<std::array<std::int32_t, 2>>& cut_springs() const { return cut_; }
+    /// Springs the last step() call cut.
+    std::size_t last_cut_count() const { return last_cuts_; }
     /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
     std::vector<std::int32_t> contact_particles(int hand) const;
 
     /// Advances `steps` steps of dt_ms. Stops early when the watchdog fires (see StepReport).
     StepReport step(int steps = 1);
-    /// Back to rest: rest positions, zero velocity, grabs released, time 0. Instruments kept.
+    /// Back to rest: rest positions, zero velocity, grabs released, cut springs restored, time 0.
+    /// Instruments kept.
     void reset();
-    /// The tissue back to its rest state as reset(), but the simulated time goes on (a window's
-    /// "reset the tissue" key during a session).
+    /// The tissue back to its rest state as reset() (uncut), but the simulated time goes on (a
+    /// window's "reset the tissue" key during a session).
     void reset_tissue();
     /// Sets every particle's position (mm) and velocity (mm/ms), N each, packed order. The
     /// motion of the last substep is v·h − ½·a·h² (a from the forces at x), so the start is
@@ -251,6 +266,7 @@ private:
         InstrumentPose pose;        ///< where the tool is now
         InstrumentPose target;      ///< where it will be after the next step()
         bool grabbing = false;
+        bool cutting = false;       ///< a scalpel between begin_grab and release
         bool placed = false;        ///< a pose was set since set_instrument
         std::vector<std::int32_t> held;            ///< packed indices
         std::vector<Eigen::Vector3d> held_local;   ///< tool-frame positions at capture
@@ -285,6 +301,8 @@ private:
     Real strain_at(std::size_t i, const Real* x, const Real* positions) const;
     void snapshot();
     void restore();
+    /// Cuts the springs that cross `sweep` at the current positions; returns how many.
+    std::size_t cut(const BladeSweep& sweep);
     Eigen::Vector3d force_on(std::size_t particle) const;
 
     SolverOptions options_;
@@ -321,7 +339,10 @@ private:
     bool supported_ = false;
 
     // Per group of `lanes` particles, per slot, per lane: [group][slot][lane].
-    std::vector<std::int32_t> neighbour_;  ///< the particle itself where the slot is empty
+    std::vector<std::int32_t> neighbour_;  ///< the particle itself where the slot is empty or its spring cut
+    std::vector<std::int32_t> uncut_neighbour_;  ///< neighbour_ as loaded (reset_tissue heals cuts)
+    std::vector<std::array<std::int32_t, 2>> cut_;  ///< cut springs, lower index first
+    std::size_t last_cuts_ = 0;
     std::vector<Real> rest_length_;        ///< mm (0 where empty)
     std::vector<Real> stiffness_;          ///< N/mm (0 where empty)
     std::vector<Real> dashpot_;            ///< c, N·ms/mm (0 where empty)

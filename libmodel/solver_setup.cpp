@@ -124,6 +124,7 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     const std::vector<std::array<std::int32_t, 18>> table = slot_table(n_, springs, neighbours, slot_spring);
     load_particles(particles);
     load_springs(particles, springs, table, slot_spring);
+    uncut_neighbour_ = neighbour_;
     load_report_.particles = n_;
     load_report_.springs = springs.size();
     load_time_steps(particles, springs);

@@ -90,6 +90,9 @@ public:
     /// Both hands' forces on the current state, N, world frame (the force the tissue exerts on
     /// the instrument, docs/solver.md). Waits for the GPU.
     virtual InstrumentForces instrument_forces() = 0;
+    /// The springs a scalpel cut so far (Solver::cut_springs), each as its two packed particle
+    /// indices, lower first, sorted. Waits for the GPU.
+    virtual std::vector<std::array<std::int32_t, 2>> cut_springs() = 0;
     /// Current positions, N×3 mm, packed order. Waits for the GPU.
     virtual std::vector<std::array<float, 3>> positions() = 0;
     /// Pass timings so far (waits for outstanding timer queries).

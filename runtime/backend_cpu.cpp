@@ -77,6 +77,11 @@ public:
     std::uint64_t latest_forces_request() const override { return latest_request_; }
     InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
     std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
+    std::vector<std::array<std::int32_t, 2>> cut_springs() override {
+        std::vector<std::array<std::int32_t, 2>> list = solver_.cut_springs();
+        std::sort(list.begin(), list.end());
+        return list;
+    }
     std::vector<std::int32_t> contact_particles(int hand) override {
         std::vector<std::int32_t> list = solver_.contact_particles(hand);
         std::sort(list.begin(), list.end());

@@ -110,9 +110,10 @@ int main(int argc, char** argv) {
                     "openhaptics[:NAME] (3D Systems Touch / Phantom Omni through libHD)")
         ->type_name("SPEC")
         ->allow_extra_args(false);
-    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe or grabber[:AX,AY,AZ] semi-axes mm "
-                                                    "(default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber holds while "
-                                                    "button 1 is pressed)")
+    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe, grabber or scalpel[:AX,AY,AZ] semi-axes mm "
+                                                    "(default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber holds and a "
+                                                    "scalpel cuts while button 1 is pressed; a scalpel's blade runs from the tip along the "
+                                                    "tool's +z, 2*AZ long, default 2,0.3,10)")
         ->type_name("KIND")
         ->allow_extra_args(false);
     run->add_option("--haptic-rate", a.haptic_rate, "Device thread rate, Hz")->check(CLI::Range(100.0, 10000.0))->capture_default_str();

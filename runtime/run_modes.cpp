@@ -445,7 +445,18 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     std::printf("wrote %s\n", a.stats_csv.c_str());
 }
 
-/// --save-state: the final positions, the forces and what each hand held.
+/// The state file's instrument code (formats/state.h): 0 none, 1 probe, 2 grabber, 3 scalpel.
+std::int32_t state_kind(InstrumentKind kind) {
+    switch (kind) {
+    case InstrumentKind::none: return 0;
+    case InstrumentKind::probe: return 1;
+    case InstrumentKind::grabber: return 2;
+    case InstrumentKind::scalpel: return 3;
+    }
+    return 0;
+}
+
+/// --save-state: the final positions, the forces, what each hand held and the springs cut.
 void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const InstrumentForces& forces,
                 const std::vector<std::array<float, 3>>& positions, const haptics::HapticRun* haptic) {
     SimulationState state;
@@ -459,11 +470,12 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         for (int c = 0; c < 3; ++c) state.force_n[hand][c] = forces.hand[hand].force_n[c];
         state.particles[hand] = std::int32_t(forces.hand[hand].particles);
         if (haptic) {
-            state.kind[hand] = !haptic->uses_hand(hand) ? 0 : haptic->instrument(hand) == InstrumentKind::probe ? 1 : 2;
+            state.kind[hand] = !haptic->uses_hand(hand) ? 0 : state_kind(haptic->instrument(hand));
         } else {
-            state.kind[hand] = p.trajectory.uses_hand(hand) ? (p.trajectory.at(hand, p.backend->simulated_time_ms()).kind == InstrumentKind::probe ? 1 : 2) : 0;
+            state.kind[hand] = p.trajectory.uses_hand(hand) ? state_kind(p.trajectory.at(hand, p.backend->simulated_time_ms()).kind) : 0;
         }
     }
+    state.cut_springs = p.backend->cut_springs();
     if (p.scenario.visual && p.scenario.mapping && p.scenario.simulation_surface) {
         // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
         // the vertex shader's formula and float order).

@@ -4,6 +4,7 @@
 // where there is none.
 #include "runtime_test_support.h"
 #include "test_support.h"
+#include "incision_gesture.h"
 
 #include "formats/scenario.h"
 #include "formats/state.h"
@@ -231,6 +232,37 @@ TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
         read_scenario(built_scenario("pat1", input, "--cavity 2 --anchor-border --no-visual --particles 20000 -q"));
     const Comparison c = compare_backends(scenario, 200, 1.5 * scenario.lattice.spacing);
     expect_agreement(c);
+}
+
+// The scalpel on the gl backend as on the cpu: the incision of incision_gesture.h through the
+// phantom's anterior wall cuts the same springs from the same positions, and the tissue ends
+// where the cpu's does.
+TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 20, .retract = false});
+    const SolverOptions options = options_from(scenario.solver);
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    const int steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()));
+    const ScriptedRunResult a = run_scripted(*cpu, plan.trajectory, {.steps = steps});
+    const ScriptedRunResult b = run_scripted(*gl, plan.trajectory, {.steps = steps});
+    EXPECT_EQ(a.watchdog_events, 0u) << a.last_watchdog_message;
+    EXPECT_EQ(b.watchdog_events, 0u) << b.last_watchdog_message;
+    const auto cut_cpu = cpu->cut_springs(), cut_gl = gl->cut_springs();
+    std::printf("  %zu springs cut on the cpu, %zu on the gl backend\n", cut_cpu.size(), cut_gl.size());
+    EXPECT_GT(cut_cpu.size(), 20u);
+    EXPECT_TRUE(cut_cpu == cut_gl);
+    const auto x = cpu->positions(), y = gl->positions();
+    double error = 0;
+    for (std::size_t i = 0; i < x.size(); ++i)
+        for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(x[i][k] - y[i][k])));
+    EXPECT_LE(error, 1e-4 * model_size(scenario));
+    // reset_tissue heals the cut on both.
+    cpu->reset_tissue();
+    gl->reset_tissue();
+    EXPECT_TRUE(cpu->cut_springs().empty());
+    EXPECT_TRUE(gl->cut_springs().empty());
 }
 
 // The probe's pierce and the grab's one piece (SolverOptions::probe_pierce_strain, grab_reach)

@@ -10,6 +10,7 @@
 #include "runtime/gl/shaders/bindings.h"
 #include "runtime/gl/shaders/solver_shaders.h"
 
+#include "libmodel/cutting.h"
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
 #include "libmodel/stability.h"
@@ -80,7 +81,9 @@ public:
         build(release_program_, "release", {sh::release});
         build(force_program_, "force", {sh::springs, sh::force_pass});
         build(strain_program_, "strain", {sh::springs, sh::strain_pass});
-        for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_}) {
+        build(cut_program_, "cut", {sh::cut_pass});
+        for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_,
+                                 &cut_program_}) {
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
             glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
         }
@@ -140,7 +143,11 @@ public:
     std::size_t begin_grab(int hand) override {
         check_hand(hand);
         HandState& state = hand_[hand];
-        if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber");
+        if (state.instrument.kind == InstrumentKind::scalpel) {  // lowers the blade (Solver::begin_grab)
+            state.cutting = true;
+            return 0;
+        }
+        if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber or scalpel");
         release(hand);
         state.grabbing = true;
         bind_common();
@@ -215,6 +222,7 @@ public:
     void release(int hand) override {
         check_hand(hand);
         HandState& state = hand_[hand];
+        state.cutting = false;
         if (!state.grabbing) return;
         bind_common();
         glProgramUniform1i(release_program_.id, release_program_.at("hand"), hand);
@@ -285,6 +293,7 @@ public:
     }
 
     void reset_tissue() override {
+        glNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(uncut_neighbour_.size() * 4), uncut_neighbour_.data());  // heals cuts
         place_tissue(rest_current_, &rest_motion_);
         glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
         good_time_ms_ = time_ms_;
@@ -332,6 +341,8 @@ public:
         glProgramUniform1iv(ap, after_program_.at("grabbing"), 2, grab_flags);
 
         bind_common();
+        for (const HandState& state : hand_)
+            if (state.cutting && state.placed) cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z()));
         const GLuint zero = 0;
         for (long long q = 1; q <= total; ++q) {
             const double fraction = double(q) / double(total), previous_fraction = double(q - 1) / double(total);
@@ -447,6 +458,35 @@ public:
         return *latest_;
     }
 
+    /// Solver::cut on the gpu: the cut pass over the current positions, queued.
+    void cut(const BladeSweep& sweep) {
+        if (!sweep.cuts_anything) return;
+        const GLuint p = cut_program_.id;
+        glProgramUniform3fv(p, cut_program_.at("corner"), 4, sweep.corner[0].data());
+        glProgramUniform3fv(p, cut_program_.at("low"), 1, sweep.low.data());
+        glProgramUniform3fv(p, cut_program_.at("high"), 1, sweep.high.data());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
+        glUseProgram(p);
+        glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    }
+
+    std::vector<std::array<std::int32_t, 2>> cut_springs() override {
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        std::vector<std::int32_t> table(uncut_neighbour_.size());
+        glGetNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(table.size() * 4), table.data());
+        check("reading the cut springs");
+        std::vector<std::array<std::int32_t, 2>> out;
+        for (std::size_t i = 0; i < n_; ++i)
+            for (int s = 0; s < slot_count; ++s) {
+                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                const std::int32_t j = uncut_neighbour_[t];
+                if (std::size_t(j) > i && table[t] == std::int32_t(i)) out.push_back({std::int32_t(i), j});
+            }
+        std::sort(out.begin(), out.end());
+        return out;
+    }
+
     std::vector<std::array<float, 3>> positions() override {
         glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
         std::vector<float> raw(4 * n_pad_);
@@ -492,6 +532,7 @@ private:
         Instrument instrument;
         InstrumentPose pose, target;
         bool grabbing = false, placed = false;
+        bool cutting = false;  ///< a scalpel between begin_grab and release
     };
     struct Pending {
         std::array<gl::Query, 2> queries;
@@ -761,7 +802,8 @@ private:
         storage(position_[1], current, 0);
         storage(rest_current_, current, 0);    // the start state again, for reset_tissue()
         upload_step_constants();               // particle constants, dashpots c/h, the start motion (both buffers)
-        storage(neighbour_, neighbour);
+        storage(neighbour_, neighbour, GL_DYNAMIC_STORAGE_BIT);  // the cut pass and reset_tissue rewrite it
+        uncut_neighbour_ = std::move(neighbour);
         storage(rest_length_, rest);
         storage(stiffness_, stiff);
         storage(held_by_, std::vector<std::int32_t>(n_pad_, -1));
@@ -806,8 +848,9 @@ private:
     static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in shaders/solver_shaders.h
     std::vector<ParticleConstants> particle_host_;
     std::vector<double> support_damping_host_;  ///< c_s per particle, N·ms/mm (0 where unsupported)
+    std::vector<std::int32_t> uncut_neighbour_;  ///< the neighbour table as loaded (reset_tissue heals cuts)
     std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
-    Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_;
+    Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_;
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;
     std::array<std::uint64_t, ring_slots> sequence_of_{};

@@ -412,11 +412,12 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
             const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
             Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
             model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
-            model.topRightCorner<3, 1>() = shape.pose.position.cast<float>();
+            model.topRightCorner<3, 1>() = shape.drawn_centre().cast<float>();
             const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
             glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
             glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
             if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
+            else if (shape.kind == InstrumentKind::scalpel) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.86f, 0.88f, 0.92f);  // steel
             else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
             glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
         }

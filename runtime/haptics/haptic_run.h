@@ -52,7 +52,8 @@ SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path)
 /// times counted from the recording's start (that of its first simulation step).
 std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name);
 
-/// `--instrument KIND[:AX,AY,AZ]`: probe or grabber, semi-axes mm (default 1.5 lattice spacings).
+/// `--instrument KIND[:AX,AY,AZ]`: probe, grabber or scalpel, semi-axes mm (default 1.5 lattice
+/// spacings; a scalpel's default is default_blade_semi_axes_mm).
 Instrument parse_instrument(const std::string& text, double default_semi_axis_mm);
 
 struct HapticRunSettings {

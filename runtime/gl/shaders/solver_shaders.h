@@ -402,6 +402,54 @@ void main() {
 }
 )";
 
+/// A lowered scalpel's cut (Solver::cut, libmodel/cutting.cpp operation for operation): every
+/// entry whose spring crosses the blade's swept quad (two triangles, `corner`) at the current
+/// positions points at its own particle from now on, an empty slot. One invocation per particle
+/// writes only its own entries; both ends of a spring test it with the end of lower index first,
+/// so they decide alike.
+inline constexpr const char* cut_pass = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_NEIGHBOUR) buffer NeighbourBuffer { int neighbour[]; };
+uniform vec3 corner[4];         // tip_A, end_A, end_B, tip_B
+uniform vec3 low;               // the corners' bounding box
+uniform vec3 high;
+
+float orient(vec3 a, vec3 b, vec3 c, vec3 d) {   // (b − a) · ((c − a) × (d − a))
+    precise float bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
+    precise float cx = c.x - a.x, cy = c.y - a.y, cz = c.z - a.z;
+    precise float dx = d.x - a.x, dy = d.y - a.y, dz = d.z - a.z;
+    precise float nx = cy * dz - cz * dy;
+    precise float ny = cz * dx - cx * dz;
+    precise float nz = cx * dy - cy * dx;
+    precise float v = bx * nx + by * ny;
+    v = v + bz * nz;
+    return v;
+}
+
+bool crosses_triangle(vec3 t0, vec3 t1, vec3 t2, vec3 p, vec3 q) {
+    float sp = orient(t0, t1, t2, p), sq = orient(t0, t1, t2, q);
+    if ((sp >= 0.0) == (sq >= 0.0)) return false;   // a point on the plane is on its positive side
+    float e0 = orient(p, q, t0, t1), e1 = orient(p, q, t1, t2), e2 = orient(p, q, t2, t0);
+    return (e0 >= 0.0 && e1 >= 0.0 && e2 >= 0.0) || (e0 <= 0.0 && e1 <= 0.0 && e2 <= 0.0);
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= particle_count) return;
+    uint table = (i / 8u) * 18u * 8u + i % 8u;
+    for (uint s = 0u; s < 18u; ++s) {
+        uint t = table + s * 8u;
+        uint j = uint(neighbour[t]);
+        if (j == i) continue;
+        vec3 p = x[min(i, j)].xyz, q = x[max(i, j)].xyz;
+        if (any(lessThan(max(p, q), low)) || any(greaterThan(min(p, q), high))) continue;
+        if (crosses_triangle(corner[0], corner[1], corner[2], p, q) || crosses_triangle(corner[0], corner[2], corner[3], p, q))
+            neighbour[t] = int(i);
+    }
+}
+)";
+
 /// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
 inline constexpr const char* force_pass = R"(
