@@ -311,6 +311,7 @@ private:
     double dt_ms_ = 0.0, h_ = 0.0, critical_dt_ms_ = 0.0, time_ms_ = 0.0;
     int substeps_ = 1;
     Real min_rest_length_ = 0;
+    Real max_rest_length_ = 0;  ///< the longest spring at rest: cut()'s search margin
     double energy_floor_ = 0.0;
     double damped_critical_dt_ms_ = 0.0;  ///< given, or from λ_max of M^(−1/2) C M^(−1/2) (stability.h)
     bool damped_ = false;

@@ -219,6 +219,7 @@ void BasicSolver<Real>::load_springs(const Particles& particles, const Springs& 
             dashpot_[t] = Real(spring_dashpot(particles, options_.damping_ratio, double(springs.stiffness[std::size_t(q)]), i, j));
             damped_ = damped_ || dashpot_[t] != Real(0);
             min_rest_length_ = std::min(min_rest_length_, rest_length_[t]);
+            max_rest_length_ = std::max(max_rest_length_, rest_length_[t]);
         }
     }
     // A regular lattice of one material has one rest length and one stiffness per slot: the

@@ -22,7 +22,7 @@ const std::vector<WindowKey>& window_keys() {
         {"F2 or Tab", "HUD on / off", "real-time factor, fps, steps/s, particles, each hand's device, instrument and force, axes, scale bar"},
         {"H or F1", "help on / off", "this table in the window"},
         {"E", "emergency stop", "with --device: every device's force to zero, latched until E again (a red banner says so)"},
-        {"G", "mouse device button 1", "with --device mouse: a grabber holds while it is on"},
+        {"G", "mouse device button 1", "with --device mouse: a grabber holds, a scalpel (--instrument scalpel) cuts, while it is on"},
         {"Ctrl + left drag", "move the mouse device", "with --device mouse: in the view plane, one pixel per pixel at the orbit centre's depth"},
         {"Ctrl + wheel", "mouse device in depth", "with --device mouse: wheel up moves it into the screen (2 % of the model radius a notch)"},
         {"Esc, closing the window", "quit", "the state file, the stats, --record and an F5 recording that is on are still written"},

@@ -7,7 +7,10 @@
 #include "scenario_damage.h"
 #include "test_support.h"
 
+#include "incision_gesture.h"
+
 #include "formats/recording.h"
+#include "formats/state.h"
 #include "formats/scenario.h"
 #include "libmodel/stability.h"
 #include "libmodel/errors.h"
@@ -134,6 +137,40 @@ TEST(HapticsCli, TheRecordingReplaysToTheSameForcesBitForBitOnTheCpuBackend) {
 // third of real time, so it changes after the first half second whatever this machine does): every
 // step records the scale it ran with, and the replay changes it at the same steps, bit for bit. A
 // session at a fixed --mass-scale replays bit for bit too.
+// A scalpel on a scripted device, button 1 held, drawn 16 mm through the phantom's anterior wall
+// (the incision of incision_gesture.h): the session cuts springs, its state file lists them and
+// names the scalpel, and its recording replays bit for bit (the cuts follow from the poses).
+TEST(HapticsCli, ACuttingSessionReplaysBitForBit) {
+    test::TempDir dir;
+    const Scenario scenario = read_scenario(phantom());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 16, .retract = false});
+    {
+        std::ofstream csv(dir / "cut.csv");
+        csv << "# time_ms, x, y, z, qw, qx, qy, qz, buttons\n";
+        for (const InstrumentKeyframe& k : plan.trajectory.keyframes) {
+            if (k.hand != 0) continue;
+            const auto& p = k.pose.position;
+            const auto& q = k.pose.orientation;
+            char line[256];
+            std::snprintf(line, sizeof line, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", 100 + k.time_ms, p.x(), p.y(), p.z(), q.w(), q.x(),
+                          q.y(), q.z(), k.grab ? 1 : 0);
+            csv << line;
+        }
+    }
+    const auto live = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --device scripted:" + quoted(dir / "cut.csv") +
+                                   " --instrument scalpel --seconds 0.5 --record " + quoted(dir / "cut.h5") + " --save-state " +
+                                   quoted(dir / "state.h5"));
+    ASSERT_EQ(live.exit_code, 0) << live.output;
+    const SimulationState state = read_state(dir / "state.h5");
+    EXPECT_EQ(state.kind[0], 3);
+    std::printf("  %zu springs cut\n", state.cut_springs.size());
+    EXPECT_GT(state.cut_springs.size(), 20u);
+    EXPECT_EQ(read_recording(dir / "cut.h5").hands[0].instrument, "scalpel");
+    const auto replay = run_heartsim("run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "cut.h5"));
+    EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+}
+
 TEST(HapticsCli, ASessionWhoseMassScaleChangesReplaysBitForBit) {
     test::TempDir dir;
     const std::string devices = " --headless --backend cpu --device simulated:" + quoted(sample("press_phantom.csv")) +
@@ -550,8 +587,8 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --max-force 2 --steps 1", 2, "--max-force sets how forces reach a haptic device: it needs --device"},
         {"--headless --coupling --steps 1", 2, "--coupling sets how forces reach a haptic device: it needs --device"},
         {"--headless --haptic-rate 500 --steps 1", 2, "--haptic-rate sets how forces reach a haptic device: it needs --device"},
-        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument scalpel --seconds 1", 2,
-         "expected probe or grabber"},
+        {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument scissors --seconds 1", 2,
+         "expected probe, grabber or scalpel"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record /no/such/folder/r.h5", 7,
          "folder /no/such/folder does not exist"},
         {"--headless --device openhaptics --seconds 1", 4, "openhaptics"},
@@ -803,7 +840,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     {
         Recording d = r;
         d.steps.grab[0][0] = 1;  // hand 0 has no device, let alone a grabber
-        refused(d, "grabs with a hand that holds no grabber");
+        refused(d, "grabs with a hand that holds no grabber or scalpel");
     }
     {
         Recording d = r;

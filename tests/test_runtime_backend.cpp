@@ -265,6 +265,51 @@ TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
     EXPECT_TRUE(gl->cut_springs().empty());
 }
 
+// On every real heart: the 30 mm incision of incision_gesture.h through the most anterior wall,
+// then two retractors pulling its edges 6 mm apart (cpu backend, 8,000 particles): springs cut,
+// no watchdog event, every position finite, and the springs cut near the incision's centre stand
+// open (their ends farther apart than at rest by a millimetre or more somewhere).
+TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
+    const fs::path data = test::real_data_dir();
+    if (data.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
+    int cases = 0;
+    for (const auto& folder : fs::directory_iterator(data)) {
+        fs::path label;
+        if (folder.is_directory())
+            for (const auto& file : fs::directory_iterator(folder.path()))
+                if (file.path().filename().string().find("label.nii.gz") != std::string::npos) label = file.path();
+        if (label.empty()) continue;
+        const std::string name = folder.path().filename().string();
+        const std::string tissue = name == "mmwhs_ct1002" ? " --tissue=205" : "";
+        const Scenario scenario = read_scenario(built_scenario(name + "-8k", label, "--particles 8000 --no-visual -q" + tissue));
+        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
+        auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
+        const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))});
+        const auto cut = cpu->cut_springs();
+        const auto x = cpu->positions();
+        const auto& rest = scenario.lattice.particles.rest_position;
+        bool finite = true;
+        for (const auto& p : x) finite = finite && std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
+        auto distance = [](const std::array<float, 3>& a, const std::array<float, 3>& b) {
+            return std::sqrt(std::pow(double(a[0]) - b[0], 2) + std::pow(double(a[1]) - b[1], 2) + std::pow(double(a[2]) - b[2], 2));
+        };
+        double open = 0;
+        for (const auto& [a, b] : cut) {
+            const auto& ra = rest[std::size_t(a)];
+            if ((Eigen::Vector3d(ra[0], ra[1], ra[2]) - plan.centre).norm() > 5.0) continue;
+            open = std::max(open, distance(x[std::size_t(a)], x[std::size_t(b)]) - distance(ra, rest[std::size_t(b)]));
+        }
+        std::printf("  %s: %zu particles, %zu springs cut, the incision open by up to %.2f mm, %zu watchdog events\n", name.c_str(),
+                    scenario.lattice.particles.size(), cut.size(), open, run.watchdog_events);
+        EXPECT_GT(cut.size(), 30u) << name;
+        EXPECT_EQ(run.watchdog_events, 0u) << name << ": " << run.last_watchdog_message;
+        EXPECT_TRUE(finite) << name;
+        EXPECT_GT(open, 1.0) << name;
+        ++cases;
+    }
+    EXPECT_GT(cases, 0);
+}
+
 // The probe's pierce and the grab's one piece (SolverOptions::probe_pierce_strain, grab_reach)
 // on the gl backend as on the cpu: a paddle driven from the phantom's centre out through its wall
 // and 15 mm on, without piercing so that it carries tissue out on its face, then a grabber over

@@ -465,6 +465,11 @@ public:
         glProgramUniform3fv(p, cut_program_.at("corner"), 4, sweep.corner[0].data());
         glProgramUniform3fv(p, cut_program_.at("low"), 1, sweep.low.data());
         glProgramUniform3fv(p, cut_program_.at("high"), 1, sweep.high.data());
+        const float reach = 2 * max_rest_length_;  // Solver::cut's search margin, in the same float operations
+        float near_low[3], near_high[3];
+        for (int d = 0; d < 3; ++d) near_low[d] = sweep.low[std::size_t(d)] - reach, near_high[d] = sweep.high[std::size_t(d)] + reach;
+        glProgramUniform3fv(p, cut_program_.at("near_low"), 1, near_low);
+        glProgramUniform3fv(p, cut_program_.at("near_high"), 1, near_high);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
         glUseProgram(p);
         glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
@@ -778,6 +783,7 @@ private:
                 damped_ = damped_ || c != 0.0f;
                 dashpot_host_[t] = c;
                 min_rest_length_ = std::min(min_rest_length_, rest[t]);
+                max_rest_length_ = std::max(max_rest_length_, rest[t]);
             }
         std::vector<ParticleConstants>& constants = particle_host_;
         constants.assign(n_pad_, {1.0f, 0.0f, 0, 0.0f, {0.0f, 0.0f, 0.0f, 0.0f}});
@@ -833,6 +839,7 @@ private:
     double dt_ms_ = 0, h_ = 0, time_ms_ = 0;
     int substeps_ = 1;
     float min_rest_length_ = 0;
+    float max_rest_length_ = 0;
     bool damped_ = false;
     bool supported_ = false;
     std::array<HandState, hands> hand_{};

@@ -414,6 +414,8 @@ layout(std430, binding = BINDING_NEIGHBOUR) buffer NeighbourBuffer { int neighbo
 uniform vec3 corner[4];         // tip_A, end_A, end_B, tip_B
 uniform vec3 low;               // the corners' bounding box
 uniform vec3 high;
+uniform vec3 near_low;          // the box grown by the search margin (Solver::cut's `reach`)
+uniform vec3 near_high;
 
 float orient(vec3 a, vec3 b, vec3 c, vec3 d) {   // (b − a) · ((c − a) × (d − a))
     precise float bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
@@ -443,6 +445,7 @@ void main() {
         uint j = uint(neighbour[t]);
         if (j == i) continue;
         vec3 p = x[min(i, j)].xyz, q = x[max(i, j)].xyz;
+        if (any(lessThan(p, near_low)) || any(greaterThan(p, near_high))) continue;
         if (any(lessThan(max(p, q), low)) || any(greaterThan(min(p, q), high))) continue;
         if (crosses_triangle(corner[0], corner[1], corner[2], p, q) || crosses_triangle(corner[0], corner[2], corner[3], p, q))
             neighbour[t] = int(i);
