@@ -18,6 +18,7 @@ const std::vector<WindowKey>& window_keys() {
         {"N", "one step while paused", "advances the paused simulation by one time step (not with --device)"},
         {"T", "reset the tissue", "back to its rest state (grabs released; the simulated time and the instruments go on); not while a recording runs (F5 or --record): a replay could not repeat it"},
         {"P", "screenshot", "the window as seen (HUD included) to SCENARIO-YYYYmmdd-HHMMSS.png beside the scenario; the path is printed"},
+        {"K", "scalpel on / off", "with --device: instrument 0 becomes a scalpel (a 20 mm blade from the tip along the tool's +z; G or button 1 lowers it and it cuts what it sweeps), K again gives back the instrument it had; not while recording"},
         {"F5", "start / stop recording", "with --device (not with --record): resets the tissue to rest (as T) and records from there; F5 again writes SCENARIO-YYYYmmdd-HHMMSS.rec.h5 beside the scenario for --replay; the path is printed"},
         {"F2 or Tab", "HUD on / off", "real-time factor, fps, steps/s, particles, each hand's device, instrument and force, axes, scale bar"},
         {"H or F1", "help on / off", "this table in the window"},

@@ -76,6 +76,7 @@ struct WindowInput {
     int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
     bool screenshot = false;    ///< P: write the window as seen after the next frame
     bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)
+    bool toggle_scalpel = false;    ///< K: instrument 0 to the scalpel and back (haptic sessions)
 };
 
 /// An event line on stdout at once (tests and logs read it while the window runs).
@@ -152,6 +153,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_T) in->reset_tissue = true;
         if (key == GLFW_KEY_P) in->screenshot = true;
         if (key == GLFW_KEY_F5) in->toggle_recording = true;
+        if (key == GLFW_KEY_K) in->toggle_scalpel = true;
         if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
         if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
         if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
@@ -281,6 +283,27 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 };
                 if (simulation) simulation->run_between_steps(toggle);
                 else toggle();
+            }
+        }
+        if (input.toggle_scalpel) {
+            // K: hand 0's instrument becomes a scalpel and back, on the thread that steps.
+            input.toggle_scalpel = false;
+            if (!haptic || !haptic->uses_hand(0)) {
+                say("K: the scalpel is a device's instrument: run with --device (mouse, openhaptics, …)\n");
+            } else if (recording_now || toggles_pending > 0 || haptic->records_session()) {
+                say("K: not while recording (a change of instrument inside a recording could not be replayed)\n");
+            } else {
+                auto swap = [haptic] {
+                    try {
+                        const InstrumentKind now = haptic->toggle_scalpel(0);
+                        say("instrument 0: %s%s\n", to_string(now),
+                            now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)" : "");
+                    } catch (const std::exception& e) {
+                        say("K: %s\n", e.what());
+                    }
+                };
+                if (simulation) simulation->run_between_steps(swap);
+                else swap();
             }
         }
         if (input.reset_tissue) {

@@ -22,6 +22,7 @@
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace heartsim::test {
 
@@ -71,8 +72,13 @@ inline Incision anterior_incision(const Scenario& scenario, const IncisionOption
     Incision plan;
     plan.centre = Eigen::Vector3d(rest[front][0], rest[front][1], rest[front][2]);
     const double spacing = scenario.lattice.spacing;
-    // The blade points posterior: the tool's +z onto the world's +y (a quarter turn about x).
-    const Eigen::Quaterniond posterior(Eigen::AngleAxisd(-0.5 * M_PI, Eigen::Vector3d::UnitX()));
+    // The blade points posterior (the tool's +z onto the world's +y) with its width along the cut
+    // (the tool's x onto the world's +z, the direction it moves), its flat faces facing ±x.
+    Eigen::Matrix3d tool_to_world;
+    tool_to_world.col(0) = Eigen::Vector3d::UnitZ();
+    tool_to_world.col(1) = Eigen::Vector3d::UnitX();
+    tool_to_world.col(2) = Eigen::Vector3d::UnitY();
+    const Eigen::Quaterniond posterior(tool_to_world);
     const double blade_length = o.clearance_mm + o.depth_mm;
     const Eigen::Vector3d blade_axes(2.0, 0.3, 0.5 * blade_length);
     auto key = [&](double t, int hand, InstrumentKind kind, const Eigen::Vector3d& p, const Eigen::Quaterniond& q,
@@ -116,6 +122,29 @@ inline Incision anterior_incision(const Scenario& scenario, const IncisionOption
     std::stable_sort(plan.trajectory.keyframes.begin(), plan.trajectory.keyframes.end(),
                      [](const auto& a, const auto& b) { return a.time_ms < b.time_ms; });
     return plan;
+}
+
+/// How far an incision stands open: over `springs` (those a run cut) whose rest midpoint lies
+/// within `radius_mm` of the incision's centre, the mean and the largest of (the distance between
+/// their ends at `positions` − their rest length).
+struct Opening {
+    double mean_mm = 0, max_mm = 0;
+    int springs = 0;
+};
+inline Opening incision_opening(const Scenario& scenario, const Incision& plan, const std::vector<std::array<std::int32_t, 2>>& springs,
+                                const std::vector<std::array<float, 3>>& positions, double radius_mm = 5.0) {
+    const auto& rest = scenario.lattice.particles.rest_position;
+    auto point = [](const std::array<float, 3>& p) { return Eigen::Vector3d(p[0], p[1], p[2]); };
+    Opening o;
+    double sum = 0;
+    for (const auto& [a, b] : springs) {
+        const Eigen::Vector3d ra = point(rest[std::size_t(a)]), rb = point(rest[std::size_t(b)]);
+        if ((0.5 * (ra + rb) - plan.centre).norm() > radius_mm) continue;
+        const double open = (point(positions[std::size_t(a)]) - point(positions[std::size_t(b)])).norm() - (ra - rb).norm();
+        sum += open, o.max_mm = o.springs ? std::max(o.max_mm, open) : open, ++o.springs;
+    }
+    if (o.springs) o.mean_mm = sum / o.springs;
+    return o;
 }
 
 /// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h).

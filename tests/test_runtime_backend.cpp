@@ -287,18 +287,9 @@ TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
         const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))});
         const auto cut = cpu->cut_springs();
         const auto x = cpu->positions();
-        const auto& rest = scenario.lattice.particles.rest_position;
         bool finite = true;
         for (const auto& p : x) finite = finite && std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
-        auto distance = [](const std::array<float, 3>& a, const std::array<float, 3>& b) {
-            return std::sqrt(std::pow(double(a[0]) - b[0], 2) + std::pow(double(a[1]) - b[1], 2) + std::pow(double(a[2]) - b[2], 2));
-        };
-        double open = 0;
-        for (const auto& [a, b] : cut) {
-            const auto& ra = rest[std::size_t(a)];
-            if ((Eigen::Vector3d(ra[0], ra[1], ra[2]) - plan.centre).norm() > 5.0) continue;
-            open = std::max(open, distance(x[std::size_t(a)], x[std::size_t(b)]) - distance(ra, rest[std::size_t(b)]));
-        }
+        const double open = test::incision_opening(scenario, plan, cut, x).max_mm;
         std::printf("  %s: %zu particles, %zu springs cut, the incision open by up to %.2f mm, %zu watchdog events\n", name.c_str(),
                     scenario.lattice.particles.size(), cut.size(), open, run.watchdog_events);
         EXPECT_GT(cut.size(), 30u) << name;

@@ -8,6 +8,7 @@
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
+#include "formats/state.h"
 #include "runtime/png.h"
 #include "runtime/gl/hud.h"
 #include "runtime/window_keys.h"
@@ -465,6 +466,46 @@ TEST(WindowInput, GGrabsTheTissueWithTheMouseDeviceAndLetsGoAgain) {
     double max_sent = 0;
     for (const auto& f : r.hands[0].force_n) max_sent = std::max(max_sent, std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]));
     EXPECT_GT(max_sent, 0.01) << "the held tissue pulled on the device";
+}
+
+// K makes the mouse device's probe a scalpel (its blade along the tool's +z, superior); G lowers
+// the blade; pushed into the phantom's anterior wall with Ctrl + wheel (perpendicular to the blade:
+// it sweeps a surface) and drawn sideways with Ctrl + left drag, it cuts: the state file written at
+// Esc names the scalpel and lists the springs cut. K while recording is refused.
+TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --save-state " + quoted(dir / "state.h5"));
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+    ASSERT_EQ(window.xdotool("key k"), 0);
+    ASSERT_NE(window.wait_for("instrument 0: scalpel"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key g"), 0);  // button 1: the blade lowered
+    window.wait_for("no such line", 0, 0.5);
+    for (int k = 0; k < 30; ++k) ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+    window.wait_for("no such line", 0, 1.5);
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl mousedown 1"), 0);
+    for (int k = 1; k <= 8; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 8 * k) + " 150"), 0);
+    ASSERT_EQ(window.xdotool("mouseup 1 keyup ctrl"), 0);
+    window.wait_for("no such line", 0, 1.5);
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    const SimulationState state = read_state(dir / "state.h5");
+    EXPECT_EQ(state.kind[0], 3);
+    std::printf("  %zu springs cut\n", state.cut_springs.size());
+    EXPECT_GT(state.cut_springs.size(), 10u) << window.output();
+
+    // While --record records the session, K is refused and the instrument stays.
+    Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
+    ASSERT_TRUE(recording.focus()) << recording.output();
+    ASSERT_EQ(recording.xdotool("key k"), 0);
+    EXPECT_NE(recording.wait_for("K: not while recording"), std::string::npos) << recording.output();
+    ASSERT_EQ(recording.xdotool("key Escape"), 0);
+    ASSERT_EQ(recording.wait_exit(), 0) << recording.output();
+    EXPECT_EQ(read_recording(dir / "r.h5").hands[0].instrument, "probe");
 }
 
 /// The path in "recording: wrote PATH (N steps)" at or after `from`, and N.

@@ -334,6 +334,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         r.device = hands_[i].spec.text;
         r.device_name = hands_[i].device->name();
         r.instrument = to_string(hands_[i].instrument.kind);
+        shown_kind_[i] = hands_[i].instrument.kind;
         r.semi_axes_mm = to_array(hands_[i].instrument.semi_axes);
         r.max_force_n = std::min(hands_[i].device->limits().max_force_n,
                                  settings.session.safety.max_force_n > 0 ? settings.session.safety.max_force_n : 1e300);
@@ -346,9 +347,29 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     if (recording_on_) journal_ = std::make_unique<RecordingJournal>(journal_path(settings.record), recording_, settings.record);
 }
 
+InstrumentKind HapticRun::toggle_scalpel(int hand) {
+    if (hand < 0 || hand > 1 || !hands_[hand].device) throw UsageError("haptics: hand " + std::to_string(hand) + " has no device");
+    if (recording_on_) throw UsageError("the instrument cannot change while recording (a replay could not repeat it)");
+    Hand& h = hands_[hand];
+    if (h.instrument.kind == InstrumentKind::scalpel) {
+        h.instrument = h.before_scalpel;
+    } else {
+        h.before_scalpel = h.instrument;
+        h.instrument = {.kind = InstrumentKind::scalpel, .semi_axes = default_blade_semi_axes_mm};
+    }
+    h.placed = false, h.grabbing = false;  // apply_tool sets the new instrument (releasing) at the next step
+    shown_kind_[hand] = h.instrument.kind;
+    return h.instrument.kind;
+}
+
 void HapticRun::start_recording(const std::string& path) {
     if (recording_on_) throw UsageError("haptics: a recording is on already (" + record_path_ + ")");
     Recording fresh = recording_header_;
+    for (int i = 0; i < 2; ++i)  // the instruments in hand now (K may have switched one)
+        if (fresh.hands[i].used) {
+            fresh.hands[i].instrument = to_string(hands_[i].instrument.kind);
+            for (int c = 0; c < 3; ++c) fresh.hands[i].semi_axes_mm[c] = hands_[i].instrument.semi_axes[c];
+        }
     auto journal = std::make_unique<RecordingJournal>(journal_path(path), fresh, path);  // throws: nothing started
     // The tissue at rest, no grab, the instruments placed afresh by the next step: exactly the
     // state `--replay` starts from (the scenario's rest state, nothing placed), so the recording's

@@ -114,7 +114,13 @@ public:
     HapticSession& session() { return *session_; }
     const ScriptedRunResult& result() const { return result_; }
     bool uses_hand(int hand) const { return hands_[hand].device != nullptr; }
-    InstrumentKind instrument(int hand) const { return hands_[hand].instrument.kind; }
+    /// The hand's instrument now; read from any thread (K switches it on the thread that steps).
+    InstrumentKind instrument(int hand) const { return shown_kind_[hand].load(); }
+    /// K in the window: `hand`'s instrument becomes a scalpel (default_blade_semi_axes_mm), or,
+    /// when it is one, the instrument it had before; placed afresh at the next step, its grab
+    /// released. Called on the thread that steps, between steps; not while recording (a replay
+    /// could not repeat it): throws UsageError then. Returns the kind now held.
+    InstrumentKind toggle_scalpel(int hand);
     /// The hand's device description for printing.
     std::string describe(int hand) const;
     /// The hand's --device spec as given ("mouse", "simulated:FILE", …); fixed once constructed.
@@ -148,6 +154,7 @@ private:
         std::unique_ptr<Device> device;
         DeviceSpec spec;
         Instrument instrument;
+        Instrument before_scalpel;  ///< what K switches back to
         InstrumentPose pose;  ///< last applied
         bool placed = false, grabbing = false;
         std::uint32_t buttons = 0;
@@ -164,6 +171,7 @@ private:
     Backend& backend_;
     HapticRunSettings settings_;
     std::array<Hand, 2> hands_;
+    std::array<std::atomic<InstrumentKind>, 2> shown_kind_{InstrumentKind::none, InstrumentKind::none};
     WindowDevice* window_device_ = nullptr;
     InstrumentForces last_published_forces_{};
     std::unique_ptr<HapticSession> session_;

@@ -3,7 +3,8 @@
 // retractors pulling the edges 6 mm apart) run on the cpu backend twice: with the blade lowered,
 // and with it lifted (the same gesture, nothing cut). Per run: the step's wall time during the cut
 // (p50, p99, max), the real-time factor while cutting and after, the springs cut, watchdog events,
-// whether every position stayed finite, and how far the retractors' grips moved apart. Appends one
+// whether every position stayed finite, and how far the incision stands open at the end
+// (incision_gesture.h incision_opening, over the springs the lowered run cut). Appends one
 // row per run to OUT.csv and, given TRAJECTORY.csv, writes the gesture for `heartsim run --trajectory`.
 // Usage: cut_bench SCENARIO.h5 CASE OUT.csv [TRAJECTORY.csv]
 #include "incision_gesture.h"
@@ -63,29 +64,6 @@ RunFigures run(const Scenario& scenario, const test::Incision& plan, const Traje
     return f;
 }
 
-double distance(const std::array<float, 3>& a, const std::array<float, 3>& b) {
-    return std::sqrt(std::pow(double(a[0]) - b[0], 2) + std::pow(double(a[1]) - b[1], 2) + std::pow(double(a[2]) - b[2], 2));
-}
-
-/// How far the incision stands open between the retractors: over the springs the cut run cut whose
-/// rest midpoint lies within 5 mm of the incision's centre, the mean of (length now − rest length)
-/// and the largest, in the run whose final `positions` are given.
-std::pair<double, double> opening(const Scenario& scenario, const test::Incision& plan, const std::vector<std::array<std::int32_t, 2>>& springs,
-                                  const std::vector<std::array<float, 3>>& positions) {
-    const auto& rest = scenario.lattice.particles.rest_position;
-    double sum = 0, largest = 0;
-    int count = 0;
-    for (const auto& [a, b] : springs) {
-        const auto& ra = rest[std::size_t(a)];
-        const auto& rb = rest[std::size_t(b)];
-        const Eigen::Vector3d mid(0.5 * (ra[0] + rb[0]), 0.5 * (ra[1] + rb[1]), 0.5 * (ra[2] + rb[2]));
-        if ((mid - plan.centre).norm() > 5.0) continue;
-        const double open = distance(positions[std::size_t(a)], positions[std::size_t(b)]) - distance(ra, rb);
-        sum += open, largest = std::max(largest, open), ++count;
-    }
-    return {count ? sum / count : 0.0, largest};
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -107,7 +85,7 @@ int main(int argc, char** argv) {
     const RunFigures with_cut = run(scenario, plan, plan.trajectory), without = run(scenario, plan, lifted);
     for (const bool cutting : {false, true}) {
         const RunFigures& f = cutting ? with_cut : without;
-        const auto [open_mean, open_max] = opening(scenario, plan, with_cut.cut_springs, f.positions);
+        const test::Opening open = test::incision_opening(scenario, plan, with_cut.cut_springs, f.positions);
         double cut_wall = 0, after_wall = 0;
         for (double ms : f.cut_phase_ms) cut_wall += ms;
         for (double ms : f.after_ms) after_wall += ms;
@@ -115,7 +93,7 @@ int main(int argc, char** argv) {
         std::snprintf(line, sizeof line, "%s,%zu,%s,%zu,%.4f,%.4f,%.4f,%.3f,%.3f,%zu,%d,%.3f,%.3f\n", argv[2], scenario.lattice.particles.size(),
                       cutting ? "cut" : "uncut", f.cut, percentile(f.cut_phase_ms, 0.5), percentile(f.cut_phase_ms, 0.99),
                       percentile(f.cut_phase_ms, 1.0), f.cut_simulated_ms / cut_wall, f.after_simulated_ms / after_wall, f.watchdog,
-                      f.finite ? 1 : 0, open_mean, open_max);
+                      f.finite ? 1 : 0, open.mean_mm, open.max_mm);
         out << line;
         std::fputs(line, stderr);
     }
