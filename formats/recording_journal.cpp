@@ -286,27 +286,42 @@ void RecordingJournal::end(const Recording& r) {
 }
 
 void RecordingJournal::run() {
+    // Nothing here allocates (the swaps exchange the deques' storage, clear() keeps their maps):
+    // out of memory cannot end the program on this thread.
+    auto& batch = batch_;
     for (;;) {
-        std::deque<std::vector<unsigned char>> batch;
+        batch.clear();
         {
             std::unique_lock lock(mutex_);
             wake_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
             if (queue_.empty()) return;  // stopping, and everything written
             batch.swap(queue_);
-            if (!failure_.empty()) {  // after a failure nothing more is written
+            if (!failure_.empty() || out_of_memory_) {  // after a failure nothing more is written
                 written_records_ += batch.size();
                 written_.notify_all();
                 continue;
             }
         }
         std::string error;
-        for (const auto& record : batch)
-            if (error.empty()) error = write_all(fd_, record.data(), record.size());
-        if (error.empty() && ::fdatasync(fd_) != 0) error = std::strerror(errno);
+        bool out_of_memory = false;
+        try {
+            for (const auto& record : batch)
+                if (error.empty()) error = write_all(fd_, record.data(), record.size());
+            if (error.empty() && ::fdatasync(fd_) != 0) error = std::strerror(errno);
+        } catch (const std::bad_alloc&) {  // an error's message could not be made
+            out_of_memory = true;
+        }
         {
             std::lock_guard lock(mutex_);
             written_records_ += batch.size();
-            if (!error.empty() && failure_.empty()) failure_ = path_.string() + ": cannot write the session's journal (" + error + ")";
+            try {
+                if (!error.empty() && failure_.empty() && !out_of_memory_)
+                    failure_ = path_.string() + ": cannot write the session's journal (" + error + ")";
+            } catch (const std::bad_alloc&) {
+                out_of_memory = true;
+            }
+            // The message is made by the thread that asks (failure(), wait()).
+            out_of_memory_ = out_of_memory_ || out_of_memory;
         }
         written_.notify_all();
     }
@@ -315,11 +330,16 @@ void RecordingJournal::run() {
 std::string RecordingJournal::wait() {
     std::unique_lock lock(mutex_);
     written_.wait(lock, [&] { return written_records_ == queued_records_; });
-    return failure_;
+    return failure_message();
 }
 
 std::string RecordingJournal::failure() const {
     std::lock_guard lock(mutex_);
+    return failure_message();
+}
+
+std::string RecordingJournal::failure_message() const {
+    if (failure_.empty() && out_of_memory_) return path_.string() + ": cannot write the session's journal (out of memory)";
     return failure_;
 }
 

@@ -73,10 +73,16 @@ private:
     mutable std::mutex mutex_;
     std::condition_variable wake_, written_;
     std::deque<std::vector<unsigned char>> queue_;
+    /// The writer thread's batch, swapped with queue_: made with the journal, on the caller's
+    /// thread, because a std::deque allocates when it is made and the writer thread must not throw.
+    std::deque<std::vector<unsigned char>> batch_;
     std::uint64_t queued_records_ = 0, written_records_ = 0;
     std::vector<bool> used_hands_;
     bool stopping_ = false;
     std::string failure_;
+    bool out_of_memory_ = false;  ///< the writer thread ran out of memory (its message is made by failure_message)
+    /// failure_, or the out-of-memory message; under mutex_, on the thread that asks.
+    std::string failure_message() const;
     std::thread thread_;
 };
 
