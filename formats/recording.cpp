@@ -5,6 +5,7 @@
 #include "xdmf.h"
 
 #include "libmodel/plausible.h"
+#include "libmodel/solver.h"
 
 #include <algorithm>
 #include <cmath>
@@ -184,7 +185,7 @@ Recording read_recording(const std::filesystem::path& path) {
         hand.device = r.string_attribute(g, "device");
         hand.device_name = r.string_attribute(g, "device_name");
         hand.instrument = r.string_attribute(g, "instrument");
-        if (hand.instrument != "probe" && hand.instrument != "grabber" && hand.instrument != "scalpel")
+        if (const auto kind = instrument_kind_named(hand.instrument); !kind || *kind == InstrumentKind::none)
             r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber or scalpel");
         hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
         for (double a : hand.semi_axes_mm)
@@ -264,7 +265,7 @@ Recording read_recording(const std::filesystem::path& path) {
             if (s.grab[i][h] != 0 && s.grab[i][h] != 1) r.fail("/steps", "dataset grab " + row + " is not 0 or 1");
             if (s.applied[i][h] != 0 && s.applied[i][h] != 1) r.fail("/steps", "dataset applied " + row + " is not 0 or 1");
             if (s.applied[i][h] && !rec.hands[h].used) r.fail("/steps", "dataset applied " + row + " applies a hand without a device");
-            if (s.grab[i][h] && (!rec.hands[h].used || (rec.hands[h].instrument != "grabber" && rec.hands[h].instrument != "scalpel")))
+            if (s.grab[i][h] && (!rec.hands[h].used || !takes_grab(instrument_kind_named(rec.hands[h].instrument).value_or(InstrumentKind::none))))
                 r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber or scalpel");
             if (!rec.hands[h].used) continue;
             const auto& q = s.tool_orientation[i][h];

@@ -46,7 +46,7 @@ std::array<Eigen::Vector3d, 2> blade_segment(const InstrumentPose& pose, double 
     return {pose.position, pose.position + length * axis};
 }
 
-BladeSweep blade_sweep(const InstrumentPose& from, const InstrumentPose& to, double length) {
+BladeSweep blade_sweep(const InstrumentPose& from, const InstrumentPose& to, double length, float margin) {
     BladeSweep sweep;
     const auto a = blade_segment(from, length), b = blade_segment(to, length);
     const Eigen::Vector3d corners[4] = {a[0], a[1], b[1], b[0]};
@@ -58,6 +58,8 @@ BladeSweep blade_sweep(const InstrumentPose& from, const InstrumentPose& to, dou
             sweep.low[std::size_t(d)] = std::min(sweep.low[std::size_t(d)], sweep.corner[std::size_t(c)][std::size_t(d)]);
             sweep.high[std::size_t(d)] = std::max(sweep.high[std::size_t(d)], sweep.corner[std::size_t(c)][std::size_t(d)]);
         }
+        sweep.near_low[std::size_t(d)] = sweep.low[std::size_t(d)] - margin;
+        sweep.near_high[std::size_t(d)] = sweep.high[std::size_t(d)] + margin;
     }
     // Twice the quad's area, from its two triangles: zero when the blade stood still or moved
     // along itself.

@@ -10,8 +10,8 @@
 /// (tip_A, end_A, end_B) and (tip_A, end_B, tip_B). A blade pushed along its own length or held
 /// still sweeps no area and cuts nothing.
 ///
-///     const BladeSweep sweep = blade_sweep(from, to, 2 * semi_axes.z());
-///     if (sweep.cuts_anything && spring_crosses(sweep, x_low, x_high)) cut(...);
+///     const BladeSweep sweep = blade_sweep(from, to, 2 * semi_axes.z(), cut_search_margin(longest_rest_length));
+///     if (near_sweep(sweep, x_low) && spring_crosses(sweep, x_low, x_high)) cut(...);
 #pragma once
 
 #include <Eigen/Core>
@@ -24,20 +24,37 @@ namespace heartsim {
 struct InstrumentPose;
 
 /// The swept quad in float (the precision of the positions it is tested against), with its
-/// bounding box.
+/// bounding box and the box a spring's lower end must lie in to be tested at all.
 struct BladeSweep {
     /// The triangles' corners: tip_A, end_A, end_B, tip_B (mm, world frame).
     std::array<std::array<float, 3>, 4> corner{};
     std::array<float, 3> low{}, high{};  ///< the corners' bounding box
+    /// The bounding box grown by the search margin (cut_search_margin), in float: low − margin,
+    /// high + margin. The cpu solver and the gl cut pass both read it from here.
+    std::array<float, 3> near_low{}, near_high{};
     bool cuts_anything = false;          ///< false when the quad has no area (the blade did not sweep)
 };
+
+/// How far from the swept quad's box the lower end of a spring that crosses it may lie: twice the
+/// longest rest length, the stretch past which a state counts as torn (SolverOptions::
+/// restore_strain_limit 1: never a restore point). A spring stretched farther may escape the
+/// blade. Four times cost 10-14 % of a 30k-particle step while cutting (docs/benchmarks.md "Cutting").
+inline float cut_search_margin(float longest_rest_length_mm) { return 2 * longest_rest_length_mm; }
 
 /// The blade's tip and end at `pose` for a blade `length` mm long: tip = position, end = tip +
 /// length · (orientation · ẑ).
 std::array<Eigen::Vector3d, 2> blade_segment(const InstrumentPose& pose, double length);
 
-/// The surface a blade `length` mm long sweeps from pose `from` to pose `to`.
-BladeSweep blade_sweep(const InstrumentPose& from, const InstrumentPose& to, double length);
+/// The surface a blade `length` mm long sweeps from pose `from` to pose `to`, searched within
+/// `margin` mm of its box (cut_search_margin).
+BladeSweep blade_sweep(const InstrumentPose& from, const InstrumentPose& to, double length, float margin);
+
+/// True when `p` lies in the sweep's search box (near_low, near_high), bounds included.
+inline bool near_sweep(const BladeSweep& sweep, const float* p) {
+    for (int d = 0; d < 3; ++d)
+        if (p[d] < sweep.near_low[std::size_t(d)] || p[d] > sweep.near_high[std::size_t(d)]) return false;
+    return true;
+}
 
 /// True when the segment p–q crosses one of the sweep's triangles: p and q on opposite sides of
 /// its plane (a point on the plane counting as on the positive side, so that a blade through a

@@ -50,6 +50,12 @@ const char* to_string(InstrumentKind kind) {
     return "none";
 }
 
+std::optional<InstrumentKind> instrument_kind_named(const std::string& word) {
+    for (InstrumentKind kind : {InstrumentKind::none, InstrumentKind::probe, InstrumentKind::grabber, InstrumentKind::scalpel})
+        if (word == to_string(kind)) return kind;
+    return std::nullopt;
+}
+
 const char* to_string(WatchdogReason reason) {
     switch (reason) {
     case WatchdogReason::none: return "none";
@@ -328,15 +334,9 @@ void BasicSolver<Real>::release(int hand) {
 template <class Real>
 std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
     if (!sweep.cuts_anything) return 0;
-    // Each spring once, from its end of lower index, in particle order per chunk; the chunks'
-    // lists joined in order: the same list for any thread count.
-    // Only particles within `reach` of the swept quad's box can end a spring that crosses it: twice
-    // the longest rest length, the stretch past which a state counts as torn (restore_strain_limit
-    // 1: never a restore point); a spring stretched farther than that may escape the blade
-    // (docs/solver.md "Instruments"). Four times cost 10-14 % of a 30k-particle step while cutting.
-    const float reach = float(2 * max_rest_length_);
-    float low[3], high[3];
-    for (int d = 0; d < 3; ++d) low[d] = sweep.low[std::size_t(d)] - reach, high[d] = sweep.high[std::size_t(d)] + reach;
+    // Each spring once, from its end of lower index (searched only near the sweep: cutting.h
+    // cut_search_margin), in particle order per chunk; the chunks' lists joined in order: the
+    // same list for any thread count.
     std::vector<std::vector<std::array<std::int32_t, 2>>> found(chunks_);
     tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
         for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
@@ -344,7 +344,7 @@ std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
             for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
                 const Real* xi = current_ + state_stride * i;
                 const float p[3] = {float(xi[0]), float(xi[1]), float(xi[2])};
-                if (p[0] < low[0] || p[0] > high[0] || p[1] < low[1] || p[1] > high[1] || p[2] < low[2] || p[2] > high[2]) continue;
+                if (!near_sweep(sweep, p)) continue;
                 for (int s = 0; s < slot_count; ++s) {
                     const std::size_t j = std::size_t(neighbour_[entry_of(i, s)]);
                     if (j <= i) continue;
@@ -579,7 +579,7 @@ StepReport BasicSolver<Real>::step(int steps) {
     last_cuts_ = 0;
     for (const HandState& state : hand_)
         if (state.cutting && state.placed)
-            last_cuts_ += cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z()));
+            last_cuts_ += cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(float(max_rest_length_))));
 
     auto fire = [&](WatchdogReason reason, const std::string& detail) {
         const double failed_at = time_ms_;

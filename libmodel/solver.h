@@ -23,6 +23,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,10 @@ enum class InstrumentKind {
 
 /// "none", "probe", "grabber" or "scalpel": the word of trajectories, recordings and the window's HUD.
 const char* to_string(InstrumentKind kind);
+/// The kind to_string() calls `word`; empty for any other word.
+std::optional<InstrumentKind> instrument_kind_named(const std::string& word);
+/// Whether the kind acts on a grab flag or button 1: a grabber holds, a scalpel's blade is lowered.
+inline bool takes_grab(InstrumentKind kind) { return kind == InstrumentKind::grabber || kind == InstrumentKind::scalpel; }
 
 /// An instrument's volume: an ellipsoid with semi-axes along the tool frame's x, y, z, mm.
 struct Instrument {
@@ -311,7 +316,7 @@ private:
     double dt_ms_ = 0.0, h_ = 0.0, critical_dt_ms_ = 0.0, time_ms_ = 0.0;
     int substeps_ = 1;
     Real min_rest_length_ = 0;
-    Real max_rest_length_ = 0;  ///< the longest spring at rest: cut()'s search margin
+    Real max_rest_length_ = 0;  ///< the longest spring at rest: cut()'s search margin (cutting.h)
     double energy_floor_ = 0.0;
     double damped_critical_dt_ms_ = 0.0;  ///< given, or from λ_max of M^(−1/2) C M^(−1/2) (stability.h)
     bool damped_ = false;

@@ -31,10 +31,8 @@ double number(const std::string& text, const std::string& where) {
 }
 
 InstrumentKind parse_kind(const std::string& text, const std::string& where) {
-    if (text == "probe") return InstrumentKind::probe;
-    if (text == "grabber" || text == "grab") return InstrumentKind::grabber;
-    if (text == "scalpel") return InstrumentKind::scalpel;
-    if (text == "none") return InstrumentKind::none;
+    if (text == "grab") return InstrumentKind::grabber;
+    if (const auto kind = instrument_kind_named(text)) return *kind;
     throw InputError(where + ": kind '" + text + "': expected probe, grabber, scalpel or none");
 }
 
@@ -101,7 +99,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         const double grab = number(fields[13], where + " column grab");
         if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
         k.grab = grab == 1;
-        if (k.grab && k.kind != InstrumentKind::grabber && k.kind != InstrumentKind::scalpel)
+        if (k.grab && !takes_grab(k.kind))
             throw InputError(where + ": grab is 1 but the kind is neither grabber nor scalpel");
         // Two poses of one hand at one time would make the instrument jump there in one step (the
         // earlier line only bends the approach): almost always a typing slip, so it is refused.

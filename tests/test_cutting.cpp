@@ -102,7 +102,7 @@ TEST(Cutting, ASegmentCrossesATriangleOnlyThroughItsInterior) {
     a.position = {0, 0, 0};
     b.position = {0, 10, 0};
     // Blade along +z, 4 mm, swept along +y: the square x = 0, y ∈ [0, 10], z ∈ [0, 4].
-    const BladeSweep s = blade_sweep(a, b, 4.0);
+    const BladeSweep s = blade_sweep(a, b, 4.0, 0.0f);
     ASSERT_TRUE(s.cuts_anything);
     auto crosses = [&](Eigen::Vector3f p, Eigen::Vector3f q) { return spring_crosses(s, p.data(), q.data()); };
     EXPECT_TRUE(crosses({-1, 5, 2}, {1, 5, 2}));
@@ -115,10 +115,10 @@ TEST(Cutting, ASegmentCrossesATriangleOnlyThroughItsInterior) {
     // A blade through a particle: of its two springs along x, exactly one is cut.
     EXPECT_NE(crosses({-1, 5, 2}, {0, 5, 2}), crosses({0, 5, 2}, {1, 5, 2}));
     // No area: held still, or pushed along its own axis.
-    EXPECT_FALSE(blade_sweep(a, a, 4.0).cuts_anything);
+    EXPECT_FALSE(blade_sweep(a, a, 4.0, 0.0f).cuts_anything);
     InstrumentPose deeper = a;
     deeper.position.z() = 3;
-    EXPECT_FALSE(blade_sweep(a, deeper, 4.0).cuts_anything);
+    EXPECT_FALSE(blade_sweep(a, deeper, 4.0, 0.0f).cuts_anything);
 }
 
 // A straight sweep right through a block cuts exactly the springs with ends on both sides of the

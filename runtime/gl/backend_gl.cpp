@@ -54,6 +54,9 @@ void build(Program& program, const char* name, std::initializer_list<const char*
 
 using gl::storage;
 
+/// The entry of particle i's slot s in the gl per-entry tables ([group of 8][slot][lane]).
+constexpr std::size_t table_entry(std::size_t i, int s) { return (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count; }
+
 struct ForceSlot {
     double force[2][4];
     std::uint32_t status;
@@ -342,7 +345,8 @@ public:
 
         bind_common();
         for (const HandState& state : hand_)
-            if (state.cutting && state.placed) cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z()));
+            if (state.cutting && state.placed)
+                cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(max_rest_length_)));
         const GLuint zero = 0;
         for (long long q = 1; q <= total; ++q) {
             const double fraction = double(q) / double(total), previous_fraction = double(q - 1) / double(total);
@@ -465,11 +469,8 @@ public:
         glProgramUniform3fv(p, cut_program_.at("corner"), 4, sweep.corner[0].data());
         glProgramUniform3fv(p, cut_program_.at("low"), 1, sweep.low.data());
         glProgramUniform3fv(p, cut_program_.at("high"), 1, sweep.high.data());
-        const float reach = 2 * max_rest_length_;  // Solver::cut's search margin, in the same float operations
-        float near_low[3], near_high[3];
-        for (int d = 0; d < 3; ++d) near_low[d] = sweep.low[std::size_t(d)] - reach, near_high[d] = sweep.high[std::size_t(d)] + reach;
-        glProgramUniform3fv(p, cut_program_.at("near_low"), 1, near_low);
-        glProgramUniform3fv(p, cut_program_.at("near_high"), 1, near_high);
+        glProgramUniform3fv(p, cut_program_.at("near_low"), 1, sweep.near_low.data());  // the cpu solver's search box
+        glProgramUniform3fv(p, cut_program_.at("near_high"), 1, sweep.near_high.data());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
         glUseProgram(p);
         glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
@@ -484,7 +485,7 @@ public:
         std::vector<std::array<std::int32_t, 2>> out;
         for (std::size_t i = 0; i < n_; ++i)
             for (int s = 0; s < slot_count; ++s) {
-                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                const std::size_t t = table_entry(i, s);
                 const std::int32_t j = uncut_neighbour_[t];
                 if (std::size_t(j) > i && table[t] == std::int32_t(i)) out.push_back({std::int32_t(i), j});
             }
@@ -769,7 +770,7 @@ private:
         damped_ = false;
         for (std::size_t i = 0; i < n_pad_; ++i)
             for (int s = 0; s < slot_count; ++s) {
-                const std::size_t t = (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count;
+                const std::size_t t = table_entry(i, s);
                 neighbour[t] = std::int32_t(i);
                 if (i >= n_) continue;
                 const std::int32_t q = slot_spring[i * slot_count + std::size_t(s)];

@@ -192,9 +192,8 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
     Instrument instrument;
     const auto colon = text.find(':');
     const std::string kind = text.substr(0, colon);
-    if (kind == "probe") instrument.kind = InstrumentKind::probe;
-    else if (kind == "grabber") instrument.kind = InstrumentKind::grabber;
-    else if (kind == "scalpel") instrument.kind = InstrumentKind::scalpel;
+    const std::optional<InstrumentKind> named = instrument_kind_named(kind);
+    if (named && *named != InstrumentKind::none) instrument.kind = *named;
     else throw UsageError("--instrument " + text + ": expected probe, grabber or scalpel, optionally :AX,AY,AZ (semi-axes, mm)");
     instrument.semi_axes = instrument.kind == InstrumentKind::scalpel ? default_blade_semi_axes_mm
                                                                       : Eigen::Vector3d::Constant(default_semi_axis_mm);
@@ -448,7 +447,7 @@ StepReport HapticRun::step() {
             }
             h.pose = p;
             h.buttons = tools->hand[i].buttons;
-            const bool wants = (h.instrument.kind == InstrumentKind::grabber || h.instrument.kind == InstrumentKind::scalpel) && (h.buttons & 1u);
+            const bool wants = takes_grab(h.instrument.kind) && (h.buttons & 1u);
             const bool was = h.grabbing;
             apply_tool(backend_, i, h.instrument, h.pose, wants, h.placed, h.grabbing);
             applied[i] = true;
@@ -774,8 +773,7 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     std::array<Instrument, 2> instruments;
     for (int i = 0; i < 2; ++i) {
         if (!recording.hands[i].used) continue;
-        const std::string& kind = recording.hands[i].instrument;
-        instruments[i].kind = kind == "grabber" ? InstrumentKind::grabber : kind == "scalpel" ? InstrumentKind::scalpel : InstrumentKind::probe;
+        instruments[i].kind = instrument_kind_named(recording.hands[i].instrument).value_or(InstrumentKind::probe);  // read_recording checked it
         const auto& a = recording.hands[i].semi_axes_mm;
         instruments[i].semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
     }

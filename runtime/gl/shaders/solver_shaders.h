@@ -414,7 +414,7 @@ layout(std430, binding = BINDING_NEIGHBOUR) buffer NeighbourBuffer { int neighbo
 uniform vec3 corner[4];         // tip_A, end_A, end_B, tip_B
 uniform vec3 low;               // the corners' bounding box
 uniform vec3 high;
-uniform vec3 near_low;          // the box grown by the search margin (Solver::cut's `reach`)
+uniform vec3 near_low;          // the box grown by the search margin (BladeSweep, cutting.h)
 uniform vec3 near_high;
 
 float orient(vec3 a, vec3 b, vec3 c, vec3 d) {   // (b − a) · ((c − a) × (d − a))
