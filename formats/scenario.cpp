@@ -60,6 +60,12 @@ void write_contents(h5::Writer& w, const Scenario& s) {
         write_labels(w, g, "cavity_labels", s.source.cavity_labels);
         write_labels(w, g, "anchor_labels", s.source.anchor_labels);
         w.attribute(g, "anchor_border", std::int32_t(s.source.anchor_border));
+        if (!s.source.defect.empty()) {
+            w.attribute(g, "defect", s.source.defect);
+            w.attribute(g, "defect_centre", s.source.defect_centre.data(), {3});
+            w.attribute(g, "defect_axis", s.source.defect_axis.data(), {3});
+            w.attribute(g, "defect_diameter_mm", s.source.defect_diameter_mm);
+        }
     }
     const auto& lattice = s.lattice;
     {
@@ -385,6 +391,23 @@ Scenario read_contents(const h5::Reader& r) {
         s.source.cavity_labels = labels("cavity_labels");
         s.source.anchor_labels = labels("anchor_labels");
         s.source.anchor_border = r.number<std::int32_t>("source", "anchor_border") != 0;
+        if (r.has_attribute("source", "defect")) {
+            s.source.defect = r.string_attribute("source", "defect");
+            if (s.source.defect != "vsd" && s.source.defect != "asd")
+                r.fail("/source", "defect must be vsd or asd, got '" + s.source.defect + "'");
+            auto vector = [&](const char* name) {
+                const auto v = r.numbers<double>("source", name, 3);
+                const Eigen::Vector3d out(v[0], v[1], v[2]);
+                if (!out.allFinite()) r.fail("/source", std::string(name) + " must be finite");
+                return out;
+            };
+            s.source.defect_centre = vector("defect_centre");
+            s.source.defect_axis = vector("defect_axis");
+            if (!(std::abs(s.source.defect_axis.norm() - 1.0) < 1e-3)) r.fail("/source", "defect_axis must be a unit vector");
+            s.source.defect_diameter_mm = r.number<double>("source", "defect_diameter_mm");
+            if (!(s.source.defect_diameter_mm > 0.0) || !std::isfinite(s.source.defect_diameter_mm))
+                r.fail("/source", "defect_diameter_mm must be a positive number");
+        }
     }
     auto& lattice = s.lattice;
     {

@@ -37,6 +37,12 @@ struct ScenarioSource {
     std::vector<int> cavity_labels;
     std::vector<int> anchor_labels;
     bool anchor_border = false;
+    /// A septal defect carved into the label map before the build (libmodel/defect.h): "vsd",
+    /// "asd", or empty for none; its centre and axis (LPS) and diameter.
+    std::string defect;
+    Eigen::Vector3d defect_centre{0, 0, 0};
+    Eigen::Vector3d defect_axis{0, 0, 1};
+    double defect_diameter_mm = 0.0;
 };
 
 /// /solver attributes: the step settings (libmodel/solver_options.h StepSettings: dt_ms, damping,

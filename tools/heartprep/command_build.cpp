@@ -42,10 +42,13 @@ void add_selection_options(CLI::App& command, LabelChoice& labels, SelectionOpti
         ->type_name("L[,L...]")
         ->group("Tissue");
     command.add_option("--labels", labels.label_table,
-                       "Label names for a volume that carries none (NIfTI, MetaImage, NRRD), or to rename a .seg.nrrd's: a 3D "
-                       "Slicer colour table (VALUE NAME R G B A), an ITK-SNAP label description file (VALUE R G B A VIS MSH "
-                       "\"NAME\") or a CSV (VALUE,NAME,...)")
-        ->type_name("FILE")
+                       "Label names for a volume that carries none (NIfTI, MetaImage, NRRD), or to rename a .seg.nrrd's: a "
+                       "convention by name (" + label_convention_names() + ": mmwhs is MM-WHS 2017's 205 myocardium, 420 "
+                       "left atrium, 500 left ventricle, 550 right atrium, 600 right ventricle, 820 aorta, 850 pulmonary "
+                       "artery; with a convention the tissue defaults to its myocardium and the cavities to its blood), or "
+                       "a file: a 3D Slicer colour table (VALUE NAME R G B A), an ITK-SNAP label description file (VALUE R "
+                       "G B A VIS MSH \"NAME\") or a CSV (VALUE,NAME,...)")
+        ->type_name("NAME|FILE")
         ->group("Tissue");
     command.add_flag("--anchor-border", o.anchor_border,
                      "Anchor tissue where it touches the volume border (vessels cut by the crop)")
@@ -233,6 +236,8 @@ void add_build_command(CLI::App& app) {
     command->add_option("--threads", *threads, "Threads the build may use (0 = every core); `batch` sets it per case")
         ->check(CLI::Range(0, 4096))
         ->capture_default_str();
+    auto defect = std::make_shared<DefectFlags>();
+    defect->add(*command, "--defect", "Septal defect (heartprep defect --help)");
     auto batch_key = std::make_shared<std::string>();
     command->add_option("--batch-key", *batch_key, "Stored in the file so `heartprep batch` can skip unchanged cases")->group("");
 
@@ -260,6 +265,13 @@ void add_build_command(CLI::App& app) {
         options->layout.materials = {*material};  // label and name follow the tissue chosen (build_scenario)
         options->packing.scheme = parse_packing_scheme(*packing);
         options->batch_key = *batch_key;
+        if (!defect->type.empty()) {
+            DefectChoice choice;
+            defect->apply(choice);
+            options->defect = choice;
+        } else if (!defect->at.empty() || !defect->site.empty()) {
+            throw UsageError(std::string(defect->at.empty() ? "--site" : "--at") + " places a septal defect: give --defect vsd or --defect asd");
+        }
         // Every parallel loop of the pipeline is oneTBB's: its global limit is the build's.
         std::optional<tbb::global_control> thread_limit;
         if (*threads > 0) thread_limit.emplace(tbb::global_control::max_allowed_parallelism, std::size_t(*threads));

@@ -160,6 +160,11 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
            {"source", {{"file_name", s.source.file_name}, {"sha256", s.source.sha256}, {"dims", {g.dims[0], g.dims[1], g.dims[2]}},
                        {"spacing", vector(g.spacing)}}},
            {"lattice", {{"spacing", s.lattice.spacing}, {"dims", {s.lattice.dims[0], s.lattice.dims[1], s.lattice.dims[2]}}}},
+           {"defect", s.source.defect.empty() ? json(nullptr)
+                                              : json{{"type", s.source.defect},
+                                                     {"centre", vector(s.source.defect_centre)},
+                                                     {"axis", vector(s.source.defect_axis)},
+                                                     {"diameter_mm", s.source.defect_diameter_mm}}},
            {"particles", m.particles},
            {"anchored", m.anchored},
            {"springs", m.springs},
@@ -217,6 +222,10 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     const auto& g = s.source.geometry;
     std::printf("source      %s, %d x %d x %d voxels of %.3f x %.3f x %.3f mm, sha256 %.12s…\n", s.source.file_name.c_str(),
                 g.dims[0], g.dims[1], g.dims[2], g.spacing[0], g.spacing[1], g.spacing[2], s.source.sha256.c_str());
+    if (!s.source.defect.empty())
+        std::printf("defect      %s, %.1f mm, centre %.1f, %.1f, %.1f (LPS mm), axis %.2f, %.2f, %.2f\n", s.source.defect.c_str(),
+                    s.source.defect_diameter_mm, s.source.defect_centre.x(), s.source.defect_centre.y(), s.source.defect_centre.z(),
+                    s.source.defect_axis.x(), s.source.defect_axis.y(), s.source.defect_axis.z());
     std::printf("lattice     spacing %.3f mm, %d x %d x %d cells\n", s.lattice.spacing, s.lattice.dims[0], s.lattice.dims[1],
                 s.lattice.dims[2]);
     std::printf("particles   %zu (%zu anchored), total mass %.3f g\n", m.particles, m.anchored, m.total_mass);

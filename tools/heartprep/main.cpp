@@ -38,6 +38,7 @@ int main(int argc, char** argv) {
                  "  heartprep inspect case.h5                   what a scenario holds\n"
                  "  heartprep surface case.nii.gz -o heart.stl  the detailed surface, for 3D Slicer or MeshLab\n"
                  "  heartprep phantom -o phantom.nii.gz         a synthetic two-ventricle heart with a septal defect\n"
+                 "  heartprep defect case.nii.gz --labels mmwhs --diameter 10 -o vsd.nii.gz   a septal defect in a label map\n"
                  "  heartprep batch cases.csv -o out/ -j 2      many cases, resumable, with a summary table\n"
                  "  heartprep export case.h5 --what simsurface -o sim.ply   meshes for 3D Slicer / MeshLab\n",
                  "heartprep"};
@@ -50,6 +51,7 @@ int main(int argc, char** argv) {
     heartsim::cli::add_phantom_command(app);
     heartsim::cli::add_stage_commands(app);
     heartsim::cli::add_batch_command(app);
+    heartsim::cli::add_defect_command(app);
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim::heartprep_exit_status_help);
     heartsim::cli_messages::require_finite_numbers(app);
     app.footer(heartsim::heartprep_exit_status_help);

@@ -4,11 +4,13 @@
 #include "formats/label_table.h"
 #include "formats/mesh_io.h"
 #include "libmodel/errors.h"
+#include "libmodel/text.h"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <set>
 
 namespace heartsim::cli {
 
@@ -35,35 +37,157 @@ void append(std::vector<std::string>& to, const std::vector<std::string>& from) 
 
 }  // namespace
 
-SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
-                               Progress& progress, BuildReport& report) {
-    SelectedVolume result;
-    // The table first: a bad --labels file is reported before a long read.
-    const SegmentNames table = labels.label_table.empty() ? SegmentNames{} : read_label_table(labels.label_table);
-    result.volume = timed(report, "read", [&] {
+LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
+                             Progress& progress, BuildReport& report) {
+    // A convention by name, or a table file; the table first: a bad --labels file is reported
+    // before a long read. A file of that name wins over a convention.
+    const LabelConvention* convention = nullptr;
+    if (!labels.label_table.empty() && !std::filesystem::exists(labels.label_table))
+        convention = find_label_convention(labels.label_table.string());
+    if (!labels.label_table.empty() && !convention && !std::filesystem::exists(labels.label_table))
+        throw InputError(labels.label_table.string() + ": cannot read the label table: no such file (--labels takes a label table "
+                         "file or a convention: " + label_convention_names() + ")");
+    const SegmentNames table = convention       ? convention->names
+                               : labels.label_table.empty() ? SegmentNames{}
+                                                            : read_label_table(labels.label_table);
+    LabelVolume volume = timed(report, "read", [&] {
         ProgressStage stage(progress, "read volume", 0);
         return read_label_volume(input, {}, &report.header);
     });
     append(report.warnings, report.header.warnings);
     report.segment_names = report.header.segment_names;
     for (const auto& [label, name] : table) report.segment_names[label] = name;
+    if (convention) report.convention = convention->name;
+    if (report.segment_names.empty()) {
+        std::set<int> present;
+        for (std::int32_t label : volume.labels)
+            if (label != 0) present.insert(label);
+        if (const LabelConvention* match = matching_label_convention(present))
+        {
+            report.convention_hint = "the labels match " + match->title + ": --labels " + match->name + " names them";
+            report.convention_match = match->name;
+        }
+    }
     try {
         if (labels.tissue.empty()) {
             std::string note;
-            options.tissue_labels = default_tissue_labels(report.segment_names, &note);
+            options.tissue_labels = convention ? std::vector<int>{convention->myocardium} : default_tissue_labels(report.segment_names, &note);
             if (!note.empty()) report.warnings.push_back(note);
         } else {
             options.tissue_labels = resolve_label_choice(labels.tissue, report.segment_names, "--tissue");
         }
-        options.cavity_labels = resolve_label_choice(labels.cavity, report.segment_names, "--cavity");
+        // A convention knows its blood pools: they are the cavities unless --cavity says otherwise.
+        options.cavity_labels = labels.cavity.empty() && convention ? convention->blood
+                                                                    : resolve_label_choice(labels.cavity, report.segment_names, "--cavity");
         options.anchor_labels = resolve_label_choice(labels.anchor, report.segment_names, "--anchor-label");
     } catch (const InputError& error) {
         throw InputError(input.string() + ": " + error.what());
     }
     append(report.warnings, tissue_name_warnings(options.tissue_labels, report.segment_names));
-    result.selection = timed(report, "select", [&] { return select_tissue(result.volume, options, progress, &report.selection); });
+    return volume;
+}
+
+SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
+                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect) {
+    SelectedVolume result;
+    result.volume = read_and_resolve(input, labels, options, progress, report);
+    if (defect) defect_stage(result.volume, input, *defect, options, progress, report);
+    try {
+        result.selection = timed(report, "select", [&] { return select_tissue(result.volume, options, progress, &report.selection); });
+    } catch (const InputError& error) {
+        if (report.convention_hint.empty()) throw;
+        throw InputError(std::string(error.what()) + "; " + report.convention_hint);
+    }
     append(report.warnings, report.selection.warnings);
     return result;
+}
+
+namespace {
+
+/// The chambers' labels as their segment names say: "left ventricle", "LV", "right atrium",
+/// "aorta" (a name with a muscle word, "left ventricle myocardium", is not a chamber's blood).
+struct Chambers {
+    int left_atrium = 0, left_ventricle = 0, right_atrium = 0, right_ventricle = 0, aorta = 0;
+};
+
+Chambers chambers_from_names(const SegmentNames& names) {
+    Chambers c;
+    for (const auto& [label, name] : names) {
+        if (classify_segment_name(name) == SegmentKind::heart_muscle) continue;
+        std::string n = text::lowercase(text::trim(name));
+        std::replace(n.begin(), n.end(), '_', ' ');
+        const std::string padded = " " + n + " ";
+        auto word = [&](const char* w) { return padded.find(std::string(" ") + w + " ") != std::string::npos; };
+        auto has = [&](const char* w) { return n.find(w) != std::string::npos; };
+        const bool left = has("left") || word("lv") || word("la"), right = has("right") || word("rv") || word("ra");
+        const bool ventricle = has("ventric") || word("lv") || word("rv"), atrium = has("atri") || word("la") || word("ra");
+        int* slot = nullptr;
+        if (has("aort") || word("ao")) slot = &c.aorta;
+        else if (left && !right && ventricle && !atrium) slot = &c.left_ventricle;
+        else if (right && !left && ventricle && !atrium) slot = &c.right_ventricle;
+        else if (left && !right && atrium && !ventricle) slot = &c.left_atrium;
+        else if (right && !left && atrium && !ventricle) slot = &c.right_atrium;
+        if (slot && *slot == 0) *slot = label;
+    }
+    return c;
+}
+
+}  // namespace
+
+void defect_stage(LabelVolume& volume, const std::filesystem::path& input, const DefectChoice& choice, const SelectionOptions& options,
+                  Progress& progress, BuildReport& report) {
+    DefectOptions o;
+    o.type = choice.type;
+    o.diameter_mm = choice.diameter_mm;
+    o.at = choice.at;
+    o.site = choice.site;
+    o.max_wall_mm = choice.max_wall_mm;
+    o.wall_labels = options.tissue_labels;
+    o.blood_labels = options.cavity_labels;
+    if (o.blood_labels.empty()) {
+        std::set<int> others;
+        for (std::int32_t label : volume.labels)
+            if (label != 0 && std::find(o.wall_labels.begin(), o.wall_labels.end(), label) == o.wall_labels.end()) others.insert(label);
+        o.blood_labels.assign(others.begin(), others.end());
+    }
+    const Chambers c = chambers_from_names(report.segment_names);
+    if (choice.type == DefectType::vsd) o.side_a = c.left_ventricle, o.side_b = c.right_ventricle;
+    else o.side_a = c.left_atrium, o.side_b = c.right_atrium;
+    if (o.side_a == 0 || o.side_b == 0) o.side_a = o.side_b = 0;
+    o.aorta = c.aorta;
+    if (choice.type == DefectType::asd && o.side_a != 0) {
+        // Label maps that name the chambers seldom label the atria's thin walls (MM-WHS labels
+        // the left ventricle's wall only): between the atria's blood, unlabelled voxels are the wall.
+        if (std::find(o.wall_labels.begin(), o.wall_labels.end(), 0) == o.wall_labels.end()) o.wall_labels.push_back(0);
+    }
+    for (int side : {o.side_a, o.side_b})
+        if (side != 0 && std::find(o.blood_labels.begin(), o.blood_labels.end(), side) == o.blood_labels.end()) o.blood_labels.push_back(side);
+    try {
+        report.defect = timed(report, "defect", [&] { return carve_defect(volume, o, report.segment_names, progress); });
+    } catch (const OptionError& error) {
+        // Only a convention that tells the chambers apart can place a defect without a point.
+        const LabelConvention* match = report.convention_match.empty() ? nullptr : find_label_convention(report.convention_match);
+        if (!match || !match->chambers()) throw;
+        throw OptionError(std::string(error.what()) + " (" + report.convention_hint + ")");
+    } catch (const InputError& error) {
+        throw InputError(input.string() + ": " + error.what());
+    }
+    if (!report.defect->connected)
+        throw InputError(input.string() + ": the opening carved does not join the two pools (a flood fill through blood does not "
+                         "cross it); try a larger --diameter or another --at");
+}
+
+void print_defect_summary(const DefectReport& d, const SegmentNames& names) {
+    std::printf("defect      %s%s: %.1f mm opening (measured: a clear passage %.1f mm across), %zu voxels carved\n",
+                to_string(d.type).c_str(), d.site ? (", " + to_string(*d.site) + " site").c_str() : "", d.diameter_mm,
+                d.measured_diameter_mm, d.voxels_carved);
+    std::printf("            centre %.1f, %.1f, %.1f (LPS mm), axis %.2f, %.2f, %.2f; wall %.1f mm thick there\n", d.centre.x(),
+                d.centre.y(), d.centre.z(), d.normal.x(), d.normal.y(), d.normal.z(), d.wall_thickness_mm);
+    std::printf("            joins %s and %s: %s", describe_label(d.label_a, names).c_str(), describe_label(d.label_b, names).c_str(),
+                d.connected ? "connected through the opening (flood fill)" : "NOT connected");
+    if (d.distance_to_aorta_mm >= 0) std::printf("; %.1f mm from the aorta's blood", d.distance_to_aorta_mm);
+    if (d.sites_tried) std::printf("; %zu place(s) tried", d.sites_tried);
+    std::printf("; %.2f s\n", d.seconds);
 }
 
 void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& progress, BuildReport& report) {
@@ -178,7 +302,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.source.file_name = options.input.filename().string();
     // References, not a structured binding: clang 14 (the sanitize preset) cannot capture those in lambdas.
     SelectionOptions chosen = options.selection;
-    SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report);
+    SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report, options.defect);
     const LabelVolume& volume = selected.volume;
     const Selection& selection = selected.selection;
     scenario.source.sha256 = timed(report, "hash", [&] { return label_map_sha256(options.input); });
@@ -187,6 +311,12 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.source.cavity_labels = chosen.cavity_labels;
     scenario.source.anchor_labels = chosen.anchor_labels;
     scenario.source.anchor_border = chosen.anchor_border;
+    if (report.defect) {
+        scenario.source.defect = to_string(report.defect->type);
+        scenario.source.defect_centre = report.defect->centre;
+        scenario.source.defect_axis = report.defect->normal;
+        scenario.source.defect_diameter_mm = report.defect->diameter_mm;
+    }
     // One material per tissue label, named after its segment (segment_names.h material_name),
     // with the values given for that label or else the first material's.
     LayoutOptions layout = options.layout;
@@ -266,6 +396,9 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
                 g.spacing[0], g.spacing[1], g.spacing[2]);
     if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
+    if (!report.convention.empty()) std::printf("labels      %s (--labels %s)\n", find_label_convention(report.convention)->title.c_str(), report.convention.c_str());
+    else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
+    if (report.defect) print_defect_summary(*report.defect, report.segment_names);
     const auto& s = report.selection;
     std::string tissue;
     for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);

@@ -8,6 +8,8 @@
 
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
+#include "libmodel/defect.h"
+#include "libmodel/label_conventions.h"
 #include "libmodel/lattice.h"
 #include "libmodel/mapping.h"
 #include "libmodel/packing.h"
@@ -20,6 +22,7 @@
 #include "libmodel/surface.h"
 
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -31,9 +34,19 @@ struct LabelChoice {
     std::vector<std::string> tissue;   ///< --tissue; empty = default_tissue_labels (label 1 unless names say otherwise)
     std::vector<std::string> cavity;   ///< --cavity
     std::vector<std::string> anchor;   ///< --anchor-label
-    /// --labels: a label table (formats/label_table.h) naming the labels of a volume that carries
-    /// no names, or renaming those of a .seg.nrrd; empty = none.
+    /// --labels: a label convention's name (label_conventions.h: mmwhs, hvsmr2016, ...) or a label
+    /// table (formats/label_table.h) naming the labels of a volume that carries no names, or
+    /// renaming those of a .seg.nrrd; empty = none.
     std::filesystem::path label_table;
+};
+
+/// A septal defect to carve into the label map before anything is built from it (defect.h).
+struct DefectChoice {
+    DefectType type = DefectType::vsd;
+    double diameter_mm = 10.0;
+    std::optional<Eigen::Vector3d> at;   ///< --at, LPS mm
+    std::optional<DefectSite> site;      ///< --site
+    double max_wall_mm = 20.0;           ///< --max-wall
 };
 
 struct BuildOptions {
@@ -54,6 +67,7 @@ struct BuildOptions {
     /// the marching-cubes surface. Empty = none.
     std::filesystem::path visual_mesh;
     MappingMethod mapping = MappingMethod::automatic;  ///< how visual vertices are tied to particles
+    std::optional<DefectChoice> defect;  ///< --defect: carved into the label map first
     std::string batch_key;           ///< see Scenario::batch_key
 };
 
@@ -65,6 +79,12 @@ struct StageTime {
 struct BuildReport {
     VolumeHeader header;
     SegmentNames segment_names;         ///< the volume's segment names, with --labels' table over them
+    std::string convention;             ///< the label convention --labels named ("" for none or a table)
+    /// A convention the volume's labels match when it names none and --labels gave none: a line
+    /// for the summary and for errors ("the labels match MM-WHS 2017: --labels mmwhs names them").
+    std::string convention_hint;
+    std::string convention_match;       ///< that convention's name
+    std::optional<DefectReport> defect; ///< the defect carved, if one was asked for
     SelectionReport selection;
     SurfaceReport surface;
     MeshReport mesh;
@@ -90,7 +110,24 @@ struct SelectedVolume {
     Selection selection;
 };
 SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
-                               Progress& progress, BuildReport& report);
+                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect = std::nullopt);
+
+/// Reads `input` and resolves `labels` (the first half of read_and_select): the volume, with
+/// report.segment_names, convention and convention_hint set and `options`' label lists resolved.
+LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
+                             Progress& progress, BuildReport& report);
+
+/// Carves `defect` into `volume` (defect.h) with the walls, pools and chambers that the resolved
+/// labels name: the wall is the tissue labels; the pools are the cavity labels, or else every
+/// label but the tissue's and 0; the chambers come from the segment names (a convention's, a
+/// .seg.nrrd's or a table's: "left ventricle", "right atrium", "aorta", ...). Sets report.defect.
+/// Throws InputError naming `input` when the defect cannot be made, or when the opening carved
+/// does not join the two pools.
+void defect_stage(LabelVolume& volume, const std::filesystem::path& input, const DefectChoice& defect,
+                  const SelectionOptions& options, Progress& progress, BuildReport& report);
+
+/// The lines describing a carved defect, for the summaries of `defect` and `build`.
+void print_defect_summary(const DefectReport& defect, const SegmentNames& names);
 
 /// Packs the scenario's particles (re-packs a packed one); the simulation surface follows.
 void pack_stage(Scenario& scenario, const PackingOptions& options, Progress& progress, BuildReport& report);
