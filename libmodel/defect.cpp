@@ -464,113 +464,11 @@ std::vector<Candidate> septum_candidates(const LabelVolume& volume, const Grid& 
     return out;
 }
 
-}  // namespace
-
-DefectType parse_defect_type(const std::string& text) {
-    if (text == "vsd") return DefectType::vsd;
-    if (text == "asd") return DefectType::asd;
-    throw OptionError("{DefectOptions::type} must be vsd (ventricular septal defect) or asd (atrial septal defect), got '" + text + "'");
-}
-
-DefectSite parse_defect_site(const std::string& text) {
-    for (DefectSite s : {DefectSite::perimembranous, DefectSite::muscular, DefectSite::apical, DefectSite::secundum})
-        if (text == to_string(s)) return s;
-    throw OptionError("{DefectOptions::site} must be perimembranous, muscular or apical (vsd) or secundum (asd), got '" + text + "'");
-}
-
-std::string to_string(DefectType type) { return type == DefectType::vsd ? "vsd" : "asd"; }
-
-std::string to_string(DefectSite site) {
-    switch (site) {
-    case DefectSite::perimembranous: return "perimembranous";
-    case DefectSite::muscular: return "muscular";
-    case DefectSite::apical: return "apical";
-    case DefectSite::secundum: return "secundum";
-    }
-    return "?";
-}
-
-DefectSite default_defect_site(DefectType type) { return type == DefectType::vsd ? DefectSite::perimembranous : DefectSite::secundum; }
-
-DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const SegmentNames& names, Progress& progress) {
-    const auto start = std::chrono::steady_clock::now();
-    if (!(o.diameter_mm > 0.0) || !std::isfinite(o.diameter_mm))
-        throw OptionError("{DefectOptions::diameter_mm} must be a positive number of mm");
-    if (o.wall_labels.empty()) throw OptionError("no wall labels: {SelectionOptions::tissue_labels} names the septum's labels");
-    if (o.blood_labels.empty()) throw OptionError("no blood labels: {SelectionOptions::cavity_labels} names the pools the defect joins");
-    const Grid grid(volume);
-    Carver carver(grid, o, names);
-    DefectReport report;
-    report.type = o.type;
-    report.diameter_mm = o.diameter_mm;
-
-    std::optional<Site> site;
-    if (o.at) {
-        ProgressStage stage(progress, "find the septum", 0);
-        const Eigen::Vector3d g = grid.to_grid(*o.at);
-        Eigen::Vector3d wall_point = g;
-        const int here = grid.label(g);
-        if (!carver.is_wall(here)) {
-            if (!nearest(grid, g, o.search_mm, [&](int l) { return carver.is_wall(l); }, Eigen::Vector3d::Zero(), wall_point))
-                throw InputError("no septum at " + point(*o.at) + " (LPS mm): the voxel there is " + describe(here, names) +
-                                 " and no wall (" + describe(o.wall_labels.front(), names) + ") lies within " + mm(o.search_mm, 0));
-        }
-        std::string problem;
-        site = carver.site_at(wall_point, problem);
-        if (!site) throw InputError("no septum at " + point(*o.at) + " (LPS mm): " + problem);
-        if (!carver.rim_fits(*site, 0.5 * o.diameter_mm + carver.margin())) {
-            const double fits = carver.largest_fit(*site);
-            throw InputError("a " + mm(o.diameter_mm) + " opening does not fit the septum at " + point(*o.at) +
-                             " (LPS mm): the wall around it must separate " + carver.pools() + " all round the opening with a rim of " +
-                             mm(carver.margin()) + "; " +
-                             (fits > 0.0 ? "at most " + mm(fits) + " fits there" : "no opening fits there"));
-        }
-    } else {
-        if (o.side_a == 0 || o.side_b == 0)
-            throw OptionError("the chambers are not labelled apart, so the septum cannot be found without a point: give "
-                              "{DefectOptions::at} X,Y,Z (LPS mm, a point in the septum)");
-        const DefectSite wanted = o.site.value_or(default_defect_site(o.type));
-        if ((o.type == DefectType::vsd) == (wanted == DefectSite::secundum))
-            throw OptionError("the " + to_string(wanted) + " site is not a site of a" + (o.type == DefectType::vsd ? " ventricular" : "n atrial") +
-                              " septal defect (vsd: perimembranous, muscular, apical; asd: secundum)");
-        std::vector<Candidate> candidates;
-        {
-            ProgressStage stage(progress, "find the septum", 0);
-            candidates = septum_candidates(volume, grid, o, wanted, names);
-        }
-        ProgressStage stage(progress, "place the defect", candidates.size());
-        std::vector<Eigen::Vector3d> tried;
-        double best_fit = 0.0;
-        const double spread = std::max(2.0, 0.25 * o.diameter_mm);  // tried places this far apart
-        constexpr std::size_t most = 400;
-        for (std::size_t c = 0; c < candidates.size() && tried.size() < most; ++c) {
-            stage.update(c);
-            const Candidate& candidate = candidates[c];
-            if (std::any_of(tried.begin(), tried.end(), [&](const Eigen::Vector3d& t) { return (t - candidate.g).norm() < spread; }))
-                continue;
-            tried.push_back(candidate.g);
-            std::string problem;
-            std::optional<Site> s = carver.site_at(candidate.g, problem);
-            if (!s) continue;
-            if (!carver.rim_fits(*s, 0.5 * o.diameter_mm + carver.margin())) {
-                best_fit = std::max(best_fit, carver.largest_fit(*s));
-                continue;
-            }
-            site = s;
-            report.site = wanted;
-            report.distance_to_aorta_mm = candidate.to_aorta;
-            break;
-        }
-        report.sites_tried = tried.size();
-        if (!site)
-            throw InputError("no place on the septum between " + carver.pools() + " fits a " + mm(o.diameter_mm) + " opening (" +
-                             std::to_string(tried.size()) + " places tried" +
-                             (best_fit > 0.0 ? "; the largest that fits is " + mm(best_fit) : std::string()) + ")");
-    }
-
-    // Carve: the wall voxels in the cylinder that connect to the wall at the centre.
-    ProgressStage stage(progress, "carve the defect", 0);
-    const Site& s = *site;
+/// Carves the opening at `s` (carve_defect's last step), measures it and floods through it;
+/// keeps it and fills `report` when its passage is clear and it joins the pools, else restores
+/// every voxel and returns false (report's measures say why).
+bool open_site(LabelVolume& volume, const Grid& grid, const Carver& carver, const DefectOptions& o, const Site& s,
+               DefectReport& report) {
     const double radius = 0.5 * o.diameter_mm;
     const double window = 0.5 * s.crossing.thickness() + radius + 2.0 * grid.max_spacing();
     const VolumeGeometry& geo = volume.geometry;
@@ -599,7 +497,7 @@ DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const Seg
         Eigen::Vector3d w;
         if (!nearest(grid, s.centre, grid.max_spacing() * 2, [&](int l) { return carver.is_wall(l); }, Eigen::Vector3d::Zero(), w) ||
             !grid.voxel(w, seed))
-            throw InputError("no wall voxel at the defect's centre " + point(grid.to_world(s.centre)));
+            return false;
     }
     // The wall voxels whose centres lie within r of the axis, connected to the seed; carved (each
     // into the pool on its side) and returned with their labels before.
@@ -638,7 +536,11 @@ DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const Seg
         return changed;
     };
     // The opening's area across the axis: the lines parallel to it, a quarter voxel apart, that
-    // pass through the wall's slab without meeting wall, connected to the axis.
+    // cross the wall's slab without meeting wall, connected to the axis.
+    // Only the wall's own slab counts (as thick as at the centre, plus a voxel and a little for a
+    // curved wall each way): another wall across a pool beyond it does not close the opening.
+    const double slab_lo = s.crossing.t_minus - grid.max_spacing() - 0.25 * radius;
+    const double slab_hi = s.crossing.t_plus + grid.max_spacing() + 0.25 * radius;
     auto passage = [&] {
         Eigen::Vector3d u, v;
         frame(s.normal, u, v);
@@ -652,7 +554,7 @@ DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const Seg
                 if (a * a + b * b > n * n) continue;
                 const Eigen::Vector3d q = s.centre + h * (a * u + b * v);
                 bool clear = true;
-                for (double t = -window; t <= window && clear; t += h) clear = !carver.is_wall(grid.label(q + t * s.normal));
+                for (double t = slab_lo; t <= slab_hi && clear; t += h) clear = !carver.is_wall(grid.label(q + t * s.normal));
                 open[std::size_t(b + n) * std::size_t(side) + std::size_t(a + n)] = clear;
             }
         std::size_t area = 0;
@@ -723,6 +625,126 @@ DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const Seg
             }
             report.connected = reached.count(target) != 0;
         }
+    }
+
+    // Open only if clear (a passage within a voxel of the diameter: no other wall across it) and
+    // joining the pools; else every voxel back as it was.
+    if (report.measured_diameter_mm >= o.diameter_mm - grid.max_spacing() && report.connected) return true;
+    for (const auto& [at, label] : carved) volume.labels[at] = label;
+    report.voxels_carved = 0;
+    return false;
+}
+
+}  // namespace
+
+DefectType parse_defect_type(const std::string& text) {
+    if (text == "vsd") return DefectType::vsd;
+    if (text == "asd") return DefectType::asd;
+    throw OptionError("{DefectOptions::type} must be vsd (ventricular septal defect) or asd (atrial septal defect), got '" + text + "'");
+}
+
+DefectSite parse_defect_site(const std::string& text) {
+    for (DefectSite s : {DefectSite::perimembranous, DefectSite::muscular, DefectSite::apical, DefectSite::secundum})
+        if (text == to_string(s)) return s;
+    throw OptionError("{DefectOptions::site} must be perimembranous, muscular or apical (vsd) or secundum (asd), got '" + text + "'");
+}
+
+std::string to_string(DefectType type) { return type == DefectType::vsd ? "vsd" : "asd"; }
+
+std::string to_string(DefectSite site) {
+    switch (site) {
+    case DefectSite::perimembranous: return "perimembranous";
+    case DefectSite::muscular: return "muscular";
+    case DefectSite::apical: return "apical";
+    case DefectSite::secundum: return "secundum";
+    }
+    return "?";
+}
+
+DefectSite default_defect_site(DefectType type) { return type == DefectType::vsd ? DefectSite::perimembranous : DefectSite::secundum; }
+
+DefectReport carve_defect(LabelVolume& volume, const DefectOptions& o, const SegmentNames& names, Progress& progress) {
+    const auto start = std::chrono::steady_clock::now();
+    if (!(o.diameter_mm > 0.0) || !std::isfinite(o.diameter_mm))
+        throw OptionError("{DefectOptions::diameter_mm} must be a positive number of mm");
+    if (o.wall_labels.empty()) throw OptionError("no wall labels: {SelectionOptions::tissue_labels} names the septum's labels");
+    if (o.blood_labels.empty()) throw OptionError("no blood labels: {SelectionOptions::cavity_labels} names the pools the defect joins");
+    const Grid grid(volume);
+    Carver carver(grid, o, names);
+    DefectReport report;
+    report.type = o.type;
+    report.diameter_mm = o.diameter_mm;
+
+    std::optional<Site> site;
+    if (o.at) {
+        ProgressStage stage(progress, "find the septum", 0);
+        const Eigen::Vector3d g = grid.to_grid(*o.at);
+        Eigen::Vector3d wall_point = g;
+        const int here = grid.label(g);
+        if (!carver.is_wall(here)) {
+            if (!nearest(grid, g, o.search_mm, [&](int l) { return carver.is_wall(l); }, Eigen::Vector3d::Zero(), wall_point))
+                throw InputError("no septum at " + point(*o.at) + " (LPS mm): the voxel there is " + describe(here, names) +
+                                 " and no wall (" + describe(o.wall_labels.front(), names) + ") lies within " + mm(o.search_mm, 0));
+        }
+        std::string problem;
+        site = carver.site_at(wall_point, problem);
+        if (!site) throw InputError("no septum at " + point(*o.at) + " (LPS mm): " + problem);
+        if (!carver.rim_fits(*site, 0.5 * o.diameter_mm + carver.margin())) {
+            const double fits = carver.largest_fit(*site);
+            throw InputError("a " + mm(o.diameter_mm) + " opening does not fit the septum at " + point(*o.at) +
+                             " (LPS mm): the wall around it must separate " + carver.pools() + " all round the opening with a rim of " +
+                             mm(carver.margin()) + "; " +
+                             (fits > 0.0 ? "at most " + mm(fits) + " fits there" : "no opening fits there"));
+        }
+        ProgressStage carving(progress, "carve the defect", 0);
+        if (!open_site(volume, grid, carver, o, *site, report))
+            throw InputError("the opening at " + point(*o.at) + " (LPS mm) is not clear: " +
+                             (report.connected ? "its passage through the wall measures " + mm(report.measured_diameter_mm) +
+                                                     " across (another wall crosses it)"
+                                               : std::string("it does not join the two pools")) +
+                             "; try another point");
+    } else {
+        if (o.side_a == 0 || o.side_b == 0)
+            throw OptionError("the chambers are not labelled apart, so the septum cannot be found without a point: give "
+                              "{DefectOptions::at} X,Y,Z (LPS mm, a point in the septum)");
+        const DefectSite wanted = o.site.value_or(default_defect_site(o.type));
+        if ((o.type == DefectType::vsd) == (wanted == DefectSite::secundum))
+            throw OptionError("the " + to_string(wanted) + " site is not a site of a" + (o.type == DefectType::vsd ? " ventricular" : "n atrial") +
+                              " septal defect (vsd: perimembranous, muscular, apical; asd: secundum)");
+        std::vector<Candidate> candidates;
+        {
+            ProgressStage stage(progress, "find the septum", 0);
+            candidates = septum_candidates(volume, grid, o, wanted, names);
+        }
+        ProgressStage stage(progress, "place the defect", candidates.size());
+        std::vector<Eigen::Vector3d> tried;
+        double best_fit = 0.0;
+        const double spread = std::max(2.0, 0.25 * o.diameter_mm);  // tried places this far apart
+        constexpr std::size_t most = 400;
+        for (std::size_t c = 0; c < candidates.size() && tried.size() < most; ++c) {
+            stage.update(c);
+            const Candidate& candidate = candidates[c];
+            if (std::any_of(tried.begin(), tried.end(), [&](const Eigen::Vector3d& t) { return (t - candidate.g).norm() < spread; }))
+                continue;
+            tried.push_back(candidate.g);
+            std::string problem;
+            std::optional<Site> s = carver.site_at(candidate.g, problem);
+            if (!s) continue;
+            if (!carver.rim_fits(*s, 0.5 * o.diameter_mm + carver.margin())) {
+                best_fit = std::max(best_fit, carver.largest_fit(*s));
+                continue;
+            }
+            if (!open_site(volume, grid, carver, o, *s, report)) continue;
+            site = s;
+            report.site = wanted;
+            report.distance_to_aorta_mm = candidate.to_aorta;
+            break;
+        }
+        report.sites_tried = tried.size();
+        if (!site)
+            throw InputError("no place on the septum between " + carver.pools() + " fits a " + mm(o.diameter_mm) + " opening (" +
+                             std::to_string(tried.size()) + " places tried" +
+                             (best_fit > 0.0 ? "; the largest that fits is " + mm(best_fit) : std::string()) + ")");
     }
 
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

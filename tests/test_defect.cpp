@@ -381,3 +381,60 @@ TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWitho
     const double carved_mm3 = double(carved) * block.volume.geometry.voxel_volume();
     EXPECT_NEAR(whole.volume - with_hole.volume, carved_mm3, 0.1 * carved_mm3);
 }
+
+TEST(SeptalDefectRealHearts, AVsdAtAGivenSeptumPointOfEveryHvsmrHeartOpensTheSeptumThrough) {
+    // Points in each patient's interventricular septum (LPS mm), found on the images: a wall with
+    // the thick-walled left ventricle's blood on one side and the right ventricle's on the other
+    // (far apart walking through blood).
+    const std::pair<const char*, Eigen::Vector3d> cases[] = {{"hvsmr16_pat0", {46.0, -18.0, -10.4}},
+                                                             {"hvsmr16_pat1", {11.4, -25.6, 5.2}},
+                                                             {"hvsmr16_pat5", {26.8, -17.3, -4.9}},
+                                                             {"hvsmr16_pat6", {26.9, -12.1, -20.0}}};
+    for (const auto& [name, at] : cases) {
+        SCOPED_TRACE(name);
+        const auto input = test::real_case(name);
+        if (input.empty()) {
+            std::printf("skipped %s: real case absent\n", name);
+            continue;
+        }
+        const LabelVolume before = read_label_volume(input);
+        LabelVolume after = before;
+        DefectOptions o;
+        o.wall_labels = {1};
+        o.blood_labels = {2};
+        o.diameter_mm = 10.0;
+        o.at = at;
+        const DefectReport r = carve_defect(after, o);
+        const auto& g = before.geometry;
+        const double voxel = g.spacing.maxCoeff();
+        EXPECT_TRUE(r.connected);
+        EXPECT_NEAR(r.measured_diameter_mm, 10.0, voxel);
+        EXPECT_LT((r.centre - at).norm(), 5.0);
+        EXPECT_GT(r.wall_thickness_mm, 2.0);
+        // Only myocardium near the axis changed, into blood.
+        std::size_t changed = 0;
+        for (int k = 0; k < g.dims[2]; ++k)
+            for (int j = 0; j < g.dims[1]; ++j)
+                for (int i = 0; i < g.dims[0]; ++i) {
+                    const std::size_t v = g.linear(i, j, k);
+                    if (before.labels[v] == after.labels[v]) continue;
+                    ++changed;
+                    EXPECT_EQ(before.labels[v], 1);
+                    EXPECT_EQ(after.labels[v], 2);
+                    const Eigen::Vector3d rel = g.to_world(Eigen::Vector3d(i, j, k)) - r.centre;
+                    EXPECT_LE((rel - rel.dot(r.normal) * r.normal).norm(), 5.0 + voxel);
+                }
+        EXPECT_EQ(changed, r.voxels_carved);
+        // Before, the axis crossed myocardium; after, it runs in blood from one pool to the other.
+        auto label_at = [&](const LabelVolume& v, const Eigen::Vector3d& world) {
+            const Eigen::Vector3d ijk = g.voxel_to_world().inverse().topLeftCorner<3, 3>() * (world - g.origin);
+            return v.labels[g.linear(int(std::lround(ijk.x())), int(std::lround(ijk.y())), int(std::lround(ijk.z())))];
+        };
+        bool crossed_wall = false;
+        for (double t = -0.5 * r.wall_thickness_mm - 1.0; t <= 0.5 * r.wall_thickness_mm + 1.0; t += 0.2) {
+            crossed_wall = crossed_wall || label_at(before, r.centre + t * r.normal) == 1;
+            EXPECT_EQ(label_at(after, r.centre + t * r.normal), 2) << "t = " << t;
+        }
+        EXPECT_TRUE(crossed_wall);
+    }
+}
