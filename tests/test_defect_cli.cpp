@@ -1,0 +1,156 @@
+// heartprep's `defect` command and `build --defect` (libmodel/defect.h from the command line), on
+// the synthetic two-chamber block and on the real MM-WHS hearts.
+#include "formats/scenario.h"
+#include "formats/volume_io.h"
+#include "libmodel/defect.h"
+#include "libmodel/label_conventions.h"
+#include "libmodel/mesh.h"
+#include "defect_block.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <numbers>
+
+using namespace heartsim;
+using namespace heartsim::test::defect_block;
+
+namespace {
+
+struct MmwhsCase {
+    const char* folder;
+    const char* file;
+    const char* convention;
+};
+
+/// An automatic defect on a real MM-WHS heart: run through heartprep, then checked here on the
+/// label map it wrote.
+void check_automatic_defect(const MmwhsCase& c, const std::string& type, const std::string& site) {
+    const auto input = test::real_data_dir() / c.folder / c.file;
+    if (test::real_data_dir().empty() || !std::filesystem::exists(input)) GTEST_SKIP() << "real case absent: " << input;
+    const LabelConvention& convention = *find_label_convention(c.convention);
+    const int a = type == "vsd" ? convention.left_ventricle : convention.left_atrium;
+    const int b = type == "vsd" ? convention.right_ventricle : convention.right_atrium;
+    test::TempDir dir;
+    const auto output = dir / "defect.nii.gz";
+    const auto run = test::run_command(test::quoted(HEARTPREP_EXE) + " defect " + test::quoted(input.string()) + " --labels " +
+                                       c.convention + " --type " + type + " --site " + site + " --diameter 10 -o " +
+                                       test::quoted(output.string()));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("connected through the opening"), std::string::npos) << run.output;
+    const LabelVolume before = read_label_volume(input), after = read_label_volume(output);
+    ASSERT_EQ(before.labels.size(), after.labels.size());
+    EXPECT_TRUE(after.geometry.voxel_to_world().isApprox(before.geometry.voxel_to_world(), 1e-6));
+    // Every changed voxel was wall (the myocardium, or for an atrial septum an unlabelled one)
+    // and became blood of one of the two pools; the pools, apart before, now connect.
+    std::size_t changed = 0;
+    for (std::size_t i = 0; i < before.labels.size(); ++i) {
+        if (before.labels[i] == after.labels[i]) continue;
+        ++changed;
+        EXPECT_TRUE(before.labels[i] == convention.myocardium || before.labels[i] == 0) << before.labels[i];
+        EXPECT_TRUE(after.labels[i] == a || after.labels[i] == b) << after.labels[i];
+    }
+    // A 10 mm opening through a wall a few mm thick: between a disc 1 mm thick and a cylinder 20 mm long.
+    const double voxel_mm3 = before.geometry.voxel_volume();
+    EXPECT_GT(double(changed) * voxel_mm3, std::numbers::pi * 25.0 * 1.0);
+    EXPECT_LT(double(changed) * voxel_mm3, std::numbers::pi * 36.0 * 20.0);
+    if (type == "vsd") EXPECT_FALSE(pools_connect(before, a, b));
+    EXPECT_TRUE(pools_connect(after, a, b));
+}
+
+}  // namespace
+
+TEST(SeptalDefectRealHearts, AnAutomaticVsdJoinsTheVentriclesOfEveryMmwhsHeart) {
+    for (const MmwhsCase& c : {MmwhsCase{"mmwhs_ct1002", "ct_train_1002_label.nii.gz", "mmwhs"},
+                               MmwhsCase{"mmwhs_wh", "mmwhs_wh-label.nii.gz", "mmwhs-ordinal"}})
+        for (const char* site : {"perimembranous", "muscular"}) {
+            SCOPED_TRACE(std::string(c.folder) + " " + site);
+            check_automatic_defect(c, "vsd", site);
+        }
+}
+
+TEST(SeptalDefectRealHearts, AnAutomaticAsdJoinsTheAtriaOfEveryMmwhsHeart) {
+    for (const MmwhsCase& c : {MmwhsCase{"mmwhs_ct1002", "ct_train_1002_label.nii.gz", "mmwhs"},
+                               MmwhsCase{"mmwhs_wh", "mmwhs_wh-label.nii.gz", "mmwhs-ordinal"}}) {
+        SCOPED_TRACE(c.folder);
+        check_automatic_defect(c, "asd", "secundum");
+    }
+}
+
+TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWithoutWriting) {
+    const Block block = make_block();
+    test::TempDir dir;
+    const auto input = dir / "block.nrrd";
+    write_label_volume(input, block.volume);
+    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
+    const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    const std::string heartprep = test::quoted(HEARTPREP_EXE);
+    const auto output = dir / "vsd.nrrd";
+    const auto run = test::run_command(heartprep + " defect " + test::quoted(input.string()) + " --type vsd --diameter 8 --at " + point +
+                                       " -o " + test::quoted(output.string()));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("connected through the opening"), std::string::npos) << run.output;
+    const LabelVolume after = read_label_volume(output);
+    EXPECT_TRUE(after.geometry.voxel_to_world().isApprox(block.volume.geometry.voxel_to_world(), 1e-9));
+    // The same hole as the library makes, voxel for voxel.
+    LabelVolume expected = block.volume;
+    DefectOptions o = block_options(false);
+    o.blood_labels = {left, right};
+    o.diameter_mm = 8.0;
+    o.at = at;
+    carve_defect(expected, o);
+    EXPECT_EQ(after.labels, expected.labels);
+    EXPECT_NE(after.labels, block.volume.labels);
+
+    // Refusals: exit 1 for the data (an opening larger than the septum), exit 2 for the command
+    // line; no file either way.
+    const auto refused = dir / "refused.nrrd";
+    auto attempt = [&](const std::string& options) {
+        return test::run_command(heartprep + " defect " + test::quoted(input.string()) + " " + options + " -o " + test::quoted(refused.string()));
+    };
+    const auto too_wide = attempt("--diameter 45 --at " + point);
+    EXPECT_EQ(too_wide.exit_code, 1) << too_wide.output;
+    EXPECT_NE(too_wide.output.find("does not fit"), std::string::npos) << too_wide.output;
+    const auto no_point = attempt("--type vsd");
+    EXPECT_EQ(no_point.exit_code, 2) << no_point.output;
+    EXPECT_NE(no_point.output.find("--at"), std::string::npos) << no_point.output;
+    const auto both = attempt("--at " + point + " --site muscular");
+    EXPECT_EQ(both.exit_code, 2) << both.output;
+    EXPECT_FALSE(std::filesystem::exists(refused));
+
+    // build --defect: the scenario records the defect, and inspect shows it.
+    const auto scenario_path = dir / "vsd.h5";
+    const auto build = test::run_command(heartprep + " build " + test::quoted(input.string()) + " --defect vsd --diameter 8 --at " + point +
+                                         " --particles 4000 -q -o " + test::quoted(scenario_path.string()));
+    ASSERT_EQ(build.exit_code, 0) << build.output;
+    const Scenario scenario = read_scenario(scenario_path);
+    EXPECT_EQ(scenario.source.defect, "vsd");
+    EXPECT_DOUBLE_EQ(scenario.source.defect_diameter_mm, 8.0);
+    const Eigen::Vector3d centre = block.rotation.transpose() * scenario.source.defect_centre;
+    EXPECT_NEAR(centre.x(), 0.0, 0.5);
+    EXPECT_NEAR((block.rotation.transpose() * scenario.source.defect_axis).x() * (block.rotation.transpose() * scenario.source.defect_axis).x(),
+                1.0, 1e-3);
+    const auto inspect = test::run_command(heartprep + " inspect " + test::quoted(scenario_path.string()));
+    EXPECT_NE(inspect.output.find("defect      vsd, 8.0 mm"), std::string::npos) << inspect.output;
+    // Without --defect the same build has no defect recorded and keeps the septum whole.
+    const auto plain_path = dir / "plain.h5";
+    ASSERT_EQ(test::run_command(heartprep + " build " + test::quoted(input.string()) + " --particles 4000 -q -o " +
+                                test::quoted(plain_path.string())).exit_code, 0);
+    const Scenario plain = read_scenario(plain_path);
+    EXPECT_TRUE(plain.source.defect.empty());
+    // The detailed surface encloses the tissue: the defect's build lacks the carved septum, and
+    // its surface has one more handle (a hole through the wall: Euler characteristic 2 less).
+    auto measure = [](const Scenario& s) {
+        TriangleMesh mesh;
+        for (const auto& p : s.visual->positions) mesh.positions.emplace_back(p[0], p[1], p[2]);
+        mesh.triangles = s.visual->triangles;
+        return analyse_mesh(mesh);
+    };
+    const MeshReport with_hole = measure(scenario), whole = measure(plain);
+    EXPECT_EQ(with_hole.euler_characteristic, whole.euler_characteristic - 2);
+    std::size_t carved = 0;
+    for (std::size_t i = 0; i < after.labels.size(); ++i) carved += after.labels[i] != block.volume.labels[i];
+    const double carved_mm3 = double(carved) * block.volume.geometry.voxel_volume();
+    EXPECT_NEAR(whole.volume - with_hole.volume, carved_mm3, 0.1 * carved_mm3);
+}
+
