@@ -456,11 +456,9 @@ SimulationSurface build_simulation_surface(const Lattice& lattice, Progress& pro
         report.sheet_orientation_conflicts = sheets.sheet_orientation_conflicts;
         if (triangles.empty())
             report.warnings.push_back("simulation surface is empty: no particle has a 2×2 patch of neighbours to span a triangle");
-        if (check.nonmanifold_edges > 0 || check.nonmanifold_vertices > 0)
-            report.warnings.push_back(std::to_string(check.nonmanifold_edges) + " non-manifold edges and " +
-                                      std::to_string(check.nonmanifold_vertices) +
-                                      " non-manifold vertices where the tissue is one particle thick or touches itself "
-                                      "along an edge (" + std::to_string(thin_wall) + " triangles lie on both sides of a thin wall)");
+        // Non-manifold edges where the tissue is one particle thick are what a thin wall is on a
+        // lattice; the summary counts them (SimulationSurfaceReport) and the mapping copes (its
+        // normal weights). Nothing for the user to do: no warning.
         if (sheets.sheet_orientation_conflicts > 0)
             report.warnings.push_back(std::to_string(sheets.sheet_orientation_conflicts) +
                                       " places where a one-particle-thick sheet cannot be oriented consistently "

@@ -667,3 +667,48 @@ TEST(HeartprepNifti, DisagreeingQformAndSformWarnThroughTheBuild) {
         EXPECT_GE(p[0], -12.0f);
     }
 }
+
+TEST(HeartprepWrongInput, AnIntensityImageWarnsOfItsValuesAndPiecesAndStrictRefusesIt) {
+    // An 8-bit "image": noise of every byte value, and a ball of value 1 that builds.
+    test::TempDir dir;
+    LabelVolume image;
+    image.geometry.dims = {90, 90, 90};
+    image.geometry.spacing = Eigen::Vector3d::Constant(0.8);
+    image.labels.resize(image.geometry.voxel_count());
+    std::uint32_t state = 12345;
+    for (auto& value : image.labels) {
+        state = state * 1664525u + 1013904223u;  // a fixed linear congruential sequence
+        value = std::int32_t(state >> 24);
+    }
+    for (int k = 0; k < 90; ++k)
+        for (int j = 0; j < 90; ++j)
+            for (int i = 0; i < 90; ++i)
+                if ((Eigen::Vector3d(i, j, k) - Eigen::Vector3d::Constant(45)).norm() < 20) image.labels[image.geometry.linear(i, j, k)] = 1;
+    const fs::path input = dir / "image.nii.gz";
+    write_label_volume(input, image);
+    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(dir / "image.h5") + " -q --particles 2000");
+    EXPECT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("holds 255 different values"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("is it an intensity image"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("separate pieces"), std::string::npos) << run.output;
+    const auto strict = heartprep("build " + quoted(input) + " -o " + quoted(dir / "strict.h5") + " -q --particles 2000 --strict");
+    EXPECT_EQ(strict.exit_code, 1) << strict.output;
+    EXPECT_NE(strict.output.find("--strict"), std::string::npos) << strict.output;
+    EXPECT_FALSE(fs::exists(dir / "strict.h5"));
+}
+
+TEST(HeartprepWrongInput, TheBloodPoolOfAnHvsmrHeartAsTissueWarnsByTheConventionsNames) {
+    const fs::path input = test::real_case("hvsmr16_pat1");
+    if (input.empty()) GTEST_SKIP() << "real case hvsmr16_pat1 absent";
+    test::TempDir dir;
+    const auto pool = heartprep("build " + quoted(input) + " --tissue=2 -q -o " + quoted(dir / "pool.h5"));
+    EXPECT_EQ(pool.exit_code, 0) << pool.output;
+    EXPECT_NE(pool.output.find("by HVSMR 2016's labels, which this volume's match (--labels hvsmr2016): tissue label 2 'blood pool' is "
+                               "not heart muscle"),
+              std::string::npos)
+        << pool.output;
+    // The myocardium builds without a warning, so --strict lets it through.
+    const auto muscle = heartprep("build " + quoted(input) + " -q --strict -o " + quoted(dir / "muscle.h5"));
+    EXPECT_EQ(muscle.exit_code, 0) << muscle.output;
+    EXPECT_EQ(muscle.output.find("warning"), std::string::npos) << muscle.output;
+}

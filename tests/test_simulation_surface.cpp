@@ -262,8 +262,7 @@ TEST(SimulationSurface, OneParticleThickWallIsDoubleSidedAndReported) {
     const auto triangles = build_simulation_surface(lattice, null_progress(), &report).triangles;
     EXPECT_EQ(triangles.size(), std::size_t(2 * 2 * 25));
     EXPECT_EQ(report.thin_wall_triangles, triangles.size());
-    EXPECT_GT(report.nonmanifold_edges, 0u);
-    EXPECT_FALSE(report.warnings.empty());
+    EXPECT_GT(report.nonmanifold_edges, 0u);  // reported as counts; a thin wall is no cause for a warning
     expect_closed_chain(triangles);
     EXPECT_NEAR(analyse(lattice, triangles).volume, 0.0, 1e-9);
 }

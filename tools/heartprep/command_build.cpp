@@ -232,6 +232,10 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Solver");
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary (warnings are still printed)");
+    auto strict = std::make_shared<bool>(false);
+    command->add_flag("--strict", *strict,
+                      "Refuse to write a scenario whose build warned (exit 1, the warnings printed): for batches, where "
+                      "nobody reads the warnings of each case");
     auto threads = std::make_shared<int>(0);
     command->add_option("--threads", *threads, "Threads the build may use (0 = every core); `batch` sets it per case")
         ->check(CLI::Range(0, 4096))
@@ -280,6 +284,11 @@ void add_build_command(CLI::App& app) {
         Scenario scenario = build_scenario(*options, progress, report);
         scenario.batch_key = options->batch_key;
         scenario.build_warnings = report.warnings;
+        if (*strict && !report.warnings.empty()) {
+            print_warnings(report.warnings);
+            throw InputError(options->input.string() + ": --strict: the build warned " + std::to_string(report.warnings.size()) +
+                             " time(s) (above); nothing written");
+        }
         {
             ProgressStage stage(progress, "write scenario", 0);
             write_readable_scenario(*output, scenario);

@@ -35,6 +35,11 @@ auto timed(BuildReport& report, const char* stage, Work&& work) {
 
 void append(std::vector<std::string>& to, const std::vector<std::string>& from) { to.insert(to.end(), from.begin(), from.end()); }
 
+// What a segmented heart looks like, for the warnings about an input that is something else.
+constexpr std::size_t max_plausible_labels = 64;     ///< distinct non-zero values in a label map
+constexpr std::size_t max_plausible_islands = 1000;  ///< 6-connected pieces of the tissue
+constexpr double max_tissue_ml = 500.0;              ///< a heart's muscle (an adult's: 100-300 mL)
+
 }  // namespace
 
 LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
@@ -58,10 +63,28 @@ LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoi
     report.segment_names = report.header.segment_names;
     for (const auto& [label, name] : table) report.segment_names[label] = name;
     if (convention) report.convention = convention->name;
-    if (report.segment_names.empty()) {
-        std::set<int> present;
-        for (std::int32_t label : volume.labels)
+    std::set<int> present;  // the non-zero values
+    {
+        std::vector<std::uint8_t> seen(65536, 0);
+        for (std::int32_t label : volume.labels) {
+            if (label >= 0 && label < 65536) {
+                if (seen[std::size_t(label)]) continue;
+                seen[std::size_t(label)] = 1;
+            }
             if (label != 0) present.insert(label);
+        }
+    }
+    // A label map holds a few labels; an intensity image (an MRI or CT, not its segmentation)
+    // holds hundreds of values.
+    if (present.size() > max_plausible_labels) {
+        std::string first;
+        int shown = 0;
+        for (auto it = present.begin(); it != present.end() && shown < 6; ++it, ++shown) first += std::to_string(*it) + ", ";
+        report.warnings.push_back(input.string() + " holds " + std::to_string(present.size()) + " different values (" + first + "… up to " +
+                                  std::to_string(*present.rbegin()) + "): a label map holds a few labels; is it an intensity image (the "
+                                  "MRI or CT itself) rather than its segmentation?");
+    }
+    if (report.segment_names.empty()) {
         if (const LabelConvention* match = matching_label_convention(present))
         {
             report.convention_hint = "the labels match " + match->title + ": --labels " + match->name + " names them";
@@ -84,6 +107,13 @@ LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoi
         throw InputError(input.string() + ": " + error.what());
     }
     append(report.warnings, tissue_name_warnings(options.tissue_labels, report.segment_names));
+    // A volume without names whose labels are a convention's: judge the tissue by the names the
+    // convention gives (HVSMR 2016's label 2 is the blood pool).
+    if (report.segment_names.empty() && !report.convention_match.empty()) {
+        const LabelConvention& match = *find_label_convention(report.convention_match);
+        for (const std::string& warning : tissue_name_warnings(options.tissue_labels, match.names))
+            report.warnings.push_back("by " + match.title + "'s labels, which this volume's match (--labels " + match.name + "): " + warning);
+    }
     return volume;
 }
 
@@ -99,6 +129,15 @@ SelectedVolume read_and_select(const std::filesystem::path& input, const LabelCh
         throw InputError(std::string(error.what()) + "; " + report.convention_hint);
     }
     append(report.warnings, report.selection.warnings);
+    if (report.selection.tissue_volume_mm3 > max_tissue_ml * 1000.0)
+        report.warnings.push_back("the tissue is " + std::to_string(int(std::lround(report.selection.tissue_volume_mm3 / 1000.0))) +
+                                  " mL, far more than a heart's muscle (an adult's is 100-300 mL): is --tissue a blood pool or a "
+                                  "whole-heart mask?");
+    if (report.selection.islands.size() > max_plausible_islands)
+        report.warnings.push_back("the tissue falls into " + std::to_string(report.selection.islands.size()) + " separate pieces (" +
+                                  std::to_string(report.selection.islands_dropped) +
+                                  " dropped as smaller than --min-island): a heart's myocardium is one piece and a few specks; is the "
+                                  "input an intensity image, or --tissue the wrong label?");
     return result;
 }
 
