@@ -104,6 +104,11 @@ int main(int argc, char** argv) {
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
     run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
         ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));
+    run->add_option("--clip", a.clip,
+                    "Section view: PX,PY,PZ,NX,NY,NZ, a point and a normal (mm, world LPS); the side the normal points to is not "
+                    "drawn and the cut wall is shaded. centre: through the heart's centre facing the camera (the nearer half "
+                    "removed). Headless with --screenshot; in a window C, [ and ] do the same")
+        ->type_name("PLANE");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
                     ".h5[@HAND]), simulated:FILE (a virtual device pushed by a scripted hand force), mouse (the window), "

@@ -7,6 +7,7 @@
 
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/png.h"
+#include "runtime/section_plane.h"
 #include "runtime/window_run.h"
 
 #include "formats/atomic_file.h"
@@ -100,6 +101,8 @@ void check_arguments(const RunArguments& a) {
     if (!a.replay.empty() && (a.steps || a.seconds > 0))
         throw UsageError("--replay runs the recording's own steps: no --steps or --seconds with it");
     if (a.screenshot_every > 0 && a.screenshot.empty()) throw UsageError("--screenshot-every needs --screenshot OUT.png");
+    if (!a.clip.empty() && a.headless && a.screenshot.empty())
+        throw UsageError("--clip cuts the heart open in the picture: headless it needs --screenshot OUT.png");
     if (a.mass_scale && !valid_mass_scale(*a.mass_scale))
         throw UsageError("--mass-scale: expected a number from 1 (no scaling) to 1024, not " + std::to_string(*a.mass_scale));
     if (a.mass_scale && a.real_time == "auto")
@@ -274,10 +277,10 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     }
 }
 
-void make_renderer(PreparedRun& p) {
+void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section) {
     p.context->make_current();
     p.renderer.emplace(p.scenario, RenderOptions{.width = p.frame_width, .height = p.frame_height, .view = p.view});
-    const Renderer& renderer = *p.renderer;
+    Renderer& renderer = *p.renderer;
     if (renderer.draws_visual_mesh())
         std::printf("render: visual mesh, %zu vertices, %zu triangles, mapped onto %zu simulation-surface triangles; %dx%d\n",
                     renderer.vertex_count(), renderer.triangle_count(), p.scenario.simulation_surface->size(), renderer.width(),
@@ -285,6 +288,12 @@ void make_renderer(PreparedRun& p) {
     else
         std::printf("render: no /visual mesh with /mapping: the simulation surface, %zu triangles (flat shaded); %dx%d\n",
                     renderer.triangle_count(), renderer.width(), renderer.height());
+    if (section) {
+        // --clip: the plane given, or through the model's centre facing the fitted camera.
+        const SectionPlane plane = section->facing_view ? section_facing(renderer.camera(), renderer.model_centre()) : section->plane;
+        renderer.set_section(plane);
+        std::printf("section view: %s; the side the normal points to is not drawn\n", describe(plane, renderer.model_centre()).c_str());
+    }
 }
 
 void set_contact(const RunArguments& a, PreparedRun& p) {
@@ -553,12 +562,14 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     const bool render = !a.headless || !a.screenshot.empty();
     std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
     view = parse_view_direction(a.view);
+    std::optional<SectionRequest> section;
+    if (!a.clip.empty()) section = parse_section_option(a.clip);
 
     scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);
     if (!a.replay.empty()) replayed = read_recording(a.replay);
     make_context_and_backend(a, render, *this);
-    if (render) make_renderer(*this);
+    if (render) make_renderer(*this, section);
     set_contact(a, *this);
     const SolverLoadReport& load = backend->load_report();
     steps = a.steps.value_or(0);

@@ -46,6 +46,7 @@ struct RunArguments {
     double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
+    std::string clip;                // --clip PX,PY,PZ,NX,NY,NZ or centre: the section view (section_plane.h); empty: none
     // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
     std::vector<std::string> devices, instruments;
     double haptic_rate = 1000.0;

@@ -5,6 +5,7 @@
 
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
+#include "runtime/section_plane.h"
 #include "runtime/window_keys.h"
 #include "runtime/window_simulation.h"
 
@@ -77,6 +78,7 @@ struct WindowInput {
     bool screenshot = false;    ///< P: write the window as seen after the next frame
     bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)
     bool toggle_scalpel = false;    ///< K: instrument 0 to the scalpel and back (haptic sessions)
+    bool redraw = false;            ///< C, [, ], V: the section changed; draw the next frame now
 };
 
 /// An event line on stdout at once (tests and logs read it while the window runs).
@@ -84,6 +86,42 @@ template <class... Args>
 void say(const char* format, Args... args) {
     std::printf(format, args...);
     std::fflush(stdout);
+}
+
+/// The section view's keys (docs/runtime.md "Section view"). C: on, through the heart's centre
+/// facing the view (the nearer half removed), or off.
+void toggle_section(Renderer& renderer) {
+    if (renderer.section()) {
+        renderer.set_section(std::nullopt);
+        say("section view: off\n");
+        return;
+    }
+    const SectionPlane plane = section_facing(renderer.camera(), renderer.model_centre());
+    renderer.set_section(plane);
+    say("section view: on, %s; [ and ] move it, V aims it at the view, C turns it off\n", describe(plane, renderer.model_centre()).c_str());
+}
+
+/// [ and ]: the plane along its normal by `mm` (< 0: deeper, more removed).
+void move_section(Renderer& renderer, float mm) {
+    if (!renderer.section()) {
+        say("section view: off; C turns it on\n");
+        return;
+    }
+    renderer.set_section(renderer.section()->moved(mm));
+    say("section view: %s\n", describe(*renderer.section(), renderer.model_centre()).c_str());
+}
+
+/// V: the plane turned to face the current view, at the same depth from the heart's centre (after
+/// an orbit, the cut is seen square on again).
+void aim_section(Renderer& renderer) {
+    if (!renderer.section()) {
+        say("section view: off; C turns it on\n");
+        return;
+    }
+    const Eigen::Vector3f centre = renderer.model_centre();
+    const SectionPlane plane = section_facing(renderer.camera(), centre).moved(-renderer.section()->depth_from(centre));
+    renderer.set_section(plane);
+    say("section view: aimed at the view, %s\n", describe(plane, centre).c_str());
 }
 
 /// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
@@ -143,9 +181,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         }
         in->renderer->camera().zoom(std::pow(0.9f, float(y)));
     });
-    glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int) {
-        if (action != GLFW_PRESS) return;
+    glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int mods) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        // [ and ] move the section plane, 1 mm a press (Shift: 5 mm), and go on while held.
+        if ((key == GLFW_KEY_LEFT_BRACKET || key == GLFW_KEY_RIGHT_BRACKET) && action != GLFW_RELEASE) {
+            const float step_mm = (mods & GLFW_MOD_SHIFT) ? 5.0f : 1.0f;
+            move_section(*in->renderer, key == GLFW_KEY_RIGHT_BRACKET ? -step_mm : step_mm);
+            in->redraw = true;
+            return;
+        }
+        if (action != GLFW_PRESS) return;
         if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
         if (key == GLFW_KEY_R) in->renderer->reset_camera();
         if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
@@ -154,6 +199,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_P) in->screenshot = true;
         if (key == GLFW_KEY_F5) in->toggle_recording = true;
         if (key == GLFW_KEY_K) in->toggle_scalpel = true;
+        if (key == GLFW_KEY_C || key == GLFW_KEY_V) {
+            if (key == GLFW_KEY_C) toggle_section(*in->renderer);
+            else aim_section(*in->renderer);
+            in->redraw = true;
+        }
         if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
         if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
         if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
@@ -473,6 +523,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             state.paused = input.paused;
             state.emergency_stop = input.estop;
             state.recording = recording_now;
+            if (const auto& section = renderer.section()) {
+                state.section = true;
+                state.section_depth_mm = section->depth_from(renderer.model_centre());
+                state.section_normal = section->normal.cast<double>();
+            }
             state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
             const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
             for (int hand = 0; hand < 2; ++hand) {
@@ -536,6 +591,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             }
         }
         glfwSwapBuffers(window);
+        input.redraw = false;
         last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
         ++frames;
         // Drawing takes at most --draw-share of the wall clock: on a software renderer the window
@@ -545,7 +601,8 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
             while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
                 glfwWaitEventsTimeout(0.01);
-                if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0) break;
+                if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0 || input.redraw)
+                    break;
             }
         }
         if (next_shot > 0 && result.steps >= next_shot) {

@@ -4,6 +4,7 @@
 #   docs/images/holding-pat1.png   docs/user-guide.md "How the heart is held"
 #   docs/images/window-hud.png     docs/runtime.md "Window mode": the window under Xvfb, driven by
 #                                  xdotool (the mouse device pressed into the shipped phantom)
+#   docs/images/section-phantom.png  docs/runtime.md "Section view": the shipped phantom cut open
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cmake --build --preset release --target heartprep heartsim >/dev/null
@@ -44,6 +45,12 @@ if command -v Xvfb >/dev/null && command -v xdotool >/dev/null; then
 else
   echo "make-doc-images: Xvfb or xdotool is absent: docs/images/window-hud.png not regenerated" >&2
 fi
+
+# The section view: the shipped phantom at rest cut through its centre, facing the default view.
+build/release/tools/heartprep build samples/phantom.nii.gz -o "$work/phantom.h5" --cavity 2 --anchor-border -q
+build/release/runtime/heartsim run "$work/phantom.h5" --headless --steps 0 --size 640x560 --clip centre \
+  --screenshot docs/images/section-phantom.png >/dev/null
+echo "make-doc-images: docs/images/section-phantom.png"
 
 real=../shared/data/real
 if [ ! -d "$real" ]; then echo "make-doc-images: $real is absent: no picture regenerated" >&2; exit 0; fi

@@ -18,6 +18,7 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/png.h"
 #include "runtime/gl/renderer.h"
+#include "runtime/section_plane.h"
 #include "runtime/trajectory.h"
 
 #include <gtest/gtest.h>
@@ -149,6 +150,47 @@ std::string golden_arguments(const Scenario& scenario) {
     std::snprintf(probe, sizeof probe, "%.3f,%.3f,%.3f,%.3f,%.3f,%.3f", rest[right][0] + r + 1.0, rest[right][1] - 2 * r, rest[right][2],
                   r, r, 2 * r);
     return std::string(" --headless --steps 0 --size 256x256 --view anterior --probe ") + probe;
+}
+
+/// Pixels of the section view's flat cut colour (section_cut_rgb), within 2 per channel: no lit
+/// surface takes it (renderer.h).
+std::size_t cut_pixels(const Image& image) {
+    std::size_t n = 0;
+    for (std::size_t p = 0; p + 2 < image.pixels.size(); p += 3)
+        n += std::abs(int(image.pixels[p]) - section_cut_rgb[0]) <= 2 && std::abs(int(image.pixels[p + 1]) - section_cut_rgb[1]) <= 2 &&
+             std::abs(int(image.pixels[p + 2]) - section_cut_rgb[2]) <= 2;
+    return n;
+}
+
+/// The area, mm², where the plane (`point`, unit `normal`) cuts the solid that the closed surface
+/// (`positions`, `triangles` counter-clockwise seen from outside) bounds. Each triangle the plane
+/// crosses gives a segment of the section's boundary; oriented along normal × (the triangle's
+/// outward normal) it runs counter-clockwise about `normal` around the solid (clockwise around a
+/// hole), so the shoelace sum ½ Σ normal·(a × b) over the segments is the area (Green's theorem).
+/// A double-sided sheet's two faces cancel. A vertex on the plane counts as behind it.
+template <class Positions, class Triangles>
+double cross_section_area(const Positions& positions, const Triangles& triangles, const Eigen::Vector3d& point, const Eigen::Vector3d& normal) {
+    double twice_area = 0;
+    for (const auto& t : triangles) {
+        Eigen::Vector3d p[3];
+        double d[3];
+        for (int k = 0; k < 3; ++k) {
+            const auto& v = positions[std::size_t(t[std::size_t(k)])];
+            p[k] = Eigen::Vector3d(v[0], v[1], v[2]) - point;
+            d[k] = normal.dot(p[k]);
+        }
+        std::vector<Eigen::Vector3d> crossing;
+        for (int k = 0; k < 3; ++k) {
+            const int j = (k + 1) % 3;
+            if ((d[k] > 0) != (d[j] > 0)) crossing.push_back(p[k] + (d[k] / (d[k] - d[j])) * (p[j] - p[k]));
+        }
+        if (crossing.size() != 2) continue;
+        Eigen::Vector3d a = crossing[0], b = crossing[1];
+        const Eigen::Vector3d outward = (p[1] - p[0]).cross(p[2] - p[0]);
+        if ((b - a).dot(normal.cross(outward)) < 0) std::swap(a, b);
+        twice_area += normal.dot(a.cross(b));
+    }
+    return 0.5 * twice_area;
 }
 
 }  // namespace
@@ -340,4 +382,105 @@ TEST(RenderWindow, StartsUnderXvfbRendersFramesAndExitsCleanly) {
     EXPECT_EQ(image.height, 240);
     EXPECT_GT(coverage(image), 0.1) << run.output;
     std::printf("%s", run.output.c_str());
+}
+
+// The section view (--clip): the plane cuts the phantom's wall open where the scenario's own
+// surface says it should. Seen square on through the orbit centre, a plane is drawn at one scale
+// (the camera's mm per pixel at the centre's depth; at depth D beyond it, × (distance + D) /
+// distance), so the cut wall's pixels times that pixel area must be the area where the plane cuts
+// the solid the drawn surface bounds, computed here from its triangles. Without --clip no pixel
+// has the cut colour; with it every cut pixel lies inside the whole heart's silhouette, and part
+// of what was the near wall now shows the interior.
+TEST(RenderSection, TheCutWallIsTheAreaWhereThePlaneCutsTheSurface) {
+    REQUIRE_GL();
+    test::TempDir dir;
+    const Scenario& scenario = phantom_scenario();
+    ASSERT_TRUE(scenario.visual && scenario.mapping);
+    const int size = 512;
+    Eigen::AlignedBox3f box;
+    for (const auto& v : scenario.visual->positions) box.extend(Eigen::Vector3f(v[0], v[1], v[2]));
+    const Camera camera = fit_camera(box, ViewDirection::anterior, 1.0f);
+    const Eigen::Vector3d centre = box.center().cast<double>(), towards_eye(0, -1, 0);  // anterior: the eye at -y
+    const double mm_per_pixel = camera.mm_per_pixel(size);
+    const std::string common = " --headless --steps 0 --view anterior --size " + std::to_string(size) + "x" + std::to_string(size);
+
+    const auto whole_run = run_heartsim("run " + quoted(phantom()) + common + " --screenshot " + quoted(dir / "whole.png"));
+    ASSERT_EQ(whole_run.exit_code, 0) << whole_run.output;
+    const Image whole = read_png(dir / "whole.png");
+    EXPECT_EQ(cut_pixels(whole), 0u) << "no cut colour without a section";
+    const std::uint8_t* background = whole.pixels.data();  // the corner
+
+    struct Case {
+        std::string clip;  // --clip's value
+        double depth_mm;   // the plane beyond the centre, away from the eye
+    };
+    char deeper[128], nearer[128];
+    // Normals of any length: only the direction counts.
+    std::snprintf(deeper, sizeof deeper, "%.6f,%.6f,%.6f,0,-3,0", centre.x(), centre.y() + 12.0, centre.z());
+    std::snprintf(nearer, sizeof nearer, "%.6f,%.6f,%.6f,0,-0.5,0", centre.x(), centre.y() - 12.0, centre.z());
+    for (const Case& c : {Case{"centre", 0.0}, Case{deeper, 12.0}, Case{nearer, -12.0}}) {
+        SCOPED_TRACE("--clip " + c.clip);
+        const fs::path shot = dir / ("section" + std::to_string(int(c.depth_mm)) + ".png");
+        const auto run = run_heartsim("run " + quoted(phantom()) + common + " --clip " + c.clip + " --screenshot " + quoted(shot));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        char said[64];
+        std::snprintf(said, sizeof said, "section view: the plane %.2f mm beyond the heart's centre", c.depth_mm);
+        EXPECT_NE(run.output.find(said), std::string::npos) << run.output;
+        const Image image = read_png(shot);
+        ASSERT_EQ(image.width, size);
+        const double area = cross_section_area(scenario.visual->positions, scenario.visual->triangles,
+                                               centre - c.depth_mm * towards_eye, towards_eye);
+        const double scale = mm_per_pixel * (camera.distance + c.depth_mm) / camera.distance;
+        const double expected = area / (scale * scale), seen = double(cut_pixels(image));
+        std::size_t outside = 0, interior = 0, covered = 0;
+        for (std::size_t p = 0; p < std::size_t(size) * size; ++p) {
+            const std::uint8_t* a = &whole.pixels[3 * p];
+            const std::uint8_t* b = &image.pixels[3 * p];
+            const bool was_covered = std::abs(a[0] - background[0]) + std::abs(a[1] - background[1]) + std::abs(a[2] - background[2]) > 8;
+            const bool cut = std::abs(b[0] - section_cut_rgb[0]) <= 2 && std::abs(b[1] - section_cut_rgb[1]) <= 2 &&
+                             std::abs(b[2] - section_cut_rgb[2]) <= 2;
+            const bool background_now = std::abs(b[0] - background[0]) + std::abs(b[1] - background[1]) + std::abs(b[2] - background[2]) <= 8;
+            covered += was_covered;
+            outside += cut && !was_covered;
+            interior += was_covered && !cut && !background_now && std::max({std::abs(a[0] - b[0]), std::abs(a[1] - b[1]), std::abs(a[2] - b[2])}) > 24;
+        }
+        std::printf("  depth %+5.1f mm: section %.1f mm² = %.0f pixels expected, %.0f cut pixels (%+.2f %%); %zu of %zu heart pixels show "
+                    "the interior\n",
+                    c.depth_mm, area, expected, seen, 100 * (seen / expected - 1), interior, covered);
+        EXPECT_GT(area, 100.0) << "the plane should cut the wall";
+        // Measured: within 0.05 %; the boundary's pixels decide the rest.
+        EXPECT_NEAR(seen / expected, 1.0, 0.01) << "the cut wall's pixels against the section's area";
+        EXPECT_EQ(outside, 0u) << "cut pixels outside the whole heart's silhouette";
+        EXPECT_GT(double(interior), 0.1 * double(covered)) << "the near wall removed: the inside shows";
+    }
+}
+
+TEST(RenderSection, TheSimulationSurfaceIsCutTheSameWay) {
+    // Without a visual mesh the simulation surface is drawn (over the rest positions at --steps 0)
+    // and cut by the same rule: the cut pixels are its own section's area.
+    REQUIRE_GL();
+    test::TempDir dir;
+    Scenario scenario = phantom_scenario();
+    scenario.visual.reset();
+    scenario.mapping.reset();
+    write_scenario(dir / "surface.h5", scenario);
+    const auto& rest = scenario.lattice.particles.rest_position;
+    const SimulationSurface& surface = *scenario.simulation_surface;
+    Eigen::AlignedBox3f box;
+    for (const auto& t : surface.triangles)
+        for (int k : t) box.extend(Eigen::Vector3f(rest[std::size_t(k)][0], rest[std::size_t(k)][1], rest[std::size_t(k)][2]));
+    const int width = 480, height = 400;
+    const Camera camera = fit_camera(box, ViewDirection::left, float(width) / float(height));
+    const Eigen::Vector3d towards_eye(1, 0, 0);  // the left view: the eye at +x
+    const auto run = run_heartsim("run " + quoted(dir / "surface.h5") + " --headless --steps 0 --view left --size 480x400 --clip centre "
+                                  "--screenshot " + quoted(dir / "s.png"));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("normal (1.0000, 0.0000, 0.0000)"), std::string::npos) << "centre: facing the camera\n" << run.output;
+    const double area = cross_section_area(rest, surface.triangles, box.center().cast<double>(), towards_eye);
+    const double pixel = camera.mm_per_pixel(height);
+    const double expected = area / (pixel * pixel), seen = double(cut_pixels(read_png(dir / "s.png")));
+    std::printf("  simulation surface, left view: section %.1f mm² = %.0f pixels expected, %.0f cut pixels (%+.2f %%)\n", area, expected, seen,
+                100 * (seen / expected - 1));
+    EXPECT_GT(area, 100.0);
+    EXPECT_NEAR(seen / expected, 1.0, 0.01);
 }

@@ -508,6 +508,132 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     EXPECT_EQ(read_recording(dir / "r.h5").hands[0].instrument, "probe");
 }
 
+/// Pixels of the section view's flat cut colour (section_cut_rgb, renderer.h), within 2 per channel.
+std::size_t cut_pixels(const Image& image) {
+    std::size_t n = 0;
+    for (std::size_t p = 0; p + 2 < image.pixels.size(); p += 3)
+        n += std::abs(int(image.pixels[p]) - section_cut_rgb[0]) <= 2 && std::abs(int(image.pixels[p + 1]) - section_cut_rgb[1]) <= 2 &&
+             std::abs(int(image.pixels[p + 2]) - section_cut_rgb[2]) <= 2;
+    return n;
+}
+
+/// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole
+/// strip x = 12..40 (every pixel differs from the same frame without the HUD: the panel darkens
+/// what lies behind it).
+int panel_height(const Image& with_hud, const Image& without_hud) {
+    int rows = 0;
+    for (int y = 8; y < with_hud.height; ++y, ++rows) {
+        bool covered = true;
+        for (int x = 12; x < 40 && covered; ++x) {
+            const std::size_t p = (std::size_t(y) * std::size_t(with_hud.width) + std::size_t(x)) * 3;
+            int largest = 0;
+            for (int c = 0; c < 3; ++c) largest = std::max(largest, std::abs(int(with_hud.pixels[p + c]) - int(without_hud.pixels[p + c])));
+            covered = largest > 3;
+        }
+        if (!covered) break;
+    }
+    return rows;
+}
+
+// The section view driven by keys: C cuts the heart open through its centre, facing the view (the
+// cut wall in its flat colour, the HUD panel a few lines taller saying where the plane is); ] moves
+// it deeper, a millimetre a press, and Shift + [ back five at a time, to the same picture; after an
+// orbit V turns it to face the new view at the depth it had; C again shows the whole heart.
+TEST(WindowInput, CCutsTheHeartOpenBracketsMoveTheSectionAndVAimsIt) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    fs::copy_file(phantom(), dir / "case.h5");  // P writes beside it
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300");
+    ASSERT_TRUE(window.focus()) << window.output();
+    ASSERT_EQ(window.xdotool("key space"), 0);  // paused: only the keys change the picture
+    ASSERT_NE(window.wait_for("paused at "), std::string::npos) << window.output();
+    // Keys that move a section that is not there say so.
+    ASSERT_EQ(window.xdotool("key bracketright"), 0);
+    ASSERT_NE(window.wait_for("section view: off; C turns it on"), std::string::npos) << window.output();
+
+    const Image hud_whole = screenshot(window);
+    ASSERT_EQ(window.xdotool("key F2"), 0);  // HUD off: the scene alone
+    const Image whole = screenshot(window);
+    ASSERT_EQ(whole.width, 400) << window.output();
+    EXPECT_EQ(cut_pixels(whole), 0u) << "no cut colour without the section view";
+
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key c"), 0);
+    auto at = window.wait_for("section view: on, the plane ", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    EXPECT_EQ(number_after(window.output(), "section view: on, the plane ", at), 0.0) << "through the heart's centre";
+    EXPECT_NE(window.output().find("normal (0.0000, -1.0000, 0.0000)", at), std::string::npos) << "facing the anterior view\n" << window.output();
+    const Image centre = screenshot(window);
+    ASSERT_EQ(centre.width, 400) << window.output();
+    const std::size_t centre_cut = cut_pixels(centre);
+    std::printf("  cut pixels: %zu through the centre\n", centre_cut);
+    EXPECT_GT(centre_cut, 400u * 300u / 50) << "the cut wall should show";
+    ASSERT_EQ(window.xdotool("key F2"), 0);  // the HUD again: a taller panel, saying where the plane is
+    const Image hud_section = screenshot(window);
+    ASSERT_EQ(hud_section.width, 400) << window.output();
+    const int before = panel_height(hud_whole, whole), after = panel_height(hud_section, centre);
+    std::printf("  HUD panel: %d pixels high, %d with the section view\n", before, after);
+    EXPECT_GE(after, before + 30) << "the HUD should give the section's lines";
+    ASSERT_EQ(window.xdotool("key F2"), 0);
+
+    // ] ten times: 10 mm deeper, a millimetre a press, the terminal following.
+    from = window.output().size();
+    for (int k = 0; k < 10; ++k) ASSERT_EQ(window.xdotool("key bracketright"), 0);
+    at = window.wait_for("section view: the plane 10.00 mm beyond the heart's centre", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    for (int mm = 1; mm <= 10; ++mm) {
+        char line[80];
+        std::snprintf(line, sizeof line, "section view: the plane %d.00 mm beyond", mm);
+        EXPECT_NE(window.output().find(line, from), std::string::npos) << line;
+    }
+    const Image deeper = screenshot(window);
+    ASSERT_EQ(deeper.width, 400) << window.output();
+    const std::size_t deeper_cut = cut_pixels(deeper);
+    const double moved = changed(centre, deeper, 0, 0, 400, 300);
+    std::printf("  cut pixels: %zu 10 mm deeper; %.1f %% of the window changed\n", deeper_cut, 100 * moved);
+    EXPECT_GT(moved, 0.02) << "a deeper cut shows another section";
+    EXPECT_GT(deeper_cut, 400u * 300u / 50);
+
+    // Shift + [ twice: 5 mm back a press, to the centre again and the same picture.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key shift+bracketleft shift+bracketleft"), 0);
+    ASSERT_NE(window.wait_for("section view: the plane 5.00 mm beyond", from), std::string::npos) << window.output();
+    ASSERT_NE(window.wait_for("section view: the plane 0.00 mm beyond", from), std::string::npos) << window.output();
+    const Image back = screenshot(window);
+    ASSERT_EQ(back.width, 400) << window.output();
+    EXPECT_LT(changed(centre, back, 0, 0, 400, 300), 0.002) << "back at the centre: the centre's picture";
+
+    // An orbit turns the view, not the plane; V turns the plane to face the view at the depth it had.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key bracketright bracketright bracketright"), 0);
+    ASSERT_NE(window.wait_for("section view: the plane 3.00 mm beyond", from), std::string::npos) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 mousedown 1"), 0);
+    for (int k = 1; k <= 8; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 10 * k) + " 150"), 0);
+    ASSERT_EQ(window.xdotool("mouseup 1"), 0);
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key v"), 0);
+    at = window.wait_for("section view: aimed at the view, the plane ", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    EXPECT_NEAR(number_after(window.output(), "section view: aimed at the view, the plane ", at), 3.0, 1e-9) << window.output();
+    const double nx = number_after(window.output(), "normal (", at);
+    EXPECT_GT(std::abs(nx), 0.1) << "the orbit turned the view about the superior axis: the normal too\n" << window.output();
+    EXPECT_GT(cut_pixels(screenshot(window)), 400u * 300u / 50) << "the new section shows";
+
+    // C again: the whole heart.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key c"), 0);
+    ASSERT_NE(window.wait_for("section view: off", from), std::string::npos) << window.output();
+    const Image off = screenshot(window);
+    ASSERT_EQ(off.width, 400) << window.output();
+    EXPECT_EQ(cut_pixels(off), 0u);
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+}
+
 /// The path in "recording: wrote PATH (N steps)" at or after `from`, and N.
 fs::path recording_path(const std::string& text, std::size_t from, long long* steps = nullptr) {
     const std::string prefix = "recording: wrote ";

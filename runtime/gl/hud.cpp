@@ -145,6 +145,15 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         if (s.mass_scale != 1.0)
             ImGui::Text("mass scale %g: transients %.2gx slower, forces at rest unchanged", s.mass_scale, std::sqrt(s.mass_scale));
         if (s.recording) ImGui::TextColored(ImVec4(1.0f, 0.25f, 0.25f, 1), "REC (F5 stops and writes it)");
+        if (s.section) {
+            // Where the plane is: its depth past the heart's centre and the side it removes (float
+            // noise below the last digit shown as 0, not "-0.0").
+            auto shown = [](double v, double digit) { return std::abs(v) < 0.5 * digit ? 0.0 : v; };
+            const Eigen::Vector3d& n = s.section_normal;
+            ImGui::TextColored(ImVec4(1.0f, 0.6f, 0.5f, 1), "SECTION %.1f mm beyond the centre", shown(s.section_depth_mm, 0.1));
+            ImGui::Text("normal %.2f, %.2f, %.2f (LPS)", shown(n.x(), 0.01), shown(n.y(), 0.01), shown(n.z(), 0.01));
+            ImGui::TextDisabled("[ ] move (Shift: 5 mm), V aim, C off");
+        }
         if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
         for (int hand = 0; hand < 2; ++hand) {
             const HudHand& hh = s.hands[hand];

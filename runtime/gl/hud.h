@@ -44,6 +44,9 @@ struct HudState {
     bool paused = false;
     bool emergency_stop = false;   ///< latched: the banner
     bool recording = false;        ///< F5's recording is on: a red "REC" line
+    bool section = false;          ///< the section view is on (C): a line with where its plane is
+    double section_depth_mm = 0;   ///< the plane beyond the heart's centre, mm (SectionPlane::depth_from)
+    Eigen::Vector3d section_normal = Eigen::Vector3d::Zero();  ///< unit, world LPS: the removed side
     double haptic_period_p99_ms = -1;  ///< < 0: not available
     std::array<HudHand, 2> hands;
 };

@@ -22,7 +22,9 @@
 #include <cstddef>
 #include <deque>
 #include <new>
+#include <optional>
 #include <sstream>
+#include <vector>
 
 namespace heartsim {
 
@@ -89,6 +91,29 @@ void unit_sphere(std::vector<float>& vertices, std::vector<std::uint32_t>& indic
         }
 }
 
+/// Per triangle of `elements` (3 indices each), 1 where the same triangle is also drawn reversed:
+/// the simulation surface's double-sided sheets at one-particle-thick walls (scenario-format.md
+/// /simsurface). The section view lights both sides of those: they enclose no tissue to cut.
+std::vector<std::uint32_t> sheet_triangles(const std::vector<std::uint32_t>& elements) {
+    // A triangle as its indices turned so that the smallest comes first (the orientation kept).
+    auto key = [](std::uint32_t a, std::uint32_t b, std::uint32_t c) {
+        if (b < a && b < c) return std::array<std::uint32_t, 3>{b, c, a};
+        if (c < a && c < b) return std::array<std::uint32_t, 3>{c, a, b};
+        return std::array<std::uint32_t, 3>{a, b, c};
+    };
+    const std::size_t count = elements.size() / 3;
+    std::vector<std::array<std::uint32_t, 3>> keys(count);
+    for (std::size_t t = 0; t < count; ++t) keys[t] = key(elements[3 * t], elements[3 * t + 1], elements[3 * t + 2]);
+    std::vector<std::array<std::uint32_t, 3>> sorted = keys;
+    std::sort(sorted.begin(), sorted.end());
+    std::vector<std::uint32_t> sheet(std::max<std::size_t>(count, 1), 0);
+    for (std::size_t t = 0; t < count; ++t) {
+        const auto reversed = key(keys[t][0], keys[t][2], keys[t][1]);
+        sheet[t] = std::binary_search(sorted.begin(), sorted.end(), reversed) ? 1u : 0u;
+    }
+    return sheet;
+}
+
 }  // namespace
 
 
@@ -103,9 +128,10 @@ struct Renderer::State {
     RenderOptions options;
     Eigen::AlignedBox3f box;
     Camera camera;
+    std::optional<SectionPlane> section;
 
     gl::Program normals_program, mesh_program, instrument_program;
-    gl::Buffer records, elements;
+    gl::Buffer records, elements, sheet;
     gl::VertexArray vao;
     gl::Buffer incidence_start, incidence, surface_list, normals;
     gl::Buffer own_positions;  // cpu backend: uploaded per frame
@@ -175,6 +201,7 @@ struct Renderer::State {
     void bind_mesh(GLuint positions) {
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, positions);
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::particle_normals, normals);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::sheet_triangles, sheet);
         glUseProgram(mesh_program);
         glBindVertexArray(vao);
     }
@@ -294,7 +321,9 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     s.normals = buffer_with(std::vector<float>(4 * s.particles, 0.0f).data(), 16 * s.particles);
     s.records = buffer_with(records.data(), records.size() * sizeof(VertexRecord));
     s.elements = buffer_with(elements.data(), elements.size() * 4);
-    s.memory += 16 * s.particles + records.size() * sizeof(VertexRecord) + elements.size() * 4;
+    const std::vector<std::uint32_t> sheet = sheet_triangles(elements);
+    s.sheet = buffer_with(sheet.data(), sheet.size() * 4);
+    s.memory += 16 * s.particles + records.size() * sizeof(VertexRecord) + elements.size() * 4 + sheet.size() * 4;
 
     glCreateVertexArrays(1, s.vao.create());
     glVertexArrayVertexBuffer(s.vao, 0, s.records, 0, sizeof(VertexRecord));
@@ -346,6 +375,9 @@ std::size_t Renderer::triangle_count() const { return state_->triangles; }
 int Renderer::width() const { return state_->width; }
 int Renderer::height() const { return state_->height; }
 Camera& Renderer::camera() { return state_->camera; }
+Eigen::Vector3f Renderer::model_centre() const { return state_->box.center(); }
+void Renderer::set_section(const std::optional<SectionPlane>& plane) { state_->section = plane; }
+const std::optional<SectionPlane>& Renderer::section() const { return state_->section; }
 std::size_t Renderer::memory_bytes() const { return state_->memory; }
 
 void Renderer::reset_camera() {
@@ -398,6 +430,16 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     }
     glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "base_color"), 0.80f, 0.33f, 0.30f);
     glProgramUniform1f(s.mesh_program, glGetUniformLocation(s.mesh_program, "specular"), 0.18f);
+    // The section view cuts the tissue only; the instruments are drawn whole.
+    glProgramUniform1i(s.mesh_program, glGetUniformLocation(s.mesh_program, "section_on"), s.section ? 1 : 0);
+    glProgramUniform1i(s.instrument_program, glGetUniformLocation(s.instrument_program, "section_on"), 0);
+    if (s.section) {
+        const SectionPlane& plane = *s.section;
+        const Eigen::Vector4f equation(plane.normal.x(), plane.normal.y(), plane.normal.z(), -plane.normal.dot(plane.point));
+        glProgramUniform4fv(s.mesh_program, glGetUniformLocation(s.mesh_program, "section_plane"), 1, equation.data());
+        glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "cut_color"), float(section_cut_rgb[0]) / 255.0f,
+                           float(section_cut_rgb[1]) / 255.0f, float(section_cut_rgb[2]) / 255.0f);
+    }
     s.bind_mesh(positions);
     glDrawElements(GL_TRIANGLES, GLsizei(3 * s.triangles), GL_UNSIGNED_INT, nullptr);
 

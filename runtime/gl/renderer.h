@@ -18,12 +18,17 @@
 ///   * visualisation: the mapped mesh (vertex shader: p = (λa·x_a + λb·x_b) + λc·x_c,
 ///     m = (λa·n_a + λb·n_b) + λc·n_c, p + d·(m/√(m·m)), written with `precise`), lit, then the
 ///     instruments.
+///
+/// With a section plane (set_section, section_plane.h) the tissue on the plane's removed side is
+/// not drawn, and where the plane cuts through the closed surface the inside of the wall shows as
+/// a flat band of section_cut_rgb; the instruments are drawn whole.
 #pragma once
 
 #include "runtime/backend.h"
 #include "runtime/camera.h"
 #include "runtime/instrument_shape.h"
 #include "runtime/png.h"
+#include "runtime/section_plane.h"
 
 #include "formats/scenario.h"
 
@@ -31,6 +36,7 @@
 
 #include <array>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -39,6 +45,10 @@ namespace heartsim {
 /// The current context's default framebuffer, its back buffer as drawn so far (before the swap),
 /// RGB, rows top to bottom: the window as seen, HUD included (the P key).
 Image read_window_pixels(int width, int height);
+
+/// The flat colour of cut myocardium in the section view, 8-bit RGB: darker and more saturated than
+/// the lit surface (whose green is at least 0.41 of its red), so no lit pixel takes it.
+inline constexpr std::array<int, 3> section_cut_rgb = {138, 34, 26};
 
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
@@ -80,6 +90,15 @@ public:
     void reset_camera();
     /// Resizes the offscreen framebuffer (window resized); keeps the camera.
     void resize(int width, int height);
+    /// The centre of the drawn model's rest bounding box, world LPS mm: the default view's orbit
+    /// centre, and where a section is put through.
+    Eigen::Vector3f model_centre() const;
+
+    /// The section view from the next frame on: the tissue on `plane`'s removed side is not drawn
+    /// and the cut wall is shaded flat in section_cut_rgb (the surface seen from inside: back
+    /// faces, the surfaces being counter-clockwise from outside); nullopt: the whole heart.
+    void set_section(const std::optional<SectionPlane>& plane);
+    const std::optional<SectionPlane>& section() const;
 
     /// Draws one frame of `backend`'s current positions with `instruments` into the offscreen
     /// framebuffer: gl backend, read in place from its position buffer; cpu backend, uploaded.

@@ -22,6 +22,7 @@ enum Binding : unsigned {
     // use, so they reuse the backend's low slots: with the cpu backend, drawing then needs no
     // more bindings than the few every OpenGL 4.3 driver offers.
     incidence_start = 1, incidence = 2, particle_normals = 3, surface_particles = 4,
+    sheet_triangles = 5,  ///< per drawn triangle, 1 where its reverse twin is drawn too (a one-particle-thick wall)
     captured_vertices = 0,  ///< transform feedback buffer (interleaved capture writes buffer 0)
 };
 
@@ -62,6 +63,7 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"BINDING_INCIDENCE", incidence},
     {"BINDING_PARTICLE_NORMALS", particle_normals},
     {"BINDING_SURFACE_PARTICLES", surface_particles},
+    {"BINDING_SHEET_TRIANGLES", sheet_triangles},
     {"COUNTER_TOUCHED0", touched0},
     {"COUNTER_HELD0", held0},
     {"COUNTER_STATUS", status},

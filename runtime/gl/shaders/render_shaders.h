@@ -99,7 +99,13 @@ void main() {
 
 /// Two directional lights fixed to the camera, Blinn-Phong, two-sided; a zero shading normal
 /// (the simulation surface) gives the flat face normal from screen-space derivatives.
+/// The section view (section_on): nothing on the plane's positive side is drawn; a back face
+/// left (the closed surface seen from inside: CCW from outside, scenario-format.md) is where the
+/// plane cut the wall, shaded flat so that the wall's cross-section reads as one solid band. A
+/// double-sided sheet (a triangle drawn with its reverse twin) encloses no tissue: both its sides
+/// are lit.
 inline constexpr const char* fragment_shader = R"(
+layout(std430, binding = BINDING_SHEET_TRIANGLES) readonly buffer SheetBuffer { uint sheet[]; };
 in vec3 world_position;
 in vec3 shading_normal;
 uniform vec3 eye;
@@ -107,10 +113,22 @@ uniform vec3 key_light;
 uniform vec3 fill_light;
 uniform vec3 base_color;
 uniform float specular;
+uniform bool section_on;
+uniform vec4 section_plane;   // (n, -n·p): removed where n·x + w > 0
+uniform vec3 cut_color;
 out vec4 colour;
 void main() {
+    // Derivatives before any discard: they need the whole pixel quad.
+    vec3 face_normal = cross(dFdx(world_position), dFdy(world_position));
+    if (section_on) {
+        if (dot(section_plane.xyz, world_position) + section_plane.w > 0.0) discard;
+        if (!gl_FrontFacing && sheet[gl_PrimitiveID] == 0u) {
+            colour = vec4(cut_color, 1.0);
+            return;
+        }
+    }
     vec3 nrm = shading_normal;
-    if (dot(nrm, nrm) < 1e-12) nrm = cross(dFdx(world_position), dFdy(world_position));
+    if (dot(nrm, nrm) < 1e-12) nrm = face_normal;
     vec3 v = normalize(eye - world_position);
     nrm = dot(nrm, nrm) > 1e-20 ? normalize(nrm) : v;
     if (dot(nrm, v) < 0.0) nrm = -nrm;
