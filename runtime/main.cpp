@@ -102,12 +102,14 @@ int main(int argc, char** argv) {
         ->check(CLI::Range(0.01, 1.0))
         ->capture_default_str();
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
-    run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior")
-        ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior"}));
+    run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior, or section "
+                                      "(with --clip: straight at the section plane, from the removed side)")
+        ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior", "section"}));
     run->add_option("--clip", a.clip,
                     "Section view: PX,PY,PZ,NX,NY,NZ, a point and a normal (mm, world LPS); the side the normal points to is not "
                     "drawn and the cut wall is shaded. centre: through the heart's centre facing the camera (the nearer half "
-                    "removed). Headless with --screenshot; in a window C, [ and ] do the same")
+                    "removed). defect: across the scenario's septal defect (heartprep build --defect), the camera turned to look "
+                    "at it. Headless with --screenshot; in a window C, [ and ] do the same")
         ->type_name("PLANE");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "

@@ -290,7 +290,15 @@ void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section)
                     renderer.triangle_count(), renderer.width(), renderer.height());
     if (section) {
         // --clip: the plane given, or through the model's centre facing the fitted camera.
-        const SectionPlane plane = section->facing_view ? section_facing(renderer.camera(), renderer.model_centre()) : section->plane;
+        SectionPlane plane = section->plane;
+        if (section->facing_view) plane = section_facing(renderer.camera(), renderer.model_centre());
+        if (section->through_defect) {
+            const ScenarioSource& source = p.scenario.source;
+            if (source.defect.empty())
+                throw UsageError("--clip defect: the scenario has no septal defect (heartprep build --defect vsd|asd makes one)");
+            plane = section_through_defect(renderer.camera(), source.defect_centre.cast<float>(), source.defect_axis.cast<float>());
+        }
+        if (section->through_defect || section->aim_camera) aim_at_section(renderer.camera(), plane);
         renderer.set_section(plane);
         std::printf("section view: %s; the side the normal points to is not drawn\n", describe(plane, renderer.model_centre()).c_str());
     }
@@ -561,9 +569,13 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
     const bool render = !a.headless || !a.screenshot.empty();
     std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
-    view = parse_view_direction(a.view);
+    // --view section: the fitted anterior camera first, then turned to the plane (make_renderer).
+    if (a.view == "section" && a.clip.empty())
+        throw UsageError("--view section looks straight at the section plane: give --clip (a plane, centre or defect)");
+    view = parse_view_direction(a.view == "section" ? "anterior" : a.view);
     std::optional<SectionRequest> section;
     if (!a.clip.empty()) section = parse_section_option(a.clip);
+    if (section && a.view == "section") section->aim_camera = true;
 
     scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);

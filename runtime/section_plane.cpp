@@ -27,11 +27,35 @@ std::string describe(const SectionPlane& plane, const Eigen::Vector3f& centre) {
     return text;
 }
 
+SectionPlane section_through_defect(const Camera& camera, const Eigen::Vector3f& centre, const Eigen::Vector3f& axis) {
+    const Eigen::Vector3f a = axis.normalized();
+    const Eigen::Vector3f to_eye = camera.orientation * Eigen::Vector3f::UnitZ();
+    Eigen::Vector3f n = to_eye - to_eye.dot(a) * a;
+    if (n.norm() < 1e-3f) n = a.unitOrthogonal();
+    return {centre, n.normalized()};
+}
+
+void aim_at_section(Camera& camera, const SectionPlane& plane) {
+    const Eigen::Vector3f back = plane.normal.normalized();  // camera z (back) points to the eye, on the removed side
+    Eigen::Vector3f up = camera.orientation * Eigen::Vector3f::UnitY();
+    up -= up.dot(back) * back;
+    if (up.norm() < 1e-3f) up = back.unitOrthogonal();
+    up.normalize();
+    Eigen::Matrix3f r;
+    r.col(0) = up.cross(back);
+    r.col(1) = up;
+    r.col(2) = back;
+    camera.orientation = Eigen::Quaternionf(r).normalized();
+    camera.target = plane.point;
+}
+
 SectionRequest parse_section_option(const std::string& text) {
     if (text == "centre" || text == "center") return {.facing_view = true, .plane = {}};
+    if (text == "defect") return {.through_defect = true, .plane = {}};
     const std::string expected = "--clip '" + text +
                                  "': expected PX,PY,PZ,NX,NY,NZ (a point of the plane and its normal, mm, world LPS; the side the "
-                                 "normal points to is not drawn) or centre (through the heart's centre, facing the camera)";
+                                 "normal points to is not drawn), centre (through the heart's centre, facing the camera) or defect (across the "
+                                 "scenario's septal defect)";
     const std::vector<std::string> fields = csv_fields(text);
     if (fields.size() != 6) throw UsageError(expected);
     double v[6];

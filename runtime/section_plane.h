@@ -43,11 +43,26 @@ std::string describe(const SectionPlane& plane, const Eigen::Vector3f& centre);
 /// facing the camera (made once the camera is fitted).
 struct SectionRequest {
     bool facing_view = false;  ///< "centre": section_facing(fitted camera, model centre)
+    /// "defect": through the scenario's septal defect (its /source defect_centre), the plane
+    /// holding the defect's axis and facing the camera as nearly as that allows
+    /// (section_through_defect); the camera then looks at the defect across the plane.
+    bool through_defect = false;
+    bool aim_camera = false;   ///< --view section: the camera looks straight at the plane (aim_at_section)
     SectionPlane plane;        ///< otherwise: the plane given, its normal made unit
 };
 
+/// The plane through `centre` that holds `axis` (a septal defect's centre and axis) and faces the
+/// camera as nearly as that allows: its normal is the camera's direction to the eye made
+/// perpendicular to the axis (or, when the camera looks along the axis, any perpendicular).
+/// Cutting there shows the wall across the opening: the defect as a gap in the septum's band.
+SectionPlane section_through_defect(const Camera& camera, const Eigen::Vector3f& centre, const Eigen::Vector3f& axis);
+
+/// Turns `camera` to look at `plane.point` straight against `plane.normal` (from the removed
+/// side), keeping its distance and as much of its up direction as it can.
+void aim_at_section(Camera& camera, const SectionPlane& plane);
+
 /// Reads `--clip`'s value: "PX,PY,PZ,NX,NY,NZ" (a point and a normal, world LPS mm; the side the
-/// normal points to is removed) or "centre" ("center" too). Throws UsageError naming --clip when
+/// normal points to is removed), "centre" ("center" too) or "defect". Throws UsageError naming --clip when
 /// it is neither, a number is not finite, a coordinate is beyond 10^6 mm, or the normal is zero.
 SectionRequest parse_section_option(const std::string& text);
 

@@ -23,6 +23,7 @@ view=(--view left --size 800x600)
   echo "3 mm probe 6 mm into the most anterior point; grabbed: the most inferior point pulled 10 mm"
   echo "down; each over 100 ms, shown at 0.3 s. Regenerate with \`scripts/make-gallery.sh\`. The"
   echo "small dark openings at the top of pat1 are holes of its segmentation (there at rest too)."
+  echo "Every real heart with a 10 mm septal defect, in the section view: [defects.md](defects.md)."
   echo
   echo "| case | at rest | pressed | grabbed |"
   echo "|---|---|---|---|"

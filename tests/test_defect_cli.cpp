@@ -6,6 +6,8 @@
 #include "libmodel/label_conventions.h"
 #include "libmodel/mesh.h"
 #include "defect_block.h"
+#include "runtime/gl/renderer.h"
+#include "runtime/png.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -154,3 +156,76 @@ TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWitho
     EXPECT_NEAR(whole.volume - with_hole.volume, carved_mm3, 0.1 * carved_mm3);
 }
 
+
+namespace {
+
+/// The flat colour of the section view's cut wall (renderer.h), within 2 per channel.
+bool cut_colour(const Image& image, int x, int y) {
+    const std::size_t p = (std::size_t(y) * std::size_t(image.width) + std::size_t(x)) * std::size_t(image.channels);
+    for (int c = 0; c < 3; ++c)
+        if (std::abs(int(image.pixels[p + std::size_t(c)]) - section_cut_rgb[std::size_t(c)]) > 2) return false;
+    return true;
+}
+
+std::size_t cut_pixels(const Image& image) {
+    std::size_t n = 0;
+    for (int y = 0; y < image.height; ++y)
+        for (int x = 0; x < image.width; ++x) n += cut_colour(image, x, y);
+    return n;
+}
+
+}  // namespace
+
+TEST(HeartsimDefectSection, ClipDefectCutsAcrossTheOpeningAndLooksAtIt) {
+    // The block with an 8 mm VSD and without: --clip defect puts the plane through the opening's
+    // centre holding its axis, and the camera looks at that centre: there the intact septum's cut
+    // wall shows, and the defect's opening does not.
+    const Block block = make_block();
+    test::TempDir dir;
+    const auto input = dir / "block.nrrd";
+    write_label_volume(input, block.volume);
+    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
+    const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    const std::string heartprep = test::quoted(HEARTPREP_EXE), heartsim = test::quoted(HEARTSIM_EXE);
+    for (const char* name : {"vsd", "intact"}) {
+        const std::string defect = std::string(name) == "vsd" ? " --defect vsd --diameter 8 --at " + point : "";
+        const auto built = test::run_command(heartprep + " build " + test::quoted(input.string()) + defect + " --particles 4000 -q -o " +
+                                             test::quoted((dir / (std::string(name) + ".h5")).string()));
+        ASSERT_EQ(built.exit_code, 0) << built.output;
+    }
+    const Scenario vsd = read_scenario(dir / "vsd.h5");
+    const auto run = test::run_command(heartsim + " run " + test::quoted((dir / "vsd.h5").string()) +
+                                       " --headless --backend cpu --steps 0 --size 400x400 --clip defect --screenshot " +
+                                       test::quoted((dir / "vsd.png").string()));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    // The plane the run says it used: through the defect's centre, its normal across the axis.
+    double px, py, pz, nx, ny, nz;
+    const auto line = run.output.find("through (");
+    ASSERT_NE(line, std::string::npos) << run.output;
+    ASSERT_EQ(std::sscanf(run.output.c_str() + line, "through (%lf, %lf, %lf) mm, normal (%lf, %lf, %lf)", &px, &py, &pz, &nx, &ny, &nz), 6)
+        << run.output;
+    EXPECT_LT((Eigen::Vector3d(px, py, pz) - vsd.source.defect_centre).norm(), 0.02);
+    EXPECT_LT(std::abs(Eigen::Vector3d(nx, ny, nz).dot(vsd.source.defect_axis)), 1e-3);
+    char plane[256];
+    std::snprintf(plane, sizeof plane, "%.4f,%.4f,%.4f,%.6f,%.6f,%.6f", px, py, pz, nx, ny, nz);
+    const auto intact = test::run_command(heartsim + " run " + test::quoted((dir / "intact.h5").string()) +
+                                          " --headless --backend cpu --steps 0 --size 400x400 --clip " + plane +
+                                          " --view section --screenshot " + test::quoted((dir / "intact.png").string()));
+    ASSERT_EQ(intact.exit_code, 0) << intact.output;
+    const Image with_hole = read_png(dir / "vsd.png"), whole = read_png(dir / "intact.png");
+    // The picture's centre is the defect's: cut wall in the intact septum, none in the opening.
+    EXPECT_TRUE(cut_colour(whole, 200, 200));
+    EXPECT_FALSE(cut_colour(with_hole, 200, 200));
+    EXPECT_GT(cut_pixels(whole), cut_pixels(with_hole));
+    EXPECT_GT(cut_pixels(with_hole), 1000u) << "the rest of the section still shows its cut wall";
+
+    // Asked of a heart without a defect, or a section view without a plane: exit 2, one clear line.
+    const auto no_defect = test::run_command(heartsim + " run " + test::quoted((dir / "intact.h5").string()) +
+                                             " --headless --steps 0 --clip defect --screenshot " + test::quoted((dir / "x.png").string()));
+    EXPECT_EQ(no_defect.exit_code, 2) << no_defect.output;
+    EXPECT_NE(no_defect.output.find("no septal defect"), std::string::npos) << no_defect.output;
+    const auto no_plane = test::run_command(heartsim + " run " + test::quoted((dir / "intact.h5").string()) +
+                                            " --headless --steps 0 --view section --screenshot " + test::quoted((dir / "x.png").string()));
+    EXPECT_EQ(no_plane.exit_code, 2) << no_plane.output;
+    EXPECT_NE(no_plane.output.find("--clip"), std::string::npos) << no_plane.output;
+}

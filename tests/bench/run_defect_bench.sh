@@ -44,7 +44,7 @@ print(f"| {case} | {kind} | {site} | 10 | {passage} | {wall} | {voxels} | {tried
       f"{float(end) - float(start):.2f} | {seconds} |")
 PY
 }
-declare -A hvsmr_at=([hvsmr16_pat0]=46.0,-18.0,-10.4 [hvsmr16_pat1]=11.4,-25.6,5.2 [hvsmr16_pat5]=26.8,-17.3,-4.9 [hvsmr16_pat6]=26.9,-12.1,-20.0)
+declare -A hvsmr_at=([hvsmr16_pat0]=40.7,-14.4,-10.4 [hvsmr16_pat1]=11.4,-25.6,5.2 [hvsmr16_pat5]=26.8,-17.3,-4.9 [hvsmr16_pat6]=26.9,-12.1,-20.0)
 for label in "$data"/*/*label.nii.gz; do
   case=$(basename "$(dirname "$label")")
   case "$case" in
