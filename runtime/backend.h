@@ -35,8 +35,10 @@ const char* to_string(BackendKind kind);
 /// cpu backend, a GPU. A simulated second costs about particles^(4/3) (particles per substep, and
 /// the stable substep shrinks with the lattice spacing, particles^(−1/3)); the count is rounded
 /// down to two significant digits and leaves 10 % of margin. One clause: "heartprep build
-/// --particles 19000 would keep up here, or the gl backend on a GPU".
-std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind);
+/// --particles 19000 would keep up here, or the gl backend on a GPU". On the gl backend over a
+/// software rasteriser (`software_gl`) the backend comes first: "--backend cpu (faster than
+/// OpenGL on a software rasteriser), or heartprep build --particles …".
+std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind, bool software_gl = false);
 
 /// Time spent per pass, ms, summed over the run (GPU timer queries for gl, wall clock for cpu).
 struct PassTimes {
@@ -99,6 +101,8 @@ public:
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
     virtual std::size_t memory_bytes() const = 0;
+    /// Whether it simulates on a software rasteriser (the gl backend over Mesa's llvmpipe).
+    virtual bool software_device() const { return false; }
     /// How the force pass finds a probe's contact particles (runtime/contact.h): gl only; the cpu
     /// backend always uses its solver's touched list (`direct`) and rejects the others.
     virtual void set_contact(const ContactSettings& settings) {

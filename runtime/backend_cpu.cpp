@@ -17,7 +17,9 @@ BackendKind parse_backend_kind(const std::string& name) {
 
 const char* to_string(BackendKind kind) { return kind == BackendKind::cpu ? "cpu" : "gl"; }
 
-std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind) {
+std::string keep_up_advice(double factor, std::size_t particles, BackendKind kind, bool software_gl) {
+    if (kind == BackendKind::gl && software_gl)
+        return "--backend cpu (faster than OpenGL on a software rasteriser), or " + keep_up_advice(factor, particles, BackendKind::cpu);
     const std::string gpu = kind == BackendKind::cpu ? "the gl backend on a GPU" : "a faster GPU";
     if (!(factor > 0) || !std::isfinite(factor) || particles == 0) return "fewer particles (heartprep build --particles) or " + gpu;
     const double keeps_up = double(particles) * std::pow(factor / 1.1, 0.75);

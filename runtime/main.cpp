@@ -2,6 +2,7 @@
 // docs/runtime.md.
 #include "runtime/gl/gl_context.h"
 #include "runtime/haptics/haptics.h"
+#include "runtime/info_verdict.h"
 #include "runtime/run_modes.h"
 #include "runtime/window_keys.h"
 
@@ -23,9 +24,10 @@ using namespace heartsim;
 
 namespace {
 
-int command_info() {
+int command_info(const std::string& scenario) {
     GlContext context = GlContext::create_headless();
-    std::cout << describe(context.info());
+    std::cout << describe(context.info()) << std::flush;
+    std::cout << session_verdict(context, scenario);
     return 0;
 }
 
@@ -54,14 +56,18 @@ int main(int argc, char** argv) {
                  "heartsim"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
-    auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL)");
+    auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL), and a verdict: which backend "
+                                            "a session will use here and the real-time factor measured on SCENARIO (or, without one, on "
+                                            "a block of 30,000 particles)");
+    std::string info_scenario;
+    info->add_option("scenario", info_scenario, "A scenario to measure the verdict on (heartprep build); default: a uniform block");
     RunArguments a;
     auto* run = app.add_subcommand("run", "Simulate a scenario");
     run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
     run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and for a "
-                                            "haptic session where OpenGL is software (llvmpipe)")->check(CLI::IsMember({"gl", "cpu"}));
+                                            "window or haptic session where OpenGL is software (llvmpipe)")->check(CLI::IsMember({"gl", "cpu"}));
     run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms). Default: 1 headless, no limit in a window")->check(cli_messages::non_negative());
     run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(cli_messages::non_negative());
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
@@ -193,7 +199,7 @@ int main(int argc, char** argv) {
     // The file an error that names none comes from: the scenario run, or the journal recovered.
     const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : "";
     try {
-        if (info->parsed()) return command_info();
+        if (info->parsed()) return command_info(info_scenario);
         if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
     } catch (const GlUnavailable& e) {

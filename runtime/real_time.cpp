@@ -109,7 +109,7 @@ std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double sim
             std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g: kept (%s)", factor, now, mass_scale_cost(now).c_str());
         else
             std::snprintf(line, sizeof line, "real time: %.2f× real time at mass scale %g, and a larger one would not help: %s", factor, now,
-                          keep_up_advice(factor, backend_.size(), backend_.kind()).c_str());
+                          keep_up_advice(factor, backend_.size(), backend_.kind(), backend_.software_device()).c_str());
         return std::string(line);
     }
     backend_.set_mass_scale(next);

@@ -239,17 +239,19 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     if (!a.headless)
         p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
                                                    "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
-    if (!a.devices.empty() && p.kind == BackendKind::gl && !a.backend) {
-        // Haptics need the simulation near real time. On a software rasteriser (Mesa llvmpipe,
-        // softpipe) the compute shaders run on the CPU cores, far slower than the cpu backend:
-        // choose it, and say so.
+    if ((!a.devices.empty() || !a.headless) && p.kind == BackendKind::gl && !a.backend) {
+        // A window and a haptic session follow the wall clock. On a software rasteriser (Mesa
+        // llvmpipe, softpipe) the compute shaders run on the CPU cores, far slower than the cpu
+        // backend: simulate with it (the window still draws with OpenGL), and say so.
         if (!p.context) p.context.emplace(GlContext::create_headless());
-        const std::string renderer_name = p.context->info().renderer;
-        if (renderer_name.find("llvmpipe") != std::string::npos || renderer_name.find("softpipe") != std::string::npos ||
-            renderer_name.find("swrast") != std::string::npos) {
+        const GlInfo info = p.context->info();
+        if (is_software_rasteriser(info)) {
             p.kind = BackendKind::cpu;
-            std::printf("haptics: the OpenGL device is %s, a software rasteriser: simulating with the cpu backend, which is faster "
-                        "here (--backend gl to override)\n", renderer_name.c_str());
+            p.software_gl = true;
+            std::printf("%s: the OpenGL device is %s, a software rasteriser: simulating with the cpu backend, which is faster "
+                        "here%s (--backend gl to override)\n",
+                        a.devices.empty() ? "window" : "haptics", info.renderer.c_str(), a.headless ? "" : ", drawing with OpenGL");
+            std::fflush(stdout);  // the first line a window's user (and its tests) read
         }
     }
     if (p.kind == BackendKind::gl) {
@@ -672,7 +674,8 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .draw_share = a.draw_share,
                                   .interrupted = &interrupted,
                                   .real_time_auto = a.real_time_mode() == RealTimeMode::automatic,
-                                  .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0};
+                                  .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0,
+                                  .backend_note = run.software_gl ? "OpenGL is software" : ""};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {

@@ -88,6 +88,9 @@ struct PreparedRun {
     std::optional<Recording> replayed;  ///< --replay's recording, read before the backend is made
     int frame_width = 0, frame_height = 0;  ///< pixels of the window or the offscreen frame
     ViewDirection view = ViewDirection::anterior;
+    /// The gl backend was asked for by default but the OpenGL device is a software rasteriser: a
+    /// window or haptic session simulates on the cpu backend instead (make_context_and_backend).
+    bool software_gl = false;
     std::optional<GlContext> context;
     BackendKind kind = BackendKind::gl;
     std::unique_ptr<Backend> backend;

@@ -519,6 +519,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             state.steps_per_s = result.steps / s;
             state.particles = backend.size();
             state.backend = to_string(backend.kind());
+            if (!a.backend_note.empty()) state.backend += " (" + a.backend_note + ")";
             state.mass_scale = simulation ? status.mass_scale : backend.options().mass_scale;
             state.paused = input.paused;
             state.emergency_stop = input.estop;
@@ -633,7 +634,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 said_slow = true;
                 std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
                             "the hand: %s\n",
-                            factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind()).c_str());
+                            factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
             }
         }
     }

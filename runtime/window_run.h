@@ -29,6 +29,9 @@ struct WindowRunOptions {
     /// > 0 (--seconds): once the mass scale has changed (and with it the step), the run ends where
     /// the simulated time reaches this, ms, rather than after `steps`.
     double end_ms = 0.0;
+    /// Said after the backend's name in the HUD: why it is the one simulating (e.g. "OpenGL is
+    /// software"); empty: nothing.
+    std::string backend_note;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

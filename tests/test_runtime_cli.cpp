@@ -48,6 +48,16 @@ TEST(HeartsimCli, InfoPrintsRendererAndLimits) {
     EXPECT_EQ(run.exit_code, 0) << run.output;
     for (const char* word : {"renderer", "version", "max SSBO size", "work groups", "texture size"})
         EXPECT_NE(run.output.find(word), std::string::npos) << word << "\n" << run.output;
+    // The verdict: the backend a session will use with this device, and a factor measured here.
+    const bool software = run.output.find("llvmpipe") != std::string::npos || run.output.find("softpipe") != std::string::npos;
+    EXPECT_NE(run.output.find(software ? "a window or haptic session simulates on the cpu backend" : "sessions simulate on the gl backend"),
+              std::string::npos)
+        << run.output;
+    const auto at = run.output.find("real-time factor of ");
+    ASSERT_NE(at, std::string::npos) << run.output;
+    const double factor = std::atof(run.output.c_str() + at + std::strlen("real-time factor of "));
+    EXPECT_GT(factor, 0.0) << run.output;
+    EXPECT_NE(run.output.find(software ? "on the cpu backend (substep" : "on the gl backend (substep"), std::string::npos) << run.output;
 }
 
 // Both headless ways in reach the same GL: the EGL device platform (NVIDIA's headless way, here

@@ -820,3 +820,28 @@ TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {
     std::ofstream(recording.string() + ".journal") << "x";
     EXPECT_EQ(fs::path(timestamped_path(scenario, t, ".rec.h5")), dir / "pat1-20261124-050709-2.rec.h5");
 }
+
+// `heartsim scenario.h5` with no option, on a machine whose OpenGL is a software rasteriser
+// (Mesa's llvmpipe here): the window simulates on the cpu backend, faster here, and draws with
+// OpenGL; it says so on the terminal and in the HUD. On a hardware device it keeps gl.
+TEST(WindowInput, WithoutAGpuTheWindowSimulatesOnTheCpuBackendAndSaysSo) {
+    REQUIRE_WINDOW_TOOLS();
+    REQUIRE_GL();
+    const auto info = test::run_command(quoted(HEARTSIM_EXE) + " info");
+    const bool software = info.output.find("llvmpipe") != std::string::npos || info.output.find("softpipe") != std::string::npos;
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(phantom()) + " --size 400x300");
+    ASSERT_TRUE(window.focus()) << window.output();
+    if (software) {
+        EXPECT_NE(window.wait_for("a software rasteriser: simulating with the cpu backend"), std::string::npos) << window.output();
+        ASSERT_FALSE(screenshot(window).pixels.empty()) << window.output();  // it draws, with OpenGL
+    } else {
+        EXPECT_EQ(window.output().find("software rasteriser"), std::string::npos) << window.output();
+    }
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+    // The run's end report names the backend that simulated.
+    EXPECT_NE(window.output().find(software ? "cpu" : "gl"), std::string::npos) << window.output();
+}

@@ -65,6 +65,8 @@ struct ForceSlot {
 
 class GlBackend final : public Backend {
 public:
+    bool software_device() const override { return software_; }
+    void set_software(bool software) { software_ = software; }
     GlBackend(const Scenario& scenario, const SolverOptions& options) : options_(options) {
         // The CPU solver validates the scenario exactly as the cpu backend would and decides
         // the substeps (critical step, damping): both backends then share h and the constants.
@@ -534,6 +536,7 @@ public:
     }
 
 private:
+    bool software_ = false;  ///< the context's device is a software rasteriser (keep_up_advice)
     struct HandState {
         Instrument instrument;
         InstrumentPose pose, target;
@@ -895,7 +898,9 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
 std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options) {
     require_runnable(scenario, "scenario");
     context.make_current();
-    return std::make_unique<GlBackend>(scenario, options);
+    auto backend = std::make_unique<GlBackend>(scenario, options);
+    backend->set_software(is_software_rasteriser(context.info()));
+    return backend;
 }
 
 unsigned gl_position_buffer(const Backend& backend) {

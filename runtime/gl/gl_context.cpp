@@ -281,4 +281,10 @@ std::string describe(const GlInfo& info) {
     return s.str();
 }
 
+bool is_software_rasteriser(const GlInfo& info) {
+    for (const char* name : {"llvmpipe", "softpipe", "swrast"})
+        if (info.renderer.find(name) != std::string::npos) return true;
+    return false;
+}
+
 }  // namespace heartsim

@@ -21,6 +21,11 @@ public:
 };
 
 /// What `heartsim info` prints.
+struct GlInfo;
+/// Whether the device is a software rasteriser (Mesa's llvmpipe, softpipe, swrast): its compute
+/// shaders run on the CPU cores, slower than the cpu backend.
+bool is_software_rasteriser(const GlInfo& info);
+
 struct GlInfo {
     std::string vendor, renderer, version, shading_language;
     std::string platform;                   ///< "EGL device 0 of 1", "EGL surfaceless" or "GLFW window"
