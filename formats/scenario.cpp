@@ -1,6 +1,7 @@
 // The scenario file through HDF5's C API. Every name, shape and type here is the contract of
 // shared/SCENARIO.md; additions are documented in docs/scenario-format.md.
 #include "scenario.h"
+#include "volume_io.h"
 
 #include "hdf5_io.h"
 #include "xdmf.h"
@@ -673,6 +674,11 @@ void write_readable_scenario(const std::filesystem::path& path, const Scenario& 
 }
 
 Scenario read_scenario(const std::filesystem::path& path) {
+    // A label map given where a scenario belongs (`heartsim case.nii.gz`): say what to run first.
+    std::error_code error;
+    if (label_volume_path_problem(path).empty() && std::filesystem::is_regular_file(path, error) && H5Fis_hdf5(path.c_str()) <= 0)
+        throw InputError(path.string() + ": a label map, not a scenario: build one first, `heartprep build " + path.string() +
+                         " -o CASE.h5`, then run `heartsim CASE.h5`");
     return read_contents(h5::Reader(path));
 }
 

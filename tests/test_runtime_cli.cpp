@@ -368,3 +368,14 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     EXPECT_EQ(help.exit_code, 0);
     EXPECT_NE(help.output.find("Exit status: 0 success, 1 input error"), std::string::npos) << help.output;
 }
+
+// A label map where the scenario belongs (the first thing a new user tries): one line saying
+// what to run first, exit 1 (a bad input), for `run` and for the plain launch alike.
+TEST(HeartsimCli, ALabelMapGivenAsTheScenarioSaysToBuildItFirst) {
+    const std::string sample = std::string(HEARTSIM_SOURCE_DIR) + "/samples/phantom.nii.gz";
+    for (const std::string& command : {std::string(" "), std::string(" run --headless ")}) {
+        const auto run = test::run_command(test::quoted(HEARTSIM_EXE) + command + test::quoted(sample));
+        EXPECT_EQ(run.exit_code, 1) << run.output;
+        EXPECT_NE(run.output.find("a label map, not a scenario: build one first, `heartprep build"), std::string::npos) << run.output;
+    }
+}
