@@ -3,8 +3,8 @@
 // name, and the next write sweeps what it left; a `heartprep batch` stopped by a signal stops its
 // builds and writes a summary that matches the folder, and one killed outright takes its builds
 // with it; a `heartsim --record` session killed outright keeps all but its last second in its
-// journal, which `heartsim recover` turns into a recording that replays bit for bit. Plus the
-// journal file's own rules, in process.
+// journal, which `heartsim recover` turns into a recording that replays bit for bit, a cutting
+// session's cuts included. Plus the journal file's own rules, in process.
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -14,7 +14,10 @@
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 #include "formats/scenario.h"
+#include "incision_gesture.h"
 #include "libmodel/errors.h"
+#include "runtime/backend.h"
+#include "runtime/haptics/haptic_run.h"
 
 #include <gtest/gtest.h>
 
@@ -167,6 +170,30 @@ std::set<pid_t> wait_for_builds(pid_t batch) {
         std::this_thread::sleep_for(std::chrono::milliseconds(2));
     }
     return {};
+}
+
+/// Starts `session` (a `heartsim run … --record` of a haptic session) with its output in `log`,
+/// waits until it says "Ctrl-C ends the run cleanly", then kills it outright (SIGKILL) `after_s`
+/// seconds later and reaps it. The session clock starts before that line is printed (and
+/// flushed), so the time from there to the kill, returned in ms, is a lower bound of the
+/// session's time at the kill. Throws, with the log, when the session does not get that far.
+double kill_session(const std::vector<std::string>& session, const fs::path& log, double after_s) {
+    const pid_t pid = start(session, log);
+    const auto deadline = Clock::now() + std::chrono::seconds(120);
+    while (read_text(log).find("Ctrl-C ends the run cleanly") == std::string::npos) {
+        if (Clock::now() > deadline || waitpid(pid, nullptr, WNOHANG) != 0) {
+            kill(pid, SIGKILL);
+            wait_for(pid, 60);
+            throw std::runtime_error("the session never got going or ended early: " + read_text(log));
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    const auto started = Clock::now();
+    std::this_thread::sleep_for(std::chrono::duration<double>(after_s));
+    const double killed_at_ms = std::chrono::duration<double, std::milli>(Clock::now() - started).count();
+    kill(pid, SIGKILL);
+    if (wait_for(pid, 60) == -1) throw std::runtime_error("the killed session was not reaped within a minute");
+    return killed_at_ms;
 }
 
 }  // namespace
@@ -382,21 +409,8 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
                                            "--device", "simulated:" + (samples / "press_phantom.csv").string(),
                                            "--device", "scripted:" + (samples / "grab_phantom.csv").string(),
                                            "--seconds", "60", "--record", record.string()};
-    const pid_t pid = start(session, dir / "session.log");
-    // The session clock starts before this line is printed (and flushed), so the time from here
-    // to the kill is a lower bound of the session's time at the kill.
-    const auto deadline = Clock::now() + std::chrono::seconds(120);
-    while (read_text(dir / "session.log").find("Ctrl-C ends the run cleanly") == std::string::npos) {
-        ASSERT_LT(Clock::now(), deadline) << read_text(dir / "session.log");
-        ASSERT_EQ(waitpid(pid, nullptr, WNOHANG), 0) << "the session ended early: " << read_text(dir / "session.log");
-        std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    }
-    const auto started = Clock::now();
     std::mt19937 random(2);
-    std::this_thread::sleep_for(std::chrono::duration<double>(2.0 + std::uniform_real_distribution<double>(0.0, 0.5)(random)));
-    const double killed_at_ms = std::chrono::duration<double, std::milli>(Clock::now() - started).count();
-    kill(pid, SIGKILL);
-    ASSERT_NE(wait_for(pid, 60), -1);
+    const double killed_at_ms = kill_session(session, dir / "session.log", 2.0 + std::uniform_real_distribution<double>(0.0, 0.5)(random));
     EXPECT_FALSE(fs::exists(record)) << "the recording is written only when a session ends";
     ASSERT_TRUE(fs::exists(journal)) << read_text(dir / "session.log");
     const std::string kept = read_text(journal);
@@ -446,6 +460,97 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
     const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom) + " --headless --replay " + quoted(record));
     EXPECT_EQ(replay.exit_code, 0) << replay.output;
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+}
+
+// A cutting session killed outright at a random moment while it cuts: hand 0 a scalpel on a
+// scripted device, its blade lowered 100 ms in and drawn 16 mm through the phantom's anterior wall
+// at 10 mm/s (the incision of incision_gesture.h, slowed), hand 1 a grabber on a scripted device
+// holding the wall beside the incision's start and pulling it away from the blade's plane, so that
+// the force it feels depends on what was cut. `heartsim recover` keeps all but the last second;
+// the steps kept include steps with the blade lowered and a grabber holding tissue, and replay bit
+// for bit; replayed here, they cut springs, each a spring of the scenario, listed once.
+TEST(CrashHygiene, AKilledCuttingSessionRecoversToABitForBitReplayOfItsCuts) {
+    const fs::path& phantom = test::built_phantom("--cavity 2 --anchor-border --gravity 0 0 0 --particles 12000");
+    const Scenario scenario = read_scenario(phantom);
+    const double length = 16.0;
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = length, .speed_mm_per_ms = 0.01, .retract = false});
+    test::TempDir dir;
+    auto row = [](std::ofstream& csv, double t, const Eigen::Vector3d& p, const Eigen::Quaterniond& q, bool button) {
+        char line[256];
+        std::snprintf(line, sizeof line, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", t, p.x(), p.y(), p.z(), q.w(), q.x(), q.y(), q.z(),
+                      button ? 1 : 0);
+        csv << line;
+    };
+    {
+        std::ofstream csv(dir / "cut.csv");
+        csv << "# time_ms, x, y, z, qw, qx, qy, qz, buttons\n";
+        for (const InstrumentKeyframe& k : plan.trajectory.keyframes) row(csv, 100 + k.time_ms, k.pose.position, k.pose.orientation, k.grab);
+    }
+    // The grabber: the most anterior particle 1.5 spacings to the −x side of the blade's plane,
+    // 3 mm from the incision's start, held from 100 ms and pulled 3 mm along −x over 2 s.
+    const double spacing = scenario.lattice.spacing;
+    const int grip = test::most_anterior_near(scenario, plan.centre.x() - 1.5 * spacing, plan.centre.z() - 0.5 * length + 3.0, spacing);
+    ASSERT_GE(grip, 0);
+    const auto& g = scenario.lattice.particles.rest_position[std::size_t(grip)];
+    const Eigen::Vector3d at(g[0], g[1], g[2]);
+    {
+        std::ofstream csv(dir / "hold.csv");
+        csv << "# time_ms, x, y, z, qw, qx, qy, qz, buttons\n";
+        const Eigen::Quaterniond none = Eigen::Quaterniond::Identity();
+        row(csv, 0, at, none, false);
+        row(csv, 100, at, none, true);
+        row(csv, 2100, at - Eigen::Vector3d(3.0, 0, 0), none, true);
+    }
+    const fs::path record = dir / "cut.h5";
+    const std::string grabber = "grabber:" + std::to_string(spacing) + "," + std::to_string(spacing) + "," + std::to_string(spacing);
+    const std::vector<std::string> session{HEARTSIM_EXE, "run", phantom.string(), "--headless", "--backend", "cpu",
+                                           "--device", "scripted:" + (dir / "cut.csv").string(), "--instrument", "scalpel",
+                                           "--device", "scripted:" + (dir / "hold.csv").string(), "--instrument", grabber,
+                                           "--seconds", "60", "--record", record.string()};
+    std::mt19937 random(3);
+    const double killed_at_ms = kill_session(session, dir / "session.log", std::uniform_real_distribution<double>(1.5, 3.0)(random));
+    EXPECT_FALSE(fs::exists(record));
+    ASSERT_TRUE(fs::exists(fs::path(record.string() + ".journal"))) << read_text(dir / "session.log");
+
+    const auto recovered = test::run_command(quoted(HEARTSIM_EXE) + " recover " + quoted(fs::path(record.string() + ".journal")));
+    ASSERT_EQ(recovered.exit_code, 0) << recovered.output;
+    const Recording r = read_recording(record);
+    ASSERT_TRUE(r.hands[0].used && r.hands[1].used);
+    EXPECT_EQ(r.hands[0].instrument, "scalpel");
+    EXPECT_EQ(r.hands[1].instrument, "grabber");
+    ASSERT_GT(r.steps.size(), 0u);
+    EXPECT_GE(r.steps.wall_ms.back(), killed_at_ms - 1000.0) << "killed at ≥ " << killed_at_ms << " ms";
+    std::size_t lowered = 0, pulled = 0;
+    for (std::size_t k = 0; k < r.steps.size(); ++k) {
+        lowered += r.steps.grab[k][0] != 0;
+        const auto& f = r.steps.force_n[k][1];
+        pulled += std::sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) > 0;
+    }
+    std::printf("  killed at ≥ %.0f ms; %zu steps kept: %zu with the blade lowered, %zu with a force on the grabber\n", killed_at_ms,
+                r.steps.size(), lowered, pulled);
+    EXPECT_GT(lowered, 0u) << "the session was killed before it cut";
+    EXPECT_GT(pulled, 0u) << "the grabber held nothing";
+
+    const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom) + " --headless --replay " + quoted(record));
+    EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+
+    // The same steps replayed here on the cpu backend: the cuts the recovered session made.
+    SolverOptions options = options_from(scenario.solver);
+    if (r.rules) static_cast<SolverRules&>(options) = *r.rules;
+    options.mass_scale = r.steps.mass_scale_at(0);
+    options.arithmetic = r.arithmetic == "fused" ? SlotArithmetic::fused : SlotArithmetic::separate;
+    auto cpu = make_cpu_backend(scenario, options);
+    const haptics::ReplayResult again = haptics::replay(*cpu, r, record.string());
+    EXPECT_EQ(again.identical, again.compared) << "replayed here, the forces differ by up to " << again.max_difference_n << " N";
+    const auto cut = cpu->cut_springs();
+    std::printf("  the recovered steps cut %zu springs\n", cut.size());
+    EXPECT_GT(cut.size(), 0u);
+    std::set<std::array<std::int32_t, 2>> springs;
+    for (const auto& [i, j] : scenario.lattice.springs.pairs) springs.insert({std::min(i, j), std::max(i, j)});
+    const std::set<std::array<std::int32_t, 2>> listed(cut.begin(), cut.end());
+    EXPECT_EQ(listed.size(), cut.size()) << "a spring is listed twice";
+    for (const auto& spring : listed) EXPECT_TRUE(springs.count(spring)) << spring[0] << "–" << spring[1] << " is no spring";
 }
 
 TEST(CrashHygiene, RecoverRefusesWhatIsNotAJournal) {

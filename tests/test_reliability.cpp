@@ -2,9 +2,19 @@
 // user's run broke it: a detached label map's data file in the batch key and source_sha256, the
 // .xdmf written with its .h5 or not at all, the step policy's cross-field rules, the mapping's
 // offsets and the structure a scenario promises, long output names, and the --steps 0 refusal.
+// And the scalpel's promises where the cpu tests (test_cutting.cpp) cannot reach: the gl backend
+// under a thousand cuts in one step and every spring cut, and a saved state of a cutting run.
 #include "formats/scenario.h"
+#include "formats/state.h"
 #include "formats/volume_io.h"
+#include "incision_gesture.h"
 #include "libmodel/errors.h"
+#include "libmodel/packing.h"
+#include "libmodel/stability.h"
+#include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
+#include "runtime/trajectory.h"
+#include "runtime_test_support.h"
 #include "scenario_damage.h"
 #include "test_support.h"
 
@@ -18,6 +28,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <set>
 #include <sstream>
 
 using namespace heartsim;
@@ -276,4 +287,182 @@ TEST(Reliability, AHapticRunWithStepsZeroSaysWhatZeroMeans) {
                                        " --headless --device scripted:" + quoted(dir / "poses.csv") + " --steps 0");
     EXPECT_EQ(run.exit_code, 2) << run.output;
     EXPECT_NE(run.output.find("--steps 0 runs no step"), std::string::npos) << run.output;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Cutting
+
+namespace {
+
+/// A block of 10 × 14 × 14 particles 1.5 mm apart (test_support.h block_lattice) as a scenario,
+/// packed, its left face (lattice x = 0) anchored, and the options of a run on it under gravity.
+struct BlockRun {
+    Scenario scenario;
+    SolverOptions options;
+    Eigen::Vector3d low = Eigen::Vector3d::Constant(1e30), high = Eigen::Vector3d::Constant(-1e30);
+    Eigen::Vector3d rest(std::size_t i) const {
+        const auto& r = scenario.lattice.particles.rest_position[i];
+        return {r[0], r[1], r[2]};
+    }
+};
+BlockRun block_run() {
+    BlockRun b;
+    b.scenario.lattice = test::block_lattice(10, 14, 14, 1.5, 0.1);
+    Particles& p = b.scenario.lattice.particles;
+    for (std::size_t i = 0; i < p.size(); ++i) p.anchored[i] = p.lattice_index[i][0] == 0 ? 1 : 0;
+    b.scenario.packing = pack_particles(b.scenario.lattice);
+    b.options.critical_dt_ms = estimate_critical_time_step(p, b.scenario.lattice.springs, 5000, 1e-12).critical_dt_ms;
+    b.options.gravity = {0.0, 9.81e-3, 0.0};
+    for (std::size_t i = 0; i < p.size(); ++i) b.low = b.low.cwiseMin(b.rest(i)), b.high = b.high.cwiseMax(b.rest(i));
+    return b;
+}
+
+/// One step in which a lowered scalpel lying in the plane through `point` with unit `normal` is
+/// drawn `size` mm across it (a `size` mm blade, centred on the point); the blade lifts after it.
+StepReport cut_plane(Backend& backend, const Eigen::Vector3d& point, const Eigen::Vector3d& normal, double size) {
+    const Eigen::Vector3d helper = std::abs(normal.y()) < 0.9 ? Eigen::Vector3d::UnitY() : Eigen::Vector3d::UnitX();
+    const Eigen::Vector3d blade = normal.cross(helper).normalized(), across = normal.cross(blade);
+    InstrumentPose from;
+    from.orientation = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), blade);
+    from.position = point - 0.5 * size * (blade + across);
+    InstrumentPose to = from;
+    to.position += size * across;
+    backend.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {1.0, 0.2, 0.5 * size}});
+    backend.set_pose(0, from);
+    backend.begin_grab(0);
+    backend.set_pose(0, to);
+    const StepReport report = backend.step(1);
+    backend.release(0);
+    return report;
+}
+
+bool finite(const std::vector<std::array<float, 3>>& positions) {
+    for (const auto& p : positions)
+        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) return false;
+    return true;
+}
+
+double largest_difference(const std::vector<std::array<float, 3>>& a, const std::vector<std::array<float, 3>>& b) {
+    double worst = 0;
+    for (std::size_t i = 0; i < a.size(); ++i)
+        for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(a[i][c] - b[i][c])));
+    return worst;
+}
+
+}  // namespace
+
+// The gl backend's cut pass under the load the cpu tests put on the solver (test_cutting.cpp): a
+// blade drawn through a block of 1,960 particles in one step, along a plane tilted to every
+// lattice axis, cuts exactly the springs with rest ends on either side of the plane (over a
+// thousand, counted here by brute force) on both backends; the severed piece falls the same on
+// both. Then sweeps between every two neighbouring layers cut every spring on both: the particles
+// fall apart, finite, without a watchdog event, the same on both; reset_tissue heals every cut.
+TEST(Reliability, TheGlBackendCutsAThousandSpringsInOneStepAndEverySpringAsTheCpuDoes) {
+    REQUIRE_GL();
+    const BlockRun b = block_run();
+    const Eigen::Vector3d normal = Eigen::Vector3d(1.0, 0.2, 0.1).normalized();
+    const Eigen::Vector3d point = 0.5 * (b.low + b.high) + Eigen::Vector3d(0.0137, 0, 0);
+    std::set<std::array<std::int32_t, 2>> across, all;
+    for (const auto& [i, j] : b.scenario.lattice.springs.pairs) {
+        const std::array<std::int32_t, 2> key{std::min(i, j), std::max(i, j)};
+        all.insert(key);
+        if ((b.rest(std::size_t(i)) - point).dot(normal) * (b.rest(std::size_t(j)) - point).dot(normal) < 0) across.insert(key);
+    }
+    ASSERT_GE(across.size(), 1000u);
+    const double size = 3.0 * (b.high - b.low).norm();
+
+    auto cpu = make_cpu_backend(b.scenario, b.options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), b.scenario, b.options);
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        const StepReport r = cut_plane(*backend, point, normal, size);
+        EXPECT_FALSE(r.diverged) << to_string(backend->kind()) << ": " << r.message;
+        const auto cut = backend->cut_springs();
+        EXPECT_TRUE((std::set<std::array<std::int32_t, 2>>(cut.begin(), cut.end()) == across)) << to_string(backend->kind());
+        EXPECT_EQ(cut.size(), across.size()) << to_string(backend->kind());
+        const StepReport fall = backend->step(int(std::ceil(3.0 / backend->time_step_ms())));
+        EXPECT_FALSE(fall.diverged) << to_string(backend->kind()) << ": " << fall.message;
+    }
+    std::printf("  %zu springs cut in one step on each backend\n", across.size());
+    auto x = cpu->positions(), y = gl->positions();
+    ASSERT_TRUE(finite(x) && finite(y));
+    EXPECT_LE(largest_difference(x, y), 1e-4 * (b.high - b.low).norm());
+
+    // Every spring: a sweep between every two neighbouring layers along x, y and z.
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        backend->reset_tissue();
+        for (int axis = 0; axis < 3; ++axis) {
+            std::set<double> layers;
+            for (std::size_t i = 0; i < b.scenario.lattice.particles.size(); ++i) layers.insert(b.rest(i)[axis]);
+            for (auto it = layers.begin(); std::next(it) != layers.end(); ++it) {
+                Eigen::Vector3d middle = 0.5 * (b.low + b.high);
+                middle[axis] = 0.5 * (*it + *std::next(it));
+                const StepReport r = cut_plane(*backend, middle, Eigen::Vector3d::Unit(axis), size);
+                ASSERT_FALSE(r.diverged) << to_string(backend->kind()) << ": " << r.message;
+            }
+        }
+        const auto cut = backend->cut_springs();
+        EXPECT_TRUE((std::set<std::array<std::int32_t, 2>>(cut.begin(), cut.end()) == all)) << to_string(backend->kind());
+        EXPECT_EQ(cut.size(), all.size()) << to_string(backend->kind());
+        const StepReport fall = backend->step(int(std::ceil(3.0 / backend->time_step_ms())));
+        EXPECT_FALSE(fall.diverged) << to_string(backend->kind()) << ": " << fall.message;
+    }
+    x = cpu->positions(), y = gl->positions();
+    ASSERT_TRUE(finite(x) && finite(y));
+    EXPECT_LE(largest_difference(x, y), 1e-4 * (b.high - b.low).norm());
+    // Nothing joins the free particles: each fell from where it rested as the others did (the
+    // anchored face stayed).
+    const std::size_t free_one = std::size_t(std::find(b.scenario.lattice.particles.anchored.begin(), b.scenario.lattice.particles.anchored.end(),
+                                                       std::uint8_t(0)) - b.scenario.lattice.particles.anchored.begin());
+    const Eigen::Vector3d drop = Eigen::Vector3d(x[free_one][0], x[free_one][1], x[free_one][2]) - b.rest(free_one);
+    EXPECT_GT(drop.y(), 0.01);
+    for (std::size_t i = 0; i < x.size(); ++i) {
+        const Eigen::Vector3d moved = Eigen::Vector3d(x[i][0], x[i][1], x[i][2]) - b.rest(i);
+        if (b.scenario.lattice.particles.anchored[i]) ASSERT_EQ(moved, Eigen::Vector3d::Zero()) << i;
+        else ASSERT_LE((moved - drop).norm(), 1e-3 * drop.norm() + 1e-5) << i;
+    }
+    std::printf("  every one of %zu springs cut on each backend; the free particles fell %.4f mm\n", all.size(), drop.y());
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        backend->reset_tissue();
+        EXPECT_TRUE(backend->cut_springs().empty()) << to_string(backend->kind());
+        const auto rest = backend->positions();
+        for (std::size_t i = 0; i < rest.size(); ++i) ASSERT_LE((Eigen::Vector3d(rest[i][0], rest[i][1], rest[i][2]) - b.rest(i)).norm(), 1e-6);
+    }
+}
+
+// `heartsim run --trajectory` with a scalpel (the incision of incision_gesture.h through the
+// phantom's anterior wall), `--save-state`: the state file holds the springs the same run cut when
+// driven here in process (the cpu backend, the same trajectory file read back, the same steps), to
+// the spring, sorted, each once and each a spring of the scenario; its positions are that run's to
+// the bit, and its hand 0 is the scalpel.
+TEST(Reliability, ASavedStateOfACuttingRunHoldsTheSpringsItCut) {
+    test::TempDir dir;
+    const fs::path& phantom = test::built_phantom("--particles 2000");
+    const Scenario scenario = read_scenario(phantom);
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 16, .retract = false});
+    test::write_trajectory_csv(plan.trajectory, dir / "cut.csv");
+    const Trajectory trajectory = read_trajectory(dir / "cut.csv");
+    auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
+    const int steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()));
+    const ScriptedRunResult run = run_scripted(*cpu, trajectory, {.steps = steps});
+    EXPECT_EQ(run.watchdog_events, 0u) << run.last_watchdog_message;
+    const auto cut = cpu->cut_springs();
+    ASSERT_GT(cut.size(), 20u);
+
+    const auto cli = test::run_command(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom) + " --headless --backend cpu --trajectory " +
+                                       quoted(dir / "cut.csv") + " --steps " + std::to_string(steps) + " --save-state " + quoted(dir / "state.h5"));
+    ASSERT_EQ(cli.exit_code, 0) << cli.output;
+    const SimulationState state = read_state(dir / "state.h5");
+    std::printf("  %zu springs cut in %d steps; the state file lists %zu\n", cut.size(), steps, state.cut_springs.size());
+    EXPECT_EQ(state.steps, steps);
+    EXPECT_EQ(state.kind[0], 3);
+    EXPECT_TRUE(state.cut_springs == cut);
+    std::set<std::array<std::int32_t, 2>> springs;
+    for (const auto& [i, j] : scenario.lattice.springs.pairs) springs.insert({std::min(i, j), std::max(i, j)});
+    for (std::size_t k = 0; k < state.cut_springs.size(); ++k) {
+        EXPECT_TRUE(springs.count(state.cut_springs[k])) << state.cut_springs[k][0] << "–" << state.cut_springs[k][1] << " is no spring";
+        if (k > 0) {
+            EXPECT_LT(state.cut_springs[k - 1], state.cut_springs[k]);
+        }
+    }
+    EXPECT_TRUE(state.positions == cpu->positions()) << "the saved positions are not the run's";
 }

@@ -14,7 +14,7 @@ trap 'rm -rf "$work"' EXIT
 
 rm -rf "$corpus"
 mkdir -p "$corpus"/{fuzz_volume_nii,fuzz_volume_nii_gz,fuzz_volume_nrrd,fuzz_volume_mha,fuzz_scenario,fuzz_recording}
-mkdir -p "$corpus"/{fuzz_trajectory,fuzz_pose_script,fuzz_simulated_device,fuzz_batch_manifest,fuzz_label_table}
+mkdir -p "$corpus"/{fuzz_trajectory,fuzz_trajectory_run,fuzz_pose_script,fuzz_simulated_device,fuzz_batch_manifest,fuzz_label_table}
 
 # Label maps: the phantom heart at 16 voxels along its longest axis in every format the writer
 # knows (.nrrd, .seg.nrrd and .mha gzip-compressed), a thick shell and a sphere.
@@ -52,9 +52,53 @@ cp "$work/heart16.mha" "$work/sphere10.mha" "$work/heart16-raw.mha" "$corpus/fuz
   --record "$corpus/fuzz_recording/two-hands.h5" >/dev/null
 "$heartsim" run "$corpus/fuzz_scenario/full.h5" --headless --backend cpu --seconds 0.02 \
   --device scripted:samples/haptics/grab_phantom.csv --record "$corpus/fuzz_recording/one-hand.h5" >/dev/null
+# A scalpel on a scripted device, its blade lowered at 5 ms and drawn 4 mm superior.
+printf '0,-12,-30,-2,0.5,-0.5,-0.5,-0.5,0\n5,-12,-30,-2,0.5,-0.5,-0.5,-0.5,1\n25,-12,-30,2,0.5,-0.5,-0.5,-0.5,1\n' > "$work/cut.csv"
+"$heartsim" run "$corpus/fuzz_scenario/full.h5" --headless --backend cpu --seconds 0.02 \
+  --device scripted:"$work/cut.csv" --instrument scalpel --record "$corpus/fuzz_recording/scalpel.h5" >/dev/null
 
 # CSV files: the samples.
 cp samples/probe_and_grab_phantom.csv samples/probe_and_grab_pat1.csv "$corpus/fuzz_trajectory/"
+# Scalpel scripts, aimed at fuzz_trajectory_run's block (4 × 4 × 4 particles 1.5 mm apart, centred
+# on the origin, so ±2.25 mm): a blade drawn through it while the other hand holds its top, lifted,
+# lowered again over the same cut and drawn back, turned into a probe and back; blades of the
+# shortest (1e-3 mm) and the longest (500 mm) semi-axis, a plunge along the blade, a turning
+# blade, a blade a kilometre away; and blades a trajectory refuses (NaN, zero, infinite, 1e30).
+mkdir -p "$corpus/fuzz_trajectory_run"
+cat > "$corpus/fuzz_trajectory/scalpel_cut.csv" <<'CSV'
+time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab
+0,  0, scalpel, 0.1, -5, -4, 1, 0, 0, 0, 1, 0.2, 4, 1
+2,  0, scalpel, 0.1,  5, -4, 1, 0, 0, 0, 1, 0.2, 4, 1
+3,  0, scalpel, 0.1,  5, -4, 1, 0, 0, 0, 1, 0.2, 4, 0
+4,  0, scalpel, 0.1,  5, -4, 1, 0, 0, 0, 1, 0.2, 4, 1
+6,  0, scalpel, 0.1, -5, -4, 1, 0, 0, 0, 1, 0.2, 4, 1
+7,  0, probe,   0.1, -5, -4, 1, 0, 0, 0, 1, 1, 1, 0
+8,  0, scalpel, -1.4, -5, -4, 0.92388, 0, 0, 0.38268, 1, 0.2, 4, 1
+10, 0, scalpel, -1.4,  5, -4, 0.92388, 0, 0, 0.38268, 1, 0.2, 4, 1
+0,  1, grabber, 0, 0, 2.25, 1, 0, 0, 0, 2, 2, 1, 1
+10, 1, grabber, 0, 0, 4.25, 1, 0, 0, 0, 2, 2, 1, 1
+CSV
+cat > "$corpus/fuzz_trajectory/scalpel_blades.csv" <<'CSV'
+time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab
+0,0,scalpel,0.1,-3,-1.5,1,0,0,0,0.001,0.001,0.001,1
+1,0,scalpel,0.1,3,-1.5,1,0,0,0,0.001,0.001,0.001,1
+2,0,scalpel,0.1,3,-600,1,0,0,0,500,500,500,1
+3,0,scalpel,0.1,-3,-600,1,0,0,0,500,500,500,1
+4,0,scalpel,-0.7,0.2,-9,1,0,0,0,1,0.2,3,1
+5,0,scalpel,-0.7,0.2,-1,1,0,0,0,1,0.2,3,1
+6,0,scalpel,0.8,-4,0,0.7071,0.7071,0,0,1,0.2,4,1
+7,0,scalpel,0.8,-4,0,0,1,0,0,1,0.2,4,1
+8,0,scalpel,1e6,-1e6,1e6,1,0,0,0,500,1,500,1
+9,0,scalpel,-1e6,1e6,-1e6,0,0,1,0,500,1,500,1
+0,1,scalpel,-0.2,0,-3,0.5,0.5,0.5,0.5,1,0.2,4,1
+9,1,scalpel,-0.2,0,3,0.5,-0.5,0.5,0.5,1,0.2,4,0
+CSV
+printf 'time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n0,0,scalpel,0.1,-3,-3,1,0,0,0,1,0.2,nan,1\n1,0,scalpel,0.1,3,-3,1,0,0,0,1,0.2,4,1\n' \
+  > "$corpus/fuzz_trajectory/scalpel_nan.csv"
+printf '0,0,scalpel,0.1,-3,-3,1,0,0,0,1,0.2,0,1\n1,0,scalpel,0.1,3,-3,1,0,0,0,1,0.2,-0,1\n' > "$corpus/fuzz_trajectory/scalpel_zero.csv"
+printf '0,0,scalpel,0.1,-3,-3,1,0,0,0,1,0.2,1e30,1\n1,0,scalpel,0.1,3,-3,1,0,0,0,inf,0.2,4,1\n2,0,scalpel,nan,3,-3,1,0,0,0,1,0.2,4,1\n' \
+  > "$corpus/fuzz_trajectory/scalpel_huge.csv"
+cp "$corpus"/fuzz_trajectory/*.csv "$corpus/fuzz_trajectory_run/"
 cp samples/haptics/grab_phantom.csv samples/haptics/grab_pat1.csv "$corpus/fuzz_pose_script/"
 cp samples/haptics/press_phantom.csv samples/haptics/press_pat1.csv "$corpus/fuzz_simulated_device/"
 # A batch manifest with a header, a comment, a blank line, ids, quoted options and an option
@@ -77,4 +121,6 @@ printf '# ITK-SNAP Label Description File\n    0     0    0    0        0  0  0 
   > "$corpus/fuzz_label_table/itksnap.txt"
 printf 'LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n2,"Myocardium",0,255,0,255\n' \
   > "$corpus/fuzz_label_table/slicer.csv"
+# ParaView's descriptions written beside the HDF5 seeds are not inputs of any reader.
+rm -f "$corpus"/*/*.xdmf
 du -ab "$corpus" | sort -k2
