@@ -478,6 +478,7 @@ std::int32_t state_kind(InstrumentKind kind) {
 /// --save-state: the final positions, the forces, what each hand held and the springs cut.
 void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const InstrumentForces& forces,
                 const std::vector<std::array<float, 3>>& positions, const haptics::HapticRun* haptic) {
+    const Recording* replayed = p.replayed ? &*p.replayed : nullptr;
     SimulationState state;
     state.backend = to_string(p.kind);
     state.scenario = std::filesystem::path(a.scenario).filename().string();
@@ -490,6 +491,8 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         state.particles[hand] = std::int32_t(forces.hand[hand].particles);
         if (haptic) {
             state.kind[hand] = !haptic->uses_hand(hand) ? 0 : state_kind(haptic->instrument(hand));
+        } else if (replayed) {  // a replay: the instruments the recording's hands held
+            state.kind[hand] = !replayed->hands[std::size_t(hand)].used ? 0 : state_kind(instrument_kind_named(replayed->hands[std::size_t(hand)].instrument).value_or(InstrumentKind::none));
         } else {
             state.kind[hand] = p.trajectory.uses_hand(hand) ? state_kind(p.trajectory.at(hand, p.backend->simulated_time_ms()).kind) : 0;
         }
@@ -633,6 +636,11 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
         run.renderer->render(backend, {});
         write_png(a.screenshot, run.renderer->read_pixels());
         std::printf("wrote %s\n", a.screenshot.c_str());
+    }
+    if (!a.save_state.empty()) {  // the state the replay ended in: positions, forces, the springs it cut
+        ScriptedRunResult replayed;
+        replayed.steps = int(r.steps);
+        save_state(a, run, replayed, backend.instrument_forces(), backend.positions(), nullptr);
     }
     if (r.max_difference_n > tolerance) {
         std::fprintf(stderr, "heartsim: error: %s: the replay's forces differ from the recording by up to %.3g N (tolerance %.3g N%s)\n",
