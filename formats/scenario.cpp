@@ -61,6 +61,7 @@ void write_contents(h5::Writer& w, const Scenario& s) {
         write_labels(w, g, "cavity_labels", s.source.cavity_labels);
         write_labels(w, g, "anchor_labels", s.source.anchor_labels);
         w.attribute(g, "anchor_border", std::int32_t(s.source.anchor_border));
+        if (s.source.tissue_volume_mm3 > 0) w.attribute(g, "tissue_volume_mm3", s.source.tissue_volume_mm3);
         if (!s.source.defect.empty()) {
             w.attribute(g, "defect", s.source.defect);
             w.attribute(g, "defect_centre", s.source.defect_centre.data(), {3});
@@ -392,6 +393,11 @@ Scenario read_contents(const h5::Reader& r) {
         s.source.cavity_labels = labels("cavity_labels");
         s.source.anchor_labels = labels("anchor_labels");
         s.source.anchor_border = r.number<std::int32_t>("source", "anchor_border") != 0;
+        if (r.has_attribute("source", "tissue_volume_mm3")) {
+            s.source.tissue_volume_mm3 = r.number<double>("source", "tissue_volume_mm3");
+            if (!(s.source.tissue_volume_mm3 > 0.0) || !std::isfinite(s.source.tissue_volume_mm3))
+                r.fail("/source", "tissue_volume_mm3 must be a positive number");
+        }
         if (r.has_attribute("source", "defect")) {
             s.source.defect = r.string_attribute("source", "defect");
             if (s.source.defect != "vsd" && s.source.defect != "asd")

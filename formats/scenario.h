@@ -40,6 +40,9 @@ struct ScenarioSource {
     /// A septal defect carved into the label map before the build (libmodel/defect.h): "vsd",
     /// "asd", or empty for none; its centre and axis (LPS) and diameter.
     std::string defect;
+    /// The tissue's volume, mm³: its voxels in the label map after small islands are dropped (the
+    /// one tissue volume every report gives); 0 when not stored.
+    double tissue_volume_mm3 = 0.0;
     Eigen::Vector3d defect_centre{0, 0, 0};
     Eigen::Vector3d defect_axis{0, 0, 1};
     double defect_diameter_mm = 0.0;

@@ -69,7 +69,7 @@ TEST(Heartprep, BuildsThePhantomIntoAScenarioWhoseReportMatchesTheFile) {
     test::TempDir dir;
     ASSERT_EQ(heartprep("phantom -o " + quoted(dir / "phantom.nii.gz")).exit_code, 0);
     const auto run = heartprep("build " + quoted(dir / "phantom.nii.gz") + " -o " + quoted(dir / "p.h5") +
-                               " --cavity 2 --anchor-border --particles 5000");
+                               " --cavity 2 --anchor-border --particles 5000 --verbose");
     ASSERT_EQ(run.exit_code, 0) << run.output;
     const Scenario s = read_scenario(dir / "p.h5");
     std::smatch m;
@@ -527,7 +527,7 @@ double total_mass(const Scenario& s) {
 /// Builds `input` with `options` into `output`; returns heartprep's output (the test fails on a
 /// non-zero exit).
 std::string build(const fs::path& input, const fs::path& output, const std::string& options) {
-    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(output) + " --spacing 2 --thin-walls keep " + options);
+    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(output) + " --spacing 2 --thin-walls keep --verbose " + options);
     EXPECT_EQ(run.exit_code, 0) << run.output;
     return run.output;
 }
@@ -711,4 +711,35 @@ TEST(HeartprepWrongInput, TheBloodPoolOfAnHvsmrHeartAsTissueWarnsByTheConvention
     const auto muscle = heartprep("build " + quoted(input) + " -q --strict -o " + quoted(dir / "muscle.h5"));
     EXPECT_EQ(muscle.exit_code, 0) << muscle.output;
     EXPECT_EQ(muscle.output.find("warning"), std::string::npos) << muscle.output;
+}
+
+// The technician's summary: what was built, from the file's own figures; fit for simulation; the
+// next commands with the file's own name. One tissue volume: the summary's, inspect's and the
+// file's are the label map's tissue voxels.
+TEST(Heartprep, ThePlainSummarySaysWhatWasBuiltWhetherItIsFitAndWhatToRunNext) {
+    test::TempDir dir;
+    ASSERT_EQ(heartprep("phantom -o " + quoted(dir / "phantom.nii.gz")).exit_code, 0);
+    const auto run = heartprep("build " + quoted(dir / "phantom.nii.gz") + " -o " + quoted(dir / "p.h5") + " --particles 5000");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    const Scenario s = read_scenario(dir / "p.h5");
+    const LabelVolume volume = read_label_volume(dir / "phantom.nii.gz");
+    std::size_t tissue = 0;
+    for (auto label : volume.labels) tissue += label == 1;
+    // The phantom has no islands: its tissue volume is its label-1 voxels'.
+    EXPECT_NEAR(s.source.tissue_volume_mm3, double(tissue) * volume.geometry.voxel_volume(), 1e-6);
+    char mL[32];
+    std::snprintf(mL, sizeof mL, "%.1f mL", s.source.tissue_volume_mm3 / 1000.0);
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(run.output, m, std::regex(R"(^built +a heart of ([0-9.]+ mL) of tissue .*: ([0-9,]+) particles)",
+                                                            std::regex::multiline)))
+        << run.output;
+    EXPECT_EQ(m[1].str(), mL);
+    std::string particles = m[2].str();
+    particles.erase(std::remove(particles.begin(), particles.end(), ','), particles.end());
+    EXPECT_EQ(std::stoul(particles), s.lattice.particles.size());
+    EXPECT_NE(run.output.find("fit         ready to simulate"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("next        heartsim " + (dir / "p.h5").string()), std::string::npos) << run.output;
+    EXPECT_EQ(run.output.find("Lanczos"), std::string::npos) << "the expert figures are --verbose's\n" << run.output;
+    const auto inspect = heartprep("inspect " + quoted(dir / "p.h5"));
+    EXPECT_NE(inspect.output.find(std::string("tissue      ") + mL), std::string::npos) << inspect.output;
 }

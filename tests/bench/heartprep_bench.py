@@ -310,7 +310,7 @@ def bench_build(args, work, cases):
         name = os.path.basename(case).replace("-label.nii.gz", "").replace(".nii.gz", "")
         for rep in range(args.reps):
             out = os.path.join(work, f"{name}.h5")
-            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", out, "--cavity", "2", "--anchor-border"]
+            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", out, "--cavity", "2", "--anchor-border", "--verbose"]
                                           + args.build_extra, os.path.join(work, "rss.txt"))
             row = {"case": name, "rep": rep + 1, "wall s": wall, "peak RSS MiB": rss}
             row.update(parse_build_stdout(stdout))
@@ -326,7 +326,7 @@ def bench_critical_step(args, work, case):
     name = os.path.basename(case).replace("-label.nii.gz", "")
     for budget in (10000, 30000, 100000):
         for rep in range(args.reps):
-            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", os.path.join(work, "cs.h5"),
+            wall, stdout, rss = run_timed([args.heartprep, "build", case, "--verbose", "-o", os.path.join(work, "cs.h5"),
                                            "--cavity", "2", "--anchor-border", "--particles", str(budget)],
                                           os.path.join(work, "rss.txt"))
             row = {"case/budget": f"{name} / {budget}", "rep": rep + 1, "wall s": wall, "peak RSS MiB": rss}
@@ -439,7 +439,7 @@ def bench_part2_stages(args, work, cases):
         name = re.sub(r"^.*_(pat\d+)$", r"\1", name)  # training_axial_crop_pat0 -> pat0
         for rep in range(args.reps):
             out = os.path.join(work, f"{name}.h5")
-            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", out, "--cavity", "2", "--anchor-border"],
+            wall, stdout, rss = run_timed([args.heartprep, "build", case, "-o", out, "--cavity", "2", "--anchor-border", "--verbose"],
                                           os.path.join(work, "rss.txt"))
             row = {"case": name, "rep": rep + 1, "wall s": wall, "peak RSS MiB": rss}
             row.update(parse_build_stdout(stdout))

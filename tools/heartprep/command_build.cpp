@@ -232,6 +232,10 @@ void add_build_command(CLI::App& app) {
         ->capture_default_str()
         ->group("Solver");
     command->add_flag("-q,--quiet", *quiet, "No progress and no summary (warnings are still printed)");
+    auto verbose = std::make_shared<bool>(false);
+    command->add_flag("-v,--verbose", *verbose,
+                      "Every figure of the build after the summary: volumes and islands, the surface's topology, the lattice, "
+                      "supports and rest state, the time step, packing, simulation surface, mapping, stage times");
     auto strict = std::make_shared<bool>(false);
     command->add_flag("--strict", *strict,
                       "Refuse to write a scenario whose build warned (exit 1, the warnings printed): for batches, where "
@@ -294,7 +298,8 @@ void add_build_command(CLI::App& app) {
             write_readable_scenario(*output, scenario);
         }
         if (!*quiet) {
-            print_build_summary(report, scenario);
+            print_plain_summary(report, scenario, *output);
+            if (*verbose) print_build_summary(report, scenario);
             std::printf("wrote       %s (%.1f MB)\n", output->c_str(), double(std::filesystem::file_size(*output)) / 1e6);
         }
         print_warnings(report.warnings);

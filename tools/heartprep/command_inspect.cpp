@@ -35,6 +35,10 @@ struct Summary {
     double thin_volume_share = 0.0;       ///< their share of the tissue volume (mass / density)
     double total_mass = 0.0;
     std::size_t supported = 0;            ///< particles with a support spring
+    /// Of those, the ones on surface supports (posterior or boundary) rather than the elastic
+    /// foundation alone: the foundation gives every free particle the same stiffness per mass
+    /// (its k/m is the least), a surface support adds to it.
+    std::size_t surface_supported = 0;
     double support_stiffness = 0.0;       ///< Σ k_s, N/mm
     std::size_t pieces = 0, free_pieces = 0;
     double max_prestrain = 0.0;           ///< max |L₀ − |x_b − x_a|| / |x_b − x_a| over springs at rest
@@ -64,11 +68,18 @@ Summary summarise(const Scenario& s) {
     }
     const auto& sp = s.lattice.springs;
     summary.springs = sp.size();
-    if (p.supported())
-        for (float k : p.support_stiffness) {
+    if (p.supported()) {
+        double least = std::numeric_limits<double>::infinity();
+        for (std::size_t i = 0; i < p.size(); ++i) {
+            const float k = p.support_stiffness[i];
             summary.supported += k > 0;
             summary.support_stiffness += k;
+            if (k > 0 && p.mass[i] > 0) least = std::min(least, double(k) / p.mass[i]);
         }
+        for (std::size_t i = 0; i < p.size(); ++i)
+            if (p.support_stiffness[i] > 0 && p.mass[i] > 0 && double(p.support_stiffness[i]) / p.mass[i] > 1.5 * least)
+                ++summary.surface_supported;
+    }
     const Pieces pieces = find_pieces(p, sp);
     summary.pieces = pieces.size.size();
     for (bool held : pieces.held) summary.free_pieces += !held;
@@ -160,6 +171,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
            {"source", {{"file_name", s.source.file_name}, {"sha256", s.source.sha256}, {"dims", {g.dims[0], g.dims[1], g.dims[2]}},
                        {"spacing", vector(g.spacing)}}},
            {"lattice", {{"spacing", s.lattice.spacing}, {"dims", {s.lattice.dims[0], s.lattice.dims[1], s.lattice.dims[2]}}}},
+           {"tissue_volume_ml", s.source.tissue_volume_mm3 > 0 ? json(s.source.tissue_volume_mm3 / 1000.0) : json()},
            {"defect", s.source.defect.empty() ? json(nullptr)
                                               : json{{"type", s.source.defect},
                                                      {"centre", vector(s.source.defect_centre)},
@@ -206,6 +218,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                    {"critical_dt_bound_ms", s.solver.critical_dt_bound_ms},
                    {"damped_critical_dt_ms", s.solver.damped_critical_dt_ms}};
     o["holding"] = {{"supported_particles", m.supported},
+                    {"surface_supported_particles", m.surface_supported},
                     {"support_stiffness_n_per_mm", m.support_stiffness},
                     {"pieces", m.pieces},
                     {"free_pieces", m.free_pieces},
@@ -222,6 +235,7 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     const auto& g = s.source.geometry;
     std::printf("source      %s, %d x %d x %d voxels of %.3f x %.3f x %.3f mm, sha256 %.12s…\n", s.source.file_name.c_str(),
                 g.dims[0], g.dims[1], g.dims[2], g.spacing[0], g.spacing[1], g.spacing[2], s.source.sha256.c_str());
+    if (s.source.tissue_volume_mm3 > 0) std::printf("tissue      %.1f mL (the label map's tissue voxels)\n", s.source.tissue_volume_mm3 / 1000.0);
     if (!s.source.defect.empty())
         std::printf("defect      %s, %.1f mm, centre %.1f, %.1f, %.1f (LPS mm), axis %.2f, %.2f, %.2f\n", s.source.defect.c_str(),
                     s.source.defect_diameter_mm, s.source.defect_centre.x(), s.source.defect_centre.y(), s.source.defect_centre.z(),
@@ -269,8 +283,10 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
                 s.solver.damped_critical_dt_ms > 0 ? std::to_string(s.solver.damped_critical_dt_ms).c_str() : "not stored", substeps.c_str(),
                 s.solver.damping,
                 s.solver.gravity.x(), s.solver.gravity.y(), s.solver.gravity.z());
-    std::printf("holding     %zu anchored; %zu particles on supports, %.3g N/mm in all; %zu piece(s), %zu held by nothing\n", m.anchored,
-                m.supported, m.support_stiffness, m.pieces, m.free_pieces);
+    std::printf("holding     %zu anchored; %zu particles on surface supports%s; %.3g N/mm in all; %zu piece(s), %zu held by nothing\n",
+                m.anchored, m.surface_supported,
+                m.supported > m.surface_supported ? (", an elastic foundation under all " + std::to_string(m.supported) + " free particles").c_str() : "",
+                m.support_stiffness, m.pieces, m.free_pieces);
     const Eigen::Vector3d& b = s.solver.balanced_gravity;
     std::printf("rest state  %s; pre-strain max %.2g%%; force at rest under gravity: max %.3g N on a particle, %.3g N in all\n",
                 b.norm() > 0 ? "balanced under gravity (pre-stressed)" : "unstressed (imaged shape, no pre-stress)", 100 * m.max_prestrain,

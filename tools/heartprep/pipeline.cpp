@@ -350,6 +350,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     scenario.source.cavity_labels = chosen.cavity_labels;
     scenario.source.anchor_labels = chosen.anchor_labels;
     scenario.source.anchor_border = chosen.anchor_border;
+    scenario.source.tissue_volume_mm3 = report.selection.tissue_volume_mm3;
     if (report.defect) {
         scenario.source.defect = to_string(report.defect->type);
         scenario.source.defect_centre = report.defect->centre;
@@ -435,19 +436,21 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
                 report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
                 g.spacing[0], g.spacing[1], g.spacing[2]);
     if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
-    if (!report.convention.empty()) std::printf("labels      %s (--labels %s)\n", find_label_convention(report.convention)->title.c_str(), report.convention.c_str());
-    else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
     if (report.defect) print_defect_summary(*report.defect, report.segment_names);
     const auto& s = report.selection;
     std::string tissue;
     for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
-    std::printf("tissue      label %s: %zu voxels, %.1f mL; cavity %.1f mL; %zu islands, %zu dropped (%zu voxels)\n", tissue.c_str(),
-                s.tissue_voxels,
-                s.tissue_volume_mm3 / 1000.0, s.cavity_volume_mm3 / 1000.0, s.islands.size(), s.islands_dropped,
-                s.voxels_dropped);
+    std::string cavity;
+    if (!scenario.source.cavity_labels.empty()) {
+        char text[64];
+        std::snprintf(text, sizeof text, "; cavity %.1f mL", s.cavity_volume_mm3 / 1000.0);
+        cavity = text;
+    }
+    std::printf("tissue      label %s: %zu voxels, %.1f mL%s; %zu islands, %zu dropped (%zu voxels)\n", tissue.c_str(), s.tissue_voxels,
+                s.tissue_volume_mm3 / 1000.0, cavity.c_str(), s.islands.size(), s.islands_dropped, s.voxels_dropped);
     if (scenario.visual)
         std::printf("surface     %zu vertices, %zu triangles (marching cubes %zu); %s, Euler characteristic %ld, "
-                    "%zu component(s), area %.0f mm², volume %.1f mL\n",
+                    "%zu component(s), area %.0f mm², encloses %.1f mL\n",
                     report.mesh.vertices, report.mesh.faces, report.surface.marching_cubes_triangles,
                     report.mesh.closed() && report.mesh.manifold() ? "closed 2-manifold" : "NOT a closed 2-manifold",
                     report.mesh.euler_characteristic, report.mesh.components, report.mesh.area, report.mesh.volume / 1000.0);
@@ -516,6 +519,68 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
         total += t.seconds;
     }
     std::printf(" total %.3f s\n", total);
+}
+
+void print_plain_summary(const BuildReport& report, const Scenario& scenario, const std::filesystem::path& output) {
+    auto thousands = [](std::size_t n) {
+        std::string digits = std::to_string(n), out;
+        for (std::size_t k = 0; k < digits.size(); ++k) {
+            if (k && (digits.size() - k) % 3 == 0) out += ',';
+            out += digits[k];
+        }
+        return out;
+    };
+    std::string tissue;
+    for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
+    const auto& l = report.layout;
+    if (!report.convention.empty()) std::printf("labels      %s (--labels %s)\n", find_label_convention(report.convention)->title.c_str(), report.convention.c_str());
+    else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
+    std::printf("built       a heart of %.1f mL of tissue (label %s) from %s: %s particles %.2f mm apart%s\n",
+                report.selection.tissue_volume_mm3 / 1000.0, tissue.c_str(), scenario.source.file_name.c_str(),
+                thousands(l.particles).c_str(), l.spacing,
+                scenario.visual ? (", a detailed surface of " + thousands(scenario.visual->triangles.size()) + " triangles").c_str() : "");
+    // How it is held, in the words of docs/user-guide.md "How the heart is held".
+    const auto& sp = report.supports;
+    std::string held;
+    if (l.anchored > 0) held = thousands(l.anchored) + " particles anchored";
+    if (sp.supported > 0)
+        held += (held.empty() ? "" : ", ") + std::string("on its ") + (sp.region == SupportRegion::posterior ? "posterior surface" : "whole surface") +
+                " (" + thousands(sp.supported) + " particles on supports)";
+    if (sp.embedding_stiffness > 0) held += (held.empty() ? "" : " and ") + std::string("a weak elastic foundation");
+    const bool gravity = scenario.solver.gravity.norm() > 0;
+    if (held.empty()) held = gravity ? "by nothing: it falls under gravity" : "by nothing (no gravity: it floats where it is)";
+    else if (report.balance.balanced) held += ": it stays where it was imaged";
+    else if (report.balance.max_sag_mm > 0) held += ": it sags by up to " + std::to_string(report.balance.max_sag_mm).substr(0, 4) + " mm";
+    std::printf("held        %s\n", held.c_str());
+    if (report.defect)
+        std::printf("defect      a %.0f mm %s (measured %.1f mm) at %.1f, %.1f, %.1f (LPS mm)\n", report.defect->diameter_mm,
+                    report.defect->type == DefectType::vsd ? "ventricular septal defect" : "atrial septal defect",
+                    report.defect->measured_diameter_mm, report.defect->centre.x(), report.defect->centre.y(), report.defect->centre.z());
+    // Fit for simulation: what would show in heartsim, plainly.
+    std::vector<std::string> flaws;
+    if (scenario.visual && (!report.mesh.closed() || !report.mesh.manifold()))
+        flaws.push_back("the detailed surface has holes (" + std::to_string(report.mesh.boundary_edges) + " open edges): gaps show in it");
+    if (report.free_pieces.free_pieces_kept > 0) flaws.push_back(std::to_string(report.free_pieces.free_pieces_kept) + " loose piece(s) drift");
+    if (held.rfind("by nothing: it falls", 0) == 0) flaws.push_back("nothing holds it");
+    const std::size_t warnings = report.warnings.size();
+    const std::string pieces = report.free_pieces.pieces <= 1 ? "one piece" : std::to_string(report.free_pieces.pieces) + " pieces";
+    if (flaws.empty() && warnings == 0)
+        std::printf("fit         ready to simulate: %s, stable at a step of %.3f ms\n", pieces.c_str(), scenario.solver.dt_ms);
+    else {
+        std::string text;
+        for (const std::string& f : flaws) text += (text.empty() ? "" : "; ") + f;
+        if (warnings) text += (text.empty() ? "" : "; ") + std::to_string(warnings) + " warning(s) below: read what each means";
+        std::printf("fit         simulates (%s, a step of %.3f ms), but look at this first: %s\n", pieces.c_str(), scenario.solver.dt_ms, text.c_str());
+    }
+    std::filesystem::path xdmf = output;
+    xdmf.replace_extension(".xdmf");
+    const std::string commands[3] = {"heartsim " + output.string(), "ParaView: open " + xdmf.string(), "heartprep inspect " + output.string()};
+    const char* meanings[3] = {"simulate it in a window (H: the keys)", "the detailed mesh, the simulation surface, the particles",
+                               "every figure of the build (heartprep build --verbose prints them too)"};
+    std::size_t width = 0;
+    for (const std::string& c : commands) width = std::max(width, c.size());
+    for (int k = 0; k < 3; ++k)
+        std::printf("%s%-*s  %s\n", k == 0 ? "next        " : "            ", int(width), commands[k].c_str(), meanings[k]);
 }
 
 void print_warnings(const std::vector<std::string>& warnings) {

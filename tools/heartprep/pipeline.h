@@ -147,8 +147,12 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
 /// Runs every stage and returns the scenario (not yet written).
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report);
 
-/// Prints a human summary of `report` (and the scenario) to stdout.
+/// Prints every figure of `report` (and the scenario) to stdout: `build --verbose`.
 void print_build_summary(const BuildReport& report, const Scenario& scenario);
+
+/// Prints the technician's summary of a build written to `output`: what was built and how it is
+/// held, whether it is fit for simulation (and if not, what to look at), and the next commands.
+void print_plain_summary(const BuildReport& report, const Scenario& scenario, const std::filesystem::path& output);
 
 /// Each warning as `heartprep: warning: …` on stderr. Printed with and without -q: -q silences the
 /// progress and the summary, not what the user must hear (a qform that disagrees with the sform, a
