@@ -10,9 +10,14 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <map>
 #include <regex>
+
+#include <unistd.h>
 
 using namespace heartsim;
 using test::heartprep;
@@ -54,10 +59,10 @@ TEST(HeartprepStages, PackRewritesTheLayoutAndKeepsTheFileValid) {
     const auto file = built(dir, "heart");
     const Scenario before = read_scenario(file);
     // A place that cannot take the output's ParaView description is refused before the stage runs.
-    fs::create_directory(dir / "blocked.xdmf");
+    fs::create_directory(dir / "blocked.xmf2");
     const auto blocked = heartprep("pack " + quoted(file) + " --packing slices -o " + quoted(dir / "blocked.h5"));
     EXPECT_EQ(blocked.exit_code, 7) << blocked.output;
-    EXPECT_NE(blocked.output.find("blocked.xdmf: is a folder"), std::string::npos) << blocked.output;
+    EXPECT_NE(blocked.output.find("blocked.xmf2: is a folder"), std::string::npos) << blocked.output;
     EXPECT_FALSE(fs::exists(dir / "blocked.h5"));
     const auto run = heartprep("pack " + quoted(file) + " --packing slices -o " + quoted(dir / "slices.h5"));
     ASSERT_EQ(run.exit_code, 0) << run.output;
@@ -158,13 +163,13 @@ TEST(HeartprepBatch, ThreeGoodOneBrokenThenResume) {
     auto second = heartprep(command);
     EXPECT_EQ(second.exit_code, 1);
     for (const char* id : {"case_a", "case_b", "case_c"})
-        EXPECT_NE(second.output.find(std::string("| ") + id + " | skipped |"), std::string::npos) << second.output;
+        EXPECT_NE(second.output.find(std::string("| ") + id + " | reused |"), std::string::npos) << second.output;
 
     // A changed input is built again.
     small_phantom(dir, "a.nii.gz", 3.0);
     auto third = heartprep(command);
     EXPECT_NE(third.output.find("| case_a | built |"), std::string::npos) << third.output;
-    EXPECT_NE(third.output.find("| case_b | skipped |"), std::string::npos) << third.output;
+    EXPECT_NE(third.output.find("| case_b | reused |"), std::string::npos) << third.output;
 }
 
 TEST(HeartprepBatch, ASkippedCaseReportsTheWarningsOfTheBuildThatWroteIt) {
@@ -204,9 +209,9 @@ TEST(HeartprepBatch, ASkippedCaseReportsTheWarningsOfTheBuildThatWroteIt) {
 
     const auto second = heartprep(batch);
     ASSERT_EQ(second.exit_code, 0) << second.output;
-    EXPECT_NE(summary_row().find(",skipped,"), std::string::npos) << summary_row();
+    EXPECT_NE(summary_row().find(",reused,"), std::string::npos) << summary_row();
     EXPECT_NE(summary_row().find(warning), std::string::npos) << "a reused case lost its warnings: " << summary_row();
-    EXPECT_NE(second.output.find("| a | skipped |"), std::string::npos) << second.output;
+    EXPECT_NE(second.output.find("| a | reused |"), std::string::npos) << second.output;
     EXPECT_NE(second.output.find(warning), std::string::npos) << second.output;
 
     // A scenario from before the warnings were kept (no /build_warnings) is built again, so the
@@ -357,7 +362,7 @@ TEST(HeartprepBatch, TheSummaryHasTheScenariosFiguresAndAPicturePerCase) {
     // The CSV has the same columns.
     const std::string csv = read_file_text(dir / "out" / "summary.csv");
     EXPECT_EQ(csv.rfind("case_id,input,status,particles,springs,triangles,seconds,warnings,message,output,anchored,supported,"
-                        "tissue_volume_ml,spacing_mm,dt_ms,preview\n", 0), 0u) << csv;
+                        "tissue_volume_ml,spacing_mm,dt_ms,preview,built_by,built_at\n", 0), 0u) << csv;
 
     // --pattern that matches nothing: a clear error, no output folder.
     const auto none = heartprep("batch " + quoted(dir / "in") + " --pattern '*.mha' -o " + quoted(dir / "none"));
@@ -460,7 +465,7 @@ TEST(HeartprepWorkflow, SnakemakeBuildsTheCasesAndARerunDoesNothing) {
         EXPECT_TRUE(s.packing && s.simulation_surface && s.visual && s.mapping) << id;
         EXPECT_TRUE(fs::exists(dir / "out" / "previews" / (id + ".png"))) << id;
     }
-    for (const auto& entry : summary["cases"]) EXPECT_EQ(entry["status"], "skipped") << "the summary job builds nothing";
+    for (const auto& entry : summary["cases"]) EXPECT_EQ(entry["status"], "built by the workflow") << entry.dump();
     const auto modified = fs::last_write_time(dir / "out" / "phantom.h5");
 
     // A rerun does nothing, also after the input was touched (same bytes, same key).
@@ -476,6 +481,7 @@ TEST(HeartprepWorkflow, SnakemakeBuildsTheCasesAndARerunDoesNothing) {
                                  " --options '--particles 3000 --anchor-border' --no-preview");
     EXPECT_EQ(batch.exit_code, 0) << batch.output;
     EXPECT_EQ(batch.output.find("| built |"), std::string::npos) << batch.output;
+    EXPECT_NE(batch.output.find("| phantom | reused |"), std::string::npos) << batch.output;
 
     // Other options: every case is planned again; the Slurm profile reads (a dry run submits nothing).
     const auto changed = snakemake("options='--particles 2500 --anchor-border'", "-n --profile " +
@@ -483,4 +489,345 @@ TEST(HeartprepWorkflow, SnakemakeBuildsTheCasesAndARerunDoesNothing) {
     EXPECT_EQ(changed.exit_code, 0) << changed.output;
     EXPECT_NE(changed.output.find("Params have changed since last execution"), std::string::npos) << changed.output;
     EXPECT_EQ(fs::last_write_time(dir / "out" / "phantom.h5"), modified);
+}
+
+namespace {
+
+bool snakemake_installed() { return test::run_command("command -v snakemake").exit_code == 0; }
+
+/// Snakemake's major version (7 in Debian 12), 0 when it cannot be told.
+int snakemake_major() {
+    const auto run = test::run_command("snakemake --version 2>/dev/null");
+    return run.exit_code == 0 ? std::atoi(run.output.c_str()) : 0;
+}
+
+/// Writes an executable script.
+void write_script(const fs::path& path, const std::string& text) {
+    std::ofstream(path) << text;
+    fs::permissions(path, fs::perms::owner_all | fs::perms::group_read | fs::perms::group_exec | fs::perms::others_read |
+                              fs::perms::others_exec);
+}
+
+/// A case's entry in summary.json.
+nlohmann::json summary_entry(const nlohmann::json& summary, const std::string& id) {
+    for (const auto& entry : summary["cases"])
+        if (entry["case_id"] == id) return entry;
+    ADD_FAILURE() << "no case " << id << " in " << summary.dump(2);
+    return {};
+}
+
+/// The count line under the markdown table ("3 cases: …").
+std::string count_line(const fs::path& markdown) {
+    std::ifstream in(markdown);
+    for (std::string line; std::getline(in, line);)
+        if (line.find(" cases: ") != std::string::npos) return line;
+    return {};
+}
+
+}  // namespace
+
+// The complaint: after Snakemake built the cases, the summary said "0 built, 3 skipped" with the
+// time of the summary's own check as each build time. The summary says how each case was built,
+// with the time of the build that made its scenario, after the workflow as after batch.
+TEST(HeartprepWorkflow, TheSummarySaysHowEachCaseWasBuilt) {
+    if (!snakemake_installed()) GTEST_SKIP() << "snakemake (Debian package snakemake) is not installed; scripts/install-deps.sh installs it";
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    const std::map<std::string, std::string> cases{{"a", "8"}, {"b", "0"}, {"c", "5"}};  // case: VSD diameter, mm
+    for (const auto& [id, vsd] : cases)
+        ASSERT_EQ(heartprep("phantom --size 24 --vsd-diameter " + vsd + " -o " + quoted(dir / "in" / (id + ".nii.gz"))).exit_code, 0);
+    const std::string path = "PATH=" + quoted(fs::path(HEARTPREP_EXE).parent_path()) + ":\"$PATH\" ";
+    const std::string snakefile = quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "Snakefile");
+    auto snakemake = [&](const std::string& extra) {
+        return test::run_command("cd " + quoted(dir.path()) + " && " + path + "snakemake -s " + snakefile +
+                                 " --cores 2 --config manifest=in out=out preview=0 options='--particles 2000 --anchor-border' " + extra +
+                                 " 2>&1");
+    };
+    const std::string batch = "batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") + " --options '--particles 2000 --anchor-border' --no-preview";
+    auto record = [&](const std::string& id) { return read_json(dir / "out" / "logs" / (id + ".build.json")); };
+
+    // 1. The workflow builds the three cases: `built by the workflow`, each with its own build's time.
+    const auto start = std::chrono::steady_clock::now();
+    const auto built = snakemake("");
+    const double run_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    ASSERT_EQ(built.exit_code, 0) << built.output;
+    auto summary = read_json(dir / "out" / "summary.json");
+    const std::string run = read_file_text(dir / "out" / "logs" / "workflow-run");
+    ASSERT_FALSE(run.empty());
+    std::map<std::string, double> workflow_seconds;
+    for (const auto& [id, vsd] : cases) {
+        SCOPED_TRACE(id);
+        const auto entry = summary_entry(summary, id);
+        EXPECT_EQ(entry["status"], "built by the workflow");
+        EXPECT_EQ(entry["built_by"], "workflow");
+        ASSERT_TRUE(entry["seconds"].is_number()) << entry.dump();
+        const double seconds = entry["seconds"];
+        // The build's own time: the one its job recorded, more than nothing, less than the whole run.
+        EXPECT_GT(seconds, 0.0);
+        EXPECT_LT(seconds, run_seconds);
+        const auto written = record(id);
+        EXPECT_EQ(written["run"].get<std::string>() + "\n", run);
+        EXPECT_EQ(written["status"], "built");
+        EXPECT_NEAR(seconds, written["seconds"].get<double>(), 1e-9);
+        EXPECT_EQ(entry["built_at"], written["finished"]);
+        workflow_seconds[id] = seconds;
+    }
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("3 cases: 3 built by the workflow, 0 reused, 0 failed.", 0), 0u)
+        << read_file_text(dir / "out" / "summary.md");
+    EXPECT_NE(read_file_text(dir / "out" / "summary.md").find("| a | built by the workflow |"), std::string::npos);
+
+    // 2. heartprep batch over the same folder reuses them, with the workflow builds' times.
+    const auto reused = heartprep(batch);
+    ASSERT_EQ(reused.exit_code, 0) << reused.output;
+    summary = read_json(dir / "out" / "summary.json");
+    for (const auto& [id, seconds] : workflow_seconds) {
+        const auto entry = summary_entry(summary, id);
+        EXPECT_EQ(entry["status"], "reused") << id;
+        EXPECT_EQ(entry["built_by"], "workflow") << id;
+        EXPECT_NEAR(entry["seconds"].get<double>(), seconds, 0.005) << id << ": not the time of the build that made the file";
+    }
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("3 cases: 0 built, 3 reused, 0 failed.", 0), 0u) << reused.output;
+
+    // 3. Forced, batch builds them again: `built`, with its own builds' times, which the records keep.
+    const auto forced = heartprep(batch + " --force");
+    ASSERT_EQ(forced.exit_code, 0) << forced.output;
+    summary = read_json(dir / "out" / "summary.json");
+    for (const auto& [id, vsd] : cases) {
+        const auto entry = summary_entry(summary, id);
+        EXPECT_EQ(entry["status"], "built") << id;
+        EXPECT_EQ(entry["built_by"], "batch") << id;
+        EXPECT_GT(entry["seconds"].get<double>(), 0.0) << id;
+        EXPECT_NEAR(record(id)["seconds"].get<double>(), entry["seconds"].get<double>(), 1e-6) << id;
+        EXPECT_EQ(record(id)["built_by"], "batch") << id;
+    }
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("3 cases: 3 built, 0 reused, 0 failed.", 0), 0u) << forced.output;
+    // Snakemake finds them up to date (the same keys), and batch again reuses them.
+    EXPECT_NE(snakemake("").output.find("Nothing to be done"), std::string::npos);
+    const auto reused_again = heartprep(batch);
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("3 cases: 0 built, 3 reused, 0 failed.", 0), 0u) << reused_again.output;
+
+    // 4. Cases that fail in the workflow: a file that is no label map, and a build the system
+    // kills (the out-of-memory killer's SIGKILL, played by a heartprep wrapper: a test double for
+    // a machine that runs out of memory). The run writes the summary anyway (onerror): `failed`
+    // with the reason and the time until the failure; the new good case `built by the workflow`,
+    // the others `reused`.
+    std::ofstream(dir / "in" / "broken.nii.gz") << "this is not a volume";
+    ASSERT_EQ(heartprep("phantom --size 24 --vsd-diameter 3 -o " + quoted(dir / "in" / "d.nii.gz")).exit_code, 0);
+    ASSERT_EQ(heartprep("phantom --size 24 --vsd-diameter 6 -o " + quoted(dir / "in" / "killed.nii.gz")).exit_code, 0);
+    write_script(dir / "heartprep-oom", "#!/bin/sh\n"
+                                        "# heartprep, except that the build of killed.nii.gz is killed as the kernel's\n"
+                                        "# out-of-memory killer kills a process: SIGKILL.\n"
+                                        "case \"$*\" in build*killed.nii.gz*) kill -KILL $$ ;; esac\n"
+                                        "exec " + quoted(HEARTPREP_EXE) + " \"$@\"\n");
+    const auto failing = snakemake("heartprep=" + quoted(dir / "heartprep-oom") + " --keep-going");
+    EXPECT_NE(failing.exit_code, 0) << failing.output;
+    summary = read_json(dir / "out" / "summary.json");
+    const auto broken = summary_entry(summary, "broken");
+    EXPECT_EQ(broken["status"], "failed");
+    EXPECT_NE(broken["message"].get<std::string>().find("broken.nii.gz"), std::string::npos) << broken.dump();
+    EXPECT_GT(broken["seconds"].get<double>(), 0.0);
+    const auto killed = summary_entry(summary, "killed");
+    EXPECT_EQ(killed["status"], "failed");
+    EXPECT_NE(killed["message"].get<std::string>().find("killed by SIGKILL"), std::string::npos) << killed.dump();
+    EXPECT_EQ(summary_entry(summary, "d")["status"], "built by the workflow");
+    for (const auto& [id, vsd] : cases) EXPECT_EQ(summary_entry(summary, id)["status"], "reused") << id;
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("6 cases: 1 built by the workflow, 3 reused, 2 failed.", 0), 0u)
+        << read_file_text(dir / "out" / "summary.md");
+    const std::string markdown = read_file_text(dir / "out" / "summary.md");
+    EXPECT_NE(markdown.find("| broken | failed |"), std::string::npos) << markdown;
+    // And batch, building the failed cases itself, reports them failed too.
+    const auto again = heartprep(batch);
+    EXPECT_EQ(again.exit_code, 1) << again.output;
+    summary = read_json(dir / "out" / "summary.json");
+    EXPECT_EQ(summary_entry(summary, "broken")["status"], "failed");
+    EXPECT_EQ(summary_entry(summary, "killed")["status"], "built") << "the real heartprep builds it";
+    EXPECT_EQ(summary_entry(summary, "d")["status"], "reused");
+}
+
+// --no-build reports a case whose build began and never ended (its job killed outright, the
+// record left saying `running`) as failed, and a case no build has reached as not started.
+TEST(HeartprepWorkflow, ABuildThatNeverEndedIsFailedAndOneNeverBegunNotStarted) {
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    for (const char* id : {"ended", "begun", "waiting"})
+        ASSERT_EQ(heartprep("phantom --size 24 -o " + quoted(dir / "in" / (std::string(id) + ".nii.gz"))).exit_code, 0);
+    const std::string batch = "batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") + " --options '--particles 2000' --no-preview";
+    const auto plan = nlohmann::json::parse(heartprep(batch + " --plan").output);
+    auto key_of = [&](const std::string& id) {
+        for (const auto& entry : plan["cases"])
+            if (entry["case_id"] == id) return entry["key"].get<std::string>();
+        ADD_FAILURE() << "no case " << id;
+        return std::string();
+    };
+    fs::create_directories(dir / "out" / "logs");
+    // A build of "begun" through workflow/build_case.py, the job killed outright (SIGKILL, as Slurm
+    // ends a job past its time limit's grace) while it runs; the "build" is a sleep.
+    const fs::path record = dir / "out" / "logs" / "begun.build.json";
+    const auto killed = test::run_command(
+        "cd " + quoted(dir.path()) + " && { python3 " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "build_case.py") +
+        " --record " + quoted(record) + " --run-file out/logs/workflow-run --case begun --key " + key_of("begun") +
+        " --log out/logs/begun.log -- sh -c 'echo $$ > sleeper.pid; exec sleep 30' & } ; job=$!; "
+        "for i in $(seq 100); do [ -s sleeper.pid ] && grep -qs running " + quoted(record) + " && break; sleep 0.1; done; "
+        "kill -KILL $job; wait $job; echo status $?; kill -KILL $(cat sleeper.pid)");
+    EXPECT_NE(killed.output.find("status 137"), std::string::npos) << killed.output;
+    EXPECT_EQ(read_json(record)["status"], "running");
+    ASSERT_EQ(heartprep("build " + quoted(dir / "in" / "ended.nii.gz") + " -o " + quoted(dir / "out" / "ended.h5") + " --particles 2000 -q" +
+                        " --batch-key " + key_of("ended"))
+                  .exit_code,
+              0);
+
+    const auto report = heartprep(batch + " --no-build --workflow-run some-run");
+    EXPECT_EQ(report.exit_code, 1) << report.output;  // a case failed
+    const auto summary = read_json(dir / "out" / "summary.json");
+    const auto begun = summary_entry(summary, "begun");
+    EXPECT_EQ(begun["status"], "failed");
+    EXPECT_NE(begun["message"].get<std::string>().find("never reported an end"), std::string::npos) << begun.dump();
+    EXPECT_EQ(summary_entry(summary, "waiting")["status"], "not started");
+    // Built by hand with the right key, without a record: reused, its build time unknown.
+    const auto ended = summary_entry(summary, "ended");
+    EXPECT_EQ(ended["status"], "reused");
+    EXPECT_TRUE(ended["seconds"].is_null()) << ended.dump();
+    EXPECT_NE(read_file_text(dir / "out" / "summary.md").find("| ended | reused |"), std::string::npos);
+    EXPECT_FALSE(fs::exists(dir / "out" / "waiting.h5")) << "--no-build built a case";
+    // --no-build and --force contradict each other; --workflow-run needs --no-build.
+    EXPECT_EQ(heartprep(batch + " --no-build --force").exit_code, 2);
+    EXPECT_EQ(heartprep(batch + " --workflow-run x").exit_code, 2);
+}
+
+// The Slurm profile's job-state check (Snakemake 7's --cluster-status), against what sacct and
+// squeue print. Slurm cannot run here: `sacct` and `squeue` are test doubles on PATH that print
+// the states a cluster's would.
+TEST(HeartprepWorkflow, TheSlurmStatusCheckMapsEveryJobState) {
+    test::TempDir dir;
+    fs::create_directory(dir / "bin");
+    fs::create_directory(dir / "jobs");
+    // A job's accounting state is jobs/<id>.sacct; a job only the controller knows yet, jobs/<id>.squeue.
+    write_script(dir / "bin" / "sacct", "#!/bin/sh\n# sacct test double: a Slurm cluster cannot exist in this test.\n"
+                                        "echo \"$*\" >> \"$FAKE_SLURM/sacct.calls\"\n"
+                                        "[ -z \"$FAKE_SACCT_DOWN\" ] || { echo 'sacct: error: Problem talking to the database' >&2; exit 1; }\n"
+                                        "while [ $# -gt 0 ]; do [ \"$1\" = -j ] && id=$2; shift; done\n"
+                                        "cat \"$FAKE_SLURM/$id.sacct\" 2>/dev/null; exit 0\n");
+    write_script(dir / "bin" / "squeue", "#!/bin/sh\n# squeue test double: a Slurm cluster cannot exist in this test.\n"
+                                         "while [ $# -gt 0 ]; do [ \"$1\" = -j ] && id=$2; shift; done\n"
+                                         "[ -f \"$FAKE_SLURM/$id.squeue\" ] && { cat \"$FAKE_SLURM/$id.squeue\"; exit 0; }\n"
+                                         "echo 'slurm_load_jobs error: Invalid job id specified' >&2; exit 1\n");
+    const fs::path status_script = fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "profiles" / "slurm" / "slurm-status.sh";
+    auto status = [&](const std::string& job, const std::string& environment = "") {
+        // Its stdout alone, as Snakemake reads it (its messages on stderr go to Snakemake's log).
+        const auto run = test::run_command("(PATH=" + quoted(dir / "bin") + ":\"$PATH\" FAKE_SLURM=" + quoted(dir / "jobs") + " " +
+                                           environment + " " + quoted(status_script) + " '" + job + "' 2>/dev/null)");
+        EXPECT_EQ(run.exit_code, 0) << job << ": " << run.output;
+        return run.output;
+    };
+    const std::vector<std::pair<std::string, std::string>> states{
+        {"COMPLETED", "success"},    {"PENDING", "running"},      {"RUNNING", "running"},       {"COMPLETING", "running"},
+        {"CONFIGURING", "running"},  {"SUSPENDED", "running"},    {"REQUEUED", "running"},      {"FAILED", "failed"},
+        {"TIMEOUT", "failed"},       {"OUT_OF_MEMORY", "failed"}, {"CANCELLED by 1234", "failed"}, {"NODE_FAIL", "failed"},
+        {"PREEMPTED", "failed"},     {"BOOT_FAIL", "failed"},     {"DEADLINE", "failed"}};
+    int job = 100;
+    for (const auto& [state, expected] : states) {
+        std::ofstream(dir / "jobs" / (std::to_string(++job) + ".sacct")) << state << "\n";
+        EXPECT_EQ(status(std::to_string(job)), expected + "\n") << state;
+    }
+    // The id as `sbatch --parsable` prints it on a multi-cluster site: "id;cluster".
+    EXPECT_EQ(status("101;cluster2"), "success\n");
+    EXPECT_NE(read_file_text(dir / "jobs" / "sacct.calls").find("-j 101 -X"), std::string::npos) << read_file_text(dir / "jobs" / "sacct.calls");
+    // Just submitted, not in accounting yet: squeue's state.
+    std::ofstream(dir / "jobs" / "200.squeue") << "PENDING\n";
+    EXPECT_EQ(status("200"), "running\n");
+    // Known to neither: gone without a trace, failed.
+    EXPECT_EQ(status("300"), "failed\n");
+    // The database not answering: asked again later.
+    EXPECT_EQ(status("300", "FAKE_SACCT_DOWN=1"), "running\n");
+}
+
+// The Slurm profile end to end with the Snakemake in Debian 12 (7.x: cluster: + cluster-status:).
+// Slurm cannot run here: `sbatch`, `sacct`, `squeue` and `scancel` are test doubles on PATH, a
+// one-machine stand-in for a cluster that runs each job script here and keeps its state. One job
+// is ended as Slurm ends a job past its time limit (killed as soon as its build has begun, state
+// TIMEOUT): Snakemake learns it from the status check, marks the case failed, and the summary
+// says so; the others are built by the workflow.
+TEST(HeartprepWorkflow, ThroughTheSlurmProfileAJobSlurmEndsIsMarkedFailed) {
+    if (!snakemake_installed()) GTEST_SKIP() << "snakemake (Debian package snakemake) is not installed; scripts/install-deps.sh installs it";
+    if (snakemake_major() != 7)
+        GTEST_SKIP() << "this test drives Snakemake 7's cluster profile (config.yaml); Snakemake " << snakemake_major()
+                     << " reads config.v8+.yaml, which needs the slurm executor plugin and a real Slurm";
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    fs::create_directory(dir / "bin");
+    fs::create_directory(dir / "jobs");
+    for (const char* id : {"a", "b"})
+        ASSERT_EQ(heartprep("phantom --size 24 -o " + quoted(dir / "in" / (std::string(id) + ".nii.gz"))).exit_code, 0);
+    // Big enough that its build is still running when the double kills its job.
+    ASSERT_EQ(heartprep("phantom --size 96 -o " + quoted(dir / "in" / "late.nii.gz")).exit_code, 0);
+    write_script(dir / "bin" / "sbatch",
+                 "#!/bin/sh\n"
+                 "# sbatch test double: a Slurm cluster cannot exist in this test. Runs the job script on this\n"
+                 "# machine in the background, its state in $FAKE_SLURM/<id>.sacct, and prints the job id as\n"
+                 "# `sbatch --parsable` does. The job named for $FAKE_SLURM_KILL is killed, process group and all\n"
+                 "# (procps kill: the shell's own takes no process group), as soon as its build record says it is\n"
+                 "# running: state TIMEOUT.\n"
+                 "jobs=$FAKE_SLURM\n"
+                 "id=$(( $(cat \"$jobs/last-id\" 2>/dev/null || echo 1000) + 1 )); echo $id > \"$jobs/last-id\"\n"
+                 "for a; do case $a in --job-name=*) name=${a#--job-name=} ;; esac; script=$a; done\n"
+                 "echo \"$name\" > \"$jobs/$id.name\"; echo RUNNING > \"$jobs/$id.sacct\"\n"
+                 "case $name in\n"
+                 "*\"$FAKE_SLURM_KILL\"*)\n"
+                 "  setsid sh \"$script\" > \"$jobs/$id.out\" 2>&1 < /dev/null &\n"
+                 "  job=$!\n"
+                 "  ( for i in $(seq 600); do grep -qs '\"running\"' \"$FAKE_SLURM_RECORD\" && break; sleep 0.05; done\n"
+                 "    env kill -s KILL -- -$job; echo TIMEOUT > \"$jobs/$id.sacct\" ) > /dev/null 2>&1 < /dev/null & ;;\n"
+                 "*)\n"
+                 "  ( if sh \"$script\" > \"$jobs/$id.out\" 2>&1 < /dev/null; then echo COMPLETED; else echo FAILED; fi > \"$jobs/$id.sacct\" ) \\\n"
+                 "    > /dev/null 2>&1 < /dev/null & ;;\n"
+                 "esac\n"
+                 "echo $id\n");
+    write_script(dir / "bin" / "sacct", "#!/bin/sh\n# sacct test double: a Slurm cluster cannot exist in this test.\n"
+                                        "while [ $# -gt 0 ]; do [ \"$1\" = -j ] && id=$2; shift; done\n"
+                                        "cat \"$FAKE_SLURM/$id.sacct\" 2>/dev/null; exit 0\n");
+    write_script(dir / "bin" / "squeue", "#!/bin/sh\n# squeue test double: knows no job (sacct's double knows them all).\n"
+                                         "echo 'slurm_load_jobs error: Invalid job id specified' >&2; exit 1\n");
+    write_script(dir / "bin" / "scancel", "#!/bin/sh\n# scancel test double: a Slurm cluster cannot exist in this test.\nexit 0\n");
+    const auto run = test::run_command(
+        "cd " + quoted(dir.path()) + " && PATH=" + quoted(dir / "bin") + ":" + quoted(fs::path(HEARTPREP_EXE).parent_path()) +
+        ":\"$PATH\" FAKE_SLURM=" + quoted(dir / "jobs") + " FAKE_SLURM_KILL=case=late FAKE_SLURM_RECORD=" +
+        quoted(dir / "out" / "logs" / "late.build.json") + " timeout 300 snakemake -s " +
+        quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "Snakefile") + " --profile " +
+        quoted(fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "profiles" / "slurm") +
+        " --latency-wait 5 --max-status-checks-per-second 10 --config manifest=in out=out preview=0 options='--particles 2000' 2>&1");
+    EXPECT_NE(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.exit_code, 124) << "Snakemake never learnt that Slurm ended the job:\n" << run.output;
+    // Every job went through sbatch, and the status check was asked.
+    std::size_t submitted = 0;
+    for (const auto& entry : fs::directory_iterator(dir / "jobs")) submitted += entry.path().extension() == ".name";
+    EXPECT_EQ(submitted, 3u) << run.output;
+    EXPECT_NE(run.output.find("Error in rule build"), std::string::npos) << run.output;
+    const auto summary = read_json(dir / "out" / "summary.json");
+    EXPECT_EQ(summary_entry(summary, "a")["status"], "built by the workflow");
+    EXPECT_EQ(summary_entry(summary, "b")["status"], "built by the workflow");
+    const auto late = summary_entry(summary, "late");
+    EXPECT_EQ(late["status"], "failed");
+    EXPECT_NE(late["message"].get<std::string>().find("never reported an end"), std::string::npos) << late.dump();
+    EXPECT_EQ(count_line(dir / "out" / "summary.md").rfind("3 cases: 2 built by the workflow, 0 reused, 1 failed.", 0), 0u)
+        << read_file_text(dir / "out" / "summary.md");
+}
+
+// Both Slurm profiles: Snakemake 7's (config.yaml) names a status check that is there and runs;
+// Snakemake 8's (config.v8+.yaml, read by Snakemake 8 and later instead) uses the slurm executor
+// plugin with the same job sizes. Snakemake 8 itself is not in Debian 12: this reads the file.
+TEST(HeartprepWorkflow, TheSlurmProfileServesSnakemake7And8) {
+    const fs::path profile = fs::path(HEARTSIM_SOURCE_DIR) / "workflow" / "profiles" / "slurm";
+    const auto check = test::run_command(
+        "python3 -c 'import sys, yaml\n"
+        "v7 = yaml.safe_load(open(sys.argv[1])); v8 = yaml.safe_load(open(sys.argv[2]))\n"
+        "assert v7[\"cluster-status\"] == \"slurm-status.sh\" and v7[\"cluster-cancel\"] == \"scancel\", v7\n"
+        "assert \"sbatch --parsable\" in v7[\"cluster\"], v7\n"
+        "assert v8[\"executor\"] == \"slurm\" and \"cluster\" not in v8, v8\n"
+        "assert v8[\"default-resources\"] == {\"mem_mb\": 1000, \"runtime\": 10}, v8\n"
+        "assert sorted(v7[\"default-resources\"]) == [\"mem_mb=1000\", \"runtime=10\"], v7\n"
+        "print(\"profiles ok\")' " +
+        quoted(profile / "config.yaml") + " " + quoted(profile / "config.v8+.yaml") + " 2>&1");
+    if (check.output.find("No module named 'yaml'") != std::string::npos) GTEST_SKIP() << "python3-yaml is not installed";
+    EXPECT_EQ(check.output, "profiles ok\n");
+    EXPECT_EQ(::access((profile / "slurm-status.sh").c_str(), X_OK), 0) << "the status check is not executable";
 }

@@ -16,7 +16,7 @@ Part 2 (packing, simulation surface, mapping: `--parts part2`, or any of stages,
   line, 1 ms resolution) and of their sum, against the target of 1 s on 2 cores.
 - batch: `heartprep batch FOLDER -o OUT -j N --options "--cavity 2 --anchor-border"` on a temporary
   folder of symlinks to the real cases, -j 1 and -j 2, from an empty OUT, then a second run on the
-  same OUT (resumed: every case skipped); wall time and cases per minute.
+  same OUT (resumed: every case reused); wall time and cases per minute.
 - mapping: runs the C++ program mapping_bench (tests/bench/mapping_bench.cpp; target mapping_bench,
   found beside heartprep's build or given by --mapping-bench): mapping error under a reference
   deformation against particle spacing.
@@ -475,11 +475,11 @@ def bench_batch(args, work, cases):
                 with open(os.path.join(out, "summary.csv"), newline="") as f:
                     status = [r["status"] for r in csv.DictReader(f)]
                 raw.append({"run": f"-j {jobs}, {run}", "rep": rep + 1, "cases": len(status),
-                            "built": status.count("built"), "skipped": status.count("skipped"),
+                            "built": status.count("built"), "reused": status.count("reused"),
                             "failed": status.count("failed"), "wall s": wall,
                             "cases per minute": 60.0 * len(status) / wall})
                 print(f"  batch -j {jobs} {run} rep {rep + 1}: {wall:.2f} s, {status.count('built')} built, "
-                      f"{status.count('skipped')} skipped, {status.count('failed')} failed (load {os.getloadavg()[0]:.2f})",
+                      f"{status.count('reused')} reused, {status.count('failed')} failed (load {os.getloadavg()[0]:.2f})",
                       file=sys.stderr)
     shutil.rmtree(folder, ignore_errors=True)
     return raw
@@ -621,7 +621,7 @@ def main():
             r["min wall s"] = min(x["wall s"] for x in raw if x["run"] == r["run"])
         write_csv(os.path.join(args.out, "part2_batch.csv"), med)
         print_table("heartprep batch on the %d real cases, median of %d" % (len(cases), args.reps), med,
-                    ["run", "cases", "built", "skipped", "failed", "wall s", "min wall s", "cases per minute"])
+                    ["run", "cases", "built", "reused", "failed", "wall s", "min wall s", "cases per minute"])
 
     if "mapping" in parts:
         binary = find_mapping_bench(args)

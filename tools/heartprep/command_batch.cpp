@@ -1,9 +1,16 @@
 // `heartprep batch`: many cases at once. Each case runs as its own `heartprep build` process, so a
 // crash or an out-of-memory in one case cannot take the others down; a case whose input bytes,
-// options and heartprep version are unchanged since its scenario was written is skipped. The
+// options and heartprep version are unchanged since its scenario was written is reused. The
 // summary is rewritten (atomically) as each case ends, and a batch stopped by a signal stops its
 // builds, waits for them and writes the summary before it ends by the same signal; its builds also
 // end when it is killed outright (SIGKILL), through the parent-death signal.
+//
+// Each build leaves a record beside its log, DIR/logs/<id>.build.json: who built the scenario (this
+// batch or a job of workflow/Snakefile, which writes the same record through
+// workflow/build_case.py), how long the build took and when it ended, or why it failed. The summary
+// takes each case's build time from it, so a reused case shows the time of the build that made its
+// file, and the workflow's summary (`--no-build --workflow-run RUN`) tells the cases its own jobs
+// built in this run from those it found done.
 #include "commands.h"
 #include "manifest.h"
 #include "terminal_progress.h"
@@ -27,11 +34,13 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <iomanip>
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -47,14 +56,20 @@ namespace {
 namespace fs = std::filesystem;
 
 struct Outcome {
-    /// pending (not finished yet), built, skipped, failed, interrupted (its build was stopped with
-    /// the batch), not started (the batch was stopped first)
+    /// pending (not finished yet), built (by this batch), built by the workflow (by a job of the
+    /// workflow run given with --workflow-run), reused (up to date, skipped), failed, interrupted
+    /// (its build was stopped with the batch), not started (the batch was stopped first; with
+    /// --no-build: no build ran for the case's current key)
     std::string status = "pending";
     std::size_t particles = 0, springs = 0, triangles = 0;
     std::size_t anchored = 0, supported = 0;  ///< particles that do not move / that hang on a support spring
     double tissue_volume_ml = 0.0;            ///< Σ mass / density over the particles
     double spacing_mm = 0.0, dt_ms = 0.0;     ///< the lattice spacing and the scenario's time step
-    double seconds = 0.0;
+    /// The build's wall time, s: of the build that made the scenario (a reused case: from its build
+    /// record; unknown for a scenario without one), or until the case failed or was stopped.
+    std::optional<double> seconds;
+    std::string built_by;  ///< "batch" or "workflow", from the build record; empty when unknown
+    std::string built_at;  ///< when that build ended, UTC (ISO 8601); empty when unknown
     std::vector<std::string> warnings;
     std::string message;
     std::string preview;       ///< previews/<id>.png, relative to the batch folder; empty when there is none
@@ -63,6 +78,68 @@ struct Outcome {
 
 /// Where a case's scenario goes.
 fs::path output_of(const BatchCase& c, const fs::path& folder) { return folder / (c.id + ".h5"); }
+
+/// Whether a case with this status has a scenario that its summary row describes.
+bool has_scenario(const std::string& status) { return status == "built" || status == "built by the workflow" || status == "reused"; }
+
+// ------------------------------------------------------------------------------------------------
+// Build records: DIR/logs/<id>.build.json, one per case, rewritten (atomically) by each build of it.
+
+/// What one build of a case left: written by the batch for its builds and by the workflow's build
+/// jobs (workflow/build_case.py writes the same fields).
+struct BuildRecord {
+    std::string key{};                               ///< the content key the build was given (`--batch-key`)
+    std::string built_by{};                          ///< "batch" or "workflow"
+    std::string run{};                               ///< a workflow build's run (DIR/logs/workflow-run); empty for a batch
+    std::string status{};                            ///< "built", "failed", or "running" (a build that never reported its end)
+    std::optional<double> seconds{};                 ///< the build's wall time, s
+    std::string finished{};                          ///< when it ended, UTC, ISO 8601
+    std::optional<std::uintmax_t> scenario_bytes{};  ///< the size of the scenario it wrote, bytes
+    std::string message{};                           ///< why it failed
+};
+
+fs::path record_of(const BatchCase& c, const fs::path& folder) { return folder / "logs" / (c.id + ".build.json"); }
+
+/// The record at `path`; none when there is none or it cannot be read (a record is a report, never
+/// a reason to fail the batch).
+std::optional<BuildRecord> read_record(const fs::path& path) {
+    std::ifstream in(path);
+    if (!in) return std::nullopt;
+    const auto json = nlohmann::json::parse(in, nullptr, false);
+    if (!json.is_object()) return std::nullopt;
+    auto text = [&](const char* name) { return json.contains(name) && json[name].is_string() ? json[name].get<std::string>() : std::string(); };
+    BuildRecord record{.key = text("key"), .built_by = text("built_by"), .run = text("run"), .status = text("status"),
+                       .finished = text("finished"), .message = text("message")};
+    if (json.contains("seconds") && json["seconds"].is_number()) record.seconds = json["seconds"].get<double>();
+    if (json.contains("scenario_bytes") && json["scenario_bytes"].is_number_unsigned())
+        record.scenario_bytes = json["scenario_bytes"].get<std::uintmax_t>();
+    return record;
+}
+
+std::string utc_now() {
+    const std::time_t now = std::time(nullptr);
+    std::tm parts{};
+    ::gmtime_r(&now, &parts);
+    char text[32];
+    std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &parts);
+    return text;
+}
+
+/// Writes the record of a build of this batch; a record that cannot be written costs the summary
+/// its build time, never the case (a warning says so).
+void write_record(const BatchCase& c, const fs::path& folder, const BuildRecord& record) {
+    nlohmann::ordered_json json{{"case_id", c.id}, {"key", record.key}, {"built_by", record.built_by}, {"status", record.status}};
+    json["seconds"] = record.seconds ? nlohmann::ordered_json(*record.seconds) : nlohmann::ordered_json();
+    json["finished"] = record.finished;
+    if (record.scenario_bytes) json["scenario_bytes"] = *record.scenario_bytes;
+    json["message"] = record.message;
+    const std::string text = json.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace) + "\n";
+    try {
+        write_bytes_atomically(record_of(c, folder), text.data(), text.size(), "the build record");
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "heartprep: warning: %s\n", e.what());
+    }
+}
 
 fs::path self_executable() {
     std::error_code error;
@@ -202,7 +279,7 @@ bool up_to_date(const fs::path& output, const std::string& key, Outcome* outcome
         const Scenario existing = read_scenario(output);
         if (existing.batch_key != key || !existing.build_warnings) return false;
         if (outcome) {
-            // A scenario built before .xdmf files were written gets its description.
+            // A scenario built before its ParaView description was written gets one.
             if (!fs::exists(xdmf_beside(output))) write_scenario_xdmf(output, existing);
             fill_figures(existing, *outcome);
             outcome->warnings = *existing.build_warnings;
@@ -232,7 +309,46 @@ struct BatchSettings {
     int threads = 1;          ///< --threads of each build
     fs::path heartsim;        ///< renders the previews; empty: no previews
     std::string no_preview;   ///< why there are none, when `heartsim` is empty
+    bool force = false;       ///< --force: build every case, up to date or not
+    bool no_build = false;    ///< --no-build: report the folder as it stands (the workflow's summary)
+    std::string workflow_run; ///< --workflow-run: the run whose builds are `built by the workflow`
 };
+
+/// Fills a case whose scenario is up to date from its build record: `reused`, or `built by the
+/// workflow` when a job of this workflow run built it, with that build's time. A record that is
+/// not about this scenario (another key, another size: a file replaced since) gives no time.
+void describe_existing_build(const BatchCase& c, const fs::path& folder, const std::string& key, const BatchSettings& settings,
+                             Outcome& outcome) {
+    outcome.status = "reused";
+    const auto record = read_record(record_of(c, folder));
+    if (!record || record->status != "built" || record->key != key) return;
+    std::error_code error;
+    const auto bytes = fs::file_size(output_of(c, folder), error);
+    if (record->scenario_bytes && (error || bytes != *record->scenario_bytes)) return;
+    outcome.seconds = record->seconds;
+    outcome.built_by = record->built_by;
+    outcome.built_at = record->finished;
+    if (!settings.workflow_run.empty() && record->built_by == "workflow" && record->run == settings.workflow_run)
+        outcome.status = "built by the workflow";
+}
+
+/// --no-build: what became of a case whose scenario is not up to date, from its build record.
+void describe_missing_build(const BatchCase& c, const fs::path& folder, const std::string& key, Outcome& outcome) {
+    const auto record = read_record(record_of(c, folder));
+    const std::string log = (folder / "logs" / (c.id + ".log")).string();
+    if (!record || record->key != key || (record->status != "failed" && record->status != "running")) {
+        outcome.status = "not started";
+        outcome.message = "not built: no build of its current input and options has run (the workflow stopped before it?)";
+        return;
+    }
+    outcome.status = "failed";
+    outcome.seconds = record->seconds;
+    outcome.built_by = record->built_by;
+    outcome.built_at = record->finished;
+    outcome.message = record->status == "running"
+                          ? "its build began but never reported an end: stopped, or killed by the cluster (out of time or memory?); see " + log
+                          : (record->message.empty() ? "see " + log : record->message);
+}
 
 /// The picture of a case at rest, previews/<id>.png, rendered headless by heartsim (its output is
 /// appended to the case's log). Kept while newer than the scenario.
@@ -268,23 +384,31 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
     Outcome outcome;
     outcome.status = "failed";
     const auto start = std::chrono::steady_clock::now();
+    auto elapsed = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
     const fs::path output = output_of(c, folder);
     const fs::path log = folder / "logs" / (c.id + ".log");
+    std::string key;
     try {
-        // Temporaries of builds killed in an earlier run (their process is gone).
-        sweep_stale_temporaries(output);
-        sweep_stale_temporaries(xdmf_beside(output));
+        // Temporaries of builds killed in an earlier run (their process is gone). Not with
+        // --no-build: on a cluster, the process of a temporary may live on another machine.
+        if (!settings.no_build) {
+            sweep_stale_temporaries(output);
+            sweep_stale_temporaries(xdmf_beside(output));
+        }
         if (!fs::exists(c.input)) throw InputError(c.input.string() + ": file not found");
-        const std::string key = content_key(c);
-        if (fs::exists(output)) {
+        key = content_key(c);
+        if (!settings.force && fs::exists(output)) {
             // A file from before scenarios kept their build's warnings is built again, so the
             // summary can report them.
             if (up_to_date(output, key, &outcome)) {
-                outcome.status = "skipped";
+                describe_existing_build(c, folder, key, settings, outcome);
                 make_preview(c, folder, settings, slot, outcome);
-                outcome.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
                 return outcome;
             }
+        }
+        if (settings.no_build) {
+            describe_missing_build(c, folder, key, outcome);
+            return outcome;
         }
         if (stop_signal.load()) {  // stopped while the existing scenario was being checked
             outcome.status = "not started";
@@ -296,7 +420,9 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
         const auto words = split_words(c.options);
         if (std::find(words.begin(), words.end(), "--threads") != words.end()) arguments.resize(arguments.size() - 2);  // theirs
         for (const auto& word : words) arguments.push_back(word);
+        const auto build_start = std::chrono::steady_clock::now();
         const ChildStatus status = run_process(arguments, log, slot);
+        const double build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - build_start).count();
         sweep_stale_temporaries(output);  // what a killed build left beside its output
         sweep_stale_temporaries(xdmf_beside(output));
         std::vector<std::string> logged_warnings;
@@ -327,12 +453,27 @@ Outcome run_case(const BatchCase& c, const fs::path& folder, const fs::path& exe
             fill_figures(built, outcome);
             outcome.warnings = built.build_warnings ? *built.build_warnings : logged_warnings;
             outcome.status = "built";
+            outcome.seconds = build_seconds;
+            outcome.built_by = "batch";
+            outcome.built_at = utc_now();
+            std::error_code error;
+            const auto bytes = fs::file_size(output, error);
+            write_record(c, folder, {.key = key, .built_by = "batch", .status = "built", .seconds = build_seconds,
+                                     .finished = outcome.built_at,
+                                     .scenario_bytes = error ? std::nullopt : std::optional<std::uintmax_t>(bytes)});
             make_preview(c, folder, settings, slot, outcome);
+            return outcome;
         }
     } catch (const std::exception& e) {
         outcome.message = e.what();
     }
-    outcome.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    outcome.seconds = elapsed();
+    if (outcome.status == "failed" && !key.empty() && !settings.no_build) {
+        outcome.built_by = "batch";
+        outcome.built_at = utc_now();
+        write_record(c, folder, {.key = key, .built_by = "batch", .status = "failed", .seconds = outcome.seconds,
+                                 .finished = outcome.built_at, .message = outcome.message});
+    }
     return outcome;
 }
 
@@ -358,7 +499,7 @@ nlohmann::ordered_json summary_json(const fs::path& folder, const std::vector<Ba
     for (std::size_t i = 0; i < cases.size(); ++i) {
         const auto& c = cases[i];
         const auto& o = outcomes[i];
-        const bool ended_well = o.status == "built" || o.status == "skipped";
+        const bool ended_well = has_scenario(o.status);
         nlohmann::ordered_json entry{{"case_id", c.id}, {"input", c.input.string()}, {"output", output_of(c, folder).string()},
                                      {"status", o.status}};
         if (ended_well) {
@@ -371,7 +512,9 @@ nlohmann::ordered_json summary_json(const fs::path& folder, const std::vector<Ba
             entry["spacing_mm"] = o.spacing_mm;
             entry["dt_ms"] = o.dt_ms;
         }
-        entry["seconds"] = o.seconds;
+        entry["seconds"] = o.seconds ? nlohmann::ordered_json(*o.seconds) : nlohmann::ordered_json();
+        entry["built_by"] = o.built_by.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(o.built_by);
+        entry["built_at"] = o.built_at.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(o.built_at);
         entry["warnings"] = o.warnings;
         entry["message"] = o.message;
         entry["preview"] = o.preview.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(o.preview);
@@ -386,28 +529,30 @@ std::string dump(const nlohmann::ordered_json& json) { return json.dump(2, ' ', 
 
 /// summary.csv, summary.md and summary.json for every case of the manifest as the batch stands;
 /// returns the markdown table. `state`: the line under the table that says whether the batch is
-/// running, finished or stopped.
+/// running, finished or stopped; `workflow`: the summary of a workflow run (--no-build), whose
+/// count line leads with the cases its jobs built.
 std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>& cases, const std::vector<Outcome>& outcomes,
-                            const std::string& state) {
+                            const std::string& state, bool workflow) {
     std::ostringstream csv, markdown;
-    // The first nine columns as before the QC columns were added, so readers by position still work.
+    // The first nine columns as before the QC columns were added, so readers by position still work;
+    // new columns go at the end.
     csv << "case_id,input,status,particles,springs,triangles,seconds,warnings,message,"
-           "output,anchored,supported,tissue_volume_ml,spacing_mm,dt_ms,preview\n";
-    markdown << "| case | status | particles | anchored | supported | tissue (mL) | spacing (mm) | dt (ms) | time (s) | warnings | "
+           "output,anchored,supported,tissue_volume_ml,spacing_mm,dt_ms,preview,built_by,built_at\n";
+    markdown << "| case | status | particles | anchored | supported | tissue (mL) | spacing (mm) | dt (ms) | build time (s) | warnings | "
                 "preview |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|\n";
     std::map<std::string, std::size_t> counts;
     for (std::size_t i = 0; i < cases.size(); ++i) {
         const auto& c = cases[i];
         const auto& o = outcomes[i];
         ++counts[o.status];
-        const bool ended_well = o.status == "built" || o.status == "skipped";
+        const bool ended_well = has_scenario(o.status);
         std::string warnings;
         for (const auto& w : o.warnings) warnings += (warnings.empty() ? "" : "; ") + w;
-        const std::string seconds = fixed(o.seconds, 2);
+        const std::string seconds = o.seconds ? fixed(*o.seconds, 2) : std::string();
         csv << csv_quote(c.id) << "," << csv_quote(c.input.string()) << "," << o.status << "," << o.particles << "," << o.springs
             << "," << o.triangles << "," << seconds << "," << csv_quote(warnings) << "," << csv_quote(o.message) << ","
             << csv_quote(output_of(c, folder).string()) << "," << o.anchored << "," << o.supported << "," << fixed(o.tissue_volume_ml, 3)
-            << "," << fixed(o.spacing_mm, 4) << "," << fixed(o.dt_ms, 5) << "," << csv_quote(o.preview) << "\n";
+            << "," << fixed(o.spacing_mm, 4) << "," << fixed(o.dt_ms, 5) << "," << csv_quote(o.preview) << "," << o.built_by << "," << o.built_at << "\n";
         std::string cell = ended_well ? warnings : o.message;
         std::replace(cell.begin(), cell.end(), '|', '/');
         if (ended_well && cell.size() > 100)  // the CSV and the log keep the full text
@@ -415,13 +560,19 @@ std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>
         std::string picture = o.preview.empty() ? o.preview_note : "![" + c.id + "](" + o.preview + ")";
         std::replace(picture.begin(), picture.end(), '|', '/');
         markdown << "| " << c.id << " | " << o.status << " | " << o.particles << " | " << o.anchored << " | " << o.supported << " | "
-                 << fixed(o.tissue_volume_ml, 1) << " | " << fixed(o.spacing_mm, 2) << " | " << fixed(o.dt_ms, 4) << " | " << seconds
-                 << " | " << cell << " | " << picture << " |\n";
+                 << fixed(o.tissue_volume_ml, 1) << " | " << fixed(o.spacing_mm, 2) << " | " << fixed(o.dt_ms, 4) << " | "
+                 << (seconds.empty() && ended_well ? "unknown" : seconds) << " | " << cell << " | " << picture << " |\n";
     }
-    markdown << "\n" << cases.size() << " cases: " << counts["built"] << " built, " << counts["skipped"] << " skipped, "
-             << counts["failed"] << " failed";
-    for (const char* status : {"interrupted", "not started", "pending"})
-        if (counts[status]) markdown << ", " << counts[status] << " " << status;
+    // Always the statuses of this kind of run, then any other that occurs.
+    const std::vector<std::string> always = workflow ? std::vector<std::string>{"built by the workflow", "reused", "failed"}
+                                                     : std::vector<std::string>{"built", "reused", "failed"};
+    markdown << "\n" << cases.size() << " cases: ";
+    bool first = true;
+    for (const char* status : {"built by the workflow", "built", "reused", "failed", "interrupted", "not started", "pending"}) {
+        if (!counts[status] && std::find(always.begin(), always.end(), status) == always.end()) continue;
+        markdown << (first ? "" : ", ") << counts[status] << " " << status;
+        first = false;
+    }
     markdown << ". " << state << "\n";
     write_text(folder / "summary.csv", csv.str());
     write_text(folder / "summary.md", markdown.str());
@@ -440,15 +591,17 @@ void add_batch_command(CLI::App& app) {
         "Each case is written to DIR/<case_id>.h5 by its own `heartprep build --threads T` process, its output to\n"
         "DIR/logs/<case_id>.log, and pictured at rest in DIR/previews/<case_id>.png by `heartsim run --headless`\n"
         "(found beside heartprep or on PATH). Per-case options replace --options. A case whose input bytes,\n"
-        "options and heartprep version are unchanged since its scenario was written is skipped (its build's\n"
+        "options and heartprep version are unchanged since its scenario was written is `reused` (its build's\n"
         "warnings, kept in the scenario, are reported again). One failing case does not stop the others; the exit\n"
         "status is non-zero if any case failed. Summary: DIR/summary.md (with the pictures), DIR/summary.csv and\n"
-        "DIR/summary.json, rewritten as each case ends (cases not finished yet are `pending`). When stderr is not a\n"
-        "terminal, a line every 10 s says which cases are running (HEARTPREP_PROGRESS_SECONDS sets the interval).\n"
+        "DIR/summary.json, rewritten as each case ends (cases not finished yet are `pending`): per case `built`,\n"
+        "`built by the workflow`, `reused` or `failed`, with the time of the build that made its scenario (each\n"
+        "build's record: DIR/logs/<case_id>.build.json). When stderr is not a terminal, a line every 10 s says\n"
+        "which cases are running (HEARTPREP_PROGRESS_SECONDS sets the interval).\n"
         "SIGINT (Ctrl-C), SIGTERM or SIGHUP stop the running builds (`interrupted`) and the cases not begun\n"
         "(`not started`), write the summary, and end the batch by the same signal (a shell reports 128 + its\n"
         "number: 130, 143, 129); run the command again to finish. On a cluster, workflow/Snakefile runs one case\n"
-        "per job with the same skipping (docs/user-guide.md, \"Batch on a cluster\").\n"
+        "per job with the same reuse (docs/user-guide.md, \"Batch on a cluster\").\n"
         "Examples:\n  heartprep batch cases.csv -o scenarios/ -j 2 --options \"--cavity 2 --anchor-border\"\n"
         "  heartprep batch mri/ --pattern '*-label.nii.gz' -o scenarios/ -j 4 --threads 2");
     auto manifest = std::make_shared<fs::path>();
@@ -460,6 +613,9 @@ void add_batch_command(CLI::App& app) {
     auto json = std::make_shared<bool>(false);
     auto plan = std::make_shared<bool>(false);
     auto no_preview = std::make_shared<bool>(false);
+    auto no_build = std::make_shared<bool>(false);
+    auto force = std::make_shared<bool>(false);
+    auto workflow_run = std::make_shared<std::string>();
     command->add_option("manifest", *manifest, "CSV manifest or folder of label maps")->required();
     command->add_option("-o,--output", *folder, "Folder for the scenarios, logs, previews and summary (created if needed)")->required();
     command->add_option("-j,--jobs", *jobs, "Cases built at the same time")->check(CLI::Range(1, max_jobs))->capture_default_str();
@@ -471,6 +627,15 @@ void add_batch_command(CLI::App& app) {
     command->add_flag("--plan", *plan,
                       "Build nothing: print each case's id, input, output, options, content key and whether it is up to date, as JSON");
     command->add_flag("--no-preview", *no_preview, "No pictures (previews need heartsim and OpenGL, e.g. Mesa's llvmpipe)");
+    command->add_flag("--force", *force, "Build every case again, also those whose scenario is up to date");
+    command->add_flag("--no-build", *no_build,
+                      "Build nothing: write the summary of the folder as it stands (a case not up to date is `failed` or `not "
+                      "started`, from its build record); the workflow's summary");
+    command->add_option("--workflow-run", *workflow_run,
+                        "With --no-build: the workflow run (DIR/logs/workflow-run) whose builds are `built by the workflow`; other "
+                        "up-to-date cases are `reused`")
+        ->needs(command->get_option("--no-build"));
+    command->get_option("--no-build")->excludes(command->get_option("--force"));
     command->callback([=] {
         if (!pattern->empty() && !fs::is_directory(*manifest))
             throw UsageError("--pattern chooses files of a folder; " + manifest->string() + " is not a folder");
@@ -493,6 +658,9 @@ void add_batch_command(CLI::App& app) {
         if (error) throw OutputError(folder->string() + ": cannot create the output folder: " + error.message());
         const fs::path executable = self_executable();
         BatchSettings settings;
+        settings.no_build = *no_build;
+        settings.force = *force;
+        settings.workflow_run = *workflow_run;
         const int cores = int(std::max(1u, std::thread::hardware_concurrency()));
         settings.threads = *threads > 0 ? *threads : std::max(1, cores / *jobs);
         if (!*no_preview) {
@@ -518,7 +686,7 @@ void add_batch_command(CLI::App& app) {
         };
         catch_stop_signals();
         // Before any build starts: a summary left by an earlier run no longer describes the folder.
-        write_summaries(*folder, cases, outcomes, running_state());
+        write_summaries(*folder, cases, outcomes, running_state(), *no_build);
         {
             ProgressStage stage(progress, "batch", cases.size());
             auto worker = [&](int w) {
@@ -538,12 +706,12 @@ void add_batch_command(CLI::App& app) {
                     running[std::size_t(w)].first = cases.size();
                     outcomes[i] = std::move(outcome);
                     const auto& o = outcomes[i];
-                    const bool ended_well = o.status == "built" || o.status == "skipped";
+                    const bool ended_well = has_scenario(o.status);
                     std::fprintf(stderr, "\r[%zu/%zu] %s: %s%s%s\n", ++done, cases.size(), cases[i].id.c_str(), o.status.c_str(),
                                  ended_well ? "" : ": ", ended_well ? "" : o.message.c_str());
                     stage.update(done);
                     try {
-                        write_summaries(*folder, cases, outcomes, running_state());
+                        write_summaries(*folder, cases, outcomes, running_state(), *no_build);
                     } catch (const std::exception& e) {
                         std::fprintf(stderr, "heartprep: warning: %s\n", e.what());  // the final write reports it as an error
                     }
@@ -575,9 +743,13 @@ void add_batch_command(CLI::App& app) {
         const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         const int stopped_by = stop_signal.load();
         std::ostringstream state;
-        state << "In " << std::fixed << std::setprecision(1) << total << " s with -j " << *jobs << " --threads " << settings.threads << ".";
+        if (*no_build)
+            state << "The folder as it stands" << (workflow_run->empty() ? "" : " after workflow run " + *workflow_run)
+                  << " (heartprep batch --no-build, which builds nothing), in " << std::fixed << std::setprecision(1) << total << " s.";
+        else
+            state << "In " << std::fixed << std::setprecision(1) << total << " s with -j " << *jobs << " --threads " << settings.threads << ".";
         if (stopped_by) state << " Stopped by " << signal_name(stopped_by) << ": run the same command again to finish.";
-        const std::string table = write_summaries(*folder, cases, outcomes, state.str());
+        const std::string table = write_summaries(*folder, cases, outcomes, state.str(), *no_build);
         std::fputs(*json ? dump(summary_json(*folder, cases, outcomes, state.str())).c_str() : table.c_str(), stdout);
         std::fflush(stdout);
         if (stopped_by) {
