@@ -133,7 +133,7 @@ private:
 /// Creates `path` through `fill` in a temporary file beside it, flushes, then renames it into
 /// place: nothing half-written remains when fill throws or the disk fills. `check`, when given,
 /// reads the complete temporary file before it takes the name; what it throws leaves no file.
-/// `beside`: files that belong with it (the .xdmf), written and flushed before either is renamed.
+/// `beside`: files that belong with it (the .xmf2), written and flushed before either is renamed.
 void write_file(const std::filesystem::path& path, const std::function<void(Writer&)>& fill,
                 const std::function<void(const std::filesystem::path&)>& check = {}, const std::vector<FileBeside>& beside = {});
 

@@ -128,13 +128,13 @@ struct Recording {
 /// and the journal's readers refuse any other.
 inline bool known_arithmetic(const std::string& arithmetic) { return arithmetic == "fused" || arithmetic == "separate"; }
 
-/// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xdmf`, a
+/// Writes atomically, then the XDMF description beside it (xdmf.h: `rec.h5` → `rec.xmf2`, a
 /// time series for ParaView); throws OutputError naming the file. `check`, when given, reads the
 /// complete temporary file before it takes the name (`heartsim recover` reads it back as a
 /// recording), and what it throws leaves no file.
 void write_recording(const std::filesystem::path& path, const Recording& recording,
                      const std::function<void(const std::filesystem::path&)>& check = {});
-/// The HDF5 file (atomically, `check` as above), with `beside` (write_recording's .xdmf) or alone.
+/// The HDF5 file (atomically, `check` as above), with `beside` (write_recording's .xmf2) or alone.
 void write_recording_data(const std::filesystem::path& path, const Recording& recording,
                           const std::function<void(const std::filesystem::path&)>& check = {}, const std::vector<FileBeside>& beside = {});
 /// Reads and validates (shapes agree, values finite where they must be); throws InputError

@@ -93,7 +93,7 @@ VisualMesh to_visual_mesh(const TriangleMesh& mesh);
 
 /// Writes `scenario` to `path` atomically (a temporary file beside it, then rename): a failed
 /// write leaves no file and no partial file. Then the XDMF description beside it (xdmf.h:
-/// `case.h5` → `case.xdmf`, for ParaView), atomically too. Throws OutputError naming the file.
+/// `case.h5` → `case.xmf2`, for ParaView), atomically too. Throws OutputError naming the file.
 void write_scenario(const std::filesystem::path& path, const Scenario& scenario);
 
 /// write_scenario, but the file is read back with read_scenario's every check before it takes its

@@ -37,14 +37,14 @@ struct SimulationState {
     /// runtime draws it): /visual/positions. Empty when the scenario has no visual mesh.
     std::vector<std::array<float, 3>> visual_positions;
     /// Not stored in the file, read back empty: the scenario the state came from and its triangle
-    /// counts, for the .xdmf written beside the state (xdmf.h), which shows the deformed
-    /// simulation surface and detailed mesh with the scenario's triangles. Empty: the .xdmf shows
+    /// counts, for the .xmf2 written beside the state (xdmf.h), which shows the deformed
+    /// simulation surface and detailed mesh with the scenario's triangles. Empty: the .xmf2 shows
     /// the particles only.
     std::filesystem::path scenario_path;
     std::size_t scenario_simsurface_triangles = 0, scenario_visual_triangles = 0;
 };
 
-/// Writes atomically, and the XDMF description beside it (xdmf.h: `state.h5` → `state.xdmf`);
+/// Writes atomically, and the XDMF description beside it (xdmf.h: `state.h5` → `state.xmf2`);
 /// throws OutputError naming the file.
 void write_state(const std::filesystem::path& path, const SimulationState& state);
 /// Reads and validates; throws InputError naming the file and dataset.

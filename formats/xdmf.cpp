@@ -118,9 +118,9 @@ std::string attribute(const std::string& name, const char* kind, const std::stri
 
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5) {
     std::filesystem::path path = h5;
-    path.replace_extension(".xdmf");
-    // An .h5 someone named `x.xdmf` keeps its data: its description is `x.xdmf.xdmf`.
-    return path == h5 ? std::filesystem::path(h5.string() + ".xdmf") : path;
+    path.replace_extension(xdmf_extension);
+    // An .h5 someone named `x.xmf2` keeps its data: its description is `x.xmf2.xmf2`.
+    return path == h5 ? std::filesystem::path(h5.string() + xdmf_extension) : path;
 }
 
 void check_xdmf_destination(const std::filesystem::path& h5) {

@@ -1,11 +1,19 @@
 /// @file xdmf.h
 /// @brief The XDMF description written beside every scenario, saved state and recording
-/// (`case.h5` → `case.xdmf`), so ParaView (File ▸ Open, "XDMF Reader" or "Xdmf3 Reader") shows
-/// what the .h5 holds without a plugin. XDMF 2: a small XML file whose DataItems name datasets
-/// inside the .h5 by a path relative to the .xdmf's folder (`case.h5:/visual/positions`); it
-/// copies no data but a recording's per-step tool values and the particle grid's vertex list. Coordinates are as stored: world millimetres, LPS (ParaView applies no
-/// transform). What each file shows: docs/scenario-format.md ("Opening in ParaView") and
-/// docs/runtime.md.
+/// (`case.h5` → `case.xmf2`), so ParaView shows what the .h5 holds without a plugin. XDMF 2: a
+/// small XML file whose DataItems name datasets inside the .h5 by a path relative to the
+/// description's folder (`case.h5:/visual/positions`); it copies no data but a recording's per-step
+/// tool values and the particle grid's vertex list. Coordinates are as stored: world millimetres,
+/// LPS (ParaView applies no transform). What each file shows: docs/user-guide.md ("Open in
+/// ParaView"), docs/scenario-format.md and docs/runtime.md.
+///
+/// Why `.xmf2`, not `.xdmf`: ParaView (5.11) offers three readers for `.xdmf`, and the one it
+/// picks by itself, "Xdmf3 Reader (Top Level Partition)", reads the top-level grids as pieces of
+/// one partitioned data set (vtkXdmf3Reader with FileSeriesAsTime off flattens every grid it
+/// reads, whatever the Grid nesting): the detailed mesh, the simulation surface and the particles
+/// then come as one unnamed block, drawn on top of one another. `.xmf2` is claimed by ParaView's
+/// XDMF 2 reader alone ("XDMF Reader"), which keeps each top-level grid as a block named by the
+/// grid's Name (tests/paraview_open.py checks what File ▸ Open shows).
 #pragma once
 
 #include "formats/atomic_file.h"
@@ -20,7 +28,12 @@ struct Scenario;
 struct SimulationState;
 struct Recording;
 
-/// `case.h5` → `case.xdmf` (the same folder, the extension replaced; `x.xdmf` → `x.xdmf.xdmf`).
+/// The description's extension: the one ParaView opens with its XDMF 2 reader alone (above).
+inline constexpr const char* xdmf_extension = ".xmf2";
+
+/// `case.h5` → `case.xmf2` (the same folder, the extension replaced; `x.xmf2` → `x.xmf2.xmf2`).
+/// `.h5` → `.xmf2` adds two bytes: an .h5 name of up to 253 bytes keeps its description within
+/// the 255 bytes a file name may take.
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
 /// The description `text` as a file written together with `h5` (atomic_file.h FileBeside): a
 /// failure at either leaves both old files as they were.

@@ -279,9 +279,9 @@ TEST(CrashHygiene, AHeartprepBuildKilledAtRandomMomentsLeavesTheOldScenarioOrThe
     // (out.h5's from the kills above, and any a random kill left beside a fresh file).
     std::set<std::string> targets{"out.h5"};
     for (const std::string& name : temporaries_in(dir.path())) {
-        // A kill while the .xdmf beside a scenario was written: the next build of the scenario sweeps it.
+        // A kill while the .xmf2 beside a scenario was written: the next build of the scenario sweeps it.
         const fs::path target = name.substr(1, name.find(".tmp-") - 1);
-        targets.insert(target.extension() == ".xdmf" ? target.stem().string() + ".h5" : target.string());
+        targets.insert(target.extension() == ".xmf2" ? target.stem().string() + ".h5" : target.string());
     }
     for (const std::string& target : targets) {
         ASSERT_EQ(wait_for(start(build(dir / target, "3000"), dir / "last.log"), 300), 0) << read_text(dir / "last.log");
@@ -338,12 +338,12 @@ TEST(CrashHygiene, ABatchStoppedBySigtermStopsItsBuildsAndWritesASummaryThatMatc
         EXPECT_NE(read_text(out / "summary.md").find("Stopped by SIGTERM"), std::string::npos) << read_text(out / "summary.md");
     }
 
-    // Run again: what was built is skipped, the rest built, nothing pending.
+    // Run again: what was built is reused, the rest built, nothing pending.
     const auto first = read_summary(out / "summary.csv");
     const auto again = test::heartprep("batch " + quoted(dir / "in") + " -o " + quoted(out) + " -j 2 --options '--particles 2500 --anchor-border'");
     ASSERT_EQ(again.exit_code, 0) << again.output;
     for (const auto& [id, row] : read_summary(out / "summary.csv")) {
-        EXPECT_EQ(row.first, first.at(id).first == "built" ? "skipped" : "built") << id;
+        EXPECT_EQ(row.first, first.at(id).first == "built" ? "reused" : "built") << id;
         EXPECT_NO_THROW(read_scenario(out / (id + ".h5")));
     }
 }
@@ -392,7 +392,7 @@ TEST(CrashHygiene, ABatchKilledOutrightTakesItsBuildsWithIt) {
     // The next run finishes and sweeps what the killed builds left.
     const auto again = test::heartprep("batch " + quoted(dir / "in") + " -o " + quoted(out) + " -j 2 --options '--particles 2500 --anchor-border'");
     ASSERT_EQ(again.exit_code, 0) << again.output;
-    for (const auto& [id, row] : read_summary(out / "summary.csv")) EXPECT_TRUE(row.first == "built" || row.first == "skipped") << id;
+    for (const auto& [id, row] : read_summary(out / "summary.csv")) EXPECT_TRUE(row.first == "built" || row.first == "reused") << id;
     EXPECT_TRUE(temporaries_in(out).empty());
 }
 
@@ -441,8 +441,8 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
     // ParaView's description lies beside the recording under its final name, and no other.
     std::vector<std::string> descriptions;
     for (const auto& entry : fs::directory_iterator(record.parent_path()))
-        if (entry.path().extension() == ".xdmf") descriptions.push_back(entry.path().filename().string());
-    EXPECT_EQ(descriptions, std::vector<std::string>{record.stem().string() + ".xdmf"});
+        if (entry.path().extension() == ".xmf2") descriptions.push_back(entry.path().filename().string());
+    EXPECT_EQ(descriptions, std::vector<std::string>{record.stem().string() + ".xmf2"});
     const Recording r = read_recording(record);
     ASSERT_GT(r.steps.size(), 0u);
     ASSERT_TRUE(r.hands[0].used && r.hands[1].used);

@@ -202,9 +202,9 @@ TEST(HeartprepErrors, UnwritableOutput) {
     expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "missing" / "out.h5"), {"missing", "does not exist"});
     // The ParaView description written beside the scenario: a folder there failed after the whole
     // build and left the .h5 without it; now refused before the build, leaving nothing.
-    fs::create_directory(dir / "described.xdmf");
+    fs::create_directory(dir / "described.xmf2");
     expect_refusal(dir, "build " + quoted(input) + " -o " + quoted(dir / "described.h5"),
-                   {"described.xdmf: is a folder", "(the ParaView description written beside", "described.h5)"});
+                   {"described.xmf2: is a folder", "(the ParaView description written beside", "described.h5)"});
     if (geteuid() != 0) {  // root writes anywhere; the permission case is then untestable
         fs::create_directory(dir / "locked");
         fs::permissions(dir / "locked", fs::perms::owner_read | fs::perms::owner_exec);
@@ -369,7 +369,7 @@ TEST_P(RealCase, BuildsWithAClosedSurfaceAndParticlesInTissue) {
     const auto input = test::real_case(GetParam());
     if (input.empty()) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA;
     test::TempDir dir;
-    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(dir / "case.h5") + " --cavity 2 --anchor-border");
+    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(dir / "case.h5") + " --cavity 2 --anchor-border --verbose");
     ASSERT_EQ(run.exit_code, 0) << run.output;
     EXPECT_NE(run.output.find("closed 2-manifold"), std::string::npos) << run.output;
     const Scenario s = read_scenario(dir / "case.h5");
@@ -456,8 +456,8 @@ TEST(HeartprepErrors, OutOfMemoryIsOneLineNamingTheStageAndLeavesNoFile) {
                                          test::quoted(fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz") + " -o " +
                                          test::quoted(dir / "out.h5") + " -q",
                                      "heartprep: error: out of memory while ");
-    // The last run succeeded and wrote out.h5 and its out.xdmf; the failed ones left nothing else.
-    EXPECT_EQ(listing(dir.path()), (std::set<std::string>{"out.h5", "out.xdmf"}));
+    // The last run succeeded and wrote out.h5 and its out.xmf2; the failed ones left nothing else.
+    EXPECT_EQ(listing(dir.path()), (std::set<std::string>{"out.h5", "out.xmf2"}));
 }
 
 TEST(HeartprepErrors, PathsThatCannotBeOpenedAreOneClearLine) {

@@ -1,8 +1,10 @@
-// ParaView can open what heartsim writes: the .xdmf beside a scenario, a saved state
+// ParaView can open what heartsim writes: the .xmf2 beside a scenario, a saved state
 // and a recording, and `heartprep export`'s .vtp/.stl/.obj/.ply, each opened by VTK's own readers
 // (tests/vtk_open.py under /usr/bin/python3) and by ParaView's own File > Open (tests/paraview_open.py
-// under pvpython), and compared with what our readers find in the files. Skips with a message
-// where that Python has no VTK or its VTK no XDMF reader; without pvpython that part is left out.
+// under pvpython: the reader ParaView picks by itself, which must show the scenario's three named
+// blocks with their counts), and compared with what our readers find in the files. Skips with a
+// message where that Python has no VTK or its VTK no XDMF reader; without pvpython that part is
+// left out, with a message.
 #include "formats/recording.h"
 #include "formats/scenario.h"
 #include "formats/state.h"
@@ -31,6 +33,8 @@ fs::path samples() { return fs::path(HEARTSIM_SOURCE_DIR) / "samples"; }
 
 /// One line of vtk_open.py: its `key=value` words.
 using Words = std::map<std::string, std::string>;
+
+std::size_t count(const Words& w, const std::string& key) { return w.count(key) ? std::stoull(w.at(key)) : std::size_t(-1); }
 
 struct Opened {
     bool skipped = false;
@@ -85,27 +89,70 @@ Opened vtk_open(const std::vector<fs::path>& files) {
     return opened;
 }
 
-/// What ParaView's File > Open shows of `file` (tests/paraview_open.py under pvpython: the reader
-/// ParaView picks by itself, at the first time step, points and cells summed over the blocks);
+/// What ParaView's File > Open shows of a file (tests/paraview_open.py under pvpython).
+struct ParaViewView {
+    Words file;                              ///< reader (the one ParaView picks), readers (all it offers), points, cells, times
+    std::vector<std::pair<std::string, Words>> blocks;  ///< each leaf data set: its block name ("-": none), points, cells
+    std::string output;
+    bool empty() const { return file.empty(); }
+    /// The blocks named `name`.
+    std::vector<Words> named(const std::string& name) const {
+        std::vector<Words> found;
+        for (const auto& [block, words] : blocks)
+            if (block == name) found.push_back(words);
+        return found;
+    }
+};
+
+/// ParaView's File > Open of `file` (the reader ParaView picks by itself, at the first time step);
 /// empty, with a message, where pvpython is absent.
-Words paraview_open(const fs::path& file) {
+ParaViewView paraview_open(const fs::path& file) {
+    ParaViewView view;
     if (test::run_command("command -v pvpython").exit_code != 0) {
         std::printf("pvpython absent: ParaView's own File > Open not tried on %s\n", file.c_str());
-        return {};
+        return view;
     }
     const auto run = test::run_command("cd / && pvpython " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "tests/paraview_open.py") + " " +
-                                       quoted(file) + " 2>&1 | grep '^file=\\|^paraview_open'");
-    Words words;
-    std::istringstream in(run.output);
-    for (std::string word; in >> word;) {
-        const auto equals = word.find('=');
-        if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+                                       quoted(file) + " 2>&1 | grep '^file=\\|^block \\|^paraview_open'");
+    view.output = run.output;
+    std::istringstream lines(run.output);
+    for (std::string line; std::getline(lines, line);) {
+        Words words;
+        std::istringstream in(line);
+        for (std::string word; in >> word;) {
+            const auto equals = word.find('=');
+            if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+        }
+        if (line.rfind("block ", 0) == 0 && words.count("name"))
+            view.blocks.emplace_back(words.at("name"), words);
+        else if (line.rfind("file=", 0) == 0)
+            view.file = words;
     }
-    EXPECT_TRUE(words.count("reader")) << "ParaView did not open " << file << ": " << run.output;
-    return words;
+    EXPECT_TRUE(view.file.count("reader")) << "ParaView did not open " << file << ": " << run.output;
+    return view;
 }
 
-std::size_t count(const Words& w, const std::string& key) { return w.count(key) ? std::stoull(w.at(key)) : std::size_t(-1); }
+/// The parts of a scenario or a state as ParaView shows them by itself: its reader the only one it
+/// offers (File > Open asks nothing), and one block per part, named, with these counts.
+struct Part {
+    std::string name;
+    std::size_t points, cells;
+};
+void expect_paraview_parts(const fs::path& file, const std::vector<Part>& parts) {
+    const ParaViewView pv = paraview_open(file);
+    if (pv.empty()) return;
+    const std::string reader = pv.file.count("reader") ? pv.file.at("reader") : "";
+    EXPECT_EQ(pv.file.count("readers") ? pv.file.at("readers") : "", reader) << "ParaView offers other readers for " << file << "\n"
+                                                                                 << pv.output;
+    EXPECT_EQ(pv.blocks.size(), parts.size()) << reader << "\n" << pv.output;
+    for (const Part& part : parts) {
+        const auto found = pv.named(part.name);
+        ASSERT_EQ(found.size(), 1u) << "no one block named " << part.name << " (" << reader << ")\n" << pv.output;
+        EXPECT_EQ(count(found[0], "points"), part.points) << part.name << " (" << reader << ")";
+        EXPECT_EQ(count(found[0], "cells"), part.cells) << part.name << " (" << reader << ")";
+    }
+}
+
 
 /// VTK's bounds text "x0,x1,y0,y1,z0,z1" against the extent of `points`.
 template <class P>
@@ -154,6 +201,15 @@ void expect_scenario_grids(const fs::path& xdmf, const Scenario& s) {
     }
 }
 
+/// ParaView's File > Open of a scenario's description: the detailed mesh, the simulation surface
+/// and the particles as three named blocks, with the scenario file's counts.
+void expect_scenario_parts_in_paraview(const fs::path& xdmf, const Scenario& s) {
+    const std::size_t n = s.lattice.particles.size();
+    expect_paraview_parts(xdmf, {{"detailed_mesh", s.visual->positions.size(), s.visual->triangles.size()},
+                                 {"simulation_surface", n, s.simulation_surface->size()},
+                                 {"particles", n, n}});
+}
+
 }  // namespace
 
 TEST(ParaView, ScenarioXdmfOpensInVtkAndStaysWithItsH5WhenBothMove) {
@@ -166,11 +222,7 @@ TEST(ParaView, ScenarioXdmfOpensInVtkAndStaysWithItsH5WhenBothMove) {
     EXPECT_NE(text.find(">" + phantom().filename().string() + ":/visual/positions<"), std::string::npos) << text;
     EXPECT_EQ(text.find(phantom().parent_path().string()), std::string::npos) << "an absolute path in " << xdmf;
     expect_scenario_grids(xdmf, s);
-    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
-        const std::size_t n = s.lattice.particles.size();
-        EXPECT_EQ(count(pv, "points"), s.visual->positions.size() + 2 * n) << pv.at("reader");
-        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + n) << pv.at("reader");
-    }
+    expect_scenario_parts_in_paraview(xdmf, s);
     // Moved together elsewhere, under another name for the folder, they still open.
     test::TempDir dir;
     fs::create_directory(dir / "moved");
@@ -188,7 +240,7 @@ TEST(ParaView, StateXdmfShowsTheDeformedParticlesSurfaceAndDetailedMesh) {
     ASSERT_EQ(run.exit_code, 0) << run.output;
     const SimulationState state = read_state(state_file);
     ASSERT_EQ(state.visual_positions.size(), s.visual->positions.size());
-    const fs::path xdmf = dir / "state.xdmf";
+    const fs::path xdmf = xdmf_beside(state_file);
     ASSERT_TRUE(fs::exists(xdmf));
     // The triangles come from the scenario, in another folder: named relative to the .xdmf's.
     const std::string text = text_of(xdmf);
@@ -209,10 +261,10 @@ TEST(ParaView, StateXdmfShowsTheDeformedParticlesSurfaceAndDetailedMesh) {
         expect_bounds(blocks.at("particles"), state.positions, 1e-3, reader + " particles");
         expect_bounds(blocks.at("detailed_mesh"), state.visual_positions, 1e-3, reader + " detailed_mesh");
     }
-    if (const Words pv = paraview_open(xdmf); !pv.empty()) {
-        EXPECT_EQ(count(pv, "points"), state.visual_positions.size() + 2 * state.positions.size()) << pv.at("reader");
-        EXPECT_EQ(count(pv, "cells"), s.visual->triangles.size() + s.simulation_surface->size() + state.positions.size()) << pv.at("reader");
-    }
+    const std::size_t n = state.positions.size();
+    expect_paraview_parts(xdmf, {{"detailed_mesh", state.visual_positions.size(), s.visual->triangles.size()},
+                                 {"simulation_surface", n, s.simulation_surface->size()},
+                                 {"particles", n, n}});
 }
 
 TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
@@ -226,7 +278,7 @@ TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
     // The steps shown: every one, or every k-th and the last (xdmf.h).
     const std::size_t stride = xdmf_step_stride(r.steps.size());
     const std::size_t shown = (r.steps.size() - 1) / stride + 1 + ((r.steps.size() - 1) % stride != 0);
-    const Opened opened = vtk_open({dir / "rec.xdmf"});
+    const Opened opened = vtk_open({xdmf_beside(file)});
     if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
     ASSERT_FALSE(opened.readers().empty()) << opened.output;
     for (const auto& w : opened.lines) {
@@ -248,9 +300,11 @@ TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
             expect_bounds(tools, std::vector<std::array<double, 3>>(step.begin(), step.end()), 1e-9, reader + " tools");
         }
     }
-    if (const Words pv = paraview_open(dir / "rec.xdmf"); !pv.empty()) {
-        EXPECT_EQ(count(pv, "times"), shown) << pv.at("reader");
-        EXPECT_EQ(count(pv, "points"), 2u) << pv.at("reader");
+    if (const ParaViewView pv = paraview_open(xdmf_beside(file)); !pv.empty()) {
+        EXPECT_EQ(count(pv.file, "times"), shown) << pv.output;
+        EXPECT_EQ(count(pv.file, "points"), 2u) << pv.output;
+        // One data set (the two tools), not a multiblock: nothing to name.
+        EXPECT_EQ(pv.blocks.size(), 1u) << pv.output;
     }
 }
 
@@ -284,12 +338,12 @@ TEST(ParaView, RecoveredRecordingGetsItsXdmfUnderTheFinalNameAndLongOnesShowEver
     test::TempDir dir;
     const Recording r = synthetic_recording(5);
     write_recording_data(dir / "plain.h5", r);
-    EXPECT_FALSE(fs::exists(dir / "plain.xdmf")) << "write_recording_data writes the HDF5 alone";
+    EXPECT_FALSE(fs::exists(xdmf_beside(dir / "plain.h5"))) << "write_recording_data writes the HDF5 alone";
     write_recording(dir / "rec.h5", r);
     // Longer than xdmf_max_time_steps, by a count that is not a multiple of the stride.
     const Recording longer = synthetic_recording(int(2 * xdmf_max_time_steps + 1));
     write_recording(dir / "long.h5", longer);
-    const Opened opened = vtk_open({dir / "rec.xdmf", dir / "long.xdmf"});
+    const Opened opened = vtk_open({xdmf_beside(dir / "rec.h5"), xdmf_beside(dir / "long.h5")});
     if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
     std::vector<Words> series;
     for (const auto& w : opened.lines)
@@ -347,9 +401,9 @@ TEST(ParaView, ExportsOpenInVtkReadersWithTheCountsOfTheScenario) {
         expect_bounds(w, used, 1e-3, file);
     }
     EXPECT_EQ(seen, files.size()) << opened.output;
-    if (const Words pv = paraview_open(dir / "visual.vtp"); !pv.empty()) {
-        EXPECT_EQ(count(pv, "points"), visual.positions.size()) << pv.at("reader");
-        EXPECT_EQ(count(pv, "cells"), visual.triangles.size()) << pv.at("reader");
+    if (const ParaViewView pv = paraview_open(dir / "visual.vtp"); !pv.empty()) {
+        EXPECT_EQ(count(pv.file, "points"), visual.positions.size()) << pv.output;
+        EXPECT_EQ(count(pv.file, "cells"), visual.triangles.size()) << pv.output;
     }
 }
 
@@ -359,7 +413,9 @@ TEST(ParaView, RealCaseScenarioOpens) {
     test::TempDir dir;
     const auto build = test::heartprep("build " + quoted(input) + " -o " + quoted(dir / "pat1.h5") + " --cavity 2 --anchor-border -q");
     ASSERT_EQ(build.exit_code, 0) << build.output;
-    expect_scenario_grids(dir / "pat1.xdmf", read_scenario(dir / "pat1.h5"));
+    const Scenario s = read_scenario(dir / "pat1.h5");
+    expect_scenario_grids(xdmf_beside(dir / "pat1.h5"), s);
+    expect_scenario_parts_in_paraview(xdmf_beside(dir / "pat1.h5"), s);
 }
 
 }  // namespace heartsim

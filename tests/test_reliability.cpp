@@ -1,6 +1,6 @@
 // Promises the docs make about inputs and outputs (docs/reliability.md), each checked where a
 // user's run broke it: a detached label map's data file in the batch key and source_sha256, the
-// .xdmf written with its .h5 or not at all, the step policy's cross-field rules, the mapping's
+// .xmf2 written with its .h5 or not at all, the step policy's cross-field rules, the mapping's
 // offsets and the structure a scenario promises, long output names, and the --steps 0 refusal.
 // And the scalpel's promises where the cpu tests (test_cutting.cpp) cannot reach: the gl backend
 // under a thousand cuts in one step and every spring cut, and a saved state of a cutting run.
@@ -178,7 +178,7 @@ TEST(Reliability, AFullDiskAtTheXdmfLeavesNeitherNewFileAndKeepsTheOldPair) {
     ASSERT_EQ(test::heartprep("phantom -o " + quoted(input) + " --voxel 2").exit_code, 0);
     SmallDisk disk(dir / "disk", 64 << 20);
     if (disk.empty()) GTEST_SKIP() << "cannot mount a tmpfs here (needs root): " << std::strerror(errno);
-    const fs::path out = dir / "disk" / "case.h5", xdmf = dir / "disk" / "case.xdmf";
+    const fs::path out = dir / "disk" / "case.h5", xdmf = dir / "disk" / "case.xmf2";
     auto build = [&](const std::string& options) {
         return test::heartprep("build " + quoted(input) + " -o " + quoted(out) + " -q " + options);
     };
@@ -192,9 +192,9 @@ TEST(Reliability, AFullDiskAtTheXdmfLeavesNeitherNewFileAndKeepsTheOldPair) {
     auto failed = build("--particles 1500");
     EXPECT_EQ(failed.exit_code, 7) << failed.output;
     EXPECT_NE(failed.output.find("XDMF"), std::string::npos) << failed.output;
-    EXPECT_TRUE(fs::is_empty(dir / "disk")) << "left behind: " << (fs::exists(out) ? "case.h5 " : "") << (fs::exists(xdmf) ? "case.xdmf" : "");
+    EXPECT_TRUE(fs::is_empty(dir / "disk")) << "left behind: " << (fs::exists(out) ? "case.h5 " : "") << (fs::exists(xdmf) ? "case.xmf2" : "");
 
-    // An old pair (another build): the new .h5 fits beside it, its .xdmf does not.
+    // An old pair (another build): the new .h5 fits beside it, its .xmf2 does not.
     ASSERT_TRUE(disk.resize(64 << 20));
     ASSERT_EQ(build("--particles 1200").exit_code, 0);
     const std::string old_h5 = sha256_file(out), old_xdmf = file_text(xdmf);
@@ -270,11 +270,11 @@ TEST(Reliability, ALegalOutputNameOf253CharactersIsWritten) {
     test::TempDir dir;
     const fs::path input = dir / "phantom.nii.gz";
     ASSERT_EQ(test::heartprep("phantom -o " + quoted(input) + " --voxel 2").exit_code, 0);
-    const std::string name = std::string(250, 'h') + ".h5";  // 253 bytes; its .xdmf 255
+    const std::string name = std::string(250, 'h') + ".h5";  // 253 bytes; its .xmf2 255
     const auto run = test::heartprep("build " + quoted(input) + " -o " + quoted(dir / name) + " --particles 1200 -q");
     EXPECT_EQ(run.exit_code, 0) << run.output;
     EXPECT_TRUE(fs::exists(dir / name));
-    EXPECT_TRUE(fs::exists(dir / (std::string(250, 'h') + ".xdmf")));
+    EXPECT_TRUE(fs::exists(dir / (std::string(250, 'h') + ".xmf2")));
     EXPECT_EQ(refusal(dir / name), "");
     std::size_t files = 0;
     for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir.path())) ++files;

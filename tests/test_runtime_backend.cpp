@@ -517,7 +517,7 @@ TEST(RuntimeState, RoundTripAndAtomicWrite) {
     std::set<std::string> files;
     for (const auto& entry : fs::directory_iterator(dir.path()))
         if (entry.is_regular_file()) files.insert(entry.path().filename().string());
-    EXPECT_EQ(files, (std::set<std::string>{"s.h5", "s.xdmf"})) << "no temporary file may remain (s.xdmf: ParaView's description)";
+    EXPECT_EQ(files, (std::set<std::string>{"s.h5", "s.xmf2"})) << "no temporary file may remain (s.xmf2: ParaView's description)";
     EXPECT_THROW(read_state(dir / "nothing.h5"), InputError);
 }
 

@@ -3,8 +3,8 @@
 
     /usr/bin/python3 tests/vtk_open.py FILE...
 
-One line per file (per block for an .xdmf), words `key=value`:
-  .xdmf  with every XDMF reader this VTK has (vtkXdmfReader: ParaView's "XDMF Reader";
+One line per file (per block for an XDMF description), words `key=value`:
+  .xmf2 .xdmf  with every XDMF reader this VTK has (vtkXdmfReader: ParaView's "XDMF Reader";
          vtkXdmf3Reader: "Xdmf3 Reader"):  reader=NAME times=T  then per time step shown
          (the first, and the last when T > 1) and per block:
          block reader=NAME time=0|1 (first|last) name=NAME points=P cells=C bounds=x0,x1,y0,y1,z0,z1 arrays=a,b
@@ -125,7 +125,7 @@ def main(paths):
         if not os.path.exists(path):
             print(f"vtk_open: {path}: no such file")
             return 1
-        result = open_xdmf(path) if path.lower().endswith((".xdmf", ".xmf")) else open_mesh(path)
+        result = open_xdmf(path) if path.lower().endswith((".xdmf", ".xmf", ".xmf2", ".xdmf2")) else open_mesh(path)
         status = 1 if 1 in (status, result) else max(status, result)
     return status
 

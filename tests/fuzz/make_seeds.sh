@@ -122,5 +122,5 @@ printf '# ITK-SNAP Label Description File\n    0     0    0    0        0  0  0 
 printf 'LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n2,"Myocardium",0,255,0,255\n' \
   > "$corpus/fuzz_label_table/slicer.csv"
 # ParaView's descriptions written beside the HDF5 seeds are not inputs of any reader.
-rm -f "$corpus"/*/*.xdmf
+rm -f "$corpus"/*/*.xmf2
 du -ab "$corpus" | sort -k2

@@ -80,7 +80,7 @@ void check_output_path(const std::filesystem::path& output, const std::string& e
     check_destination(output);  // a folder, a path through a file, a missing or read-only folder
 }
 
-/// A scenario's output and the ParaView description written beside it (OUT.xdmf).
+/// A scenario's output and the ParaView description written beside it (OUT.xmf2).
 void check_scenario_output_path(const std::filesystem::path& output) {
     check_output_path(output, "OUT.h5");
     check_xdmf_destination(output);

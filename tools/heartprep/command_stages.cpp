@@ -143,7 +143,7 @@ void add_stage_commands(CLI::App& app) {
         command->footer("\nFormats by extension: .stl .obj .ply (LPS mm, 3D Slicer's default for model files, SPACE=LPS in the\n"
                         "header), .vtp (VTK XML PolyData for ParaView, LPS mm as stored, no transform) and .glb (glTF's own\n"
                         "frame: metres, +Y superior, +Z anterior). ParaView also opens the scenario itself through the\n"
-                        "case.xdmf written beside case.h5.");
+                        "case.xmf2 written beside case.h5.");
         auto input = std::make_shared<std::filesystem::path>();
         auto output = std::make_shared<std::filesystem::path>();
         auto what = std::make_shared<std::string>("visual");

@@ -3,6 +3,7 @@
 
 #include "formats/label_table.h"
 #include "formats/mesh_io.h"
+#include "formats/xdmf.h"
 #include "libmodel/errors.h"
 #include "libmodel/text.h"
 
@@ -435,7 +436,6 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     std::printf("input       %s (%s, %s), %d x %d x %d voxels of %.3f x %.3f x %.3f mm\n", scenario.source.file_name.c_str(),
                 report.header.format.c_str(), report.header.component_type.c_str(), g.dims[0], g.dims[1], g.dims[2],
                 g.spacing[0], g.spacing[1], g.spacing[2]);
-    if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
     if (report.defect) print_defect_summary(*report.defect, report.segment_names);
     const auto& s = report.selection;
     std::string tissue;
@@ -533,6 +533,7 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
     std::string tissue;
     for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
     const auto& l = report.layout;
+    if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
     if (!report.convention.empty()) std::printf("labels      %s (--labels %s)\n", find_label_convention(report.convention)->title.c_str(), report.convention.c_str());
     else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
     std::printf("built       a heart of %.1f mL of tissue (label %s) from %s: %s particles %.2f mm apart%s\n",
@@ -572,8 +573,7 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
         if (warnings) text += (text.empty() ? "" : "; ") + std::to_string(warnings) + " warning(s) below: read what each means";
         std::printf("fit         simulates (%s, a step of %.3f ms), but look at this first: %s\n", pieces.c_str(), scenario.solver.dt_ms, text.c_str());
     }
-    std::filesystem::path xdmf = output;
-    xdmf.replace_extension(".xdmf");
+    const std::filesystem::path xdmf = xdmf_beside(output);
     const std::string commands[3] = {"heartsim " + output.string(), "ParaView: open " + xdmf.string(), "heartprep inspect " + output.string()};
     const char* meanings[3] = {"simulate it in a window (H: the keys)", "the detailed mesh, the simulation surface, the particles",
                                "every figure of the build (heartprep build --verbose prints them too)"};
