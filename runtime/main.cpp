@@ -73,7 +73,7 @@ int main(int argc, char** argv) {
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
-    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xdmf beside it for ParaView (the deformed heart)")
+    run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xmf2 beside it for ParaView (the deformed heart)")
         ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the state is an HDF5 file"));
     run->add_option("--gravity", a.gravity,
                     "Gravity vector in LPS, mm/ms², instead of the scenario's (0 0 0: none; 0 0.00981 0: supine patient)")
@@ -140,13 +140,25 @@ int main(int argc, char** argv) {
         ->capture_default_str();
     run->add_flag("--coupling", a.coupling, "Virtual coupling (spring-damper within the passivity bound b > KT/2 + B) between device and tool");
     run->add_option("--record", a.record, "Record device poses, forces and events of the haptic session (HDF5, written at the end; meanwhile "
-                                         "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`), and OUT.xdmf "
+                                         "OUT.h5.journal keeps all but the last second of a session that is killed: `heartsim recover`), and OUT.xmf2 "
                                          "beside it for ParaView (the tools over time)")
         ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the recording is an HDF5 file"));
     run->add_option("--replay", a.replay, "Replay a --record file's tool poses and grabs (cpu backend unless --backend) and compare the forces");
     run->add_option("--replay-tolerance", a.replay_tolerance,
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
         ->check(cli_messages::non_negative());
+    run->add_option("--igtl", a.igtl,
+                    "Live link to 3D Slicer over OpenIGTLink (headless runs): PORT listens there for Slicer's OpenIGTLinkIF "
+                    "(client; Slicer's default port is 18944), HOST:PORT connects to a Slicer server; streams the instruments' poses "
+                    "(TRANSFORM), the deformed mesh (POLYDATA), forces and state (STRING), LPS mm; the simulation never waits for it "
+                    "(docs/runtime.md \"Live link to 3D Slicer\")")
+        ->type_name("PORT|HOST:PORT");
+    run->add_option("--igtl-wait", a.igtl_wait, "With --igtl: before the first step, wait up to S seconds for Slicer to connect "
+                                                "(default 0: start at once, stream to whoever connects)")
+        ->check(CLI::Range(0.0, 600.0))->type_name("S");
+    run->add_option("--igtl-mesh-rate", a.igtl_mesh_rate, "With --igtl: the most mesh (POLYDATA) messages a second, sent only when the "
+                                                          "mesh moved (default 20; poses, forces and state: up to 60)")
+        ->check(CLI::Range(0.1, 1000.0))->type_name("HZ");
     std::string journal, recovered;
     auto* recover = app.add_subcommand("recover", "Write the recording of a --record session that was killed, from the journal it "
                                                   "kept beside the recording (OUT.h5.journal: all but its last second); then delete the journal");

@@ -120,6 +120,11 @@ void check_arguments(const RunArguments& a) {
         for (const std::string& option : a.device_options_given) throw UsageError(option + " sets how forces reach a haptic device: it needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
+    if (a.igtl.empty() && (a.igtl_wait || a.igtl_mesh_rate))
+        throw UsageError(std::string(a.igtl_wait ? "--igtl-wait" : "--igtl-mesh-rate") + " sets how heartsim streams to 3D Slicer: it needs --igtl PORT");
+    if (!a.igtl.empty() && !a.headless)
+        throw UsageError("--igtl streams headless runs (--headless, scripted or with --device); the window does not stream yet");
+    if (!a.igtl.empty() && !a.replay.empty()) throw UsageError("--igtl streams a running session: not with --replay");
     if (haptic_run && a.headless && a.seconds <= 0 && a.steps && *a.steps == 0)
         throw UsageError("--steps 0 runs no step: a headless haptic run needs --steps N of at least 1, or --seconds S "
                          "(wall clock: the simulation follows real time)");
@@ -571,6 +576,9 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     // --replay checks a recording: the cpu backend (the reference, deterministic) unless --backend says otherwise.
     kind = parse_backend_kind(!a.replay.empty() && !a.backend ? "cpu" : a.backend.value_or("gl"));
     check_arguments(a);
+    // --igtl: the port is taken now, so a port in use is said before the scenario is read.
+    if (!a.igtl.empty())
+        link = SlicerLink::open({.endpoint = a.igtl, .mesh_rate_hz = a.igtl_mesh_rate.value_or(20.0), .wait_s = a.igtl_wait.value_or(0.0)});
     // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
     const bool render = !a.headless || !a.screenshot.empty();
     std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
@@ -603,6 +611,7 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     else if (a.real_time_mode() == RealTimeMode::automatic)
         std::printf("real time: auto: measuring this machine's speed over the first half second; mass scale 1 until then\n");
     script_instruments(a, *this);
+    if (link) link->start(scenario);
 }
 
 int replay_mode(const RunArguments& a, PreparedRun& run) {
@@ -664,11 +673,16 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
         const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
         if (haptic->step_to_real_time(limit) == 0)
             std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
+        if (run.link && run.link->due())
+            run.link->offer(*run.backend, (long long)haptic->rows(), link_hands(haptic->shapes(), haptic->latest_published_forces()),
+                            SlicerLink::State::running);
     }
     if (interrupted.load()) std::printf("interrupted: ending the session\n");
     haptic->finish(result);
     restore_interrupts();
-    return finish_run(a, run, result, haptic.get(), wall_start);
+    const int status = finish_run(a, run, result, haptic.get(), wall_start);
+    if (run.link) run.link->finish(*run.backend, result.steps, link_hands(haptic->shapes(), run.backend->instrument_forces()));
+    return status;
 }
 
 int window_mode(const RunArguments& a, PreparedRun& run) {
@@ -714,8 +728,20 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
             if (auto change = governor->observe(wall_ms, run.backend->simulated_time_ms())) std::printf("%s\n", change->c_str());
         };
     }
+    // --igtl: the state after each step to the link, when a frame is due (never waits on the network).
+    if (run.link)
+        scripted.on_step = [&, before = scripted.on_step](int step, const StepReport& report) {
+            if (before) before(step, report);
+            if (!run.link->due()) return;
+            run.link->offer(*run.backend, step + 1, link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->latest_forces()),
+                            SlicerLink::State::running);
+        };
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
-    return finish_run(a, run, result, nullptr, wall_start);
+    const int status = finish_run(a, run, result, nullptr, wall_start);
+    if (run.link)
+        run.link->finish(*run.backend, result.steps,
+                         link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
+    return status;
 }
 
 int recover_recording(const std::string& journal, const std::string& output) {
@@ -755,7 +781,7 @@ int recover_recording(const std::string& journal, const std::string& output) {
     if (r.steps.size() == 0)
         throw InputError(journal + ": holds no step (the session was killed within its first half second): nothing to recover; delete it");
     // Written beside the target and read back with every check a recording gets before it takes the
-    // name, so what takes the name is a recording that reads; then its .xdmf under that name.
+    // name, so what takes the name is a recording that reads; then its .xmf2 under that name.
     write_recording(target, r, [&](const fs::path& temporary) {
         try {
             read_recording(temporary);

@@ -12,6 +12,7 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/renderer.h"
 #include "runtime/real_time.h"
+#include "runtime/slicer_link.h"
 #include "runtime/trajectory.h"
 
 #include "formats/recording.h"
@@ -58,6 +59,10 @@ struct RunArguments {
     std::string replay;
     double replay_tolerance = -1.0;  // < 0: exact for a cpu recording replayed on cpu, else 10 % of the largest force
     std::vector<std::string> device_options_given;  // --max-force, --haptic-rate, --interpolation, --coupling, --haptic-priority as typed
+    // The live link to 3D Slicer (runtime/slicer_link.h, docs/runtime.md "Live link to 3D Slicer").
+    std::string igtl;                 // --igtl PORT | HOST:PORT; empty: none
+    std::optional<double> igtl_wait;  // --igtl-wait S: wait up to S s for Slicer before the first step
+    std::optional<double> igtl_mesh_rate;  // --igtl-mesh-rate HZ: cap on the mesh messages (default 20)
 
     static constexpr const char* default_contact = "direct";
     static constexpr int default_picking_refresh = 1;
@@ -98,6 +103,8 @@ struct PreparedRun {
     int steps = 0;               ///< steps to run; 0 the rest state, < 0 no limit (a window)
     Trajectory trajectory;
     bool keyboard_hand0 = false;  ///< the window's arrow keys move hand 0
+    /// --igtl: the live link to 3D Slicer, bound before the scenario is read and started last.
+    std::unique_ptr<SlicerLink> link;
 };
 
 /// --replay: the recording's tool poses and grabs, step by step, on the backend; compares the

@@ -17,6 +17,8 @@ packages=(
   libepoxy-dev libegl-dev libgl-dev libglfw3-dev libegl-mesa0 libgl1-mesa-dri libpng-dev
   # the window's HUD and help (Dear ImGui with its GLFW and OpenGL3 backends)
   libimgui-dev
+  # the live link to 3D Slicer (heartsim run --igtl; optional at build time: without it --igtl is refused)
+  libopenigtlink-dev
   # tests
   googletest libgtest-dev
   # the sanitizer job (scripts/run-sanitizers.sh): clang with AddressSanitizer, UBSan and
@@ -24,8 +26,9 @@ packages=(
   clang libclang-rt-14-dev llvm
   # window tests (heartsim's GLFW window under a virtual X server, driven by real input events)
   xvfb xauth xdotool
-  # the cluster workflow (workflow/Snakefile) and its test
-  snakemake
+  # the cluster workflow (workflow/Snakefile) and its tests; procps's kill ends a job's process
+  # group in the tests' stand-in for Slurm (the shell's own kill cannot)
+  snakemake procps
   # ParaView opens our files (tests/test_paraview.cpp runs tests/vtk_open.py under /usr/bin/python3
   # and tests/paraview_open.py under pvpython): VTK's Python module with the XDMF readers, and
   # ParaView itself. python3-vtk9 (VTK 9.1) has no XDMF reader and conflicts with python3-paraview
@@ -35,6 +38,7 @@ packages=(
 if [ "${1:-}" = "--bench" ]; then
   packages+=(
     python3-numpy                       # with VTK (python3-paraview, above): the surface peer, flying edges + windowed sinc
+    python3-matplotlib                  # the plots of docs/benchmarks.md (tests/bench/plot_benchmarks.py)
     time                                # GNU /usr/bin/time -f %M: peak memory of a run
     libbullet-dev                       # the solver peer: Bullet's btSoftBody
   )

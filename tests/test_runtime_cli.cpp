@@ -235,10 +235,10 @@ TEST(HeartsimCli, AnOutputNeverReplacesAnInput) {
              {"--save-state " + quoted(dir / "s.h5") + " --stats-csv " + quoted(dir / "s.h5"), "name the same file"},
              {"--device simulated:" + quoted(script) + " --stats-csv " + quoted(script),
               "--stats-csv " + script.string() + ": that is the file of --device simulated:" + script.string()},
-             // The ParaView description written beside a saved state or a recording (NAME.xdmf):
+             // The ParaView description written beside a saved state or a recording (NAME.xmf2):
              // it replaced the scenario's own, or another output, and the run exited 0.
-             {"--save-state " + quoted(dir / "case.hdf5"), "its ParaView description " + (dir / "case.xdmf").string() + " would replace the scenario's own"},
-             {"--save-state " + quoted(dir / "s.h5") + " --stats-csv " + quoted(dir / "s.xdmf"), "is the file --stats-csv names"},
+             {"--save-state " + quoted(dir / "case.hdf5"), "its ParaView description " + (dir / "case.xmf2").string() + " would replace the scenario's own"},
+             {"--save-state " + quoted(dir / "s.h5") + " --stats-csv " + quoted(dir / "s.xmf2"), "is the file --stats-csv names"},
              {"--device simulated:" + quoted(script) + " --record " + quoted(dir / "r.h5") + " --save-state " + quoted(dir / "r.hdf5"),
               "is also --record's; give them different names"},
          }) {
@@ -262,7 +262,7 @@ TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineBeforeTheRun) {
     std::ofstream(dir / "file.txt") << "a regular file";
     fs::create_directory(dir / "folder.h5");
     fs::create_directory(dir / "folder.csv");
-    fs::create_directory(dir / "folder.xdmf");
+    fs::create_directory(dir / "folder.xmf2");
     const std::string run = "run " + quoted(phantom()) + " --headless --backend cpu ";
     struct Case {
         std::string arguments, message;
@@ -279,7 +279,7 @@ TEST(HeartsimCli, PathsThatCannotBeOpenedAreOneLineBeforeTheRun) {
         {run + "--steps 5 --save-state " + quoted(dir / "file.txt/state.h5"), "--save-state " + (dir / "file.txt/state.h5").string() + ": " + (dir / "file.txt").string() + " is a file, not a folder", 7},
         {run + "--steps 5 --save-state " + quoted(dir / "folder.h5"), "--save-state " + (dir / "folder.h5").string() + ": is a folder, expected a file name", 7},
         // The description beside it: a folder there failed after the run, leaving the state.
-        {run + "--steps 5 --save-state " + quoted(dir / "folder.hdf5"), "--save-state " + (dir / "folder.xdmf").string() + ": is a folder, expected a file name (the ParaView description written beside", 7},
+        {run + "--steps 5 --save-state " + quoted(dir / "folder.hdf5"), "--save-state " + (dir / "folder.xmf2").string() + ": is a folder, expected a file name (the ParaView description written beside", 7},
         {run + "--steps 5 --screenshot " + quoted(dir / "file.txt/shot.png"), "--screenshot", 7},
         {run + "--steps 5 --stats-csv " + quoted(dir / "file.txt/stats.csv"), "--stats-csv", 7},
     };
