@@ -20,6 +20,7 @@ struct InstrumentShape {
     InstrumentPose pose;
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
     int hand = -1;  ///< 0 or 1 where known (the HUD's force arrows), -1 otherwise
+    bool touching = false;  ///< in contact with the tissue (a force on it): drawn in the contact colour
 
     /// Where the drawn ellipsoid is centred: the pose's position, or, for a scalpel, the middle
     /// of its blade.

@@ -72,6 +72,12 @@ struct WindowInput {
     haptics::HapticSession* session = nullptr;
     haptics::DevicePose device_pose;
     bool dragging_device = false, estop = false;
+    // Ctrl + Shift + left click: the mouse device onto the tissue's surface under the cursor;
+    // held and dragged, it slides along the surface (the instrument's extent, `reach`, from it).
+    bool sliding_device = false;
+    double reach_mm = 2.0;              ///< the mouse device's instrument's semi-axis towards the eye
+    bool scalpel = false;               ///< a scalpel: its tip, not its middle, goes to the surface
+    int surface_moves = 0;              ///< slides since the click (for the line said at release)
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
     bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
     int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
@@ -86,6 +92,20 @@ template <class... Args>
 void say(const char* format, Args... args) {
     std::printf(format, args...);
     std::fflush(stdout);
+}
+
+/// Ctrl + Shift + click and drag: the mouse device onto the tissue's surface point under the
+/// cursor, its centre a quarter of its extent below it (a click on the heart presses on it). False over the
+/// background (the device stays where it was).
+bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
+    int width = 0, height = 0;
+    glfwGetWindowSize(window, &width, &height);
+    const std::optional<Eigen::Vector3f> hit = in.renderer->surface_point(x, y, width, height);
+    if (!hit) return false;
+    const Eigen::Vector3d point = hit->cast<double>();
+    const Eigen::Vector3d to_eye = (in.renderer->camera().eye().cast<double>() - point).normalized();
+    in.device_pose.position_mm = in.scalpel ? point : point - 0.25 * in.reach_mm * to_eye;
+    return true;
 }
 
 /// The section view's keys (docs/runtime.md "Section view"). C: on, through the heart's centre
@@ -135,6 +155,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     auto* window = static_cast<GLFWwindow*>(context.window());
     WindowInput input;
     input.renderer = &renderer;
+    renderer.set_show_hidden_instruments(true);  // an instrument pushed into the wall stays in sight
     if (haptic) {
         input.session = &haptic->session();
         input.device = haptic->window_device();
@@ -145,11 +166,35 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
         const bool down = action == GLFW_PRESS;
+        if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL) && (mods & GLFW_MOD_SHIFT)) {
+            in->sliding_device = down;
+            if (down) {
+                in->surface_moves = 0;
+                if (place_on_surface(*in, w, in->last_x, in->last_y))
+                    say("mouse device: on the surface at (%.2f, %.2f, %.2f) mm\n", in->device_pose.position_mm.x(), in->device_pose.position_mm.y(),
+                        in->device_pose.position_mm.z());
+                else
+                    say("mouse device: no tissue under the cursor\n");
+            } else if (in->surface_moves > 0) {
+                say("mouse device: slid along the surface to (%.2f, %.2f, %.2f) mm\n", in->device_pose.position_mm.x(),
+                    in->device_pose.position_mm.y(), in->device_pose.position_mm.z());
+            }
+            if (!down) in->orbiting = in->panning = in->dragging_device = false;
+            return;
+        }
+        if (button == GLFW_MOUSE_BUTTON_RIGHT && in->device && (mods & GLFW_MOD_CONTROL)) {
+            // Ctrl + right click: the device's button 1, as G (a grabber closes or opens).
+            if (down) {
+                in->device_pose.buttons ^= 1u;
+                say("mouse device: button 1 %s\n", in->device_pose.buttons & 1u ? "pressed" : "released");
+            }
+            return;
+        }
         if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL)) in->dragging_device = down;
         else if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
         if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
             in->panning = down;
-        if (!down) in->orbiting = in->panning = in->dragging_device = false;
+        if (!down) in->orbiting = in->panning = in->dragging_device = in->sliding_device = false;
         // No glfwGetCursorPos here: it asks the X server where the pointer is *now*, which, when
         // frames are slow and events queue up, is already the end of the drag, and the queued
         // motion events then cancel out (a lost orbit). last_x/last_y follow the motion events
@@ -161,6 +206,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         in->last_x = x, in->last_y = y;
         int width = 0, height = 0;
         glfwGetWindowSize(w, &width, &height);
+        if (in->sliding_device) {
+            if (place_on_surface(*in, w, x, y)) ++in->surface_moves;
+            return;
+        }
         if (in->dragging_device) {
             // One pixel = the model's view height / window height at the target's depth.
             const Camera& camera = in->renderer->camera();
@@ -222,6 +271,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     double paused_simulated_ms = 0;       // the simulated time while paused, as last seen
     long long steps_before_single = -1;  // attempted steps when the pending N was handed on
     double largest_mouse_force_n = 0;     // the mouse device's force, largest seen at a frame
+    std::array<bool, 2> touching{};       // each hand's instrument felt the tissue at the last frame (its contact colour)
     bool mouse_touching = false;          // the mouse device's force was above 0.01 N at a frame (and not zero since)
     std::optional<InstrumentForces> gl_forces;  // the gl loop's newest force pass
     std::atomic<bool> recording_now{false};     // F5's recording is on (set by the thread that steps)
@@ -496,11 +546,20 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (width > 0 && height > 0) renderer.resize(width, height);
         std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
                                               : simulation ? simulation->status().shapes : haptic->shapes();
+        for (InstrumentShape& shape : shapes) {
+            if (shape.hand < 0 || shape.hand > 1) continue;
+            shape.touching = touching[std::size_t(shape.hand)];
+            // The mouse device's instrument: how far it reaches towards the eye when put on the surface.
+            if (input.device && haptic->device_spec(shape.hand) == "mouse") {
+                input.reach_mm = shape.semi_axes.minCoeff();
+                input.scalpel = shape.kind == InstrumentKind::scalpel;
+            }
+        }
         for (int hand = 0; hand < 2 && !haptic; ++hand) {
             if (!trajectory.uses_hand(hand)) continue;
             const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
             const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
-            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand});
+            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand, touching[std::size_t(hand)]});
         }
         const auto draw_start = std::chrono::steady_clock::now();
         if (simulation) renderer.render(latest_positions, shapes);
@@ -554,12 +613,15 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                         h.has_force = true;
                         h.force_n = input.device->latest_force();
                         h.grabbing = (input.device_pose.buttons & 1u) != 0;
-                        largest_mouse_force_n = std::max(largest_mouse_force_n, h.force_n.norm());
-                        // Contact as the hand feels it, on the terminal too (a log, the tests).
-                        if (!mouse_touching && h.force_n.norm() > 0.01) say("mouse device: touching the tissue, %.4g N\n", h.force_n.norm());
-                        if (mouse_touching && h.force_n.norm() == 0.0) say("mouse device: free\n");
-                        mouse_touching = h.force_n.norm() > 0.01 || (mouse_touching && h.force_n.norm() > 0.0);
+                        // Contact as the hand feels it, on the terminal too (a log, the tests): the
+                        // largest force the device thread sent since the last frame.
+                        const double peak = std::max(input.device->peak_force_since_last(), h.force_n.norm());
+                        largest_mouse_force_n = std::max(largest_mouse_force_n, peak);
+                        if (!mouse_touching && peak > 0.01) say("mouse device: touching the tissue, %.4g N\n", peak);
+                        if (mouse_touching && peak == 0.0) say("mouse device: free\n");
+                        mouse_touching = peak > 0.01 || (mouse_touching && peak > 0.0);
                     }
+                    touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
                     continue;
                 }
                 h.used = trajectory.uses_hand(hand);
@@ -570,6 +632,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 h.grabbing = k.grab;
                 h.has_force = has_forces;
                 h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
+                touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
             }
             if (hud_fixed) {
                 // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
@@ -651,7 +714,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         simulation.reset();  // joins the thread before the caller reads the backend
     }
     result.wall_ms = wall_ms;
-    if (input.device) std::printf("mouse device: largest force sent %.4g N (at a frame)\n", largest_mouse_force_n);
+    if (input.device) std::printf("mouse device: largest force sent %.4g N\n", largest_mouse_force_n);
     std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
                 frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
     return result;

@@ -715,7 +715,7 @@ TEST(WindowInput, F5RecordsFromTheRestStateAndTheRecordingReplaysBitForBit) {
         EXPECT_EQ(fs::absolute(paths[k]).parent_path(), fs::absolute(dir.path()));
         EXPECT_EQ(name.rfind("case-", 0), 0u) << name;
         EXPECT_EQ(name.substr(name.size() - 7), ".rec.h5") << name;
-        EXPECT_TRUE(fs::exists(fs::path(paths[k]).replace_extension(".xdmf"))) << "the .xdmf beside it";
+        EXPECT_TRUE(fs::exists(fs::path(paths[k]).replace_extension(".xmf2"))) << "the .xmf2 beside it";
         EXPECT_FALSE(fs::exists(paths[k].string() + ".journal")) << "the journal is deleted once written";
         const Recording r = read_recording(paths[k]);
         ASSERT_EQ(r.hands[0].device_name, "mouse");
@@ -844,4 +844,71 @@ TEST(WindowInput, WithoutAGpuTheWindowSimulatesOnTheCpuBackendAndSaysSo) {
     EXPECT_EQ(window.wait_exit(), 0) << window.output();
     // The run's end report names the backend that simulated.
     EXPECT_NE(window.output().find(software ? "cpu" : "gl"), std::string::npos) << window.output();
+}
+
+// Ctrl + Shift + click on a real heart puts the mouse device (a probe) on the tissue's surface
+// under the cursor, touching it; a drag slides it along the surface; Ctrl + right click is its
+// button 1; a click beside the heart leaves it where it is.
+TEST(WindowInput, CtrlShiftClickPutsTheMouseDeviceOnARealHeartsSurfaceAndADragSlidesItAlong) {
+    REQUIRE_WINDOW_TOOLS();
+    const fs::path label_map = test::real_case("hvsmr16_pat1");
+    if (label_map.empty()) GTEST_SKIP() << "real case hvsmr16_pat1 absent";
+    test::TempDir dir;
+    const auto built = test::run_command(quoted(HEARTPREP_EXE) + " build " + quoted(label_map) + " -q -o " + quoted(dir / "pat1.h5"));
+    ASSERT_EQ(built.exit_code, 0) << built.output;
+    const Scenario scenario = read_scenario(dir / "pat1.h5");
+    ASSERT_TRUE(scenario.visual.has_value());
+    // How far a point lies from the detailed mesh at rest (its nearest vertex: edges are ~1 mm).
+    auto from_surface = [&](const Eigen::Vector3d& p) {
+        double best = 1e30;
+        for (const auto& v : scenario.visual->positions) best = std::min(best, (Eigen::Vector3d(v[0], v[1], v[2]) - p).norm());
+        return best;
+    };
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(dir / "pat1.h5") + " --backend cpu --size 400x300 --device mouse");
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+    auto point_after = [&](const std::string& words, std::size_t at) {
+        Eigen::Vector3d p;
+        const auto found = window.output().find(words, at);
+        EXPECT_NE(found, std::string::npos) << window.output();
+        if (found == std::string::npos) return p;
+        EXPECT_EQ(std::sscanf(window.output().c_str() + found + words.size(), "(%lf, %lf, %lf)", &p[0], &p[1], &p[2]), 3) << window.output();
+        return p;
+    };
+
+    // The middle of the window shows the heart: the device goes onto its surface, and touches it.
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
+    auto at = window.wait_for("mouse device: on the surface at ");
+    ASSERT_NE(at, std::string::npos) << window.output();
+    const Eigen::Vector3d first = point_after("mouse device: on the surface at ", at);
+    EXPECT_LT(from_surface(first), 3.0) << first.transpose();
+    EXPECT_NE(window.wait_for("mouse device: touching the tissue", at), std::string::npos) << "a click on the heart touches it\n" << window.output();
+
+    // Dragged, it slides along the surface: its new place is on the surface too, further along.
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("keydown ctrl keydown shift mousedown 1"), 0);
+    for (int k = 1; k <= 6; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 4 * k) + " 150"), 0);
+    ASSERT_EQ(window.xdotool("mouseup 1 keyup shift keyup ctrl"), 0);
+    at = window.wait_for("mouse device: slid along the surface to ", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    const Eigen::Vector3d second = point_after("mouse device: slid along the surface to ", at);
+    EXPECT_LT(from_surface(second), 3.0) << second.transpose();
+    EXPECT_GT((second - first).norm(), 2.0) << "24 pixels along, a few mm on the heart";
+
+    // Ctrl + right click: the device's button 1, as G (a grabber would close on the tissue).
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("keydown ctrl click 3 keyup ctrl"), 0);
+    ASSERT_NE(window.wait_for("mouse device: button 1 pressed", from), std::string::npos) << window.output();
+
+    // Beside the heart: nothing under the cursor, the device stays.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 3 3 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
+    ASSERT_NE(window.wait_for("mouse device: no tissue under the cursor", from), std::string::npos) << window.output();
+
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    EXPECT_GT(number_after(window.output(), "mouse device: largest force sent "), 0.01) << window.output();
 }

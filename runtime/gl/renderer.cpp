@@ -129,6 +129,7 @@ struct Renderer::State {
     Eigen::AlignedBox3f box;
     Camera camera;
     std::optional<SectionPlane> section;
+    bool show_hidden_instruments = false;  ///< the ghost pass (set_show_hidden_instruments)
 
     gl::Program normals_program, mesh_program, instrument_program;
     gl::Buffer records, elements, sheet;
@@ -376,6 +377,30 @@ int Renderer::width() const { return state_->width; }
 int Renderer::height() const { return state_->height; }
 Camera& Renderer::camera() { return state_->camera; }
 Eigen::Vector3f Renderer::model_centre() const { return state_->box.center(); }
+void Renderer::set_show_hidden_instruments(bool show) { state_->show_hidden_instruments = show; }
+
+std::optional<Eigen::Vector3f> Renderer::surface_point(double x, double y, int window_width, int window_height) {
+    State& s = *state_;
+    if (window_width <= 0 || window_height <= 0) return std::nullopt;
+    // The window's pixel in the offscreen frame (the frame is stretched to the window).
+    const int fx = int(std::floor(x * double(s.width) / double(window_width)));
+    const int fy = int(std::floor(y * double(s.height) / double(window_height)));
+    if (fx < 0 || fy < 0 || fx >= s.width || fy >= s.height) return std::nullopt;
+    float depth = 1.0f;
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, s.fbo);
+    glReadPixels(fx, s.height - 1 - fy, 1, 1, GL_DEPTH_COMPONENT, GL_FLOAT, &depth);
+    glBindFramebuffer(GL_READ_FRAMEBUFFER, 0);
+    if (!(depth < 1.0f)) return std::nullopt;  // the background
+    const Eigen::Matrix4f view_projection = s.camera.projection(float(s.width) / float(s.height)) * s.camera.view();
+    const Eigen::Vector4f ndc(2.0f * (float(fx) + 0.5f) / float(s.width) - 1.0f, 1.0f - 2.0f * (float(fy) + 0.5f) / float(s.height),
+                              2.0f * depth - 1.0f, 1.0f);
+    const Eigen::Vector4f world = view_projection.inverse() * ndc;
+    if (!(std::abs(world.w()) > 0.0f)) return std::nullopt;
+    const Eigen::Vector3f point = world.head<3>() / world.w();
+    if (!point.allFinite()) return std::nullopt;
+    return point;
+}
+
 void Renderer::set_section(const std::optional<SectionPlane>& plane) { state_->section = plane; }
 const std::optional<SectionPlane>& Renderer::section() const { return state_->section; }
 std::size_t Renderer::memory_bytes() const { return state_->memory; }
@@ -443,26 +468,46 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     s.bind_mesh(positions);
     glDrawElements(GL_TRIANGLES, GLsizei(3 * s.triangles), GL_UNSIGNED_INT, nullptr);
 
+    glProgramUniform1f(s.mesh_program, glGetUniformLocation(s.mesh_program, "opacity"), 1.0f);
     if (!instruments.empty()) {
         const GLuint p = s.instrument_program;
         glUseProgram(p);
         glBindVertexArray(s.sphere_vao);
         glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.45f);
-        for (const InstrumentShape& shape : instruments) {
-            if (shape.kind == InstrumentKind::none) continue;
-            const Eigen::Matrix3f rotation = shape.pose.orientation.normalized().toRotationMatrix().cast<float>();
-            const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
-            Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
-            model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
-            model.topRightCorner<3, 1>() = shape.drawn_centre().cast<float>();
-            const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
-            glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
-            glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
-            if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
-            else if (shape.kind == InstrumentKind::scalpel) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.86f, 0.88f, 0.92f);  // steel
-            else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
-            glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+        // Instruments are tested against the tissue's depth but do not write it: the depth
+        // buffer stays the tissue's alone (surface_point picks it under the cursor).
+        glDepthMask(GL_FALSE);
+        auto draw_shapes = [&](float opacity) {
+            glProgramUniform1f(p, glGetUniformLocation(p, "opacity"), opacity);
+            for (const InstrumentShape& shape : instruments) {
+                if (shape.kind == InstrumentKind::none) continue;
+                const Eigen::Matrix3f rotation = shape.pose.orientation.normalized().toRotationMatrix().cast<float>();
+                const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
+                Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
+                model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
+                model.topRightCorner<3, 1>() = shape.drawn_centre().cast<float>();
+                const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
+                glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
+                glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
+                if (shape.touching) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.98f, 0.62f, 0.18f);  // in contact: amber
+                else if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
+                else if (shape.kind == InstrumentKind::scalpel) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.86f, 0.88f, 0.92f);  // steel
+                else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
+                glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+            }
+        };
+        draw_shapes(1.0f);
+        if (s.show_hidden_instruments) {
+            // What of an instrument lies inside or behind the tissue: a faint ghost over it, so a
+            // probe pushed into the wall is still seen where it is.
+            glDepthFunc(GL_GREATER);
+            glEnable(GL_BLEND);
+            glBlendFunc(GL_SRC_ALPHA, GL_ONE_MINUS_SRC_ALPHA);
+            draw_shapes(0.38f);
+            glDisable(GL_BLEND);
+            glDepthFunc(GL_LESS);
         }
+        glDepthMask(GL_TRUE);
     }
     glQueryCounter(timing.queries[2], GL_TIMESTAMP);
     glBindVertexArray(0);

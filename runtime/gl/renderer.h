@@ -100,6 +100,14 @@ public:
     void set_section(const std::optional<SectionPlane>& plane);
     const std::optional<SectionPlane>& section() const;
 
+    /// The tissue's surface point under the window pixel (x, y) (from the top left, in a window
+    /// `window_width` × `window_height` showing the last frame), world LPS mm, from the last
+    /// frame's depth (instruments write none); nullopt over the background. Waits for the GPU.
+    std::optional<Eigen::Vector3f> surface_point(double x, double y, int window_width, int window_height);
+    /// Also draw, faintly, the parts of instruments inside or behind the tissue (the window: a
+    /// probe pushed into the wall stays in sight). Off by default (headless pictures).
+    void set_show_hidden_instruments(bool show);
+
     /// Draws one frame of `backend`'s current positions with `instruments` into the offscreen
     /// framebuffer: gl backend, read in place from its position buffer; cpu backend, uploaded.
     void render(Backend& backend, const std::vector<InstrumentShape>& instruments);

@@ -7,6 +7,8 @@
 #include "runtime/haptics/exchange.h"
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <atomic>
 #include <Eigen/Geometry>
 
 #include <cstdint>
@@ -134,11 +136,29 @@ public:
     explicit WindowDevice(DeviceLimits limits = {}) : limits_(limits) { limits_.workspace_mm.setEmpty(); }
     std::string name() const override { return "mouse"; }
     DeviceLimits limits() const override { return limits_; }
-    DevicePose read_pose(double) override {
-        pose_.fetch(current_);
+    /// The pose the window set, approached at most max_speed_mm_per_ms from where the device
+    /// was: a hand moves, it does not jump (a click that puts the device on the surface, a fast
+    /// drag); a jump of millimetres within one simulation step would pierce the tissue.
+    DevicePose read_pose(double now_ms) override {
+        DevicePose target;
+        pose_.fetch(target);
+        const Eigen::Vector3d from = current_.position_mm;
+        const double dt = started_ ? std::clamp(now_ms - last_ms_, 0.0, 100.0) : 0.0;
+        const Eigen::Vector3d step = target.position_mm - from;
+        const double reach = max_speed_mm_per_ms * dt;
+        current_ = target;
+        if (started_ && step.norm() > reach) current_.position_mm = from + step * (reach / step.norm());
+        started_ = true;
+        last_ms_ = now_ms;
         return current_;
     }
-    void send_force(const Eigen::Vector3d& force_n, double) override { force_.publish(force_n); }
+    static constexpr double max_speed_mm_per_ms = 0.2;  ///< 200 mm/s: a quick hand
+    void send_force(const Eigen::Vector3d& force_n, double) override {
+        force_.publish(force_n);
+        const double f = force_n.norm();
+        double peak = peak_.load(std::memory_order_relaxed);
+        while (f > peak && !peak_.compare_exchange_weak(peak, f, std::memory_order_relaxed)) {}
+    }
     /// Window thread only.
     void set_pose(const DevicePose& pose) {
         last_set_ = pose;
@@ -146,6 +166,9 @@ public:
     }
     /// Window thread only: the pose it last set.
     const DevicePose& last_set() const { return last_set_; }
+    /// Window thread only: the largest |force| sent since the last call, N (the device thread sends
+    /// a thousand a second; a frame sees one of them).
+    double peak_force_since_last() { return peak_.exchange(0.0, std::memory_order_relaxed); }
     /// Window thread only: the newest force sent (zero before the first).
     Eigen::Vector3d latest_force() {
         Eigen::Vector3d f = Eigen::Vector3d::Zero();
@@ -157,8 +180,11 @@ private:
     DeviceLimits limits_;
     LatestValue<DevicePose> pose_;
     DevicePose current_;    // device thread's
+    bool started_ = false;  // device thread's: a pose was read
+    double last_ms_ = 0.0;  // device thread's: when
     DevicePose last_set_;   // window thread's
     LatestValue<Eigen::Vector3d> force_;
+    std::atomic<double> peak_{0.0};
 };
 
 }  // namespace heartsim::haptics

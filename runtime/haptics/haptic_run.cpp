@@ -688,10 +688,8 @@ void HapticRun::finish(ScriptedRunResult& result) {
     for (int i = 0; i < 2; ++i) {
         if (!hands_[i].device) continue;
         const HandTelemetry t = session_->telemetry(i);
-        double max_sent = 0.0;
-        for (const TickRecord& r : ticks_) max_sent = std::max(max_sent, r.force_n[i].norm());
-        char max_text[32] = "-";
-        if (recording_on_) std::snprintf(max_text, sizeof max_text, "%.4f", max_sent);
+        char max_text[32];
+        std::snprintf(max_text, sizeof max_text, "%.4f", t.max_force_n);
         std::printf("%-6d %12llu %12s %10llu %10llu %10llu %10llu %8llu   (%.4f, %.4f, %.4f)\n", i, (unsigned long long)t.forces_sent, max_text,
                     (unsigned long long)t.safety.clamped, (unsigned long long)t.safety.rate_limited, (unsigned long long)t.safety.non_finite,
                     (unsigned long long)t.safety.faults, (unsigned long long)t.safety.stopped, t.last_force_n.x(), t.last_force_n.y(),

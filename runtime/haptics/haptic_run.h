@@ -139,7 +139,7 @@ public:
     /// so the recording starts from the rest state at its step 0 and `--replay` reproduces it.
     /// Throws (the journal cannot be made) with nothing started.
     void start_recording(const std::string& path);
-    /// Writes the recording start_recording began (atomically, its .xdmf beside it) and deletes
+    /// Writes the recording start_recording began (atomically, its .xmf2 beside it) and deletes
     /// its journal; returns the steps written. Throws OutputError when the write fails (the
     /// journal stays for `heartsim recover`); the recording is off afterwards either way.
     std::size_t stop_recording();

@@ -53,7 +53,7 @@ Eigen::Vector3d ForceSafety::filter(const SafetyInput& in) {
     // 4. Gain: faults latch until faded out and a clean update arrived.
     if (in.fault_event) {
         latched_fault_ = true;
-        ++counters_.faults;
+        if (in.divergence) ++counters_.faults;
     } else if (latched_fault_ && gain_ <= 0.0 && in.clean_update) {
         latched_fault_ = false;
     }

@@ -24,6 +24,10 @@ struct SafetyInput {
     bool simulation_fresh = false;  ///< a new force arrived within stall_ms
     bool fault_event = false;       ///< the simulation diverged or was reset since the last tick
     bool clean_update = false;      ///< a new force arrived this tick, with no fault since the previous
+    /// The fault event is a divergence (the watchdog restored the state), counted in
+    /// Counters::faults; a reset (T, F5, the end of a session's fade-out) fades the same way but is
+    /// no fault of the simulation and is not counted.
+    bool divergence = false;
 };
 
 /// The chain every force passes on the device thread before any device gets it:

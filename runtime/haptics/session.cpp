@@ -90,9 +90,10 @@ void HapticSession::tick(double now_ms) {
     // The newest forces.
     ForceSample sample;
     const bool fresh = forces_.fetch(sample) && sample.sequence != last_sample_.sequence && sample.sequence != 0;
-    bool fault_event = false, clean_update = false;
+    bool fault_event = false, clean_update = false, divergence = false;
     if (fresh) {
-        fault_event = sample.divergences != last_sample_.divergences || sample.resets != last_sample_.resets;
+        divergence = sample.divergences != last_sample_.divergences;
+        fault_event = divergence || sample.resets != last_sample_.resets;
         clean_update = !fault_event;
         last_arrival_ms_ = now_ms;
         last_sample_ = sample;
@@ -173,10 +174,12 @@ void HapticSession::tick(double now_ms) {
                                                       .now_ms = now_ms,
                                                       .simulation_fresh = simulation_fresh,
                                                       .fault_event = fault_event,
-                                                      .clean_update = clean_update});
+                                                      .clean_update = clean_update,
+                                                      .divergence = divergence});
         h.device->send_force(out, now_ms);
         h.telemetry.last_input_n = device_force;
         h.telemetry.last_force_n = out;
+        h.telemetry.max_force_n = std::max(h.telemetry.max_force_n, out.norm());
         ++h.telemetry.forces_sent;
         h.telemetry.safety = h.safety->counters();
         h.telemetry.gain = h.safety->gain();

@@ -119,6 +119,7 @@ struct HandTelemetry {
     Eigen::Vector3d last_force_n = Eigen::Vector3d::Zero();   ///< sent to the device (device frame)
     Eigen::Vector3d last_input_n = Eigen::Vector3d::Zero();   ///< before safety (device frame)
     std::uint64_t forces_sent = 0;
+    double max_force_n = 0.0;                                 ///< the largest |force| sent, N
     ForceSafety::Counters safety{};
     double gain = 0.0;
 };

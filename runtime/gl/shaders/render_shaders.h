@@ -116,6 +116,7 @@ uniform float specular;
 uniform bool section_on;
 uniform vec4 section_plane;   // (n, -n·p): removed where n·x + w > 0
 uniform vec3 cut_color;
+uniform float opacity;        // 1 but for the instruments' ghost (renderer.cpp)
 out vec4 colour;
 void main() {
     // Derivatives before any discard: they need the whole pixel quad.
@@ -135,7 +136,7 @@ void main() {
     float diffuse = 0.62 * max(dot(nrm, key_light), 0.0) + 0.28 * max(dot(nrm, fill_light), 0.0);
     vec3 h = normalize(key_light + v);
     float shine = specular * pow(max(dot(nrm, h), 0.0), 32.0);
-    colour = vec4(min(base_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), 1.0);
+    colour = vec4(min(base_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), opacity);
 }
 )";
 
