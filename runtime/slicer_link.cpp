@@ -135,15 +135,6 @@ Bytes transform_message(const char* device, const InstrumentPose& pose) {
     return packed(message);
 }
 
-const char* kind_name(InstrumentKind kind) {
-    switch (kind) {
-    case InstrumentKind::none: return "none";
-    case InstrumentKind::probe: return "probe";
-    case InstrumentKind::grabber: return "grabber";
-    case InstrumentKind::scalpel: return "scalpel";
-    }
-    return "none";
-}
 
 const char* state_name(SlicerLink::State state) {
     switch (state) {
@@ -509,7 +500,7 @@ private:
             if (!h.used) continue;
             bytes += *transform_message(hand == 0 ? "heartsim-hand0" : "heartsim-hand1", h.pose);
             std::snprintf(text, sizeof text, "force_n=%.6g,%.6g,%.6g magnitude_n=%.6g particles=%zu kind=%s", h.force_n.x(), h.force_n.y(),
-                          h.force_n.z(), h.force_n.norm(), h.particles, kind_name(h.kind));
+                          h.force_n.z(), h.force_n.norm(), h.particles, to_string(h.kind));
             bytes += *string_message(hand == 0 ? "heartsim-force0" : "heartsim-force1", text);
         }
         const Bytes shared = std::make_shared<const std::string>(std::move(bytes));

@@ -1,5 +1,7 @@
 #include "runtime_test_support.h"
 
+#include "runtime/gl/renderer.h"
+
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -71,6 +73,20 @@ void write_golden_failure(const std::string& name, const Image& diff, const Imag
     write_png(out, diff);
     write_png(actual, image);
     std::printf("  wrote the difference image (4x amplified) %s and the screenshot %s\n", out.c_str(), actual.c_str());
+}
+
+bool cut_colour(const Image& image, int x, int y) {
+    const std::size_t p = (std::size_t(y) * std::size_t(image.width) + std::size_t(x)) * std::size_t(image.channels);
+    for (std::size_t c = 0; c < 3; ++c)
+        if (std::abs(int(image.pixels[p + c]) - section_cut_rgb[c]) > 2) return false;
+    return true;
+}
+
+std::size_t cut_pixels(const Image& image) {
+    std::size_t n = 0;
+    for (int y = 0; y < image.height; ++y)
+        for (int x = 0; x < image.width; ++x) n += cut_colour(image, x, y);
+    return n;
 }
 
 }  // namespace heartsim::test

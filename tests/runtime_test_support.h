@@ -28,6 +28,12 @@ ImageDifference compare_images(const Image& a, const Image& b, int threshold, Im
 /// The rectangle [x0, x1)×[y0, y1) of an RGB image.
 Image crop(const Image& image, int x0, int y0, int x1, int y1);
 
+/// Whether pixel (x, y) of an RGB or RGBA `image` has the section view's flat cut colour
+/// (section_cut_rgb, renderer.h) within 2 per channel: no lit surface takes it.
+bool cut_colour(const Image& image, int x, int y);
+/// The pixels of `image` in the cut colour.
+std::size_t cut_pixels(const Image& image);
+
 /// The golden image a test compares `image` with. With HEARTSIM_UPDATE_GOLDEN set and `may_update`,
 /// `image` becomes the golden first (the folder made if needed, the path printed). Empty when
 /// there is no golden file: the caller skips, saying so.

@@ -8,6 +8,7 @@
 #include "defect_block.h"
 #include "runtime/gl/renderer.h"
 #include "runtime/png.h"
+#include "runtime_test_support.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -16,6 +17,8 @@
 
 using namespace heartsim;
 using namespace heartsim::test::defect_block;
+using heartsim::test::cut_colour;
+using heartsim::test::cut_pixels;
 
 namespace {
 
@@ -79,13 +82,29 @@ TEST(SeptalDefectRealHearts, AnAutomaticAsdJoinsTheAtriaOfEveryMmwhsHeart) {
     }
 }
 
+namespace {
+
+/// The block written as a label map in `dir`, and a point of its septum, LPS mm, as `--at` takes it.
+struct BlockFile {
+    Block block = make_block();
+    std::filesystem::path input;
+    Eigen::Vector3d at;
+    std::string point;
+    explicit BlockFile(const test::TempDir& dir) : input(dir / "block.nrrd"), at(block.world({0.5, -4.0, 6.0})) {
+        write_label_volume(input, block.volume);
+        point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    }
+};
+
+}  // namespace
+
 TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWithoutWriting) {
-    const Block block = make_block();
     test::TempDir dir;
-    const auto input = dir / "block.nrrd";
-    write_label_volume(input, block.volume);
-    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
-    const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    const BlockFile file(dir);
+    const Block& block = file.block;
+    const auto& input = file.input;
+    const Eigen::Vector3d at = file.at;
+    const std::string& point = file.point;
     const std::string heartprep = test::quoted(HEARTPREP_EXE);
     const auto output = dir / "vsd.nrrd";
     const auto run = test::run_command(heartprep + " defect " + test::quoted(input.string()) + " --type vsd --diameter 8 --at " + point +
@@ -157,35 +176,15 @@ TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWitho
 }
 
 
-namespace {
-
-/// The flat colour of the section view's cut wall (renderer.h), within 2 per channel.
-bool cut_colour(const Image& image, int x, int y) {
-    const std::size_t p = (std::size_t(y) * std::size_t(image.width) + std::size_t(x)) * std::size_t(image.channels);
-    for (int c = 0; c < 3; ++c)
-        if (std::abs(int(image.pixels[p + std::size_t(c)]) - section_cut_rgb[std::size_t(c)]) > 2) return false;
-    return true;
-}
-
-std::size_t cut_pixels(const Image& image) {
-    std::size_t n = 0;
-    for (int y = 0; y < image.height; ++y)
-        for (int x = 0; x < image.width; ++x) n += cut_colour(image, x, y);
-    return n;
-}
-
-}  // namespace
 
 TEST(HeartsimDefectSection, ClipDefectCutsAcrossTheOpeningAndLooksAtIt) {
     // The block with an 8 mm VSD and without: --clip defect puts the plane through the opening's
     // centre holding its axis, and the camera looks at that centre: there the intact septum's cut
     // wall shows, and the defect's opening does not.
-    const Block block = make_block();
     test::TempDir dir;
-    const auto input = dir / "block.nrrd";
-    write_label_volume(input, block.volume);
-    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
-    const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    const BlockFile file(dir);
+    const auto& input = file.input;
+    const std::string& point = file.point;
     const std::string heartprep = test::quoted(HEARTPREP_EXE), heartsim = test::quoted(HEARTSIM_EXE);
     for (const char* name : {"vsd", "intact"}) {
         const std::string defect = std::string(name) == "vsd" ? " --defect vsd --diameter 8 --at " + point : "";

@@ -37,6 +37,7 @@ using test::compare_images;
 using test::ImageDifference;
 using test::golden_reference;
 using test::write_golden_failure;
+using test::cut_pixels;
 using test::quoted;
 namespace fs = std::filesystem;
 
@@ -152,15 +153,6 @@ std::string golden_arguments(const Scenario& scenario) {
     return std::string(" --headless --steps 0 --size 256x256 --view anterior --probe ") + probe;
 }
 
-/// Pixels of the section view's flat cut colour (section_cut_rgb), within 2 per channel: no lit
-/// surface takes it (renderer.h).
-std::size_t cut_pixels(const Image& image) {
-    std::size_t n = 0;
-    for (std::size_t p = 0; p + 2 < image.pixels.size(); p += 3)
-        n += std::abs(int(image.pixels[p]) - section_cut_rgb[0]) <= 2 && std::abs(int(image.pixels[p + 1]) - section_cut_rgb[1]) <= 2 &&
-             std::abs(int(image.pixels[p + 2]) - section_cut_rgb[2]) <= 2;
-    return n;
-}
 
 /// The area, mm², where the plane (`point`, unit `normal`) cuts the solid that the closed surface
 /// (`positions`, `triangles` counter-clockwise seen from outside) bounds. Each triangle the plane

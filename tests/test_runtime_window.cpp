@@ -33,6 +33,7 @@ extern char** environ;
 
 using namespace heartsim;
 using test::quoted;
+using test::cut_pixels;
 namespace fs = std::filesystem;
 
 namespace {
@@ -508,14 +509,6 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     EXPECT_EQ(read_recording(dir / "r.h5").hands[0].instrument, "probe");
 }
 
-/// Pixels of the section view's flat cut colour (section_cut_rgb, renderer.h), within 2 per channel.
-std::size_t cut_pixels(const Image& image) {
-    std::size_t n = 0;
-    for (std::size_t p = 0; p + 2 < image.pixels.size(); p += 3)
-        n += std::abs(int(image.pixels[p]) - section_cut_rgb[0]) <= 2 && std::abs(int(image.pixels[p + 1]) - section_cut_rgb[1]) <= 2 &&
-             std::abs(int(image.pixels[p + 2]) - section_cut_rgb[2]) <= 2;
-    return n;
-}
 
 /// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole
 /// strip x = 12..40 (every pixel differs from the same frame without the HUD: the panel darkens
