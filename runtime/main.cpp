@@ -148,7 +148,7 @@ int main(int argc, char** argv) {
                     "Largest |Δf| accepted by --replay, N (default: 0 for a cpu recording on cpu, else 10 % of the largest force)")
         ->check(cli_messages::non_negative());
     run->add_option("--igtl", a.igtl,
-                    "Live link to 3D Slicer over OpenIGTLink (headless runs): PORT listens there for Slicer's OpenIGTLinkIF "
+                    "Live link to 3D Slicer over OpenIGTLink (a window or a headless run): PORT listens there for Slicer's OpenIGTLinkIF "
                     "(client; Slicer's default port is 18944), HOST:PORT connects to a Slicer server; streams the instruments' poses "
                     "(TRANSFORM), the deformed mesh (POLYDATA), forces and state (STRING), LPS mm; the simulation never waits for it "
                     "(docs/runtime.md \"Live link to 3D Slicer\")")

@@ -122,8 +122,6 @@ void check_arguments(const RunArguments& a) {
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
     if (a.igtl.empty() && (a.igtl_wait || a.igtl_mesh_rate))
         throw UsageError(std::string(a.igtl_wait ? "--igtl-wait" : "--igtl-mesh-rate") + " sets how heartsim streams to 3D Slicer: it needs --igtl PORT");
-    if (!a.igtl.empty() && !a.headless)
-        throw UsageError("--igtl streams headless runs (--headless, scripted or with --device); the window does not stream yet");
     if (!a.igtl.empty() && !a.replay.empty()) throw UsageError("--igtl streams a running session: not with --replay");
     if (haptic_run && a.headless && a.seconds <= 0 && a.steps && *a.steps == 0)
         throw UsageError("--steps 0 runs no step: a headless haptic run needs --steps N of at least 1, or --seconds S "
@@ -697,7 +695,8 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .interrupted = &interrupted,
                                   .real_time_auto = a.real_time_mode() == RealTimeMode::automatic,
                                   .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0,
-                                  .backend_note = run.software_gl ? "OpenGL is software" : ""};
+                                  .backend_note = run.software_gl ? "OpenGL is software" : "",
+                                  .link = run.link.get()};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {
@@ -705,6 +704,10 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
         haptic->finish(result);
         restore_interrupts();
     }
+    if (run.link)
+        run.link->finish(*run.backend, result.steps,
+                         haptic ? link_hands(haptic->shapes(), run.backend->instrument_forces())
+                                : link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
     return finish_run(a, run, result, haptic.get(), wall_start);
 }
 

@@ -241,6 +241,19 @@ public:
         post(std::move(frame));
     }
 
+    void offer(double time_ms, const std::vector<std::array<float, 3>>& positions, long long steps, const SlicerLinkHands& hands,
+               State state) override {
+        if (!due()) return;
+        const auto now = Clock::now();
+        next_pose_ = std::max(next_pose_ + seconds(1.0 / options_.pose_rate_hz), now);
+        Frame frame{.time_ms = time_ms, .steps = steps, .state = state, .hands = hands, .positions = nullptr, .final = false};
+        if (!positions.empty() && (now >= next_mesh_ || mesh_wanted_.exchange(false))) {
+            frame.positions = std::make_shared<const std::vector<std::array<float, 3>>>(positions);
+            next_mesh_ = std::max(next_mesh_ + seconds(1.0 / options_.mesh_rate_hz), now);
+        }
+        post(std::move(frame));
+    }
+
     void finish(Backend& backend, long long steps, const SlicerLinkHands& hands) override {
         if (!thread_.joinable()) return;
         if (clients_.load() > 0) {

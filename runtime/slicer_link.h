@@ -85,6 +85,10 @@ public:
     /// hands the state (and, when the mesh is due, backend.positions()) to the sender thread.
     /// Never waits on the network; costs a clock read when nothing is due.
     virtual void offer(Backend& backend, long long steps, const SlicerLinkHands& hands, State state) = 0;
+    /// The same from a state taken elsewhere: the window's latest positions (N×3, packed order)
+    /// at `time_ms`, copied only when the mesh is due (the cpu backend steps on its own thread).
+    virtual void offer(double time_ms, const std::vector<std::array<float, 3>>& positions, long long steps, const SlicerLinkHands& hands,
+                       State state) = 0;
     /// The run is over: the final state (state `finished`, the final mesh) to the connected
     /// clients, waiting at most finish_s; then the connections are closed.
     virtual void finish(Backend& backend, long long steps, const SlicerLinkHands& hands) = 0;

@@ -6,6 +6,7 @@
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
 #include "runtime/section_plane.h"
+#include "runtime/slicer_link.h"
 #include "runtime/window_keys.h"
 #include "runtime/window_simulation.h"
 
@@ -565,6 +566,26 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (simulation) renderer.render(latest_positions, shapes);
         else renderer.render(backend, shapes);
         renderer.present(width, height);
+        if (a.link && a.link->due()) {
+            // --igtl: what this frame shows, to 3D Slicer (the sender thread does the rest).
+            SlicerLinkHands hands{};
+            const WindowSimulation::Status st = simulation ? simulation->status() : WindowSimulation::Status{};
+            for (const InstrumentShape& shape : shapes) {
+                if (shape.hand < 0 || shape.hand > 1) continue;
+                SlicerLinkHand& h = hands[std::size_t(shape.hand)];
+                h.used = true;
+                h.kind = shape.kind;
+                h.pose = shape.pose;
+                if (simulation && st.has_forces) h.force_n = st.forces[std::size_t(shape.hand)];
+                else if (gl_forces) h.force_n = gl_forces->hand[std::size_t(shape.hand)].force_n, h.particles = gl_forces->hand[std::size_t(shape.hand)].particles;
+                else if (haptic) h.force_n = haptic->latest_published_forces().hand[std::size_t(shape.hand)].force_n;
+            }
+            const SlicerLink::State state = input.estop ? SlicerLink::State::emergency_stop
+                                            : input.paused ? SlicerLink::State::paused
+                                                           : SlicerLink::State::running;
+            if (simulation) a.link->offer(st.simulated_ms, latest_positions, (long long)result.steps, hands, state);
+            else a.link->offer(backend, (long long)result.steps, hands, state);
+        }
         {
             // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
             const double s = std::max(1e-9, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());

@@ -16,6 +16,8 @@
 
 namespace heartsim {
 
+class SlicerLink;
+
 struct WindowRunOptions {
     std::string scenario_name;      ///< for the title
     std::string scenario_path;      ///< the P key's screenshots go beside it
@@ -32,6 +34,8 @@ struct WindowRunOptions {
     /// Said after the backend's name in the HUD: why it is the one simulating (e.g. "OpenGL is
     /// software"); empty: nothing.
     std::string backend_note;
+    /// --igtl: the live link to 3D Slicer, offered the state after each frame (never waits).
+    SlicerLink* link = nullptr;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

@@ -395,3 +395,36 @@ TEST(Igtl, AServerThatIsNotThereCostsTheSessionNothing) {
 }
 
 #endif
+
+// The window streams too: a scripted window run under Xvfb (cpu backend: the simulation on its
+// own thread, the frames offered from the window's latest state) sends the state, the poses and
+// the mesh, and its last mesh is the saved state's.
+TEST(Igtl, TheWindowStreamsWhatItShows) {
+    if (std::system("command -v xvfb-run >/dev/null 2>&1") != 0) GTEST_SKIP() << "xvfb-run absent: no X server for a window";
+    test::TempDir dir;
+    const int port = free_port();
+    const fs::path trajectory = sample("probe_and_grab_phantom.csv");
+    auto run = std::async(std::launch::async, [&] {
+        return test::run_command("xvfb-run -a " + std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                 " --backend cpu --size 320x240 --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
+                                 std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5") + " 2>&1");
+    });
+    igtl::ClientSocket::Pointer socket = connect_to(port);
+    ASSERT_TRUE(socket) << run.get().output;
+    Received r;
+    receive(socket, r);
+    socket->CloseSocket();
+    const auto result = run.get();
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_TRUE(r.ended);
+    ASSERT_FALSE(r.states.empty());
+    EXPECT_EQ(r.states.back().rfind("finished ", 0), 0u) << r.states.back();
+    EXPECT_FALSE(r.poses.empty());
+    ASSERT_GE(r.meshes, 1u);
+    const SimulationState state = read_state(dir / "s.h5");
+    ASSERT_EQ(r.mesh_points.size(), state.visual_positions.size());
+    double error = 0.0;
+    for (std::size_t v = 0; v < r.mesh_points.size(); ++v)
+        for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(r.mesh_points[v][k] - state.visual_positions[v][k])));
+    EXPECT_LE(error, 1e-5) << "the last mesh sent is the saved state's";
+}
