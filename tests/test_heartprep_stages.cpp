@@ -337,9 +337,11 @@ TEST(HeartprepBatch, TheSummaryHasTheScenariosFiguresAndAPicturePerCase) {
         EXPECT_GT(entry["anchored"].get<std::size_t>(), 0u) << "--anchor-border anchors the phantom's cut base";
         EXPECT_EQ(entry["spacing_mm"], s.lattice.spacing);
         EXPECT_EQ(entry["dt_ms"], s.solver.dt_ms);
-        // The tissue volume from the particles' masses, against the volume enclosed by the
-        // scenario's own detailed surface (divergence theorem): the two discretisations agree to a
-        // few per cent.
+        // The tissue volume: the build's own (the label map's tissue voxels, as the build summary
+        // and inspect give it), and against the volume enclosed by the scenario's detailed surface
+        // (divergence theorem): the two discretisations agree to a few per cent.
+        ASSERT_GT(s.source.tissue_volume_mm3, 0.0);
+        EXPECT_NEAR(entry["tissue_volume_ml"].get<double>(), s.source.tissue_volume_mm3 / 1000.0, 1e-9);
         ASSERT_TRUE(s.visual.has_value());
         double enclosed_mm3 = 0.0;
         for (const auto& t : s.visual->triangles) {

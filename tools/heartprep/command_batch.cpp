@@ -63,7 +63,9 @@ struct Outcome {
     std::string status = "pending";
     std::size_t particles = 0, springs = 0, triangles = 0;
     std::size_t anchored = 0, supported = 0;  ///< particles that do not move / that hang on a support spring
-    double tissue_volume_ml = 0.0;            ///< Σ mass / density over the particles
+    /// The tissue's volume: the label map's tissue voxels (/source tissue_volume_mm3), the figure
+    /// build and inspect give; Σ mass / density over the particles for a file without it.
+    double tissue_volume_ml = 0.0;
     double spacing_mm = 0.0, dt_ms = 0.0;     ///< the lattice spacing and the scenario's time step
     /// The build's wall time, s: of the build that made the scenario (a reused case: from its build
     /// record; unknown for a scenario without one), or until the case failed or was stopped.
@@ -251,6 +253,7 @@ void fill_figures(const Scenario& s, Outcome& outcome) {
         const auto& material = row < s.lattice.materials.size() ? s.lattice.materials[row] : s.lattice.materials.front();
         outcome.tissue_volume_ml += double(p.mass[i]) / material.density * 1e-3;  // mm³ -> mL
     }
+    if (s.source.tissue_volume_mm3 > 0) outcome.tissue_volume_ml = s.source.tissue_volume_mm3 / 1000.0;
     outcome.spacing_mm = s.lattice.spacing;
     outcome.dt_ms = s.solver.dt_ms;
 }
