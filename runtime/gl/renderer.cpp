@@ -475,8 +475,11 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
         glBindVertexArray(s.sphere_vao);
         glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.45f);
         // Instruments are tested against the tissue's depth but do not write it: the depth
-        // buffer stays the tissue's alone (surface_point picks it under the cursor).
+        // buffer stays the tissue's alone (surface_point picks it under the cursor). Their back
+        // faces are culled instead: an ellipsoid is convex, so its front faces never overlap.
         glDepthMask(GL_FALSE);
+        glEnable(GL_CULL_FACE);
+        glCullFace(GL_BACK);
         auto draw_shapes = [&](float opacity) {
             glProgramUniform1f(p, glGetUniformLocation(p, "opacity"), opacity);
             for (const InstrumentShape& shape : instruments) {
@@ -507,6 +510,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
             glDisable(GL_BLEND);
             glDepthFunc(GL_LESS);
         }
+        glDisable(GL_CULL_FACE);
         glDepthMask(GL_TRUE);
     }
     glQueryCounter(timing.queries[2], GL_TIMESTAMP);

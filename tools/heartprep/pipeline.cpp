@@ -574,13 +574,16 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
         std::printf("fit         simulates (%s, a step of %.3f ms), but look at this first: %s\n", pieces.c_str(), scenario.solver.dt_ms, text.c_str());
     }
     const std::filesystem::path xdmf = xdmf_beside(output);
-    const std::string commands[3] = {"heartsim " + output.string(), "ParaView: open " + xdmf.string(), "heartprep inspect " + output.string()};
-    const char* meanings[3] = {"simulate it in a window (H: the keys)", "the detailed mesh, the simulation surface, the particles",
-                               "every figure of the build (heartprep build --verbose prints them too)"};
+    std::vector<std::pair<std::string, std::string>> next = {
+        {"heartsim " + output.string(), "simulate it in a window (H: the keys)"},
+        {"ParaView: open " + xdmf.string(), "the detailed mesh, the simulation surface, the particles"},
+        {"heartprep inspect " + output.string(), "every figure of the build (heartprep build --verbose prints them too)"}};
+    if (report.defect)
+        next.insert(next.begin() + 1, {"heartsim run " + output.string() + " --clip defect", "the window cut open across the defect"});
     std::size_t width = 0;
-    for (const std::string& c : commands) width = std::max(width, c.size());
-    for (int k = 0; k < 3; ++k)
-        std::printf("%s%-*s  %s\n", k == 0 ? "next        " : "            ", int(width), commands[k].c_str(), meanings[k]);
+    for (const auto& n : next) width = std::max(width, n.first.size());
+    for (std::size_t k = 0; k < next.size(); ++k)
+        std::printf("%s%-*s  %s\n", k == 0 ? "next        " : "            ", int(width), next[k].first.c_str(), next[k].second.c_str());
 }
 
 void print_warnings(const std::vector<std::string>& warnings) {
