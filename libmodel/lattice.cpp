@@ -1,6 +1,7 @@
 #include "lattice.h"
 
 #include "errors.h"
+#include "select.h"
 
 #include <tbb/parallel_for.h>
 
@@ -386,6 +387,22 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
         report.warnings.push_back("anchor voxels exist but no particle cell contains one");
     if (report_out) *report_out = std::move(report);
     return lattice;
+}
+
+Lattice uniform_block(const std::array<int, 3>& dims, double spacing, const Material& material) {
+    LabelVolume volume;
+    volume.geometry.dims = dims;
+    volume.geometry.spacing = Eigen::Vector3d::Constant(spacing);
+    volume.labels.assign(volume.geometry.voxel_count(), material.label);
+    SelectionOptions selection_options;
+    selection_options.tissue_labels = {material.label};
+    selection_options.min_island_mm3 = 0.0;
+    const Selection selection = select_tissue(volume, selection_options);
+    LayoutOptions layout;
+    layout.spacing_mm = spacing;
+    layout.occupancy = 0.5;
+    layout.materials = {material};
+    return layout_particles(selection, {material.label}, volume, layout);
 }
 
 }  // namespace heartsim

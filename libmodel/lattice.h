@@ -144,6 +144,11 @@ struct ThinWallSummary {
 };
 ThinWallSummary summarise_thin_walls(const Lattice& lattice);
 
+/// A box of `material`: dims[0] × dims[1] × dims[2] voxels of `spacing` mm (the volume's origin
+/// at voxel 0's centre, identity direction), laid out at that spacing, a particle per voxel at its
+/// centre. The uniform lattice of the tests, the benchmarks and heartsim info's measurement.
+Lattice uniform_block(const std::array<int, 3>& dims, double spacing, const Material& material = {});
+
 /// Lays out particles and springs over `selection`. Throws InputError for a non-positive or
 /// non-finite spacing, an occupancy outside (0, 1], or when no cell passes the occupancy.
 Lattice layout_particles(const Selection& selection, const std::vector<int>& tissue_labels,

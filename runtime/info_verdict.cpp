@@ -6,7 +6,6 @@
 #include "formats/scenario.h"
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
-#include "libmodel/select.h"
 
 #include <chrono>
 #include <string>
@@ -18,20 +17,8 @@ namespace {
 
 /// A cube of myocardium, 31 particles a side (29,791), laid out and packed as heartprep does.
 Scenario block_of_myocardium() {
-    constexpr int n = 31;
-    constexpr double spacing = 1.5;
-    LabelVolume volume;
-    volume.geometry.dims = {n, n, n};
-    volume.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    volume.labels.assign(volume.geometry.voxel_count(), 1);
-    SelectionOptions selection_options;
-    selection_options.min_island_mm3 = 0.0;
-    const Selection selection = select_tissue(volume, selection_options);
-    LayoutOptions layout;
-    layout.spacing_mm = spacing;
-    layout.occupancy = 0.5;
     Scenario scenario;
-    scenario.lattice = layout_particles(selection, {1}, volume, layout);
+    scenario.lattice = uniform_block({31, 31, 31}, 1.5);
     scenario.packing = pack_particles(scenario.lattice);
     scenario.solver.gravity = Eigen::Vector3d::Zero();
     scenario.solver.balanced_gravity = Eigen::Vector3d::Zero();

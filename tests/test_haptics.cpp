@@ -80,16 +80,9 @@ struct Model {
 
 /// An nx × ny × nz block of particles at `spacing` mm, bottom layer anchored.
 Model anchored_block(int nx, int ny, int nz, double spacing = 1.5, double damping_ratio = 0.3) {
-    LabelVolume v;
-    v.geometry.dims = {nx, ny, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    SelectionOptions selection_options;
-    selection_options.min_island_mm3 = 0;
-    const Selection selection = select_tissue(v, selection_options);
-    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
-    layout.materials[0].damping_ratio = damping_ratio;
-    Model model{layout_particles(selection, {1}, v, layout), {}, {}};
+    Material material;
+    material.damping_ratio = damping_ratio;
+    Model model{uniform_block({nx, ny, nz}, spacing, material), {}, {}};
     Particles& p = model.lattice.particles;
     for (std::size_t i = 0; i < p.size(); ++i) p.anchored[i] = p.lattice_index[i][2] == 0;
     model.packing = pack_particles(model.lattice);

@@ -41,14 +41,9 @@ std::filesystem::path real_case(const std::string& name) {
 }
 
 Lattice block_lattice(int nx, int ny, int nz, double spacing, double damping_ratio) {
-    LabelVolume v;
-    v.geometry.dims = {nx, ny, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    const Selection selection = select_tissue(v, {.min_island_mm3 = 0});
-    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
-    layout.materials[0].damping_ratio = damping_ratio;
-    return layout_particles(selection, {1}, v, layout);
+    Material material;
+    material.damping_ratio = damping_ratio;
+    return uniform_block({nx, ny, nz}, spacing, material);
 }
 
 Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vector3d&)>& inside) {

@@ -91,18 +91,11 @@ struct Block {
 /// An n × n × nz block of label-1 voxels of `spacing` mm, laid out at that spacing (a particle per
 /// voxel, at its centre), the bottom particle layer anchored, packed.
 Block make_block(int n, int nz, double spacing, double damping_ratio) {
-    LabelVolume v;
-    v.geometry.dims = {n, n, nz};
-    v.geometry.spacing = Eigen::Vector3d::Constant(spacing);
-    v.labels.assign(v.geometry.voxel_count(), 1);
-    SelectionOptions select;
-    select.min_island_mm3 = 0;
-    const Selection selection = select_tissue(v, select);
-    LayoutOptions layout{.spacing_mm = spacing, .occupancy = 0.5};
-    layout.materials[0].youngs_modulus_kpa = youngs_kpa;
-    layout.materials[0].damping_ratio = damping_ratio;
+    Material material;
+    material.youngs_modulus_kpa = youngs_kpa;
+    material.damping_ratio = damping_ratio;
     Block b;
-    b.lattice = layout_particles(selection, {1}, v, layout);
+    b.lattice = uniform_block({n, n, nz}, spacing, material);
     b.spacing = spacing;
     b.n = n;
     b.nz = nz;
