@@ -206,21 +206,31 @@ Eigen::Vector3d position_at(const std::vector<std::pair<double, Eigen::Vector3d>
 
 }  // namespace
 
+/// Runs `command` (a shell command line starting heartsim with --igtl PORT --igtl-wait) beside a
+/// client that connects to `port` and receives until the stream ends; `result` is the run's.
+Received received_from(const std::string& command, int port, test::CommandResult& result) {
+    auto run = std::async(std::launch::async, [&] { return test::run_command(command); });
+    Received r;
+    igtl::ClientSocket::Pointer socket = connect_to(port);
+    if (socket) {
+        receive(socket, r);
+        socket->CloseSocket();
+    }
+    result = run.get();
+    EXPECT_TRUE(socket) << "no connection to port " << port << "\n" << result.output;
+    return r;
+}
+
 TEST(Igtl, LoopbackRoundTripMatchesTheSavedStateAndTheTrajectory) {
     test::TempDir dir;
     const int port = free_port();
     const fs::path trajectory = sample("probe_and_grab_phantom.csv");
     // --igtl-wait: the run starts when this client is connected, so it sees the run from its start.
-    auto run = std::async(std::launch::async, [&] {
-        return run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --seconds 0.5 --trajectory " + quoted(trajectory) +
-                            " --igtl " + std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5"));
-    });
-    igtl::ClientSocket::Pointer socket = connect_to(port);
-    ASSERT_TRUE(socket) << run.get().output;
-    Received r;
-    receive(socket, r);
-    socket->CloseSocket();
-    const auto result = run.get();
+    test::CommandResult result;
+    const Received r = received_from(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                         " --headless --backend cpu --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
+                                         std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5"),
+                                     port, result);
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_NE(result.output.find("igtl: 127.0.0.1:"), std::string::npos) << result.output;
     EXPECT_TRUE(r.ended);
@@ -404,17 +414,11 @@ TEST(Igtl, TheWindowStreamsWhatItShows) {
     test::TempDir dir;
     const int port = free_port();
     const fs::path trajectory = sample("probe_and_grab_phantom.csv");
-    auto run = std::async(std::launch::async, [&] {
-        return test::run_command("xvfb-run -a " + std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
-                                 " --backend cpu --size 320x240 --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
-                                 std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5") + " 2>&1");
-    });
-    igtl::ClientSocket::Pointer socket = connect_to(port);
-    ASSERT_TRUE(socket) << run.get().output;
-    Received r;
-    receive(socket, r);
-    socket->CloseSocket();
-    const auto result = run.get();
+    test::CommandResult result;
+    const Received r = received_from("xvfb-run -a " + std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                         " --backend cpu --size 320x240 --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
+                                         std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5") + " 2>&1",
+                                     port, result);
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_TRUE(r.ended);
     ASSERT_FALSE(r.states.empty());

@@ -34,6 +34,17 @@ fs::path samples() { return fs::path(HEARTSIM_SOURCE_DIR) / "samples"; }
 /// One line of vtk_open.py: its `key=value` words.
 using Words = std::map<std::string, std::string>;
 
+/// The `key=value` words of one line printed by the ParaView and VTK scripts.
+Words words_of(const std::string& line) {
+    Words words;
+    std::istringstream in(line);
+    for (std::string word; in >> word;) {
+        const auto equals = word.find('=');
+        if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
+    }
+    return words;
+}
+
 std::size_t count(const Words& w, const std::string& key) { return w.count(key) ? std::stoull(w.at(key)) : std::size_t(-1); }
 
 struct Opened {
@@ -78,12 +89,7 @@ Opened vtk_open(const std::vector<fs::path>& files) {
     EXPECT_EQ(run.exit_code, 0) << run.output;
     std::istringstream lines(run.output);
     for (std::string line; std::getline(lines, line);) {
-        Words words;
-        std::istringstream in(line);
-        for (std::string word; in >> word;) {
-            const auto equals = word.find('=');
-            if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
-        }
+        const Words words = words_of(line);
         if (!words.empty()) opened.lines.push_back(words);
     }
     return opened;
@@ -117,12 +123,7 @@ ParaViewView paraview_open(const fs::path& file) {
     view.output = run.output;
     std::istringstream lines(run.output);
     for (std::string line; std::getline(lines, line);) {
-        Words words;
-        std::istringstream in(line);
-        for (std::string word; in >> word;) {
-            const auto equals = word.find('=');
-            if (equals != std::string::npos) words[word.substr(0, equals)] = word.substr(equals + 1);
-        }
+        const Words words = words_of(line);
         if (line.rfind("block ", 0) == 0 && words.count("name"))
             view.blocks.emplace_back(words.at("name"), words);
         else if (line.rfind("file=", 0) == 0)
