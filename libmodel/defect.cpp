@@ -298,7 +298,6 @@ public:
     /// The rim of wall the opening must leave around it: one voxel.
     double margin() const { return grid_.max_spacing(); }
 
-    const Grid& grid() const { return grid_; }
 
 private:
     const Grid& grid_;
@@ -313,7 +312,7 @@ private:
 class DistanceMap {
 public:
     DistanceMap(const std::array<int, 3>& dims, const Eigen::Vector3d& spacing, const std::vector<std::uint8_t>& feature)
-        : dims_(dims), d_(feature.size()) {
+        : d_(feature.size()) {
         constexpr float inf = std::numeric_limits<float>::max() / 4;
         for (std::size_t i = 0; i < feature.size(); ++i) d_[i] = feature[i] ? 0.0f : inf;
         const std::size_t n = std::size_t(std::max({dims[0], dims[1], dims[2]}));
@@ -373,7 +372,6 @@ private:
         }
     }
 
-    std::array<int, 3> dims_;
     std::vector<float> d_;
 };
 

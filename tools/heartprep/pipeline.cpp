@@ -212,9 +212,6 @@ void defect_stage(LabelVolume& volume, const std::filesystem::path& input, const
     } catch (const InputError& error) {
         throw InputError(input.string() + ": " + error.what());
     }
-    if (!report.defect->connected)
-        throw InputError(input.string() + ": the opening carved does not join the two pools (a flood fill through blood does not "
-                         "cross it); try a larger --diameter or another --at");
 }
 
 void print_defect_summary(const DefectReport& d, const SegmentNames& names) {
