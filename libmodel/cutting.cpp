@@ -76,4 +76,30 @@ bool spring_crosses(const BladeSweep& sweep, const float* p, const float* q) {
     return crosses_triangle(c[0].data(), c[1].data(), c[2].data(), p, q) || crosses_triangle(c[0].data(), c[2].data(), c[3].data(), p, q);
 }
 
+
+void StrokeLog::sweep(int hand, const InstrumentPose& from, const InstrumentPose& to, double length) {
+    if (hand < 0 || hand > 1) return;
+    int& row = open_[std::size_t(hand)];
+    if (row < 0) {
+        row = int(strokes_.size());
+        strokes_.push_back({hand, length, {from}, false});
+    }
+    strokes_[std::size_t(row)].poses.push_back(to);
+    ++version_;
+}
+
+void StrokeLog::lift(int hand) {
+    if (hand < 0 || hand > 1 || open_[std::size_t(hand)] < 0) return;
+    strokes_[std::size_t(open_[std::size_t(hand)])].lifted = true;
+    open_[std::size_t(hand)] = -1;
+    ++version_;
+}
+
+void StrokeLog::clear() {
+    strokes_.clear();
+    open_ = {-1, -1};
+    ++version_;
+    ++clears_;
+}
+
 }  // namespace heartsim

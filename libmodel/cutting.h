@@ -17,11 +17,13 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "instrument_pose.h"
+
 #include <array>
+#include <cstdint>
+#include <vector>
 
 namespace heartsim {
-
-struct InstrumentPose;
 
 /// The swept quad in float (the precision of the positions it is tested against), with its
 /// bounding box and the box a spring's lower end must lie in to be tested at all.
@@ -64,5 +66,39 @@ inline bool near_sweep(const BladeSweep& sweep, const float* p) {
 /// the cpu and the gpu; the caller passes the end of lower particle index as `p`, so both ends of
 /// a spring reach the same decision.
 bool spring_crosses(const BladeSweep& sweep, const float* p, const float* q);
+
+
+/// One scalpel stroke: the blade's poses from the step it first swept tissue space to the step it
+/// was lifted, one per step in which it moved (a blade held still sweeps nothing and adds none).
+/// The incision of the detailed mesh (libmodel/incision.h) is built from it.
+struct BladeStroke {
+    int hand = 0;
+    double length = 0.0;                ///< the blade's length, mm (2·az)
+    std::vector<InstrumentPose> poses;  ///< poses[0]: where the first sweep started; then each step's end
+    bool lifted = false;                ///< released (grab 0); false while the blade is down
+};
+
+/// The strokes both backends' scalpels swept, in the order they began: what the cut pass cut,
+/// pose for pose. reset_tissue() heals the springs and clears it.
+class StrokeLog {
+public:
+    /// A step in which `hand`'s lowered blade swept from `from` to `to` (blade_sweep with
+    /// cuts_anything true): continues the hand's open stroke, or begins one.
+    void sweep(int hand, const InstrumentPose& from, const InstrumentPose& to, double length);
+    /// The hand's blade lifted: its open stroke, if any, ends.
+    void lift(int hand);
+    void clear();
+    const std::vector<BladeStroke>& strokes() const { return strokes_; }
+    /// Grows with every sweep and lift: a reader that saw the same value saw the same log.
+    std::uint64_t version() const { return version_; }
+    /// How many times clear() ran: a reader holding rows of an older log must drop them.
+    std::uint64_t clears() const { return clears_; }
+
+private:
+    std::vector<BladeStroke> strokes_;
+    std::array<int, 2> open_{-1, -1};  ///< per hand, the row of its open stroke
+    std::uint64_t version_ = 0;
+    std::uint64_t clears_ = 0;
+};
 
 }  // namespace heartsim

@@ -73,7 +73,13 @@ bool CellEmbedder::affine(const Eigen::Vector3d& v, const std::int32_t* ids, int
     return true;
 }
 
-Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
+Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const { return embed(v, {}); }
+
+Embedding CellEmbedder::embed(const Eigen::Vector3d& v, const std::function<bool(std::int32_t)>& usable) const {
+    auto particle_at = [&](long i, long j, long k) {
+        const std::int32_t p = grid_.at(i, j, k);
+        return p >= 0 && usable && !usable(p) ? -1 : p;
+    };
     const Eigen::Vector3d q = (world_to_index_ * v.homogeneous()).head<3>();
     const std::array<long, 3> base{long(std::floor(q[0])), long(std::floor(q[1])), long(std::floor(q[2]))};
     Embedding best;
@@ -81,7 +87,7 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
         std::array<std::int32_t, 8> ids{};
         int count = 0;
         for (const auto& o : corner_offsets) {
-            const std::int32_t p = grid_.at(ci + o[0], cj + o[1], ck + o[2]);
+            const std::int32_t p = particle_at(ci + o[0], cj + o[1], ck + o[2]);
             if (p >= 0) ids[std::size_t(count++)] = p;
         }
         Embedding e;
@@ -118,7 +124,7 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const {
     for (long k = base[2] - reach; k <= base[2] + reach + 1; ++k)
         for (long j = base[1] - reach; j <= base[1] + reach + 1; ++j)
             for (long i = base[0] - reach; i <= base[0] + reach + 1; ++i)
-                if (const std::int32_t p = grid_.at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
+                if (const std::int32_t p = particle_at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
     if (near.size() < 4) return best;
     std::sort(near.begin(), near.end());
     const std::size_t count = std::min<std::size_t>(8, near.size());

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 namespace heartsim::mapping_internal {
@@ -35,6 +36,9 @@ public:
     /// plane. found() is false
     /// otherwise.
     Embedding embed(const Eigen::Vector3d& v) const;
+    /// The same over the particles `usable` accepts only (the others count as absent): a vertex
+    /// beside an incision embedded in the particles of its own side.
+    Embedding embed(const Eigen::Vector3d& v, const std::function<bool(std::int32_t)>& usable) const;
 
 private:
     /// Minimum-norm affine weights of `ids` reproducing v; false when they span no volume.

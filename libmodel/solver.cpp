@@ -146,6 +146,7 @@ template <class Real>
 void BasicSolver<Real>::reset_tissue() {
     neighbour_ = uncut_neighbour_;
     cut_.clear();
+    strokes_.clear();
     last_cuts_ = 0;
     for (std::size_t i = 0; i < n_pad_; ++i)
         for (std::size_t c = 0; c < 4; ++c) {
@@ -328,6 +329,7 @@ void BasicSolver<Real>::release(int hand) {
     state.held.clear();
     state.held_local.clear();
     state.grabbing = false;
+    if (state.cutting) strokes_.lift(hand);
     state.cutting = false;
 }
 
@@ -577,9 +579,13 @@ StepReport BasicSolver<Real>::step(int steps) {
     // A lowered scalpel cuts what its blade sweeps from this call's start pose to its target,
     // before the substeps: the springs it crosses exert nothing from the first substep on.
     last_cuts_ = 0;
-    for (const HandState& state : hand_)
-        if (state.cutting && state.placed)
-            last_cuts_ += cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(float(max_rest_length_))));
+    for (int hand = 0; hand < hands; ++hand) {
+        const HandState& state = hand_[std::size_t(hand)];
+        if (!state.cutting || !state.placed) continue;
+        const BladeSweep sweep = blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(float(max_rest_length_)));
+        if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, 2.0 * state.instrument.semi_axes.z());
+        last_cuts_ += cut(sweep);
+    }
 
     auto fire = [&](WatchdogReason reason, const std::string& detail) {
         const double failed_at = time_ms_;

@@ -14,6 +14,8 @@
 ///     InstrumentForces forces = solver.instrument_forces();   // both hands, one call
 #pragma once
 
+#include "cutting.h"
+#include "instrument_pose.h"
 #include "lattice.h"
 #include "solver_options.h"
 #include "stability.h"
@@ -29,7 +31,6 @@
 
 namespace heartsim {
 
-struct BladeSweep;  // cutting.h
 
 enum class InstrumentKind {
     none,
@@ -54,18 +55,6 @@ struct Instrument {
     InstrumentKind kind = InstrumentKind::none;
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
 };
-
-/// Tool frame → world: x_world = orientation · x_tool + position (mm, LPS).
-struct InstrumentPose {
-    Eigen::Vector3d position = Eigen::Vector3d::Zero();
-    Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
-};
-
-/// The pose a fraction `t` of the way from `a` to `b`: the position linearly, the orientation by
-/// slerp. Both backends move the instruments through a step's substeps with it.
-inline InstrumentPose interpolate(const InstrumentPose& a, const InstrumentPose& b, double t) {
-    return {a.position + t * (b.position - a.position), a.orientation.slerp(t, b.orientation)};
-}
 
 /// The force the tissue exerts on one instrument, N, world frame: the sum of the spring and
 /// dashpot forces acting on the particles it holds (grabber) or touched in the last substep
@@ -214,6 +203,8 @@ public:
     const std::vector<std::array<std::int32_t, 2>>& cut_springs() const { return cut_; }
     /// Springs the last step() call cut.
     std::size_t last_cut_count() const { return last_cuts_; }
+    /// The scalpel strokes so far, pose for pose as they were swept (cutting.h StrokeLog).
+    const StrokeLog& strokes() const { return strokes_; }
     /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
     std::vector<std::int32_t> contact_particles(int hand) const;
 
@@ -349,6 +340,7 @@ private:
     std::vector<std::int32_t> uncut_neighbour_;  ///< neighbour_ as loaded (reset_tissue heals cuts)
     std::vector<std::array<std::int32_t, 2>> cut_;  ///< cut springs, lower index first
     std::size_t last_cuts_ = 0;
+    StrokeLog strokes_;
     std::vector<Real> rest_length_;        ///< mm (0 where empty)
     std::vector<Real> stiffness_;          ///< N/mm (0 where empty)
     std::vector<Real> dashpot_;            ///< c, N·ms/mm (0 where empty)

@@ -95,6 +95,9 @@ public:
     /// The springs a scalpel cut so far (Solver::cut_springs), each as its two packed particle
     /// indices, lower first, sorted. Waits for the GPU.
     virtual std::vector<std::array<std::int32_t, 2>> cut_springs() = 0;
+    /// The scalpel strokes so far, pose for pose as the cut pass swept them (the detailed mesh's
+    /// incision is built from them, runtime/incision_view.h). Never waits.
+    virtual const StrokeLog& strokes() const = 0;
     /// Current positions, N×3 mm, packed order. Waits for the GPU.
     virtual std::vector<std::array<float, 3>> positions() = 0;
     /// Pass timings so far (waits for outstanding timer queries).

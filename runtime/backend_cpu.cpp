@@ -79,6 +79,7 @@ public:
     std::uint64_t latest_forces_request() const override { return latest_request_; }
     InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
     std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
+    const StrokeLog& strokes() const override { return solver_.strokes(); }
     std::vector<std::array<std::int32_t, 2>> cut_springs() override {
         std::vector<std::array<std::int32_t, 2>> list = solver_.cut_springs();
         std::sort(list.begin(), list.end());

@@ -227,6 +227,7 @@ public:
     void release(int hand) override {
         check_hand(hand);
         HandState& state = hand_[hand];
+        if (state.cutting) strokes_.lift(hand);
         state.cutting = false;
         if (!state.grabbing) return;
         bind_common();
@@ -299,6 +300,7 @@ public:
 
     void reset_tissue() override {
         glNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(uncut_neighbour_.size() * 4), uncut_neighbour_.data());  // heals cuts
+        strokes_.clear();
         place_tissue(rest_current_, &rest_motion_);
         glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
         good_time_ms_ = time_ms_;
@@ -346,9 +348,13 @@ public:
         glProgramUniform1iv(ap, after_program_.at("grabbing"), 2, grab_flags);
 
         bind_common();
-        for (const HandState& state : hand_)
-            if (state.cutting && state.placed)
-                cut(blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(max_rest_length_)));
+        for (int hand = 0; hand < hands; ++hand) {
+            const HandState& state = hand_[hand];
+            if (!state.cutting || !state.placed) continue;
+            const BladeSweep sweep = blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(max_rest_length_));
+            if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, 2.0 * state.instrument.semi_axes.z());
+            cut(sweep);
+        }
         const GLuint zero = 0;
         for (long long q = 1; q <= total; ++q) {
             const double fraction = double(q) / double(total), previous_fraction = double(q - 1) / double(total);
@@ -478,6 +484,8 @@ public:
         glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     }
+
+    const StrokeLog& strokes() const override { return strokes_; }
 
     std::vector<std::array<std::int32_t, 2>> cut_springs() override {
         glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
@@ -860,6 +868,7 @@ private:
     std::vector<ParticleConstants> particle_host_;
     std::vector<double> support_damping_host_;  ///< c_s per particle, N·ms/mm (0 where unsupported)
     std::vector<std::int32_t> uncut_neighbour_;  ///< the neighbour table as loaded (reset_tissue heals cuts)
+    StrokeLog strokes_;  ///< what the scalpels swept (Backend::strokes)
     std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
     Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_;
     void* ring_map_ = nullptr;

@@ -1,0 +1,388 @@
+/// @file incision.cpp
+/// @brief incision.h: CGAL's corefinement of the detailed mesh's faces near the cut with the swept
+/// strip, then the split, the caps and the slit in plain arrays. The only translation unit of the
+/// incision that includes CGAL (it compiles slowly).
+#include "incision.h"
+
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Polygon_mesh_processing/corefinement.h>
+#include <CGAL/Surface_mesh.h>
+
+#include <algorithm>
+#include <map>
+#include <set>
+#include <unordered_map>
+
+namespace heartsim {
+
+namespace {
+
+using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Point = Kernel::Point_3;
+using Mesh = CGAL::Surface_mesh<Point>;
+using VertexIndex = Mesh::Vertex_index;
+using FaceIndex = Mesh::Face_index;
+namespace pmp = CGAL::Polygon_mesh_processing;
+
+/// Carries a face's cap flag to the faces corefinement splits it into.
+struct CapVisitor : pmp::Corefinement::Default_visitor<Mesh> {
+    Mesh* patch = nullptr;
+    Mesh::Property_map<FaceIndex, std::uint8_t>* cap = nullptr;
+    FaceIndex* splitting = nullptr;
+    void before_subface_creations(FaceIndex f, Mesh& tm) {
+        if (&tm == patch) *splitting = f;
+    }
+    void after_subface_created(FaceIndex f, Mesh& tm) {
+        if (&tm == patch && *splitting != Mesh::null_face()) (*cap)[f] = (*cap)[*splitting];
+    }
+};
+
+Point point(const Eigen::Vector3d& p) { return {p.x(), p.y(), p.z()}; }
+Eigen::Vector3d vector(const Point& p) { return {p.x(), p.y(), p.z()}; }
+
+struct PointKey {
+    double x, y, z;
+    bool operator<(const PointKey& o) const { return std::tie(x, y, z) < std::tie(o.x, o.y, o.z); }
+};
+PointKey key(const Point& p) { return {p.x(), p.y(), p.z()}; }
+
+/// Whether `p` lies inside the closed mesh: the parity of three rays' crossings, the majority
+/// (a ray through an edge or vertex miscounts; three skew directions rarely all do).
+bool inside(const Point& p, const std::vector<Eigen::Vector3d>& rest, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    static const Kernel::Vector_3 directions[3] = {{0.5773, 0.5871, 0.5679}, {-0.6123, 0.3719, 0.6977}, {0.2311, -0.8417, 0.4881}};
+    int votes = 0;
+    for (const auto& d : directions) {
+        const Kernel::Ray_3 ray(p, d);
+        int crossings = 0;
+        for (const auto& t : triangles) {
+            const Kernel::Triangle_3 tri(point(rest[std::size_t(t[0])]), point(rest[std::size_t(t[1])]), point(rest[std::size_t(t[2])]));
+            if (!tri.is_degenerate() && CGAL::do_intersect(ray, tri)) ++crossings;
+        }
+        votes += crossings % 2;
+    }
+    return votes >= 2;
+}
+
+}  // namespace
+
+IncisionMesh incision_mesh(const std::vector<std::array<float, 3>>& positions, const std::vector<std::array<float, 3>>& normals,
+                           const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    IncisionMesh mesh;
+    mesh.rest.reserve(positions.size());
+    for (const auto& p : positions) mesh.rest.emplace_back(p[0], p[1], p[2]);
+    mesh.normals.assign(positions.size(), Eigen::Vector3f::Zero());
+    if (normals.size() == positions.size())
+        for (std::size_t v = 0; v < normals.size(); ++v) mesh.normals[v] = {normals[v][0], normals[v][1], normals[v][2]};
+    mesh.triangles = triangles;
+    mesh.cap.assign(triangles.size(), 0);
+    return mesh;
+}
+
+IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double gap_mm) {
+    IncisionResult result;
+    result.vertices_from = mesh.rest.size();
+
+    // The strip, its degenerate triangles left out (a blade that barely moved).
+    Mesh swept;
+    std::vector<VertexIndex> strip_vertex;
+    for (const auto& p : strip.points) strip_vertex.push_back(swept.add_vertex(point(p)));
+    for (const auto& t : strip.triangles) {
+        const Point a = point(strip.points[std::size_t(t[0])]), b = point(strip.points[std::size_t(t[1])]), c = point(strip.points[std::size_t(t[2])]);
+        if (CGAL::collinear(a, b, c)) continue;
+        if (swept.add_face(strip_vertex[std::size_t(t[0])], strip_vertex[std::size_t(t[1])], strip_vertex[std::size_t(t[2])]) == Mesh::null_face()) {
+            result.failure = "the swept surface folds onto itself";
+            return result;
+        }
+    }
+    if (swept.number_of_faces() == 0) return result;
+    for (VertexIndex v : swept.vertices())
+        if (swept.is_isolated(v)) swept.remove_vertex(v);
+    swept.collect_garbage();
+    const CGAL::Bbox_3 box = pmp::bbox(swept);
+
+    // The patch: the mesh's faces whose boxes meet the strip's (every face the strip crosses, and
+    // so every face sharing an edge it crosses).
+    Mesh patch;
+    auto original = patch.add_property_map<VertexIndex, std::int32_t>("v:original", -1).first;
+    auto patch_cap = patch.add_property_map<FaceIndex, std::uint8_t>("f:cap", 0).first;
+    std::unordered_map<std::int32_t, VertexIndex> patch_vertex;
+    std::vector<std::uint8_t> in_patch(mesh.triangles.size(), 0);
+    auto vertex_of = [&](std::int32_t id) {
+        auto [it, added] = patch_vertex.try_emplace(id);
+        if (added) {
+            it->second = patch.add_vertex(point(mesh.rest[std::size_t(id)]));
+            original[it->second] = id;
+        }
+        return it->second;
+    };
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+        const auto& tri = mesh.triangles[t];
+        CGAL::Bbox_3 face_box;
+        for (std::int32_t v : tri) face_box += point(mesh.rest[std::size_t(v)]).bbox();
+        if (!CGAL::do_overlap(face_box, box)) continue;
+        in_patch[t] = 1;
+        FaceIndex f = patch.add_face(vertex_of(tri[0]), vertex_of(tri[1]), vertex_of(tri[2]));
+        if (f == Mesh::null_face()) {  // a pinch within the patch: this face on vertices of its own
+            std::array<VertexIndex, 3> own;
+            for (int k = 0; k < 3; ++k) {
+                own[std::size_t(k)] = patch.add_vertex(point(mesh.rest[std::size_t(tri[std::size_t(k)])]));
+                original[own[std::size_t(k)]] = tri[std::size_t(k)];
+            }
+            f = patch.add_face(own[0], own[1], own[2]);
+            if (f == Mesh::null_face()) {
+                result.failure = "the detailed mesh has a degenerate face where the blade passed";
+                return result;
+            }
+        }
+        patch_cap[f] = mesh.cap[t];
+    }
+    if (patch.number_of_faces() == 0) return result;
+
+    auto patch_constrained = patch.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
+    auto strip_constrained = swept.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
+    FaceIndex splitting = Mesh::null_face();
+    CapVisitor visitor;
+    visitor.patch = &patch;
+    visitor.cap = &patch_cap;
+    visitor.splitting = &splitting;
+    try {
+        pmp::corefine(patch, swept, CGAL::parameters::edge_is_constrained_map(patch_constrained).visitor(visitor),
+                      CGAL::parameters::edge_is_constrained_map(strip_constrained));
+    } catch (const std::exception& e) {
+        result.failure = std::string("the cut could not be traced through the detailed mesh (") + e.what() + ")";
+        return result;
+    }
+    for (auto e : patch.edges()) result.crossings += patch_constrained[e] ? 1 : 0;
+    if (result.crossings == 0) return result;  // the blade stayed outside (or wholly inside) the surface
+
+    // The new arrays: the faces away from the cut as they were, the patch's faces refined.
+    std::vector<Eigen::Vector3d> rest = mesh.rest;
+    std::vector<std::int32_t> global(patch.num_vertices(), -1);
+    for (VertexIndex v : patch.vertices()) {
+        if (original[v] >= 0) {
+            global[v] = original[v];
+        } else {
+            global[v] = std::int32_t(rest.size());
+            rest.push_back(vector(patch.point(v)));
+        }
+    }
+    std::vector<std::array<std::int32_t, 3>> triangles;
+    std::vector<std::uint8_t> cap;
+    triangles.reserve(mesh.triangles.size() + 4 * patch.number_of_faces());
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+        if (!in_patch[t]) {
+            triangles.push_back(mesh.triangles[t]);
+            cap.push_back(mesh.cap[t]);
+        }
+    for (FaceIndex f : patch.faces()) {
+        std::array<std::int32_t, 3> tri{};
+        int k = 0;
+        for (VertexIndex v : CGAL::vertices_around_face(patch.halfedge(f), patch)) tri[std::size_t(k++)] = global[v];
+        triangles.push_back(tri);
+        cap.push_back(patch_cap[f]);
+    }
+    std::set<std::pair<std::int32_t, std::int32_t>> cut_edges;
+    for (auto e : patch.edges())
+        if (patch_constrained[e]) {
+            const std::int32_t a = global[patch.vertex(e, 0)], b = global[patch.vertex(e, 1)];
+            cut_edges.insert({std::min(a, b), std::max(a, b)});
+        }
+
+    // Split each vertex on the cut into its fans: the faces around it joined across edges that
+    // are not cut. The first fan keeps the vertex; each other fan gets a copy.
+    std::map<std::int32_t, std::vector<std::size_t>> around;
+    for (const auto& [a, b] : cut_edges) {
+        around.try_emplace(a);
+        around.try_emplace(b);
+    }
+    for (std::size_t t = 0; t < triangles.size(); ++t)
+        for (std::int32_t v : triangles[t])
+            if (auto it = around.find(v); it != around.end()) it->second.push_back(t);
+    std::map<std::int32_t, std::vector<std::pair<std::int32_t, std::vector<std::size_t>>>> copies;  // vertex → (id, fan faces)
+    for (auto& [v, faces] : around) {
+        std::vector<int> fan(faces.size(), -1);
+        int fans = 0;
+        for (std::size_t seed = 0; seed < faces.size(); ++seed) {
+            if (fan[seed] >= 0) continue;
+            fan[seed] = fans;
+            std::vector<std::size_t> stack{seed};
+            while (!stack.empty()) {
+                const std::size_t i = stack.back();
+                stack.pop_back();
+                for (std::size_t j = 0; j < faces.size(); ++j) {
+                    if (fan[j] >= 0) continue;
+                    // faces i and j share an edge (v, w) that is not cut
+                    for (std::int32_t w : triangles[faces[i]]) {
+                        if (w == v) continue;
+                        const auto& tj = triangles[faces[j]];
+                        if (std::find(tj.begin(), tj.end(), w) == tj.end()) continue;
+                        if (cut_edges.count({std::min(v, w), std::max(v, w)})) continue;
+                        fan[j] = fans;
+                        stack.push_back(j);
+                        break;
+                    }
+                }
+            }
+            ++fans;
+        }
+        auto& list = copies[v];
+        for (int k = 0; k < fans; ++k) {
+            std::int32_t id = v;
+            if (k > 0) {
+                id = std::int32_t(rest.size());
+                rest.push_back(rest[std::size_t(v)]);
+            }
+            std::vector<std::size_t> members;
+            for (std::size_t i = 0; i < faces.size(); ++i)
+                if (fan[i] == k) {
+                    members.push_back(faces[i]);
+                    for (auto& corner : triangles[faces[i]])
+                        if (corner == v) corner = id;
+                }
+            list.push_back({id, std::move(members)});
+        }
+    }
+
+    // The strip's faces in regions between the cut curves; a region inside the tissue is a cap.
+    std::vector<int> region(swept.num_faces(), -1);
+    int regions = 0;
+    std::vector<std::uint8_t> region_inside;
+    for (FaceIndex seed : swept.faces()) {
+        if (region[seed] >= 0) continue;
+        region[seed] = regions;
+        std::vector<FaceIndex> stack{seed};
+        while (!stack.empty()) {
+            const FaceIndex f = stack.back();
+            stack.pop_back();
+            for (auto h : CGAL::halfedges_around_face(swept.halfedge(f), swept)) {
+                if (strip_constrained[swept.edge(h)]) continue;
+                const FaceIndex g = swept.face(swept.opposite(h));
+                if (g == Mesh::null_face() || region[g] >= 0) continue;
+                region[g] = regions;
+                stack.push_back(g);
+            }
+        }
+        const auto h = swept.halfedge(seed);
+        const Point centre = CGAL::centroid(swept.point(swept.source(h)), swept.point(swept.target(h)), swept.point(swept.target(swept.next(h))));
+        region_inside.push_back(inside(centre, mesh.rest, mesh.triangles) ? 1 : 0);
+        ++regions;
+    }
+
+    // The caps: side + (the strip's normal side) takes the faces reversed, side − as they are.
+    std::map<PointKey, std::int32_t> on_curve;  // points of the cut curves → their vertex (before the split)
+    for (const auto& [v, list] : copies) on_curve[key(point(rest[std::size_t(v)]))] = v;
+    std::map<std::pair<std::size_t, int>, std::int32_t> strip_copy;  // (strip vertex, side) → vertex
+    std::map<std::int32_t, Eigen::Vector3d> slit_normal;              // vertex → summed normals of its cap faces
+    std::map<std::int32_t, int> slit_side;
+    auto cap_vertex = [&](VertexIndex s, int side, const Eigen::Vector3d& normal) -> std::int32_t {
+        const Point& p = swept.point(s);
+        if (auto it = on_curve.find(key(p)); it != on_curve.end()) {
+            const auto& list = copies[it->second];
+            if (list.size() == 1) return list.front().first;  // the crack's front: shared
+            // the copy whose fan lies on `side` of the cap face
+            double best = 0.0;
+            std::int32_t chosen = list.front().first;
+            for (const auto& [id, fan] : list) {
+                double lean = 0.0;
+                for (std::size_t t : fan)
+                    for (std::int32_t w : triangles[t]) lean += (rest[std::size_t(w)] - vector(p)).dot(normal);
+                if (side * lean > best) {
+                    best = side * lean;
+                    chosen = id;
+                }
+            }
+            slit_normal.try_emplace(chosen, Eigen::Vector3d::Zero()).first->second += normal;
+            slit_side[chosen] = side;
+            return chosen;
+        }
+        const bool front = swept.is_border(s);
+        auto [it, added] = strip_copy.try_emplace({std::size_t(s), front ? 0 : side});
+        if (added) {
+            it->second = std::int32_t(rest.size());
+            rest.push_back(vector(p));
+        }
+        if (!front) {
+            slit_normal.try_emplace(it->second, Eigen::Vector3d::Zero()).first->second += normal;
+            slit_side[it->second] = side;
+        }
+        return it->second;
+    };
+    std::vector<std::array<std::int32_t, 3>> caps;
+    for (FaceIndex f : swept.faces()) {
+        if (!region_inside[std::size_t(region[f])]) continue;
+        std::array<VertexIndex, 3> s{};
+        int k = 0;
+        for (VertexIndex v : CGAL::vertices_around_face(swept.halfedge(f), swept)) s[std::size_t(k++)] = v;
+        const Eigen::Vector3d a = vector(swept.point(s[0])), b = vector(swept.point(s[1])), c = vector(swept.point(s[2]));
+        const Eigen::Vector3d normal = (b - a).cross(c - a).normalized();
+        if (!normal.allFinite()) continue;
+        const std::array<std::int32_t, 3> plus{cap_vertex(s[0], +1, normal), cap_vertex(s[2], +1, normal), cap_vertex(s[1], +1, normal)};
+        const std::array<std::int32_t, 3> minus{cap_vertex(s[0], -1, normal), cap_vertex(s[1], -1, normal), cap_vertex(s[2], -1, normal)};
+        caps.push_back(plus);
+        caps.push_back(minus);
+        result.cut_faces.push_back({a, b, c});
+    }
+    if (caps.empty()) {
+        result.failure = "the cut meets the surface but no part of the swept surface lies inside the tissue";
+        return result;
+    }
+
+    // The slit at rest: each side's copies `gap`/2 into their own side.
+    for (const auto& [id, normal] : slit_normal) {
+        const Eigen::Vector3d n = normal.normalized();
+        if (!n.allFinite()) continue;
+        rest[std::size_t(id)] += 0.5 * gap_mm * slit_side[id] * n;
+        if (std::size_t(id) < result.vertices_from) result.moved.push_back(id);
+    }
+
+    // Normals: an added vertex on the surface takes its faces' area-weighted normal; a vertex of
+    // the caps only, none (the caps are shaded flat).
+    std::vector<Eigen::Vector3f> normals = mesh.normals;
+    normals.resize(rest.size(), Eigen::Vector3f::Zero());
+    std::vector<Eigen::Vector3d> summed(rest.size() - result.vertices_from, Eigen::Vector3d::Zero());
+    for (const auto& t : triangles) {
+        const Eigen::Vector3d n = (rest[std::size_t(t[1])] - rest[std::size_t(t[0])]).cross(rest[std::size_t(t[2])] - rest[std::size_t(t[0])]);
+        for (std::int32_t v : t)
+            if (std::size_t(v) >= result.vertices_from) summed[std::size_t(v) - result.vertices_from] += n;
+    }
+    for (std::size_t k = 0; k < summed.size(); ++k)
+        if (summed[k].squaredNorm() > 0) normals[result.vertices_from + k] = summed[k].normalized().cast<float>();
+
+    for (const auto& c : caps) {
+        triangles.push_back(c);
+        cap.push_back(1);
+    }
+    result.cap_triangles = caps.size();
+    mesh.rest = std::move(rest);
+    mesh.normals = std::move(normals);
+    mesh.triangles = std::move(triangles);
+    mesh.cap = std::move(cap);
+    result.opened = true;
+    return result;
+}
+
+bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why) {
+    std::map<std::pair<std::int32_t, std::int32_t>, int> directed;
+    for (const auto& t : triangles)
+        for (int k = 0; k < 3; ++k) ++directed[{t[std::size_t(k)], t[std::size_t((k + 1) % 3)]}];
+    for (const auto& [edge, count] : directed) {
+        const auto back = directed.find({edge.second, edge.first});
+        const int reverse = back == directed.end() ? 0 : back->second;
+        if (count != 1 || reverse != 1) {
+            if (why)
+                *why = "edge (" + std::to_string(edge.first) + ", " + std::to_string(edge.second) + ") occurs " + std::to_string(count) +
+                       " time(s), its reverse " + std::to_string(reverse);
+            return false;
+        }
+    }
+    return true;
+}
+
+double enclosed_volume(const std::vector<Eigen::Vector3d>& positions, const std::vector<std::array<std::int32_t, 3>>& triangles) {
+    double six = 0.0;
+    for (const auto& t : triangles)
+        six += positions[std::size_t(t[0])].dot(positions[std::size_t(t[1])].cross(positions[std::size_t(t[2])]));
+    return six / 6.0;
+}
+
+}  // namespace heartsim

@@ -1,0 +1,94 @@
+/// @file incision_state.h
+/// @brief The detailed mesh of a run as the scalpel opens it: each finished stroke is mapped into
+/// the rest shape, the mesh is split and capped along it (incision.h), and every vertex beside the
+/// cut is embedded again in the particles of its own side, so no vertex is pulled across the cut
+/// and no triangle bridges it (docs/architecture.md "Incision").
+///
+///     IncisionState incisions(scenario.lattice, visual.positions, visual.normals, visual.triangles, mapping, surface);
+///     if (incisions.update(backend.strokes(), backend.positions(), false).opened) renderer.set_visual(...);
+#pragma once
+
+#include "cutting.h"
+#include "incision.h"
+#include "lattice.h"
+#include "mapping.h"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// The rest-space surfaces one stroke swept: its poses thinned to those where the blade's path
+/// bends (within a twentieth of the lattice spacing), split where it turns back (a sawing blade
+/// sweeps the same surface twice), each blade point taken into the rest shape by the displacement
+/// of the particles around it (the tissue's current positions `positions`, packed order, against
+/// its rest positions: a Gaussian of the lattice spacing's width over the particles within two
+/// spacings, or the nearest particle beyond).
+std::vector<CutSurface> stroke_surfaces(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions,
+                                        const Lattice& lattice);
+
+struct IncisionUpdate {
+    bool opened = false;               ///< the mesh changed
+    std::size_t strokes = 0;           ///< strokes opened in this update
+    std::size_t reembedded = 0;        ///< vertices embedded again (new ones included)
+    std::vector<std::string> failures; ///< strokes the mesh could not be opened along, and why
+    double seconds = 0.0;
+};
+
+class IncisionState {
+public:
+    /// The uncut detailed mesh (rest positions, normals V or empty, triangles) with its mapping on
+    /// `lattice`'s particles (packed order, as a scenario stores them); `surface` gives the
+    /// carriers of a mapping that stores none (mapping_carriers). Keeps a reference to `lattice`.
+    IncisionState(const Lattice& lattice, const std::vector<std::array<float, 3>>& positions,
+                  const std::vector<std::array<float, 3>>& normals, const std::vector<std::array<std::int32_t, 3>>& triangles,
+                  const VisualMapping& mapping, const SimulationSurface& surface);
+    ~IncisionState();
+    IncisionState(const IncisionState&) = delete;
+    IncisionState& operator=(const IncisionState&) = delete;
+
+    /// Opens the mesh along every stroke of `log` whose blade was lifted and that is not opened
+    /// yet, and, with `finish`, along the strokes still under way too (the end of a run: they are
+    /// then taken as finished). `positions`: the particles' current positions (packed order).
+    /// A log that was cleared (the tissue reset, its cuts healed) restores the uncut mesh.
+    IncisionUpdate update(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions, bool finish);
+    /// Whether update() would do anything for `log` (cheap: no positions needed).
+    bool pending(const StrokeLog& log, bool finish) const;
+
+    bool cut() const { return mesh_.triangles.size() != uncut_triangles_; }  ///< opened along at least one stroke
+    const IncisionMesh& mesh() const { return mesh_; }
+    const VisualMapping& mapping() const { return mapping_; }
+    /// The triangles to draw: the tissue's surface first, then the caps from cap_first() on.
+    const std::vector<std::array<std::int32_t, 3>>& drawn_triangles() const { return drawn_; }
+    std::size_t cap_first() const { return cap_first_; }
+    /// Rest positions and normals in float (the file's and the renderer's precision).
+    std::vector<std::array<float, 3>> rest_positions() const;
+    std::vector<std::array<float, 3>> rest_normals() const;
+
+private:
+    void restore();
+    std::size_t reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region);
+    void order_for_drawing();
+
+    const Lattice& lattice_;
+    std::vector<Eigen::Vector3d> particle_rest_;
+    struct Impl;
+    std::unique_ptr<Impl> impl_;
+    IncisionMesh uncut_;
+    VisualMapping uncut_mapping_;
+    std::size_t uncut_triangles_ = 0;
+    IncisionMesh mesh_;
+    VisualMapping mapping_;
+    std::vector<std::array<std::int32_t, 3>> drawn_;
+    std::vector<std::array<Eigen::Vector3d, 3>> cut_faces_;  ///< every cut so far, at rest (IncisionResult::cut_faces)
+    std::size_t cap_first_ = 0;
+    std::vector<std::uint8_t> applied_;  ///< per stroke row of the log
+    std::uint64_t generation_ = 0;       ///< the log's clears() seen
+};
+
+}  // namespace heartsim

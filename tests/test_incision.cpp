@@ -1,0 +1,324 @@
+// The detailed mesh opened along a cut, against truths that need no cutting code: a box's volume
+// (each piece's enclosed volume from the divergence theorem, summing to the box's less the slit),
+// the blade's plane (the caps lie on it), Euler's count of closed pieces (connected components),
+// and the solver's own pieces (each side's vertices carried by the particles on that side only,
+// so when one piece moves rigidly its vertices move with it and the other's stay put).
+#include "libmodel/incision.h"
+#include "libmodel/incision_state.h"
+#include "libmodel/mapping.h"
+#include "libmodel/packing.h"
+#include "libmodel/simulation_surface.h"
+#include "libmodel/solver.h"
+#include "libmodel/stability.h"
+#include "test_support.h"
+
+#include <gtest/gtest.h>
+
+#include <map>
+#include <numeric>
+
+using namespace heartsim;
+
+namespace {
+
+/// A closed box [low, high], each face a grid of squares about `step` mm split into two
+/// triangles, counter-clockwise seen from outside, its vertices shared along edges and corners.
+struct BoxMesh {
+    std::vector<std::array<float, 3>> positions;
+    std::vector<std::array<std::int32_t, 3>> triangles;
+};
+BoxMesh box_mesh(const Eigen::Vector3d& low, const Eigen::Vector3d& high, double step) {
+    BoxMesh mesh;
+    std::array<int, 3> n{};
+    for (int a = 0; a < 3; ++a) n[std::size_t(a)] = std::max(1, int(std::lround((high[a] - low[a]) / step)));
+    std::map<std::array<int, 3>, std::int32_t> index;
+    auto vertex = [&](std::array<int, 3> g) {
+        auto [it, added] = index.try_emplace(g, std::int32_t(mesh.positions.size()));
+        if (added) {
+            std::array<float, 3> p{};
+            for (int a = 0; a < 3; ++a) p[std::size_t(a)] = float(low[a] + (high[a] - low[a]) * g[std::size_t(a)] / n[std::size_t(a)]);
+            mesh.positions.push_back(p);
+        }
+        return it->second;
+    };
+    for (int axis = 0; axis < 3; ++axis)
+        for (int side = 0; side < 2; ++side) {
+            const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+            for (int i = 0; i < n[std::size_t(u)]; ++i)
+                for (int j = 0; j < n[std::size_t(v)]; ++j) {
+                    std::array<std::array<int, 3>, 4> c{};
+                    for (int k = 0; k < 4; ++k) {
+                        c[std::size_t(k)][std::size_t(axis)] = side ? n[std::size_t(axis)] : 0;
+                        c[std::size_t(k)][std::size_t(u)] = i + (k == 1 || k == 2);
+                        c[std::size_t(k)][std::size_t(v)] = j + (k >= 2);
+                    }
+                    // (u, v, axis) is right-handed: u→v counter-clockwise seen from +axis.
+                    const std::int32_t a = vertex(c[0]), b = vertex(c[1]), d = vertex(c[2]), e = vertex(c[3]);
+                    if (side) {
+                        mesh.triangles.push_back({a, b, d});
+                        mesh.triangles.push_back({a, d, e});
+                    } else {
+                        mesh.triangles.push_back({a, d, b});
+                        mesh.triangles.push_back({a, e, d});
+                    }
+                }
+        }
+    return mesh;
+}
+
+/// Connected components of a triangle list (through shared vertices): a label per vertex used.
+std::vector<int> components(const std::vector<std::array<std::int32_t, 3>>& triangles, std::size_t vertices) {
+    std::vector<int> parent(vertices);
+    std::iota(parent.begin(), parent.end(), 0);
+    auto find = [&](int a) {
+        while (parent[std::size_t(a)] != a) a = parent[std::size_t(a)] = parent[std::size_t(parent[std::size_t(a)])];
+        return a;
+    };
+    for (const auto& t : triangles) {
+        parent[std::size_t(find(t[1]))] = find(t[0]);
+        parent[std::size_t(find(t[2]))] = find(t[0]);
+    }
+    std::vector<int> label(vertices);
+    for (std::size_t v = 0; v < vertices; ++v) label[v] = find(int(v));
+    return label;
+}
+
+std::size_t count_components(const std::vector<std::array<std::int32_t, 3>>& triangles, std::size_t vertices) {
+    const std::vector<int> label = components(triangles, vertices);
+    std::vector<int> roots;
+    for (const auto& t : triangles) roots.push_back(label[std::size_t(t[0])]);
+    std::sort(roots.begin(), roots.end());
+    return std::size_t(std::unique(roots.begin(), roots.end()) - roots.begin());
+}
+
+/// The plane x = `x`, as a strip of two triangles reaching `margin` beyond [low, high] in y and
+/// z from `z_from` to `z_to`: its normal is +x (the + side).
+CutSurface plane_x(double x, const Eigen::Vector3d& low, const Eigen::Vector3d& high, double z_from, double z_to, double margin) {
+    CutSurface s;
+    s.points = {{x, low.y() - margin, z_from}, {x, high.y() + margin, z_from}, {x, high.y() + margin, z_to}, {x, low.y() - margin, z_to}};
+    s.triangles = {{0, 1, 2}, {0, 2, 3}};
+    return s;
+}
+
+}  // namespace
+
+// A plane right through a box: two closed pieces whose volumes sum to the box's, less the slit's
+// (gap × cross-section), within 1 %; every cap vertex on the plane (within the slit's half width);
+// every vertex away from the plane exactly where it was.
+TEST(Incision, APlaneThroughABoxLeavesTwoClosedPiecesOfTheBoxsVolume) {
+    const Eigen::Vector3d low(0, 0, 0), high(18, 9, 6);
+    const BoxMesh box = box_mesh(low, high, 0.75);
+    IncisionMesh mesh = incision_mesh(box.positions, {}, box.triangles);
+    ASSERT_TRUE(closed_manifold(mesh.triangles));
+    const double gap = 0.03, x = 7.3;
+    const IncisionResult result = open_along(mesh, plane_x(x, low, high, -2.0, 8.0, 2.0), gap);
+    ASSERT_TRUE(result.opened) << result.failure;
+    std::string why;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+    EXPECT_EQ(count_components(mesh.triangles, mesh.rest.size()), 2u);
+    // The pieces' volumes.
+    const std::vector<int> label = components(mesh.triangles, mesh.rest.size());
+    std::map<int, std::vector<std::array<std::int32_t, 3>>> piece;
+    for (const auto& t : mesh.triangles) piece[label[std::size_t(t[0])]].push_back(t);
+    ASSERT_EQ(piece.size(), 2u);
+    double total = 0.0;
+    for (const auto& [root, triangles] : piece) {
+        const double volume = enclosed_volume(mesh.rest, triangles);
+        EXPECT_GT(volume, 0.0) << "a piece is inside out";
+        const bool left = mesh.rest[std::size_t(root)].x() < x;
+        const double expected = (left ? x - 0.5 * gap : high.x() - x - 0.5 * gap) * high.y() * high.z();
+        EXPECT_NEAR(volume, expected, 1e-3 * expected);
+        total += volume;
+    }
+    const double box_volume = high.prod();
+    EXPECT_NEAR(total, box_volume - gap * high.y() * high.z(), 0.01 * box_volume);
+    // The caps on the plane; each side's cap facing away from its own piece.
+    std::size_t caps = 0;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+        if (!mesh.cap[t]) continue;
+        ++caps;
+        const auto& tri = mesh.triangles[t];
+        const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
+                                      .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
+        for (std::int32_t v : tri) EXPECT_NEAR(mesh.rest[std::size_t(v)].x(), x, 0.5 * gap + 1e-9);
+        const bool left = mesh.rest[std::size_t(tri[0])].x() < x;
+        EXPECT_GT(left ? n.x() : -n.x(), 0.0) << "cap triangle " << t << " faces into its piece: x " << mesh.rest[std::size_t(tri[0])].x() << " " << mesh.rest[std::size_t(tri[1])].x() << " " << mesh.rest[std::size_t(tri[2])].x() << " ids " << tri[0] << " " << tri[1] << " " << tri[2] << " n " << n.transpose();
+    }
+    EXPECT_EQ(caps, result.cap_triangles);
+    EXPECT_GT(caps, 0u);
+    // Vertices away from the cut: the same, bit for bit.
+    for (std::size_t v = 0; v < box.positions.size(); ++v)
+        if (std::abs(box.positions[v][0] - x) > 0.5)
+            ASSERT_EQ(mesh.rest[v], Eigen::Vector3d(box.positions[v][0], box.positions[v][1], box.positions[v][2]));
+}
+
+// A slit from the top face down to half the box's height: one closed piece; the crack's front
+// (the blade's lower edge inside the box) shared by both caps; the slit's mouth open on the top
+// face; the volume the box's less the slit's.
+TEST(Incision, ASlitHalfwayDownLeavesOneClosedPieceWithTheCrackFrontShared) {
+    const Eigen::Vector3d low(0, 0, 0), high(12, 12, 8);
+    const BoxMesh box = box_mesh(low, high, 0.7);
+    IncisionMesh mesh = incision_mesh(box.positions, {}, box.triangles);
+    const double gap = 0.02, x = 5.9;
+    // From z = 4 (inside) to z = 10 (above the top), across the whole width in y.
+    const IncisionResult result = open_along(mesh, plane_x(x, low, high, 4.0, 10.0, 2.0), gap);
+    ASSERT_TRUE(result.opened) << result.failure;
+    std::string why;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+    EXPECT_EQ(count_components(mesh.triangles, mesh.rest.size()), 1u);
+    const double volume = enclosed_volume(mesh.rest, mesh.triangles);
+    // The slit: gap wide over its area (y 12 × z 4), less where it narrows to the front.
+    EXPECT_NEAR(volume, high.prod() - gap * 12 * 4, 0.5 * gap * 12 * 4);
+    // Cap vertices: on the plane; those on the front (z = 4) shared, not moved.
+    std::size_t front = 0;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+        if (mesh.cap[t])
+            for (std::int32_t v : mesh.triangles[t]) {
+                const Eigen::Vector3d& p = mesh.rest[std::size_t(v)];
+                EXPECT_NEAR(p.x(), x, 0.5 * gap + 1e-9);
+                EXPECT_GE(p.z(), 4.0 - 1e-9);
+                if (std::abs(p.z() - 4.0) < 1e-9) {
+                    EXPECT_EQ(p.x(), x) << "a vertex of the crack's front moved";
+                    ++front;
+                }
+            }
+    EXPECT_GT(front, 0u);
+    // A second, crossing slit (y = const) through the opened mesh keeps it closed.
+    CutSurface across;
+    across.points = {{-2, 6.1, 5.0}, {-2, 6.1, 10.0}, {14, 6.1, 10.0}, {14, 6.1, 5.0}};
+    across.triangles = {{0, 1, 2}, {0, 2, 3}};
+    const IncisionResult second = open_along(mesh, across, gap);
+    ASSERT_TRUE(second.opened) << second.failure;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+}
+
+// A blade outside the mesh, or one ending before the surface, changes nothing.
+TEST(Incision, ABladeThatMissesTheMeshChangesNothing) {
+    const Eigen::Vector3d low(0, 0, 0), high(6, 6, 6);
+    const BoxMesh box = box_mesh(low, high, 1.0);
+    IncisionMesh mesh = incision_mesh(box.positions, {}, box.triangles);
+    const IncisionResult outside = open_along(mesh, plane_x(8.0, low, high, -1.0, 7.0, 1.0), 0.02);
+    EXPECT_FALSE(outside.opened);
+    EXPECT_TRUE(outside.failure.empty());
+    EXPECT_EQ(mesh.triangles, box.triangles);
+}
+
+namespace {
+
+/// A block of particles and, around it, a box mesh on the tissue's boundary (half a spacing
+/// outside the outermost particles), embedded in the lattice.
+struct CutModel {
+    Lattice lattice;
+    Packing packing;
+    SimulationSurface surface;
+    BoxMesh box;
+    VisualMapping mapping;
+    Eigen::Vector3d low, high;  ///< the box
+};
+
+CutModel cut_model(int nx, int ny, int nz) {
+    CutModel m;
+    m.lattice = test::block_lattice(nx, ny, nz, 1.5, 0.0);
+    m.packing = pack_particles(m.lattice);
+    m.low = Eigen::Vector3d::Constant(1e30);
+    m.high = Eigen::Vector3d::Constant(-1e30);
+    for (const auto& r : m.lattice.particles.rest_position) {
+        m.low = m.low.cwiseMin(Eigen::Vector3d(r[0], r[1], r[2]));
+        m.high = m.high.cwiseMax(Eigen::Vector3d(r[0], r[1], r[2]));
+    }
+    m.low.array() -= 0.75;
+    m.high.array() += 0.75;
+    m.box = box_mesh(m.low, m.high, 0.6);
+    m.surface = build_simulation_surface(m.lattice);
+    std::vector<Eigen::Vector3d> positions;
+    for (const auto& p : m.box.positions) positions.emplace_back(p[0], p[1], p[2]);
+    m.mapping = map_visual_mesh(positions, m.lattice, m.surface);
+    return m;
+}
+
+SolverOptions no_gravity(const Lattice& lattice) {
+    SolverOptions o;
+    o.gravity.setZero();
+    o.critical_dt_ms = estimate_critical_time_step(lattice.particles, lattice.springs, 5000, 1e-12).critical_dt_ms;
+    o.dt_ms = 0.5 * o.critical_dt_ms;
+    o.damping_ratio = {0.0};
+    return o;
+}
+
+std::vector<std::array<float, 3>> positions_of(const Solver& solver, std::size_t n) {
+    std::vector<std::array<float, 3>> out(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        const Eigen::Vector3d p = solver.position(i);
+        out[i] = {float(p.x()), float(p.y()), float(p.z())};
+    }
+    return out;
+}
+
+}  // namespace
+
+// The scalpel swept through a block in the solver, then the mesh opened from the solver's own
+// stroke log: closed, in two pieces; every vertex carried only by particles of its own side of the
+// blade, no triangle spanning the two sides; when the right piece of particles moves rigidly, the
+// right piece of the mesh moves with it, bit for bit as the mapping evaluates, and the left one
+// stays.
+TEST(Incision, AStrokeThroughABlockOpensTheMeshAlongTheSolversCut) {
+    CutModel m = cut_model(10, 5, 4);
+    Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
+    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
+    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
+    solver.begin_grab(0);
+    for (int k = 1; k <= 10; ++k) {  // ten steps across
+        solver.set_pose(0, {.position = {x, m.low.y() - 2.0 + k * (m.high.y() - m.low.y() + 4.0) / 10, below}});
+        solver.step(1);
+    }
+    solver.release(0);
+    ASSERT_EQ(solver.strokes().strokes().size(), 1u);
+    EXPECT_TRUE(solver.strokes().strokes()[0].lifted);
+
+    const std::size_t n = m.lattice.particles.size();
+    IncisionState incisions(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    const IncisionUpdate update = incisions.update(solver.strokes(), positions_of(solver, n), false);
+    ASSERT_TRUE(update.opened) << (update.failures.empty() ? "" : update.failures[0]);
+    EXPECT_EQ(update.strokes, 1u);
+    const IncisionMesh& mesh = incisions.mesh();
+    std::string why;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+    EXPECT_EQ(count_components(mesh.triangles, mesh.rest.size()), 2u);
+    EXPECT_EQ(incisions.drawn_triangles().size(), mesh.triangles.size());
+    for (std::size_t t = incisions.cap_first(); t < mesh.triangles.size(); ++t)
+        for (std::int32_t v : incisions.drawn_triangles()[t]) EXPECT_NEAR(mesh.rest[std::size_t(v)].x(), x, 0.05);
+
+    auto side = [&](const Eigen::Vector3d& p) { return p.x() > x; };
+    const VisualMapping& mapping = incisions.mapping();
+    ASSERT_EQ(mapping.particles.size(), mesh.rest.size());
+    for (std::size_t v = 0; v < mesh.rest.size(); ++v)
+        for (int k = 0; k < 8; ++k) {
+            if (mapping.weights[v][std::size_t(k)] == 0.0f) continue;
+            const auto& r = m.lattice.particles.rest_position[std::size_t(mapping.particles[v][std::size_t(k)])];
+            ASSERT_EQ(side(Eigen::Vector3d(r[0], r[1], r[2])), side(mesh.rest[v])) << "vertex " << v << " (of " << m.box.positions.size() << " before the cut) at " << mesh.rest[v].transpose()
+                << " is carried across the cut by particle at " << r[0] << " " << r[1] << " " << r[2] << " weight " << mapping.weights[v][std::size_t(k)] << " x " << x;
+        }
+    for (const auto& t : mesh.triangles)
+        ASSERT_TRUE(side(mesh.rest[std::size_t(t[0])]) == side(mesh.rest[std::size_t(t[1])]) &&
+                    side(mesh.rest[std::size_t(t[0])]) == side(mesh.rest[std::size_t(t[2])]))
+            << "a triangle bridges the cut";
+
+    // The right piece moved by 2 mm along x: the mesh follows its own piece.
+    std::vector<std::array<float, 3>> moved = positions_of(solver, n);
+    for (auto& p : moved)
+        if (p[0] > x) p[0] += 2.0f;
+    const std::vector<Eigen::Vector3f> drawn = apply_mapping(mapping, moved, m.surface);
+    for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
+        const double shift = double(drawn[v].x()) - mesh.rest[v].x();
+        ASSERT_NEAR(shift, side(mesh.rest[v]) ? 2.0 : 0.0, 1e-3) << "vertex " << v;
+    }
+
+    // A reset heals the cut: the next update restores the uncut mesh.
+    solver.reset_tissue();
+    EXPECT_TRUE(incisions.pending(solver.strokes(), false));
+    incisions.update(solver.strokes(), positions_of(solver, n), false);
+    EXPECT_FALSE(incisions.cut());
+    EXPECT_EQ(incisions.mesh().triangles, m.box.triangles);
+}
