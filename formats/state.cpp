@@ -28,6 +28,10 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
         if (!state.visual_positions.empty()) {
             w.group("visual");
             w.dataset("visual/positions", state.visual_positions, {state.visual_positions.size(), 3});
+            if (!state.visual_triangles.empty()) {
+                w.dataset("visual/triangles", state.visual_triangles, {state.visual_triangles.size(), 3});
+                w.attribute("visual/triangles", "cap_first", std::int64_t(state.visual_cap_first));
+            }
         }
     }, {}, {xdmf_file_beside(path, xdmf)});
 }
@@ -68,6 +72,19 @@ SimulationState read_state(const std::filesystem::path& path) {
         const auto visual = r.dataset<float>("visual/positions", {-1, 3});
         r.require_finite("visual/positions", visual);
         state.visual_positions = h5::rows_of<3>(visual);
+        if (r.exists("visual/triangles")) {
+            state.visual_triangles = h5::rows_of<3>(r.dataset<std::int32_t>("visual/triangles", {-1, 3}));
+            for (const auto& t : state.visual_triangles)
+                for (std::int32_t v : t)
+                    if (v < 0 || std::size_t(v) >= state.visual_positions.size())
+                        r.fail("visual/triangles", "vertex index " + std::to_string(v) + " outside /visual/positions (" +
+                                                       std::to_string(state.visual_positions.size()) + " rows)");
+            const std::int64_t first = r.number<std::int64_t>("visual/triangles", "cap_first");
+            if (first < 0 || std::size_t(first) > state.visual_triangles.size())
+                r.fail("visual/triangles", "attribute cap_first " + std::to_string(first) + " outside [0, " +
+                                               std::to_string(state.visual_triangles.size()) + "]");
+            state.visual_cap_first = std::size_t(first);
+        }
     }
     return state;
 }

@@ -12,6 +12,11 @@
 ///   /cut_springs        int32 [K,2]    the springs a scalpel cut, as packed particle indices (lower
 ///                                      first, sorted); absent when none was cut
 ///   /visual/positions   float32 [V,3]  mm, the deformed detailed mesh (when the scenario has one)
+///   /visual/triangles   int32 [T,3]    once a scalpel opened the detailed mesh: its triangles as
+///                                      drawn (counter-clockwise from outside, a closed 2-manifold),
+///                                      the tissue's surface first, then the incisions' caps from
+///                                      the attribute cap_first on; V then counts the vertices the
+///                                      incisions added. Absent while uncut (the scenario's triangles).
 #pragma once
 
 #include <array>
@@ -36,6 +41,10 @@ struct SimulationState {
     /// The deformed detailed mesh, V×3 mm (the scenario's mapping evaluated at `positions`, as the
     /// runtime draws it): /visual/positions. Empty when the scenario has no visual mesh.
     std::vector<std::array<float, 3>> visual_positions;
+    /// The detailed mesh's triangles once an incision opened it (/visual/triangles), caps from
+    /// `visual_cap_first` on; empty while uncut.
+    std::vector<std::array<std::int32_t, 3>> visual_triangles;
+    std::size_t visual_cap_first = 0;
     /// Not stored in the file, read back empty: the scenario the state came from and its triangle
     /// counts, for the .xmf2 written beside the state (xdmf.h), which shows the deformed
     /// simulation surface and detailed mesh with the scenario's triangles. Empty: the .xmf2 shows

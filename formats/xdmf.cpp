@@ -163,7 +163,10 @@ std::string state_xdmf(const std::string& h5, const SimulationState& state, cons
         fs::path relative = scenario.lexically_relative(folder);
         if (relative.empty()) relative = scenario;
         const std::string file = relative.generic_string();
-        if (!state.visual_positions.empty() && state.scenario_visual_triangles > 0)
+        if (!state.visual_triangles.empty())  // opened by an incision: the state's own triangles
+            grids += triangle_grid("detailed_mesh", h5, "/visual/triangles", state.visual_triangles.size(),
+                                   hdf(h5, "/visual/positions", {state.visual_positions.size(), 3}, f32, "        "));
+        else if (!state.visual_positions.empty() && state.scenario_visual_triangles > 0)
             grids += triangle_grid("detailed_mesh", file, "/visual/triangles", state.scenario_visual_triangles,
                                    hdf(h5, "/visual/positions", {state.visual_positions.size(), 3}, f32, "        "));
         if (state.scenario_simsurface_triangles > 0)

@@ -285,7 +285,11 @@ IncisionUpdate IncisionState::update(const StrokeLog& log, const std::vector<std
             const IncisionResult result = open_along(mesh_, surface, gap);
             if (!result.failure.empty()) update.failures.push_back(result.failure);
             if (!result.opened) continue;
-            cut_faces_.insert(cut_faces_.end(), result.cut_faces.begin(), result.cut_faces.end());
+            // The whole strip parts the particles, as the physics cut parted them: also where it
+            // passes between particles outside the detailed mesh (the lattice reaches up to half a
+            // spacing beyond the surface).
+            for (const auto& t : surface.triangles)
+                cut_faces_.push_back({surface.points[std::size_t(t[0])], surface.points[std::size_t(t[1])], surface.points[std::size_t(t[2])]});
             Eigen::AlignedBox3d region;
             for (const auto& p : surface.points) region.extend(p);
             region.min().array() -= 2 * lattice_.spacing;

@@ -478,6 +478,40 @@ std::int32_t state_kind(InstrumentKind kind) {
     return 0;
 }
 
+}  // namespace
+
+bool open_incisions(PreparedRun& p, bool finish, const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
+    const Scenario& scenario = p.scenario;
+    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface || scenario.visual->positions.empty()) return false;
+    const StrokeLog& log = strokes ? *strokes : p.backend->strokes();
+    if (!p.incisions) {
+        if (log.strokes().empty()) return false;
+        p.incisions = std::make_unique<IncisionState>(scenario.lattice, scenario.visual->positions, scenario.visual->normals,
+                                                      scenario.visual->triangles, *scenario.mapping, *scenario.simulation_surface);
+    }
+    if (!p.incisions->pending(log, finish)) return false;
+    std::vector<std::array<float, 3>> read;
+    if (!positions) {
+        read = p.backend->positions();
+        positions = &read;
+    }
+    const IncisionUpdate update = p.incisions->update(log, *positions, finish);
+    for (const std::string& failure : update.failures)
+        std::printf("incision: the detailed mesh does not open along one stroke: %s (the tissue is cut; the mesh stays closed)\n", failure.c_str());
+    if (!update.opened) return false;
+    const IncisionState& cut = *p.incisions;
+    if (cut.cut())
+        std::printf("incision: the detailed mesh opened along %zu stroke(s): %zu vertices, %zu triangles of which %zu cut faces; %zu vertices "
+                    "embedded on their own side (%.0f ms)\n",
+                    update.strokes, cut.mesh().rest.size(), cut.drawn_triangles().size(), cut.drawn_triangles().size() - cut.cap_first(),
+                    update.reembedded, 1e3 * update.seconds);
+    if (p.renderer && p.renderer->draws_visual_mesh())
+        p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+    return true;
+}
+
+namespace {
+
 /// --save-state: the final positions, the forces, what each hand held and the springs cut.
 void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const InstrumentForces& forces,
                 const std::vector<std::array<float, 3>>& positions, const haptics::HapticRun* haptic) {
@@ -503,8 +537,13 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
     state.cut_springs = p.backend->cut_springs();
     if (p.scenario.visual && p.scenario.mapping && p.scenario.simulation_surface) {
         // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
-        // the vertex shader's formula and float order).
-        const auto visual = apply_mapping(*p.scenario.mapping, positions, *p.scenario.simulation_surface);
+        // the vertex shader's formula and float order); once cut, the incision's mesh and mapping.
+        const bool opened = p.incisions && p.incisions->cut();
+        const auto visual = apply_mapping(opened ? p.incisions->mapping() : *p.scenario.mapping, positions, *p.scenario.simulation_surface);
+        if (opened) {
+            state.visual_triangles = p.incisions->drawn_triangles();
+            state.visual_cap_first = p.incisions->cap_first();
+        }
         state.visual_positions.reserve(visual.size());
         for (const auto& v : visual) state.visual_positions.push_back({v.x(), v.y(), v.z()});
     }
@@ -521,6 +560,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
                Clock::time_point wall_start) {
     Backend& backend = *p.backend;
     auto uses_hand = [&](int hand) { return haptic ? haptic->uses_hand(hand) : p.trajectory.uses_hand(hand); };
+    open_incisions(p, true);  // a stroke still under way counts as finished
     if (p.renderer && !a.screenshot.empty()) {
         p.renderer->render(backend, haptic ? haptic->shapes() : shapes_at(p.trajectory, backend.simulated_time_ms()));
         write_png(a.screenshot, p.renderer->read_pixels());
@@ -632,7 +672,7 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
                         recording.contact.c_str());
         }
     }
-    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay);
+    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay, [&run] { open_incisions(run, false); });
     const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
     const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
     std::printf("replay: %zu steps in %.4g ms; %zu forces compared, %zu bit for bit identical; max |Δf| %.3g N, rms %.3g N "
@@ -647,6 +687,7 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
     if (!a.save_state.empty()) {  // the state the replay ended in: positions, forces, the springs it cut
         ScriptedRunResult replayed;
         replayed.steps = int(r.steps);
+        open_incisions(run, true);
         save_state(a, run, replayed, backend.instrument_forces(), backend.positions(), nullptr);
     }
     if (r.max_difference_n > tolerance) {
@@ -669,7 +710,9 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
     while (!interrupted.load() && !haptic->result().gave_up && haptic->session().now_ms() - started < end_ms &&
            (a.seconds > 0 || haptic->rows() < std::size_t(run.steps))) {
         const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
-        if (haptic->step_to_real_time(limit) == 0)
+        const int stepped = haptic->step_to_real_time(limit);
+        if (stepped > 0) open_incisions(run, false);  // the device thread goes on meanwhile
+        if (stepped == 0)
             std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
         if (run.link && run.link->due())
             run.link->offer(*run.backend, (long long)haptic->rows(), link_hands(haptic->shapes(), haptic->latest_published_forces()),
@@ -696,7 +739,10 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .real_time_auto = a.real_time_mode() == RealTimeMode::automatic,
                                   .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0,
                                   .backend_note = run.software_gl ? "OpenGL is software" : "",
-                                  .link = run.link.get()};
+                                  .link = run.link.get(),
+                                  .open_incisions = [&run](const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
+                                      open_incisions(run, false, positions, strokes);
+                                  }};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {
@@ -739,6 +785,12 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
             run.link->offer(*run.backend, step + 1, link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->latest_forces()),
                             SlicerLink::State::running);
         };
+    // A stroke's blade lifted: the detailed mesh opens along it from the positions of that step
+    // (before anything else sees the step: a screenshot shows it opened).
+    scripted.on_step = [&, before = scripted.on_step](int step, const StepReport& report) {
+        open_incisions(run, false);
+        if (before) before(step, report);
+    };
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
     const int status = finish_run(a, run, result, nullptr, wall_start);
     if (run.link)

@@ -8,6 +8,7 @@
 ///     return headless_scripted_mode(arguments, run);
 #pragma once
 
+#include "libmodel/incision_state.h"
 #include "runtime/backend.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/renderer.h"
@@ -105,7 +106,16 @@ struct PreparedRun {
     bool keyboard_hand0 = false;  ///< the window's arrow keys move hand 0
     /// --igtl: the live link to 3D Slicer, bound before the scenario is read and started last.
     std::unique_ptr<SlicerLink> link;
+    /// The detailed mesh as the scalpel opened it; made at the first stroke (open_incisions).
+    std::unique_ptr<IncisionState> incisions;
 };
+
+/// Opens the detailed mesh along the scalpel strokes the backend logged that are finished (the
+/// blade lifted), or all of them with `finish` (the end of a run), and has the renderer draw it;
+/// prints a line each time. `positions` and `strokes`: the backend's, read from it when null (a
+/// window whose simulation runs on its own thread passes the copies it drew). Returns whether the drawn mesh changed. Nothing to do without a mapped visual mesh.
+bool open_incisions(PreparedRun& run, bool finish, const std::vector<std::array<float, 3>>* positions = nullptr,
+                    const StrokeLog* strokes = nullptr);
 
 /// --replay: the recording's tool poses and grabs, step by step, on the backend; compares the
 /// forces with the recorded ones. 0 when they agree within the tolerance, 5 when not.

@@ -562,6 +562,14 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
             if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand, touching[std::size_t(hand)]});
         }
+        if (a.open_incisions) {
+            if (simulation) {
+                const StrokeLog strokes = simulation->strokes();
+                a.open_incisions(&latest_positions, &strokes);
+            } else {
+                a.open_incisions(nullptr, nullptr);
+            }
+        }
         const auto draw_start = std::chrono::steady_clock::now();
         if (simulation) renderer.render(latest_positions, shapes);
         else renderer.render(backend, shapes);

@@ -12,6 +12,7 @@
 
 #include <atomic>
 #include <ctime>
+#include <functional>
 #include <string>
 
 namespace heartsim {
@@ -36,6 +37,10 @@ struct WindowRunOptions {
     std::string backend_note;
     /// --igtl: the live link to 3D Slicer, offered the state after each frame (never waits).
     SlicerLink* link = nullptr;
+    /// Before each frame: opens the drawn mesh along the scalpel strokes finished since the last
+    /// (run_modes.h open_incisions), given the positions and strokes of the frame (both null: the
+    /// backend's own, which the window's thread steps).
+    std::function<void(const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes)> open_incisions;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

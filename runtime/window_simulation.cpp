@@ -50,15 +50,27 @@ bool WindowSimulation::finish_at_limit() {
     if (!status_.run.gave_up && !at_end && (options_.steps < 0 || status_.attempted < options_.steps)) return false;
     status_.finished = true;
     positions_ = backend_.positions();  // the final state, for the last frame
+    copy_strokes();
     fresh_ = true;
     published_.notify_all();
     return true;
+}
+
+void WindowSimulation::copy_strokes() {
+    const StrokeLog& log = backend_.strokes();
+    if (log.version() != strokes_.version() || log.clears() != strokes_.clears()) strokes_ = log;
+}
+
+StrokeLog WindowSimulation::strokes() const {
+    std::lock_guard lock(mutex_);
+    return published_strokes_;
 }
 
 void WindowSimulation::publish_start() {
     {
         std::lock_guard lock(mutex_);
         positions_ = backend_.positions();  // something to draw before the first step
+        copy_strokes();
         fresh_ = true;
     }
     published_.notify_all();
@@ -67,6 +79,7 @@ void WindowSimulation::publish_start() {
 void WindowSimulation::publish_if_wanted() {
     if (!want_positions_) return;
     positions_ = backend_.positions();
+    copy_strokes();
     fresh_ = true, want_positions_ = false;
     published_.notify_all();
 }
@@ -121,6 +134,7 @@ bool WindowSimulation::latest(std::vector<std::array<float, 3>>& positions) {
     }
     if (!fresh_ && positions_.empty()) return false;
     positions = positions_;
+    published_strokes_ = strokes_;
     fresh_ = false;
     return true;
 }

@@ -77,11 +77,15 @@ public:
     /// The newest positions (N×3, mm): asks the thread for a copy after its next step and waits
     /// for it (at most one step). False once the thread has stopped and nothing new exists.
     bool latest(std::vector<std::array<float, 3>>& positions);
+    /// The scalpel strokes as of the positions latest() returned last (Backend::strokes, copied
+    /// on the thread when they changed).
+    StrokeLog strokes() const;
     Status status() const;
 
 private:
     void run();
     void run_haptic();
+    void copy_strokes();       ///< with the mutex held: the backend's stroke log, if it changed
     void publish_start();      ///< the positions before the first step
     void publish_if_wanted();  ///< with the mutex held
     bool finish_at_limit();    ///< with the mutex held: true (and the final state published) at the step limit
@@ -102,6 +106,7 @@ private:
     InstrumentPose keyboard_pose_;
     bool keyboard_set_ = false;
     std::vector<std::array<float, 3>> positions_;
+    StrokeLog strokes_, published_strokes_;  ///< the thread's copy, and the one of the positions handed out
     Status status_;
 };
 

@@ -37,7 +37,9 @@ struct IncisionOptions {
 
 struct Incision {
     Trajectory trajectory;
-    Eigen::Vector3d centre = Eigen::Vector3d::Zero();  ///< the most anterior particle's rest position
+    /// The most anterior particle's rest position moved a quarter spacing along +x: a point of the
+    /// blade's plane x = centre.x.
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
     double cut_end_ms = 0.0;     ///< the blade lifts here
     double end_ms = 0.0;         ///< the gesture's end (retractors held still from spread_end_ms)
     double spread_end_ms = 0.0;
@@ -70,8 +72,10 @@ inline Incision anterior_incision(const Scenario& scenario, const IncisionOption
         if (!found || rest[i][1] < rest[front][1]) front = i, found = true;
     }
     Incision plan;
-    plan.centre = Eigen::Vector3d(rest[front][0], rest[front][1], rest[front][2]);
     const double spacing = scenario.lattice.spacing;
+    // The blade's plane a quarter spacing beside the particle's column: a particle on the plane
+    // would be cut from its neighbours on one side or the other by the rounding of the spring test.
+    plan.centre = Eigen::Vector3d(rest[front][0] + 0.25 * spacing, rest[front][1], rest[front][2]);
     // The blade points posterior (the tool's +z onto the world's +y) with its width along the cut
     // (the tool's x onto the world's +z, the direction it moves), its flat faces facing ±x.
     Eigen::Matrix3d tool_to_world;

@@ -143,6 +143,80 @@ struct Renderer::State {
     gl::Renderbuffer colour_rb, depth_rb;
     gl::Buffer feedback;  // transform feedback capture buffer (lazily)
 
+    std::vector<std::array<float, 3>> rest_particles;  ///< the particles' rest positions (rest frame normals)
+    const SimulationSurface* surface = nullptr;          ///< the scenario's (outlives the renderer's use)
+    std::size_t mesh_memory = 0;                        ///< bytes of the records, elements and sheet buffers
+    int cap_first = -1;                                 ///< the first cap triangle, or -1
+
+    /// The mapped mesh's vertex records and triangles (the scenario's, or an incision's):
+    /// positions and normals at rest (V), triangles in drawing order (caps from `caps_from`).
+    void load_visual(const std::vector<std::array<float, 3>>& positions, const std::vector<std::array<float, 3>>& normals,
+                     const std::vector<std::array<std::int32_t, 3>>& triangles, const VisualMapping& mapping, int caps_from) {
+        // Rest interpolated normals (for turning the visual normals as the mesh deforms).
+        const std::vector<Eigen::Vector3f> rest_normals = particle_normals(rest_particles, *surface);
+        std::vector<VertexRecord> records(positions.size());
+        for (std::size_t v = 0; v < records.size(); ++v) {
+            const auto& t = surface->triangles[std::size_t(mapping.triangle[v])];
+            const auto& l = mapping.barycentric[v];
+            VertexRecord& r = records[v];
+            Eigen::Vector3f m = Eigen::Vector3f::Zero();
+            for (int k = 0; k < 3; ++k) {
+                r.particle[k] = t[std::size_t(k)];
+                r.lambda[k] = l[std::size_t(k)];
+                r.rest_normal[k] = normals.size() == positions.size() ? normals[v][std::size_t(k)] : 0.0f;
+                m += l[std::size_t(k)] * rest_normals[std::size_t(t[std::size_t(k)])];
+            }
+            r.offset = mapping.offset[v];
+            std::array<std::int32_t, 8> carriers;
+            std::array<float, 8> weights;
+            mapping_carriers(mapping, *surface, v, carriers, weights);
+            for (std::size_t k = 0; k < 8; ++k) {
+                r.carrier[k] = carriers[k];
+                r.weight[k] = weights[k];
+            }
+            const float length = m.norm();
+            for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
+        }
+        std::vector<std::uint32_t> elements;
+        elements.reserve(3 * triangles.size());
+        for (const auto& t : triangles)
+            for (int k = 0; k < 3; ++k) elements.push_back(std::uint32_t(t[std::size_t(k)]));
+        load_records(records, elements, caps_from);
+    }
+
+    /// (Re)creates the records, elements and sheet buffers and points the vertex array at them.
+    void load_records(const std::vector<VertexRecord>& records, const std::vector<std::uint32_t>& elements, int caps_from) {
+        vertices = records.size();
+        triangles = elements.size() / 3;
+        cap_first = caps_from;
+        memory -= mesh_memory;
+        this->records = buffer_with(records.data(), records.size() * sizeof(VertexRecord));
+        this->elements = buffer_with(elements.data(), elements.size() * 4);
+        const std::vector<std::uint32_t> sheet_list = sheet_triangles(elements);
+        sheet = buffer_with(sheet_list.data(), sheet_list.size() * 4);
+        mesh_memory = records.size() * sizeof(VertexRecord) + elements.size() * 4 + sheet_list.size() * 4;
+        memory += mesh_memory;
+        if (!vao) {
+            glCreateVertexArrays(1, vao.create());
+            for (GLuint a = 0; a < 9; ++a) {
+                glEnableVertexArrayAttrib(vao, a);
+                glVertexArrayAttribBinding(vao, a, 0);
+            }
+            glVertexArrayAttribIFormat(vao, 0, 3, GL_INT, offsetof(VertexRecord, particle));
+            glVertexArrayAttribFormat(vao, 1, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, lambda));
+            glVertexArrayAttribFormat(vao, 2, 1, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, offset));
+            glVertexArrayAttribFormat(vao, 3, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_normal));
+            glVertexArrayAttribFormat(vao, 4, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_frame_normal));
+            glVertexArrayAttribIFormat(vao, 5, 4, GL_INT, offsetof(VertexRecord, carrier));
+            glVertexArrayAttribIFormat(vao, 6, 4, GL_INT, offsetof(VertexRecord, carrier) + 16);
+            glVertexArrayAttribFormat(vao, 7, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight));
+            glVertexArrayAttribFormat(vao, 8, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight) + 16);
+        }
+        glVertexArrayVertexBuffer(vao, 0, this->records, 0, sizeof(VertexRecord));
+        glVertexArrayElementBuffer(vao, this->elements);
+        feedback.reset();  // sized for the old vertex count
+    }
+
     struct Pending { std::array<gl::Query, 3> queries; bool normals = false; };
     std::deque<Pending> pending;
     RenderTimes times;
@@ -242,39 +316,12 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
         throw GlUnavailable("renderer: the vertex stage of this OpenGL (" + std::to_string(vertex_blocks) +
                             " shader storage blocks) cannot read the particle buffers; run --headless without --screenshot");
 
-    std::vector<VertexRecord> records;
-    std::vector<std::uint32_t> elements;
+    s.rest_particles = rest;
+    s.surface = &surface;
     if (s.visual) {
         const VisualMesh& visual = *scenario.visual;
-        const VisualMapping& mapping = *scenario.mapping;
-        // Rest interpolated normals (for turning the visual normals as the mesh deforms).
-        const std::vector<Eigen::Vector3f> rest_normals = particle_normals(rest, surface);
-        records.resize(visual.positions.size());
-        for (std::size_t v = 0; v < records.size(); ++v) {
-            const auto& t = surface.triangles[std::size_t(mapping.triangle[v])];
-            const auto& l = mapping.barycentric[v];
-            VertexRecord& r = records[v];
-            Eigen::Vector3f m = Eigen::Vector3f::Zero();
-            for (int k = 0; k < 3; ++k) {
-                r.particle[k] = t[std::size_t(k)];
-                r.lambda[k] = l[std::size_t(k)];
-                r.rest_normal[k] = visual.normals.size() == visual.positions.size() ? visual.normals[v][std::size_t(k)] : 0.0f;
-                m += l[std::size_t(k)] * rest_normals[std::size_t(t[std::size_t(k)])];
-            }
-            r.offset = mapping.offset[v];
-            std::array<std::int32_t, 8> carriers;
-            std::array<float, 8> weights;
-            mapping_carriers(mapping, surface, v, carriers, weights);
-            for (std::size_t k = 0; k < 8; ++k) {
-                r.carrier[k] = carriers[k];
-                r.weight[k] = weights[k];
-            }
-            const float length = m.norm();
-            for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
-            s.box.extend(to_vector(visual.positions[v]));
-        }
-        for (const auto& t : visual.triangles)
-            for (int k = 0; k < 3; ++k) elements.push_back(std::uint32_t(t[std::size_t(k)]));
+        s.load_visual(visual.positions, visual.normals, visual.triangles, *scenario.mapping, -1);
+        for (const auto& p : visual.positions) s.box.extend(to_vector(p));
 
         // Incidence list over the counted triangles, per surface particle in row order (counting sort).
         std::vector<std::uint32_t> count(s.particles, 0);
@@ -304,7 +351,8 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     } else {
         // The simulation surface itself: one record per particle, (i, i, i), λ = (1, 0, 0), d = 0
         // (the same shader gives p = x_i exactly); flat shaded, no normals pass.
-        records.resize(s.particles);
+        std::vector<VertexRecord> records(s.particles);
+        std::vector<std::uint32_t> elements;
         for (std::size_t i = 0; i < s.particles; ++i) {
             const std::int32_t p = std::int32_t(i);
             records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0}};
@@ -314,34 +362,12 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
                 elements.push_back(std::uint32_t(t[std::size_t(k)]));
                 s.box.extend(to_vector(rest[std::size_t(t[std::size_t(k)])]));
             }
+        s.load_records(records, elements, -1);
     }
-    s.vertices = records.size();
-    s.triangles = elements.size() / 3;
     // Normals: written by the pass for surface particles, zero elsewhere (and everywhere without
     // a visual mesh, where m = 0 leaves p unchanged).
     s.normals = buffer_with(std::vector<float>(4 * s.particles, 0.0f).data(), 16 * s.particles);
-    s.records = buffer_with(records.data(), records.size() * sizeof(VertexRecord));
-    s.elements = buffer_with(elements.data(), elements.size() * 4);
-    const std::vector<std::uint32_t> sheet = sheet_triangles(elements);
-    s.sheet = buffer_with(sheet.data(), sheet.size() * 4);
-    s.memory += 16 * s.particles + records.size() * sizeof(VertexRecord) + elements.size() * 4 + sheet.size() * 4;
-
-    glCreateVertexArrays(1, s.vao.create());
-    glVertexArrayVertexBuffer(s.vao, 0, s.records, 0, sizeof(VertexRecord));
-    glVertexArrayElementBuffer(s.vao, s.elements);
-    for (GLuint a = 0; a < 9; ++a) {
-        glEnableVertexArrayAttrib(s.vao, a);
-        glVertexArrayAttribBinding(s.vao, a, 0);
-    }
-    glVertexArrayAttribIFormat(s.vao, 0, 3, GL_INT, offsetof(VertexRecord, particle));
-    glVertexArrayAttribFormat(s.vao, 1, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, lambda));
-    glVertexArrayAttribFormat(s.vao, 2, 1, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, offset));
-    glVertexArrayAttribFormat(s.vao, 3, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_normal));
-    glVertexArrayAttribFormat(s.vao, 4, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_frame_normal));
-    glVertexArrayAttribIFormat(s.vao, 5, 4, GL_INT, offsetof(VertexRecord, carrier));
-    glVertexArrayAttribIFormat(s.vao, 6, 4, GL_INT, offsetof(VertexRecord, carrier) + 16);
-    glVertexArrayAttribFormat(s.vao, 7, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight));
-    glVertexArrayAttribFormat(s.vao, 8, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight) + 16);
+    s.memory += 16 * s.particles;
 
     std::vector<float> sphere;
     std::vector<std::uint32_t> sphere_indices;
@@ -369,6 +395,14 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
 }
 
 Renderer::~Renderer() = default;
+
+void Renderer::set_visual(const std::vector<std::array<float, 3>>& positions, const std::vector<std::array<float, 3>>& normals,
+                          const std::vector<std::array<std::int32_t, 3>>& triangles, const VisualMapping& mapping, std::size_t cap_first) {
+    State& s = *state_;
+    if (!s.visual) throw InputError("renderer: set_visual needs a scenario with a mapped visual mesh");
+    s.load_visual(positions, normals, triangles, mapping, cap_first < triangles.size() ? int(cap_first) : -1);
+    check("loading the opened detailed mesh");
+}
 
 bool Renderer::draws_visual_mesh() const { return state_->visual; }
 std::size_t Renderer::vertex_count() const { return state_->vertices; }
@@ -454,6 +488,10 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
         glProgramUniform3fv(program, glGetUniformLocation(program, "fill_light"), 1, fill.data());
     }
     glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "base_color"), 0.80f, 0.33f, 0.30f);
+    glProgramUniform1i(s.mesh_program, glGetUniformLocation(s.mesh_program, "cap_first"), s.cap_first);
+    glProgramUniform1i(s.instrument_program, glGetUniformLocation(s.instrument_program, "cap_first"), -1);
+    glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "cap_color"), float(incision_cap_rgb[0]) / 255.0f,
+                       float(incision_cap_rgb[1]) / 255.0f, float(incision_cap_rgb[2]) / 255.0f);
     glProgramUniform1f(s.mesh_program, glGetUniformLocation(s.mesh_program, "specular"), 0.18f);
     // The section view cuts the tissue only; the instruments are drawn whole.
     glProgramUniform1i(s.mesh_program, glGetUniformLocation(s.mesh_program, "section_on"), s.section ? 1 : 0);

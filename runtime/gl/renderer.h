@@ -50,6 +50,10 @@ Image read_window_pixels(int width, int height);
 /// the lit surface (whose green is at least 0.41 of its red), so no lit pixel takes it.
 inline constexpr std::array<int, 3> section_cut_rgb = {138, 34, 26};
 
+/// The base colour of an incision's cut faces (the caps), 8-bit RGB, lit with their face normals:
+/// a deeper, darker red than the epicardium's (0.80, 0.33, 0.30).
+inline constexpr std::array<int, 3> incision_cap_rgb = {150, 40, 36};
+
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
     ViewDirection view = ViewDirection::anterior;
@@ -77,6 +81,11 @@ public:
     Renderer(const Renderer&) = delete;
     Renderer& operator=(const Renderer&) = delete;
 
+    /// Draws from now on the detailed mesh as an incision opened it (libmodel/incision_state.h):
+    /// rest positions and normals (V), triangles in drawing order with the caps from `cap_first`
+    /// on (lit flat in incision_cap_rgb), and the mapping (V rows). The buffers are made anew.
+    void set_visual(const std::vector<std::array<float, 3>>& positions, const std::vector<std::array<float, 3>>& normals,
+                    const std::vector<std::array<std::int32_t, 3>>& triangles, const VisualMapping& mapping, std::size_t cap_first);
     /// True when the mapped visual mesh is drawn, false for the simulation surface.
     bool draws_visual_mesh() const;
     /// Vertices the vertex shader processes: visual vertices, or particles (simulation surface).

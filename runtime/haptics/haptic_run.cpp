@@ -757,7 +757,7 @@ std::size_t HapticRun::write_recording_now() {
 // ------------------------------------------------------------------------------------------------
 // Replay
 
-ReplayResult replay(Backend& backend, const Recording& recording, const std::string& name) {
+ReplayResult replay(Backend& backend, const Recording& recording, const std::string& name, const std::function<void()>& after_step) {
     if (recording.particles != std::int64_t(backend.size()))
         throw InputError(name + ": recorded on " + recording.scenario + " with " + std::to_string(recording.particles) +
                          " particles; this scenario has " + std::to_string(backend.size()));
@@ -797,6 +797,7 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
         backend.step(1);
         forces.push_back(backend.instrument_forces());
         ++result.steps;
+        if (after_step) after_step();
     }
     for (std::size_t k = 0; k < s.size(); ++k) {
         const long long from = s.force_step[k];

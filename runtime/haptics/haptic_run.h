@@ -20,6 +20,7 @@
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -221,7 +222,9 @@ struct ReplayResult {
 
 /// Replays `recording` on `backend` step by step (recorded tool poses and grabs), computing the
 /// forces after every step, and compares them with the recorded ones. Throws InputError when the
-/// recording was made on a different scenario (particle count, step).
-ReplayResult replay(Backend& backend, const Recording& recording, const std::string& recording_name);
+/// recording was made on a different scenario (particle count, step). `after_step`, when given,
+/// runs after each step (the detailed mesh opened where a stroke ended: run_modes.h open_incisions).
+ReplayResult replay(Backend& backend, const Recording& recording, const std::string& recording_name,
+                    const std::function<void()>& after_step = {});
 
 }  // namespace heartsim::haptics

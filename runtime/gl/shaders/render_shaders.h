@@ -103,7 +103,8 @@ void main() {
 /// left (the closed surface seen from inside: CCW from outside, scenario-format.md) is where the
 /// plane cut the wall, shaded flat so that the wall's cross-section reads as one solid band. A
 /// double-sided sheet (a triangle drawn with its reverse twin) encloses no tissue: both its sides
-/// are lit.
+/// are lit. An incision's caps (the triangles from cap_first on) are the cut myocardium: lit with
+/// their flat face normal in cap_color.
 inline constexpr const char* fragment_shader = R"(
 layout(std430, binding = BINDING_SHEET_TRIANGLES) readonly buffer SheetBuffer { uint sheet[]; };
 in vec3 world_position;
@@ -117,6 +118,8 @@ uniform bool section_on;
 uniform vec4 section_plane;   // (n, -n·p): removed where n·x + w > 0
 uniform vec3 cut_color;
 uniform float opacity;        // 1 but for the instruments' ghost (renderer.cpp)
+uniform int cap_first;        // the first cap triangle of an incision (lit flat in cap_color); -1: none
+uniform vec3 cap_color;
 out vec4 colour;
 void main() {
     // Derivatives before any discard: they need the whole pixel quad.
@@ -128,7 +131,8 @@ void main() {
             return;
         }
     }
-    vec3 nrm = shading_normal;
+    bool cap = cap_first >= 0 && gl_PrimitiveID >= cap_first;
+    vec3 nrm = cap ? vec3(0.0) : shading_normal;
     if (dot(nrm, nrm) < 1e-12) nrm = face_normal;
     vec3 v = normalize(eye - world_position);
     nrm = dot(nrm, nrm) > 1e-20 ? normalize(nrm) : v;
@@ -136,7 +140,7 @@ void main() {
     float diffuse = 0.62 * max(dot(nrm, key_light), 0.0) + 0.28 * max(dot(nrm, fill_light), 0.0);
     vec3 h = normalize(key_light + v);
     float shine = specular * pow(max(dot(nrm, h), 0.0), 32.0);
-    colour = vec4(min(base_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), opacity);
+    colour = vec4(min((cap ? cap_color : base_color) * (0.16 + diffuse) + vec3(shine), vec3(1.0)), opacity);
 }
 )";
 
