@@ -46,16 +46,36 @@ struct PointKey {
 };
 PointKey key(const Point& p) { return {p.x(), p.y(), p.z()}; }
 
-/// Whether `p` lies inside the closed mesh: the parity of three rays' crossings, the majority
-/// (a ray through an edge or vertex miscounts; three skew directions rarely all do).
+/// Whether `p` lies inside the closed mesh: the parity of the crossings of three rays, each
+/// nearly along one axis (tilted by about a thousandth, so that a ray rarely meets an edge or a
+/// vertex of a mesh whose features follow the voxel axes), the majority. Each ray's exact test
+/// runs only on the triangles whose boxes its narrow column meets.
 bool inside(const Point& p, const std::vector<Eigen::Vector3d>& rest, const std::vector<std::array<std::int32_t, 3>>& triangles) {
-    static const Kernel::Vector_3 directions[3] = {{0.5773, 0.5871, 0.5679}, {-0.6123, 0.3719, 0.6977}, {0.2311, -0.8417, 0.4881}};
+    Eigen::AlignedBox3d box;
+    for (const auto& x : rest) box.extend(x);
+    const Eigen::Vector3d from(p.x(), p.y(), p.z());
+    static const double tilt[3][2] = {{1.31e-3, 0.73e-3}, {0.89e-3, -1.17e-3}, {-0.61e-3, 1.07e-3}};
     int votes = 0;
-    for (const auto& d : directions) {
-        const Kernel::Ray_3 ray(p, d);
+    for (int axis = 0; axis < 3; ++axis) {
+        Eigen::Vector3d d = Eigen::Vector3d::Zero();
+        d[axis] = 1.0;
+        d[(axis + 1) % 3] = tilt[axis][0];
+        d[(axis + 2) % 3] = tilt[axis][1];
+        const double reach = box.max()[axis] - from[axis] + 1.0;
+        if (reach <= 0) continue;  // beyond the mesh along this axis: no crossing, outside
+        const Eigen::Vector3d to = from + reach * d;
+        const Eigen::Vector3d low = from.cwiseMin(to), high = from.cwiseMax(to);
+        const Kernel::Ray_3 ray(p, Kernel::Vector_3(d.x(), d.y(), d.z()));
         int crossings = 0;
         for (const auto& t : triangles) {
-            const Kernel::Triangle_3 tri(point(rest[std::size_t(t[0])]), point(rest[std::size_t(t[1])]), point(rest[std::size_t(t[2])]));
+            const Eigen::Vector3d& a = rest[std::size_t(t[0])];
+            const Eigen::Vector3d& b = rest[std::size_t(t[1])];
+            const Eigen::Vector3d& c = rest[std::size_t(t[2])];
+            bool apart = false;
+            for (int k = 0; k < 3 && !apart; ++k)
+                apart = std::max({a[k], b[k], c[k]}) < low[k] || std::min({a[k], b[k], c[k]}) > high[k];
+            if (apart) continue;
+            const Kernel::Triangle_3 tri(point(a), point(b), point(c));
             if (!tri.is_degenerate() && CGAL::do_intersect(ray, tri)) ++crossings;
         }
         votes += crossings % 2;
