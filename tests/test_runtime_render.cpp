@@ -7,11 +7,13 @@
 //
 // Golden image: tests/data/golden/phantom_rest.png. Regenerate (after an intended change of the
 // picture) with HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_render --gtest_filter='*Golden*'.
+#include "incision_gesture.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
+#include "libmodel/incision_state.h"
 #include "libmodel/mapping.h"
 #include "runtime/backend.h"
 #include "runtime/gl/backend_gl.h"
@@ -475,4 +477,66 @@ TEST(RenderSection, TheSimulationSurfaceIsCutTheSameWay) {
                 100 * (seen / expected - 1));
     EXPECT_GT(area, 100.0);
     EXPECT_NEAR(seen / expected, 1.0, 0.01);
+}
+
+namespace {
+
+/// Pixels in an incision's cap colour: lit incision_cap_rgb keeps its hue, green under a third of
+/// red (the lit epicardium keeps at least 0.41 of it, renderer.h), bright enough to be lit.
+std::size_t cap_pixels(const Image& image) {
+    std::size_t count = 0;
+    for (std::size_t p = 0; p < std::size_t(image.width) * std::size_t(image.height); ++p) {
+        const std::uint8_t* c = &image.pixels[3 * p];
+        count += c[0] > 40 && c[1] < 0.33 * c[0] && c[2] < 0.33 * c[0];
+    }
+    return count;
+}
+
+}  // namespace
+
+// The phantom opened by the incision of incision_gesture.h (simulated on the cpu backend, whose
+// positions the renderer uploads; the gl backend cuts the same springs, test_runtime_backend):
+// the vertex shader
+// deforms the opened mesh (new vertices, caps) exactly as libmodel's apply_mapping does, the
+// drawn mesh is the state's closed mesh, and the caps show in their own shade only once cut.
+TEST(RenderIncision, TheOpenedMeshIsDrawnAsTheMappingSaysWithItsCapsInTheirShade) {
+    REQUIRE_GL();
+    const Scenario& scenario = phantom_scenario();
+    auto backend = make_cpu_backend(scenario, options_from(scenario.solver));
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 20});
+    IncisionState incisions(scenario.lattice, scenario.visual->positions, scenario.visual->normals, scenario.visual->triangles,
+                            *scenario.mapping, *scenario.simulation_surface);
+    ScriptedRunOptions options{.steps = int(std::ceil(plan.end_ms / backend->time_step_ms()))};
+    options.on_step = [&](int, const StepReport&) {
+        if (incisions.pending(backend->strokes(), false)) incisions.update(backend->strokes(), backend->positions(), false);
+    };
+    Renderer renderer(scenario, {.width = 256, .height = 256});
+    renderer.render(*backend, {});
+    EXPECT_EQ(cap_pixels(renderer.read_pixels()), 0u) << "no cap colour before a cut";
+    const ScriptedRunResult run = run_scripted(*backend, plan.trajectory, options);
+    EXPECT_EQ(run.watchdog_events, 0u) << run.last_watchdog_message;
+    ASSERT_TRUE(incisions.cut());
+    std::string why;
+    EXPECT_TRUE(closed_manifold(incisions.drawn_triangles(), &why)) << why;
+    renderer.set_visual(incisions.rest_positions(), incisions.rest_normals(), incisions.drawn_triangles(), incisions.mapping(),
+                        incisions.cap_first());
+    EXPECT_EQ(renderer.vertex_count(), incisions.mesh().rest.size());
+    EXPECT_EQ(renderer.triangle_count(), incisions.drawn_triangles().size());
+    const auto captured = renderer.capture_vertices(*backend);
+    const auto expected = apply_mapping(incisions.mapping(), backend->positions(), *scenario.simulation_surface);
+    ASSERT_EQ(captured.size(), expected.size());
+    double error = 0;
+    for (std::size_t v = 0; v < captured.size(); ++v)
+        for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(captured[v][k] - expected[v][k])));
+    std::printf("  %zu vertices (%zu added by the cut), %zu cap triangles: max |vertex shader - apply_mapping| %.3g mm\n", captured.size(),
+                captured.size() - scenario.visual->positions.size(), incisions.drawn_triangles().size() - incisions.cap_first(), error);
+    EXPECT_LE(error, 1e-4);
+    // The retractors hold the incision open facing the camera: its caps are in sight.
+    Renderer close_up(scenario, {.width = 256, .height = 256});
+    close_up.set_visual(incisions.rest_positions(), incisions.rest_normals(), incisions.drawn_triangles(), incisions.mapping(),
+                        incisions.cap_first());
+    close_up.render(*backend, {});
+    const std::size_t caps = cap_pixels(close_up.read_pixels());
+    std::printf("  %zu pixels in the caps' shade\n", caps);
+    EXPECT_GT(caps, 0u);
 }
