@@ -4,12 +4,18 @@
 // and with it lifted (the same gesture, nothing cut). Per run: the step's wall time during the cut
 // (p50, p99, max), the real-time factor while cutting and after, the springs cut, watchdog events,
 // whether every position stayed finite, and how far the incision stands open at the end
-// (incision_gesture.h incision_opening, over the springs the lowered run cut). Appends one
-// row per run to OUT.csv and, given TRAJECTORY.csv, writes the gesture for `heartsim run --trajectory`.
+// (incision_gesture.h incision_opening, over the springs the lowered run cut). With a detailed
+// mesh, the lowered run opens it where the blade lifts (libmodel/incision_state.h, timed inside
+// that step, as heartsim does): how long that takes, how far the caps lie from the blade's swept
+// plane then (their drawn positions), whether the mesh is a closed 2-manifold, and how far apart
+// the two sides' caps stand at the end near the incision's centre. Appends one row per run to
+// OUT.csv and, given TRAJECTORY.csv, writes the gesture for `heartsim run --trajectory`.
 // Usage: cut_bench SCENARIO.h5 CASE OUT.csv [TRAJECTORY.csv]
 #include "incision_gesture.h"
 
 #include "formats/scenario.h"
+#include "libmodel/incision_state.h"
+#include "libmodel/mapping.h"
 #include "runtime/backend.h"
 #include "runtime/trajectory.h"
 
@@ -19,6 +25,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <vector>
 
 using namespace heartsim;
@@ -38,12 +45,50 @@ struct RunFigures {
     bool finite = true;
     std::vector<std::array<std::int32_t, 2>> cut_springs;
     std::vector<std::array<float, 3>> positions;
+    double open_ms = 0, cap_distance_max_mm = 0, cap_distance_mean_mm = 0, caps_apart_mm = 0;
+    bool opened = false, closed = false;
 };
+
+/// The caps' drawn vertices: the largest and mean distance from the plane x = x_c (the blade's),
+/// and the mean x of each side's cap vertices near the centre (the crack's front, on both, left out).
+struct CapFigures {
+    double distance_max = 0, distance_mean = 0, apart = 0;
+};
+CapFigures cap_figures(const IncisionState& incisions, const std::vector<Eigen::Vector3f>& drawn, const test::Incision& plan) {
+    CapFigures c;
+    const IncisionMesh& mesh = incisions.mesh();
+    std::vector<int> faces(mesh.rest.size(), 0);
+    for (std::size_t t = incisions.cap_first(); t < incisions.drawn_triangles().size(); ++t) {
+        const auto& tri = incisions.drawn_triangles()[t];
+        const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
+                                      .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
+        for (std::int32_t v : tri) faces[std::size_t(v)] |= n.x() < 0 ? 2 : 1;
+    }
+    double sum = 0, side_sum[2] = {0, 0};
+    int count = 0, side_count[2] = {0, 0};
+    for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
+        if (!faces[v]) continue;
+        const double d = std::abs(double(drawn[v].x()) - plan.centre.x());
+        c.distance_max = std::max(c.distance_max, d);
+        sum += d, ++count;
+        if ((faces[v] == 1 || faces[v] == 2) && std::abs(mesh.rest[v].z() - plan.centre.z()) < 5.0) {
+            side_sum[faces[v] - 1] += drawn[v].x();
+            ++side_count[faces[v] - 1];
+        }
+    }
+    c.distance_mean = count ? sum / count : 0;
+    if (side_count[0] && side_count[1]) c.apart = side_sum[1] / side_count[1] - side_sum[0] / side_count[0];
+    return c;
+}
 
 RunFigures run(const Scenario& scenario, const test::Incision& plan, const Trajectory& trajectory) {
     auto backend = make_cpu_backend(scenario, options_from(scenario.solver));
     ScriptedHands hands(trajectory);
     RunFigures f;
+    std::optional<IncisionState> incisions;
+    if (scenario.visual && scenario.mapping && scenario.simulation_surface)
+        incisions.emplace(scenario.lattice, scenario.visual->positions, scenario.visual->normals, scenario.visual->triangles,
+                          *scenario.mapping, *scenario.simulation_surface);
     const double dt = backend->time_step_ms();
     const int steps = int(std::ceil(plan.end_ms / dt));
     for (int step = 0; step < steps; ++step) {
@@ -52,7 +97,19 @@ RunFigures run(const Scenario& scenario, const test::Incision& plan, const Traje
         const auto start = std::chrono::steady_clock::now();
         const StepReport report = backend->step(1);
         backend->request_forces();
+        bool opened_now = false;
+        if (incisions && incisions->pending(backend->strokes(), false)) {  // as heartsim: inside the step the blade lifts
+            const auto open_start = std::chrono::steady_clock::now();
+            opened_now = incisions->update(backend->strokes(), backend->positions(), false).opened;
+            f.open_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - open_start).count();
+        }
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        if (opened_now) {
+            const CapFigures c = cap_figures(*incisions, apply_mapping(incisions->mapping(), backend->positions(), *scenario.simulation_surface), plan);
+            f.cap_distance_max_mm = c.distance_max;
+            f.cap_distance_mean_mm = c.distance_mean;
+            f.opened = true;
+        }
         if (report.diverged) ++f.watchdog;
         if (t < plan.cut_end_ms) f.cut_phase_ms.push_back(ms), f.cut_simulated_ms += dt;
         else f.after_ms.push_back(ms), f.after_simulated_ms += dt;
@@ -61,6 +118,10 @@ RunFigures run(const Scenario& scenario, const test::Incision& plan, const Traje
     f.cut = f.cut_springs.size();
     f.positions = backend->positions();
     for (const auto& p : f.positions) f.finite = f.finite && std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
+    if (f.opened) {
+        f.closed = closed_manifold(incisions->drawn_triangles());
+        f.caps_apart_mm = cap_figures(*incisions, apply_mapping(incisions->mapping(), f.positions, *scenario.simulation_surface), plan).apart;
+    }
     return f;
 }
 
@@ -81,7 +142,8 @@ int main(int argc, char** argv) {
     std::ofstream out(argv[3], std::ios::app);
     if (header)
         out << "case,particles,run,springs_cut,cut_step_p50_ms,cut_step_p99_ms,cut_step_max_ms,real_time_factor_cutting,"
-               "real_time_factor_after,watchdog_events,finite,opening_mean_mm,opening_max_mm\n";
+               "real_time_factor_after,watchdog_events,finite,opening_mean_mm,opening_max_mm,mesh_open_ms,cap_distance_max_mm,"
+               "cap_distance_mean_mm,mesh_closed,caps_apart_mm\n";
     const RunFigures with_cut = run(scenario, plan, plan.trajectory), without = run(scenario, plan, lifted);
     for (const bool cutting : {false, true}) {
         const RunFigures& f = cutting ? with_cut : without;
@@ -89,11 +151,12 @@ int main(int argc, char** argv) {
         double cut_wall = 0, after_wall = 0;
         for (double ms : f.cut_phase_ms) cut_wall += ms;
         for (double ms : f.after_ms) after_wall += ms;
-        char line[512];
-        std::snprintf(line, sizeof line, "%s,%zu,%s,%zu,%.4f,%.4f,%.4f,%.3f,%.3f,%zu,%d,%.3f,%.3f\n", argv[2], scenario.lattice.particles.size(),
-                      cutting ? "cut" : "uncut", f.cut, percentile(f.cut_phase_ms, 0.5), percentile(f.cut_phase_ms, 0.99),
-                      percentile(f.cut_phase_ms, 1.0), f.cut_simulated_ms / cut_wall, f.after_simulated_ms / after_wall, f.watchdog,
-                      f.finite ? 1 : 0, open.mean_mm, open.max_mm);
+        char line[640];
+        std::snprintf(line, sizeof line, "%s,%zu,%s,%zu,%.4f,%.4f,%.4f,%.3f,%.3f,%zu,%d,%.3f,%.3f,%.1f,%.3f,%.3f,%d,%.3f\n", argv[2],
+                      scenario.lattice.particles.size(), cutting ? "cut" : "uncut", f.cut, percentile(f.cut_phase_ms, 0.5),
+                      percentile(f.cut_phase_ms, 0.99), percentile(f.cut_phase_ms, 1.0), f.cut_simulated_ms / cut_wall,
+                      f.after_simulated_ms / after_wall, f.watchdog, f.finite ? 1 : 0, open.mean_mm, open.max_mm, f.open_ms,
+                      f.cap_distance_max_mm, f.cap_distance_mean_mm, f.closed ? 1 : 0, f.caps_apart_mm);
         out << line;
         std::fputs(line, stderr);
     }
