@@ -505,6 +505,7 @@ bool open_incisions(PreparedRun& p, bool finish, const std::vector<std::array<fl
                     "embedded on their own side (%.0f ms)\n",
                     update.strokes, cut.mesh().rest.size(), cut.drawn_triangles().size(), cut.drawn_triangles().size() - cut.cap_first(),
                     update.reembedded, 1e3 * update.seconds);
+    std::fflush(stdout);  // a window's user (and its tests) read it as it happens
     if (p.renderer && p.renderer->draws_visual_mesh())
         p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
     return true;

@@ -9,6 +9,7 @@
 #include "formats/recording.h"
 #include "formats/scenario.h"
 #include "formats/state.h"
+#include "libmodel/incision.h"
 #include "runtime/png.h"
 #include "runtime/gl/hud.h"
 #include "runtime/window_keys.h"
@@ -492,12 +493,19 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     for (int k = 1; k <= 8; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 8 * k) + " 150"), 0);
     ASSERT_EQ(window.xdotool("mouseup 1 keyup ctrl"), 0);
     window.wait_for("no such line", 0, 1.5);
+    // G again lifts the blade: the window opens the detailed mesh along the stroke.
+    ASSERT_EQ(window.xdotool("key g"), 0);
+    EXPECT_NE(window.wait_for("incision: the detailed mesh opened along 1 stroke"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     ASSERT_EQ(window.wait_exit(), 0) << window.output();
     const SimulationState state = read_state(dir / "state.h5");
     EXPECT_EQ(state.kind[0], 3);
-    std::printf("  %zu springs cut\n", state.cut_springs.size());
+    std::printf("  %zu springs cut; the saved mesh has %zu triangles, %zu of them cut faces\n", state.cut_springs.size(),
+                state.visual_triangles.size(), state.visual_triangles.size() - state.visual_cap_first);
     EXPECT_GT(state.cut_springs.size(), 10u) << window.output();
+    EXPECT_GT(state.visual_triangles.size(), state.visual_cap_first) << "the saved mesh has caps";
+    std::string why;
+    EXPECT_TRUE(closed_manifold(state.visual_triangles, &why)) << why;
 
     // While --record records the session, K is refused and the instrument stays.
     Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
