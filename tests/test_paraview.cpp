@@ -11,6 +11,7 @@
 #include "formats/xdmf.h"
 #include "libmodel/mesh.h"
 #include "libmodel/simulation_surface.h"
+#include "incision_gesture.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -264,6 +265,40 @@ TEST(ParaView, StateXdmfShowsTheDeformedParticlesSurfaceAndDetailedMesh) {
     }
     const std::size_t n = state.positions.size();
     expect_paraview_parts(xdmf, {{"detailed_mesh", state.visual_positions.size(), s.visual->triangles.size()},
+                                 {"simulation_surface", n, s.simulation_surface->size()},
+                                 {"particles", n, n}});
+}
+
+// A state saved after a scalpel opened the detailed mesh: its .xmf2 takes the state's own
+// triangles (the opened mesh with its caps), not the scenario's, and VTK and ParaView open it
+// with the state's counts.
+TEST(ParaView, AnIncisedStateShowsTheOpenedMeshWithItsOwnTriangles) {
+    const Scenario s = read_scenario(phantom());
+    test::TempDir dir;
+    const test::Incision plan = test::anterior_incision(s, {.length_mm = 16, .retract = false});
+    test::write_trajectory_csv(plan.trajectory, dir / "incision.csv");
+    const fs::path state_file = dir / "state.h5";
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%.3f", plan.end_ms / 1000.0);
+    const auto run = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --seconds " + seconds + " --trajectory " +
+                                  quoted(dir / "incision.csv") + " --save-state " + quoted(state_file));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("incision: the detailed mesh opened along 1 stroke"), std::string::npos) << run.output;
+    const SimulationState state = read_state(state_file);
+    ASSERT_GT(state.visual_triangles.size(), s.visual->triangles.size());
+    ASSERT_GT(state.visual_positions.size(), s.visual->positions.size());
+    const fs::path xdmf = xdmf_beside(state_file);
+    EXPECT_NE(text_of(xdmf).find(">state.h5:/visual/triangles<"), std::string::npos) << text_of(xdmf);
+    const Opened opened = vtk_open({xdmf});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    for (const auto& reader : opened.readers()) {
+        const auto blocks = opened.blocks(reader);
+        ASSERT_TRUE(blocks.count("detailed_mesh")) << reader << "\n" << opened.output;
+        EXPECT_EQ(count(blocks.at("detailed_mesh"), "points"), state.visual_positions.size()) << reader;
+        EXPECT_EQ(count(blocks.at("detailed_mesh"), "cells"), state.visual_triangles.size()) << reader;
+    }
+    const std::size_t n = state.positions.size();
+    expect_paraview_parts(xdmf, {{"detailed_mesh", state.visual_positions.size(), state.visual_triangles.size()},
                                  {"simulation_surface", n, s.simulation_surface->size()},
                                  {"particles", n, n}});
 }
