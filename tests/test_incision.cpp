@@ -10,15 +10,10 @@
 #include "libmodel/simulation_surface.h"
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
-#include "formats/scenario.h"
-#include "incision_gesture.h"
-#include "runtime/backend.h"
-#include "runtime/trajectory.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
 
-#include <cmath>
 #include <map>
 #include <numeric>
 
@@ -326,118 +321,4 @@ TEST(Incision, AStrokeThroughABlockOpensTheMeshAlongTheSolversCut) {
     incisions.update(solver.strokes(), positions_of(solver, n), false);
     EXPECT_FALSE(incisions.cut());
     EXPECT_EQ(incisions.mesh().triangles, m.box.triangles);
-}
-
-namespace {
-
-const std::filesystem::path& built_scenario(const std::string& key, const std::filesystem::path& input, const std::string& options) {
-    static test::TempDir dir;
-    static std::map<std::string, std::filesystem::path> built;
-    if (auto found = built.find(key); found != built.end()) return found->second;
-    const std::filesystem::path output = dir / (key + ".h5");
-    const auto run = test::run_command(std::string(test::quoted(HEARTPREP_EXE)) + " build " + test::quoted(input) + " -o " +
-                                       test::quoted(output) + " " + options);
-    if (run.exit_code != 0) throw std::runtime_error("heartprep build failed: " + run.output);
-    return built.emplace(key, output).first->second;
-}
-
-}  // namespace
-
-// On every real heart (8,000 particles, the detailed mesh heartprep makes by default): the 30 mm
-// incision of incision_gesture.h through the most anterior wall, the mesh opened where the blade
-// lifts, then two retractors pulling the edges 6 mm apart. The mesh stays a closed 2-manifold; no
-// vertex on one side of the blade's plane x = x_c is carried by a particle on the other (away
-// from the plane by more than a tenth of a millimetre: the rest shape's strip is the blade's plane
-// taken through the tissue's displacement); the two caps stand apart at the end as the
-// particles on either side do; every drawn position is finite.
-TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
-    namespace fs = std::filesystem;
-    const fs::path data = test::real_data_dir();
-    if (data.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
-    int cases = 0;
-    for (const auto& folder : fs::directory_iterator(data)) {
-        fs::path label;
-        if (folder.is_directory())
-            for (const auto& file : fs::directory_iterator(folder.path()))
-                if (file.path().filename().string().find("label.nii.gz") != std::string::npos) label = file.path();
-        if (label.empty()) continue;
-        const std::string name = folder.path().filename().string();
-        SCOPED_TRACE(name);
-        const std::string labels = name == "mmwhs_ct1002" ? " --labels mmwhs" : name == "mmwhs_wh" ? " --labels mmwhs-ordinal" : "";
-        const Scenario scenario = read_scenario(built_scenario(name + "-8k", label, "--particles 8000 -q" + labels));
-        ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface);
-        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
-        auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
-        IncisionState incisions(scenario.lattice, scenario.visual->positions, scenario.visual->normals, scenario.visual->triangles,
-                                *scenario.mapping, *scenario.simulation_surface);
-        std::string failure;
-        ScriptedRunOptions options{.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))};
-        options.on_step = [&](int, const StepReport&) {
-            if (!incisions.pending(cpu->strokes(), false)) return;
-            const IncisionUpdate u = incisions.update(cpu->strokes(), cpu->positions(), false);
-            if (!u.failures.empty()) failure = u.failures.front();
-        };
-        const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, options);
-        EXPECT_EQ(run.watchdog_events, 0u) << run.last_watchdog_message;
-        ASSERT_TRUE(incisions.cut()) << failure;
-        const IncisionMesh& mesh = incisions.mesh();
-        std::string why;
-        EXPECT_TRUE(closed_manifold(incisions.drawn_triangles(), &why)) << why;
-
-        const double x_c = plan.centre.x();
-        const auto& rest = scenario.lattice.particles.rest_position;
-        // Within the blade's sweep, a spacing and a half clear of its ends (beyond them the
-        // tissue is whole and a vertex may be carried around the end of the cut).
-        const double h = scenario.lattice.spacing;
-        auto swept = [&](double y, double z) { return std::abs(z - plan.centre.z()) < 15.0 - 1.5 * h && y < plan.centre.y() + 6.0 - 1.5 * h; };
-        std::size_t checked = 0, across = 0;
-        for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
-            const Eigen::Vector3d& x = mesh.rest[v];
-            if (std::abs(x.x() - x_c) < 0.1 || std::abs(x.x() - x_c) > 3 * h || !swept(x.y(), x.z())) continue;
-            for (int k = 0; k < 8; ++k) {
-                if (incisions.mapping().weights[v][std::size_t(k)] == 0.0f) continue;
-                const auto& r = rest[std::size_t(incisions.mapping().particles[v][std::size_t(k)])];
-                if (std::abs(r[0] - x_c) < 0.1 || !swept(r[1], r[2])) continue;
-                ++checked;
-                if ((r[0] > x_c) != (x.x() > x_c)) ++across;
-            }
-        }
-        EXPECT_GT(checked, 100u);
-        EXPECT_EQ(across, 0u) << "of " << checked << " carriers of vertices beside the cut";
-
-        const auto positions = cpu->positions();
-        const std::vector<Eigen::Vector3f> drawn = apply_mapping(incisions.mapping(), positions, *scenario.simulation_surface);
-        bool finite = true;
-        for (const auto& p : drawn) finite = finite && p.allFinite();
-        EXPECT_TRUE(finite);
-        // The caps' vertices near the centre, each side's (the caps facing −x close the + side,
-        // those facing +x the − side) but the crack's front (on both): their mean x.
-        std::vector<int> faces(mesh.rest.size(), 0);
-        for (std::size_t t = incisions.cap_first(); t < incisions.drawn_triangles().size(); ++t) {
-            const auto& tri = incisions.drawn_triangles()[t];
-            const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
-                                          .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
-            for (std::int32_t v : tri) faces[std::size_t(v)] |= n.x() < 0 ? 2 : 1;
-        }
-        double sum[2] = {0, 0};
-        int count[2] = {0, 0};
-        for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
-            if (faces[v] != 1 && faces[v] != 2) continue;
-            if (std::abs(mesh.rest[v].z() - plan.centre.z()) > 5.0) continue;
-            const int side = faces[v] == 2 ? 1 : 0;
-            sum[side] += drawn[v].x();
-            ++count[side];
-        }
-        ASSERT_GT(count[0], 0);
-        ASSERT_GT(count[1], 0);
-        const double gap = sum[1] / count[1] - sum[0] / count[0];
-        const test::Opening opening = test::incision_opening(scenario, plan, cpu->cut_springs(), positions);
-        std::printf("  %s: %zu particles, %zu vertices (%zu added), %zu cut faces; the caps %.2f mm apart near the centre, the cut "
-                    "springs open by %.2f mm (mean)\n",
-                    name.c_str(), rest.size(), mesh.rest.size(), mesh.rest.size() - scenario.visual->positions.size(),
-                    incisions.drawn_triangles().size() - incisions.cap_first(), gap, opening.mean_mm);
-        EXPECT_GT(gap, 0.5 * opening.mean_mm);
-        ++cases;
-    }
-    EXPECT_GT(cases, 0);
 }
