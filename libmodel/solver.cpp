@@ -270,9 +270,9 @@ void BasicSolver<Real>::set_pose(int hand, const InstrumentPose& pose) {
 }
 
 std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
-                                     const Eigen::Vector3d& semi_axes, double reach) {
+                                     const Eigen::Vector3d& semi_axes, double reach, const std::vector<std::array<std::int32_t, 2>>& joined) {
     std::vector<std::uint8_t> keep(local.size(), 1);
-    if (!(reach > 0) || local.empty()) return keep;
+    if (local.empty() || (!(reach > 0) && joined.empty())) return keep;
     std::size_t anchor = 0;
     double nearest = std::numeric_limits<double>::infinity();
     for (std::size_t q = 0; q < local.size(); ++q) {
@@ -283,7 +283,25 @@ std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, 
         }
     }
     const double limit = reach * semi_axes.maxCoeff();
-    for (std::size_t q = 0; q < local.size(); ++q) keep[q] = (rest[q] - rest[anchor]).squaredNorm() <= limit * limit;
+    if (reach > 0)
+        for (std::size_t q = 0; q < local.size(); ++q) keep[q] = (rest[q] - rest[anchor]).squaredNorm() <= limit * limit;
+    if (joined.empty()) return keep;
+    // The anchor's side of a cut: reached through springs that are not cut, among those kept.
+    std::vector<std::uint8_t> reached(local.size(), 0);
+    std::vector<std::size_t> stack{anchor};
+    reached[anchor] = 1;
+    while (!stack.empty()) {
+        const std::size_t q = stack.back();
+        stack.pop_back();
+        for (const auto& [a, b] : joined) {
+            const std::size_t other = std::size_t(a) == q ? std::size_t(b) : std::size_t(b) == q ? std::size_t(a) : local.size();
+            if (other < local.size() && keep[other] && !reached[other]) {
+                reached[other] = 1;
+                stack.push_back(other);
+            }
+        }
+    }
+    for (std::size_t q = 0; q < local.size(); ++q) keep[q] = keep[q] && reached[q];
     return keep;
 }
 
@@ -308,11 +326,14 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
         state.held_local.push_back(local);
         held_by_[i] = std::int8_t(hand);
     }
-    if (options_.grab_reach > 0 && !state.held.empty()) {
+    const std::vector<std::array<std::int32_t, 2>> joined = joined_captured(
+        state.held, slots, [&](std::size_t i, int s) { return neighbour_[entry_of(i, s)]; },
+        [&](std::size_t i, int s) { return uncut_neighbour_[entry_of(i, s)]; });
+    if ((options_.grab_reach > 0 || !joined.empty()) && !state.held.empty()) {
         std::vector<Eigen::Vector3d> rest(state.held.size());
         for (std::size_t q = 0; q < state.held.size(); ++q)
             for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_[4 * std::size_t(state.held[q]) + std::size_t(c)]);
-        const std::vector<std::uint8_t> keep = grab_piece(state.held_local, rest, state.instrument.semi_axes, options_.grab_reach);
+        const std::vector<std::uint8_t> keep = grab_piece(state.held_local, rest, state.instrument.semi_axes, options_.grab_reach, joined);
         state.keep_held([&](std::size_t q) {
             if (!keep[q]) held_by_[std::size_t(state.held[q])] = -1;
             return keep[q] != 0;

@@ -23,6 +23,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <optional>
@@ -131,9 +132,35 @@ ScaledStep scaled_step(const SolverLoadReport& report, const SolverOptions& opti
 /// positions `local` and rest positions `rest`, in ascending particle order), which it keeps:
 /// those whose rest position lies within reach × the largest semi-axis of the rest position of
 /// the one nearest the centre (in the ellipsoid's scaled metric; the first of equals). reach ≤ 0:
-/// all.
+/// all. Where a scalpel cut springs between captured particles, `joined` lists the pairs (rows of
+/// `local`) still joined by a spring, and only those reached from that nearest one through them
+/// are kept: a grabber over an incision, used as a retractor, takes the side of the particle
+/// nearest its centre.
+/// Empty `joined`: no spring among them was cut, and the reach alone decides.
 std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
-                                     const Eigen::Vector3d& semi_axes, double reach);
+                                     const Eigen::Vector3d& semi_axes, double reach,
+                                     const std::vector<std::array<std::int32_t, 2>>& joined = {});
+
+/// For grab_piece: of the captured particles `held` (ascending), the pairs of rows joined by a
+/// spring that is not cut, by a neighbour table read as `neighbour(i, slot)` (the particle itself
+/// where the slot is empty or cut) and the table as loaded `uncut(i, slot)`; empty when no spring
+/// between two captured particles is cut.
+template <class Current, class Uncut>
+std::vector<std::array<std::int32_t, 2>> joined_captured(const std::vector<std::int32_t>& held, int slots, Current&& neighbour, Uncut&& uncut) {
+    std::vector<std::array<std::int32_t, 2>> joined;
+    bool any_cut = false;
+    for (std::size_t q = 0; q < held.size(); ++q)
+        for (int s = 0; s < slots; ++s) {
+            const std::int32_t j = uncut(std::size_t(held[q]), s);
+            if (j <= held[q]) continue;
+            const auto at = std::lower_bound(held.begin(), held.end(), j);
+            if (at == held.end() || *at != j) continue;
+            if (neighbour(std::size_t(held[q]), s) == j) joined.push_back({std::int32_t(q), std::int32_t(at - held.begin())});
+            else any_cut = true;
+        }
+    if (!any_cut) joined.clear();
+    return joined;
+}
 
 /// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
 /// the converged reference for convergence tests). Not thread-safe: one caller drives it;

@@ -322,3 +322,37 @@ TEST(Incision, AStrokeThroughABlockOpensTheMeshAlongTheSolversCut) {
     EXPECT_FALSE(incisions.cut());
     EXPECT_EQ(incisions.mesh().triangles, m.box.triangles);
 }
+
+// A grabber closed over an incision, used as a retractor, takes one side: of the particles
+// inside it, those still joined to the one nearest its centre by springs the blade did not cut;
+// without the cut the same grabber takes both sides.
+TEST(Incision, AGrabberOverTheCutTakesTheSideNearestItsCentre) {
+    CutModel m = cut_model(10, 5, 4);
+    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
+    const Eigen::Vector3d centre(x + 1.0, 0.5 * (m.low.y() + m.high.y()), m.high.z() - 0.75);  // nearest a particle of the + side
+    auto grab = [&](Solver& solver) {
+        solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(2.0)});
+        solver.set_pose(1, {.position = centre});
+        return solver.begin_grab(1);
+    };
+    Solver whole(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
+    const std::size_t both = grab(whole);
+    std::size_t left_whole = 0;
+    for (std::int32_t i : whole.contact_particles(1)) left_whole += m.lattice.particles.rest_position[std::size_t(i)][0] < x;
+    EXPECT_GT(left_whole, 0u) << "the grabber reaches across the plane";
+
+    Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
+    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
+    solver.begin_grab(0);
+    solver.set_pose(0, {.position = {x, m.high.y() + 2.0, below}});
+    solver.step(1);
+    solver.release(0);
+    ASSERT_GT(solver.cut_springs().size(), 0u);
+    const std::size_t one = grab(solver);
+    std::printf("  the grabber holds %zu particles over the whole block, %zu over the cut one\n", both, one);
+    EXPECT_GT(one, 0u);
+    EXPECT_EQ(one, both - left_whole);
+    for (std::int32_t i : solver.contact_particles(1)) EXPECT_GT(m.lattice.particles.rest_position[std::size_t(i)][0], x);
+}
