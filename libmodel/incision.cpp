@@ -263,6 +263,27 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         }
     }
 
+    // Both caps share the strip's border (the crack's front); an edge through the strip's inside
+    // between two border vertices would then be shared by both caps twice over. Such an edge is
+    // split at its middle (and its two faces with it): the middle is the strip's inside, one copy
+    // per side.
+    {
+        std::vector<Mesh::Edge_index> chords;
+        for (auto e : swept.edges())
+            if (!swept.is_border(e) && !strip_constrained[e] && swept.is_border(swept.vertex(e, 0)) && swept.is_border(swept.vertex(e, 1)))
+                chords.push_back(e);
+        for (auto e : chords) {
+            const auto h = swept.halfedge(e);
+            const Point middle = CGAL::midpoint(swept.point(swept.source(h)), swept.point(swept.target(h)));
+            const auto split = CGAL::Euler::split_edge(h, swept);  // split → the new vertex
+            swept.point(swept.target(split)) = middle;
+            // Each of the two faces, now four-sided, in two triangles through the new vertex.
+            CGAL::Euler::split_face(split, swept.next(swept.next(split)), swept);
+            const auto across = swept.opposite(split);
+            CGAL::Euler::split_face(swept.prev(across), swept.next(across), swept);
+        }
+    }
+
     // The strip's faces in regions between the cut curves; a region inside the tissue is a cap.
     std::vector<int> region(swept.num_faces(), -1);
     int regions = 0;
@@ -373,6 +394,29 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         cap.push_back(1);
     }
     result.cap_triangles = caps.size();
+    // The new faces (the patch's and the caps) must close up with each other and with the faces
+    // around them; where the geometry defeated the split, the mesh stays as it was.
+    {
+        const std::size_t first_new = mesh.triangles.size() - std::size_t(std::count(in_patch.begin(), in_patch.end(), 1));
+        std::vector<std::uint8_t> touched(rest.size(), 0);
+        for (std::size_t t = first_new; t < triangles.size(); ++t)
+            for (std::int32_t v : triangles[t]) touched[std::size_t(v)] = 1;
+        std::map<std::pair<std::int32_t, std::int32_t>, int> directed;
+        for (const auto& t : triangles)
+            if (touched[std::size_t(t[0])] || touched[std::size_t(t[1])] || touched[std::size_t(t[2])])
+                for (int k = 0; k < 3; ++k) ++directed[{t[std::size_t(k)], t[std::size_t((k + 1) % 3)]}];
+        for (std::size_t t = first_new; t < triangles.size(); ++t)
+            for (int k = 0; k < 3; ++k) {
+                const std::int32_t a = triangles[t][std::size_t(k)], b = triangles[t][std::size_t((k + 1) % 3)];
+                const auto back = directed.find({b, a});
+                if (directed[{a, b}] != 1 || back == directed.end() || back->second != 1) {
+                    IncisionResult failed;
+                    failed.vertices_from = result.vertices_from;
+                    failed.failure = "the split along the cut did not close up (the swept surface meets the mesh too intricately there)";
+                    return failed;
+                }
+            }
+    }
     mesh.rest = std::move(rest);
     mesh.normals = std::move(normals);
     mesh.triangles = std::move(triangles);

@@ -192,6 +192,25 @@ TEST(Incision, ASlitHalfwayDownLeavesOneClosedPieceWithTheCrackFrontShared) {
     EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
 }
 
+// A blade drawn right through a box along a bent path, inside the box from its tip to its end
+// (a slit in the middle of the wall, open only where the path enters and leaves): the blade's line
+// at the bend joins two points of the crack's front through the inside of the swept surface, and
+// the mesh still closes up, one piece.
+TEST(Incision, ASlitInsideTheWallAlongABentPathStaysClosed) {
+    const Eigen::Vector3d low(0, 0, 0), high(12, 12, 8);
+    const BoxMesh box = box_mesh(low, high, 0.7);
+    IncisionMesh mesh = incision_mesh(box.positions, {}, box.triangles);
+    CutSurface bent;
+    bent.points = {{5.9, -2, 2}, {5.9, -2, 6}, {6.4, 6, 2}, {6.4, 6, 6}, {5.9, 14, 2}, {5.9, 14, 6}};
+    bent.triangles = {{0, 1, 3}, {0, 3, 2}, {2, 3, 5}, {2, 5, 4}};
+    const IncisionResult result = open_along(mesh, bent, 0.02);
+    ASSERT_TRUE(result.opened) << result.failure;
+    std::string why;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+    EXPECT_EQ(count_components(mesh.triangles, mesh.rest.size()), 1u);
+    EXPECT_NEAR(enclosed_volume(mesh.rest, mesh.triangles), high.prod(), 0.01 * high.prod());
+}
+
 // A blade outside the mesh, or one ending before the surface, changes nothing.
 TEST(Incision, ABladeThatMissesTheMeshChangesNothing) {
     const Eigen::Vector3d low(0, 0, 0), high(6, 6, 6);
