@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
+#include <vector>
 
 namespace heartsim {
 namespace {
@@ -94,6 +96,36 @@ Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspe
     }
     camera.distance = 1.05f * distance;
     return camera;
+}
+
+LookAt parse_look_at(const std::string& text) {
+    const std::string expected = "--look-at '" + text + "': expected X,Y,Z or X,Y,Z,DISTANCE: the point to centre the view on and the "
+                                 "camera's distance from it (mm, world LPS; DISTANCE above 0)";
+    std::vector<double> values;
+    std::size_t start = 0;
+    while (true) {
+        const std::size_t comma = text.find(',', start);
+        const std::string word = text.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+        char* end = nullptr;
+        const double value = std::strtod(word.c_str(), &end);
+        if (word.empty() || end == word.c_str() || *end != '\0' || !std::isfinite(value)) throw OptionError(expected);
+        values.push_back(value);
+        if (comma == std::string::npos) break;
+        start = comma + 1;
+    }
+    if (values.size() != 3 && values.size() != 4) throw OptionError(expected);
+    LookAt look;
+    look.point = Eigen::Vector3f(float(values[0]), float(values[1]), float(values[2]));
+    if (values.size() == 4) {
+        if (!(values[3] > 0.0)) throw OptionError(expected);
+        look.distance = float(values[3]);
+    }
+    return look;
+}
+
+void aim_camera_at(Camera& camera, const LookAt& look) {
+    camera.target = look.point;
+    if (look.distance) camera.distance = *look.distance;
 }
 
 }  // namespace heartsim

@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <optional>
 #include <string>
 
 namespace heartsim {
@@ -43,5 +44,17 @@ struct Camera {
 /// The camera that shows the whole box from `view`: the nearest distance at which all eight
 /// corners lie inside the frustum at `aspect` (width / height), plus 5 %.
 Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspect);
+
+/// `heartsim run --look-at X,Y,Z[,DISTANCE]`: a point to centre the view on (mm, world LPS) and,
+/// optionally, the camera's distance from it (mm).
+struct LookAt {
+    Eigen::Vector3f point = Eigen::Vector3f::Zero();
+    std::optional<float> distance;
+};
+/// Parses "X,Y,Z" or "X,Y,Z,DISTANCE": finite numbers, DISTANCE > 0. OptionError otherwise.
+LookAt parse_look_at(const std::string& text);
+/// Centres `camera` on the point, looking from where it looks (its orientation, the --view's,
+/// kept), from the distance given or its own. The near plane follows the distance (projection).
+void aim_camera_at(Camera& camera, const LookAt& look);
 
 }  // namespace heartsim

@@ -2,6 +2,7 @@
 // docs/runtime.md.
 #include "runtime/gl/gl_context.h"
 #include "runtime/haptics/haptics.h"
+#include "runtime/incision_plan.h"
 #include "runtime/info_verdict.h"
 #include "runtime/run_modes.h"
 #include "runtime/window_keys.h"
@@ -52,7 +53,8 @@ int main(int argc, char** argv) {
                  "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
                  "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
                  "  heartsim info                             the OpenGL device, version and limits\n"
-                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n",
+                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"
+                 "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n",
                  "heartsim"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
@@ -117,6 +119,11 @@ int main(int argc, char** argv) {
                     "removed). defect: across the scenario's septal defect (heartprep build --defect), the camera turned to look "
                     "at it. Headless with --screenshot; in a window C, [ and ] do the same")
         ->type_name("PLANE");
+    run->add_option("--look-at", a.look_at,
+                    "Centre the view on a point: X,Y,Z[,DISTANCE] (mm, world LPS), the camera looking from the --view direction (or "
+                    "at the --clip section) from DISTANCE mm away (default: the fitted view's distance). Headless with --screenshot; "
+                    "heartsim plan-incision prints the one that frames its incision")
+        ->type_name("X,Y,Z[,D]");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
                     ".h5[@HAND]), simulated:FILE (a virtual device pushed by a scripted hand force), mouse (the window), "
@@ -165,6 +172,46 @@ int main(int argc, char** argv) {
     recover->add_option("journal", journal, "The journal, OUT.h5.journal")->required();
     recover->add_option("-o,--output", recovered, "Recording to write (default: the journal's name without .journal, the --record file)")
         ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the recording is an HDF5 file"));
+    PlanIncisionArguments plan;
+    auto* plan_command = app.add_subcommand(
+        "plan-incision",
+        "Plan a scripted incision on a scenario and write it as a --trajectory CSV: a scalpel (hand 0) lowered onto the heart's "
+        "surface and drawn from inferior to superior, lifted, then two grabbers (hands 0 and 1) used as retractors grab the "
+        "incision's edges and pull them apart, then hold. Prints where it cuts, which way the blade points, how long a run must "
+        "last (--seconds) and the --view and --look-at that show the incision (docs/runtime.md \"Planning an incision\")");
+    plan_command->add_option("scenario", plan.scenario, "Scenario file (heartprep build)")->required();
+    plan_command->add_option("-o,--output", plan.output, "Trajectory CSV to write, for heartsim run --trajectory")
+        ->required()
+        ->check(cli_messages::output_extension({".csv"}, "the trajectory is a CSV file"));
+    plan_command->add_option("--approach", plan.approach,
+                             "ventriculotomy: a right ventriculotomy through the most anterior wall of the heart's middle third (the "
+                             "blade pointing posterior); atriotomy: a right atriotomy on the right atrium's free wall, the most rightward "
+                             "wall of the heart's upper half that holds the whole incision (the blade pointing medially, +x); a scenario "
+                             "stores no chamber "
+                             "labels: each place is found by that rule on its particles")
+        ->check(CLI::IsMember({"ventriculotomy", "atriotomy"}))
+        ->capture_default_str();
+    plan_command->add_option("--length", plan.options.length_mm, "The incision's length, mm (drawn from inferior to superior)")
+        ->check(cli_messages::positive())
+        ->capture_default_str();
+    plan_command->add_option("--spread", plan.options.spread_mm,
+                             "How far the retractors pull the edges apart, mm (half each way, across the incision); 0: no retractors, "
+                             "the cut alone")
+        ->check(cli_messages::non_negative())
+        ->capture_default_str();
+    plan_command->add_option("--depth", plan.options.depth_mm, "How deep the blade reaches behind the surface point, mm (its tip starts "
+                                                                "2 mm in front of it). Default: through the wall there, 2 mm into the "
+                                                                "cavity (the plan says how thick the wall is)")
+        ->check(cli_messages::positive());
+    plan_command->add_option("--speed", plan.options.speed_mm_per_ms, "How fast the blade is drawn, mm/ms (0.1 mm/ms = 10 cm/s)")
+        ->type_name("MM_PER_MS")
+        ->check(cli_messages::positive())
+        ->capture_default_str();
+    plan_command->footer("\nExample:\n"
+                         "  heartsim plan-incision case.h5 -o cut.csv --approach atriotomy --length 25\n"
+                         "  heartsim run case.h5 --trajectory cut.csv --seconds 1.2           # as it printed\n"
+                         "  heartsim run case.h5 --headless --trajectory cut.csv --seconds 1.2 --view right \\\n"
+                         "      --look-at X,Y,Z,D --screenshot cut.png                       # the --look-at it printed\n");
     // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
     // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
     std::vector<char*> arguments(argv, argv + argc);
@@ -203,17 +250,19 @@ int main(int argc, char** argv) {
         // Not CLI11's two lines and its own exit codes (104-114).
         return fail(ExitCode::usage, cli_messages::parse_error_message(app, e, int(arguments.size()), arguments.data()));
     }
-    for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover)})
+    for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover),
+                                    static_cast<const CLI::App*>(plan_command)})
         if (const std::string empty = cli_messages::empty_value_given(*command); command->parsed() && !empty.empty())
             return fail(ExitCode::usage, empty);
     for (const char* option : {"--max-force", "--haptic-rate", "--interpolation", "--haptic-priority", "--coupling"})
         if (run->count(option) > 0) a.device_options_given.push_back(option);
     // The file an error that names none comes from: the scenario run, or the journal recovered.
-    const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : "";
+    const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : plan_command->parsed() ? plan.scenario : "";
     try {
         if (info->parsed()) return command_info(info_scenario);
         if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
+        if (plan_command->parsed()) return plan_incision_command(plan);
     } catch (const GlUnavailable& e) {
         return fail(ExitCode::no_opengl, e.what());
     } catch (const haptics::DeviceUnavailable& e) {

@@ -628,12 +628,17 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     std::optional<SectionRequest> section;
     if (!a.clip.empty()) section = parse_section_option(a.clip);
     if (section && a.view == "section") section->aim_camera = true;
+    // --look-at: the camera centred on a point, after the view and the section have turned it.
+    std::optional<LookAt> look;
+    if (!a.look_at.empty()) look = parse_look_at(a.look_at);
+    if (look && a.headless && a.screenshot.empty()) throw UsageError("--look-at aims the camera: headless it needs --screenshot");
 
     scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);
     if (!a.replay.empty()) replayed = read_recording(a.replay);
     make_context_and_backend(a, render, *this);
     if (render) make_renderer(*this, section);
+    if (render && look) aim_camera_at(renderer->camera(), *look);
     set_contact(a, *this);
     const SolverLoadReport& load = backend->load_report();
     steps = a.steps.value_or(0);

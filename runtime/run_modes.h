@@ -49,6 +49,7 @@ struct RunArguments {
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
     std::string clip;                // --clip PX,PY,PZ,NX,NY,NZ or centre: the section view (section_plane.h); empty: none
+    std::string look_at;             // --look-at X,Y,Z[,DISTANCE]: the camera centred on a point (camera.h); empty: the fitted view
     // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
     std::vector<std::string> devices, instruments;
     double haptic_rate = 1000.0;

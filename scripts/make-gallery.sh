@@ -24,6 +24,7 @@ view=(--view left --size 800x600)
   echo "down; each over 100 ms, shown at 0.3 s. Regenerate with \`scripts/make-gallery.sh\`. The"
   echo "small dark openings at the top of pat1 are holes of its segmentation (there at rest too)."
   echo "Every real heart with a 10 mm septal defect, in the section view: [defects.md](defects.md)."
+  echo "Every real heart with a planned ventriculotomy and atriotomy held open: [incisions.md](incisions.md)."
   echo
   echo "| case | at rest | pressed | grabbed |"
   echo "|---|---|---|---|"
