@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <optional>
 #include <cmath>
 #include <unordered_map>
 
@@ -230,6 +231,7 @@ IncisionState::IncisionState(const Lattice& lattice, const std::vector<std::arra
 IncisionState::~IncisionState() = default;
 
 void IncisionState::restore() {
+    committed_.reset();
     mesh_ = uncut_;
     mapping_ = uncut_mapping_;
     cut_faces_.clear();
@@ -267,39 +269,84 @@ bool IncisionState::pending(const StrokeLog& log, bool finish) const {
     return false;
 }
 
+void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions, IncisionUpdate& update) {
+    const double gap = 0.02 * lattice_.spacing;
+    for (const CutSurface& surface : stroke_surfaces(stroke, positions, lattice_)) {
+        const IncisionResult result = open_along(mesh_, surface, gap);
+        if (!result.failure.empty()) update.failures.push_back(result.failure);
+        if (!result.opened) continue;
+        // The whole strip parts the particles, as the physics cut parted them: also where it
+        // passes between particles outside the detailed mesh (the lattice reaches up to half a
+        // spacing beyond the surface).
+        for (const auto& t : surface.triangles)
+            cut_faces_.push_back({surface.points[std::size_t(t[0])], surface.points[std::size_t(t[1])], surface.points[std::size_t(t[2])]});
+        Eigen::AlignedBox3d region;
+        for (const auto& p : surface.points) region.extend(p);
+        region.min().array() -= 2 * lattice_.spacing;
+        region.max().array() += 2 * lattice_.spacing;
+        update.reembedded += reembed(result, region);
+        update.opened = true;
+    }
+    ++update.strokes;
+}
+
+bool IncisionState::end_preview() {
+    if (!committed_) return false;
+    mesh_ = std::move(committed_->mesh);
+    mapping_ = std::move(committed_->mapping);
+    cut_faces_ = std::move(committed_->cut_faces);
+    committed_.reset();
+    order_for_drawing();
+    return true;
+}
+
 IncisionUpdate IncisionState::update(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions, bool finish) {
     const auto start = std::chrono::steady_clock::now();
     IncisionUpdate update;
+    update.opened = end_preview();
     if (log.clears() != generation_) {
-        update.opened = cut();
+        update.opened = update.opened || cut();
         restore();
         generation_ = log.clears();
     }
     const auto& strokes = log.strokes();
     applied_.resize(std::max(applied_.size(), strokes.size()), 0);
-    const double gap = 0.02 * lattice_.spacing;
+    bool changed = false;
     for (std::size_t r = 0; r < strokes.size(); ++r) {
         if (applied_[r] || !(strokes[r].lifted || finish)) continue;
         applied_[r] = 1;
-        for (const CutSurface& surface : stroke_surfaces(strokes[r], positions, lattice_)) {
-            const IncisionResult result = open_along(mesh_, surface, gap);
-            if (!result.failure.empty()) update.failures.push_back(result.failure);
-            if (!result.opened) continue;
-            // The whole strip parts the particles, as the physics cut parted them: also where it
-            // passes between particles outside the detailed mesh (the lattice reaches up to half a
-            // spacing beyond the surface).
-            for (const auto& t : surface.triangles)
-                cut_faces_.push_back({surface.points[std::size_t(t[0])], surface.points[std::size_t(t[1])], surface.points[std::size_t(t[2])]});
-            Eigen::AlignedBox3d region;
-            for (const auto& p : surface.points) region.extend(p);
-            region.min().array() -= 2 * lattice_.spacing;
-            region.max().array() += 2 * lattice_.spacing;
-            update.reembedded += reembed(result, region);
-            update.opened = true;
-        }
-        ++update.strokes;
+        IncisionUpdate one;
+        apply(strokes[r], positions, one);
+        changed = changed || one.opened;
+        update.strokes += one.strokes;
+        update.reembedded += one.reembedded;
+        update.failures.insert(update.failures.end(), one.failures.begin(), one.failures.end());
     }
-    if (update.opened) order_for_drawing();
+    if (changed) order_for_drawing();
+    update.opened = update.opened || changed;
+    update.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return update;
+}
+
+IncisionUpdate IncisionState::preview(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions) {
+    const auto start = std::chrono::steady_clock::now();
+    IncisionUpdate update;
+    update.opened = end_preview();
+    if (log.clears() != generation_) {  // a reset: the uncut mesh
+        update.opened = update.opened || cut();
+        restore();
+        generation_ = log.clears();
+    }
+    const auto& strokes = log.strokes();
+    bool open = false;
+    for (std::size_t r = 0; r < strokes.size(); ++r)
+        open = open || ((r >= applied_.size() || !applied_[r]) && !strokes[r].lifted && strokes[r].poses.size() >= 2);
+    if (!open) return update;
+    committed_ = Committed{mesh_, mapping_, cut_faces_};
+    for (std::size_t r = 0; r < strokes.size(); ++r)
+        if ((r >= applied_.size() || !applied_[r]) && !strokes[r].lifted && strokes[r].poses.size() >= 2) apply(strokes[r], positions, update);
+    order_for_drawing();
+    update.opened = true;
     update.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return update;
 }

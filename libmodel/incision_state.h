@@ -18,6 +18,7 @@
 #include <array>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -59,6 +60,12 @@ public:
     IncisionUpdate update(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions, bool finish);
     /// Whether update() would do anything for `log` (cheap: no positions needed).
     bool pending(const StrokeLog& log, bool finish) const;
+    /// While a stroke is under way: the mesh as if its blade lifted now, drawn until the next
+    /// update() or preview() (which start again from the strokes that did lift); nothing when no
+    /// stroke is under way. For a window, a few times a second: the incision opens as the blade
+    /// moves. update() alone gives the same mesh whatever previews came before.
+    IncisionUpdate preview(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions);
+    bool previewing() const { return committed_.has_value(); }
 
     bool cut() const { return mesh_.triangles.size() != uncut_triangles_; }  ///< opened along at least one stroke
     const IncisionMesh& mesh() const { return mesh_; }
@@ -72,6 +79,8 @@ public:
 
 private:
     void restore();
+    void apply(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions, IncisionUpdate& update);
+    bool end_preview();  ///< back to the strokes that lifted; true when a preview was shown
     std::size_t reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region);
     void order_for_drawing();
 
@@ -87,6 +96,12 @@ private:
     std::vector<std::array<std::int32_t, 3>> drawn_;
     std::vector<std::array<Eigen::Vector3d, 3>> cut_faces_;  ///< every cut so far, at rest (IncisionResult::cut_faces)
     std::size_t cap_first_ = 0;
+    struct Committed {
+        IncisionMesh mesh;
+        VisualMapping mapping;
+        std::vector<std::array<Eigen::Vector3d, 3>> cut_faces;
+    };
+    std::optional<Committed> committed_;  ///< while a preview is drawn: the strokes that lifted
     std::vector<std::uint8_t> applied_;  ///< per stroke row of the log
     std::uint64_t generation_ = 0;       ///< the log's clears() seen
 };

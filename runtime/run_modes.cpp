@@ -511,6 +511,31 @@ bool open_incisions(PreparedRun& p, bool finish, const std::vector<std::array<fl
     return true;
 }
 
+bool preview_incisions(PreparedRun& p, const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
+    const Scenario& scenario = p.scenario;
+    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface || scenario.visual->positions.empty()) return false;
+    if (!p.renderer || !p.renderer->draws_visual_mesh()) return false;
+    const StrokeLog& log = strokes ? *strokes : p.backend->strokes();
+    if (log.strokes().empty() || log.version() == p.previewed_strokes) return false;
+    const auto now = std::chrono::steady_clock::now();
+    if (now - p.previewed < std::chrono::milliseconds(250)) return false;
+    if (!p.incisions)
+        p.incisions = std::make_unique<IncisionState>(scenario.lattice, scenario.visual->positions, scenario.visual->normals,
+                                                      scenario.visual->triangles, *scenario.mapping, *scenario.simulation_surface);
+    std::vector<std::array<float, 3>> read;
+    if (!positions) {
+        read = p.backend->positions();
+        positions = &read;
+    }
+    p.previewed_strokes = log.version();
+    const IncisionUpdate update = p.incisions->preview(log, *positions);
+    p.previewed = std::chrono::steady_clock::now();  // the next one a quarter second after this one ends
+    if (!update.opened) return false;
+    const IncisionState& cut = *p.incisions;
+    p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+    return true;
+}
+
 namespace {
 
 /// --save-state: the final positions, the forces, what each hand held and the springs cut.
@@ -747,7 +772,7 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .backend_note = run.software_gl ? "OpenGL is software" : "",
                                   .link = run.link.get(),
                                   .open_incisions = [&run](const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
-                                      open_incisions(run, false, positions, strokes);
+                                      if (!open_incisions(run, false, positions, strokes)) preview_incisions(run, positions, strokes);
                                   }};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());

@@ -19,6 +19,7 @@
 #include "formats/recording.h"
 #include "formats/scenario.h"
 
+#include <chrono>
 #include <memory>
 #include <optional>
 #include <string>
@@ -109,6 +110,8 @@ struct PreparedRun {
     std::unique_ptr<SlicerLink> link;
     /// The detailed mesh as the scalpel opened it; made at the first stroke (open_incisions).
     std::unique_ptr<IncisionState> incisions;
+    std::uint64_t previewed_strokes = 0;              ///< the stroke log's version the last preview showed
+    std::chrono::steady_clock::time_point previewed;  ///< when (preview_incisions)
 };
 
 /// Opens the detailed mesh along the scalpel strokes the backend logged that are finished (the
@@ -117,6 +120,11 @@ struct PreparedRun {
 /// window whose simulation runs on its own thread passes the copies it drew). Returns whether the drawn mesh changed. Nothing to do without a mapped visual mesh.
 bool open_incisions(PreparedRun& run, bool finish, const std::vector<std::array<float, 3>>* positions = nullptr,
                     const StrokeLog* strokes = nullptr);
+
+/// A window, while a blade is down: at most four times a second, the drawn mesh opened as far as
+/// the blade has gone (IncisionState::preview; the stroke opens for good when it lifts, through
+/// open_incisions). Arguments as open_incisions'. Returns whether the drawn mesh changed.
+bool preview_incisions(PreparedRun& run, const std::vector<std::array<float, 3>>* positions = nullptr, const StrokeLog* strokes = nullptr);
 
 /// --replay: the recording's tool poses and grabs, step by step, on the backend; compares the
 /// forces with the recorded ones. 0 when they agree within the tolerance, 5 when not.

@@ -375,3 +375,41 @@ TEST(Incision, AGrabberOverTheCutTakesTheSideNearestItsCentre) {
     EXPECT_EQ(one, both - left_whole);
     for (std::int32_t i : solver.contact_particles(1)) EXPECT_GT(m.lattice.particles.rest_position[std::size_t(i)][0], x);
 }
+
+// While the blade is still down, a preview shows the mesh opened as far as the blade has gone
+// (closed, in one piece while the cut is partial); once it lifts, the mesh is the one a state that
+// never previewed makes from the same stroke, bit for bit.
+TEST(Incision, APreviewWhileTheBladeIsDownLeavesNoTraceOnceItLifts) {
+    CutModel m = cut_model(10, 5, 4);
+    Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
+    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
+    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
+    solver.begin_grab(0);
+    const std::size_t n = m.lattice.particles.size();
+    IncisionState previewed(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    std::string why;
+    for (int k = 1; k <= 10; ++k) {
+        solver.set_pose(0, {.position = {x, m.low.y() - 2.0 + k * (m.high.y() - m.low.y() + 4.0) / 10, below}});
+        solver.step(1);
+        if (k == 5) {  // halfway across: a slit from the front face
+            const IncisionUpdate u = previewed.preview(solver.strokes(), positions_of(solver, n));
+            EXPECT_TRUE(u.opened);
+            EXPECT_TRUE(previewed.previewing());
+            EXPECT_TRUE(closed_manifold(previewed.drawn_triangles(), &why)) << why;
+            EXPECT_EQ(count_components(previewed.mesh().triangles, previewed.mesh().rest.size()), 1u);
+        }
+    }
+    solver.release(0);
+    ASSERT_TRUE(previewed.pending(solver.strokes(), false));
+    previewed.update(solver.strokes(), positions_of(solver, n), false);
+    EXPECT_FALSE(previewed.previewing());
+    IncisionState direct(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    direct.update(solver.strokes(), positions_of(solver, n), false);
+    EXPECT_EQ(previewed.drawn_triangles(), direct.drawn_triangles());
+    EXPECT_EQ(previewed.mesh().rest, direct.mesh().rest);
+    EXPECT_EQ(previewed.mapping().particles, direct.mapping().particles);
+    EXPECT_EQ(previewed.mapping().weights, direct.mapping().weights);
+    EXPECT_EQ(count_components(direct.mesh().triangles, direct.mesh().rest.size()), 2u);
+}

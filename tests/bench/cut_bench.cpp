@@ -133,7 +133,7 @@ int main(int argc, char** argv) {
         return 2;
     }
     const Scenario scenario = read_scenario(argv[1]);
-    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30.0});
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30.0, .depth_mm = 0.0});  // through the wall, as plan-incision
     if (argc > 4) test::write_trajectory_csv(plan.trajectory, argv[4]);
     Trajectory lifted = plan.trajectory;
     for (InstrumentKeyframe& k : lifted.keyframes)
