@@ -310,6 +310,7 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
     HandState& state = hand_[std::size_t(hand)];
     if (state.instrument.kind == InstrumentKind::scalpel) {
+        if (!state.cutting) state.blade = lowered_blade(options_.cutting_resistance, lattice_frame_);
         state.cutting = true;
         return 0;
     }
@@ -352,6 +353,8 @@ void BasicSolver<Real>::release(int hand) {
     state.grabbing = false;
     if (state.cutting) strokes_.lift(hand);
     state.cutting = false;
+    state.blade = {};  // a lifted blade exerts nothing
+    state.cuts = 0;
 }
 
 template <class Real>
@@ -599,13 +602,20 @@ StepReport BasicSolver<Real>::step(int steps) {
     for (int hand = 0; hand < hands; ++hand) start[std::size_t(hand)] = hand_[std::size_t(hand)].pose;
     // A lowered scalpel cuts what its blade sweeps from this call's start pose to its target,
     // before the substeps: the springs it crosses exert nothing from the first substep on.
+    // Its force, the tissue's resistance to the cut, follows from the springs it cut
+    // (cutting_force.h): the gl backend's blade pass applies the same constants to its count.
     last_cuts_ = 0;
     for (int hand = 0; hand < hands; ++hand) {
-        const HandState& state = hand_[std::size_t(hand)];
+        HandState& state = hand_[std::size_t(hand)];
+        state.cuts = 0;
         if (!state.cutting || !state.placed) continue;
-        const BladeSweep sweep = blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(float(max_rest_length_)));
-        if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, 2.0 * state.instrument.semi_axes.z());
-        last_cuts_ += cut(sweep);
+        const double length = 2.0 * state.instrument.semi_axes.z();
+        const BladeSweep sweep = blade_sweep(state.pose, state.target, length, cut_search_margin(float(max_rest_length_)));
+        if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, length);
+        state.cuts = cut(sweep);
+        last_cuts_ += state.cuts;
+        const BladeStep blade = blade_step(options_.cutting_resistance, lattice_frame_, state.pose, state.target, length, double(steps) * dt_ms_);
+        state.blade = next_blade_state(state.blade, blade, state.cuts);
     }
 
     auto fire = [&](WatchdogReason reason, const std::string& detail) {
@@ -719,6 +729,10 @@ InstrumentForces BasicSolver<Real>::instrument_forces() const {
         InstrumentForce& f = forces.hand[std::size_t(hand)];
         for (std::int32_t i : contact) f.force_n += force_on(std::size_t(i));
         f.particles = contact.size();
+        if (hand_[std::size_t(hand)].instrument.kind == InstrumentKind::scalpel) {
+            f.force_n = blade_force(hand_[std::size_t(hand)].blade, options_.cutting_resistance, 2.0 * hand_[std::size_t(hand)].instrument.semi_axes.z());
+            f.springs_cut = hand_[std::size_t(hand)].cuts;
+        }
         if (!f.force_n.allFinite()) f.force_n.setZero();  // unreachable with finite positions; never leak
     }
     return forces;

@@ -15,6 +15,7 @@
 #pragma once
 
 #include "cutting.h"
+#include "cutting_force.h"
 #include "instrument_pose.h"
 #include "lattice.h"
 #include "solver_options.h"
@@ -40,7 +41,8 @@ enum class InstrumentKind {
     /// A blade from the pose's position (the tip) along the tool's +z axis, 2·az long (ax, ay: its
     /// half-width and half-thickness, for drawing). From begin_grab() until release() each step
     /// cuts, for good, every spring that crosses the surface the blade swept during the step
-    /// (cutting.h); lifted, it touches nothing. It neither pushes nor holds tissue.
+    /// (cutting.h); lifted, it touches nothing. It neither pushes nor holds tissue; its force is the
+    /// tissue's resistance to the cut (cutting_force.h), zero once lifted.
     scalpel,
 };
 
@@ -60,10 +62,13 @@ struct Instrument {
 /// The force the tissue exerts on one instrument, N, world frame: the sum of the spring and
 /// dashpot forces acting on the particles it holds (grabber) or touched in the last substep
 /// (probe). A probe pressed into tissue is pushed back out: the force points from the tissue
-/// towards the probe. A haptic device renders it as is.
+/// towards the probe. A scalpel's is the tissue's resistance to the cut, against the blade's
+/// motion (cutting_force.h), smoothed over the steps; zero while the blade is lifted. A haptic
+/// device renders it as is.
 struct InstrumentForce {
     Eigen::Vector3d force_n = Eigen::Vector3d::Zero();
     std::size_t particles = 0;  ///< particles held or touched
+    std::size_t springs_cut = 0;  ///< a scalpel: springs its blade cut in the last step
 };
 
 struct InstrumentForces {
@@ -230,6 +235,10 @@ public:
     const std::vector<std::array<std::int32_t, 2>>& cut_springs() const { return cut_; }
     /// Springs the last step() call cut.
     std::size_t last_cut_count() const { return last_cuts_; }
+    /// The lattice the springs were laid out on (the scalpel's area per spring, cutting_force.h):
+    /// the Lattice's spacing and axes, or, built from bare particles, the shortest rest length and
+    /// the world's axes.
+    const LatticeFrame& lattice_frame() const { return lattice_frame_; }
     /// The scalpel strokes so far, pose for pose as they were swept (cutting.h StrokeLog).
     const StrokeLog& strokes() const { return strokes_; }
     /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
@@ -291,6 +300,8 @@ private:
         bool grabbing = false;
         bool cutting = false;       ///< a scalpel between begin_grab and release
         bool placed = false;        ///< a pose was set since set_instrument
+        BladeState blade;           ///< a scalpel's blade state (cutting_force.h; zero lifted)
+        std::size_t cuts = 0;       ///< springs its blade cut in the last step() call
         std::vector<std::int32_t> held;            ///< packed indices
         std::vector<Eigen::Vector3d> held_local;   ///< tool-frame positions at capture
 
@@ -367,6 +378,7 @@ private:
     std::vector<std::int32_t> uncut_neighbour_;  ///< neighbour_ as loaded (reset_tissue heals cuts)
     std::vector<std::array<std::int32_t, 2>> cut_;  ///< cut springs, lower index first
     std::size_t last_cuts_ = 0;
+    LatticeFrame lattice_frame_;
     StrokeLog strokes_;
     std::vector<Real> rest_length_;        ///< mm (0 where empty)
     std::vector<Real> stiffness_;          ///< N/mm (0 where empty)

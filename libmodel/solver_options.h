@@ -148,12 +148,35 @@ struct KernelOptions {
     bool compact_uniform_slots = true;
 };
 
+/// The scalpel's cutting resistance (libmodel/cutting_force.h, docs/haptics.md "The scalpel's
+/// force"): the energy to cut tissue is G_c × the area cut, and the hand feels it as a force
+/// against the blade's motion, the energy over the distance of the blade's last λ of travel. Not
+/// kept by recordings: a replay renders the blade with this build's values.
+struct CuttingResistance {
+    /// G_c, the energy to cut a unit area, N/mm (= mJ/mm²; 0.3 N/mm = 300 J/m²): an order of
+    /// magnitude from blade-cutting measurements of soft tissue, not a measurement of myocardium.
+    /// 0: the blade cuts with no force.
+    double toughness_n_per_mm = 0.3;
+    /// λ, in lattice spacings: the energy of the cut is averaged over the blade's last λ of travel
+    /// (an exponential window in distance, cutting_force.h), across the layers of springs a blade
+    /// meets one at a time; 0 = each step's own.
+    double smoothing_spacings = 2.0;
+    /// τ, ms (simulated time): the exponential filter of the blade's velocity and speed, which
+    /// give the force's direction and let go of a blade that stops; 0 = each step's own.
+    double smoothing_ms = 4.0;
+    /// v_min, mm/ms: below this smoothed speed of the blade the force fades as (speed / v_min)², so
+    /// that a blade brought to a stop in the tissue lets go of the hand. 0.002 mm/ms = 2 mm/s.
+    double min_speed_mm_per_ms = 0.002;
+    bool operator==(const CuttingResistance&) const = default;
+};
+
 /// Everything a solver takes. Every field has a default and a unit.
 struct SolverOptions : StepSettings, SolverRules, KernelOptions {
     /// Spring damping ratio ζ per material row (dimensionless); a spring's dashpot is
     /// c = 2ζ√(kμ), μ the pair's reduced mass, ζ the mean of its two particles' materials.
     /// Empty: taken from the lattice's materials, or 0 when built from bare particles.
     std::vector<double> damping_ratio;
+    CuttingResistance cutting_resistance;  ///< the scalpel's force (not a rule a recording keeps)
 };
 
 }  // namespace heartsim

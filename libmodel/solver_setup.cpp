@@ -109,7 +109,9 @@ BasicSolver<Real>::BasicSolver(const Lattice& lattice, const std::vector<std::ar
           SolverOptions o = options;
           if (o.damping_ratio.empty()) o.damping_ratio = damping_ratios(lattice.materials);
           return o;
-      }()) {}
+      }()) {
+    if (lattice.spacing > 0) lattice_frame_ = heartsim::lattice_frame(lattice);
+}
 
 template <class Real>
 BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& springs,
@@ -151,6 +153,8 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     next_motion_ = next_ + 4;
     h_ = 0.0;
     set_time_step(dt);
+    // Without the lattice: its spacing is the shortest spring (a face spring), its axes the world's.
+    lattice_frame_.spacing_mm = double(min_rest_length_) > 0 && std::isfinite(double(min_rest_length_)) ? double(min_rest_length_) : 1.0;
     reset();
 }
 

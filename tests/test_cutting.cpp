@@ -6,8 +6,12 @@
 // Then the abuse a user's script can do (docs/reliability.md "Cutting"): a thousand springs cut in
 // one step, every spring cut, a blade of no length or of the shortest, a blade pose that is not a
 // number, cutting what the other hand holds, cutting a cut again, each against counts made here
-// by brute force and against Newton's laws.
+// by brute force and against Newton's laws. Last the blade's force (libmodel/cutting_force.h): the
+// springs a plane of any orientation crosses per unit area, counted on a lattice, and the force on
+// a blade drawn at constant speed through a block, against G_c × the springs cut (counted here from
+// the rest positions) × the area each stands for / the travel.
 #include "libmodel/cutting.h"
+#include "libmodel/cutting_force.h"
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
 #include "libmodel/solver.h"
@@ -503,7 +507,7 @@ TEST(Cutting, ABladeOfNoLengthIsRefusedAndTheShortestCutsOnlyWhatItsStripCrosses
 // A blade pose that is not a number (NaN or infinite position, NaN or zero quaternion) is refused
 // with a message that says so, while the blade is lowered and mid-gesture: the blade stays where
 // it was, nothing is cut by it, and no position or force ever holds a NaN. The same blade then
-// cuts as it should (the springs across its plane) and its hand feels no force.
+// cuts as it should (the springs across its plane) and its hand feels the cut, against its motion.
 TEST(Cutting, ANonFiniteBladePoseIsRefusedAndNothingNonFiniteReachesTheStateOrTheForces) {
     const Model model = block(6, 4, 4);
     const Extent e = extent(model);
@@ -539,7 +543,11 @@ TEST(Cutting, ANonFiniteBladePoseIsRefusedAndNothingNonFiniteReachesTheStateOrTh
     EXPECT_TRUE(cut_set(solver) == springs_across(model, plane));
     EXPECT_GT(solver.cut_springs().size(), 20u);
     ASSERT_TRUE(all_finite(solver));
-    EXPECT_EQ(solver.instrument_forces().hand[0].force_n, Eigen::Vector3d::Zero());
+    // Its hand feels the cut: a finite force against the blade's motion, within G_c × its length.
+    const Eigen::Vector3d f = solver.instrument_forces().hand[0].force_n;
+    ASSERT_TRUE(f.allFinite());
+    EXPECT_LT(f.dot(s.to.position - s.from.position), 0.0);
+    EXPECT_LE(f.norm(), SolverOptions{}.cutting_resistance.toughness_n_per_mm * 2 * s.semi_axes.z());
 }
 
 // One hand holds the middle of a bar clamped at both ends and lifts it while the other cuts right
@@ -619,4 +627,242 @@ TEST(Cutting, CuttingACutAgainCutsNothingNewAndListsEachSpringOnce) {
     EXPECT_EQ(both.last_cut_count(), expected.size());
     EXPECT_TRUE(cut_set(both) == expected);
     EXPECT_EQ(both.cut_springs().size(), expected.size());
+}
+
+// The area a cut spring stands for: a plane of normal n crosses S(n)/h² springs of the 18-neighbour
+// lattice per unit area, S = 5|n₁| + 3|n₂| + |n₃| (|n₁| ≥ |n₂| ≥ |n₃|). The closed form at the
+// axis, face-diagonal, body-diagonal and maximal normals, and for each of those and two oblique
+// ones, the springs counted one by one across a 120 h square of the plane on the lattice Z³.
+TEST(Cutting, APlaneOfAnyOrientationCrossesTheLatticesSpringsAtTheDensityTheAreaPerSpringAssumes) {
+    EXPECT_DOUBLE_EQ(lattice_crossings({0, 0, 1}), 5.0);
+    EXPECT_NEAR(lattice_crossings(Eigen::Vector3d(1, 1, 0).normalized()), 4 * std::sqrt(2.0), 1e-12);
+    EXPECT_NEAR(lattice_crossings(Eigen::Vector3d(1, 1, 1).normalized()), 3 * std::sqrt(3.0), 1e-12);
+    EXPECT_NEAR(lattice_crossings(Eigen::Vector3d(5, -3, 1).normalized()), std::sqrt(35.0), 1e-12);
+    const LatticeFrame unit;  // h = 1, the world's axes
+    EXPECT_DOUBLE_EQ(area_per_spring({.spacing_mm = 1.5}, {0, 1, 0}), 1.5 * 1.5 / 5);
+    const std::array<Eigen::Vector3i, 9> directions{{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 0}, {1, -1, 0}, {1, 0, 1}, {1, 0, -1}, {0, 1, 1}, {0, 1, -1}}};
+    for (const Eigen::Vector3d& normal : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(1, 1, 0), Eigen::Vector3d(1, 1, 1), Eigen::Vector3d(5, 3, 1),
+                                          Eigen::Vector3d(0.3, -0.7, 0.2), Eigen::Vector3d(-0.11, 0.23, 0.91)}) {
+        const Eigen::Vector3d n = normal.normalized();
+        const Eigen::Vector3d c(0.31, 0.17, 0.23);  // on no lattice plane
+        const Eigen::Vector3d u = n.unitOrthogonal(), w = n.cross(u);
+        const double side = 120.0;
+        const int reach = int(std::ceil(side / std::sqrt(2.0))) + 2;
+        long long crossing = 0;
+        for (int i = -reach; i <= reach; ++i)
+            for (int j = -reach; j <= reach; ++j)
+                for (int k = -reach; k <= reach; ++k) {
+                    const Eigen::Vector3d p(i, j, k);
+                    const double sp = n.dot(p - c);
+                    if (std::abs(sp) > 1.5) continue;
+                    for (const Eigen::Vector3i& d : directions) {
+                        const Eigen::Vector3d q = p + d.cast<double>();
+                        const double sq = n.dot(q - c);
+                        if (!(sp * sq < 0)) continue;
+                        const Eigen::Vector3d x = p + sp / (sp - sq) * (q - p);
+                        if (std::abs(u.dot(x - c)) < 0.5 * side && std::abs(w.dot(x - c)) < 0.5 * side) ++crossing;
+                    }
+                }
+        const double expected = side * side / area_per_spring(unit, n);
+        std::printf("  normal (%.3f, %.3f, %.3f): %lld springs cross %.0f h², %.0f expected (S = %.4f)\n", n.x(), n.y(), n.z(), crossing,
+                    side * side, expected, lattice_crossings(n));
+        EXPECT_NEAR(double(crossing), expected, 0.005 * expected);
+        // The lattice's axes turned with the plane: the same area per spring.
+        const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+        EXPECT_NEAR(area_per_spring({.spacing_mm = 1.0, .axes = turn}, turn * n), area_per_spring(unit, n), 1e-12);
+    }
+}
+
+namespace {
+
+/// A blade along +z (identity orientation), its tip at (x, y0, z0), drawn along +x by one lattice
+/// spacing per step through a 40 × 4 × 8 block at rest (no gravity: no spring ever pulls, so the
+/// block stays at its rest positions and the springs a step cuts follow from them alone). For
+/// every step: the force on hand 0, the springs the solver says it cut, and the springs counted
+/// here from the rest positions whose crossing of the plane y = y0 lies in the step's strip of the
+/// blade (x_k ≤ x < x_{k+1}, z0 ≤ z ≤ z0 + L).
+struct DrawnBlade {
+    std::vector<Eigen::Vector3d> force;
+    std::vector<std::size_t> cut, counted;
+    double spacing = 0, travel = 0, step_ms = 0;
+    Eigen::Vector3d lifted_force = Eigen::Vector3d::Constant(1);
+    std::size_t lifted_cut = 1;
+};
+
+DrawnBlade draw_blade(const CuttingResistance& resistance, double smoothing_in_steps) {
+    const Model model = block(40, 4, 8);
+    const Extent e = extent(model);
+    const double h = model.lattice.spacing;
+    SolverOptions options = options_for(model);
+    options.cutting_resistance = resistance;
+    options.cutting_resistance.smoothing_ms = smoothing_in_steps * options.dt_ms;
+    if (smoothing_in_steps == 0) options.cutting_resistance.smoothing_spacings = 0;  // each step's own
+    Solver solver(model.lattice, model.packing.neighbours, options);
+    DrawnBlade out;
+    out.spacing = h, out.travel = h, out.step_ms = solver.time_step_ms();
+    const double y0 = e.low.y() + 1.37 * h, z0 = e.low.z() + 1.6 * h, length = 20.0;  // the tip inside, the end above the block
+    const double x0 = e.low.x() - 2.13 * h;
+    const int steps = 46;
+    auto tip = [&](int k) { return Eigen::Vector3d(x0 + k * h, y0, z0); };
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = tip(0)});
+    solver.begin_grab(0);
+    for (int k = 0; k < steps; ++k) {
+        solver.set_pose(0, {.position = tip(k + 1)});
+        EXPECT_FALSE(solver.step(1).diverged);
+        const InstrumentForce f = solver.instrument_forces().hand[0];
+        out.force.push_back(f.force_n);
+        out.cut.push_back(f.springs_cut);
+        EXPECT_EQ(f.springs_cut, solver.last_cut_count());
+        std::size_t counted = 0;
+        for (const auto& [a, b] : model.lattice.springs.pairs) {
+            const Eigen::Vector3d p = rest_of(model, std::size_t(a)), q = rest_of(model, std::size_t(b));
+            if (!((p.y() - y0) * (q.y() - y0) < 0)) continue;
+            const Eigen::Vector3d x = p + (y0 - p.y()) / (q.y() - p.y()) * (q - p);
+            if (x.x() >= tip(k).x() && x.x() < tip(k + 1).x() && x.z() >= z0 && x.z() <= z0 + length) ++counted;
+        }
+        out.counted.push_back(counted);
+    }
+    // Lifted: nothing at once, and nothing while it moves on.
+    solver.release(0);
+    out.lifted_force = solver.instrument_forces().hand[0].force_n;
+    solver.set_pose(0, {.position = tip(steps + 1)});
+    solver.step(1);
+    out.lifted_force += solver.instrument_forces().hand[0].force_n;
+    out.lifted_cut = solver.instrument_forces().hand[0].springs_cut + solver.last_cut_count();
+    return out;
+}
+
+}  // namespace
+
+// The force on a blade drawn at constant speed through a block: unsmoothed, each step's force is
+// G_c × (springs cut × h²/5) / travel (the plane y = y0 is normal to a lattice axis), against the
+// motion (−x); smoothed (λ = 2 spacings of travel), the energy over the travel in that window,
+// computed here from those counts, and inside the block, where every step cuts as many springs, it
+// settles on that step force; lifted, the blade exerts nothing.
+TEST(Cutting, ABladeDrawnThroughABlockFeelsTheToughnessTimesTheAreaItCutOverItsTravelAgainstItsMotion) {
+    const CuttingResistance resistance{.toughness_n_per_mm = 0.3};
+    for (const double smoothing_in_steps : {0.0, 4.0}) {
+        const DrawnBlade run = draw_blade(resistance, smoothing_in_steps);
+        const double h = run.spacing;
+        const double keep = smoothing_in_steps > 0 ? std::exp(-run.travel / (resistance.smoothing_spacings * h)) : 0.0;  // per step
+        // Over the window, mJ and mm; a blade lowered starts with no energy over a spacing of travel.
+        double energy = 0, travel = smoothing_in_steps > 0 ? h : 0.0;
+        double largest = 0;
+        std::size_t total = 0;
+        for (std::size_t k = 0; k < run.force.size(); ++k) {
+            ASSERT_EQ(run.cut[k], run.counted[k]) << "step " << k;
+            total += run.cut[k];
+            const double step_force = resistance.toughness_n_per_mm * double(run.counted[k]) * (h * h / 5) / run.travel;  // N
+            energy = keep * energy + step_force * run.travel;
+            travel = keep * travel + run.travel;
+            const double expected = energy / travel;
+            if (smoothing_in_steps == 0) ASSERT_NEAR(expected, step_force, 1e-12 * step_force);
+            largest = std::max(largest, step_force);
+            ASSERT_NEAR(-run.force[k].x(), expected, 1e-12 + 1e-9 * expected) << "step " << k;
+            ASSERT_EQ(run.force[k].y(), 0.0);
+            ASSERT_EQ(run.force[k].z(), 0.0);
+        }
+        // Inside the block every step cuts the same springs: the last thirty steps' count, and after
+        // the window's transient (e^−15 over thirty spacings) the force is that step's force.
+        const std::size_t last = run.force.size() - 8;
+        const std::size_t inside = run.counted[last];
+        for (std::size_t k = last - 30; k <= last; ++k) ASSERT_EQ(run.counted[k], inside) << "step " << k;
+        const double settled = resistance.toughness_n_per_mm * double(inside) * (h * h / 5) / h;
+        EXPECT_NEAR(-run.force[last].x(), settled, 1e-3 * settled);
+        std::printf("  %s: %zu springs cut, %zu a step inside the block; force %.4f N there (G_c × %zu × h²/5 / h = %.4f N)\n",
+                    smoothing_in_steps > 0 ? "smoothed" : "each step's own", total, inside, -run.force[last].x(), inside, settled);
+        EXPECT_GT(inside, 20u);
+        EXPECT_GT(largest, 0.1);
+        EXPECT_EQ(run.lifted_force, Eigen::Vector3d::Zero());
+        EXPECT_EQ(run.lifted_cut, 0u);
+    }
+    // No toughness, no force (the springs are cut all the same).
+    const DrawnBlade free = draw_blade({.toughness_n_per_mm = 0.0}, 4.0);
+    for (std::size_t k = 0; k < free.force.size(); ++k) ASSERT_EQ(free.force[k], Eigen::Vector3d::Zero());
+    EXPECT_GT(std::accumulate(free.cut.begin(), free.cut.end(), std::size_t(0)), 100u);
+}
+
+// A blade that moves at some steps only (its pose updated less often than the steps run, as a
+// 1 kHz device's between faster steps) feels what one moving at every step feels: the energy
+// over the distance of its last two spacings of travel. Held still in the tissue, it keeps the force of its cut
+// until its smoothed speed falls below v_min, then lets go (the force fades as the speed squared).
+// A blade turned about its middle (its midpoint still) gets no force; one turned about its tip the
+// whole cut's; more springs than a whole blade drawn across its length sweeps count as that many.
+TEST(Cutting, TheBladesForceIsTheEnergyOverTheDistanceOfItsLastSpacingsAndLetsGoOfAStoppedBlade) {
+    const Model model = block(40, 4, 8);
+    const Extent e = extent(model);
+    const double h = model.lattice.spacing;
+    SolverOptions options = options_for(model);
+    options.cutting_resistance.smoothing_ms = 8 * options.dt_ms;
+    const double y0 = e.low.y() + 1.37 * h, z0 = e.low.z() + 1.6 * h, length = 20.0, x0 = e.low.x() + 5.13 * h;
+    // Every step one spacing, against two spacings every second step (standing still between).
+    auto drawn = [&](int every, int steps) {
+        Solver solver(model.lattice, model.packing.neighbours, options);
+        solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+        solver.set_pose(0, {.position = {x0, y0, z0}});
+        solver.begin_grab(0);
+        std::vector<Eigen::Vector3d> force;
+        for (int k = 0; k < steps; ++k) {
+            solver.set_pose(0, {.position = {x0 + double((k + 1) / every * every) * h, y0, z0}});
+            solver.step(1);
+            force.push_back(solver.instrument_forces().hand[0].force_n);
+        }
+        return force;
+    };
+    const std::vector<Eigen::Vector3d> smooth = drawn(1, 24), stutter = drawn(2, 24);
+    const double settled = options.cutting_resistance.toughness_n_per_mm * 29 * (h * h / 5) / h;  // 29 springs a spacing (the test above)
+    EXPECT_NEAR(-smooth.back().x(), settled, 0.01 * settled);
+    EXPECT_NEAR(-stutter.back().x(), settled, 0.01 * settled);
+    std::printf("  drawn every step: %.4f N; every second step, standing still between: %.4f N and %.4f N (G_c × 29 × h²/5 / h = %.4f N)\n",
+                -smooth.back().x(), -stutter[stutter.size() - 2].x(), -stutter.back().x(), settled);
+
+    // Held still: the same force at the next step, and let go once the smoothed speed is far below v_min.
+    Solver solver(model.lattice, model.packing.neighbours, options);
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = {x0, y0, z0}});
+    solver.begin_grab(0);
+    solver.set_pose(0, {.position = {x0 + h, y0, z0}});
+    solver.step(1);
+    const Eigen::Vector3d first = solver.instrument_forces().hand[0].force_n;
+    EXPECT_LT(first.x(), -0.1);
+    solver.step(1);
+    EXPECT_EQ(solver.last_cut_count(), 0u);
+    EXPECT_NEAR(solver.instrument_forces().hand[0].force_n.x(), first.x(), 1e-9 * first.norm());
+    const double speed = (1 - std::exp(-1.0 / 8)) * h / solver.time_step_ms();  // after the one moving step
+    const int until = int(std::ceil(8 * std::log(10 * speed / options.cutting_resistance.min_speed_mm_per_ms)));
+    solver.step(until);
+    EXPECT_LT(solver.instrument_forces().hand[0].force_n.norm(), 0.011 * first.norm());
+    std::printf("  held still: %.4f N, after %d steps %.2g N\n", -first.x(), until, solver.instrument_forces().hand[0].force_n.norm());
+
+    // Turned a quarter turn about its middle in one step: it cuts, but its midpoint stays put (to
+    // rounding): no force a 3-DOF device could render.
+    const Eigen::Vector3d c(x0, y0, e.low.z() + 2.1 * h);
+    const double short_blade = 4.0;
+    Solver turned(model.lattice, model.packing.neighbours, options);
+    const Eigen::Vector3d middle = c + Eigen::Vector3d(0, 0, 0.5 * short_blade);
+    const Eigen::Quaterniond quarter(Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::UnitX()));
+    turned.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * short_blade}});
+    turned.set_pose(0, {.position = c});
+    turned.begin_grab(0);
+    turned.set_pose(0, {.position = middle - quarter * Eigen::Vector3d(0, 0, 0.5 * short_blade), .orientation = quarter});
+    turned.step(1);
+    EXPECT_GT(turned.last_cut_count(), 0u);
+    EXPECT_LT(turned.instrument_forces().hand[0].force_n.norm(), 1e-12);
+    // Turned about its tip: its midpoint moves half as far as its end, the mean travel of its two
+    // ends, so the whole cut is paid by a force against the midpoint's motion.
+    const BladeStep about_tip = blade_step(options.cutting_resistance, turned.lattice_frame(), {.position = c},
+                                           {.position = c, .orientation = quarter}, short_blade, 1.0);
+    const Eigen::Vector3d end_motion = quarter * Eigen::Vector3d(0, 0, short_blade) - Eigen::Vector3d(0, 0, short_blade);
+    EXPECT_NEAR(about_tip.motion_rate.norm(), about_tip.travel_rate, 1e-12);
+    EXPECT_NEAR(about_tip.travel_rate, 0.5 * end_motion.norm(), 1e-12);
+    EXPECT_NEAR(about_tip.motion_rate.normalized().dot(end_motion.normalized()), 1.0, 1e-12);
+    // The cap: a whole blade drawn across its length through tissue, G_c × its length, however many
+    // springs are counted.
+    BladeStep across = blade_step(options.cutting_resistance, turned.lattice_frame(), {.position = c}, {.position = c + Eigen::Vector3d(0.2, 0, 0)},
+                                  short_blade, 0.5);
+    across.keep = 0, across.alpha = 1;
+    const double cap = options.cutting_resistance.toughness_n_per_mm * short_blade;
+    EXPECT_NEAR(blade_force(next_blade_state({}, across, 100000), options.cutting_resistance, short_blade).norm(), cap, 1e-12 * cap);
+    EXPECT_LT(blade_force(next_blade_state({}, across, 1), options.cutting_resistance, short_blade).norm(), cap);
 }

@@ -139,7 +139,10 @@ TEST(HapticsCli, TheRecordingReplaysToTheSameForcesBitForBitOnTheCpuBackend) {
 // session at a fixed --mass-scale replays bit for bit too.
 // A scalpel on a scripted device, button 1 held, drawn 16 mm through the phantom's anterior wall
 // (the incision of incision_gesture.h): the session cuts springs, its state file lists them and
-// names the scalpel, and its recording replays bit for bit, cutting the same springs.
+// names the scalpel, and its recording replays bit for bit, cutting the same springs. The hand
+// feels the blade: the recording holds the tissue's resistance to the cut (well above the
+// session's --max-force 0.5 N), and what the device was sent stays within the clamp and, while the
+// gain is 1, within the rate limit (0.5 N/ms) from tick to tick.
 TEST(HapticsCli, ACuttingSessionReplaysBitForBit) {
     test::TempDir dir;
     const Scenario scenario = read_scenario(phantom());
@@ -158,7 +161,7 @@ TEST(HapticsCli, ACuttingSessionReplaysBitForBit) {
         }
     }
     const auto live = run_heartsim("run " + quoted(phantom()) + " --headless --backend cpu --device scripted:" + quoted(dir / "cut.csv") +
-                                   " --instrument scalpel --seconds 0.5 --record " + quoted(dir / "cut.h5") + " --save-state " +
+                                   " --instrument scalpel --seconds 0.5 --max-force 0.5 --record " + quoted(dir / "cut.h5") + " --save-state " +
                                    quoted(dir / "state.h5"));
     ASSERT_EQ(live.exit_code, 0) << live.output;
     const SimulationState state = read_state(dir / "state.h5");
@@ -174,17 +177,49 @@ TEST(HapticsCli, ACuttingSessionReplaysBitForBit) {
     const SimulationState replayed = read_state(dir / "replayed.h5");
     EXPECT_EQ(replayed.kind[0], 3);
     EXPECT_TRUE(replayed.cut_springs == state.cut_springs) << replayed.cut_springs.size() << " against " << state.cut_springs.size();
-    // A scalpel's hand feels no force, so the forces compared above are zero whatever was cut: the
-    // recording replayed here on the cpu backend must cut the very springs the session's state lists.
+    // The recording replayed here on the cpu backend cuts the very springs the session's state
+    // lists, and gives the scalpel's recorded forces to the bit.
     const Recording recorded = read_recording(dir / "cut.h5");
     SolverOptions options = options_from(scenario.solver);
     if (recorded.rules) static_cast<SolverRules&>(options) = *recorded.rules;
     options.mass_scale = recorded.steps.mass_scale_at(0);
     options.arithmetic = recorded.arithmetic == "fused" ? SlotArithmetic::fused : SlotArithmetic::separate;
     auto cpu = make_cpu_backend(scenario, options);
-    haptics::replay(*cpu, recorded, (dir / "cut.h5").string());
+    const ReplayResult again = haptics::replay(*cpu, recorded, (dir / "cut.h5").string());
     EXPECT_TRUE(cpu->cut_springs() == state.cut_springs) << cpu->cut_springs().size() << " springs cut by the replay, " << state.cut_springs.size()
                                                          << " by the session";
+    EXPECT_GT(again.compared, 100u);
+    EXPECT_EQ(again.identical, again.compared);
+    EXPECT_EQ(again.max_difference_n, 0.0);
+
+    // The scalpel's force in the recording: non-zero while it cuts, and handed to the device
+    // within the clamp and the rate limit.
+    double largest_step = 0;
+    for (const auto& f : recorded.steps.force_n) largest_step = std::max(largest_step, Eigen::Vector3d(f[0][0], f[0][1], f[0][2]).norm());
+    EXPECT_GT(largest_step, 0.5) << "the blade's force should exceed --max-force 0.5 N";
+    const RecordedHand& hand = recorded.hands[0];
+    EXPECT_EQ(hand.max_force_n, 0.5);
+    const double rate = SafetySettings{}.max_rate_n_per_ms;
+    double largest_input = 0, largest_sent = 0, steepest = 0;
+    std::size_t ticks_at_full_gain = 0;
+    for (std::size_t k = 0; k < hand.force_n.size(); ++k) {
+        const Eigen::Vector3d sent(hand.force_n[k][0], hand.force_n[k][1], hand.force_n[k][2]);
+        largest_input = std::max(largest_input, Eigen::Vector3d(hand.input_n[k][0], hand.input_n[k][1], hand.input_n[k][2]).norm());
+        largest_sent = std::max(largest_sent, sent.norm());
+        ASSERT_LE(sent.norm(), 0.5 * (1 + 1e-12)) << "tick " << k;
+        if (k == 0 || hand.gain[k] != 1.0f || hand.gain[k - 1] != 1.0f) continue;
+        const Eigen::Vector3d before(hand.force_n[k - 1][0], hand.force_n[k - 1][1], hand.force_n[k - 1][2]);
+        const double dt = hand.tick_time_ms[k] - hand.tick_time_ms[k - 1];
+        ASSERT_LE((sent - before).norm(), rate * dt + 1e-12) << "tick " << k;
+        steepest = std::max(steepest, (sent - before).norm() / dt);
+        ++ticks_at_full_gain;
+    }
+    std::printf("  blade force: largest %.3f N computed, %.3f N into the safety chain, %.3f N sent (clamp 0.5 N), steepest %.3f N/ms "
+                "at full gain (limit %.2f)\n",
+                largest_step, largest_input, largest_sent, steepest, rate);
+    EXPECT_GT(largest_input, 0.5);
+    EXPECT_GT(largest_sent, 0.45);
+    EXPECT_GT(ticks_at_full_gain, 100u);
 }
 
 TEST(HapticsCli, ASessionWhoseMassScaleChangesReplaysBitForBit) {

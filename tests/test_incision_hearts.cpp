@@ -8,6 +8,8 @@
 #include "formats/scenario.h"
 #include "incision_gesture.h"
 #include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
+#include "runtime_test_support.h"
 #include "runtime/trajectory.h"
 #include "test_support.h"
 
@@ -63,12 +65,14 @@ double first_hit(const Eigen::Vector3d& from, const Eigen::Vector3d& d, const st
 }  // namespace
 
 // On every real heart (8,000 particles, the detailed mesh heartprep makes by default): the 30 mm
-// incision of incision_gesture.h through the most anterior wall, the mesh opened where the blade
-// lifts, then two retractors pulling the edges 6 mm apart. The mesh stays a closed 2-manifold; no
+// incision of incision_gesture.h through the most anterior wall (the blade through the wall, as
+// heartsim plan-incision plans it), the mesh opened where the blade lifts, then two retractors
+// pulling the edges 6 mm apart. The mesh stays a closed 2-manifold; no
 // vertex on one side of the blade's plane x = x_c is carried by a particle on the other (away
 // from the plane by more than a tenth of a millimetre: the rest shape's strip is the blade's plane
 // taken through the tissue's displacement); the two caps stand apart at the end as the
-// particles on either side do; every drawn position is finite.
+// particles on either side do; every drawn position is finite; and one sees through the opened
+// incision into the heart.
 TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
     namespace fs = std::filesystem;
     const fs::path data = test::real_data_dir();
@@ -85,7 +89,9 @@ TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
         const std::string labels = name == "mmwhs_ct1002" ? " --labels mmwhs" : name == "mmwhs_wh" ? " --labels mmwhs-ordinal" : "";
         const Scenario scenario = read_scenario(built_scenario(name + "-8k", label, "--particles 8000 -q" + labels));
         ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface);
-        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
+        // Through the wall (depth 0: heartsim plan-incision's default, the wall's thickness there
+        // and 2 mm on).
+        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30, .depth_mm = 0.0});
         auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
         IncisionState incisions(scenario.lattice, scenario.visual->positions, scenario.visual->normals, scenario.visual->triangles,
                                 *scenario.mapping, *scenario.simulation_surface);
@@ -157,22 +163,61 @@ TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
                     incisions.drawn_triangles().size() - incisions.cap_first(), gap, opening.mean_mm);
         EXPECT_GT(gap, 0.5 * opening.mean_mm);
 
-        // A line of sight through the opened incision: of rays cast along the blade (+y) from in
-        // front of the heart through a grid of points around the incision's centre, the one that
-        // reaches deepest before meeting the drawn mesh, against the same ray on the uncut mesh
-        // at rest (where it meets the epicardium).
+        // A line of sight through the opened incision into the heart: rays cast along the blade
+        // (+y) from in front of the heart through a grid of points around the incision's centre.
+        // On the uncut mesh at the same positions a ray meets the wall's outer face, then its inner
+        // face; through the opened incision one passes both and goes on into the cavity.
         const std::vector<Eigen::Vector3f> uncut = apply_mapping(*scenario.mapping, positions, *scenario.simulation_surface);
-        double deepest = 0, at_rest = 0;
+        double deepest = 0, wall = 0;
+        int through = 0;
         for (int i = -4; i <= 4; ++i)
             for (int k = -4; k <= 4; ++k) {
                 const Eigen::Vector3d from(plan.centre.x() + 0.5 * i, plan.centre.y() - 20.0, plan.centre.z() + 1.0 * k);
                 const double open = first_hit(from, Eigen::Vector3d::UnitY(), drawn, incisions.drawn_triangles());
-                const double closed = first_hit(from, Eigen::Vector3d::UnitY(), uncut, scenario.visual->triangles);
-                if (std::isfinite(open) && std::isfinite(closed) && open - closed > deepest) deepest = open - closed, at_rest = closed;
+                const double outer = first_hit(from, Eigen::Vector3d::UnitY(), uncut, scenario.visual->triangles);
+                if (!std::isfinite(outer)) continue;
+                const double inner = outer + 1e-4 + first_hit(from + (outer + 1e-4) * Eigen::Vector3d::UnitY(), Eigen::Vector3d::UnitY(), uncut,
+                                                              scenario.visual->triangles);
+                if (!std::isfinite(inner)) continue;
+                if (open - outer > deepest) deepest = open - outer, wall = inner - outer;
+                through += open > inner + 0.5;
             }
-        std::printf("  %s: the deepest line of sight through the incision reaches %.1f mm past the uncut surface\n", name.c_str(), deepest);
-        (void)at_rest;
+        std::printf("  %s: %d of 81 rays see through the opened wall into the heart; the deepest reaches %.1f mm past the uncut "
+                    "surface, where the wall is %.1f mm thick\n",
+                    name.c_str(), through, deepest, wall);
+        EXPECT_GT(through, 0) << "no line of sight through the incision into the heart";
         ++cases;
     }
     EXPECT_GT(cases, 0);
+}
+
+// The retractor's one side on the gl backend as on the cpu: after the same incision through the
+// phantom's anterior wall, a grabber closed across it (its centre nearest a particle beside the
+// blade's + side) holds the same particles on both, all on that side of the blade's plane.
+TEST(Incision, AGrabberAcrossTheCutTakesTheSameSideOnBothBackends) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(test::built_phantom("--cavity 2 --anchor-border"));
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 16, .retract = false});
+    const double h = scenario.lattice.spacing;
+    // The blade's plane x = centre.x lies a quarter spacing beyond a particle column: the next
+    // column is 0.75 h on, so a centre 0.3 h beyond the plane is nearest that one.
+    const Eigen::Vector3d centre = plan.centre + Eigen::Vector3d(0.3 * h, 0, 0);
+    std::vector<std::vector<std::int32_t>> held;
+    auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options_from(scenario.solver));
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        const ScriptedRunResult run = run_scripted(*backend, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / backend->time_step_ms()))});
+        EXPECT_EQ(run.watchdog_events, 0u);
+        ASSERT_FALSE(backend->cut_springs().empty());
+        backend->set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(1.6 * h)});
+        backend->set_pose(1, {.position = centre});
+        EXPECT_GT(backend->begin_grab(1), 0u);
+        backend->instrument_forces();
+        held.push_back(backend->contact_particles(1));
+    }
+    ASSERT_EQ(held.size(), 2u);
+    EXPECT_EQ(held[0], held[1]);
+    const auto& rest = scenario.lattice.particles.rest_position;
+    for (std::int32_t i : held[0]) EXPECT_GT(rest[std::size_t(i)][0], plan.centre.x()) << "particle " << i << " across the cut";
+    std::printf("  %zu particles held on both backends, all on the grabber's side\n", held[0].size());
 }

@@ -11,6 +11,7 @@
 #include "runtime/gl/shaders/solver_shaders.h"
 
 #include "libmodel/cutting.h"
+#include "libmodel/cutting_force.h"
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
 #include "libmodel/stability.h"
@@ -61,7 +62,10 @@ struct ForceSlot {
     double force[2][4];
     std::uint32_t status;
     std::uint32_t sequence;
+    std::uint32_t cuts[2];  ///< springs each hand's blade cut in the step the forces are from
+    double blade[2][6];     ///< each hand's BladeState: energy, travel, velocity x, y, z, speed
 };
+static_assert(sizeof(ForceSlot) == 176 && sizeof(ForceSlot) <= std::size_t(ring_stride));  // std430 ForceBuffer
 
 class GlBackend final : public Backend {
 public:
@@ -76,6 +80,7 @@ public:
             dt_ms_ = reference.time_step_ms();
             h_ = reference.substep_ms();
             substeps_ = reference.substeps_per_step();
+            lattice_frame_ = reference.lattice_frame();  // the scalpel's area per spring, as the cpu solver's
         }
         build_buffers(scenario);
         surface_ = scenario.simulation_surface;  // for the picking / search contact passes, built on demand
@@ -87,6 +92,7 @@ public:
         build(force_program_, "force", {sh::springs, sh::force_pass});
         build(strain_program_, "strain", {sh::springs, sh::strain_pass});
         build(cut_program_, "cut", {sh::cut_pass});
+        build(blade_program_, "blade", {sh::blade_pass});
         for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_,
                                  &cut_program_}) {
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
@@ -149,6 +155,12 @@ public:
         check_hand(hand);
         HandState& state = hand_[hand];
         if (state.instrument.kind == InstrumentKind::scalpel) {  // lowers the blade (Solver::begin_grab)
+            if (!state.cutting) {
+                const BladeState lowered = lowered_blade(options_.cutting_resistance, lattice_frame_);
+                clear_blade(hand);
+                glNamedBufferSubData(counters_.id(), GLintptr((sh::blade0 + sh::blade_words * unsigned(hand) + 2) * 4), 8, &lowered.travel);
+                glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+            }
             state.cutting = true;
             return 0;
         }
@@ -192,7 +204,23 @@ public:
             sorted_local[q] = Eigen::Vector3d(local[3 * from], local[3 * from + 1], local[3 * from + 2]);
             for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_position_[3 * i + std::size_t(c)]);
         }
-        const std::vector<std::uint8_t> keep = grab_piece(sorted_local, rest, hand_[hand].instrument.semi_axes, options_.grab_reach);
+        // Where a cut runs among them, the side of the grabber's centre (the current table: one
+        // readback, at the grab only).
+        std::vector<std::int32_t> sorted_index(count);
+        for (std::size_t q = 0; q < count; ++q) sorted_index[q] = index[order[q]];
+        std::vector<std::int32_t> table;
+        auto current = [&](std::size_t i, int s) {
+            if (table.empty()) {
+                table.resize(uncut_neighbour_.size());
+                glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+                glGetNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(table.size() * 4), table.data());
+            }
+            return table[table_entry(i, s)];
+        };
+        const std::vector<std::array<std::int32_t, 2>> joined = blade_swept_ ? joined_captured(
+            sorted_index, slot_count, current, [&](std::size_t i, int s) { return uncut_neighbour_[table_entry(i, s)]; }) :
+            std::vector<std::array<std::int32_t, 2>>{};
+        const std::vector<std::uint8_t> keep = grab_piece(sorted_local, rest, hand_[hand].instrument.semi_axes, options_.grab_reach, joined);
         std::vector<std::int32_t> kept, dropped;
         std::vector<double> kept_local;
         for (std::size_t q = 0; q < count; ++q) {
@@ -229,6 +257,7 @@ public:
         HandState& state = hand_[hand];
         if (state.cutting) strokes_.lift(hand);
         state.cutting = false;
+        clear_blade(hand);  // a lifted blade exerts nothing (Solver::release)
         if (!state.grabbing) return;
         bind_common();
         glProgramUniform1i(release_program_.id, release_program_.at("hand"), hand);
@@ -301,6 +330,7 @@ public:
     void reset_tissue() override {
         glNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(uncut_neighbour_.size() * 4), uncut_neighbour_.data());  // heals cuts
         strokes_.clear();
+        blade_swept_ = false;
         place_tissue(rest_current_, &rest_motion_);
         glCopyNamedBufferSubData(rest_current_.id(), good_position_.id(), 0, 0, GLsizeiptr(n_pad_ * 16));
         good_time_ms_ = time_ms_;
@@ -351,9 +381,14 @@ public:
         for (int hand = 0; hand < hands; ++hand) {
             const HandState& state = hand_[hand];
             if (!state.cutting || !state.placed) continue;
-            const BladeSweep sweep = blade_sweep(state.pose, state.target, 2.0 * state.instrument.semi_axes.z(), cut_search_margin(max_rest_length_));
-            if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, 2.0 * state.instrument.semi_axes.z());
-            cut(sweep);
+            const double length = 2.0 * state.instrument.semi_axes.z();
+            const BladeSweep sweep = blade_sweep(state.pose, state.target, length, cut_search_margin(max_rest_length_));
+            if (sweep.cuts_anything) strokes_.sweep(hand, state.pose, state.target, length);
+            const GLuint zero = 0;
+            glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr((sh::cut0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+            cut(sweep, hand);
+            blade(hand, blade_step(options_.cutting_resistance, lattice_frame_, state.pose, state.target, length, double(steps) * dt_ms_));
         }
         const GLuint zero = 0;
         for (long long q = 1; q <= total; ++q) {
@@ -470,10 +505,13 @@ public:
         return *latest_;
     }
 
-    /// Solver::cut on the gpu: the cut pass over the current positions, queued.
-    void cut(const BladeSweep& sweep) {
+    /// Solver::cut on the gpu: the cut pass over the current positions, queued; the springs cut
+    /// are counted into the hand's counter word (cleared by the caller).
+    void cut(const BladeSweep& sweep, int hand) {
         if (!sweep.cuts_anything) return;
+        blade_swept_ = true;
         const GLuint p = cut_program_.id;
+        glProgramUniform1i(p, cut_program_.at("hand"), hand);
         glProgramUniform3fv(p, cut_program_.at("corner"), 4, sweep.corner[0].data());
         glProgramUniform3fv(p, cut_program_.at("low"), 1, sweep.low.data());
         glProgramUniform3fv(p, cut_program_.at("high"), 1, sweep.high.data());
@@ -482,6 +520,32 @@ public:
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
         glUseProgram(p);
         glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    }
+
+    /// The scalpel's state after its cut (Solver::step: next_blade_state with `r`), queued: one
+    /// invocation reads the hand's cut counter and updates its state in the counter words.
+    void blade(int hand, const BladeStep& r) {
+        const GLuint p = blade_program_.id;
+        glProgramUniform1i(p, blade_program_.at("hand"), hand);
+        glProgramUniform1d(p, blade_program_.at("energy_per_spring"), r.energy_per_spring);
+        glProgramUniform1d(p, blade_program_.at("travel"), r.travel);
+        glProgramUniform1d(p, blade_program_.at("distance_keep"), r.distance_keep);
+        glProgramUniform3dv(p, blade_program_.at("motion_rate"), 1, r.motion_rate.data());
+        glProgramUniform1d(p, blade_program_.at("travel_rate"), r.travel_rate);
+        glProgramUniform1d(p, blade_program_.at("keep"), r.keep);
+        glProgramUniform1d(p, blade_program_.at("alpha"), r.alpha);
+        glUseProgram(p);
+        glDispatchCompute(1, 1, 1);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    }
+
+    /// The hand's cut counter and blade state to zero (a lifted blade, a new instrument, a reset).
+    void clear_blade(int hand) {
+        const GLuint zero = 0;
+        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr((sh::cut0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
+        glClearNamedBufferSubData(counters_.id(), GL_R32UI, GLintptr((sh::blade0 + sh::blade_words * unsigned(hand)) * 4),
+                                  GLsizeiptr(sh::blade_words * 4), GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
     }
 
@@ -619,6 +683,13 @@ private:
         for (int hand = 0; hand < hands; ++hand) {
             forces.hand[hand].force_n = Eigen::Vector3d(s->force[hand][0], s->force[hand][1], s->force[hand][2]);
             forces.hand[hand].particles = std::size_t(s->force[hand][3]);
+            forces.hand[hand].springs_cut = s->cuts[hand];
+            // A blade's state is zero but while its hand is a lowered scalpel, which touches and holds
+            // nothing: its force is the blade's (Solver::instrument_forces), from the state the step had.
+            const BladeState blade{s->blade[hand][0], s->blade[hand][1], Eigen::Vector3d(s->blade[hand][2], s->blade[hand][3], s->blade[hand][4]),
+                                   s->blade[hand][5]};
+            if (blade.energy != 0 || blade.travel != 0 || blade.travel_rate != 0 || blade.motion_rate != Eigen::Vector3d::Zero())
+                forces.hand[hand].force_n = blade_force(blade, options_.cutting_resistance, 2.0 * hand_[hand].instrument.semi_axes.z());
             if (!forces.hand[hand].force_n.allFinite()) forces.hand[hand].force_n.setZero();  // never leak a non-finite force
         }
         return forces;
@@ -869,8 +940,11 @@ private:
     std::vector<double> support_damping_host_;  ///< c_s per particle, N·ms/mm (0 where unsupported)
     std::vector<std::int32_t> uncut_neighbour_;  ///< the neighbour table as loaded (reset_tissue heals cuts)
     StrokeLog strokes_;  ///< what the scalpels swept (Backend::strokes)
+    bool blade_swept_ = false;  ///< a cut pass ran since the tissue was last whole (a grab then reads the table)
     std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
-    Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_;
+    Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_,
+        blade_program_;
+    LatticeFrame lattice_frame_;  ///< the reference solver's (Solver::lattice_frame)
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;
     std::array<std::uint64_t, ring_slots> sequence_of_{};
@@ -901,7 +975,7 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
-           + ring_slots * ring_stride + status_slots * 8 + 32;
+           + ring_slots * ring_stride + status_slots * 8 + sh::counter_words * 4;
 }
 
 std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& scenario, const SolverOptions& options) {

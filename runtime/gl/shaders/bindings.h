@@ -28,7 +28,13 @@ enum Binding : unsigned {
 
 /// Counter words in the `counters` buffer.
 /// `strain`: the restore-point candidate's largest spring stretch (float bits; strain_pass).
-enum Counter : unsigned { touched0 = 0, touched1 = 1, strain = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7, counter_words = 8 };
+/// `cut0`, `cut1`: the springs each hand's blade cut in the step (cut_pass). From `blade0`, 12 words
+/// per hand: the scalpel's state (libmodel/cutting_force.h BladeState: energy, travel, the three
+/// components of the velocity, speed), six doubles as pairs of words (low, high; blade_pass).
+enum Counter : unsigned {
+    touched0 = 0, touched1 = 1, strain = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7,
+    cut0 = 8, cut1 = 9, blade0 = 10, blade_words = 12, counter_words = blade0 + 2 * blade_words
+};
 
 /// The names the shaders see (BINDING_CURRENT, ...): every Binding and Counter word the GLSL
 /// uses. A name missing here makes the shaders that use it fail to compile, which every GL test
@@ -69,6 +75,8 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"COUNTER_STATUS", status},
     {"COUNTER_STRAIN", strain},
     {"COUNTER_PICKED0", picked0},
+    {"COUNTER_CUT0", cut0},
+    {"COUNTER_BLADE0", blade0},
 };
 
 }  // namespace heartsim::gl_shaders

@@ -406,7 +406,8 @@ void main() {
 /// entry whose spring crosses the blade's swept quad (two triangles, `corner`) at the current
 /// positions points at its own particle from now on, an empty slot. One invocation per particle
 /// writes only its own entries; both ends of a spring test it with the end of lower index first,
-/// so they decide alike.
+/// so they decide alike. The end of lower index counts the spring into the hand's cut counter
+/// (the blade pass's count, read back with the forces).
 inline constexpr const char* cut_pass = R"(
 layout(local_size_x = 64) in;
 layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
@@ -416,6 +417,7 @@ uniform vec3 low;               // the corners' bounding box
 uniform vec3 high;
 uniform vec3 near_low;          // the box grown by the search margin (BladeSweep, cutting.h)
 uniform vec3 near_high;
+uniform int hand;               // whose counter counts the springs cut
 
 float orient(vec3 a, vec3 b, vec3 c, vec3 d) {   // (b − a) · ((c − a) × (d − a))
     precise float bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
@@ -447,19 +449,61 @@ void main() {
         vec3 p = x[min(i, j)].xyz, q = x[max(i, j)].xyz;
         if (any(lessThan(p, near_low)) || any(greaterThan(p, near_high))) continue;
         if (any(lessThan(max(p, q), low)) || any(greaterThan(min(p, q), high))) continue;
-        if (crosses_triangle(corner[0], corner[1], corner[2], p, q) || crosses_triangle(corner[0], corner[2], corner[3], p, q))
+        if (crosses_triangle(corner[0], corner[1], corner[2], p, q) || crosses_triangle(corner[0], corner[2], corner[3], p, q)) {
             neighbour[t] = int(i);
+            if (i < j) atomicAdd(counter[COUNTER_CUT0 + hand], 1u);
+        }
+    }
+}
+)";
+
+/// A cutting scalpel's state after its cut pass (one invocation): libmodel/cutting_force.cpp
+/// next_blade_state on the hand's count, with the step's constants from blade_step as uniforms, the
+/// same double operations in the same order. The state lives in the counter words from
+/// COUNTER_BLADE0 (six doubles per hand as pairs of words), where the force pass copies it into
+/// the force ring; the host turns it into the force (blade_force); release clears it.
+inline constexpr const char* blade_pass = R"(
+layout(local_size_x = 1) in;
+uniform int hand;
+uniform double energy_per_spring;  // G_c · area per spring, mJ (BladeStep)
+uniform double travel;             // the mean travel of the blade's tip and end over the step, mm
+uniform double distance_keep;      // exp(−travel/λ)
+uniform dvec3 motion_rate;         // the midpoint's velocity over the step, mm/ms
+uniform double travel_rate;        // the blade's speed, mm/ms
+uniform double keep;               // exp(−Δt/τ)
+uniform double alpha;              // 1 − keep
+
+double load(uint word) { return packDouble2x32(uvec2(counter[word], counter[word + 1u])); }
+void store(uint word, double value) {
+    uvec2 bits = unpackDouble2x32(value);
+    counter[word] = bits.x;
+    counter[word + 1u] = bits.y;
+}
+
+void main() {
+    uint base = uint(COUNTER_BLADE0) + 12u * uint(hand);
+    precise double energy = double(counter[COUNTER_CUT0 + hand]) * energy_per_spring;
+    precise double summed = distance_keep * load(base) + energy;
+    precise double travelled = distance_keep * load(base + 2u) + travel;
+    store(base, summed);
+    store(base + 2u, travelled);
+    double step[4] = double[4](motion_rate.x, motion_rate.y, motion_rate.z, travel_rate);
+    for (uint v = 0u; v < 4u; ++v) {
+        precise double next = keep * load(base + 4u + 2u * v) + alpha * step[v];
+        store(base + 4u + 2u * v, next);
     }
 }
 )";
 
 /// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
-/// held or touched in the last substep, in double as Solver::force_on; into one ring slot.
+/// held or touched in the last substep, in double as Solver::force_on; into one ring slot, with each
+/// hand's springs cut in the step and its blade's state (the host computes a scalpel's
+/// force from them: libmodel/cutting_force.h blade_force).
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
 layout(std430, binding = BINDING_TOUCHED) readonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; };
+layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; uint cuts[2]; double blade[12]; };
 layout(std430, binding = BINDING_PICKED) readonly buffer PickedBuffer { int picked[]; };
 uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding, 3 probe with the picking/search list
 uniform bool damped;
@@ -506,7 +550,10 @@ void main() {
         barrier();
     }
     if (lid == 0u) {
-        force[hand] = dvec4(partial[0], double(count));
+        force[hand] = dvec4(partial[0], double(count));  // a scalpel's: 0 here, from `blade` on the host
+        cuts[hand] = counter[COUNTER_CUT0 + hand];
+        uint base = uint(COUNTER_BLADE0) + 12u * hand;  // the blade pass's state
+        for (uint v = 0u; v < 6u; ++v) blade[6u * hand + v] = packDouble2x32(uvec2(counter[base + 2u * v], counter[base + 2u * v + 1u]));
         if (hand == 0u) { status = counter[COUNTER_STATUS]; sequence = sequence_number; }
     }
 }
