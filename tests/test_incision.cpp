@@ -14,6 +14,7 @@
 
 #include <gtest/gtest.h>
 
+#include <functional>
 #include <map>
 #include <numeric>
 
@@ -273,6 +274,26 @@ std::vector<std::array<float, 3>> positions_of(const Solver& solver, std::size_t
     return out;
 }
 
+/// The blade's plane x = const, a hundredth of a millimetre beside a particle column four and a
+/// half spacings into the block (no particle lies on it).
+double blade_plane(const CutModel& m) { return m.low.x() + 4.5 * 1.5 + 0.011; }
+
+/// A scalpel lowered below the block's front on the plane x = blade_plane(m), its blade up through
+/// the whole block, drawn across it in ten steps (after each, `after(k)`); lifted unless `lift`
+/// is false.
+void draw_blade_across(Solver& solver, const CutModel& m, const std::function<void(int)>& after = {}, bool lift = true) {
+    const double x = blade_plane(m), below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
+    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
+    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
+    solver.begin_grab(0);
+    for (int k = 1; k <= 10; ++k) {
+        solver.set_pose(0, {.position = {x, m.low.y() - 2.0 + k * (m.high.y() - m.low.y() + 4.0) / 10, below}});
+        solver.step(1);
+        if (after) after(k);
+    }
+    solver.release(0);
+}
+
 }  // namespace
 
 // The scalpel swept through a block in the solver, then the mesh opened from the solver's own
@@ -283,16 +304,8 @@ std::vector<std::array<float, 3>> positions_of(const Solver& solver, std::size_t
 TEST(Incision, AStrokeThroughABlockOpensTheMeshAlongTheSolversCut) {
     CutModel m = cut_model(10, 5, 4);
     Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
-    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
-    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
-    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
-    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
-    solver.begin_grab(0);
-    for (int k = 1; k <= 10; ++k) {  // ten steps across
-        solver.set_pose(0, {.position = {x, m.low.y() - 2.0 + k * (m.high.y() - m.low.y() + 4.0) / 10, below}});
-        solver.step(1);
-    }
-    solver.release(0);
+    const double x = blade_plane(m);
+    draw_blade_across(solver, m);
     ASSERT_EQ(solver.strokes().strokes().size(), 1u);
     EXPECT_TRUE(solver.strokes().strokes()[0].lifted);
 
@@ -347,7 +360,7 @@ TEST(Incision, AStrokeThroughABlockOpensTheMeshAlongTheSolversCut) {
 // without the cut the same grabber takes both sides.
 TEST(Incision, AGrabberOverTheCutTakesTheSideNearestItsCentre) {
     CutModel m = cut_model(10, 5, 4);
-    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
+    const double x = blade_plane(m);
     const Eigen::Vector3d centre(x + 1.0, 0.5 * (m.low.y() + m.high.y()), m.high.z() - 0.75);  // nearest a particle of the + side
     auto grab = [&](Solver& solver) {
         solver.set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(2.0)});
@@ -361,13 +374,7 @@ TEST(Incision, AGrabberOverTheCutTakesTheSideNearestItsCentre) {
     EXPECT_GT(left_whole, 0u) << "the grabber reaches across the plane";
 
     Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
-    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
-    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
-    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
-    solver.begin_grab(0);
-    solver.set_pose(0, {.position = {x, m.high.y() + 2.0, below}});
-    solver.step(1);
-    solver.release(0);
+    draw_blade_across(solver, m);
     ASSERT_GT(solver.cut_springs().size(), 0u);
     const std::size_t one = grab(solver);
     std::printf("  the grabber holds %zu particles over the whole block, %zu over the cut one\n", both, one);
@@ -382,26 +389,17 @@ TEST(Incision, AGrabberOverTheCutTakesTheSideNearestItsCentre) {
 TEST(Incision, APreviewWhileTheBladeIsDownLeavesNoTraceOnceItLifts) {
     CutModel m = cut_model(10, 5, 4);
     Solver solver(m.lattice, m.packing.neighbours, no_gravity(m.lattice));
-    const double x = m.low.x() + 4.5 * 1.5 + 0.011;
-    const double below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
-    solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
-    solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});
-    solver.begin_grab(0);
     const std::size_t n = m.lattice.particles.size();
     IncisionState previewed(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
     std::string why;
-    for (int k = 1; k <= 10; ++k) {
-        solver.set_pose(0, {.position = {x, m.low.y() - 2.0 + k * (m.high.y() - m.low.y() + 4.0) / 10, below}});
-        solver.step(1);
-        if (k == 5) {  // halfway across: a slit from the front face
-            const IncisionUpdate u = previewed.preview(solver.strokes(), positions_of(solver, n));
-            EXPECT_TRUE(u.opened);
-            EXPECT_TRUE(previewed.previewing());
-            EXPECT_TRUE(closed_manifold(previewed.drawn_triangles(), &why)) << why;
-            EXPECT_EQ(count_components(previewed.mesh().triangles, previewed.mesh().rest.size()), 1u);
-        }
-    }
-    solver.release(0);
+    draw_blade_across(solver, m, [&](int k) {
+        if (k != 5) return;  // halfway across: a slit from the front face
+        const IncisionUpdate u = previewed.preview(solver.strokes(), positions_of(solver, n));
+        EXPECT_TRUE(u.opened);
+        EXPECT_TRUE(previewed.previewing());
+        EXPECT_TRUE(closed_manifold(previewed.drawn_triangles(), &why)) << why;
+        EXPECT_EQ(count_components(previewed.mesh().triangles, previewed.mesh().rest.size()), 1u);
+    });
     ASSERT_TRUE(previewed.pending(solver.strokes(), false));
     previewed.update(solver.strokes(), positions_of(solver, n), false);
     EXPECT_FALSE(previewed.previewing());

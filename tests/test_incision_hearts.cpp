@@ -74,20 +74,13 @@ double first_hit(const Eigen::Vector3d& from, const Eigen::Vector3d& d, const st
 // particles on either side do; every drawn position is finite; and one sees through the opened
 // incision into the heart.
 TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
-    namespace fs = std::filesystem;
-    const fs::path data = test::real_data_dir();
-    if (data.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
+    const std::vector<test::RealCase> real = test::real_cases();
+    if (real.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
     int cases = 0;
-    for (const auto& folder : fs::directory_iterator(data)) {
-        fs::path label;
-        if (folder.is_directory())
-            for (const auto& file : fs::directory_iterator(folder.path()))
-                if (file.path().filename().string().find("label.nii.gz") != std::string::npos) label = file.path();
-        if (label.empty()) continue;
-        const std::string name = folder.path().filename().string();
+    for (const test::RealCase& c : real) {
+        const std::string& name = c.name;
         SCOPED_TRACE(name);
-        const std::string labels = name == "mmwhs_ct1002" ? " --labels mmwhs" : name == "mmwhs_wh" ? " --labels mmwhs-ordinal" : "";
-        const Scenario scenario = read_scenario(built_scenario(name + "-8k", label, "--particles 8000 -q" + labels));
+        const Scenario scenario = read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 -q" + c.label_options));
         ASSERT_TRUE(scenario.visual && scenario.mapping && scenario.simulation_surface);
         // Through the wall (depth 0: heartsim plan-incision's default, the wall's thickness there
         // and 2 mm on).

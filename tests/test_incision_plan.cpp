@@ -129,27 +129,21 @@ TEST(IncisionPlan, ThePhantomPlaysBothApproachesAndOpens) {
 // Every real heart present (8,000 particles), both approaches: planned, played headless on the
 // cpu backend with no watchdog event, the detailed mesh opened, closed and finite.
 TEST(IncisionPlan, EveryRealHeartPlaysBothApproachesAndOpens) {
-    const fs::path data = test::real_data_dir();
-    if (data.empty() || !fs::is_directory(data)) GTEST_SKIP() << "real data absent (../shared/data/real): nothing to plan on";
+    const std::vector<test::RealCase> real = test::real_cases();
+    if (real.empty()) GTEST_SKIP() << "real data absent (../shared/data/real): nothing to plan on";
     test::TempDir dir;
     int cases = 0;
-    for (const auto& folder : fs::directory_iterator(data)) {
-        fs::path label;
-        if (folder.is_directory())
-            for (const auto& file : fs::directory_iterator(folder.path()))
-                if (file.path().filename().string().find("label.nii.gz") != std::string::npos) label = file.path();
-        if (label.empty()) continue;
-        const std::string name = folder.path().filename().string();
+    for (const test::RealCase& c : real) {
+        const std::string& name = c.name;
         SCOPED_TRACE(name);
-        const std::string labels = name == "mmwhs_ct1002" ? " --labels mmwhs" : name == "mmwhs_wh" ? " --labels mmwhs-ordinal" : "";
         const fs::path scenario = dir / (name + ".h5");
-        const auto build = test::heartprep("build " + quoted(label) + " -o " + quoted(scenario) + " --particles 8000 -q" + labels);
+        const auto build = test::heartprep("build " + quoted(c.label_map) + " -o " + quoted(scenario) + " --particles 8000 -q" + c.label_options);
         ASSERT_EQ(build.exit_code, 0) << build.output;
         fs::create_directories(dir / name);
         for (const char* approach : approaches) plan_and_run(scenario, approach, dir / name);
         ++cases;
     }
-    if (cases == 0) GTEST_SKIP() << "no real label map under " << data;
+    if (cases == 0) GTEST_SKIP() << "no real label map under " << test::real_data_dir();
 }
 
 TEST(IncisionPlan, ItsErrorsSayWhatIsWrong) {

@@ -319,18 +319,12 @@ TEST(RuntimeBackend, GlFeelsTheSameBladeForceAsTheCpu) {
 // no watchdog event, every position finite, and the springs cut near the incision's centre stand
 // open (their ends farther apart than at rest by a millimetre or more somewhere).
 TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
-    const fs::path data = test::real_data_dir();
-    if (data.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
+    const std::vector<test::RealCase> real = test::real_cases();
+    if (real.empty()) GTEST_SKIP() << "real data absent (../shared/data/real)";
     int cases = 0;
-    for (const auto& folder : fs::directory_iterator(data)) {
-        fs::path label;
-        if (folder.is_directory())
-            for (const auto& file : fs::directory_iterator(folder.path()))
-                if (file.path().filename().string().find("label.nii.gz") != std::string::npos) label = file.path();
-        if (label.empty()) continue;
-        const std::string name = folder.path().filename().string();
-        const std::string tissue = name == "mmwhs_ct1002" ? " --tissue=205" : "";
-        const Scenario scenario = read_scenario(built_scenario(name + "-8k", label, "--particles 8000 --no-visual -q" + tissue));
+    for (const test::RealCase& c : real) {
+        const std::string& name = c.name;
+        const Scenario scenario = read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 --no-visual -q" + c.label_options));
         const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
         auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
         const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))});

@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cstdio>
 #include <fstream>
@@ -31,6 +32,25 @@ TempDir::~TempDir() {
 std::filesystem::path real_data_dir() {
     std::filesystem::path dir = HEARTSIM_REAL_DATA;
     return std::filesystem::is_directory(dir) ? dir : std::filesystem::path();
+}
+
+std::vector<RealCase> real_cases() {
+    namespace fs = std::filesystem;
+    std::vector<RealCase> cases;
+    const fs::path data = real_data_dir();
+    if (data.empty() || !fs::is_directory(data)) return cases;
+    for (const auto& folder : fs::directory_iterator(data)) {
+        if (!folder.is_directory()) continue;
+        for (const auto& file : fs::directory_iterator(folder.path()))
+            if (file.path().filename().string().find("label.nii.gz") != std::string::npos) {
+                const std::string name = folder.path().filename().string();
+                cases.push_back({name, file.path(),
+                                 name == "mmwhs_ct1002" ? " --labels mmwhs" : name == "mmwhs_wh" ? " --labels mmwhs-ordinal" : ""});
+                break;
+            }
+    }
+    std::sort(cases.begin(), cases.end(), [](const RealCase& a, const RealCase& b) { return a.name < b.name; });
+    return cases;
 }
 
 std::filesystem::path real_case(const std::string& name) {

@@ -31,6 +31,17 @@ std::filesystem::path real_data_dir();
 /// The label-map file of real case `name` (e.g. "hvsmr16_pat1"), or empty when absent.
 std::filesystem::path real_case(const std::string& name);
 
+/// A real case: its folder's name, its label map, and the heartprep options its labels need
+/// (" --labels mmwhs" for MM-WHS CT 1002, " --labels mmwhs-ordinal" for the MM-WHS whole-heart
+/// MR; empty for the HVSMR cases, whose myocardium is label 1).
+struct RealCase {
+    std::string name;
+    std::filesystem::path label_map;
+    std::string label_options;
+};
+/// Every real case in real_data_dir() with a *label.nii.gz, by name; none when the data are absent.
+std::vector<RealCase> real_cases();
+
 /// A mask on an isotropic grid of `n` voxels per side with `spacing` mm, centred on the world
 /// origin (identity direction), selected where inside(x) is true at the voxel centre (world mm).
 Mask make_mask(int n, double spacing, const std::function<bool(const Eigen::Vector3d&)>& inside);
