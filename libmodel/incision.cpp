@@ -6,6 +6,7 @@
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Polygon_mesh_processing/corefinement.h>
+#include <CGAL/Polygon_mesh_processing/self_intersections.h>
 #include <CGAL/Surface_mesh.h>
 
 #include <algorithm>
@@ -115,6 +116,12 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         }
     }
     if (swept.number_of_faces() == 0) return result;
+    // A blade whose path crosses its own swept surface (a loop, a sawing stroke the thinning did
+    // not split): corefinement needs surfaces that do not cross themselves.
+    if (pmp::does_self_intersect(swept)) {
+        result.failure = "the swept surface crosses itself (a looping or sawing stroke)";
+        return result;
+    }
     for (VertexIndex v : swept.vertices())
         if (swept.is_isolated(v)) swept.remove_vertex(v);
     swept.collect_garbage();

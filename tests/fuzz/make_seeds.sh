@@ -121,6 +121,25 @@ printf '# ITK-SNAP Label Description File\n    0     0    0    0        0  0  0 
   > "$corpus/fuzz_label_table/itksnap.txt"
 printf 'LabelValue,Name,Color_R,Color_G,Color_B,Color_A\n0,Background,0,0,0,0\n1,blood pool,255,0,0,255\n2,"Myocardium",0,255,0,255\n' \
   > "$corpus/fuzz_label_table/slicer.csv"
+# Strokes for fuzz_incision's box (12 × 12 × 8 mm): per stroke a byte (poses − 2), then per pose the
+# blade's tip and end, each coordinate a little-endian uint16 over −4 to 16 mm.
+mkdir -p "$corpus/fuzz_incision"
+python3 - "$corpus/fuzz_incision" <<'PY'
+import struct, sys
+def coordinate(v): return struct.pack('<H', max(0, min(65535, round((v + 4) / 20 * 65535))))
+def stroke(poses):
+    out = bytes([len(poses) - 2])
+    for tip, end in poses:
+        for c in tip + end: out += coordinate(c)
+    return out
+folder = sys.argv[1]
+open(folder + '/through.bin', 'wb').write(stroke([((5.9, -2, -2), (5.9, -2, 10)), ((5.9, 14, -2), (5.9, 14, 10))]))
+open(folder + '/slit.bin', 'wb').write(stroke([((5.9, -2, 4), (5.9, -2, 10)), ((5.9, 14, 4), (5.9, 14, 10))]))
+open(folder + '/bent_then_cross.bin', 'wb').write(
+    stroke([((5.9, -2, 2), (5.9, -2, 6)), ((6.4, 6, 2), (6.4, 6, 6)), ((5.9, 14, 2), (5.9, 14, 6))]) +
+    stroke([((-2, 6.1, 5), (-2, 6.1, 10)), ((14, 6.1, 5), (14, 6.1, 10))]))
+open(folder + '/saw.bin', 'wb').write(stroke([((3, -2, 4), (3, -2, 10)), ((3, 8, 4), (3, 8, 10)), ((3, 2, 4), (3, 2, 10)), ((3, 10, 4), (3, 10, 10))]))
+PY
 # ParaView's descriptions written beside the HDF5 seeds are not inputs of any reader.
 rm -f "$corpus"/*/*.xmf2
 du -ab "$corpus" | sort -k2

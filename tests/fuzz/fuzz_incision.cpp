@@ -1,0 +1,111 @@
+// libFuzzer target: the detailed mesh opened along swept surfaces (libmodel/incision.h
+// open_along), as heartsim opens it along a scalpel's strokes, on a closed box 12 × 12 × 8 mm
+// meshed in 0.7 mm squares. The input is one or two strokes: a byte for the poses (2 to 6), then
+// per pose the blade's tip and end, six coordinates of two bytes each over −4 to 16 mm (a blade
+// in the air, through a face, inside the box, along a face, folded back on itself). After each
+// stroke the mesh must be a closed, consistently oriented 2-manifold with finite positions, or,
+// where open_along refused, exactly as it was; open_along must never throw.
+#include "fuzz_support.h"
+
+#include "libmodel/incision.h"
+
+#include <cmath>
+#include <map>
+
+namespace {
+
+using namespace heartsim;
+
+const IncisionMesh& box() {
+    static const IncisionMesh made = [] {
+        const Eigen::Vector3d low(0, 0, 0), high(12, 12, 8);
+        std::array<int, 3> n{};
+        for (int a = 0; a < 3; ++a) n[std::size_t(a)] = int(std::lround((high[a] - low[a]) / 0.7));
+        std::vector<std::array<float, 3>> positions;
+        std::vector<std::array<std::int32_t, 3>> triangles;
+        std::map<std::array<int, 3>, std::int32_t> index;
+        auto vertex = [&](std::array<int, 3> g) {
+            auto [it, added] = index.try_emplace(g, std::int32_t(positions.size()));
+            if (added) {
+                std::array<float, 3> p{};
+                for (int a = 0; a < 3; ++a) p[std::size_t(a)] = float(low[a] + (high[a] - low[a]) * g[std::size_t(a)] / n[std::size_t(a)]);
+                positions.push_back(p);
+            }
+            return it->second;
+        };
+        for (int axis = 0; axis < 3; ++axis)
+            for (int side = 0; side < 2; ++side) {
+                const int u = (axis + 1) % 3, v = (axis + 2) % 3;
+                for (int i = 0; i < n[std::size_t(u)]; ++i)
+                    for (int j = 0; j < n[std::size_t(v)]; ++j) {
+                        std::array<std::array<int, 3>, 4> c{};
+                        for (int k = 0; k < 4; ++k) {
+                            c[std::size_t(k)][std::size_t(axis)] = side ? n[std::size_t(axis)] : 0;
+                            c[std::size_t(k)][std::size_t(u)] = i + (k == 1 || k == 2);
+                            c[std::size_t(k)][std::size_t(v)] = j + (k >= 2);
+                        }
+                        const std::int32_t a = vertex(c[0]), b = vertex(c[1]), d = vertex(c[2]), e = vertex(c[3]);
+                        if (side) {
+                            triangles.push_back({a, b, d});
+                            triangles.push_back({a, d, e});
+                        } else {
+                            triangles.push_back({a, d, b});
+                            triangles.push_back({a, e, d});
+                        }
+                    }
+            }
+        return incision_mesh(positions, {}, triangles);
+    }();
+    return made;
+}
+
+/// The next stroke's strip from the input, or none when the input has run out.
+bool next_strip(const std::uint8_t*& data, std::size_t& size, CutSurface& strip) {
+    if (size < 1) return false;
+    const int poses = 2 + data[0] % 5;
+    ++data, --size;
+    if (size < std::size_t(poses) * 12) return false;
+    auto coordinate = [&] {
+        const double value = -4.0 + 20.0 * double(data[0] | (data[1] << 8)) / 65535.0;
+        data += 2, size -= 2;
+        return value;
+    };
+    strip = {};
+    for (int k = 0; k < poses; ++k)
+        for (int end = 0; end < 2; ++end) {
+            const double x = coordinate(), y = coordinate(), z = coordinate();
+            strip.points.emplace_back(x, y, z);
+        }
+    for (std::int32_t a = 0; a + 1 < poses; ++a) {
+        const std::int32_t b = a + 1;
+        strip.triangles.push_back({2 * a, 2 * a + 1, 2 * b + 1});
+        strip.triangles.push_back({2 * a, 2 * b + 1, 2 * b});
+    }
+    return true;
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+    IncisionMesh mesh = box();
+    CutSurface strip;
+    for (int stroke = 0; stroke < 2 && next_strip(data, size, strip); ++stroke) {
+        const IncisionMesh before = mesh;
+        IncisionResult result;
+        try {
+            result = open_along(mesh, strip, 0.02);
+        } catch (const std::exception& e) {
+            fuzz::broken(std::string("open_along threw: ") + e.what());
+        }
+        if (!result.opened) {
+            if (mesh.triangles != before.triangles || mesh.rest != before.rest) fuzz::broken("a refused stroke changed the mesh");
+            continue;
+        }
+        std::string why;
+        if (!closed_manifold(mesh.triangles, &why)) fuzz::broken("the opened mesh is not closed: " + why);
+        for (const auto& p : mesh.rest)
+            if (!p.allFinite()) fuzz::broken("a vertex of the opened mesh is not finite");
+        if (mesh.cap.size() != mesh.triangles.size() || mesh.normals.size() != mesh.rest.size()) fuzz::broken("the mesh's arrays disagree");
+    }
+    return 0;
+}
