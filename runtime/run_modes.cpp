@@ -478,61 +478,67 @@ std::int32_t state_kind(InstrumentKind kind) {
     return 0;
 }
 
+/// The run's incision state, made at the first stroke; null without a mapped visual mesh or
+/// before any stroke.
+IncisionState* incision_state(PreparedRun& p, const StrokeLog& log) {
+    const Scenario& scenario = p.scenario;
+    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface || scenario.visual->positions.empty()) return nullptr;
+    if (!p.incisions && !log.strokes().empty())
+        p.incisions = std::make_unique<IncisionState>(scenario.lattice, scenario.visual->positions, scenario.visual->normals,
+                                                      scenario.visual->triangles, *scenario.mapping, *scenario.simulation_surface);
+    return p.incisions.get();
+}
+
+/// `positions`, or the backend's read into `read`.
+const std::vector<std::array<float, 3>>& positions_or_read(PreparedRun& p, const std::vector<std::array<float, 3>>* positions,
+                                                            std::vector<std::array<float, 3>>& read) {
+    if (positions) return *positions;
+    read = p.backend->positions();
+    return read;
+}
+
+/// The renderer draws the incision state's mesh from the next frame on.
+void draw_incisions(PreparedRun& p) {
+    if (!p.renderer || !p.renderer->draws_visual_mesh()) return;
+    const IncisionState& cut = *p.incisions;
+    p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+}
+
 }  // namespace
 
 bool open_incisions(PreparedRun& p, bool finish, const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
-    const Scenario& scenario = p.scenario;
-    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface || scenario.visual->positions.empty()) return false;
     const StrokeLog& log = strokes ? *strokes : p.backend->strokes();
-    if (!p.incisions) {
-        if (log.strokes().empty()) return false;
-        p.incisions = std::make_unique<IncisionState>(scenario.lattice, scenario.visual->positions, scenario.visual->normals,
-                                                      scenario.visual->triangles, *scenario.mapping, *scenario.simulation_surface);
-    }
-    if (!p.incisions->pending(log, finish)) return false;
+    IncisionState* incisions = incision_state(p, log);
+    if (!incisions || !incisions->pending(log, finish)) return false;
     std::vector<std::array<float, 3>> read;
-    if (!positions) {
-        read = p.backend->positions();
-        positions = &read;
-    }
-    const IncisionUpdate update = p.incisions->update(log, *positions, finish);
+    const IncisionUpdate update = incisions->update(log, positions_or_read(p, positions, read), finish);
     for (const std::string& failure : update.failures)
         std::printf("incision: the detailed mesh does not open along one stroke: %s (the tissue is cut; the mesh stays closed)\n", failure.c_str());
     if (!update.opened) return false;
-    const IncisionState& cut = *p.incisions;
+    const IncisionState& cut = *incisions;
     if (cut.cut())
         std::printf("incision: the detailed mesh opened along %zu stroke(s): %zu vertices, %zu triangles of which %zu cut faces; %zu vertices "
                     "embedded on their own side (%.0f ms)\n",
                     update.strokes, cut.mesh().rest.size(), cut.drawn_triangles().size(), cut.drawn_triangles().size() - cut.cap_first(),
                     update.reembedded, 1e3 * update.seconds);
     std::fflush(stdout);  // a window's user (and its tests) read it as it happens
-    if (p.renderer && p.renderer->draws_visual_mesh())
-        p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+    draw_incisions(p);
     return true;
 }
 
 bool preview_incisions(PreparedRun& p, const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
-    const Scenario& scenario = p.scenario;
-    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface || scenario.visual->positions.empty()) return false;
     if (!p.renderer || !p.renderer->draws_visual_mesh()) return false;
     const StrokeLog& log = strokes ? *strokes : p.backend->strokes();
     if (log.strokes().empty() || log.version() == p.previewed_strokes) return false;
-    const auto now = std::chrono::steady_clock::now();
-    if (now - p.previewed < std::chrono::milliseconds(250)) return false;
-    if (!p.incisions)
-        p.incisions = std::make_unique<IncisionState>(scenario.lattice, scenario.visual->positions, scenario.visual->normals,
-                                                      scenario.visual->triangles, *scenario.mapping, *scenario.simulation_surface);
+    if (std::chrono::steady_clock::now() - p.previewed < std::chrono::milliseconds(250)) return false;
+    IncisionState* incisions = incision_state(p, log);
+    if (!incisions) return false;
     std::vector<std::array<float, 3>> read;
-    if (!positions) {
-        read = p.backend->positions();
-        positions = &read;
-    }
     p.previewed_strokes = log.version();
-    const IncisionUpdate update = p.incisions->preview(log, *positions);
+    const IncisionUpdate update = incisions->preview(log, positions_or_read(p, positions, read));
     p.previewed = std::chrono::steady_clock::now();  // the next one a quarter second after this one ends
     if (!update.opened) return false;
-    const IncisionState& cut = *p.incisions;
-    p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+    draw_incisions(p);
     return true;
 }
 
