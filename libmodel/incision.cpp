@@ -51,9 +51,9 @@ PointKey key(const Point& p) { return {p.x(), p.y(), p.z()}; }
 /// nearly along one axis (tilted by about a thousandth, so that a ray rarely meets an edge or a
 /// vertex of a mesh whose features follow the voxel axes), the majority. Each ray's exact test
 /// runs only on the triangles whose boxes its narrow column meets.
-bool inside(const Point& p, const std::vector<Eigen::Vector3d>& rest, const std::vector<std::array<std::int32_t, 3>>& triangles) {
-    Eigen::AlignedBox3d box;
-    for (const auto& x : rest) box.extend(x);
+/// `box` bounds `rest`.
+bool inside(const Point& p, const std::vector<Eigen::Vector3d>& rest, const std::vector<std::array<std::int32_t, 3>>& triangles,
+            const Eigen::AlignedBox3d& box) {
     const Eigen::Vector3d from(p.x(), p.y(), p.z());
     static const double tilt[3][2] = {{1.31e-3, 0.73e-3}, {0.89e-3, -1.17e-3}, {-0.61e-3, 1.07e-3}};
     int votes = 0;
@@ -292,6 +292,8 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     }
 
     // The strip's faces in regions between the cut curves; a region inside the tissue is a cap.
+    Eigen::AlignedBox3d mesh_box;
+    for (const auto& x : mesh.rest) mesh_box.extend(x);
     std::vector<int> region(swept.num_faces(), -1);
     int regions = 0;
     std::vector<std::uint8_t> region_inside;
@@ -312,7 +314,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         }
         const auto h = swept.halfedge(seed);
         const Point centre = CGAL::centroid(swept.point(swept.source(h)), swept.point(swept.target(h)), swept.point(swept.target(swept.next(h))));
-        region_inside.push_back(inside(centre, mesh.rest, mesh.triangles) ? 1 : 0);
+        region_inside.push_back(inside(centre, mesh.rest, mesh.triangles, mesh_box) ? 1 : 0);
         ++regions;
     }
 
