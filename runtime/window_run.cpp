@@ -576,18 +576,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         renderer.present(width, height);
         if (a.link && a.link->due()) {
             // --igtl: what this frame shows, to 3D Slicer (the sender thread does the rest).
-            SlicerLinkHands hands{};
+            // The forces of what the frame shows: the simulation thread's, the gl backend's last
+            // force pass (with the particles it summed), or the haptic session's published ones.
             const WindowSimulation::Status st = simulation ? simulation->status() : WindowSimulation::Status{};
-            for (const InstrumentShape& shape : shapes) {
-                if (shape.hand < 0 || shape.hand > 1) continue;
-                SlicerLinkHand& h = hands[std::size_t(shape.hand)];
-                h.used = true;
-                h.kind = shape.kind;
-                h.pose = shape.pose;
-                if (simulation && st.has_forces) h.force_n = st.forces[std::size_t(shape.hand)];
-                else if (gl_forces) h.force_n = gl_forces->hand[std::size_t(shape.hand)].force_n, h.particles = gl_forces->hand[std::size_t(shape.hand)].particles;
-                else if (haptic) h.force_n = haptic->latest_published_forces().hand[std::size_t(shape.hand)].force_n;
+            InstrumentForces forces{};
+            for (int hand = 0; hand < 2; ++hand) {
+                if (simulation && st.has_forces) forces.hand[std::size_t(hand)].force_n = st.forces[std::size_t(hand)];
+                else if (gl_forces) forces.hand[std::size_t(hand)] = gl_forces->hand[std::size_t(hand)];
+                else if (haptic) forces.hand[std::size_t(hand)].force_n = haptic->latest_published_forces().hand[std::size_t(hand)].force_n;
             }
+            const SlicerLinkHands hands = link_hands(shapes, forces);
             const SlicerLink::State state = input.estop ? SlicerLink::State::emergency_stop
                                             : input.paused ? SlicerLink::State::paused
                                                            : SlicerLink::State::running;
