@@ -10,6 +10,7 @@
 #include "libmodel/simulation_surface.h"
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
+#include "box_mesh.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -19,53 +20,10 @@
 #include <numeric>
 
 using namespace heartsim;
+using test::box_mesh;
+using test::BoxMesh;
 
 namespace {
-
-/// A closed box [low, high], each face a grid of squares about `step` mm split into two
-/// triangles, counter-clockwise seen from outside, its vertices shared along edges and corners.
-struct BoxMesh {
-    std::vector<std::array<float, 3>> positions;
-    std::vector<std::array<std::int32_t, 3>> triangles;
-};
-BoxMesh box_mesh(const Eigen::Vector3d& low, const Eigen::Vector3d& high, double step) {
-    BoxMesh mesh;
-    std::array<int, 3> n{};
-    for (int a = 0; a < 3; ++a) n[std::size_t(a)] = std::max(1, int(std::lround((high[a] - low[a]) / step)));
-    std::map<std::array<int, 3>, std::int32_t> index;
-    auto vertex = [&](std::array<int, 3> g) {
-        auto [it, added] = index.try_emplace(g, std::int32_t(mesh.positions.size()));
-        if (added) {
-            std::array<float, 3> p{};
-            for (int a = 0; a < 3; ++a) p[std::size_t(a)] = float(low[a] + (high[a] - low[a]) * g[std::size_t(a)] / n[std::size_t(a)]);
-            mesh.positions.push_back(p);
-        }
-        return it->second;
-    };
-    for (int axis = 0; axis < 3; ++axis)
-        for (int side = 0; side < 2; ++side) {
-            const int u = (axis + 1) % 3, v = (axis + 2) % 3;
-            for (int i = 0; i < n[std::size_t(u)]; ++i)
-                for (int j = 0; j < n[std::size_t(v)]; ++j) {
-                    std::array<std::array<int, 3>, 4> c{};
-                    for (int k = 0; k < 4; ++k) {
-                        c[std::size_t(k)][std::size_t(axis)] = side ? n[std::size_t(axis)] : 0;
-                        c[std::size_t(k)][std::size_t(u)] = i + (k == 1 || k == 2);
-                        c[std::size_t(k)][std::size_t(v)] = j + (k >= 2);
-                    }
-                    // (u, v, axis) is right-handed: u→v counter-clockwise seen from +axis.
-                    const std::int32_t a = vertex(c[0]), b = vertex(c[1]), d = vertex(c[2]), e = vertex(c[3]);
-                    if (side) {
-                        mesh.triangles.push_back({a, b, d});
-                        mesh.triangles.push_back({a, d, e});
-                    } else {
-                        mesh.triangles.push_back({a, d, b});
-                        mesh.triangles.push_back({a, e, d});
-                    }
-                }
-        }
-    return mesh;
-}
 
 /// Connected components of a triangle list (through shared vertices): a label per vertex used.
 std::vector<int> components(const std::vector<std::array<std::int32_t, 3>>& triangles, std::size_t vertices) {
@@ -148,9 +106,11 @@ TEST(Incision, APlaneThroughABoxLeavesTwoClosedPiecesOfTheBoxsVolume) {
     EXPECT_EQ(caps, result.cap_triangles);
     EXPECT_GT(caps, 0u);
     // Vertices away from the cut: the same, bit for bit.
-    for (std::size_t v = 0; v < box.positions.size(); ++v)
-        if (std::abs(box.positions[v][0] - x) > 0.5)
+    for (std::size_t v = 0; v < box.positions.size(); ++v) {
+        if (std::abs(box.positions[v][0] - x) > 0.5) {
             ASSERT_EQ(mesh.rest[v], Eigen::Vector3d(box.positions[v][0], box.positions[v][1], box.positions[v][2]));
+        }
+    }
 }
 
 // A slit from the top face down to half the box's height: one closed piece; the crack's front
@@ -279,9 +239,8 @@ std::vector<std::array<float, 3>> positions_of(const Solver& solver, std::size_t
 double blade_plane(const CutModel& m) { return m.low.x() + 4.5 * 1.5 + 0.011; }
 
 /// A scalpel lowered below the block's front on the plane x = blade_plane(m), its blade up through
-/// the whole block, drawn across it in ten steps (after each, `after(k)`); lifted unless `lift`
-/// is false.
-void draw_blade_across(Solver& solver, const CutModel& m, const std::function<void(int)>& after = {}, bool lift = true) {
+/// the whole block, drawn across it in ten steps (after each, `after(k)`), then lifted.
+void draw_blade_across(Solver& solver, const CutModel& m, const std::function<void(int)>& after = {}) {
     const double x = blade_plane(m), below = m.low.z() - 2.0, length = m.high.z() - m.low.z() + 4.0;
     solver.set_instrument(0, {.kind = InstrumentKind::scalpel, .semi_axes = {2.0, 0.3, 0.5 * length}});
     solver.set_pose(0, {.position = {x, m.low.y() - 2.0, below}});

@@ -8,9 +8,8 @@
 #include "fuzz_support.h"
 
 #include "libmodel/incision.h"
+#include "tests/box_mesh.h"
 
-#include <cmath>
-#include <map>
 
 namespace {
 
@@ -18,43 +17,8 @@ using namespace heartsim;
 
 const IncisionMesh& box() {
     static const IncisionMesh made = [] {
-        const Eigen::Vector3d low(0, 0, 0), high(12, 12, 8);
-        std::array<int, 3> n{};
-        for (int a = 0; a < 3; ++a) n[std::size_t(a)] = int(std::lround((high[a] - low[a]) / 0.7));
-        std::vector<std::array<float, 3>> positions;
-        std::vector<std::array<std::int32_t, 3>> triangles;
-        std::map<std::array<int, 3>, std::int32_t> index;
-        auto vertex = [&](std::array<int, 3> g) {
-            auto [it, added] = index.try_emplace(g, std::int32_t(positions.size()));
-            if (added) {
-                std::array<float, 3> p{};
-                for (int a = 0; a < 3; ++a) p[std::size_t(a)] = float(low[a] + (high[a] - low[a]) * g[std::size_t(a)] / n[std::size_t(a)]);
-                positions.push_back(p);
-            }
-            return it->second;
-        };
-        for (int axis = 0; axis < 3; ++axis)
-            for (int side = 0; side < 2; ++side) {
-                const int u = (axis + 1) % 3, v = (axis + 2) % 3;
-                for (int i = 0; i < n[std::size_t(u)]; ++i)
-                    for (int j = 0; j < n[std::size_t(v)]; ++j) {
-                        std::array<std::array<int, 3>, 4> c{};
-                        for (int k = 0; k < 4; ++k) {
-                            c[std::size_t(k)][std::size_t(axis)] = side ? n[std::size_t(axis)] : 0;
-                            c[std::size_t(k)][std::size_t(u)] = i + (k == 1 || k == 2);
-                            c[std::size_t(k)][std::size_t(v)] = j + (k >= 2);
-                        }
-                        const std::int32_t a = vertex(c[0]), b = vertex(c[1]), d = vertex(c[2]), e = vertex(c[3]);
-                        if (side) {
-                            triangles.push_back({a, b, d});
-                            triangles.push_back({a, d, e});
-                        } else {
-                            triangles.push_back({a, d, b});
-                            triangles.push_back({a, e, d});
-                        }
-                    }
-            }
-        return incision_mesh(positions, {}, triangles);
+        const test::BoxMesh box = test::box_mesh({0, 0, 0}, {12, 12, 8}, 0.7);
+        return incision_mesh(box.positions, {}, box.triangles);
     }();
     return made;
 }
