@@ -13,6 +13,7 @@
 #pragma once
 
 #include "formats/scenario.h"
+#include "libmodel/incision_state.h"
 #include "runtime/incision_plan.h"
 #include "runtime/trajectory.h"
 
@@ -94,6 +95,41 @@ inline Opening incision_opening(const Scenario& scenario, const Incision& plan, 
     }
     if (o.springs) o.mean_mm = sum / o.springs;
     return o;
+}
+
+/// The caps' drawn vertices: the largest and mean distance from the plane x = x_c (the blade's),
+/// and the mean x of each side's cap vertices within 5 mm (in z) of the centre, the crack's front
+/// (on both) left out: the caps facing −x close the + side, those facing +x the − side.
+struct CapFigures {
+    double distance_max = 0, distance_mean = 0, apart = 0;
+    std::array<int, 2> side_vertices{0, 0};  ///< the − and + sides' cap vertices near the centre, the front left out
+};
+inline CapFigures cap_figures(const IncisionState& incisions, const std::vector<Eigen::Vector3f>& drawn, const Incision& plan) {
+    CapFigures c;
+    const IncisionMesh& mesh = incisions.mesh();
+    std::vector<int> faces(mesh.rest.size(), 0);
+    for (std::size_t t = incisions.cap_first(); t < incisions.drawn_triangles().size(); ++t) {
+        const auto& tri = incisions.drawn_triangles()[t];
+        const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
+                                      .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
+        for (std::int32_t v : tri) faces[std::size_t(v)] |= n.x() < 0 ? 2 : 1;
+    }
+    double sum = 0, side_sum[2] = {0, 0};
+    int count = 0;
+    auto& side_count = c.side_vertices;
+    for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
+        if (!faces[v]) continue;
+        const double d = std::abs(double(drawn[v].x()) - plan.centre.x());
+        c.distance_max = std::max(c.distance_max, d);
+        sum += d, ++count;
+        if ((faces[v] == 1 || faces[v] == 2) && std::abs(mesh.rest[v].z() - plan.centre.z()) < 5.0) {
+            side_sum[std::size_t(faces[v] - 1)] += drawn[v].x();
+            ++side_count[std::size_t(faces[v] - 1)];
+        }
+    }
+    c.distance_mean = count ? sum / count : 0;
+    if (side_count[0] && side_count[1]) c.apart = side_sum[1] / side_count[1] - side_sum[0] / side_count[0];
+    return c;
 }
 
 /// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h).

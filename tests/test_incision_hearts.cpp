@@ -141,27 +141,11 @@ TEST(Incision, TheDetailedMeshOfEveryRealHeartOpensAlongAnIncision) {
         bool finite = true;
         for (const auto& p : drawn) finite = finite && p.allFinite();
         EXPECT_TRUE(finite);
-        // The caps' vertices near the centre, each side's (the caps facing −x close the + side,
-        // those facing +x the − side) but the crack's front (on both): their mean x.
-        std::vector<int> faces(mesh.rest.size(), 0);
-        for (std::size_t t = incisions.cap_first(); t < incisions.drawn_triangles().size(); ++t) {
-            const auto& tri = incisions.drawn_triangles()[t];
-            const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
-                                          .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
-            for (std::int32_t v : tri) faces[std::size_t(v)] |= n.x() < 0 ? 2 : 1;
-        }
-        double sum[2] = {0, 0};
-        int count[2] = {0, 0};
-        for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
-            if (faces[v] != 1 && faces[v] != 2) continue;
-            if (std::abs(mesh.rest[v].z() - plan.centre.z()) > 5.0) continue;
-            const int side = faces[v] == 2 ? 1 : 0;
-            sum[side] += drawn[v].x();
-            ++count[side];
-        }
-        ASSERT_GT(count[0], 0);
-        ASSERT_GT(count[1], 0);
-        const double gap = sum[1] / count[1] - sum[0] / count[0];
+        // The caps' vertices near the centre, each side's but the crack's front: their mean x.
+        const test::CapFigures caps = test::cap_figures(incisions, drawn, plan);
+        ASSERT_GT(caps.side_vertices[0], 0);
+        ASSERT_GT(caps.side_vertices[1], 0);
+        const double gap = caps.apart;
         const test::Opening opening = test::incision_opening(scenario, plan, cpu->cut_springs(), positions);
         std::printf("  %s: %zu particles, %zu vertices (%zu added), %zu cut faces; the caps %.2f mm apart near the centre, the cut "
                     "springs open by %.2f mm (mean)\n",

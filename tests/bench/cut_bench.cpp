@@ -49,38 +49,6 @@ struct RunFigures {
     bool opened = false, closed = false;
 };
 
-/// The caps' drawn vertices: the largest and mean distance from the plane x = x_c (the blade's),
-/// and the mean x of each side's cap vertices near the centre (the crack's front, on both, left out).
-struct CapFigures {
-    double distance_max = 0, distance_mean = 0, apart = 0;
-};
-CapFigures cap_figures(const IncisionState& incisions, const std::vector<Eigen::Vector3f>& drawn, const test::Incision& plan) {
-    CapFigures c;
-    const IncisionMesh& mesh = incisions.mesh();
-    std::vector<int> faces(mesh.rest.size(), 0);
-    for (std::size_t t = incisions.cap_first(); t < incisions.drawn_triangles().size(); ++t) {
-        const auto& tri = incisions.drawn_triangles()[t];
-        const Eigen::Vector3d n = (mesh.rest[std::size_t(tri[1])] - mesh.rest[std::size_t(tri[0])])
-                                      .cross(mesh.rest[std::size_t(tri[2])] - mesh.rest[std::size_t(tri[0])]);
-        for (std::int32_t v : tri) faces[std::size_t(v)] |= n.x() < 0 ? 2 : 1;
-    }
-    double sum = 0, side_sum[2] = {0, 0};
-    int count = 0, side_count[2] = {0, 0};
-    for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
-        if (!faces[v]) continue;
-        const double d = std::abs(double(drawn[v].x()) - plan.centre.x());
-        c.distance_max = std::max(c.distance_max, d);
-        sum += d, ++count;
-        if ((faces[v] == 1 || faces[v] == 2) && std::abs(mesh.rest[v].z() - plan.centre.z()) < 5.0) {
-            side_sum[faces[v] - 1] += drawn[v].x();
-            ++side_count[faces[v] - 1];
-        }
-    }
-    c.distance_mean = count ? sum / count : 0;
-    if (side_count[0] && side_count[1]) c.apart = side_sum[1] / side_count[1] - side_sum[0] / side_count[0];
-    return c;
-}
-
 RunFigures run(const Scenario& scenario, const test::Incision& plan, const Trajectory& trajectory) {
     auto backend = make_cpu_backend(scenario, options_from(scenario.solver));
     ScriptedHands hands(trajectory);
@@ -105,7 +73,7 @@ RunFigures run(const Scenario& scenario, const test::Incision& plan, const Traje
         }
         const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         if (opened_now) {
-            const CapFigures c = cap_figures(*incisions, apply_mapping(incisions->mapping(), backend->positions(), *scenario.simulation_surface), plan);
+            const test::CapFigures c = test::cap_figures(*incisions, apply_mapping(incisions->mapping(), backend->positions(), *scenario.simulation_surface), plan);
             f.cap_distance_max_mm = c.distance_max;
             f.cap_distance_mean_mm = c.distance_mean;
             f.opened = true;
@@ -120,7 +88,7 @@ RunFigures run(const Scenario& scenario, const test::Incision& plan, const Traje
     for (const auto& p : f.positions) f.finite = f.finite && std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
     if (f.opened) {
         f.closed = closed_manifold(incisions->drawn_triangles());
-        f.caps_apart_mm = cap_figures(*incisions, apply_mapping(incisions->mapping(), f.positions, *scenario.simulation_surface), plan).apart;
+        f.caps_apart_mm = test::cap_figures(*incisions, apply_mapping(incisions->mapping(), f.positions, *scenario.simulation_surface), plan).apart;
     }
     return f;
 }
