@@ -46,12 +46,15 @@ const char* to_string(InstrumentKind kind) {
     case InstrumentKind::probe: return "probe";
     case InstrumentKind::grabber: return "grabber";
     case InstrumentKind::scalpel: return "scalpel";
+    case InstrumentKind::patch: return "patch";
+    case InstrumentKind::needle: return "needle";
     }
     return "none";
 }
 
 std::optional<InstrumentKind> instrument_kind_named(const std::string& word) {
-    for (InstrumentKind kind : {InstrumentKind::none, InstrumentKind::probe, InstrumentKind::grabber, InstrumentKind::scalpel})
+    for (InstrumentKind kind : {InstrumentKind::none, InstrumentKind::probe, InstrumentKind::grabber, InstrumentKind::scalpel,
+                                 InstrumentKind::patch, InstrumentKind::needle})
         if (word == to_string(kind)) return kind;
     return std::nullopt;
 }
@@ -83,6 +86,33 @@ struct ProbeFrame {
 
 
 }  // namespace
+
+void check_loads(const std::vector<ParticleLoad>& loads, std::size_t particle_count) {
+    for (std::size_t q = 0; q < loads.size(); ++q) {
+        const ParticleLoad& load = loads[q];
+        const std::string which = "load " + std::to_string(q) + " (particle " + std::to_string(load.particle) + ")";
+        if (load.particle < 0 || std::size_t(load.particle) >= particle_count)
+            throw InputError("solver: " + which + ": the particle index is outside [0, " + std::to_string(particle_count) + ")");
+        if (!load.force_n.allFinite()) throw InputError("solver: " + which + ": the force is not finite");
+        if (q > 0 && load.particle <= loads[q - 1].particle)
+            throw InputError("solver: " + which + ": loads must be sorted by particle with no particle twice (load " +
+                             std::to_string(q - 1) + " is on particle " + std::to_string(loads[q - 1].particle) + ")");
+    }
+}
+
+template <class Real>
+void BasicSolver<Real>::set_loads(std::vector<ParticleLoad> loads) {
+    check_loads(loads, n_);
+    std::vector<std::int32_t> particle(loads.size());
+    std::vector<Real> force(3 * loads.size());
+    for (std::size_t q = 0; q < loads.size(); ++q) {
+        particle[q] = loads[q].particle;
+        for (int c = 0; c < 3; ++c) force[3 * q + std::size_t(c)] = Real(loads[q].force_n[c]);
+    }
+    loads_ = std::move(loads);
+    load_particle_ = std::move(particle);
+    load_force_ = std::move(force);
+}
 
 template <class Real>
 void BasicSolver<Real>::set_time_step(double dt_ms) {
@@ -145,6 +175,7 @@ void BasicSolver<Real>::reset() {
 template <class Real>
 void BasicSolver<Real>::reset_tissue() {
     neighbour_ = uncut_neighbour_;
+    set_loads({});
     cut_.clear();
     strokes_.clear();
     last_cuts_ = 0;
@@ -504,6 +535,21 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
             bool chunk_bad = false;
             const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
             chunk_bad |= group_function(k, first, last);
+            // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
+            // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
+            const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
+            const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
+            for (auto at = load_begin; at != load_end; ++at) {
+                const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
+                if (!movable_[i] || held_by_[i] >= 0) continue;
+                Real* x = next_ + state_stride * i;
+                Real* motion = next_motion_ + state_stride * i;
+                for (int c = 0; c < 3; ++c) {
+                    const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
+                    x[c] = x[c] + step;
+                    motion[c] = motion[c] + step;
+                }
+            }
             for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
             for (int pi = 0; pi < probe_count; ++pi) {
                 const ProbeFrame& p = probes[std::size_t(pi)];

@@ -44,20 +44,43 @@ enum class InstrumentKind {
     /// (cutting.h); lifted, it touches nothing. It neither pushes nor holds tissue; its force is the
     /// tissue's resistance to the cut (cutting_force.h), zero once lifted.
     scalpel,
+    /// The repair's hands (runtime/repair.h): the solver never holds them (a backend passes them on
+    /// as none). A patch is laid over the tissue where begin_grab() finds it: its pose's position is
+    /// the patch's centre, the tool's +z the way it faces the tissue, ax and ay its half-diameters,
+    /// az half its thickness.
+    patch,
+    /// From begin_grab() a needle ties a stitch between the patch point and the tissue point
+    /// nearest its tip (the pose's position); the stitch draws tight over its tying time.
+    needle,
 };
 
-/// "none", "probe", "grabber" or "scalpel": the word of trajectories, recordings and the window's HUD.
+/// "none", "probe", "grabber", "scalpel", "patch" or "needle": the word of trajectories, recordings
+/// and the window's HUD.
 const char* to_string(InstrumentKind kind);
 /// The kind to_string() calls `word`; empty for any other word.
 std::optional<InstrumentKind> instrument_kind_named(const std::string& word);
-/// Whether the kind acts on a grab flag or button 1: a grabber holds, a scalpel's blade is lowered.
-inline bool takes_grab(InstrumentKind kind) { return kind == InstrumentKind::grabber || kind == InstrumentKind::scalpel; }
+/// Whether the kind acts on a grab flag or button 1: a grabber holds, a scalpel's blade is
+/// lowered, a patch is laid, a needle ties a stitch.
+inline bool takes_grab(InstrumentKind kind) { return kind != InstrumentKind::none && kind != InstrumentKind::probe; }
+/// The repair's kinds (patch, needle), which the solver never sees.
+inline bool repair_kind(InstrumentKind kind) { return kind == InstrumentKind::patch || kind == InstrumentKind::needle; }
 
 /// An instrument's volume: an ellipsoid with semi-axes along the tool frame's x, y, z, mm.
 struct Instrument {
     InstrumentKind kind = InstrumentKind::none;
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
 };
+
+/// A force on one particle, N, world frame (an external load: a stitch's pull, a patch's contact).
+struct ParticleLoad {
+    std::int32_t particle = 0;   ///< packed index
+    Eigen::Vector3d force_n = Eigen::Vector3d::Zero();
+};
+
+/// Throws InputError, naming the first offending entry, unless `loads` is sorted by particle with
+/// no particle twice, every index in [0, particle_count) and every force finite: the rule of
+/// BasicSolver::set_loads and of every backend's.
+void check_loads(const std::vector<ParticleLoad>& loads, std::size_t particle_count);
 
 /// The force the tissue exerts on one instrument, N, world frame: the sum of the spring and
 /// dashpot forces acting on the particles it holds (grabber) or touched in the last substep
@@ -244,13 +267,24 @@ public:
     /// Particles held by a grabber, or touched by a probe in the last substep (packed indices).
     std::vector<std::int32_t> contact_particles(int hand) const;
 
+    /// External loads from the next substep on, until replaced (an empty list removes them): in every
+    /// substep a load F on a movable particle that no grabber holds adds h²F/(S·m) to its next position
+    /// and to its motion, as F added to its spring force would in the Verlet step (applied after the
+    /// integration, before the probes' projection). Sorted by particle, no repeats, indices in range,
+    /// finite: else InputError, nothing changed. reset() and reset_tissue() remove them; the
+    /// watchdog's restore keeps them. The watchdog's energy check counts the energy a load puts in
+    /// as any other: a load that adds more than energy_growth_limit times the energy between two
+    /// checks trips it.
+    void set_loads(std::vector<ParticleLoad> loads);
+    const std::vector<ParticleLoad>& loads() const { return loads_; }
+
     /// Advances `steps` steps of dt_ms. Stops early when the watchdog fires (see StepReport).
     StepReport step(int steps = 1);
-    /// Back to rest: rest positions, zero velocity, grabs released, cut springs restored, time 0.
-    /// Instruments kept.
+    /// Back to rest: rest positions, zero velocity, grabs released, cut springs restored, loads
+    /// removed, time 0. Instruments kept.
     void reset();
-    /// The tissue back to its rest state as reset() (uncut), but the simulated time goes on (a
-    /// window's "reset the tissue" key during a session).
+    /// The tissue back to its rest state as reset() (uncut, unloaded), but the simulated time goes
+    /// on (a window's "reset the tissue" key during a session).
     void reset_tissue();
     /// Sets every particle's position (mm) and velocity (mm/ms), N each, packed order. The
     /// motion of the last substep is v·h − ½·a·h² (a from the forces at x), so the start is
@@ -389,6 +423,9 @@ private:
     std::vector<Real> slot_stiffness_;
 
     std::array<HandState, hands> hand_;
+    std::vector<ParticleLoad> loads_;          ///< set_loads(), sorted by particle
+    std::vector<std::int32_t> load_particle_;  ///< loads_'s particles, for the chunks' lower_bound
+    std::vector<Real> load_force_;             ///< loads_'s forces rounded to Real, 3 per load, N
     std::vector<std::vector<std::int32_t>> touched_;  ///< [chunk × hands + hand]
     std::vector<std::uint8_t> chunk_bad_;
 

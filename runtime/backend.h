@@ -72,8 +72,8 @@ public:
     virtual std::size_t begin_grab(int hand) = 0;
     virtual void release(int hand) = 0;
 
-    /// The tissue back to its rest state (rest positions, at rest, grabs released); the
-    /// simulated time and the instruments are kept.
+    /// The tissue back to its rest state (rest positions, at rest, grabs released, loads removed);
+    /// the simulated time and the instruments are kept.
     virtual void reset_tissue() = 0;
     /// Explicit mass scaling S in [1, 1024] from the next step on (Solver::set_mass_scale): the
     /// substeps, the load report's critical steps and options().mass_scale follow; positions and
@@ -100,6 +100,12 @@ public:
     virtual const StrokeLog& strokes() const = 0;
     /// Current positions, N×3 mm, packed order. Waits for the GPU.
     virtual std::vector<std::array<float, 3>> positions() = 0;
+    /// External loads on particles from the next step on, until replaced (Solver::set_loads; the same
+    /// checks). gl: uploaded at once (one small scatter), applied in the step pass.
+    virtual void set_loads(const std::vector<ParticleLoad>& loads) = 0;
+    /// The current positions of `particles` (packed indices, any order, repeats allowed), mm. gl: one
+    /// gather pass and one small readback (waits for the GPU). Index out of range: InputError.
+    virtual std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) = 0;
     /// Pass timings so far (waits for outstanding timer queries).
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
@@ -113,11 +119,18 @@ public:
     }
     /// The particles the last force pass summed for `hand`, sorted (gl: waits for the GPU).
     virtual std::vector<std::int32_t> contact_particles(int hand) { (void)hand; return {}; }
+    /// The backend that simulates: itself, or the one a wrapper (runtime/repair.h) passes its
+    /// calls to; the renderer reads the gl backend's position buffer through it.
+    virtual const Backend& simulating() const { return *this; }
 };
 
 /// The CPU backend: libmodel's Solver on the scenario's packed particles. Throws InputError if
 /// the scenario has no /packing.
 std::unique_ptr<Backend> make_cpu_backend(const Scenario& scenario, const SolverOptions& options);
+
+/// Throws InputError naming the entry and the index unless every one of `particles` is in
+/// [0, particle_count): Backend::positions_of's check, on both backends.
+void check_particle_indices(const std::vector<std::int32_t>& particles, std::size_t particle_count);
 
 /// Throws InputError naming the group when the scenario lacks what a run needs (/packing).
 void require_runnable(const Scenario& scenario, const std::string& file_name);

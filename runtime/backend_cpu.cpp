@@ -30,6 +30,13 @@ std::string keep_up_advice(double factor, std::size_t particles, BackendKind kin
     return "heartprep build --particles " + std::to_string(count) + " would keep up here, or " + gpu;
 }
 
+void check_particle_indices(const std::vector<std::int32_t>& particles, std::size_t particle_count) {
+    for (std::size_t q = 0; q < particles.size(); ++q)
+        if (particles[q] < 0 || std::size_t(particles[q]) >= particle_count)
+            throw InputError("positions_of: entry " + std::to_string(q) + " names particle " + std::to_string(particles[q]) +
+                             ", outside [0, " + std::to_string(particle_count) + ")");
+}
+
 void require_runnable(const Scenario& scenario, const std::string& file_name) {
     if (!scenario.packing)
         throw InputError(file_name + ": group /packing is missing; the runtime needs the packed neighbour table "
@@ -79,6 +86,16 @@ public:
     std::uint64_t latest_forces_request() const override { return latest_request_; }
     InstrumentForces instrument_forces() override { return solver_.instrument_forces(); }
     std::vector<std::array<float, 3>> positions() override { return solver_.positions(); }
+    void set_loads(const std::vector<ParticleLoad>& loads) override { solver_.set_loads(loads); }
+    std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) override {
+        check_particle_indices(particles, solver_.size());
+        std::vector<std::array<float, 3>> out(particles.size());
+        for (std::size_t q = 0; q < particles.size(); ++q) {
+            const Eigen::Vector3d x = solver_.position(std::size_t(particles[q]));
+            out[q] = {float(x.x()), float(x.y()), float(x.z())};
+        }
+        return out;
+    }
     const StrokeLog& strokes() const override { return solver_.strokes(); }
     std::vector<std::array<std::int32_t, 2>> cut_springs() override {
         std::vector<std::array<std::int32_t, 2>> list = solver_.cut_springs();

@@ -33,7 +33,7 @@ double number(const std::string& text, const std::string& where) {
 InstrumentKind parse_kind(const std::string& text, const std::string& where) {
     if (text == "grab") return InstrumentKind::grabber;
     if (const auto kind = instrument_kind_named(text)) return *kind;
-    throw InputError(where + ": kind '" + text + "': expected probe, grabber, scalpel or none");
+    throw InputError(where + ": kind '" + text + "': expected probe, grabber, scalpel, patch, needle or none");
 }
 
 }  // namespace
@@ -100,7 +100,7 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
         k.grab = grab == 1;
         if (k.grab && !takes_grab(k.kind))
-            throw InputError(where + ": grab is 1 but the kind is neither grabber nor scalpel");
+            throw InputError(where + ": grab is 1 but the kind is probe or none (grab acts on a grabber, scalpel, patch or needle)");
         // Two poses of one hand at one time would make the instrument jump there in one step (the
         // earlier line only bends the approach): almost always a typing slip, so it is refused.
         if (const auto [it, fresh] = line_of.emplace(std::make_pair(k.hand, k.time_ms), line_number); !fresh)

@@ -9,6 +9,8 @@
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "libmodel/errors.h"
+#include "libmodel/packing.h"
+#include "libmodel/stability.h"
 #include "runtime/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
@@ -17,13 +19,16 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <fstream>
 #include <cmath>
 #include <limits>
 #include <map>
 #include <memory>
+#include <numeric>
 #include <optional>
 #include <set>
+#include <thread>
 
 using namespace heartsim;
 using test::quoted;
@@ -314,6 +319,55 @@ TEST(RuntimeBackend, GlFeelsTheSameBladeForceAsTheCpu) {
     EXPECT_LE(difference, 1e-12 * largest);
 }
 
+// The scalpel's hand, lifted, and a second hand become retractors that grab the incision's edges
+// and pull them apart: on both backends each hand's force sums the same particles and agrees, by
+// the blocking and by the asynchronous readback. (The gl count travels as a uint word of the force
+// ring: a count in the force's double w lane reads back as garbage on NVIDIA's driver 580,
+// shaders/solver_shaders.h force_pass.)
+TEST(RuntimeBackend, GlRetractorsHoldAsManyParticlesAsTheCpusAfterAnIncision) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 12});
+    const SolverOptions options = options_from(scenario.solver);
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    const int steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()));
+    const ScriptedRunResult a = run_scripted(*cpu, plan.trajectory, {.steps = steps});
+    const ScriptedRunResult b = run_scripted(*gl, plan.trajectory, {.steps = steps});
+    EXPECT_EQ(a.watchdog_events, 0u) << a.last_watchdog_message;
+    EXPECT_EQ(b.watchdog_events, 0u) << b.last_watchdog_message;
+    const InstrumentForces f = cpu->instrument_forces(), g = gl->instrument_forces();
+    // The asynchronous path: one more request, polled until it arrives (10 s at most).
+    const std::uint64_t request = gl->latest_forces_request() + 1;
+    gl->request_forces();
+    std::optional<InstrumentForces> latest = gl->latest_forces();
+    for (int poll = 0; poll < 10000 && gl->latest_forces_request() != request; ++poll) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        latest = gl->latest_forces();
+    }
+    ASSERT_EQ(gl->latest_forces_request(), request);
+    ASSERT_TRUE(latest.has_value());
+    const double size = model_size(scenario);
+    double error = 0;
+    const auto x = cpu->positions(), y = gl->positions();
+    for (std::size_t i = 0; i < x.size(); ++i)
+        for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(x[i][k] - y[i][k])));
+    EXPECT_LE(error, 1e-4 * size);
+    const auto& k = scenario.lattice.springs.stiffness;
+    const double max_stiffness = double(*std::max_element(k.begin(), k.end()));
+    for (int hand = 0; hand < 2; ++hand) {
+        const InstrumentForce &c = f.hand[hand], &d = g.hand[hand];
+        std::printf("  hand %d: cpu (%.6g, %.6g, %.6g) N on %zu particles, gl (%.6g, %.6g, %.6g) N on %zu (asynchronous: %zu)\n", hand,
+                    c.force_n.x(), c.force_n.y(), c.force_n.z(), c.particles, d.force_n.x(), d.force_n.y(), d.force_n.z(), d.particles,
+                    latest->hand[hand].particles);
+        EXPECT_GT(c.particles, 0u) << "hand " << hand << " should hold an edge";
+        EXPECT_EQ(c.particles, d.particles) << "hand " << hand;
+        EXPECT_EQ(c.particles, latest->hand[hand].particles) << "hand " << hand;
+        const double from_positions = double(c.particles) * 18.0 * max_stiffness * 2.0 * error;  // as expect_agreement
+        EXPECT_LE((c.force_n - d.force_n).norm(), 1e-3 * c.force_n.norm() + from_positions) << "hand " << hand;
+    }
+}
+
 // On every real heart: the 30 mm incision of incision_gesture.h through the most anterior wall,
 // then two retractors pulling its edges 6 mm apart (cpu backend, 8,000 particles): springs cut,
 // no watchdog event, every position finite, and the springs cut near the incision's centre stand
@@ -407,6 +461,169 @@ TEST(RuntimeBackend, GlPiercesAndGrabsOnePieceOfTissueAsTheCpuDoes) {
             for (int c = 0; c < 3; ++c) error = std::max(error, double(std::abs(end[0][i][c] - end[1][i][c])));
         EXPECT_LE(error, 1e-4 * size);
     }
+}
+
+// External loads (Backend::set_loads) on a free block without gravity, drag or supports, on
+// both backends: the springs' forces cancel in pairs, so from rest the centre of mass moves by
+// exactly h²·ΣF·N(N+1)/(2M) after N substeps (Verlet: Σ m·u_n = n·h²·ΣF), however the loads deform
+// the block; both backends end where each other does; reset_tissue() removes the loads, and the
+// block then stays at rest.
+TEST(RuntimeBackend, LoadsMoveAFreeBlockByNewtonsSecondLawOnBothBackends) {
+    REQUIRE_GL();
+    Scenario scenario;
+    scenario.lattice = test::block_lattice(6, 5, 5, 1.5, 0.0);
+    scenario.packing = pack_particles(scenario.lattice);
+    const Particles& p = scenario.lattice.particles;
+    ASSERT_FALSE(p.supported());
+    ASSERT_TRUE(std::none_of(p.anchored.begin(), p.anchored.end(), [](auto a) { return a != 0; }));
+    SolverOptions options;
+    options.gravity.setZero();
+    options.critical_dt_ms = estimate_critical_time_step(p, scenario.lattice.springs, 5000, 1e-12).critical_dt_ms;
+    options.dt_ms = 0.5 * options.critical_dt_ms;
+    options.damping_ratio = {0.0};
+    double total_mass = 0;
+    for (float m : p.mass) total_mass += m;
+    const int steps = 300;
+    std::vector<ParticleLoad> loads{{5, {1.0, -0.5, 0.25}}, {33, {0.5, 1.0, 0.0}}, {64, {-0.25, 0.0, 1.0}}, {120, {0.75, 0.25, -0.5}}};
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    ASSERT_EQ(cpu->substeps_per_step(), 1);
+    const double h = cpu->substep_ms();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (const ParticleLoad& load : loads) sum += load.force_n;
+    const double scale = 0.3 / (h * h * sum.norm() * steps * (steps + 1) / (2 * total_mass));  // 0.3 mm over the run
+    sum.setZero();
+    for (ParticleLoad& load : loads) load.force_n *= scale, sum += load.force_n;
+    const Eigen::Vector3d expected = h * h * sum * steps * (steps + 1) / (2 * total_mass);
+    auto centre = [&](const std::vector<std::array<float, 3>>& x) {
+        Eigen::Vector3d c = Eigen::Vector3d::Zero();
+        for (std::size_t i = 0; i < x.size(); ++i) c += double(p.mass[i]) * Eigen::Vector3d(x[i][0], x[i][1], x[i][2]);
+        return Eigen::Vector3d(c / total_mass);
+    };
+    auto from_rest = [&](const std::vector<std::array<float, 3>>& x) {
+        double d = 0;
+        for (std::size_t i = 0; i < x.size(); ++i)
+            for (int c = 0; c < 3; ++c) d = std::max(d, std::abs(double(x[i][c]) - p.rest_position[i][c]));
+        return d;
+    };
+    std::vector<std::vector<std::array<float, 3>>> end;
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        SCOPED_TRACE(to_string(backend->kind()));
+        const Eigen::Vector3d before = centre(backend->positions());
+        backend->set_loads(loads);
+        double largest = 0;
+        for (int s = 0; s < steps; ++s) {
+            const StepReport r = backend->step(1);
+            ASSERT_FALSE(r.diverged) << r.message;
+        }
+        const auto x = backend->positions();
+        for (const auto& xi : x) largest = std::max({largest, double(std::abs(xi[0])), double(std::abs(xi[1])), double(std::abs(xi[2]))});
+        const Eigen::Vector3d moved = centre(x) - before;
+        // Float rounding: each substep rounds each position twice (x + u, then the load's term) by
+        // at most half an ulp of the largest coordinate; the motions, which carry the momentum, to
+        // a relative epsilon a few times each, accumulated over the run.
+        const double eps = std::numeric_limits<float>::epsilon();
+        const double bound = steps * largest * eps + 4.0 * steps * eps * expected.norm();
+        std::printf("  %s: centre of mass moved (%.6g, %.6g, %.6g) mm, closed form (%.6g, %.6g, %.6g), difference %.3g mm (bound %.3g)\n",
+                    to_string(backend->kind()), moved.x(), moved.y(), moved.z(), expected.x(), expected.y(), expected.z(),
+                    (moved - expected).norm(), bound);
+        EXPECT_LT((moved - expected).norm(), bound);
+        end.push_back(x);
+        backend->reset_tissue();
+        EXPECT_EQ(from_rest(backend->positions()), 0.0);
+        backend->step(50);
+        EXPECT_LT(from_rest(backend->positions()), 1e-5) << "mm, 50 steps after reset_tissue(): the loads are gone";
+    }
+    double error = 0;
+    for (std::size_t i = 0; i < end[0].size(); ++i)
+        for (int c = 0; c < 3; ++c) error = std::max(error, double(std::abs(end[0][i][c] - end[1][i][c])));
+    std::printf("  max |x_gl - x_cpu| %.3g mm\n", error);
+    EXPECT_LE(error, 1e-4 * model_size(scenario));
+}
+
+// A patch's channel on the phantom, on both backends: every step it reads a few hundred surface
+// particles (positions_of, in a shuffled order with repeats) and pulls them towards points 2 mm
+// outside their rest positions (set_loads, a list that changes from step to step, then none).
+// positions_of equals positions() at those indices; both backends end where each other does; and
+// a refused list (unsorted, repeated, out of range, non-finite) leaves the gl backend's loads in
+// force (the cpu backend never sees those calls).
+TEST(RuntimeBackend, GlReadsAndLoadsPatchParticlesAsTheCpuDoes) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const auto& rest = scenario.lattice.particles.rest_position;
+    const auto& anchored = scenario.lattice.particles.anchored;
+    // The 300 free particles of largest x, in ascending index order.
+    std::vector<std::int32_t> patch;
+    for (std::size_t i = 0; i < rest.size(); ++i)
+        if (!anchored[i]) patch.push_back(std::int32_t(i));
+    std::sort(patch.begin(), patch.end(), [&](std::int32_t a, std::int32_t b) { return rest[std::size_t(a)][0] > rest[std::size_t(b)][0]; });
+    patch.resize(std::min<std::size_t>(patch.size(), 300));
+    std::sort(patch.begin(), patch.end());
+    // The order positions_of is asked in: reversed, every fifth twice.
+    std::vector<std::int32_t> asked(patch.rbegin(), patch.rend());
+    for (std::size_t q = 0; q < patch.size(); q += 5) asked.push_back(patch[q]);
+    // Each particle's pull towards its target: a fifth of the mean spring's stiffness, N/mm.
+    const auto& k = scenario.lattice.springs.stiffness;
+    const double stiffness = 0.2 * std::accumulate(k.begin(), k.end(), 0.0) / double(k.size());
+    const SolverOptions options = options_from(scenario.solver);
+    auto cpu = make_cpu_backend(scenario, options);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    const int steps = 120, loaded_steps = 100;
+    const std::int32_t n = std::int32_t(scenario.lattice.particles.size());
+    std::vector<std::vector<std::array<float, 3>>> loaded, end;  // after the last loaded step, at the end
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        SCOPED_TRACE(to_string(backend->kind()));
+        for (int s = 0; s < steps; ++s) {
+            if (s == loaded_steps) loaded.push_back(backend->positions());
+            const auto x = backend->positions_of(asked);
+            ASSERT_EQ(x.size(), asked.size());
+            if (s % 20 == 0) {
+                const auto all = backend->positions();
+                for (std::size_t q = 0; q < asked.size(); ++q) ASSERT_EQ(x[q], all[std::size_t(asked[q])]) << "entry " << q;
+            }
+            std::vector<ParticleLoad> loads;
+            if (s < loaded_steps)
+                for (std::size_t q = 0; q < patch.size(); ++q) {
+                    if ((q + std::size_t(s)) % 3 == 0) continue;  // a third of them unloaded, a different third each step
+                    const std::size_t i = std::size_t(patch[q]);
+                    const std::array<float, 3>& xi = x[patch.size() - 1 - q];  // `asked` is reversed
+                    const Eigen::Vector3d target(rest[i][0] + 2.0, rest[i][1], rest[i][2]);
+                    loads.push_back({patch[q], stiffness * (target - Eigen::Vector3d(xi[0], xi[1], xi[2]))});
+                }
+            backend->set_loads(loads);
+            if (backend->kind() == BackendKind::gl && loads.size() >= 2) {
+                const double nan = std::numeric_limits<double>::quiet_NaN();
+                std::vector<ParticleLoad> unsorted = loads, repeated = loads, outside = loads, not_finite = loads;
+                std::swap(unsorted[0], unsorted[1]);
+                repeated[1].particle = repeated[0].particle;
+                outside.push_back({n, {1, 0, 0}});
+                not_finite[1].force_n.y() = nan;
+                for (const auto* bad : {&unsorted, &repeated, &outside, &not_finite}) EXPECT_THROW(backend->set_loads(*bad), InputError);
+                EXPECT_THROW(backend->set_loads({{-1, {1, 0, 0}}}), InputError);
+            }
+            const StepReport r = backend->step(1);
+            ASSERT_FALSE(r.diverged) << r.message;
+        }
+        EXPECT_THROW(backend->positions_of({0, n}), InputError);
+        EXPECT_THROW(backend->positions_of({-1}), InputError);
+        EXPECT_TRUE(backend->positions_of({}).empty());
+        end.push_back(backend->positions());
+    }
+    auto difference = [](const std::vector<std::array<float, 3>>& a, const std::vector<std::array<float, 3>>& b) {
+        double d = 0;
+        for (std::size_t i = 0; i < a.size(); ++i)
+            for (int c = 0; c < 3; ++c) d = std::max(d, double(std::abs(a[i][c] - b[i][c])));
+        return d;
+    };
+    double pulled = 0;
+    for (const std::int32_t i : patch) pulled = std::max(pulled, double(loaded[0][std::size_t(i)][0]) - rest[std::size_t(i)][0]);
+    const double size = model_size(scenario), error_loaded = difference(loaded[0], loaded[1]), error_end = difference(end[0], end[1]);
+    std::printf("  %zu patch particles pulled out by up to %.3f mm; max |x_gl - x_cpu| %.3g mm loaded, %.3g mm %d steps after (%.3g of "
+                "the size)\n",
+                patch.size(), pulled, error_loaded, error_end, steps - loaded_steps, std::max(error_loaded, error_end) / size);
+    EXPECT_GT(pulled, 0.1) << "the loads should pull the wall out";
+    EXPECT_LE(error_loaded, 1e-4 * size);
+    EXPECT_LE(error_end, 1e-4 * size);
 }
 
 TEST(RuntimeBackend, ResetTissueReturnsToTheBalancedRestStateAndKeepsTheTime) {

@@ -17,9 +17,11 @@
 #include <Eigen/Dense>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <unistd.h>
 
@@ -629,6 +631,156 @@ TEST(Solver, SameBitsForOneAndTwoThreadsAndEveryFusedKernel) {
     std::printf("  largest |x_sse2 - x_fused| after 1000 steps: %.3g mm\n", largest);
     EXPECT_GT(largest, 0.0) << "sse2 rounds five operations per slot apart: some bit must differ";
     EXPECT_LT(largest, 1e-3);
+}
+
+// External loads against Newton's second law. In a free block without gravity or drag the
+// springs' forces cancel in pairs, so with Verlet (x_{n+1} = x_n + u_n + h²(f + F)/m,
+// u_{n+1} = x_{n+1} − x_n) and u_0 = 0 the momentum is Σ m·u_n = n·h²·ΣF and the centre of mass,
+// after N substeps, has moved by exactly h²·ΣF·N(N+1)/(2M), however the loads deform the block.
+TEST(Solver, LoadsMoveTheCentreOfMassByTheClosedFormOfNewtonsSecondLaw) {
+    const Model model = block(5, 4, 4);
+    const Particles& p = model.lattice.particles;
+    double total_mass = 0;
+    for (float m : p.mass) total_mass += m;
+    const int substeps = 400;
+    auto check = [&](auto& solver) {
+        using Real = typename std::remove_cvref_t<decltype(solver)>::Scalar;
+        const double h = solver.substep_ms();
+        // Loads on four particles spread through the block; their sum moves the centre of mass
+        // 0.3 mm over the run.
+        std::vector<ParticleLoad> loads{{3, {1.0, -0.5, 0.25}}, {17, {0.5, 1.0, 0.0}}, {40, {-0.25, 0.0, 1.0}}, {71, {0.75, 0.25, -0.5}}};
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        for (const ParticleLoad& load : loads) sum += load.force_n;
+        const double scale = 0.3 / (h * h * sum.norm() * substeps * (substeps + 1) / (2 * total_mass));
+        sum.setZero();
+        for (ParticleLoad& load : loads) load.force_n *= scale, sum += load.force_n;
+        solver.set_loads(loads);
+        ASSERT_EQ(solver.loads().size(), loads.size());
+        auto centre = [&] {
+            Eigen::Vector3d c = Eigen::Vector3d::Zero();
+            for (std::size_t i = 0; i < p.size(); ++i) c += double(p.mass[i]) * solver.position(i);
+            return Eigen::Vector3d(c / total_mass);
+        };
+        const Eigen::Vector3d before = centre();
+        double largest = 0;
+        for (int s = 0; s < substeps; ++s) {
+            const StepReport r = solver.step();
+            ASSERT_FALSE(r.diverged) << r.message;
+            for (std::size_t i = 0; i < p.size(); ++i) largest = std::max(largest, solver.position(i).cwiseAbs().maxCoeff());
+        }
+        const Eigen::Vector3d expected = h * h * sum * substeps * (substeps + 1) / (2 * total_mass);
+        const Eigen::Vector3d moved = centre() - before;
+        // Rounding: each substep rounds each position twice (the kernel's x + u, then the load's
+        // term) by at most half an ulp of the largest coordinate, and the motions, which carry the
+        // momentum, to a relative epsilon each, summed over the run twice (n·u_n, then Σ).
+        const double eps = std::numeric_limits<Real>::epsilon();
+        const double bound = substeps * largest * eps + 4.0 * substeps * eps * expected.norm();
+        std::printf("  %s: centre of mass moved (%.6g, %.6g, %.6g) mm, closed form (%.6g, %.6g, %.6g), difference %.3g mm, bound %.3g\n",
+                    sizeof(Real) == 4 ? "float" : "double", moved.x(), moved.y(), moved.z(), expected.x(), expected.y(), expected.z(),
+                    (moved - expected).norm(), bound);
+        EXPECT_NEAR(expected.norm(), 0.3, 1e-9);
+        EXPECT_LT((moved - expected).norm(), bound);
+    };
+    SolverOptions options = quiet(0.5, model);
+    ASSERT_EQ(options.damping, 0.0);
+    ASSERT_EQ(options.mass_scale, 1.0);
+    ReferenceSolver reference(model.lattice, model.packing.neighbours, options);
+    ASSERT_EQ(reference.substeps_per_step(), 1);
+    check(reference);
+    Solver single(model.lattice, model.packing.neighbours, options);
+    check(single);
+}
+
+// Loads act only where the step integrates: on an anchored particle or one a grabber holds a
+// load changes nothing, to the bit.
+TEST(Solver, ALoadOnAnAnchoredOrHeldParticleChangesNothing) {
+    Model model = block(6, 4, 4);
+    Particles& p = model.lattice.particles;
+    for (std::size_t i = 0; i < p.size(); ++i) p.anchored[i] = p.lattice_index[i][0] == 0 ? 1 : 0;
+    const std::size_t anchored = std::size_t(std::find(p.anchored.begin(), p.anchored.end(), 1) - p.anchored.begin());
+    std::size_t far = 0;  // the free particle of largest x: the grabber's
+    for (std::size_t i = 0; i < p.size(); ++i)
+        if (p.rest_position[i][0] > p.rest_position[far][0]) far = i;
+    const Eigen::Vector3d at(p.rest_position[far][0], p.rest_position[far][1], p.rest_position[far][2]);
+    auto run = [&](bool loaded) {
+        SolverOptions o = quiet(0.5, model);
+        o.gravity = {0, 0, -9.81e-3};
+        Solver solver(model.lattice, model.packing.neighbours, o);
+        solver.set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(0.5)});
+        solver.set_pose(0, {at, Eigen::Quaterniond::Identity()});
+        EXPECT_EQ(solver.begin_grab(0), 1u);
+        std::vector<ParticleLoad> loads{{std::int32_t(anchored), {5, 5, 5}}, {std::int32_t(far), {-5, 5, -5}}};
+        std::sort(loads.begin(), loads.end(), [](const auto& a, const auto& b) { return a.particle < b.particle; });
+        if (loaded) solver.set_loads(loads);
+        for (int s = 0; s < 50; ++s) {
+            solver.set_pose(0, {at + Eigen::Vector3d(0.01 * s, 0, 0), Eigen::Quaterniond::Identity()});
+            EXPECT_FALSE(solver.step().diverged);
+        }
+        return solver.state_hash();
+    };
+    EXPECT_EQ(run(true), run(false));
+}
+
+// set_loads refuses a list that is not sorted, repeats a particle, names one out of range or has a
+// non-finite force, naming what was wrong; the loads in force stay, to the bit.
+TEST(Solver, BadLoadsAreRefusedAndTheLoadsInForceStay) {
+    const Model model = block(4, 3, 3);
+    const SolverOptions options = quiet(0.5, model);
+    Solver solver(model.lattice, model.packing.neighbours, options), twin(model.lattice, model.packing.neighbours, options);
+    const std::vector<ParticleLoad> good{{1, {0.01, 0, 0}}, {5, {0, -0.02, 0.01}}};
+    solver.set_loads(good);
+    twin.set_loads(good);
+    const double nan = std::numeric_limits<double>::quiet_NaN(), inf = std::numeric_limits<double>::infinity();
+    const std::int32_t n = std::int32_t(solver.size());
+    const std::vector<std::pair<std::vector<ParticleLoad>, std::string>> bad{
+        {{{5, {1, 0, 0}}, {1, {1, 0, 0}}}, "sorted"},
+        {{{2, {1, 0, 0}}, {2, {0, 1, 0}}}, "twice"},
+        {{{-1, {1, 0, 0}}}, "outside [0, " + std::to_string(n) + ")"},
+        {{{0, {1, 0, 0}}, {n, {1, 0, 0}}}, "particle " + std::to_string(n)},
+        {{{3, {nan, 0, 0}}}, "not finite"},
+        {{{3, {0, 0, -inf}}}, "not finite"},
+    };
+    for (const auto& [loads, words] : bad) {
+        try {
+            solver.set_loads(loads);
+            ADD_FAILURE() << "accepted a list that should be refused for: " << words;
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+        }
+        ASSERT_EQ(solver.loads().size(), good.size());
+        for (std::size_t q = 0; q < good.size(); ++q) {
+            EXPECT_EQ(solver.loads()[q].particle, good[q].particle);
+            EXPECT_EQ(solver.loads()[q].force_n, good[q].force_n);
+        }
+    }
+    for (int s = 0; s < 20; ++s) solver.step(), twin.step();
+    EXPECT_EQ(solver.state_hash(), twin.state_hash());
+    solver.set_loads({});  // an empty list removes them
+    EXPECT_TRUE(solver.loads().empty());
+}
+
+// reset_tissue() removes the loads: a free block without gravity that a load has moved is back at
+// rest and stays there; reset() too.
+TEST(Solver, ResetTissueRemovesTheLoads) {
+    const Model model = block(4, 3, 3);
+    const Particles& p = model.lattice.particles;
+    Solver solver(model.lattice, model.packing.neighbours, quiet(0.5, model));
+    auto from_rest = [&] {
+        double largest = 0;
+        for (std::size_t i = 0; i < p.size(); ++i)
+            largest = std::max(largest, (solver.position(i) - Eigen::Vector3d(p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2])).norm());
+        return largest;
+    };
+    for (int round = 0; round < 2; ++round) {
+        solver.set_loads({{4, {0.002, 0, 0}}, {9, {0, 0.002, 0}}});
+        ASSERT_FALSE(solver.step(100).diverged);
+        EXPECT_GT(from_rest(), 0.1) << "the loads should move the block";
+        if (round == 0) solver.reset_tissue();
+        else solver.reset();
+        EXPECT_TRUE(solver.loads().empty());
+        ASSERT_FALSE(solver.step(100).diverged);
+        EXPECT_LT(from_rest(), 1e-5) << "mm, 100 steps after the reset";
+    }
 }
 
 TEST(Solver, RefusesInconsistentInput) {

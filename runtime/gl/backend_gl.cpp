@@ -59,13 +59,21 @@ using gl::storage;
 constexpr std::size_t table_entry(std::size_t i, int s) { return (i / lane_count * slot_count + std::size_t(s)) * lane_count + i % lane_count; }
 
 struct ForceSlot {
-    double force[2][4];
+    double force[2][4];     ///< each hand's force in x, y, z, N; w is 0 (the count has its own word)
     std::uint32_t status;
     std::uint32_t sequence;
     std::uint32_t cuts[2];  ///< springs each hand's blade cut in the step the forces are from
+    std::uint32_t counts[2];  ///< particles each hand's force sums (held or touched)
     double blade[2][6];     ///< each hand's BladeState: energy, travel, velocity x, y, z, speed
 };
-static_assert(sizeof(ForceSlot) == 176 && sizeof(ForceSlot) <= std::size_t(ring_stride));  // std430 ForceBuffer
+static_assert(sizeof(ForceSlot) == 184 && sizeof(ForceSlot) <= std::size_t(ring_stride));  // std430 ForceBuffer
+
+/// One entry of set_loads's scatter list (std430 `LoadEntry`, shaders/solver_shaders.h load_scatter).
+struct LoadEntry {
+    std::int32_t particle;
+    float force[3];  ///< N; zero for a particle the new list drops
+};
+static_assert(sizeof(LoadEntry) == 16);
 
 class GlBackend final : public Backend {
 public:
@@ -93,8 +101,10 @@ public:
         build(strain_program_, "strain", {sh::springs, sh::strain_pass});
         build(cut_program_, "cut", {sh::cut_pass});
         build(blade_program_, "blade", {sh::blade_pass});
+        build(scatter_program_, "load scatter", {sh::load_scatter});
+        build(gather_program_, "gather", {sh::gather});
         for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_,
-                                 &cut_program_}) {
+                                 &cut_program_, &scatter_program_, &gather_program_}) {
             glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
             glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
         }
@@ -329,6 +339,7 @@ public:
 
     void reset_tissue() override {
         glNamedBufferSubData(neighbour_.id(), 0, GLsizeiptr(uncut_neighbour_.size() * 4), uncut_neighbour_.data());  // heals cuts
+        clear_loads();
         strokes_.clear();
         blade_swept_ = false;
         place_tissue(rest_current_, &rest_motion_);
@@ -486,7 +497,8 @@ public:
             const std::uint64_t sequence = next_sequence_ - std::uint64_t(back);
             const int slot = int(sequence % ring_slots);
             if (!fences_[slot] || sequence_of_[slot] != sequence) continue;
-            if (glClientWaitSync(fences_[slot], 0, 0) == GL_TIMEOUT_EXPIRED) continue;
+            const GLenum state = glClientWaitSync(fences_[slot], 0, 0);
+            if (state != GL_ALREADY_SIGNALED && state != GL_CONDITION_SATISFIED) continue;  // unfinished (or the wait failed)
             fences_[slot].reset();
             latest_ = read_slot(slot);
             latest_sequence_ = sequence;
@@ -577,6 +589,63 @@ public:
         return out;
     }
 
+    void set_loads(const std::vector<ParticleLoad>& loads) override {
+        check_loads(loads, n_);  // Solver::set_loads's rule; throws before anything changes
+        // One list for the scatter pass: the new loads, and the previous ones' particles that the
+        // new list drops with a zero force; both sorted, so each particle appears once.
+        std::vector<LoadEntry> entries;
+        entries.reserve(loads.size() + load_particles_.size());
+        std::size_t q = 0;
+        for (const ParticleLoad& load : loads) {
+            for (; q < load_particles_.size() && load_particles_[q] < load.particle; ++q) entries.push_back({load_particles_[q], {0, 0, 0}});
+            if (q < load_particles_.size() && load_particles_[q] == load.particle) ++q;
+            entries.push_back({load.particle, {float(load.force_n.x()), float(load.force_n.y()), float(load.force_n.z())}});
+        }
+        for (; q < load_particles_.size(); ++q) entries.push_back({load_particles_[q], {0, 0, 0}});
+        if (!entries.empty()) {
+            const std::size_t bytes = entries.size() * sizeof(LoadEntry);
+            if (bytes > load_list_bytes_) {
+                load_list_bytes_ = std::max<std::size_t>(bytes, 2 * load_list_bytes_);
+                storage(load_list_, load_list_bytes_, GL_DYNAMIC_STORAGE_BIT);
+            }
+            glNamedBufferSubData(load_list_.id(), 0, GLsizeiptr(bytes), entries.data());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load_list, load_list_.id());
+            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
+            glProgramUniform1ui(scatter_program_.id, scatter_program_.at("entry_count"), GLuint(entries.size()));
+            glUseProgram(scatter_program_.id);
+            glDispatchCompute(GLuint((entries.size() + 63) / 64), 1, 1);
+            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+        }
+        load_particles_.resize(loads.size());
+        for (std::size_t k = 0; k < loads.size(); ++k) load_particles_[k] = loads[k].particle;
+        glProgramUniform1i(step_program_.id, step_program_.at("loaded"), !load_particles_.empty());
+        check("set_loads");
+    }
+
+    std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) override {
+        check_particle_indices(particles, n_);
+        std::vector<std::array<float, 3>> out(particles.size());
+        if (particles.empty()) return out;
+        if (particles.size() > gather_capacity_) {
+            gather_capacity_ = std::max<std::size_t>(particles.size(), 2 * gather_capacity_);
+            storage(gather_index_, gather_capacity_ * 4, GL_DYNAMIC_STORAGE_BIT);
+            storage(gathered_, gather_capacity_ * 16, 0);
+        }
+        glNamedBufferSubData(gather_index_.id(), 0, GLsizeiptr(particles.size() * 4), particles.data());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::current, position_[current_].id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::gather_index, gather_index_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::gathered, gathered_.id());
+        glProgramUniform1ui(gather_program_.id, gather_program_.at("gather_count"), GLuint(particles.size()));
+        glUseProgram(gather_program_.id);
+        glDispatchCompute(GLuint((particles.size() + 63) / 64), 1, 1);
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        std::vector<float> raw(4 * particles.size());
+        glGetNamedBufferSubData(gathered_.id(), 0, GLsizeiptr(raw.size() * sizeof(float)), raw.data());
+        check("reading positions of particles");
+        for (std::size_t q = 0; q < particles.size(); ++q) out[q] = {raw[4 * q], raw[4 * q + 1], raw[4 * q + 2]};
+        return out;
+    }
+
     void set_contact(const ContactSettings& settings) override {
         if (settings.mode != ContactMode::direct && !picking_)
             picking_ = std::make_unique<PickingPass>(surface_, n_, lattice_spacing_, settings);
@@ -621,6 +690,15 @@ private:
         bool is_picking = false;
         long long substeps = 0;
     };
+
+    /// No loads: the load buffer back to zero, the step pass no longer reads it.
+    void clear_loads() {
+        const float zero4[4] = {0, 0, 0, 0};
+        glClearNamedBufferData(load_.id(), GL_RGBA32F, GL_RGBA, GL_FLOAT, zero4);
+        glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
+        load_particles_.clear();
+        glProgramUniform1i(step_program_.id, step_program_.at("loaded"), GL_FALSE);
+    }
 
     /// The force pass reads the picking / search list (not the step's touched list) for probes.
     bool listed_contacts() const { return contact_.mode != ContactMode::direct && picking_; }
@@ -682,7 +760,7 @@ private:
         InstrumentForces forces;
         for (int hand = 0; hand < hands; ++hand) {
             forces.hand[hand].force_n = Eigen::Vector3d(s->force[hand][0], s->force[hand][1], s->force[hand][2]);
-            forces.hand[hand].particles = std::size_t(s->force[hand][3]);
+            forces.hand[hand].particles = std::min<std::size_t>(s->counts[hand], n_);
             forces.hand[hand].springs_cut = s->cuts[hand];
             // A blade's state is zero but while its hand is a lowered scalpel, which touches and holds
             // nothing: its force is the blade's (Solver::instrument_forces), from the state the step had.
@@ -831,6 +909,7 @@ private:
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::touched, touched_.id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id());
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
     }
 
     /// The tables of libmodel/solver.cpp's constructor, built the same way (same slot search,
@@ -900,6 +979,7 @@ private:
         storage(touched_, std::size_t(hands) * n_ * 4, 0);
         storage(held_, std::size_t(hands) * n_ * 4, GL_DYNAMIC_STORAGE_BIT);              // begin_grab rewrites it
         storage(held_local_, std::size_t(hands) * n_ * 3 * 8, GL_DYNAMIC_STORAGE_BIT);
+        storage(load_, std::vector<float>(4 * n_pad_, 0.0f), 0);  // set_loads's scatter pass writes it
         rest_position_.resize(3 * n_);  // begin_grab's piece of tissue (keep_one_piece)
         for (std::size_t i = 0; i < n_; ++i)
             for (int c = 0; c < 3; ++c) rest_position_[3 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
@@ -932,6 +1012,11 @@ private:
     Buffer position_[2], motion_[2], rest_current_, rest_motion_;
     int current_ = 0, next_ = 1;
     Buffer neighbour_, rest_length_, stiffness_, dashpot_, particle_, held_by_, counters_, touched_, held_, held_local_, ring_;
+    /// External loads: `load_` per padded particle (N, zero where none); set_loads's scatter list;
+    /// positions_of's indices and positions. The two lists grow on demand.
+    Buffer load_, load_list_, gather_index_, gathered_;
+    std::size_t load_list_bytes_ = 0, gather_capacity_ = 0;
+    std::vector<std::int32_t> load_particles_;  ///< the particles of the loads in force, ascending
     std::vector<float> rest_position_;  ///< 3 per particle, host copy for begin_grab
     /// Host copies of what upload_step_constants() derives the h- and S-dependent constants from.
     struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
@@ -943,7 +1028,7 @@ private:
     bool blade_swept_ = false;  ///< a cut pass ran since the tissue was last whole (a grab then reads the table)
     std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
     Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_,
-        blade_program_;
+        blade_program_, scatter_program_, gather_program_;
     LatticeFrame lattice_frame_;  ///< the reference solver's (Solver::lattice_frame)
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;
@@ -974,6 +1059,7 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
     return 8 * n_pad * 16            // positions and motions: two float4 buffers each, the start state of both, two restore points
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
+           + n_pad * 16              // external loads
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
            + ring_slots * ring_stride + status_slots * 8 + sh::counter_words * 4;
 }
@@ -987,7 +1073,7 @@ std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& sce
 }
 
 unsigned gl_position_buffer(const Backend& backend) {
-    const auto* gl = dynamic_cast<const GlBackend*>(&backend);
+    const auto* gl = dynamic_cast<const GlBackend*>(&backend.simulating());
     return gl ? gl->position_buffer() : 0;
 }
 

@@ -18,6 +18,11 @@ enum Binding : unsigned {
     // The picking and search passes (picking.cpp, picking_shaders.h), beyond current, counters, picked.
     picking_triangles = 16, picking_samples = 17, picking_marks = 18, picking_surface = 19,
     picking_index_image = 6,  ///< texture unit (not a buffer) of the picking buffer's particle index image
+    // External loads (backend_gl.cpp set_loads, positions_of).
+    load = 20,          ///< per padded particle, vec4: the load's force (N) in xyz, zero where there is none
+    load_list = 21,     ///< set_loads's scatter list: particle index and force per entry
+    gather_index = 22,  ///< positions_of's particle indices
+    gathered = 23,      ///< positions_of's positions, vec4 per index
     // The renderer's passes (renderer.cpp, render_shaders.h) bind all their buffers before each
     // use, so they reuse the backend's low slots: with the cpu backend, drawing then needs no
     // more bindings than the few every OpenGL 4.3 driver offers.
@@ -65,6 +70,10 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"BINDING_PICKING_MARKS", picking_marks},
     {"BINDING_PICKING_SURFACE", picking_surface},
     {"BINDING_PICKING_INDEX_IMAGE", picking_index_image},
+    {"BINDING_LOAD", load},
+    {"BINDING_LOAD_LIST", load_list},
+    {"BINDING_GATHER_INDEX", gather_index},
+    {"BINDING_GATHERED", gathered},
     {"BINDING_INCIDENCE_START", incidence_start},
     {"BINDING_INCIDENCE", incidence},
     {"BINDING_PARTICLE_NORMALS", particle_normals},

@@ -32,13 +32,15 @@ layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { fl
 layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
 )";
 
-/// One substep: gather the 18 slots, integrate, check the displacement, project out of probes.
-/// Positions x and the motion of the last substep u = x_n − x_{n−1} are kept apart, as on the CPU.
+/// One substep: gather the 18 slots, integrate, check the displacement, add the external loads,
+/// project out of probes. Positions x and the motion of the last substep u = x_n − x_{n−1} are
+/// kept apart, as on the CPU.
 inline constexpr const char* step = R"(
 layout(local_size_x = 64) in;
 layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
 layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };  // N, zero where none
 
 uniform float keep;             // 1 − γh
 uniform vec3 gravity;           // mm/ms²
@@ -53,6 +55,7 @@ uniform dmat3 probe_previous_rotation[2];
 uniform dvec3 probe_semi_axes[2];
 uniform float probe_bound2[2];
 uniform double pierce_strain;   // SolverOptions::probe_pierce_strain; ≤ 0: never pierces
+uniform bool loaded;            // some particle has a load (set_loads): read `load`
 
 dvec3 rotate(dmat3 r, dvec3 v) {          // r · v, Eigen's order
     precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
@@ -153,10 +156,18 @@ void main() {
     precise float ey = keep * uyi + (fy + p.mass * gravity.y) * p.inverse_mass_h2;
     precise float ez = keep * uzi + (fz + p.mass * gravity.z) * p.inverse_mass_h2;
     precise float nx = xi + ex, ny = yi + ey, nz = zi + ez;
-    vec4 motion = vec4(ex, ey, ez, 0.0);
     precise float d2 = ex * ex + ey * ey;
     d2 = d2 + ez * ez;
     if (!(d2 <= max_displacement2)) atomicOr(counter[COUNTER_STATUS], 1u);
+    // External loads (Solver::substep, after the kernel): h²F/(S·m) more position and motion on a
+    // movable particle that no grabber holds, rounded apart as on the CPU.
+    if (loaded && p.movable != 0 && held_by[i] < 0) {
+        vec4 f = load[i];
+        precise float lx = p.inverse_mass_h2 * f.x, ly = p.inverse_mass_h2 * f.y, lz = p.inverse_mass_h2 * f.z;
+        nx = nx + lx; ny = ny + ly; nz = nz + lz;
+        ex = ex + lx; ey = ey + ly; ez = ez + lz;
+    }
+    vec4 motion = vec4(ex, ey, ez, 0.0);
 
     // Probes (libmodel/solver.cpp `project`): exact test and projection in double.
     if (i < particle_count && p.movable != 0 && held_by[i] < 0) {
@@ -359,6 +370,37 @@ void main() {
 }
 )";
 
+/// set_loads: each listed particle's load (N) into `load`; the host lists the previous loads'
+/// particles that the new list drops with a zero force, so every particle is listed at most once.
+inline constexpr const char* load_scatter = R"(
+layout(local_size_x = 64) in;
+struct LoadEntry { int particle; float fx; float fy; float fz; };
+layout(std430, binding = BINDING_LOAD_LIST) readonly buffer LoadListBuffer { LoadEntry entry[]; };
+layout(std430, binding = BINDING_LOAD) writeonly buffer LoadBuffer { vec4 load[]; };
+uniform uint entry_count;
+void main() {
+    uint e = gl_GlobalInvocationID.x;
+    if (e >= entry_count) return;
+    LoadEntry l = entry[e];
+    load[uint(l.particle)] = vec4(l.fx, l.fy, l.fz, 0.0);
+}
+)";
+
+/// positions_of: the current positions of the listed particles (checked in range by the host), in
+/// the list's order.
+inline constexpr const char* gather = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_GATHER_INDEX) readonly buffer GatherIndexBuffer { int gather_index[]; };
+layout(std430, binding = BINDING_GATHERED) writeonly buffer GatheredBuffer { vec4 gathered[]; };
+uniform uint gather_count;
+void main() {
+    uint e = gl_GlobalInvocationID.x;
+    if (e >= gather_count) return;
+    gathered[e] = x[uint(gather_index[e])];
+}
+)";
+
 /// begin_grab: free particles inside the grabber at its pose join the hand's held list.
 inline constexpr const char* capture = R"(
 layout(local_size_x = 64) in;
@@ -496,14 +538,17 @@ void main() {
 )";
 
 /// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
-/// held or touched in the last substep, in double as Solver::force_on; into one ring slot, with each
-/// hand's springs cut in the step and its blade's state (the host computes a scalpel's
-/// force from them: libmodel/cutting_force.h blade_force).
+/// held or touched in the last substep, in double as Solver::force_on; into one ring slot, with
+/// each hand's particle count, its springs cut in the step and its blade's state (the host
+/// computes a scalpel's force from them: libmodel/cutting_force.h blade_force). The count is a
+/// uint word of its own, not the force's w lane: NVIDIA's compiler (driver 580, H100) stores
+/// dvec4(partial, double(count)) with the count's integer bits in the w lane's low word and the
+/// high word unwritten, which the host read as 0 or 10^11 particles.
 inline constexpr const char* force_pass = R"(
 layout(local_size_x = 256) in;
 layout(std430, binding = BINDING_TOUCHED) readonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
-layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; uint cuts[2]; double blade[12]; };
+layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; uint cuts[2]; uint counts[2]; double blade[12]; };
 layout(std430, binding = BINDING_PICKED) readonly buffer PickedBuffer { int picked[]; };
 uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding, 3 probe with the picking/search list
 uniform bool damped;
@@ -550,7 +595,8 @@ void main() {
         barrier();
     }
     if (lid == 0u) {
-        force[hand] = dvec4(partial[0], double(count));  // a scalpel's: 0 here, from `blade` on the host
+        force[hand] = dvec4(partial[0], 0.0lf);  // a scalpel's: 0 here, from `blade` on the host
+        counts[hand] = count;
         cuts[hand] = counter[COUNTER_CUT0 + hand];
         uint base = uint(COUNTER_BLADE0) + 12u * hand;  // the blade pass's state
         for (uint v = 0u; v < 6u; ++v) blade[6u * hand + v] = packDouble2x32(uvec2(counter[base + 2u * v], counter[base + 2u * v + 1u]));
