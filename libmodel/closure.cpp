@@ -1,0 +1,446 @@
+// Whether a patch closes a septal defect (closure.h): the wall's thickness from lines along the
+// axis, the rim and its gap to the patch, the tissue and the patch rasterised on a grid in the
+// defect's frame, and a flood fill from the opening at mid-wall to beyond the patch. Everything after the input checks works in the
+// defect's frame: x, y across the axis, z along it (s), origin at the defect's centre.
+#include "closure.h"
+
+#include "errors.h"
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <sstream>
+#include <string>
+#include <utility>
+
+namespace heartsim {
+namespace {
+
+using Vector2 = Eigen::Vector2d;
+using Vector3 = Eigen::Vector3d;
+using Triangle = std::array<std::int32_t, 3>;
+
+/// A triangle mesh in the defect's frame.
+struct FrameMesh {
+    std::vector<Vector3> points;
+    const std::vector<Triangle>& triangles;
+    const Vector3& corner(std::size_t t, int c) const { return points[std::size_t(triangles[t][std::size_t(c)])]; }
+};
+
+std::string format_point(const Vector3& p) {
+    std::ostringstream text;
+    text.precision(4);
+    text << "(" << p.x() << ", " << p.y() << ", " << p.z() << ") mm";
+    return text.str();
+}
+
+void require_mesh(const std::vector<std::array<float, 3>>& positions, const std::vector<Triangle>& triangles, const char* what) {
+    for (std::size_t v = 0; v < positions.size(); ++v)
+        for (float c : positions[v])
+            if (!std::isfinite(c)) throw InputError(std::string(what) + " position " + std::to_string(v) + " is not finite");
+    for (std::size_t t = 0; t < triangles.size(); ++t)
+        for (std::int32_t v : triangles[t])
+            if (v < 0 || std::size_t(v) >= positions.size())
+                throw InputError(std::string(what) + " triangle " + std::to_string(t) + " names vertex " + std::to_string(v) + ", outside [0, " +
+                                 std::to_string(positions.size()) + ")");
+}
+
+/// Where a line parallel to one frame axis crosses a triangle: `along` is the line's coordinate
+/// there, `sign` +1 where the line enters the mesh going forward (the outward normal points against
+/// the line), −1 where it leaves.
+struct Crossing {
+    double along;
+    int sign;
+};
+
+/// The crossing of the line through `point` with a triangle, the triangle given by its corners
+/// projected onto the two axes across the line (p0, p1, p2) and their coordinates along it (w0,
+/// w1, w2); the two axes and the line's direction must be right-handed in that order. False when
+/// the line misses the triangle or the triangle is edge-on to it. Callers keep their lines off
+/// vertices and edges (irrational offsets), so each crossing of a closed mesh is counted once.
+bool cross_line(const Vector2& point, const Vector2& p0, const Vector2& p1, const Vector2& p2, double w0, double w1, double w2,
+                Crossing& crossing) {
+    auto edge = [](const Vector2& from, const Vector2& to, const Vector2& q) {
+        return (to.x() - from.x()) * (q.y() - from.y()) - (to.y() - from.y()) * (q.x() - from.x());
+    };
+    const double l0 = edge(p1, p2, point), l1 = edge(p2, p0, point), l2 = edge(p0, p1, point);
+    const double area = l0 + l1 + l2;  // twice the projected area: the normal's component along the line
+    if (area == 0.0) return false;
+    if (area > 0.0 ? (l0 < 0.0 || l1 < 0.0 || l2 < 0.0) : (l0 > 0.0 || l1 > 0.0 || l2 > 0.0)) return false;
+    crossing.along = (l0 * w0 + l1 * w1 + l2 * w2) / area;
+    crossing.sign = area > 0.0 ? -1 : +1;
+    return true;
+}
+
+/// The crossing of the line (x, y) = `point` parallel to the frame's z axis with triangle t.
+bool cross_along_axis(const FrameMesh& mesh, std::size_t t, const Vector2& point, Crossing& crossing) {
+    const Vector3 &a = mesh.corner(t, 0), &b = mesh.corner(t, 1), &c = mesh.corner(t, 2);
+    if (point.x() < std::min({a.x(), b.x(), c.x()}) || point.x() > std::max({a.x(), b.x(), c.x()}) ||
+        point.y() < std::min({a.y(), b.y(), c.y()}) || point.y() > std::max({a.y(), b.y(), c.y()}))
+        return false;
+    return cross_line(point, a.head<2>(), b.head<2>(), c.head<2>(), a.z(), b.z(), c.z(), crossing);
+}
+
+/// The closest point of triangle (a, b, c) to p (Ericson, Real-Time Collision Detection, 5.1.5).
+Vector3 closest_on_triangle(const Vector3& p, const Vector3& a, const Vector3& b, const Vector3& c) {
+    const Vector3 ab = b - a, ac = c - a, ap = p - a;
+    const double d1 = ab.dot(ap), d2 = ac.dot(ap);
+    if (d1 <= 0.0 && d2 <= 0.0) return a;
+    const Vector3 bp = p - b;
+    const double d3 = ab.dot(bp), d4 = ac.dot(bp);
+    if (d3 >= 0.0 && d4 <= d3) return b;
+    const double vc = d1 * d4 - d3 * d2;
+    if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + ab * (d1 / (d1 - d3));
+    const Vector3 cp = p - c;
+    const double d5 = ab.dot(cp), d6 = ac.dot(cp);
+    if (d6 >= 0.0 && d5 <= d6) return c;
+    const double vb = d5 * d2 - d1 * d6;
+    if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + ac * (d2 / (d2 - d6));
+    const double va = d3 * d6 - d5 * d4;
+    if (va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    const double denominator = va + vb + vc;
+    if (denominator == 0.0) {  // a degenerate triangle: the nearest of its corners
+        const double da = (p - a).squaredNorm(), db = (p - b).squaredNorm(), dc = (p - c).squaredNorm();
+        return da <= db && da <= dc ? a : (db <= dc ? b : c);
+    }
+    return a + ab * (vb / denominator) + ac * (vc / denominator);
+}
+
+double distance_to_mesh(const Vector3& p, const FrameMesh& mesh) {
+    double nearest = std::numeric_limits<double>::infinity();
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+        nearest = std::min(nearest, (closest_on_triangle(p, mesh.corner(t, 0), mesh.corner(t, 1), mesh.corner(t, 2)) - p).squaredNorm());
+    return std::sqrt(nearest);
+}
+
+void sort_along(std::vector<Crossing>& crossings) {
+    std::sort(crossings.begin(), crossings.end(), [](const Crossing& x, const Crossing& y) { return x.along < y.along; });
+}
+
+/// Step 1: the median length of the tissue intervals (winding number ≠ 0) of eight lines parallel
+/// to the axis at `rim_radius`, each the interval containing s = 0 or nearest it, within `reach`.
+/// The angles are offset by an irrational fraction of a turn so the lines miss the edges of a mesh
+/// built with rotational symmetry. Lines whose crossings do not sum to zero (an open mesh) are
+/// skipped. NaN when no line finds a wall.
+double wall_thickness(const FrameMesh& tissue, double rim_radius, double reach) {
+    std::vector<double> lengths;
+    std::vector<Crossing> crossings;
+    for (int line = 0; line < 8; ++line) {
+        const double angle = 2.0 * std::numbers::pi * (line + 0.1 * std::numbers::sqrt2) / 8.0;
+        const Vector2 point(rim_radius * std::cos(angle), rim_radius * std::sin(angle));
+        crossings.clear();
+        for (std::size_t t = 0; t < tissue.triangles.size(); ++t) {
+            Crossing crossing{};
+            if (cross_along_axis(tissue, t, point, crossing)) crossings.push_back(crossing);
+        }
+        sort_along(crossings);
+        int winding = 0;
+        double start = 0.0, nearest = std::numeric_limits<double>::infinity(), length = 0.0;
+        for (const Crossing& c : crossings) {
+            const int before = winding;
+            winding += c.sign;
+            if (before == 0 && winding != 0) start = c.along;
+            if (before != 0 && winding == 0) {
+                const double distance = std::max({start, -c.along, 0.0});
+                if (distance < nearest) nearest = distance, length = c.along - start;
+            }
+        }
+        if (winding == 0 && nearest <= reach) lengths.push_back(length);
+    }
+    if (lengths.empty()) return std::numeric_limits<double>::quiet_NaN();
+    std::sort(lengths.begin(), lengths.end());
+    const std::size_t middle = lengths.size() / 2;
+    return lengths.size() % 2 ? lengths[middle] : 0.5 * (lengths[middle - 1] + lengths[middle]);
+}
+
+/// One axis of the voxel grid: n layers of `h` mm, layer i centred at first + i·h.
+struct GridAxis {
+    double first = 0.0, h = 0.0;
+    long n = 0;
+    double centre(long i) const { return first + double(i) * h; }
+    /// The layers whose centres lie in [low, high]; false when none.
+    bool layers(double low, double high, long& from, long& to) const {
+        const double lo = (low - first) / h, hi = (high - first) / h;
+        if (!(lo <= double(n - 1)) || !(hi >= 0.0)) return false;
+        from = std::max(0L, long(std::ceil(lo)));
+        to = std::min(n - 1, long(std::floor(hi)));
+        return from <= to;
+    }
+};
+
+/// The voxel grid, axes along the defect's frame: x and y across the axis centred on it, z along
+/// it. The region (a cylinder) leaves at least one layer of the grid outside it all round, so every
+/// region voxel has its six neighbours in the grid.
+struct Grid {
+    static constexpr std::uint8_t in_region = 1, blocked = 2, visited = 4;
+    double h = 0.0;
+    GridAxis across, along;  // across: x and y; along: z
+    std::size_t side = 0, layer = 0;
+    std::vector<std::uint8_t> flags;
+
+    /// The cylinder ρ ≤ `radius`, 0 ≤ s ≤ `top`: layers along z from s = −h/2 (outside) to one
+    /// past the last centre ≤ top.
+    Grid(double voxel_mm, double radius, double top) : h(voxel_mm) {
+        const long half = long(std::ceil(radius / h)) + 1;
+        across = {(0.5 - double(half)) * h, h, 2 * half};
+        along = {-0.5 * h, h, long(std::floor(top / h + 0.5)) + 2};
+        side = std::size_t(across.n);
+        layer = side * side;
+    }
+    double voxels() const { return double(across.n) * double(across.n) * double(along.n); }
+    std::size_t index(long i, long j, long k) const { return std::size_t(i) + side * std::size_t(j) + layer * std::size_t(k); }
+};
+
+/// Step 4: blocks the region's voxels whose centres the closed mesh winds around (winding number
+/// ≠ 0), counted along rows parallel to the frame's x axis. Row (j, k) is the line
+/// (y_j + δy, z_k + δz); δ, small irrational fractions of a voxel, keep it off the vertices and
+/// edges of meshes built on round numbers. Triangles are binned by the rows their (y, z) bounding
+/// box spans: every triangle of the mesh, for a voxel's winding number counts every crossing
+/// before it along its row, also those outside the region. Only rows that pass through the
+/// region (|y| ≤ the cylinder's radius) are binned.
+void block_tissue(Grid& grid, const FrameMesh& tissue, double radius) {
+    const double dy = grid.h * 1e-2 * (std::numbers::sqrt2 - 1.0), dz = grid.h * 1e-2 * (std::numbers::sqrt3 - 1.0);
+    const std::size_t rows = grid.side * std::size_t(grid.along.n);
+    auto row_in_region = [&](long j) { return std::abs(grid.across.centre(j)) <= radius; };
+    // Rows' triangles, compressed: row r holds binned[start[r] .. start[r + 1]).
+    std::vector<std::uint32_t> start(rows + 1, 0), binned, fill;
+    for (int pass = 0; pass < 2; ++pass) {
+        if (pass == 1) {
+            for (std::size_t r = 0; r < rows; ++r) start[r + 1] += start[r];
+            binned.resize(start[rows]);
+            fill.assign(start.begin(), start.end() - 1);
+        }
+        for (std::size_t t = 0; t < tissue.triangles.size(); ++t) {
+            const Vector3 &a = tissue.corner(t, 0), &b = tissue.corner(t, 1), &c = tissue.corner(t, 2);
+            long j0, j1, k0, k1;
+            if (!grid.across.layers(std::min({a.y(), b.y(), c.y()}) - dy, std::max({a.y(), b.y(), c.y()}) - dy, j0, j1) ||
+                !grid.along.layers(std::min({a.z(), b.z(), c.z()}) - dz, std::max({a.z(), b.z(), c.z()}) - dz, k0, k1))
+                continue;
+            for (long k = k0; k <= k1; ++k)
+                for (long j = j0; j <= j1; ++j) {
+                    if (!row_in_region(j)) continue;
+                    const std::size_t row = std::size_t(j) + grid.side * std::size_t(k);
+                    if (pass == 0) ++start[row + 1];
+                    else binned[fill[row]++] = std::uint32_t(t);
+                }
+        }
+    }
+    std::vector<Crossing> crossings;
+    for (long k = 0; k < grid.along.n; ++k)
+        for (long j = 0; j < grid.across.n; ++j) {
+            const std::size_t row = std::size_t(j) + grid.side * std::size_t(k);
+            if (start[row] == start[row + 1]) continue;
+            const Vector2 point(grid.across.centre(j) + dy, grid.along.centre(k) + dz);
+            crossings.clear();
+            for (std::uint32_t b = start[row]; b < start[row + 1]; ++b) {
+                const Vector3 &p0 = tissue.corner(binned[b], 0), &p1 = tissue.corner(binned[b], 1), &p2 = tissue.corner(binned[b], 2);
+                Crossing crossing{};
+                // (y, z, x) is right-handed, as cross_line asks.
+                if (cross_line(point, p0.tail<2>(), p1.tail<2>(), p2.tail<2>(), p0.x(), p1.x(), p2.x(), crossing)) crossings.push_back(crossing);
+            }
+            sort_along(crossings);
+            int winding = 0;
+            std::size_t next = 0;
+            for (long i = 0; i < grid.across.n; ++i) {
+                while (next < crossings.size() && crossings[next].along < grid.across.centre(i)) winding += crossings[next++].sign;
+                std::uint8_t& flags = grid.flags[grid.index(i, j, k)];
+                if (winding != 0 && (flags & Grid::in_region)) flags |= Grid::blocked;
+            }
+        }
+}
+
+/// Step 4: blocks the region's voxels whose centres lie within `reach` of a patch triangle.
+void block_patch(Grid& grid, const FrameMesh& patch, double reach) {
+    for (std::size_t t = 0; t < patch.triangles.size(); ++t) {
+        const Vector3 &a = patch.corner(t, 0), &b = patch.corner(t, 1), &c = patch.corner(t, 2);
+        const Vector3 low = (a.cwiseMin(b).cwiseMin(c).array() - reach).matrix(), high = (a.cwiseMax(b).cwiseMax(c).array() + reach).matrix();
+        long i0, i1, j0, j1, k0, k1;
+        if (!grid.across.layers(low.x(), high.x(), i0, i1) || !grid.across.layers(low.y(), high.y(), j0, j1) ||
+            !grid.along.layers(low.z(), high.z(), k0, k1))
+            continue;
+        for (long k = k0; k <= k1; ++k)
+            for (long j = j0; j <= j1; ++j)
+                for (long i = i0; i <= i1; ++i) {
+                    std::uint8_t& flags = grid.flags[grid.index(i, j, k)];
+                    if (flags != Grid::in_region) continue;  // outside, or already blocked
+                    const Vector3 p(grid.across.centre(i), grid.across.centre(j), grid.along.centre(k));
+                    if ((closest_on_triangle(p, a, b, c) - p).squaredNorm() <= reach * reach) flags |= Grid::blocked;
+                }
+    }
+}
+
+}  // namespace
+
+ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_positions, const std::vector<Triangle>& tissue_triangles,
+                            const std::vector<std::array<float, 3>>& patch_positions, const std::vector<Triangle>& patch_triangles,
+                            double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options) {
+    const auto started = std::chrono::steady_clock::now();
+
+    if (!(options.voxel_mm > 0.0) || !std::isfinite(options.voxel_mm)) throw OptionError("ClosureOptions::voxel_mm must be a positive number of mm");
+    if (!(options.margin_mm >= 0.0) || !std::isfinite(options.margin_mm)) throw OptionError("ClosureOptions::margin_mm must be a number of mm ≥ 0");
+    if (options.rim_samples < 1) throw OptionError("ClosureOptions::rim_samples must be at least 1");
+    if (!(options.rim_offset_mm >= 0.0) || !std::isfinite(options.rim_offset_mm))
+        throw OptionError("ClosureOptions::rim_offset_mm must be a number of mm ≥ 0");
+    if (tissue_positions.empty() || tissue_triangles.empty()) throw InputError("the tissue mesh is empty: the closure check needs the detailed mesh");
+    require_mesh(tissue_positions, tissue_triangles, "tissue");
+    require_mesh(patch_positions, patch_triangles, "patch");
+    if (!defect.centre.allFinite()) throw InputError("the defect's centre is not finite");
+    if (!defect.axis.allFinite() || !(std::abs(defect.axis.norm() - 1.0) <= 1e-3))
+        throw InputError("the defect's axis must be a unit vector, not one of length " + std::to_string(defect.axis.norm()));
+    if (!(defect.diameter_mm > 0.0) || !std::isfinite(defect.diameter_mm)) throw InputError("the defect's diameter must be a positive number of mm");
+    if (!(patch_thickness_mm >= 0.0) || !std::isfinite(patch_thickness_mm)) throw InputError("the patch's thickness must be a number of mm ≥ 0");
+    const bool has_patch = !patch_triangles.empty();
+    const double thickness = has_patch ? patch_thickness_mm : 0.0;
+
+    // The defect's frame: x, y across the axis, z along it (right-handed).
+    const Vector3 z_axis = defect.axis.normalized();
+    int least_aligned = 0;
+    z_axis.cwiseAbs().minCoeff(&least_aligned);
+    const Vector3 x_axis = z_axis.cross(Vector3::Unit(least_aligned)).normalized();
+    const Vector3 y_axis = z_axis.cross(x_axis);
+    Eigen::Matrix3d to_frame;
+    to_frame << x_axis.transpose(), y_axis.transpose(), z_axis.transpose();
+    auto in_frame = [&](const std::vector<std::array<float, 3>>& positions, const std::vector<Triangle>& triangles) {
+        FrameMesh mesh{std::vector<Vector3>(positions.size()), triangles};
+        for (std::size_t v = 0; v < positions.size(); ++v)
+            mesh.points[v] = to_frame * (Vector3(positions[v][0], positions[v][1], positions[v][2]) - defect.centre);
+        return mesh;
+    };
+    const FrameMesh tissue = in_frame(tissue_positions, tissue_triangles);
+    const FrameMesh patch = in_frame(patch_positions, patch_triangles);
+
+    ClosureResult result;
+    const double radius = 0.5 * defect.diameter_mm;
+    const double rim_radius = radius + options.rim_offset_mm;
+
+    // 1. The wall's thickness.
+    const double wall = wall_thickness(tissue, rim_radius, radius + options.margin_mm);
+    if (std::isnan(wall)) {
+        std::ostringstream what;
+        what << "no wall around the defect at " << format_point(defect.centre) << ": no line parallel to its axis " << rim_radius
+             << " mm from it meets tissue within " << radius + options.margin_mm << " mm of the centre";
+        throw InputError(what.str());
+    }
+    result.wall_thickness_mm = wall;
+
+    // 2. The rim: rays along −z from s = T/2 + margin at the rim's radius; the first surface that
+    // faces the patch's side (outward normal along +z) within `reach` of the centre is the rim
+    // point. The triangles that can meet those rays are gathered once.
+    const double reach = radius + options.margin_mm + 0.5 * wall;
+    const double ray_start = 0.5 * wall + options.margin_mm;
+    std::vector<std::uint32_t> near_rim;
+    for (std::size_t t = 0; t < tissue.triangles.size(); ++t) {
+        const Vector3 &a = tissue.corner(t, 0), &b = tissue.corner(t, 1), &c = tissue.corner(t, 2);
+        const Vector3 low = a.cwiseMin(b).cwiseMin(c), high = a.cwiseMax(b).cwiseMax(c);
+        if (high.x() >= -rim_radius && low.x() <= rim_radius && high.y() >= -rim_radius && low.y() <= rim_radius && high.z() >= -reach &&
+            low.z() <= ray_start)
+            near_rim.push_back(std::uint32_t(t));
+    }
+    double largest_gap = 0.0, rim_top = -std::numeric_limits<double>::infinity();
+    for (int sample = 0; sample < options.rim_samples; ++sample) {
+        const double angle = 2.0 * std::numbers::pi * (sample + 1e-3 * std::numbers::sqrt2) / options.rim_samples;
+        const Vector2 point(rim_radius * std::cos(angle), rim_radius * std::sin(angle));
+        double hit = -std::numeric_limits<double>::infinity();
+        for (std::uint32_t t : near_rim) {
+            Crossing crossing{};
+            // A crossing that leaves the mesh going +z is a surface facing +z.
+            if (cross_along_axis(tissue, t, point, crossing) && crossing.sign < 0 && crossing.along <= ray_start) hit = std::max(hit, crossing.along);
+        }
+        if (!(rim_radius * rim_radius + hit * hit <= reach * reach)) continue;
+        ++result.rim_points;
+        rim_top = std::max(rim_top, hit);
+        if (has_patch) largest_gap = std::max(largest_gap, distance_to_mesh(Vector3(point.x(), point.y(), hit), patch) - 0.5 * thickness);
+    }
+    result.largest_rim_gap_mm = has_patch && result.rim_points > 0 ? largest_gap : defect.diameter_mm;
+
+    // 3. The region: the cylinder ρ ≤ D/2 + margin from mid-wall (s = 0) to 2 mm above both the
+    // patch where it lies on the rim (rim top + thickness) and the patch's highest point over the
+    // cylinder (a patch domed into its side rises above the rim). The patch's triangles over the
+    // cylinder: those with a corner within the cylinder's radius plus the triangle's longest edge.
+    const double cylinder = radius + options.margin_mm;
+    double patch_top = -std::numeric_limits<double>::infinity();
+    for (std::size_t t = 0; t < patch.triangles.size(); ++t) {
+        const Vector3 &a = patch.corner(t, 0), &b = patch.corner(t, 1), &c = patch.corner(t, 2);
+        const double edge = std::max({(b - a).head<2>().norm(), (c - b).head<2>().norm(), (a - c).head<2>().norm()});
+        if (std::min({a.head<2>().norm(), b.head<2>().norm(), c.head<2>().norm()}) <= cylinder + edge)
+            patch_top = std::max({patch_top, a.z(), b.z(), c.z()});
+    }
+    const double surface = result.rim_points > 0 ? std::max(rim_top, 0.0) : 0.5 * wall;
+    const double top = std::max(surface + thickness, patch_top + 0.5 * thickness) + 2.0;
+    result.top_mm = top;
+    Grid grid(options.voxel_mm, cylinder, top);
+    if (grid.voxels() > 2e8)
+        throw OptionError("ClosureOptions::voxel_mm " + std::to_string(grid.h) + " makes a grid of " + std::to_string(grid.voxels()) +
+                          " voxels around a cylinder " + std::to_string(2 * cylinder) + " mm across and " + std::to_string(top) +
+                          " mm tall; use a coarser grid");
+    grid.flags.assign(grid.layer * std::size_t(grid.along.n), 0);
+    for (long k = 0; k < grid.along.n; ++k) {
+        const double z = grid.along.centre(k);
+        if (z < 0.0 || z > top) continue;
+        for (long j = 0; j < grid.across.n; ++j)
+            for (long i = 0; i < grid.across.n; ++i)
+                if (std::pow(grid.across.centre(i), 2) + std::pow(grid.across.centre(j), 2) <= cylinder * cylinder) {
+                    grid.flags[grid.index(i, j, k)] = Grid::in_region;
+                    ++result.voxels;
+                }
+    }
+
+    // 4. The tissue's and the patch's voxels. The patch's reach is widened by half a voxel's
+    // diagonal so that no two free voxels meet face to face across it, however thin it is.
+    block_tissue(grid, tissue, cylinder);
+    if (has_patch) block_patch(grid, patch, 0.5 * thickness + 0.5 * std::numbers::sqrt3 * grid.h);
+
+    // 5. Seeds: the opening at mid-wall (s below 1 mm, or one voxel where that is coarser; ρ within
+    // the opening less a voxel). Targets: the region's top layer. The region starts at s = 0, so
+    // a path around the septum through the far side's blood is not in it: the fill looks only for
+    // a way out of the opening past the patch.
+    const double seed_below = std::max(1.0, grid.h), seed_radius = radius - grid.h;
+    auto is_target = [&](std::size_t at) { return grid.along.centre(long(at / grid.layer)) >= top - grid.h; };
+    std::vector<std::uint32_t> queue;
+    std::size_t targets = 0;
+    for (long k = 1; k + 1 < grid.along.n; ++k)
+        for (long j = 1; j + 1 < grid.across.n; ++j)
+            for (long i = 1; i + 1 < grid.across.n; ++i) {
+                const std::size_t at = grid.index(i, j, k);
+                if (grid.flags[at] != Grid::in_region) continue;  // outside, or blocked
+                if (grid.along.centre(k) < seed_below &&
+                    std::pow(grid.across.centre(i), 2) + std::pow(grid.across.centre(j), 2) < seed_radius * seed_radius) {
+                    grid.flags[at] |= Grid::visited;
+                    queue.push_back(std::uint32_t(at));
+                } else if (is_target(at)) {
+                    ++targets;
+                }
+            }
+    if (queue.empty()) {
+        std::ostringstream what;
+        what << "the opening is not open at mid-wall: no free voxel of the defect at " << format_point(defect.centre) << " within "
+             << seed_radius << " mm of its axis between s = 0 and " << seed_below
+             << " mm (tissue or patch fills the opening there, or the centre is not in it)";
+        throw InputError(what.str());
+    }
+    if (targets == 0) {
+        std::ostringstream what;
+        what << "no free voxel on the patch's side of the defect at " << format_point(defect.centre) << ": the region's top layer, "
+             << top << " mm above the wall's middle and within " << cylinder << " mm of the axis, is all tissue or patch";
+        throw InputError(what.str());
+    }
+    for (std::size_t head = 0; head < queue.size(); ++head) {
+        const std::size_t at = queue[head];
+        for (const std::size_t next : {at - 1, at + 1, at - grid.side, at + grid.side, at - grid.layer, at + grid.layer}) {
+            if (grid.flags[next] != Grid::in_region) continue;  // outside, blocked or visited
+            grid.flags[next] |= Grid::visited;
+            queue.push_back(std::uint32_t(next));
+        }
+    }
+    result.reached = queue.size();
+    result.closed = std::none_of(queue.begin(), queue.end(), [&](std::uint32_t at) { return is_target(at); });
+
+    result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+    return result;
+}
+
+}  // namespace heartsim
