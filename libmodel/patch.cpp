@@ -1,0 +1,719 @@
+#include "patch.h"
+
+#include "errors.h"
+#include "triangle_point.h"
+
+#include <algorithm>
+#include <limits>
+#include <cmath>
+#include <map>
+#include <numbers>
+
+namespace heartsim {
+
+PatchMaterial patch_material_named(const std::string& name) {
+    if (name == "pericardium") return {"pericardium", 30.0, 0.45, 1.1e-3};
+    if (name == "ptfe") return {"ptfe", 40.0, 0.45, 1.5e-3};
+    if (name == "dacron") return {"dacron", 200.0, 0.3, 1.38e-3};
+    throw InputError("patch material '" + name + "': expected pericardium, ptfe or dacron");
+}
+
+namespace {
+
+Eigen::Vector3d vec(const std::array<float, 3>& p) { return {double(p[0]), double(p[1]), double(p[2])}; }
+
+/// Barycentric weights of p's projection onto triangle (a, b, c), and its signed distance along
+/// the unit normal n.
+Eigen::Vector3d barycentric(const Eigen::Vector3d& p, const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
+    const Eigen::Vector3d v0 = b - a, v1 = c - a, v2 = p - a;
+    const double d00 = v0.dot(v0), d01 = v0.dot(v1), d11 = v1.dot(v1), d20 = v2.dot(v0), d21 = v2.dot(v1);
+    const double denominator = d00 * d11 - d01 * d01;
+    if (!(std::abs(denominator) > 1e-18)) return {-1, -1, -1};
+    const double v = (d11 * d20 - d01 * d21) / denominator, w = (d00 * d21 - d01 * d20) / denominator;
+    return {1.0 - v - w, v, w};
+}
+
+/// Where the ray o + s·d (s ≥ 0) meets triangle (a, b, c) (Möller–Trumbore); −1 when it misses.
+double ray_triangle(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
+                    const Eigen::Vector3d& c) {
+    const Eigen::Vector3d e1 = b - a, e2 = c - a, q = d.cross(e2);
+    const double det = e1.dot(q);
+    if (std::abs(det) < 1e-14) return -1;
+    const double inv = 1.0 / det;
+    const Eigen::Vector3d t = o - a;
+    const double u = t.dot(q) * inv;
+    if (u < 0 || u > 1) return -1;
+    const Eigen::Vector3d r = t.cross(e1);
+    const double v = d.dot(r) * inv;
+    if (v < 0 || u + v > 1) return -1;
+    const double s = e2.dot(r) * inv;
+    return s >= 0 ? s : -1;
+}
+
+}  // namespace
+
+PatchModel::PatchModel(const PatchSpec& spec, const std::vector<std::array<float, 3>>& rest, ContactSurface surface,
+                       std::vector<double> tissue_inverse_mass)
+    : spec_(spec), rest_(rest), surface_(std::move(surface)), tissue_inverse_mass_(std::move(tissue_inverse_mass)) {
+    if (!tissue_inverse_mass_.empty() && tissue_inverse_mass_.size() != rest_.size())
+        throw InputError("patch: " + std::to_string(tissue_inverse_mass_.size()) + " inverse masses for " + std::to_string(rest_.size()) +
+                         " particles");
+    auto positive = [](double value, const char* what) {
+        if (!(value > 0) || !std::isfinite(value)) throw InputError(std::string("patch: ") + what + " must be positive and finite");
+    };
+    positive(spec_.thickness_mm, "the thickness (mm)");
+    positive(spec_.radius_x_mm, "the half-diameter along x (mm)");
+    positive(spec_.radius_y_mm, "the half-diameter along y (mm)");
+    positive(spec_.edge_mm, "the triangles' size (mm)");
+    positive(spec_.material.youngs_modulus_mpa, "the material's Young's modulus (MPa)");
+    positive(spec_.material.density, "the material's density (g/mm³)");
+    positive(spec_.tie_ms, "the tying time (ms)");
+    positive(spec_.stitch_stiffness, "the suture's stiffness (N/mm)");
+    if (!(spec_.material.poisson_ratio >= 0 && spec_.material.poisson_ratio < 0.5)) throw InputError("patch: Poisson's ratio must be in [0, 0.5)");
+    if (!(spec_.standoff_mm >= 0) || !(spec_.damping_per_ms >= 0) || spec_.iterations < 1)
+        throw InputError("patch: the standoff and damping must not be negative and the iterations at least 1");
+    if (std::max(spec_.radius_x_mm, spec_.radius_y_mm) / spec_.edge_mm > 200)
+        throw InputError("patch: more than 200 triangles across its radius (give a larger edge)");
+    for (const auto& v : surface_.vertices)
+        for (const auto& [particle, weight] : v.carriers)
+            if (particle < 0 || std::size_t(particle) >= rest_.size()) throw InputError("patch: a surface carrier is not a particle");
+    for (const auto& t : surface_.triangles)
+        for (int corner : t)
+            if (corner < 0 || std::size_t(corner) >= surface_.vertices.size()) throw InputError("patch: a surface triangle's vertex is out of range");
+    refresh_particles();
+    build_mesh();
+}
+
+void PatchModel::refresh_particles() {
+    particles_.clear();
+    for (const auto& v : surface_.vertices)
+        for (const auto& c : v.carriers) particles_.push_back(c.first);
+    std::sort(particles_.begin(), particles_.end());
+    particles_.erase(std::unique(particles_.begin(), particles_.end()), particles_.end());
+    slot_of_surface_.clear();
+    for (const auto& v : surface_.vertices)
+        for (const auto& c : v.carriers)
+            slot_of_surface_.push_back(int(std::lower_bound(particles_.begin(), particles_.end(), c.first) - particles_.begin()));
+}
+
+void PatchModel::build_mesh() {
+    // Rings of 6k vertices at radius k/K of the oval (k = 0…K), joined ring to ring by angle.
+    const int rings = std::max(2, int(std::ceil(std::max(spec_.radius_x_mm, spec_.radius_y_mm) / spec_.edge_mm)));
+    material_.clear();
+    triangles_.clear();
+    std::vector<int> first(rings + 1);
+    for (int k = 0; k <= rings; ++k) {
+        first[k] = int(material_.size());
+        const int count = k == 0 ? 1 : 6 * k;
+        for (int m = 0; m < count; ++m) {
+            const double angle = 2.0 * std::numbers::pi * m / count, r = double(k) / rings;
+            material_.push_back({spec_.radius_x_mm * r * std::cos(angle), spec_.radius_y_mm * r * std::sin(angle)});
+        }
+    }
+    for (int k = 1; k <= rings; ++k) {
+        const int inner = k == 1 ? 1 : 6 * (k - 1), outer = 6 * k;
+        int i = 0, j = 0;
+        auto angle = [](int index, int count) { return double(index) / count; };
+        while (i < inner || j < outer) {
+            const int a = first[k - 1] + i % inner, b = first[k] + j % outer;
+            const bool advance_outer = i >= inner || (j < outer && (k == 1 || angle(j + 1, outer) <= angle(i + 1, inner)));
+            if (advance_outer) {
+                triangles_.push_back({a, b, first[k] + (j + 1) % outer});
+                ++j;
+            } else {
+                triangles_.push_back({a, b, first[k - 1] + (i + 1) % inner});
+                ++i;
+            }
+            if (k == 1 && j == outer) break;
+        }
+    }
+}
+
+void PatchModel::deform_lazily(const ParticlePositions& positions) {
+    if (positions.size() != particles_.size())
+        throw InputError("patch: " + std::to_string(positions.size()) + " positions given for " + std::to_string(particles_.size()) + " particles");
+    lazy_positions_ = &positions;
+    ++stamp_;
+    surface_x_.resize(surface_.vertices.size());
+    surface_normal_.resize(surface_.triangles.size());
+    x_stamp_.resize(surface_.vertices.size(), 0);
+    normal_stamp_.resize(surface_.triangles.size(), 0);
+    if (vertex_first_.size() != surface_.vertices.size()) {
+        vertex_first_.assign(surface_.vertices.size(), 0);
+        std::size_t flat = 0;
+        for (std::size_t v = 0; v < surface_.vertices.size(); ++v) vertex_first_[v] = flat, flat += surface_.vertices[v].carriers.size();
+    }
+}
+
+const Eigen::Vector3d& PatchModel::sx(std::size_t v) const {
+    if (x_stamp_[v] != stamp_) {
+        const CarriedPoint& point = surface_.vertices[v];
+        Eigen::Vector3d x = point.rest;
+        std::size_t flat = vertex_first_[v];
+        for (const auto& [particle, weight] : point.carriers)
+            x += weight * (vec((*lazy_positions_)[std::size_t(slot_of_surface_[flat++])]) - vec(rest_[std::size_t(particle)]));
+        surface_x_[v] = x;
+        x_stamp_[v] = stamp_;
+    }
+    return surface_x_[v];
+}
+
+const Eigen::Vector3d& PatchModel::sn(std::size_t t) const {
+    if (normal_stamp_[t] != stamp_) {
+        const auto& [a, b, c] = surface_.triangles[t];
+        const Eigen::Vector3d n = (sx(std::size_t(b)) - sx(std::size_t(a))).cross(sx(std::size_t(c)) - sx(std::size_t(a)));
+        const double length = n.norm();
+        surface_normal_[t] = length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
+        normal_stamp_[t] = stamp_;
+    }
+    return surface_normal_[t];
+}
+
+void PatchModel::deform_surface(const ParticlePositions& positions) {
+    deform_lazily(positions);
+    surface_x_.resize(surface_.vertices.size());
+    std::size_t flat = 0;
+    for (std::size_t v = 0; v < surface_.vertices.size(); ++v) {
+        const CarriedPoint& point = surface_.vertices[v];
+        Eigen::Vector3d x = point.rest;
+        for (const auto& [particle, weight] : point.carriers) {
+            const int slot = slot_of_surface_[flat++];
+            x += weight * (vec(positions[std::size_t(slot)]) - vec(rest_[std::size_t(particle)]));
+        }
+        surface_x_[v] = x;
+    }
+    surface_normal_.resize(surface_.triangles.size());
+    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
+        const auto& [a, b, c] = surface_.triangles[t];
+        const Eigen::Vector3d n = (surface_x_[std::size_t(b)] - surface_x_[std::size_t(a)]).cross(surface_x_[std::size_t(c)] - surface_x_[std::size_t(a)]);
+        const double length = n.norm();
+        surface_normal_[t] = length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
+    }
+    std::fill(x_stamp_.begin(), x_stamp_.end(), stamp_);
+    std::fill(normal_stamp_.begin(), normal_stamp_.end(), stamp_);
+    lazy_positions_ = nullptr;  // everything is computed: nothing reads the positions after this call
+}
+
+void PatchModel::build_surface_grid() {
+    // A 2D grid in the laid patch's plane over the triangles that face it, built where the surface
+    // was when the patch was laid: a vertex finds the triangle under it among a few.
+    grid_.clear();
+    const Eigen::Vector3d e1 = frame_.col(0), e2 = frame_.col(1);
+    Eigen::AlignedBox2d box;
+    for (const auto& x : surface_x_) box.extend(Eigen::Vector2d(x.dot(e1), x.dot(e2)));
+    if (box.isEmpty()) return;
+    grid_cell_ = 1.0;
+    grid_origin_ = Eigen::Vector3d(box.min().x() - 2.0, box.min().y() - 2.0, 0);
+    grid_dims_ = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 4.0) / grid_cell_)), 1, 4096),
+                                 std::clamp(int(std::ceil((box.sizes().y() + 4.0) / grid_cell_)), 1, 4096), 1);
+    grid_.assign(std::size_t(grid_dims_.x()) * std::size_t(grid_dims_.y()), {});
+    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
+        if (!(surface_normal_[t].dot(facing_) < -0.3)) continue;  // only surface that faces the patch
+        Eigen::AlignedBox2d tb;
+        for (int corner : surface_.triangles[t]) {
+            const Eigen::Vector3d& x = surface_x_[std::size_t(corner)];
+            tb.extend(Eigen::Vector2d(x.dot(e1), x.dot(e2)));
+        }
+        const int i0 = std::clamp(int(std::floor((tb.min().x() - grid_origin_.x()) / grid_cell_)) - 1, 0, grid_dims_.x() - 1);
+        const int i1 = std::clamp(int(std::floor((tb.max().x() - grid_origin_.x()) / grid_cell_)) + 1, 0, grid_dims_.x() - 1);
+        const int j0 = std::clamp(int(std::floor((tb.min().y() - grid_origin_.y()) / grid_cell_)) - 1, 0, grid_dims_.y() - 1);
+        const int j1 = std::clamp(int(std::floor((tb.max().y() - grid_origin_.y()) / grid_cell_)) + 1, 0, grid_dims_.y() - 1);
+        for (int j = j0; j <= j1; ++j)
+            for (int i = i0; i <= i1; ++i) grid_[std::size_t(j * grid_dims_.x() + i)].push_back(std::int32_t(t));
+    }
+}
+
+int PatchModel::triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) const {
+    if (grid_.empty()) return -1;
+    const int i = int(std::floor((p.dot(frame_.col(0)) - grid_origin_.x()) / grid_cell_));
+    const int j = int(std::floor((p.dot(frame_.col(1)) - grid_origin_.y()) / grid_cell_));
+    if (i < 0 || j < 0 || i >= grid_dims_.x() || j >= grid_dims_.y()) return -1;
+    int best = -1;
+    double best_depth = std::numeric_limits<double>::infinity();
+    for (std::int32_t t : grid_[std::size_t(j * grid_dims_.x() + i)]) {
+        const Eigen::Vector3d& normal = sn(std::size_t(t));
+        if (!(normal.dot(facing_) < -0.3)) continue;
+        const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
+        const Eigen::Vector3d& pa = sx(std::size_t(a));
+        const double d = (p - pa).dot(normal);
+        if (d < -2.0 || d > 3.0 + spec_.thickness_mm) continue;  // another layer of the tissue
+        const Eigen::Vector3d w = barycentric(p, pa, sx(std::size_t(b)), sx(std::size_t(c)));
+        if (w.minCoeff() < -1e-9) continue;
+        if (std::abs(d) < std::abs(best_depth)) best = int(t), best_depth = d, bary = w;
+    }
+    depth = best_depth;
+    return best;
+}
+
+bool PatchModel::nearest_on_surface(const Eigen::Vector3d& p, double reach, int& triangle, Eigen::Vector3d& bary) const {
+    double best = reach * reach;
+    triangle = -1;
+    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
+        const auto& [a, b, c] = surface_.triangles[t];
+        const Eigen::Vector3d w = closest_barycentric(p, surface_x_[std::size_t(a)], surface_x_[std::size_t(b)], surface_x_[std::size_t(c)]);
+        const Eigen::Vector3d q = w[0] * surface_x_[std::size_t(a)] + w[1] * surface_x_[std::size_t(b)] + w[2] * surface_x_[std::size_t(c)];
+        const double d2 = (q - p).squaredNorm();
+        if (d2 < best) best = d2, triangle = int(t), bary = w;
+    }
+    return triangle >= 0;
+}
+
+CarriedPoint PatchModel::carried_at(int triangle, const Eigen::Vector3d& bary) const {
+    std::map<std::int32_t, double> weights;
+    CarriedPoint point;
+    for (int corner = 0; corner < 3; ++corner) {
+        const CarriedPoint& v = surface_.vertices[std::size_t(surface_.triangles[std::size_t(triangle)][corner])];
+        point.rest += bary[corner] * v.rest;
+        for (const auto& [particle, weight] : v.carriers) weights[particle] += bary[corner] * weight;
+    }
+    for (const auto& [particle, weight] : weights)
+        if (weight != 0) point.carriers.push_back({particle, weight});
+    return point;
+}
+
+double PatchModel::vertex_inverse_mass(std::size_t v) const {
+    if (surface_inverse_mass_.size() != surface_.vertices.size()) {
+        surface_inverse_mass_.resize(surface_.vertices.size());
+        for (std::size_t k = 0; k < surface_.vertices.size(); ++k) surface_inverse_mass_[k] = inverse_mass_of(surface_.vertices[k]) * mass_scale_;
+    }
+    return surface_inverse_mass_[v] / mass_scale_;
+}
+
+double PatchModel::inverse_mass_of(const CarriedPoint& point) const {
+    if (tissue_inverse_mass_.empty()) return 0.0;  // a rigid tissue
+    double w = 0;
+    for (const auto& [particle, weight] : point.carriers) w += weight * weight * tissue_inverse_mass_[std::size_t(particle)];
+    return w / mass_scale_;
+}
+
+Eigen::Vector3d PatchModel::where(const CarriedPoint& point, const ParticlePositions& positions) const {
+    Eigen::Vector3d x = point.rest;
+    for (const auto& [particle, weight] : point.carriers) {
+        const auto it = std::lower_bound(particles_.begin(), particles_.end(), particle);
+        if (it == particles_.end() || *it != particle) throw InputError("patch: a carried point's particle is not among particles()");
+        x += weight * (vec(positions[std::size_t(it - particles_.begin())]) - vec(rest_[std::size_t(particle)]));
+    }
+    return x;
+}
+
+double PatchModel::mass_g() const {
+    double mass = 0;
+    for (double w : inverse_mass_)
+        if (w > 0) mass += 1.0 / w;
+    return mass;
+}
+
+void PatchModel::lay(const InstrumentPose& pose, const ParticlePositions& positions) {
+    deform_surface(positions);
+    const Eigen::Matrix3d rotation = pose.orientation.normalized().toRotationMatrix();
+    const Eigen::Vector3d e1 = rotation.col(0), e2 = rotation.col(1), f = rotation.col(2);
+    facing_ = f;
+    frame_ = rotation;
+    build_surface_grid();
+    const std::size_t n = material_.size();
+    x_.assign(n, Eigen::Vector3d::Zero());
+    v_.assign(n, Eigen::Vector3d::Zero());
+    std::vector<double> offset(n, 0.0);
+    std::vector<char> hit(n, 0);
+    const double behind = spec_.standoff_mm + 0.5 * spec_.thickness_mm;
+    for (std::size_t i = 0; i < n; ++i) {
+        const Eigen::Vector3d p = pose.position + e1 * material_[i].x() + e2 * material_[i].y();
+        const Eigen::Vector3d origin = p - 6.0 * f;
+        double nearest = -1;
+        for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
+            if (!(surface_normal_[t].dot(f) < -0.3)) continue;  // only surface that faces the patch
+            const auto& [a, b, c] = surface_.triangles[t];
+            const double s = ray_triangle(origin, f, surface_x_[std::size_t(a)], surface_x_[std::size_t(b)], surface_x_[std::size_t(c)]);
+            if (s >= 0 && s <= 12.0 && (nearest < 0 || s < nearest)) nearest = s;
+        }
+        if (nearest >= 0) {
+            offset[i] = nearest - 6.0 - behind;
+            hit[i] = 1;
+        }
+    }
+    // Vertices over no surface (the opening) follow their neighbours' offsets.
+    std::vector<std::vector<int>> neighbours(n);
+    for (const auto& t : triangles_)
+        for (int e = 0; e < 3; ++e) {
+            neighbours[std::size_t(t[e])].push_back(t[(e + 1) % 3]);
+            neighbours[std::size_t(t[(e + 1) % 3])].push_back(t[e]);
+        }
+    // A vertex that meets the surface more than 1.5 mm deeper than the median of its neighbours
+    // that met it looks into the opening (its own wall, or the far side): the patch spans the
+    // opening and does not line it.
+    for (int pass = 0; pass < 3; ++pass) {
+        std::vector<char> deep(n, 0);
+        for (std::size_t i = 0; i < n; ++i) {
+            if (!hit[i]) continue;
+            std::vector<double> around;
+            for (int j : neighbours[i])
+                if (hit[std::size_t(j)]) around.push_back(offset[std::size_t(j)]);
+            if (around.size() < 2) continue;
+            std::nth_element(around.begin(), around.begin() + std::ptrdiff_t(around.size() / 2), around.end());
+            if (offset[i] > around[around.size() / 2] + 1.5) deep[i] = 1;
+        }
+        for (std::size_t i = 0; i < n; ++i)
+            if (deep[i]) hit[i] = 0;
+    }
+    if (std::find(hit.begin(), hit.end(), 1) != hit.end())
+        for (int sweep = 0; sweep < 200; ++sweep)
+            for (std::size_t i = 0; i < n; ++i) {
+                if (hit[i] || neighbours[i].empty()) continue;
+                double sum = 0;
+                for (int j : neighbours[i]) sum += offset[std::size_t(j)];
+                offset[i] = sum / double(neighbours[i].size());
+            }
+    for (std::size_t i = 0; i < n; ++i) x_[i] = pose.position + e1 * material_[i].x() + e2 * material_[i].y() + f * offset[i];
+    laid_ = x_;
+
+    // Masses, stretch and bending constraints from the laid shape.
+    inverse_mass_.assign(n, 0.0);
+    std::vector<double> mass(n, 0.0);
+    std::map<std::pair<int, int>, std::vector<int>> opposite;  // edge → the vertices opposite it
+    for (const auto& t : triangles_) {
+        const double area = 0.5 * (x_[std::size_t(t[1])] - x_[std::size_t(t[0])]).cross(x_[std::size_t(t[2])] - x_[std::size_t(t[0])]).norm();
+        for (int e = 0; e < 3; ++e) {
+            mass[std::size_t(t[e])] += spec_.material.density * spec_.thickness_mm * area / 3.0;
+            const int a = t[e], b = t[(e + 1) % 3];
+            opposite[{std::min(a, b), std::max(a, b)}].push_back(t[(e + 2) % 3]);
+        }
+    }
+    std::map<std::pair<int, int>, double> edge_area;
+    for (const auto& t : triangles_) {
+        const double area = 0.5 * (x_[std::size_t(t[1])] - x_[std::size_t(t[0])]).cross(x_[std::size_t(t[2])] - x_[std::size_t(t[0])]).norm();
+        for (int e = 0; e < 3; ++e) edge_area[{std::min(t[e], t[(e + 1) % 3]), std::max(t[e], t[(e + 1) % 3])}] += area / 3.0;
+    }
+    for (std::size_t i = 0; i < n; ++i) inverse_mass_[i] = mass[i] > 0 ? 1.0 / mass[i] : 0.0;
+    area_.assign(n, 0.0);
+    for (std::size_t i = 0; i < n; ++i) area_[i] = mass[i] / (spec_.material.density * spec_.thickness_mm);
+    distances_.clear();
+    const double E = spec_.material.youngs_modulus_mpa, t = spec_.thickness_mm, nu = spec_.material.poisson_ratio;
+    const double bending_rigidity = E * t * t * t / (12.0 * (1.0 - nu * nu));  // N·mm
+    for (const auto& [edge, area] : edge_area) {
+        const double length = (x_[std::size_t(edge.first)] - x_[std::size_t(edge.second)]).norm();
+        // A triangular net of springs k has in-plane stiffness (2/√3)·k; per edge k = 3·E·t·A/ℓ²
+        // with A its share of area (√3/6·ℓ² on an equilateral net) gives E·t.
+        const double stiffness = 3.0 * E * t * area / (length * length);
+        distances_.push_back({edge.first, edge.second, length, 1.0 / stiffness});
+    }
+    for (const auto& [edge, across] : opposite) {
+        if (across.size() != 2) continue;
+        const double length = (x_[std::size_t(across[0])] - x_[std::size_t(across[1])]).norm();
+        if (!(length > 0)) continue;
+        distances_.push_back({across[0], across[1], length, length * length / (2.0 * bending_rigidity)});
+    }
+    // Gauss–Seidel by colour: constraints that share no vertex one after another, so the processor
+    // overlaps their square roots and divisions (a chain through shared vertices would wait on
+    // each); within a colour their order does not matter. Greedy colouring, deterministic.
+    {
+        std::vector<int> colour(distances_.size(), -1);
+        std::vector<std::vector<int>> used(n);  // per vertex: the colours of its constraints so far
+        int colours = 0;
+        for (std::size_t k = 0; k < distances_.size(); ++k) {
+            const auto& ua = used[std::size_t(distances_[k].a)];
+            const auto& ub = used[std::size_t(distances_[k].b)];
+            int c = 0;
+            while (std::find(ua.begin(), ua.end(), c) != ua.end() || std::find(ub.begin(), ub.end(), c) != ub.end()) ++c;
+            colour[k] = c;
+            used[std::size_t(distances_[k].a)].push_back(c);
+            used[std::size_t(distances_[k].b)].push_back(c);
+            colours = std::max(colours, c + 1);
+        }
+        std::vector<Distance> ordered;
+        ordered.reserve(distances_.size());
+        for (int c = 0; c < colours; ++c)
+            for (std::size_t k = 0; k < distances_.size(); ++k)
+                if (colour[k] == c) ordered.push_back(distances_[k]);
+        distances_ = std::move(ordered);
+    }
+    stitches_.clear();
+    under_.assign(x_.size(), -1);
+    asleep_positions_.clear();
+    held_ = true;
+    contact_force_.setZero();
+    clear_loads();
+}
+
+std::optional<std::size_t> PatchModel::tie(const Eigen::Vector3d& tip, double time_ms, const ParticlePositions& positions, std::string* why,
+                                           double reach_mm) {
+    if (!laid()) {
+        if (why) *why = "no patch is laid";
+        return std::nullopt;
+    }
+    deform_surface(positions);
+    // The patch vertex over the tip as the patch was laid, seen along the way it faced.
+    int vertex = 0;
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < laid_.size(); ++i) {
+        const Eigen::Vector3d d = laid_[i] - tip;
+        const double d2 = (d - d.dot(facing_) * facing_).squaredNorm();
+        if (d2 < best) best = d2, vertex = int(i);
+    }
+    if (std::sqrt(best) > reach_mm) {
+        if (why) *why = "the needle's tip is not over the patch (within " + std::to_string(int(reach_mm)) + " mm)";
+        return std::nullopt;
+    }
+    // The tissue under that vertex: the stitch goes straight through patch and tissue, so tying it
+    // pulls across neither.
+    const Eigen::Vector3d& x = x_[std::size_t(vertex)];
+    int triangle = -1;
+    Eigen::Vector3d bary;
+    double nearest = -1;
+    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
+        if (!(surface_normal_[t].dot(facing_) < -0.3)) continue;
+        const auto& [a, b, c] = surface_.triangles[t];
+        const double along = ray_triangle(x - 2.0 * facing_, facing_, surface_x_[std::size_t(a)], surface_x_[std::size_t(b)], surface_x_[std::size_t(c)]);
+        if (along >= 0 && along <= reach_mm + 2.0 && (nearest < 0 || along < nearest)) {
+            nearest = along, triangle = int(t);
+            bary = barycentric(x - 2.0 * facing_ + along * facing_, surface_x_[std::size_t(a)], surface_x_[std::size_t(b)], surface_x_[std::size_t(c)]);
+        }
+    }
+    if (triangle < 0 && !nearest_on_surface(x, reach_mm, triangle, bary)) {
+        if (why) *why = "no tissue surface within " + std::to_string(int(reach_mm)) + " mm of the patch there";
+        return std::nullopt;
+    }
+    Stitch stitch;
+    stitch.vertex = vertex;
+    stitch.anchor = carried_at(triangle, bary);
+    stitch.tied_ms = time_ms;
+    stitch.start_length = (x_[std::size_t(vertex)] - where(stitch.anchor, positions)).norm();
+    stitches_.push_back(stitch);
+    held_ = false;
+    return stitches_.size() - 1;
+}
+
+void PatchModel::add_load(const CarriedPoint& point, const Eigen::Vector3d& force) {
+    for (const auto& [particle, weight] : point.carriers) add_load(slot_of(particle), weight * force);
+}
+
+void PatchModel::add_load(std::size_t slot, const Eigen::Vector3d& force) {
+    if (slot_force_.size() != particles_.size()) slot_force_.assign(particles_.size(), Eigen::Vector3d::Zero()), slot_loaded_.assign(particles_.size(), 0);
+    if (!slot_loaded_[slot]) slot_loaded_[slot] = 1, loaded_slots_.push_back(std::int32_t(slot));
+    slot_force_[slot] += force;
+}
+
+std::size_t PatchModel::slot_of(std::int32_t particle) const {
+    const auto it = std::lower_bound(particles_.begin(), particles_.end(), particle);
+    if (it == particles_.end() || *it != particle) throw InputError("patch: a carried point's particle is not among particles()");
+    return std::size_t(it - particles_.begin());
+}
+
+void PatchModel::clear_loads() {
+    for (std::int32_t slot : loaded_slots_) slot_force_[std::size_t(slot)].setZero(), slot_loaded_[std::size_t(slot)] = 0;
+    loaded_slots_.clear();
+}
+
+bool PatchModel::at_rest(const ParticlePositions& positions, double time_ms) const {
+    if (pressure_ > 0 || asleep_positions_.size() != positions.size()) return false;
+    for (const Stitch& s : stitches_)
+        if (time_ms < s.tied_ms + spec_.tie_ms) return false;  // still drawing tight
+    constexpr double still = 1e-5;  // mm/ms, and mm for the tissue since the patch last stepped
+    for (const Eigen::Vector3d& v : v_)
+        if (v.squaredNorm() > still * still) return false;
+    for (std::size_t k = 0; k < positions.size(); ++k)
+        for (int c = 0; c < 3; ++c)
+            if (std::abs(double(positions[k][c]) - double(asleep_positions_[k][c])) > still) return false;
+    return true;
+}
+
+void PatchModel::step(const ParticlePositions& positions, double dt_ms, double time_ms) {
+    if (!laid()) {
+        clear_loads();
+        contact_force_.setZero();
+        return;
+    }
+    if (!(dt_ms > 0) || !std::isfinite(dt_ms)) throw InputError("patch: the step must be positive, ms");
+    if (held_) {  // laid and not sewn: held in front of the defect
+        clear_loads();
+        contact_force_.setZero();
+        return;
+    }
+    // A patch at rest on tissue at rest stays so: it sleeps, its loads as they were, until either
+    // moves or a stitch is drawing.
+    if (at_rest(positions, time_ms)) {
+        ++slept_;
+        return;
+    }
+    asleep_positions_ = positions;
+    clear_loads();
+    contact_force_.setZero();
+    deform_lazily(positions);  // the surface where the patch touches it, as it is read
+    const std::size_t n = x_.size();
+    const double dt2 = dt_ms * dt_ms;
+    const double keep = std::max(0.0, 1.0 - spec_.damping_per_ms * dt_ms);
+    std::vector<Eigen::Vector3d> previous = x_;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (inverse_mass_[i] == 0) continue;
+        Eigen::Vector3d acceleration = spec_.gravity * (1.0 - spec_.blood_density / spec_.material.density);  // afloat in blood
+        if (pressure_ > 0) {  // over the opening the blood pushes the patch off the wall
+            Eigen::Vector3d bary;
+            double depth = 0;
+            if (triangle_under(x_[i], bary, depth) < 0) acceleration -= pressure_ * area_[i] * inverse_mass_[i] * facing_;
+        }
+        v_[i] = keep * (v_[i] + acceleration * dt_ms);
+        x_[i] += v_[i] * dt_ms;
+    }
+    // The stitches' anchors, held where the tissue is at the start of the step, and their lengths.
+    std::vector<Eigen::Vector3d> anchor(stitches_.size());
+    std::vector<double> target(stitches_.size()), stitch_lambda(stitches_.size(), 0.0);
+    std::vector<Eigen::Vector3d> stitch_direction(stitches_.size(), Eigen::Vector3d::Zero());
+    const double end_length = 0.5 * spec_.thickness_mm;  // tied: the patch on the tissue
+    for (std::size_t s = 0; s < stitches_.size(); ++s) {
+        anchor[s] = where(stitches_[s].anchor, positions);
+        const double tau = std::clamp((time_ms + dt_ms - stitches_[s].tied_ms) / spec_.tie_ms, 0.0, 1.0);
+        const double drawn = tau * tau * (3.0 - 2.0 * tau);  // smoothstep: no jump in pull at either end
+        target[s] = std::max(end_length, stitches_[s].start_length + (end_length - stitches_[s].start_length) * drawn);
+    }
+    std::vector<double> anchor_inverse_mass(stitches_.size());
+    std::vector<Eigen::Vector3d> anchor_offset(stitches_.size(), Eigen::Vector3d::Zero());
+    for (std::size_t s = 0; s < stitches_.size(); ++s) anchor_inverse_mass[s] = inverse_mass_of(stitches_[s].anchor);
+    std::vector<double> lambda(distances_.size(), 0.0), alpha(distances_.size()), denominator(distances_.size());
+    for (std::size_t k = 0; k < distances_.size(); ++k) {  // α̃ = α/dt² and 1/(w_a + w_b + α̃), fixed within the step
+        const Distance& d = distances_[k];
+        alpha[k] = d.compliance / dt2;
+        const double sum = inverse_mass_[std::size_t(d.a)] + inverse_mass_[std::size_t(d.b)];
+        denominator[k] = sum == 0 ? 0.0 : 1.0 / (sum + alpha[k]);
+    }
+    std::vector<Eigen::Vector3d> pushed(n, Eigen::Vector3d::Zero());  // the contact's displacement per vertex
+    const double half = 0.5 * spec_.thickness_mm, friction = spec_.friction;
+    std::vector<double> surface_offset(n, 0.0), under_inverse_mass(n, 0.0);  // the tissue's predicted yield under each vertex
+    // The surface triangle under each vertex for this step (where it was predicted to go).
+    std::vector<int>& under = under_;
+    under.resize(n, -1);
+    std::vector<Eigen::Vector3d> under_at(n, Eigen::Vector3d::Zero());
+    for (std::size_t i = 0; i < n; ++i) {
+        if (inverse_mass_[i] == 0) continue;
+        // The triangle under a vertex in the last step is most often still under it.
+        if (const int t = under[i]; t >= 0) {
+            const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
+            const Eigen::Vector3d& pa = sx(std::size_t(a));
+            const double d = (x_[i] - pa).dot(sn(std::size_t(t)));
+            const Eigen::Vector3d w = barycentric(x_[i], pa, sx(std::size_t(b)), sx(std::size_t(c)));
+            if (w.minCoeff() >= 0 && std::abs(d) < 0.5 * spec_.thickness_mm + 0.5) {
+                under_at[i] = w;
+                continue;
+            }
+        }
+        double depth = 0;
+        under[i] = triangle_under(x_[i], under_at[i], depth);
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        if (under[i] < 0) continue;
+        double w = 0;
+        for (int corner = 0; corner < 3; ++corner)
+            w += under_at[i][corner] * under_at[i][corner] * vertex_inverse_mass(std::size_t(surface_.triangles[std::size_t(under[i])][corner]));
+        under_inverse_mass[i] = w;
+    }
+    for (int iteration = 0; iteration < spec_.iterations; ++iteration) {
+        for (std::size_t s = 0; s < stitches_.size(); ++s) {
+            // Two bodies: the patch vertex and the tissue point, which yields by its carriers' inverse
+            // mass as the tissue's next step will move it under the load (within the step its
+            // yielding is predicted, not applied: the anchor's offset).
+            const std::size_t i = std::size_t(stitches_[s].vertex);
+            const double w = inverse_mass_[i], wt = anchor_inverse_mass[s];
+            Eigen::Vector3d delta = x_[i] - (anchor[s] + anchor_offset[s]);
+            const double length = delta.norm();
+            if (!(length > target[s]) || !(length > 1e-12)) continue;  // a suture pulls, never pushes
+            delta /= length;
+            const double alpha = 1.0 / (spec_.stitch_stiffness * dt2);
+            const double dl = (-(length - target[s]) - alpha * stitch_lambda[s]) / (w + wt + alpha);
+            stitch_lambda[s] += dl;
+            stitch_direction[s] = delta;
+            x_[i] += w * dl * delta;
+            anchor_offset[s] -= wt * dl * delta;
+        }
+        for (std::size_t k = 0; k < distances_.size(); ++k) {
+            const Distance& d = distances_[k];
+            const double wa = inverse_mass_[std::size_t(d.a)], wb = inverse_mass_[std::size_t(d.b)];
+            Eigen::Vector3d delta = x_[std::size_t(d.a)] - x_[std::size_t(d.b)];
+            const double length2 = delta.squaredNorm();
+            if (!(length2 > 1e-24) || denominator[k] == 0) continue;
+            const double inverse = 1.0 / std::sqrt(length2), length = length2 * inverse;
+            const double dl = (-(length - d.rest) - alpha[k] * lambda[k]) * denominator[k];
+            lambda[k] += dl;
+            delta *= dl * inverse;
+            x_[std::size_t(d.a)] += wa * delta;
+            x_[std::size_t(d.b)] -= wb * delta;
+        }
+        // One-sided contact: a vertex over a surface triangle that faces the patch stays half the
+        // thickness in front of it (the tissue held still within the step).
+        for (std::size_t i = 0; i < n; ++i) {
+            const int t = under[i];
+            if (t < 0) continue;
+            const Eigen::Vector3d& normal = sn(std::size_t(t));
+            const double depth = (x_[i] - sx(std::size_t(surface_.triangles[std::size_t(t)][0]))).dot(normal) - surface_offset[i];
+            if (!(depth < half)) continue;
+            // Two bodies again: the patch moves its share, the tissue under it (predicted) the rest.
+            const double share = inverse_mass_[i] / (inverse_mass_[i] + under_inverse_mass[i]);
+            const Eigen::Vector3d push = share * (half - depth) * normal;
+            surface_offset[i] -= (1.0 - share) * (half - depth);
+            x_[i] += push;
+            pushed[i] += push;
+            // Friction (Coulomb, as position-based dynamics takes it): the slip along the surface in
+            // this step is undone up to μ times the push.
+            Eigen::Vector3d slip = x_[i] - previous[i];
+            slip -= slip.dot(normal) * normal;
+            const double length = slip.norm(), hold = friction * (half - depth);
+            const Eigen::Vector3d undo = length <= hold ? slip : Eigen::Vector3d(slip * (hold / length));
+            x_[i] -= undo;
+            pushed[i] -= undo;
+        }
+    }
+    for (std::size_t i = 0; i < n; ++i)
+        if (inverse_mass_[i] > 0) v_[i] = (x_[i] - previous[i]) / dt_ms;
+    // Forces: a stitch's pull on the patch is λ·n/dt²; the contact's, m·Δx/dt². The tissue takes
+    // the opposite of each at its point.
+    for (std::size_t s = 0; s < stitches_.size(); ++s) {
+        stitches_[s].force_n = stitch_lambda[s] * stitch_direction[s] / dt2;
+        add_load(stitches_[s].anchor, -stitches_[s].force_n);
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        if (under[i] < 0 || inverse_mass_[i] == 0 || pushed[i].isZero()) continue;
+        const Eigen::Vector3d force = pushed[i] / (inverse_mass_[i] * dt2);
+        contact_force_ += force;
+        for (int corner = 0; corner < 3; ++corner) {
+            const CarriedPoint& v = surface_.vertices[std::size_t(surface_.triangles[std::size_t(under[i])][corner])];
+            std::size_t flat = vertex_first_[std::size_t(surface_.triangles[std::size_t(under[i])][corner])];
+            for (const auto& [particle, weight] : v.carriers) add_load(std::size_t(slot_of_surface_[flat++]), -under_at[i][corner] * weight * force);
+        }
+    }
+}
+
+std::vector<ParticleLoad> PatchModel::loads() const {
+    std::vector<std::int32_t> slots = loaded_slots_;
+    std::sort(slots.begin(), slots.end());  // particles_ is sorted: so are the loads
+    std::vector<ParticleLoad> out;
+    out.reserve(slots.size());
+    for (std::int32_t slot : slots) out.push_back({particles_[std::size_t(slot)], slot_force_[std::size_t(slot)]});
+    return out;
+}
+
+PatchModel PatchModel::under_pressure(const ParticlePositions& positions, double pressure_n_mm2, double duration_ms, double dt_ms) const {
+    PatchModel test = *this;
+    test.held_ = false;  // nothing holds it but its stitches
+    test.pressure_ = pressure_n_mm2;
+    // A quasi-static test: the patch made a hundredfold heavier and overdamped, so the pressure
+    // moves it by little per step and the constraints keep up (its mass changes nothing at rest).
+    for (double& w : test.inverse_mass_) w *= 1e-2;
+    test.spec_.damping_per_ms = std::max(test.spec_.damping_per_ms, 1.0);
+    test.spec_.iterations = std::max(test.spec_.iterations, 16);  // off the clock: converged
+    test.tissue_inverse_mass_.clear();                             // the tissue held as it is
+    test.surface_inverse_mass_.clear();
+    for (double t = 0; t < duration_ms; t += dt_ms) test.step(positions, dt_ms, 1e12);  // every stitch drawn tight
+    return test;
+}
+
+void PatchModel::recover(const ParticlePositions& positions, double time_ms) {
+    if (!laid()) return;
+    for (auto& v : v_) v.setZero();
+    clear_loads();
+    contact_force_.setZero();
+    asleep_positions_.clear();
+    for (Stitch& s : stitches_) {
+        s.tied_ms = time_ms;
+        s.start_length = (x_[std::size_t(s.vertex)] - where(s.anchor, positions)).norm();
+        s.force_n.setZero();
+    }
+}
+
+}  // namespace heartsim

@@ -1,0 +1,222 @@
+/// @file patch.h
+/// @brief A patch sewn over a septal defect: a thin sheet simulated by extended position-based
+/// dynamics (XPBD) beside the tissue's mass-spring lattice, stitches that tie patch points to
+/// tissue points, and one-sided contact with the tissue's surface (docs/architecture.md "The
+/// patch").
+///
+/// The tissue steps explicitly at a step its own springs bound; a patch of pericardium or PTFE is
+/// three orders of magnitude stiffer and would bind it a hundredfold tighter. XPBD projects the
+/// patch's constraints within each tissue step instead, with compliances from the material's
+/// Young's modulus, so the patch is as stiff as it is without shortening the heart's step. The two
+/// meet through the tissue's particles: the model reads the current positions of the particles
+/// that carry its stitch anchors and contact surface (`particles()`), steps the patch with them
+/// held still, and returns the equal and opposite forces as loads on those particles for the
+/// tissue's next step (Backend::set_loads).
+///
+///     PatchModel patch(spec, lattice.particles.rest_position, surface);
+///     patch.lay(pose, surface_positions_of(patch.particles()));
+///     patch.tie(tip, time_ms, positions_of(patch.particles()));
+///     patch.step(positions_of(patch.particles()), dt_ms, time_ms);  // then backend.set_loads(patch.loads())
+#pragma once
+
+#include "instrument_pose.h"
+#include "solver.h"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+/// 1 mmHg in N/mm² (133.322 Pa).
+inline constexpr double mmhg_in_n_per_mm2 = 1.33322e-4;
+
+/// A patch material in physical terms.
+struct PatchMaterial {
+    std::string name = "pericardium";
+    double youngs_modulus_mpa = 30.0;  ///< in-plane, N/mm²
+    double poisson_ratio = 0.45;
+    double density = 1.1e-3;           ///< g/mm³
+};
+
+/// The materials heartsim knows: "pericardium" (glutaraldehyde-fixed bovine pericardium, about
+/// 30 MPa in its working range), "ptfe" (expanded PTFE, about 40 MPa), "dacron" (woven polyester,
+/// about 200 MPa). Throws InputError naming the three otherwise.
+PatchMaterial patch_material_named(const std::string& name);
+
+/// A point carried by tissue particles: its rest position and its carriers (packed indices) with
+/// weights summing to 1; it moves with their displacement, x = rest + Σ w_k (x_k − X_k).
+struct CarriedPoint {
+    Eigen::Vector3d rest = Eigen::Vector3d::Zero();
+    std::vector<std::pair<std::int32_t, double>> carriers;
+};
+
+/// The tissue surface a patch can touch: triangles of the detailed mesh (counter-clockwise seen
+/// from outside), each vertex carried by particles (the detailed mesh's mapping).
+struct ContactSurface {
+    std::vector<CarriedPoint> vertices;
+    std::vector<std::array<std::int32_t, 3>> triangles;
+};
+
+struct PatchSpec {
+    PatchMaterial material;
+    double thickness_mm = 0.5;
+    double radius_x_mm = 9.0, radius_y_mm = 9.0;  ///< the oval's half-diameters (the pose's tool x and y)
+    double edge_mm = 1.6;                         ///< the triangles' size
+    double standoff_mm = 0.0;                     ///< laid this far in front of the surface it drapes onto
+    double tie_ms = 150.0;                        ///< how long a stitch takes to draw tight
+    double stitch_stiffness = 5.0;                ///< N/mm: the suture and its pledget
+    double damping_per_ms = 0.5;                  ///< the patch's motion relaxes at this rate (the blood's drag)
+    int iterations = 4;                           ///< constraint projections per step
+    Eigen::Vector3d gravity = Eigen::Vector3d::Zero();  ///< mm/ms²; the patch floats in blood, so it sinks by (1 − ρ_blood/ρ) of it
+    double blood_density = 1.06e-3;               ///< g/mm³
+    double friction = 0.3;                        ///< Coulomb's coefficient between patch and tissue
+};
+
+struct Stitch {
+    int vertex = 0;              ///< the patch's vertex
+    CarriedPoint anchor;         ///< the tissue's point
+    double tied_ms = 0.0;        ///< when the needle tied it
+    double start_length = 0.0;   ///< patch point to tissue point then, mm
+    Eigen::Vector3d force_n = Eigen::Vector3d::Zero();  ///< the stitch's pull on the patch in the last step, N (minus that on the tissue)
+};
+
+/// The positions of particles(), in that order (mm).
+using ParticlePositions = std::vector<std::array<float, 3>>;
+
+class PatchModel {
+public:
+    /// `rest` are the particles' rest positions (packed order); `surface` the tissue the patch can
+    /// lie on; `tissue_inverse_mass` the particles' 1/m (g⁻¹, 0 where anchored; empty: a rigid
+    /// tissue), by which the tissue yields to the stitches and the contact. Throws InputError for a
+    /// thickness, radius, edge or material out of range.
+    PatchModel(const PatchSpec& spec, const std::vector<std::array<float, 3>>& rest, ContactSurface surface,
+               std::vector<double> tissue_inverse_mass = {});
+    /// The tissue's explicit mass scaling S (its particles weigh S·m in the step).
+    void set_mass_scale(double mass_scale) { mass_scale_ = mass_scale > 0 ? mass_scale : 1.0; }
+
+    /// The particles whose current positions step(), lay() and tie() take, sorted (the contact
+    /// surface's carriers and every stitch anchor's).
+    const std::vector<std::int32_t>& particles() const { return particles_; }
+
+    /// Lays the patch: an oval in the plane of the pose (tool x, y), centred at its position,
+    /// facing the tissue along the tool's +z; each vertex draped onto the surface it meets along
+    /// +z within 6 mm of that plane (then standoff_mm in front of it plus half the thickness);
+    /// vertices over no surface, or meeting it more than 1.5 mm deeper than their neighbours (the
+    /// opening), follow their neighbours'. Its rest shape is the laid shape: trimmed to fit, it starts
+    /// unstressed. Until its first stitch it stays where it was laid (held in front of the
+    /// defect); sewn, it moves. Laying again replaces the patch and its stitches.
+    void lay(const InstrumentPose& pose, const ParticlePositions& positions);
+    bool laid() const { return !x_.empty(); }
+
+    /// Ties a stitch from the tissue surface point nearest `tip` (within `reach_mm`) to the patch
+    /// vertex that lay nearest it when the patch was laid (seen along the way it faced): the stitch
+    /// draws its two points together, from their distance now to none, over tie_ms (a smoothstep,
+    /// so its pull starts and ends without a jump); the contact keeps the patch half its thickness
+    /// off the tissue, so a tied stitch presses it on. Returns the stitch's index, or nullopt (and why in `why`) when no patch is laid or
+    /// no surface is within reach.
+    std::optional<std::size_t> tie(const Eigen::Vector3d& tip, double time_ms, const ParticlePositions& positions,
+                                   std::string* why = nullptr, double reach_mm = 5.0);
+
+    /// After the tissue's watchdog restored an earlier state: the patch stops, drops its loads, and
+    /// each stitch draws tight again over tie_ms from its length now.
+    void recover(const ParticlePositions& positions, double time_ms);
+
+    /// One tissue step of dt_ms ending at time_ms + dt_ms: the tissue held at `positions`.
+    void step(const ParticlePositions& positions, double dt_ms, double time_ms);
+
+    /// The loads the last step() leaves on the tissue (minus the stitches' and the contact's
+    /// forces on the patch, at their tissue points), sorted by particle, summed per particle.
+    std::vector<ParticleLoad> loads() const;
+
+    /// The leak test: a copy of the patch, let go of (a laid patch is held only until sewn), with
+    /// the tissue held at `positions`, after `duration_ms` under `pressure_n_mm2` pushing it off
+    /// the wall over the opening (where no tissue lies under it), its stitches drawn tight. A
+    /// patch sewn all round bulges a little; one held by too few stitches lifts off the rim.
+    PatchModel under_pressure(const ParticlePositions& positions, double pressure_n_mm2, double duration_ms = 400.0,
+                              double dt_ms = 0.25) const;
+
+    const std::vector<Eigen::Vector3d>& positions() const { return x_; }
+    const std::vector<std::array<std::int32_t, 3>>& triangles() const { return triangles_; }
+    const std::vector<Stitch>& stitches() const { return stitches_; }
+    const PatchSpec& spec() const { return spec_; }
+    std::size_t surface_triangles() const { return surface_.triangles.size(); }
+    /// Where a carried point is now, given positions of particles().
+    Eigen::Vector3d where(const CarriedPoint& point, const ParticlePositions& positions) const;
+    /// The sum of the contact's forces on the patch in the last step, N.
+    const Eigen::Vector3d& contact_force() const { return contact_force_; }
+    double mass_g() const;
+    /// Steps skipped because the patch and the tissue under it were at rest.
+    long long steps_asleep() const { return slept_; }
+
+private:
+    void build_mesh();
+    /// Whether the patch and the tissue it touches are at rest (step() then changes nothing).
+    bool at_rest(const ParticlePositions& positions, double time_ms) const;
+    void refresh_particles();
+    void deform_surface(const ParticlePositions& positions);   ///< every surface vertex and normal now
+    void deform_lazily(const ParticlePositions& positions);    ///< each as sx() and sn() first need it
+    const Eigen::Vector3d& sx(std::size_t vertex) const;       ///< a surface vertex now
+    const Eigen::Vector3d& sn(std::size_t triangle) const;     ///< a surface triangle's unit normal now
+    /// Nearest point of the deformed surface to p: triangle and barycentric weights; false if none
+    /// within `reach`.
+    bool nearest_on_surface(const Eigen::Vector3d& p, double reach, int& triangle, Eigen::Vector3d& bary) const;
+    void build_surface_grid();
+    /// A carried point's generalised inverse mass Σ w_k²/(S·m_k): how far the tissue there yields
+    /// to an impulse.
+    double inverse_mass_of(const CarriedPoint& point) const;
+    double vertex_inverse_mass(std::size_t surface_vertex) const;
+    /// The facing surface triangle under p (its projection inside, p within [−2, 3 + thickness] mm
+    /// in front of it), the nearest such; −1 when none. `bary`: where, `depth`: how far in front.
+    int triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) const;
+    CarriedPoint carried_at(int triangle, const Eigen::Vector3d& bary) const;
+    void add_load(const CarriedPoint& point, const Eigen::Vector3d& force);
+    void add_load(std::size_t slot, const Eigen::Vector3d& force);
+    void clear_loads();
+    std::size_t slot_of(std::int32_t particle) const;  ///< its index in particles_
+
+    PatchSpec spec_;
+    const std::vector<std::array<float, 3>>& rest_;
+    std::vector<double> tissue_inverse_mass_;
+    double mass_scale_ = 1.0;
+    mutable std::vector<double> surface_inverse_mass_;  ///< per surface vertex, at S = 1
+    ContactSurface surface_;
+    std::vector<std::int32_t> particles_;
+    std::vector<int> slot_of_surface_;  ///< per (vertex, carrier) flattened: the slot in particles_
+    // The patch: positions, previous positions, velocities, inverse masses; material coordinates.
+    std::vector<Eigen::Vector3d> x_, v_, laid_;
+    std::vector<double> inverse_mass_, area_;
+    double pressure_ = 0.0;  ///< N/mm², over the opening (under_pressure)
+    std::vector<Eigen::Vector2d> material_;
+    std::vector<std::array<std::int32_t, 3>> triangles_;
+    struct Distance { int a, b; double rest, compliance; };
+    std::vector<Distance> distances_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
+    std::vector<Stitch> stitches_;
+    bool held_ = true;                 ///< laid and not yet sewn
+    // The deformed surface, per step.
+    mutable std::vector<Eigen::Vector3d> surface_x_;
+    mutable std::vector<Eigen::Vector3d> surface_normal_;  ///< per triangle, unit
+    mutable std::vector<std::uint64_t> x_stamp_, normal_stamp_;  ///< the step each was computed for
+    std::vector<std::size_t> vertex_first_;  ///< per surface vertex: its first carrier's entry in slot_of_surface_
+    std::uint64_t stamp_ = 0;
+    const ParticlePositions* lazy_positions_ = nullptr;  ///< during step(): the positions sx() reads
+    Eigen::Vector3d grid_origin_ = Eigen::Vector3d::Zero();
+    double grid_cell_ = 2.0;
+    Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Zero();
+    std::vector<std::vector<std::int32_t>> grid_;
+    Eigen::Vector3d facing_ = Eigen::Vector3d::UnitZ();  ///< the laid patch's +z (toward the tissue)
+    Eigen::Matrix3d frame_ = Eigen::Matrix3d::Identity(); ///< the laid patch's tool frame
+    Eigen::Vector3d contact_force_ = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3d> slot_force_;    ///< the loads, per slot of particles_
+    std::vector<char> slot_loaded_;
+    std::vector<std::int32_t> loaded_slots_;
+    std::vector<int> under_;  ///< per vertex: the surface triangle under it in the last step, or −1
+    ParticlePositions asleep_positions_;  ///< the tissue as the patch last stepped
+    long long slept_ = 0;
+};
+
+}  // namespace heartsim

@@ -1,0 +1,137 @@
+// The patch (libmodel/patch.h) sewn over a hole in a rigid plate, checked by the closure check
+// (libmodel/closure.h): enough stitches close the hole, too few or no patch leave it open; the
+// tissue takes the opposite of every force on the patch (Newton's third law).
+#include "libmodel/closure.h"
+#include "libmodel/errors.h"
+#include "libmodel/patch.h"
+#include "plate_hole.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+
+using namespace heartsim;
+
+namespace {
+
+constexpr double hole = 10.0, thickness = 4.0, dt = 0.25;
+constexpr double mmhg = mmhg_in_n_per_mm2;
+
+/// A rigid plate: each vertex its own particle.
+struct Plate {
+    test::PlateMesh mesh = test::plate_with_hole(hole, 20.0, thickness);
+    ContactSurface surface() const {
+        ContactSurface s;
+        for (std::size_t v = 0; v < mesh.positions.size(); ++v)
+            s.vertices.push_back({Eigen::Vector3d(mesh.positions[v][0], mesh.positions[v][1], mesh.positions[v][2]), {{std::int32_t(v), 1.0}}});
+        s.triangles = mesh.triangles;
+        return s;
+    }
+};
+
+/// Tool +z = world −z: the patch above the plate faces down onto it.
+InstrumentPose facing_down(double height) {
+    InstrumentPose pose;
+    pose.position = {0, 0, height};
+    pose.orientation = Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi, Eigen::Vector3d::UnitX()));
+    return pose;
+}
+
+PatchSpec spec() {
+    PatchSpec s;
+    s.radius_x_mm = s.radius_y_mm = hole / 2 + 4.0;
+    s.thickness_mm = 0.5;
+    s.standoff_mm = 0.0;
+    return s;
+}
+
+ParticlePositions positions_of(const Plate& plate, const PatchModel& patch) {
+    ParticlePositions out;
+    for (std::int32_t i : patch.particles()) out.push_back(plate.mesh.positions[std::size_t(i)]);
+    return out;
+}
+
+std::vector<std::array<float, 3>> floats(const std::vector<Eigen::Vector3d>& x) {
+    std::vector<std::array<float, 3>> out;
+    for (const auto& p : x) out.push_back({float(p.x()), float(p.y()), float(p.z())});
+    return out;
+}
+
+/// Lays the patch, ties `stitches` of 8 sites evenly round the rim (the first `stitches` in
+/// order), steps `ms`, and checks the closure.
+struct Sewn {
+    ClosureResult closure;
+    double spacing = 0;
+    Eigen::Vector3d load_sum = Eigen::Vector3d::Zero(), patch_force_sum = Eigen::Vector3d::Zero();
+    double largest_load = 0;
+};
+
+Sewn sew(int stitches, bool lay = true, double ms = 400.0) {
+    Plate plate;
+    PatchModel patch(spec(), plate.mesh.positions, plate.surface());
+    const ParticlePositions at = positions_of(plate, patch);
+    if (lay) patch.lay(facing_down(thickness / 2 + 3.0), at);
+    const double rim = hole / 2 + 2.0;
+    double t = 0;
+    for (int k = 0; k < stitches; ++k) {
+        const double angle = 2.0 * std::numbers::pi * k / 8;
+        EXPECT_TRUE(patch.tie(Eigen::Vector3d(rim * std::cos(angle), rim * std::sin(angle), thickness / 2), t, at).has_value());
+    }
+    Sewn out;
+    for (; t < ms; t += dt) patch.step(at, dt, t);
+    // The leak test: 10 mmHg across the septum pushing the patch off the wall over the opening.
+    const PatchModel tested = patch.under_pressure(at, 10 * mmhg);
+    for (const ParticleLoad& load : tested.loads()) {
+        out.load_sum += load.force_n;
+        out.largest_load = std::max(out.largest_load, load.force_n.norm());
+    }
+    for (const Stitch& s : tested.stitches()) out.patch_force_sum += s.force_n;
+    out.patch_force_sum += tested.contact_force();
+    out.spacing = 2.0 * std::numbers::pi * rim / 8;
+    std::vector<std::array<std::int32_t, 3>> triangles;
+    if (lay) triangles = patch.triangles();
+    out.closure = check_closure(plate.mesh.positions, plate.mesh.triangles, floats(tested.positions()), triangles, spec().thickness_mm,
+                                DefectFrame{Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ(), hole});
+    return out;
+}
+
+}  // namespace
+
+TEST(Patch, EightStitchesCloseAHoleInAPlate) {
+    const Sewn s = sew(8);
+    EXPECT_TRUE(s.closure.closed) << "reached " << s.closure.reached << " voxels";
+    EXPECT_LT(s.closure.largest_rim_gap_mm, s.spacing);
+}
+
+TEST(Patch, TwoStitchesOrNoPatchLeaveItOpen) {
+    const Sewn two = sew(2);
+    EXPECT_FALSE(two.closure.closed);
+    EXPECT_GT(two.closure.largest_rim_gap_mm, 0.25);
+    const Sewn laid = sew(0);  // laid on the wall, never sewn: the pressure lifts it off
+    EXPECT_FALSE(laid.closure.closed);
+    const Sewn none = sew(0, false);
+    EXPECT_FALSE(none.closure.closed);
+    EXPECT_DOUBLE_EQ(none.closure.largest_rim_gap_mm, hole);
+}
+
+TEST(Patch, TheTissueTakesTheOppositeOfEveryForceOnThePatch) {
+    const Sewn s = sew(8);  // held against the pressure by its stitches and the rim
+    ASSERT_GT(s.largest_load, 0.0);
+    EXPECT_LT((s.load_sum + s.patch_force_sum).norm(), 1e-9 * std::max(1.0, s.patch_force_sum.norm()) + 1e-12);
+}
+
+TEST(Patch, RefusesWhatIsNotAPatch) {
+    Plate plate;
+    PatchSpec bad = spec();
+    bad.thickness_mm = 0;
+    EXPECT_THROW(PatchModel(bad, plate.mesh.positions, plate.surface()), InputError);
+    bad = spec();
+    bad.material.youngs_modulus_mpa = std::nan("");
+    EXPECT_THROW(PatchModel(bad, plate.mesh.positions, plate.surface()), InputError);
+    EXPECT_THROW(patch_material_named("leather"), InputError);
+    PatchModel patch(spec(), plate.mesh.positions, plate.surface());
+    std::string why;
+    EXPECT_FALSE(patch.tie(Eigen::Vector3d(7, 0, 2), 0, positions_of(plate, patch), &why).has_value());
+    EXPECT_NE(why.find("no patch"), std::string::npos);
+}
