@@ -186,7 +186,7 @@ Recording read_recording(const std::filesystem::path& path) {
         hand.device_name = r.string_attribute(g, "device_name");
         hand.instrument = r.string_attribute(g, "instrument");
         if (const auto kind = instrument_kind_named(hand.instrument); !kind || *kind == InstrumentKind::none)
-            r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber or scalpel");
+            r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber, scalpel, patch or needle");
         hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
         for (double a : hand.semi_axes_mm)
             if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
@@ -266,7 +266,7 @@ Recording read_recording(const std::filesystem::path& path) {
             if (s.applied[i][h] != 0 && s.applied[i][h] != 1) r.fail("/steps", "dataset applied " + row + " is not 0 or 1");
             if (s.applied[i][h] && !rec.hands[h].used) r.fail("/steps", "dataset applied " + row + " applies a hand without a device");
             if (s.grab[i][h] && (!rec.hands[h].used || !takes_grab(instrument_kind_named(rec.hands[h].instrument).value_or(InstrumentKind::none))))
-                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber or scalpel");
+                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber, scalpel, patch or needle");
             if (!rec.hands[h].used) continue;
             const auto& q = s.tool_orientation[i][h];
             if (!(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 1e-12))

@@ -11,7 +11,7 @@
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
 ///               (libmodel/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
-///               instrument ("probe" | "grabber" | "scalpel"), semi_axes_mm [3], max_force_n,
+///               instrument ("probe" | "grabber" | "scalpel" | "patch" | "needle"), semi_axes_mm [3], max_force_n,
 ///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
 ///     tick_time_ms   float64 [T]      session clock of each device-thread tick
 ///     position_mm    float64 [T,3]    device pose (device frame)
@@ -55,7 +55,7 @@ struct RecordedHand {
     bool used = false;
     std::string device;       ///< the --device spec, e.g. "simulated:samples/haptics/press.csv"
     std::string device_name;  ///< what the device calls itself
-    std::string instrument;   ///< "probe", "grabber" or "scalpel"
+    std::string instrument;   ///< "probe", "grabber", "scalpel", "patch" or "needle"
     std::array<double, 3> semi_axes_mm{};
     double max_force_n = 0.0;
     /// Device frame → world: x_w = offset + scale·R·x_d (R from the quaternion w, x, y, z);

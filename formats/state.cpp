@@ -33,6 +33,32 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
                 w.attribute("visual/triangles", "cap_first", std::int64_t(state.visual_cap_first));
             }
         }
+        if (state.patch) {
+            const PatchState& patch = *state.patch;
+            w.group("patch");
+            w.attribute("patch", "material", patch.material);
+            w.attribute("patch", "thickness_mm", patch.thickness_mm);
+            w.attribute("patch", "youngs_modulus_mpa", patch.youngs_modulus_mpa);
+            if (patch.has_defect) {
+                w.attribute("patch", "defect_centre", patch.defect_centre.data(), {3});
+                w.attribute("patch", "defect_axis", patch.defect_axis.data(), {3});
+                w.attribute("patch", "defect_diameter_mm", patch.defect_diameter_mm);
+                w.attribute("patch", "closed", std::int64_t(patch.closed ? 1 : 0));
+                w.attribute("patch", "largest_rim_gap_mm", patch.largest_rim_gap_mm);
+                w.attribute("patch", "leak_test_mmhg", patch.leak_test_mmhg);
+                w.attribute("patch", "rim_offset_mm", patch.rim_offset_mm);
+                w.attribute("patch", "margin_mm", patch.margin_mm);
+            }
+            w.dataset("patch/positions", patch.positions, {patch.positions.size(), 3});
+            if (!patch.leak_test_positions.empty())
+                w.dataset("patch/leak_test_positions", patch.leak_test_positions, {patch.leak_test_positions.size(), 3});
+            w.dataset("patch/triangles", patch.triangles, {patch.triangles.size(), 3});
+            const std::size_t stitches = patch.stitch_vertex.size();
+            w.dataset("patch/stitch_vertex", patch.stitch_vertex.data(), {stitches});
+            w.dataset("patch/stitch_anchor", patch.stitch_anchor, {stitches, 3});
+            w.dataset("patch/stitch_force", patch.stitch_force, {stitches, 3});
+            w.dataset("patch/stitch_tied_ms", patch.stitch_tied_ms.data(), {stitches});
+        }
     }, {}, {xdmf_file_beside(path, xdmf)});
 }
 
@@ -59,7 +85,7 @@ SimulationState read_state(const std::filesystem::path& path) {
     const auto kind = r.dataset<std::int32_t>("instrument_kind", {2});
     for (int h = 0; h < 2; ++h) {
         state.particles[h] = particles[h], state.kind[h] = kind[h];
-        if (kind[h] < 0 || kind[h] > 3) r.fail("instrument_kind", "hand " + std::to_string(h) + " is " + std::to_string(kind[h]) + ", expected 0 to 3");
+        if (kind[h] < 0 || kind[h] > 5) r.fail("instrument_kind", "hand " + std::to_string(h) + " is " + std::to_string(kind[h]) + ", expected 0 to 5");
     }
     if (r.exists("cut_springs")) {
         const auto cuts = r.dataset<std::int32_t>("cut_springs", {-1, 2});
@@ -85,6 +111,50 @@ SimulationState read_state(const std::filesystem::path& path) {
                                                std::to_string(state.visual_triangles.size()) + "]");
             state.visual_cap_first = std::size_t(first);
         }
+    }
+    if (r.exists("patch")) {
+        PatchState patch;
+        patch.material = r.string_attribute("patch", "material");
+        patch.thickness_mm = r.number<double>("patch", "thickness_mm");
+        patch.youngs_modulus_mpa = r.number<double>("patch", "youngs_modulus_mpa");
+        const auto positions = r.dataset<float>("patch/positions", {-1, 3});
+        r.require_finite("patch/positions", positions);
+        patch.positions = h5::rows_of<3>(positions);
+        if (r.exists("patch/leak_test_positions")) {
+            const auto tested = r.dataset<float>("patch/leak_test_positions", {long(patch.positions.size()), 3});
+            r.require_finite("patch/leak_test_positions", tested);
+            patch.leak_test_positions = h5::rows_of<3>(tested);
+        }
+        patch.triangles = h5::rows_of<3>(r.dataset<std::int32_t>("patch/triangles", {-1, 3}));
+        for (const auto& t : patch.triangles)
+            for (std::int32_t v : t)
+                if (v < 0 || std::size_t(v) >= patch.positions.size())
+                    r.fail("patch/triangles", "vertex index " + std::to_string(v) + " outside /patch/positions (" +
+                                                  std::to_string(patch.positions.size()) + " rows)");
+        patch.stitch_vertex = r.dataset<std::int32_t>("patch/stitch_vertex", {-1});
+        const std::int64_t stitches = std::int64_t(patch.stitch_vertex.size());
+        for (std::int32_t v : patch.stitch_vertex)
+            if (v < 0 || std::size_t(v) >= patch.positions.size())
+                r.fail("patch/stitch_vertex", "vertex index " + std::to_string(v) + " outside /patch/positions");
+        const auto anchors = r.dataset<float>("patch/stitch_anchor", {stitches, 3});
+        r.require_finite("patch/stitch_anchor", anchors);
+        patch.stitch_anchor = h5::rows_of<3>(anchors);
+        const auto force = r.dataset<double>("patch/stitch_force", {stitches, 3});
+        r.require_finite("patch/stitch_force", force);
+        patch.stitch_force = h5::rows_of<3>(force);
+        patch.stitch_tied_ms = r.dataset<double>("patch/stitch_tied_ms", {stitches});
+        if (r.has_attribute("patch", "defect_centre")) {
+            patch.has_defect = true;
+            const auto centre = r.numbers<double>("patch", "defect_centre", 3), axis = r.numbers<double>("patch", "defect_axis", 3);
+            for (int c = 0; c < 3; ++c) patch.defect_centre[c] = centre[c], patch.defect_axis[c] = axis[c];
+            patch.defect_diameter_mm = r.number<double>("patch", "defect_diameter_mm");
+            patch.closed = r.number<std::int64_t>("patch", "closed") != 0;
+            patch.largest_rim_gap_mm = r.number<double>("patch", "largest_rim_gap_mm");
+            patch.leak_test_mmhg = r.number<double>("patch", "leak_test_mmhg");
+            patch.rim_offset_mm = r.number<double>("patch", "rim_offset_mm");
+            patch.margin_mm = r.number<double>("patch", "margin_mm");
+        }
+        state.patch = std::move(patch);
     }
     return state;
 }

@@ -4,6 +4,7 @@
 #include "runtime/haptics/haptics.h"
 #include "runtime/incision_plan.h"
 #include "runtime/info_verdict.h"
+#include "runtime/repair_plan.h"
 #include "runtime/run_modes.h"
 #include "runtime/window_keys.h"
 
@@ -54,7 +55,8 @@ int main(int argc, char** argv) {
                  "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
                  "  heartsim info                             the OpenGL device, version and limits\n"
                  "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"
-                 "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n",
+                 "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n"
+                 "  heartsim plan-repair scenario.h5 -o repair.csv       a patch stitched over a septal defect, for run --trajectory\n",
                  "heartsim"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
@@ -75,6 +77,17 @@ int main(int argc, char** argv) {
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
     run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
+    run->add_option("--patch-material", a.patch_material,
+                    "A patch's material, laid by a hand whose instrument is a patch (docs/runtime.md \"Closing a defect\"): pericardium "
+                    "(fixed bovine pericardium, 30 MPa), ptfe (expanded PTFE, 40 MPa) or dacron (woven polyester, 200 MPa)")
+        ->check(CLI::IsMember({"pericardium", "ptfe", "dacron"}))
+        ->capture_default_str();
+    run->add_option("--leak-test", a.leak_test_mmhg,
+                    "MMHG: the pressure across the septum the closure check holds the patch to at the end of a run on a scenario with a "
+                    "defect: it pushes the patch off the wall over the opening, as the left ventricle's filling pressure does when "
+                    "the heart fills again; a patch its stitches do not hold lifts off the rim (0: the patch as it lies)")
+        ->check(CLI::Range(0.0, 300.0))
+        ->capture_default_str();
     run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xmf2 beside it for ParaView (the deformed heart)")
         ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the state is an HDF5 file"));
     run->add_option("--gravity", a.gravity,
@@ -130,10 +143,13 @@ int main(int argc, char** argv) {
                     "openhaptics[:NAME] (3D Systems Touch / Phantom Omni through libHD)")
         ->type_name("SPEC")
         ->allow_extra_args(false);
-    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe, grabber or scalpel[:AX,AY,AZ] semi-axes mm "
-                                                    "(default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber holds and a "
-                                                    "scalpel cuts while button 1 is pressed; a scalpel's blade runs from the tip along the "
-                                                    "tool's +z, 2*AZ long, default 2,0.3,10)")
+    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe, grabber, scalpel, patch or needle[:AX,AY,AZ] "
+                                                    "semi-axes mm (default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber "
+                                                    "holds and a scalpel cuts while button 1 is pressed; a scalpel's blade runs from the tip "
+                                                    "along the tool's +z, 2*AZ long, default 2,0.3,10; button 1 lays a patch, centred at the "
+                                                    "tip and facing the tissue along +z, AX and AY its half-diameters, AZ half its thickness, "
+                                                    "default 9,9,0.25, and ties a stitch with a needle, default 0.25,0.25,6, whose hand feels "
+                                                    "the stitch's tension while the button is held)")
         ->type_name("KIND")
         ->allow_extra_args(false);
     run->add_option("--haptic-rate", a.haptic_rate, "Device thread rate, Hz")->check(CLI::Range(100.0, 10000.0))->capture_default_str();
@@ -212,6 +228,49 @@ int main(int argc, char** argv) {
                          "  heartsim run case.h5 --trajectory cut.csv --seconds 1.2           # as it printed\n"
                          "  heartsim run case.h5 --headless --trajectory cut.csv --seconds 1.2 --view right \\\n"
                          "      --look-at X,Y,Z,D --screenshot cut.png                       # the --look-at it printed\n");
+    PlanRepairArguments repair;
+    auto* repair_command = app.add_subcommand(
+        "plan-repair",
+        "Plan the closure of a scenario's septal defect (heartprep build --defect vsd|asd) and write it as a --trajectory CSV: "
+        "a patch (hand 0) laid over the opening on the septum's right side, then a needle (hand 1) tying stitches one by one "
+        "round the opening's rim, each joining the patch to the wall. The septum's surface is found on the detailed mesh, along "
+        "lines parallel to the defect's axis. Prints the side and why, the wall's thickness, the patch, each stitch's site, how "
+        "long a run must last (--seconds) and how to see it (--clip defect) (docs/runtime.md \"Planning a repair\")");
+    repair_command->add_option("scenario", repair.scenario, "Scenario file with a septal defect (heartprep build ... --defect vsd)")->required();
+    repair_command->add_option("-o,--output", repair.output, "Trajectory CSV to write, for heartsim run --trajectory")
+        ->required()
+        ->check(cli_messages::output_extension({".csv"}, "the trajectory is a CSV file"));
+    repair_command->add_option("--side", repair.side,
+                               "Which side of the septum the patch goes on: right (the right ventricle's for a vsd, the right "
+                               "atrium's for an asd, as a surgeon closes them through the right heart), left, or a / b (the pool at "
+                               "the tail / head of the stored defect axis). A scenario does not say which pool is which: the right "
+                               "side is the one whose outward direction points more to the patient's right and anterior")
+        ->check(CLI::IsMember({"right", "left", "a", "b"}))
+        ->capture_default_str();
+    repair_command->add_option("--stitches", repair.options.stitches,
+                               "How many stitches, evenly spaced round the rim (at least 3; surgeons place 10 to 16 round a VSD's patch)")
+        ->type_name("N")
+        ->check(CLI::Range(3, 360))
+        ->capture_default_str();
+    repair_command->add_option("--rim", repair.options.rim_mm,
+                               "How far beyond the opening's edge the stitches bite, mm: they lie on the circle of radius D/2 + rim "
+                               "round the defect's axis (D its diameter)")
+        ->type_name("MM")
+        ->check(cli_messages::positive())
+        ->capture_default_str();
+    repair_command->add_option("--patch-diameter", repair.options.patch_diameter_mm,
+                               "The patch's diameter, mm; more than the stitches' circle, D + 2 * rim. Default: D + 2 * (rim + 2 mm), "
+                               "2 mm beyond the stitches")
+        ->type_name("MM")
+        ->check(cli_messages::positive());
+    repair_command->add_option("--thickness", repair.options.thickness_mm, "The patch's thickness, mm")
+        ->type_name("MM")
+        ->check(cli_messages::positive())
+        ->capture_default_str();
+    repair_command->footer("\nExample:\n"
+                           "  heartprep build case-label.nii.gz -o vsd.h5 --defect vsd --at=40.7,-14.4,-10.4   # a 10 mm VSD there\n"
+                           "  heartsim plan-repair vsd.h5 -o repair.csv --stitches=10 --rim=2.5\n"
+                           "  heartsim run vsd.h5 --trajectory repair.csv --seconds 2.6 --clip defect   # as it printed\n");
     // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
     // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
     std::vector<char*> arguments(argv, argv + argc);
@@ -251,18 +310,20 @@ int main(int argc, char** argv) {
         return fail(ExitCode::usage, cli_messages::parse_error_message(app, e, int(arguments.size()), arguments.data()));
     }
     for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover),
-                                    static_cast<const CLI::App*>(plan_command)})
+                                    static_cast<const CLI::App*>(plan_command), static_cast<const CLI::App*>(repair_command)})
         if (const std::string empty = cli_messages::empty_value_given(*command); command->parsed() && !empty.empty())
             return fail(ExitCode::usage, empty);
     for (const char* option : {"--max-force", "--haptic-rate", "--interpolation", "--haptic-priority", "--coupling"})
         if (run->count(option) > 0) a.device_options_given.push_back(option);
     // The file an error that names none comes from: the scenario run, or the journal recovered.
-    const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : plan_command->parsed() ? plan.scenario : "";
+    const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : plan_command->parsed() ? plan.scenario
+                           : repair_command->parsed() ? repair.scenario : "";
     try {
         if (info->parsed()) return command_info(info_scenario);
         if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
         if (plan_command->parsed()) return plan_incision_command(plan);
+        if (repair_command->parsed()) return plan_repair_command(repair);
     } catch (const GlUnavailable& e) {
         return fail(ExitCode::no_opengl, e.what());
     } catch (const haptics::DeviceUnavailable& e) {

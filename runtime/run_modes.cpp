@@ -280,6 +280,11 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
         p.backend = make_cpu_backend(p.scenario, cpu);
         if (render && !p.context) p.context.emplace(GlContext::create_headless());  // screenshots of the cpu backend
     }
+    // A patch and its stitches ride on the backend: every mode's hands reach them (runtime/repair.h).
+    RepairSettings repair;
+    repair.material = patch_material_named(a.patch_material);
+    p.backend = with_repair(std::move(p.backend), p.scenario, repair);
+    p.repair = dynamic_cast<RepairBackend*>(p.backend.get());
 }
 
 void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section) {
@@ -467,13 +472,16 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     std::printf("wrote %s\n", a.stats_csv.c_str());
 }
 
-/// The state file's instrument code (formats/state.h): 0 none, 1 probe, 2 grabber, 3 scalpel.
+/// The state file's instrument code (formats/state.h): 0 none, 1 probe, 2 grabber, 3 scalpel,
+/// 4 patch, 5 needle.
 std::int32_t state_kind(InstrumentKind kind) {
     switch (kind) {
     case InstrumentKind::none: return 0;
     case InstrumentKind::probe: return 1;
     case InstrumentKind::grabber: return 2;
     case InstrumentKind::scalpel: return 3;
+    case InstrumentKind::patch: return 4;
+    case InstrumentKind::needle: return 5;
     }
     return 0;
 }
@@ -502,6 +510,14 @@ void draw_incisions(PreparedRun& p) {
     if (!p.renderer || !p.renderer->draws_visual_mesh()) return;
     const IncisionState& cut = *p.incisions;
     p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
+}
+
+/// The renderer draws the repair's patch and stitches as they are now from the next frame on
+/// (none before a patch is laid).
+void draw_repair(PreparedRun& p) {
+    if (!p.renderer) return;
+    if (const PatchModel* patch = p.repair ? p.repair->patch() : nullptr) p.renderer->set_patch(drawn_patch(*patch, p.repair->stitch_anchors()));
+    else p.renderer->clear_patch();
 }
 
 }  // namespace
@@ -567,6 +583,34 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         }
     }
     state.cut_springs = p.backend->cut_springs();
+    if (const PatchModel* patch = p.repair ? p.repair->patch() : nullptr) {
+        PatchState out;
+        out.material = patch->spec().material.name;
+        out.thickness_mm = patch->spec().thickness_mm;
+        out.youngs_modulus_mpa = patch->spec().material.youngs_modulus_mpa;
+        for (const auto& x : patch->positions()) out.positions.push_back({float(x.x()), float(x.y()), float(x.z())});
+        out.triangles = patch->triangles();
+        const auto anchors = p.repair->stitch_anchors();
+        for (std::size_t k = 0; k < patch->stitches().size(); ++k) {
+            const Stitch& stitch = patch->stitches()[k];
+            out.stitch_vertex.push_back(stitch.vertex);
+            out.stitch_anchor.push_back({float(anchors[k].x()), float(anchors[k].y()), float(anchors[k].z())});
+            out.stitch_force.push_back({stitch.force_n.x(), stitch.force_n.y(), stitch.force_n.z()});
+            out.stitch_tied_ms.push_back(stitch.tied_ms);
+        }
+        if (p.closure) {
+            out.has_defect = true;
+            for (int c = 0; c < 3; ++c) out.defect_centre[c] = p.closure->frame.centre[c], out.defect_axis[c] = p.closure->frame.axis[c];
+            out.defect_diameter_mm = p.closure->frame.diameter_mm;
+            out.closed = p.closure->result.closed;
+            out.largest_rim_gap_mm = p.closure->result.largest_rim_gap_mm;
+            out.leak_test_mmhg = a.leak_test_mmhg;
+            out.leak_test_positions = p.closure->tested_patch;
+            out.rim_offset_mm = p.closure->rim_offset_mm;
+            out.margin_mm = p.closure->margin_mm;
+        }
+        state.patch = std::move(out);
+    }
     if (p.scenario.visual && p.scenario.mapping && p.scenario.simulation_surface) {
         // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
         // the vertex shader's formula and float order); once cut, the incision's mesh and mapping.
@@ -586,6 +630,55 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
     std::printf("wrote %s\n", a.save_state.c_str());
 }
 
+/// The closure check at the end of a run on a scenario with a defect (libmodel/closure.h): the
+/// detailed mesh as drawn and the patch after the leak test, one line a trainer reads.
+void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std::array<float, 3>>& positions) {
+    const PatchModel* patch = p.repair ? p.repair->patch() : nullptr;
+    const auto frame = defect_frame_now(p.scenario, positions, patch);
+    p.closure.reset();
+    if (!frame || !p.scenario.visual || !p.scenario.mapping || !p.scenario.simulation_surface) return;
+    const bool opened = p.incisions && p.incisions->cut();
+    const auto visual = apply_mapping(opened ? p.incisions->mapping() : *p.scenario.mapping, positions, *p.scenario.simulation_surface);
+    std::vector<std::array<float, 3>> tissue;
+    tissue.reserve(visual.size());
+    for (const auto& v : visual) tissue.push_back({v.x(), v.y(), v.z()});
+    const auto& triangles = opened ? p.incisions->drawn_triangles() : p.scenario.visual->triangles;
+    std::vector<std::array<float, 3>> patch_positions;
+    std::vector<std::array<std::int32_t, 3>> patch_triangles;
+    double thickness = 0;
+    if (patch) {
+        const PatchModel tested = patch->under_pressure(p.backend->positions_of(patch->particles()), a.leak_test_mmhg * mmhg_in_n_per_mm2);
+        for (const auto& x : tested.positions()) patch_positions.push_back({float(x.x()), float(x.y()), float(x.z())});
+        patch_triangles = tested.triangles();
+        thickness = tested.spec().thickness_mm;
+    }
+    try {
+        ClosureOptions options;
+        // The fill's cylinder reaches 3 mm beyond the patch's edge: a leak under the patch comes out there.
+        if (patch)
+            options.margin_mm = std::max(options.margin_mm, std::max(patch->spec().radius_x_mm, patch->spec().radius_y_mm) + 3.0 -
+                                                                0.5 * frame->diameter_mm);
+        if (patch && !patch->stitches().empty()) {
+            // The rim where the patch is sewn: the stitches' mean distance from the axis.
+            double rim = 0;
+            for (const Eigen::Vector3d& anchor : p.repair->stitch_anchors()) {
+                const Eigen::Vector3d d = anchor - frame->centre;
+                rim += (d - d.dot(frame->axis) * frame->axis).norm();
+            }
+            options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch->stitches().size()) - 0.5 * frame->diameter_mm);
+        }
+        const ClosureResult r = check_closure(tissue, triangles, patch_positions, patch_triangles, thickness, *frame, options);
+        p.closure = PreparedRun::ClosureReport{r, *frame, patch_positions, options.rim_offset_mm, options.margin_mm};
+        std::printf("defect closed: %s, largest rim gap %.2f mm\n", r.closed ? "yes" : "no", r.largest_rim_gap_mm);
+        std::printf("  closure check: %s, %zu stitches, the patch held to %.3g mmHg across the septum; a flood fill of %zu voxels of "
+                    "%.2f mm reached %zu from the far side; wall %.1f mm thick; %d rim points (%.2f s)\n",
+                    patch ? "a patch" : "no patch", patch ? patch->stitches().size() : std::size_t(0), a.leak_test_mmhg, r.voxels,
+                    ClosureOptions{}.voxel_mm, r.reached, r.wall_thickness_mm, r.rim_points, r.seconds);
+    } catch (const InputError& e) {
+        std::printf("defect closed: unknown (%s)\n", e.what());
+    }
+}
+
 /// After every mode but --replay: the last screenshot, the summary, --stats, --stats-csv,
 /// --save-state. Returns the exit status: 4 when a haptic device faulted, else 0.
 int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const haptics::HapticRun* haptic,
@@ -594,6 +687,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     auto uses_hand = [&](int hand) { return haptic ? haptic->uses_hand(hand) : p.trajectory.uses_hand(hand); };
     open_incisions(p, true);  // a stroke still under way counts as finished
     if (p.renderer && !a.screenshot.empty()) {
+        draw_repair(p);
         p.renderer->render(backend, haptic ? haptic->shapes() : shapes_at(p.trajectory, backend.simulated_time_ms()));
         write_png(a.screenshot, p.renderer->read_pixels());
         std::printf("wrote %s (%dx%d)\n", a.screenshot.c_str(), p.renderer->width(), p.renderer->height());
@@ -607,6 +701,11 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     std::printf("ran %lld steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", advanced,
                 run.substeps, backend.simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend.simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
+    if (p.repair && p.repair->patch_steps() > 0)
+        std::printf("repair: the patch's %lld steps (one every %d of the tissue's) took %.3g ms each (reading the tissue, stepping "
+                    "the patch, loading the tissue): %.1f %% of the wall time\n",
+                    p.repair->patch_steps(), p.repair->settings().patch_every, p.repair->patch_ms() / double(p.repair->patch_steps()),
+                    100.0 * p.repair->patch_ms() / wall_ms);
     {
         // How far the tissue is from where it was imaged: a heart that is held stays in place.
         const auto& rest = p.scenario.lattice.particles.rest_position;
@@ -626,6 +725,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
         const auto& f = forces.hand[hand];
         std::printf("hand %d force (%.6g, %.6g, %.6g) N on %zu particles\n", hand, f.force_n.x(), f.force_n.y(), f.force_n.z(), f.particles);
     }
+    if (p.repair || !p.scenario.source.defect.empty()) report_closure(a, p, positions);
     if (a.stats) print_stats(a, p, run, wall_ms);
     if (!a.stats_csv.empty()) write_stats_csv(a, p, run, wall_ms);
     if (!a.save_state.empty()) save_state(a, p, run, forces, positions, haptic);
@@ -717,6 +817,7 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
                 r.steps, r.wall_ms, r.compared, r.identical, r.max_difference_n, r.rms_difference_n, r.max_force_n,
                 r.worst_step >= 0 && r.max_difference_n > 0 ? (", worst at step " + std::to_string(r.worst_step)).c_str() : "");
     if (run.renderer && !a.screenshot.empty()) {
+        draw_repair(run);
         run.renderer->render(backend, {});
         write_png(a.screenshot, run.renderer->read_pixels());
         std::printf("wrote %s\n", a.screenshot.c_str());
@@ -779,7 +880,8 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .link = run.link.get(),
                                   .open_incisions = [&run](const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes) {
                                       if (!open_incisions(run, false, positions, strokes)) preview_incisions(run, positions, strokes);
-                                  }};
+                                  },
+                                  .scenario = &run.scenario};
     ScriptedRunResult result =
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {
@@ -801,6 +903,7 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
     if (run.renderer && a.screenshot_every > 0)
         scripted.on_step = [&](int step, const StepReport&) {
             if ((step + 1) % a.screenshot_every != 0) return;
+            draw_repair(run);
             run.renderer->render(*run.backend, shapes_at(run.trajectory, run.backend->simulated_time_ms()));
             write_png(numbered_screenshot(a.screenshot, step + 1), run.renderer->read_pixels());
         };

@@ -18,6 +18,7 @@
 
 #include "formats/recording.h"
 #include "formats/scenario.h"
+#include "runtime/repair.h"
 
 #include <chrono>
 #include <memory>
@@ -66,6 +67,9 @@ struct RunArguments {
     std::string igtl;                 // --igtl PORT | HOST:PORT; empty: none
     std::optional<double> igtl_wait;  // --igtl-wait S: wait up to S s for Slicer before the first step
     std::optional<double> igtl_mesh_rate;  // --igtl-mesh-rate HZ: cap on the mesh messages (default 20)
+    // The repair of a septal defect (runtime/repair.h, docs/runtime.md "Closing a defect").
+    std::string patch_material = "pericardium";  // --patch-material
+    double leak_test_mmhg = 10.0;                // --leak-test: the pressure the closure check holds the patch to
 
     static constexpr const char* default_contact = "direct";
     static constexpr int default_picking_refresh = 1;
@@ -110,6 +114,16 @@ struct PreparedRun {
     std::unique_ptr<SlicerLink> link;
     /// The detailed mesh as the scalpel opened it; made at the first stroke (open_incisions).
     std::unique_ptr<IncisionState> incisions;
+    /// The backend as a RepairBackend (runtime/repair.h) where the scenario can hold a patch; else null.
+    RepairBackend* repair = nullptr;
+    /// The closure check at the end of the run (report_closure), for --save-state.
+    struct ClosureReport {
+        ClosureResult result;
+        DefectFrame frame;
+        std::vector<std::array<float, 3>> tested_patch;  ///< the patch after the leak test
+        double rim_offset_mm = 0.0, margin_mm = 0.0;
+    };
+    std::optional<ClosureReport> closure;
     std::uint64_t previewed_strokes = 0;              ///< the stroke log's version the last preview showed
     std::chrono::steady_clock::time_point previewed;  ///< when (preview_incisions)
 };

@@ -5,10 +5,16 @@
 
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
+#include "runtime/repair.h"
+#include "runtime/repair_plan.h"
 #include "runtime/section_plane.h"
 #include "runtime/slicer_link.h"
 #include "runtime/window_keys.h"
 #include "runtime/window_simulation.h"
+
+#include "libmodel/closure.h"
+#include "libmodel/errors.h"
+#include "libmodel/mapping.h"
 
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -22,6 +28,7 @@
 #include <ctime>
 #include <filesystem>
 #include <limits>
+#include <numbers>
 #include <optional>
 #include <vector>
 
@@ -74,10 +81,12 @@ struct WindowInput {
     haptics::DevicePose device_pose;
     bool dragging_device = false, estop = false;
     // Ctrl + Shift + left click: the mouse device onto the tissue's surface under the cursor;
-    // held and dragged, it slides along the surface (the instrument's extent, `reach`, from it).
+    // held and dragged, it slides along the surface (`surface_offset_mm` from it).
     bool sliding_device = false;
-    double reach_mm = 2.0;              ///< the mouse device's instrument's semi-axis towards the eye
-    bool scalpel = false;               ///< a scalpel: its tip, not its middle, goes to the surface
+    /// Where the mouse device goes from the surface point, towards the eye, mm: a quarter of its
+    /// instrument's smallest semi-axis below it (pressing); a scalpel's or needle's tip on it; a
+    /// patch 2 mm in front of it (laid, it drapes onto the surface along the view).
+    double surface_offset_mm = -0.5;
     int surface_moves = 0;              ///< slides since the click (for the line said at release)
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
     bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
@@ -85,6 +94,8 @@ struct WindowInput {
     bool screenshot = false;    ///< P: write the window as seen after the next frame
     bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)
     bool toggle_scalpel = false;    ///< K: instrument 0 to the scalpel and back (haptic sessions)
+    bool toggle_patch = false;      ///< Shift + P: instrument 0 to a patch and back (haptic sessions)
+    bool toggle_needle = false;     ///< Shift + N: instrument 0 to a needle and back (haptic sessions)
     bool redraw = false;            ///< C, [, ], V: the section changed; draw the next frame now
 };
 
@@ -96,8 +107,9 @@ void say(const char* format, Args... args) {
 }
 
 /// Ctrl + Shift + click and drag: the mouse device onto the tissue's surface point under the
-/// cursor, its centre a quarter of its extent below it (a click on the heart presses on it). False over the
-/// background (the device stays where it was).
+/// cursor, `surface_offset_mm` towards the eye from it (a probe's centre a quarter of its extent
+/// below it: a click on the heart presses on it). False over the background (the device stays
+/// where it was).
 bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
     int width = 0, height = 0;
     glfwGetWindowSize(window, &width, &height);
@@ -105,7 +117,7 @@ bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
     if (!hit) return false;
     const Eigen::Vector3d point = hit->cast<double>();
     const Eigen::Vector3d to_eye = (in.renderer->camera().eye().cast<double>() - point).normalized();
-    in.device_pose.position_mm = in.scalpel ? point : point - 0.25 * in.reach_mm * to_eye;
+    in.device_pose.position_mm = point + in.surface_offset_mm * to_eye;
     return true;
 }
 
@@ -143,6 +155,88 @@ void aim_section(Renderer& renderer) {
     const SectionPlane plane = section_facing(renderer.camera(), centre).moved(-renderer.section()->depth_from(centre));
     renderer.set_section(plane);
     say("section view: aimed at the view, %s\n", describe(plane, centre).c_str());
+}
+
+/// Shift + P and Shift + N: hand 0 of a haptic session holds a patch or a needle in the repair
+/// backend (runtime/repair.h) in place of the session's own instrument, which the same key gives
+/// back. The session goes on posing the hand; its button 1 (G for the mouse device), read from the
+/// session's newest tool sample on the thread that steps, lays the patch or ties a stitch.
+struct RepairHand {
+    std::atomic<InstrumentKind> kind{InstrumentKind::none};  ///< patch or needle; none: the session's own
+    Instrument own;        ///< the session's instrument, given back (window thread, before the switch)
+    bool pressed = false;  ///< button 1 as last seen (the thread that steps)
+
+    /// On the thread that steps: the backend's hand 0 holds `instrument` (a patch, a needle, or `own`).
+    void hold(Backend& backend, haptics::HapticSession& session, const Instrument& instrument) {
+        const bool repair = repair_kind(instrument.kind);
+        backend.set_instrument(0, instrument);
+        pressed = repair && button(session);  // a button already held acts at its next press
+        kind = repair ? instrument.kind : InstrumentKind::none;
+    }
+    /// On the thread that steps: button 1's press lays the patch or ties a stitch, its release lets go.
+    void poll(Backend& backend, haptics::HapticSession& session) {
+        if (kind.load() == InstrumentKind::none) return;
+        const bool now = button(session);
+        if (now == pressed) return;
+        pressed = now;
+        if (now) backend.begin_grab(0);
+        else backend.release(0);
+        std::fflush(stdout);  // the repair's lines, read as they happen (a log, the tests)
+    }
+    static bool button(haptics::HapticSession& session) {
+        const auto tools = session.latest_tools();
+        return tools && tools->hand[0].valid && (tools->hand[0].buttons & 1u);
+    }
+};
+
+/// Shift + P's patch and Shift + N's needle: the patch plan-repair lays on a defect of the
+/// scenario's diameter (D + 2·(rim + 2 mm) across; a 10 mm defect's without one), as thick as its
+/// patch; the plan's needle.
+Instrument repair_instrument(InstrumentKind kind, const Scenario* scenario) {
+    const RepairPlanOptions plan;
+    if (kind == InstrumentKind::needle) return {.kind = kind, .semi_axes = plan.needle_semi_axes};
+    const double defect_mm = scenario && scenario->source.defect_diameter_mm > 0 ? scenario->source.defect_diameter_mm : 10.0;
+    const double radius = 0.5 * defect_mm + plan.rim_mm + 2.0;
+    return {.kind = kind, .semi_axes = Eigen::Vector3d(radius, radius, 0.5 * plan.thickness_mm)};
+}
+
+/// The mouse device's orientation (world frame) for hand 0's instrument: a patch faces into the
+/// screen (tool +z away from the eye, onto the tissue in front of it), a needle's shaft points to
+/// the eye (tool +z out of the tissue, as plan-repair holds it); anything else the device's own.
+Eigen::Quaterniond mouse_orientation(InstrumentKind kind, const Camera& camera) {
+    const Eigen::Quaterniond view = camera.orientation.cast<double>();
+    if (kind == InstrumentKind::patch) return view * Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi, Eigen::Vector3d::UnitX()));
+    if (kind == InstrumentKind::needle) return view;
+    return Eigen::Quaterniond::Identity();
+}
+
+/// The closure check of the repair a frame shows (libmodel/closure.h): the detailed mesh mapped
+/// onto `positions` and the patch as it lies, the rim where its stitches are. No leak test: the
+/// check at the end of the run (run_modes.cpp) holds the patch to the pressure. nullopt: the scenario has no defect or no
+/// mapped detailed mesh. Throws InputError when the check cannot tell.
+std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::vector<std::array<float, 3>>& positions, const DrawnPatch& patch) {
+    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface) return std::nullopt;
+    std::optional<DefectFrame> frame = defect_frame_now(scenario, positions, nullptr);
+    if (!frame) return std::nullopt;
+    // The axis toward the side the patch lies on (defect_frame_now's rule with a patch).
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto& x : patch.positions) centroid += Eigen::Vector3d(x[0], x[1], x[2]);
+    if (!patch.positions.empty() && (centroid / double(patch.positions.size()) - frame->centre).dot(frame->axis) < 0) frame->axis = -frame->axis;
+    const auto mapped = apply_mapping(*scenario.mapping, positions, *scenario.simulation_surface);
+    std::vector<std::array<float, 3>> tissue;
+    tissue.reserve(mapped.size());
+    for (const auto& v : mapped) tissue.push_back({v.x(), v.y(), v.z()});
+    ClosureOptions options;
+    if (!patch.stitch_to.empty()) {
+        // The rim where the patch is sewn: the stitches' mean distance from the axis.
+        double rim = 0;
+        for (const auto& anchor : patch.stitch_to) {
+            const Eigen::Vector3d d = Eigen::Vector3d(anchor[0], anchor[1], anchor[2]) - frame->centre;
+            rim += (d - d.dot(frame->axis) * frame->axis).norm();
+        }
+        options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch.stitch_to.size()) - 0.5 * frame->diameter_mm);
+    }
+    return check_closure(tissue, scenario.visual->triangles, patch.positions, patch.triangles, patch.thickness_mm, *frame, options);
 }
 
 /// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
@@ -244,9 +338,12 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
         if (key == GLFW_KEY_R) in->renderer->reset_camera();
         if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
-        if (key == GLFW_KEY_N && in->paused) ++in->single_steps;
+        const bool shift = (mods & GLFW_MOD_SHIFT) != 0;
+        if (key == GLFW_KEY_N && shift) in->toggle_needle = true;
+        else if (key == GLFW_KEY_N && in->paused) ++in->single_steps;
         if (key == GLFW_KEY_T) in->reset_tissue = true;
-        if (key == GLFW_KEY_P) in->screenshot = true;
+        if (key == GLFW_KEY_P && shift) in->toggle_patch = true;
+        else if (key == GLFW_KEY_P) in->screenshot = true;
         if (key == GLFW_KEY_F5) in->toggle_recording = true;
         if (key == GLFW_KEY_K) in->toggle_scalpel = true;
         if (key == GLFW_KEY_C || key == GLFW_KEY_V) {
@@ -266,6 +363,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     });
     glfwSwapInterval(1);
     Hud hud(window);
+    RepairBackend* const repair = dynamic_cast<RepairBackend*>(&backend);
+    RepairHand repair_hand;  // Shift + P / Shift + N
+    HudRepair repair_shown;  // the closure check as last run (at most once a second)
+    auto next_closure = std::chrono::steady_clock::now();
+    const bool has_defect = a.scenario && !a.scenario->source.defect.empty();
     const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
     bool said_paused = false;
     long long resets_said = 0;  // T on the cpu thread: resets done and said
@@ -350,6 +452,9 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 say("recording: needs a haptic session (--device mouse, scripted:FILE, …): nothing to record\n");
             } else if (haptic->records_session()) {
                 say("recording: --record %s records the whole session already; F5 is off\n", haptic->recording_path().c_str());
+            } else if (repair_hand.kind.load() != InstrumentKind::none) {
+                say("recording: not while instrument 0 is a %s (a recording holds the session's instruments; Shift + %s gives back its own)\n",
+                    to_string(repair_hand.kind.load()), repair_hand.kind.load() == InstrumentKind::patch ? "P" : "N");
             } else {
                 // F5 toggles what the stepping thread has: on → stop and write; off → start.
                 const std::string scenario_path = a.scenario_path;
@@ -394,9 +499,10 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             } else if (recording_now || toggles_pending > 0 || haptic->records_session()) {
                 say("K: not while recording (a change of instrument inside a recording could not be replayed)\n");
             } else {
-                auto swap = [haptic] {
+                auto swap = [haptic, &repair_hand] {
                     try {
                         const InstrumentKind now = haptic->toggle_scalpel(0);
+                        repair_hand.kind = InstrumentKind::none;  // the session places its own instrument at the next step
                         say("instrument 0: %s%s\n", to_string(now),
                             now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)" : "");
                     } catch (const std::exception& e) {
@@ -406,6 +512,45 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 if (simulation) simulation->run_between_steps(swap);
                 else swap();
             }
+        }
+        if (input.toggle_patch || input.toggle_needle) {
+            // Shift + P / Shift + N: hand 0 holds a patch or a needle, or its own instrument again,
+            // switched on the thread that steps.
+            const InstrumentKind asked = input.toggle_patch ? InstrumentKind::patch : InstrumentKind::needle;
+            const char* key = input.toggle_patch ? "Shift + P" : "Shift + N";
+            input.toggle_patch = input.toggle_needle = false;
+            const std::vector<InstrumentShape> held = !haptic      ? std::vector<InstrumentShape>{}
+                                                      : simulation ? simulation->status().shapes
+                                                                   : haptic->shapes();
+            const auto hand0 = std::find_if(held.begin(), held.end(), [](const InstrumentShape& shape) { return shape.hand == 0; });
+            if (!haptic || !haptic->uses_hand(0)) {
+                say("%s: the patch and the needle are a device's instruments: run with --device (mouse, openhaptics, …)\n", key);
+            } else if (!repair) {
+                say("%s: the scenario has no detailed mesh with its mapping for a patch to lie on\n", key);
+            } else if (recording_now || toggles_pending > 0 || haptic->records_session()) {
+                say("%s: not while recording (a change of instrument inside a recording could not be replayed)\n", key);
+            } else if (hand0 == held.end()) {
+                say("%s: instrument 0 is not placed yet (its device has sent no pose)\n", key);
+            } else {
+                if (repair_hand.kind.load() == InstrumentKind::none) repair_hand.own = {.kind = hand0->kind, .semi_axes = hand0->semi_axes};
+                const Instrument instrument = repair_hand.kind.load() == asked ? repair_hand.own : repair_instrument(asked, a.scenario);
+                auto swap = [haptic, &backend, &repair_hand, instrument] {
+                    repair_hand.hold(backend, haptic->session(), instrument);
+                    const char* how = instrument.kind == InstrumentKind::patch
+                                          ? " (G or button 1 lays it on the tissue in front of it; held there until its first stitch)"
+                                      : instrument.kind == InstrumentKind::needle
+                                          ? " (G or button 1 ties a stitch from the tissue at its tip to the patch's point nearest it)"
+                                          : "";
+                    say("instrument 0: %s%s\n", to_string(instrument.kind), how);
+                };
+                if (simulation) simulation->run_between_steps(swap);
+                else swap();
+            }
+        }
+        // A patch or needle in hand 0: its button, on the thread that steps, once a frame.
+        if (haptic && repair_hand.kind.load() != InstrumentKind::none) {
+            if (simulation) simulation->run_between_steps([haptic, &backend, &repair_hand] { repair_hand.poll(backend, haptic->session()); });
+            else repair_hand.poll(backend, haptic->session());
         }
         if (input.reset_tissue) {
             if (simulation) {
@@ -467,6 +612,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
             if (input.device) {
                 input.device_pose.position_mm += to.position - from.position;
+                if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(repair_hand.kind.load(), camera);
                 input.device->set_pose(input.device_pose);
             }
         }
@@ -547,13 +693,16 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (width > 0 && height > 0) renderer.resize(width, height);
         std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
                                               : simulation ? simulation->status().shapes : haptic->shapes();
+        const InstrumentKind repair_held = repair_hand.kind.load();
         for (InstrumentShape& shape : shapes) {
             if (shape.hand < 0 || shape.hand > 1) continue;
             shape.touching = touching[std::size_t(shape.hand)];
-            // The mouse device's instrument: how far it reaches towards the eye when put on the surface.
+            if (shape.hand == 0 && repair_held != InstrumentKind::none)
+                shape.kind = repair_held, shape.semi_axes = repair_instrument(repair_held, a.scenario).semi_axes;
+            // The mouse device's instrument: where it goes when put on the surface.
             if (input.device && haptic->device_spec(shape.hand) == "mouse") {
-                input.reach_mm = shape.semi_axes.minCoeff();
-                input.scalpel = shape.kind == InstrumentKind::scalpel;
+                const bool tip = shape.kind == InstrumentKind::scalpel || shape.kind == InstrumentKind::needle;
+                input.surface_offset_mm = tip ? 0.0 : shape.kind == InstrumentKind::patch ? 2.0 : -0.25 * shape.semi_axes.minCoeff();
             }
         }
         for (int hand = 0; hand < 2 && !haptic; ++hand) {
@@ -569,6 +718,25 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             } else {
                 a.open_incisions(nullptr, nullptr);
             }
+        }
+        // The repair as the frame's positions have it, and at most once a second whether it closes the defect.
+        DrawnPatch drawn;
+        if (simulation) drawn = simulation->patch();
+        else if (const PatchModel* patch = repair ? repair->patch() : nullptr) drawn = drawn_patch(*patch, repair->stitch_anchors());
+        renderer.set_patch(drawn);
+        if (drawn.triangles.empty()) {
+            repair_shown = {};
+        } else if (has_defect && std::chrono::steady_clock::now() >= next_closure) {
+            try {
+                const std::optional<ClosureResult> closure =
+                    closure_now(*a.scenario, simulation ? latest_positions : backend.positions(), drawn);
+                repair_shown.known = closure.has_value();
+                if (closure) repair_shown.closed = closure->closed, repair_shown.rim_gap_mm = closure->largest_rim_gap_mm;
+            } catch (const InputError&) {
+                repair_shown.known = false;
+            }
+            repair_shown.checked = true;
+            next_closure = std::chrono::steady_clock::now() + std::chrono::seconds(1);
         }
         const auto draw_start = std::chrono::steady_clock::now();
         if (simulation) renderer.render(latest_positions, shapes);
@@ -627,7 +795,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                     h.device = haptic->device_spec(hand);
                     if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
                         h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
-                    h.instrument = to_string(haptic->instrument(hand));
+                    h.instrument = to_string(hand == 0 && repair_held != InstrumentKind::none ? repair_held : haptic->instrument(hand));
                     h.max_force_n = haptic->max_force_n(hand);
                     // The simulation's force on the instrument (what the session sends on, before
                     // safety); for the mouse device what it was sent.
@@ -661,6 +829,11 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
                 touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
             }
+            state.repair = repair_shown;
+            state.repair.laid = !drawn.triangles.empty();
+            state.repair.material = drawn.material;
+            state.repair.stitches = drawn.stitch_from.size();
+            state.repair.defect = has_defect;
             if (hud_fixed) {
                 // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
                 // machine's speed and on timing shown as fixed values, so the picture is the same

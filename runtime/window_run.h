@@ -10,6 +10,8 @@
 #include "runtime/gl/renderer.h"
 #include "runtime/trajectory.h"
 
+#include "formats/scenario.h"
+
 #include <atomic>
 #include <ctime>
 #include <functional>
@@ -41,6 +43,9 @@ struct WindowRunOptions {
     /// (run_modes.h open_incisions), given the positions and strokes of the frame (both null: the
     /// backend's own, which the window's thread steps).
     std::function<void(const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes)> open_incisions;
+    /// The scenario run: with a septal defect, the HUD says at most once a second whether the
+    /// patch closes it (libmodel/closure.h), and Shift + P's patch is sized to it. Null: neither.
+    const Scenario* scenario = nullptr;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

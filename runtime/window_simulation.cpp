@@ -33,13 +33,14 @@ private:
 }  // namespace
 
 WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
-    : backend_(backend), hands_(std::in_place, trajectory), trajectory_(&trajectory), options_(options),
-      start_mass_scale_(backend.options().mass_scale) {
+    : backend_(backend), repair_(dynamic_cast<RepairBackend*>(&backend)), hands_(std::in_place, trajectory), trajectory_(&trajectory),
+      options_(options), start_mass_scale_(backend.options().mass_scale) {
     thread_ = std::thread([this] { run(); });
 }
 
 WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options)
-    : backend_(backend), haptic_(&haptic), options_(options), start_mass_scale_(backend.options().mass_scale) {
+    : backend_(backend), repair_(dynamic_cast<RepairBackend*>(&backend)), haptic_(&haptic), options_(options),
+      start_mass_scale_(backend.options().mass_scale) {
     status_.shapes = haptic.shapes();
     thread_ = std::thread([this] { run_haptic(); });
 }
@@ -59,11 +60,19 @@ bool WindowSimulation::finish_at_limit() {
 void WindowSimulation::copy_strokes() {
     const StrokeLog& log = backend_.strokes();
     if (log.version() != strokes_.version() || log.clears() != strokes_.clears()) strokes_ = log;
+    const PatchModel* patch = repair_ ? repair_->patch() : nullptr;
+    if (patch) patch_ = drawn_patch(*patch, repair_->stitch_anchors());
+    else if (!patch_.triangles.empty()) patch_ = {};
 }
 
 StrokeLog WindowSimulation::strokes() const {
     std::lock_guard lock(mutex_);
     return published_strokes_;
+}
+
+DrawnPatch WindowSimulation::patch() const {
+    std::lock_guard lock(mutex_);
+    return published_patch_;
 }
 
 void WindowSimulation::publish_start() {
@@ -135,6 +144,7 @@ bool WindowSimulation::latest(std::vector<std::array<float, 3>>& positions) {
     if (!fresh_ && positions_.empty()) return false;
     positions = positions_;
     published_strokes_ = strokes_;
+    published_patch_ = patch_;
     fresh_ = false;
     return true;
 }

@@ -2,7 +2,8 @@
 /// @brief The window's simulation on its own thread (cpu backend): paced to the wall clock, never
 /// ahead of real time and never one step per frame; the window draws at its own rate from the
 /// latest positions it asks for. Scripted or keyboard instruments, or a haptic session (its steps
-/// to real time, so drawing never stalls the forces). docs/runtime.md "Window mode".
+/// to real time, so drawing never stalls the forces). With a repair (runtime/repair.h), the patch
+/// and its stitches are copied with the positions. docs/runtime.md "Window mode".
 ///
 ///     WindowSimulation simulation(backend, trajectory, {.keyboard_hand0 = true, .steps = -1});
 ///     simulation.set_keyboard_pose(pose);              // hand 0 from the arrow keys
@@ -13,6 +14,7 @@
 #include "runtime/backend.h"
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/gl/renderer.h"
+#include "runtime/repair.h"
 #include "runtime/trajectory.h"
 
 #include <array>
@@ -80,17 +82,22 @@ public:
     /// The scalpel strokes as of the positions latest() returned last (Backend::strokes, copied
     /// on the thread when they changed).
     StrokeLog strokes() const;
+    /// The repair's patch and stitches as of the positions latest() returned last (drawn_patch
+    /// of RepairBackend::patch and stitch_anchors, copied on the thread); no triangles while no
+    /// patch is laid or the backend holds no repair.
+    DrawnPatch patch() const;
     Status status() const;
 
 private:
     void run();
     void run_haptic();
-    void copy_strokes();       ///< with the mutex held: the backend's stroke log, if it changed
+    void copy_strokes();       ///< with the mutex held: the backend's stroke log, if it changed, and the patch
     void publish_start();      ///< the positions before the first step
     void publish_if_wanted();  ///< with the mutex held
     bool finish_at_limit();    ///< with the mutex held: true (and the final state published) at the step limit
 
     Backend& backend_;
+    RepairBackend* repair_ = nullptr;  ///< backend_ as a RepairBackend, where it is one
     std::optional<ScriptedHands> hands_;
     const Trajectory* trajectory_ = nullptr;
     haptics::HapticRun* haptic_ = nullptr;
@@ -107,6 +114,7 @@ private:
     bool keyboard_set_ = false;
     std::vector<std::array<float, 3>> positions_;
     StrokeLog strokes_, published_strokes_;  ///< the thread's copy, and the one of the positions handed out
+    DrawnPatch patch_, published_patch_;     ///< the same for the repair
     Status status_;
 };
 

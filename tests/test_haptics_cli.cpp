@@ -639,7 +639,7 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --coupling --steps 1", 2, "--coupling sets how forces reach a haptic device: it needs --device"},
         {"--headless --haptic-rate 500 --steps 1", 2, "--haptic-rate sets how forces reach a haptic device: it needs --device"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument scissors --seconds 1", 2,
-         "expected probe, grabber or scalpel"},
+         "expected probe, grabber, scalpel, patch or needle"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record /no/such/folder/r.h5", 7,
          "folder /no/such/folder does not exist"},
         {"--headless --device openhaptics --seconds 1", 4, "openhaptics"},
@@ -716,6 +716,16 @@ TEST(HapticsVocabulary, DeviceSpecsSimulatedDeviceFilesAndInstruments) {
     EXPECT_EQ(grabber.semi_axes, Eigen::Vector3d(1, 2, 3));
     EXPECT_THROW(parse_instrument("grabber:1,2", 1), InputError);
     EXPECT_THROW(parse_instrument("probe:1,2,-3", 1), InputError);
+    // The repair's instruments: an 18 mm patch 0.5 mm thick and a needle 12 mm long, whatever the
+    // lattice's spacing; semi-axes given replace them.
+    const Instrument patch = parse_instrument("patch", 2.5), needle = parse_instrument("needle", 2.5);
+    EXPECT_EQ(patch.kind, InstrumentKind::patch);
+    EXPECT_EQ(patch.semi_axes, Eigen::Vector3d(9, 9, 0.25));
+    EXPECT_EQ(needle.kind, InstrumentKind::needle);
+    EXPECT_EQ(needle.semi_axes, Eigen::Vector3d(0.25, 0.25, 6));
+    EXPECT_EQ(parse_instrument("patch:7,5,0.3", 2.5).semi_axes, Eigen::Vector3d(7, 5, 0.3));
+    EXPECT_TRUE(takes_grab(patch.kind) && takes_grab(needle.kind));
+    EXPECT_THROW(parse_instrument("none", 1), InputError);
 }
 
 TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
@@ -891,7 +901,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     {
         Recording d = r;
         d.steps.grab[0][0] = 1;  // hand 0 has no device, let alone a grabber
-        refused(d, "grabs with a hand that holds no grabber or scalpel");
+        refused(d, "grabs with a hand that holds no grabber, scalpel, patch or needle");
     }
     {
         Recording d = r;

@@ -2,11 +2,13 @@
 // libmodel's apply_mapping (read back through transform feedback from the drawing shader
 // itself), the normals pass against particle_normals, a headless screenshot of the phantom
 // against a golden image, the simulation surface drawn when there is no visual mesh, the
+// section view, an incision's opened mesh, a septal defect's patch and stitches, the
 // window mode under Xvfb, and the PNG writer. GL tests skip with a message where there is no
 // EGL/OpenGL 4.3 device; the window test where Xvfb is not installed.
 //
 // Golden image: tests/data/golden/phantom_rest.png. Regenerate (after an intended change of the
 // picture) with HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_render --gtest_filter='*Golden*'.
+#include "defect_block.h"
 #include "incision_gesture.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
@@ -20,7 +22,10 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/png.h"
 #include "runtime/gl/renderer.h"
+#include "runtime/repair.h"
+#include "runtime/repair_plan.h"
 #include "runtime/section_plane.h"
+#include "formats/volume_io.h"
 #include "runtime/trajectory.h"
 
 #include <gtest/gtest.h>
@@ -539,4 +544,137 @@ TEST(RenderIncision, TheOpenedMeshIsDrawnAsTheMappingSaysWithItsCapsInTheirShade
     const std::size_t caps = cap_pixels(close_up.read_pixels());
     std::printf("  %zu pixels in the caps' shade\n", caps);
     EXPECT_GT(caps, 0u);
+}
+
+namespace {
+
+/// Pixels in a pericardium patch's colour (patch_rgb("pericardium"), lit or cut flat: its hue kept,
+/// green 0.96 and blue 0.82 of red, a specular highlight moving both toward 1); the tissue's lit
+/// red keeps green under 0.55 of red, the background is darker, the suture blue.
+bool patch_coloured(const std::uint8_t* c) {
+    const double r = c[0], g = c[1], b = c[2];
+    return r > 50 && std::abs(g / r - 0.957) < 0.04 && b / r > 0.78 && b / r < 0.95 && b < g;
+}
+
+/// Pixels in the suture's blue (suture_rgb, lit): blue well above red and green.
+bool suture_coloured(const std::uint8_t* c) { return c[2] > 40 && c[2] > 1.8 * c[0] && c[2] > 1.5 * c[1]; }
+
+/// The screen box (pixels from the top left) of `points` through `camera` in a `size`² frame,
+/// widened by `margin` pixels.
+Eigen::AlignedBox2d screen_box(const Camera& camera, int size, const std::vector<Eigen::Vector3d>& points, double margin) {
+    const Eigen::Matrix4f view_projection = camera.projection(1.0f) * camera.view();
+    Eigen::AlignedBox2d box;
+    for (const Eigen::Vector3d& p : points) {
+        const Eigen::Vector4f clip = view_projection * Eigen::Vector4f(float(p.x()), float(p.y()), float(p.z()), 1.0f);
+        box.extend(Eigen::Vector2d(0.5 * (clip.x() / clip.w() + 1.0) * size, 0.5 * (1.0 - clip.y() / clip.w()) * size));
+    }
+    if (!box.isEmpty()) box.extend(box.min() - Eigen::Vector2d::Constant(margin)), box.extend(box.max() + Eigen::Vector2d::Constant(margin));
+    return box;
+}
+
+}  // namespace
+
+// A septal defect's repair as drawn: the two-chamber block of defect_block.h (a 6 mm septum) with
+// an 8 mm VSD, the patch of plan_repair laid over the opening on the right side and its eight
+// stitches tied, seen in the section view across the defect as `--clip defect --view section`
+// shows it (the plane through the defect's axis, the camera square on to it). The patch is
+// opaque and depth-tested, so drawing it changes no pixel outside the screen box of the patch
+// and its stitches; the pixels in its colour lie where its kept half (the side of the plane that
+// is drawn) projects; the stitches' knots on that side show in the suture's blue; and after
+// clear_patch() no pixel has either colour.
+TEST(RenderRepair, TheLaidPatchAndItsStitchesAreDrawnOverTheDefectInTheSectionView) {
+    REQUIRE_GL();
+    using namespace test::defect_block;
+    test::TempDir dir;
+    const Block block = make_block();
+    write_label_volume(dir / "block.nrrd", block.volume);
+    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
+    char point[96];
+    std::snprintf(point, sizeof point, "%.4f,%.4f,%.4f", at.x(), at.y(), at.z());
+    const auto built = test::heartprep("build " + quoted(dir / "block.nrrd") + " --defect vsd --diameter 8 --at=" + point +
+                                       " --particles 4000 -q -o " + quoted(dir / "vsd.h5"));
+    ASSERT_EQ(built.exit_code, 0) << built.output;
+    const Scenario scenario = read_scenario(dir / "vsd.h5");
+    const RepairPlan plan = plan_repair(scenario);
+
+    // The plan's gesture without the steps: the patch laid where hand 0 lays it, each stitch tied
+    // at its site; the tissue at rest.
+    std::unique_ptr<Backend> backend = with_repair(make_cpu_backend(scenario, options_from(scenario.solver)), scenario, {});
+    auto* repair = dynamic_cast<RepairBackend*>(backend.get());
+    ASSERT_NE(repair, nullptr);
+    const double radius = 0.5 * plan.patch_diameter_mm;
+    backend->set_instrument(0, {.kind = InstrumentKind::patch, .semi_axes = Eigen::Vector3d(radius, radius, 0.5 * plan.patch_thickness_mm)});
+    backend->set_pose(0, {plan.patch_centre, plan.patch_orientation});
+    backend->begin_grab(0);
+    backend->set_instrument(1, {.kind = InstrumentKind::needle, .semi_axes = RepairPlanOptions{}.needle_semi_axes});
+    for (const RepairStitch& stitch : plan.stitches) {
+        backend->set_pose(1, {stitch.site, plan.needle_orientation});
+        backend->begin_grab(1);
+        backend->release(1);
+    }
+    const PatchModel* patch = repair->patch();
+    ASSERT_NE(patch, nullptr);
+    ASSERT_EQ(patch->stitches().size(), plan.stitches.size());
+    const DrawnPatch drawn = drawn_patch(*patch, repair->stitch_anchors());
+    EXPECT_EQ(drawn.rgb, patch_rgb("pericardium"));
+
+    const int size = 400;
+    Renderer renderer(scenario, {.width = size, .height = size});
+    const SectionPlane plane = section_through_defect(renderer.camera(), scenario.source.defect_centre.cast<float>(),
+                                                      scenario.source.defect_axis.cast<float>());
+    aim_at_section(renderer.camera(), plane);
+    renderer.set_section(plane);
+    const Camera& camera = renderer.camera();
+    renderer.set_patch(drawn);
+    EXPECT_TRUE(renderer.draws_patch());
+    renderer.render(*backend, {});
+    const Image with = renderer.read_pixels();
+    renderer.clear_patch();
+    EXPECT_FALSE(renderer.draws_patch());
+    renderer.render(*backend, {});
+    const Image without = renderer.read_pixels();
+
+    // Everything drawn, the kept half, and the knots on the kept side (by more than a knot's size).
+    auto kept = [&](const Eigen::Vector3d& x, double by) { return plane.normal.cast<double>().dot(x - plane.point.cast<double>()) < -by; };
+    std::vector<Eigen::Vector3d> all, kept_half;
+    int kept_knots = 0;
+    for (const auto& x : drawn.positions) {
+        const Eigen::Vector3d p(x[0], x[1], x[2]);
+        all.push_back(p);
+        if (kept(p, 0.0)) kept_half.push_back(p);
+    }
+    for (std::size_t k = 0; k < drawn.stitch_from.size(); ++k) {
+        const Eigen::Vector3d a(drawn.stitch_from[k][0], drawn.stitch_from[k][1], drawn.stitch_from[k][2]);
+        const Eigen::Vector3d b(drawn.stitch_to[k][0], drawn.stitch_to[k][1], drawn.stitch_to[k][2]);
+        all.push_back(a), all.push_back(b);
+        kept_knots += kept(a, 1.0);
+    }
+    // A pixel's margin beyond the sheet's half thickness and the knots' radius (0.6 mm) round the points.
+    const double margin = 1.0 / camera.mm_per_pixel(size) + 2.0;
+    const Eigen::AlignedBox2d everything = screen_box(camera, size, all, margin), kept_box = screen_box(camera, size, kept_half, margin);
+    ASSERT_FALSE(kept_half.empty()) << "the plane holds the defect's axis: half the patch is on the side drawn";
+    std::size_t patch_seen = 0, patch_outside = 0, suture_seen = 0, changed = 0, changed_outside = 0, after = 0;
+    for (int y = 0; y < size; ++y)
+        for (int x = 0; x < size; ++x) {
+            const std::size_t p = 3 * (std::size_t(y) * size + std::size_t(x));
+            const Eigen::Vector2d centre(x + 0.5, y + 0.5);
+            const bool differs = !std::equal(&with.pixels[p], &with.pixels[p] + 3, &without.pixels[p]);
+            changed += differs;
+            changed_outside += differs && !everything.contains(centre);
+            if (patch_coloured(&with.pixels[p])) ++patch_seen, patch_outside += !kept_box.contains(centre);
+            suture_seen += suture_coloured(&with.pixels[p]);
+            after += patch_coloured(&without.pixels[p]) || suture_coloured(&without.pixels[p]);
+        }
+    std::printf("  patch %zu vertices, %zu triangles, %zu stitches (%d knots on the side drawn); %zu pixels changed by it, %zu in its colour "
+                "(%zu outside its kept half's box), %zu in the suture's; %zu in either colour after clear_patch\n",
+                drawn.positions.size(), drawn.triangles.size(), drawn.stitch_from.size(), kept_knots, changed, patch_seen, patch_outside,
+                suture_seen, after);
+    if (HasFailure() || std::getenv("HEARTSIM_KEEP_PICTURES")) write_png("repair_section.png", with), write_png("repair_cleared.png", without);
+    EXPECT_GT(patch_seen, 50u) << "the patch shows over the defect";
+    EXPECT_EQ(patch_outside, 0u) << "patch pixels beyond where its kept half projects";
+    EXPECT_EQ(changed_outside, 0u) << "pixels the patch changed outside its screen box";
+    if (kept_knots > 0) {
+        EXPECT_GT(suture_seen, 0u) << "the knots on the side drawn show";
+    }
+    EXPECT_EQ(after, 0u) << "clear_patch draws neither patch nor stitches";
 }

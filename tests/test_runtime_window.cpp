@@ -518,6 +518,74 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
 }
 
 
+/// Pixels in a pericardium patch's colour (renderer.h patch_rgb, lit: green 0.96 and blue 0.82 of
+/// red); the phantom's lit red keeps green under 0.55 of red, the HUD's grey panel blue above red.
+std::size_t patch_pixels(const Image& image) {
+    std::size_t count = 0;
+    for (std::size_t p = 0; p < std::size_t(image.width) * std::size_t(image.height); ++p) {
+        const double r = image.pixels[3 * p], g = image.pixels[3 * p + 1], b = image.pixels[3 * p + 2];
+        count += r > 50 && std::abs(g / r - 0.957) < 0.04 && b / r > 0.78 && b / r < 0.95 && b < g;
+    }
+    return count;
+}
+
+// Shift + P makes the mouse device's probe a patch: put on the phantom's surface (Ctrl + Shift +
+// click) and G, it is laid there, and the window draws it in its colour (the HUD off). Shift + N makes it a
+// needle: G ties a stitch to the patch. Shift + N again gives the probe back. The state file
+// written at Esc holds the patch with its stitch; while --record records the session, Shift + P
+// is refused.
+TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --save-state " + quoted(dir / "state.h5"));
+    ASSERT_TRUE(window.focus()) << window.output();
+    const std::string id = window.id();
+    ASSERT_FALSE(id.empty());
+    ASSERT_EQ(window.xdotool("key Tab"), 0);  // the HUD off: its panel would shade the patch
+    const Image before = screenshot(window);
+    ASSERT_GT(before.width, 0) << window.output();
+    EXPECT_EQ(patch_pixels(before), 0u);
+    ASSERT_EQ(window.xdotool("key shift+p"), 0);
+    ASSERT_NE(window.wait_for("instrument 0: patch"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
+    ASSERT_NE(window.wait_for("mouse device: on the surface at"), std::string::npos) << window.output();
+    window.wait_for("no such line", 0, 2.0);  // the simulation takes the device there
+    ASSERT_EQ(window.xdotool("key g"), 0);    // button 1: the patch laid
+    ASSERT_NE(window.wait_for("repair: pericardium patch laid"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key g"), 0);    // button 1 off: the hand lets go of it
+    // A frame draws the state the simulation published for it: a frame or two after the patch was laid, it shows.
+    Image laid;
+    for (int shot = 0; shot < 5 && patch_pixels(laid) <= 50; ++shot) laid = screenshot(window);
+    std::printf("  %zu pixels in the patch's colour once laid\n", patch_pixels(laid));
+    EXPECT_GT(patch_pixels(laid), 50u) << "the laid patch is drawn (the last frame: window_patch.png)\n" << window.output();
+    if (HasFailure()) write_png("window_patch.png", laid);
+
+    ASSERT_EQ(window.xdotool("key shift+n"), 0);
+    ASSERT_NE(window.wait_for("instrument 0: needle"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
+    window.wait_for("no such line", 0, 2.0);
+    ASSERT_EQ(window.xdotool("key g"), 0);    // button 1: a stitch tied at the needle's tip
+    EXPECT_NE(window.wait_for("repair: stitch 1 tied"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key g"), 0);    // the knot thrown
+    ASSERT_EQ(window.xdotool("key shift+n"), 0);
+    EXPECT_NE(window.wait_for("instrument 0: probe"), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    ASSERT_EQ(window.wait_exit(), 0) << window.output();
+    const SimulationState state = read_state(dir / "state.h5");
+    ASSERT_TRUE(state.patch.has_value()) << window.output();
+    EXPECT_EQ(state.patch->material, "pericardium");
+    EXPECT_EQ(state.patch->stitch_vertex.size(), 1u);
+
+    Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
+    ASSERT_TRUE(recording.focus()) << recording.output();
+    ASSERT_EQ(recording.xdotool("key shift+p"), 0);
+    EXPECT_NE(recording.wait_for("Shift + P: not while recording"), std::string::npos) << recording.output();
+    ASSERT_EQ(recording.xdotool("key Escape"), 0);
+    ASSERT_EQ(recording.wait_exit(), 0) << recording.output();
+}
+
 /// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole
 /// strip x = 12..40 (every pixel differs from the same frame without the HUD: the panel darkens
 /// what lies behind it).

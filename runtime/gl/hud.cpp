@@ -154,6 +154,15 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
             ImGui::Text("normal %.2f, %.2f, %.2f (LPS)", shown(n.x(), 0.01), shown(n.y(), 0.01), shown(n.z(), 0.01));
             ImGui::TextDisabled("[ ] move (Shift: 5 mm), V aim, C off");
         }
+        if (s.repair.laid) {
+            const HudRepair& r = s.repair;
+            ImGui::Text("patch: %s, %zu stitch%s", r.material.c_str(), r.stitches, r.stitches == 1 ? "" : "es");
+            if (r.defect && !r.checked) ImGui::TextDisabled("defect closed: checking");
+            else if (r.defect && !r.known) ImGui::TextDisabled("defect closed: unknown");
+            else if (r.defect)
+                ImGui::TextColored(r.closed ? ImVec4(0.45f, 0.9f, 0.45f, 1) : ImVec4(1.0f, 0.7f, 0.3f, 1), "defect closed: %s, rim gap %.2f mm",
+                                   r.closed ? "yes" : "no", r.rim_gap_mm);
+        }
         if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
         for (int hand = 0; hand < 2; ++hand) {
             const HudHand& hh = s.hands[hand];

@@ -1,7 +1,8 @@
 /// @file hud.h
 /// @brief The window's heads-up display (docs/runtime.md "Window mode"), drawn over the scene with
 /// Dear ImGui (kept inside hud.cpp): the session's figures, each hand's device, instrument and
-/// force with a bar against the device's maximum, a red banner while the emergency stop is
+/// force with a bar against the device's maximum, the repair's patch and whether it closes the
+/// defect, a red banner while the emergency stop is
 /// latched, the orientation axes (LPS), a scale bar in mm, force arrows at the instruments, and
 /// the key help (window_keys.h). Display only: it takes no input.
 ///
@@ -34,6 +35,18 @@ struct HudHand {
     Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();  ///< the instrument's centre, world LPS (arrow origin)
 };
 
+/// A septal defect's repair as the HUD shows it (runtime/repair.h), once a patch is laid.
+struct HudRepair {
+    bool laid = false;          ///< a patch is laid: "patch: MATERIAL, N stitches"
+    std::string material;       ///< PatchMaterial::name, e.g. "pericardium"
+    std::size_t stitches = 0;
+    bool defect = false;        ///< the scenario has a defect: its closure line too
+    bool checked = false;       ///< the closure check has run (before: "checking")
+    bool known = false;         ///< it ran to a result (else it could not tell: "unknown")
+    bool closed = false;        ///< ClosureResult::closed
+    double rim_gap_mm = 0;      ///< ClosureResult::largest_rim_gap_mm
+};
+
 /// What the HUD shows in one frame.
 struct HudState {
     bool show_hud = true, show_help = false;
@@ -49,6 +62,7 @@ struct HudState {
     Eigen::Vector3d section_normal = Eigen::Vector3d::Zero();  ///< unit, world LPS: the removed side
     double haptic_period_p99_ms = -1;  ///< < 0: not available
     std::array<HudHand, 2> hands;
+    HudRepair repair;
 };
 
 class Hud {

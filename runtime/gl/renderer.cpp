@@ -21,6 +21,7 @@
 #include <cmath>
 #include <cstddef>
 #include <deque>
+#include <map>
 #include <new>
 #include <optional>
 #include <sstream>
@@ -114,6 +115,67 @@ std::vector<std::uint32_t> sheet_triangles(const std::vector<std::uint32_t>& ele
     return sheet;
 }
 
+/// The patch's sheet: world positions and shading normals per vertex (a zero normal: flat, the
+/// face's), lit by the shared fragment shader.
+constexpr const char* patch_vertex_shader = R"(
+layout(location = 0) in vec3 position;          // world mm
+layout(location = 1) in vec3 normal;            // shading normal; 0: the face's
+uniform mat4 view_projection;
+out vec3 world_position;
+out vec3 shading_normal;
+void main() {
+    world_position = position;
+    shading_normal = normal;
+    gl_Position = view_projection * vec4(position, 1.0);
+}
+)";
+
+/// A patch's mid-surface made a closed sheet `thickness` thick: the surface moved half the
+/// thickness along its vertex normals each way (the far side wound the other way), and a rim of
+/// quads along its boundary edges, wound so that every face is counter-clockwise seen from
+/// outside. The section view then shows where the plane cuts it as back faces, as it does the
+/// wall's. `vertices`: position, normal (6 floats each); `elements`: 3 per triangle.
+void patch_sheet(const DrawnPatch& patch, std::vector<float>& vertices, std::vector<std::uint32_t>& elements) {
+    const std::size_t n = patch.positions.size();
+    std::vector<Eigen::Vector3f> normal(n, Eigen::Vector3f::Zero());
+    auto at = [&](std::int32_t i) { return to_vector(patch.positions[std::size_t(i)]); };
+    for (const auto& t : patch.triangles) {
+        const Eigen::Vector3f area = (at(t[1]) - at(t[0])).cross(at(t[2]) - at(t[0]));  // twice the area, along the winding's normal
+        for (std::int32_t v : t) normal[std::size_t(v)] += area;
+    }
+    for (Eigen::Vector3f& m : normal) m = m.norm() > 0 ? Eigen::Vector3f(m.normalized()) : Eigen::Vector3f::UnitZ();
+    const float half = 0.5f * patch.thickness_mm;
+    auto vertex = [&](const Eigen::Vector3f& p, const Eigen::Vector3f& m) {
+        vertices.insert(vertices.end(), {p.x(), p.y(), p.z(), m.x(), m.y(), m.z()});
+    };
+    for (std::size_t i = 0; i < n; ++i) vertex(to_vector(patch.positions[i]) + half * normal[i], normal[i]);   // near side: 0 … n−1
+    for (std::size_t i = 0; i < n; ++i) vertex(to_vector(patch.positions[i]) - half * normal[i], -normal[i]);  // far side: n … 2n−1
+    const auto far = std::uint32_t(n);
+    for (const auto& t : patch.triangles) {
+        elements.insert(elements.end(), {std::uint32_t(t[0]), std::uint32_t(t[1]), std::uint32_t(t[2])});
+        elements.insert(elements.end(), {far + std::uint32_t(t[0]), far + std::uint32_t(t[2]), far + std::uint32_t(t[1])});
+    }
+    // Boundary edges: those of one triangle only, in that triangle's direction a → b. The near
+    // side runs a → b along it, so the rim runs b → a there and a → b along the far side.
+    std::map<std::pair<std::int32_t, std::int32_t>, int> edges;
+    for (const auto& t : patch.triangles)
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+            ++edges[{std::min(a, b), std::max(a, b)}];
+        }
+    for (const auto& t : patch.triangles)
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+            if (edges[{std::min(a, b), std::max(a, b)}] != 1) continue;
+            const auto first = std::uint32_t(vertices.size() / 6);
+            const Eigen::Vector3f na = half * normal[std::size_t(a)], nb = half * normal[std::size_t(b)];
+            for (const Eigen::Vector3f& p : {Eigen::Vector3f(at(b) + nb), Eigen::Vector3f(at(a) + na), Eigen::Vector3f(at(a) - na),
+                                             Eigen::Vector3f(at(b) - nb)})
+                vertex(p, Eigen::Vector3f::Zero());  // flat: the rim's face normal
+            elements.insert(elements.end(), {first, first + 1, first + 2, first, first + 2, first + 3});
+        }
+}
+
 }  // namespace
 
 
@@ -142,6 +204,14 @@ struct Renderer::State {
     gl::Framebuffer fbo;
     gl::Renderbuffer colour_rb, depth_rb;
     gl::Buffer feedback;  // transform feedback capture buffer (lazily)
+    // The repair (set_patch): the patch's closed sheet, its sheet flags (all 0: a closed surface),
+    // and the stitches to draw with the instrument program.
+    gl::Program patch_program;
+    gl::Buffer patch_vertices, patch_elements, patch_sheet_flags;
+    gl::VertexArray patch_vao;
+    GLsizei patch_index_count = 0;
+    std::size_t patch_memory = 0;
+    std::optional<DrawnPatch> patch;  ///< as last set; nullopt: none
 
     std::vector<std::array<float, 3>> rest_particles;  ///< the particles' rest positions (rest frame normals)
     const SimulationSurface* surface = nullptr;          ///< the scenario's (outlives the renderer's use)
@@ -281,6 +351,62 @@ struct Renderer::State {
         glBindVertexArray(vao);
     }
 
+    /// The patch's sheet and the stitches (suture and knot as ellipsoids), cut by the section
+    /// plane as the tissue is; the programs' camera and light uniforms set already.
+    void draw_patch() {
+        const DrawnPatch& drawn = *patch;
+        const Eigen::Vector3f colour = Eigen::Vector3f(float(drawn.rgb[0]), float(drawn.rgb[1]), float(drawn.rgb[2])) / 255.0f;
+        const Eigen::Vector3f suture = Eigen::Vector3f(float(suture_rgb[0]), float(suture_rgb[1]), float(suture_rgb[2])) / 255.0f;
+        Eigen::Vector4f equation = Eigen::Vector4f::Zero();
+        if (section) equation << section->normal, -section->normal.dot(section->point);
+        for (GLuint p : {patch_program.id(), instrument_program.id()}) {
+            glProgramUniform1i(p, glGetUniformLocation(p, "section_on"), section ? 1 : 0);
+            glProgramUniform4fv(p, glGetUniformLocation(p, "section_plane"), 1, equation.data());
+            glProgramUniform1f(p, glGetUniformLocation(p, "opacity"), 1.0f);
+        }
+        const GLuint p = patch_program;
+        glProgramUniform3fv(p, glGetUniformLocation(p, "base_color"), 1, colour.data());
+        const Eigen::Vector3f cut = 0.72f * colour;  // the sheet's inside where the plane cuts it: flat, darker
+        glProgramUniform3fv(p, glGetUniformLocation(p, "cut_color"), 1, cut.data());
+        glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.25f);
+        glProgramUniform1i(p, glGetUniformLocation(p, "cap_first"), -1);
+        glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::sheet_triangles, patch_sheet_flags);
+        glUseProgram(p);
+        glBindVertexArray(patch_vao);
+        glDrawElements(GL_TRIANGLES, patch_index_count, GL_UNSIGNED_INT, nullptr);
+
+        // Each stitch: the suture from its patch vertex to its tissue point, 0.44 mm thick (a
+        // 4-0 suture is 0.15 to 0.2 mm: drawn thicker to be seen), and its knot on the patch.
+        const GLuint q = instrument_program;
+        glUseProgram(q);
+        glBindVertexArray(sphere_vao);
+        glProgramUniform3fv(q, glGetUniformLocation(q, "base_color"), 1, suture.data());
+        glProgramUniform1f(q, glGetUniformLocation(q, "specular"), 0.35f);
+        glEnable(GL_CULL_FACE);  // convex ellipsoids: their front faces are all that shows
+        glCullFace(GL_BACK);
+        auto ellipsoid = [&](const Eigen::Vector3f& centre, const Eigen::Matrix3f& rotation, const Eigen::Vector3f& axes) {
+            Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
+            model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
+            model.topRightCorner<3, 1>() = centre;
+            const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
+            glProgramUniformMatrix4fv(q, glGetUniformLocation(q, "model"), 1, GL_FALSE, model.data());
+            glProgramUniformMatrix3fv(q, glGetUniformLocation(q, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
+            glDrawElements(GL_TRIANGLES, sphere_index_count, GL_UNSIGNED_INT, nullptr);
+        };
+        constexpr float suture_radius = 0.22f, knot_radius = 0.6f;
+        for (std::size_t k = 0; k < std::min(drawn.stitch_from.size(), drawn.stitch_to.size()); ++k) {
+            const Eigen::Vector3f a = to_vector(drawn.stitch_from[k]), b = to_vector(drawn.stitch_to[k]);
+            const float length = (b - a).norm();
+            if (length > 1e-4f) {
+                const Eigen::Matrix3f along = Eigen::Quaternionf::FromTwoVectors(Eigen::Vector3f::UnitZ(), (b - a) / length).toRotationMatrix();
+                ellipsoid(0.5f * (a + b), along, {suture_radius, suture_radius, std::max(0.5f * length, suture_radius)});
+            }
+            ellipsoid(a, Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(knot_radius));
+        }
+        glDisable(GL_CULL_FACE);
+        glProgramUniform1i(q, glGetUniformLocation(q, "section_on"), 0);  // the instruments are drawn whole
+    }
+
     void harvest(bool wait) {
         while (!pending.empty()) {
             Pending& p = pending.front();
@@ -388,6 +514,9 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     s.instrument_program = link({compile(GL_VERTEX_SHADER, sh::instrument_vertex_shader, "instrument vertex"),
                                  compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
                                 "instrument");
+    s.patch_program = link({compile(GL_VERTEX_SHADER, patch_vertex_shader, "patch vertex"),
+                            compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
+                           "patch");
     s.make_framebuffer(options.width, options.height);
     s.memory += std::size_t(s.width) * std::size_t(s.height) * 8;
     reset_camera();
@@ -412,6 +541,72 @@ int Renderer::height() const { return state_->height; }
 Camera& Renderer::camera() { return state_->camera; }
 Eigen::Vector3f Renderer::model_centre() const { return state_->box.center(); }
 void Renderer::set_show_hidden_instruments(bool show) { state_->show_hidden_instruments = show; }
+
+std::array<int, 3> patch_rgb(const std::string& material) {
+    if (material == "ptfe") return {214, 218, 222};
+    if (material == "dacron") return {242, 242, 236};
+    return {232, 222, 190};
+}
+
+DrawnPatch drawn_patch(const PatchModel& patch, const std::vector<Eigen::Vector3d>& anchors) {
+    DrawnPatch drawn;
+    auto to_float = [](const Eigen::Vector3d& x) { return std::array<float, 3>{float(x.x()), float(x.y()), float(x.z())}; };
+    for (const Eigen::Vector3d& x : patch.positions()) drawn.positions.push_back(to_float(x));
+    drawn.triangles = patch.triangles();
+    drawn.thickness_mm = float(patch.spec().thickness_mm);
+    drawn.material = patch.spec().material.name;
+    drawn.rgb = patch_rgb(drawn.material);
+    for (std::size_t k = 0; k < patch.stitches().size() && k < anchors.size(); ++k) {
+        drawn.stitch_from.push_back(drawn.positions[std::size_t(patch.stitches()[k].vertex)]);
+        drawn.stitch_to.push_back(to_float(anchors[k]));
+    }
+    return drawn;
+}
+
+void Renderer::set_patch(const DrawnPatch& patch) {
+    State& s = *state_;
+    if (patch.triangles.empty()) return clear_patch();
+    if (s.patch && *s.patch == patch) return;
+    for (const auto& t : patch.triangles)
+        for (std::int32_t v : t)
+            if (v < 0 || std::size_t(v) >= patch.positions.size())
+                throw InputError("renderer: the patch's triangle index " + std::to_string(v) + " is out of range (" +
+                                 std::to_string(patch.positions.size()) + " vertices)");
+    std::vector<float> vertices;
+    std::vector<std::uint32_t> elements;
+    patch_sheet(patch, vertices, elements);
+    const std::vector<std::uint32_t> flags(elements.size() / 3, 0u);  // a closed sheet: its back faces are its inside
+    s.memory -= s.patch_memory;
+    s.patch_vertices = buffer_with(vertices.data(), vertices.size() * 4);
+    s.patch_elements = buffer_with(elements.data(), elements.size() * 4);
+    s.patch_sheet_flags = buffer_with(flags.data(), flags.size() * 4);
+    s.patch_memory = (vertices.size() + elements.size() + flags.size()) * 4;
+    s.memory += s.patch_memory;
+    if (!s.patch_vao) {
+        glCreateVertexArrays(1, s.patch_vao.create());
+        for (GLuint a = 0; a < 2; ++a) {
+            glEnableVertexArrayAttrib(s.patch_vao, a);
+            glVertexArrayAttribBinding(s.patch_vao, a, 0);
+            glVertexArrayAttribFormat(s.patch_vao, a, 3, GL_FLOAT, GL_FALSE, a * 12);
+        }
+    }
+    glVertexArrayVertexBuffer(s.patch_vao, 0, s.patch_vertices, 0, 24);
+    glVertexArrayElementBuffer(s.patch_vao, s.patch_elements);
+    s.patch_index_count = GLsizei(elements.size());
+    s.patch = patch;
+    check("loading the patch");
+}
+
+void Renderer::clear_patch() {
+    State& s = *state_;
+    s.patch.reset();
+    s.memory -= s.patch_memory;
+    s.patch_memory = 0;
+    s.patch_vertices.reset(), s.patch_elements.reset(), s.patch_sheet_flags.reset();
+    s.patch_index_count = 0;
+}
+
+bool Renderer::draws_patch() const { return state_->patch.has_value(); }
 
 std::optional<Eigen::Vector3f> Renderer::surface_point(double x, double y, int window_width, int window_height) {
     State& s = *state_;
@@ -481,7 +676,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     const Eigen::Vector3f eye = camera.eye();
     const Eigen::Vector3f key = basis * Eigen::Vector3f(-0.35f, 0.55f, 0.75f).normalized();
     const Eigen::Vector3f fill = basis * Eigen::Vector3f(0.6f, -0.25f, 0.5f).normalized();
-    for (GLuint program : {s.mesh_program.id(), s.instrument_program.id()}) {
+    for (GLuint program : {s.mesh_program.id(), s.instrument_program.id(), s.patch_program.id()}) {
         glProgramUniformMatrix4fv(program, glGetUniformLocation(program, "view_projection"), 1, GL_FALSE, view_projection.data());
         glProgramUniform3fv(program, glGetUniformLocation(program, "eye"), 1, eye.data());
         glProgramUniform3fv(program, glGetUniformLocation(program, "key_light"), 1, key.data());
@@ -505,6 +700,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     }
     s.bind_mesh(positions);
     glDrawElements(GL_TRIANGLES, GLsizei(3 * s.triangles), GL_UNSIGNED_INT, nullptr);
+    if (s.patch) s.draw_patch();
 
     glProgramUniform1f(s.mesh_program, glGetUniformLocation(s.mesh_program, "opacity"), 1.0f);
     if (!instruments.empty()) {
@@ -522,6 +718,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
             glProgramUniform1f(p, glGetUniformLocation(p, "opacity"), opacity);
             for (const InstrumentShape& shape : instruments) {
                 if (shape.kind == InstrumentKind::none) continue;
+                if (shape.kind == InstrumentKind::patch && s.patch) continue;  // the laid patch is drawn instead
                 const Eigen::Matrix3f rotation = shape.pose.orientation.normalized().toRotationMatrix().cast<float>();
                 const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
                 Eigen::Matrix4f model = Eigen::Matrix4f::Identity();

@@ -22,6 +22,12 @@
 /// With a section plane (set_section, section_plane.h) the tissue on the plane's removed side is
 /// not drawn, and where the plane cuts through the closed surface the inside of the wall shows as
 /// a flat band of section_cut_rgb; the instruments are drawn whole.
+///
+/// A septal defect's repair (set_patch, runtime/repair.h) is drawn with the tissue and cut by the
+/// same plane: the patch as a closed sheet of its thickness in its material's colour (patch_rgb;
+/// where the plane cuts it, its cut face flat in a darker shade), each stitch as a suture from
+/// its patch vertex to its tissue point with a knot on the patch (suture_rgb). Once a patch is
+/// laid, the patch instrument that laid it is not drawn: the patch is.
 #pragma once
 
 #include "runtime/backend.h"
@@ -31,6 +37,7 @@
 #include "runtime/section_plane.h"
 
 #include "formats/scenario.h"
+#include "libmodel/patch.h"
 
 #include <Eigen/Geometry>
 
@@ -53,6 +60,30 @@ inline constexpr std::array<int, 3> section_cut_rgb = {138, 34, 26};
 /// The base colour of an incision's cut faces (the caps), 8-bit RGB, lit with their face normals:
 /// a deeper, darker red than the epicardium's (0.80, 0.33, 0.30).
 inline constexpr std::array<int, 3> incision_cap_rgb = {150, 40, 36};
+
+/// A patch's colour by its material (PatchMaterial::name), 8-bit RGB: fixed bovine pericardium
+/// ivory {232, 222, 190}, expanded PTFE white-grey {214, 218, 222}, woven dacron white
+/// {242, 242, 236}; any other name gets pericardium's.
+std::array<int, 3> patch_rgb(const std::string& material);
+
+/// The stitches' colour, 8-bit RGB: the blue of polypropylene suture.
+inline constexpr std::array<int, 3> suture_rgb = {40, 52, 150};
+
+/// A repair as the renderer draws it (world LPS, mm).
+struct DrawnPatch {
+    std::vector<std::array<float, 3>> positions;            ///< P×3: the patch's mid-surface vertices
+    std::vector<std::array<std::int32_t, 3>> triangles;     ///< F×3 indices into positions (consistently wound)
+    float thickness_mm = 0.5f;                              ///< the sheet drawn is this thick, half each side
+    std::string material = "pericardium";                   ///< PatchMaterial::name, as the HUD says it
+    std::array<int, 3> rgb = patch_rgb("pericardium");      ///< its colour, 8-bit
+    std::vector<std::array<float, 3>> stitch_from;          ///< S×3: each stitch's patch vertex (its knot)
+    std::vector<std::array<float, 3>> stitch_to;            ///< S×3: each stitch's tissue point
+    bool operator==(const DrawnPatch&) const = default;
+};
+
+/// `patch` as it lies, with its stitches from their patch vertices to `anchors` (the stitches'
+/// tissue points now, mm, in stitch order: RepairBackend::stitch_anchors), in its material's colour.
+DrawnPatch drawn_patch(const PatchModel& patch, const std::vector<Eigen::Vector3d>& anchors);
 
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
@@ -116,6 +147,14 @@ public:
     /// Also draw, faintly, the parts of instruments inside or behind the tissue (the window: a
     /// probe pushed into the wall stays in sight). Off by default (headless pictures).
     void set_show_hidden_instruments(bool show);
+
+    /// Draws from the next frame on the repair `patch` (its buffers made anew only when it
+    /// changed). A patch without triangles draws nothing, as clear_patch().
+    void set_patch(const DrawnPatch& patch);
+    /// No patch and no stitches from the next frame on.
+    void clear_patch();
+    /// True while a patch is drawn.
+    bool draws_patch() const;
 
     /// Draws one frame of `backend`'s current positions with `instruments` into the offscreen
     /// framebuffer: gl backend, read in place from its position buffer; cpu backend, uploaded.

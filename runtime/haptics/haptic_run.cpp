@@ -194,9 +194,13 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
     const std::string kind = text.substr(0, colon);
     const std::optional<InstrumentKind> named = instrument_kind_named(kind);
     if (named && *named != InstrumentKind::none) instrument.kind = *named;
-    else throw UsageError("--instrument " + text + ": expected probe, grabber or scalpel, optionally :AX,AY,AZ (semi-axes, mm)");
-    instrument.semi_axes = instrument.kind == InstrumentKind::scalpel ? default_blade_semi_axes_mm
-                                                                      : Eigen::Vector3d::Constant(default_semi_axis_mm);
+    else throw UsageError("--instrument " + text + ": expected probe, grabber, scalpel, patch or needle, optionally :AX,AY,AZ (semi-axes, mm)");
+    switch (instrument.kind) {
+    case InstrumentKind::scalpel: instrument.semi_axes = default_blade_semi_axes_mm; break;
+    case InstrumentKind::patch: instrument.semi_axes = default_patch_semi_axes_mm; break;
+    case InstrumentKind::needle: instrument.semi_axes = default_needle_semi_axes_mm; break;
+    default: instrument.semi_axes = Eigen::Vector3d::Constant(default_semi_axis_mm); break;
+    }
     if (colon != std::string::npos) {
         double a[3];
         char extra = 0;

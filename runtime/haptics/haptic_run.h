@@ -53,8 +53,17 @@ SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path)
 /// times counted from the recording's start (that of its first simulation step).
 std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name);
 
-/// `--instrument KIND[:AX,AY,AZ]`: probe, grabber or scalpel, semi-axes mm (default 1.5 lattice
-/// spacings; a scalpel's default is default_blade_semi_axes_mm).
+/// A patch's semi-axes when none are given (mm): a disc 18 mm across and 0.5 mm thick, larger
+/// than the stitch circle of a 10 mm defect (runtime/repair_plan.h: D + 2·rim).
+inline const Eigen::Vector3d default_patch_semi_axes_mm{9.0, 9.0, 0.25};
+/// A needle's semi-axes when none are given (mm): a shaft 12 mm long from the tip along the tool's
+/// +z, 0.5 mm thick (as heartsim plan-repair's needle).
+inline const Eigen::Vector3d default_needle_semi_axes_mm{0.25, 0.25, 6.0};
+
+/// `--instrument KIND[:AX,AY,AZ]`: probe, grabber, scalpel, patch or needle, semi-axes mm (default
+/// 1.5 lattice spacings; a scalpel's, a patch's and a needle's defaults are the constants above and
+/// default_blade_semi_axes_mm). Button 1 grabs with a grabber, lowers a scalpel's blade, lays a
+/// patch (runtime/repair.h) and ties a stitch with a needle. Throws UsageError naming the argument.
 Instrument parse_instrument(const std::string& text, double default_semi_axis_mm);
 
 struct HapticRunSettings {
@@ -86,8 +95,9 @@ public:
 
     /// Starts the device thread; the simulation clock starts with it.
     void start();
-    /// One step: newest tool poses → backend (grab on button 1 of a grabber hand) → step →
-    /// forces → devices; recorded. Returns the step's report.
+    /// One step: newest tool poses → backend (button 1 of a grabber, scalpel, patch or needle hand
+    /// turning on → begin_grab, off → release) → step → forces → devices; recorded. Returns the
+    /// step's report.
     StepReport step();
     /// Steps until the simulated time reaches the session clock (real time), at most `max_steps`
     /// and for at most about `max_wall_ms` (one step may overrun it); returns how many ran. When

@@ -1,0 +1,258 @@
+#include "runtime/repair.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+
+namespace heartsim {
+
+namespace {
+
+Eigen::Vector3d vec(const std::array<float, 3>& p) { return {double(p[0]), double(p[1]), double(p[2])}; }
+
+/// The detailed mesh's triangles a patch centred at `centre` and facing along `facing` can touch:
+/// within `radius` of the centre across, `depth` along, facing it (rest positions); each vertex
+/// carried by the particles the mapping names.
+ContactSurface surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
+                            double depth) {
+    ContactSurface surface;
+    const VisualMesh& visual = *scenario.visual;
+    std::vector<std::int32_t> index(visual.positions.size(), -1);
+    for (const auto& t : visual.triangles) {
+        const Eigen::Vector3d a = vec(visual.positions[std::size_t(t[0])]), b = vec(visual.positions[std::size_t(t[1])]),
+                              c = vec(visual.positions[std::size_t(t[2])]);
+        const Eigen::Vector3d d = (a + b + c) / 3.0 - centre;
+        const double along = d.dot(facing);
+        if (std::abs(along) > depth || (d - along * facing).squaredNorm() > radius * radius) continue;
+        const Eigen::Vector3d n = (b - a).cross(c - a);
+        if (!(n.dot(facing) < -0.3 * n.norm())) continue;  // only surface that faces the patch
+        std::array<std::int32_t, 3> local{};
+        for (int c = 0; c < 3; ++c) {
+            const std::size_t v = std::size_t(t[c]);
+            if (index[v] < 0) {
+                index[v] = std::int32_t(surface.vertices.size());
+                CarriedPoint point;
+                point.rest = vec(visual.positions[v]);
+                std::array<std::int32_t, 8> particles{};
+                std::array<float, 8> weights{};
+                mapping_carriers(*scenario.mapping, *scenario.simulation_surface, v, particles, weights);
+                std::map<std::int32_t, double> merged;
+                for (int k = 0; k < 8; ++k) merged[particles[k]] += double(weights[k]);
+                for (const auto& [particle, weight] : merged)
+                    if (weight != 0) point.carriers.push_back({particle, weight});
+                surface.vertices.push_back(std::move(point));
+            }
+            local[c] = index[v];
+        }
+        surface.triangles.push_back(local);
+    }
+    return surface;
+}
+
+}  // namespace
+
+RepairBackend::RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings)
+    : inner_(std::move(inner)), scenario_(scenario), settings_(settings) {}
+
+void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
+    if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
+    Hand& h = hands_[std::size_t(hand)];
+    if (repair_kind(h.instrument.kind) && h.grabbing) release(hand);
+    h.instrument = instrument;
+    h.grabbing = false;
+    h.stitch.reset();
+    // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
+    inner_->set_instrument(hand, repair_kind(instrument.kind) ? Instrument{InstrumentKind::none, instrument.semi_axes} : instrument);
+}
+
+void RepairBackend::set_pose(int hand, const InstrumentPose& pose) {
+    if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
+    hands_[std::size_t(hand)].pose = pose;
+    inner_->set_pose(hand, pose);
+}
+
+std::size_t RepairBackend::begin_grab(int hand) {
+    if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
+    Hand& h = hands_[std::size_t(hand)];
+    if (!repair_kind(h.instrument.kind)) return inner_->begin_grab(hand);
+    if (h.grabbing) return 0;
+    h.grabbing = true;
+    if (h.instrument.kind == InstrumentKind::patch) lay(hand);
+    else tie(hand);
+    return 0;
+}
+
+void RepairBackend::release(int hand) {
+    if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
+    Hand& h = hands_[std::size_t(hand)];
+    if (!repair_kind(h.instrument.kind)) {
+        inner_->release(hand);
+        return;
+    }
+    h.grabbing = false;
+    h.stitch.reset();  // the knot is thrown: the stitch goes on drawing tight by itself
+}
+
+void RepairBackend::lay(int hand) {
+    const Hand& h = hands_[std::size_t(hand)];
+    if (!scenario_.visual || !scenario_.mapping || !scenario_.simulation_surface) {
+        std::printf("repair: no patch laid: the scenario has no detailed mesh with its mapping to lay it on\n");
+        return;
+    }
+    PatchSpec spec;
+    spec.material = settings_.material;
+    spec.radius_x_mm = h.instrument.semi_axes.x();
+    spec.radius_y_mm = h.instrument.semi_axes.y();
+    spec.thickness_mm = 2.0 * h.instrument.semi_axes.z();
+    spec.edge_mm = settings_.edge_mm;
+    spec.standoff_mm = settings_.standoff_mm;
+    spec.tie_ms = settings_.tie_ms;
+    spec.stitch_stiffness = settings_.stitch_stiffness;
+    spec.iterations = settings_.iterations;
+    spec.gravity = Eigen::Vector3d(inner_->options().gravity[0], inner_->options().gravity[1], inner_->options().gravity[2]);
+    const double reach = std::max(spec.radius_x_mm, spec.radius_y_mm) + 3.0;
+    const Eigen::Vector3d facing = h.pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
+    const Particles& particles = scenario_.lattice.particles;
+    std::vector<double> inverse_mass(particles.size(), 0.0);
+    for (std::size_t i = 0; i < particles.size(); ++i)
+        inverse_mass[i] = (i < particles.anchored.size() && particles.anchored[i]) || !(particles.mass[i] > 0) ? 0.0 : 1.0 / double(particles.mass[i]);
+    patch_.emplace(spec, particles.rest_position, surface_near(scenario_, h.pose.position, facing, reach, 8.0), std::move(inverse_mass));
+    patch_->set_mass_scale(inner_->options().mass_scale);
+    patch_->lay(h.pose, inner_->positions_of(patch_->particles()));
+    tissue_steps_ = 0;
+    const Eigen::Vector3d c = h.pose.position;
+    std::printf("repair: %s patch laid at (%.1f, %.1f, %.1f) mm, %.1f × %.1f mm, %.2f mm thick (%.0f MPa), %zu vertices, %.1f mg, "
+                "on %zu triangles of the tissue's surface carried by %zu particles; held where it lies until its first stitch\n",
+                spec.material.name.c_str(), c.x(), c.y(), c.z(), 2 * spec.radius_x_mm, 2 * spec.radius_y_mm, spec.thickness_mm,
+                spec.material.youngs_modulus_mpa, patch_->positions().size(), patch_->mass_g() * 1e3, patch_->surface_triangles(),
+                patch_->particles().size());
+}
+
+void RepairBackend::tie(int hand) {
+    Hand& h = hands_[std::size_t(hand)];
+    if (!patch_ || !patch_->laid()) {
+        std::printf("repair: no stitch at %.6g ms: no patch is laid\n", inner_->simulated_time_ms());
+        return;
+    }
+    std::string why;
+    h.stitch = patch_->tie(h.pose.position, inner_->simulated_time_ms(), inner_->positions_of(patch_->particles()), &why);
+    if (!h.stitch) {
+        std::printf("repair: no stitch at %.6g ms: %s\n", inner_->simulated_time_ms(), why.c_str());
+        return;
+    }
+    const Stitch& s = patch_->stitches()[*h.stitch];
+    std::printf("repair: stitch %zu tied at %.6g ms, patch vertex %d to the tissue %.2f mm from it; it draws tight over %.0f ms\n",
+                *h.stitch + 1, inner_->simulated_time_ms(), s.vertex, s.start_length, settings_.tie_ms);
+}
+
+StepReport RepairBackend::step(int steps) {
+    if (!patch_ || !patch_->laid()) return inner_->step(steps);
+    StepReport total;
+    const int every = std::max(1, settings_.patch_every);
+    for (int k = 0; k < steps; ++k) {
+        if (tissue_steps_++ % every == 0) {
+            const auto start = std::chrono::steady_clock::now();
+            patch_->set_mass_scale(inner_->options().mass_scale);
+            patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
+            inner_->set_loads(patch_->loads());
+            patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+            ++patch_steps_;
+        }
+        const StepReport r = inner_->step(1);
+        total.steps += r.steps;
+        total.substeps += r.substeps;
+        if (r.diverged) {
+            total.diverged = true, total.reason = r.reason, total.message = r.message;
+            // The tissue went back to its last good state: the patch lets go of its motion and its
+            // loads, and its stitches draw tight again from where they now are.
+            patch_->recover(inner_->positions_of(patch_->particles()), inner_->simulated_time_ms());
+            inner_->set_loads({});
+        }
+        total.gave_up = total.gave_up || r.gave_up;
+        if (r.gave_up) break;
+    }
+    return total;
+}
+
+void RepairBackend::add_needle_force(InstrumentForces& forces) const {
+    for (int hand = 0; hand < 2; ++hand) {
+        const Hand& h = hands_[std::size_t(hand)];
+        if (!repair_kind(h.instrument.kind)) continue;
+        forces.hand[std::size_t(hand)].force_n.setZero();
+        forces.hand[std::size_t(hand)].particles = 0;
+        if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && patch_) {
+            // The suture's tension pulls the hand that holds it as it pulls the patch: toward the tissue.
+            const Eigen::Vector3d f = patch_->stitches()[*h.stitch].force_n;
+            if (f.allFinite()) forces.hand[std::size_t(hand)].force_n = f;
+        }
+    }
+}
+
+std::optional<InstrumentForces> RepairBackend::latest_forces() {
+    std::optional<InstrumentForces> forces = inner_->latest_forces();
+    if (forces) add_needle_force(*forces);
+    return forces;
+}
+
+InstrumentForces RepairBackend::instrument_forces() {
+    InstrumentForces forces = inner_->instrument_forces();
+    add_needle_force(forces);
+    return forces;
+}
+
+void RepairBackend::reset_tissue() {
+    patch_.reset();
+    for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
+    inner_->set_loads({});
+    inner_->reset_tissue();
+}
+
+std::vector<Eigen::Vector3d> RepairBackend::stitch_anchors() {
+    std::vector<Eigen::Vector3d> out;
+    if (!patch()) return out;
+    const auto positions = inner_->positions_of(patch_->particles());
+    for (const Stitch& s : patch_->stitches()) out.push_back(patch_->where(s.anchor, positions));
+    return out;
+}
+
+std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings) {
+    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface) return inner;
+    return std::make_unique<RepairBackend>(std::move(inner), scenario, settings);
+}
+
+std::optional<DefectFrame> defect_frame_now(const Scenario& scenario, const std::vector<std::array<float, 3>>& positions,
+                                            const PatchModel* patch) {
+    const ScenarioSource& source = scenario.source;
+    if (source.defect.empty() || !(source.defect_diameter_mm > 0)) return std::nullopt;
+    const auto& rest = scenario.lattice.particles.rest_position;
+    const double h = scenario.lattice.spacing;
+    Eigen::Vector3d moved = Eigen::Vector3d::Zero();
+    double total = 0, nearest = std::numeric_limits<double>::infinity();
+    Eigen::Vector3d nearest_displacement = Eigen::Vector3d::Zero();
+    for (std::size_t i = 0; i < rest.size() && i < positions.size(); ++i) {
+        const Eigen::Vector3d d = vec(rest[i]) - source.defect_centre;
+        const double d2 = d.squaredNorm();
+        const Eigen::Vector3d displacement = vec(positions[i]) - vec(rest[i]);
+        if (d2 < nearest) nearest = d2, nearest_displacement = displacement;
+        if (d2 > 4 * h * h) continue;
+        const double w = std::exp(-d2 / (2 * h * h));
+        moved += w * displacement;
+        total += w;
+    }
+    DefectFrame frame;
+    frame.centre = source.defect_centre + (total > 0 ? Eigen::Vector3d(moved / total) : nearest_displacement);
+    frame.axis = source.defect_axis.normalized();
+    frame.diameter_mm = source.defect_diameter_mm;
+    if (patch && patch->laid()) {
+        Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+        for (const auto& x : patch->positions()) centroid += x;
+        centroid /= double(patch->positions().size());
+        if ((centroid - frame.centre).dot(frame.axis) < 0) frame.axis = -frame.axis;
+    } else if (frame.axis.dot(Eigen::Vector3d(-1, -1, 0)) < 0) {
+        frame.axis = -frame.axis;
+    }
+    return frame;
+}
+
+}  // namespace heartsim

@@ -1,0 +1,119 @@
+/// @file repair.h
+/// @brief The repair of a septal defect in a run: a Backend that holds a patch (libmodel/patch.h)
+/// beside the tissue it wraps. Every run mode (scripted, replayed, haptic, the window) talks to a
+/// Backend, so each gets the patch and its stitches through the hands it already drives: a hand
+/// whose instrument is a `patch` lays the patch when its grab flag or button turns on; a `needle`
+/// ties a stitch (libmodel/solver.h InstrumentKind). Neither reaches the tissue's solver, which sees
+/// no instrument in that hand.
+///
+/// Each step, with a patch laid: the positions of the particles the patch touches are read
+/// (Backend::positions_of), the patch steps against them held still, and its stitches' and
+/// contact's equal and opposite forces go to the tissue as loads for the step (Backend::set_loads).
+/// A needle's hand feels the stitch it ties while its button is held: the suture's tension.
+///
+///     auto backend = with_repair(make_cpu_backend(scenario, options), scenario, RepairSettings{});
+#pragma once
+
+#include "libmodel/closure.h"
+#include "libmodel/patch.h"
+#include "runtime/backend.h"
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct RepairSettings {
+    PatchMaterial material;          ///< --patch-material
+    double edge_mm = 1.6;            ///< the patch's triangles
+    /// A laid patch lies this far in front of the surface (held there until its first stitch).
+    double standoff_mm = 0.0;
+    double tie_ms = 150.0;
+    double stitch_stiffness = 5.0;   ///< N/mm
+    int iterations = 4;
+    /// The patch steps once every this many tissue steps (by as long: XPBD has no stability bound),
+    /// its loads held in between.
+    int patch_every = 3;
+};
+
+class RepairBackend final : public Backend {
+public:
+    RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
+
+    BackendKind kind() const override { return inner_->kind(); }
+    std::size_t size() const override { return inner_->size(); }
+    const SolverLoadReport& load_report() const override { return inner_->load_report(); }
+    const SolverOptions& options() const override { return inner_->options(); }
+    double time_step_ms() const override { return inner_->time_step_ms(); }
+    double substep_ms() const override { return inner_->substep_ms(); }
+    int substeps_per_step() const override { return inner_->substeps_per_step(); }
+    double simulated_time_ms() const override { return inner_->simulated_time_ms(); }
+    void set_instrument(int hand, const Instrument& instrument) override;
+    void set_pose(int hand, const InstrumentPose& pose) override;
+    std::size_t begin_grab(int hand) override;
+    void release(int hand) override;
+    void reset_tissue() override;
+    void set_mass_scale(double mass_scale) override { inner_->set_mass_scale(mass_scale); }
+    StepReport step(int steps = 1) override;
+    void request_forces() override { inner_->request_forces(); }
+    std::optional<InstrumentForces> latest_forces() override;
+    std::uint64_t latest_forces_request() const override { return inner_->latest_forces_request(); }
+    InstrumentForces instrument_forces() override;
+    std::vector<std::array<std::int32_t, 2>> cut_springs() override { return inner_->cut_springs(); }
+    const StrokeLog& strokes() const override { return inner_->strokes(); }
+    std::vector<std::array<float, 3>> positions() override { return inner_->positions(); }
+    void set_loads(const std::vector<ParticleLoad>& loads) override { inner_->set_loads(loads); }
+    std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) override {
+        return inner_->positions_of(particles);
+    }
+    PassTimes pass_times() override { return inner_->pass_times(); }
+    std::size_t memory_bytes() const override { return inner_->memory_bytes(); }
+    bool software_device() const override { return inner_->software_device(); }
+    void set_contact(const ContactSettings& settings) override { inner_->set_contact(settings); }
+    std::vector<std::int32_t> contact_particles(int hand) override { return inner_->contact_particles(hand); }
+    const Backend& simulating() const override { return inner_->simulating(); }
+
+    /// The patch, once laid; nullptr before.
+    const PatchModel* patch() const { return patch_ && patch_->laid() ? &*patch_ : nullptr; }
+    /// The stitches' tissue points now (mm), in stitch order; empty without a patch.
+    std::vector<Eigen::Vector3d> stitch_anchors();
+    const RepairSettings& settings() const { return settings_; }
+    /// Wall-clock time spent on the patch (ms), and the patch steps it took: the run's summary.
+    double patch_ms() const { return patch_ms_; }
+    long long patch_steps() const { return patch_steps_; }
+
+private:
+    void lay(int hand);
+    void tie(int hand);
+    void add_needle_force(InstrumentForces& forces) const;
+
+    std::unique_ptr<Backend> inner_;
+    const Scenario& scenario_;
+    RepairSettings settings_;
+    std::optional<PatchModel> patch_;
+    struct Hand {
+        Instrument instrument;
+        InstrumentPose pose;
+        bool grabbing = false;
+        std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
+    };
+    std::array<Hand, 2> hands_{};
+    double patch_ms_ = 0.0;
+    long long patch_steps_ = 0;
+    long long tissue_steps_ = 0;  ///< since the patch was laid
+};
+
+/// `inner` wrapped in a RepairBackend when `scenario` can hold a patch (a detailed mesh with its
+/// mapping, for the surface the patch lies on); else `inner` itself.
+std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
+
+/// The defect of a scenario, where it is in the tissue's current state: its rest centre moved by
+/// the displacement of the particles around it (a Gaussian of the lattice spacing's width), its
+/// axis pointing to the side `patch` lies on (without one: to the heart's right and anterior, the
+/// side a surgeon closes it from). nullopt when the scenario has no defect.
+std::optional<DefectFrame> defect_frame_now(const Scenario& scenario, const std::vector<std::array<float, 3>>& positions,
+                                            const PatchModel* patch);
+
+}  // namespace heartsim

@@ -1,0 +1,391 @@
+#include "runtime/repair_plan.h"
+
+#include "cli/command_errors.h"
+#include "libmodel/errors.h"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <numbers>
+
+namespace heartsim {
+namespace {
+
+/// The patient's right and anterior, LPS: the side a surgeon reaches the septum from.
+const Eigen::Vector3d right_anterior = Eigen::Vector3d(-1.0, -1.0, 0.0).normalized();
+
+/// How far beyond the wall's thickness a site may lie from the defect's centre along the axis, mm.
+constexpr double window_margin_mm = 3.0;
+
+/// Where a line crosses the closed surface: `height` along the line's direction `up` (from the
+/// point the line was given at), and whether, followed downward (along −up), it enters the tissue.
+struct Crossing {
+    double height;
+    bool entering;
+};
+
+/// A stretch of the line inside the tissue, between the heights where it enters (from above) and
+/// leaves it.
+struct Stretch {
+    double top, bottom;
+    double length() const { return top - bottom; }
+    bool holds(double h) const { return bottom <= h && h <= top; }
+};
+
+/// The tissue's stretches along the line through `point` along `up`, from the top down: every
+/// crossing of the mesh's triangles (Möller–Trumbore, in double), each entering crossing paired
+/// with the next leaving one. The surface is closed with outward normals (counter-clockwise seen
+/// from outside), so followed downward from far above, crossings alternate entering and leaving;
+/// a crossing counted twice (a line through an edge) is dropped.
+std::vector<Stretch> stretches_along(const VisualMesh& mesh, const Eigen::Vector3d& point, const Eigen::Vector3d& up) {
+    std::vector<Crossing> crossings;
+    const Eigen::Vector3d down = -up;
+    for (const auto& t : mesh.triangles) {
+        const auto& pa = mesh.positions[std::size_t(t[0])];
+        const auto& pb = mesh.positions[std::size_t(t[1])];
+        const auto& pc = mesh.positions[std::size_t(t[2])];
+        const Eigen::Vector3d a(pa[0], pa[1], pa[2]), b(pb[0], pb[1], pb[2]), c(pc[0], pc[1], pc[2]);
+        const Eigen::Vector3d e1 = b - a, e2 = c - a;
+        const Eigen::Vector3d p = down.cross(e2);
+        const double det = e1.dot(p);
+        if (std::abs(det) < 1e-14) continue;  // parallel to the line
+        const double inverse = 1.0 / det;
+        const Eigen::Vector3d s = point - a;
+        const double u = s.dot(p) * inverse;
+        if (u < 0.0 || u > 1.0) continue;
+        const Eigen::Vector3d q = s.cross(e1);
+        const double v = down.dot(q) * inverse;
+        if (v < 0.0 || u + v > 1.0) continue;
+        const double along = e2.dot(q) * inverse;  // distance travelled downward from `point`
+        // The triangle's outward normal e1 × e2 against the downward direction: negative entering.
+        crossings.push_back({-along, e1.cross(e2).dot(down) < 0.0});
+    }
+    std::sort(crossings.begin(), crossings.end(), [](const Crossing& x, const Crossing& y) { return x.height > y.height; });
+    std::vector<Stretch> stretches;
+    bool inside = false;
+    double top = 0.0, last = std::numeric_limits<double>::infinity();
+    bool last_entering = false;
+    for (const Crossing& c : crossings) {
+        if (std::abs(c.height - last) < 1e-7 && c.entering == last_entering) continue;  // the same crossing, through an edge
+        last = c.height, last_entering = c.entering;
+        if (c.entering && !inside) inside = true, top = c.height;
+        else if (!c.entering && inside) inside = false, stretches.push_back({top, c.height});
+    }
+    return stretches;
+}
+
+double median(std::vector<double> values) {
+    if (values.empty()) return std::numeric_limits<double>::quiet_NaN();
+    std::sort(values.begin(), values.end());
+    const std::size_t n = values.size();
+    return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
+}
+
+const char* chamber_of(const std::string& defect) { return defect == "asd" ? "atrium" : "ventricle"; }
+
+std::string defect_words(const std::string& defect) {
+    return defect == "asd" ? "atrial septal defect" : defect == "vsd" ? "ventricular septal defect" : "septal defect (" + defect + ")";
+}
+
+std::string point_text(const Eigen::Vector3d& p, int decimals = 1) {
+    char text[96];
+    std::snprintf(text, sizeof text, "(%.*f, %.*f, %.*f)", decimals, p.x(), decimals, p.y(), decimals, p.z());
+    return text;
+}
+
+std::string number_text(double value, int decimals = 1) {
+    char text[48];
+    std::snprintf(text, sizeof text, "%.*f", decimals, value);
+    return text;
+}
+
+/// 221416 → "221,416".
+std::string thousands(std::size_t value) {
+    std::string digits = std::to_string(value), out;
+    for (std::size_t i = 0; i < digits.size(); ++i) {
+        if (i > 0 && (digits.size() - i) % 3 == 0) out += ',';
+        out += digits[i];
+    }
+    return out;
+}
+
+}  // namespace
+
+RepairSide parse_repair_side(const std::string& name) {
+    if (name == "right") return RepairSide::right;
+    if (name == "left") return RepairSide::left;
+    if (name == "a") return RepairSide::a;
+    if (name == "b") return RepairSide::b;
+    throw UsageError("--side '" + name + "': expected right, left, a (the axis's tail) or b (its head)");
+}
+
+const char* to_string(RepairSide side) {
+    switch (side) {
+        case RepairSide::right: return "right";
+        case RepairSide::left: return "left";
+        case RepairSide::a: return "a";
+        case RepairSide::b: return "b";
+    }
+    return "right";
+}
+
+RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
+    if (o.stitches < 3) throw OptionError("--stitches " + std::to_string(o.stitches) + ": a patch needs at least 3 stitches");
+    if (!(o.rim_mm > 0)) throw OptionError("--rim " + number_text(o.rim_mm, 2) + ": expected a distance above 0 mm beyond the opening's edge");
+    if (!(o.thickness_mm > 0)) throw OptionError("--thickness " + number_text(o.thickness_mm, 2) + ": expected a thickness above 0 mm");
+    if (o.patch_diameter_mm < 0) throw OptionError("--patch-diameter " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
+    const ScenarioSource& source = scenario.source;
+    if (source.defect.empty())
+        throw InputError("the scenario has no defect (its /source carries none): build it with heartprep build LABELS -o CASE.h5 "
+                         "--defect vsd (or asd; with --at X,Y,Z where the chambers are not labelled apart)");
+    if (!scenario.visual || scenario.visual->triangles.empty())
+        throw InputError("the scenario has no detailed mesh (/visual), on which plan-repair finds the septum's surface: build it "
+                         "with heartprep build without --no-visual");
+    const VisualMesh& mesh = *scenario.visual;
+
+    RepairPlan plan;
+    plan.defect = source.defect;
+    plan.defect_diameter_mm = source.defect_diameter_mm;
+    plan.defect_centre = source.defect_centre;
+    plan.defect_axis = source.defect_axis.normalized();
+    plan.side = o.side;
+    const Eigen::Vector3d& centre = plan.defect_centre;
+    const Eigen::Vector3d& axis = plan.defect_axis;
+    plan.right_anterior_a = (-axis).dot(right_anterior);
+    plan.right_anterior_b = axis.dot(right_anterior);
+    const bool b_is_right = plan.right_anterior_b > plan.right_anterior_a;
+    switch (o.side) {
+        case RepairSide::right: plan.on_b = b_is_right; break;
+        case RepairSide::left: plan.on_b = !b_is_right; break;
+        case RepairSide::a: plan.on_b = false; break;
+        case RepairSide::b: plan.on_b = true; break;
+    }
+    plan.on_right = plan.on_b == b_is_right;
+    const Eigen::Vector3d outward = plan.on_b ? axis : Eigen::Vector3d(-axis);
+    plan.outward = outward;
+
+    plan.stitch_radius_mm = 0.5 * plan.defect_diameter_mm + o.rim_mm;
+    plan.patch_diameter_mm = o.patch_diameter_mm > 0 ? o.patch_diameter_mm : plan.defect_diameter_mm + 2.0 * (o.rim_mm + 2.0);
+    plan.patch_thickness_mm = o.thickness_mm;
+    if (!(plan.patch_diameter_mm > 2.0 * plan.stitch_radius_mm))
+        throw OptionError("--patch-diameter " + number_text(plan.patch_diameter_mm) + " mm does not reach beyond the stitches: they lie on a circle " +
+                          number_text(2.0 * plan.stitch_radius_mm) + " mm across (the defect's " + number_text(plan.defect_diameter_mm) +
+                          " mm and --rim " + number_text(o.rim_mm) + " mm each side); give a larger diameter");
+
+    // The circle's first direction: superior (+z) across the axis, or anterior (−y) where the axis
+    // is within 25° of superior-inferior; the second makes them counter-clockwise seen from outside.
+    plan.starts_anterior = std::abs(axis.z()) > std::cos(25.0 * std::numbers::pi / 180.0);
+    const Eigen::Vector3d reference = plan.starts_anterior ? Eigen::Vector3d(0, -1, 0) : Eigen::Vector3d(0, 0, 1);
+    const Eigen::Vector3d first = (reference - reference.dot(outward) * outward).normalized();
+    const Eigen::Vector3d second = outward.cross(first);
+
+    // The tissue along each stitch's line, heights from the centre's plane along outward.
+    const int n = o.stitches;
+    const std::size_t count = std::size_t(n);
+    std::vector<Eigen::Vector3d> points(count);
+    std::vector<std::vector<Stretch>> along(count);
+    std::vector<double> angles(count);
+    std::vector<double> mid_wall;
+    for (int k = 0; k < n; ++k) {
+        const double angle = 2.0 * std::numbers::pi * double(k) / double(n);
+        angles[std::size_t(k)] = 360.0 * double(k) / double(n);
+        points[std::size_t(k)] = centre + plan.stitch_radius_mm * (std::cos(angle) * first + std::sin(angle) * second);
+        along[std::size_t(k)] = stretches_along(mesh, points[std::size_t(k)], outward);
+        for (const Stretch& s : along[std::size_t(k)])
+            if (s.holds(0.0)) mid_wall.push_back(s.length());
+    }
+    // T: the septum's thickness, from the stretches that hold mid-wall; without any, the window is
+    // the margin alone.
+    const double thickness = mid_wall.empty() ? 0.0 : median(mid_wall);
+    const double window = thickness + window_margin_mm;
+
+    std::vector<double> walls;
+    for (int k = 0; k < n; ++k) {
+        const auto& stretches = along[std::size_t(k)];
+        const auto found = std::find_if(stretches.begin(), stretches.end(), [&](const Stretch& s) { return std::abs(s.top) <= window; });
+        if (found == stretches.end()) {
+            const std::string stitch = "stitch " + std::to_string(k + 1) + " of " + std::to_string(n) + " (" +
+                                       number_text(angles[std::size_t(k)], 0) + "° round the rim): the line along the defect's axis through " +
+                                       point_text(points[std::size_t(k)]) + " mm (" + number_text(plan.stitch_radius_mm) + " mm from the axis)";
+            if (mid_wall.empty())
+                throw InputError(stitch + " meets no wall near the defect's centre, and none of the " + std::to_string(n) +
+                                 " lines crosses tissue at mid-wall: the scenario's tissue has no wall there round the opening (the "
+                                 "stitches' circle reaches beyond the septum: a smaller --rim; or the wall the defect was carved through "
+                                 "is not simulated: an atrial septum that the label map leaves unlabelled, as MM-WHS does); heartsim run "
+                                 "CASE --clip defect shows the section there");
+            std::string what = "it crosses no tissue at all";
+            double nearest = std::numeric_limits<double>::infinity();
+            for (const Stretch& s : stretches) nearest = std::min(nearest, std::abs(s.top));
+            if (std::isfinite(nearest)) what = "the nearest tissue it enters begins " + number_text(nearest) + " mm from the centre's plane";
+            throw InputError(stitch + " meets no wall within " + number_text(window) + " mm of the defect's centre (" + what +
+                             "); a smaller --rim keeps the stitches nearer the opening, and heartsim run CASE --clip defect shows the "
+                             "septum there");
+        }
+        RepairStitch stitch;
+        stitch.height_mm = found->top;
+        stitch.site = points[std::size_t(k)] + found->top * outward;
+        stitch.outside = stitch.site + o.approach_mm * outward;
+        stitch.angle_deg = angles[std::size_t(k)];
+        stitch.wall_mm = found->length();
+        walls.push_back(stitch.wall_mm);
+        plan.stitches.push_back(stitch);
+    }
+    plan.wall_mm = median(walls);
+    plan.wall_min_mm = *std::min_element(walls.begin(), walls.end());
+    plan.wall_max_mm = *std::max_element(walls.begin(), walls.end());
+
+    // The plane through the sites (least squares: the normal is the direction of least spread),
+    // its normal turned toward the tissue.
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (const RepairStitch& s : plan.stitches) mean += s.site;
+    mean /= double(n);
+    Eigen::Matrix3d spread = Eigen::Matrix3d::Zero();
+    for (const RepairStitch& s : plan.stitches) spread += (s.site - mean) * (s.site - mean).transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(spread);
+    Eigen::Vector3d facing = solver.eigenvectors().col(0).normalized();
+    if (facing.dot(outward) > 0) facing = -facing;
+    if (-facing.dot(outward) < 0.1)
+        throw InputError("the stitch sites lie on a surface almost along the defect's axis (its normal " +
+                         number_text(std::acos(std::clamp(-facing.dot(outward), -1.0, 1.0)) * 180.0 / std::numbers::pi, 0) +
+                         "° from it), not across it: there is no wall round the opening for a patch to cover");
+    for (const RepairStitch& s : plan.stitches) plan.fit_residual_mm = std::max(plan.fit_residual_mm, std::abs((s.site - mean).dot(facing)));
+    plan.patch_facing = facing;
+    plan.patch_tilt_deg = std::acos(std::clamp(-facing.dot(outward), -1.0, 1.0)) * 180.0 / std::numbers::pi;
+    // Where the axis meets the plane, then along the axis, away from the tissue, until half the
+    // thickness off the plane: the patch stays centred on the axis and its underside on the plane.
+    const double along_axis = facing.dot(mean - centre) / facing.dot(axis);
+    plan.patch_centre = centre + along_axis * axis + (0.5 * o.thickness_mm / -facing.dot(outward)) * outward;
+    const Eigen::Vector3d patch_x = (first - first.dot(facing) * facing).normalized();
+    Eigen::Matrix3d patch_frame;
+    patch_frame << patch_x, facing.cross(patch_x), facing;
+    plan.patch_orientation = Eigen::Quaterniond(patch_frame).normalized();
+    Eigen::Matrix3d needle_frame;
+    needle_frame << first, second, outward;
+    plan.needle_orientation = Eigen::Quaterniond(needle_frame).normalized();
+
+    // The keyframes (repair_plan.h).
+    auto key = [&](double t, int hand, InstrumentKind kind, const Eigen::Vector3d& p, const Eigen::Quaterniond& q, const Eigen::Vector3d& axes,
+                   bool grab) {
+        InstrumentKeyframe k;
+        k.time_ms = t, k.hand = hand, k.kind = kind, k.semi_axes = axes, k.grab = grab;
+        k.pose.position = p, k.pose.orientation = q;
+        plan.trajectory.keyframes.push_back(k);
+    };
+    const Eigen::Vector3d patch_axes(0.5 * plan.patch_diameter_mm, 0.5 * plan.patch_diameter_mm, 0.5 * o.thickness_mm);
+    const Eigen::Vector3d& needle_axes = o.needle_semi_axes;
+    const Eigen::Quaterniond& needle = plan.needle_orientation;
+    key(0.0, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, true);
+    key(o.release_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
+    // The needle is held out of the way (kind none) until the patch is laid.
+    key(0.0, 1, InstrumentKind::none, plan.stitches.front().outside, needle, needle_axes, false);
+    double t = o.release_ms;
+    key(t, 1, InstrumentKind::needle, plan.stitches.front().outside, needle, needle_axes, false);
+    for (int k = 0; k < n; ++k) {
+        RepairStitch& s = plan.stitches[std::size_t(k)];
+        s.tie_ms = t + o.approach_ms;
+        key(s.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, true);
+        key(s.tie_ms + o.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, false);
+        t = s.tie_ms + o.tie_ms + o.withdraw_ms;
+        const Eigen::Vector3d& next = k + 1 < n ? plan.stitches[std::size_t(k + 1)].outside : s.outside;
+        key(t, 1, InstrumentKind::needle, next, needle, needle_axes, false);
+    }
+    plan.end_ms = t + o.settle_ms;
+    key(plan.end_ms, 1, InstrumentKind::needle, plan.stitches.back().outside, needle, needle_axes, false);
+    key(plan.end_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
+    std::stable_sort(plan.trajectory.keyframes.begin(), plan.trajectory.keyframes.end(),
+                     [](const InstrumentKeyframe& a, const InstrumentKeyframe& b) { return a.time_ms < b.time_ms; });
+    return plan;
+}
+
+void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path, const std::string& scenario_name) {
+    std::FILE* f = std::fopen(path.c_str(), "w");
+    if (!f) throw OutputError("cannot write " + path.string());
+    std::fprintf(f, "# heartsim plan-repair%s%s: a patch over the %s's opening on its %s side (%s), %zu stitches round the rim\n",
+                 scenario_name.empty() ? "" : " ", scenario_name.c_str(), plan.defect.c_str(), plan.on_right ? "right" : "left",
+                 plan.on_b ? "side b, +axis" : "side a, -axis", plan.stitches.size());
+    std::fprintf(f, "# hand 0 lays the patch (grab 1 at 0 ms); hand 1's needle ties a stitch each time its grab turns 1; "
+                    "the gesture ends at %.0f ms\n",
+                 plan.end_ms);
+    std::fprintf(f, "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n");
+    for (const InstrumentKeyframe& k : plan.trajectory.keyframes) {
+        const auto& p = k.pose.position;
+        const auto& q = k.pose.orientation;
+        std::fprintf(f, "%.17g,%d,%s,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand, to_string(k.kind), p.x(),
+                     p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(), k.grab ? 1 : 0);
+    }
+    if (std::fclose(f) != 0) throw OutputError("cannot write " + path.string());
+}
+
+int plan_repair_command(const PlanRepairArguments& a) {
+    RepairPlanOptions options = a.options;
+    options.side = parse_repair_side(a.side);
+    if (std::filesystem::weakly_canonical(a.output) == std::filesystem::weakly_canonical(a.scenario))
+        throw UsageError("-o " + a.output + " names the scenario itself: give another file for the trajectory");
+    const Scenario scenario = read_scenario(a.scenario);
+    const RepairPlan plan = plan_repair(scenario, options);
+    write_repair_csv(plan, a.output, std::filesystem::path(a.scenario).filename().string());
+
+    const char* chamber = chamber_of(plan.defect);
+    const char* side_name = plan.on_right ? "right" : "left";
+    const std::size_t n = plan.stitches.size();
+    std::printf("plan-repair: a patch and %zu stitches closing the %s of %s (on its detailed mesh of %s triangles)\n", n,
+                defect_words(plan.defect).c_str(), a.scenario.c_str(), thousands(scenario.visual->triangles.size()).c_str());
+    std::printf("  defect      %s, %.1f mm across, centred at %s mm (mid-wall, world LPS), its axis %s from side a's pool to side b's\n",
+                plan.defect.c_str(), plan.defect_diameter_mm, point_text(plan.defect_centre).c_str(), point_text(plan.defect_axis, 2).c_str());
+    const double mine = plan.on_b ? plan.right_anterior_b : plan.right_anterior_a, other = plan.on_b ? plan.right_anterior_a : plan.right_anterior_b;
+    const char* which = plan.on_b ? "side b (+axis)" : "side a (-axis)";
+    const char* other_side = plan.on_b ? "side a" : "side b";
+    std::string why;
+    switch (options.side) {
+        case RepairSide::right:
+            why = std::string("right (the default): ") + which + ", whose outward direction " + point_text(plan.outward, 2) +
+                  " points more to the patient's right and anterior (" + number_text(mine, 2) + " against " + number_text(other, 2) + " for " +
+                  other_side + "): the right " + chamber + "'s side, from which a surgeon closes " + (plan.defect == "asd" ? "an " : "a ") +
+                  defect_words(plan.defect);
+            break;
+        case RepairSide::left:
+            why = std::string("left (--side=left): ") + which + ", whose outward direction " + point_text(plan.outward, 2) +
+                  " points less to the patient's right and anterior (" + number_text(mine, 2) + " against " + number_text(other, 2) + " for " +
+                  other_side + "): the left " + chamber + "'s side";
+            break;
+        case RepairSide::a:
+        case RepairSide::b:
+            why = std::string(to_string(options.side)) + " (--side=" + to_string(options.side) + "): " + which + ", outward " +
+                  point_text(plan.outward, 2) + "; by the right-anterior rule (" + number_text(mine, 2) + " against " + number_text(other, 2) +
+                  " for " + other_side + ") the " + side_name + " " + chamber + "'s side";
+            break;
+    }
+    std::printf("  side        %s\n", why.c_str());
+    std::printf("  wall        %.1f mm thick along the axis at the stitches (median; %.1f to %.1f mm): each site is where its line along "
+                "the axis, coming from the %s %s, first enters the tissue within %.1f mm of the centre\n",
+                plan.wall_mm, plan.wall_min_mm, plan.wall_max_mm, side_name, chamber, plan.wall_mm + window_margin_mm);
+    std::printf("  patch       a disc %.1f mm across and %.2f mm thick (hand 0, laid at 0 ms), centred at %s mm, facing the tissue along %s "
+                "(%.0f° from the axis): on the plane fitted to the sites (each within %.2f mm of it), lifted %.2f mm off it\n",
+                plan.patch_diameter_mm, plan.patch_thickness_mm, point_text(plan.patch_centre).c_str(), point_text(plan.patch_facing, 2).c_str(),
+                plan.patch_tilt_deg, plan.fit_residual_mm, 0.5 * plan.patch_thickness_mm);
+    std::printf("  stitches    %zu on the circle %.1f mm from the axis (%.1f mm beyond the opening's edge), from its most %s point "
+                "counter-clockwise as seen from the %s side; hand 1's needle (its shaft pointing away from the tissue) comes to each "
+                "from %.0f mm outside in %.0f ms and ties it, held %.0f ms while it draws tight:\n",
+                n, plan.stitch_radius_mm, options.rim_mm, plan.starts_anterior ? "anterior" : "superior",
+                side_name, options.approach_mm, options.approach_ms, options.tie_ms);
+    for (std::size_t k = 0; k < n; ++k) {
+        const RepairStitch& s = plan.stitches[k];
+        std::printf("    %2zu  %-24s mm  at %3.0f°, %+.1f mm from mid-wall, the wall %.1f mm thick there; tied at %.0f ms\n", k + 1,
+                    point_text(s.site).c_str(), s.angle_deg, s.height_mm, s.wall_mm, s.tie_ms);
+    }
+    std::printf("  gesture     %.0f ms: the patch laid at 0 ms, the stitches tied from %.0f to %.0f ms, then %.0f ms for the tissue to settle\n",
+                plan.end_ms, plan.stitches.front().tie_ms, plan.stitches.back().tie_ms + options.tie_ms, options.settle_ms);
+    // A tenth of a second past the gesture's end, as plan-incision.
+    const double seconds = (std::floor(plan.end_ms / 100.0) + 1.0) / 10.0;
+    std::printf("  wrote       %s (%zu keyframes)\n", a.output.c_str(), plan.trajectory.keyframes.size());
+    std::printf("  run it      heartsim run %s --trajectory %s --seconds %.1f\n", a.scenario.c_str(), a.output.c_str(), seconds);
+    std::printf("  see it      add --clip defect (the section across the opening, the camera facing it; headless with --screenshot "
+                "repair.png): the patch on the septum's %s side, the stitches at its rim\n",
+                side_name);
+    return 0;
+}
+
+}  // namespace heartsim
