@@ -1,0 +1,75 @@
+#!/usr/bin/env bash
+# The repair of a 10 mm ventricular septal defect on every real heart (docs/benchmarks.md "Closing a
+# defect"): each case in ../shared/data/real built with heartprep's defaults (30k particles) and
+# `--defect vsd` (the HVSMR cases, one blood pool, at a point on their septum; the MM-WHS cases find
+# it by their chamber labels, --labels mmwhs and --labels mmwhs-ordinal), `heartsim plan-repair`'s
+# repair played by `heartsim run --headless --backend B --trajectory … --save-state`, then the same
+# heart for as long without a patch (no instruments), and scripts/check-closure.py's independent
+# flood fill of the saved state. Writes OUT/repair.csv and prints a Markdown table: heartsim's
+# verdict and rim gap, the independent verdict, watchdog events, the real-time factors with and
+# without the patch, and what the patch's steps cost.
+# Usage: tests/bench/run_repair_bench.sh [--out DIR] [--data DIR] [--backend cpu|gl] [--stitches N (default: plan-repair's)]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out=build/repair-bench data=../shared/data/real backend=cpu stitches=
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --out) out="$2"; shift 2 ;;
+    --data) data="$2"; shift 2 ;;
+    --backend) backend="$2"; shift 2 ;;
+    --stitches) stitches="$2"; shift 2 ;;
+    -h|--help) sed -n 2,11p "$0"; exit 0 ;;
+    *) echo "run_repair_bench: unknown option $1 (see --help)" >&2; exit 2 ;;
+  esac
+done
+if [ ! -d "$data" ]; then echo "run_repair_bench: $data is absent: nothing to measure" >&2; exit 0; fi
+heartprep=${HEARTPREP:-build/release/tools/heartprep} heartsim=${HEARTSIM:-build/release/runtime/heartsim}
+if [ -z "${HEARTSIM:-}" ]; then cmake --build --preset release --target heartprep heartsim >/dev/null; fi
+mkdir -p "$out"
+csv="$out/repair.csv"
+echo "case,particles,stitches,closed,rim_gap_mm,independent,watchdog,rtf_patch,rtf_without,patch_ms_per_step,patch_share_pct,seconds" > "$csv"
+for label in "$data"/*/*label.nii.gz; do
+  case=$(basename "$(dirname "$label")")
+  options=""
+  case "$case" in
+    hvsmr16_pat0) options="--at=40.7,-14.4,-10.4" ;;
+    hvsmr16_pat1) options="--at=11.4,-25.6,5.2" ;;
+    hvsmr16_pat5) options="--at=26.8,-17.3,-4.9" ;;
+    hvsmr16_pat6) options="--at=26.9,-12.1,-20.0" ;;
+    mmwhs_ct1002) options="--labels mmwhs" ;;
+    mmwhs_wh) options="--labels mmwhs-ordinal" ;;
+  esac
+  h5="$out/$case.vsd.h5"
+  [ -f "$h5" ] || $heartprep build "$label" -o "$h5" -q --defect vsd $options
+  plan=$($heartsim plan-repair "$h5" -o "$out/$case.repair.csv" ${stitches:+--stitches="$stitches"})
+  seconds=$(grep -o -- '--seconds [0-9.]*' <<<"$plan" | head -1 | cut -d' ' -f2)
+  echo "$case: $seconds s" >&2
+  $heartsim run "$h5" --headless --backend "$backend" --trajectory "$out/$case.repair.csv" --seconds "$seconds" \
+    --save-state "$out/$case.repaired.h5" > "$out/$case.run.log" 2>&1 || { cat "$out/$case.run.log" >&2; exit 1; }
+  $heartsim run "$h5" --headless --backend "$backend" --seconds "$seconds" > "$out/$case.without.log" 2>&1 ||
+    { cat "$out/$case.without.log" >&2; exit 1; }
+  independent=$(python3 scripts/check-closure.py "$out/$case.repaired.h5" --scenario "$h5" | grep -o 'defect closed: [a-z]*' | cut -d' ' -f3 || true)
+  python3 - "$case" "$stitches" "$seconds" "$independent" "$out/$case.run.log" "$out/$case.without.log" >> "$csv" <<'PY'
+import re, sys
+case, stitches, seconds, independent, run, without = sys.argv[1:]
+r, w = open(run).read(), open(without).read()
+stitches = re.search(r"a patch, (\d+) stitches", r).group(1)
+rtf = lambda text: float(re.search(r"real-time factor ([0-9.e+-]+)", text).group(1))
+closed = re.search(r"defect closed: (yes|no), largest rim gap ([0-9.]+) mm", r)
+patch = re.search(r"took ([0-9.e+-]+) ms each .*: ([0-9.]+) % of the wall", r)
+particles = re.search(r"backend: (\d+) particles", r).group(1)
+watchdog = re.search(r"watchdog: (\d+) events", r)
+print(f"{case},{particles},{stitches},{closed.group(1)},{closed.group(2)},{independent or '?'},{watchdog.group(1) if watchdog else 0},"
+      f"{rtf(r)},{rtf(w)},{patch.group(1) if patch else ''},{patch.group(2) if patch else ''},{seconds}")
+PY
+done
+python3 - "$csv" <<'PY'
+import csv, sys
+rows = list(csv.DictReader(open(sys.argv[1])))
+print("| case | particles | stitches | defect closed (heartsim) | largest rim gap, mm | independent flood fill | watchdog | real-time factor with / without the patch | patch step, ms (share of wall) |")
+print("|---|---|---|---|---|---|---|---|---|")
+for r in rows:
+    ratio = float(r["rtf_patch"]) / float(r["rtf_without"])
+    print(f"| {r['case']} | {r['particles']} | {r['stitches']} | {r['closed']} | {float(r['rim_gap_mm']):.2f} | {r['independent']} | {r['watchdog']} | "
+          f"{float(r['rtf_patch']):.3f} / {float(r['rtf_without']):.3f} ({100 * (ratio - 1):+.1f} %) | {float(r['patch_ms_per_step'] or 0):.3f} ({r['patch_share_pct']} %) |")
+PY
