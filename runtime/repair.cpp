@@ -1,5 +1,6 @@
 #include "runtime/repair.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -117,7 +118,13 @@ void RepairBackend::lay(int hand) {
     std::vector<double> inverse_mass(particles.size(), 0.0);
     for (std::size_t i = 0; i < particles.size(); ++i)
         inverse_mass[i] = (i < particles.anchored.size() && particles.anchored[i]) || !(particles.mass[i] > 0) ? 0.0 : 1.0 / double(particles.mass[i]);
-    patch_.emplace(spec, particles.rest_position, surface_near(scenario_, h.pose.position, facing, reach, 8.0), std::move(inverse_mass));
+    try {
+        patch_.emplace(spec, particles.rest_position, surface_near(scenario_, h.pose.position, facing, reach, 8.0), std::move(inverse_mass));
+    } catch (const InputError& e) {  // a patch of a size no heart takes: said, and the session goes on
+        patch_.reset();
+        std::printf("repair: no patch laid: %s\n", e.what());
+        return;
+    }
     patch_->set_mass_scale(inner_->options().mass_scale);
     patch_->lay(h.pose, inner_->positions_of(patch_->particles()));
     tissue_steps_ = 0;

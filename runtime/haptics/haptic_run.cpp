@@ -213,6 +213,8 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
             throw UsageError(e.what());
         }
         instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
+        if (instrument.kind == InstrumentKind::patch && (std::max(a[0], a[1]) > 50.0 || a[2] > 2.5))
+            throw UsageError("--instrument " + text + ": a patch's half-diameters are at most 50 mm and its half thickness 2.5 mm");
     }
     return instrument;
 }
