@@ -239,13 +239,11 @@ TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
     expect_agreement(c);
 }
 
-// The scalpel on the gl backend as on the cpu: the incision of incision_gesture.h through the
-// phantom's anterior wall cuts the same springs from the same positions, and the tissue ends
-// where the cpu's does.
-TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
-    REQUIRE_GL();
-    const Scenario scenario = read_scenario(phantom_scenario());
-    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 20, .retract = false});
+namespace {
+
+/// A cpu and a gl backend of `scenario` that played the incision `plan` to its end, neither with a
+/// watchdog event.
+std::pair<std::unique_ptr<Backend>, std::unique_ptr<Backend>> incised_on_both(const Scenario& scenario, const test::Incision& plan) {
     const SolverOptions options = options_from(scenario.solver);
     auto cpu = make_cpu_backend(scenario, options);
     auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
@@ -254,6 +252,19 @@ TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
     const ScriptedRunResult b = run_scripted(*gl, plan.trajectory, {.steps = steps});
     EXPECT_EQ(a.watchdog_events, 0u) << a.last_watchdog_message;
     EXPECT_EQ(b.watchdog_events, 0u) << b.last_watchdog_message;
+    return {std::move(cpu), std::move(gl)};
+}
+
+}  // namespace
+
+// The scalpel on the gl backend as on the cpu: the incision of incision_gesture.h through the
+// phantom's anterior wall cuts the same springs from the same positions, and the tissue ends
+// where the cpu's does.
+TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 20, .retract = false});
+    auto [cpu, gl] = incised_on_both(scenario, plan);
     const auto cut_cpu = cpu->cut_springs(), cut_gl = gl->cut_springs();
     std::printf("  %zu springs cut on the cpu, %zu on the gl backend\n", cut_cpu.size(), cut_gl.size());
     EXPECT_GT(cut_cpu.size(), 20u);
@@ -328,14 +339,7 @@ TEST(RuntimeBackend, GlRetractorsHoldAsManyParticlesAsTheCpusAfterAnIncision) {
     REQUIRE_GL();
     const Scenario scenario = read_scenario(phantom_scenario());
     const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 12});
-    const SolverOptions options = options_from(scenario.solver);
-    auto cpu = make_cpu_backend(scenario, options);
-    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
-    const int steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()));
-    const ScriptedRunResult a = run_scripted(*cpu, plan.trajectory, {.steps = steps});
-    const ScriptedRunResult b = run_scripted(*gl, plan.trajectory, {.steps = steps});
-    EXPECT_EQ(a.watchdog_events, 0u) << a.last_watchdog_message;
-    EXPECT_EQ(b.watchdog_events, 0u) << b.last_watchdog_message;
+    auto [cpu, gl] = incised_on_both(scenario, plan);
     const InstrumentForces f = cpu->instrument_forces(), g = gl->instrument_forces();
     // The asynchronous path: one more request, polled until it arrives (10 s at most).
     const std::uint64_t request = gl->latest_forces_request() + 1;
