@@ -54,7 +54,7 @@ double ray_triangle(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Ei
 
 PatchModel::PatchModel(const PatchSpec& spec, const std::vector<std::array<float, 3>>& rest, ContactSurface surface,
                        std::vector<double> tissue_inverse_mass)
-    : spec_(spec), rest_(rest), surface_(std::move(surface)), tissue_inverse_mass_(std::move(tissue_inverse_mass)) {
+    : spec_(spec), rest_(rest), tissue_inverse_mass_(std::move(tissue_inverse_mass)), surface_(std::move(surface)) {
     if (!tissue_inverse_mass_.empty() && tissue_inverse_mass_.size() != rest_.size())
         throw InputError("patch: " + std::to_string(tissue_inverse_mass_.size()) + " inverse masses for " + std::to_string(rest_.size()) +
                          " particles");
@@ -530,10 +530,7 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
     }
     // A patch at rest on tissue at rest stays so: it sleeps, its loads as they were, until either
     // moves or a stitch is drawing.
-    if (at_rest(positions, time_ms)) {
-        ++slept_;
-        return;
-    }
+    if (at_rest(positions, time_ms)) return;
     asleep_positions_ = positions;
     clear_loads();
     contact_force_.setZero();

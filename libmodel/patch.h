@@ -150,8 +150,6 @@ public:
     /// The sum of the contact's forces on the patch in the last step, N.
     const Eigen::Vector3d& contact_force() const { return contact_force_; }
     double mass_g() const;
-    /// Steps skipped because the patch and the tissue under it were at rest.
-    long long steps_asleep() const { return slept_; }
 
 private:
     void build_mesh();
@@ -216,7 +214,6 @@ private:
     std::vector<std::int32_t> loaded_slots_;
     std::vector<int> under_;  ///< per vertex: the surface triangle under it in the last step, or −1
     ParticlePositions asleep_positions_;  ///< the tissue as the patch last stepped
-    long long slept_ = 0;
 };
 
 }  // namespace heartsim
