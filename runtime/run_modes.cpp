@@ -561,6 +561,18 @@ bool preview_incisions(PreparedRun& p, const std::vector<std::array<float, 3>>* 
 namespace {
 
 /// --save-state: the final positions, the forces, what each hand held and the springs cut.
+/// The detailed mesh as drawn at `positions`: the mapping evaluated there (libmodel apply_mapping,
+/// the vertex shader's formula and float order); once cut, the incision's mesh and mapping. Needs
+/// the scenario's visual mesh, mapping and simulation surface.
+std::vector<std::array<float, 3>> drawn_detailed_mesh(const PreparedRun& p, const std::vector<std::array<float, 3>>& positions) {
+    const bool opened = p.incisions && p.incisions->cut();
+    const auto visual = apply_mapping(opened ? p.incisions->mapping() : *p.scenario.mapping, positions, *p.scenario.simulation_surface);
+    std::vector<std::array<float, 3>> out;
+    out.reserve(visual.size());
+    for (const auto& v : visual) out.push_back({v.x(), v.y(), v.z()});
+    return out;
+}
+
 void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const InstrumentForces& forces,
                 const std::vector<std::array<float, 3>>& positions, const haptics::HapticRun* haptic) {
     const Recording* replayed = p.replayed ? &*p.replayed : nullptr;
@@ -612,16 +624,11 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         state.patch = std::move(out);
     }
     if (p.scenario.visual && p.scenario.mapping && p.scenario.simulation_surface) {
-        // The detailed mesh as drawn: the mapping at the final positions (libmodel apply_mapping,
-        // the vertex shader's formula and float order); once cut, the incision's mesh and mapping.
-        const bool opened = p.incisions && p.incisions->cut();
-        const auto visual = apply_mapping(opened ? p.incisions->mapping() : *p.scenario.mapping, positions, *p.scenario.simulation_surface);
-        if (opened) {
+        state.visual_positions = drawn_detailed_mesh(p, positions);
+        if (p.incisions && p.incisions->cut()) {
             state.visual_triangles = p.incisions->drawn_triangles();
             state.visual_cap_first = p.incisions->cap_first();
         }
-        state.visual_positions.reserve(visual.size());
-        for (const auto& v : visual) state.visual_positions.push_back({v.x(), v.y(), v.z()});
     }
     state.scenario_path = a.scenario;
     if (p.scenario.simulation_surface) state.scenario_simsurface_triangles = p.scenario.simulation_surface->size();
@@ -637,11 +644,8 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
     const auto frame = defect_frame_now(p.scenario, positions, patch);
     p.closure.reset();
     if (!frame || !p.scenario.visual || !p.scenario.mapping || !p.scenario.simulation_surface) return;
+    const auto tissue = drawn_detailed_mesh(p, positions);
     const bool opened = p.incisions && p.incisions->cut();
-    const auto visual = apply_mapping(opened ? p.incisions->mapping() : *p.scenario.mapping, positions, *p.scenario.simulation_surface);
-    std::vector<std::array<float, 3>> tissue;
-    tissue.reserve(visual.size());
-    for (const auto& v : visual) tissue.push_back({v.x(), v.y(), v.z()});
     const auto& triangles = opened ? p.incisions->drawn_triangles() : p.scenario.visual->triangles;
     std::vector<std::array<float, 3>> patch_positions;
     std::vector<std::array<std::int32_t, 3>> patch_triangles;
