@@ -3,6 +3,7 @@
 # with nothing installed but glibc, python3 with numpy, and the GPU's driver:
 #
 #   tar -xzf heartsim-gpu.tar.gz -C /tmp && /tmp/heartsim-gpu/bench/gpu_bench.sh [--out DIR] [--quick]
+#   /tmp/heartsim-gpu/bench/gpu_bench.sh surgery --data DIR [--out DIR]   (the incision and the repair on real hearts)
 #
 # It sets the library path to the bundle's libraries (then NVIDIA's driver folders where they
 # exist) and points libglvnd at NVIDIA's EGL vendor file where there is one, then runs
@@ -29,4 +30,8 @@ for candidate in python3 /usr/bin/python3 /opt/torch/.venv/bin/python3; do
   if command -v "$candidate" >/dev/null && "$candidate" -c "import numpy" 2>/dev/null; then python="$candidate"; break; fi
 done
 [ -n "$python" ] || { echo "gpu_bench: no python3 with numpy (python3-numpy)" >&2; exit 1; }
+if [ "${1:-}" = surgery ]; then  # the incision and the repair on real hearts: gpu_surgery.py --help
+  shift
+  exec "$python" -u "$bench/gpu_surgery.py" --heartsim "$root/bin/heartsim" --heartprep "$root/bin/heartprep" --h5dump "$root/bin/h5dump" "$@"
+fi
 exec "$python" -u "$bench/gpu_bench.py" --heartsim "$root/bin/heartsim" --heartprep "$root/bin/heartprep" "$@"

@@ -82,7 +82,8 @@ done
 missing="$(for object in "$root"/bin/* "$root"/lib/*.so*; do LD_LIBRARY_PATH="$root/lib" ldd "$object" 2>/dev/null | grep "not found" || true; done | sort -u)"
 [ -z "$missing" ] || { echo "make-bundle: libraries not found:" >&2; echo "$missing" >&2; exit 1; }
 
-cp "$repo/tests/bench/gpu/gpu_bench.sh" "$repo/tests/bench/gpu/gpu_bench.py" "$repo/tests/bench/runtime_bench.py" "$repo/tests/bench/bench_common.py" "$root/bench/"
+cp "$repo/tests/bench/gpu/gpu_bench.sh" "$repo/tests/bench/gpu/gpu_bench.py" "$repo/tests/bench/gpu/gpu_surgery.py" "$repo/tests/bench/runtime_bench.py" \
+   "$repo/tests/bench/bench_common.py" "$repo/scripts/check-closure.py" "$root/bench/"
 chmod 755 "$root/bench/gpu_bench.sh"
 {
   echo "heartsim GPU bundle: $(cd "$repo" && git describe --always --dirty 2>/dev/null || echo unknown)"
