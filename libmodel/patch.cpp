@@ -90,10 +90,28 @@ void PatchModel::refresh_particles() {
         for (const auto& c : v.carriers) particles_.push_back(c.first);
     std::sort(particles_.begin(), particles_.end());
     particles_.erase(std::unique(particles_.begin(), particles_.end()), particles_.end());
+    // Each surface vertex as x = base + Σ w_k x_k over its carriers' slots in particles_, base =
+    // rest − Σ w_k X_k: a step reads no rest position.
     slot_of_surface_.clear();
-    for (const auto& v : surface_.vertices)
-        for (const auto& c : v.carriers)
-            slot_of_surface_.push_back(int(std::lower_bound(particles_.begin(), particles_.end(), c.first) - particles_.begin()));
+    surface_weight_.clear();
+    vertex_first_.assign(surface_.vertices.size() + 1, 0);
+    largest_weight_sum_ = 1.0;
+    surface_base_.resize(surface_.vertices.size());
+    for (std::size_t v = 0; v < surface_.vertices.size(); ++v) {
+        const CarriedPoint& point = surface_.vertices[v];
+        vertex_first_[v] = slot_of_surface_.size();
+        Eigen::Vector3d base = point.rest;
+        for (const auto& [particle, weight] : point.carriers) {
+            slot_of_surface_.push_back(int(std::lower_bound(particles_.begin(), particles_.end(), particle) - particles_.begin()));
+            surface_weight_.push_back(weight);
+            base -= weight * vec(rest_[std::size_t(particle)]);
+        }
+        surface_base_[v] = base;
+        double sum = 0;
+        for (const auto& c : point.carriers) sum += std::abs(c.second);
+        largest_weight_sum_ = std::max(largest_weight_sum_, sum);
+    }
+    vertex_first_[surface_.vertices.size()] = slot_of_surface_.size();
 }
 
 void PatchModel::build_mesh() {
@@ -129,39 +147,33 @@ void PatchModel::build_mesh() {
     }
 }
 
-void PatchModel::deform_lazily(const ParticlePositions& positions) {
+void PatchModel::begin_surface(const ParticlePositions& positions) {
     if (positions.size() != particles_.size())
         throw InputError("patch: " + std::to_string(positions.size()) + " positions given for " + std::to_string(particles_.size()) + " particles");
-    lazy_positions_ = &positions;
-    ++stamp_;
+    slot_x_.resize(positions.size());
+    for (std::size_t k = 0; k < positions.size(); ++k) slot_x_[k] = vec(positions[k]);
     surface_x_.resize(surface_.vertices.size());
     surface_normal_.resize(surface_.triangles.size());
     x_stamp_.resize(surface_.vertices.size(), 0);
     normal_stamp_.resize(surface_.triangles.size(), 0);
-    if (vertex_first_.size() != surface_.vertices.size()) {
-        vertex_first_.assign(surface_.vertices.size(), 0);
-        std::size_t flat = 0;
-        for (std::size_t v = 0; v < surface_.vertices.size(); ++v) vertex_first_[v] = flat, flat += surface_.vertices[v].carriers.size();
-    }
+    ++stamp_;
 }
 
-const Eigen::Vector3d& PatchModel::sx(std::size_t v) const {
+const Eigen::Vector3d& PatchModel::sx(std::size_t v) {
     if (x_stamp_[v] != stamp_) {
-        const CarriedPoint& point = surface_.vertices[v];
-        Eigen::Vector3d x = point.rest;
-        std::size_t flat = vertex_first_[v];
-        for (const auto& [particle, weight] : point.carriers)
-            x += weight * (vec((*lazy_positions_)[std::size_t(slot_of_surface_[flat++])]) - vec(rest_[std::size_t(particle)]));
+        Eigen::Vector3d x = surface_base_[v];
+        for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) x += surface_weight_[k] * slot_x_[std::size_t(slot_of_surface_[k])];
         surface_x_[v] = x;
         x_stamp_[v] = stamp_;
     }
     return surface_x_[v];
 }
 
-const Eigen::Vector3d& PatchModel::sn(std::size_t t) const {
+const Eigen::Vector3d& PatchModel::sn(std::size_t t) {
     if (normal_stamp_[t] != stamp_) {
         const auto& [a, b, c] = surface_.triangles[t];
-        const Eigen::Vector3d n = (sx(std::size_t(b)) - sx(std::size_t(a))).cross(sx(std::size_t(c)) - sx(std::size_t(a)));
+        const Eigen::Vector3d& xa = sx(std::size_t(a));
+        const Eigen::Vector3d n = (sx(std::size_t(b)) - xa).cross(sx(std::size_t(c)) - xa);
         const double length = n.norm();
         surface_normal_[t] = length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
         normal_stamp_[t] = stamp_;
@@ -170,73 +182,82 @@ const Eigen::Vector3d& PatchModel::sn(std::size_t t) const {
 }
 
 void PatchModel::deform_surface(const ParticlePositions& positions) {
-    deform_lazily(positions);
-    surface_x_.resize(surface_.vertices.size());
-    std::size_t flat = 0;
-    for (std::size_t v = 0; v < surface_.vertices.size(); ++v) {
-        const CarriedPoint& point = surface_.vertices[v];
-        Eigen::Vector3d x = point.rest;
-        for (const auto& [particle, weight] : point.carriers) {
-            const int slot = slot_of_surface_[flat++];
-            x += weight * (vec(positions[std::size_t(slot)]) - vec(rest_[std::size_t(particle)]));
-        }
-        surface_x_[v] = x;
-    }
-    surface_normal_.resize(surface_.triangles.size());
-    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
-        const auto& [a, b, c] = surface_.triangles[t];
-        const Eigen::Vector3d n = (surface_x_[std::size_t(b)] - surface_x_[std::size_t(a)]).cross(surface_x_[std::size_t(c)] - surface_x_[std::size_t(a)]);
-        const double length = n.norm();
-        surface_normal_[t] = length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
-    }
-    std::fill(x_stamp_.begin(), x_stamp_.end(), stamp_);
-    std::fill(normal_stamp_.begin(), normal_stamp_.end(), stamp_);
-    lazy_positions_ = nullptr;  // everything is computed: nothing reads the positions after this call
+    begin_surface(positions);
+    for (std::size_t v = 0; v < surface_.vertices.size(); ++v) sx(v);
+    for (std::size_t t = 0; t < surface_.triangles.size(); ++t) sn(t);
 }
 
 void PatchModel::build_surface_grid() {
-    // A 2D grid in the laid patch's plane over the triangles that face it, built where the surface
-    // was when the patch was laid: a vertex finds the triangle under it among a few.
+    // A 2D grid in the laid patch's plane over the triangles that face it: each triangle in the
+    // cells its outline covers grown by grid_margin (the surface drifts, and a point a leaning
+    // triangle holds in front of it projects a little off its outline), rebuilt whenever some
+    // vertex may have moved by half the margin since (surface_moved); a vertex finds the triangle
+    // under it among the few of its cell whose box (grid_box_) holds it.
     grid_.clear();
     const Eigen::Vector3d e1 = frame_.col(0), e2 = frame_.col(1);
+    grid_built_.resize(surface_x_.size());
     Eigen::AlignedBox2d box;
-    for (const auto& x : surface_x_) box.extend(Eigen::Vector2d(x.dot(e1), x.dot(e2)));
+    for (std::size_t v = 0; v < surface_x_.size(); ++v) {
+        grid_built_[v] = Eigen::Vector2d(surface_x_[v].dot(e1), surface_x_[v].dot(e2));
+        box.extend(grid_built_[v]);
+    }
+    grid_slot_x_ = slot_x_;
     if (box.isEmpty()) return;
-    grid_cell_ = 1.0;
-    grid_origin_ = Eigen::Vector3d(box.min().x() - 2.0, box.min().y() - 2.0, 0);
-    grid_dims_ = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 4.0) / grid_cell_)), 1, 4096),
-                                 std::clamp(int(std::ceil((box.sizes().y() + 4.0) / grid_cell_)), 1, 4096), 1);
+    grid_origin_ = Eigen::Vector3d(box.min().x() - grid_margin, box.min().y() - grid_margin, 0);
+    grid_dims_ = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096),
+                                 std::clamp(int(std::ceil((box.sizes().y() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096), 1);
     grid_.assign(std::size_t(grid_dims_.x()) * std::size_t(grid_dims_.y()), {});
+    grid_box_.assign(surface_.triangles.size(), {});
     for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
         if (!(surface_normal_[t].dot(facing_) < -0.3)) continue;  // only surface that faces the patch
         Eigen::AlignedBox2d tb;
+        for (int corner : surface_.triangles[t]) tb.extend(grid_built_[std::size_t(corner)]);
+        // Where a point the triangle holds can be: across, within the margin of its outline; along
+        // the patch's +z, from 2 mm behind its nearest corner to 3 mm plus the thickness in front
+        // of its farthest (the range triangle_under takes), each widened by the drift allowed.
+        double near = std::numeric_limits<double>::infinity(), far = -near;
         for (int corner : surface_.triangles[t]) {
-            const Eigen::Vector3d& x = surface_x_[std::size_t(corner)];
-            tb.extend(Eigen::Vector2d(x.dot(e1), x.dot(e2)));
+            const double along = surface_x_[std::size_t(corner)].dot(facing_);
+            near = std::min(near, along), far = std::max(far, along);
         }
-        const int i0 = std::clamp(int(std::floor((tb.min().x() - grid_origin_.x()) / grid_cell_)) - 1, 0, grid_dims_.x() - 1);
-        const int i1 = std::clamp(int(std::floor((tb.max().x() - grid_origin_.x()) / grid_cell_)) + 1, 0, grid_dims_.x() - 1);
-        const int j0 = std::clamp(int(std::floor((tb.min().y() - grid_origin_.y()) / grid_cell_)) - 1, 0, grid_dims_.y() - 1);
-        const int j1 = std::clamp(int(std::floor((tb.max().y() - grid_origin_.y()) / grid_cell_)) + 1, 0, grid_dims_.y() - 1);
+        const double slack = 0.5 * grid_margin;
+        grid_box_[t] = {float(tb.min().x() - grid_margin), float(tb.min().y() - grid_margin), float(tb.max().x() + grid_margin),
+                        float(tb.max().y() + grid_margin), float(near - 3.0 - spec_.thickness_mm - slack), float(far + 2.0 + slack)};
+        const int i0 = std::clamp(int(std::floor((tb.min().x() - grid_margin - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
+        const int i1 = std::clamp(int(std::floor((tb.max().x() + grid_margin - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
+        const int j0 = std::clamp(int(std::floor((tb.min().y() - grid_margin - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
+        const int j1 = std::clamp(int(std::floor((tb.max().y() + grid_margin - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
         for (int j = j0; j <= j1; ++j)
             for (int i = i0; i <= i1; ++i) grid_[std::size_t(j * grid_dims_.x() + i)].push_back(std::int32_t(t));
     }
 }
 
-int PatchModel::triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) const {
+bool PatchModel::surface_moved() const {
+    // A surface vertex moves by Σ w_k Δx_k: at most max_k |Δx_k| times the largest Σ |w_k|.
+    if (grid_slot_x_.size() != slot_x_.size()) return true;
+    double drift2 = 0;
+    for (std::size_t k = 0; k < slot_x_.size(); ++k) drift2 = std::max(drift2, (slot_x_[k] - grid_slot_x_[k]).squaredNorm());
+    const double limit = 0.5 * grid_margin / largest_weight_sum_;
+    return drift2 > limit * limit;
+}
+
+int PatchModel::triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) {
     if (grid_.empty()) return -1;
     const int i = int(std::floor((p.dot(frame_.col(0)) - grid_origin_.x()) / grid_cell_));
     const int j = int(std::floor((p.dot(frame_.col(1)) - grid_origin_.y()) / grid_cell_));
     if (i < 0 || j < 0 || i >= grid_dims_.x() || j >= grid_dims_.y()) return -1;
     int best = -1;
     double best_depth = std::numeric_limits<double>::infinity();
+    const float u = float(p.dot(frame_.col(0))), v = float(p.dot(frame_.col(1))), along = float(p.dot(facing_));
     for (std::int32_t t : grid_[std::size_t(j * grid_dims_.x() + i)]) {
+        const auto& box = grid_box_[std::size_t(t)];
+        if (u < box[0] || v < box[1] || u > box[2] || v > box[3] || along < box[4] || along > box[5]) continue;
         const Eigen::Vector3d& normal = sn(std::size_t(t));
-        if (!(normal.dot(facing_) < -0.3)) continue;
         const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
         const Eigen::Vector3d& pa = sx(std::size_t(a));
         const double d = (p - pa).dot(normal);
         if (d < -2.0 || d > 3.0 + spec_.thickness_mm) continue;  // another layer of the tissue
+        if (!(normal.dot(facing_) < -0.3)) continue;
         const Eigen::Vector3d w = barycentric(p, pa, sx(std::size_t(b)), sx(std::size_t(c)));
         if (w.minCoeff() < -1e-9) continue;
         if (std::abs(d) < std::abs(best_depth)) best = int(t), best_depth = d, bary = w;
@@ -534,7 +555,11 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
     asleep_positions_ = positions;
     clear_loads();
     contact_force_.setZero();
-    deform_lazily(positions);  // the surface where the patch touches it, as it is read
+    begin_surface(positions);  // each surface vertex and normal computed as the step first reads it
+    if (surface_moved()) {     // the grid rebuilt where every triangle now lies and faces
+        deform_surface(positions);
+        build_surface_grid();
+    }
     const std::size_t n = x_.size();
     const double dt2 = dt_ms * dt_ms;
     const double keep = std::max(0.0, 1.0 - spec_.damping_per_ms * dt_ms);
@@ -637,8 +662,8 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
         for (std::size_t i = 0; i < n; ++i) {
             const int t = under[i];
             if (t < 0) continue;
-            const Eigen::Vector3d& normal = sn(std::size_t(t));
-            const double depth = (x_[i] - sx(std::size_t(surface_.triangles[std::size_t(t)][0]))).dot(normal) - surface_offset[i];
+            const Eigen::Vector3d& normal = surface_normal_[std::size_t(t)];
+            const double depth = (x_[i] - surface_x_[std::size_t(surface_.triangles[std::size_t(t)][0])]).dot(normal) - surface_offset[i];
             if (!(depth < half)) continue;
             // Two bodies again: the patch moves its share, the tissue under it (predicted) the rest.
             const double share = inverse_mass_[i] / (inverse_mass_[i] + under_inverse_mass[i]);

@@ -156,21 +156,26 @@ private:
     /// Whether the patch and the tissue it touches are at rest (step() then changes nothing).
     bool at_rest(const ParticlePositions& positions, double time_ms) const;
     void refresh_particles();
-    void deform_surface(const ParticlePositions& positions);   ///< every surface vertex and normal now
-    void deform_lazily(const ParticlePositions& positions);    ///< each as sx() and sn() first need it
-    const Eigen::Vector3d& sx(std::size_t vertex) const;       ///< a surface vertex now
-    const Eigen::Vector3d& sn(std::size_t triangle) const;     ///< a surface triangle's unit normal now
+    /// The surface at `positions`: begin_surface() and then sx() and sn() compute each vertex and
+    /// normal as first read; deform_surface() computes them all.
+    void begin_surface(const ParticlePositions& positions);
+    void deform_surface(const ParticlePositions& positions);
+    const Eigen::Vector3d& sx(std::size_t vertex);  ///< a surface vertex now
+    const Eigen::Vector3d& sn(std::size_t triangle);  ///< a surface triangle's unit normal now
     /// Nearest point of the deformed surface to p: triangle and barycentric weights; false if none
     /// within `reach`.
     bool nearest_on_surface(const Eigen::Vector3d& p, double reach, int& triangle, Eigen::Vector3d& bary) const;
     void build_surface_grid();
+    /// Whether a surface vertex may have moved by more than half grid_margin since the grid was
+    /// built (bounded through its carriers).
+    bool surface_moved() const;
     /// A carried point's generalised inverse mass Σ w_k²/(S·m_k): how far the tissue there yields
     /// to an impulse.
     double inverse_mass_of(const CarriedPoint& point) const;
     double vertex_inverse_mass(std::size_t surface_vertex) const;
     /// The facing surface triangle under p (its projection inside, p within [−2, 3 + thickness] mm
     /// in front of it), the nearest such; −1 when none. `bary`: where, `depth`: how far in front.
-    int triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) const;
+    int triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth);
     CarriedPoint carried_at(int triangle, const Eigen::Vector3d& bary) const;
     void add_load(const CarriedPoint& point, const Eigen::Vector3d& force);
     void add_load(std::size_t slot, const Eigen::Vector3d& force);
@@ -184,7 +189,11 @@ private:
     mutable std::vector<double> surface_inverse_mass_;  ///< per surface vertex, at S = 1
     ContactSurface surface_;
     std::vector<std::int32_t> particles_;
-    std::vector<int> slot_of_surface_;  ///< per (vertex, carrier) flattened: the slot in particles_
+    std::vector<int> slot_of_surface_;     ///< per (vertex, carrier) flattened: the slot in particles_
+    std::vector<double> surface_weight_;   ///< per (vertex, carrier) flattened: its weight
+    std::vector<std::size_t> vertex_first_;  ///< per surface vertex (and one past the last): its first entry in those
+    std::vector<Eigen::Vector3d> surface_base_;  ///< per surface vertex: rest − Σ w_k X_k
+    double largest_weight_sum_ = 1.0;            ///< the largest Σ |w_k| of a surface vertex
     // The patch: positions, previous positions, velocities, inverse masses; material coordinates.
     std::vector<Eigen::Vector3d> x_, v_, laid_;
     std::vector<double> inverse_mass_, area_;
@@ -196,14 +205,17 @@ private:
     std::vector<Stitch> stitches_;
     bool held_ = true;                 ///< laid and not yet sewn
     // The deformed surface, per step.
-    mutable std::vector<Eigen::Vector3d> surface_x_;
-    mutable std::vector<Eigen::Vector3d> surface_normal_;  ///< per triangle, unit
-    mutable std::vector<std::uint64_t> x_stamp_, normal_stamp_;  ///< the step each was computed for
-    std::vector<std::size_t> vertex_first_;  ///< per surface vertex: its first carrier's entry in slot_of_surface_
+    std::vector<Eigen::Vector3d> slot_x_;          ///< the positions of particles_, in double
+    std::vector<Eigen::Vector3d> surface_x_;
+    std::vector<Eigen::Vector3d> surface_normal_;  ///< per triangle, unit
+    std::vector<std::uint64_t> x_stamp_, normal_stamp_;  ///< the surface each was computed for
     std::uint64_t stamp_ = 0;
-    const ParticlePositions* lazy_positions_ = nullptr;  ///< during step(): the positions sx() reads
+    static constexpr double grid_margin = 0.75;     ///< mm
+    std::vector<Eigen::Vector2d> grid_built_;      ///< per surface vertex: where it was in the patch's plane when the grid was built
+    std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles then
+    std::vector<std::array<float, 6>> grid_box_;   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
     Eigen::Vector3d grid_origin_ = Eigen::Vector3d::Zero();
-    double grid_cell_ = 2.0;
+    double grid_cell_ = 1.0;
     Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Zero();
     std::vector<std::vector<std::int32_t>> grid_;
     Eigen::Vector3d facing_ = Eigen::Vector3d::UnitZ();  ///< the laid patch's +z (toward the tissue)

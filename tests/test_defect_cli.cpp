@@ -59,7 +59,9 @@ void check_automatic_defect(const MmwhsCase& c, const std::string& type, const s
     const double voxel_mm3 = before.geometry.voxel_volume();
     EXPECT_GT(double(changed) * voxel_mm3, std::numbers::pi * 25.0 * 1.0);
     EXPECT_LT(double(changed) * voxel_mm3, std::numbers::pi * 36.0 * 20.0);
-    if (type == "vsd") EXPECT_FALSE(pools_connect(before, a, b));
+    if (type == "vsd") {
+        EXPECT_FALSE(pools_connect(before, a, b));
+    }
     EXPECT_TRUE(pools_connect(after, a, b));
 }
 
