@@ -242,16 +242,25 @@ int main(int argc, char** argv) {
         ->check(cli_messages::output_extension({".csv"}, "the trajectory is a CSV file"));
     repair_command->add_option("--side", repair.side,
                                "Which side of the septum the patch goes on: right (the right ventricle's for a vsd, the right "
-                               "atrium's for an asd, as a surgeon closes them through the right heart), left, or a / b (the pool at "
-                               "the tail / head of the stored defect axis). A scenario does not say which pool is which: the right "
-                               "side is the one whose outward direction points more to the patient's right and anterior")
-        ->check(CLI::IsMember({"right", "left", "a", "b"}))
+                               "atrium's for an asd, as a surgeon closes them through the right heart), left, a / b (the pool at "
+                               "the tail / head of the stored defect axis), or auto: the right, unless its rim is rough (its stitch "
+                               "sites farther than --rough-rim off the plane through them: recesses among the trabeculations that a "
+                               "flat patch spans without sealing) and the left's is not. A scenario does not say which pool is which: "
+                               "the right side is the one whose outward direction points more to the patient's right and anterior")
+        ->check(CLI::IsMember({"auto", "right", "left", "a", "b"}))
+        ->capture_default_str();
+    repair_command->add_option("--rough-rim", repair.options.rough_rim_mm,
+                               "With --side auto: how far off the plane through them the right side's stitch sites may lie before "
+                               "the patch goes on the left, mm")
+        ->type_name("MM")
+        ->check(CLI::PositiveNumber)
         ->capture_default_str();
     repair_command->add_option("--stitches", repair.options.stitches,
-                               "How many stitches, evenly spaced round the rim (at least 3; surgeons place 10 to 16 round a VSD's patch)")
+                               "How many stitches, evenly spaced round the rim (at least 3; surgeons place 10 to 16 round a VSD's patch). "
+                               "Default: one every 3 mm along the stitches' circle, at least 8 (15 round a 10 mm defect with the 2 mm "
+                               "rim): under pressure a patch lifts off the rim between stitches farther apart")
         ->type_name("N")
-        ->check(CLI::Range(3, 360))
-        ->capture_default_str();
+        ->check(CLI::Range(3, 360));
     repair_command->add_option("--rim", repair.options.rim_mm,
                                "How far beyond the opening's edge the stitches bite, mm: they lie on the circle of radius D/2 + rim "
                                "round the defect's axis (D its diameter)")

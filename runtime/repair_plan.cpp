@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <limits>
 #include <numbers>
+#include <optional>
 
 namespace heartsim {
 namespace {
@@ -115,15 +116,17 @@ std::string thousands(std::size_t value) {
 }  // namespace
 
 RepairSide parse_repair_side(const std::string& name) {
+    if (name == "auto") return RepairSide::automatic;
     if (name == "right") return RepairSide::right;
     if (name == "left") return RepairSide::left;
     if (name == "a") return RepairSide::a;
     if (name == "b") return RepairSide::b;
-    throw UsageError("--side '" + name + "': expected right, left, a (the axis's tail) or b (its head)");
+    throw UsageError("--side '" + name + "': expected auto, right, left, a (the axis's tail) or b (its head)");
 }
 
 const char* to_string(RepairSide side) {
     switch (side) {
+        case RepairSide::automatic: return "auto";
         case RepairSide::right: return "right";
         case RepairSide::left: return "left";
         case RepairSide::a: return "a";
@@ -132,8 +135,55 @@ const char* to_string(RepairSide side) {
     return "right";
 }
 
+namespace {
+/// The plan on one side (right, left, a or b).
+RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o);
+}  // namespace
+
 RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
-    if (o.stitches < 3) throw OptionError("--stitches " + std::to_string(o.stitches) + ": a patch needs at least 3 stitches");
+    if (o.side != RepairSide::automatic) return plan_repair_on(scenario, o);
+    // Both sides planned; the right kept unless its rim is rough and the left's is not.
+    RepairPlanOptions right = o, left = o;
+    right.side = RepairSide::right, left.side = RepairSide::left;
+    std::optional<RepairPlan> on_right, on_left;
+    std::string right_error;
+    try {
+        on_right = plan_repair_on(scenario, right);
+    } catch (const InputError& e) {
+        right_error = e.what();
+    }
+    try {
+        on_left = plan_repair_on(scenario, left);
+    } catch (const InputError&) {
+    }
+    if (!on_right && !on_left) return plan_repair_on(scenario, right);  // throws the right side's error again
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    const double r = on_right ? on_right->fit_residual_mm : nan, l = on_left ? on_left->fit_residual_mm : nan;
+    const bool rough = on_right && r > o.rough_rim_mm;
+    const bool use_left = !on_right || (rough && on_left && l <= o.rough_rim_mm);
+    RepairPlan plan = use_left ? std::move(*on_left) : std::move(*on_right);
+    plan.side = RepairSide::automatic;
+    plan.right_residual_mm = r, plan.left_residual_mm = l;
+    const char* chamber = chamber_of(plan.defect);
+    if (!on_right)
+        plan.side_reason = std::string("the right side has no wall round the opening for the stitches (") + right_error + ")";
+    else if (use_left)
+        plan.side_reason = std::string("the right ") + chamber + "'s rim is rough here (its stitch sites up to " + number_text(r, 1) +
+                           " mm off the plane through them, more than --rough-rim " + number_text(o.rough_rim_mm, 1) +
+                           " mm: recesses between the stitches that a flat patch spans without sealing), the left's within " +
+                           number_text(l, 1) + " mm: closed from the left, as surgeons close a muscular defect the right side's "
+                           "trabeculations crowd";
+    else
+        plan.side_reason = std::string("its stitch sites within ") + number_text(r, 1) + " mm of the plane through them (--rough-rim " +
+                           number_text(o.rough_rim_mm, 1) + " mm" + (on_left ? "; the left's within " + number_text(l, 1) + " mm" : std::string()) + ")";
+    return plan;
+}
+
+namespace {
+
+RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) {
+    if (o.stitches != 0 && o.stitches < 3) throw OptionError("--stitches " + std::to_string(o.stitches) + ": a patch needs at least 3 stitches");
+    if (!(o.stitch_spacing_mm > 0)) throw OptionError("the stitches' spacing must be above 0 mm");
     if (!(o.rim_mm > 0)) throw OptionError("--rim " + number_text(o.rim_mm, 2) + ": expected a distance above 0 mm beyond the opening's edge");
     if (!(o.thickness_mm > 0)) throw OptionError("--thickness " + number_text(o.thickness_mm, 2) + ": expected a thickness above 0 mm");
     if (o.patch_diameter_mm < 0) throw OptionError("--patch-diameter " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
@@ -158,6 +208,7 @@ RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
     plan.right_anterior_b = axis.dot(right_anterior);
     const bool b_is_right = plan.right_anterior_b > plan.right_anterior_a;
     switch (o.side) {
+        case RepairSide::automatic:
         case RepairSide::right: plan.on_b = b_is_right; break;
         case RepairSide::left: plan.on_b = !b_is_right; break;
         case RepairSide::a: plan.on_b = false; break;
@@ -183,7 +234,8 @@ RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
     const Eigen::Vector3d second = outward.cross(first);
 
     // The tissue along each stitch's line, heights from the centre's plane along outward.
-    const int n = o.stitches;
+    const int n = o.stitches > 0 ? o.stitches
+                                 : std::max(8, int(std::ceil(2.0 * std::numbers::pi * plan.stitch_radius_mm / o.stitch_spacing_mm - 1e-9)));
     const std::size_t count = std::size_t(n);
     std::vector<Eigen::Vector3d> points(count);
     std::vector<std::vector<Stretch>> along(count);
@@ -300,6 +352,8 @@ RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
     return plan;
 }
 
+}  // namespace
+
 void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path, const std::string& scenario_name) {
     std::FILE* f = std::fopen(path.c_str(), "w");
     if (!f) throw OutputError("cannot write " + path.string());
@@ -340,6 +394,14 @@ int plan_repair_command(const PlanRepairArguments& a) {
     const char* other_side = plan.on_b ? "side a" : "side b";
     std::string why;
     switch (options.side) {
+        case RepairSide::automatic:
+            why = std::string(side_name) + " (auto, the default): " + which + ", whose outward direction " + point_text(plan.outward, 2) +
+                  " points " + (plan.on_right ? "more" : "less") + " to the patient's right and anterior (" + number_text(mine, 2) +
+                  " against " + number_text(other, 2) + " for " + other_side + "): the " + side_name + " " + chamber + "'s side" +
+                  (plan.on_right ? std::string(", from which a surgeon closes ") + (plan.defect == "asd" ? "an " : "a ") + defect_words(plan.defect)
+                                 : std::string()) +
+                  "; " + plan.side_reason;
+            break;
         case RepairSide::right:
             why = std::string("right (the default): ") + which + ", whose outward direction " + point_text(plan.outward, 2) +
                   " points more to the patient's right and anterior (" + number_text(mine, 2) + " against " + number_text(other, 2) + " for " +

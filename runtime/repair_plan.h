@@ -13,7 +13,9 @@
 ///   which, so the right side is the one whose outward direction (−axis for side a, +axis for side
 ///   b) has the larger dot product with the patient's right-anterior direction (−1, −1, 0)/√2.
 ///   `outward` below is that side's direction.
-/// * **stitch sites**: `stitches` points evenly spaced on the circle of radius D/2 + `rim_mm`
+/// * **stitch sites**: `stitches` points (by default one every `stitch_spacing_mm`, 3 mm, along
+///   that circle: under pressure a patch lifts off the rim between stitches farther apart) evenly
+///   spaced on the circle of radius D/2 + `rim_mm`
 ///   around the axis, in the plane through the centre across it; stitch 1 at the circle's most
 ///   superior point (most anterior where the axis is within 25° of superior-inferior), the others
 ///   following counter-clockwise as seen from the chosen side. Each site is where the line through
@@ -56,16 +58,25 @@
 namespace heartsim {
 
 /// Which side of the septum the patch goes on: the right or left heart's (by the right-anterior
-/// rule above), or the pool at the axis's tail (a) or head (b).
-enum class RepairSide { right, left, a, b };
+/// rule above), or the pool at the axis's tail (a) or head (b); automatic: the right, unless its
+/// rim is too rough for a patch to lie on and the left's is not (RepairPlanOptions::rough_rim_mm).
+enum class RepairSide { automatic, right, left, a, b };
 
-/// "right", "left", "a" or "b"; UsageError naming --side otherwise.
+/// "auto", "right", "left", "a" or "b"; UsageError naming --side otherwise.
 RepairSide parse_repair_side(const std::string& name);
 const char* to_string(RepairSide side);
 
 struct RepairPlanOptions {
-    RepairSide side = RepairSide::right;
-    int stitches = 12;                ///< how many stitches around the rim, at least 3 (a surgeon's 10 to 16)
+    RepairSide side = RepairSide::automatic;
+    /// The automatic side leaves the right for the left where the right's stitch sites lie
+    /// farther than this from the plane fitted to them and the left's do not: a rim among the right
+    /// ventricle's trabeculations, with recesses between its stitches deeper than a flat patch
+    /// follows (surgeons close such muscular defects from the left, whose septal face is smooth).
+    double rough_rim_mm = 3.0;
+    /// How many stitches around the rim, at least 3; 0: one every `stitch_spacing_mm` along the
+    /// stitches' circle, at least 8 (15 round a 10 mm defect with a 2 mm rim; a surgeon's 10 to 16).
+    int stitches = 0;
+    double stitch_spacing_mm = 3.0;
     double rim_mm = 2.0;              ///< the stitches' distance beyond the opening's edge (radius D/2 + rim), mm
     double patch_diameter_mm = 0.0;   ///< 0: D + 2·(rim_mm + 2 mm), 2 mm beyond the stitches; else larger than D + 2·rim_mm
     double thickness_mm = 0.5;        ///< the patch's thickness, mm
@@ -94,6 +105,10 @@ struct RepairPlan {
     Eigen::Vector3d defect_centre = Eigen::Vector3d::Zero();
     Eigen::Vector3d defect_axis = Eigen::Vector3d::UnitZ();
     RepairSide side = RepairSide::right;                    ///< as asked
+    /// With the automatic side: the right side's fit residual and the left's (NaN where that side
+    /// has no wall round the opening), and why the side was chosen.
+    double right_residual_mm = 0.0, left_residual_mm = 0.0;
+    std::string side_reason;
     bool on_b = false;                                      ///< the patch is on side b (outward = +axis), else on side a (−axis)
     bool on_right = false;                                  ///< that side is the right-anterior one
     Eigen::Vector3d outward = Eigen::Vector3d::UnitZ();     ///< unit, from the septum into the chosen side's pool
@@ -131,7 +146,7 @@ void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path,
 /// prints what it planned and how to play it. 0.
 struct PlanRepairArguments {
     std::string scenario, output;
-    std::string side = "right";
+    std::string side = "auto";
     RepairPlanOptions options;
 };
 int plan_repair_command(const PlanRepairArguments& arguments);

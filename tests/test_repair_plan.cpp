@@ -212,8 +212,11 @@ TEST(RepairPlan, TheCsvHoldsOnePatchLayAndANeedlePressPerStitch) {
 
 // Every real heart present, a 10 mm VSD built into it by heartprep (at a septum point on the
 // HVSMR hearts, which label both ventricles' blood alike; found on the MM-WHS hearts): plan-repair
-// finds all its stitch sites, each on the right ventricle's side of mid-wall, on the boundary
-// between the myocardium and the right ventricle's blood of the label map.
+// finds all its stitch sites (by default one every 3 mm round the rim; eight, 45° apart, for the
+// label map's check, which a site on a trabecula or at the septum's crest would fail), each on the
+// chosen side of mid-wall, on the boundary between the myocardium and that side's blood in the
+// label map. The side is the right ventricle's unless its sites lie more than 3 mm off their plane
+// and the left's do not, and the plan says which and why.
 TEST(RepairPlan, EveryRealHeartWithAVsdGetsAllItsStitches) {
     const std::vector<test::RealCase> real = test::real_cases();
     if (real.empty()) GTEST_SKIP() << "real data absent (../shared/data/real): nothing to plan on";
@@ -234,17 +237,27 @@ TEST(RepairPlan, EveryRealHeartWithAVsdGetsAllItsStitches) {
         const auto build = test::heartprep("build " + quoted(c.label_map) + " -o " + quoted(scenario) + " --defect vsd" + at +
                                            " --particles 3000 -q" + c.label_options);
         ASSERT_EQ(build.exit_code, 0) << build.output;
-        // Eight sites, 45° apart (with twelve, pat0's 240° site lies in a recess 3.3 mm past mid-wall:
-        // docs/benchmarks.md "Closing a defect").
         const auto r = heartsim_command("plan-repair " + quoted(scenario) + " -o " + quoted(csv) + " --stitches=8");
         ASSERT_EQ(r.exit_code, 0) << r.output;
-        EXPECT_NE(r.output.find("the right ventricle's side"), std::string::npos) << r.output;
+        const Scenario read = read_scenario(scenario);
+        const RepairPlan by_default = plan_repair(read);
+        EXPECT_EQ(by_default.stitches.size(), std::size_t(std::ceil(2.0 * std::numbers::pi * by_default.stitch_radius_mm / 3.0)));
         const std::size_t stitches = 8;
-        const RepairPlan plan = plan_repair(read_scenario(scenario), {.stitches = int(stitches)});
+        const RepairPlan plan = plan_repair(read, {.stitches = int(stitches)});
+        const RepairPlan right = plan_repair(read, {.side = RepairSide::right, .stitches = int(stitches)});
+        const RepairPlan left = plan_repair(read, {.side = RepairSide::left, .stitches = int(stitches)});
+        // The automatic side, by its rule, from the two sides' own plans.
+        const bool rough = right.fit_residual_mm > 3.0 && left.fit_residual_mm <= 3.0;
+        EXPECT_EQ(plan.on_right, !rough) << r.output;
+        EXPECT_TRUE(plan.outward.isApprox((rough ? left : right).outward, 1e-12));
+        EXPECT_NE(r.output.find(rough ? "the left ventricle's side" : "the right ventricle's side"), std::string::npos) << r.output;
+        if (rough) {
+            EXPECT_NE(r.output.find("closed from the left"), std::string::npos) << r.output;
+        }
         ASSERT_EQ(plan.stitches.size(), stitches);
         for (const RepairStitch& s : plan.stitches) EXPECT_GT((s.site - plan.defect_centre).dot(plan.outward), 0.0) << r.output;
         // Against the label map (the opening, 5 mm round the axis, leaves the label at 7 mm as it
-        // was): 2 mm outward of each site lies the right ventricle's blood (the blood pool where the
+        // was): 2 mm outward of each site lies the chosen side's blood (the blood pool where the
         // chambers are not labelled apart), 1 mm inward the myocardium.
         const std::string convention_name = c.label_options.empty() ? "hvsmr2016" : c.label_options.substr(c.label_options.rfind(' ') + 1);
         const LabelConvention& convention = *find_label_convention(convention_name);
@@ -255,11 +268,12 @@ TEST(RepairPlan, EveryRealHeartWithAVsdGetsAllItsStitches) {
             const int i = int(std::lround(v.x())), j = int(std::lround(v.y())), k = int(std::lround(v.z()));
             return labels.geometry.contains(i, j, k) ? labels.labels[labels.geometry.linear(i, j, k)] : -1;
         };
-        const std::vector<int> right_blood = convention.right_ventricle != 0 ? std::vector<int>{convention.right_ventricle} : convention.blood;
+        const int chamber = rough ? convention.left_ventricle : convention.right_ventricle;
+        const std::vector<int> side_blood = chamber != 0 ? std::vector<int>{chamber} : convention.blood;
         for (std::size_t k = 0; k < plan.stitches.size(); ++k) {
             const Eigen::Vector3d& site = plan.stitches[k].site;
             const int outside = label_at(site + 2.0 * plan.outward), inside = label_at(site - 1.0 * plan.outward);
-            EXPECT_NE(std::find(right_blood.begin(), right_blood.end(), outside), right_blood.end()) << "stitch " << k + 1 << ": " << outside;
+            EXPECT_NE(std::find(side_blood.begin(), side_blood.end(), outside), side_blood.end()) << "stitch " << k + 1 << ": " << outside;
             EXPECT_EQ(inside, convention.myocardium) << "stitch " << k + 1;
         }
         std::size_t presses = 0;
@@ -292,7 +306,9 @@ TEST(RepairPlan, ItsErrorsSayWhatIsWrong) {
     // Stitches 30 mm beyond the opening lie off the block's septum: the first stitch's line names it.
     r = heartsim_command("plan-repair " + quoted(built.with_defect) + out + " --rim=30");
     EXPECT_EQ(r.exit_code, 1) << r.output;
-    EXPECT_NE(r.output.find("stitch 1 of " + std::to_string(RepairPlanOptions{}.stitches)), std::string::npos) << r.output;
+    // One every 3 mm round the circle of radius D/2 + 30 mm.
+    const int stitches = int(std::ceil(2.0 * std::numbers::pi * (0.5 * BlockScenarios::diameter_mm + 30.0) / 3.0));
+    EXPECT_NE(r.output.find("stitch 1 of " + std::to_string(stitches)), std::string::npos) << r.output;
     EXPECT_NE(r.output.find("meets no wall"), std::string::npos) << r.output;
     // The command line: exit 2, the option named.
     for (const auto& [arguments, mentions] : std::vector<std::pair<std::string, std::string>>{
