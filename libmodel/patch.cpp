@@ -150,8 +150,19 @@ void PatchModel::build_mesh() {
 void PatchModel::begin_surface(const ParticlePositions& positions) {
     if (positions.size() != particles_.size())
         throw InputError("patch: " + std::to_string(positions.size()) + " positions given for " + std::to_string(particles_.size()) + " particles");
-    slot_x_.resize(positions.size());
-    for (std::size_t k = 0; k < positions.size(); ++k) slot_x_[k] = vec(positions[k]);
+    // How far the tissue has moved in all (the most any particle moved, summed over the calls).
+    if (slot_x_.size() != positions.size()) {
+        slot_x_.assign(positions.size(), Eigen::Vector3d::Zero());
+        std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
+        for (std::size_t k = 0; k < positions.size(); ++k) slot_x_[k] = vec(positions[k]);
+    }
+    double moved2 = 0.0;
+    for (std::size_t k = 0; k < positions.size(); ++k) {
+        const Eigen::Vector3d x = vec(positions[k]);
+        moved2 = std::max(moved2, (x - slot_x_[k]).squaredNorm());
+        slot_x_[k] = x;
+    }
+    tissue_travel_ += std::sqrt(moved2);
     surface_x_.resize(surface_.vertices.size());
     surface_normal_.resize(surface_.triangles.size());
     x_stamp_.resize(surface_.vertices.size(), 0);
@@ -202,6 +213,7 @@ void PatchModel::build_surface_grid() {
         box.extend(grid_built_[v]);
     }
     grid_slot_x_ = slot_x_;
+    std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
     if (box.isEmpty()) return;
     grid_origin_ = Eigen::Vector3d(box.min().x() - grid_margin, box.min().y() - grid_margin, 0);
     grid_dims_ = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096),
@@ -389,6 +401,7 @@ void PatchModel::lay(const InstrumentPose& pose, const ParticlePositions& positi
 
     // Masses, stretch and bending constraints from the laid shape.
     inverse_mass_.assign(n, 0.0);
+    alpha_dt_ = -1.0;
     std::vector<double> mass(n, 0.0);
     std::map<std::pair<int, int>, std::vector<int>> opposite;  // edge → the vertices opposite it
     for (const auto& t : triangles_) {
@@ -449,6 +462,7 @@ void PatchModel::lay(const InstrumentPose& pose, const ParticlePositions& positi
     }
     stitches_.clear();
     under_.assign(x_.size(), -1);
+    searched_travel_.assign(x_.size(), std::numeric_limits<double>::quiet_NaN());
     asleep_positions_.clear();
     held_ = true;
     contact_force_.setZero();
@@ -589,13 +603,20 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
     std::vector<double> anchor_inverse_mass(stitches_.size());
     std::vector<Eigen::Vector3d> anchor_offset(stitches_.size(), Eigen::Vector3d::Zero());
     for (std::size_t s = 0; s < stitches_.size(); ++s) anchor_inverse_mass[s] = inverse_mass_of(stitches_[s].anchor);
-    std::vector<double> lambda(distances_.size(), 0.0), alpha(distances_.size()), denominator(distances_.size());
-    for (std::size_t k = 0; k < distances_.size(); ++k) {  // α̃ = α/dt² and 1/(w_a + w_b + α̃), fixed within the step
-        const Distance& d = distances_[k];
-        alpha[k] = d.compliance / dt2;
-        const double sum = inverse_mass_[std::size_t(d.a)] + inverse_mass_[std::size_t(d.b)];
-        denominator[k] = sum == 0 ? 0.0 : 1.0 / (sum + alpha[k]);
+    std::vector<double> lambda(distances_.size(), 0.0);
+    if (alpha_dt_ != dt_ms || alpha_.size() != distances_.size()) {  // α̃ = α/dt² and 1/(w_a + w_b + α̃), for this step length
+        alpha_.resize(distances_.size());
+        denominator_.resize(distances_.size());
+        for (std::size_t k = 0; k < distances_.size(); ++k) {
+            const Distance& d = distances_[k];
+            alpha_[k] = d.compliance / dt2;
+            const double sum = inverse_mass_[std::size_t(d.a)] + inverse_mass_[std::size_t(d.b)];
+            denominator_[k] = sum == 0 ? 0.0 : 1.0 / (sum + alpha_[k]);
+        }
+        alpha_dt_ = dt_ms;
     }
+    const std::vector<double>& alpha = alpha_;
+    const std::vector<double>& denominator = denominator_;
     std::vector<Eigen::Vector3d> pushed(n, Eigen::Vector3d::Zero());  // the contact's displacement per vertex
     const double half = 0.5 * spec_.thickness_mm, friction = spec_.friction;
     std::vector<double> surface_offset(n, 0.0), under_inverse_mass(n, 0.0);  // the tissue's predicted yield under each vertex
@@ -603,21 +624,31 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
     std::vector<int>& under = under_;
     under.resize(n, -1);
     std::vector<Eigen::Vector3d> under_at(n, Eigen::Vector3d::Zero());
+    searched_at_.resize(n, Eigen::Vector3d::Zero());
+    searched_travel_.resize(n, std::numeric_limits<double>::quiet_NaN());
     for (std::size_t i = 0; i < n; ++i) {
         if (inverse_mass_[i] == 0) continue;
-        // The triangle under a vertex in the last step is most often still under it.
+        // What a vertex found under it last time stands while it still holds (the triangle still
+        // under it, within the search's depth range; or none, over the opening) and, unless the
+        // vertex touches that triangle, until it or the tissue has moved search_again_mm since it
+        // looked.
+        const bool still = (x_[i] - searched_at_[i]).norm() + (tissue_travel_ - searched_travel_[i]) < search_again_mm;
         if (const int t = under[i]; t >= 0) {
             const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
             const Eigen::Vector3d& pa = sx(std::size_t(a));
             const double d = (x_[i] - pa).dot(sn(std::size_t(t)));
             const Eigen::Vector3d w = barycentric(x_[i], pa, sx(std::size_t(b)), sx(std::size_t(c)));
-            if (w.minCoeff() >= 0 && std::abs(d) < 0.5 * spec_.thickness_mm + 0.5) {
+            if (w.minCoeff() >= 0 && (std::abs(d) < 0.5 * spec_.thickness_mm + 0.5 || (still && d >= -2.0 && d <= 3.0 + spec_.thickness_mm))) {
                 under_at[i] = w;
                 continue;
             }
+        } else if (still) {
+            continue;
         }
         double depth = 0;
         under[i] = triangle_under(x_[i], under_at[i], depth);
+        searched_at_[i] = x_[i];
+        searched_travel_[i] = tissue_travel_;
     }
     for (std::size_t i = 0; i < n; ++i) {
         if (under[i] < 0) continue;
@@ -689,15 +720,24 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
         stitches_[s].force_n = stitch_lambda[s] * stitch_direction[s] / dt2;
         add_load(stitches_[s].anchor, -stitches_[s].force_n);
     }
+    // The contact's forces on the surface vertices under the patch, then each vertex's on its carriers.
+    vertex_force_.resize(surface_.vertices.size(), Eigen::Vector3d::Zero());
+    loaded_vertices_.clear();
     for (std::size_t i = 0; i < n; ++i) {
         if (under[i] < 0 || inverse_mass_[i] == 0 || pushed[i].isZero()) continue;
         const Eigen::Vector3d force = pushed[i] / (inverse_mass_[i] * dt2);
         contact_force_ += force;
         for (int corner = 0; corner < 3; ++corner) {
-            const CarriedPoint& v = surface_.vertices[std::size_t(surface_.triangles[std::size_t(under[i])][corner])];
-            std::size_t flat = vertex_first_[std::size_t(surface_.triangles[std::size_t(under[i])][corner])];
-            for (const auto& [particle, weight] : v.carriers) add_load(std::size_t(slot_of_surface_[flat++]), -under_at[i][corner] * weight * force);
+            const std::size_t v = std::size_t(surface_.triangles[std::size_t(under[i])][corner]);
+            if (vertex_force_[v].isZero()) loaded_vertices_.push_back(std::int32_t(v));
+            vertex_force_[v] -= under_at[i][corner] * force;
         }
+    }
+    for (std::int32_t v : loaded_vertices_) {
+        const Eigen::Vector3d force = vertex_force_[std::size_t(v)];
+        vertex_force_[std::size_t(v)].setZero();
+        for (std::size_t k = vertex_first_[std::size_t(v)]; k < vertex_first_[std::size_t(v) + 1]; ++k)
+            add_load(std::size_t(slot_of_surface_[k]), surface_weight_[k] * force);
     }
 }
 
@@ -717,6 +757,7 @@ PatchModel PatchModel::under_pressure(const ParticlePositions& positions, double
     // A quasi-static test: the patch made a hundredfold heavier and overdamped, so the pressure
     // moves it by little per step and the constraints keep up (its mass changes nothing at rest).
     for (double& w : test.inverse_mass_) w *= 1e-2;
+    test.alpha_dt_ = -1.0;  // its compliance terms again, with those masses
     test.spec_.damping_per_ms = std::max(test.spec_.damping_per_ms, 1.0);
     test.spec_.iterations = std::max(test.spec_.iterations, 16);  // off the clock: converged
     test.tissue_inverse_mass_.clear();                             // the tissue held as it is

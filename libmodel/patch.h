@@ -201,7 +201,11 @@ private:
     std::vector<Eigen::Vector2d> material_;
     std::vector<std::array<std::int32_t, 3>> triangles_;
     struct Distance { int a, b; double rest, compliance; };
-    std::vector<Distance> distances_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
+    std::vector<Distance> distances_;
+    std::vector<double> alpha_, denominator_;  ///< per distance: α/dt² and 1/(w_a + w_b + α/dt²) for steps of alpha_dt_
+    double alpha_dt_ = -1.0;
+    std::vector<Eigen::Vector3d> vertex_force_;   ///< per surface vertex: the contact's force on it in step(), zero between
+    std::vector<std::int32_t> loaded_vertices_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
     std::vector<Stitch> stitches_;
     bool held_ = true;                 ///< laid and not yet sewn
     // The deformed surface, per step.
@@ -213,7 +217,11 @@ private:
     static constexpr double grid_margin = 0.75;     ///< mm
     std::vector<Eigen::Vector2d> grid_built_;      ///< per surface vertex: where it was in the patch's plane when the grid was built
     std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles then
-    std::vector<std::array<float, 6>> grid_box_;   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
+    std::vector<std::array<float, 6>> grid_box_;
+    static constexpr double search_again_mm = 0.05;
+    double tissue_travel_ = 0.0;                    ///< Σ over begin_surface() of the largest particle displacement, mm
+    std::vector<Eigen::Vector3d> searched_at_;      ///< per patch vertex: where it last looked for the surface under it
+    std::vector<double> searched_travel_;           ///< tissue_travel_ then (NaN: it must look again)   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
     Eigen::Vector3d grid_origin_ = Eigen::Vector3d::Zero();
     double grid_cell_ = 1.0;
     Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Zero();
