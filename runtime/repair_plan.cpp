@@ -168,14 +168,14 @@ RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
     if (!on_right)
         plan.side_reason = std::string("the right side has no wall round the opening for the stitches (") + right_error + ")";
     else if (use_left)
-        plan.side_reason = std::string("the right ") + chamber + "'s rim is rough here (its stitch sites up to " + number_text(r, 1) +
+        plan.side_reason = std::string("the right ") + chamber + "'s rim is rough here (its stitch sites up to " + number_text(r, 2) +
                            " mm off the plane through them, more than --rough-rim " + number_text(o.rough_rim_mm, 1) +
                            " mm: recesses between the stitches that a flat patch spans without sealing), the left's within " +
-                           number_text(l, 1) + " mm: closed from the left, as surgeons close a muscular defect the right side's "
+                           number_text(l, 2) + " mm: closed from the left, as surgeons close a muscular defect the right side's "
                            "trabeculations crowd";
     else
-        plan.side_reason = std::string("its stitch sites within ") + number_text(r, 1) + " mm of the plane through them (--rough-rim " +
-                           number_text(o.rough_rim_mm, 1) + " mm" + (on_left ? "; the left's within " + number_text(l, 1) + " mm" : std::string()) + ")";
+        plan.side_reason = std::string("its stitch sites within ") + number_text(r, 2) + " mm of the plane through them (--rough-rim " +
+                           number_text(o.rough_rim_mm, 1) + " mm" + (on_left ? "; the left's within " + number_text(l, 2) + " mm" : std::string()) + ")";
     return plan;
 }
 

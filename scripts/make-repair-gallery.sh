@@ -3,7 +3,8 @@
 # skipped with a message where absent) built by heartprep with a ventricular septal defect (MM-WHS
 # hearts with their label convention, heartprep placing the defect; the HVSMR hearts --at a point
 # of their septum, as scripts/make-defect-gallery.sh), the repair `heartsim plan-repair` plans on
-# it (a patch laid over the opening on the right ventricle's side, stitches round its rim)
+# it (a patch laid over the opening on the right ventricle's side, or the left where the right's
+# rim is too rough to seal, stitches round its rim)
 # played headless on the cpu backend for the --seconds the plan suggests, and drawn in the section
 # view across the defect (--clip defect --view section, 640x480): the whole section, and a close-up
 # 60 mm from the defect's centre (--look-at). Each run's closure check ("defect closed: …") goes
@@ -20,7 +21,7 @@ mkdir -p "$work" docs/gallery
 declare -A at=([pat0]=40.7,-14.4,-10.4 [pat1]=11.4,-25.6,5.2 [pat5]=26.8,-17.3,-4.9 [pat6]=26.9,-12.1,-20.0)
 # What each picture shows (looked at when the gallery was made; say again when the data or the rule changes).
 declare -A shows=(
-  [pat0]="the patch spans the opening on the septum's right-ventricular face, bowed into it, its lower end crumpled where several knots crowd; the check finds the rim open"
+  [pat0]="closed from the left (plan-repair's --side auto: the right side's rim lies among trabeculations): the patch lies flat across the opening's left-ventricular mouth, right of the septum here, knots along its edge; the cleft that joins the opening to the right ventricle (below it, left) stays on the patch's far side"
   [pat1]="the patch across the opening on the right-ventricular face, bowing a little into it, knots at both ends of the cut"
   [pat5]="the patch across the opening on the right-ventricular face, its lower part lying along the septum's surface, a knot at its lower end"
   [pat6]="a straight patch across the opening on the right-ventricular face, knots along it"
@@ -68,7 +69,8 @@ done
   echo "on the MM-WHS hearts heartprep places it, perimembranous; on the HVSMR hearts \`--at\` a point of"
   echo "the septum, as in [defects.md](defects.md)), the repair \`heartsim plan-repair\` plans on it"
   echo "(docs/runtime.md \"Closing a defect\"): a pericardium patch laid over the opening on the right"
-  echo "ventricle's side of the septum, then a needle tying stitches round its rim (as many as the plan"
+  echo "ventricle's side of the septum (the left ventricle's where the right's rim is too rough to seal),"
+  echo "then a needle tying stitches round its rim (as many as the plan"
   echo "makes by default), 2 mm beyond the opening's edge. Played by \`heartsim run --headless --backend"
   echo "cpu --trajectory\` for the \`--seconds\` the plan suggests and drawn in the section view across"
   echo "the defect (\`--clip defect --view section\`: the plane holds the defect's axis, the camera looks"
