@@ -402,6 +402,7 @@ void PatchModel::lay(const InstrumentPose& pose, const ParticlePositions& positi
     // Masses, stretch and bending constraints from the laid shape.
     inverse_mass_.assign(n, 0.0);
     alpha_dt_ = -1.0;
+    stepped_slot_x_.clear();
     std::vector<double> mass(n, 0.0);
     std::map<std::pair<int, int>, std::vector<int>> opposite;  // edge → the vertices opposite it
     for (const auto& t : triangles_) {
@@ -657,6 +658,22 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
             w += under_at[i][corner] * under_at[i][corner] * vertex_inverse_mass(std::size_t(surface_.triangles[std::size_t(under[i])][corner]));
         under_inverse_mass[i] = w;
     }
+    // How far the tissue under each vertex moved since the patch last stepped: friction holds the
+    // patch against its slip on the tissue, not against its motion in space.
+    std::vector<Eigen::Vector3d> carried(n, Eigen::Vector3d::Zero());
+    if (stepped_slot_x_.size() == slot_x_.size()) {
+        for (std::size_t i = 0; i < n; ++i) {
+            if (under[i] < 0) continue;
+            for (int corner = 0; corner < 3; ++corner) {
+                const std::size_t v = std::size_t(surface_.triangles[std::size_t(under[i])][corner]);
+                for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) {
+                    const std::size_t slot = std::size_t(slot_of_surface_[k]);
+                    carried[i] += under_at[i][corner] * surface_weight_[k] * (slot_x_[slot] - stepped_slot_x_[slot]);
+                }
+            }
+        }
+    }
+    stepped_slot_x_ = slot_x_;
     for (int iteration = 0; iteration < spec_.iterations; ++iteration) {
         for (std::size_t s = 0; s < stitches_.size(); ++s) {
             // Two bodies: the patch vertex and the tissue point, which yields by its carriers' inverse
@@ -703,8 +720,8 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
             x_[i] += push;
             pushed[i] += push;
             // Friction (Coulomb, as position-based dynamics takes it): the slip along the surface in
-            // this step is undone up to μ times the push.
-            Eigen::Vector3d slip = x_[i] - previous[i];
+            // this step, relative to the tissue under it, is undone up to μ times the push.
+            Eigen::Vector3d slip = x_[i] - previous[i] - carried[i];
             slip -= slip.dot(normal) * normal;
             const double length = slip.norm(), hold = friction * (half - depth);
             const Eigen::Vector3d undo = length <= hold ? slip : Eigen::Vector3d(slip * (hold / length));
@@ -769,6 +786,7 @@ PatchModel PatchModel::under_pressure(const ParticlePositions& positions, double
 void PatchModel::recover(const ParticlePositions& positions, double time_ms) {
     if (!laid()) return;
     for (auto& v : v_) v.setZero();
+    stepped_slot_x_.clear();  // the tissue's jump back carries nothing
     clear_loads();
     contact_force_.setZero();
     asleep_positions_.clear();

@@ -210,6 +210,7 @@ private:
     bool held_ = true;                 ///< laid and not yet sewn
     // The deformed surface, per step.
     std::vector<Eigen::Vector3d> slot_x_;          ///< the positions of particles_, in double
+    std::vector<Eigen::Vector3d> stepped_slot_x_;  ///< those the last step() held the tissue at
     std::vector<Eigen::Vector3d> surface_x_;
     std::vector<Eigen::Vector3d> surface_normal_;  ///< per triangle, unit
     std::vector<std::uint64_t> x_stamp_, normal_stamp_;  ///< the surface each was computed for

@@ -243,15 +243,15 @@ int main(int argc, char** argv) {
     repair_command->add_option("--side", repair.side,
                                "Which side of the septum the patch goes on: right (the right ventricle's for a vsd, the right "
                                "atrium's for an asd, as a surgeon closes them through the right heart), left, a / b (the pool at "
-                               "the tail / head of the stored defect axis), or auto: the right, unless its rim is rough (its stitch "
-                               "sites farther than --rough-rim off the plane through them: recesses among the trabeculations that a "
-                               "flat patch spans without sealing) and the left's is not. A scenario does not say which pool is which: "
+                               "the tail / head of the stored defect axis), or auto: the right, unless its rim is rough (where 36 "
+                               "lines along the axis round the stitches' circle enter it, farther than --rough-rim off a plane: "
+                               "recesses among the trabeculations that a flat patch spans without sealing) and the left's is not. A scenario does not say which pool is which: "
                                "the right side is the one whose outward direction points more to the patient's right and anterior")
         ->check(CLI::IsMember({"auto", "right", "left", "a", "b"}))
         ->capture_default_str();
     repair_command->add_option("--rough-rim", repair.options.rough_rim_mm,
-                               "With --side auto: how far off the plane through them the right side's stitch sites may lie before "
-                               "the patch goes on the left, mm")
+                               "With --side auto: how far off a plane the right side's rim may lie before the patch goes on the "
+                               "left, mm (the real hearts' right rims that a patch seals lie within 3.5 mm, one it does not 6.1 mm)")
         ->type_name("MM")
         ->check(CLI::PositiveNumber)
         ->capture_default_str();

@@ -136,46 +136,51 @@ const char* to_string(RepairSide side) {
 }
 
 namespace {
+/// How many lines sample a rim's roughness for the automatic side: one every 10°.
+constexpr int rough_rim_lines = 36;
 /// The plan on one side (right, left, a or b).
 RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o);
 }  // namespace
 
 RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
     if (o.side != RepairSide::automatic) return plan_repair_on(scenario, o);
-    // Both sides planned; the right kept unless its rim is rough and the left's is not.
-    RepairPlanOptions right = o, left = o;
-    right.side = RepairSide::right, left.side = RepairSide::left;
-    std::optional<RepairPlan> on_right, on_left;
-    std::string right_error;
-    try {
-        on_right = plan_repair_on(scenario, right);
-    } catch (const InputError& e) {
-        right_error = e.what();
-    }
-    try {
-        on_left = plan_repair_on(scenario, left);
-    } catch (const InputError&) {
-    }
-    if (!on_right && !on_left) return plan_repair_on(scenario, right);  // throws the right side's error again
+    // Each side's rim, sampled along rough_rim_lines lines round the stitches' circle whatever
+    // the stitches' count (sparse stitches could straddle a recess): the right kept unless its
+    // rim is rough and the left's is not.
     const double nan = std::numeric_limits<double>::quiet_NaN();
-    const double r = on_right ? on_right->fit_residual_mm : nan, l = on_left ? on_left->fit_residual_mm : nan;
-    const bool rough = on_right && r > o.rough_rim_mm;
-    const bool use_left = !on_right || (rough && on_left && l <= o.rough_rim_mm);
-    RepairPlan plan = use_left ? std::move(*on_left) : std::move(*on_right);
+    auto roughness = [&](RepairSide side, std::string* why) {
+        RepairPlanOptions probe = o;
+        probe.side = side, probe.stitches = rough_rim_lines;
+        try {
+            return plan_repair_on(scenario, probe).fit_residual_mm;
+        } catch (const InputError& e) {
+            if (why) *why = e.what();
+            return nan;
+        }
+    };
+    std::string right_gap;
+    const double r = roughness(RepairSide::right, &right_gap), l = roughness(RepairSide::left, nullptr);
+    const bool right_fits = r <= o.rough_rim_mm, left_fits = l <= o.rough_rim_mm;
+    const bool use_left = !right_fits && left_fits;
+    RepairPlanOptions chosen = o;
+    chosen.side = use_left ? RepairSide::left : RepairSide::right;
+    RepairPlan plan = plan_repair_on(scenario, chosen);  // throws for a side with no wall round the opening
     plan.side = RepairSide::automatic;
     plan.right_residual_mm = r, plan.left_residual_mm = l;
     const char* chamber = chamber_of(plan.defect);
-    if (!on_right)
-        plan.side_reason = std::string("the right side has no wall round the opening for the stitches (") + right_error + ")";
+    const std::string lines = std::to_string(rough_rim_lines) + " lines along the axis round the stitches' circle";
+    if (use_left && std::isnan(r))
+        plan.side_reason = std::string("the right ") + chamber + "'s rim has gaps (of " + lines + ", one meets no wall: " + right_gap +
+                           "), the left's lies within " + number_text(l, 2) + " mm of a plane: closed from the left";
     else if (use_left)
-        plan.side_reason = std::string("the right ") + chamber + "'s rim is rough here (its stitch sites up to " + number_text(r, 2) +
-                           " mm off the plane through them, more than --rough-rim " + number_text(o.rough_rim_mm, 1) +
-                           " mm: recesses between the stitches that a flat patch spans without sealing), the left's within " +
-                           number_text(l, 2) + " mm: closed from the left, as surgeons close a muscular defect the right side's "
-                           "trabeculations crowd";
+        plan.side_reason = std::string("the right ") + chamber + "'s rim is rough here (where " + lines + " enter it, up to " +
+                           number_text(r, 2) + " mm off the plane through those points, more than --rough-rim " + number_text(o.rough_rim_mm, 1) +
+                           " mm: recesses between stitches that a flat patch spans without sealing), the left's within " + number_text(l, 2) +
+                           " mm: closed from the left, as surgeons close a muscular defect the right side's trabeculations crowd";
     else
-        plan.side_reason = std::string("its stitch sites within ") + number_text(r, 2) + " mm of the plane through them (--rough-rim " +
-                           number_text(o.rough_rim_mm, 1) + " mm" + (on_left ? "; the left's within " + number_text(l, 2) + " mm" : std::string()) + ")";
+        plan.side_reason = std::string("its rim (where ") + lines + " enter it) within " + number_text(r, 2) +
+                           " mm of a plane (--rough-rim " + number_text(o.rough_rim_mm, 1) + " mm" +
+                           (std::isnan(l) ? std::string() : "; the left's within " + number_text(l, 2) + " mm") + ")";
     return plan;
 }
 

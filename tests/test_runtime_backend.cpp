@@ -282,8 +282,9 @@ TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
 }
 
 // The scalpel's force along the phantom's incision, step by step on both backends: each step the
-// same springs cut (the gl cut pass's counter, read back with the forces) and the same force (the
-// blade pass applies libmodel/cutting_force.h's double operations to that count), non-zero while
+// same springs cut (the gl cut pass's counter, read back with the forces) and the same force, to
+// the rounding of a fused multiply-add (the blade pass applies libmodel/cutting_force.h's double
+// operations to that count), non-zero while
 // the blade cuts, against its motion (+z), and zero from the step it is lifted.
 TEST(RuntimeBackend, GlFeelsTheSameBladeForceAsTheCpu) {
     REQUIRE_GL();
@@ -327,7 +328,11 @@ TEST(RuntimeBackend, GlFeelsTheSameBladeForceAsTheCpu) {
                 cut, largest, difference, sum / double(lifted / 2), low, high);
     EXPECT_EQ(cut, cpu->cut_springs().size());
     EXPECT_GT(largest, 0.05);
-    EXPECT_LE(difference, 1e-12 * largest);
+    // The same operations on both, but a GPU may fuse a multiply and an add (NVIDIA's does, Mesa's
+    // llvmpipe does not) and round once where the cpu rounds twice: on the blade's float pose and
+    // travel that leaves differences of float rounding, 1.9e-9 N on an H100; 1e-6 of the force
+    // bounds them and still fails any difference in what the two compute.
+    EXPECT_LE(difference, 1e-6 * largest);
 }
 
 // The scalpel's hand, lifted, and a second hand become retractors that grab the incision's edges
