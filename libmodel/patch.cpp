@@ -150,19 +150,24 @@ void PatchModel::build_mesh() {
 void PatchModel::begin_surface(const ParticlePositions& positions) {
     if (positions.size() != particles_.size())
         throw InputError("patch: " + std::to_string(positions.size()) + " positions given for " + std::to_string(particles_.size()) + " particles");
-    // How far the tissue has moved in all (the most any particle moved, summed over the calls).
+    // How the tissue moved since the last call: its particles' mean displacement, and the largest
+    // departure from it (tissue_shift_, tissue_travel_).
     if (slot_x_.size() != positions.size()) {
         slot_x_.assign(positions.size(), Eigen::Vector3d::Zero());
         std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
         for (std::size_t k = 0; k < positions.size(); ++k) slot_x_[k] = vec(positions[k]);
     }
-    double moved2 = 0.0;
+    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+    for (std::size_t k = 0; k < positions.size(); ++k) mean += vec(positions[k]) - slot_x_[k];
+    if (!positions.empty()) mean /= double(positions.size());
+    double departed2 = 0.0;
     for (std::size_t k = 0; k < positions.size(); ++k) {
         const Eigen::Vector3d x = vec(positions[k]);
-        moved2 = std::max(moved2, (x - slot_x_[k]).squaredNorm());
+        departed2 = std::max(departed2, (x - slot_x_[k] - mean).squaredNorm());
         slot_x_[k] = x;
     }
-    tissue_travel_ += std::sqrt(moved2);
+    tissue_shift_ += mean;
+    tissue_travel_ += largest_weight_sum_ * std::sqrt(departed2);
     surface_x_.resize(surface_.vertices.size());
     surface_normal_.resize(surface_.triangles.size());
     x_stamp_.resize(surface_.vertices.size(), 0);
@@ -626,14 +631,16 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
     under.resize(n, -1);
     std::vector<Eigen::Vector3d> under_at(n, Eigen::Vector3d::Zero());
     searched_at_.resize(n, Eigen::Vector3d::Zero());
+    searched_shift_.resize(n, Eigen::Vector3d::Zero());
     searched_travel_.resize(n, std::numeric_limits<double>::quiet_NaN());
     for (std::size_t i = 0; i < n; ++i) {
         if (inverse_mass_[i] == 0) continue;
         // What a vertex found under it last time stands while it still holds (the triangle still
         // under it, within the search's depth range; or none, over the opening) and, unless the
-        // vertex touches that triangle, until it or the tissue has moved search_again_mm since it
-        // looked.
-        const bool still = (x_[i] - searched_at_[i]).norm() + (tissue_travel_ - searched_travel_[i]) < search_again_mm;
+        // vertex touches that triangle, until it has moved against the tissue's shift, or the
+        // tissue deformed, by search_again() since it looked.
+        const bool still = (x_[i] - searched_at_[i] - (tissue_shift_ - searched_shift_[i])).norm() + (tissue_travel_ - searched_travel_[i]) <
+                           search_again();
         if (const int t = under[i]; t >= 0) {
             const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
             const Eigen::Vector3d& pa = sx(std::size_t(a));
@@ -649,6 +656,7 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
         double depth = 0;
         under[i] = triangle_under(x_[i], under_at[i], depth);
         searched_at_[i] = x_[i];
+        searched_shift_[i] = tissue_shift_;
         searched_travel_[i] = tissue_travel_;
     }
     for (std::size_t i = 0; i < n; ++i) {

@@ -218,11 +218,20 @@ private:
     static constexpr double grid_margin = 0.75;     ///< mm
     std::vector<Eigen::Vector2d> grid_built_;      ///< per surface vertex: where it was in the patch's plane when the grid was built
     std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles then
-    std::vector<std::array<float, 6>> grid_box_;
-    static constexpr double search_again_mm = 0.05;
-    double tissue_travel_ = 0.0;                    ///< Σ over begin_surface() of the largest particle displacement, mm
+    std::vector<std::array<float, 6>> grid_box_;   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
+    // Whether a patch vertex must look for the surface under it again (search_again()): the
+    // tissue's motion split into a shift (its particles' mean displacement, summed over the calls
+    // to begin_surface) and a deformation (the largest departure of a particle's displacement from
+    // that mean, summed).
+    /// How far a vertex moves on the tissue before it looks again: 0.4 of the patch's thickness,
+    /// less than the half thickness the contact keeps it off the surface, so a surface it reaches
+    /// unseen is found before the vertex passes it.
+    double search_again() const { return 0.4 * spec_.thickness_mm; }
+    Eigen::Vector3d tissue_shift_ = Eigen::Vector3d::Zero();
+    double tissue_travel_ = 0.0;
     std::vector<Eigen::Vector3d> searched_at_;      ///< per patch vertex: where it last looked for the surface under it
-    std::vector<double> searched_travel_;           ///< tissue_travel_ then (NaN: it must look again)   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
+    std::vector<Eigen::Vector3d> searched_shift_;   ///< tissue_shift_ then
+    std::vector<double> searched_travel_;           ///< tissue_travel_ then (NaN: it must look again)
     Eigen::Vector3d grid_origin_ = Eigen::Vector3d::Zero();
     double grid_cell_ = 1.0;
     Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Zero();
