@@ -3,7 +3,7 @@
 // of the synthetic two-chamber block, replayed bit for bit; a patch sewn onto a slab of tissue that
 // is then stretched, followed by its stitches, with Newton's third law between patch and tissue at
 // every step; and the same scripted repair on the cpu and gl backends.
-#include "defect_block.h"
+#include "defect_block_scenario.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -54,15 +54,7 @@ struct BlockRepair {
     std::array<fs::path, 2> script{dir / "patch_hand.csv", dir / "needle_hand.csv"};
     double end_ms = 0.0;
     BlockRepair() {
-        using namespace test::defect_block;
-        const Block block = make_block();
-        write_label_volume(dir / "block.nrrd", block.volume);
-        const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
-        char point[96];
-        std::snprintf(point, sizeof point, "%.4f,%.4f,%.4f", at.x(), at.y(), at.z());
-        const auto built = test::heartprep("build " + quoted(dir / "block.nrrd") + " --defect vsd --diameter 8 --at=" + point +
-                                           " --particles 3000 -q -o " + quoted(scenario));
-        if (built.exit_code != 0) throw std::runtime_error("heartprep build failed: " + built.output);
+        test::defect_block::build_block_scenario(test::defect_block::make_block(), dir / "block.nrrd", scenario, "vsd", 3000);
         const auto planned = heartsim_command("plan-repair " + quoted(scenario) + " -o " + quoted(plan) + " --stitches=4");
         if (planned.exit_code != 0) throw std::runtime_error("plan-repair failed: " + planned.output);
         const auto whole = heartsim_command("plan-repair " + quoted(scenario) + " -o " + quoted(closure) + " --stitches=8");

@@ -2,7 +2,7 @@
 // defect, checked against the synthetic two-chamber block (whose septum's faces are known planes),
 // the CSV read back as `heartsim run --trajectory` reads it, every real heart with a VSD built into
 // it, and the command's errors and help.
-#include "defect_block.h"
+#include "defect_block_scenario.h"
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "libmodel/label_conventions.h"
@@ -36,17 +36,9 @@ struct BlockScenarios {
     fs::path with_defect = dir / "vsd.h5", atrial = dir / "asd.h5", intact = dir / "intact.h5";
     static constexpr double diameter_mm = 8.0;
     BlockScenarios() {
-        const fs::path input = dir / "block.nrrd";
-        write_label_volume(input, block.volume);
-        const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
-        char point[96];
-        std::snprintf(point, sizeof point, "%.4f,%.4f,%.4f", at.x(), at.y(), at.z());
-        for (const auto& [output, defect] : {std::pair{with_defect, std::string(" --defect vsd --diameter 8 --at=") + point},
-                                             std::pair{atrial, std::string(" --defect asd --diameter 8 --at=") + point},
-                                             std::pair{intact, std::string()}}) {
-            const auto built = test::heartprep("build " + quoted(input) + defect + " --particles 4000 -q -o " + quoted(output));
-            if (built.exit_code != 0) throw std::runtime_error("heartprep build failed: " + built.output);
-        }
+        build_block_scenario(block, dir / "block.nrrd", with_defect, "vsd", 4000);
+        build_block_scenario(block, dir / "block.nrrd", atrial, "asd", 4000);
+        build_block_scenario(block, dir / "block.nrrd", intact, "", 4000);
     }
 };
 

@@ -8,7 +8,7 @@
 //
 // Golden image: tests/data/golden/phantom_rest.png. Regenerate (after an intended change of the
 // picture) with HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_render --gtest_filter='*Golden*'.
-#include "defect_block.h"
+#include "defect_block_scenario.h"
 #include "incision_gesture.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
@@ -586,14 +586,7 @@ TEST(RenderRepair, TheLaidPatchAndItsStitchesAreDrawnOverTheDefectInTheSectionVi
     REQUIRE_GL();
     using namespace test::defect_block;
     test::TempDir dir;
-    const Block block = make_block();
-    write_label_volume(dir / "block.nrrd", block.volume);
-    const Eigen::Vector3d at = block.world({0.5, -4.0, 6.0});
-    char point[96];
-    std::snprintf(point, sizeof point, "%.4f,%.4f,%.4f", at.x(), at.y(), at.z());
-    const auto built = test::heartprep("build " + quoted(dir / "block.nrrd") + " --defect vsd --diameter 8 --at=" + point +
-                                       " --particles 4000 -q -o " + quoted(dir / "vsd.h5"));
-    ASSERT_EQ(built.exit_code, 0) << built.output;
+    build_block_scenario(make_block(), dir / "block.nrrd", dir / "vsd.h5", "vsd", 4000);
     const Scenario scenario = read_scenario(dir / "vsd.h5");
     const RepairPlan plan = plan_repair(scenario);
 
