@@ -15,20 +15,18 @@ cmake --build --preset release --target heartprep heartsim >/dev/null
 bin=build/release
 work=build/defect-gallery
 mkdir -p "$work" docs/gallery
-declare -A at=([pat0]=40.7,-14.4,-10.4 [pat1]=11.4,-25.6,5.2 [pat5]=26.8,-17.3,-4.9 [pat6]=26.9,-12.1,-20.0)
+. scripts/real-cases.sh
 rows=()
 for dir in "$real"/*/; do
   name=$(basename "$dir")
   input=$(ls "$dir"*label.nii.gz 2>/dev/null | head -1 || true)
   [ -n "$input" ] || continue
-  case $name in
-    mmwhs_ct1002) case=ct1002; labels=(--labels mmwhs); where=() ;;
-    mmwhs_wh) case=wh; labels=(--labels mmwhs-ordinal); where=() ;;
-    hvsmr16_*) case=${name#hvsmr16_}; labels=(); [ -n "${at[$case]:-}" ] || continue; where=(--at "${at[$case]}") ;;
-    *) continue ;;
-  esac
+  options=$(vsd_options "$name") || continue
+  read -ra options <<<"$options"
+  read -ra labels <<<"$(label_options "$name")"
+  case=${name#hvsmr16_}; case=${case#mmwhs_}
   echo "make-defect-gallery: $name"
-  "$bin/tools/heartprep" build "$input" "${labels[@]}" --defect vsd --diameter 10 "${where[@]}" -o "$work/$case-vsd.h5" -q 2>/dev/null
+  "$bin/tools/heartprep" build "$input" "${options[@]}" --diameter 10 -o "$work/$case-vsd.h5" -q 2>/dev/null
   "$bin/tools/heartprep" build "$input" "${labels[@]}" -o "$work/$case.h5" -q 2>/dev/null
   log=$("$bin/runtime/heartsim" run "$work/$case-vsd.h5" --headless --backend cpu --steps 0 --size 800x600 --clip defect \
     --screenshot "docs/gallery/$case-vsd-section.png")

@@ -18,7 +18,7 @@ bin=${1:-build/release}
 if [ "$bin" = build/release ]; then cmake --build --preset release --target heartprep heartsim >/dev/null; fi
 work=build/repair-gallery
 mkdir -p "$work" docs/gallery
-declare -A at=([pat0]=40.7,-14.4,-10.4 [pat1]=11.4,-25.6,5.2 [pat5]=26.8,-17.3,-4.9 [pat6]=26.9,-12.1,-20.0)
+. scripts/real-cases.sh
 # What each picture shows (looked at when the gallery was made; say again when the data or the rule changes).
 declare -A shows=(
   [pat0]="closed from the left (plan-repair's --side auto: the right side's rim lies among trabeculations): the patch lies flat across the opening's left-ventricular mouth, right of the septum here, knots along its edge; the cleft that joins the opening to the right ventricle (below it, left) stays on the patch's far side"
@@ -33,14 +33,11 @@ for dir in "$real"/*/; do
   name=$(basename "$dir")
   input=$(ls "$dir"*label.nii.gz 2>/dev/null | head -1 || true)
   [ -n "$input" ] || continue
-  case $name in
-    mmwhs_ct1002) case=ct1002; labels=(--labels mmwhs); where=() ;;
-    mmwhs_wh) case=wh; labels=(--labels mmwhs-ordinal); where=() ;;
-    hvsmr16_*) case=${name#hvsmr16_}; labels=(); [ -n "${at[$case]:-}" ] || continue; where=("--at=${at[$case]}") ;;
-    *) continue ;;
-  esac
+  options=$(vsd_options "$name") || continue
+  read -ra options <<<"$options"
+  case=${name#hvsmr16_}; case=${case#mmwhs_}
   echo "make-repair-gallery: $name"
-  "$bin/tools/heartprep" build "$input" "${labels[@]}" --defect vsd "${where[@]}" -o "$work/$case.h5" -q 2>/dev/null
+  "$bin/tools/heartprep" build "$input" "${options[@]}" -o "$work/$case.h5" -q 2>/dev/null
   plan=$("$bin/runtime/heartsim" plan-repair "$work/$case.h5" -o "$work/$case.csv")
   seconds=$(echo "$plan" | sed -n 's/.*run it .*--seconds \([0-9.]*\).*/\1/p')
   centre=$(echo "$plan" | sed -n 's/^ *defect .* centred at (\([^)]*\)) mm.*/\1/p' | tr -d ' ')

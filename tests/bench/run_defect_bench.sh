@@ -44,15 +44,15 @@ print(f"| {case} | {kind} | {site} | 10 | {passage} | {wall} | {voxels} | {tried
       f"{float(end) - float(start):.2f} | {seconds} |")
 PY
 }
-declare -A hvsmr_at=([hvsmr16_pat0]=40.7,-14.4,-10.4 [hvsmr16_pat1]=11.4,-25.6,5.2 [hvsmr16_pat5]=26.8,-17.3,-4.9 [hvsmr16_pat6]=26.9,-12.1,-20.0)
+. scripts/real-cases.sh
 for label in "$data"/*/*label.nii.gz; do
   case=$(basename "$(dirname "$label")")
   case "$case" in
     mmwhs_ct1002|mmwhs_wh)
-      labels=mmwhs; [ "$case" = mmwhs_wh ] && labels=mmwhs-ordinal
-      for site in perimembranous muscular apical; do row "$case" vsd "$site" "$label" --labels "$labels" --site "$site"; done
-      row "$case" asd secundum "$label" --labels "$labels" --site secundum ;;
+      read -ra labels <<<"$(label_options "$case")"
+      for site in perimembranous muscular apical; do row "$case" vsd "$site" "$label" "${labels[@]}" --site "$site"; done
+      row "$case" asd secundum "$label" "${labels[@]}" --site secundum ;;
     *)
-      [ -n "${hvsmr_at[$case]:-}" ] && row "$case" vsd at "$label" --at "${hvsmr_at[$case]}" ;;
+      [ -n "${septum_point[$case]:-}" ] && row "$case" vsd at "$label" --at "${septum_point[$case]}" ;;
   esac
 done

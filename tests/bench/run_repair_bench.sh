@@ -28,22 +28,15 @@ done
 if [ ! -d "$data" ]; then echo "run_repair_bench: $data is absent: nothing to measure" >&2; exit 0; fi
 heartprep=${HEARTPREP:-build/release/tools/heartprep} heartsim=${HEARTSIM:-build/release/runtime/heartsim}
 if [ -z "${HEARTSIM:-}" ]; then cmake --build --preset release --target heartprep heartsim >/dev/null; fi
+. scripts/real-cases.sh
 mkdir -p "$out"
 csv="$out/repair.csv"
 echo "case,particles,stitches,closed,rim_gap_mm,independent,watchdog,rtf_patch,rtf_without,patch_ms_per_step,patch_share_pct,seconds" > "$csv"
 for label in "$data"/*/*label.nii.gz; do
   case=$(basename "$(dirname "$label")")
-  options=""
-  case "$case" in
-    hvsmr16_pat0) options="--at=40.7,-14.4,-10.4" ;;
-    hvsmr16_pat1) options="--at=11.4,-25.6,5.2" ;;
-    hvsmr16_pat5) options="--at=26.8,-17.3,-4.9" ;;
-    hvsmr16_pat6) options="--at=26.9,-12.1,-20.0" ;;
-    mmwhs_ct1002) options="--labels mmwhs" ;;
-    mmwhs_wh) options="--labels mmwhs-ordinal" ;;
-  esac
+  options=$(vsd_options "$case") || { echo "$case: no place known for a VSD: skipped" >&2; continue; }
   h5="$out/$case.vsd.h5"
-  [ -f "$h5" ] || $heartprep build "$label" -o "$h5" -q --defect vsd $options
+  [ -f "$h5" ] || $heartprep build "$label" -o "$h5" -q $options
   plan=$($heartsim plan-repair "$h5" -o "$out/$case.repair.csv" ${stitches:+--stitches="$stitches"})
   seconds=$(grep -o -- '--seconds [0-9.]*' <<<"$plan" | head -1 | cut -d' ' -f2)
   echo "$case: $seconds s" >&2
