@@ -211,11 +211,11 @@ void PatchModel::build_surface_grid() {
     // under it among the few of its cell whose box (grid_box_) holds it.
     grid_.clear();
     const Eigen::Vector3d e1 = frame_.col(0), e2 = frame_.col(1);
-    grid_built_.resize(surface_x_.size());
+    std::vector<Eigen::Vector2d> across(surface_x_.size());  // each surface vertex in the patch's plane
     Eigen::AlignedBox2d box;
     for (std::size_t v = 0; v < surface_x_.size(); ++v) {
-        grid_built_[v] = Eigen::Vector2d(surface_x_[v].dot(e1), surface_x_[v].dot(e2));
-        box.extend(grid_built_[v]);
+        across[v] = Eigen::Vector2d(surface_x_[v].dot(e1), surface_x_[v].dot(e2));
+        box.extend(across[v]);
     }
     grid_slot_x_ = slot_x_;
     std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
@@ -228,7 +228,7 @@ void PatchModel::build_surface_grid() {
     for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
         if (!(surface_normal_[t].dot(facing_) < -0.3)) continue;  // only surface that faces the patch
         Eigen::AlignedBox2d tb;
-        for (int corner : surface_.triangles[t]) tb.extend(grid_built_[std::size_t(corner)]);
+        for (int corner : surface_.triangles[t]) tb.extend(across[std::size_t(corner)]);
         // Where a point the triangle holds can be: across, within the margin of its outline; along
         // the patch's +z, from 2 mm behind its nearest corner to 3 mm plus the thickness in front
         // of its farthest (the range triangle_under takes), each widened by the drift allowed.

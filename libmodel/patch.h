@@ -216,8 +216,7 @@ private:
     std::vector<std::uint64_t> x_stamp_, normal_stamp_;  ///< the surface each was computed for
     std::uint64_t stamp_ = 0;
     static constexpr double grid_margin = 0.75;     ///< mm
-    std::vector<Eigen::Vector2d> grid_built_;      ///< per surface vertex: where it was in the patch's plane when the grid was built
-    std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles then
+    std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles when the grid was built
     std::vector<std::array<float, 6>> grid_box_;   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
     // Whether a patch vertex must look for the surface under it again (search_again()): the
     // tissue's motion split into a shift (its particles' mean displacement, summed over the calls
