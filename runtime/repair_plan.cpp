@@ -397,27 +397,18 @@ int plan_repair_command(const PlanRepairArguments& a) {
     const double mine = plan.on_b ? plan.right_anterior_b : plan.right_anterior_a, other = plan.on_b ? plan.right_anterior_a : plan.right_anterior_b;
     const char* which = plan.on_b ? "side b (+axis)" : "side a (-axis)";
     const char* other_side = plan.on_b ? "side a" : "side b";
+    // The right and left sides by the right-anterior rule, in one sentence for either.
+    const std::string by_rule = std::string(which) + ", whose outward direction " + point_text(plan.outward, 2) + " points " +
+                                (plan.on_right ? "more" : "less") + " to the patient's right and anterior (" + number_text(mine, 2) +
+                                " against " + number_text(other, 2) + " for " + other_side + "): the " + side_name + " " + chamber + "'s side" +
+                                (plan.on_right ? std::string(", from which a surgeon closes ") + (plan.defect == "asd" ? "an " : "a ") +
+                                                     defect_words(plan.defect)
+                                               : std::string());
     std::string why;
     switch (options.side) {
-        case RepairSide::automatic:
-            why = std::string(side_name) + " (auto, the default): " + which + ", whose outward direction " + point_text(plan.outward, 2) +
-                  " points " + (plan.on_right ? "more" : "less") + " to the patient's right and anterior (" + number_text(mine, 2) +
-                  " against " + number_text(other, 2) + " for " + other_side + "): the " + side_name + " " + chamber + "'s side" +
-                  (plan.on_right ? std::string(", from which a surgeon closes ") + (plan.defect == "asd" ? "an " : "a ") + defect_words(plan.defect)
-                                 : std::string()) +
-                  "; " + plan.side_reason;
-            break;
+        case RepairSide::automatic: why = std::string(side_name) + " (auto, the default): " + by_rule + "; " + plan.side_reason; break;
         case RepairSide::right:
-            why = std::string("right (the default): ") + which + ", whose outward direction " + point_text(plan.outward, 2) +
-                  " points more to the patient's right and anterior (" + number_text(mine, 2) + " against " + number_text(other, 2) + " for " +
-                  other_side + "): the right " + chamber + "'s side, from which a surgeon closes " + (plan.defect == "asd" ? "an " : "a ") +
-                  defect_words(plan.defect);
-            break;
-        case RepairSide::left:
-            why = std::string("left (--side=left): ") + which + ", whose outward direction " + point_text(plan.outward, 2) +
-                  " points less to the patient's right and anterior (" + number_text(mine, 2) + " against " + number_text(other, 2) + " for " +
-                  other_side + "): the left " + chamber + "'s side";
-            break;
+        case RepairSide::left: why = std::string(side_name) + " (--side=" + side_name + "): " + by_rule; break;
         case RepairSide::a:
         case RepairSide::b:
             why = std::string(to_string(options.side)) + " (--side=" + to_string(options.side) + "): " + which + ", outward " +
