@@ -31,7 +31,7 @@ const std::vector<WindowKey>& window_keys() {
         {"G", "mouse device button 1", "with --device mouse: a grabber holds, a scalpel (--instrument scalpel) cuts, while it is on; a patch is laid, a needle ties a stitch, as it turns on"},
         {"Ctrl + left drag", "move the mouse device", "with --device mouse: in the view plane, one pixel per pixel at the orbit centre's depth"},
         {"Ctrl + wheel", "mouse device in depth", "with --device mouse: wheel up moves it into the screen (2 % of the model radius a notch)"},
-        {"Ctrl + Shift + left click or drag", "mouse device onto the surface", "with --device mouse: onto the tissue's surface point under the cursor, its centre a quarter of its extent below it (it presses on it; amber while it touches; a scalpel's or needle's tip on it, a patch 2 mm in front of it); dragged, it slides along the surface; over the background it stays where it is"},
+        {"Ctrl + Shift + left click or drag", "mouse device onto the surface", "with --device mouse: onto the tissue's surface point under the cursor, its centre a quarter of its extent below it (it rests on it, the tissue pushing back with a few mN; drawn amber from 0.01 N, which Ctrl + wheel presses it to; a scalpel's or needle's tip on it, a patch 2 mm in front of it); dragged, it slides along the surface; over the background it stays where it is"},
         {"Ctrl + right click", "mouse device button 1", "with --device mouse: as G (a grabber closes on the tissue it touches, or lets go)"},
         {"Esc, closing the window", "quit", "the state file, the stats, --record and an F5 recording that is on are still written"},
     };

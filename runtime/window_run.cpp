@@ -108,7 +108,7 @@ void say(const char* format, Args... args) {
 
 /// Ctrl + Shift + click and drag: the mouse device onto the tissue's surface point under the
 /// cursor, `surface_offset_mm` towards the eye from it (a probe's centre a quarter of its extent
-/// below it: a click on the heart presses on it). False over the background (the device stays
+/// below it: a click on the heart rests it on the tissue). False over the background (the device stays
 /// where it was).
 bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
     int width = 0, height = 0;
