@@ -27,6 +27,40 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
+std::int8_t instrument_code(InstrumentKind kind) {
+    switch (kind) {
+    case InstrumentKind::none: return 0;
+    case InstrumentKind::probe: return 1;
+    case InstrumentKind::grabber: return 2;
+    case InstrumentKind::scalpel: return 3;
+    case InstrumentKind::patch: return 4;
+    case InstrumentKind::needle: return 5;
+    }
+    return 0;
+}
+
+std::optional<InstrumentKind> instrument_of_code(std::int8_t code) {
+    constexpr InstrumentKind kinds[] = {InstrumentKind::none,    InstrumentKind::probe, InstrumentKind::grabber,
+                                        InstrumentKind::scalpel, InstrumentKind::patch, InstrumentKind::needle};
+    if (code < 0 || code > 5) return std::nullopt;
+    return kinds[code];
+}
+
+Instrument Recording::instrument_at(std::size_t k, int hand) const {
+    Instrument instrument;
+    if (k < steps.instrument.size()) {
+        instrument.kind = instrument_of_code(steps.instrument[k][hand]).value_or(InstrumentKind::none);  // read_recording checked it
+        const auto& a = steps.semi_axes_mm[k][hand];
+        instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
+        return instrument;
+    }
+    if (!hands[hand].used) return instrument;
+    instrument.kind = instrument_kind_named(hands[hand].instrument).value_or(InstrumentKind::none);
+    const auto& a = hands[hand].semi_axes_mm;
+    instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
+    return instrument;
+}
+
 SolverRules rules_before_recorded() {
     SolverRules r;
     r.max_displacement_fraction = 2.0;
@@ -57,7 +91,8 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
     const std::size_t n = s.size();
     if (s.wall_ms.size() != n || s.tool_time_ms.size() != n || s.tool_position_mm.size() != n || s.tool_orientation.size() != n ||
         s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n ||
-        (!s.mass_scale.empty() && s.mass_scale.size() != n))
+        (!s.mass_scale.empty() && s.mass_scale.size() != n) || (!s.instrument.empty() && s.instrument.size() != n) ||
+        s.semi_axes_mm.size() != s.instrument.size())
         throw OutputError(file + ": the step columns have different lengths (a bug in heartsim)");
     h5::write_file(path, [&](h5::Writer& w) {
         w.header("heartsim.recording", 1, "mm g ms N");
@@ -122,6 +157,10 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.dataset("steps/force_step", s.force_step, {n});
         w.dataset("steps/diverged", s.diverged, {n});
         if (!s.mass_scale.empty()) w.dataset("steps/mass_scale", s.mass_scale, {n});
+        if (!s.instrument.empty()) {
+            w.dataset("steps/instrument", s.instrument, {n, 2});
+            w.dataset("steps/semi_axes_mm", s.semi_axes_mm, {n, 2, 3});
+        }
 
         w.group("events");
         std::vector<double> times;
@@ -259,13 +298,34 @@ Recording read_recording(const std::filesystem::path& path) {
                 r.fail("steps/mass_scale", "row " + std::to_string(i) + " is " + std::to_string(s.mass_scale[i]) + ", expected " +
                                                std::to_string(min_mass_scale) + " … " + std::to_string(max_mass_scale));
     }
+    // Absent in recordings made before an instrument could change inside one: the hands' attributes.
+    if (r.exists("steps/instrument") != r.exists("steps/semi_axes_mm"))
+        r.fail("/steps", "has one of the datasets instrument and semi_axes_mm without the other");
+    if (r.exists("steps/instrument")) {
+        s.instrument = h5::rows_of<2>(r.dataset<std::int8_t>("steps/instrument", {steps, 2}));
+        const auto axes = r.dataset<double>("steps/semi_axes_mm", {steps, 2, 3});
+        s.semi_axes_mm.resize(n);
+        if (n) std::memcpy(s.semi_axes_mm.data(), axes.data(), axes.size() * sizeof(double));
+        for (std::size_t i = 0; i < n; ++i)
+            for (int h = 0; h < 2; ++h) {
+                const std::string row = "row " + std::to_string(i) + ", hand " + std::to_string(h);
+                const auto kind = instrument_of_code(s.instrument[i][h]);
+                if (!kind)
+                    r.fail("steps/instrument", row + " is " + std::to_string(int(s.instrument[i][h])) +
+                                                   ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch) or 5 (needle)");
+                if (*kind != InstrumentKind::none && !rec.hands[h].used) r.fail("steps/instrument", row + " is an instrument of a hand without a device");
+                if (*kind == InstrumentKind::none) continue;
+                for (double a : s.semi_axes_mm[i][h])
+                    if (!plausible::semi_axis_mm.contains(a)) r.fail("steps/semi_axes_mm", row + ": " + plausible::outside("semi-axis", a, plausible::semi_axis_mm));
+            }
+    }
     for (std::size_t i = 0; i < n; ++i)
         for (int h = 0; h < 2; ++h) {
             const std::string row = "row " + std::to_string(i) + ", hand " + std::to_string(h);
             if (s.grab[i][h] != 0 && s.grab[i][h] != 1) r.fail("/steps", "dataset grab " + row + " is not 0 or 1");
             if (s.applied[i][h] != 0 && s.applied[i][h] != 1) r.fail("/steps", "dataset applied " + row + " is not 0 or 1");
             if (s.applied[i][h] && !rec.hands[h].used) r.fail("/steps", "dataset applied " + row + " applies a hand without a device");
-            if (s.grab[i][h] && (!rec.hands[h].used || !takes_grab(instrument_kind_named(rec.hands[h].instrument).value_or(InstrumentKind::none))))
+            if (s.grab[i][h] && (!rec.hands[h].used || !takes_grab(rec.instrument_at(i, h).kind)))
                 r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber, scalpel, patch or needle");
             if (!rec.hands[h].used) continue;
             const auto& q = s.tool_orientation[i][h];

@@ -33,6 +33,11 @@
 ///     diverged       int8    [S]      the step hit the watchdog
 ///     mass_scale     float64 [S]      the explicit mass scaling S the step ran with (absent in
 ///                                     recordings made before heartsim scaled mass: 1 throughout)
+///     instrument     int8    [S,2]    the instrument each hand held during the step (instrument_code:
+///                                     0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle; the
+///                                     window's K, Shift + P and Shift + N change it) and
+///     semi_axes_mm   float64 [S,2,3]  its semi-axes (both absent in recordings made before an instrument
+///                                     could change inside one: the hand's attributes throughout)
 ///   /events
 ///     time_ms float64 [E], hand int32 [E] (−1: both), what (UTF-8 strings) [E]
 #pragma once
@@ -86,7 +91,16 @@ struct RecordedSteps {
     std::size_t size() const { return time_ms.size(); }
     /// The mass scale of step k (1 where the column is empty).
     double mass_scale_at(std::size_t k) const { return mass_scale.empty() ? 1.0 : mass_scale[k]; }
+    /// The instrument each hand held during the step (instrument_code) and its semi-axes, mm;
+    /// both empty: the hands' attributes throughout (Recording::instrument_at).
+    std::vector<std::array<std::int8_t, 2>> instrument;
+    std::vector<std::array<std::array<double, 3>, 2>> semi_axes_mm;
 };
+
+/// The code of /steps/instrument: 0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle.
+std::int8_t instrument_code(InstrumentKind kind);
+/// The kind of a code; nullopt for a code outside 0 … 5.
+std::optional<InstrumentKind> instrument_of_code(std::int8_t code);
 
 struct RecordedEvent {
     double time_ms = 0.0;
@@ -122,6 +136,9 @@ struct Recording {
     std::array<RecordedHand, 2> hands;
     RecordedSteps steps;
     std::vector<RecordedEvent> events;
+    /// The instrument `hand` held during step k: /steps/instrument and /steps/semi_axes_mm, or
+    /// without them the hand's attributes.
+    Instrument instrument_at(std::size_t k, int hand) const;
 };
 
 /// Whether `arithmetic` is one Recording::arithmetic takes ("fused" or "separate"); the recording's

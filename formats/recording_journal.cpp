@@ -4,6 +4,7 @@
 #include "hdf5_io.h"  // lookup3
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <bit>
@@ -29,8 +30,9 @@ constexpr std::size_t record_header = 20;           // magic, kind, bytes, check
 /// the slot's multiply-adds were fused) is read with "separate". 3 adds the solver's rules after
 /// the arithmetic (a byte, 1 when they follow); a journal before it is read without them. 4 adds
 /// to each chunk, after the diverged column, a byte (1 when the mass-scale column follows) and the
-/// column.
-constexpr std::uint32_t journal_version = 4;
+/// column. 5 adds after the mass-scale column a byte (1 when the instrument and semi-axes columns
+/// follow) and the two columns.
+constexpr std::uint32_t journal_version = 5;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
 /// A payload being built.
@@ -235,7 +237,8 @@ void RecordingJournal::append(const Recording& rows) {
     const std::size_t n = s.size();
     if (s.wall_ms.size() != n || s.tool_time_ms.size() != n || s.tool_position_mm.size() != n || s.tool_orientation.size() != n ||
         s.grab.size() != n || s.applied.size() != n || s.force_n.size() != n || s.force_step.size() != n || s.diverged.size() != n ||
-        (!s.mass_scale.empty() && s.mass_scale.size() != n))
+        (!s.mass_scale.empty() && s.mass_scale.size() != n) || (!s.instrument.empty() && s.instrument.size() != n) ||
+        s.semi_axes_mm.size() != s.instrument.size())
         throw OutputError(path_.string() + ": the step columns have different lengths (a bug in heartsim)");
     Bytes b;
     b.put<std::uint64_t>(n);
@@ -251,6 +254,9 @@ void RecordingJournal::append(const Recording& rows) {
     b.column(s.diverged);
     b.put<std::uint8_t>(s.mass_scale.empty() ? 0 : 1);
     b.column(s.mass_scale);
+    b.put<std::uint8_t>(s.instrument.empty() ? 0 : 1);
+    b.column(s.instrument);
+    b.column(s.semi_axes_mm);
     for (std::size_t h = 0; h < used_hands_.size(); ++h) {
         if (!used_hands_[h]) continue;
         const RecordedHand& hand = rows.hands[h];
@@ -445,6 +451,24 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
                         throw InputError(where + ": a step's mass scale is " + std::to_string(s.mass_scale[k]) + ", expected 1 … 1024");
             } else if (!s.mass_scale.empty()) {
                 s.mass_scale.resize(s.diverged.size(), 1.0);
+            }
+            // A recording either has the instrument columns throughout or not at all (HapticRun).
+            if (version >= 5 && c.get<std::uint8_t>() != 0) {
+                if (s.instrument.size() != s.diverged.size() - n)
+                    throw InputError(where + ": a chunk has the instrument columns and an earlier one did not");
+                c.column(s.instrument, n);
+                c.column(s.semi_axes_mm, n);
+                for (std::size_t k = s.instrument.size() - n; k < s.instrument.size(); ++k)
+                    for (int h = 0; h < 2; ++h) {
+                        const auto kind = instrument_of_code(s.instrument[k][h]);
+                        if (!kind) throw InputError(where + ": a step's instrument code is " + std::to_string(int(s.instrument[k][h])) + ", expected 0 … 5");
+                        if (*kind == InstrumentKind::none) continue;
+                        for (double a : s.semi_axes_mm[k][h])
+                            if (!plausible::semi_axis_mm.contains(a))
+                                throw InputError(where + ": a step's instrument " + plausible::outside("semi-axis", a, plausible::semi_axis_mm));
+                    }
+            } else if (!s.instrument.empty() && n > 0) {
+                throw InputError(where + ": a chunk lacks the instrument columns an earlier one had");
             }
             if (n) last_ms = std::max(last_ms, s.wall_ms.back());
             for (std::size_t h = 0; h < used.size(); ++h) {

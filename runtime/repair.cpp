@@ -81,6 +81,7 @@ std::size_t RepairBackend::begin_grab(int hand) {
     h.grabbing = true;
     if (h.instrument.kind == InstrumentKind::patch) lay(hand);
     else tie(hand);
+    std::fflush(stdout);  // the repair's lines, read as they happen (a window's log, the tests)
     return 0;
 }
 

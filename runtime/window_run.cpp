@@ -157,38 +157,6 @@ void aim_section(Renderer& renderer) {
     say("section view: aimed at the view, %s\n", describe(plane, centre).c_str());
 }
 
-/// Shift + P and Shift + N: hand 0 of a haptic session holds a patch or a needle in the repair
-/// backend (runtime/repair.h) in place of the session's own instrument, which the same key gives
-/// back. The session goes on posing the hand; its button 1 (G for the mouse device), read from the
-/// session's newest tool sample on the thread that steps, lays the patch or ties a stitch.
-struct RepairHand {
-    std::atomic<InstrumentKind> kind{InstrumentKind::none};  ///< patch or needle; none: the session's own
-    Instrument own;        ///< the session's instrument, given back (window thread, before the switch)
-    bool pressed = false;  ///< button 1 as last seen (the thread that steps)
-
-    /// On the thread that steps: the backend's hand 0 holds `instrument` (a patch, a needle, or `own`).
-    void hold(Backend& backend, haptics::HapticSession& session, const Instrument& instrument) {
-        const bool repair = repair_kind(instrument.kind);
-        backend.set_instrument(0, instrument);
-        pressed = repair && button(session);  // a button already held acts at its next press
-        kind = repair ? instrument.kind : InstrumentKind::none;
-    }
-    /// On the thread that steps: button 1's press lays the patch or ties a stitch, its release lets go.
-    void poll(Backend& backend, haptics::HapticSession& session) {
-        if (kind.load() == InstrumentKind::none) return;
-        const bool now = button(session);
-        if (now == pressed) return;
-        pressed = now;
-        if (now) backend.begin_grab(0);
-        else backend.release(0);
-        std::fflush(stdout);  // the repair's lines, read as they happen (a log, the tests)
-    }
-    static bool button(haptics::HapticSession& session) {
-        const auto tools = session.latest_tools();
-        return tools && tools->hand[0].valid && (tools->hand[0].buttons & 1u);
-    }
-};
-
 /// Shift + P's patch and Shift + N's needle: the patch plan-repair lays on a defect of the
 /// scenario's diameter (D + 2·(rim + 2 mm) across; a 10 mm defect's without one), as thick as its
 /// patch; the plan's needle.
@@ -364,7 +332,6 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     glfwSwapInterval(1);
     Hud hud(window);
     RepairBackend* const repair = dynamic_cast<RepairBackend*>(&backend);
-    RepairHand repair_hand;  // Shift + P / Shift + N
     HudRepair repair_shown;  // the closure check as last run (at most once a second)
     auto next_closure = std::chrono::steady_clock::now();
     const bool has_defect = a.scenario && !a.scenario->source.defect.empty();
@@ -452,9 +419,6 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 say("recording: needs a haptic session (--device mouse, scripted:FILE, …): nothing to record\n");
             } else if (haptic->records_session()) {
                 say("recording: --record %s records the whole session already; F5 is off\n", haptic->recording_path().c_str());
-            } else if (repair_hand.kind.load() != InstrumentKind::none) {
-                say("recording: not while instrument 0 is a %s (a recording holds the session's instruments; Shift + %s gives back its own)\n",
-                    to_string(repair_hand.kind.load()), repair_hand.kind.load() == InstrumentKind::patch ? "P" : "N");
             } else {
                 // F5 toggles what the stepping thread has: on → stop and write; off → start.
                 const std::string scenario_path = a.scenario_path;
@@ -491,66 +455,42 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                 else toggle();
             }
         }
-        if (input.toggle_scalpel) {
-            // K: hand 0's instrument becomes a scalpel and back, on the thread that steps.
-            input.toggle_scalpel = false;
+        if (input.toggle_scalpel || input.toggle_patch || input.toggle_needle) {
+            // K, Shift + P, Shift + N: hand 0 holds a scalpel, a patch or a needle, or its own
+            // instrument again, switched on the thread that steps between two steps (a recording
+            // keeps the switch: /steps/instrument).
+            const InstrumentKind asked = input.toggle_scalpel ? InstrumentKind::scalpel
+                                         : input.toggle_patch ? InstrumentKind::patch
+                                                              : InstrumentKind::needle;
+            const char* key = input.toggle_scalpel ? "K" : input.toggle_patch ? "Shift + P" : "Shift + N";
+            input.toggle_scalpel = input.toggle_patch = input.toggle_needle = false;
             if (!haptic || !haptic->uses_hand(0)) {
-                say("K: the scalpel is a device's instrument: run with --device (mouse, openhaptics, …)\n");
-            } else if (recording_now || toggles_pending > 0 || haptic->records_session()) {
-                say("K: not while recording (a change of instrument inside a recording could not be replayed)\n");
+                say(asked == InstrumentKind::scalpel ? "%s: the scalpel is a device's instrument: run with --device (mouse, openhaptics, …)\n"
+                                                     : "%s: the patch and the needle are a device's instruments: run with --device (mouse, openhaptics, …)\n",
+                    key);
+            } else if (asked != InstrumentKind::scalpel && !repair) {
+                say("%s: the scenario has no detailed mesh with its mapping for a patch to lie on\n", key);
             } else {
-                auto swap = [haptic, &repair_hand] {
+                const Instrument instrument = asked == InstrumentKind::scalpel
+                                                  ? Instrument{.kind = InstrumentKind::scalpel, .semi_axes = default_blade_semi_axes_mm}
+                                                  : repair_instrument(asked, a.scenario);
+                auto swap = [haptic, instrument, key] {
                     try {
-                        const InstrumentKind now = haptic->toggle_scalpel(0);
-                        repair_hand.kind = InstrumentKind::none;  // the session places its own instrument at the next step
-                        say("instrument 0: %s%s\n", to_string(now),
-                            now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)" : "");
+                        const InstrumentKind now = haptic->toggle_instrument(0, instrument);
+                        const char* how = now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)"
+                                          : now == InstrumentKind::patch
+                                              ? " (G or button 1 lays it on the tissue in front of it; held there until its first stitch)"
+                                          : now == InstrumentKind::needle
+                                              ? " (G or button 1 ties a stitch from the tissue at its tip to the patch's point nearest it)"
+                                              : "";
+                        say("instrument 0: %s%s\n", to_string(now), how);
                     } catch (const std::exception& e) {
-                        say("K: %s\n", e.what());
+                        say("%s: %s\n", key, e.what());
                     }
                 };
                 if (simulation) simulation->run_between_steps(swap);
                 else swap();
             }
-        }
-        if (input.toggle_patch || input.toggle_needle) {
-            // Shift + P / Shift + N: hand 0 holds a patch or a needle, or its own instrument again,
-            // switched on the thread that steps.
-            const InstrumentKind asked = input.toggle_patch ? InstrumentKind::patch : InstrumentKind::needle;
-            const char* key = input.toggle_patch ? "Shift + P" : "Shift + N";
-            input.toggle_patch = input.toggle_needle = false;
-            const std::vector<InstrumentShape> held = !haptic      ? std::vector<InstrumentShape>{}
-                                                      : simulation ? simulation->status().shapes
-                                                                   : haptic->shapes();
-            const auto hand0 = std::find_if(held.begin(), held.end(), [](const InstrumentShape& shape) { return shape.hand == 0; });
-            if (!haptic || !haptic->uses_hand(0)) {
-                say("%s: the patch and the needle are a device's instruments: run with --device (mouse, openhaptics, …)\n", key);
-            } else if (!repair) {
-                say("%s: the scenario has no detailed mesh with its mapping for a patch to lie on\n", key);
-            } else if (recording_now || toggles_pending > 0 || haptic->records_session()) {
-                say("%s: not while recording (a change of instrument inside a recording could not be replayed)\n", key);
-            } else if (hand0 == held.end()) {
-                say("%s: instrument 0 is not placed yet (its device has sent no pose)\n", key);
-            } else {
-                if (repair_hand.kind.load() == InstrumentKind::none) repair_hand.own = {.kind = hand0->kind, .semi_axes = hand0->semi_axes};
-                const Instrument instrument = repair_hand.kind.load() == asked ? repair_hand.own : repair_instrument(asked, a.scenario);
-                auto swap = [haptic, &backend, &repair_hand, instrument] {
-                    repair_hand.hold(backend, haptic->session(), instrument);
-                    const char* how = instrument.kind == InstrumentKind::patch
-                                          ? " (G or button 1 lays it on the tissue in front of it; held there until its first stitch)"
-                                      : instrument.kind == InstrumentKind::needle
-                                          ? " (G or button 1 ties a stitch from the tissue at its tip to the patch's point nearest it)"
-                                          : "";
-                    say("instrument 0: %s%s\n", to_string(instrument.kind), how);
-                };
-                if (simulation) simulation->run_between_steps(swap);
-                else swap();
-            }
-        }
-        // A patch or needle in hand 0: its button, on the thread that steps, once a frame.
-        if (haptic && repair_hand.kind.load() != InstrumentKind::none) {
-            if (simulation) simulation->run_between_steps([haptic, &backend, &repair_hand] { repair_hand.poll(backend, haptic->session()); });
-            else repair_hand.poll(backend, haptic->session());
         }
         if (input.reset_tissue) {
             if (simulation) {
@@ -612,7 +552,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
             if (input.device) {
                 input.device_pose.position_mm += to.position - from.position;
-                if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(repair_hand.kind.load(), camera);
+                if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
                 input.device->set_pose(input.device_pose);
             }
         }
@@ -693,12 +633,9 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         if (width > 0 && height > 0) renderer.resize(width, height);
         std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
                                               : simulation ? simulation->status().shapes : haptic->shapes();
-        const InstrumentKind repair_held = repair_hand.kind.load();
         for (InstrumentShape& shape : shapes) {
             if (shape.hand < 0 || shape.hand > 1) continue;
             shape.touching = touching[std::size_t(shape.hand)];
-            if (shape.hand == 0 && repair_held != InstrumentKind::none)
-                shape.kind = repair_held, shape.semi_axes = repair_instrument(repair_held, a.scenario).semi_axes;
             // The mouse device's instrument: where it goes when put on the surface.
             if (input.device && haptic->device_spec(shape.hand) == "mouse") {
                 const bool tip = shape.kind == InstrumentKind::scalpel || shape.kind == InstrumentKind::needle;
@@ -795,7 +732,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
                     h.device = haptic->device_spec(hand);
                     if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
                         h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
-                    h.instrument = to_string(hand == 0 && repair_held != InstrumentKind::none ? repair_held : haptic->instrument(hand));
+                    h.instrument = to_string(haptic->instrument(hand));
                     h.max_force_n = haptic->max_force_n(hand);
                     // The simulation's force on the instrument (what the session sends on, before
                     // safety); for the mouse device what it was sent.

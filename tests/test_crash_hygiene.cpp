@@ -665,6 +665,7 @@ Recording rows_of(const Recording& r, std::size_t s0, std::size_t s1, std::size_
     cut(c.steps.force_step, s.force_step, s0, s1);
     cut(c.steps.diverged, s.diverged, s0, s1);
     if (!s.mass_scale.empty()) cut(c.steps.mass_scale, s.mass_scale, s0, s1);
+    if (!s.instrument.empty()) cut(c.steps.instrument, s.instrument, s0, s1), cut(c.steps.semi_axes_mm, s.semi_axes_mm, s0, s1);
     for (int h : {0, 1}) {
         const RecordedHand& from = r.hands[h];
         RecordedHand& to = c.hands[h];
@@ -694,6 +695,8 @@ void expect_same_rows(const Recording& a, const Recording& b) {
     EXPECT_EQ(a.steps.force_step, b.steps.force_step);
     EXPECT_EQ(a.steps.diverged, b.steps.diverged);
     EXPECT_EQ(a.steps.mass_scale, b.steps.mass_scale);
+    EXPECT_EQ(a.steps.instrument, b.steps.instrument);
+    EXPECT_EQ(a.steps.semi_axes_mm, b.steps.semi_axes_mm);
     for (int h : {0, 1}) {
         EXPECT_EQ(a.hands[h].used, b.hands[h].used);
         EXPECT_EQ(a.hands[h].device, b.hands[h].device);
@@ -722,6 +725,12 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         if (seed == 1) full.rules = rules_before_recorded();  // seed 2: a session without rules, as before they were kept
         if (seed == 1)  // --real-time auto's mass scale, changed mid-session (seed 2: none, as before heartsim scaled mass)
             for (std::size_t k = 0; k < full.steps.size(); ++k) full.steps.mass_scale.push_back(k < 25 ? 1.0 : 4.0);
+        if (seed == 1)  // K in the window: a scalpel from step 10 (seed 2: no instrument columns, as before)
+            for (std::size_t k = 0; k < full.steps.size(); ++k) {
+                const bool scalpel = k >= 10;
+                full.steps.instrument.push_back({instrument_code(scalpel ? InstrumentKind::scalpel : InstrumentKind::probe), 0});
+                full.steps.semi_axes_mm.push_back({{{scalpel ? 2.0 : 1.5, scalpel ? 0.3 : 1.5, scalpel ? 10.0 : 1.5}, {0, 0, 0}}});
+            }
         const fs::path path = dir / "rec.h5.journal";
         {
             RecordingJournal journal(path, full, "rec.h5");
@@ -758,7 +767,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
 
 // A journal that a heartsim from before the solver's rules were recorded left behind (version 2:
 // no rules byte after the arithmetic, no mass-scale byte in its chunks) still recovers, without
-// rules. Made here from a version-4 journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
+// rules. Made here from a version-5 journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
 // magic, a record is magic, kind (u32), payload bytes (u64), lookup3 checksum of kind, bytes and
 // payload (u32), then the payload; the session's payload starts with the version (u32).
 TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
@@ -790,16 +799,19 @@ TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
     const std::size_t header = 16, payload = header + 20;
     std::uint32_t version = 0;
     std::memcpy(&version, bytes.data() + payload, 4);
-    ASSERT_EQ(version, 4u) << "this test turns a version-4 journal into a version-2 one";
+    ASSERT_EQ(version, 5u) << "this test turns a version-5 journal into a version-2 one";
     // The chunk after the session record: its step count (u64), the step columns (197 bytes a row:
     // times 3 × 8, tool poses 2 × (24 + 32), grab 2, applied 2, forces 48, force_step 8, diverged 1),
-    // then version 4's mass-scale byte, 0: none follows. Erased first (it lies after the session's).
+    // then version 4's mass-scale byte, 0: none follows, and version 5's instrument byte, 0: none
+    // follows. Erased first (they lie after the session's).
     std::uint64_t session_size = 0, steps = 0;
     std::memcpy(&session_size, bytes.data() + header + 8, 8);
     const std::size_t chunk = payload + session_size;
     std::memcpy(&steps, bytes.data() + chunk + 20, 8);
     ASSERT_EQ(steps, 20u);
     ASSERT_EQ(bytes[chunk + 20 + 8 + 197 * steps], '\0') << "a chunk without a mass-scale column";
+    ASSERT_EQ(bytes[chunk + 20 + 8 + 197 * steps + 1], '\0') << "a chunk without the instrument columns";
+    erase_in_record(chunk, 8 + 197 * steps);
     erase_in_record(chunk, 8 + 197 * steps);
     // The rules byte follows version, target, pid, scenario, particles, dt, substeps, backend,
     // contact, interpolation and arithmetic (strings: a u64 length, then the bytes).

@@ -821,6 +821,45 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         }
     }
 
+    EXPECT_TRUE(back.steps.instrument.empty()) << "no column written: the hand's attributes throughout";
+    EXPECT_EQ(back.instrument_at(1, 1).kind, InstrumentKind::grabber);
+    EXPECT_EQ(back.instrument_at(1, 1).semi_axes, Eigen::Vector3d(1, 2, 3));
+    {
+        // K in the window at step 1: hand 1's grabber becomes a scalpel, which grabs (its blade
+        // lowered) by the step's own instrument; hand 0 holds nothing.
+        Recording switched = r;
+        switched.steps.instrument = {{0, instrument_code(InstrumentKind::grabber)}, {0, instrument_code(InstrumentKind::scalpel)}};
+        switched.steps.semi_axes_mm = {{{{0, 0, 0}, {1, 2, 3}}}, {{{0, 0, 0}, {2, 0.3, 10}}}};
+        write_recording(dir / "switched.h5", switched);
+        const Recording again = read_recording(dir / "switched.h5");
+        EXPECT_EQ(again.steps.instrument, switched.steps.instrument);
+        EXPECT_EQ(again.steps.semi_axes_mm, switched.steps.semi_axes_mm);
+        EXPECT_EQ(again.instrument_at(0, 1).kind, InstrumentKind::grabber);
+        EXPECT_EQ(again.instrument_at(1, 1).kind, InstrumentKind::scalpel);
+        EXPECT_EQ(again.instrument_at(1, 1).semi_axes, Eigen::Vector3d(2, 0.3, 10));
+        auto refused = [&](Recording bad, const std::string& words) {
+            write_recording(dir / "switched.h5", bad);
+            try {
+                read_recording(dir / "switched.h5");
+                ADD_FAILURE() << "accepted: " << words;
+            } catch (const InputError& e) {
+                EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
+            }
+        };
+        Recording bad = switched;
+        bad.steps.instrument[1][1] = 6;
+        refused(bad, "steps/instrument: row 1, hand 1 is 6, expected 0 (none)");
+        bad = switched;
+        bad.steps.instrument[1][1] = instrument_code(InstrumentKind::probe);  // a probe does not grab
+        refused(bad, "dataset grab row 1, hand 1 grabs with a hand that holds no grabber");
+        bad = switched;
+        bad.steps.instrument[0][0] = instrument_code(InstrumentKind::probe);  // hand 0 has no device
+        refused(bad, "steps/instrument: row 0, hand 0 is an instrument of a hand without a device");
+        bad = switched;
+        bad.steps.semi_axes_mm[1][1][2] = -10.0;
+        refused(bad, "steps/semi_axes_mm: row 1, hand 1: semi-axis");
+    }
+
     // A force that names a later step than its own is refused by dataset name.
     Recording bad = r;
     bad.steps.force_step[0] = 1;

@@ -507,14 +507,21 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     std::string why;
     EXPECT_TRUE(closed_manifold(state.visual_triangles, &why)) << why;
 
-    // While --record records the session, K is refused and the instrument stays.
+    // While --record records the session, K switches all the same: the recording starts with
+    // the probe and holds the scalpel from the step K took effect.
     Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
     ASSERT_TRUE(recording.focus()) << recording.output();
+    recording.wait_for("no such line", 0, 0.5);
     ASSERT_EQ(recording.xdotool("key k"), 0);
-    EXPECT_NE(recording.wait_for("K: not while recording"), std::string::npos) << recording.output();
+    EXPECT_NE(recording.wait_for("instrument 0: scalpel"), std::string::npos) << recording.output();
+    recording.wait_for("no such line", 0, 0.5);
     ASSERT_EQ(recording.xdotool("key Escape"), 0);
     ASSERT_EQ(recording.wait_exit(), 0) << recording.output();
-    EXPECT_EQ(read_recording(dir / "r.h5").hands[0].instrument, "probe");
+    const Recording r = read_recording(dir / "r.h5");
+    EXPECT_EQ(r.hands[0].instrument, "probe");
+    EXPECT_EQ(r.instrument_at(0, 0).kind, InstrumentKind::probe);
+    EXPECT_EQ(r.instrument_at(r.steps.size() - 1, 0).kind, InstrumentKind::scalpel);
+    EXPECT_EQ(r.instrument_at(r.steps.size() - 1, 0).semi_axes, default_blade_semi_axes_mm);
 }
 
 
@@ -532,14 +539,16 @@ std::size_t patch_pixels(const Image& image) {
 // Shift + P makes the mouse device's probe a patch: put on the phantom's surface (Ctrl + Shift +
 // click) and G, it is laid there, and the window draws it in its colour (the HUD off). Shift + N makes it a
 // needle: G ties a stitch to the patch. Shift + N again gives the probe back. The state file
-// written at Esc holds the patch with its stitch; while --record records the session, Shift + P
-// is refused.
+// written at Esc holds the patch with its stitch. The whole repair is recorded (--record): the
+// recording holds probe, patch, needle, probe in that order, and replays bit for bit, laying the
+// patch and tying the stitch again.
 TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     REQUIRE_WINDOW_TOOLS();
     test::TempDir dir;
     XServer x(dir.path());
     ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
-    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --save-state " + quoted(dir / "state.h5"));
+    Window window(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --save-state " + quoted(dir / "state.h5") +
+                                     " --record " + quoted(dir / "repair.h5"));
     ASSERT_TRUE(window.focus()) << window.output();
     const std::string id = window.id();
     ASSERT_FALSE(id.empty());
@@ -578,12 +587,16 @@ TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     EXPECT_EQ(state.patch->material, "pericardium");
     EXPECT_EQ(state.patch->stitch_vertex.size(), 1u);
 
-    Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
-    ASSERT_TRUE(recording.focus()) << recording.output();
-    ASSERT_EQ(recording.xdotool("key shift+p"), 0);
-    EXPECT_NE(recording.wait_for("Shift + P: not while recording"), std::string::npos) << recording.output();
-    ASSERT_EQ(recording.xdotool("key Escape"), 0);
-    ASSERT_EQ(recording.wait_exit(), 0) << recording.output();
+    const Recording r = read_recording(dir / "repair.h5");
+    std::vector<InstrumentKind> held;
+    for (std::size_t k = 0; k < r.steps.size(); ++k)
+        if (held.empty() || r.instrument_at(k, 0).kind != held.back()) held.push_back(r.instrument_at(k, 0).kind);
+    EXPECT_EQ(held, (std::vector<InstrumentKind>{InstrumentKind::probe, InstrumentKind::patch, InstrumentKind::needle, InstrumentKind::probe}));
+    const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "repair.h5"));
+    EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("repair: pericardium patch laid"), std::string::npos) << replay.output;
+    EXPECT_NE(replay.output.find("repair: stitch 1 tied"), std::string::npos) << replay.output;
+    EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
 }
 
 /// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole

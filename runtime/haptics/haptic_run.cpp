@@ -251,6 +251,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         h.spec = parse_device_spec(settings.devices[i]);
         h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
                                                             : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
+        h.own = h.instrument;
         DeviceMapping& mapping = mappings[i];  // scripted, simulated and mouse devices move in the world frame
         switch (h.spec.kind) {
         case DeviceSpec::Kind::scripted: {
@@ -352,17 +353,15 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     if (recording_on_) journal_ = std::make_unique<RecordingJournal>(journal_path(settings.record), recording_, settings.record);
 }
 
-InstrumentKind HapticRun::toggle_scalpel(int hand) {
+InstrumentKind HapticRun::toggle_instrument(int hand, const Instrument& instrument) {
     if (hand < 0 || hand > 1 || !hands_[hand].device) throw UsageError("haptics: hand " + std::to_string(hand) + " has no device");
-    if (recording_on_) throw UsageError("the instrument cannot change while recording (a replay could not repeat it)");
     Hand& h = hands_[hand];
-    if (h.instrument.kind == InstrumentKind::scalpel) {
-        h.instrument = h.before_scalpel;
-    } else {
-        h.before_scalpel = h.instrument;
-        h.instrument = {.kind = InstrumentKind::scalpel, .semi_axes = default_blade_semi_axes_mm};
-    }
-    h.placed = false, h.grabbing = false;  // apply_tool sets the new instrument (releasing) at the next step
+    h.instrument = h.instrument.kind == instrument.kind ? h.own : instrument;
+    // Placed afresh at the next step (apply_tool releases what the old one held); a button held
+    // through the switch acts at its next press, so the new instrument does not cut, lay or tie
+    // the moment it is taken up.
+    h.placed = false, h.grabbing = false;
+    h.wait_release = (h.buttons & 1u) != 0;
     shown_kind_[hand] = h.instrument.kind;
     return h.instrument.kind;
 }
@@ -380,7 +379,7 @@ void HapticRun::start_recording(const std::string& path) {
     // state `--replay` starts from (the scenario's rest state, nothing placed), so the recording's
     // step 0 is the replay's step 0 and a cpu replay reproduces its forces bit for bit.
     backend_.reset_tissue();
-    for (Hand& h : hands_) h.placed = false, h.grabbing = false;
+    for (Hand& h : hands_) h.placed = false, h.grabbing = false, h.wait_release = (h.buttons & 1u) != 0;
     drain();  // the ticks so far are not this recording's
     ticks_.clear();
     recording_ = std::move(fresh);
@@ -453,7 +452,8 @@ StepReport HapticRun::step() {
             }
             h.pose = p;
             h.buttons = tools->hand[i].buttons;
-            const bool wants = takes_grab(h.instrument.kind) && (h.buttons & 1u);
+            if (!(h.buttons & 1u)) h.wait_release = false;
+            const bool wants = takes_grab(h.instrument.kind) && (h.buttons & 1u) && !h.wait_release;
             const bool was = h.grabbing;
             apply_tool(backend_, i, h.instrument, h.pose, wants, h.placed, h.grabbing);
             applied[i] = true;
@@ -513,6 +513,12 @@ StepReport HapticRun::step() {
     s.tool_position_mm.push_back(position);
     s.tool_orientation.push_back(orientation);
     s.grab.push_back({std::int8_t(grab[0]), std::int8_t(grab[1])});
+    std::array<std::int8_t, 2> held{0, 0};
+    std::array<std::array<double, 3>, 2> axes{};
+    for (int i = 0; i < 2; ++i)
+        if (hands_[i].device) held[i] = instrument_code(hands_[i].instrument.kind), axes[i] = to_array(hands_[i].instrument.semi_axes);
+    s.instrument.push_back(held);
+    s.semi_axes_mm.push_back(axes);
     s.applied.push_back({std::int8_t(applied[0]), std::int8_t(applied[1])});
     s.force_n.push_back(force);
     // Steps count from the recording's first (a window recording starts mid-session); a force
@@ -591,6 +597,8 @@ void HapticRun::journal_rows() {
     tail(c.force_step, s.force_step, journaled_steps_);
     tail(c.diverged, s.diverged, journaled_steps_);
     tail(c.mass_scale, s.mass_scale, journaled_steps_);
+    tail(c.instrument, s.instrument, journaled_steps_);
+    tail(c.semi_axes_mm, s.semi_axes_mm, journaled_steps_);
     for (int i = 0; i < 2; ++i) {
         if (!hands_[i].device) continue;
         append_ticks(rows.hands[i], ticks_, journaled_ticks_, i);
@@ -775,12 +783,7 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
     }
     if (!recording.hands[0].used && !recording.hands[1].used) throw InputError(name + ": the recording has no hand (/hand0, /hand1): nothing to replay");
     std::array<Instrument, 2> instruments;
-    for (int i = 0; i < 2; ++i) {
-        if (!recording.hands[i].used) continue;
-        instruments[i].kind = instrument_kind_named(recording.hands[i].instrument).value_or(InstrumentKind::probe);  // read_recording checked it
-        const auto& a = recording.hands[i].semi_axes_mm;
-        instruments[i].semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
-    }
+    for (int i = 0; i < 2; ++i) instruments[i] = recording.instrument_at(0, i);
     const RecordedSteps& s = recording.steps;
     ReplayResult result;
     const auto start = std::chrono::steady_clock::now();
@@ -791,6 +794,10 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
         // The mass scale the live step ran with (--real-time auto changes it between steps).
         if (s.mass_scale_at(k) != backend.options().mass_scale) backend.set_mass_scale(s.mass_scale_at(k));
         for (int i = 0; i < 2; ++i) {
+            // An instrument changed in the window (K, Shift + P, Shift + N): placed afresh, its
+            // predecessor's grab released, as the live step did.
+            if (const Instrument now = recording.instrument_at(k, i); now.kind != instruments[i].kind || now.semi_axes != instruments[i].semi_axes)
+                instruments[i] = now, placed[i] = false, grabbing[i] = false;
             // Exactly where the live step applied the hand's tool (not before its first usable pose).
             if (!recording.hands[i].used || !s.applied[k][i]) continue;
             const auto& p = s.tool_position_mm[k][i];

@@ -127,11 +127,12 @@ public:
     bool uses_hand(int hand) const { return hands_[hand].device != nullptr; }
     /// The hand's instrument now; read from any thread (K switches it on the thread that steps).
     InstrumentKind instrument(int hand) const { return shown_kind_[hand].load(); }
-    /// K in the window: `hand`'s instrument becomes a scalpel (default_blade_semi_axes_mm), or,
-    /// when it is one, the instrument it had before; placed afresh at the next step, its grab
-    /// released. Called on the thread that steps, between steps; not while recording (a replay
-    /// could not repeat it): throws UsageError then. Returns the kind now held.
-    InstrumentKind toggle_scalpel(int hand);
+    /// The window's K, Shift + P and Shift + N: `hand`'s instrument becomes `instrument`, or, when
+    /// it holds one of that kind, its own again (--instrument's); placed afresh at the next step,
+    /// its grab released; a button held through the switch acts at its next press. Called on the
+    /// thread that steps, between steps; a recording keeps it (/steps/instrument), so a replay
+    /// switches at the same step. Returns the kind now held.
+    InstrumentKind toggle_instrument(int hand, const Instrument& instrument);
     /// The hand's device description for printing.
     std::string describe(int hand) const;
     /// The hand's --device spec as given ("mouse", "simulated:FILE", …); fixed once constructed.
@@ -165,9 +166,10 @@ private:
         std::unique_ptr<Device> device;
         DeviceSpec spec;
         Instrument instrument;
-        Instrument before_scalpel;  ///< what K switches back to
+        Instrument own;  ///< --instrument's, which a second K, Shift + P or Shift + N gives back
         InstrumentPose pose;  ///< last applied
         bool placed = false, grabbing = false;
+        bool wait_release = false;  ///< button 1 was held when the instrument changed: ignored until let go
         std::uint32_t buttons = 0;
         std::uint64_t bad_poses = 0;  ///< device poses not applied (non-finite or out of range)
         std::string fault;            ///< a device fault, once reported
