@@ -1,5 +1,6 @@
 #include "patch.h"
 
+#include "ellipsoid.h"
 #include "errors.h"
 #include "triangle_point.h"
 
@@ -544,8 +545,26 @@ void PatchModel::clear_loads() {
     loaded_slots_.clear();
 }
 
+void PatchModel::set_obstacles(std::vector<PatchObstacle> obstacles) {
+    for (const PatchObstacle& o : obstacles)
+        if (!o.pose.position.allFinite() || !o.pose.orientation.coeffs().allFinite() || !(o.semi_axes.minCoeff() > 0) || !o.semi_axes.allFinite())
+            throw InputError("patch: an obstacle needs a finite pose and positive semi-axes");
+    obstacles_ = std::move(obstacles);
+    obstacle_force_.assign(obstacles_.size(), Eigen::Vector3d::Zero());
+}
+
+bool PatchModel::obstacle_near() const {
+    const double margin = 0.5 * spec_.thickness_mm + spec_.edge_mm;
+    for (const PatchObstacle& o : obstacles_) {
+        const double reach = o.semi_axes.maxCoeff() + margin;
+        for (const Eigen::Vector3d& x : x_)
+            if ((x - o.pose.position).squaredNorm() < reach * reach) return true;
+    }
+    return false;
+}
+
 bool PatchModel::at_rest(const ParticlePositions& positions, double time_ms) const {
-    if (pressure_ > 0 || asleep_positions_.size() != positions.size()) return false;
+    if (pressure_ > 0 || asleep_positions_.size() != positions.size() || obstacle_near()) return false;
     for (const Stitch& s : stitches_)
         if (time_ms < s.tied_ms + spec_.tie_ms) return false;  // still drawing tight
     constexpr double still = 1e-5;  // mm/ms, and mm for the tissue since the patch last stepped
@@ -558,6 +577,7 @@ bool PatchModel::at_rest(const ParticlePositions& positions, double time_ms) con
 }
 
 void PatchModel::step(const ParticlePositions& positions, double dt_ms, double time_ms) {
+    obstacle_force_.assign(obstacles_.size(), Eigen::Vector3d::Zero());
     if (!laid()) {
         clear_loads();
         contact_force_.setZero();
@@ -736,6 +756,21 @@ void PatchModel::step(const ParticlePositions& positions, double dt_ms, double t
             x_[i] -= undo;
             pushed[i] -= undo;
         }
+        // The instruments: a vertex inside one (grown by half the thickness) to its surface, all
+        // the way (the hand moves the instrument, not the patch).
+        for (std::size_t o = 0; o < obstacles_.size(); ++o) {
+            const PatchObstacle& obstacle = obstacles_[o];
+            const Eigen::Matrix3d rotation = obstacle.pose.orientation.normalized().toRotationMatrix();
+            const Eigen::Vector3d axes = obstacle.semi_axes + Eigen::Vector3d::Constant(half);
+            for (std::size_t i = 0; i < n; ++i) {
+                if (inverse_mass_[i] == 0) continue;
+                const Eigen::Vector3d local = rotation.transpose() * (x_[i] - obstacle.pose.position);
+                if (!(local.cwiseQuotient(axes).squaredNorm() < 1.0)) continue;
+                const Eigen::Vector3d push = rotation * (nearest_point_on_ellipsoid(local, axes) - local);
+                x_[i] += push;
+                obstacle_force_[o] -= push / (inverse_mass_[i] * dt2);
+            }
+        }
     }
     for (std::size_t i = 0; i < n; ++i)
         if (inverse_mass_[i] > 0) v_[i] = (x_[i] - previous[i]) / dt_ms;
@@ -778,6 +813,7 @@ std::vector<ParticleLoad> PatchModel::loads() const {
 PatchModel PatchModel::under_pressure(const ParticlePositions& positions, double pressure_n_mm2, double duration_ms, double dt_ms) const {
     PatchModel test = *this;
     test.held_ = false;  // nothing holds it but its stitches
+    test.obstacles_.clear();  // nor any instrument
     test.pressure_ = pressure_n_mm2;
     // A quasi-static test: the patch made a hundredfold heavier and overdamped, so the pressure
     // moves it by little per step and the constraints keep up (its mass changes nothing at rest).

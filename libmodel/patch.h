@@ -88,6 +88,13 @@ struct Stitch {
 /// The positions of particles(), in that order (mm).
 using ParticlePositions = std::vector<std::array<float, 3>>;
 
+/// An instrument the patch cannot pass through: a probe's ellipsoid (semi-axes along the pose's
+/// tool x, y, z), moved by the hand and not by the patch.
+struct PatchObstacle {
+    InstrumentPose pose;
+    Eigen::Vector3d semi_axes = Eigen::Vector3d::Ones();
+};
+
 class PatchModel {
 public:
     /// `rest` are the particles' rest positions (packed order); `surface` the tissue the patch can
@@ -128,6 +135,14 @@ public:
 
     /// One tissue step of dt_ms ending at time_ms + dt_ms: the tissue held at `positions`.
     void step(const ParticlePositions& positions, double dt_ms, double time_ms);
+
+    /// The instruments the next step()s keep a sewn patch out of: each vertex inside one, grown by
+    /// half the patch's thickness, goes to the nearest point of its surface, as a probe pushes the
+    /// tissue's particles (a laid patch not yet sewn is the hand's and is not pushed).
+    void set_obstacles(std::vector<PatchObstacle> obstacles);
+    /// The patch's push on each obstacle in the last step(), in set_obstacles' order, N (minus the
+    /// obstacle's push on the patch, m·Δx/dt² summed over the vertices it moved).
+    const std::vector<Eigen::Vector3d>& obstacle_forces() const { return obstacle_force_; }
 
     /// The loads the last step() leaves on the tissue (minus the stitches' and the contact's
     /// forces on the patch, at their tissue points), sorted by particle, summed per particle.
@@ -238,6 +253,10 @@ private:
     Eigen::Vector3d facing_ = Eigen::Vector3d::UnitZ();  ///< the laid patch's +z (toward the tissue)
     Eigen::Matrix3d frame_ = Eigen::Matrix3d::Identity(); ///< the laid patch's tool frame
     Eigen::Vector3d contact_force_ = Eigen::Vector3d::Zero();
+    std::vector<PatchObstacle> obstacles_;
+    std::vector<Eigen::Vector3d> obstacle_force_;
+    /// Whether an obstacle reaches a vertex's neighbourhood (the patch must not sleep then).
+    bool obstacle_near() const;
     std::vector<Eigen::Vector3d> slot_force_;    ///< the loads, per slot of particles_
     std::vector<char> slot_loaded_;
     std::vector<std::int32_t> loaded_slots_;

@@ -61,6 +61,8 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     Hand& h = hands_[std::size_t(hand)];
     if (repair_kind(h.instrument.kind) && h.grabbing) release(hand);
     h.instrument = instrument;
+    h.posed = false;
+    patch_push_[std::size_t(hand)].setZero();
     h.grabbing = false;
     h.stitch.reset();
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
@@ -70,6 +72,7 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
 void RepairBackend::set_pose(int hand, const InstrumentPose& pose) {
     if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
     hands_[std::size_t(hand)].pose = pose;
+    hands_[std::size_t(hand)].posed = true;
     inner_->set_pose(hand, pose);
 }
 
@@ -162,8 +165,21 @@ StepReport RepairBackend::step(int steps) {
         if (tissue_steps_++ % every == 0) {
             const auto start = std::chrono::steady_clock::now();
             patch_->set_mass_scale(inner_->options().mass_scale);
+            // The probes push the patch as they push the tissue (their hands feel it).
+            std::vector<PatchObstacle> probes;
+            std::array<int, 2> probe_of{-1, -1};
+            for (int hand = 0; hand < 2; ++hand) {
+                const Hand& h = hands_[std::size_t(hand)];
+                if (h.instrument.kind != InstrumentKind::probe || !h.posed) continue;
+                probe_of[std::size_t(hand)] = int(probes.size());
+                probes.push_back({h.pose, h.instrument.semi_axes});
+            }
+            patch_->set_obstacles(std::move(probes));
             patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
             inner_->set_loads(patch_->loads());
+            for (int hand = 0; hand < 2; ++hand)
+                patch_push_[std::size_t(hand)] =
+                    probe_of[std::size_t(hand)] < 0 ? Eigen::Vector3d::Zero() : patch_->obstacle_forces()[std::size_t(probe_of[std::size_t(hand)])];
             patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
             ++patch_steps_;
         }
@@ -176,6 +192,7 @@ StepReport RepairBackend::step(int steps) {
             // loads, and its stitches draw tight again from where they now are.
             patch_->recover(inner_->positions_of(patch_->particles()), inner_->simulated_time_ms());
             inner_->set_loads({});
+            patch_push_.fill(Eigen::Vector3d::Zero());
         }
         total.gave_up = total.gave_up || r.gave_up;
         if (r.gave_up) break;
@@ -183,9 +200,11 @@ StepReport RepairBackend::step(int steps) {
     return total;
 }
 
-void RepairBackend::add_needle_force(InstrumentForces& forces) const {
+void RepairBackend::add_repair_forces(InstrumentForces& forces) const {
     for (int hand = 0; hand < 2; ++hand) {
         const Hand& h = hands_[std::size_t(hand)];
+        if (h.instrument.kind == InstrumentKind::probe && patch() && patch_push_[std::size_t(hand)].allFinite())
+            forces.hand[std::size_t(hand)].force_n += patch_push_[std::size_t(hand)];  // the patch it presses on
         if (!repair_kind(h.instrument.kind)) continue;
         forces.hand[std::size_t(hand)].force_n.setZero();
         forces.hand[std::size_t(hand)].particles = 0;
@@ -199,18 +218,19 @@ void RepairBackend::add_needle_force(InstrumentForces& forces) const {
 
 std::optional<InstrumentForces> RepairBackend::latest_forces() {
     std::optional<InstrumentForces> forces = inner_->latest_forces();
-    if (forces) add_needle_force(*forces);
+    if (forces) add_repair_forces(*forces);
     return forces;
 }
 
 InstrumentForces RepairBackend::instrument_forces() {
     InstrumentForces forces = inner_->instrument_forces();
-    add_needle_force(forces);
+    add_repair_forces(forces);
     return forces;
 }
 
 void RepairBackend::reset_tissue() {
     patch_.reset();
+    patch_push_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
     inner_->set_loads({});
     inner_->reset_tissue();

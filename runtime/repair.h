@@ -87,7 +87,8 @@ public:
 private:
     void lay(int hand);
     void tie(int hand);
-    void add_needle_force(InstrumentForces& forces) const;
+    /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.
+    void add_repair_forces(InstrumentForces& forces) const;
 
     std::unique_ptr<Backend> inner_;
     const Scenario& scenario_;
@@ -96,10 +97,13 @@ private:
     struct Hand {
         Instrument instrument;
         InstrumentPose pose;
+        bool posed = false;  ///< set_pose since set_instrument
         bool grabbing = false;
         std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
     };
     std::array<Hand, 2> hands_{};
+    /// The patch's push on each hand's probe in its last step (held between its steps, as its loads), N.
+    std::array<Eigen::Vector3d, 2> patch_push_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     double patch_ms_ = 0.0;
     long long patch_steps_ = 0;
     long long tissue_steps_ = 0;  ///< since the patch was laid

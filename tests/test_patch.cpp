@@ -1,6 +1,7 @@
 // The patch (libmodel/patch.h) sewn over a hole in a rigid plate, checked by the closure check
 // (libmodel/closure.h): enough stitches close the hole, too few or no patch leave it open; the
-// tissue takes the opposite of every force on the patch (Newton's third law).
+// tissue takes the opposite of every force on the patch (Newton's third law); a probe pressed on it
+// pushes it and is pushed back.
 #include "libmodel/closure.h"
 #include "libmodel/errors.h"
 #include "libmodel/patch.h"
@@ -155,6 +156,52 @@ TEST(Patch, ASewnPatchRidesOnTissueThatSlides) {
         worst = std::max(worst, (patch.positions()[i] - before[i] - Eigen::Vector3d(speed * slide_ms, 0, 0)).norm());
     std::printf("  after the plate slid %.1f mm, each vertex within %.4f mm of its place on it\n", speed * slide_ms, worst);
     EXPECT_LT(worst, 0.05);  // held by friction against its motion in space, it would lag 0.25 mm
+}
+
+// A probe pressed onto a sewn patch where it lies on the plate pushes it: no vertex stays inside
+// the probe (grown by half the patch's thickness), the probe is pushed back (away from the plate),
+// and the patch, at rest between the probe, the plate and its stitches, balances: the plate's and
+// the stitches' forces on it equal its push on the probe. Lifted off, the probe feels nothing.
+TEST(Patch, AProbePressedOnASewnPatchPushesItAndIsPushedBack) {
+    Plate plate;
+    PatchModel patch(spec(), plate.mesh.positions, plate.surface());
+    const ParticlePositions at = positions_of(plate, patch);
+    patch.lay(facing_down(thickness / 2 + 3.0), at);
+    const double rim = hole / 2 + 2.0;
+    for (int k = 0; k < 8; ++k) {
+        const double angle = 2.0 * std::numbers::pi * k / 8;
+        ASSERT_TRUE(patch.tie(Eigen::Vector3d(rim * std::cos(angle), rim * std::sin(angle), thickness / 2), 0.0, at).has_value());
+    }
+    double t = 0;
+    for (; t < 300; t += dt) patch.step(at, dt, t);  // drawn tight on the plate
+    // A 2 mm ball over the patch where it lies on the plate (between the hole's edge and the
+    // patch's), 0.4 mm into it: its centre 2 mm + half the thickness − 0.4 mm above the patch.
+    double top = -1e9;
+    for (const auto& x : patch.positions())
+        if (std::hypot(x.x(), x.y() - rim) < 1.0) top = std::max(top, x.z());
+    ASSERT_GT(top, thickness / 2) << "the patch lies on the plate there";
+    const double radius = 2.0, half = 0.5 * spec().thickness_mm;
+    PatchObstacle probe;
+    probe.pose.position = Eigen::Vector3d(0, rim, top + half + radius - 0.4);
+    probe.semi_axes = Eigen::Vector3d::Constant(radius);
+    patch.set_obstacles({probe});
+    for (; t < 600; t += dt) patch.step(at, dt, t);
+    const Eigen::Vector3d push = patch.obstacle_forces().at(0);
+    double closest = 1e9;
+    for (const auto& x : patch.positions()) closest = std::min(closest, (x - probe.pose.position).norm());
+    Eigen::Vector3d on_patch = patch.contact_force();
+    for (const Stitch& st : patch.stitches()) on_patch += st.force_n;
+    std::printf("  the patch pushes the probe with (%.4g, %.4g, %.4g) N; plate and stitches on it (%.4g, %.4g, %.4g) N; nearest vertex %.4f mm from its centre\n",
+                push.x(), push.y(), push.z(), on_patch.x(), on_patch.y(), on_patch.z(), closest);
+    EXPECT_GE(closest, radius + half - 1e-9) << "no vertex inside the probe";
+    EXPECT_GT(push.z(), 0.0) << "pushed back, away from the plate";
+    EXPECT_GT(push.z(), 10.0 * std::hypot(push.x(), push.y())) << "straight back: the ball presses straight down";
+    EXPECT_LT((on_patch - push).norm(), 0.05 * push.norm()) << "the patch at rest: what pushes it balances what it pushes";
+    probe.pose.position.z() += 5.0;  // lifted off
+    patch.set_obstacles({probe});
+    for (const double end = t + 50; t < end; t += dt) patch.step(at, dt, t);
+    EXPECT_EQ(patch.obstacle_forces().at(0), Eigen::Vector3d::Zero());
+    EXPECT_THROW(patch.set_obstacles({PatchObstacle{probe.pose, Eigen::Vector3d(1, 0, 1)}}), InputError);
 }
 
 TEST(Patch, RefusesWhatIsNotAPatch) {

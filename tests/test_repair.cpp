@@ -401,3 +401,66 @@ TEST(Repair, TheCpuAndGlBackendsSewThePatchAlike) {
     // The gap is a distance between the two meshes, each within the tolerance, printed to 0.01 mm.
     EXPECT_LE(std::abs(on_gl.gap_mm - on_cpu.gap_mm), 2 * tolerance + 0.01);
 }
+
+// After plan-repair's eight stitches, hand 0 takes a 2 mm probe and presses it 1 mm into the middle
+// of the sewn patch, over the opening: the probe pushes the patch (no patch vertex inside it, grown
+// by half the patch's thickness), the hand is pushed back towards the side it came from, and the
+// defect stays closed (the patch as it lies: --leak-test 0, as the run without the probe).
+TEST(Repair, AProbePressedOnTheSewnPatchIsPushedBackAndTheDefectStaysClosed) {
+    const BlockRepair& b = block_repair();
+    test::TempDir dir;
+    const Trajectory plan = read_trajectory(b.closure);
+    const double end = end_of(plan);
+    char length[32];
+    std::snprintf(length, sizeof length, "%.3f", 1e-3 * end);
+    const auto sewn = heartsim_command("run " + quoted(b.scenario) + " --headless --trajectory " + quoted(b.closure) + " --seconds " + length +
+                                       " --leak-test 0 --save-state " + quoted(dir / "sewn.h5"));
+    ASSERT_EQ(sewn.exit_code, 0) << sewn.output;
+    ASSERT_EQ(verdict_of(sewn.output).closed, "yes") << sewn.output;
+    const SimulationState before = read_state(dir / "sewn.h5");
+    ASSERT_TRUE(before.patch.has_value());
+    // The patch's middle as sewn, and the way it faces the tissue (the laying pose's tool +z).
+    Eigen::Vector3d middle = Eigen::Vector3d::Zero();
+    for (const auto& x : before.patch->positions) middle += vec(x);
+    middle /= double(before.patch->positions.size());
+    Eigen::Vector3d facing = Eigen::Vector3d::UnitZ();
+    for (const InstrumentKeyframe& k : plan.keyframes)
+        if (k.kind == InstrumentKind::patch) facing = k.pose.orientation * Eigen::Vector3d::UnitZ();
+    double nearest = 1e9;  // the patch vertex nearest its middle: where the probe presses
+    Eigen::Vector3d pressed = middle;
+    for (const auto& x : before.patch->positions)
+        if ((vec(x) - middle).norm() < nearest) nearest = (vec(x) - middle).norm(), pressed = vec(x);
+    const double radius = 2.0, half = 0.25;
+    const Eigen::Vector3d away = pressed - facing * (radius + half + 6.0), in = pressed - facing * (radius + half - 1.0);
+    fs::copy_file(b.closure, dir / "press.csv");
+    {
+        std::ofstream out(dir / "press.csv", std::ios::app);
+        auto row = [&](double t, const Eigen::Vector3d& p) {
+            char line[256];
+            std::snprintf(line, sizeof line, "%.3f, 0, probe, %.6f, %.6f, %.6f, 1, 0, 0, 0, %g, %g, %g, 0\n", t, p.x(), p.y(), p.z(), radius, radius, radius);
+            out << line;
+        };
+        row(end + 20, away);
+        row(end + 320, in);
+        row(end + 620, in);
+    }
+    std::snprintf(length, sizeof length, "%.3f", 1e-3 * (end + 620));
+    const auto pressing = heartsim_command("run " + quoted(b.scenario) + " --headless --trajectory " + quoted(dir / "press.csv") + " --seconds " +
+                                           length + " --leak-test 0 --save-state " + quoted(dir / "pressed.h5"));
+    ASSERT_EQ(pressing.exit_code, 0) << pressing.output;
+    const SimulationState after = read_state(dir / "pressed.h5");
+    ASSERT_TRUE(after.patch.has_value());
+    EXPECT_EQ(after.kind[0], 1) << "hand 0 holds the probe";
+    const Eigen::Vector3d force(after.force_n[0][0], after.force_n[0][1], after.force_n[0][2]);
+    double closest = 1e9;
+    for (const auto& x : after.patch->positions) closest = std::min(closest, (vec(x) - in).norm());
+    const double moved = (after.patch->positions.empty() ? 0.0 : largest_difference(after.patch->positions, before.patch->positions));
+    std::printf("  the probe 1 mm into the patch's middle: pushed back with %.4g N (%.2f of it against the way it came); nearest patch vertex %.3f mm "
+                "from its centre; the patch moved up to %.2f mm\n",
+                force.norm(), force.norm() > 0 ? -force.dot(facing) / force.norm() : 0.0, closest, moved);
+    EXPECT_GE(closest, radius + half - 1e-6) << "no patch vertex inside the probe";
+    EXPECT_GT(-force.dot(facing), 0.0) << "the patch pushes the probe back out of it";
+    EXPECT_GT(-force.dot(facing), 0.9 * force.norm()) << "mostly straight back";
+    EXPECT_GT(moved, 0.5) << "the patch gave way under the probe";
+    EXPECT_EQ(verdict_of(pressing.output).closed, "yes") << pressing.output;
+}
