@@ -4,6 +4,8 @@
 #include "hdf5_io.h"
 #include "xdmf.h"
 
+#include "libmodel/errors.h"
+#include "libmodel/patch.h"
 #include "libmodel/plausible.h"
 #include "libmodel/solver.h"
 
@@ -104,6 +106,7 @@ void write_recording_data(const std::filesystem::path& path, const Recording& r,
         w.attribute("/", "contact", r.contact);
         w.attribute("/", "interpolation", r.interpolation);
         w.attribute("/", "arithmetic", r.arithmetic);
+        w.attribute("/", "patch_material", r.patch_material);
         if (r.rules) {
             w.group("rules");
             for_each_rule([&](const char* name, const auto& value) { w.attribute("rules", name, value); }, *r.rules);
@@ -195,6 +198,12 @@ Recording read_recording(const std::filesystem::path& path) {
     rec.arithmetic = r.has_attribute("/", "arithmetic") ? r.string_attribute("/", "arithmetic") : "separate";
     if (!known_arithmetic(rec.arithmetic))
         r.fail("/", "attribute arithmetic must be fused or separate, not '" + rec.arithmetic + "'");
+    rec.patch_material = r.has_attribute("/", "patch_material") ? r.string_attribute("/", "patch_material") : "pericardium";
+    try {
+        patch_material_named(rec.patch_material);
+    } catch (const InputError& e) {
+        r.fail("/", std::string("attribute patch_material: ") + e.what());
+    }
     // Absent in recordings made before they kept the solver's rules.
     if (r.exists("rules")) {
         SolverRules rules;
@@ -314,6 +323,7 @@ Recording read_recording(const std::filesystem::path& path) {
                     r.fail("steps/instrument", row + " is " + std::to_string(int(s.instrument[i][h])) +
                                                    ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch) or 5 (needle)");
                 if (*kind != InstrumentKind::none && !rec.hands[h].used) r.fail("steps/instrument", row + " is an instrument of a hand without a device");
+                if (*kind == InstrumentKind::none && rec.hands[h].used) r.fail("steps/instrument", row + " holds no instrument in a hand with a device");
                 if (*kind == InstrumentKind::none) continue;
                 for (double a : s.semi_axes_mm[i][h])
                     if (!plausible::semi_axis_mm.contains(a)) r.fail("steps/semi_axes_mm", row + ": " + plausible::outside("semi-axis", a, plausible::semi_axis_mm));

@@ -6,7 +6,8 @@
 /// (docs/haptics.md "Recording"):
 ///   root attrs  format = "heartsim.recording", format_version = 1, units = "mm g ms N", frame = "LPS",
 ///               scenario (file name), particles, dt_ms, substeps, backend, contact, rate_hz,
-///               interpolation, arithmetic, coupling (0/1), period_p50_ms, period_p99_ms, period_max_ms,
+///               interpolation, arithmetic, coupling (0/1), patch_material (absent in recordings made
+///               before it was kept: pericardium), period_p50_ms, period_p99_ms, period_max_ms,
 ///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
 ///               (libmodel/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
@@ -126,6 +127,8 @@ struct Recording {
     /// kernel, and every recording made before they were fused, which has no such attribute). A
     /// cpu replay takes the same, so that it reproduces the forces to the bit (docs/haptics.md).
     std::string arithmetic = "fused";
+    /// --patch-material of the session (libmodel/patch.h patch_material_named), which a replay lays.
+    std::string patch_material = "pericardium";
     /// nullopt: made before recordings kept their rules (replayed with rules_before_recorded()).
     std::optional<SolverRules> rules;
     double rate_hz = 0.0;

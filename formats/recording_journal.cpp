@@ -4,6 +4,7 @@
 #include "hdf5_io.h"  // lookup3
 
 #include "libmodel/errors.h"
+#include "libmodel/patch.h"
 #include "libmodel/plausible.h"
 
 #include <algorithm>
@@ -31,7 +32,7 @@ constexpr std::size_t record_header = 20;           // magic, kind, bytes, check
 /// the arithmetic (a byte, 1 when they follow); a journal before it is read without them. 4 adds
 /// to each chunk, after the diverged column, a byte (1 when the mass-scale column follows) and the
 /// column. 5 adds after the mass-scale column a byte (1 when the instrument and semi-axes columns
-/// follow) and the two columns.
+/// follow) and the two columns, and at the end of the session record its patch material.
 constexpr std::uint32_t journal_version = 5;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
@@ -179,6 +180,7 @@ RecordingJournal::RecordingJournal(const std::filesystem::path& path, const Reco
         b.put(hand.mapping_scale);
         b.put(hand.force_scale);
     }
+    b.text(session.patch_material);
     std::vector<unsigned char> record(record_header + b.bytes.size());
     const std::uint32_t kind = session_record;
     const std::uint64_t size = b.bytes.size();
@@ -430,6 +432,12 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
                 hand.mapping_scale = c.get<double>();
                 hand.force_scale = c.get<double>();
             }
+            r.patch_material = version >= 5 ? c.text() : "pericardium";
+            try {
+                patch_material_named(r.patch_material);
+            } catch (const InputError& e) {
+                throw InputError(where + ": the session's " + e.what());
+            }
         } else if (kind == chunk_record) {
             RecordedSteps& s = r.steps;
             const auto n = c.get<std::uint64_t>();
@@ -462,6 +470,9 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
                     for (int h = 0; h < 2; ++h) {
                         const auto kind = instrument_of_code(s.instrument[k][h]);
                         if (!kind) throw InputError(where + ": a step's instrument code is " + std::to_string(int(s.instrument[k][h])) + ", expected 0 … 5");
+                        if ((*kind != InstrumentKind::none) != bool(used[std::size_t(h)]))
+                            throw InputError(where + ": a step's instrument of hand " + std::to_string(h) + " is " + to_string(*kind) +
+                                             (used[std::size_t(h)] ? ", but the hand has a device" : ", but the hand has no device"));
                         if (*kind == InstrumentKind::none) continue;
                         for (double a : s.semi_axes_mm[k][h])
                             if (!plausible::semi_axis_mm.contains(a))

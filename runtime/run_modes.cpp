@@ -282,7 +282,8 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     }
     // A patch and its stitches ride on the backend: every mode's hands reach them (runtime/repair.h).
     RepairSettings repair;
-    repair.material = patch_material_named(a.patch_material);
+    // A replay lays the patch the session laid (its recorded --patch-material).
+    repair.material = patch_material_named(p.replayed ? p.replayed->patch_material : a.patch_material);
     p.backend = with_repair(std::move(p.backend), p.scenario, repair);
     p.repair = dynamic_cast<RepairBackend*>(p.backend.get());
 }
@@ -384,6 +385,7 @@ std::unique_ptr<haptics::HapticRun> start_haptics(const RunArguments& a, Prepare
     settings.session.realtime = a.haptic_priority == "realtime";
     settings.record = a.record.value_or("");
     settings.contact = a.contact_mode();
+    settings.patch_material = a.patch_material;
     settings.real_time_auto = a.real_time_mode() == RealTimeMode::automatic;
     haptics::HapticRunContext context_settings{.headless = a.headless};
     context_settings.camera = p.renderer ? p.renderer->camera()
@@ -588,8 +590,8 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         state.particles[hand] = std::int32_t(forces.hand[hand].particles);
         if (haptic) {
             state.kind[hand] = !haptic->uses_hand(hand) ? 0 : state_kind(haptic->instrument(hand));
-        } else if (replayed) {  // a replay: the instruments the recording's hands held
-            state.kind[hand] = !replayed->hands[std::size_t(hand)].used ? 0 : state_kind(instrument_kind_named(replayed->hands[std::size_t(hand)].instrument).value_or(InstrumentKind::none));
+        } else if (replayed) {  // a replay: the instruments the recording's hands held at its last step
+            state.kind[hand] = state_kind(replayed->instrument_at(replayed->steps.size() ? replayed->steps.size() - 1 : 0, hand).kind);
         } else {
             state.kind[hand] = p.trajectory.uses_hand(hand) ? state_kind(p.trajectory.at(hand, p.backend->simulated_time_ms()).kind) : 0;
         }

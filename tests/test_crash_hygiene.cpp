@@ -725,6 +725,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         if (seed == 1) full.rules = rules_before_recorded();  // seed 2: a session without rules, as before they were kept
         if (seed == 1)  // --real-time auto's mass scale, changed mid-session (seed 2: none, as before heartsim scaled mass)
             for (std::size_t k = 0; k < full.steps.size(); ++k) full.steps.mass_scale.push_back(k < 25 ? 1.0 : 4.0);
+        if (seed == 1) full.patch_material = "dacron";
         if (seed == 1)  // K in the window: a scalpel from step 10 (seed 2: no instrument columns, as before)
             for (std::size_t k = 0; k < full.steps.size(); ++k) {
                 const bool scalpel = k >= 10;
@@ -757,6 +758,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
         EXPECT_EQ(c.recording.dt_ms, 0.2);
         EXPECT_EQ(c.recording.arithmetic, full.arithmetic);
         EXPECT_EQ(c.recording.rules, full.rules);
+        EXPECT_EQ(c.recording.patch_material, full.patch_material);
         // What recover writes reads back as a recording.
         write_recording(dir / "rec.h5", c.recording);
         expect_same_rows(read_recording(dir / "rec.h5"), full);
@@ -827,6 +829,14 @@ TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
     at += 8 + 8 + 4;   // particles, dt_ms, substeps
     for (int text = 0; text < 4; ++text) skip_text();  // backend, contact, interpolation, arithmetic
     ASSERT_EQ(bytes[at], '\0') << "a session without rules";
+    // Version 5's patch material ends the session record: a u64 length, then the name.
+    const std::string material = "pericardium";
+    std::uint64_t end_size = 0, material_length = 0;
+    std::memcpy(&end_size, bytes.data() + header + 8, 8);
+    std::memcpy(&material_length, bytes.data() + payload + end_size - 8 - material.size(), 8);
+    ASSERT_EQ(material_length, material.size());
+    ASSERT_EQ(bytes.substr(payload + end_size - material.size(), material.size()), material);
+    for (std::size_t k = 0; k < 8 + material.size(); ++k) erase_in_record(header, end_size - 8 - material.size());
     erase_in_record(header, at - payload);
     version = 2;
     std::memcpy(bytes.data() + payload, &version, 4);

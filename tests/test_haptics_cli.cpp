@@ -837,6 +837,10 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         EXPECT_EQ(again.instrument_at(0, 1).kind, InstrumentKind::grabber);
         EXPECT_EQ(again.instrument_at(1, 1).kind, InstrumentKind::scalpel);
         EXPECT_EQ(again.instrument_at(1, 1).semi_axes, Eigen::Vector3d(2, 0.3, 10));
+        EXPECT_EQ(again.patch_material, "pericardium");
+        switched.patch_material = "dacron";
+        write_recording(dir / "switched.h5", switched);
+        EXPECT_EQ(read_recording(dir / "switched.h5").patch_material, "dacron");
         auto refused = [&](Recording bad, const std::string& words) {
             write_recording(dir / "switched.h5", bad);
             try {
@@ -855,6 +859,12 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         bad = switched;
         bad.steps.instrument[0][0] = instrument_code(InstrumentKind::probe);  // hand 0 has no device
         refused(bad, "steps/instrument: row 0, hand 0 is an instrument of a hand without a device");
+        bad = switched;
+        bad.steps.instrument[0][1] = instrument_code(InstrumentKind::none);  // hand 1 has a device
+        refused(bad, "steps/instrument: row 0, hand 1 holds no instrument in a hand with a device");
+        bad = switched;
+        bad.patch_material = "cardboard";
+        refused(bad, "attribute patch_material: ");
         bad = switched;
         bad.steps.semi_axes_mm[1][1][2] = -10.0;
         refused(bad, "steps/semi_axes_mm: row 1, hand 1: semi-axis");

@@ -121,11 +121,11 @@ TEST(Repair, AHapticRepairSessionReplaysBitForBit) {
     char length[32];
     std::snprintf(length, sizeof length, "%.3f", seconds);
     const auto live = heartsim_command("run " + quoted(b.scenario) + " --headless --backend cpu --device scripted:" + quoted(b.script[0]) +
-                                       " --device scripted:" + quoted(b.script[1]) + " --instrument patch --instrument needle --seconds " +
+                                       " --device scripted:" + quoted(b.script[1]) + " --instrument patch --instrument needle --patch-material ptfe --seconds " +
                                        length + " --record " + quoted(dir / "repair.h5") + " --save-state " + quoted(dir / "live.h5"));
     ASSERT_EQ(live.exit_code, 0) << live.output;
     std::printf("%s\n", live.output.c_str());
-    for (const char* line : {"hand 0: scripted:", "→ patch 9×9×0.25 mm", "hand 1: scripted:", "→ needle 0.25×0.25×6 mm", "patch laid at",
+    for (const char* line : {"hand 0: scripted:", "→ patch 9×9×0.25 mm", "hand 1: scripted:", "→ needle 0.25×0.25×6 mm", "ptfe patch laid at",
                              "stitch 1 tied", "stitch 4 tied", "defect closed: "})
         EXPECT_NE(live.output.find(line), std::string::npos) << line;
     EXPECT_EQ(live.output.find("stitch 5 tied"), std::string::npos) << "one stitch per press of the needle's button";
@@ -136,6 +136,7 @@ TEST(Repair, AHapticRepairSessionReplaysBitForBit) {
     EXPECT_EQ(recorded.hands[1].instrument, "needle");
     EXPECT_EQ(recorded.hands[0].semi_axes_mm, (std::array<double, 3>{9, 9, 0.25}));
     EXPECT_EQ(recorded.hands[1].semi_axes_mm, (std::array<double, 3>{0.25, 0.25, 6}));
+    EXPECT_EQ(recorded.patch_material, "ptfe");
     std::array<int, 2> presses{0, 0};
     for (const auto& e : recorded.events)
         if (e.what == "grab" && e.hand >= 0) ++presses[std::size_t(e.hand)];
@@ -164,6 +165,7 @@ TEST(Repair, AHapticRepairSessionReplaysBitForBit) {
     EXPECT_EQ(replay.exit_code, 0) << replay.output;
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("stitch 4 tied"), std::string::npos) << replay.output;
+    EXPECT_NE(replay.output.find("ptfe patch laid at"), std::string::npos) << "the replay lays the recorded material\n" << replay.output;
 
     const SimulationState session = read_state(dir / "live.h5"), again = read_state(dir / "replayed.h5");
     EXPECT_EQ(session.kind[0], 4);

@@ -251,7 +251,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         h.spec = parse_device_spec(settings.devices[i]);
         h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
                                                             : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
-        h.own = h.instrument;
+        h.own = h.stepped = h.instrument;
         DeviceMapping& mapping = mappings[i];  // scripted, simulated and mouse devices move in the world frame
         switch (h.spec.kind) {
         case DeviceSpec::Kind::scripted: {
@@ -329,6 +329,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     recording_.arithmetic = backend.kind() == BackendKind::cpu && !fuses_multiply_adds(backend.load_report().kernel) ? "separate" : "fused";
     recording_.rules = static_cast<const SolverRules&>(backend.options());
     recording_.contact = settings.contact;
+    recording_.patch_material = settings.patch_material;
     if (settings.real_time_auto) governor_.emplace(backend);
     recording_.interpolation = to_string(settings.session.interpolation);
     recording_.rate_hz = settings.session.rate_hz;
@@ -357,10 +358,9 @@ InstrumentKind HapticRun::toggle_instrument(int hand, const Instrument& instrume
     if (hand < 0 || hand > 1 || !hands_[hand].device) throw UsageError("haptics: hand " + std::to_string(hand) + " has no device");
     Hand& h = hands_[hand];
     h.instrument = h.instrument.kind == instrument.kind ? h.own : instrument;
-    // Placed afresh at the next step (apply_tool releases what the old one held); a button held
-    // through the switch acts at its next press, so the new instrument does not cut, lay or tie
-    // the moment it is taken up.
-    h.placed = false, h.grabbing = false;
+    // The next step places it afresh if it differs from the one the last step held (step(), as a
+    // replay decides from /steps/instrument); a button held through the switch acts at its next
+    // press, so the new instrument does not cut, lay or tie the moment it is taken up.
     h.wait_release = (h.buttons & 1u) != 0;
     shown_kind_[hand] = h.instrument.kind;
     return h.instrument.kind;
@@ -379,7 +379,7 @@ void HapticRun::start_recording(const std::string& path) {
     // state `--replay` starts from (the scenario's rest state, nothing placed), so the recording's
     // step 0 is the replay's step 0 and a cpu replay reproduces its forces bit for bit.
     backend_.reset_tissue();
-    for (Hand& h : hands_) h.placed = false, h.grabbing = false, h.wait_release = (h.buttons & 1u) != 0;
+    for (Hand& h : hands_) h.placed = false, h.grabbing = false;
     drain();  // the ticks so far are not this recording's
     ticks_.clear();
     recording_ = std::move(fresh);
@@ -434,6 +434,15 @@ StepReport HapticRun::step() {
     const long long step_index = (long long)rows_++;
     double tool_time = -1.0;
     std::array<bool, 2> grab{false, false}, applied{false, false};
+    // An instrument other than the one the last step held (K, Shift + P, Shift + N): placed afresh,
+    // what the old one held let go (set_instrument releases it), exactly where a replay does so.
+    for (int i = 0; i < 2; ++i) {
+        Hand& h = hands_[i];
+        if (!h.device || (h.instrument.kind == h.stepped.kind && h.instrument.semi_axes == h.stepped.semi_axes)) continue;
+        if (h.grabbing && recording_on_) recording_.events.push_back({session_->now_ms(), i, "release"});
+        h.placed = false, h.grabbing = false;
+        h.stepped = h.instrument;
+    }
     if (auto tools = session_->latest_tools()) {
         for (int i = 0; i < 2; ++i) {
             Hand& h = hands_[i];

@@ -72,6 +72,7 @@ struct HapticRunSettings {
     HapticSettings session{};              ///< rate, interpolation, coupling, safety (max force)
     std::string record;                    ///< --record OUT.h5 ("" = none)
     std::string contact = "direct";        ///< recorded with the session
+    std::string patch_material = "pericardium";  ///< --patch-material, recorded with the session
     /// --real-time auto: a MassScaleGovernor steers the mass scale from the session's clock
     /// (runtime/real_time.h); every step records the scale it ran with.
     bool real_time_auto = false;
@@ -128,8 +129,9 @@ public:
     /// The hand's instrument now; read from any thread (K switches it on the thread that steps).
     InstrumentKind instrument(int hand) const { return shown_kind_[hand].load(); }
     /// The window's K, Shift + P and Shift + N: `hand`'s instrument becomes `instrument`, or, when
-    /// it holds one of that kind, its own again (--instrument's); placed afresh at the next step,
-    /// its grab released; a button held through the switch acts at its next press. Called on the
+    /// it holds one of that kind, its own again (--instrument's); the next step places it afresh,
+    /// its predecessor's grab released, when it differs from the instrument the last step held;
+    /// a button held through the switch acts at its next press. Called on the
     /// thread that steps, between steps; a recording keeps it (/steps/instrument), so a replay
     /// switches at the same step. Returns the kind now held.
     InstrumentKind toggle_instrument(int hand, const Instrument& instrument);
@@ -167,6 +169,7 @@ private:
         DeviceSpec spec;
         Instrument instrument;
         Instrument own;  ///< --instrument's, which a second K, Shift + P or Shift + N gives back
+        Instrument stepped;  ///< the instrument the last step held (a different one is placed afresh)
         InstrumentPose pose;  ///< last applied
         bool placed = false, grabbing = false;
         bool wait_release = false;  ///< button 1 was held when the instrument changed: ignored until let go
