@@ -29,25 +29,6 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
-std::int8_t instrument_code(InstrumentKind kind) {
-    switch (kind) {
-    case InstrumentKind::none: return 0;
-    case InstrumentKind::probe: return 1;
-    case InstrumentKind::grabber: return 2;
-    case InstrumentKind::scalpel: return 3;
-    case InstrumentKind::patch: return 4;
-    case InstrumentKind::needle: return 5;
-    }
-    return 0;
-}
-
-std::optional<InstrumentKind> instrument_of_code(std::int8_t code) {
-    constexpr InstrumentKind kinds[] = {InstrumentKind::none,    InstrumentKind::probe, InstrumentKind::grabber,
-                                        InstrumentKind::scalpel, InstrumentKind::patch, InstrumentKind::needle};
-    if (code < 0 || code > 5) return std::nullopt;
-    return kinds[code];
-}
-
 Instrument Recording::instrument_at(std::size_t k, int hand) const {
     Instrument instrument;
     if (k < steps.instrument.size()) {

@@ -34,7 +34,7 @@
 ///     diverged       int8    [S]      the step hit the watchdog
 ///     mass_scale     float64 [S]      the explicit mass scaling S the step ran with (absent in
 ///                                     recordings made before heartsim scaled mass: 1 throughout)
-///     instrument     int8    [S,2]    the instrument each hand held during the step (instrument_code:
+///     instrument     int8    [S,2]    the instrument each hand held during the step (libmodel/solver.h instrument_code:
 ///                                     0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle; the
 ///                                     window's K, Shift + P and Shift + N change it) and
 ///     semi_axes_mm   float64 [S,2,3]  its semi-axes (both absent in recordings made before an instrument
@@ -98,10 +98,6 @@ struct RecordedSteps {
     std::vector<std::array<std::array<double, 3>, 2>> semi_axes_mm;
 };
 
-/// The code of /steps/instrument: 0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle.
-std::int8_t instrument_code(InstrumentKind kind);
-/// The kind of a code; nullopt for a code outside 0 … 5.
-std::optional<InstrumentKind> instrument_of_code(std::int8_t code);
 
 struct RecordedEvent {
     double time_ms = 0.0;

@@ -59,6 +59,25 @@ std::optional<InstrumentKind> instrument_kind_named(const std::string& word) {
     return std::nullopt;
 }
 
+std::int8_t instrument_code(InstrumentKind kind) {
+    switch (kind) {
+    case InstrumentKind::none: return 0;
+    case InstrumentKind::probe: return 1;
+    case InstrumentKind::grabber: return 2;
+    case InstrumentKind::scalpel: return 3;
+    case InstrumentKind::patch: return 4;
+    case InstrumentKind::needle: return 5;
+    }
+    return 0;
+}
+
+std::optional<InstrumentKind> instrument_of_code(int code) {
+    constexpr InstrumentKind kinds[] = {InstrumentKind::none,    InstrumentKind::probe, InstrumentKind::grabber,
+                                        InstrumentKind::scalpel, InstrumentKind::patch, InstrumentKind::needle};
+    if (code < 0 || code > 5) return std::nullopt;
+    return kinds[code];
+}
+
 const char* to_string(WatchdogReason reason) {
     switch (reason) {
     case WatchdogReason::none: return "none";

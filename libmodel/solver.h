@@ -59,6 +59,11 @@ enum class InstrumentKind {
 const char* to_string(InstrumentKind kind);
 /// The kind to_string() calls `word`; empty for any other word.
 std::optional<InstrumentKind> instrument_kind_named(const std::string& word);
+/// The kind's code in files (a state's /instrument_kind, a recording's /steps/instrument): 0 none,
+/// 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle.
+std::int8_t instrument_code(InstrumentKind kind);
+/// The kind of a code; nullopt for a code outside 0 … 5.
+std::optional<InstrumentKind> instrument_of_code(int code);
 /// Whether the kind acts on a grab flag or button 1: a grabber holds, a scalpel's blade is
 /// lowered, a patch is laid, a needle ties a stitch.
 inline bool takes_grab(InstrumentKind kind) { return kind != InstrumentKind::none && kind != InstrumentKind::probe; }

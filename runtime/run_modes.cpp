@@ -474,20 +474,6 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     std::printf("wrote %s\n", a.stats_csv.c_str());
 }
 
-/// The state file's instrument code (formats/state.h): 0 none, 1 probe, 2 grabber, 3 scalpel,
-/// 4 patch, 5 needle.
-std::int32_t state_kind(InstrumentKind kind) {
-    switch (kind) {
-    case InstrumentKind::none: return 0;
-    case InstrumentKind::probe: return 1;
-    case InstrumentKind::grabber: return 2;
-    case InstrumentKind::scalpel: return 3;
-    case InstrumentKind::patch: return 4;
-    case InstrumentKind::needle: return 5;
-    }
-    return 0;
-}
-
 /// The run's incision state, made at the first stroke; null without a mapped visual mesh or
 /// before any stroke.
 IncisionState* incision_state(PreparedRun& p, const StrokeLog& log) {
@@ -589,11 +575,11 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
         for (int c = 0; c < 3; ++c) state.force_n[hand][c] = forces.hand[hand].force_n[c];
         state.particles[hand] = std::int32_t(forces.hand[hand].particles);
         if (haptic) {
-            state.kind[hand] = !haptic->uses_hand(hand) ? 0 : state_kind(haptic->instrument(hand));
+            state.kind[hand] = !haptic->uses_hand(hand) ? 0 : std::int32_t(instrument_code(haptic->instrument(hand)));
         } else if (replayed) {  // a replay: the instruments the recording's hands held at its last step
-            state.kind[hand] = state_kind(replayed->instrument_at(replayed->steps.size() ? replayed->steps.size() - 1 : 0, hand).kind);
+            state.kind[hand] = std::int32_t(instrument_code(replayed->instrument_at(replayed->steps.size() ? replayed->steps.size() - 1 : 0, hand).kind));
         } else {
-            state.kind[hand] = p.trajectory.uses_hand(hand) ? state_kind(p.trajectory.at(hand, p.backend->simulated_time_ms()).kind) : 0;
+            state.kind[hand] = p.trajectory.uses_hand(hand) ? std::int32_t(instrument_code(p.trajectory.at(hand, p.backend->simulated_time_ms()).kind)) : 0;
         }
     }
     state.cut_springs = p.backend->cut_springs();

@@ -821,6 +821,16 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         }
     }
 
+    // Damaged recordings are refused by file, dataset and row, never half-used.
+    auto refused = [&](const Recording& damaged, const std::string& expected) {
+        write_recording(dir / "damaged.h5", damaged);
+        try {
+            read_recording(dir / "damaged.h5");
+            ADD_FAILURE() << "accepted; expected: " << expected;
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
+        }
+    };
     EXPECT_TRUE(back.steps.instrument.empty()) << "no column written: the hand's attributes throughout";
     EXPECT_EQ(back.instrument_at(1, 1).kind, InstrumentKind::grabber);
     EXPECT_EQ(back.instrument_at(1, 1).semi_axes, Eigen::Vector3d(1, 2, 3));
@@ -841,15 +851,6 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         switched.patch_material = "dacron";
         write_recording(dir / "switched.h5", switched);
         EXPECT_EQ(read_recording(dir / "switched.h5").patch_material, "dacron");
-        auto refused = [&](Recording bad, const std::string& words) {
-            write_recording(dir / "switched.h5", bad);
-            try {
-                read_recording(dir / "switched.h5");
-                ADD_FAILURE() << "accepted: " << words;
-            } catch (const InputError& e) {
-                EXPECT_NE(std::string(e.what()).find(words), std::string::npos) << e.what();
-            }
-        };
         Recording bad = switched;
         bad.steps.instrument[1][1] = 6;
         refused(bad, "steps/instrument: row 1, hand 1 is 6, expected 0 (none)");
@@ -880,16 +881,6 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     } catch (const InputError& e) {
         EXPECT_NE(std::string(e.what()).find("force_step"), std::string::npos) << e.what();
     }
-    // Damaged recordings are refused by file, dataset and row, never half-used.
-    auto refused = [&](const Recording& damaged, const std::string& expected) {
-        write_recording(dir / "damaged.h5", damaged);
-        try {
-            read_recording(dir / "damaged.h5");
-            ADD_FAILURE() << "accepted; expected: " << expected;
-        } catch (const InputError& e) {
-            EXPECT_NE(std::string(e.what()).find(expected), std::string::npos) << e.what();
-        }
-    };
     {
         Recording damaged = r;
         damaged.rules->watchdog_interval = 0;

@@ -99,6 +99,19 @@ Sewn sew(int stitches, bool lay = true, double ms = 400.0) {
     return out;
 }
 
+/// Lays `patch` over the plate's hole, ties 8 stitches evenly round the rim at 0 ms, and steps
+/// it 300 ms, the stitches drawn tight; false when a stitch does not tie.
+bool sew_eight(PatchModel& patch, const ParticlePositions& at) {
+    patch.lay(facing_down(thickness / 2 + 3.0), at);
+    const double rim = hole / 2 + 2.0;
+    for (int k = 0; k < 8; ++k) {
+        const double angle = 2.0 * std::numbers::pi * k / 8;
+        if (!patch.tie(Eigen::Vector3d(rim * std::cos(angle), rim * std::sin(angle), thickness / 2), 0.0, at)) return false;
+    }
+    for (double t = 0; t < 300; t += dt) patch.step(at, dt, t);
+    return true;
+}
+
 }  // namespace
 
 TEST(Patch, EightStitchesCloseAHoleInAPlate) {
@@ -136,14 +149,8 @@ TEST(Patch, ASewnPatchRidesOnTissueThatSlides) {
     pressed.friction = 1.0;
     PatchModel patch(pressed, plate.mesh.positions, plate.surface());
     const ParticlePositions at = positions_of(plate, patch);
-    patch.lay(facing_down(thickness / 2 + 3.0), at);
-    const double rim = hole / 2 + 2.0;
-    for (int k = 0; k < 8; ++k) {
-        const double angle = 2.0 * std::numbers::pi * k / 8;
-        ASSERT_TRUE(patch.tie(Eigen::Vector3d(rim * std::cos(angle), rim * std::sin(angle), thickness / 2), 0.0, at).has_value());
-    }
-    double t = 0;
-    for (; t < 300; t += dt) patch.step(at, dt, t);  // drawn tight on the still plate
+    ASSERT_TRUE(sew_eight(patch, at));
+    double t = 300;  // drawn tight on the still plate
     const std::vector<Eigen::Vector3d> before = patch.positions();
     constexpr double speed = 0.01, slide_ms = 400;  // mm/ms, ms
     for (; t < 300 + slide_ms; t += dt) {
@@ -166,14 +173,9 @@ TEST(Patch, AProbePressedOnASewnPatchPushesItAndIsPushedBack) {
     Plate plate;
     PatchModel patch(spec(), plate.mesh.positions, plate.surface());
     const ParticlePositions at = positions_of(plate, patch);
-    patch.lay(facing_down(thickness / 2 + 3.0), at);
+    ASSERT_TRUE(sew_eight(patch, at));
+    double t = 300;  // drawn tight on the plate
     const double rim = hole / 2 + 2.0;
-    for (int k = 0; k < 8; ++k) {
-        const double angle = 2.0 * std::numbers::pi * k / 8;
-        ASSERT_TRUE(patch.tie(Eigen::Vector3d(rim * std::cos(angle), rim * std::sin(angle), thickness / 2), 0.0, at).has_value());
-    }
-    double t = 0;
-    for (; t < 300; t += dt) patch.step(at, dt, t);  // drawn tight on the plate
     // A 2 mm ball over the patch where it lies on the plate (between the hole's edge and the
     // patch's), 0.4 mm into it: its centre 2 mm + half the thickness − 0.4 mm above the patch.
     double top = -1e9;
