@@ -784,10 +784,21 @@ PreparedRun::PreparedRun(const RunArguments& a) {
 int replay_mode(const RunArguments& a, PreparedRun& run) {
     Backend& backend = *run.backend;
     const Recording& recording = *run.replayed;
+    // Each hand's instrument, and those the window switched it to (K, Shift + P, Shift + N) in turn.
+    auto held = [&recording](int hand) {
+        if (!recording.hands[std::size_t(hand)].used) return std::string();
+        std::string words = "hand " + std::to_string(hand) + " " + recording.hands[std::size_t(hand)].instrument;
+        InstrumentKind last = recording.instrument_at(0, hand).kind;
+        for (std::size_t k = 1; k < recording.steps.instrument.size(); ++k)
+            if (const InstrumentKind now = recording.instrument_at(k, hand).kind; now != last) {
+                words += (words.find(", then ") == std::string::npos ? ", then " : ", ") + std::string(to_string(now));
+                last = now;
+            }
+        return words;
+    };
     std::printf("replay: %s (%s backend, %zu steps of %.4g ms, %s%s%s) on the %s backend\n", a.replay.c_str(), recording.backend.c_str(),
-                recording.steps.size(), recording.dt_ms, recording.hands[0].used ? ("hand 0 " + recording.hands[0].instrument).c_str() : "",
-                recording.hands[0].used && recording.hands[1].used ? ", " : "",
-                recording.hands[1].used ? ("hand 1 " + recording.hands[1].instrument).c_str() : "", to_string(backend.kind()));
+                recording.steps.size(), recording.dt_ms, held(0).c_str(), recording.hands[0].used && recording.hands[1].used ? "; " : "",
+                held(1).c_str(), to_string(backend.kind()));
     // The recording's contact mode, unless --contact says otherwise (the cpu backend has only
     // `direct`: a gl recording made with another mode is compared as is and may differ).
     if (!a.contact && recording.contact != "direct") {

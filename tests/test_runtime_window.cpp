@@ -594,6 +594,7 @@ TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     EXPECT_EQ(held, (std::vector<InstrumentKind>{InstrumentKind::probe, InstrumentKind::patch, InstrumentKind::needle, InstrumentKind::probe}));
     const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom()) + " --headless --replay " + quoted(dir / "repair.h5"));
     EXPECT_EQ(replay.exit_code, 0) << replay.output;
+    EXPECT_NE(replay.output.find("hand 0 probe, then patch, needle, probe)"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("repair: pericardium patch laid"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("repair: stitch 1 tied"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
