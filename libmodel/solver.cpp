@@ -19,6 +19,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/parallel_invoke.h>
 
 #include <algorithm>
 #include <cmath>
@@ -26,6 +27,7 @@
 #include <cstdio>
 #include <limits>
 #include <sstream>
+#include <utility>
 
 namespace heartsim {
 
@@ -131,6 +133,11 @@ void BasicSolver<Real>::set_loads(std::vector<ParticleLoad> loads) {
     loads_ = std::move(loads);
     load_particle_ = std::move(particle);
     load_force_ = std::move(force);
+}
+
+template <class Real>
+void BasicSolver<Real>::run_beside_next_step(std::function<void()> task) {
+    beside_ = std::move(task);
 }
 
 template <class Real>
@@ -460,7 +467,8 @@ std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int hand) const {
 }
 
 template <class Real>
-void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad) {
+void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad,
+                                const std::function<void()>* beside) {
     KernelData<Real> k{};
     k.x = current_;
     k.u = motion_;
@@ -549,53 +557,73 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         for (int c = 0; c < 3; ++c) motion[c] = Real(u[c]);
     };
 
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
-            bool chunk_bad = false;
-            const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
-            chunk_bad |= group_function(k, first, last);
-            // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
-            // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
-            const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
-            const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
-            for (auto at = load_begin; at != load_end; ++at) {
-                const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
-                if (!movable_[i] || held_by_[i] >= 0) continue;
-                Real* x = next_ + state_stride * i;
-                Real* motion = next_motion_ + state_stride * i;
-                for (int c = 0; c < 3; ++c) {
-                    const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
-                    x[c] = x[c] + step;
-                    motion[c] = motion[c] + step;
-                }
+    // A chunk's springs and integration (the kernel: reads the current state, writes the next);
+    // then its loads and the probes' projection (the next state only, its own particles).
+    auto integrate = [&](std::size_t chunk) {
+        const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
+        chunk_bad_[chunk] = group_function(k, first, last);
+    };
+    auto load_and_project = [&](std::size_t chunk) {
+        const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
+        // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
+        // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
+        const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
+        const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
+        for (auto at = load_begin; at != load_end; ++at) {
+            const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
+            if (!movable_[i] || held_by_[i] >= 0) continue;
+            Real* x = next_ + state_stride * i;
+            Real* motion = next_motion_ + state_stride * i;
+            for (int c = 0; c < 3; ++c) {
+                const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
+                x[c] = x[c] + step;
+                motion[c] = motion[c] + step;
             }
-            for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
-            for (int pi = 0; pi < probe_count; ++pi) {
-                const ProbeFrame& p = probes[std::size_t(pi)];
-                auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
-                const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
-                const std::size_t end = std::min(n_, last * lane_count);
-                std::size_t i = first * lane_count;
-#ifdef HEARTSIM_SOLVER_X86
-                if constexpr (std::is_same_v<Real, float>) {
-                    // 16 particles per test where the avx512 kernel runs (same operations as below).
-                    if (load_report_.kernel == SolverKernel::avx512)
-                        for (; i + 16 <= last * lane_count; i += 16)
-                            for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
-                                const std::size_t q = i + std::size_t(__builtin_ctz(mask));
-                                if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched, chunk_pierced_[chunk]);
-                            }
-                }
-#endif
-                for (; i < end; ++i) {
-                    const Real* x = next_ + state_stride * i;
-                    const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
-                    if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, chunk_pierced_[chunk]);
-                }
-            }
-            chunk_bad_[chunk] = chunk_bad;
         }
-    });
+        for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
+        for (int pi = 0; pi < probe_count; ++pi) {
+            const ProbeFrame& p = probes[std::size_t(pi)];
+            auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
+            const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
+            const std::size_t end = std::min(n_, last * lane_count);
+            std::size_t i = first * lane_count;
+#ifdef HEARTSIM_SOLVER_X86
+            if constexpr (std::is_same_v<Real, float>) {
+                // 16 particles per test where the avx512 kernel runs (same operations as below).
+                if (load_report_.kernel == SolverKernel::avx512)
+                    for (; i + 16 <= last * lane_count; i += 16)
+                        for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
+                            const std::size_t q = i + std::size_t(__builtin_ctz(mask));
+                            if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched, chunk_pierced_[chunk]);
+                        }
+            }
+#endif
+            for (; i < end; ++i) {
+                const Real* x = next_ + state_stride * i;
+                const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
+                if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, chunk_pierced_[chunk]);
+            }
+        }
+    };
+    const tbb::blocked_range<std::size_t> all_chunks(0, chunks_);
+    if (beside && *beside) {
+        // run_beside_next_step: the task beside the kernel (it may read the current state and set
+        // the loads, which the kernel reads neither of), then the loads and the probes: the same
+        // operations on the same values as the one pass below, to the bit.
+        tbb::parallel_invoke([&] { (*beside)(); },
+                             [&] {
+                                 tbb::parallel_for(all_chunks, [&](const tbb::blocked_range<std::size_t>& range) {
+                                     for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) integrate(chunk);
+                                 });
+                             });
+        tbb::parallel_for(all_chunks, [&](const tbb::blocked_range<std::size_t>& range) {
+            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) load_and_project(chunk);
+        });
+    } else {
+        tbb::parallel_for(all_chunks, [&](const tbb::blocked_range<std::size_t>& range) {
+            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) integrate(chunk), load_and_project(chunk);
+        });
+    }
 
     // Grabbed particles follow the tool rigidly, unless that would stretch one of their springs
     // past the slip strain: then the particle slips out of the grabber and moves freely (it keeps
@@ -663,6 +691,7 @@ StepReport BasicSolver<Real>::step(int steps) {
     if (steps <= 0) return report;
     const long long total = (long long)steps * substeps_;
     const double start_ms = time_ms_;
+    const std::function<void()> beside = std::exchange(beside_, nullptr);  // this call's first substep only
     std::array<InstrumentPose, hands> start, poses, previous_poses;
     for (int hand = 0; hand < hands; ++hand) start[std::size_t(hand)] = hand_[std::size_t(hand)].pose;
     // A lowered scalpel cuts what its blade sweeps from this call's start pose to its target,
@@ -709,7 +738,7 @@ StepReport BasicSolver<Real>::step(int steps) {
             previous_poses[std::size_t(hand)] = interpolate(start[std::size_t(hand)], hand_[std::size_t(hand)].target, previous_fraction);
         }
         bool bad = false;
-        substep(previous_poses.data(), poses.data(), bad);
+        substep(previous_poses.data(), poses.data(), bad, q == 1 ? &beside : nullptr);
         ++report.substeps;
         if (bad && options_.watchdog) {
             bool finite = true;

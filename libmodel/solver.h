@@ -26,6 +26,7 @@
 
 #include <algorithm>
 #include <array>
+#include <functional>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -282,6 +283,13 @@ public:
     /// checks trips it.
     void set_loads(std::vector<ParticleLoad> loads);
     const std::vector<ParticleLoad>& loads() const { return loads_; }
+    /// `task` runs during the next step() (its first substep), beside the kernel's spring pass and
+    /// before the loads are applied, on one of the step's threads: it may read positions
+    /// (position()) and set_loads(), which that substep applies, and must touch nothing else of
+    /// the solver. The step comes out the same to the bit as `task` run before it (the spring pass
+    /// reads neither the loads nor writes what the task reads); on two cores the task's time hides
+    /// in the spring pass's. What it throws, step() throws. One step only.
+    void run_beside_next_step(std::function<void()> task);
 
     /// Advances `steps` steps of dt_ms. Stops early when the watchdog fires (see StepReport).
     StepReport step(int steps = 1);
@@ -368,7 +376,7 @@ private:
     /// Takes `step` (scaled_step): the limits, the step, its substeps and the per-substep
     /// constants; keeps velocities.
     void apply_step(const ScaledStep& step);
-    void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad);
+    void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad, const std::function<void()>* beside = nullptr);
     SolverEnergy compute_energy(bool centred) const;
     /// The largest strain of particle i's springs if it stood at `x` (its neighbours in `positions`).
     Real strain_at(std::size_t i, const Real* x, const Real* positions) const;
@@ -429,6 +437,7 @@ private:
 
     std::array<HandState, hands> hand_;
     std::vector<ParticleLoad> loads_;          ///< set_loads(), sorted by particle
+    std::function<void()> beside_;             ///< run_beside_next_step()
     std::vector<std::int32_t> load_particle_;  ///< loads_'s particles, for the chunks' lower_bound
     std::vector<Real> load_force_;             ///< loads_'s forces rounded to Real, 3 per load, N
     std::vector<std::vector<std::int32_t>> touched_;  ///< [chunk × hands + hand]

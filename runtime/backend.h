@@ -18,6 +18,7 @@
 
 #include "libmodel/errors.h"
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -81,6 +82,14 @@ public:
     virtual void set_mass_scale(double mass_scale) = 0;
     /// Advances `steps` steps of time_step_ms(). gl: queued on the GPU, returns at once.
     virtual StepReport step(int steps = 1) = 0;
+    /// One step with `task` run first: `task` may read positions_of() and set_loads(), which the
+    /// step then applies. The cpu backend runs it beside the step's spring pass
+    /// (Solver::run_beside_next_step: the same result to the bit, its time hidden on two cores);
+    /// by default it runs before the step.
+    virtual StepReport step_after(const std::function<void()>& task) {
+        task();
+        return step(1);
+    }
 
     /// Queues the force pass for both hands on the current state (gl: into a persistent mapped
     /// ring, fenced); latest_forces() returns the newest finished one without waiting.

@@ -75,6 +75,10 @@ public:
         times_.substeps += report.substeps;
         return report;
     }
+    StepReport step_after(const std::function<void()>& task) override {
+        solver_.run_beside_next_step(task);
+        return step(1);
+    }
     void request_forces() override {
         const auto start = Clock::now();
         latest_ = solver_.instrument_forces();

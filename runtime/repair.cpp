@@ -157,33 +157,41 @@ void RepairBackend::tie(int hand) {
                 *h.stitch + 1, inner_->simulated_time_ms(), s.vertex, s.start_length, settings_.tie_ms);
 }
 
+void RepairBackend::step_patch(int every) {
+    const auto start = std::chrono::steady_clock::now();
+    patch_->set_mass_scale(inner_->options().mass_scale);
+    // The probes push the patch as they push the tissue (their hands feel it).
+    std::vector<PatchObstacle> probes;
+    std::array<int, 2> probe_of{-1, -1};
+    for (int hand = 0; hand < 2; ++hand) {
+        const Hand& h = hands_[std::size_t(hand)];
+        if (h.instrument.kind != InstrumentKind::probe || !h.posed) continue;
+        probe_of[std::size_t(hand)] = int(probes.size());
+        probes.push_back({h.pose, h.instrument.semi_axes});
+    }
+    patch_->set_obstacles(std::move(probes));
+    patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
+    inner_->set_loads(patch_->loads());
+    for (int hand = 0; hand < 2; ++hand)
+        patch_push_[std::size_t(hand)] =
+            probe_of[std::size_t(hand)] < 0 ? Eigen::Vector3d::Zero() : patch_->obstacle_forces()[std::size_t(probe_of[std::size_t(hand)])];
+    patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    ++patch_steps_;
+}
+
 StepReport RepairBackend::step(int steps) {
     if (!patch_ || !patch_->laid()) return inner_->step(steps);
     StepReport total;
     const int every = std::max(1, settings_.patch_every);
     for (int k = 0; k < steps; ++k) {
+        StepReport r;
         if (tissue_steps_++ % every == 0) {
-            const auto start = std::chrono::steady_clock::now();
-            patch_->set_mass_scale(inner_->options().mass_scale);
-            // The probes push the patch as they push the tissue (their hands feel it).
-            std::vector<PatchObstacle> probes;
-            std::array<int, 2> probe_of{-1, -1};
-            for (int hand = 0; hand < 2; ++hand) {
-                const Hand& h = hands_[std::size_t(hand)];
-                if (h.instrument.kind != InstrumentKind::probe || !h.posed) continue;
-                probe_of[std::size_t(hand)] = int(probes.size());
-                probes.push_back({h.pose, h.instrument.semi_axes});
-            }
-            patch_->set_obstacles(std::move(probes));
-            patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
-            inner_->set_loads(patch_->loads());
-            for (int hand = 0; hand < 2; ++hand)
-                patch_push_[std::size_t(hand)] =
-                    probe_of[std::size_t(hand)] < 0 ? Eigen::Vector3d::Zero() : patch_->obstacle_forces()[std::size_t(probe_of[std::size_t(hand)])];
-            patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-            ++patch_steps_;
+            // The patch's step, with the tissue as this step starts; its loads for this step and
+            // the next every − 1 (the cpu backend runs it beside the tissue's spring pass).
+            r = inner_->step_after([this, every] { step_patch(every); });
+        } else {
+            r = inner_->step(1);
         }
-        const StepReport r = inner_->step(1);
         total.steps += r.steps;
         total.substeps += r.substeps;
         if (r.diverged) {

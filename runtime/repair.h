@@ -85,6 +85,8 @@ public:
     long long patch_steps() const { return patch_steps_; }
 
 private:
+    /// The patch's step over `every` tissue steps, the tissue as it is now; its loads onto the tissue.
+    void step_patch(int every);
     void lay(int hand);
     void tie(int hand);
     /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.

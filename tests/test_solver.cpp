@@ -721,6 +721,48 @@ TEST(Solver, ALoadOnAnAnchoredOrHeldParticleChangesNothing) {
     EXPECT_EQ(run(true), run(false));
 }
 
+// Loads set by a task run beside a step's spring pass (run_beside_next_step, as the patch's step
+// runs on the cpu backend), from the positions the step starts with, are the loads set before the
+// step: two solvers, one each way, stay identical to the bit through 200 steps of a probe pressing
+// a block under gravity with position-dependent loads (springs back to rest on a row of particles).
+TEST(Solver, LoadsSetBesideAStepAreTheLoadsSetBeforeIt) {
+    const Model model = block(24, 10, 10);
+    SolverOptions o = quiet(0.5, model);
+    o.gravity = {0, 0, -9.81e-3};
+    Solver before(model.lattice, model.packing.neighbours, o), beside(model.lattice, model.packing.neighbours, o);
+    const auto& rest = model.lattice.particles.rest_position;
+    std::vector<std::int32_t> loaded;
+    for (std::size_t i = 0; i < rest.size(); i += 37) loaded.push_back(std::int32_t(i));
+    auto loads_of = [&](const Solver& solver) {
+        std::vector<ParticleLoad> loads;
+        for (std::int32_t i : loaded) {
+            const Eigen::Vector3d at(rest[std::size_t(i)][0], rest[std::size_t(i)][1], rest[std::size_t(i)][2]);
+            loads.push_back({i, -1e-3 * (solver.position(std::size_t(i)) - at) + Eigen::Vector3d(0, 0, 2e-5)});
+        }
+        return loads;
+    };
+    Eigen::AlignedBox3d box;
+    for (const auto& r : rest) box.extend(Eigen::Vector3d(r[0], r[1], r[2]));
+    const Instrument probe{.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d::Constant(1.5)};
+    for (Solver* solver : {&before, &beside}) solver->set_instrument(0, probe);
+    std::size_t touched = 0;
+    for (int s = 0; s < 200; ++s) {
+        const InstrumentPose pose{Eigen::Vector3d(box.center().x(), box.center().y(), box.max().z() + 1.5 - 0.03 * s), Eigen::Quaterniond::Identity()};
+        before.set_pose(0, pose);
+        beside.set_pose(0, pose);
+        before.set_loads(loads_of(before));
+        beside.run_beside_next_step([&] { beside.set_loads(loads_of(beside)); });
+        ASSERT_FALSE(before.step().diverged);
+        ASSERT_FALSE(beside.step().diverged);
+        ASSERT_EQ(before.state_hash(), beside.state_hash()) << "step " << s;
+        touched = std::max(touched, before.contact_particles(0).size());
+    }
+    EXPECT_GT(touched, 0u) << "the probe pressed the block";
+    // What the task throws, the step throws.
+    beside.run_beside_next_step([&] { beside.set_loads({{-1, {1, 0, 0}}}); });
+    EXPECT_THROW(beside.step(), InputError);
+}
+
 // set_loads refuses a list that is not sorted, repeats a particle, names one out of range or has a
 // non-finite force, naming what was wrong; the loads in force stay, to the bit.
 TEST(Solver, BadLoadsAreRefusedAndTheLoadsInForceStay) {
