@@ -29,6 +29,18 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 
 }  // namespace
 
+StepInstrumentFault check_step_instrument(std::int8_t code, const std::array<double, 3>& semi_axes_mm, bool hand_used) {
+    const auto kind = instrument_of_code(code);
+    if (!kind)
+        return {"instrument", " is " + std::to_string(int(code)) + ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch) or 5 (needle)"};
+    if (*kind != InstrumentKind::none && !hand_used) return {"instrument", " is an instrument of a hand without a device"};
+    if (*kind == InstrumentKind::none && hand_used) return {"instrument", " holds no instrument in a hand with a device"};
+    if (*kind != InstrumentKind::none)
+        for (double a : semi_axes_mm)
+            if (!plausible::semi_axis_mm.contains(a)) return {"semi_axes_mm", ": " + plausible::outside("semi-axis", a, plausible::semi_axis_mm)};
+    return {};
+}
+
 Instrument Recording::instrument_at(std::size_t k, int hand) const {
     Instrument instrument;
     if (k < steps.instrument.size()) {
@@ -297,18 +309,10 @@ Recording read_recording(const std::filesystem::path& path) {
         s.semi_axes_mm.resize(n);
         if (n) std::memcpy(s.semi_axes_mm.data(), axes.data(), axes.size() * sizeof(double));
         for (std::size_t i = 0; i < n; ++i)
-            for (int h = 0; h < 2; ++h) {
-                const std::string row = "row " + std::to_string(i) + ", hand " + std::to_string(h);
-                const auto kind = instrument_of_code(s.instrument[i][h]);
-                if (!kind)
-                    r.fail("steps/instrument", row + " is " + std::to_string(int(s.instrument[i][h])) +
-                                                   ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch) or 5 (needle)");
-                if (*kind != InstrumentKind::none && !rec.hands[h].used) r.fail("steps/instrument", row + " is an instrument of a hand without a device");
-                if (*kind == InstrumentKind::none && rec.hands[h].used) r.fail("steps/instrument", row + " holds no instrument in a hand with a device");
-                if (*kind == InstrumentKind::none) continue;
-                for (double a : s.semi_axes_mm[i][h])
-                    if (!plausible::semi_axis_mm.contains(a)) r.fail("steps/semi_axes_mm", row + ": " + plausible::outside("semi-axis", a, plausible::semi_axis_mm));
-            }
+            for (int h = 0; h < 2; ++h)
+                if (const StepInstrumentFault fault = check_step_instrument(s.instrument[i][h], s.semi_axes_mm[i][h], rec.hands[h].used);
+                    !fault.what.empty())
+                    r.fail(std::string("steps/") + fault.dataset, "row " + std::to_string(i) + ", hand " + std::to_string(h) + fault.what);
     }
     for (std::size_t i = 0; i < n; ++i)
         for (int h = 0; h < 2; ++h) {

@@ -113,6 +113,16 @@ SolverRules rules_before_recorded();
 /// Empty when the rules are ones a solver takes, else which is wrong and what was expected.
 std::string check_rules(const SolverRules& rules);
 
+/// What is wrong with one hand's entry of a step's instrument columns: `dataset` ("instrument" or
+/// "semi_axes_mm") and `what` (to follow the row's name); an empty `what` when it is one a recording
+/// holds: a code 0 … 5, none exactly where the hand has no device, semi-axes in range where it
+/// holds an instrument. The recording's and the journal's readers both ask it.
+struct StepInstrumentFault {
+    const char* dataset = "";
+    std::string what;
+};
+StepInstrumentFault check_step_instrument(std::int8_t code, const std::array<double, 3>& semi_axes_mm, bool hand_used);
+
 struct Recording {
     std::string scenario;
     std::int64_t particles = 0;

@@ -5,7 +5,6 @@
 
 #include "libmodel/errors.h"
 #include "libmodel/patch.h"
-#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <bit>
@@ -467,17 +466,10 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
                 c.column(s.instrument, n);
                 c.column(s.semi_axes_mm, n);
                 for (std::size_t k = s.instrument.size() - n; k < s.instrument.size(); ++k)
-                    for (int h = 0; h < 2; ++h) {
-                        const auto kind = instrument_of_code(s.instrument[k][h]);
-                        if (!kind) throw InputError(where + ": a step's instrument code is " + std::to_string(int(s.instrument[k][h])) + ", expected 0 … 5");
-                        if ((*kind != InstrumentKind::none) != bool(used[std::size_t(h)]))
-                            throw InputError(where + ": a step's instrument of hand " + std::to_string(h) + " is " + to_string(*kind) +
-                                             (used[std::size_t(h)] ? ", but the hand has a device" : ", but the hand has no device"));
-                        if (*kind == InstrumentKind::none) continue;
-                        for (double a : s.semi_axes_mm[k][h])
-                            if (!plausible::semi_axis_mm.contains(a))
-                                throw InputError(where + ": a step's instrument " + plausible::outside("semi-axis", a, plausible::semi_axis_mm));
-                    }
+                    for (int h = 0; h < 2; ++h)
+                        if (const StepInstrumentFault fault = check_step_instrument(s.instrument[k][h], s.semi_axes_mm[k][h], used[std::size_t(h)]);
+                            !fault.what.empty())
+                            throw InputError(where + ": a step's " + fault.dataset + ", hand " + std::to_string(h) + fault.what);
             } else if (!s.instrument.empty() && n > 0) {
                 throw InputError(where + ": a chunk lacks the instrument columns an earlier one had");
             }

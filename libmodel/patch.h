@@ -216,11 +216,11 @@ private:
     std::vector<Eigen::Vector2d> material_;
     std::vector<std::array<std::int32_t, 3>> triangles_;
     struct Distance { int a, b; double rest, compliance; };
-    std::vector<Distance> distances_;
+    std::vector<Distance> distances_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
     std::vector<double> alpha_, denominator_;  ///< per distance: α/dt² and 1/(w_a + w_b + α/dt²) for steps of alpha_dt_
     double alpha_dt_ = -1.0;
     std::vector<Eigen::Vector3d> vertex_force_;   ///< per surface vertex: the contact's force on it in step(), zero between
-    std::vector<std::int32_t> loaded_vertices_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
+    std::vector<std::int32_t> loaded_vertices_;  ///< the surface vertices vertex_force_ held a force for in the last step()
     std::vector<Stitch> stitches_;
     bool held_ = true;                 ///< laid and not yet sewn
     // The deformed surface, per step.

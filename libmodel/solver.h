@@ -75,6 +75,7 @@ inline bool repair_kind(InstrumentKind kind) { return kind == InstrumentKind::pa
 struct Instrument {
     InstrumentKind kind = InstrumentKind::none;
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
+    bool operator==(const Instrument& other) const { return kind == other.kind && semi_axes == other.semi_axes; }
 };
 
 /// A force on one particle, N, world frame (an external load: a stitch's pull, a patch's contact).

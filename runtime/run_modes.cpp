@@ -788,10 +788,12 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
     auto held = [&recording](int hand) {
         if (!recording.hands[std::size_t(hand)].used) return std::string();
         std::string words = "hand " + std::to_string(hand) + " " + recording.hands[std::size_t(hand)].instrument;
+        const char* joint = ", then ";
         InstrumentKind last = recording.instrument_at(0, hand).kind;
         for (std::size_t k = 1; k < recording.steps.instrument.size(); ++k)
             if (const InstrumentKind now = recording.instrument_at(k, hand).kind; now != last) {
-                words += (words.find(", then ") == std::string::npos ? ", then " : ", ") + std::string(to_string(now));
+                words += joint + std::string(to_string(now));
+                joint = ", ";
                 last = now;
             }
         return words;

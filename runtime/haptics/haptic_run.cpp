@@ -438,7 +438,7 @@ StepReport HapticRun::step() {
     // what the old one held let go (set_instrument releases it), exactly where a replay does so.
     for (int i = 0; i < 2; ++i) {
         Hand& h = hands_[i];
-        if (!h.device || (h.instrument.kind == h.stepped.kind && h.instrument.semi_axes == h.stepped.semi_axes)) continue;
+        if (!h.device || h.instrument == h.stepped) continue;
         if (h.grabbing && recording_on_) recording_.events.push_back({session_->now_ms(), i, "release"});
         h.placed = false, h.grabbing = false;
         h.stepped = h.instrument;
@@ -805,7 +805,7 @@ ReplayResult replay(Backend& backend, const Recording& recording, const std::str
         for (int i = 0; i < 2; ++i) {
             // An instrument changed in the window (K, Shift + P, Shift + N): placed afresh, its
             // predecessor's grab released, as the live step did.
-            if (const Instrument now = recording.instrument_at(k, i); now.kind != instruments[i].kind || now.semi_axes != instruments[i].semi_axes)
+            if (const Instrument now = recording.instrument_at(k, i); !(now == instruments[i]))
                 instruments[i] = now, placed[i] = false, grabbing[i] = false;
             // Exactly where the live step applied the hand's tool (not before its first usable pose).
             if (!recording.hands[i].used || !s.applied[k][i]) continue;
