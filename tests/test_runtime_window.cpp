@@ -1014,5 +1014,6 @@ TEST(WindowInput, CtrlShiftClickPutsTheMouseDeviceOnARealHeartsSurfaceAndADragSl
     ASSERT_LT(arrived, p.size()) << "the recording has the device where the click put it";
     EXPECT_EQ(before, 0.0) << "free before the click";
     const double resting = norm(f[(arrived + left) / 2]);  // half-way through its rest there
+    std::printf("  resting where the click put it, the device was sent %.3g N\n", resting);
     EXPECT_GT(resting, 1e-3) << "a click on the heart touches it: the tissue pushes the device back";
 }
