@@ -462,9 +462,13 @@ void PatchModel::lay(const InstrumentPose& pose, const ParticlePositions& positi
         }
         std::vector<Distance> ordered;
         ordered.reserve(distances_.size());
-        for (int c = 0; c < colours; ++c)
+        colour_first_.clear();
+        for (int c = 0; c < colours; ++c) {
+            colour_first_.push_back(std::int32_t(ordered.size()));
             for (std::size_t k = 0; k < distances_.size(); ++k)
                 if (colour[k] == c) ordered.push_back(distances_[k]);
+        }
+        colour_first_.push_back(std::int32_t(ordered.size()));
         distances_ = std::move(ordered);
     }
     stitches_.clear();
@@ -825,6 +829,187 @@ PatchModel PatchModel::under_pressure(const ParticlePositions& positions, double
     test.surface_inverse_mass_.clear();
     for (double t = 0; t < duration_ms; t += dt_ms) test.step(positions, dt_ms, 1e12);  // every stitch drawn tight
     return test;
+}
+
+PatchPassInput PatchModel::pass_input(const ParticlePositions& positions, double reach_mm) {
+    if (!laid()) throw InputError("patch: no patch is laid to step");
+    PatchPassInput in;
+    in.x = x_;
+    in.v = v_;
+    in.inverse_mass = inverse_mass_;
+    for (const Distance& d : distances_) {
+        in.distance_vertices.push_back({d.a, d.b});
+        in.distance_rest_compliance.push_back({d.rest, d.compliance});
+    }
+    in.colour_first = colour_first_;
+    in.particles = particles_;
+    in.stepped_slot_x = stepped_slot_x_;
+    in.surface_base = surface_base_;
+    in.surface_first.assign(vertex_first_.begin(), vertex_first_.end());
+    in.surface_slot.assign(slot_of_surface_.begin(), slot_of_surface_.end());
+    in.surface_weight = surface_weight_;
+    in.surface_inverse_mass.resize(surface_.vertices.size());
+    for (std::size_t v = 0; v < surface_.vertices.size(); ++v) in.surface_inverse_mass[v] = vertex_inverse_mass(v) * mass_scale_;
+    in.triangles = surface_.triangles;
+    in.stitch_first.push_back(0);
+    for (const Stitch& s : stitches_) {
+        in.stitch_vertex.push_back(s.vertex);
+        in.stitch_tied_ms.push_back(s.tied_ms);
+        in.stitch_start_length.push_back(s.start_length);
+        in.stitch_inverse_mass.push_back(inverse_mass_of(s.anchor) * mass_scale_);
+        Eigen::Vector3d base = s.anchor.rest;
+        for (const auto& [particle, weight] : s.anchor.carriers) {
+            in.stitch_slot.push_back(std::int32_t(slot_of(particle)));
+            in.stitch_weight.push_back(weight);
+            base -= weight * vec(rest_[std::size_t(particle)]);
+        }
+        in.stitch_base.push_back(base);
+        in.stitch_first.push_back(std::int32_t(in.stitch_slot.size()));
+    }
+    // Per slot: its surface vertices and stitches, with their weights (the loads' gather).
+    auto invert = [&](const std::vector<std::int32_t>& first, const std::vector<std::int32_t>& slot, const std::vector<double>& weight,
+                      std::vector<std::int32_t>& out_first, std::vector<std::int32_t>& out, std::vector<double>& out_weight) {
+        out_first.assign(particles_.size() + 1, 0);
+        for (std::int32_t s : slot) ++out_first[std::size_t(s) + 1];
+        for (std::size_t k = 0; k < particles_.size(); ++k) out_first[k + 1] += out_first[k];
+        out.assign(slot.size(), 0);
+        out_weight.assign(slot.size(), 0.0);
+        std::vector<std::int32_t> fill(out_first.begin(), out_first.end() - 1);
+        for (std::size_t owner = 0; owner + 1 < first.size(); ++owner)
+            for (std::int32_t k = first[owner]; k < first[owner + 1]; ++k) {
+                const std::int32_t at = fill[std::size_t(slot[std::size_t(k)])]++;
+                out[std::size_t(at)] = std::int32_t(owner);
+                out_weight[std::size_t(at)] = weight[std::size_t(k)];
+            }
+    };
+    invert(in.surface_first, in.surface_slot, in.surface_weight, in.slot_vertex_first, in.slot_vertex, in.slot_vertex_weight);
+    invert(in.stitch_first, in.stitch_slot, in.stitch_weight, in.slot_stitch_first, in.slot_stitch, in.slot_stitch_weight);
+    in.facing = facing_;
+    in.acceleration = spec_.gravity * (1.0 - spec_.blood_density / spec_.material.density);
+    in.thickness_mm = spec_.thickness_mm;
+    in.friction = spec_.friction;
+    in.damping_per_ms = spec_.damping_per_ms;
+    in.tie_ms = spec_.tie_ms;
+    in.stitch_stiffness = spec_.stitch_stiffness;
+    in.iterations = spec_.iterations;
+    in.edge_mm = spec_.edge_mm;
+    in.search_again_mm = search_again();
+    in.grid_margin_mm = grid_margin;
+    in.largest_weight_sum = largest_weight_sum_;
+    const std::size_t n = x_.size();
+    in.under = std::vector<std::int32_t>(under_.begin(), under_.end());
+    in.under.resize(n, -1);
+    in.searched_at = searched_at_;
+    in.searched_at.resize(n, Eigen::Vector3d::Zero());
+    in.searched_shift = searched_shift_;
+    in.searched_shift.resize(n, Eigen::Vector3d::Zero());
+    in.searched_travel = searched_travel_;
+    in.searched_travel.resize(n, std::numeric_limits<double>::quiet_NaN());
+    in.tissue_shift = tissue_shift_;
+    in.tissue_travel = tissue_travel_;
+    in.slot_x = slot_x_;
+    in.grid_slot_x = grid_slot_x_;
+    for (const auto& p : asleep_positions_) in.asleep_slot_x.push_back(vec(p));
+    pass_candidates(in, positions, reach_mm);
+    return in;
+}
+
+void PatchModel::pass_candidates(PatchPassInput& in, const ParticlePositions& positions, double reach_mm) {
+    if (!laid()) throw InputError("patch: no patch is laid to step");
+    // The triangles whose boxes (build_surface_grid: where a point they hold in front of them can
+    // be) come within reach_mm of a vertex, from the grid cells around it: on a copy, so that
+    // what the patch keeps between steps (its grid, the tissue's motion) is as it was.
+    PatchModel copy = *this;
+    copy.pass_candidates_here(in, positions, reach_mm);
+}
+
+void PatchModel::pass_candidates_here(PatchPassInput& in, const ParticlePositions& positions, double reach_mm) {
+    deform_surface(positions);
+    build_surface_grid();
+    const std::size_t n = x_.size();
+    in.candidate_first.assign(1, 0);
+    in.candidate.clear();
+    std::vector<std::uint32_t> seen(surface_.triangles.size(), 0);
+    const double r = reach_mm;
+    for (std::size_t i = 0; i < n; ++i) {
+        const double u = x_[i].dot(frame_.col(0)), w = x_[i].dot(frame_.col(1)), along = x_[i].dot(facing_);
+        const std::size_t first = in.candidate.size();
+        if (!grid_.empty()) {
+            const int i0 = std::clamp(int(std::floor((u - r - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
+            const int i1 = std::clamp(int(std::floor((u + r - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
+            const int j0 = std::clamp(int(std::floor((w - r - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
+            const int j1 = std::clamp(int(std::floor((w + r - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
+            for (int j = j0; j <= j1; ++j)
+                for (int k = i0; k <= i1; ++k)
+                    for (std::int32_t t : grid_[std::size_t(j * grid_dims_.x() + k)]) {
+                        if (seen[std::size_t(t)] == i + 1) continue;
+                        seen[std::size_t(t)] = std::uint32_t(i + 1);
+                        const auto& box = grid_box_[std::size_t(t)];
+                        if (u < box[0] - r || w < box[1] - r || u > box[2] + r || w > box[3] + r || along < box[4] - r || along > box[5] + r) continue;
+                        in.candidate.push_back(t);
+                    }
+        }
+        std::sort(in.candidate.begin() + std::ptrdiff_t(first), in.candidate.end());
+        in.candidate_first.push_back(std::int32_t(in.candidate.size()));
+    }
+    // Per surface vertex: the patch vertices (ascending) that one of its triangles is a candidate of.
+    std::vector<std::vector<std::int32_t>> over(surface_.vertices.size());
+    for (std::size_t i = 0; i < n; ++i)
+        for (std::int32_t k = in.candidate_first[i]; k < in.candidate_first[i + 1]; ++k)
+            for (std::int32_t corner : surface_.triangles[std::size_t(in.candidate[std::size_t(k)])])
+                if (over[std::size_t(corner)].empty() || over[std::size_t(corner)].back() != std::int32_t(i))
+                    over[std::size_t(corner)].push_back(std::int32_t(i));
+    in.over_first.assign(1, 0);
+    in.over.clear();
+    for (const auto& list : over) {
+        in.over.insert(in.over.end(), list.begin(), list.end());
+        in.over_first.push_back(std::int32_t(in.over.size()));
+    }
+}
+
+void PatchModel::take_pass_state(const PatchPassState& state, const std::vector<Eigen::Vector3d>& obstacle_forces) {
+    if (state.x.size() != x_.size() || state.v.size() != v_.size() || state.stitch_force.size() != stitches_.size() ||
+        (!state.stepped_slot_x.empty() && state.stepped_slot_x.size() != particles_.size()))
+        throw InputError("patch: a pass's state does not match the patch");
+    const std::size_t n = x_.size();
+    if (state.under.size() != n || state.searched_at.size() != n || state.searched_shift.size() != n || state.searched_travel.size() != n ||
+        (!state.slot_x.empty() && state.slot_x.size() != particles_.size()) ||
+        (!state.grid_slot_x.empty() && state.grid_slot_x.size() != particles_.size()) ||
+        (!state.asleep_slot_x.empty() && state.asleep_slot_x.size() != particles_.size()))
+        throw InputError("patch: a pass's state does not match the patch");
+    x_ = state.x;
+    v_ = state.v;
+    for (std::size_t s = 0; s < stitches_.size(); ++s) stitches_[s].force_n = state.stitch_force[s];
+    under_.assign(state.under.begin(), state.under.end());
+    searched_at_ = state.searched_at;
+    searched_shift_ = state.searched_shift;
+    searched_travel_ = state.searched_travel;
+    tissue_shift_ = state.tissue_shift;
+    tissue_travel_ = state.tissue_travel;
+    if (state.slot_x.size() != slot_x_.size() || !std::equal(state.slot_x.begin(), state.slot_x.end(), slot_x_.begin())) ++stamp_;  // the surface is computed afresh
+    slot_x_ = state.slot_x;
+    if (state.grid_slot_x.empty()) grid_slot_x_.clear();
+    else if (state.grid_slot_x != grid_slot_x_) {  // the grid where the pass last found the surface moved
+        const std::vector<Eigen::Vector3d> keep = slot_x_;
+        slot_x_ = state.grid_slot_x;
+        ++stamp_;
+        for (std::size_t v = 0; v < surface_.vertices.size(); ++v) sx(v);
+        for (std::size_t t = 0; t < surface_.triangles.size(); ++t) sn(t);
+        const std::vector<double> travel = searched_travel_;
+        build_surface_grid();
+        searched_travel_ = travel;  // building it here is not the pass's looking again
+        slot_x_ = keep;
+        ++stamp_;
+    }
+    asleep_positions_.clear();
+    for (const Eigen::Vector3d& p : state.asleep_slot_x) asleep_positions_.push_back({float(p.x()), float(p.y()), float(p.z())});
+    if (!obstacle_forces.empty() && obstacle_forces.size() != obstacles_.size())
+        throw InputError("patch: a pass's obstacle forces do not match the obstacles");
+    stepped_slot_x_ = state.stepped_slot_x;
+    contact_force_ = state.contact_force;
+    obstacle_force_ = obstacle_forces;
+    obstacle_force_.resize(obstacles_.size(), Eigen::Vector3d::Zero());
+    clear_loads();  // the pass put its loads on the tissue itself
 }
 
 void PatchModel::recover(const ParticlePositions& positions, double time_ms) {

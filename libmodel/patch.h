@@ -95,6 +95,82 @@ struct PatchObstacle {
     Eigen::Vector3d semi_axes = Eigen::Vector3d::Ones();
 };
 
+/// A sewn patch flattened for a pass that steps it where the tissue is stepped (the gl backend's
+/// compute pass, runtime/gl/patch_pass.h), so the tissue is never read back to step it: what
+/// PatchModel::step reads, as arrays. Ranges are (first, one past the last) lists: `x_first[k]`
+/// to `x_first[k + 1]`. The pass is step() without its sleep and its memory of the triangle
+/// under each vertex (it looks among that vertex's candidates where the host looks in its grid).
+/// The pass keeps what the host's step keeps between steps (the triangle under each vertex and
+/// when it looked, the tissue's accumulated motion, where the patch fell asleep), so the two step
+/// alike.
+struct PatchPassInput {
+    // The patch: positions and velocities (mm, mm/ms), inverse masses (g⁻¹), its distance
+    // constraints (vertices; rest length mm, compliance mm/N) in colour order, and where each
+    // colour starts.
+    std::vector<Eigen::Vector3d> x, v;
+    std::vector<double> inverse_mass;
+    std::vector<std::array<std::int32_t, 2>> distance_vertices;
+    std::vector<std::array<double, 2>> distance_rest_compliance;
+    std::vector<std::int32_t> colour_first;
+    // The tissue: the particles read (PatchModel::particles(), the "slots"), their positions at
+    // the last step (empty: none yet, no friction carried), and the contact surface: each vertex
+    // base + Σ w·x over its (slot, weight) entries, its inverse mass at mass scale 1, triangles.
+    std::vector<std::int32_t> particles;
+    std::vector<Eigen::Vector3d> stepped_slot_x;
+    std::vector<Eigen::Vector3d> surface_base;
+    std::vector<std::int32_t> surface_first, surface_slot;
+    std::vector<double> surface_weight, surface_inverse_mass;
+    std::vector<std::array<std::int32_t, 3>> triangles;
+    // The stitches: patch vertex, when tied (ms), length then (mm), the anchor as base + Σ w·x,
+    // its inverse mass at mass scale 1.
+    std::vector<std::int32_t> stitch_vertex;
+    std::vector<double> stitch_tied_ms, stitch_start_length, stitch_inverse_mass;
+    std::vector<Eigen::Vector3d> stitch_base;
+    std::vector<std::int32_t> stitch_first, stitch_slot;
+    std::vector<double> stitch_weight;
+    // Per patch vertex: the facing surface triangles it can lie over until the next refresh
+    // (PatchModel::pass_candidates). Per surface vertex: the patch vertices whose candidates touch
+    // it, ascending (the contact's loads gathered). Per slot: its surface vertices and stitches
+    // with their weights (the loads gathered onto the particles).
+    std::vector<std::int32_t> candidate_first, candidate;
+    std::vector<std::int32_t> over_first, over;
+    std::vector<std::int32_t> slot_vertex_first, slot_vertex;
+    std::vector<double> slot_vertex_weight;
+    std::vector<std::int32_t> slot_stitch_first, slot_stitch;
+    std::vector<double> slot_stitch_weight;
+    // What step() keeps between steps: per vertex the triangle under it (−1: none) and where and
+    // when it last looked (searched_travel NaN: it must look again); the tissue's accumulated shift
+    // and deformation; the slots' positions at the last look at the surface, when its grid was
+    // built, and when the patch last stepped awake (each empty: none).
+    std::vector<std::int32_t> under;
+    std::vector<Eigen::Vector3d> searched_at, searched_shift;
+    std::vector<double> searched_travel;
+    Eigen::Vector3d tissue_shift = Eigen::Vector3d::Zero();
+    double tissue_travel = 0.0;
+    std::vector<Eigen::Vector3d> slot_x, grid_slot_x, asleep_slot_x;
+    double largest_weight_sum = 1.0;  ///< the largest Σ |w_k| of a surface vertex
+    // The spec, as step() takes it.
+    Eigen::Vector3d facing = Eigen::Vector3d::UnitZ();
+    Eigen::Vector3d acceleration = Eigen::Vector3d::Zero();  ///< afloat in blood, mm/ms²
+    double thickness_mm = 0.5, friction = 0.3, damping_per_ms = 0.5, tie_ms = 150.0, stitch_stiffness = 5.0, edge_mm = 1.6;
+    double search_again_mm = 0.2, grid_margin_mm = 0.75;
+    int iterations = 4;
+};
+
+/// What a pass's steps left: the patch's positions and velocities, each stitch's pull on the patch
+/// and the contact's, N, the tissue's positions as the last step read them, and what it keeps.
+struct PatchPassState {
+    std::vector<Eigen::Vector3d> x, v, stitch_force, stepped_slot_x;
+    Eigen::Vector3d contact_force = Eigen::Vector3d::Zero();
+    // What the pass keeps between steps, as PatchPassInput names it.
+    std::vector<std::int32_t> under;
+    std::vector<Eigen::Vector3d> searched_at, searched_shift;
+    std::vector<double> searched_travel;
+    Eigen::Vector3d tissue_shift = Eigen::Vector3d::Zero();
+    double tissue_travel = 0.0;
+    std::vector<Eigen::Vector3d> slot_x, grid_slot_x, asleep_slot_x;
+};
+
 class PatchModel {
 public:
     /// `rest` are the particles' rest positions (packed order); `surface` the tissue the patch can
@@ -155,6 +231,17 @@ public:
     PatchModel under_pressure(const ParticlePositions& positions, double pressure_n_mm2, double duration_ms = 400.0,
                               double dt_ms = 0.25) const;
 
+    /// The patch flattened for a pass (PatchPassInput), its candidates found within `reach_mm`
+    /// across of each vertex at the tissue's `positions`. Throws when no patch is laid.
+    PatchPassInput pass_input(const ParticlePositions& positions, double reach_mm);
+    /// Only the candidates and the lists that follow them, found afresh at `positions`.
+    void pass_candidates(PatchPassInput& input, const ParticlePositions& positions, double reach_mm);
+    /// Takes what a pass's steps left (its sizes those of pass_input's); the obstacles' forces as
+    /// the pass gave them, in set_obstacles' order.
+    void take_pass_state(const PatchPassState& state, const std::vector<Eigen::Vector3d>& obstacle_forces);
+    /// Laid and not yet sewn: held where it lies, step() moves nothing.
+    bool held() const { return held_; }
+
     const std::vector<Eigen::Vector3d>& positions() const { return x_; }
     const std::vector<std::array<std::int32_t, 3>>& triangles() const { return triangles_; }
     const std::vector<Stitch>& stitches() const { return stitches_; }
@@ -168,6 +255,7 @@ public:
 
 private:
     void build_mesh();
+    void pass_candidates_here(PatchPassInput& input, const ParticlePositions& positions, double reach_mm);
     /// Whether the patch and the tissue it touches are at rest (step() then changes nothing).
     bool at_rest(const ParticlePositions& positions, double time_ms) const;
     void refresh_particles();
@@ -217,6 +305,7 @@ private:
     std::vector<std::array<std::int32_t, 3>> triangles_;
     struct Distance { int a, b; double rest, compliance; };
     std::vector<Distance> distances_;  ///< edges (stretch) and the pairs across each inner edge (bending), by colour
+    std::vector<std::int32_t> colour_first_;  ///< per colour and one past the last: its first entry in distances_
     std::vector<double> alpha_, denominator_;  ///< per distance: α/dt² and 1/(w_a + w_b + α/dt²) for steps of alpha_dt_
     double alpha_dt_ = -1.0;
     std::vector<Eigen::Vector3d> vertex_force_;   ///< per surface vertex: the contact's force on it in step(), zero between

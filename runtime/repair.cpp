@@ -10,12 +10,17 @@ namespace heartsim {
 
 namespace {
 
+/// The device's pass looks for the surface under each vertex among the triangles within this
+/// distance across of it (PatchModel::pass_candidates), found afresh every candidate_refresh of its
+/// steps: a vertex that slides by less than this against the tissue in that time misses nothing.
+constexpr double candidate_reach_mm = 3.0;
+constexpr int candidate_refresh = 64;
+
 Eigen::Vector3d vec(const std::array<float, 3>& p) { return {double(p[0]), double(p[1]), double(p[2])}; }
 
-/// The detailed mesh's triangles a patch centred at `centre` and facing along `facing` can touch:
-/// within `radius` of the centre across, `depth` along, facing it (rest positions); each vertex
-/// carried by the particles the mapping names.
-ContactSurface surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
+}  // namespace
+
+ContactSurface patch_surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
                             double depth) {
     ContactSurface surface;
     const VisualMesh& visual = *scenario.visual;
@@ -51,8 +56,6 @@ ContactSurface surface_near(const Scenario& scenario, const Eigen::Vector3d& cen
     return surface;
 }
 
-}  // namespace
-
 RepairBackend::RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings)
     : inner_(std::move(inner)), scenario_(scenario), settings_(settings) {}
 
@@ -63,6 +66,7 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     h.instrument = instrument;
     h.posed = false;
     patch_push_[std::size_t(hand)].setZero();
+    device_force_[std::size_t(hand)].reset();
     h.grabbing = false;
     h.stitch.reset();
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
@@ -101,6 +105,7 @@ void RepairBackend::release(int hand) {
 
 void RepairBackend::lay(int hand) {
     const Hand& h = hands_[std::size_t(hand)];
+    off_device();  // laying again replaces the patch
     if (!scenario_.visual || !scenario_.mapping || !scenario_.simulation_surface) {
         std::printf("repair: no patch laid: the scenario has no detailed mesh with its mapping to lay it on\n");
         return;
@@ -123,7 +128,7 @@ void RepairBackend::lay(int hand) {
     for (std::size_t i = 0; i < particles.size(); ++i)
         inverse_mass[i] = (i < particles.anchored.size() && particles.anchored[i]) || !(particles.mass[i] > 0) ? 0.0 : 1.0 / double(particles.mass[i]);
     try {
-        patch_.emplace(spec, particles.rest_position, surface_near(scenario_, h.pose.position, facing, reach, 8.0), std::move(inverse_mass));
+        patch_.emplace(spec, particles.rest_position, patch_surface_near(scenario_, h.pose.position, facing, reach, 8.0), std::move(inverse_mass));
     } catch (const InputError& e) {  // a patch of a size no heart takes: said, and the session goes on
         patch_.reset();
         std::printf("repair: no patch laid: %s\n", e.what());
@@ -147,11 +152,13 @@ void RepairBackend::tie(int hand) {
         return;
     }
     std::string why;
+    sync_from_device();
     h.stitch = patch_->tie(h.pose.position, inner_->simulated_time_ms(), inner_->positions_of(patch_->particles()), &why);
     if (!h.stitch) {
         std::printf("repair: no stitch at %.6g ms: %s\n", inner_->simulated_time_ms(), why.c_str());
         return;
     }
+    to_device();
     const Stitch& s = patch_->stitches()[*h.stitch];
     std::printf("repair: stitch %zu tied at %.6g ms, patch vertex %d to the tissue %.2f mm from it; it draws tight over %.0f ms\n",
                 *h.stitch + 1, inner_->simulated_time_ms(), s.vertex, s.start_length, settings_.tie_ms);
@@ -168,6 +175,30 @@ void RepairBackend::step_patch(int every) {
         if (h.instrument.kind != InstrumentKind::probe || !h.posed) continue;
         probe_of[std::size_t(hand)] = int(probes.size());
         probes.push_back({h.pose, h.instrument.semi_axes});
+    }
+    if (device_) {  // on the device, before the tissue's step: nothing read back
+        PatchPassStep step;
+        step.dt_ms = every * inner_->time_step_ms();
+        step.time_ms = inner_->simulated_time_ms();
+        step.mass_scale = inner_->options().mass_scale;
+        step.obstacles = probes;
+        for (int hand = 0; hand < 2; ++hand) {
+            const Hand& h = hands_[std::size_t(hand)];
+            if (probe_of[std::size_t(hand)] >= 0) step.hand_output[std::size_t(hand)] = probe_of[std::size_t(hand)];
+            else if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch) step.hand_output[std::size_t(hand)] = 2 + int(*h.stitch);
+        }
+        patch_->set_obstacles(std::move(probes));
+        device_->step(step);
+        device_ahead_ = true;
+        if (++device_steps_ >= candidate_refresh) {  // the candidates found again where the patch and tissue now are
+            sync_from_device();
+            patch_->pass_candidates(*device_input_, inner_->positions_of(patch_->particles()), candidate_reach_mm);
+            device_->load_candidates(*device_input_);
+            device_steps_ = 0;
+        }
+        patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        ++patch_steps_;
+        return;
     }
     patch_->set_obstacles(std::move(probes));
     patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
@@ -198,9 +229,13 @@ StepReport RepairBackend::step(int steps) {
             total.diverged = true, total.reason = r.reason, total.message = r.message;
             // The tissue went back to its last good state: the patch lets go of its motion and its
             // loads, and its stitches draw tight again from where they now are.
+            sync_from_device();
+            const bool on_device = device_ != nullptr;
+            off_device();
             patch_->recover(inner_->positions_of(patch_->particles()), inner_->simulated_time_ms());
             inner_->set_loads({});
             patch_push_.fill(Eigen::Vector3d::Zero());
+            if (on_device) to_device();
         }
         total.gave_up = total.gave_up || r.gave_up;
         if (r.gave_up) break;
@@ -211,6 +246,16 @@ StepReport RepairBackend::step(int steps) {
 void RepairBackend::add_repair_forces(InstrumentForces& forces) const {
     for (int hand = 0; hand < 2; ++hand) {
         const Hand& h = hands_[std::size_t(hand)];
+        if (device_) {  // what the device's patch step gave each hand (PatchPassStep::hand_output)
+            const std::optional<Eigen::Vector3d>& f = device_force_[std::size_t(hand)];
+            if (h.instrument.kind == InstrumentKind::probe && f && f->allFinite()) forces.hand[std::size_t(hand)].force_n += *f;
+            if (!repair_kind(h.instrument.kind)) continue;
+            forces.hand[std::size_t(hand)].force_n.setZero();
+            forces.hand[std::size_t(hand)].particles = 0;
+            if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && f && f->allFinite())
+                forces.hand[std::size_t(hand)].force_n = *f;
+            continue;
+        }
         if (h.instrument.kind == InstrumentKind::probe && patch() && patch_push_[std::size_t(hand)].allFinite())
             forces.hand[std::size_t(hand)].force_n += patch_push_[std::size_t(hand)];  // the patch it presses on
         if (!repair_kind(h.instrument.kind)) continue;
@@ -224,24 +269,67 @@ void RepairBackend::add_repair_forces(InstrumentForces& forces) const {
     }
 }
 
+void RepairBackend::device_hand_forces(bool wait) {
+    if (!device_) return;
+    if (const auto f = device_->hand_forces(wait))
+        for (int hand = 0; hand < 2; ++hand) device_force_[std::size_t(hand)] = (*f)[std::size_t(hand)];
+}
+
 std::optional<InstrumentForces> RepairBackend::latest_forces() {
+    device_hand_forces(false);
     std::optional<InstrumentForces> forces = inner_->latest_forces();
     if (forces) add_repair_forces(*forces);
     return forces;
 }
 
 InstrumentForces RepairBackend::instrument_forces() {
+    device_hand_forces(true);
     InstrumentForces forces = inner_->instrument_forces();
     add_repair_forces(forces);
     return forces;
 }
 
 void RepairBackend::reset_tissue() {
+    off_device();
     patch_.reset();
     patch_push_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
     inner_->set_loads({});
     inner_->reset_tissue();
+}
+
+void RepairBackend::to_device() {
+    if (!patch_ || !patch_->laid() || patch_->held()) return;
+    PatchStepper* stepper = inner_->patch_stepper();
+    if (!stepper || !stepper->takes(*patch_)) {
+        off_device();
+        return;
+    }
+    device_input_ = patch_->pass_input(inner_->positions_of(patch_->particles()), candidate_reach_mm);
+    stepper->load(*device_input_);
+    inner_->set_loads({});  // the host's loads, if any: the pass puts its own
+    device_ = stepper;
+    device_ahead_ = false;
+    device_steps_ = 0;
+    device_force_ = {};
+}
+
+void RepairBackend::sync_from_device() const {
+    if (!device_ || !device_ahead_ || !patch_) return;
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<Eigen::Vector3d> obstacle_forces(patch_->obstacle_forces().size(), Eigen::Vector3d::Zero());
+    const PatchPassState state = device_->state(&obstacle_forces);
+    patch_->take_pass_state(state, obstacle_forces);
+    device_ahead_ = false;
+    patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+void RepairBackend::off_device() {
+    if (device_) device_->unload();
+    device_ = nullptr;
+    device_ahead_ = false;
+    device_input_.reset();
+    device_force_ = {};
 }
 
 std::vector<Eigen::Vector3d> RepairBackend::stitch_anchors() {

@@ -75,8 +75,14 @@ public:
     std::vector<std::int32_t> contact_particles(int hand) override { return inner_->contact_particles(hand); }
     const Backend& simulating() const override { return inner_->simulating(); }
 
-    /// The patch, once laid; nullptr before.
-    const PatchModel* patch() const { return patch_ && patch_->laid() ? &*patch_ : nullptr; }
+    /// The patch, once laid; nullptr before. Where the backend's device steps it, this reads it
+    /// back first (the gl backend: waits for the GPU).
+    const PatchModel* patch() const {
+        sync_from_device();
+        return patch_ && patch_->laid() ? &*patch_ : nullptr;
+    }
+    /// Whether the backend's device steps the sewn patch (the gl backend's compute pass).
+    bool patch_on_device() const { return device_ != nullptr; }
     /// The stitches' tissue points now (mm), in stitch order; empty without a patch.
     std::vector<Eigen::Vector3d> stitch_anchors();
     const RepairSettings& settings() const { return settings_; }
@@ -91,11 +97,25 @@ private:
     void tie(int hand);
     /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.
     void add_repair_forces(InstrumentForces& forces) const;
+    /// After the patch changed on the host (a stitch tied, a recovery): the backend's device steps
+    /// it from now on where it can (Backend::patch_stepper), with candidates found afresh.
+    void to_device();
+    /// The device's patch into patch_ when it is newer.
+    void sync_from_device() const;
+    /// The patch off the device (its loads off the tissue).
+    void off_device();
+    /// Each hand's force from the device's patch, into patch_push_ (or the needle's stitch force).
+    void device_hand_forces(bool wait);
 
     std::unique_ptr<Backend> inner_;
     const Scenario& scenario_;
     RepairSettings settings_;
-    std::optional<PatchModel> patch_;
+    mutable std::optional<PatchModel> patch_;  ///< mutable: read back from the device when asked for
+    PatchStepper* device_ = nullptr;           ///< the backend's patch pass while it steps the patch
+    mutable bool device_ahead_ = false;        ///< the device's patch is newer than patch_
+    std::optional<PatchPassInput> device_input_;
+    long long device_steps_ = 0;               ///< patch steps on the device since its candidates were found
+    std::array<std::optional<Eigen::Vector3d>, 2> device_force_;  ///< each hand's force from the device's patch
     struct Hand {
         Instrument instrument;
         InstrumentPose pose;
@@ -106,10 +126,16 @@ private:
     std::array<Hand, 2> hands_{};
     /// The patch's push on each hand's probe in its last step (held between its steps, as its loads), N.
     std::array<Eigen::Vector3d, 2> patch_push_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
-    double patch_ms_ = 0.0;
+    mutable double patch_ms_ = 0.0;
     long long patch_steps_ = 0;
     long long tissue_steps_ = 0;  ///< since the patch was laid
 };
+
+/// The detailed mesh's triangles a patch centred at `centre` and facing along `facing` can touch:
+/// within `radius` of the centre across, `depth` along, facing it (rest positions); each vertex
+/// carried by the particles the mapping names. Needs the scenario's detailed mesh and mapping.
+ContactSurface patch_surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
+                                  double depth);
 
 /// `inner` wrapped in a RepairBackend when `scenario` can hold a patch (a detailed mesh with its
 /// mapping, for the surface the patch lies on); else `inner` itself.

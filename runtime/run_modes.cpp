@@ -694,8 +694,12 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
                 run.substeps, backend.simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend.simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
     if (p.repair && p.repair->patch_steps() > 0)
-        std::printf("repair: the patch's %lld steps (one every %d of the tissue's) took %.3g ms each (reading the tissue, stepping "
-                    "the patch, loading the tissue): %.1f %% of the wall time\n",
+        std::printf(p.repair->patch_on_device()
+                        ? "repair: the patch's %lld steps (one every %d of the tissue's) ran on the GPU before the tissue's; the host "
+                          "took %.3g ms each (queueing them, finding the surface near the patch again every 64, reading it back): "
+                          "%.1f %% of the wall time\n"
+                        : "repair: the patch's %lld steps (one every %d of the tissue's) took %.3g ms each (reading the tissue, stepping "
+                          "the patch, loading the tissue): %.1f %% of the wall time\n",
                     p.repair->patch_steps(), p.repair->settings().patch_every, p.repair->patch_ms() / double(p.repair->patch_steps()),
                     100.0 * p.repair->patch_ms() / wall_ms);
     {

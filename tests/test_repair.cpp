@@ -12,6 +12,7 @@
 #include "formats/state.h"
 #include "formats/volume_io.h"
 #include "runtime/backend.h"
+#include "runtime/gl/backend_gl.h"
 #include "runtime/repair.h"
 #include "runtime/trajectory.h"
 
@@ -363,7 +364,8 @@ TEST(Repair, APatchSewnOnASlabFollowsItWhenItIsStretched) {
 }
 
 // plan-repair's 8-stitch closure of the block's VSD played by `heartsim run --trajectory` on the cpu
-// and gl backends (llvmpipe where there is no GPU): the patch ends where it ends on the other
+// and gl backends (llvmpipe where there is no GPU; the gl backend steps the patch in its compute
+// pass, twice to the same bit): the patch ends where it ends on the other
 // backend within 1e-4 of the model's size (the backends' agreement elsewhere,
 // test_runtime_backend.cpp), sewn by the same stitches, and both print the same closure verdict:
 // closed, the patch checked as it lies (--leak-test 0), sewn all round over the opening.
@@ -382,6 +384,18 @@ TEST(Repair, TheCpuAndGlBackendsSewThePatchAlike) {
         ASSERT_EQ(runs[backend].exit_code, 0) << runs[backend].output;
         states[backend] = read_state(state);
         ASSERT_TRUE(states[backend].patch.has_value()) << runs[backend].output;
+    }
+    // The gl backend's patch pass gathers rather than scatters: a second run is the same to the bit.
+    {
+        const fs::path again = dir / "gl-again.h5";
+        const auto run = heartsim_command("run " + quoted(b.scenario) + " --headless --backend gl --trajectory " + quoted(b.closure) +
+                                          " --seconds " + length + " --leak-test 0 --save-state " + quoted(again));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        const SimulationState second = read_state(again);
+        ASSERT_TRUE(second.patch.has_value());
+        EXPECT_EQ(second.patch->positions, states["gl"].patch->positions);
+        EXPECT_EQ(second.positions, states["gl"].positions);
+        EXPECT_NE(runs["gl"].output.find("ran on the GPU"), std::string::npos) << runs["gl"].output;
     }
     const PatchState &cpu = *states["cpu"].patch, &gl = *states["gl"].patch;
     const double size = model_size(read_scenario(b.scenario)), tolerance = 1e-4 * size;
@@ -465,4 +479,69 @@ TEST(Repair, AProbePressedOnTheSewnPatchIsPushedBackAndTheDefectStaysClosed) {
     EXPECT_GT(-force.dot(facing), 0.9 * force.norm()) << "mostly straight back";
     EXPECT_GT(moved, 0.5) << "the patch gave way under the probe";
     EXPECT_EQ(verdict_of(pressing.output).closed, "yes") << pressing.output;
+}
+
+// The gl backend steps a sewn patch in a compute pass (runtime/gl/patch_pass.h) from the same
+// flattened patch the host steps (PatchModel::pass_input). With the tissue held where it was imaged,
+// plan-repair's patch on the block, its eight stitches tied at once, steps 200 times on each: the
+// pass's positions, stitch pulls and contact force match the host's step to rounding, as the two
+// run the same arithmetic in double and keep the same things between steps.
+TEST(Repair, TheGlPatchPassStepsThePatchAsTheHostDoes) {
+    REQUIRE_GL();
+    const BlockRepair& b = block_repair();
+    const Scenario scenario = read_scenario(b.scenario);
+    const SolverOptions options = options_from(scenario.solver);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    PatchStepper* pass = gl->patch_stepper();
+    ASSERT_NE(pass, nullptr);
+    const Trajectory plan = read_trajectory(b.closure);
+    std::optional<InstrumentKeyframe> laid;
+    std::vector<Eigen::Vector3d> ties;
+    std::array<bool, 2> held{false, false};
+    for (const InstrumentKeyframe& k : plan.keyframes) {
+        const bool press = k.grab && !held[std::size_t(k.hand)];
+        held[std::size_t(k.hand)] = k.grab;
+        if (press && k.kind == InstrumentKind::patch && !laid) laid = k;
+        if (press && k.kind == InstrumentKind::needle) ties.push_back(k.pose.position);
+    }
+    ASSERT_TRUE(laid.has_value());
+    ASSERT_EQ(ties.size(), 8u);
+    PatchSpec spec;
+    spec.radius_x_mm = laid->semi_axes.x();
+    spec.radius_y_mm = laid->semi_axes.y();
+    spec.thickness_mm = 2.0 * laid->semi_axes.z();
+    spec.gravity = options.gravity;
+    const Particles& particles = scenario.lattice.particles;
+    std::vector<double> inverse_mass(particles.size(), 0.0);
+    for (std::size_t i = 0; i < particles.size(); ++i)
+        inverse_mass[i] = particles.anchored[i] || !(particles.mass[i] > 0) ? 0.0 : 1.0 / double(particles.mass[i]);
+    const Eigen::Vector3d facing = laid->pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
+    PatchModel host(spec, particles.rest_position,
+                    patch_surface_near(scenario, laid->pose.position, facing, std::max(spec.radius_x_mm, spec.radius_y_mm) + 3.0, 8.0),
+                    inverse_mass);
+    const ParticlePositions positions = gl->positions_of(host.particles());
+    host.lay(laid->pose, positions);
+    for (const Eigen::Vector3d& tip : ties) ASSERT_TRUE(host.tie(tip, 0.0, positions).has_value());
+    pass->load(host.pass_input(positions, 3.0));
+    const double dt = 3 * gl->time_step_ms();
+    double worst = 0.0, worst_force = 0.0, largest_force = 0.0;
+    for (int step = 0; step < 200; ++step) {
+        host.step(positions, dt, step * dt);
+        pass->step({.dt_ms = dt, .time_ms = step * dt, .mass_scale = 1.0, .obstacles = {}, .hand_output = {-1, -1}});
+        if (step % 50 != 49) continue;
+        const PatchPassState state = pass->state(nullptr);
+        ASSERT_EQ(state.x.size(), host.positions().size());
+        for (std::size_t i = 0; i < state.x.size(); ++i) worst = std::max(worst, (state.x[i] - host.positions()[i]).norm());
+        for (std::size_t s = 0; s < state.stitch_force.size(); ++s) {
+            worst_force = std::max(worst_force, (state.stitch_force[s] - host.stitches()[s].force_n).norm());
+            largest_force = std::max(largest_force, host.stitches()[s].force_n.norm());
+        }
+        worst_force = std::max(worst_force, (state.contact_force - host.contact_force()).norm());
+        largest_force = std::max(largest_force, host.contact_force().norm());
+    }
+    std::printf("  after 200 steps of %.3g ms: max |x_pass - x_host| %.3g mm; forces within %.3g N of the host's (largest %.3g N)\n", dt,
+                worst, worst_force, largest_force);
+    EXPECT_LT(worst, 1e-9);
+    EXPECT_GT(largest_force, 0.0);
+    EXPECT_LT(worst_force, 1e-9 * std::max(1.0, largest_force));
 }

@@ -3,6 +3,7 @@
 // Design and deviations: docs/runtime.md. One file because it is one class,
 // GlBackend: every pass reads and writes the same buffers and hand state, kept private here.
 #include "runtime/gl/backend_gl.h"
+#include "runtime/gl/patch_pass.h"
 #include "runtime/gl/picking.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
@@ -21,6 +22,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <deque>
 #include <limits>
@@ -93,7 +95,7 @@ public:
         build_buffers(scenario);
         surface_ = scenario.simulation_surface;  // for the picking / search contact passes, built on demand
         lattice_spacing_ = scenario.lattice.spacing;
-        build(step_program_, "step", {sh::springs, sh::step});
+        build(step_program_, "step", {sh::springs, sh::geometry, sh::step});
         build(after_program_, "after-step", {sh::after_step});
         build(capture_program_, "grab", {sh::capture});
         build(release_program_, "release", {sh::release});
@@ -618,7 +620,7 @@ public:
         }
         load_particles_.resize(loads.size());
         for (std::size_t k = 0; k < loads.size(); ++k) load_particles_[k] = loads[k].particle;
-        glProgramUniform1i(step_program_.id, step_program_.at("loaded"), !load_particles_.empty());
+        glProgramUniform1i(step_program_.id, step_program_.at("loaded"), !load_particles_.empty() || patch_loads_);
         check("set_loads");
     }
 
@@ -674,6 +676,24 @@ public:
     PassTimes pass_times() override {
         harvest_queries(true);
         return times_;
+    }
+
+    PatchStepper* patch_stepper() override {
+        if (!patch_pass_ && !patch_pass_refused_) {
+            try {
+                patch_pass_ = make_gl_patch_pass([this] { return unsigned(position_[current_].id()); }, load_.id(),
+                                                 [this](bool on) {
+                                                     patch_loads_ = on;
+                                                     glProgramUniform1i(step_program_.id, step_program_.at("loaded"),
+                                                                        !load_particles_.empty() || patch_loads_);
+                                                 },
+                                                 n_);
+            } catch (const GlUnavailable& e) {  // a driver without what the pass needs: the host steps the patch
+                patch_pass_refused_ = true;
+                std::printf("repair: the patch steps on the host: %s\n", e.what());
+            }
+        }
+        return patch_pass_.get();
     }
 
 private:
@@ -1017,6 +1037,9 @@ private:
     Buffer load_, load_list_, gather_index_, gathered_;
     std::size_t load_list_bytes_ = 0, gather_capacity_ = 0;
     std::vector<std::int32_t> load_particles_;  ///< the particles of the loads in force, ascending
+    std::unique_ptr<PatchStepper> patch_pass_;  ///< a sewn patch's pass, made on first use (patch_pass.h)
+    bool patch_pass_refused_ = false;           ///< the driver could not build it
+    bool patch_loads_ = false;                  ///< the patch's pass has loads on the tissue
     std::vector<float> rest_position_;  ///< 3 per particle, host copy for begin_grab
     /// Host copies of what upload_step_constants() derives the h- and S-dependent constants from.
     struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };

@@ -23,6 +23,8 @@ enum Binding : unsigned {
     load_list = 21,     ///< set_loads's scatter list: particle index and force per entry
     gather_index = 22,  ///< positions_of's particle indices
     gathered = 23,      ///< positions_of's positions, vec4 per index
+    // The patch's pass (patch_pass.cpp, patch_shaders.h), beyond current and load.
+    patch_ints = 24, patch_constants = 25, patch_state = 26,
     // The renderer's passes (renderer.cpp, render_shaders.h) bind all their buffers before each
     // use, so they reuse the backend's low slots: with the cpu backend, drawing then needs no
     // more bindings than the few every OpenGL 4.3 driver offers.
@@ -74,6 +76,9 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"BINDING_LOAD_LIST", load_list},
     {"BINDING_GATHER_INDEX", gather_index},
     {"BINDING_GATHERED", gathered},
+    {"BINDING_PATCH_INTS", patch_ints},
+    {"BINDING_PATCH_CONSTANTS", patch_constants},
+    {"BINDING_PATCH_STATE", patch_state},
     {"BINDING_INCIDENCE_START", incidence_start},
     {"BINDING_INCIDENCE", incidence},
     {"BINDING_PARTICLE_NORMALS", particle_normals},

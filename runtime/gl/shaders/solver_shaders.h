@@ -32,31 +32,9 @@ layout(std430, binding = BINDING_STIFFNESS) readonly buffer StiffnessBuffer { fl
 layout(std430, binding = BINDING_DASHPOT) readonly buffer DashpotBuffer { float dashpot[]; };
 )";
 
-/// One substep: gather the 18 slots, integrate, check the displacement, add the external loads,
-/// project out of probes. Positions x and the motion of the last substep u = x_n − x_{n−1} are
-/// kept apart, as on the CPU.
-inline constexpr const char* step = R"(
-layout(local_size_x = 64) in;
-layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
-layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
-layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
-layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };  // N, zero where none
-
-uniform float keep;             // 1 − γh
-uniform vec3 gravity;           // mm/ms²
-uniform float max_displacement2;
-uniform bool damped;
-uniform int probe_count;
-uniform int probe_hand[2];
-uniform dvec3 probe_centre[2];
-uniform dmat3 probe_rotation[2];
-uniform dvec3 probe_previous_centre[2];
-uniform dmat3 probe_previous_rotation[2];
-uniform dvec3 probe_semi_axes[2];
-uniform float probe_bound2[2];
-uniform double pierce_strain;   // SolverOptions::probe_pierce_strain; ≤ 0: never pierces
-uniform bool loaded;            // some particle has a load (set_loads): read `load`
-
+/// Instrument geometry in double that the step and the patch's pass share: rotations in Eigen's
+/// order, dot products, and the nearest point of an ellipsoid.
+inline constexpr const char* geometry = R"(
 dvec3 rotate(dmat3 r, dvec3 v) {          // r · v, Eigen's order
     precise double a = r[0][0] * v.x + r[1][0] * v.y; a = a + r[2][0] * v.z;
     precise double b = r[0][1] * v.x + r[1][1] * v.y; b = b + r[2][1] * v.z;
@@ -114,6 +92,32 @@ dvec3 ellipsoid_nearest(dvec3 y_in, dvec3 a_in) {
     for (int i = 0; i < 3; ++i) x[i] = a2[i] * y[i] / (a2[i] + high);
     return dvec3(x[0], x[1], x[2]);
 }
+)";
+
+/// One substep: gather the 18 slots, integrate, check the displacement, add the external loads,
+/// project out of probes. Positions x and the motion of the last substep u = x_n − x_{n−1} are
+/// kept apart, as on the CPU.
+inline constexpr const char* step = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; };
+layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
+layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
+layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };  // N, zero where none
+
+uniform float keep;             // 1 − γh
+uniform vec3 gravity;           // mm/ms²
+uniform float max_displacement2;
+uniform bool damped;
+uniform int probe_count;
+uniform int probe_hand[2];
+uniform dvec3 probe_centre[2];
+uniform dmat3 probe_rotation[2];
+uniform dvec3 probe_previous_centre[2];
+uniform dmat3 probe_previous_rotation[2];
+uniform dvec3 probe_semi_axes[2];
+uniform float probe_bound2[2];
+uniform double pierce_strain;   // SolverOptions::probe_pierce_strain; ≤ 0: never pierces
+uniform bool loaded;            // some particle has a load (set_loads): read `load`
 
 void main() {
     uint i = gl_GlobalInvocationID.x;
