@@ -204,30 +204,27 @@ void PatchModel::deform_surface(const ParticlePositions& positions) {
     for (std::size_t t = 0; t < surface_.triangles.size(); ++t) sn(t);
 }
 
-void PatchModel::build_surface_grid() {
+PatchModel::SurfaceGrid PatchModel::grid_over(const std::vector<Eigen::Vector3d>& surface_x, const std::vector<Eigen::Vector3d>& normals) const {
     // A 2D grid in the laid patch's plane over the triangles that face it: each triangle in the
     // cells its outline covers grown by grid_margin (the surface drifts, and a point a leaning
-    // triangle holds in front of it projects a little off its outline), rebuilt whenever some
-    // vertex may have moved by half the margin since (surface_moved); a vertex finds the triangle
-    // under it among the few of its cell whose box (grid_box_) holds it.
-    grid_.clear();
+    // triangle holds in front of it projects a little off its outline); a vertex finds the
+    // triangle under it among the few of its cell whose box holds it.
+    SurfaceGrid g;
     const Eigen::Vector3d e1 = frame_.col(0), e2 = frame_.col(1);
-    std::vector<Eigen::Vector2d> across(surface_x_.size());  // each surface vertex in the patch's plane
+    std::vector<Eigen::Vector2d> across(surface_x.size());  // each surface vertex in the patch's plane
     Eigen::AlignedBox2d box;
-    for (std::size_t v = 0; v < surface_x_.size(); ++v) {
-        across[v] = Eigen::Vector2d(surface_x_[v].dot(e1), surface_x_[v].dot(e2));
+    for (std::size_t v = 0; v < surface_x.size(); ++v) {
+        across[v] = Eigen::Vector2d(surface_x[v].dot(e1), surface_x[v].dot(e2));
         box.extend(across[v]);
     }
-    grid_slot_x_ = slot_x_;
-    std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
-    if (box.isEmpty()) return;
-    grid_origin_ = Eigen::Vector3d(box.min().x() - grid_margin, box.min().y() - grid_margin, 0);
-    grid_dims_ = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096),
-                                 std::clamp(int(std::ceil((box.sizes().y() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096), 1);
-    grid_.assign(std::size_t(grid_dims_.x()) * std::size_t(grid_dims_.y()), {});
-    grid_box_.assign(surface_.triangles.size(), {});
+    if (box.isEmpty()) return g;
+    g.origin = Eigen::Vector3d(box.min().x() - grid_margin, box.min().y() - grid_margin, 0);
+    g.dims = Eigen::Vector3i(std::clamp(int(std::ceil((box.sizes().x() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096),
+                             std::clamp(int(std::ceil((box.sizes().y() + 2 * grid_margin) / grid_cell_)) + 1, 1, 4096), 1);
+    g.cells.assign(std::size_t(g.dims.x()) * std::size_t(g.dims.y()), {});
+    g.box.assign(surface_.triangles.size(), {});
     for (std::size_t t = 0; t < surface_.triangles.size(); ++t) {
-        if (!(surface_normal_[t].dot(facing_) < -0.3)) continue;  // only surface that faces the patch
+        if (!(normals[t].dot(facing_) < -0.3)) continue;  // only surface that faces the patch
         Eigen::AlignedBox2d tb;
         for (int corner : surface_.triangles[t]) tb.extend(across[std::size_t(corner)]);
         // Where a point the triangle holds can be: across, within the margin of its outline; along
@@ -235,19 +232,31 @@ void PatchModel::build_surface_grid() {
         // of its farthest (the range triangle_under takes), each widened by the drift allowed.
         double near = std::numeric_limits<double>::infinity(), far = -near;
         for (int corner : surface_.triangles[t]) {
-            const double along = surface_x_[std::size_t(corner)].dot(facing_);
+            const double along = surface_x[std::size_t(corner)].dot(facing_);
             near = std::min(near, along), far = std::max(far, along);
         }
         const double slack = 0.5 * grid_margin;
-        grid_box_[t] = {float(tb.min().x() - grid_margin), float(tb.min().y() - grid_margin), float(tb.max().x() + grid_margin),
-                        float(tb.max().y() + grid_margin), float(near - 3.0 - spec_.thickness_mm - slack), float(far + 2.0 + slack)};
-        const int i0 = std::clamp(int(std::floor((tb.min().x() - grid_margin - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
-        const int i1 = std::clamp(int(std::floor((tb.max().x() + grid_margin - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
-        const int j0 = std::clamp(int(std::floor((tb.min().y() - grid_margin - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
-        const int j1 = std::clamp(int(std::floor((tb.max().y() + grid_margin - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
+        g.box[t] = {float(tb.min().x() - grid_margin), float(tb.min().y() - grid_margin), float(tb.max().x() + grid_margin),
+                    float(tb.max().y() + grid_margin), float(near - 3.0 - spec_.thickness_mm - slack), float(far + 2.0 + slack)};
+        const int i0 = std::clamp(int(std::floor((tb.min().x() - grid_margin - g.origin.x()) / grid_cell_)), 0, g.dims.x() - 1);
+        const int i1 = std::clamp(int(std::floor((tb.max().x() + grid_margin - g.origin.x()) / grid_cell_)), 0, g.dims.x() - 1);
+        const int j0 = std::clamp(int(std::floor((tb.min().y() - grid_margin - g.origin.y()) / grid_cell_)), 0, g.dims.y() - 1);
+        const int j1 = std::clamp(int(std::floor((tb.max().y() + grid_margin - g.origin.y()) / grid_cell_)), 0, g.dims.y() - 1);
         for (int j = j0; j <= j1; ++j)
-            for (int i = i0; i <= i1; ++i) grid_[std::size_t(j * grid_dims_.x() + i)].push_back(std::int32_t(t));
+            for (int i = i0; i <= i1; ++i) g.cells[std::size_t(j * g.dims.x() + i)].push_back(std::int32_t(t));
     }
+    return g;
+}
+
+void PatchModel::build_surface_grid() {
+    // Rebuilt whenever some surface vertex may have moved by half the margin since (surface_moved).
+    SurfaceGrid g = grid_over(surface_x_, surface_normal_);
+    grid_ = std::move(g.cells);
+    grid_box_ = std::move(g.box);
+    grid_origin_ = g.origin;
+    grid_dims_ = g.dims;
+    grid_slot_x_ = slot_x_;
+    std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
 }
 
 bool PatchModel::surface_moved() const {
@@ -914,37 +923,51 @@ PatchPassInput PatchModel::pass_input(const ParticlePositions& positions, double
     return in;
 }
 
-void PatchModel::pass_candidates(PatchPassInput& in, const ParticlePositions& positions, double reach_mm) {
-    if (!laid()) throw InputError("patch: no patch is laid to step");
-    // The triangles whose boxes (build_surface_grid: where a point they hold in front of them can
-    // be) come within reach_mm of a vertex, from the grid cells around it: on a copy, so that
-    // what the patch keeps between steps (its grid, the tissue's motion) is as it was.
-    PatchModel copy = *this;
-    copy.pass_candidates_here(in, positions, reach_mm);
+void PatchModel::pass_candidates(PatchPassInput& in, const ParticlePositions& positions, double reach_mm) const {
+    if (positions.size() != particles_.size())
+        throw InputError("patch: " + std::to_string(positions.size()) + " positions given for " + std::to_string(particles_.size()) + " particles");
+    std::vector<Eigen::Vector3d> slot_x(positions.size());
+    for (std::size_t k = 0; k < positions.size(); ++k) slot_x[k] = vec(positions[k]);
+    pass_candidates(in, x_, slot_x, reach_mm);
 }
 
-void PatchModel::pass_candidates_here(PatchPassInput& in, const ParticlePositions& positions, double reach_mm) {
-    deform_surface(positions);
-    build_surface_grid();
-    const std::size_t n = x_.size();
+void PatchModel::pass_candidates(PatchPassInput& in, const std::vector<Eigen::Vector3d>& x, const std::vector<Eigen::Vector3d>& slot_x,
+                                 double reach_mm) const {
+    if (!laid()) throw InputError("patch: no patch is laid to step");
+    if (x.size() != x_.size() || slot_x.size() != particles_.size()) throw InputError("patch: a snapshot does not match the patch");
+    // The surface where slot_x puts it, and the triangles whose boxes (grid_over: where a point
+    // they hold in front of them can be) come within reach_mm of a vertex, from the cells around it.
+    std::vector<Eigen::Vector3d> sx(surface_.vertices.size()), normals(surface_.triangles.size());
+    for (std::size_t v = 0; v < sx.size(); ++v) {
+        Eigen::Vector3d p = surface_base_[v];
+        for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) p += surface_weight_[k] * slot_x[std::size_t(slot_of_surface_[k])];
+        sx[v] = p;
+    }
+    for (std::size_t t = 0; t < normals.size(); ++t) {
+        const auto& [a, b, c] = surface_.triangles[t];
+        const Eigen::Vector3d n = (sx[std::size_t(b)] - sx[std::size_t(a)]).cross(sx[std::size_t(c)] - sx[std::size_t(a)]);
+        normals[t] = n.norm() > 0 ? Eigen::Vector3d(n.normalized()) : Eigen::Vector3d::Zero();
+    }
+    const SurfaceGrid g = grid_over(sx, normals);
+    const std::size_t n = x.size();
     in.candidate_first.assign(1, 0);
     in.candidate.clear();
     std::vector<std::uint32_t> seen(surface_.triangles.size(), 0);
     const double r = reach_mm;
     for (std::size_t i = 0; i < n; ++i) {
-        const double u = x_[i].dot(frame_.col(0)), w = x_[i].dot(frame_.col(1)), along = x_[i].dot(facing_);
+        const double u = x[i].dot(frame_.col(0)), w = x[i].dot(frame_.col(1)), along = x[i].dot(facing_);
         const std::size_t first = in.candidate.size();
-        if (!grid_.empty()) {
-            const int i0 = std::clamp(int(std::floor((u - r - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
-            const int i1 = std::clamp(int(std::floor((u + r - grid_origin_.x()) / grid_cell_)), 0, grid_dims_.x() - 1);
-            const int j0 = std::clamp(int(std::floor((w - r - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
-            const int j1 = std::clamp(int(std::floor((w + r - grid_origin_.y()) / grid_cell_)), 0, grid_dims_.y() - 1);
+        if (!g.cells.empty()) {
+            const int i0 = std::clamp(int(std::floor((u - r - g.origin.x()) / grid_cell_)), 0, g.dims.x() - 1);
+            const int i1 = std::clamp(int(std::floor((u + r - g.origin.x()) / grid_cell_)), 0, g.dims.x() - 1);
+            const int j0 = std::clamp(int(std::floor((w - r - g.origin.y()) / grid_cell_)), 0, g.dims.y() - 1);
+            const int j1 = std::clamp(int(std::floor((w + r - g.origin.y()) / grid_cell_)), 0, g.dims.y() - 1);
             for (int j = j0; j <= j1; ++j)
                 for (int k = i0; k <= i1; ++k)
-                    for (std::int32_t t : grid_[std::size_t(j * grid_dims_.x() + k)]) {
+                    for (std::int32_t t : g.cells[std::size_t(j * g.dims.x() + k)]) {
                         if (seen[std::size_t(t)] == i + 1) continue;
                         seen[std::size_t(t)] = std::uint32_t(i + 1);
-                        const auto& box = grid_box_[std::size_t(t)];
+                        const auto& box = g.box[std::size_t(t)];
                         if (u < box[0] - r || w < box[1] - r || u > box[2] + r || w > box[3] + r || along < box[4] - r || along > box[5] + r) continue;
                         in.candidate.push_back(t);
                     }

@@ -234,8 +234,12 @@ public:
     /// The patch flattened for a pass (PatchPassInput), its candidates found within `reach_mm`
     /// across of each vertex at the tissue's `positions`. Throws when no patch is laid.
     PatchPassInput pass_input(const ParticlePositions& positions, double reach_mm);
-    /// Only the candidates and the lists that follow them, found afresh at `positions`.
-    void pass_candidates(PatchPassInput& input, const ParticlePositions& positions, double reach_mm);
+    /// Only the candidates and the lists that follow them, found afresh with the tissue at
+    /// `positions` (of particles()) and the patch where it is.
+    void pass_candidates(PatchPassInput& input, const ParticlePositions& positions, double reach_mm) const;
+    /// The same from a pass's snapshot: the patch's positions `x` and the slots' `slot_x`.
+    void pass_candidates(PatchPassInput& input, const std::vector<Eigen::Vector3d>& x, const std::vector<Eigen::Vector3d>& slot_x,
+                         double reach_mm) const;
     /// Takes what a pass's steps left (its sizes those of pass_input's); the obstacles' forces as
     /// the pass gave them, in set_obstacles' order.
     void take_pass_state(const PatchPassState& state, const std::vector<Eigen::Vector3d>& obstacle_forces);
@@ -255,7 +259,15 @@ public:
 
 private:
     void build_mesh();
-    void pass_candidates_here(PatchPassInput& input, const ParticlePositions& positions, double reach_mm);
+    /// The grid over a surface at `surface_x` (per triangle its unit `normals`): build_surface_grid
+    /// for the step, pass_candidates for a pass.
+    struct SurfaceGrid {
+        Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+        Eigen::Vector3i dims = Eigen::Vector3i::Zero();
+        std::vector<std::vector<std::int32_t>> cells;
+        std::vector<std::array<float, 6>> box;
+    };
+    SurfaceGrid grid_over(const std::vector<Eigen::Vector3d>& surface_x, const std::vector<Eigen::Vector3d>& normals) const;
     /// Whether the patch and the tissue it touches are at rest (step() then changes nothing).
     bool at_rest(const ParticlePositions& positions, double time_ms) const;
     void refresh_particles();

@@ -23,6 +23,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -84,6 +85,12 @@ public:
     /// Each hand's force from the newest finished step (PatchPassStep::hand_output), without
     /// waiting; nullopt while none has finished. `wait`: the last step's, waiting for it.
     virtual std::optional<std::array<Eigen::Vector3d, 2>> hand_forces(bool wait) = 0;
+    /// Queues a copy of the patch's positions and of the tissue's particles as its last step read
+    /// them, for snapshot(); nothing waits.
+    virtual void request_snapshot() = 0;
+    /// That copy (waiting for it only if it is not done yet): the patch's positions and the slots'
+    /// (empty before the pass has stepped).
+    virtual std::pair<std::vector<Eigen::Vector3d>, std::vector<Eigen::Vector3d>> snapshot() = 0;
     /// The patch's loads off the tissue; nothing is stepped until load().
     virtual void unload() = 0;
 };

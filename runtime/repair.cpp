@@ -15,6 +15,7 @@ namespace {
 /// steps: a vertex that slides by less than this against the tissue in that time misses nothing.
 constexpr double candidate_reach_mm = 3.0;
 constexpr int candidate_refresh = 64;
+constexpr int candidate_lead = 8;  ///< the copy they are found from is asked for this many patch steps before
 
 Eigen::Vector3d vec(const std::array<float, 3>& p) { return {double(p[0]), double(p[1]), double(p[2])}; }
 
@@ -190,11 +191,19 @@ void RepairBackend::step_patch(int every) {
         patch_->set_obstacles(std::move(probes));
         device_->step(step);
         device_ahead_ = true;
-        if (++device_steps_ >= candidate_refresh) {  // the candidates found again where the patch and tissue now are
-            sync_from_device();
-            patch_->pass_candidates(*device_input_, inner_->positions_of(patch_->particles()), candidate_reach_mm);
+        // The candidates found again where the patch and the tissue are: a copy of both asked for
+        // a few steps ahead and taken at a fixed step (done by then, and the same step in a replay).
+        ++device_steps_;
+        if (device_steps_ % candidate_refresh == candidate_refresh - candidate_lead) device_->request_snapshot();
+        if (device_steps_ % candidate_refresh == 0) {
+            const auto [x, slot_x] = device_->snapshot();
+            if (slot_x.empty()) patch_->pass_candidates(*device_input_, x, [&] {
+                std::vector<Eigen::Vector3d> now;
+                for (const auto& p : inner_->positions_of(patch_->particles())) now.push_back(vec(p));
+                return now;
+            }(), candidate_reach_mm);
+            else patch_->pass_candidates(*device_input_, x, slot_x, candidate_reach_mm);
             device_->load_candidates(*device_input_);
-            device_steps_ = 0;
         }
         patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         ++patch_steps_;

@@ -458,7 +458,19 @@ public:
         return report;
     }
 
+    /// Neither hand holds anything the tissue feels (a repair's patch and needle hands): the forces
+    /// are zero, and a request needs no pass.
+    bool no_instruments() const {
+        return hand_[0].instrument.kind == InstrumentKind::none && hand_[1].instrument.kind == InstrumentKind::none;
+    }
+
     void request_forces() override {
+        if (no_instruments()) {  // answered at once; requests still in flight are superseded
+            for (auto& fence : fences_) fence.reset();
+            latest_ = InstrumentForces{};
+            latest_sequence_ = next_sequence_++;
+            return;
+        }
         const int slot = int(next_sequence_ % ring_slots);
         if (fences_[slot]) {  // ring full: the oldest readback is still in flight (rare: 4 outstanding)
             glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(10'000'000'000ull));
@@ -511,6 +523,7 @@ public:
 
     InstrumentForces instrument_forces() override {
         request_forces();
+        if (no_instruments()) return *latest_;
         const int slot = int((next_sequence_ - 1) % ring_slots);
         glClientWaitSync(fences_[slot], GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(60'000'000'000ull));
         fences_[slot].reset();

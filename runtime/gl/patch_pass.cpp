@@ -61,6 +61,7 @@ public:
     }
     ~GlPatchPass() override {
         if (ring_.id()) glUnmapNamedBuffer(ring_.id());
+        if (snapshot_.id()) glUnmapNamedBuffer(snapshot_.id());
     }
 
     bool takes(const PatchModel& patch) const override {
@@ -190,6 +191,7 @@ public:
         glProgramUniform1d(p, glGetUniformLocation(p, "grid_margin"), in.grid_margin_mm);
         glProgramUniform1d(p, glGetUniformLocation(p, "largest_weight_sum"), in.largest_weight_sum);
         for (auto& f : fences_) f.reset();
+        snapshot_fence_.reset();
         sequence_ = 0;
         latest_.reset();
         loaded_here_ = true;
@@ -312,11 +314,47 @@ public:
         return latest_;
     }
 
+    void request_snapshot() override {
+        if (!loaded_here_) throw InputError("gl backend: no patch is loaded");
+        const std::size_t doubles = 3 * n_ + 3 * slots_ + 1;
+        if (doubles * 8 > snapshot_bytes_) {
+            if (snapshot_.id()) glUnmapNamedBuffer(snapshot_.id());
+            snapshot_bytes_ = doubles * 8;
+            const GLbitfield flags = GL_MAP_READ_BIT | GL_MAP_PERSISTENT_BIT | GL_MAP_COHERENT_BIT;
+            gl::storage(snapshot_, snapshot_bytes_, flags);
+            snapshot_map_ = glMapNamedBufferRange(snapshot_.id(), 0, GLsizeiptr(snapshot_bytes_), flags);
+            if (!snapshot_map_) throw GlUnavailable("gl backend: cannot map the patch's snapshot buffer persistently");
+        }
+        glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
+        glCopyNamedBufferSubData(state_.id(), snapshot_.id(), GLintptr(at_["s_x"] * 8), 0, GLsizeiptr(3 * n_ * 8));
+        if (slots_ > 0) glCopyNamedBufferSubData(state_.id(), snapshot_.id(), GLintptr(at_["s_slot_x"] * 8), GLintptr(3 * n_ * 8), GLsizeiptr(3 * slots_ * 8));
+        glCopyNamedBufferSubData(state_.id(), snapshot_.id(), GLintptr((at_["s_global"] + 4) * 8), GLintptr((3 * n_ + 3 * slots_) * 8), 8);
+        glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
+        snapshot_fence_.reset(glFenceSync(GL_SYNC_GPU_COMMANDS_COMPLETE, 0));
+        glFlush();
+        check("copying the patch for a snapshot");
+    }
+
+    std::pair<std::vector<Eigen::Vector3d>, std::vector<Eigen::Vector3d>> snapshot() override {
+        if (!snapshot_fence_) request_snapshot();
+        glClientWaitSync(snapshot_fence_, GL_SYNC_FLUSH_COMMANDS_BIT, GLuint64(60'000'000'000ull));
+        snapshot_fence_.reset();
+        const double* d = static_cast<const double*>(snapshot_map_);
+        std::vector<Eigen::Vector3d> x(n_), slot_x;
+        for (std::size_t i = 0; i < n_; ++i) x[i] = Eigen::Vector3d(d[3 * i], d[3 * i + 1], d[3 * i + 2]);
+        if (d[3 * n_ + 3 * slots_] != 0.0) {
+            slot_x.resize(slots_);
+            for (std::size_t k = 0; k < slots_; ++k) slot_x[k] = Eigen::Vector3d(d[3 * n_ + 3 * k], d[3 * n_ + 3 * k + 1], d[3 * n_ + 3 * k + 2]);
+        }
+        return {std::move(x), std::move(slot_x)};
+    }
+
     void unload() override {
         unload_loads();
         loaded_here_ = false;
         latest_.reset();
         for (auto& f : fences_) f.reset();
+        snapshot_fence_.reset();
     }
 
 private:
@@ -373,7 +411,10 @@ private:
     std::function<void(bool)> loaded_;
     std::size_t n_particles_;
     gl::Program program_;
-    gl::Buffer ints_, constants_, state_, ring_;
+    gl::Buffer ints_, constants_, state_, ring_, snapshot_;
+    std::size_t snapshot_bytes_ = 0;
+    void* snapshot_map_ = nullptr;
+    gl::Fence snapshot_fence_;
     std::size_t ints_bytes_ = 0, state_size_ = 0;
     void* ring_map_ = nullptr;
     std::array<gl::Fence, ring_slots> fences_;
