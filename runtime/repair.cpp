@@ -196,13 +196,10 @@ void RepairBackend::step_patch(int every) {
         ++device_steps_;
         if (device_steps_ % candidate_refresh == candidate_refresh - candidate_lead) device_->request_snapshot();
         if (device_steps_ % candidate_refresh == 0) {
-            const auto [x, slot_x] = device_->snapshot();
-            if (slot_x.empty()) patch_->pass_candidates(*device_input_, x, [&] {
-                std::vector<Eigen::Vector3d> now;
-                for (const auto& p : inner_->positions_of(patch_->particles())) now.push_back(vec(p));
-                return now;
-            }(), candidate_reach_mm);
-            else patch_->pass_candidates(*device_input_, x, slot_x, candidate_reach_mm);
+            auto [x, slot_x] = device_->snapshot();
+            if (slot_x.empty())  // the pass has not stepped since it was loaded: the tissue now
+                for (const auto& p : inner_->positions_of(patch_->particles())) slot_x.push_back(vec(p));
+            patch_->pass_candidates(*device_input_, x, slot_x, candidate_reach_mm);
             device_->load_candidates(*device_input_);
         }
         patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
