@@ -229,6 +229,49 @@ TEST(RuntimeBackend, GlMatchesCpuOnThePhantom) {
     expect_agreement(c);
 }
 
+// A force request while neither hand holds anything the tissue feels (a repair's patch and needle
+// hands are `none` to the solver) runs no pass on the gl backend: it is answered with zero at once,
+// numbered in turn, as the cpu backend answers it. The next request with a probe back runs the
+// pass again and feels the tissue.
+TEST(RuntimeBackend, GlAnswersAForceRequestWithNoInstrumentWithZeroAtOnce) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(phantom_scenario());
+    const SolverOptions options = options_from(scenario.solver);
+    auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
+    const Trajectory trajectory = probe_and_grab(scenario, 1.5 * scenario.lattice.spacing);
+    run_scripted(*gl, trajectory, {.steps = 120});
+    const InstrumentForces pressed = gl->instrument_forces();
+    const auto probe_key = std::find_if(trajectory.keyframes.begin(), trajectory.keyframes.end(),
+                                        [](const InstrumentKeyframe& k) { return k.kind == InstrumentKind::probe; });
+    ASSERT_NE(probe_key, trajectory.keyframes.end());
+    const int probe_hand = probe_key->hand;
+    ASSERT_GT(pressed.hand[std::size_t(probe_hand)].particles, 0u);
+    const double felt = pressed.hand[std::size_t(probe_hand)].force_n.norm();
+    EXPECT_GT(felt, 0.0);
+    const Instrument probe{.kind = InstrumentKind::probe, .semi_axes = probe_key->semi_axes};
+    const InstrumentPose pose = trajectory.at(probe_hand, gl->simulated_time_ms()).pose;
+    for (int hand = 0; hand < 2; ++hand) gl->set_instrument(hand, {InstrumentKind::none, Eigen::Vector3d::Ones()});
+    const std::uint64_t before = gl->latest_forces_request();
+    gl->request_forces();
+    const std::optional<InstrumentForces> answered = gl->latest_forces();  // without waiting
+    ASSERT_TRUE(answered.has_value());
+    EXPECT_EQ(gl->latest_forces_request(), before + 1);
+    for (int hand = 0; hand < 2; ++hand) {
+        EXPECT_EQ(answered->hand[std::size_t(hand)].force_n, Eigen::Vector3d::Zero());
+        EXPECT_EQ(answered->hand[std::size_t(hand)].particles, 0u);
+        EXPECT_EQ(gl->instrument_forces().hand[std::size_t(hand)].force_n, Eigen::Vector3d::Zero());
+    }
+    gl->set_instrument(probe_hand, probe);
+    gl->set_pose(probe_hand, pose);
+    gl->step(1);
+    const InstrumentForces again = gl->instrument_forces();
+    std::printf("  probe: %.3g N on %zu particles; no instrument: zero at once; the probe back: %.3g N on %zu particles\n", felt,
+                pressed.hand[std::size_t(probe_hand)].particles, again.hand[std::size_t(probe_hand)].force_n.norm(),
+                again.hand[std::size_t(probe_hand)].particles);
+    EXPECT_GT(again.hand[std::size_t(probe_hand)].particles, 0u);
+    EXPECT_GT(again.hand[std::size_t(probe_hand)].force_n.norm(), 0.0);
+}
+
 TEST(RuntimeBackend, GlMatchesCpuOnARealCase) {
     REQUIRE_GL();
     const fs::path input = test::real_case("hvsmr16_pat1");
