@@ -906,19 +906,20 @@ PatchPassInput PatchModel::pass_input(const ParticlePositions& positions, double
     in.grid_margin_mm = grid_margin;
     in.largest_weight_sum = largest_weight_sum_;
     const std::size_t n = x_.size();
-    in.under = std::vector<std::int32_t>(under_.begin(), under_.end());
-    in.under.resize(n, -1);
-    in.searched_at = searched_at_;
-    in.searched_at.resize(n, Eigen::Vector3d::Zero());
-    in.searched_shift = searched_shift_;
-    in.searched_shift.resize(n, Eigen::Vector3d::Zero());
-    in.searched_travel = searched_travel_;
-    in.searched_travel.resize(n, std::numeric_limits<double>::quiet_NaN());
-    in.tissue_shift = tissue_shift_;
-    in.tissue_travel = tissue_travel_;
-    in.slot_x = slot_x_;
-    in.grid_slot_x = grid_slot_x_;
-    for (const auto& p : asleep_positions_) in.asleep_slot_x.push_back(vec(p));
+    PatchKeptState& kept = in.kept;
+    kept.under = std::vector<std::int32_t>(under_.begin(), under_.end());
+    kept.under.resize(n, -1);
+    kept.searched_at = searched_at_;
+    kept.searched_at.resize(n, Eigen::Vector3d::Zero());
+    kept.searched_shift = searched_shift_;
+    kept.searched_shift.resize(n, Eigen::Vector3d::Zero());
+    kept.searched_travel = searched_travel_;
+    kept.searched_travel.resize(n, std::numeric_limits<double>::quiet_NaN());
+    kept.tissue_shift = tissue_shift_;
+    kept.tissue_travel = tissue_travel_;
+    kept.slot_x = slot_x_;
+    kept.grid_slot_x = grid_slot_x_;
+    for (const auto& p : asleep_positions_) kept.asleep_slot_x.push_back(vec(p));
     pass_candidates(in, positions, reach_mm);
     return in;
 }
@@ -995,26 +996,27 @@ void PatchModel::take_pass_state(const PatchPassState& state, const std::vector<
         (!state.stepped_slot_x.empty() && state.stepped_slot_x.size() != particles_.size()))
         throw InputError("patch: a pass's state does not match the patch");
     const std::size_t n = x_.size();
-    if (state.under.size() != n || state.searched_at.size() != n || state.searched_shift.size() != n || state.searched_travel.size() != n ||
-        (!state.slot_x.empty() && state.slot_x.size() != particles_.size()) ||
-        (!state.grid_slot_x.empty() && state.grid_slot_x.size() != particles_.size()) ||
-        (!state.asleep_slot_x.empty() && state.asleep_slot_x.size() != particles_.size()))
+    const PatchKeptState& kept = state.kept;
+    if (kept.under.size() != n || kept.searched_at.size() != n || kept.searched_shift.size() != n || kept.searched_travel.size() != n ||
+        (!kept.slot_x.empty() && kept.slot_x.size() != particles_.size()) ||
+        (!kept.grid_slot_x.empty() && kept.grid_slot_x.size() != particles_.size()) ||
+        (!kept.asleep_slot_x.empty() && kept.asleep_slot_x.size() != particles_.size()))
         throw InputError("patch: a pass's state does not match the patch");
     x_ = state.x;
     v_ = state.v;
     for (std::size_t s = 0; s < stitches_.size(); ++s) stitches_[s].force_n = state.stitch_force[s];
-    under_.assign(state.under.begin(), state.under.end());
-    searched_at_ = state.searched_at;
-    searched_shift_ = state.searched_shift;
-    searched_travel_ = state.searched_travel;
-    tissue_shift_ = state.tissue_shift;
-    tissue_travel_ = state.tissue_travel;
-    if (state.slot_x.size() != slot_x_.size() || !std::equal(state.slot_x.begin(), state.slot_x.end(), slot_x_.begin())) ++stamp_;  // the surface is computed afresh
-    slot_x_ = state.slot_x;
-    if (state.grid_slot_x.empty()) grid_slot_x_.clear();
-    else if (state.grid_slot_x != grid_slot_x_) {  // the grid where the pass last found the surface moved
+    under_.assign(kept.under.begin(), kept.under.end());
+    searched_at_ = kept.searched_at;
+    searched_shift_ = kept.searched_shift;
+    searched_travel_ = kept.searched_travel;
+    tissue_shift_ = kept.tissue_shift;
+    tissue_travel_ = kept.tissue_travel;
+    if (kept.slot_x.size() != slot_x_.size() || !std::equal(kept.slot_x.begin(), kept.slot_x.end(), slot_x_.begin())) ++stamp_;  // the surface is computed afresh
+    slot_x_ = kept.slot_x;
+    if (kept.grid_slot_x.empty()) grid_slot_x_.clear();
+    else if (kept.grid_slot_x != grid_slot_x_) {  // the grid where the pass last found the surface moved
         const std::vector<Eigen::Vector3d> keep = slot_x_;
-        slot_x_ = state.grid_slot_x;
+        slot_x_ = kept.grid_slot_x;
         ++stamp_;
         for (std::size_t v = 0; v < surface_.vertices.size(); ++v) sx(v);
         for (std::size_t t = 0; t < surface_.triangles.size(); ++t) sn(t);
@@ -1025,7 +1027,7 @@ void PatchModel::take_pass_state(const PatchPassState& state, const std::vector<
         ++stamp_;
     }
     asleep_positions_.clear();
-    for (const Eigen::Vector3d& p : state.asleep_slot_x) asleep_positions_.push_back({float(p.x()), float(p.y()), float(p.z())});
+    for (const Eigen::Vector3d& p : kept.asleep_slot_x) asleep_positions_.push_back({float(p.x()), float(p.y()), float(p.z())});
     if (!obstacle_forces.empty() && obstacle_forces.size() != obstacles_.size())
         throw InputError("patch: a pass's obstacle forces do not match the obstacles");
     stepped_slot_x_ = state.stepped_slot_x;

@@ -95,6 +95,19 @@ struct PatchObstacle {
     Eigen::Vector3d semi_axes = Eigen::Vector3d::Ones();
 };
 
+/// What PatchModel::step keeps between steps, as a pass carries it: per vertex the triangle under
+/// it (−1: none) and where and when it last looked (searched_travel NaN: it must look again); the
+/// tissue's accumulated shift and deformation; the slots' positions at the last look at the
+/// surface, when its grid was built, and when the patch last stepped awake (each empty: none).
+struct PatchKeptState {
+    std::vector<std::int32_t> under;
+    std::vector<Eigen::Vector3d> searched_at, searched_shift;
+    std::vector<double> searched_travel;
+    Eigen::Vector3d tissue_shift = Eigen::Vector3d::Zero();
+    double tissue_travel = 0.0;
+    std::vector<Eigen::Vector3d> slot_x, grid_slot_x, asleep_slot_x;
+};
+
 /// A sewn patch flattened for a pass that steps it where the tissue is stepped (the gl backend's
 /// compute pass, runtime/gl/patch_pass.h), so the tissue is never read back to step it: what
 /// PatchModel::step reads, as arrays. Ranges are (first, one past the last) lists: `x_first[k]`
@@ -138,16 +151,7 @@ struct PatchPassInput {
     std::vector<double> slot_vertex_weight;
     std::vector<std::int32_t> slot_stitch_first, slot_stitch;
     std::vector<double> slot_stitch_weight;
-    // What step() keeps between steps: per vertex the triangle under it (−1: none) and where and
-    // when it last looked (searched_travel NaN: it must look again); the tissue's accumulated shift
-    // and deformation; the slots' positions at the last look at the surface, when its grid was
-    // built, and when the patch last stepped awake (each empty: none).
-    std::vector<std::int32_t> under;
-    std::vector<Eigen::Vector3d> searched_at, searched_shift;
-    std::vector<double> searched_travel;
-    Eigen::Vector3d tissue_shift = Eigen::Vector3d::Zero();
-    double tissue_travel = 0.0;
-    std::vector<Eigen::Vector3d> slot_x, grid_slot_x, asleep_slot_x;
+    PatchKeptState kept;
     double largest_weight_sum = 1.0;  ///< the largest Σ |w_k| of a surface vertex
     // The spec, as step() takes it.
     Eigen::Vector3d facing = Eigen::Vector3d::UnitZ();
@@ -162,13 +166,7 @@ struct PatchPassInput {
 struct PatchPassState {
     std::vector<Eigen::Vector3d> x, v, stitch_force, stepped_slot_x;
     Eigen::Vector3d contact_force = Eigen::Vector3d::Zero();
-    // What the pass keeps between steps, as PatchPassInput names it.
-    std::vector<std::int32_t> under;
-    std::vector<Eigen::Vector3d> searched_at, searched_shift;
-    std::vector<double> searched_travel;
-    Eigen::Vector3d tissue_shift = Eigen::Vector3d::Zero();
-    double tissue_travel = 0.0;
-    std::vector<Eigen::Vector3d> slot_x, grid_slot_x, asleep_slot_x;
+    PatchKeptState kept;
 };
 
 class PatchModel {

@@ -148,27 +148,27 @@ public:
             const std::vector<double> d = flat(values);
             std::copy(d.begin(), d.end(), state.begin() + at_[name]);
         };
-        if (in.under.size() != n || in.searched_at.size() != n || in.searched_shift.size() != n || in.searched_travel.size() != n)
+        if (in.kept.under.size() != n || in.kept.searched_at.size() != n || in.kept.searched_shift.size() != n || in.kept.searched_travel.size() != n)
             throw InputError("gl backend: the patch's kept state does not match its vertices");
         for (std::size_t i = 0; i < n; ++i) {
-            state[at_["s_under"] + i] = double(in.under[i]);
-            const bool looked = std::isfinite(in.searched_travel[i]);
-            state[at_["s_searched_travel"] + i] = looked ? in.searched_travel[i] : 0.0;
+            state[at_["s_under"] + i] = double(in.kept.under[i]);
+            const bool looked = std::isfinite(in.kept.searched_travel[i]);
+            state[at_["s_searched_travel"] + i] = looked ? in.kept.searched_travel[i] : 0.0;
             state[at_["s_searched_valid"] + i] = looked ? 1.0 : 0.0;
         }
-        place("s_searched_at", in.searched_at);
-        place("s_searched_shift", in.searched_shift);
+        place("s_searched_at", in.kept.searched_at);
+        place("s_searched_shift", in.kept.searched_shift);
         const GLuint global = at_["s_global"];
-        for (int c = 0; c < 3; ++c) state[global + GLuint(c)] = in.tissue_shift[c];
-        state[global + 3] = in.tissue_travel;
+        for (int c = 0; c < 3; ++c) state[global + GLuint(c)] = in.kept.tissue_shift[c];
+        state[global + 3] = in.kept.tissue_travel;
         auto slots_of = [&](const char* name, const std::vector<Eigen::Vector3d>& values, GLuint flag) {
             if (values.size() != slots_ || slots_ == 0) return;
             place(name, values);
             state[global + flag] = 1.0;
         };
-        slots_of("s_slot_x", in.slot_x, 4);
-        slots_of("s_grid", in.grid_slot_x, 5);
-        slots_of("s_asleep", in.asleep_slot_x, 6);
+        slots_of("s_slot_x", in.kept.slot_x, 4);
+        slots_of("s_grid", in.kept.grid_slot_x, 5);
+        slots_of("s_asleep", in.kept.asleep_slot_x, 6);
         gl::storage(state_, state, GL_DYNAMIC_STORAGE_BIT);
         state_size_ = size;
         upload_ints(in);
@@ -274,20 +274,20 @@ public:
         s.stitch_force = vectors(out + GLuint(sh::patch_out_fixed), stitches_);
         if (raw[at_["s_stepped"] + 3 * slots_] != 0.0) s.stepped_slot_x = vectors(at_["s_stepped"], slots_);
         s.contact_force = Eigen::Vector3d(raw[out + 6], raw[out + 7], raw[out + 8]);
-        s.under.resize(n_);
-        s.searched_travel.resize(n_);
+        s.kept.under.resize(n_);
+        s.kept.searched_travel.resize(n_);
         for (std::size_t i = 0; i < n_; ++i) {
-            s.under[i] = std::int32_t(raw[at_["s_under"] + i]);
-            s.searched_travel[i] = raw[at_["s_searched_valid"] + i] != 0.0 ? raw[at_["s_searched_travel"] + i] : std::numeric_limits<double>::quiet_NaN();
+            s.kept.under[i] = std::int32_t(raw[at_["s_under"] + i]);
+            s.kept.searched_travel[i] = raw[at_["s_searched_valid"] + i] != 0.0 ? raw[at_["s_searched_travel"] + i] : std::numeric_limits<double>::quiet_NaN();
         }
-        s.searched_at = vectors(at_["s_searched_at"], n_);
-        s.searched_shift = vectors(at_["s_searched_shift"], n_);
+        s.kept.searched_at = vectors(at_["s_searched_at"], n_);
+        s.kept.searched_shift = vectors(at_["s_searched_shift"], n_);
         const GLuint global = at_["s_global"];
-        s.tissue_shift = Eigen::Vector3d(raw[global], raw[global + 1], raw[global + 2]);
-        s.tissue_travel = raw[global + 3];
-        if (raw[global + 4] != 0.0) s.slot_x = vectors(at_["s_slot_x"], slots_);
-        if (raw[global + 5] != 0.0) s.grid_slot_x = vectors(at_["s_grid"], slots_);
-        if (raw[global + 6] != 0.0) s.asleep_slot_x = vectors(at_["s_asleep"], slots_);
+        s.kept.tissue_shift = Eigen::Vector3d(raw[global], raw[global + 1], raw[global + 2]);
+        s.kept.tissue_travel = raw[global + 3];
+        if (raw[global + 4] != 0.0) s.kept.slot_x = vectors(at_["s_slot_x"], slots_);
+        if (raw[global + 5] != 0.0) s.kept.grid_slot_x = vectors(at_["s_grid"], slots_);
+        if (raw[global + 6] != 0.0) s.kept.asleep_slot_x = vectors(at_["s_asleep"], slots_);
         if (obstacle_forces) {
             const std::vector<Eigen::Vector3d> pushes = vectors(out + 9, 2);
             obstacle_forces->assign(pushes.begin(), pushes.begin() + std::ptrdiff_t(std::min<std::size_t>(obstacle_forces->size(), 2)));
