@@ -875,6 +875,21 @@ PatchPassInput PatchModel::pass_input(const ParticlePositions& positions, double
         in.stitch_base.push_back(base);
         in.stitch_first.push_back(std::int32_t(in.stitch_slot.size()));
     }
+    {  // the stitches coloured greedily in their order: a vertex's stitches take rising colours
+        std::vector<int> colour(stitches_.size(), 0);
+        std::map<int, int> next;  // per patch vertex: the colour its next stitch takes
+        int colours = 0;
+        for (std::size_t q = 0; q < stitches_.size(); ++q) {
+            colour[q] = next[stitches_[q].vertex]++;
+            colours = std::max(colours, colour[q] + 1);
+        }
+        for (int c = 0; c < colours; ++c) {
+            in.stitch_colour_first.push_back(std::int32_t(in.stitch_order.size()));
+            for (std::size_t q = 0; q < stitches_.size(); ++q)
+                if (colour[q] == c) in.stitch_order.push_back(std::int32_t(q));
+        }
+        in.stitch_colour_first.push_back(std::int32_t(in.stitch_order.size()));
+    }
     // Per slot: its surface vertices and stitches, with their weights (the loads' gather).
     auto invert = [&](const std::vector<std::int32_t>& first, const std::vector<std::int32_t>& slot, const std::vector<double>& weight,
                       std::vector<std::int32_t>& out_first, std::vector<std::int32_t>& out, std::vector<double>& out_weight) {

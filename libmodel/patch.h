@@ -141,6 +141,9 @@ struct PatchPassInput {
     std::vector<Eigen::Vector3d> stitch_base;
     std::vector<std::int32_t> stitch_first, stitch_slot;
     std::vector<double> stitch_weight;
+    /// The stitches in colour order (greedy in their order: no two of a colour tie the same
+    /// vertex), and where each colour starts.
+    std::vector<std::int32_t> stitch_order, stitch_colour_first;
     // Per patch vertex: the facing surface triangles it can lie over until the next refresh
     // (PatchModel::pass_candidates). Per surface vertex: the patch vertices whose candidates touch
     // it, ascending (the contact's loads gathered). Per slot: its surface vertices and stitches

@@ -220,3 +220,54 @@ TEST(Patch, RefusesWhatIsNotAPatch) {
     EXPECT_FALSE(patch.tie(Eigen::Vector3d(7, 0, 2), 0, positions_of(plate, patch), &why).has_value());
     EXPECT_NE(why.find("no patch"), std::string::npos);
 }
+
+// What a pass carries (libmodel/patch.h PatchPassInput, PatchPassState: the patch and all its step
+// keeps between steps) goes back into a model exactly: a second model, sewn alike but stepped on
+// a plate that slid elsewhere, takes the first one's state, and from there the two step on a
+// sliding plate to the same bit.
+TEST(Patch, WhatAPassCarriesGoesBackIntoTheModelExactly) {
+    Plate plate;
+    PatchSpec pressed = spec();
+    pressed.gravity = Eigen::Vector3d(0, 0, -1e-2);  // pressed onto the plate: contact and friction at every step
+    pressed.friction = 1.0;
+    PatchModel a(pressed, plate.mesh.positions, plate.surface()), b(pressed, plate.mesh.positions, plate.surface());
+    const ParticlePositions at = positions_of(plate, a);
+    ASSERT_TRUE(sew_eight(a, at));
+    ASSERT_TRUE(sew_eight(b, at));
+    auto slid = [&](double by) {
+        ParticlePositions moved = at;
+        for (auto& p : moved) p[0] += float(by);
+        return moved;
+    };
+    double t = 300;
+    for (; t < 320; t += dt) a.step(slid(0.01 * (t + dt - 300.0)), dt, t);  // a: the plate slides along x
+    for (double u = 300; u < 310; u += dt) b.step(slid(-0.02 * (u + dt - 300.0)), dt, u);  // b: elsewhere
+    const PatchPassInput carried = a.pass_input(slid(0.01 * (t - 300.0)), 3.0);
+    EXPECT_EQ(carried.x.size(), a.positions().size());
+    EXPECT_EQ(carried.stitch_order.size(), 8u);
+    ASSERT_EQ(carried.candidate_first.size(), a.positions().size() + 1);
+    EXPECT_GT(carried.candidate.size(), a.positions().size());  // each vertex over the plate has some
+    PatchPassState state;
+    state.x = carried.x;
+    state.v = carried.v;
+    for (const Stitch& s : a.stitches()) state.stitch_force.push_back(s.force_n);
+    state.stepped_slot_x = carried.stepped_slot_x;
+    state.contact_force = a.contact_force();
+    state.kept = carried.kept;
+    b.take_pass_state(state, {});
+    for (int k = 0; k < 200; ++k, t += dt) {
+        const ParticlePositions moved = slid(0.01 * (t + dt - 300.0));
+        a.step(moved, dt, t);
+        b.step(moved, dt, t);
+    }
+    double worst = 0;
+    for (std::size_t i = 0; i < a.positions().size(); ++i) worst = std::max(worst, (a.positions()[i] - b.positions()[i]).norm());
+    std::printf("  after 200 steps from the carried state: max |x_a - x_b| = %.3g mm\n", worst);
+    EXPECT_EQ(a.positions(), b.positions());
+    ASSERT_EQ(a.loads().size(), b.loads().size());
+    for (std::size_t k = 0; k < a.loads().size(); ++k) EXPECT_EQ(a.loads()[k].force_n, b.loads()[k].force_n);
+    // A state of another size is refused.
+    PatchPassState wrong = state;
+    wrong.x.pop_back();
+    EXPECT_THROW(b.take_pass_state(wrong, {}), InputError);
+}

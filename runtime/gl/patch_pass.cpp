@@ -180,6 +180,8 @@ public:
         glProgramUniform1ui(p, glGetUniformLocation(p, "slot_count"), GLuint(slots_));
         glProgramUniform1ui(p, glGetUniformLocation(p, "surface_count"), GLuint(surface_));
         glProgramUniform1ui(p, glGetUniformLocation(p, "stitch_count"), GLuint(stitches_));
+        glProgramUniform1ui(p, glGetUniformLocation(p, "stitch_colour_count"),
+                            GLuint(in.stitch_colour_first.empty() ? 0 : in.stitch_colour_first.size() - 1));
         glProgramUniform1i(p, glGetUniformLocation(p, "iterations"), in.iterations);
         glProgramUniform1d(p, glGetUniformLocation(p, "thickness"), in.thickness_mm);
         glProgramUniform1d(p, glGetUniformLocation(p, "friction"), in.friction);
@@ -376,6 +378,8 @@ private:
         put("i_stitch_vertex", in.stitch_vertex);
         put("i_stitch_first", in.stitch_first);
         put("i_stitch_slot", in.stitch_slot);
+        put("i_stitch_colour", in.stitch_colour_first);
+        put("i_stitch_order", in.stitch_order);
         put("i_slot_vertex_first", in.slot_vertex_first);
         put("i_slot_vertex", in.slot_vertex);
         put("i_slot_stitch_first", in.slot_stitch_first);

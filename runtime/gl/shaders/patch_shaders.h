@@ -4,7 +4,8 @@
 /// another. The patch is a few hundred vertices: one workgroup of 256 invocations steps it, its
 /// positions in shared memory, its distance constraints by colour (those of a colour share no
 /// vertex), each vertex's contact and obstacles by the invocation that owns the vertex, the
-/// stitches by the first invocation in their order. Loads are gathered, never scattered, so the
+/// stitches by colour as well (greedy in their order, so where two share a vertex the first goes
+/// first, as on the host). Loads are gathered, never scattered, so the
 /// pass has no atomics and its result does not depend on scheduling (a replay is bit for bit).
 ///
 /// Differences from the CPU's step, each documented in docs/architecture.md (departure 15): the
@@ -32,7 +33,7 @@ layout(std430, binding = BINDING_PATCH_INTS) coherent buffer PatchInts { int int
 layout(std430, binding = BINDING_PATCH_CONSTANTS) readonly buffer PatchConstants { double kd[]; };
 layout(std430, binding = BINDING_PATCH_STATE) coherent buffer PatchState { double sd[]; };
 
-uniform uint vertex_count, colour_count, slot_count, surface_count, stitch_count;
+uniform uint vertex_count, colour_count, slot_count, surface_count, stitch_count, stitch_colour_count;
 uniform int iterations;
 uniform double dt, time_ms, mass_scale, thickness, friction, keep, tie_ms, stitch_stiffness;
 uniform dvec3 acceleration, facing;
@@ -45,7 +46,7 @@ uniform double search_again, grid_margin, largest_weight_sum;
 uniform int hand_output[2];       // −1 nothing, 0/1 an obstacle's push, 2 + s stitch s's pull
 // Where each array starts in its buffer (patch_pass.cpp PatchLayout).
 uniform uint i_dist, i_colour, i_particle, i_surface_first, i_surface_slot, i_triangle, i_stitch_vertex, i_stitch_first,
-             i_stitch_slot, i_slot_vertex_first, i_slot_vertex, i_slot_stitch_first, i_slot_stitch, i_candidate_first,
+             i_stitch_slot, i_stitch_colour, i_stitch_order, i_slot_vertex_first, i_slot_vertex, i_slot_stitch_first, i_slot_stitch, i_candidate_first,
              i_candidate, i_over_first, i_over;
 uniform uint k_inverse_mass, k_dist, k_surface_base, k_surface_weight, k_surface_w, k_stitch_tied, k_stitch_start, k_stitch_w,
              k_stitch_base, k_stitch_weight, k_slot_vertex_weight, k_slot_stitch_weight;
@@ -288,8 +289,12 @@ void main() {
 )"
 R"(
     for (int iteration = 0; iteration < iterations; ++iteration) {
-        if (tid == 0u) {
-            for (uint q = 0u; q < stitch_count; ++q) {
+        // The stitches by colour (those of a colour tie different vertices: in parallel, and in the
+        // host's order wherever two share one).
+        for (uint c = 0u; c < stitch_colour_count; ++c) {
+            uint first = uint(ints[i_stitch_colour + c]), end = uint(ints[i_stitch_colour + c + 1u]);
+            for (uint e = first + tid; e < end; e += GROUP) {
+                uint q = uint(ints[i_stitch_order + e]);
                 uint i = uint(ints[i_stitch_vertex + q]);
                 double w = kd[k_inverse_mass + i], wt = kd[k_stitch_w + q] / mass_scale;
                 dvec3 delta = P(i) - (s3(s_anchor, q) + s3(s_anchor_offset, q));
@@ -303,8 +308,8 @@ R"(
                 setP(i, P(i) + w * dl * delta);
                 put3(s_anchor_offset, q, s3(s_anchor_offset, q) - wt * dl * delta);
             }
+            sync();
         }
-        sync();
         for (uint c = 0u; c < colour_count; ++c) {
             uint first = uint(ints[i_colour + c]), end = uint(ints[i_colour + c + 1u]);
             for (uint k = first + tid; k < end; k += GROUP) {
@@ -399,16 +404,19 @@ R"(
         load[uint(ints[i_particle + k])] = vec4(vec3(f), 0.0);
         put3(s_stepped, k, s3(s_slot_x, k));
     }
+    // Out: the contact's sum and the obstacles' pushes (each invocation's vertices, then a tree).
+    precise dvec3 contact = dvec3(0.0lf), o0 = dvec3(0.0lf), o1 = dvec3(0.0lf);
+    for (uint i = tid; i < vertex_count; i += GROUP) {
+        contact = contact + s3(s_force, i);
+        double w = kd[k_inverse_mass + i];
+        if (w == 0.0lf) continue;
+        o0 = o0 - s3(s_obstacle_push, 2u * i) / (w * dt2);
+        o1 = o1 - s3(s_obstacle_push, 2u * i + 1u) / (w * dt2);
+    }
+    contact = reduce_sum3(contact);
+    o0 = reduce_sum3(o0);
+    o1 = reduce_sum3(o1);
     if (tid == 0u) {
-        // Out: each hand's force, the contact's sum, the obstacles' (sums over the vertices in order).
-        precise dvec3 contact = dvec3(0.0lf), o0 = dvec3(0.0lf), o1 = dvec3(0.0lf);
-        for (uint i = 0u; i < vertex_count; ++i) {
-            contact = contact + s3(s_force, i);
-            double w = kd[k_inverse_mass + i];
-            if (w == 0.0lf) continue;
-            o0 = o0 - s3(s_obstacle_push, 2u * i) / (w * dt2);
-            o1 = o1 - s3(s_obstacle_push, 2u * i + 1u) / (w * dt2);
-        }
         put3(s_out, 2u, contact);
         put3(s_out, 3u, o0);
         put3(s_out, 4u, o1);
