@@ -93,6 +93,9 @@ public:
     virtual std::pair<std::vector<Eigen::Vector3d>, std::vector<Eigen::Vector3d>> snapshot() = 0;
     /// The patch's loads off the tissue; nothing is stepped until load().
     virtual void unload() = 0;
+    /// The device's own time for the steps timed so far (GPU timer queries around each pass), ms,
+    /// and how many were timed; `wait`: every step queued is timed first.
+    virtual std::pair<double, long long> device_time(bool wait) = 0;
 };
 
 class Backend {

@@ -315,6 +315,7 @@ void RepairBackend::to_device() {
     stepper->load(*device_input_);
     inner_->set_loads({});  // the host's loads, if any: the pass puts its own
     device_ = stepper;
+    timed_device_ = stepper;
     device_ahead_ = false;
     device_steps_ = 0;
     device_force_ = {};
@@ -328,6 +329,10 @@ void RepairBackend::sync_from_device() const {
     patch_->take_pass_state(state, obstacle_forces);
     device_ahead_ = false;
     patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+}
+
+std::pair<double, long long> RepairBackend::patch_device_time() {
+    return timed_device_ ? timed_device_->device_time(true) : std::pair<double, long long>{0.0, 0};
 }
 
 void RepairBackend::off_device() {

@@ -89,6 +89,9 @@ public:
     /// Wall-clock time spent on the patch (ms), and the patch steps it took: the run's summary.
     double patch_ms() const { return patch_ms_; }
     long long patch_steps() const { return patch_steps_; }
+    /// The device's own time for the patch's steps on it (GPU timer queries), ms, and how many were
+    /// timed; {0, 0} where the host steps it. Waits for the steps queued.
+    std::pair<double, long long> patch_device_time();
 
 private:
     /// The patch's step over `every` tissue steps, the tissue as it is now; its loads onto the tissue.
@@ -115,6 +118,7 @@ private:
     mutable bool device_ahead_ = false;        ///< the device's patch is newer than patch_
     std::optional<PatchPassInput> device_input_;
     long long device_steps_ = 0;               ///< patch steps on the device since its candidates were found
+    PatchStepper* timed_device_ = nullptr;     ///< the stepper that stepped a patch in this run, for its time
     std::array<std::optional<Eigen::Vector3d>, 2> device_force_;  ///< each hand's force from the device's patch
     struct Hand {
         Instrument instrument;

@@ -693,7 +693,10 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
     std::printf("ran %lld steps (%lld substeps), %.4g ms simulated in %.4g ms wall: %.0f substeps/s, real-time factor %.3g\n", advanced,
                 run.substeps, backend.simulated_time_ms(), wall_ms, run.substeps / (wall_ms * 1e-3), backend.simulated_time_ms() / wall_ms);
     if (run.watchdog_events) std::printf("watchdog: %zu events; last: %s\n", run.watchdog_events, run.last_watchdog_message.c_str());
-    if (p.repair && p.repair->patch_steps() > 0)
+    if (p.repair && p.repair->patch_steps() > 0) {
+        if (const auto [device_ms, timed] = p.repair->patch_device_time(); timed > 0)
+            std::printf("repair: the GPU spent %.3g ms on each of the patch's %lld steps it ran (%.1f %% of the wall time)\n",
+                        device_ms / double(timed), timed, 100.0 * device_ms / wall_ms);
         std::printf(p.repair->patch_on_device()
                         ? "repair: the patch's %lld steps (one every %d of the tissue's) ran on the GPU before the tissue's; the host "
                           "took %.3g ms each (queueing them, finding the surface near the patch again every 64, reading it back): "
@@ -702,6 +705,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
                           "the patch, loading the tissue): %.1f %% of the wall time\n",
                     p.repair->patch_steps(), p.repair->settings().patch_every, p.repair->patch_ms() / double(p.repair->patch_steps()),
                     100.0 * p.repair->patch_ms() / wall_ms);
+    }
     {
         // How far the tissue is from where it was imaged: a heart that is held stays in place.
         const auto& rest = p.scenario.lattice.particles.rest_position;

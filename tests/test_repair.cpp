@@ -396,6 +396,8 @@ TEST(Repair, TheCpuAndGlBackendsSewThePatchAlike) {
         EXPECT_EQ(second.patch->positions, states["gl"].patch->positions);
         EXPECT_EQ(second.positions, states["gl"].positions);
         EXPECT_NE(runs["gl"].output.find("ran on the GPU"), std::string::npos) << runs["gl"].output;
+        EXPECT_TRUE(std::regex_search(runs["gl"].output, std::regex("the GPU spent [0-9.e+-]+ ms on each of the patch's [1-9][0-9]* steps")))
+            << runs["gl"].output;
     }
     const PatchState &cpu = *states["cpu"].patch, &gl = *states["gl"].patch;
     const double size = model_size(read_scenario(b.scenario)), tolerance = 1e-4 * size;

@@ -14,6 +14,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <deque>
 #include <limits>
 #include <map>
 #include <string>
@@ -241,8 +242,14 @@ public:
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::patch_ints, ints_.id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::patch_constants, constants_.id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::patch_state, state_.id());
+        harvest(false);
+        std::array<gl::Query, 2> timing;
+        gl::generate(timing);
+        glQueryCounter(timing[0], GL_TIMESTAMP);
         glUseProgram(p);
         glDispatchCompute(1, 1, 1);
+        glQueryCounter(timing[1], GL_TIMESTAMP);
+        timings_.push_back(std::move(timing));
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
         // The hands' forces into the ring, fenced (read by hand_forces without waiting).
         const int slot = int(sequence_ % ring_slots);
@@ -351,6 +358,11 @@ public:
         return {std::move(x), std::move(slot_x)};
     }
 
+    std::pair<double, long long> device_time(bool wait) override {
+        harvest(wait);
+        return {timed_ms_, timed_};
+    }
+
     void unload() override {
         unload_loads();
         loaded_here_ = false;
@@ -363,6 +375,24 @@ private:
     static void check(const char* what) {
         if (const GLenum error = glGetError(); error != GL_NO_ERROR)
             throw GlUnavailable(std::string("gl backend: OpenGL error ") + std::to_string(error) + " " + what);
+    }
+
+    /// The timer queries of finished passes into timed_ms_ (all of them, waiting, with `wait`).
+    void harvest(bool wait) {
+        while (!timings_.empty()) {
+            std::array<gl::Query, 2>& q = timings_.front();
+            GLint ready = 0;
+            if (!wait) {
+                glGetQueryObjectiv(q[1], GL_QUERY_RESULT_AVAILABLE, &ready);
+                if (!ready) break;
+            }
+            GLuint64 begin = 0, end = 0;
+            glGetQueryObjectui64v(q[0], GL_QUERY_RESULT, &begin);
+            glGetQueryObjectui64v(q[1], GL_QUERY_RESULT, &end);
+            timed_ms_ += double(end - begin) * 1e-6;
+            ++timed_;
+            timings_.pop_front();
+        }
     }
 
     /// The ints: the constant lists, the triangle under each vertex (scratch), the candidates last.
@@ -424,6 +454,9 @@ private:
     std::array<gl::Fence, ring_slots> fences_;
     std::array<std::uint64_t, ring_slots> sequence_of_{};
     std::uint64_t sequence_ = 0;
+    std::deque<std::array<gl::Query, 2>> timings_;  ///< each pass's GL_TIMESTAMP pair, oldest first
+    double timed_ms_ = 0.0;
+    long long timed_ = 0;
     std::optional<std::array<Eigen::Vector3d, 2>> latest_;
     PatchPassInput input_;
     std::map<std::string, GLuint> at_;

@@ -96,6 +96,8 @@ def main():
                     row[f"{backend}_closed"] = f"{verdict.group(1)}, {verdict.group(2)} mm" if verdict else "?"
                     step = re.search(r"took ([0-9.e+-]+) ms each .*: ([0-9.]+) % of the wall", text)
                     row[f"{backend}_patch"] = f"{float(step.group(1)):.3f} ({step.group(2)} %)" if step else "-"
+                    gpu = re.search(r"the GPU spent ([0-9.e+-]+) ms on each of the patch's \d+ steps it ran \(([0-9.]+) % of the wall", text)
+                    row[f"{backend}_gpu"] = f"{float(gpu.group(1)):.4f} ({gpu.group(2)} %)" if gpu else "-"
                     check = subprocess.run([sys.executable, args.closure_script, state, "--scenario", h5], stdout=subprocess.PIPE,
                                            stderr=subprocess.STDOUT, text=True, env=env).stdout
                     m = re.search(r"defect closed: (yes|no)", check)
@@ -111,9 +113,9 @@ def main():
              [[r["case"], r["gl"], r["cpu"], f"{r['gl_opened']} / {r['cpu_opened']}", f"{r['gl_triangles']} / {r['cpu_triangles']}",
                f"{r['gl_watchdog']} / {r['cpu_watchdog']}", r["dx"]] for r in incisions])
     print("\nRepair: real-time factor with / without the patch, its step (share of the wall), the verdicts\n")
-    md_table(["case", "gl", "gl patch step ms", "cpu", "cpu patch step ms", "closed gl / cpu", "independent gl / cpu",
-              "watchdog gl / cpu", "max |x_gl − x_cpu| tissue / patch mm"],
-             [[r["case"], r["gl"], r["gl_patch"], r["cpu"], r["cpu_patch"], f"{r['gl_closed']} / {r['cpu_closed']}",
+    md_table(["case", "gl", "gl patch: host ms (share)", "gl patch pass: GPU ms (share)", "cpu", "cpu patch step ms", "closed gl / cpu",
+              "independent gl / cpu", "watchdog gl / cpu", "max |x_gl − x_cpu| tissue / patch mm"],
+             [[r["case"], r["gl"], r["gl_patch"], r["gl_gpu"], r["cpu"], r["cpu_patch"], f"{r['gl_closed']} / {r['cpu_closed']}",
                f"{r['gl_independent']} / {r['cpu_independent']}", f"{r['gl_watchdog']} / {r['cpu_watchdog']}", r["dx"]] for r in repairs])
     return 0
 
