@@ -178,9 +178,7 @@ void PatchModel::begin_surface(const ParticlePositions& positions) {
 
 const Eigen::Vector3d& PatchModel::sx(std::size_t v) {
     if (x_stamp_[v] != stamp_) {
-        Eigen::Vector3d x = surface_base_[v];
-        for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) x += surface_weight_[k] * slot_x_[std::size_t(slot_of_surface_[k])];
-        surface_x_[v] = x;
+        surface_x_[v] = surface_point(v, slot_x_);
         x_stamp_[v] = stamp_;
     }
     return surface_x_[v];
@@ -189,10 +187,7 @@ const Eigen::Vector3d& PatchModel::sx(std::size_t v) {
 const Eigen::Vector3d& PatchModel::sn(std::size_t t) {
     if (normal_stamp_[t] != stamp_) {
         const auto& [a, b, c] = surface_.triangles[t];
-        const Eigen::Vector3d& xa = sx(std::size_t(a));
-        const Eigen::Vector3d n = (sx(std::size_t(b)) - xa).cross(sx(std::size_t(c)) - xa);
-        const double length = n.norm();
-        surface_normal_[t] = length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
+        surface_normal_[t] = unit_normal(sx(std::size_t(a)), sx(std::size_t(b)), sx(std::size_t(c)));
         normal_stamp_[t] = stamp_;
     }
     return surface_normal_[t];
@@ -250,13 +245,31 @@ PatchModel::SurfaceGrid PatchModel::grid_over(const std::vector<Eigen::Vector3d>
 
 void PatchModel::build_surface_grid() {
     // Rebuilt whenever some surface vertex may have moved by half the margin since (surface_moved).
-    SurfaceGrid g = grid_over(surface_x_, surface_normal_);
-    grid_ = std::move(g.cells);
-    grid_box_ = std::move(g.box);
-    grid_origin_ = g.origin;
-    grid_dims_ = g.dims;
+    grid_ = grid_over(surface_x_, surface_normal_);
     grid_slot_x_ = slot_x_;
     std::fill(searched_travel_.begin(), searched_travel_.end(), std::numeric_limits<double>::quiet_NaN());  // each vertex looks again
+}
+
+Eigen::Vector3d PatchModel::surface_point(std::size_t v, const std::vector<Eigen::Vector3d>& slot_x) const {
+    Eigen::Vector3d x = surface_base_[v];
+    for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) x += surface_weight_[k] * slot_x[std::size_t(slot_of_surface_[k])];
+    return x;
+}
+
+Eigen::Vector3d PatchModel::unit_normal(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    const double length = n.norm();
+    return length > 0 ? Eigen::Vector3d(n / length) : Eigen::Vector3d::Zero();
+}
+
+PatchModel::SurfaceGrid PatchModel::grid_at(const std::vector<Eigen::Vector3d>& slot_x) const {
+    std::vector<Eigen::Vector3d> points(surface_.vertices.size()), normals(surface_.triangles.size());
+    for (std::size_t v = 0; v < points.size(); ++v) points[v] = surface_point(v, slot_x);
+    for (std::size_t t = 0; t < normals.size(); ++t) {
+        const auto& [a, b, c] = surface_.triangles[t];
+        normals[t] = unit_normal(points[std::size_t(a)], points[std::size_t(b)], points[std::size_t(c)]);
+    }
+    return grid_over(points, normals);
 }
 
 bool PatchModel::surface_moved() const {
@@ -269,15 +282,15 @@ bool PatchModel::surface_moved() const {
 }
 
 int PatchModel::triangle_under(const Eigen::Vector3d& p, Eigen::Vector3d& bary, double& depth) {
-    if (grid_.empty()) return -1;
-    const int i = int(std::floor((p.dot(frame_.col(0)) - grid_origin_.x()) / grid_cell_));
-    const int j = int(std::floor((p.dot(frame_.col(1)) - grid_origin_.y()) / grid_cell_));
-    if (i < 0 || j < 0 || i >= grid_dims_.x() || j >= grid_dims_.y()) return -1;
+    if (grid_.cells.empty()) return -1;
+    const int i = int(std::floor((p.dot(frame_.col(0)) - grid_.origin.x()) / grid_cell_));
+    const int j = int(std::floor((p.dot(frame_.col(1)) - grid_.origin.y()) / grid_cell_));
+    if (i < 0 || j < 0 || i >= grid_.dims.x() || j >= grid_.dims.y()) return -1;
     int best = -1;
     double best_depth = std::numeric_limits<double>::infinity();
     const float u = float(p.dot(frame_.col(0))), v = float(p.dot(frame_.col(1))), along = float(p.dot(facing_));
-    for (std::int32_t t : grid_[std::size_t(j * grid_dims_.x() + i)]) {
-        const auto& box = grid_box_[std::size_t(t)];
+    for (std::int32_t t : grid_.cells[std::size_t(j * grid_.dims.x() + i)]) {
+        const auto& box = grid_.box[std::size_t(t)];
         if (u < box[0] || v < box[1] || u > box[2] || v > box[3] || along < box[4] || along > box[5]) continue;
         const Eigen::Vector3d& normal = sn(std::size_t(t));
         const auto& [a, b, c] = surface_.triangles[std::size_t(t)];
@@ -951,20 +964,9 @@ void PatchModel::pass_candidates(PatchPassInput& in, const std::vector<Eigen::Ve
                                  double reach_mm) const {
     if (!laid()) throw InputError("patch: no patch is laid to step");
     if (x.size() != x_.size() || slot_x.size() != particles_.size()) throw InputError("patch: a snapshot does not match the patch");
-    // The surface where slot_x puts it, and the triangles whose boxes (grid_over: where a point
-    // they hold in front of them can be) come within reach_mm of a vertex, from the cells around it.
-    std::vector<Eigen::Vector3d> sx(surface_.vertices.size()), normals(surface_.triangles.size());
-    for (std::size_t v = 0; v < sx.size(); ++v) {
-        Eigen::Vector3d p = surface_base_[v];
-        for (std::size_t k = vertex_first_[v]; k < vertex_first_[v + 1]; ++k) p += surface_weight_[k] * slot_x[std::size_t(slot_of_surface_[k])];
-        sx[v] = p;
-    }
-    for (std::size_t t = 0; t < normals.size(); ++t) {
-        const auto& [a, b, c] = surface_.triangles[t];
-        const Eigen::Vector3d n = (sx[std::size_t(b)] - sx[std::size_t(a)]).cross(sx[std::size_t(c)] - sx[std::size_t(a)]);
-        normals[t] = n.norm() > 0 ? Eigen::Vector3d(n.normalized()) : Eigen::Vector3d::Zero();
-    }
-    const SurfaceGrid g = grid_over(sx, normals);
+    // The triangles whose boxes (grid_over: where a point they hold in front of them can be), with
+    // the surface where slot_x puts it, come within reach_mm of a vertex, from the cells around it.
+    const SurfaceGrid g = grid_at(slot_x);
     const std::size_t n = x.size();
     in.candidate_first.assign(1, 0);
     in.candidate.clear();
@@ -1029,17 +1031,9 @@ void PatchModel::take_pass_state(const PatchPassState& state, const std::vector<
     if (kept.slot_x.size() != slot_x_.size() || !std::equal(kept.slot_x.begin(), kept.slot_x.end(), slot_x_.begin())) ++stamp_;  // the surface is computed afresh
     slot_x_ = kept.slot_x;
     if (kept.grid_slot_x.empty()) grid_slot_x_.clear();
-    else if (kept.grid_slot_x != grid_slot_x_) {  // the grid where the pass last found the surface moved
-        const std::vector<Eigen::Vector3d> keep = slot_x_;
-        slot_x_ = kept.grid_slot_x;
-        ++stamp_;
-        for (std::size_t v = 0; v < surface_.vertices.size(); ++v) sx(v);
-        for (std::size_t t = 0; t < surface_.triangles.size(); ++t) sn(t);
-        const std::vector<double> travel = searched_travel_;
-        build_surface_grid();
-        searched_travel_ = travel;  // building it here is not the pass's looking again
-        slot_x_ = keep;
-        ++stamp_;
+    else if (kept.grid_slot_x != grid_slot_x_) {  // the pass's surface moved since: the grid where it last was
+        grid_ = grid_at(kept.grid_slot_x);
+        grid_slot_x_ = kept.grid_slot_x;
     }
     asleep_positions_.clear();
     for (const Eigen::Vector3d& p : kept.asleep_slot_x) asleep_positions_.push_back({float(p.x()), float(p.y()), float(p.z())});

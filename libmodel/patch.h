@@ -111,11 +111,9 @@ struct PatchKeptState {
 /// A sewn patch flattened for a pass that steps it where the tissue is stepped (the gl backend's
 /// compute pass, runtime/gl/patch_pass.h), so the tissue is never read back to step it: what
 /// PatchModel::step reads, as arrays. Ranges are (first, one past the last) lists: `x_first[k]`
-/// to `x_first[k + 1]`. The pass is step() without its sleep and its memory of the triangle
-/// under each vertex (it looks among that vertex's candidates where the host looks in its grid).
-/// The pass keeps what the host's step keeps between steps (the triangle under each vertex and
-/// when it looked, the tissue's accumulated motion, where the patch fell asleep), so the two step
-/// alike.
+/// to `x_first[k + 1]`. The pass keeps what the host's step keeps between steps (`kept`), so the
+/// two step alike; only where the host looks for the triangle under a vertex in its grid does the
+/// pass look among that vertex's candidates.
 struct PatchPassInput {
     // The patch: positions and velocities (mm, mm/ms), inverse masses (g⁻¹), its distance
     // constraints (vertices; rest length mm, compliance mm/N) in colour order, and where each
@@ -266,9 +264,15 @@ private:
         Eigen::Vector3d origin = Eigen::Vector3d::Zero();
         Eigen::Vector3i dims = Eigen::Vector3i::Zero();
         std::vector<std::vector<std::int32_t>> cells;
-        std::vector<std::array<float, 6>> box;
+        std::vector<std::array<float, 6>> box;  ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
     };
     SurfaceGrid grid_over(const std::vector<Eigen::Vector3d>& surface_x, const std::vector<Eigen::Vector3d>& normals) const;
+    /// The grid over the surface where the slots are at `slot_x`.
+    SurfaceGrid grid_at(const std::vector<Eigen::Vector3d>& slot_x) const;
+    /// Surface vertex `v` with the slots at `slot_x`: base + Σ w·x over its carriers.
+    Eigen::Vector3d surface_point(std::size_t v, const std::vector<Eigen::Vector3d>& slot_x) const;
+    /// The unit normal of triangle (a, b, c), zero where it has no area.
+    static Eigen::Vector3d unit_normal(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c);
     /// Whether the patch and the tissue it touches are at rest (step() then changes nothing).
     bool at_rest(const ParticlePositions& positions, double time_ms) const;
     void refresh_particles();
@@ -334,7 +338,6 @@ private:
     std::uint64_t stamp_ = 0;
     static constexpr double grid_margin = 0.75;     ///< mm
     std::vector<Eigen::Vector3d> grid_slot_x_;     ///< the particles when the grid was built
-    std::vector<std::array<float, 6>> grid_box_;   ///< per triangle: where a point it holds can be (u, v min; u, v max; along +z, min, max)
     // Whether a patch vertex must look for the surface under it again (search_again()): the
     // tissue's motion split into a shift (its particles' mean displacement, summed over the calls
     // to begin_surface) and a deformation (the largest departure of a particle's displacement from
@@ -348,10 +351,8 @@ private:
     std::vector<Eigen::Vector3d> searched_at_;      ///< per patch vertex: where it last looked for the surface under it
     std::vector<Eigen::Vector3d> searched_shift_;   ///< tissue_shift_ then
     std::vector<double> searched_travel_;           ///< tissue_travel_ then (NaN: it must look again)
-    Eigen::Vector3d grid_origin_ = Eigen::Vector3d::Zero();
     double grid_cell_ = 1.0;
-    Eigen::Vector3i grid_dims_ = Eigen::Vector3i::Zero();
-    std::vector<std::vector<std::int32_t>> grid_;
+    SurfaceGrid grid_;  ///< the step's, over the surface where grid_slot_x_ put it
     Eigen::Vector3d facing_ = Eigen::Vector3d::UnitZ();  ///< the laid patch's +z (toward the tissue)
     Eigen::Matrix3d frame_ = Eigen::Matrix3d::Identity(); ///< the laid patch's tool frame
     Eigen::Vector3d contact_force_ = Eigen::Vector3d::Zero();
