@@ -66,8 +66,7 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     if (repair_kind(h.instrument.kind) && h.grabbing) release(hand);
     h.instrument = instrument;
     h.posed = false;
-    patch_push_[std::size_t(hand)].setZero();
-    device_force_[std::size_t(hand)].reset();
+    patch_force_[std::size_t(hand)].setZero();
     h.grabbing = false;
     h.stitch.reset();
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
@@ -159,6 +158,7 @@ void RepairBackend::tie(int hand) {
         std::printf("repair: no stitch at %.6g ms: %s\n", inner_->simulated_time_ms(), why.c_str());
         return;
     }
+    patch_force_[std::size_t(hand)].setZero();  // the new stitch pulls from its first step on
     to_device();
     const Stitch& s = patch_->stitches()[*h.stitch];
     std::printf("repair: stitch %zu tied at %.6g ms, patch vertex %d to the tissue %.2f mm from it; it draws tight over %.0f ms\n",
@@ -168,14 +168,18 @@ void RepairBackend::tie(int hand) {
 void RepairBackend::step_patch(int every) {
     const auto start = std::chrono::steady_clock::now();
     patch_->set_mass_scale(inner_->options().mass_scale);
-    // The probes push the patch as they push the tissue (their hands feel it).
+    // The probes push the patch as they push the tissue (their hands feel it), and a needle's hand
+    // feels the suture it ties: what each hand feels of the patch (PatchPassStep::hand_output).
     std::vector<PatchObstacle> probes;
-    std::array<int, 2> probe_of{-1, -1};
+    std::array<int, 2> output{-1, -1};
     for (int hand = 0; hand < 2; ++hand) {
         const Hand& h = hands_[std::size_t(hand)];
-        if (h.instrument.kind != InstrumentKind::probe || !h.posed) continue;
-        probe_of[std::size_t(hand)] = int(probes.size());
-        probes.push_back({h.pose, h.instrument.semi_axes});
+        if (h.instrument.kind == InstrumentKind::probe && h.posed) {
+            output[std::size_t(hand)] = int(probes.size());
+            probes.push_back({h.pose, h.instrument.semi_axes});
+        } else if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch) {
+            output[std::size_t(hand)] = 2 + int(*h.stitch);
+        }
     }
     if (device_) {  // on the device, before the tissue's step: nothing read back
         PatchPassStep step;
@@ -183,11 +187,7 @@ void RepairBackend::step_patch(int every) {
         step.time_ms = inner_->simulated_time_ms();
         step.mass_scale = inner_->options().mass_scale;
         step.obstacles = probes;
-        for (int hand = 0; hand < 2; ++hand) {
-            const Hand& h = hands_[std::size_t(hand)];
-            if (probe_of[std::size_t(hand)] >= 0) step.hand_output[std::size_t(hand)] = probe_of[std::size_t(hand)];
-            else if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch) step.hand_output[std::size_t(hand)] = 2 + int(*h.stitch);
-        }
+        step.hand_output = output;
         patch_->set_obstacles(std::move(probes));
         device_->step(step);
         device_ahead_ = true;
@@ -209,9 +209,12 @@ void RepairBackend::step_patch(int every) {
     patch_->set_obstacles(std::move(probes));
     patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
     inner_->set_loads(patch_->loads());
-    for (int hand = 0; hand < 2; ++hand)
-        patch_push_[std::size_t(hand)] =
-            probe_of[std::size_t(hand)] < 0 ? Eigen::Vector3d::Zero() : patch_->obstacle_forces()[std::size_t(probe_of[std::size_t(hand)])];
+    for (int hand = 0; hand < 2; ++hand) {
+        const int o = output[std::size_t(hand)];
+        patch_force_[std::size_t(hand)] = o < 0 ? Eigen::Vector3d::Zero()
+                                          : o < 2 ? patch_->obstacle_forces()[std::size_t(o)]
+                                                  : patch_->stitches()[std::size_t(o - 2)].force_n;
+    }
     patch_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     ++patch_steps_;
 }
@@ -240,7 +243,7 @@ StepReport RepairBackend::step(int steps) {
             off_device();
             patch_->recover(inner_->positions_of(patch_->particles()), inner_->simulated_time_ms());
             inner_->set_loads({});
-            patch_push_.fill(Eigen::Vector3d::Zero());
+            patch_force_.fill(Eigen::Vector3d::Zero());
             if (on_device) to_device();
         }
         total.gave_up = total.gave_up || r.gave_up;
@@ -252,33 +255,20 @@ StepReport RepairBackend::step(int steps) {
 void RepairBackend::add_repair_forces(InstrumentForces& forces) const {
     for (int hand = 0; hand < 2; ++hand) {
         const Hand& h = hands_[std::size_t(hand)];
-        if (device_) {  // what the device's patch step gave each hand (PatchPassStep::hand_output)
-            const std::optional<Eigen::Vector3d>& f = device_force_[std::size_t(hand)];
-            if (h.instrument.kind == InstrumentKind::probe && f && f->allFinite()) forces.hand[std::size_t(hand)].force_n += *f;
-            if (!repair_kind(h.instrument.kind)) continue;
-            forces.hand[std::size_t(hand)].force_n.setZero();
-            forces.hand[std::size_t(hand)].particles = 0;
-            if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && f && f->allFinite())
-                forces.hand[std::size_t(hand)].force_n = *f;
-            continue;
-        }
-        if (h.instrument.kind == InstrumentKind::probe && patch() && patch_push_[std::size_t(hand)].allFinite())
-            forces.hand[std::size_t(hand)].force_n += patch_push_[std::size_t(hand)];  // the patch it presses on
+        const Eigen::Vector3d& f = patch_force_[std::size_t(hand)];
+        if (h.instrument.kind == InstrumentKind::probe && f.allFinite()) forces.hand[std::size_t(hand)].force_n += f;  // the patch it presses on
         if (!repair_kind(h.instrument.kind)) continue;
         forces.hand[std::size_t(hand)].force_n.setZero();
         forces.hand[std::size_t(hand)].particles = 0;
-        if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && patch_) {
-            // The suture's tension pulls the hand that holds it as it pulls the patch: toward the tissue.
-            const Eigen::Vector3d f = patch_->stitches()[*h.stitch].force_n;
-            if (f.allFinite()) forces.hand[std::size_t(hand)].force_n = f;
-        }
+        // The suture's tension pulls the hand that holds it as it pulls the patch: toward the tissue.
+        if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && f.allFinite()) forces.hand[std::size_t(hand)].force_n = f;
     }
 }
 
 void RepairBackend::device_hand_forces(bool wait) {
     if (!device_) return;
     if (const auto f = device_->hand_forces(wait))
-        for (int hand = 0; hand < 2; ++hand) device_force_[std::size_t(hand)] = (*f)[std::size_t(hand)];
+        patch_force_ = *f;
 }
 
 std::optional<InstrumentForces> RepairBackend::latest_forces() {
@@ -298,7 +288,7 @@ InstrumentForces RepairBackend::instrument_forces() {
 void RepairBackend::reset_tissue() {
     off_device();
     patch_.reset();
-    patch_push_.fill(Eigen::Vector3d::Zero());
+    patch_force_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
     inner_->set_loads({});
     inner_->reset_tissue();
@@ -318,7 +308,7 @@ void RepairBackend::to_device() {
     timed_device_ = stepper;
     device_ahead_ = false;
     device_steps_ = 0;
-    device_force_ = {};
+    patch_force_.fill(Eigen::Vector3d::Zero());
 }
 
 void RepairBackend::sync_from_device() const {
@@ -340,7 +330,7 @@ void RepairBackend::off_device() {
     device_ = nullptr;
     device_ahead_ = false;
     device_input_.reset();
-    device_force_ = {};
+    patch_force_.fill(Eigen::Vector3d::Zero());
 }
 
 std::vector<Eigen::Vector3d> RepairBackend::stitch_anchors() {

@@ -107,7 +107,7 @@ private:
     void sync_from_device() const;
     /// The patch off the device (its loads off the tissue).
     void off_device();
-    /// Each hand's force from the device's patch, into patch_push_ (or the needle's stitch force).
+    /// Each hand's force from the device's newest finished patch step, into patch_force_.
     void device_hand_forces(bool wait);
 
     std::unique_ptr<Backend> inner_;
@@ -119,7 +119,6 @@ private:
     std::optional<PatchPassInput> device_input_;
     long long device_steps_ = 0;               ///< patch steps on the device since its candidates were found
     PatchStepper* timed_device_ = nullptr;     ///< the stepper that stepped a patch in this run, for its time
-    std::array<std::optional<Eigen::Vector3d>, 2> device_force_;  ///< each hand's force from the device's patch
     struct Hand {
         Instrument instrument;
         InstrumentPose pose;
@@ -128,8 +127,9 @@ private:
         std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
     };
     std::array<Hand, 2> hands_{};
-    /// The patch's push on each hand's probe in its last step (held between its steps, as its loads), N.
-    std::array<Eigen::Vector3d, 2> patch_push_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
+    /// What each hand feels of the patch from its last step (held between its steps, as its loads):
+    /// a probe's push, a needle's suture; N.
+    std::array<Eigen::Vector3d, 2> patch_force_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     mutable double patch_ms_ = 0.0;
     long long patch_steps_ = 0;
     long long tissue_steps_ = 0;  ///< since the patch was laid
