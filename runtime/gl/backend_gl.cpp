@@ -26,7 +26,6 @@
 #include <cstring>
 #include <deque>
 #include <limits>
-#include <new>
 #include <sstream>
 
 namespace heartsim {
@@ -701,7 +700,7 @@ public:
                                                                         !load_particles_.empty() || patch_loads_);
                                                  },
                                                  n_);
-            } catch (const GlUnavailable& e) {  // a driver without what the pass needs: the host steps the patch
+            } catch (const std::runtime_error& e) {  // a driver without what the pass needs (GlUnavailable, an OpenGL error): the host steps the patch
                 patch_pass_refused_ = true;
                 std::printf("repair: the patch steps on the host: %s\n", e.what());
             }
@@ -767,15 +766,7 @@ private:
         if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
     }
 
-    static void check(const char* what) {
-        const GLenum error = glGetError();
-        if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
-        if (error != GL_NO_ERROR) {
-            std::ostringstream s;
-            s << "gl backend: OpenGL error 0x" << std::hex << error << " while " << what;
-            throw std::runtime_error(s.str());
-        }
-    }
+    static void check(const char* what) { check_gl_error("gl backend", what); }
 
     void set_indexed_1f(GLuint program, const std::string& name, int index, float value) {
         glProgramUniform1f(program, glGetUniformLocation(program, (name + "[" + std::to_string(index) + "]").c_str()), value);

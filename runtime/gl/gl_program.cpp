@@ -3,6 +3,10 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/shaders/bindings.h"
 
+#include <new>
+#include <sstream>
+#include <stdexcept>
+
 namespace heartsim {
 
 namespace {
@@ -55,6 +59,16 @@ GLuint link_program(const std::vector<GLuint>& shaders, const std::string& what,
         throw GlUnavailable(with_advice(what + " does not link: " + log, advice));
     }
     return program;
+}
+
+void check_gl_error(const char* who, const char* what) {
+    const GLenum error = glGetError();
+    if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
+    if (error != GL_NO_ERROR) {
+        std::ostringstream s;
+        s << who << ": OpenGL error 0x" << std::hex << error << " while " << what;
+        throw std::runtime_error(s.str());
+    }
 }
 
 }  // namespace heartsim

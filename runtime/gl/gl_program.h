@@ -22,4 +22,9 @@ GLuint compile_shader(GLenum stage, const std::vector<const char*>& sources, con
 GLuint link_program(const std::vector<GLuint>& shaders, const std::string& what, const std::string& advice = "",
                     const char* feedback_varying = nullptr);
 
+/// Throws if OpenGL recorded an error: std::bad_alloc for GL_OUT_OF_MEMORY (heartsim says "out of
+/// memory"), else std::runtime_error "<who>: OpenGL error 0x… while <what>". The gl backend, its
+/// patch pass and the renderer check after their work with it.
+void check_gl_error(const char* who, const char* what);
+
 }  // namespace heartsim

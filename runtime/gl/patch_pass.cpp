@@ -372,10 +372,7 @@ public:
     }
 
 private:
-    static void check(const char* what) {
-        if (const GLenum error = glGetError(); error != GL_NO_ERROR)
-            throw GlUnavailable(std::string("gl backend: OpenGL error ") + std::to_string(error) + " " + what);
-    }
+    static void check(const char* what) { check_gl_error("gl backend", what); }
 
     /// The timer queries of finished passes into timed_ms_ (all of them, waiting, with `wait`).
     void harvest(bool wait) {

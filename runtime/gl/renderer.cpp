@@ -22,9 +22,7 @@
 #include <cstddef>
 #include <deque>
 #include <map>
-#include <new>
 #include <optional>
-#include <sstream>
 #include <vector>
 
 namespace heartsim {
@@ -44,15 +42,7 @@ struct VertexRecord {
 };
 static_assert(sizeof(VertexRecord) == 116);
 
-void check(const char* what) {
-    const GLenum error = glGetError();
-    if (error == GL_OUT_OF_MEMORY) throw std::bad_alloc();  // the driver's memory: heartsim says "out of memory"
-    if (error != GL_NO_ERROR) {
-        std::ostringstream s;
-        s << "renderer: OpenGL error 0x" << std::hex << error << " while " << what;
-        throw std::runtime_error(s.str());
-    }
-}
+void check(const char* what) { check_gl_error("renderer", what); }
 
 GLuint compile(GLenum stage, const char* source, const char* name) {
     return compile_shader(stage, {source}, std::string("renderer: the ") + name + " shader");
