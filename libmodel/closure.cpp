@@ -176,7 +176,7 @@ struct GridAxis {
 /// it. The region (a cylinder) leaves at least one layer of the grid outside it all round, so every
 /// region voxel has its six neighbours in the grid.
 struct Grid {
-    static constexpr std::uint8_t in_region = 1, blocked = 2, visited = 4;
+    static constexpr std::uint8_t in_region = 1, blocked = 2, visited = 4, on_path = 8, patch = 16;
     double h = 0.0;
     GridAxis across, along;  // across: x and y; along: z
     std::size_t side = 0, layer = 0;
@@ -268,7 +268,7 @@ void block_patch(Grid& grid, const FrameMesh& patch, double reach) {
                     std::uint8_t& flags = grid.flags[grid.index(i, j, k)];
                     if (flags != Grid::in_region) continue;  // outside, or already blocked
                     const Vector3 p(grid.across.centre(i), grid.across.centre(j), grid.along.centre(k));
-                    if ((closest_on_triangle(p, a, b, c) - p).squaredNorm() <= reach * reach) flags |= Grid::blocked;
+                    if ((closest_on_triangle(p, a, b, c) - p).squaredNorm() <= reach * reach) flags |= Grid::blocked | Grid::patch;
                 }
     }
 }
@@ -283,6 +283,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
     if (!(options.voxel_mm > 0.0) || !std::isfinite(options.voxel_mm)) throw OptionError("ClosureOptions::voxel_mm must be a positive number of mm");
     if (!(options.margin_mm >= 0.0) || !std::isfinite(options.margin_mm)) throw OptionError("ClosureOptions::margin_mm must be a number of mm ≥ 0");
     if (options.rim_samples < 1) throw OptionError("ClosureOptions::rim_samples must be at least 1");
+    for (const Eigen::Vector3d& stitch : options.stitches)
+        if (!stitch.allFinite()) throw OptionError("ClosureOptions::stitches holds a point that is not finite");
     if (!(options.rim_offset_mm >= 0.0) || !std::isfinite(options.rim_offset_mm))
         throw OptionError("ClosureOptions::rim_offset_mm must be a number of mm ≥ 0");
     if (tissue_positions.empty() || tissue_triangles.empty()) throw InputError("the tissue mesh is empty: the closure check needs the detailed mesh");
@@ -437,10 +439,97 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         }
     }
     result.reached = queue.size();
-    result.closed = std::none_of(queue.begin(), queue.end(), [&](std::uint32_t at) { return is_target(at); });
+    std::vector<std::uint32_t> leak_path;
+    for (const std::uint32_t at : queue)
+        if (is_target(at)) {
+            grid.flags[at] |= Grid::on_path;
+            leak_path.push_back(at);
+        }
+    result.closed = leak_path.empty();
+    if (!result.closed) {
+        // The leak's way: the reached voxels the fill reaches back from the top (those on a path
+        // from the opening out). Where it passes the rim: in each column of voxels at the rim's
+        // radius, the free voxels just above the tissue, up to the patch (none where the patch lies
+        // on the tissue; up to the top where no patch covers it), that are on the way; the angle
+        // round the axis where most are (the way is widest there), at their mean height.
+        for (std::size_t head = 0; head < leak_path.size(); ++head) {
+            const std::size_t at = leak_path[head];
+            for (const std::size_t next : {at - 1, at + 1, at - grid.side, at + grid.side, at - grid.layer, at + grid.layer}) {
+                if (grid.flags[next] != (Grid::in_region | Grid::visited)) continue;  // not reached, or already on the way back
+                grid.flags[next] |= Grid::on_path;
+                leak_path.push_back(std::uint32_t(next));
+            }
+        }
+        Vector3 leak = Vector3::Zero();  // no patch: the opening itself
+        if (has_patch) {
+            // Per rim sample's arc: the columns there, and the voxels and their heights on the way.
+            const int bins = options.rim_samples;
+            std::vector<std::size_t> columns(std::size_t(bins), 0), count(std::size_t(bins), 0);
+            std::vector<double> height(std::size_t(bins), 0.0);
+            for (long j = 1; j + 1 < grid.across.n; ++j)
+                for (long i = 1; i + 1 < grid.across.n; ++i) {
+                    const double x = grid.across.centre(i), y = grid.across.centre(j);
+                    if (std::abs(std::hypot(x, y) - rim_radius) > 0.5 * grid.h) continue;
+                    const std::size_t bin = std::size_t(
+                        std::clamp(long(std::floor((std::atan2(y, x) + std::numbers::pi) / (2.0 * std::numbers::pi) * bins)), 0L, long(bins) - 1));
+                    ++columns[bin];
+                    long k = 1;
+                    auto flags = [&](long layer) { return grid.flags[grid.index(i, j, layer)]; };
+                    while (k + 1 < grid.along.n && (flags(k) & Grid::blocked) && !(flags(k) & Grid::patch)) ++k;  // the tissue
+                    for (; k + 1 < grid.along.n && (flags(k) & Grid::in_region) && !(flags(k) & Grid::blocked); ++k)
+                        if (flags(k) & Grid::on_path) ++count[bin], height[bin] += grid.along.centre(k);
+                }
+            // The way's height per arc (its voxels over the arc's columns); the widest arc, and the
+            // arcs either side of it within a voxel of it: the leak passes the rim in their middle.
+            std::vector<double> wide(std::size_t(bins), 0.0);
+            for (std::size_t b = 0; b < wide.size(); ++b)
+                if (columns[b] > 0) wide[b] = grid.h * double(count[b]) / double(columns[b]);
+            const long widest = long(std::max_element(wide.begin(), wide.end()) - wide.begin());
+            if (count[std::size_t(widest)] > 0) {
+                auto near_widest = [&](long b) { return wide[std::size_t((b % bins + bins) % bins)] >= wide[std::size_t(widest)] - grid.h; };
+                long first = widest, last = widest;
+                while (last - first + 1 < bins && near_widest(first - 1)) --first;
+                while (last - first + 1 < bins && near_widest(last + 1)) ++last;
+                double mean_height = 0.0;
+                std::size_t voxels = 0;
+                for (long b = first; b <= last; ++b) {
+                    mean_height += height[std::size_t((b % bins + bins) % bins)];
+                    voxels += count[std::size_t((b % bins + bins) % bins)];
+                }
+                const double turn = -std::numbers::pi + (0.5 * double(first + last) + 0.5) * 2.0 * std::numbers::pi / bins;
+                leak = Vector3(rim_radius * std::cos(turn), rim_radius * std::sin(turn), mean_height / double(std::max<std::size_t>(voxels, 1)));
+            } else {  // the way out never passes the rim (through the patch): where it reaches the top
+                const std::uint32_t top_voxel = leak_path.front();
+                const long k = long(top_voxel / grid.layer), j = long((top_voxel % grid.layer) / grid.side), i = long(top_voxel % grid.side);
+                leak = Vector3(grid.across.centre(i), grid.across.centre(j), grid.along.centre(k));
+            }
+        }
+        result.leak_mm = defect.centre + to_frame.transpose() * leak;
+        // The stitches either side of it: the least turn from it to each, one way and the other.
+        const double at = std::atan2(leak.y(), leak.x());
+        std::array<double, 2> least{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+        std::array<std::size_t, 2> between{};
+        for (std::size_t s = 0; s < options.stitches.size(); ++s) {
+            const Vector3 p = to_frame * (options.stitches[s] - defect.centre);
+            const double turn = std::remainder(std::atan2(p.y(), p.x()) - at, 2.0 * std::numbers::pi);  // (−π, π]
+            const double back = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, ahead = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
+            if (back < least[0]) least[0] = back, between[0] = s;
+            if (ahead < least[1]) least[1] = ahead, between[1] = s;
+        }
+        if (!options.stitches.empty()) result.leak_between = between;
+    }
 
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
     return result;
+}
+
+std::string leak_place(const ClosureResult& result) {
+    if (result.closed || !result.leak_mm) return {};
+    if (!result.leak_between) return "where no stitch holds the patch";
+    const auto [clockwise, counter] = *result.leak_between;
+    if (clockwise == counter) return "beside stitch " + std::to_string(clockwise + 1) + ", the only one";
+    const auto [first, second] = std::minmax(clockwise, counter);
+    return "between stitches " + std::to_string(first + 1) + " and " + std::to_string(second + 1);
 }
 
 }  // namespace heartsim

@@ -33,6 +33,8 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <optional>
+#include <string>
 #include <vector>
 
 namespace heartsim {
@@ -49,6 +51,9 @@ struct ClosureOptions {
     double margin_mm = 5.0;      ///< the region: a cylinder of radius D/2 + margin around the axis, mm
     int rim_samples = 72;        ///< points along the rim (evenly spaced angles)
     double rim_offset_mm = 0.5;  ///< the rim: the tissue surface on the patch's side this far outside the opening's radius, mm
+    /// The stitches' tissue points (world mm, in the order tied), to name those a leak passes
+    /// between (ClosureResult::leak_between); none: no names.
+    std::vector<Eigen::Vector3d> stitches;
 };
 
 struct ClosureResult {
@@ -63,6 +68,14 @@ struct ClosureResult {
     std::size_t voxels = 0;           ///< voxels in the region
     std::size_t reached = 0;          ///< free voxels the fill reached from the opening
     int rim_points = 0;               ///< rim samples where the tissue surface was found
+    /// Where the leak passes the rim, when not closed: the first voxel centre of the fill's
+    /// shortest path out of the opening at the rim's radius or beyond (the top voxel it reaches
+    /// where it never gets so far), world mm. Empty when closed.
+    std::optional<Eigen::Vector3d> leak_mm;
+    /// The stitches (indices into ClosureOptions::stitches) either side of leak_mm round the axis:
+    /// the nearest clockwise and counter-clockwise seen from the patch's side (the same one when
+    /// there is one stitch). Empty when closed or no stitches were given.
+    std::optional<std::array<std::size_t, 2>> leak_between;
     double seconds = 0.0;             ///< wall-clock time of the check
 };
 
@@ -86,5 +99,10 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                             const std::vector<std::array<float, 3>>& patch_positions,
                             const std::vector<std::array<std::int32_t, 3>>& patch_triangles,
                             double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options = {});
+
+/// Where a leak passes the rim, for a trainer: "between stitches 3 and 4" (counted from 1 in the
+/// order tied), "beside stitch 1, the only one", or "where no stitch holds the patch" with none;
+/// empty when closed.
+std::string leak_place(const ClosureResult& result);
 
 }  // namespace heartsim

@@ -167,11 +167,15 @@ TEST(Closure, WithoutPatchTheBloodFlowsThroughAndTheRimGapIsTheDiameter) {
     const double h = ClosureOptions{}.voxel_mm, region = pi * cylinder * cylinder * r.top_mm;
     EXPECT_NEAR(double(r.reached) * h * h * h, blood_without_patch(), 0.01 * blood_without_patch());
     EXPECT_NEAR(double(r.voxels) * h * h * h, region, 0.01 * region);
+    ASSERT_TRUE(r.leak_mm.has_value());
+    EXPECT_EQ(*r.leak_mm, defect.centre) << "no patch: the opening itself leaks";
 }
 
 TEST(Closure, ADiscLyingOnThePlateClosesTheHole) {
     const ClosureResult r = check(flat_disc(hole_diameter + 6.0, top + 0.5 * patch_thickness));
     EXPECT_TRUE(r.closed);
+    EXPECT_FALSE(r.leak_mm.has_value());
+    EXPECT_EQ(leak_place(r), "");
     EXPECT_NEAR(r.largest_rim_gap_mm, 0.0, 1e-4);  // it touches the plate all round
     EXPECT_NEAR(r.top_mm, top + patch_thickness + 2.0, 1e-5);
     // The fill stays in the hole, from mid-wall up to the patch's voxels (their layer widened by
@@ -207,11 +211,36 @@ TEST(Closure, ATiltedDiscTouchingOnOneSideGapsMostOppositeIt) {
     const Eigen::Vector3d hinge(-a, 0.0, top + 0.5 * patch_thickness);
     const Eigen::Isometry3d tilt =
         Eigen::Translation3d(hinge) * Eigen::AngleAxisd(-alpha, Eigen::Vector3d::UnitY()) * Eigen::Translation3d(-hinge);
-    const ClosureResult r = check(transformed(flat_disc(2.0 * a, top + 0.5 * patch_thickness), tilt));
+    const Mesh disc = transformed(flat_disc(2.0 * a, top + 0.5 * patch_thickness), tilt);
+    const ClosureResult r = check(disc);
     EXPECT_FALSE(r.closed);
     const double rho = 0.5 * hole_diameter + ClosureOptions{}.rim_offset_mm;
     const double gap = std::sin(alpha) * (rho + a) + 0.5 * patch_thickness * std::cos(alpha) - 0.5 * patch_thickness;
     EXPECT_NEAR(r.largest_rim_gap_mm, gap, 1e-3);
+    // The leak passes the rim where the way under the disc is widest, θ = 0 (within a rim sample,
+    // 5°), between the plate's top and the disc there; with stitches at 90°, 180° and 270° round
+    // the rim it passes between the first and the third.
+    ASSERT_TRUE(r.leak_mm.has_value());
+    const Eigen::Vector3d& leak = *r.leak_mm;
+    std::printf("  the leak passes the rim at (%.3f, %.3f, %.3f) mm\n", leak.x(), leak.y(), leak.z());
+    EXPECT_NEAR(std::hypot(leak.x(), leak.y()), rho, 1e-9);
+    EXPECT_LE(std::abs(std::atan2(leak.y(), leak.x())), 2.0 * pi / ClosureOptions{}.rim_samples);
+    EXPECT_GT(leak.z(), top);
+    EXPECT_LT(leak.z(), top + 0.5 * patch_thickness + std::sin(alpha) * (rho + a));
+    EXPECT_FALSE(r.leak_between.has_value()) << "no stitches given";
+    EXPECT_EQ(leak_place(r), "where no stitch holds the patch");
+    ClosureOptions sewn;
+    for (const double degrees : {90.0, 180.0, 270.0})
+        sewn.stitches.push_back(Eigen::Vector3d(rho * std::cos(degrees * pi / 180), rho * std::sin(degrees * pi / 180), top));
+    const ClosureResult s = check(disc, sewn);
+    ASSERT_TRUE(s.leak_between.has_value());
+    EXPECT_EQ((*s.leak_between)[0], 2u) << "clockwise from θ = 0 (seen from the patch's side): 270°";
+    EXPECT_EQ((*s.leak_between)[1], 0u) << "counter-clockwise: 90°";
+    EXPECT_EQ(leak_place(s), "between stitches 1 and 3");
+    sewn.stitches.resize(1);
+    EXPECT_EQ(leak_place(check(disc, sewn)), "beside stitch 1, the only one");
+    sewn.stitches.front().x() = std::nan("");
+    EXPECT_THROW(check(disc, sewn), OptionError);
 }
 
 TEST(Closure, ADomeBulgingIntoThePatchSideStillClosesTheHole) {
@@ -321,8 +350,8 @@ TEST(Closure, RefusesBadInput) {
     } catch (const InputError& error) {
         EXPECT_NE(std::string(error.what()).find("the opening is not open at mid-wall"), std::string::npos) << error.what();
     }
-    EXPECT_THROW(check(patch, {.voxel_mm = 0.0}), OptionError);
-    EXPECT_THROW(check(patch, {.rim_samples = 0}), OptionError);
+    EXPECT_THROW(check(patch, {.voxel_mm = 0.0, .stitches = {}}), OptionError);
+    EXPECT_THROW(check(patch, {.rim_samples = 0, .stitches = {}}), OptionError);
 }
 
 #ifdef HEARTSIM_CLOSURE_HDF5

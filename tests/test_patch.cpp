@@ -94,8 +94,10 @@ Sewn sew(int stitches, bool lay = true, double ms = 400.0) {
     out.spacing = 2.0 * std::numbers::pi * rim / 8;
     std::vector<std::array<std::int32_t, 3>> triangles;
     if (lay) triangles = patch.triangles();
+    ClosureOptions options;
+    for (const Stitch& s : patch.stitches()) options.stitches.push_back(patch.where(s.anchor, at));
     out.closure = check_closure(plate.mesh.positions, plate.mesh.triangles, floats(tested.positions()), triangles, spec().thickness_mm,
-                                DefectFrame{Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ(), hole});
+                                DefectFrame{Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ(), hole}, options);
     return out;
 }
 
@@ -124,6 +126,12 @@ TEST(Patch, TwoStitchesOrNoPatchLeaveItOpen) {
     const Sewn two = sew(2);
     EXPECT_FALSE(two.closure.closed);
     EXPECT_GT(two.closure.largest_rim_gap_mm, 0.25);
+    // The stitches hold the patch at 0° and 45°: it lifts, and leaks, on the far side of the rim.
+    ASSERT_TRUE(two.closure.leak_mm.has_value());
+    const double leak_degrees = std::atan2(two.closure.leak_mm->y(), two.closure.leak_mm->x()) * 180.0 / std::numbers::pi;
+    std::printf("  with stitches at 0° and 45° the leak passes the rim at %.0f°, %s\n", leak_degrees, leak_place(two.closure).c_str());
+    EXPECT_TRUE(leak_degrees > 45.0 + 60.0 || leak_degrees < -60.0) << leak_degrees;
+    EXPECT_EQ(leak_place(two.closure), "between stitches 1 and 2");
     const Sewn laid = sew(0);  // laid on the wall, never sewn: the pressure lifts it off
     EXPECT_FALSE(laid.closure.closed);
     const Sewn none = sew(0, false);
