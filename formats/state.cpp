@@ -6,6 +6,7 @@
 
 #include "libmodel/stability.h"
 
+#include <cmath>
 #include <string>
 
 namespace heartsim {
@@ -48,6 +49,7 @@ void write_state(const std::filesystem::path& path, const SimulationState& state
                 w.attribute("patch", "leak_test_mmhg", patch.leak_test_mmhg);
                 w.attribute("patch", "rim_offset_mm", patch.rim_offset_mm);
                 w.attribute("patch", "margin_mm", patch.margin_mm);
+                if (patch.leak_mm) w.attribute("patch", "leak_mm", patch.leak_mm->data(), {3});
             }
             w.dataset("patch/positions", patch.positions, {patch.positions.size(), 3});
             if (!patch.leak_test_positions.empty())
@@ -153,6 +155,12 @@ SimulationState read_state(const std::filesystem::path& path) {
             patch.leak_test_mmhg = r.number<double>("patch", "leak_test_mmhg");
             patch.rim_offset_mm = r.number<double>("patch", "rim_offset_mm");
             patch.margin_mm = r.number<double>("patch", "margin_mm");
+            if (r.has_attribute("patch", "leak_mm")) {
+                const auto leak = r.numbers<double>("patch", "leak_mm", 3);
+                for (double v : leak)
+                    if (!std::isfinite(v)) r.fail("patch", "attribute leak_mm must be 3 finite numbers (mm)");
+                patch.leak_mm = std::array<double, 3>{leak[0], leak[1], leak[2]};
+            }
         }
         state.patch = std::move(patch);
     }

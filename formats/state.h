@@ -22,7 +22,8 @@
 ///                       defect_centre [3] (mm), defect_axis [3] (unit, toward the patch's side),
 ///                       defect_diameter_mm, closed (1 or 0) and largest_rim_gap_mm (the closure
 ///                       check's, at leak_test_mmhg, its rim rim_offset_mm outside the opening, its
-///                       cylinder margin_mm beyond it)
+///                       cylinder margin_mm beyond it; when not closed, leak_mm [3] (mm): where the
+///                       leak passes the rim, ClosureResult::leak_mm)
 ///   /patch/positions    float32 [P,3]  mm, the patch's mid-surface
 ///   /patch/leak_test_positions float32 [P,3] mm, where the closure check's leak test left it (when checked)
 ///   /patch/triangles    int32 [Q,3]    its triangles
@@ -57,6 +58,7 @@ struct PatchState {
     double defect_diameter_mm = 0.0;
     bool closed = false;
     double largest_rim_gap_mm = 0.0, leak_test_mmhg = 0.0, rim_offset_mm = 0.0, margin_mm = 0.0;
+    std::optional<std::array<double, 3>> leak_mm;  ///< not closed: where the leak passes the rim
 };
 
 struct SimulationState {

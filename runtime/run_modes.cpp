@@ -604,6 +604,7 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
             out.defect_diameter_mm = p.closure->frame.diameter_mm;
             out.closed = p.closure->result.closed;
             out.largest_rim_gap_mm = p.closure->result.largest_rim_gap_mm;
+            if (const auto& leak = p.closure->result.leak_mm) out.leak_mm = std::array<double, 3>{leak->x(), leak->y(), leak->z()};
             out.leak_test_mmhg = a.leak_test_mmhg;
             out.leak_test_positions = p.closure->tested_patch;
             out.rim_offset_mm = p.closure->rim_offset_mm;
@@ -658,6 +659,7 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                 rim += (d - d.dot(frame->axis) * frame->axis).norm();
             }
             options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch->stitches().size()) - 0.5 * frame->diameter_mm);
+            options.stitches = p.repair->stitch_anchors();
         }
         const ClosureResult r = check_closure(tissue, triangles, patch_positions, patch_triangles, thickness, *frame, options);
         p.closure = PreparedRun::ClosureReport{r, *frame, patch_positions, options.rim_offset_mm, options.margin_mm};
@@ -666,6 +668,9 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                     "%.2f mm reached %zu from the far side; wall %.1f mm thick; %d rim points (%.2f s)\n",
                     patch ? "a patch" : "no patch", patch ? patch->stitches().size() : std::size_t(0), a.leak_test_mmhg, r.voxels,
                     ClosureOptions{}.voxel_mm, r.reached, r.wall_thickness_mm, r.rim_points, r.seconds);
+        if (r.leak_mm && patch)
+            std::printf("  the leak: its way out of the opening passes the rim widest at (%.1f, %.1f, %.1f) mm, %s\n", r.leak_mm->x(),
+                        r.leak_mm->y(), r.leak_mm->z(), leak_place(r).c_str());
     } catch (const InputError& e) {
         std::printf("defect closed: unknown (%s)\n", e.what());
     }

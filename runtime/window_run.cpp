@@ -203,6 +203,7 @@ std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::ve
             rim += (d - d.dot(frame->axis) * frame->axis).norm();
         }
         options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch.stitch_to.size()) - 0.5 * frame->diameter_mm);
+        for (const auto& anchor : patch.stitch_to) options.stitches.emplace_back(anchor[0], anchor[1], anchor[2]);
     }
     return check_closure(tissue, scenario.visual->triangles, patch.positions, patch.triangles, patch.thickness_mm, *frame, options);
 }
@@ -333,6 +334,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     Hud hud(window);
     RepairBackend* const repair = dynamic_cast<RepairBackend*>(&backend);
     HudRepair repair_shown;  // the closure check as last run (at most once a second)
+    std::optional<std::array<float, 3>> leak_shown;  // where the last check found a leak pass the rim
     auto next_closure = std::chrono::steady_clock::now();
     const bool has_defect = a.scenario && !a.scenario->source.defect.empty();
     const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
@@ -660,21 +662,30 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         DrawnPatch drawn;
         if (simulation) drawn = simulation->patch();
         else if (const PatchModel* patch = repair ? repair->patch() : nullptr) drawn = drawn_patch(*patch, repair->stitch_anchors());
-        renderer.set_patch(drawn);
         if (drawn.triangles.empty()) {
             repair_shown = {};
+            leak_shown.reset();
         } else if (has_defect && std::chrono::steady_clock::now() >= next_closure) {
             try {
                 const std::optional<ClosureResult> closure =
                     closure_now(*a.scenario, simulation ? latest_positions : backend.positions(), drawn);
                 repair_shown.known = closure.has_value();
-                if (closure) repair_shown.closed = closure->closed, repair_shown.rim_gap_mm = closure->largest_rim_gap_mm;
+                leak_shown.reset();
+                if (closure) {
+                    repair_shown.closed = closure->closed;
+                    repair_shown.rim_gap_mm = closure->largest_rim_gap_mm;
+                    repair_shown.leak = leak_place(*closure);
+                    if (closure->leak_mm) leak_shown = {float(closure->leak_mm->x()), float(closure->leak_mm->y()), float(closure->leak_mm->z())};
+                }
             } catch (const InputError&) {
                 repair_shown.known = false;
+                leak_shown.reset();
             }
             repair_shown.checked = true;
             next_closure = std::chrono::steady_clock::now() + std::chrono::seconds(1);
         }
+        drawn.leak = leak_shown;
+        renderer.set_patch(drawn);
         const auto draw_start = std::chrono::steady_clock::now();
         if (simulation) renderer.render(latest_positions, shapes);
         else renderer.render(backend, shapes);

@@ -483,6 +483,58 @@ TEST(Repair, AProbePressedOnTheSewnPatchIsPushedBackAndTheDefectStaysClosed) {
     EXPECT_EQ(verdict_of(pressing.output).closed, "yes") << pressing.output;
 }
 
+// plan-repair's closure with only 3 stitches is open: the run says so, says where the leak passes
+// the rim (at the rim's radius from the defect's axis, where the stitches bite) and between which
+// two of the three, and the saved state keeps that point (/patch attribute leak_mm) as printed.
+// The 8-stitch repair, closed as it lies (--leak-test 0), keeps none.
+TEST(Repair, AnOpenRepairSaysWhereItLeaksAndTheStateKeepsIt) {
+    const BlockRepair& b = block_repair();
+    test::TempDir dir;
+    const auto planned = heartsim_command("plan-repair " + quoted(b.scenario) + " -o " + quoted(dir / "three.csv") + " --stitches=3");
+    ASSERT_EQ(planned.exit_code, 0) << planned.output;
+    char length[32];
+    std::snprintf(length, sizeof length, "%.3f", 1e-3 * end_of(read_trajectory(dir / "three.csv")));
+    const auto run = heartsim_command("run " + quoted(b.scenario) + " --headless --trajectory " + quoted(dir / "three.csv") + " --seconds " +
+                                      length + " --save-state " + quoted(dir / "open.h5"));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    ASSERT_EQ(verdict_of(run.output).closed, "no") << run.output;
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(run.output, m,
+                                  std::regex(R"(the leak: its way out of the opening passes the rim widest at \(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)\) mm, between stitches ([0-9]+) and ([0-9]+))")))
+        << run.output;
+    const Eigen::Vector3d printed(std::stod(m[1]), std::stod(m[2]), std::stod(m[3]));
+    const int first = std::stoi(m[4]), second = std::stoi(m[5]);
+    EXPECT_TRUE(first >= 1 && first < second && second <= 3) << first << ", " << second;
+    const SimulationState state = read_state(dir / "open.h5");
+    ASSERT_TRUE(state.patch.has_value() && state.patch->has_defect);
+    const PatchState& patch = *state.patch;
+    ASSERT_TRUE(patch.leak_mm.has_value()) << "the state keeps where it leaks";
+    const Eigen::Vector3d leak((*patch.leak_mm)[0], (*patch.leak_mm)[1], (*patch.leak_mm)[2]);
+    EXPECT_LE((leak - printed).cwiseAbs().maxCoeff(), 0.05 + 1e-9) << "printed to 0.1 mm";
+    const Eigen::Vector3d centre(patch.defect_centre[0], patch.defect_centre[1], patch.defect_centre[2]);
+    const Eigen::Vector3d axis(patch.defect_axis[0], patch.defect_axis[1], patch.defect_axis[2]);
+    const Eigen::Vector3d d = leak - centre;
+    const double rho = (d - d.dot(axis) * axis).norm(), rim = 0.5 * patch.defect_diameter_mm + patch.rim_offset_mm;
+    std::printf("  3 stitches: open (largest rim gap %.2f mm); the leak passes the rim %.3f mm from the axis (the rim %.3f), %.2f mm along it, "
+                "between stitches %d and %d\n",
+                patch.largest_rim_gap_mm, rho, rim, d.dot(axis), first, second);
+    EXPECT_NEAR(rho, rim, 1e-6 * std::max(1.0, rim));
+    // A repair the check calls closed keeps no leak.
+    const auto sewn = heartsim_command("run " + quoted(b.scenario) + " --headless --trajectory " + quoted(b.closure) + " --seconds " +
+                                       [&] {
+                                           char s[32];
+                                           std::snprintf(s, sizeof s, "%.3f", 1e-3 * end_of(read_trajectory(b.closure)));
+                                           return std::string(s);
+                                       }() +
+                                       " --leak-test 0 --save-state " + quoted(dir / "sewn.h5"));
+    ASSERT_EQ(sewn.exit_code, 0) << sewn.output;
+    ASSERT_EQ(verdict_of(sewn.output).closed, "yes") << sewn.output;
+    EXPECT_EQ(sewn.output.find("the leak:"), std::string::npos);
+    const SimulationState closed = read_state(dir / "sewn.h5");
+    ASSERT_TRUE(closed.patch.has_value());
+    EXPECT_FALSE(closed.patch->leak_mm.has_value());
+}
+
 // The gl backend steps a sewn patch in a compute pass (runtime/gl/patch_pass.h) from the same
 // flattened patch the host steps (PatchModel::pass_input). With the tissue held where it was imaged,
 // plan-repair's patch on the block, its eight stitches tied at once, steps 200 times on each: the

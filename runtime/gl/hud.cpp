@@ -162,6 +162,7 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
             else if (r.defect)
                 ImGui::TextColored(r.closed ? ImVec4(0.45f, 0.9f, 0.45f, 1) : ImVec4(1.0f, 0.7f, 0.3f, 1), "defect closed: %s, rim gap %.2f mm",
                                    r.closed ? "yes" : "no", r.rim_gap_mm);
+            if (r.defect && r.known && !r.leak.empty()) ImGui::TextColored(ImVec4(1.0f, 0.7f, 0.3f, 1), "leaks %s", r.leak.c_str());
         }
         if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
         for (int hand = 0; hand < 2; ++hand) {

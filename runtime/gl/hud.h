@@ -45,6 +45,7 @@ struct HudRepair {
     bool known = false;         ///< it ran to a result (else it could not tell: "unknown")
     bool closed = false;        ///< ClosureResult::closed
     double rim_gap_mm = 0;      ///< ClosureResult::largest_rim_gap_mm
+    std::string leak;           ///< where it leaks (leak_place: "between stitches 3 and 4"); empty when closed
 };
 
 /// What the HUD shows in one frame.

@@ -342,7 +342,8 @@ struct Renderer::State {
     }
 
     /// The patch's sheet and the stitches (suture and knot as ellipsoids), cut by the section
-    /// plane as the tissue is; the programs' camera and light uniforms set already.
+    /// plane as the tissue is, and a leak's marker; the programs' camera and light uniforms set
+    /// already.
     void draw_patch() {
         const DrawnPatch& drawn = *patch;
         const Eigen::Vector3f colour = Eigen::Vector3f(float(drawn.rgb[0]), float(drawn.rgb[1]), float(drawn.rgb[2])) / 255.0f;
@@ -392,6 +393,14 @@ struct Renderer::State {
                 ellipsoid(0.5f * (a + b), along, {suture_radius, suture_radius, std::max(0.5f * length, suture_radius)});
             }
             ellipsoid(a, Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(knot_radius));
+        }
+        if (drawn.leak) {  // whole, over everything: the leak lies under the patch, perhaps on the section's near side
+            constexpr float leak_radius = 1.2f;
+            glProgramUniform3f(q, glGetUniformLocation(q, "base_color"), 0.98f, 0.62f, 0.18f);
+            glProgramUniform1i(q, glGetUniformLocation(q, "section_on"), 0);
+            glDisable(GL_DEPTH_TEST);
+            ellipsoid(to_vector(*drawn.leak), Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(leak_radius));
+            glEnable(GL_DEPTH_TEST);
         }
         glDisable(GL_CULL_FACE);
         glProgramUniform1i(q, glGetUniformLocation(q, "section_on"), 0);  // the instruments are drawn whole

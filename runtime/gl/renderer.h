@@ -78,6 +78,9 @@ struct DrawnPatch {
     std::array<int, 3> rgb = patch_rgb("pericardium");      ///< its colour, 8-bit
     std::vector<std::array<float, 3>> stitch_from;          ///< S×3: each stitch's patch vertex (its knot)
     std::vector<std::array<float, 3>> stitch_to;            ///< S×3: each stitch's tissue point
+    /// Where the closure check found a leak pass the rim (ClosureResult::leak_mm): an amber ball
+    /// drawn over everything, so it shows through the patch and the wall. None: no leak known.
+    std::optional<std::array<float, 3>> leak;
     bool operator==(const DrawnPatch&) const = default;
 };
 
