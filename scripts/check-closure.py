@@ -25,8 +25,10 @@ Reads the state with h5dump (Debian package hdf5-tools); standard library only.
   when present, else the scenario's /source attributes of the same names (the rest frame).
 The axis is turned to point toward the patch's side (the side its vertices' mean lies on).
 
-Prints `defect closed: yes|no` and `reached voxels: N`; exits 0 when closed, 1 when open, 2 on
-bad input.
+Prints `defect closed: yes|no` and `reached voxels: N`, and when open where the leak passes the rim
+(`leak passes the rim at (x, y, z) mm`, heartsim's ClosureResult::leak_mm by its own rays: the way's
+voxels at the rim's radius with tissue, not patch, below them); exits 0 when closed, 1 when open, 2
+on bad input.
 
 Usage: scripts/check-closure.py STATE.h5 [--scenario FILE] [--voxel-mm 0.25] [--margin-mm 5]
                                          [--rim-offset-mm 0.5]
@@ -347,6 +349,7 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
     # barycentric grid whose cells are at most a quarter voxel across, so every point of the patch
     # is within `cover` of one; the reach, sqrt(r^2 + cover^2) with r = thickness/2 + sqrt(3)/2
     # voxel (heartsim's), then holds every voxel within r of the patch's interior.
+    patch = bytearray(nn * nz)  # the patch's voxels (tissue's as well where the two overlap)
     if patch_triangles:
         r = 0.5 * thickness + 0.5 * math.sqrt(3.0) * voxel
         for t in patch_triangles:
@@ -375,6 +378,7 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
                             for i in ranges[0]:
                                 if eyz + (coordinate[0][i] - point[0]) ** 2 <= reach * reach:
                                     blocked[row + i] = 1
+                                    patch[row + i] = 1
 
     # The flood fill, 6-connected over the free region voxels, from the opening at mid-wall to the
     # region's top layer. The grid's outer layers hold no region voxel, so no step leaves the grid.
@@ -397,8 +401,98 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
             if region[other] and not blocked[other] and not visited[other]:
                 visited[other] = 1
                 queue.append(other)
-    closed = not any(visited[index] and tops[index] for index in range(nn * nz))
-    return closed, len(queue), voxels, wall, top
+    reached = len(queue)
+    out = [index for index in range(nn * nz) if visited[index] and tops[index]]
+    closed = not out
+    leak = None
+    if not closed:
+        leak = where_it_leaks(out, visited, region, blocked, patch, patch_triangles, centre, axis, u, v, low, voxel, nx, nn,
+                              radius + rim_offset, top)
+    return closed, reached, voxels, wall, top, leak
+
+
+def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis, u, v, low, voxel, nx, nn, rim, top, bins=72):
+    """Where the leak passes the rim (world mm): the reached voxels a fill back from the reached top
+    layer reaches are the leak's way; of those within half a voxel of the rim's radius, the ones with
+    tissue, not patch, the first thing below them along the axis (a ray marched in half voxels) are
+    its way under the patch. Their share of the region's voxels at the rim's radius over each rim
+    arc, times the region's height, is the way's height there; the widest arc and its neighbours within a voxel of it give the
+    angle, their voxels' mean the height. No patch: the defect's centre."""
+    if not has_patch:
+        return centre
+    on = bytearray(len(visited))
+    for index in out:
+        on[index] = 1
+    way = list(out)
+    head = 0
+    while head < len(way):
+        index = way[head]
+        head += 1
+        for d in (1, -1, nx, -nx, nn, -nn):
+            other = index + d
+            if visited[other] and not on[other]:
+                on[other] = 1
+                way.append(other)
+
+    def at(point):  # the voxel holding a point (relative to the centre), or None outside the grid
+        i, j, k = (math.floor((point[m] - low[m]) / voxel + 0.5) for m in range(3))
+        if i < 0 or j < 0 or k < 0 or i >= nx or j >= nn // nx or k * nn >= len(region):
+            return None
+        return i + j * nx + k * nn
+
+    def arc_of(point):  # the rim arc a point lies over, or None off the rim's radius
+        a, b = dot(point, u), dot(point, v)
+        if abs(math.hypot(a, b) - rim) > 0.5 * voxel:
+            return None
+        return min(bins - 1, int((math.atan2(b, a) + math.pi) / (2.0 * math.pi) * bins))
+
+    # The region's voxels at the rim's radius per arc: the way's share of them, times the region's
+    # height, is the way's height there, whatever the grid's slant to the arc.
+    band = [0] * bins
+    for index in range(len(region)):
+        if region[index]:
+            k, rest = divmod(index, nn)
+            j, i = divmod(rest, nx)
+            arc = arc_of((low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel))
+            if arc is not None:
+                band[arc] += 1
+    count, height = [0] * bins, [0.0] * bins
+    for index in way:
+        k, rest = divmod(index, nn)
+        j, i = divmod(rest, nx)
+        point = (low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel)
+        s = dot(point, axis)
+        arc = arc_of(point)
+        if arc is None:
+            continue
+        below, under_patch = 0.5 * voxel, True
+        while s - below >= 0.0:
+            other = at(sub(point, scale(axis, below)))
+            if other is None:
+                break
+            if blocked[other]:
+                under_patch = not patch[other]
+                break
+            below += 0.5 * voxel
+        if not under_patch:
+            continue
+        count[arc] += 1
+        height[arc] += s
+    if not any(count):
+        k, rest = divmod(out[0], nn)
+        j, i = divmod(rest, nx)
+        return tuple(centre[m] + (low[m] + (i, j, k)[m] * voxel) for m in range(3))
+    wide = [count[arc] * top / band[arc] if band[arc] else 0.0 for arc in range(bins)]
+    widest = max(range(bins), key=lambda arc: wide[arc])
+    first = last = widest
+    while last - first + 1 < bins and wide[(first - 1) % bins] >= wide[widest] - voxel:
+        first -= 1
+    while last - first + 1 < bins and wide[(last + 1) % bins] >= wide[widest] - voxel:
+        last += 1
+    arcs = [arc % bins for arc in range(first, last + 1)]
+    turn = -math.pi + (0.5 * (first + last) + 0.5) * 2.0 * math.pi / bins
+    s = sum(height[arc] for arc in arcs) / max(1, sum(count[arc] for arc in arcs))
+    return tuple(centre[m] + rim * math.cos(turn) * u[m] + rim * math.sin(turn) * v[m] + s * axis[m] for m in range(3))
 
 
 def main():
@@ -485,7 +579,7 @@ def main():
             if dot(sub(mean, centre), axis) < 0.0:
                 axis = scale(axis, -1.0)
 
-        closed, reached, voxels, wall, top = check(positions, triangles, patch_positions, patch_triangles, thickness,
+        closed, reached, voxels, wall, top, leak = check(positions, triangles, patch_positions, patch_triangles, thickness,
                                               centre, axis, diameter, arguments.voxel_mm, arguments.margin_mm,
                                               arguments.rim_offset_mm)
     except BadInput as error:
@@ -497,6 +591,8 @@ def main():
     print(f"region: {voxels} voxels of {arguments.voxel_mm:g} mm, from mid-wall to {top:.4g} mm")
     print(f"reached voxels: {reached}")
     print(f"defect closed: {'yes' if closed else 'no'}")
+    if leak is not None:
+        print("leak passes the rim at (%.2f, %.2f, %.2f) mm" % leak)
     return 0 if closed else 1
 
 

@@ -19,6 +19,7 @@
 #include <fstream>
 #include <functional>
 #include <numbers>
+#include <regex>
 #include <sstream>
 #include <string>
 
@@ -202,16 +203,27 @@ TEST(Closure, ADiscSmallerThanTheHoleDoesNotCloseIt) {
     EXPECT_NEAR(r.largest_rim_gap_mm, std::hypot(across, 0.5 * patch_thickness) - 0.5 * patch_thickness, 0.01);
 }
 
-TEST(Closure, ATiltedDiscTouchingOnOneSideGapsMostOppositeIt) {
-    // The disc (radius a) turned about the line y-parallel through its edge at x = −a, mid-height
-    // top + t/2, by α: its far edge rises by 2a·sin α. Its mid-plane passes through q = (−a, 0,
-    // top + t/2) with unit normal (−sin α, 0, cos α), so a rim point (ρ cos θ, ρ sin θ, top) lies
-    // sin α (ρ cos θ + a) + t/2 cos α from it: the gap is largest at θ = 0.
-    const double a = 0.5 * (hole_diameter + 6.0), rise = 1.6, alpha = std::asin(rise / (2.0 * a));
+namespace {
+
+/// The tilted disc: a disc of radius a = D/2 + 3 mm turned about the line y-parallel through its
+/// edge at x = −a, mid-height top + t/2, by α: its far edge rises by 1.6 mm = 2a·sin α.
+constexpr double tilted_radius = 0.5 * (hole_diameter + 6.0), tilted_rise = 1.6;
+Mesh tilted_disc() {
+    const double a = tilted_radius, alpha = std::asin(tilted_rise / (2.0 * a));
     const Eigen::Vector3d hinge(-a, 0.0, top + 0.5 * patch_thickness);
     const Eigen::Isometry3d tilt =
         Eigen::Translation3d(hinge) * Eigen::AngleAxisd(-alpha, Eigen::Vector3d::UnitY()) * Eigen::Translation3d(-hinge);
-    const Mesh disc = transformed(flat_disc(2.0 * a, top + 0.5 * patch_thickness), tilt);
+    return transformed(flat_disc(2.0 * a, top + 0.5 * patch_thickness), tilt);
+}
+
+}  // namespace
+
+TEST(Closure, ATiltedDiscTouchingOnOneSideGapsMostOppositeIt) {
+    // The disc's mid-plane passes through q = (−a, 0, top + t/2) with unit normal (−sin α, 0,
+    // cos α), so a rim point (ρ cos θ, ρ sin θ, top) lies sin α (ρ cos θ + a) + t/2 cos α from it:
+    // the gap is largest at θ = 0.
+    const double a = tilted_radius, alpha = std::asin(tilted_rise / (2.0 * a));
+    const Mesh disc = tilted_disc();
     const ClosureResult r = check(disc);
     EXPECT_FALSE(r.closed);
     const double rho = 0.5 * hole_diameter + ClosureOptions{}.rim_offset_mm;
@@ -440,6 +452,24 @@ TEST(ClosureScript, GivesTheSameVerdictsFromASavedState) {
         << script_output(folder / "around-lifted");
     expect("bad-voxel", on, true, 2, "--voxel-mm -1");
     expect("no-scenario", on, false, 2, "--scenario " + (folder / "missing.h5").string());
+    // The tilted disc: the script finds the leak where heartsim does, at θ = 0 on the rim (within
+    // a rim sample, 5°, its own rays and world-aligned grid against heartsim's columns), at a
+    // height within a voxel of heartsim's.
+    EXPECT_EQ(run_script(folder / "tilted", tilted_disc(), true), 1) << script_output(folder / "tilted");
+    {
+        const std::string output = script_output(folder / "tilted");
+        std::smatch m;
+        ASSERT_TRUE(std::regex_search(output, m, std::regex(R"(leak passes the rim at \(([-0-9.]+), ([-0-9.]+), ([-0-9.]+)\) mm)"))) << output;
+        const Eigen::Vector3d script(std::stod(m[1]), std::stod(m[2]), std::stod(m[3]));
+        const ClosureResult r = check(tilted_disc());
+        ASSERT_TRUE(r.leak_mm.has_value());
+        const double rho = 0.5 * hole_diameter + ClosureOptions{}.rim_offset_mm;
+        std::printf("  the tilted disc's leak: heartsim (%.2f, %.2f, %.2f), the script (%.2f, %.2f, %.2f) mm\n", r.leak_mm->x(),
+                    r.leak_mm->y(), r.leak_mm->z(), script.x(), script.y(), script.z());
+        EXPECT_NEAR(std::hypot(script.x(), script.y()), rho, 0.01);
+        EXPECT_LE(std::abs(std::atan2(script.y(), script.x())), 2.0 * pi / ClosureOptions{}.rim_samples);
+        EXPECT_NEAR(script.z(), r.leak_mm->z(), ClosureOptions{}.voxel_mm);
+    }
     // The fill reaches what heartsim's reaches: the hole from mid-wall up to the patch's voxels.
     const double h = ClosureOptions{}.voxel_mm, below = hole_area() * top;
     for (const std::string name : {"on", "turned"}) {
