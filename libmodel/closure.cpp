@@ -447,15 +447,21 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         }
     result.closed = leak_path.empty();
     if (!result.closed) {
-        // The leak's way: the reached voxels the fill reaches back from the top (those on a path
-        // from the opening out). Where it passes the rim: in each column of voxels at the rim's
-        // radius, the free voxels just above the tissue, up to the patch (none where the patch lies
-        // on the tissue; up to the top where no patch covers it), that are on the way; the angle
-        // round the axis where most are (the way is widest there), at their mean height.
+        // The leak's way out past the rim: the reached voxels outside the rim's circle (less half a
+        // voxel) that a fill back from the top reaches without coming inside it, so a pocket under
+        // the patch sealed farther out is not on it. Where it passes the rim: in each column of
+        // voxels at the rim's radius that starts in the tissue, the free voxels just above the
+        // tissue, up to the patch (none where the patch lies on the tissue; up to the top where no
+        // patch covers it), that are on the way.
+        const double inside = rim_radius - 0.5 * grid.h;
+        auto outside_rim = [&](std::size_t at) {
+            const long j = long((at % grid.layer) / grid.side), i = long(at % grid.side);
+            return std::hypot(grid.across.centre(i), grid.across.centre(j)) >= inside;
+        };
         for (std::size_t head = 0; head < leak_path.size(); ++head) {
             const std::size_t at = leak_path[head];
             for (const std::size_t next : {at - 1, at + 1, at - grid.side, at + grid.side, at - grid.layer, at + grid.layer}) {
-                if (grid.flags[next] != (Grid::in_region | Grid::visited)) continue;  // not reached, or already on the way back
+                if (grid.flags[next] != (Grid::in_region | Grid::visited) || !outside_rim(next)) continue;  // not reached, on the way, or inside
                 grid.flags[next] |= Grid::on_path;
                 leak_path.push_back(std::uint32_t(next));
             }
@@ -473,32 +479,37 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                     const std::size_t bin = std::size_t(
                         std::clamp(long(std::floor((std::atan2(y, x) + std::numbers::pi) / (2.0 * std::numbers::pi) * bins)), 0L, long(bins) - 1));
                     ++columns[bin];
-                    long k = 1;
                     auto flags = [&](long layer) { return grid.flags[grid.index(i, j, layer)]; };
+                    long k = 1;
+                    if (!(flags(k) & Grid::blocked) || (flags(k) & Grid::patch)) continue;  // not on the wall
                     while (k + 1 < grid.along.n && (flags(k) & Grid::blocked) && !(flags(k) & Grid::patch)) ++k;  // the tissue
                     for (; k + 1 < grid.along.n && (flags(k) & Grid::in_region) && !(flags(k) & Grid::blocked); ++k)
                         if (flags(k) & Grid::on_path) ++count[bin], height[bin] += grid.along.centre(k);
                 }
-            // The way's height per arc (its voxels over the arc's columns); the widest arc, and the
-            // arcs either side of it within a voxel of it: the leak passes the rim in their middle.
+            // The way's height per arc (its voxels over the arc's columns). The widest arc, and
+            // the arcs next to it the way passes as wide (within a voxel, and at least half as
+            // wide): the leak passes the rim in their middle. Where that is the whole rim (the
+            // patch lifted evenly all round), at the widest arc.
             std::vector<double> wide(std::size_t(bins), 0.0);
             for (std::size_t b = 0; b < wide.size(); ++b)
                 if (columns[b] > 0) wide[b] = grid.h * double(count[b]) / double(columns[b]);
             const long widest = long(std::max_element(wide.begin(), wide.end()) - wide.begin());
             if (count[std::size_t(widest)] > 0) {
-                auto near_widest = [&](long b) { return wide[std::size_t((b % bins + bins) % bins)] >= wide[std::size_t(widest)] - grid.h; };
+                const double as_wide = std::max(wide[std::size_t(widest)] - grid.h, 0.5 * wide[std::size_t(widest)]);
+                auto arc = [&](long b) { return std::size_t((b % bins + bins) % bins); };
+                auto joins = [&](long b) { return count[arc(b)] > 0 && wide[arc(b)] >= as_wide; };
                 long first = widest, last = widest;
-                while (last - first + 1 < bins && near_widest(first - 1)) --first;
-                while (last - first + 1 < bins && near_widest(last + 1)) ++last;
-                double mean_height = 0.0;
+                while (last - first + 1 < bins && joins(first - 1)) --first;
+                while (last - first + 1 < bins && joins(last + 1)) ++last;
+                if (last - first + 1 >= bins) first = last = widest;
+                double sum = 0.0;
                 std::size_t voxels = 0;
-                for (long b = first; b <= last; ++b) {
-                    mean_height += height[std::size_t((b % bins + bins) % bins)];
-                    voxels += count[std::size_t((b % bins + bins) % bins)];
-                }
+                for (long b = first; b <= last; ++b) sum += height[arc(b)], voxels += count[arc(b)];
                 const double turn = -std::numbers::pi + (0.5 * double(first + last) + 0.5) * 2.0 * std::numbers::pi / bins;
-                leak = Vector3(rim_radius * std::cos(turn), rim_radius * std::sin(turn), mean_height / double(std::max<std::size_t>(voxels, 1)));
+                leak = Vector3(rim_radius * std::cos(turn), rim_radius * std::sin(turn), sum / double(voxels));
+                result.leak_way = ClosureResult::LeakWay::rim;
             } else {  // the way out never passes the rim (through the patch): where it reaches the top
+                result.leak_way = ClosureResult::LeakWay::through_patch;
                 const std::uint32_t top_voxel = leak_path.front();
                 const long k = long(top_voxel / grid.layer), j = long((top_voxel % grid.layer) / grid.side), i = long(top_voxel % grid.side);
                 leak = Vector3(grid.across.centre(i), grid.across.centre(j), grid.along.centre(k));
@@ -516,7 +527,7 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             if (back < least[0]) least[0] = back, between[0] = s;
             if (ahead < least[1]) least[1] = ahead, between[1] = s;
         }
-        if (!options.stitches.empty()) result.leak_between = between;
+        if (result.leak_way == ClosureResult::LeakWay::rim && !options.stitches.empty()) result.leak_between = between;
     }
 
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
@@ -525,6 +536,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
 
 std::string leak_place(const ClosureResult& result) {
     if (result.closed || !result.leak_mm) return {};
+    if (result.leak_way == ClosureResult::LeakWay::no_patch) return "no patch covers the opening";
+    if (result.leak_way == ClosureResult::LeakWay::through_patch) return "through the patch";
     if (!result.leak_between) return "where no stitch holds the patch";
     const auto [clockwise, counter] = *result.leak_between;
     if (clockwise == counter) return "beside stitch " + std::to_string(clockwise + 1) + ", the only one";

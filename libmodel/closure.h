@@ -68,13 +68,17 @@ struct ClosureResult {
     std::size_t voxels = 0;           ///< voxels in the region
     std::size_t reached = 0;          ///< free voxels the fill reached from the opening
     int rim_points = 0;               ///< rim samples where the tissue surface was found
-    /// Where the leak passes the rim, when not closed: the first voxel centre of the fill's
-    /// shortest path out of the opening at the rim's radius or beyond (the top voxel it reaches
-    /// where it never gets so far), world mm. Empty when closed.
+    /// Where it leaks, when not closed (docs/closure.md step 6), world mm: where the way out under
+    /// the patch passes the rim widest (LeakWay::rim), at the rim's radius and the way's mean
+    /// height there; with no patch, the defect's centre (no_patch); where the way never passes
+    /// the rim (a hole through the patch: through_patch), the first voxel of the top layer it
+    /// reaches. Empty when closed.
     std::optional<Eigen::Vector3d> leak_mm;
-    /// The stitches (indices into ClosureOptions::stitches) either side of leak_mm round the axis:
-    /// the nearest clockwise and counter-clockwise seen from the patch's side (the same one when
-    /// there is one stitch). Empty when closed or no stitches were given.
+    enum class LeakWay { no_patch, rim, through_patch };
+    LeakWay leak_way = LeakWay::no_patch;  ///< which of those leak_mm is
+    /// When the leak passes the rim and stitches were given: the stitches (indices into
+    /// ClosureOptions::stitches) either side of leak_mm round the axis, the nearest clockwise and
+    /// counter-clockwise seen from the patch's side (the same one when there is one stitch).
     std::optional<std::array<std::size_t, 2>> leak_between;
     double seconds = 0.0;             ///< wall-clock time of the check
 };
@@ -101,7 +105,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                             double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options = {});
 
 /// Where a leak passes the rim, for a trainer: "between stitches 3 and 4" (counted from 1 in the
-/// order tied), "beside stitch 1, the only one", or "where no stitch holds the patch" with none;
+/// order tied), "beside stitch 1, the only one", "where no stitch holds the patch" with none,
+/// "through the patch" where the way out does not pass the rim, "no patch covers the opening";
 /// empty when closed.
 std::string leak_place(const ClosureResult& result);
 

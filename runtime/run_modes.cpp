@@ -668,9 +668,12 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                     "%.2f mm reached %zu from the far side; wall %.1f mm thick; %d rim points (%.2f s)\n",
                     patch ? "a patch" : "no patch", patch ? patch->stitches().size() : std::size_t(0), a.leak_test_mmhg, r.voxels,
                     ClosureOptions{}.voxel_mm, r.reached, r.wall_thickness_mm, r.rim_points, r.seconds);
-        if (r.leak_mm && patch)
+        if (r.leak_mm && r.leak_way == ClosureResult::LeakWay::rim)
             std::printf("  the leak: its way out of the opening passes the rim widest at (%.1f, %.1f, %.1f) mm, %s\n", r.leak_mm->x(),
                         r.leak_mm->y(), r.leak_mm->z(), leak_place(r).c_str());
+        else if (r.leak_mm && r.leak_way == ClosureResult::LeakWay::through_patch)
+            std::printf("  the leak: its way out of the opening does not pass the rim but goes through the patch, out at (%.1f, %.1f, %.1f) mm\n",
+                        r.leak_mm->x(), r.leak_mm->y(), r.leak_mm->z());
     } catch (const InputError& e) {
         std::printf("defect closed: unknown (%s)\n", e.what());
     }

@@ -195,6 +195,14 @@ std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::ve
     tissue.reserve(mapped.size());
     for (const auto& v : mapped) tissue.push_back({v.x(), v.y(), v.z()});
     ClosureOptions options;
+    // The fill's cylinder reaches 3 mm beyond the patch's edge (as the check at the end of a run):
+    // a leak under the patch comes out there.
+    double reach = 0;
+    for (const auto& x : patch.positions) {
+        const Eigen::Vector3d d = Eigen::Vector3d(x[0], x[1], x[2]) - frame->centre;
+        reach = std::max(reach, (d - d.dot(frame->axis) * frame->axis).norm());
+    }
+    options.margin_mm = std::max(options.margin_mm, reach + 3.0 - 0.5 * frame->diameter_mm);
     if (!patch.stitch_to.empty()) {
         // The rim where the patch is sewn: the stitches' mean distance from the axis.
         double rim = 0;

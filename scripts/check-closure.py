@@ -27,8 +27,8 @@ The axis is turned to point toward the patch's side (the side its vertices' mean
 
 Prints `defect closed: yes|no` and `reached voxels: N`, and when open where the leak passes the rim
 (`leak passes the rim at (x, y, z) mm`, heartsim's ClosureResult::leak_mm by its own rays: the way's
-voxels at the rim's radius with tissue, not patch, below them); exits 0 when closed, 1 when open, 2
-on bad input.
+voxels at the rim's radius with tissue, not patch, below them; or that it goes through the patch);
+exits 0 when closed, 1 when open, 2 on bad input.
 
 Usage: scripts/check-closure.py STATE.h5 [--scenario FILE] [--voxel-mm 0.25] [--margin-mm 5]
                                          [--rim-offset-mm 0.5]
@@ -412,14 +412,25 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
 
 
 def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis, u, v, low, voxel, nx, nn, rim, top, bins=72):
-    """Where the leak passes the rim (world mm): the reached voxels a fill back from the reached top
-    layer reaches are the leak's way; of those within half a voxel of the rim's radius, the ones with
-    tissue, not patch, the first thing below them along the axis (a ray marched in half voxels) are
-    its way under the patch. Their share of the region's voxels at the rim's radius over each rim
-    arc, times the region's height, is the way's height there; the widest arc and its neighbours within a voxel of it give the
-    angle, their voxels' mean the height. No patch: the defect's centre."""
+    """Where the leak passes the rim (world mm), or None where its way never passes it: the way is
+    the reached voxels outside the rim's circle that a fill back from the reached top layer reaches
+    without coming inside it; of those within half a voxel of the rim's radius, the ones with tissue,
+    not patch, the first thing below them along the axis (a ray marched in half voxels) are its way
+    under the patch. Their share of the region's voxels at the rim's radius over each rim arc, times
+    the region's height, is the way's height there; the widest arc and its neighbours as wide
+    (within a voxel, and at least half as wide) give the angle, their voxels' mean the height; as
+    wide all round, the widest arc. No patch: the defect's centre."""
     if not has_patch:
         return centre
+    def rho(index):  # a voxel centre's distance from the axis
+        k, rest = divmod(index, nn)
+        j, i = divmod(rest, nx)
+        point = (low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel)
+        return math.hypot(dot(point, u), dot(point, v))
+
+    # Back from the top through the reached voxels outside the rim's circle (less half a voxel): a
+    # pocket under the patch sealed farther out is not on the way.
+    inside = rim - 0.5 * voxel
     on = bytearray(len(visited))
     for index in out:
         on[index] = 1
@@ -430,7 +441,7 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
         head += 1
         for d in (1, -1, nx, -nx, nn, -nn):
             other = index + d
-            if visited[other] and not on[other]:
+            if visited[other] and not on[other] and rho(other) >= inside:
                 on[other] = 1
                 way.append(other)
 
@@ -465,7 +476,7 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
         arc = arc_of(point)
         if arc is None:
             continue
-        below, under_patch = 0.5 * voxel, True
+        below, under_patch = 0.5 * voxel, False
         while s - below >= 0.0:
             other = at(sub(point, scale(axis, below)))
             if other is None:
@@ -479,16 +490,21 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
         count[arc] += 1
         height[arc] += s
     if not any(count):
-        k, rest = divmod(out[0], nn)
-        j, i = divmod(rest, nx)
-        return tuple(centre[m] + (low[m] + (i, j, k)[m] * voxel) for m in range(3))
+        return None
     wide = [count[arc] * top / band[arc] if band[arc] else 0.0 for arc in range(bins)]
     widest = max(range(bins), key=lambda arc: wide[arc])
+    as_wide = max(wide[widest] - voxel, 0.5 * wide[widest])
+
+    def joins(arc):
+        return count[arc % bins] > 0 and wide[arc % bins] >= as_wide
+
     first = last = widest
-    while last - first + 1 < bins and wide[(first - 1) % bins] >= wide[widest] - voxel:
+    while last - first + 1 < bins and joins(first - 1):
         first -= 1
-    while last - first + 1 < bins and wide[(last + 1) % bins] >= wide[widest] - voxel:
+    while last - first + 1 < bins and joins(last + 1):
         last += 1
+    if last - first + 1 >= bins:  # as wide all round: at the widest arc
+        first = last = widest
     arcs = [arc % bins for arc in range(first, last + 1)]
     turn = -math.pi + (0.5 * (first + last) + 0.5) * 2.0 * math.pi / bins
     s = sum(height[arc] for arc in arcs) / max(1, sum(count[arc] for arc in arcs))
@@ -591,8 +607,8 @@ def main():
     print(f"region: {voxels} voxels of {arguments.voxel_mm:g} mm, from mid-wall to {top:.4g} mm")
     print(f"reached voxels: {reached}")
     print(f"defect closed: {'yes' if closed else 'no'}")
-    if leak is not None:
-        print("leak passes the rim at (%.2f, %.2f, %.2f) mm" % leak)
+    if not closed:
+        print("leak passes the rim at (%.2f, %.2f, %.2f) mm" % leak if leak is not None else "leak does not pass the rim: through the patch")
     return 0 if closed else 1
 
 

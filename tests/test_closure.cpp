@@ -170,6 +170,8 @@ TEST(Closure, WithoutPatchTheBloodFlowsThroughAndTheRimGapIsTheDiameter) {
     EXPECT_NEAR(double(r.voxels) * h * h * h, region, 0.01 * region);
     ASSERT_TRUE(r.leak_mm.has_value());
     EXPECT_EQ(*r.leak_mm, defect.centre) << "no patch: the opening itself leaks";
+    EXPECT_EQ(r.leak_way, ClosureResult::LeakWay::no_patch);
+    EXPECT_EQ(leak_place(r), "no patch covers the opening");
 }
 
 TEST(Closure, ADiscLyingOnThePlateClosesTheHole) {
@@ -206,13 +208,14 @@ TEST(Closure, ADiscSmallerThanTheHoleDoesNotCloseIt) {
 namespace {
 
 /// The tilted disc: a disc of radius a = D/2 + 3 mm turned about the line y-parallel through its
-/// edge at x = −a, mid-height top + t/2, by α: its far edge rises by 1.6 mm = 2a·sin α.
+/// edge at x = −a, mid-height top + t/2, by α: its far edge rises by `rise` = 2a·sin α (1.6 mm).
+/// Then turned by `turn` about the z axis (the defect's): its far edge at angle `turn`.
 constexpr double tilted_radius = 0.5 * (hole_diameter + 6.0), tilted_rise = 1.6;
-Mesh tilted_disc() {
-    const double a = tilted_radius, alpha = std::asin(tilted_rise / (2.0 * a));
+Mesh tilted_disc(double rise = tilted_rise, double turn = 0.0) {
+    const double a = tilted_radius, alpha = std::asin(rise / (2.0 * a));
     const Eigen::Vector3d hinge(-a, 0.0, top + 0.5 * patch_thickness);
-    const Eigen::Isometry3d tilt =
-        Eigen::Translation3d(hinge) * Eigen::AngleAxisd(-alpha, Eigen::Vector3d::UnitY()) * Eigen::Translation3d(-hinge);
+    const Eigen::Isometry3d tilt = Eigen::Isometry3d(Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitZ())) * Eigen::Translation3d(hinge) *
+                                   Eigen::AngleAxisd(-alpha, Eigen::Vector3d::UnitY()) * Eigen::Translation3d(-hinge);
     return transformed(flat_disc(2.0 * a, top + 0.5 * patch_thickness), tilt);
 }
 
@@ -253,6 +256,19 @@ TEST(Closure, ATiltedDiscTouchingOnOneSideGapsMostOppositeIt) {
     EXPECT_EQ(leak_place(check(disc, sewn)), "beside stitch 1, the only one");
     sewn.stitches.front().x() = std::nan("");
     EXPECT_THROW(check(disc, sewn), OptionError);
+    // Tilted less, 0.7 mm at its far edge: the way under it is a voxel or two high where widest, and
+    // still found there. Tilted toward every quarter (the arcs' numbering wraps at one of them),
+    // found at each.
+    for (const double rise : {tilted_rise, 0.7})
+        for (const double quarter : {0.0, 0.5, 1.0, 1.5}) {
+            const double turn = quarter * pi;
+            const ClosureResult q = check(tilted_disc(rise, turn));
+            ASSERT_FALSE(q.closed) << "rise " << rise;
+            ASSERT_TRUE(q.leak_mm.has_value());
+            const double off = std::remainder(std::atan2(q.leak_mm->y(), q.leak_mm->x()) - turn, 2.0 * pi);
+            EXPECT_LE(std::abs(off), 2.0 * pi / ClosureOptions{}.rim_samples) << "rise " << rise << " mm, turned " << quarter << "π";
+            EXPECT_EQ(q.leak_way, ClosureResult::LeakWay::rim);
+        }
 }
 
 TEST(Closure, ADomeBulgingIntoThePatchSideStillClosesTheHole) {

@@ -672,29 +672,30 @@ TEST(RenderRepair, TheLaidPatchAndItsStitchesAreDrawnOverTheDefectInTheSectionVi
     }
     EXPECT_EQ(after, 0u) << "clear_patch draws neither patch nor stitches";
 
-    // A leak's marker, 3 mm on the side the section cuts away from the defect's centre: an amber
-    // ball of 1.2 mm drawn whole over everything, within its screen box and filling most of its disc.
+    // A leak's marker, 3 mm on the side the section cuts away from the defect's centre: a ball of
+    // 1.2 mm in leak_rgb drawn whole over everything, within its screen box and filling most of its
+    // disc; no other pixel has its hue.
     DrawnPatch leaking = drawn;
     const Eigen::Vector3d leak = scenario.source.defect_centre + 3.0 * plane.normal.cast<double>();
     leaking.leak = std::array<float, 3>{float(leak.x()), float(leak.y()), float(leak.z())};
     renderer.set_patch(leaking);
     renderer.render(*backend, {});
     const Image marked = renderer.read_pixels();
-    auto amber = [](const std::uint8_t* c) { return c[0] > 100 && c[0] > 1.3 * c[1] && c[1] > 2 * c[2]; };
+    auto cyan = [](const std::uint8_t* c) { return c[1] > 60 && c[2] > 60 && c[0] < 0.5 * std::min(c[1], c[2]); };
     const double ball = 1.2 / camera.mm_per_pixel(size);  // its radius in pixels
     const Eigen::AlignedBox2d marker = screen_box(camera, size, {leak}, ball + 2.0);
-    std::size_t amber_in = 0, amber_out = 0, amber_before = 0;
+    std::size_t cyan_in = 0, cyan_out = 0, cyan_before = 0;
     for (int y = 0; y < size; ++y)
         for (int x = 0; x < size; ++x) {
             const std::size_t p = 3 * (std::size_t(y) * size + std::size_t(x));
             const bool in = marker.contains(Eigen::Vector2d(x + 0.5, y + 0.5));
-            if (amber(&marked.pixels[p])) ++(in ? amber_in : amber_out);
-            amber_before += amber(&with.pixels[p]);
+            if (cyan(&marked.pixels[p])) ++(in ? cyan_in : cyan_out);
+            cyan_before += cyan(&with.pixels[p]);
         }
-    std::printf("  a leak's marker: %zu amber pixels in its box (its disc %.0f), %zu outside; %zu before it was set\n", amber_in,
-                std::numbers::pi * ball * ball, amber_out, amber_before);
+    std::printf("  a leak's marker: %zu cyan pixels in its box (its disc %.0f), %zu outside; %zu before it was set\n", cyan_in,
+                std::numbers::pi * ball * ball, cyan_out, cyan_before);
     if (HasFailure() || std::getenv("HEARTSIM_KEEP_PICTURES")) write_png("repair_leak.png", marked);
-    EXPECT_EQ(amber_before, 0u);
-    EXPECT_GT(double(amber_in), 0.5 * std::numbers::pi * ball * ball) << "the marker shows whole, though on the side cut away";
-    EXPECT_EQ(amber_out, 0u);
+    EXPECT_EQ(cyan_before, 0u);
+    EXPECT_GT(double(cyan_in), 0.5 * std::numbers::pi * ball * ball) << "the marker shows whole, though on the side cut away";
+    EXPECT_EQ(cyan_out, 0u);
 }

@@ -342,8 +342,7 @@ struct Renderer::State {
     }
 
     /// The patch's sheet and the stitches (suture and knot as ellipsoids), cut by the section
-    /// plane as the tissue is, and a leak's marker; the programs' camera and light uniforms set
-    /// already.
+    /// plane as the tissue is; the programs' camera and light uniforms set already.
     void draw_patch() {
         const DrawnPatch& drawn = *patch;
         const Eigen::Vector3f colour = Eigen::Vector3f(float(drawn.rgb[0]), float(drawn.rgb[1]), float(drawn.rgb[2])) / 255.0f;
@@ -393,14 +392,6 @@ struct Renderer::State {
                 ellipsoid(0.5f * (a + b), along, {suture_radius, suture_radius, std::max(0.5f * length, suture_radius)});
             }
             ellipsoid(a, Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(knot_radius));
-        }
-        if (drawn.leak) {  // whole, over everything: the leak lies under the patch, perhaps on the section's near side
-            constexpr float leak_radius = 1.2f;
-            glProgramUniform3f(q, glGetUniformLocation(q, "base_color"), 0.98f, 0.62f, 0.18f);
-            glProgramUniform1i(q, glGetUniformLocation(q, "section_on"), 0);
-            glDisable(GL_DEPTH_TEST);
-            ellipsoid(to_vector(*drawn.leak), Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(leak_radius));
-            glEnable(GL_DEPTH_TEST);
         }
         glDisable(GL_CULL_FACE);
         glProgramUniform1i(q, glGetUniformLocation(q, "section_on"), 0);  // the instruments are drawn whole
@@ -746,6 +737,31 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
         }
         glDisable(GL_CULL_FACE);
         glDepthMask(GL_TRUE);
+    }
+    if (s.patch && s.patch->leak) {
+        // Where the closure check found the leak pass the rim: a ball drawn last, whole (the
+        // section does not cut it) and over everything, as it lies under the patch.
+        constexpr float radius = 1.2f;
+        const GLuint p = s.instrument_program;
+        glUseProgram(p);
+        glBindVertexArray(s.sphere_vao);
+        glProgramUniform1i(p, glGetUniformLocation(p, "section_on"), 0);
+        glProgramUniform1f(p, glGetUniformLocation(p, "opacity"), 1.0f);
+        glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.35f);
+        glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), float(leak_rgb[0]) / 255.0f, float(leak_rgb[1]) / 255.0f,
+                           float(leak_rgb[2]) / 255.0f);
+        Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
+        model.topLeftCorner<3, 3>() *= radius;
+        model.topRightCorner<3, 1>() = to_vector(*s.patch->leak);
+        const Eigen::Matrix3f normal_matrix = Eigen::Matrix3f::Identity() / radius;
+        glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
+        glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
+        glDisable(GL_DEPTH_TEST);
+        glEnable(GL_CULL_FACE);  // its front faces only: with no depth test its back faces would show through
+        glCullFace(GL_BACK);
+        glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+        glDisable(GL_CULL_FACE);
+        glEnable(GL_DEPTH_TEST);
     }
     glQueryCounter(timing.queries[2], GL_TIMESTAMP);
     glBindVertexArray(0);

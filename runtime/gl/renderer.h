@@ -69,6 +69,10 @@ std::array<int, 3> patch_rgb(const std::string& material);
 /// The stitches' colour, 8-bit RGB: the blue of polypropylene suture.
 inline constexpr std::array<int, 3> suture_rgb = {40, 52, 150};
 
+/// The colour of a leak's marker (DrawnPatch::leak), 8-bit RGB: a cyan none of the tissue, the
+/// patches, the suture or the instruments (amber while touching) has.
+inline constexpr std::array<int, 3> leak_rgb = {40, 220, 240};
+
 /// A repair as the renderer draws it (world LPS, mm).
 struct DrawnPatch {
     std::vector<std::array<float, 3>> positions;            ///< P×3: the patch's mid-surface vertices
@@ -78,8 +82,9 @@ struct DrawnPatch {
     std::array<int, 3> rgb = patch_rgb("pericardium");      ///< its colour, 8-bit
     std::vector<std::array<float, 3>> stitch_from;          ///< S×3: each stitch's patch vertex (its knot)
     std::vector<std::array<float, 3>> stitch_to;            ///< S×3: each stitch's tissue point
-    /// Where the closure check found a leak pass the rim (ClosureResult::leak_mm): an amber ball
-    /// drawn over everything, so it shows through the patch and the wall. None: no leak known.
+    /// Where the closure check found a leak pass the rim (ClosureResult::leak_mm): a ball of
+    /// leak_rgb drawn last and over everything, so it shows through the patch and the wall, and
+    /// whole in the section view. None: no leak known.
     std::optional<std::array<float, 3>> leak;
     bool operator==(const DrawnPatch&) const = default;
 };
