@@ -271,6 +271,22 @@ TEST(Closure, ATiltedDiscTouchingOnOneSideGapsMostOppositeIt) {
         }
 }
 
+// A disc lying on the plate with a hole of 3 mm through its middle: the way out goes through the
+// patch, never past the rim; the check says so, and where the way reaches the top: over the hole.
+TEST(Closure, APatchWithAHoleLeaksThroughItNotPastTheRim) {
+    const double hole_in_patch = 3.0;
+    Mesh ring = annulus_plate(0.5 * hole_in_patch, 0.5 * (hole_diameter + 6.0), 0.01, 30);
+    for (auto& p : ring.positions) p[2] += float(top + 0.5 * patch_thickness);
+    const ClosureResult r = check(ring);
+    EXPECT_FALSE(r.closed);
+    ASSERT_TRUE(r.leak_mm.has_value());
+    EXPECT_EQ(r.leak_way, ClosureResult::LeakWay::through_patch);
+    EXPECT_FALSE(r.leak_between.has_value());
+    EXPECT_EQ(leak_place(r), "through the patch");
+    EXPECT_LT(std::hypot(r.leak_mm->x(), r.leak_mm->y()), 0.5 * hole_in_patch) << "over the hole";
+    EXPECT_GT(r.leak_mm->z(), top + patch_thickness);
+}
+
 TEST(Closure, ADomeBulgingIntoThePatchSideStillClosesTheHole) {
     // A spherical cap whose rim (radius a) lies on the plate, its apex `height` above: the blood
     // under the dome is enclosed. The rim's gap is the distance to the sphere (radius S, centre

@@ -23,6 +23,7 @@
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <numbers>
 #include <regex>
 
 using namespace heartsim;
@@ -519,6 +520,19 @@ TEST(Repair, AnOpenRepairSaysWhereItLeaksAndTheStateKeepsIt) {
                 "between stitches %d and %d\n",
                 patch.largest_rim_gap_mm, rho, rim, d.dot(axis), first, second);
     EXPECT_NEAR(rho, rim, 1e-6 * std::max(1.0, rim));
+    // The stitches named are those either side of it round the axis, from the state's anchors.
+    const Eigen::Vector3d x_axis = (d - d.dot(axis) * axis).normalized(), y_axis = axis.cross(x_axis);
+    double back = 1e9, ahead = 1e9;
+    int clockwise = -1, counter = -1;
+    for (std::size_t s = 0; s < patch.stitch_anchor.size(); ++s) {
+        const Eigen::Vector3d a = vec(patch.stitch_anchor[s]) - centre;
+        const double turn = std::atan2(a.dot(y_axis), a.dot(x_axis));  // from the leak, counter-clockwise seen from the patch's side
+        const double b = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, f = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
+        if (b < back) back = b, clockwise = int(s) + 1;
+        if (f < ahead) ahead = f, counter = int(s) + 1;
+    }
+    EXPECT_EQ(std::min(clockwise, counter), first);
+    EXPECT_EQ(std::max(clockwise, counter), second);
     // A repair the check calls closed keeps no leak.
     const auto sewn = heartsim_command("run " + quoted(b.scenario) + " --headless --trajectory " + quoted(b.closure) + " --seconds " +
                                        [&] {
