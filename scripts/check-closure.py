@@ -237,6 +237,23 @@ def rim_top(positions, triangles, centre, axis, u, v, rim_radius, start, reach, 
     return best
 
 
+def fill(queue, marks, allowed, steps):
+    """Breadth first from the voxels in `queue` to every neighbour (index + a step) that `allowed`
+    admits: marks each in `marks`, appends it to `queue`, and returns `queue`."""
+    for index in queue:
+        marks[index] = 1
+    head = 0
+    while head < len(queue):
+        index = queue[head]
+        head += 1
+        for step in steps:
+            other = index + step
+            if not marks[other] and allowed(other):
+                marks[other] = 1
+                queue.append(other)
+    return queue
+
+
 def check(positions, triangles, patch_positions, patch_triangles, thickness, centre, axis, diameter,
           voxel, margin, rim_offset):
     radius = 0.5 * diameter
@@ -390,17 +407,7 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
         raise BadInput("no free voxel on the patch's side of the defect: the region's top layer "
                        "(%.4g mm above the wall's middle) is all tissue or patch" % top)
     visited = bytearray(nn * nz)
-    for index in queue:
-        visited[index] = 1
-    head = 0
-    while head < len(queue):
-        index = queue[head]
-        head += 1
-        for d in (1, -1, nx, -nx, nn, -nn):
-            other = index + d
-            if region[other] and not blocked[other] and not visited[other]:
-                visited[other] = 1
-                queue.append(other)
+    fill(queue, visited, lambda other: region[other] and not blocked[other], (1, -1, nx, -nx, nn, -nn))
     reached = len(queue)
     out = [index for index in range(nn * nz) if visited[index] and tops[index]]
     closed = not out
@@ -431,19 +438,7 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
     # Back from the top through the reached voxels outside the rim's circle (less half a voxel): a
     # pocket under the patch sealed farther out is not on the way.
     inside = rim - 0.5 * voxel
-    on = bytearray(len(visited))
-    for index in out:
-        on[index] = 1
-    way = list(out)
-    head = 0
-    while head < len(way):
-        index = way[head]
-        head += 1
-        for d in (1, -1, nx, -nx, nn, -nn):
-            other = index + d
-            if visited[other] and not on[other] and rho(other) >= inside:
-                on[other] = 1
-                way.append(other)
+    way = fill(list(out), bytearray(len(visited)), lambda other: visited[other] and rho(other) >= inside, (1, -1, nx, -nx, nn, -nn))
 
     def at(point):  # the voxel holding a point (relative to the centre), or None outside the grid
         i, j, k = (math.floor((point[m] - low[m]) / voxel + 0.5) for m in range(3))
