@@ -193,6 +193,22 @@ struct Grid {
     }
     double voxels() const { return double(across.n) * double(across.n) * double(along.n); }
     std::size_t index(long i, long j, long k) const { return std::size_t(i) + side * std::size_t(j) + layer * std::size_t(k); }
+    /// The centre of voxel `at` (an index()), in the defect's frame.
+    Vector3 centre(std::size_t at) const {
+        return {across.centre(long(at % side)), across.centre(long((at % layer) / side)), along.centre(long(at / layer))};
+    }
+    /// Breadth first from the voxels in `queue` to every face neighbour whose flags `admits`:
+    /// marks each with `mark` and appends it to `queue`.
+    template <class Admits> void flood(std::vector<std::uint32_t>& queue, std::uint8_t mark, Admits admits) {
+        for (std::size_t head = 0; head < queue.size(); ++head) {
+            const std::size_t at = queue[head];
+            for (const std::size_t next : {at - 1, at + 1, at - side, at + side, at - layer, at + layer}) {
+                if (!admits(next)) continue;
+                flags[next] |= mark;
+                queue.push_back(std::uint32_t(next));
+            }
+        }
+    }
 };
 
 /// Step 4: blocks the region's voxels whose centres the closed mesh winds around (winding number
@@ -430,14 +446,7 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
              << top << " mm above the wall's middle and within " << cylinder << " mm of the axis, is all tissue or patch";
         throw InputError(what.str());
     }
-    for (std::size_t head = 0; head < queue.size(); ++head) {
-        const std::size_t at = queue[head];
-        for (const std::size_t next : {at - 1, at + 1, at - grid.side, at + grid.side, at - grid.layer, at + grid.layer}) {
-            if (grid.flags[next] != Grid::in_region) continue;  // outside, blocked or visited
-            grid.flags[next] |= Grid::visited;
-            queue.push_back(std::uint32_t(next));
-        }
-    }
+    grid.flood(queue, Grid::visited, [&](std::size_t at) { return grid.flags[at] == Grid::in_region; });  // not outside, blocked or visited
     result.reached = queue.size();
     std::vector<std::uint32_t> leak_path;
     for (const std::uint32_t at : queue)
@@ -454,18 +463,11 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         // tissue, up to the patch (none where the patch lies on the tissue; up to the top where no
         // patch covers it), that are on the way.
         const double inside = rim_radius - 0.5 * grid.h;
-        auto outside_rim = [&](std::size_t at) {
-            const long j = long((at % grid.layer) / grid.side), i = long(at % grid.side);
-            return std::hypot(grid.across.centre(i), grid.across.centre(j)) >= inside;
-        };
-        for (std::size_t head = 0; head < leak_path.size(); ++head) {
-            const std::size_t at = leak_path[head];
-            for (const std::size_t next : {at - 1, at + 1, at - grid.side, at + grid.side, at - grid.layer, at + grid.layer}) {
-                if (grid.flags[next] != (Grid::in_region | Grid::visited) || !outside_rim(next)) continue;  // not reached, on the way, or inside
-                grid.flags[next] |= Grid::on_path;
-                leak_path.push_back(std::uint32_t(next));
-            }
-        }
+        grid.flood(leak_path, Grid::on_path, [&](std::size_t at) {  // reached, not yet on the way, and outside
+            if (grid.flags[at] != (Grid::in_region | Grid::visited)) return false;
+            const Vector3 c = grid.centre(at);
+            return std::hypot(c.x(), c.y()) >= inside;
+        });
         Vector3 leak = Vector3::Zero();  // no patch: the opening itself
         if (has_patch) {
             // Per rim sample's arc: the columns there, and the voxels and their heights on the way.
@@ -510,24 +512,24 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                 result.leak_way = ClosureResult::LeakWay::rim;
             } else {  // the way out never passes the rim (through the patch): where it reaches the top
                 result.leak_way = ClosureResult::LeakWay::through_patch;
-                const std::uint32_t top_voxel = leak_path.front();
-                const long k = long(top_voxel / grid.layer), j = long((top_voxel % grid.layer) / grid.side), i = long(top_voxel % grid.side);
-                leak = Vector3(grid.across.centre(i), grid.across.centre(j), grid.along.centre(k));
+                leak = grid.centre(leak_path.front());
             }
         }
         result.leak_mm = defect.centre + to_frame.transpose() * leak;
-        // The stitches either side of it: the least turn from it to each, one way and the other.
-        const double at = std::atan2(leak.y(), leak.x());
-        std::array<double, 2> least{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
-        std::array<std::size_t, 2> between{};
-        for (std::size_t s = 0; s < options.stitches.size(); ++s) {
-            const Vector3 p = to_frame * (options.stitches[s] - defect.centre);
-            const double turn = std::remainder(std::atan2(p.y(), p.x()) - at, 2.0 * std::numbers::pi);  // (−π, π]
-            const double back = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, ahead = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
-            if (back < least[0]) least[0] = back, between[0] = s;
-            if (ahead < least[1]) least[1] = ahead, between[1] = s;
+        if (result.leak_way == ClosureResult::LeakWay::rim && !options.stitches.empty()) {
+            // The stitches either side of it: the least turn from it to each, one way and the other.
+            const double at = std::atan2(leak.y(), leak.x());
+            std::array<double, 2> least{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+            std::array<std::size_t, 2> between{};
+            for (std::size_t s = 0; s < options.stitches.size(); ++s) {
+                const Vector3 p = to_frame * (options.stitches[s] - defect.centre);
+                const double turn = std::remainder(std::atan2(p.y(), p.x()) - at, 2.0 * std::numbers::pi);  // (−π, π]
+                const double back = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, ahead = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
+                if (back < least[0]) least[0] = back, between[0] = s;
+                if (ahead < least[1]) least[1] = ahead, between[1] = s;
+            }
+            result.leak_between = between;
         }
-        if (result.leak_way == ClosureResult::LeakWay::rim && !options.stitches.empty()) result.leak_between = between;
     }
 
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
