@@ -536,6 +536,23 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
     return result;
 }
 
+double distance_from_axis(const DefectFrame& defect, const Eigen::Vector3d& point) {
+    const Eigen::Vector3d d = point - defect.centre;
+    return (d - d.dot(defect.axis) * defect.axis).norm();
+}
+
+ClosureOptions repair_closure_options(const DefectFrame& defect, double patch_reach_mm, const std::vector<Eigen::Vector3d>& stitches) {
+    ClosureOptions options;
+    if (patch_reach_mm > 0) options.margin_mm = std::max(options.margin_mm, patch_reach_mm + 3.0 - 0.5 * defect.diameter_mm);
+    if (!stitches.empty()) {
+        double rim = 0;
+        for (const Eigen::Vector3d& stitch : stitches) rim += distance_from_axis(defect, stitch);
+        options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(stitches.size()) - 0.5 * defect.diameter_mm);
+        options.stitches = stitches;
+    }
+    return options;
+}
+
 std::string leak_place(const ClosureResult& result) {
     if (result.closed || !result.leak_mm) return {};
     if (result.leak_way == ClosureResult::LeakWay::no_patch) return "no patch covers the opening";

@@ -104,6 +104,16 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                             const std::vector<std::array<std::int32_t, 3>>& patch_triangles,
                             double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options = {});
 
+/// A point's distance from the defect's axis, mm.
+double distance_from_axis(const DefectFrame& defect, const Eigen::Vector3d& point);
+
+/// The check's options for a repair of `defect`: the cylinder reaching 3 mm beyond
+/// `patch_reach_mm` from the axis (the patch's edge; a leak under the patch comes out there; 0: no
+/// patch, the default margin), the rim where the stitches bite (their tissue points' mean
+/// distance from the axis, never nearer the opening than the default offset), and the stitches,
+/// to name those a leak passes between.
+ClosureOptions repair_closure_options(const DefectFrame& defect, double patch_reach_mm, const std::vector<Eigen::Vector3d>& stitches);
+
 /// Where a leak passes the rim, for a trainer: "between stitches 3 and 4" (counted from 1 in the
 /// order tied), "beside stitch 1, the only one", "where no stitch holds the patch" with none,
 /// "through the patch" where the way out does not pass the rim, "no patch covers the opening";

@@ -646,21 +646,10 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
         thickness = tested.spec().thickness_mm;
     }
     try {
-        ClosureOptions options;
-        // The fill's cylinder reaches 3 mm beyond the patch's edge: a leak under the patch comes out there.
-        if (patch)
-            options.margin_mm = std::max(options.margin_mm, std::max(patch->spec().radius_x_mm, patch->spec().radius_y_mm) + 3.0 -
-                                                                0.5 * frame->diameter_mm);
-        if (patch && !patch->stitches().empty()) {
-            // The rim where the patch is sewn: the stitches' mean distance from the axis.
-            double rim = 0;
-            for (const Eigen::Vector3d& anchor : p.repair->stitch_anchors()) {
-                const Eigen::Vector3d d = anchor - frame->centre;
-                rim += (d - d.dot(frame->axis) * frame->axis).norm();
-            }
-            options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch->stitches().size()) - 0.5 * frame->diameter_mm);
-            options.stitches = p.repair->stitch_anchors();
-        }
+        // The patch's reach: its half-diameters, as laid.
+        const ClosureOptions options =
+            patch ? repair_closure_options(*frame, std::max(patch->spec().radius_x_mm, patch->spec().radius_y_mm), p.repair->stitch_anchors())
+                  : ClosureOptions{};
         const ClosureResult r = check_closure(tissue, triangles, patch_positions, patch_triangles, thickness, *frame, options);
         p.closure = PreparedRun::ClosureReport{r, *frame, patch_positions, options.rim_offset_mm, options.margin_mm};
         std::printf("defect closed: %s, largest rim gap %.2f mm\n", r.closed ? "yes" : "no", r.largest_rim_gap_mm);

@@ -194,25 +194,12 @@ std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::ve
     std::vector<std::array<float, 3>> tissue;
     tissue.reserve(mapped.size());
     for (const auto& v : mapped) tissue.push_back({v.x(), v.y(), v.z()});
-    ClosureOptions options;
-    // The fill's cylinder reaches 3 mm beyond the patch's edge (as the check at the end of a run):
-    // a leak under the patch comes out there.
+    // The patch's reach: its farthest vertex from the axis, as it lies.
     double reach = 0;
-    for (const auto& x : patch.positions) {
-        const Eigen::Vector3d d = Eigen::Vector3d(x[0], x[1], x[2]) - frame->centre;
-        reach = std::max(reach, (d - d.dot(frame->axis) * frame->axis).norm());
-    }
-    options.margin_mm = std::max(options.margin_mm, reach + 3.0 - 0.5 * frame->diameter_mm);
-    if (!patch.stitch_to.empty()) {
-        // The rim where the patch is sewn: the stitches' mean distance from the axis.
-        double rim = 0;
-        for (const auto& anchor : patch.stitch_to) {
-            const Eigen::Vector3d d = Eigen::Vector3d(anchor[0], anchor[1], anchor[2]) - frame->centre;
-            rim += (d - d.dot(frame->axis) * frame->axis).norm();
-        }
-        options.rim_offset_mm = std::max(options.rim_offset_mm, rim / double(patch.stitch_to.size()) - 0.5 * frame->diameter_mm);
-        for (const auto& anchor : patch.stitch_to) options.stitches.emplace_back(anchor[0], anchor[1], anchor[2]);
-    }
+    for (const auto& x : patch.positions) reach = std::max(reach, distance_from_axis(*frame, Eigen::Vector3d(x[0], x[1], x[2])));
+    std::vector<Eigen::Vector3d> stitches;
+    for (const auto& anchor : patch.stitch_to) stitches.emplace_back(anchor[0], anchor[1], anchor[2]);
+    const ClosureOptions options = repair_closure_options(*frame, reach, stitches);
     return check_closure(tissue, scenario.visual->triangles, patch.positions, patch.triangles, patch.thickness_mm, *frame, options);
 }
 
