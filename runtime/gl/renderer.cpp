@@ -341,6 +341,19 @@ struct Renderer::State {
         glBindVertexArray(vao);
     }
 
+    /// An ellipsoid (semi-axes `axes` along the columns of `rotation`) with the instrument
+    /// program, its vertex array bound and its colour set.
+    void ellipsoid(const Eigen::Vector3f& centre, const Eigen::Matrix3f& rotation, const Eigen::Vector3f& axes) {
+        const GLuint q = instrument_program;
+        Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
+        model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
+        model.topRightCorner<3, 1>() = centre;
+        const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
+        glProgramUniformMatrix4fv(q, glGetUniformLocation(q, "model"), 1, GL_FALSE, model.data());
+        glProgramUniformMatrix3fv(q, glGetUniformLocation(q, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
+        glDrawElements(GL_TRIANGLES, sphere_index_count, GL_UNSIGNED_INT, nullptr);
+    }
+
     /// The patch's sheet and the stitches (suture and knot as ellipsoids), cut by the section
     /// plane as the tissue is; the programs' camera and light uniforms set already.
     void draw_patch() {
@@ -374,15 +387,6 @@ struct Renderer::State {
         glProgramUniform1f(q, glGetUniformLocation(q, "specular"), 0.35f);
         glEnable(GL_CULL_FACE);  // convex ellipsoids: their front faces are all that shows
         glCullFace(GL_BACK);
-        auto ellipsoid = [&](const Eigen::Vector3f& centre, const Eigen::Matrix3f& rotation, const Eigen::Vector3f& axes) {
-            Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
-            model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
-            model.topRightCorner<3, 1>() = centre;
-            const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
-            glProgramUniformMatrix4fv(q, glGetUniformLocation(q, "model"), 1, GL_FALSE, model.data());
-            glProgramUniformMatrix3fv(q, glGetUniformLocation(q, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
-            glDrawElements(GL_TRIANGLES, sphere_index_count, GL_UNSIGNED_INT, nullptr);
-        };
         constexpr float suture_radius = 0.22f, knot_radius = 0.6f;
         for (std::size_t k = 0; k < std::min(drawn.stitch_from.size(), drawn.stitch_to.size()); ++k) {
             const Eigen::Vector3f a = to_vector(drawn.stitch_from[k]), b = to_vector(drawn.stitch_to[k]);
@@ -709,19 +713,12 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
             for (const InstrumentShape& shape : instruments) {
                 if (shape.kind == InstrumentKind::none) continue;
                 if (shape.kind == InstrumentKind::patch && s.patch) continue;  // the laid patch is drawn instead
-                const Eigen::Matrix3f rotation = shape.pose.orientation.normalized().toRotationMatrix().cast<float>();
-                const Eigen::Vector3f axes = shape.semi_axes.cast<float>();
-                Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
-                model.topLeftCorner<3, 3>() = rotation * axes.asDiagonal();
-                model.topRightCorner<3, 1>() = shape.drawn_centre().cast<float>();
-                const Eigen::Matrix3f normal_matrix = rotation * axes.cwiseInverse().asDiagonal();
-                glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
-                glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
                 if (shape.touching) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.98f, 0.62f, 0.18f);  // in contact: amber
                 else if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
                 else if (shape.kind == InstrumentKind::scalpel) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.86f, 0.88f, 0.92f);  // steel
                 else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
-                glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+                s.ellipsoid(shape.drawn_centre().cast<float>(), shape.pose.orientation.normalized().toRotationMatrix().cast<float>(),
+                            shape.semi_axes.cast<float>());
             }
         };
         draw_shapes(1.0f);
@@ -750,16 +747,10 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
         glProgramUniform1f(p, glGetUniformLocation(p, "specular"), 0.35f);
         glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), float(leak_rgb[0]) / 255.0f, float(leak_rgb[1]) / 255.0f,
                            float(leak_rgb[2]) / 255.0f);
-        Eigen::Matrix4f model = Eigen::Matrix4f::Identity();
-        model.topLeftCorner<3, 3>() *= radius;
-        model.topRightCorner<3, 1>() = to_vector(*s.patch->leak);
-        const Eigen::Matrix3f normal_matrix = Eigen::Matrix3f::Identity() / radius;
-        glProgramUniformMatrix4fv(p, glGetUniformLocation(p, "model"), 1, GL_FALSE, model.data());
-        glProgramUniformMatrix3fv(p, glGetUniformLocation(p, "normal_matrix"), 1, GL_FALSE, normal_matrix.data());
         glDisable(GL_DEPTH_TEST);
         glEnable(GL_CULL_FACE);  // its front faces only: with no depth test its back faces would show through
         glCullFace(GL_BACK);
-        glDrawElements(GL_TRIANGLES, s.sphere_index_count, GL_UNSIGNED_INT, nullptr);
+        s.ellipsoid(to_vector(*s.patch->leak), Eigen::Matrix3f::Identity(), Eigen::Vector3f::Constant(radius));
         glDisable(GL_CULL_FACE);
         glEnable(GL_DEPTH_TEST);
     }
