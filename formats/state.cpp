@@ -6,7 +6,6 @@
 
 #include "libmodel/stability.h"
 
-#include <cmath>
 #include <string>
 
 namespace heartsim {
@@ -157,9 +156,7 @@ SimulationState read_state(const std::filesystem::path& path) {
             patch.margin_mm = r.number<double>("patch", "margin_mm");
             if (r.has_attribute("patch", "leak_mm")) {
                 if (patch.closed) r.fail("patch", "attribute leak_mm (where it leaks) is there, but closed says the defect is closed");
-                const auto leak = r.numbers<double>("patch", "leak_mm", 3);
-                for (double v : leak)
-                    if (!std::isfinite(v)) r.fail("patch", "attribute leak_mm must be 3 finite numbers (mm)");
+                const auto leak = r.numbers<double>("patch", "leak_mm", 3);  // finite, or refused
                 patch.leak_mm = std::array<double, 3>{leak[0], leak[1], leak[2]};
             }
         }
