@@ -429,10 +429,13 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
     wide all round, the widest arc. No patch: the defect's centre."""
     if not has_patch:
         return centre
-    def rho(index):  # a voxel centre's distance from the axis
+    def centre_of(index):  # a voxel's centre (relative to the defect's centre)
         k, rest = divmod(index, nn)
         j, i = divmod(rest, nx)
-        point = (low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel)
+        return (low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel)
+
+    def rho(index):  # a voxel centre's distance from the axis
+        point = centre_of(index)
         return math.hypot(dot(point, u), dot(point, v))
 
     # Back from the top through the reached voxels outside the rim's circle (less half a voxel): a
@@ -457,16 +460,12 @@ def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis
     band = [0] * bins
     for index in range(len(region)):
         if region[index]:
-            k, rest = divmod(index, nn)
-            j, i = divmod(rest, nx)
-            arc = arc_of((low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel))
+            arc = arc_of(centre_of(index))
             if arc is not None:
                 band[arc] += 1
     count, height = [0] * bins, [0.0] * bins
     for index in way:
-        k, rest = divmod(index, nn)
-        j, i = divmod(rest, nx)
-        point = (low[0] + i * voxel, low[1] + j * voxel, low[2] + k * voxel)
+        point = centre_of(index)
         s = dot(point, axis)
         arc = arc_of(point)
         if arc is None:
