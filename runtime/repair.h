@@ -117,7 +117,7 @@ private:
     PatchStepper* device_ = nullptr;           ///< the backend's patch pass while it steps the patch
     mutable bool device_ahead_ = false;        ///< the device's patch is newer than patch_
     std::optional<PatchPassInput> device_input_;
-    long long device_steps_ = 0;               ///< patch steps on the device since its candidates were found
+    long long device_steps_ = 0;               ///< patch steps on the device since it was loaded (candidates found again every candidate_refresh)
     PatchStepper* timed_device_ = nullptr;     ///< the stepper that stepped a patch in this run, for its time
     struct Hand {
         Instrument instrument;
