@@ -129,11 +129,13 @@ inline CLI::Validator finite_number() {
         "", "finite");
 }
 
-/// Adds finite_number() to every floating-point option of `app` and of its subcommands (CLI11
-/// names their type FLOAT), so no NaN or infinity reaches a build or a session through an option.
+/// Adds finite_number() to every option of `app` and of its subcommands that takes a value and
+/// is not plain text (CLI11 names a string's type TEXT), so no NaN or infinity reaches a build or
+/// a session through an option: a number renamed for its help (MM, S, HZ) is checked as CLI11's
+/// FLOAT is, and a lone "nan" given to a point or a plane is refused as not finite.
 inline void require_finite_numbers(CLI::App& app) {
     for (CLI::Option* option : app.get_options())
-        if (option->get_type_name().rfind("FLOAT", 0) == 0) option->check(finite_number());
+        if (option->get_expected_min() > 0 && option->get_type_name() != "TEXT") option->check(finite_number());
     for (CLI::App* command : app.get_subcommands({})) require_finite_numbers(*command);
 }
 

@@ -35,6 +35,21 @@ inline constexpr Range drag_per_ms{0.0, 100.0, "1/ms"};
 inline constexpr Range semi_axis_mm{1e-3, 500.0, "mm"};
 inline constexpr Range device_force_n{1e-6, 1e3, "N"};
 inline constexpr Range device_mass_g{1e-3, 1e6, "g"};
+/// A septal defect's diameter, as heartprep carves one and a scenario records it: from a
+/// pinhole to wider than any heart's septum.
+inline constexpr Range defect_diameter_mm{0.5, 60.0, "mm"};
+/// The planners' gestures (heartsim plan-incision and plan-repair): an incision up to 30 cm, the
+/// retractors up to 20 cm apart, a blade up to 10 cm deep and from 0.1 mm/s to 10 m/s, stitches up
+/// to 3 cm beyond the opening, a patch up to 20 cm across and 1 cm thick. A value outside is a
+/// typo or a unit mistake, and a trajectory built from it would be refused or run for ever.
+inline constexpr Range incision_length_mm{0.5, 300.0, "mm"};
+inline constexpr Range retraction_mm{0.0, 200.0, "mm"};
+inline constexpr Range blade_depth_mm{0.1, 100.0, "mm"};
+inline constexpr Range blade_speed_mm_per_ms{1e-4, 10.0, "mm/ms"};
+inline constexpr Range stitch_rim_mm{0.1, 30.0, "mm"};
+inline constexpr Range patch_diameter_mm{0.5, 200.0, "mm"};
+inline constexpr Range patch_thickness_mm{0.01, 10.0, "mm"};
+inline constexpr Range rim_roughness_mm{0.01, 100.0, "mm"};
 /// heartprep build's material options: density as typed (g/cm³; within density_g_per_mm3 × 1000 after
 /// float rounding: from foam to twice lead), and
 /// Young's modulus from a gel (1 Pa) to a stiff plastic (1 GPa).

@@ -1,6 +1,7 @@
 #include "runtime/camera.h"
 
 #include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <algorithm>
 #include <array>
@@ -114,6 +115,12 @@ LookAt parse_look_at(const std::string& text) {
         start = comma + 1;
     }
     if (values.size() != 3 && values.size() != 4) throw OptionError(expected);
+    // The point as --clip's and a trajectory's (a float keeps them to the µm); the distance as far.
+    for (int a = 0; a < 3; ++a)
+        if (!plausible::coordinate_mm.contains(values[std::size_t(a)]))
+            throw OptionError("--look-at '" + text + "': " + plausible::outside(std::string(1, "XYZ"[a]), values[std::size_t(a)], plausible::coordinate_mm));
+    if (values.size() == 4 && values[3] > plausible::coordinate_mm.high)
+        throw OptionError("--look-at '" + text + "': " + plausible::outside("DISTANCE", values[3], {0.0, plausible::coordinate_mm.high, "mm"}));
     LookAt look;
     look.point = Eigen::Vector3f(float(values[0]), float(values[1]), float(values[2]));
     if (values.size() == 4) {

@@ -255,7 +255,7 @@ double incision_view_distance(const IncisionPlan&, const IncisionPlanOptions& op
 
 std::string incision_look_at(const IncisionPlan& plan, const IncisionPlanOptions& options) {
     char text[160];
-    std::snprintf(text, sizeof text, "%.1f,%.1f,%.1f,%.0f", plan.centre.x(), plan.centre.y(), plan.centre.z(),
+    std::snprintf(text, sizeof text, "%.1f,%.1f,%.1f,%.1f", plan.centre.x(), plan.centre.y(), plan.centre.z(),
                   incision_view_distance(plan, options));
     return text;
 }
@@ -268,6 +268,7 @@ int plan_incision_command(const PlanIncisionArguments& a) {
         throw UsageError("-o " + a.output + " names the scenario itself: give another file for the trajectory");
     const Scenario scenario = read_scenario(a.scenario);
     const IncisionPlan plan = plan_incision(scenario, options);
+    check_planned_trajectory(plan.trajectory);
     write_trajectory_csv(plan.trajectory, a.output);
 
     const bool atriotomy = options.approach == IncisionApproach::atriotomy;

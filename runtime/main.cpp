@@ -208,20 +208,20 @@ int main(int argc, char** argv) {
         ->check(CLI::IsMember({"ventriculotomy", "atriotomy"}))
         ->capture_default_str();
     plan_command->add_option("--length", plan.options.length_mm, "The incision's length, mm (drawn from inferior to superior)")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::incision_length_mm))
         ->capture_default_str();
     plan_command->add_option("--spread", plan.options.spread_mm,
                              "How far the retractors pull the edges apart, mm (half each way, across the incision); 0: no retractors, "
                              "the cut alone")
-        ->check(cli_messages::non_negative())
+        ->check(cli_messages::within(plausible::retraction_mm))
         ->capture_default_str();
     plan_command->add_option("--depth", plan.options.depth_mm, "How deep the blade reaches behind the surface point, mm (its tip starts "
                                                                 "2 mm in front of it). Default: through the wall there, 2 mm into the "
                                                                 "cavity (the plan says how thick the wall is)")
-        ->check(cli_messages::positive());
+        ->check(cli_messages::within(plausible::blade_depth_mm));
     plan_command->add_option("--speed", plan.options.speed_mm_per_ms, "How fast the blade is drawn, mm/ms (0.1 mm/ms = 10 cm/s)")
         ->type_name("MM_PER_MS")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::blade_speed_mm_per_ms))
         ->capture_default_str();
     plan_command->footer("\nExample:\n"
                          "  heartsim plan-incision case.h5 -o cut.csv --approach atriotomy --length 25\n"
@@ -254,7 +254,7 @@ int main(int argc, char** argv) {
                                "With --side auto: how far off a plane the right side's rim may lie before the patch goes on the "
                                "left, mm (the real hearts' right rims that a patch seals lie within 3.5 mm, one it does not 6.1 mm)")
         ->type_name("MM")
-        ->check(CLI::PositiveNumber)
+        ->check(cli_messages::within(plausible::rim_roughness_mm))
         ->capture_default_str();
     repair_command->add_option("--stitches", repair.options.stitches,
                                "How many stitches, evenly spaced round the rim (at least 3; surgeons place 10 to 16 round a VSD's patch). "
@@ -266,16 +266,16 @@ int main(int argc, char** argv) {
                                "How far beyond the opening's edge the stitches bite, mm: they lie on the circle of radius D/2 + rim "
                                "round the defect's axis (D its diameter)")
         ->type_name("MM")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::stitch_rim_mm))
         ->capture_default_str();
     repair_command->add_option("--patch-diameter", repair.options.patch_diameter_mm,
                                "The patch's diameter, mm; more than the stitches' circle, D + 2 * rim. Default: D + 2 * (rim + 2 mm), "
                                "2 mm beyond the stitches")
         ->type_name("MM")
-        ->check(cli_messages::positive());
+        ->check(cli_messages::within(plausible::patch_diameter_mm));
     repair_command->add_option("--thickness", repair.options.thickness_mm, "The patch's thickness, mm")
         ->type_name("MM")
-        ->check(cli_messages::positive())
+        ->check(cli_messages::within(plausible::patch_thickness_mm))
         ->capture_default_str();
     repair_command->footer("\nExample:\n"
                            "  heartprep build case-label.nii.gz -o vsd.h5 --defect vsd --at=40.7,-14.4,-10.4   # a 10 mm VSD there\n"

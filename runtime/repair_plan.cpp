@@ -385,6 +385,7 @@ int plan_repair_command(const PlanRepairArguments& a) {
         throw UsageError("-o " + a.output + " names the scenario itself: give another file for the trajectory");
     const Scenario scenario = read_scenario(a.scenario);
     const RepairPlan plan = plan_repair(scenario, options);
+    check_planned_trajectory(plan.trajectory);
     write_repair_csv(plan, a.output, std::filesystem::path(a.scenario).filename().string());
 
     const char* chamber = chamber_of(plan.defect);

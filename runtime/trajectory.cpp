@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <sstream>
 
@@ -62,6 +63,30 @@ InstrumentKeyframe Trajectory::at(int hand, double time_ms) const {
     return state;
 }
 
+void check_keyframe(const InstrumentKeyframe& k, const std::string& where) {
+    if (!std::isfinite(k.time_ms)) throw InputError(where + ": the time is not a finite number");
+    for (int a = 0; a < 3; ++a) plausible::require(k.pose.position[a], plausible::coordinate_mm, std::string(1, "xyz"[a]), where);
+    if (k.pose.orientation.norm() < 1e-6) throw InputError(where + ": the orientation quaternion is zero");
+    if (!std::isfinite(k.pose.orientation.norm()))
+        throw InputError(where + ": the orientation quaternion is too large to normalise (its length overflows)");
+    if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");
+    for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", where);
+    if (k.grab && !takes_grab(k.kind))
+        throw InputError(where + ": grab is 1 but the kind is probe or none (grab acts on a grabber, scalpel, patch or needle)");
+}
+
+void check_planned_trajectory(const Trajectory& trajectory) {
+    for (const InstrumentKeyframe& k : trajectory.keyframes) {
+        char where[96];
+        std::snprintf(where, sizeof where, "the planned keyframe of hand %d at %.17g ms", k.hand, k.time_ms);
+        try {
+            check_keyframe(k, where);
+        } catch (const InputError& e) {
+            throw OptionError(std::string(e.what()) + ": heartsim run would refuse it; the plan's options ask for more than a trajectory holds");
+        }
+    }
+}
+
 Trajectory parse_trajectory(const std::string& text, const std::string& name) {
     Trajectory trajectory;
     std::istringstream in(text);
@@ -86,21 +111,14 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
         k.hand = int(hand);
         k.kind = parse_kind(fields[2], where + " column kind");
         k.pose.position = {number(fields[3], where + " column x"), number(fields[4], where + " column y"), number(fields[5], where + " column z")};
-        for (int a = 0; a < 3; ++a) plausible::require(k.pose.position[a], plausible::coordinate_mm, std::string(1, "xyz"[a]), where);
         k.pose.orientation = Eigen::Quaterniond(number(fields[6], where + " column qw"), number(fields[7], where + " column qx"),
                                                 number(fields[8], where + " column qy"), number(fields[9], where + " column qz"));
-        if (k.pose.orientation.norm() < 1e-6) throw InputError(where + ": the orientation quaternion is zero");
-        if (!std::isfinite(k.pose.orientation.norm()))
-            throw InputError(where + ": the orientation quaternion is too large to normalise (its length overflows)");
-        k.pose.orientation.normalize();
         k.semi_axes = {number(fields[10], where + " column ax"), number(fields[11], where + " column ay"), number(fields[12], where + " column az")};
-        if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");
-        for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", where);
         const double grab = number(fields[13], where + " column grab");
         if (grab != 0 && grab != 1) throw InputError(where + " column grab: expected 0 or 1");
         k.grab = grab == 1;
-        if (k.grab && !takes_grab(k.kind))
-            throw InputError(where + ": grab is 1 but the kind is probe or none (grab acts on a grabber, scalpel, patch or needle)");
+        check_keyframe(k, where);
+        k.pose.orientation.normalize();
         // Two poses of one hand at one time would make the instrument jump there in one step (the
         // earlier line only bends the approach): almost always a typing slip, so it is refused.
         if (const auto [it, fresh] = line_of.emplace(std::make_pair(k.hand, k.time_ms), line_number); !fresh)

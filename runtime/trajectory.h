@@ -40,6 +40,15 @@ struct Trajectory {
     InstrumentKeyframe at(int hand, double time_ms) const;
 };
 
+/// Checks one keyframe by the rules a trajectory CSV's rows are read by (a finite time, a position
+/// within plausible::coordinate_mm, a non-zero finite orientation, semi-axes within
+/// plausible::semi_axis_mm, grab only on a kind that takes it). Throws InputError prefixed with
+/// `where`.
+void check_keyframe(const InstrumentKeyframe& keyframe, const std::string& where);
+/// check_keyframe on every keyframe of a plan before it is written, so a planner never writes what
+/// `heartsim run --trajectory` refuses. Throws OptionError naming the keyframe and the rule.
+void check_planned_trajectory(const Trajectory& trajectory);
+
 /// Reads a trajectory CSV. Throws InputError naming the file, line and column on a bad row.
 Trajectory read_trajectory(const std::filesystem::path& path);
 /// Parses CSV text (the same format); `name` is used in error messages.

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <regex>
 #include <sstream>
@@ -165,6 +166,8 @@ TEST(IncisionPlan, ItsErrorsSayWhatIsWrong) {
              {out + " --length 0", "--length"},
              {out + " --speed -1", "--speed"},
              {out + " --spread -2", "--spread"},
+             {out + " --length 1e9", "--length: must lie in the plausible range"},
+             {out + " --speed 1e-12", "--speed: must lie in the plausible range"},
              {"", "--output is required"},
              {" -o " + quoted(dir / "cut.txt"), "the trajectory is a CSV file"}}) {
         r = heartsim_command("plan-incision " + quoted(phantom()) + arguments);
@@ -202,13 +205,42 @@ TEST(IncisionPlan, AScenarioWithoutDetailedMeshStillPlans) {
     EXPECT_THROW(plan_incision(empty), InputError);
 }
 
+TEST(PlannedTrajectory, AKeyframeTheReaderWouldRefuseIsRefusedBeforeItIsWritten) {
+    // The rules a trajectory's rows are read by, on keyframes a planner made: what check_planned_trajectory
+    // lets through parses back whole, what it refuses the reader refuses too.
+    const std::string header = "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
+    InstrumentKeyframe fine;
+    fine.kind = InstrumentKind::patch;
+    fine.pose.position = {1, 2, 3};
+    fine.semi_axes = {5, 5, 0.25};
+    fine.grab = true;
+    auto row = [](const InstrumentKeyframe& k) {
+        char text[400];
+        std::snprintf(text, sizeof text, "%.17g,%d,%s,%.17g,%.17g,%.17g,1,0,0,0,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand, to_string(k.kind),
+                      k.pose.position.x(), k.pose.position.y(), k.pose.position.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(),
+                      k.grab ? 1 : 0);
+        return std::string(text);
+    };
+    EXPECT_NO_THROW(check_planned_trajectory({{fine}}));
+    EXPECT_NO_THROW(parse_trajectory(header + row(fine), "fine.csv"));
+    InstrumentKeyframe far = fine, wide = fine, grabbing_probe = fine;
+    far.pose.position.x() = 2e6;  // --length 1e9 put the scalpel there
+    wide.semi_axes.x() = 500.5;   // --patch-diameter 1001
+    grabbing_probe.kind = InstrumentKind::probe;
+    for (const InstrumentKeyframe& bad : {far, wide, grabbing_probe}) {
+        EXPECT_THROW(check_planned_trajectory({{fine, bad}}), OptionError) << row(bad);
+        EXPECT_THROW(parse_trajectory(header + row(bad), "bad.csv"), InputError) << row(bad);
+    }
+}
+
 TEST(LookAt, ParsesAPointAndADistanceAndKeepsTheView) {
     const LookAt look = parse_look_at("1.5,-2,3,40");
     EXPECT_EQ(look.point, Eigen::Vector3f(1.5f, -2.0f, 3.0f));
     ASSERT_TRUE(look.distance);
     EXPECT_EQ(*look.distance, 40.0f);
     EXPECT_FALSE(parse_look_at("1,2,3").distance);
-    for (const char* bad : {"1,2", "1,2,3,4,5", "1,,3", "a,b,c", "1,2,3,0", "1,2,3,-5", "1,2,nan", ""})
+    for (const char* bad : {"1,2", "1,2,3,4,5", "1,,3", "a,b,c", "1,2,3,0", "1,2,3,-5", "1,2,nan", "", "1e30,0,0", "0,-2e6,0",
+                            "0,0,0,1e30"})
         EXPECT_THROW(parse_look_at(bad), OptionError) << bad;
     Camera camera = fit_camera(Eigen::AlignedBox3f(Eigen::Vector3f(-50, -50, -50), Eigen::Vector3f(50, 50, 50)), ViewDirection::right, 4.0f / 3.0f);
     const Eigen::Quaternionf before = camera.orientation;

@@ -310,6 +310,11 @@ TEST(RepairPlan, ItsErrorsSayWhatIsWrong) {
              {out + " --side=up", "--side"},
              {out + " --rim=0", "--rim"},
              {out + " --thickness=-1", "--thickness"},
+             // Beyond what a heart holds or a trajectory can say (a kilometre's bite makes work
+             // without bound; a 1001 mm patch is a semi-axis run refuses), and NaN.
+             {out + " --rim=1e6", "--rim: must lie in the plausible range"},
+             {out + " --patch-diameter=1001", "--patch-diameter: must lie in the plausible range"},
+             {out + " --rough-rim=nan", "--rough-rim: must lie in the plausible range [0.01, 100] mm, not nan"},
              {out + " --patch-diameter=10", "--patch-diameter 10.0 mm does not reach beyond the stitches"},
              {"", "--output is required"},
              {" -o " + quoted(dir / "repair.txt"), "the trajectory is a CSV file"}}) {
