@@ -412,8 +412,20 @@ Scenario read_contents(const h5::Reader& r) {
             s.source.defect_axis = vector("defect_axis");
             if (!(std::abs(s.source.defect_axis.norm() - 1.0) < 1e-3)) r.fail("/source", "defect_axis must be a unit vector");
             s.source.defect_diameter_mm = r.number<double>("source", "defect_diameter_mm");
-            if (!(s.source.defect_diameter_mm > 0.0) || !std::isfinite(s.source.defect_diameter_mm))
-                r.fail("/source", "defect_diameter_mm must be a positive number");
+            if (!plausible::defect_diameter_mm.contains(s.source.defect_diameter_mm))
+                r.fail("/source", plausible::outside("defect_diameter_mm", s.source.defect_diameter_mm, plausible::defect_diameter_mm) +
+                                      " (heartprep carves no other)");
+            // The opening was carved into this label map: its centre lies in the map's box.
+            const Eigen::Vector3d ijk =
+                (geometry.direction.inverse() * (s.source.defect_centre - geometry.origin)).cwiseQuotient(geometry.spacing);
+            for (int a = 0; a < 3; ++a)
+                if (!(ijk[a] >= -0.5 && ijk[a] <= double(geometry.dims[std::size_t(a)]) - 0.5)) {
+                    std::ostringstream text;
+                    text << "defect_centre " << s.source.defect_centre.x() << ", " << s.source.defect_centre.y() << ", "
+                         << s.source.defect_centre.z() << " mm lies outside the label map it was carved into (voxel index "
+                         << ijk[a] << " along axis " << a << ", of 0 to " << geometry.dims[std::size_t(a)] - 1 << ")";
+                    r.fail("/source", text.str());
+                }
         }
     }
     auto& lattice = s.lattice;

@@ -521,6 +521,40 @@ TEST(Scenario, AbsurdButWellFormedValuesAreRefusedByTheirPlausibleRange) {
         << refusal(dir / "length.h5");
 }
 
+TEST(Scenario, ASourceDefectOfNoPlausibleSizeOrOutsideItsLabelMapIsRefused) {
+    // A scenario's /source records the septal defect heartprep carved: its diameter within the
+    // range heartprep carves, its centre inside the label map it was carved into. A tampered one
+    // (1e9 mm wide, or 1e9 mm away) would have plan-repair lay a patch the size of a city.
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    const VolumeGeometry& g = s.source.geometry;
+    s.source.defect = "vsd";
+    s.source.defect_axis = Eigen::Vector3d(1, 0, 0);
+    s.source.defect_diameter_mm = 4.0;
+    // The last voxel's centre along each axis, and half a voxel beyond it: the box's corner.
+    const Eigen::Vector3d last(g.dims[0] - 1, g.dims[1] - 1, g.dims[2] - 1);
+    s.source.defect_centre = g.to_world(last + Eigen::Vector3d(0.45, 0.45, 0.45));
+    write_scenario(dir / "corner.h5", s);
+    EXPECT_EQ(read_scenario(dir / "corner.h5").source.defect_centre, s.source.defect_centre);
+    auto refused = [&](const Scenario& tampered, const std::string& name, const std::string& words) {
+        write_scenario(dir / name, tampered);
+        const std::string why = refusal(dir / name);
+        EXPECT_NE(why.find("/source"), std::string::npos) << why;
+        EXPECT_NE(why.find(words), std::string::npos) << why;
+    };
+    for (const auto& [diameter, printed] : {std::pair{1e9, "1e+09"}, std::pair{0.1, "0.1"}, std::pair{61.0, "61"}}) {
+        Scenario wide = s;
+        wide.source.defect_diameter_mm = diameter;
+        refused(wide, "diameter.h5", std::string("defect_diameter_mm is ") + printed + " mm, outside the plausible range");
+    }
+    for (const Eigen::Vector3d& ijk : {Eigen::Vector3d(last.x() + 0.55, 0, 0), Eigen::Vector3d(0, -0.55, 0),
+                                       Eigen::Vector3d(0, 0, 1e9 / g.spacing.z())}) {
+        Scenario away = s;
+        away.source.defect_centre = g.to_world(ijk);
+        refused(away, "away.h5", "lies outside the label map it was carved into");
+    }
+}
+
 TEST(Scenario, StringsAreStoredFixedLengthInTheChecksummedObjectHeaders) {
     // fuzz_scenario: a damaged global heap (where HDF5 keeps variable-length strings, under no
     // checksum) made HDF5 1.10's H5HG_read copy as many bytes as the heap claimed, out of bounds.

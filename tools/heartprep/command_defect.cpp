@@ -22,7 +22,7 @@ void DefectFlags::add(CLI::App& command, const char* type_flag, const char* grou
         ->check(CLI::IsMember({"vsd", "asd"}))
         ->group(group);
     command.add_option("--diameter", diameter_mm, "The opening's diameter, mm")
-        ->check(CLI::Range(0.5, 60.0))
+        ->check(cli_messages::within(plausible::defect_diameter_mm))
         ->capture_default_str()
         ->group(group);
     command.add_option("--at", at,
