@@ -421,8 +421,20 @@ std::vector<Candidate> septum_candidates(const LabelVolume& volume, const Grid& 
     };
     const DistanceMap da = distances(o.side_a), db = distances(o.side_b);
     std::optional<DistanceMap> dao;
-    if (o.aorta != 0 && (site == DefectSite::perimembranous || site == DefectSite::muscular || site == DefectSite::apical))
+    const bool by_aorta = site == DefectSite::perimembranous || site == DefectSite::muscular || site == DefectSite::apical;
+    if (by_aorta && o.aorta != 0) {
+        // A distance to a label with no voxel in the box would be the transform's "infinity"
+        // (about 9e18 mm), and every site the same place: an aorta named but absent is none.
+        bool present = false;
+        for (int k = 0; k < dims[2] && !present; ++k)
+            for (int j = 0; j < dims[1] && !present; ++j)
+                for (int i = 0; i < dims[0] && !present; ++i) present = volume.labels[geo.linear(lo[0] + i, lo[1] + j, lo[2] + k)] == o.aorta;
+        if (!present)
+            throw OptionError("the " + to_string(site) + " site is placed by its distance from the aorta's blood, and the volume has no voxel of " +
+                              describe(o.aorta, names) + " within " + mm(o.max_wall_mm, 0) +
+                              " of the ventricles; give {DefectOptions::at} X,Y,Z (LPS mm, a point in the septum)");
         dao.emplace(distances(o.aorta));
+    }
     const double tolerance = geo.spacing.maxCoeff();
     std::vector<Candidate> out;
     for (int k = 0; k < dims[2]; ++k)

@@ -137,6 +137,36 @@ TEST(SeptalDefect, RefusesAPointOutsideASeptumOrAHoleLargerThanTheSeptumAndChang
     EXPECT_THROW(carve_defect(v, unplaced), OptionError);
 }
 
+TEST(SeptalDefect, AnAortaNamedButAbsentPlacesNoSiteByItsDistance) {
+    // The labels name an aorta (as MM-WHS's convention does) but the map holds none of its voxels:
+    // no distance from it exists, so the sites placed by it are refused, the map untouched; the
+    // secundum site, placed without it, and a given point still work.
+    const Block block = make_block(6.0, 50.0, false);
+    for (DefectSite site : {DefectSite::perimembranous, DefectSite::muscular, DefectSite::apical}) {
+        SCOPED_TRACE(to_string(site));
+        LabelVolume v = block.volume;
+        DefectOptions o = block_options(true);
+        o.diameter_mm = 8.0;
+        o.site = site;
+        try {
+            carve_defect(v, o);
+            ADD_FAILURE() << "an aorta with no voxel placed a site";
+        } catch (const OptionError& e) {
+            const std::string what = e.what();
+            EXPECT_NE(what.find("no voxel of label " + std::to_string(aorta)), std::string::npos) << what;
+            EXPECT_NE(what.find("{DefectOptions::at}"), std::string::npos) << what;
+        }
+        EXPECT_EQ(v.labels, block.volume.labels);
+    }
+    LabelVolume v = block.volume;
+    DefectOptions at_point = block_options(true);
+    at_point.diameter_mm = 8.0;
+    at_point.at = block.world({0.0, 0.0, 0.0});
+    const DefectReport r = carve_defect(v, at_point);
+    EXPECT_TRUE(r.connected);
+    EXPECT_TRUE(pools_connect(v, left, right));
+}
+
 TEST(LabelConventions, NameTheMmwhsAndHvsmrLabelsAndRecogniseTheirSets) {
     const LabelConvention* mmwhs = find_label_convention("MMWHS");
     ASSERT_NE(mmwhs, nullptr);
