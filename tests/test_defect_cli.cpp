@@ -161,6 +161,16 @@ TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWitho
                                 test::quoted(plain_path.string())).exit_code, 0);
     const Scenario plain = read_scenario(plain_path);
     EXPECT_TRUE(plain.source.defect.empty());
+    // A defect's shape without --defect is refused, not built without one.
+    for (const std::string& shaping : std::vector<std::string>{"--diameter 8", "--site muscular", "--max-wall 12", "--at " + point}) {
+        const auto unshaped = dir / "unshaped.h5";
+        const auto r = test::run_command(heartprep + " build " + test::quoted(input.string()) + " " + shaping + " --particles 4000 -q -o " +
+                                         test::quoted(unshaped.string()));
+        EXPECT_EQ(r.exit_code, 2) << shaping << ": " << r.output;
+        EXPECT_NE(r.output.find(shaping.substr(0, shaping.find(' ')) + " shapes a septal defect, and no --defect was given"), std::string::npos)
+            << r.output;
+        EXPECT_FALSE(std::filesystem::exists(unshaped)) << shaping;
+    }
     // The detailed surface encloses the tissue: the defect's build lacks the carved septum, and
     // its surface has one more handle (a hole through the wall: Euler characteristic 2 less).
     auto measure = [](const Scenario& s) {

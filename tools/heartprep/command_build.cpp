@@ -277,8 +277,12 @@ void add_build_command(CLI::App& app) {
             DefectChoice choice;
             defect->apply(choice);
             options->defect = choice;
-        } else if (!defect->at.empty() || !defect->site.empty()) {
-            throw UsageError(std::string(defect->at.empty() ? "--site" : "--at") + " places a septal defect: give --defect vsd or --defect asd");
+        } else {
+            // Without --defect these shape nothing: a build that silently made no defect was taken for one with it.
+            for (const char* shaping : {"--at", "--site", "--diameter", "--max-wall"})
+                if (command->count(shaping) > 0)
+                    throw UsageError(std::string(shaping) + " shapes a septal defect, and no --defect was given: add --defect vsd or "
+                                                            "--defect asd, or leave " + shaping + " out");
         }
         // Every parallel loop of the pipeline is oneTBB's: its global limit is the build's.
         std::optional<tbb::global_control> thread_limit;
