@@ -106,7 +106,7 @@ void RepairBackend::release(int hand) {
 void RepairBackend::lay(int hand) {
     const Hand& h = hands_[std::size_t(hand)];
     off_device();  // laying again replaces the patch
-    if (!scenario_.visual || !scenario_.mapping || !scenario_.simulation_surface) {
+    if (!can_hold_patch(scenario_)) {
         std::printf("repair: no patch laid: the scenario has no detailed mesh with its mapping to lay it on\n");
         return;
     }
@@ -341,8 +341,15 @@ std::vector<Eigen::Vector3d> RepairBackend::stitch_anchors() {
     return out;
 }
 
+bool can_hold_patch(const Scenario& scenario) { return scenario.visual && scenario.mapping && scenario.simulation_surface; }
+
+InputError no_patch_surface(const std::string& what) {
+    return InputError(what + " lays a patch or ties a stitch, and the scenario has no detailed mesh (/visual with /mapping) for a "
+                             "patch to lie on: build the case again with heartprep build, which writes one");
+}
+
 std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings) {
-    if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface) return inner;
+    if (!can_hold_patch(scenario)) return inner;
     return std::make_unique<RepairBackend>(std::move(inner), scenario, settings);
 }
 

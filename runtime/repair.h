@@ -141,8 +141,14 @@ private:
 ContactSurface patch_surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
                                   double depth);
 
-/// `inner` wrapped in a RepairBackend when `scenario` can hold a patch (a detailed mesh with its
-/// mapping, for the surface the patch lies on); else `inner` itself.
+/// Whether `scenario` can hold a patch: a detailed mesh with its mapping and the simulation
+/// surface, for the surface the patch lies on.
+bool can_hold_patch(const Scenario& scenario);
+/// The refusal of a run whose `what` (e.g. "--instrument patch for hand 0") lays a patch or ties a
+/// stitch on a scenario that cannot hold one: said before the first step, not when the hand acts.
+InputError no_patch_surface(const std::string& what);
+
+/// `inner` wrapped in a RepairBackend when can_hold_patch(scenario); else `inner` itself.
 std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
 
 /// The defect of a scenario, where it is in the tissue's current state: its rest centre moved by

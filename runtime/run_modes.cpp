@@ -338,6 +338,15 @@ void script_instruments(const RunArguments& a, PreparedRun& p) {
     if (!a.trajectory.empty()) {
         if (!a.probe.empty() || !a.grab.empty()) throw UsageError("give --trajectory or --probe/--grab, not both");
         p.trajectory = read_trajectory(a.trajectory);
+        // A patch lies on the detailed mesh (runtime/repair.h): without one, refuse before the
+        // first step rather than stop the run when the hand lays it.
+        if (!can_hold_patch(p.scenario))
+            for (const InstrumentKeyframe& k : p.trajectory.keyframes)
+                if (k.kind == InstrumentKind::patch || k.kind == InstrumentKind::needle) {
+                    char when[200];
+                    std::snprintf(when, sizeof when, "the --trajectory's %s of hand %d at %.6g ms", to_string(k.kind), k.hand, k.time_ms);
+                    throw no_patch_surface(when);
+                }
     } else {
         if (!a.probe.empty()) p.trajectory.keyframes.push_back(parse_fixed_instrument(a.probe, InstrumentKind::probe, 0));
         if (!a.grab.empty()) {
@@ -826,6 +835,11 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
                 "(largest recorded force %.4g N%s)\n",
                 r.steps, r.wall_ms, r.compared, r.identical, r.max_difference_n, r.rms_difference_n, r.max_force_n,
                 r.worst_step >= 0 && r.max_difference_n > 0 ? (", worst at step " + std::to_string(r.worst_step)).c_str() : "");
+    // The closure check every run on a defect ends with (finish_run's), on the state the replay reached.
+    if (run.repair || !run.scenario.source.defect.empty()) {
+        open_incisions(run, true);
+        report_closure(a, run, backend.positions());
+    }
     if (run.renderer && !a.screenshot.empty()) {
         draw_repair(run);
         run.renderer->render(backend, {});

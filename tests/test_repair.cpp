@@ -168,6 +168,11 @@ TEST(Repair, AHapticRepairSessionReplaysBitForBit) {
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("stitch 4 tied"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("ptfe patch laid at"), std::string::npos) << "the replay lays the recorded material\n" << replay.output;
+    // A replay ends with the closure check every run on a defect ends with, and reaches the session's verdict.
+    const Verdict live_verdict = verdict_of(live.output), replay_verdict = verdict_of(replay.output);
+    ASSERT_FALSE(live_verdict.closed.empty()) << live.output;
+    EXPECT_EQ(replay_verdict.closed, live_verdict.closed) << replay.output;
+    EXPECT_EQ(replay_verdict.gap_mm, live_verdict.gap_mm) << replay.output;
 
     const SimulationState session = read_state(dir / "live.h5"), again = read_state(dir / "replayed.h5");
     EXPECT_EQ(session.kind[0], 4);
@@ -182,6 +187,8 @@ TEST(Repair, AHapticRepairSessionReplaysBitForBit) {
     EXPECT_TRUE(again.patch->positions == session.patch->positions)
         << "largest difference " << largest_difference(again.patch->positions, session.patch->positions) << " mm";
     EXPECT_TRUE(again.positions == session.positions) << "largest difference " << largest_difference(again.positions, session.positions) << " mm";
+    EXPECT_EQ(again.patch->closed, session.patch->closed);
+    EXPECT_EQ(again.patch->largest_rim_gap_mm, session.patch->largest_rim_gap_mm);
 }
 
 namespace {
@@ -612,4 +619,33 @@ TEST(Repair, TheGlPatchPassStepsThePatchAsTheHostDoes) {
     EXPECT_LT(worst, 1e-9);
     EXPECT_GT(largest_force, 0.0);
     EXPECT_LT(worst_force, 1e-9 * std::max(1.0, largest_force));
+}
+
+// A patch lies on the detailed mesh. On a scenario built without one, a run whose script or
+// device lays a patch is refused before its first step, saying which hand, when, and what the
+// scenario lacks, not stopped mid-run in the solver's words ("begin_grab on a hand that holds no
+// grabber").
+TEST(Repair, APatchOnAScenarioWithoutADetailedMeshIsRefusedBeforeTheFirstStep) {
+    const BlockRepair& b = block_repair();
+    test::TempDir dir;
+    Scenario bare = read_scenario(b.scenario);
+    bare.visual.reset();
+    bare.mapping.reset();
+    write_scenario(dir / "bare.h5", bare);
+    const auto scripted = heartsim_command("run " + quoted(dir / "bare.h5") + " --headless --backend cpu --trajectory " + quoted(b.plan) +
+                                           " --seconds 0.2 --save-state " + quoted(dir / "state.h5"));
+    EXPECT_EQ(scripted.exit_code, 1) << scripted.output;
+    EXPECT_NE(scripted.output.find("the --trajectory's patch of hand 0 at 0 ms lays a patch or ties a stitch, and the scenario has no "
+                                   "detailed mesh (/visual with /mapping)"),
+              std::string::npos)
+        << scripted.output;
+    EXPECT_EQ(scripted.output.find("begin_grab"), std::string::npos) << scripted.output;
+    EXPECT_FALSE(fs::exists(dir / "state.h5"));
+    const auto device = heartsim_command("run " + quoted(dir / "bare.h5") + " --headless --backend cpu --device scripted:" +
+                                         quoted(b.script[0]) + " --instrument patch --seconds 0.2");
+    EXPECT_EQ(device.exit_code, 1) << device.output;
+    EXPECT_NE(device.output.find("--instrument patch for hand 0 lays a patch"), std::string::npos) << device.output;
+    // The same scenario still runs what needs no patch: the run itself is not refused.
+    const auto probe = heartsim_command("run " + quoted(dir / "bare.h5") + " --headless --backend cpu --steps 2");
+    EXPECT_EQ(probe.exit_code, 0) << probe.output;
 }

@@ -5,6 +5,7 @@
 #include "runtime/haptics/haptic_run.h"
 
 #include "runtime/haptics/openhaptics.h"
+#include "runtime/repair.h"
 
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
@@ -252,6 +253,8 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
                                                             : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
         h.own = h.stepped = h.instrument;
+        if ((h.instrument.kind == InstrumentKind::patch || h.instrument.kind == InstrumentKind::needle) && !can_hold_patch(scenario))
+            throw no_patch_surface("--instrument " + settings.instruments[std::size_t(i)] + " for hand " + std::to_string(i));
         DeviceMapping& mapping = mappings[i];  // scripted, simulated and mouse devices move in the world frame
         switch (h.spec.kind) {
         case DeviceSpec::Kind::scripted: {
