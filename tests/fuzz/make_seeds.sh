@@ -44,6 +44,13 @@ cp "$work/heart16.mha" "$work/sphere10.mha" "$work/heart16-raw.mha" "$corpus/fuz
 "$heartprep" build "$work/heart12.nii.gz" -o "$corpus/fuzz_scenario/slices-no-visual.h5" --particles 30 --no-visual --packing slices -q
 "$heartprep" build "$work/heart12.nii.gz" -o "$corpus/fuzz_scenario/tangent-imaged.h5" --particles 30 --mapping tangent --decimate 0.9 \
   --rest-state imaged --support none --allow-free -q
+# The planners' seeds: the phantom at 24 voxels with an 8 mm VSD carved at a septum point, and the
+# same scenario without its defect (plan-incision only).
+mkdir -p "$corpus/fuzz_planners"
+"$heartprep" phantom -o "$work/heart24.nii.gz" --vsd-diameter 0 --size 24 >/dev/null
+"$heartprep" build "$work/heart24.nii.gz" -o "$corpus/fuzz_planners/vsd.h5" --defect vsd --at=-21.1,-1.1,-1.5 --diameter 8 --particles 30 \
+  --decimate 0.9 -q
+cp "$corpus/fuzz_scenario/full.h5" "$corpus/fuzz_planners/"
 
 # Recordings: 20 ms of the samples' scripted grab and simulated press on the full scenario, both
 # hands, and the grab alone.
