@@ -764,6 +764,32 @@ TEST(HapticsScripted, ReplaysPosesInterpolatedWithButtonsAndRejectsBadRows) {
     EXPECT_NEAR(hand(50).z(), -1.0, 1e-12);
 }
 
+TEST(HapticsScripted, APressBetweenTwoReadsOfTheToolsIsCountedNotLost) {
+    // Button 1 held from 10 to 12 ms and again from 30 to 31 ms, ticked at 1 kHz; the simulation
+    // side reads the tools only at 0, 20 and 40 ms, when the button is up each time. The tools
+    // read count every press since the session began, so neither is lost.
+    ScriptedDevice device(parse_pose_script("0,0,0,0,1,0,0,0,0\n9.5,0,0,0,1,0,0,0,0\n10,0,0,0,1,0,0,0,1\n12,0,0,0,1,0,0,0,1\n"
+                                            "12.5,0,0,0,1,0,0,0,0\n29.5,0,0,0,1,0,0,0,0\n30,0,0,0,1,0,0,0,1\n31,0,0,0,1,0,0,0,1\n"
+                                            "31.5,0,0,0,1,0,0,0,0\n",
+                                            "press.csv"));
+    HapticSession session;
+    session.attach(0, &device);
+    std::vector<std::pair<std::uint32_t, std::uint64_t>> read;  // (buttons, presses) at each read
+    for (int n = 0; n <= 40; ++n) {
+        session.tick(double(n));
+        if (n % 20 == 0) {
+            const auto tools = session.latest_tools();
+            ASSERT_TRUE(tools);
+            read.emplace_back(tools->hand[0].buttons, tools->hand[0].presses);
+        }
+    }
+    ASSERT_EQ(read.size(), 3u);
+    for (const auto& [buttons, presses] : read) EXPECT_EQ(buttons & 1u, 0u) << "the reads fall between the presses";
+    EXPECT_EQ(read[0].second, 0u);
+    EXPECT_EQ(read[1].second, 1u);
+    EXPECT_EQ(read[2].second, 2u);
+}
+
 TEST(HapticsScripted, ButtonsOutsideA32BitWordAreRefusedNotConverted) {
     // fuzz_pose_script: 1e49 buttons were cast to uint32 (undefined behaviour; UBSan's
     // float-cast-overflow). Up to 2^32 - 1 is read, above is an error naming the row.

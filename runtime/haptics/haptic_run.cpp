@@ -464,8 +464,12 @@ StepReport HapticRun::step() {
             }
             h.pose = p;
             h.buttons = tools->hand[i].buttons;
+            // A press that began and ended since the last step acts for this one step (a patch is
+            // laid, a stitch tied, a grabber closes and opens again at the next).
+            const bool pressed_between = tools->hand[i].presses != h.presses && !(h.buttons & 1u) && !h.grabbing;
+            h.presses = tools->hand[i].presses;
             if (!(h.buttons & 1u)) h.wait_release = false;
-            const bool wants = takes_grab(h.instrument.kind) && (h.buttons & 1u) && !h.wait_release;
+            const bool wants = takes_grab(h.instrument.kind) && ((h.buttons & 1u) || pressed_between) && !h.wait_release;
             const bool was = h.grabbing;
             apply_tool(backend_, i, h.instrument, h.pose, wants, h.placed, h.grabbing);
             applied[i] = true;

@@ -174,6 +174,7 @@ private:
         bool placed = false, grabbing = false;
         bool wait_release = false;  ///< button 1 was held when the instrument changed: ignored until let go
         std::uint32_t buttons = 0;
+        std::uint64_t presses = 0;    ///< ToolSample::presses the last step saw
         std::uint64_t bad_poses = 0;  ///< device poses not applied (non-finite or out of range)
         std::string fault;            ///< a device fault, once reported
     };

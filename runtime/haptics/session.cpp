@@ -164,6 +164,9 @@ void HapticSession::tick(double now_ms) {
         tools.hand[i].pose.position = tool_position;
         tools.hand[i].pose.orientation = orientation_world;
         tools.hand[i].buttons = pose.buttons;
+        if ((pose.buttons & 1u) && !(h.buttons & 1u)) ++h.presses;
+        h.buttons = pose.buttons;
+        tools.hand[i].presses = h.presses;
         tools.hand[i].time_ms = now_ms;
         tools.hand[i].valid = true;
 

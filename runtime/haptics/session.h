@@ -30,6 +30,10 @@ namespace heartsim::haptics {
 struct ToolSample {
     InstrumentPose pose;
     std::uint32_t buttons = 0;
+    /// Presses of button 1 (its rises) since the session began: a counter, so a press that begins
+    /// and ends between two simulation steps still reaches the simulation (a 20 ms press of a
+    /// patch's button while a step takes longer).
+    std::uint64_t presses = 0;
     double time_ms = 0.0;  ///< session clock
     bool valid = false;    ///< a device is attached to the hand
 };
@@ -194,6 +198,8 @@ private:
         Eigen::Vector3d proxy = Eigen::Vector3d::Zero(), proxy_v = Eigen::Vector3d::Zero();
         Eigen::Vector3d last_device = Eigen::Vector3d::Zero();
         bool primed = false;
+        std::uint32_t buttons = 0;   ///< at the last tick
+        std::uint64_t presses = 0;   ///< ToolSample::presses
         HandTelemetry telemetry;
     };
     void run_thread();
