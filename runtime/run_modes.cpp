@@ -51,7 +51,12 @@ void catch_interrupts() {
     std::signal(SIGTERM, [](int) { interrupted.store(true); });
 }
 
-void restore_interrupts() { std::signal(SIGINT, SIG_DFL), std::signal(SIGTERM, SIG_DFL); }
+/// Ctrl-C is the terminal's again; what the run said is flushed first, so a Ctrl-C after this
+/// cannot take the lines that say what was written.
+void restore_interrupts() {
+    std::fflush(stdout);
+    std::signal(SIGINT, SIG_DFL), std::signal(SIGTERM, SIG_DFL);
+}
 
 /// "WxH" → (W, H); empty gives `fallback`.
 std::pair<int, int> parse_size(const std::string& text, std::pair<int, int> fallback) {
@@ -863,10 +868,10 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
 }
 
 int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
+    catch_interrupts();  // before start_haptics says that Ctrl-C ends the run cleanly
     const std::unique_ptr<haptics::HapticRun> haptic = start_haptics(a, run);
     const auto wall_start = Clock::now();
     ScriptedRunResult result;
-    catch_interrupts();
     const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
     const double started = haptic->session().now_ms();
     while (!interrupted.load() && !haptic->result().gave_up && haptic->session().now_ms() - started < end_ms &&
@@ -882,16 +887,17 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
     }
     if (interrupted.load()) std::printf("interrupted: ending the session\n");
     haptic->finish(result);
-    restore_interrupts();
+    // Ctrl-C stays caught while the outputs are written: a state is never cut off half way.
     const int status = finish_run(a, run, result, haptic.get(), wall_start);
     if (run.link) run.link->finish(*run.backend, result.steps, link_hands(haptic->shapes(), run.backend->instrument_forces()));
+    restore_interrupts();
     return status;
 }
 
 int window_mode(const RunArguments& a, PreparedRun& run) {
+    if (!a.devices.empty()) catch_interrupts();  // before start_haptics says how a session ends
     const std::unique_ptr<haptics::HapticRun> haptic = a.devices.empty() ? nullptr : start_haptics(a, run);
     const auto wall_start = Clock::now();
-    if (haptic) catch_interrupts();
     const WindowRunOptions window{.scenario_name = std::filesystem::path(a.scenario).filename().string(),
                                   .scenario_path = a.scenario,
                                   .screenshot = a.screenshot,
@@ -910,14 +916,15 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
         run_window(*run.context, *run.backend, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window, haptic.get());
     if (haptic) {
         if (interrupted.load()) std::printf("interrupted: ending the session\n");
-        haptic->finish(result);
-        restore_interrupts();
+        haptic->finish(result);  // Ctrl-C stays caught until the outputs are written (below)
     }
     if (run.link)
         run.link->finish(*run.backend, result.steps,
                          haptic ? link_hands(haptic->shapes(), run.backend->instrument_forces())
                                 : link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
-    return finish_run(a, run, result, haptic.get(), wall_start);
+    const int status = finish_run(a, run, result, haptic.get(), wall_start);
+    if (haptic) restore_interrupts();
+    return status;
 }
 
 int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {

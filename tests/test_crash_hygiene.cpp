@@ -14,6 +14,7 @@
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
 #include "formats/scenario.h"
+#include "formats/state.h"
 #include "incision_gesture.h"
 #include "libmodel/errors.h"
 #include "runtime/backend.h"
@@ -460,6 +461,49 @@ TEST(CrashHygiene, AKilledRecordingSessionKeepsAllButItsLastSecondAndRecoversToA
     const auto replay = test::run_command(quoted(HEARTSIM_EXE) + " run " + quoted(phantom) + " --headless --replay " + quoted(record));
     EXPECT_EQ(replay.exit_code, 0) << replay.output;
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
+}
+
+// Ctrl-C ends a haptic session cleanly, and a storm of them (one every 2 ms from the moment the
+// session runs until the process is gone) never cuts off what it writes at the end: the recording
+// and the state are written whole (each reads back, the state with every particle) and said so.
+// Once they are, Ctrl-C is the terminal's again: the process may end by it or exit 0.
+TEST(CrashHygiene, InterruptsWhileASessionWritesItsOutputsLeaveThemWhole) {
+    const fs::path& phantom = test::built_phantom("--cavity 2 --anchor-border --gravity 0 0 0 --particles 12000");
+    const fs::path samples = fs::path(HEARTSIM_SOURCE_DIR) / "samples/haptics";
+    test::TempDir dir;
+    const fs::path record = dir / "rec.h5", state = dir / "state.h5", log = dir / "session.log";
+    const pid_t pid = start({HEARTSIM_EXE, "run", phantom.string(), "--headless", "--backend", "cpu", "--device",
+                             "simulated:" + (samples / "press_phantom.csv").string(), "--seconds", "60", "--record", record.string(),
+                             "--save-state", state.string()},
+                            log);
+    const auto deadline = Clock::now() + std::chrono::seconds(120);
+    while (read_text(log).find("Ctrl-C ends the run cleanly") == std::string::npos) {
+        if (Clock::now() > deadline || waitpid(pid, nullptr, WNOHANG) != 0) {
+            kill(pid, SIGKILL);
+            wait_for(pid, 60);
+            FAIL() << "the session never got going or ended early: " << read_text(log);
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    int status = -1;
+    for (int sent = 0; sent < 60000; ++sent) {  // two minutes at most
+        if (waitpid(pid, &status, WNOHANG) == pid) break;
+        kill(pid, SIGINT);
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+    if (status == -1) {
+        kill(pid, SIGKILL);
+        wait_for(pid, 60);
+        FAIL() << "the interrupted session did not end: " << read_text(log);
+    }
+    const std::string said = read_text(log);
+    EXPECT_TRUE((WIFEXITED(status) && WEXITSTATUS(status) == 0) || (WIFSIGNALED(status) && WTERMSIG(status) == SIGINT)) << said;
+    EXPECT_NE(said.find("interrupted: ending the session"), std::string::npos) << said;
+    EXPECT_NE(said.find("wrote " + record.string()), std::string::npos) << said;
+    EXPECT_NE(said.find("wrote " + state.string()), std::string::npos) << said;
+    const SimulationState written = read_state(state);
+    EXPECT_EQ(written.positions.size(), read_scenario(phantom).lattice.particles.size());
+    EXPECT_TRUE(read_recording(record).hands[0].used);
 }
 
 // A cutting session killed outright at a random moment while it cuts: hand 0 a scalpel on a
