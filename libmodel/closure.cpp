@@ -289,6 +289,51 @@ void block_patch(Grid& grid, const FrameMesh& patch, double reach) {
     }
 }
 
+/// How much of the opening the patch covers: points on a square grid of `spacing` across the
+/// axis (offset by irrational fractions of it, off the vertices of meshes built on round numbers)
+/// within `radius` of it, each covered where its line along the axis meets a patch triangle at a
+/// height in [low, high] (and `anywhere` where it meets one at any height).
+struct Cover {
+    std::size_t samples = 0, covered = 0, anywhere = 0;
+    Vector2 uncovered_sum = Vector2::Zero();  ///< the sum of the uncovered samples' positions
+};
+Cover cover_opening(const FrameMesh& patch, double radius, double spacing, double low, double high) {
+    const double dx = spacing * 0.1 * (std::numbers::sqrt2 - 1.0), dy = spacing * 0.1 * (std::numbers::sqrt3 - 1.0);
+    const GridAxis axis{-double(long(std::ceil(radius / spacing))) * spacing, spacing, 2 * long(std::ceil(radius / spacing)) + 1};
+    const std::size_t side = std::size_t(axis.n);
+    auto point = [&](long i, long j) { return Vector2(axis.centre(i) + dx, axis.centre(j) + dy); };
+    std::vector<std::uint8_t> state(side * side, 0);  // 1 in the disc, 2 met at any height, 4 met within reach
+    for (long j = 0; j < axis.n; ++j)
+        for (long i = 0; i < axis.n; ++i)
+            if (point(i, j).norm() <= radius) state[std::size_t(i) + side * std::size_t(j)] = 1;
+    for (std::size_t t = 0; t < patch.triangles.size(); ++t) {
+        const Vector3 &a = patch.corner(t, 0), &b = patch.corner(t, 1), &c = patch.corner(t, 2);
+        long i0, i1, j0, j1;
+        if (!axis.layers(std::min({a.x(), b.x(), c.x()}) - dx, std::max({a.x(), b.x(), c.x()}) - dx, i0, i1) ||
+            !axis.layers(std::min({a.y(), b.y(), c.y()}) - dy, std::max({a.y(), b.y(), c.y()}) - dy, j0, j1))
+            continue;
+        for (long j = j0; j <= j1; ++j)
+            for (long i = i0; i <= i1; ++i) {
+                std::uint8_t& at = state[std::size_t(i) + side * std::size_t(j)];
+                Crossing crossing{};
+                if (!(at & 1) || (at & 4) || !cross_along_axis(patch, t, point(i, j), crossing)) continue;
+                at |= 2;
+                if (crossing.along >= low && crossing.along <= high) at |= 4;
+            }
+    }
+    Cover cover;
+    for (long j = 0; j < axis.n; ++j)
+        for (long i = 0; i < axis.n; ++i) {
+            const std::uint8_t at = state[std::size_t(i) + side * std::size_t(j)];
+            if (!(at & 1)) continue;
+            ++cover.samples;
+            if (at & 2) ++cover.anywhere;
+            if (at & 4) ++cover.covered;
+            else cover.uncovered_sum += point(i, j);
+        }
+    return cover;
+}
+
 }  // namespace
 
 ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_positions, const std::vector<Triangle>& tissue_triangles,
@@ -388,6 +433,15 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             patch_top = std::max({patch_top, a.z(), b.z(), c.z()});
     }
     const double surface = result.rim_points > 0 ? std::max(rim_top, 0.0) : 0.5 * wall;
+
+    // Whether the patch covers the opening: its disc, seen along the axis, under the patch within
+    // the wall's reach, from the wall's far face to the rim's radius above the highest rim point
+    // (a patch held at the rim and domed by the pressure rises over the opening by less: a
+    // hemisphere on the rim rises by its radius). A patch laid away from the opening (across the
+    // axis, or along it beyond the wall) covers none of it.
+    const double reach_low = -0.5 * wall, reach_high = surface + rim_radius + 0.5 * thickness;
+    const Cover cover = cover_opening(patch, radius, std::min(options.voxel_mm, 0.05 * defect.diameter_mm), reach_low, reach_high);
+    result.covered = cover.samples ? double(cover.covered) / double(cover.samples) : 0.0;
     const double top = std::max(surface + thickness, patch_top + 0.5 * thickness) + 2.0;
     result.top_mm = top;
     Grid grid(options.voxel_mm, cylinder, top);
@@ -454,8 +508,39 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             grid.flags[at] |= Grid::on_path;
             leak_path.push_back(at);
         }
-    result.closed = leak_path.empty();
-    if (!result.closed) {
+    result.sealed = leak_path.empty();
+    const bool covers = has_patch && cover.covered == cover.samples;
+    result.cannot_tell = result.rim_points == 0;
+    result.closed = result.sealed && covers && !result.cannot_tell;
+    if (result.cannot_tell) {
+        std::ostringstream why;
+        why.precision(3);
+        why << "cannot tell: no rim point meets the wall (no tissue surface faces the patch's side " << rim_radius
+            << " mm from the axis within " << reach << " mm of the defect's centre " << format_point(defect.centre)
+            << "; is the centre in the opening?)";
+        result.why = why.str();
+    } else if (!has_patch) {
+        result.why = "no patch covers the opening";
+    } else if (!covers) {
+        // Where the patch lies: its vertices' mean, across the axis and along it.
+        Vector3 middle = Vector3::Zero();
+        for (const Vector3& p : patch.points) middle += p;
+        middle /= double(patch.points.size());
+        std::ostringstream why;
+        why.precision(3);
+        why << "the patch does not cover the opening: ";
+        if (cover.covered == 0 && cover.anywhere == cover.samples)
+            why << "it lies over it " << middle.z() << " mm from the wall's middle, beyond the wall's reach (" << reach_low << " to "
+                << reach_high << " mm)";
+        else if (cover.covered == 0)
+            why << "it lies " << middle.head<2>().norm() << " mm from the defect's axis";
+        else
+            why << "it covers " << 100.0 * result.covered << " % of it, its middle " << middle.head<2>().norm() << " mm from the defect's axis";
+        result.why = why.str();
+    } else if (!result.sealed) {
+        result.why = "a way out of the opening passes the patch";
+    }
+    if (!result.sealed && !result.cannot_tell) {
         // The leak's way out past the rim: the reached voxels outside the rim's circle (less half a
         // voxel) that a fill back from the top reaches without coming inside it, so a pocket under
         // the patch sealed farther out is not on it. Where it passes the rim: in each column of
@@ -530,6 +615,11 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             }
             result.leak_between = between;
         }
+    } else if (!result.closed && !result.cannot_tell && has_patch) {
+        // Sealed but not covered: the opening leaks where the patch leaves it uncovered.
+        const Vector2 middle = cover.uncovered_sum / double(cover.samples - cover.covered);
+        result.leak_way = ClosureResult::LeakWay::uncovered;
+        result.leak_mm = defect.centre + to_frame.transpose() * Vector3(middle.x(), middle.y(), 0.0);
     }
 
     result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
@@ -556,6 +646,7 @@ ClosureOptions repair_closure_options(const DefectFrame& defect, double patch_re
 std::string leak_place(const ClosureResult& result) {
     if (result.closed || !result.leak_mm) return {};
     if (result.leak_way == ClosureResult::LeakWay::no_patch) return "no patch covers the opening";
+    if (result.leak_way == ClosureResult::LeakWay::uncovered) return "where the patch does not cover the opening";
     if (result.leak_way == ClosureResult::LeakWay::through_patch) return "through the patch";
     if (!result.leak_between) return "where no stitch holds the patch";
     const auto [clockwise, counter] = *result.leak_between;

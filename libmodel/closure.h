@@ -25,7 +25,10 @@
 ///  5. a 6-connected flood fill over the region's free voxels from the opening at mid-wall
 ///     (s < 1 mm, ρ < D/2 − voxel) toward the region's top layer (s ≥ s_top − voxel). Nothing below
 ///     mid-wall is in the region: blood that reaches the patch's side around the septum, through
-///     the far side's chamber, has not passed the patch.
+///     the far side's chamber, has not passed the patch;
+///  6. the verdict: closed only where rim points were found, the patch covers the opening (every
+///     point of its disc has the patch over it along the axis, within the wall's reach) and the
+///     fill found no way out; cannot tell where no rim point was found; else open, with why.
 #pragma once
 
 #include <Eigen/Core>
@@ -57,9 +60,24 @@ struct ClosureOptions {
 };
 
 struct ClosureResult {
-    /// No 6-connected path of free voxels inside the region from the opening at mid-wall to the
-    /// region's top layer, beyond the patch.
+    /// The verdict "yes": a patch covers the opening (`covered` is 1), rim points were found and
+    /// the fill found no way out (`sealed`). Never true together with `cannot_tell`.
     bool closed = false;
+    /// The verdict "cannot tell": no rim point meets the wall (rim_points is 0), so the check does
+    /// not know where the wall around the opening is (a defect centre in blood, not in the
+    /// opening). `closed` is false; `why` says so.
+    bool cannot_tell = false;
+    /// Not closed: why, for a trainer ("the patch does not cover the opening: it lies 34 mm from
+    /// the defect's axis", "cannot tell: no rim point meets the wall …"). Empty when closed.
+    std::string why;
+    /// No 6-connected path of free voxels inside the region from the opening at mid-wall to the
+    /// region's top layer, beyond the patch: the fill's own answer, which alone is no verdict (a
+    /// patch laid away from the opening can cap the region with tissue beyond it).
+    bool sealed = false;
+    /// The share of the opening's disc (ρ ≤ D/2) whose line along the axis meets the patch
+    /// within the wall's reach: from the wall's far face (s = −T/2) to the rim's radius above the
+    /// highest rim point plus half the thickness. 0 with no patch.
+    double covered = 0.0;
     /// The largest over the rim points of (distance to the patch's mid-surface − half its
     /// thickness), clamped at 0, mm. The diameter where there is no patch or no rim point was found.
     double largest_rim_gap_mm = 0.0;
@@ -72,9 +90,13 @@ struct ClosureResult {
     /// the patch passes the rim widest (LeakWay::rim), at the rim's radius and the way's mean
     /// height there; with no patch, the defect's centre (no_patch); where the way never passes
     /// the rim (a hole through the patch: through_patch), the first voxel of the top layer it
-    /// reaches. Empty when closed.
+    /// reaches; where the fill found none but the patch does not cover the opening (uncovered),
+    /// the middle of the uncovered part at mid-wall. Empty when closed or cannot tell.
     std::optional<Eigen::Vector3d> leak_mm;
-    enum class LeakWay { no_patch, rim, through_patch };
+    /// uncovered: the patch does not cover the opening and the fill found no way out (the region
+    /// capped beyond it); leak_mm is the middle of the part of the opening it leaves uncovered, at
+    /// mid-wall.
+    enum class LeakWay { no_patch, rim, through_patch, uncovered };
     LeakWay leak_way = LeakWay::no_patch;  ///< which of those leak_mm is
     /// When the leak passes the rim and stitches were given: the stitches (indices into
     /// ClosureOptions::stitches) either side of leak_mm round the axis, the nearest clockwise and
@@ -116,8 +138,8 @@ ClosureOptions repair_closure_options(const DefectFrame& defect, double patch_re
 
 /// Where a leak passes the rim, for a trainer: "between stitches 3 and 4" (counted from 1 in the
 /// order tied), "beside stitch 1, the only one", "where no stitch holds the patch" with none,
-/// "through the patch" where the way out does not pass the rim, "no patch covers the opening";
-/// empty when closed.
+/// "through the patch" where the way out does not pass the rim, "no patch covers the opening",
+/// "where the patch does not cover the opening"; empty when closed or cannot tell.
 std::string leak_place(const ClosureResult& result);
 
 }  // namespace heartsim

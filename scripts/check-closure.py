@@ -25,10 +25,20 @@ Reads the state with h5dump (Debian package hdf5-tools); standard library only.
   when present, else the scenario's /source attributes of the same names (the rest frame).
 The axis is turned to point toward the patch's side (the side its vertices' mean lies on).
 
-Prints `defect closed: yes|no` and `reached voxels: N`, and when open where the leak passes the rim
-(`leak passes the rim at (x, y, z) mm`, heartsim's ClosureResult::leak_mm by its own rays: the way's
-voxels at the rim's radius with tissue, not patch, below them; or that it goes through the patch);
-exits 0 when closed, 1 when open, 2 on bad input.
+The verdict is its own, never heartsim's: yes only where a rim point meets the wall, the patch
+covers the opening (every point of the opening's disc has the patch over it along the axis, within
+the wall's reach: from the wall's far face to the rim's radius above the highest rim point; by
+rays through points on rings of the disc) and the fill finds no way out. A patch laid away from
+the opening is no closure even where tissue beyond it caps the region.
+
+Prints `defect closed: yes`, `defect closed: no (why)` or `defect closed: cannot tell: why` (no
+rim point meets the wall: the defect's centre is not where the wall is), `reached voxels: N` and
+the share of the opening covered, and when open where the leak passes the rim (`leak passes the
+rim at (x, y, z) mm`, heartsim's ClosureResult::leak_mm by its own rays: the way's voxels at the
+rim's radius with tissue, not patch, below them; or that it goes through the patch; or, where the
+fill finds no way out but the patch does not cover the opening, the middle of the uncovered part);
+exits 0 when closed, 1 when open, 2 on bad input (a patch's positions missing, empty or not
+finite among them), 3 when it cannot tell.
 
 Usage: scripts/check-closure.py STATE.h5 [--scenario FILE] [--voxel-mm 0.25] [--margin-mm 5]
                                          [--rim-offset-mm 0.5]
@@ -44,6 +54,10 @@ import sys
 
 class BadInput(Exception):
     pass
+
+
+class CannotTell(Exception):
+    """The check cannot say whether the defect is closed (no rim point meets the wall)."""
 
 
 # --- reading HDF5 through h5dump ---------------------------------------------------------------
@@ -237,6 +251,51 @@ def rim_top(positions, triangles, centre, axis, u, v, rim_radius, start, reach, 
     return best
 
 
+def covered_share(patch_positions, patch_triangles, centre, axis, u, v, radius, spacing, low, high):
+    """The share of the opening's disc (rho <= radius) that the patch covers within the wall's
+    reach: sample points on rings `spacing` apart (the edge's ring included), each covered where a
+    line through it along the axis meets a patch triangle (Moller-Trumbore) at a height s in
+    [low, high]. Triangles are binned by the cells of `spacing` their shadow across the axis spans.
+    Also the mean of the uncovered points (relative to the centre, across the axis), or None."""
+    bins = {}
+    flat = []
+    for t in patch_triangles:
+        corners = [patch_positions[t[m]] for m in range(3)]
+        shadow = [(dot(sub(p, centre), u), dot(sub(p, centre), v)) for p in corners]
+        flat.append(corners)
+        i0, i1 = (math.floor(f(x for x, _ in shadow) / spacing) for f in (min, max))
+        j0, j1 = (math.floor(f(y for _, y in shadow) / spacing) for f in (min, max))
+        if (i1 - i0 + 1) * (j1 - j0 + 1) > 1_000_000:
+            continue  # a triangle spanning a million cells is no patch's
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                bins.setdefault((i, j), []).append(len(flat) - 1)
+    rings = max(1, math.ceil(radius / spacing))
+    samples = covered = 0
+    missed = [0.0, 0.0]
+    for ring in range(rings + 1):
+        r = radius * ring / rings
+        around = max(1, math.ceil(2.0 * math.pi * r / spacing))
+        for k in range(around):
+            angle = 2.0 * math.pi * (k + 0.31) / around
+            a, b = r * math.cos(angle), r * math.sin(angle)
+            origin = tuple(centre[m] + a * u[m] + b * v[m] for m in range(3))
+            samples += 1
+            hit = False
+            for t in bins.get((math.floor(a / spacing), math.floor(b / spacing)), ()):
+                s = ray_triangle(origin, axis, *flat[t])
+                if s is not None and low <= s <= high:
+                    hit = True
+                    break
+            if hit:
+                covered += 1
+            else:
+                missed[0] += a
+                missed[1] += b
+    uncovered = samples - covered
+    return covered / samples, (missed[0] / uncovered, missed[1] / uncovered) if uncovered else None
+
+
 def fill(queue, marks, allowed, steps):
     """Breadth first from the voxels in `queue` to every neighbour (index + a step) that `allowed`
     admits: marks each in `marks`, appends it to `queue`, and returns `queue`."""
@@ -270,7 +329,16 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
     cylinder = radius + margin
     rim = rim_top(positions, triangles, centre, axis, u, v, radius + rim_offset, 0.5 * wall + margin,
                   radius + margin + 0.5 * wall)
-    surface = 0.5 * wall if rim is None else max(rim, 0.0)
+    if rim is None:
+        raise CannotTell("no rim point meets the wall: no tissue surface facing the patch's side %.3g mm from the axis "
+                         "within %.3g mm of the defect's centre (is the centre in the opening?)"
+                         % (radius + rim_offset, radius + margin + 0.5 * wall))
+    surface = max(rim, 0.0)
+    # The patch covers the opening where every point of its disc has the patch over it along the
+    # axis within the wall's reach: from the wall's far face to the rim's radius above the highest
+    # rim point, plus half the thickness.
+    low_reach, high_reach = -0.5 * wall, surface + radius + rim_offset + 0.5 * thickness
+    covered, uncovered = covered_share(patch_positions, patch_triangles, centre, axis, u, v, radius, voxel, low_reach, high_reach)
     top = surface + thickness + 2.0
     for t in patch_triangles:
         corners = [sub(patch_positions[t[m]], centre) for m in range(3)]
@@ -410,12 +478,14 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
     fill(queue, visited, lambda other: region[other] and not blocked[other], (1, -1, nx, -nx, nn, -nn))
     reached = len(queue)
     out = [index for index in range(nn * nz) if visited[index] and tops[index]]
-    closed = not out
+    sealed = not out
     leak = None
-    if not closed:
+    if not sealed:
         leak = where_it_leaks(out, visited, region, blocked, patch, patch_triangles, centre, axis, u, v, low, voxel, nx, nn,
                               radius + rim_offset, top)
-    return closed, reached, voxels, wall, top, leak
+    elif uncovered is not None:
+        leak = tuple(centre[m] + uncovered[0] * u[m] + uncovered[1] * v[m] for m in range(3))
+    return sealed and covered == 1.0, sealed, covered, (low_reach, high_reach), reached, voxels, wall, top, leak
 
 
 def where_it_leaks(out, visited, region, blocked, patch, has_patch, centre, axis, u, v, low, voxel, nx, nn, rim, top, bins=72):
@@ -557,8 +627,16 @@ def main():
                 raise BadInput(f"{state}: a tissue triangle names vertex {max(t) if max(t) >= len(positions) else min(t)}, "
                                f"outside /visual/positions ({len(positions)} rows)")
 
-        patch_positions = read_dataset(state, "/patch/leak_test_positions", 3) or read_dataset(state, "/patch/positions", 3) or []
+        # The patch as it lies must be whole (finite, read by read_dataset, and not empty) even
+        # where the one after the leak test is checked: a state whose patch is broken is refused.
+        laid = read_dataset(state, "/patch/positions", 3)
+        tested = read_dataset(state, "/patch/leak_test_positions", 3)
         patch_triangles = read_dataset(state, "/patch/triangles", 3, integer=True) or []
+        if (tested is not None or patch_triangles) and not laid:
+            raise BadInput(f"{state}: /patch/positions is {'missing' if laid is None else 'empty'}: a patch needs its vertices")
+        if tested is not None and len(tested) != len(laid):
+            raise BadInput(f"{state}: /patch/leak_test_positions has {len(tested)} rows, /patch/positions {len(laid)}")
+        patch_positions = tested or laid or []
         for t in patch_triangles:
             if min(t) < 0 or max(t) >= len(patch_positions):
                 raise BadInput(f"{state}: a patch triangle names a vertex outside /patch/positions ({len(patch_positions)} rows)")
@@ -589,19 +667,32 @@ def main():
             if dot(sub(mean, centre), axis) < 0.0:
                 axis = scale(axis, -1.0)
 
-        closed, reached, voxels, wall, top, leak = check(positions, triangles, patch_positions, patch_triangles, thickness,
-                                              centre, axis, diameter, arguments.voxel_mm, arguments.margin_mm,
-                                              arguments.rim_offset_mm)
+        print("defect: centre (%.4g, %.4g, %.4g) mm, axis toward the patch (%.4g, %.4g, %.4g), diameter %.4g mm, from %s"
+              % (*centre, *axis, diameter, frame))
+        closed, sealed, covered, reach, reached, voxels, wall, top, leak = check(
+            positions, triangles, patch_positions, patch_triangles, thickness, centre, axis, diameter, arguments.voxel_mm,
+            arguments.margin_mm, arguments.rim_offset_mm)
     except BadInput as error:
         print(f"check-closure: {error}", file=sys.stderr)
         return 2
-    print("defect: centre (%.4g, %.4g, %.4g) mm, axis toward the patch (%.4g, %.4g, %.4g), diameter %.4g mm, from %s"
-          % (*centre, *axis, diameter, frame))
+    except CannotTell as why:
+        print(f"defect closed: cannot tell: {why}")
+        return 3
     print(f"wall thickness: {wall:.4g} mm; patch: {len(patch_triangles)} triangles, {thickness:.4g} mm thick")
     print(f"region: {voxels} voxels of {arguments.voxel_mm:g} mm, from mid-wall to {top:.4g} mm")
     print(f"reached voxels: {reached}")
-    print(f"defect closed: {'yes' if closed else 'no'}")
-    if not closed:
+    print("opening covered by the patch: %.1f %% (within %.3g to %.3g mm of the wall's middle along the axis)" % (100.0 * covered, *reach))
+    if closed:
+        print("defect closed: yes")
+    elif not patch_triangles:
+        print("defect closed: no (no patch)")
+    elif covered < 1.0:
+        print("defect closed: no (the patch does not cover the opening: it covers %.1f %% of it)" % (100.0 * covered))
+    else:
+        print("defect closed: no (a way out of the opening passes the patch)")
+    if not closed and patch_triangles and sealed:
+        print("leak: the fill found no way out, but the patch leaves the opening uncovered around (%.2f, %.2f, %.2f) mm" % leak)
+    elif not closed and patch_triangles:
         print("leak passes the rim at (%.2f, %.2f, %.2f) mm" % leak if leak is not None else "leak does not pass the rim: through the patch")
     return 0 if closed else 1
 

@@ -14,11 +14,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <numbers>
+#include <optional>
 #include <regex>
 #include <sstream>
 #include <string>
@@ -30,6 +32,8 @@
 // sees only where tests/CMakeLists.txt lists it among the programs built against HDF5.
 #if __has_include(<hdf5.h>)
 #include "formats/hdf5_io.h"
+
+#include <hdf5.h>
 #define HEARTSIM_CLOSURE_HDF5 1
 #endif
 
@@ -398,21 +402,143 @@ TEST(Closure, RefusesBadInput) {
     EXPECT_THROW(check(patch, {.rim_samples = 0, .stitches = {}}), OptionError);
 }
 
+namespace {
+
+/// The disc a repair lays (radius 8 mm, 3 mm past the opening's edge all round when centred),
+/// moved across the axis by `off` mm toward `angle` and lying with its mid-surface at height `z`.
+constexpr double sweep_radius = 0.5 * hole_diameter + 3.0;
+Mesh swept_disc(double off, double angle, double z) {
+    return transformed(flat_disc(2.0 * sweep_radius, z), Eigen::Isometry3d(Eigen::Translation3d(off * std::cos(angle), off * std::sin(angle), 0.0)));
+}
+
+/// The share of the opening's disc (radius R = D/2) under a disc of radius a whose centre lies d
+/// from the axis: the two circles' lens over πR² (closed form).
+double covered_share(double d) {
+    const double r = 0.5 * hole_diameter, a = sweep_radius;
+    if (d + r <= a) return 1.0;
+    if (d >= a + r) return 0.0;
+    const double lens = r * r * std::acos((d * d + r * r - a * a) / (2 * d * r)) + a * a * std::acos((d * d + a * a - r * r) / (2 * d * a)) -
+                        0.5 * std::sqrt((-d + r + a) * (d + r - a) * (d - r + a) * (d + r + a));
+    return lens / (pi * r * r);
+}
+
+/// Heights of the sweep's disc: on the plate, 13 mm above it, outside the hollow box (its wall,
+/// z in [40, 50], caps a region that reaches the patch: as a ventricle's outer wall does for a
+/// patch laid beyond it), and 13 mm below the plate on the far side.
+constexpr double on_plate = top + 0.5 * patch_thickness;
+constexpr std::array<double, 4> sweep_heights{on_plate, on_plate + 13.0, 55.0, -13.0};
+
+}  // namespace
+
+TEST(Closure, APatchThatDoesNotCoverTheOpeningNeverClosesIt) {
+    // The plate inside the hollow box; the disc swept across the axis (0 to 30 mm, three ways) and
+    // away from it along the axis. It covers the opening only lying on the plate within 3 mm of
+    // the axis (d + D/2 ≤ a): there the check says closed, and nowhere else, whatever the fill
+    // finds: beyond the box's wall the fill is sealed by the wall, not by the patch. The share it
+    // covers is the circles' lens where it lies on the plate, none where it lies out of the wall's
+    // reach. The check's options as a repair's (the cylinder 3 mm past the patch's edge).
+    const Mesh tissue = in_hollow_box(plate());
+    const ClosureOptions options = repair_closure_options(defect, sweep_radius, {});
+    int sealed_uncovered = 0;
+    for (const double z : sweep_heights)
+        for (const double off : {0.0, 1.5, 4.0, 8.0, 13.0, 30.0})
+            for (const double angle : {0.0, 0.6 * pi, 1.3 * pi}) {
+                if (off == 0.0 && angle != 0.0) continue;
+                const Mesh patch = swept_disc(off, angle, z);
+                const ClosureResult r = check_closure(tissue.positions, tissue.triangles, patch.positions, patch.triangles, patch_thickness, defect, options);
+                const bool covers = z == on_plate && off + 0.5 * hole_diameter <= sweep_radius;
+                const std::string where = "disc " + std::to_string(off) + " mm off the axis toward " + std::to_string(angle) + " rad, at z " +
+                                          std::to_string(z) + ": " + r.why;
+                if (angle == 0.0)
+                    std::printf("  disc %4.1f mm off the axis at z %5.2f mm: covered %.4f (the lens %.4f), %s, closed: %s\n", off, z, r.covered,
+                                z == on_plate ? covered_share(off) : 0.0, r.sealed ? "sealed" : "a way out", r.closed ? "yes" : "no");
+                EXPECT_EQ(r.closed, covers) << where;
+                EXPECT_FALSE(r.cannot_tell) << where;
+                EXPECT_NEAR(r.covered, z == on_plate ? covered_share(off) : 0.0, 0.02) << where;
+                if (!covers) {
+                    EXPECT_NE(r.why.find("does not cover the opening"), std::string::npos) << where;
+                    ASSERT_TRUE(r.leak_mm.has_value()) << where;
+                    sealed_uncovered += r.sealed;
+                    if (r.sealed) {
+                        EXPECT_EQ(r.leak_way, ClosureResult::LeakWay::uncovered) << where;
+                        EXPECT_EQ(leak_place(r), "where the patch does not cover the opening");
+                    }
+                } else {
+                    EXPECT_TRUE(r.why.empty()) << where;
+                    EXPECT_FALSE(r.leak_mm.has_value()) << where;
+                }
+            }
+    EXPECT_GT(sealed_uncovered, 0) << "the sweep holds patches the fill alone would call closed";
+}
+
+TEST(Closure, ADefectCentreInBloodCannotTell) {
+    // The defect's centre moved 10 mm down its axis, into the far side's blood under the plate:
+    // the wall lies 8 mm above it, within reach, but no rim ray meets a surface facing the patch's
+    // side, so the check cannot tell where the rim is. The fill from the blood up to the disc
+    // lying on the plate finds no way out; the verdict is still not closed.
+    const Mesh patch = flat_disc(2.0 * sweep_radius, on_plate);
+    DefectFrame sunk = defect;
+    sunk.centre = Eigen::Vector3d(0.0, 0.0, -10.0);
+    const ClosureResult r = check_closure(plate().positions, plate().triangles, patch.positions, patch.triangles, patch_thickness, sunk);
+    EXPECT_EQ(r.rim_points, 0);
+    EXPECT_TRUE(r.cannot_tell);
+    EXPECT_FALSE(r.closed);
+    EXPECT_EQ(r.why.rfind("cannot tell: no rim point meets the wall", 0), 0u) << r.why;
+    EXPECT_FALSE(r.leak_mm.has_value());
+    EXPECT_EQ(leak_place(r), "");
+    // The same patch with the centre where it is: closed, with every rim point.
+    const ClosureResult there = check(patch);
+    EXPECT_TRUE(there.closed);
+    EXPECT_FALSE(there.cannot_tell);
+    EXPECT_EQ(there.rim_points, ClosureOptions{}.rim_samples);
+    EXPECT_DOUBLE_EQ(there.covered, 1.0);
+}
+
 #ifdef HEARTSIM_CLOSURE_HDF5
 namespace {
+
+/// What a state written by run_script holds other than its geometry: a defect centre in place of
+/// the true one (/patch defect_centre), or the patch as laid (/patch/positions) apart from the
+/// patch the check reads (then written as /patch/leak_test_positions, as heartsim writes both).
+struct StateEdits {
+    std::optional<Eigen::Vector3d> defect_centre;
+    std::optional<std::vector<std::array<float, 3>>> laid_positions;
+    bool laid_not_finite = false;  ///< one coordinate of /patch/positions made NaN after writing (heartsim never writes one)
+};
+
+/// Makes one value of float dataset `name` of `path` NaN, through HDF5's C API (formats/hdf5_io.h
+/// refuses to write one).
+void spoil_with_nan(const std::filesystem::path& path, const char* name) {
+    const hid_t file = H5Fopen(path.c_str(), H5F_ACC_RDWR, H5P_DEFAULT);
+    ASSERT_GE(file, 0) << path;
+    const hid_t data = H5Dopen2(file, name, H5P_DEFAULT);
+    ASSERT_GE(data, 0) << name;
+    const hid_t space = H5Dget_space(data);
+    std::vector<float> values(std::size_t(H5Sget_simple_extent_npoints(space)));
+    ASSERT_GT(values.size(), 22u);
+    ASSERT_GE(H5Dread(data, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
+    values[22] = std::nanf("");
+    ASSERT_GE(H5Dwrite(data, H5T_NATIVE_FLOAT, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data()), 0);
+    H5Sclose(space);
+    H5Dclose(data);
+    H5Fclose(file);
+}
 
 /// Writes the plate and a patch, both moved by `pose`, as a state file (/visual, /patch) beside its
 /// scenario (/visual, /source); the state holds the triangles and the defect's frame only when
 /// `in_state`. Runs scripts/check-closure.py on it (its output in folder/out.txt) and returns its
 /// exit status.
 int run_script(const std::filesystem::path& folder, const Mesh& patch_on_plate, bool in_state, const std::string& flags = "",
-               const Eigen::Isometry3d& pose = Eigen::Isometry3d::Identity(), const Mesh& tissue_at_rest = plate()) {
+               const Eigen::Isometry3d& pose = Eigen::Isometry3d::Identity(), const Mesh& tissue_at_rest = plate(),
+               const StateEdits& edits = {}) {
     std::filesystem::create_directories(folder);
     const std::filesystem::path state = folder / "state.h5", scenario = folder / "scenario.h5";
     const Mesh tissue = transformed(tissue_at_rest, pose), patch = transformed(patch_on_plate, pose);
     const Eigen::Vector3d turned_axis = pose.linear() * Eigen::Vector3d::UnitZ();
     const double centre[3] = {pose.translation().x(), pose.translation().y(), pose.translation().z()};
     const double axis[3] = {turned_axis.x(), turned_axis.y(), turned_axis.z()};
+    const Eigen::Vector3d claimed = pose * edits.defect_centre.value_or(Eigen::Vector3d::Zero());
+    const double claimed_centre[3] = {claimed.x(), claimed.y(), claimed.z()};
     h5::write_file(scenario, [&](h5::Writer& w) {
         w.header("heartsim.scenario", 1, "mm g ms");
         w.group("source");
@@ -432,16 +558,22 @@ int run_script(const std::filesystem::path& folder, const Mesh& patch_on_plate, 
         if (in_state) w.dataset("visual/triangles", tissue.triangles, {tissue.triangles.size(), 3});
         if (!patch.triangles.empty()) {
             w.group("patch");
-            w.dataset("patch/positions", patch.positions, {patch.positions.size(), 3});
+            if (edits.laid_positions) {
+                w.dataset("patch/positions", *edits.laid_positions, {edits.laid_positions->size(), 3});
+                w.dataset("patch/leak_test_positions", patch.positions, {patch.positions.size(), 3});
+            } else {
+                w.dataset("patch/positions", patch.positions, {patch.positions.size(), 3});
+            }
             w.dataset("patch/triangles", patch.triangles, {patch.triangles.size(), 3});
             w.attribute("patch", "thickness_mm", patch_thickness);
             if (in_state) {
-                w.attribute("patch", "defect_centre", centre, {3});
+                w.attribute("patch", "defect_centre", claimed_centre, {3});
                 w.attribute("patch", "defect_axis", axis, {3});
                 w.attribute("patch", "defect_diameter_mm", hole_diameter);
             }
         }
     });
+    if (edits.laid_not_finite) spoil_with_nan(state, "/patch/positions");
     const std::string command = "python3 " + (std::filesystem::path(HEARTSIM_SOURCE_DIR) / "scripts" / "check-closure.py").string() + " " +
                                 flags + " " + state.string() + " > " + (folder / "out.txt").string() + " 2>&1";
     const int status = std::system(command.c_str());
@@ -514,7 +646,74 @@ TEST(ClosureScript, GivesTheSameVerdictsFromASavedState) {
     }
     std::filesystem::remove_all(folder);
 }
+TEST(ClosureScript, SaysNotClosedForAPatchThatDoesNotCoverTheOpening) {
+    // The sweep's disc by the script's own geometry, on the plate in the hollow box (the cylinder
+    // as a repair's: --margin-mm 6): covering, it says yes; across the axis, or beyond the box's
+    // wall where its fill is sealed by the wall, no (exit 1), with the share it covers.
+    const std::filesystem::path folder = std::filesystem::temp_directory_path() / ("heartsim-closure-sweep-" + std::to_string(::getpid()));
+    const Mesh box = in_hollow_box(plate());
+    const ClosureOptions options = repair_closure_options(defect, sweep_radius, {});
+    const std::string margin = "--margin-mm " + std::to_string(options.margin_mm);
+    struct Place {
+        const char* name;
+        double off, angle, z;
+    };
+    for (const Place& place : {Place{"covering", 1.5, 0.6 * pi, on_plate}, Place{"beside", 4.0, 1.3 * pi, on_plate},
+                               Place{"beyond-the-wall", 0.0, 0.0, 55.0}, Place{"across-beyond-the-wall", 8.0, 0.0, 55.0}}) {
+        const Mesh patch = swept_disc(place.off, place.angle, place.z);
+        const bool covers = place.z == on_plate && place.off + 0.5 * hole_diameter <= sweep_radius;
+        const int status = run_script(folder / place.name, patch, true, margin, Eigen::Isometry3d::Identity(), box);
+        const std::string output = script_output(folder / place.name);
+        EXPECT_EQ(status, covers ? 0 : 1) << place.name << ":\n" << output;
+        EXPECT_NE(output.find(covers ? "defect closed: yes" : "defect closed: no"), std::string::npos) << place.name << ":\n" << output;
+        std::smatch m;
+        const bool said = std::regex_search(output, m, std::regex(R"(opening covered by the patch: ([0-9.]+) %)"));
+        EXPECT_TRUE(said) << place.name << ":\n" << output;
+        if (said) {
+            EXPECT_NEAR(std::stod(m[1]) / 100.0, place.z == on_plate ? covered_share(place.off) : 0.0, 0.02) << place.name << ":\n" << output;
+        }
+    }
+    std::filesystem::remove_all(folder);
+}
+
+TEST(ClosureScript, CannotTellWithoutARimAndRefusesABrokenPatch) {
+    const std::filesystem::path folder = std::filesystem::temp_directory_path() / ("heartsim-closure-refuse-" + std::to_string(::getpid()));
+    const Mesh on = flat_disc(2.0 * sweep_radius, on_plate);
+    // The state's defect centre moved 10 mm into the far side's blood: no rim point (exit 3).
+    StateEdits sunk;
+    sunk.defect_centre = Eigen::Vector3d(0.0, 0.0, -10.0);
+    EXPECT_EQ(run_script(folder / "sunk", on, true, "", Eigen::Isometry3d::Identity(), plate(), sunk), 3) << script_output(folder / "sunk");
+    EXPECT_NE(script_output(folder / "sunk").find("defect closed: cannot tell: no rim point meets the wall"), std::string::npos)
+        << script_output(folder / "sunk");
+    // The patch as laid not finite, or empty, beside a whole patch after the leak test: refused.
+    StateEdits not_finite;
+    not_finite.laid_positions = on.positions;
+    not_finite.laid_not_finite = true;
+    StateEdits empty;
+    empty.laid_positions.emplace();
+    StateEdits whole;
+    whole.laid_positions = on.positions;
+    struct Case {
+        const char* name;
+        StateEdits edits;
+        int status;
+    };
+    for (const auto& [name, edits, status] : std::vector<Case>{{"laid-nan", not_finite, 2}, {"laid-empty", empty, 2}, {"laid-whole", whole, 0}}) {
+        EXPECT_EQ(run_script(folder / name, on, true, "", Eigen::Isometry3d::Identity(), plate(), edits), status) << name << ":\n"
+                                                                                                              << script_output(folder / name);
+        if (status == 2) {
+            EXPECT_NE(script_output(folder / name).find("/patch/positions"), std::string::npos) << script_output(folder / name);
+        }
+    }
+    std::filesystem::remove_all(folder);
+}
 #else
+TEST(ClosureScript, SaysNotClosedForAPatchThatDoesNotCoverTheOpening) {
+    GTEST_SKIP() << "HDF5's headers are not on this program's include path (tests/CMakeLists.txt: test_closure in the HDF5 list)";
+}
+TEST(ClosureScript, CannotTellWithoutARimAndRefusesABrokenPatch) {
+    GTEST_SKIP() << "HDF5's headers are not on this program's include path (tests/CMakeLists.txt: test_closure in the HDF5 list)";
+}
 TEST(ClosureScript, GivesTheSameVerdictsFromASavedState) {
     GTEST_SKIP() << "HDF5's headers are not on this program's include path (tests/CMakeLists.txt: test_closure in the HDF5 list)";
 }
