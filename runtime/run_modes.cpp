@@ -666,7 +666,9 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                   : ClosureOptions{};
         const ClosureResult r = check_closure(tissue, triangles, patch_positions, patch_triangles, thickness, *frame, options);
         p.closure = PreparedRun::ClosureReport{r, *frame, patch_positions, options.rim_offset_mm, options.margin_mm};
-        std::printf("defect closed: %s, largest rim gap %.2f mm\n", r.closed ? "yes" : "no", r.largest_rim_gap_mm);
+        if (r.cannot_tell) std::printf("defect closed: %s\n", r.why.c_str());  // "cannot tell: …"
+        else if (r.closed) std::printf("defect closed: yes, largest rim gap %.2f mm\n", r.largest_rim_gap_mm);
+        else std::printf("defect closed: no, largest rim gap %.2f mm (%s)\n", r.largest_rim_gap_mm, r.why.c_str());
         std::printf("  closure check: %s, %zu stitches, the patch held to %.3g mmHg across the septum; a flood fill of %zu voxels of "
                     "%.2f mm reached %zu from the far side; wall %.1f mm thick; %d rim points (%.2f s)\n",
                     patch ? "a patch" : "no patch", patch ? patch->stitches().size() : std::size_t(0), a.leak_test_mmhg, r.voxels,
@@ -677,8 +679,11 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
         else if (r.leak_mm && r.leak_way == ClosureResult::LeakWay::through_patch)
             std::printf("  the leak: its way out of the opening does not pass the rim but goes through the patch, out at (%.1f, %.1f, %.1f) mm\n",
                         r.leak_mm->x(), r.leak_mm->y(), r.leak_mm->z());
+        else if (r.leak_mm && r.leak_way == ClosureResult::LeakWay::uncovered)
+            std::printf("  the leak: the fill found no way out, but the patch leaves the opening uncovered around (%.1f, %.1f, %.1f) mm\n",
+                        r.leak_mm->x(), r.leak_mm->y(), r.leak_mm->z());
     } catch (const InputError& e) {
-        std::printf("defect closed: unknown (%s)\n", e.what());
+        std::printf("defect closed: cannot tell (%s)\n", e.what());
     }
 }
 

@@ -181,7 +181,8 @@ Eigen::Quaterniond mouse_orientation(InstrumentKind kind, const Camera& camera) 
 /// The closure check of the repair a frame shows (libmodel/closure.h): the detailed mesh mapped
 /// onto `positions` and the patch as it lies, the rim where its stitches are. No leak test: the
 /// check at the end of the run (run_modes.cpp) holds the patch to the pressure. nullopt: the scenario has no defect or no
-/// mapped detailed mesh. Throws InputError when the check cannot tell.
+/// mapped detailed mesh. Throws InputError when the check cannot run (ClosureResult::cannot_tell
+/// where it ran and cannot tell).
 std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::vector<std::array<float, 3>>& positions, const DrawnPatch& patch) {
     if (!scenario.visual || !scenario.mapping || !scenario.simulation_surface) return std::nullopt;
     std::optional<DefectFrame> frame = defect_frame_now(scenario, positions, nullptr);
@@ -664,7 +665,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             try {
                 const std::optional<ClosureResult> closure =
                     closure_now(*a.scenario, simulation ? latest_positions : backend.positions(), drawn);
-                repair_shown.known = closure.has_value();
+                repair_shown.known = closure.has_value() && !closure->cannot_tell;
                 leak_shown.reset();
                 if (closure) {
                     repair_shown.closed = closure->closed;

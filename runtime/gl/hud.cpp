@@ -158,7 +158,7 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
             const HudRepair& r = s.repair;
             ImGui::Text("patch: %s, %zu stitch%s", r.material.c_str(), r.stitches, r.stitches == 1 ? "" : "es");
             if (r.defect && !r.checked) ImGui::TextDisabled("defect closed: checking");
-            else if (r.defect && !r.known) ImGui::TextDisabled("defect closed: unknown");
+            else if (r.defect && !r.known) ImGui::TextDisabled("defect closed: cannot tell");
             else if (r.defect)
                 ImGui::TextColored(r.closed ? ImVec4(0.45f, 0.9f, 0.45f, 1) : ImVec4(1.0f, 0.7f, 0.3f, 1), "defect closed: %s, rim gap %.2f mm",
                                    r.closed ? "yes" : "no", r.rim_gap_mm);

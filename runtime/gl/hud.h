@@ -42,8 +42,8 @@ struct HudRepair {
     std::size_t stitches = 0;
     bool defect = false;        ///< the scenario has a defect: its closure line too
     bool checked = false;       ///< the closure check has run (before: "checking")
-    bool known = false;         ///< it ran to a result (else it could not tell: "unknown")
-    bool closed = false;        ///< ClosureResult::closed
+    bool known = false;         ///< it ran to a yes or a no (else it could not tell: "cannot tell", never read as closed)
+    bool closed = false;        ///< ClosureResult::closed (false where it cannot tell)
     double rim_gap_mm = 0;      ///< ClosureResult::largest_rim_gap_mm
     std::string leak;           ///< where it leaks (leak_place: "between stitches 3 and 4"); empty when closed
 };
