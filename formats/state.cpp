@@ -91,9 +91,14 @@ SimulationState read_state(const std::filesystem::path& path) {
     if (r.exists("cut_springs")) {
         const auto cuts = r.dataset<std::int32_t>("cut_springs", {-1, 2});
         state.cut_springs = h5::rows_of<2>(cuts);
-        for (const auto& [a, b] : state.cut_springs)
+        for (std::size_t k = 0; k < state.cut_springs.size(); ++k) {
+            const auto& [a, b] = state.cut_springs[k];
             if (a < 0 || b <= a || std::size_t(b) >= state.positions.size())
                 r.fail("cut_springs", "pair (" + std::to_string(a) + ", " + std::to_string(b) + ") is not two particle indices, lower first");
+            if (k > 0 && !(state.cut_springs[k - 1] < state.cut_springs[k]))
+                r.fail("cut_springs", "row " + std::to_string(k) + " (" + std::to_string(a) + ", " + std::to_string(b) +
+                                          ") is not after the row before it: the list is sorted, each spring once");
+        }
     }
     if (r.exists("visual")) {
         const auto visual = r.dataset<float>("visual/positions", {-1, 3});

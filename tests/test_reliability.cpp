@@ -465,4 +465,22 @@ TEST(Reliability, ASavedStateOfACuttingRunHoldsTheSpringsItCut) {
         }
     }
     EXPECT_TRUE(state.positions == cpu->positions()) << "the saved positions are not the run's";
+
+    // The reader holds the list to its promise: two rows swapped, or a row repeated, are refused
+    // naming the dataset and the row.
+    std::vector<std::int32_t> rows;
+    for (const auto& [i, j] : state.cut_springs) rows.push_back(i), rows.push_back(j);
+    std::vector<std::int32_t> swapped = rows, repeated = rows;
+    std::swap(swapped[0], swapped[2]), std::swap(swapped[1], swapped[3]);
+    repeated[2] = repeated[0], repeated[3] = repeated[1];
+    for (const auto& [name, tampered] : {std::pair{"swapped.h5", swapped}, std::pair{"repeated.h5", repeated}}) {
+        fs::copy_file(dir / "state.h5", dir / name);
+        test::overwrite(dir / name, "cut_springs", tampered, H5T_NATIVE_INT32);
+        try {
+            read_state(dir / name);
+            ADD_FAILURE() << name << " was read";
+        } catch (const InputError& e) {
+            EXPECT_NE(std::string(e.what()).find("cut_springs: row 1"), std::string::npos) << e.what();
+        }
+    }
 }
