@@ -182,6 +182,7 @@ struct Renderer::State {
     Camera camera;
     std::optional<SectionPlane> section;
     bool show_hidden_instruments = false;  ///< the ghost pass (set_show_hidden_instruments)
+    bool drawn = false;  ///< a frame has been drawn into the framebuffer since it was made (its depth is surface_point's)
 
     gl::Program normals_program, mesh_program, instrument_program;
     gl::Buffer records, elements, sheet;
@@ -283,6 +284,7 @@ struct Renderer::State {
 
     void make_framebuffer(int w, int h) {
         width = std::max(w, 1), height = std::max(h, 1);
+        drawn = false;
         glCreateRenderbuffers(1, colour_rb.create());
         glNamedRenderbufferStorage(colour_rb, GL_RGBA8, width, height);
         glCreateRenderbuffers(1, depth_rb.create());
@@ -605,6 +607,9 @@ bool Renderer::draws_patch() const { return state_->patch.has_value(); }
 std::optional<Eigen::Vector3f> Renderer::surface_point(double x, double y, int window_width, int window_height) {
     State& s = *state_;
     if (window_width <= 0 || window_height <= 0) return std::nullopt;
+    // No frame drawn yet (a click before the window's first frame): its depth is undefined, and
+    // nothing is under the cursor.
+    if (!s.drawn) return std::nullopt;
     // The window's pixel in the offscreen frame (the frame is stretched to the window).
     const int fx = int(std::floor(x * double(s.width) / double(window_width)));
     const int fy = int(std::floor(y * double(s.height) / double(window_height)));
@@ -663,6 +668,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
     glDisable(GL_CULL_FACE);  // thin walls are double-sided sheets; lighting is two-sided
     glClearColor(0.10f, 0.11f, 0.14f, 1.0f);
     glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+    s.drawn = true;
 
     const Camera& camera = s.camera;
     const Eigen::Matrix4f view_projection = camera.projection(float(s.width) / float(s.height)) * camera.view();

@@ -150,7 +150,8 @@ public:
 
     /// The tissue's surface point under the window pixel (x, y) (from the top left, in a window
     /// `window_width` × `window_height` showing the last frame), world LPS mm, from the last
-    /// frame's depth (instruments write none); nullopt over the background. Waits for the GPU.
+    /// frame's depth (instruments write none); nullopt over the background and before the first
+    /// frame. Waits for the GPU.
     std::optional<Eigen::Vector3f> surface_point(double x, double y, int window_width, int window_height);
     /// Also draw, faintly, the parts of instruments inside or behind the tissue (the window: a
     /// probe pushed into the wall stays in sight). Off by default (headless pictures).
