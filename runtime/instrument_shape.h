@@ -6,6 +6,8 @@
 
 #include <Eigen/Core>
 
+#include <cstdint>
+
 namespace heartsim {
 
 /// A scalpel's semi-axes when none are given (mm): a blade 20 mm long (2·az), 4 mm wide and
@@ -21,6 +23,7 @@ struct InstrumentShape {
     Eigen::Vector3d semi_axes{2.0, 2.0, 2.0};
     int hand = -1;  ///< 0 or 1 where known (the HUD's force arrows), -1 otherwise
     bool touching = false;  ///< in contact with the tissue (a force on it): drawn in the contact colour
+    std::uint32_t buttons = 0;  ///< a haptic device's buttons as the last step read them (bit 0: button 1)
 
     /// Where the drawn ellipsoid is centred: the pose's position, or, for a scalpel, the middle
     /// of its blade.

@@ -88,6 +88,9 @@ struct WindowInput {
     /// patch 2 mm in front of it (laid, it drapes onto the surface along the view).
     double surface_offset_mm = -0.5;
     int surface_moves = 0;              ///< slides since the click (for the line said at release)
+    /// The simulation has stepped the mouse device where the window put it (position and buttons)
+    /// since the last input that moved it or pressed its button.
+    bool device_in_place = false;
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
     bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
     int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
@@ -106,6 +109,23 @@ void say(const char* format, Args... args) {
     std::fflush(stdout);
 }
 
+/// An input moved the mouse device. Where the simulation had it where the window put it, that
+/// ends ("moving" is said); "in place" is said once the simulation has stepped it at the new
+/// place. A log (a test) that reads both knows when the simulation has taken an input in.
+void device_moved(WindowInput& in) {
+    if (!in.device_in_place) return;
+    in.device_in_place = false;
+    say("mouse device: moving\n");
+}
+
+/// G or Ctrl + right click: the mouse device's button 1 (a grabber closes or opens, a scalpel's
+/// blade goes down or up, …); "in place" follows once the simulation has stepped with it.
+void toggle_device_button(WindowInput& in) {
+    in.device_pose.buttons ^= 1u;
+    in.device_in_place = false;
+    say("mouse device: button 1 %s\n", in.device_pose.buttons & 1u ? "pressed" : "released");
+}
+
 /// Ctrl + Shift + click and drag: the mouse device onto the tissue's surface point under the
 /// cursor, `surface_offset_mm` towards the eye from it (a probe's centre a quarter of its extent
 /// below it: a click on the heart rests it on the tissue). False over the background (the device stays
@@ -118,6 +138,7 @@ bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
     const Eigen::Vector3d point = hit->cast<double>();
     const Eigen::Vector3d to_eye = (in.renderer->camera().eye().cast<double>() - point).normalized();
     in.device_pose.position_mm = point + in.surface_offset_mm * to_eye;
+    device_moved(in);
     return true;
 }
 
@@ -244,10 +265,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         }
         if (button == GLFW_MOUSE_BUTTON_RIGHT && in->device && (mods & GLFW_MOD_CONTROL)) {
             // Ctrl + right click: the device's button 1, as G (a grabber closes or opens).
-            if (down) {
-                in->device_pose.buttons ^= 1u;
-                say("mouse device: button 1 %s\n", in->device_pose.buttons & 1u ? "pressed" : "released");
-            }
+            if (down) toggle_device_button(*in);
             return;
         }
         if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL)) in->dragging_device = down;
@@ -275,6 +293,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const Camera& camera = in->renderer->camera();
             const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
             in->device_pose.position_mm += camera.mm_per_pixel(height) * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
+            if (dx != 0 || dy != 0) device_moved(*in);
             return;
         }
         if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);
@@ -286,6 +305,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const Camera& camera = in->renderer->camera();
             const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
             in->device_pose.position_mm -= back * (0.02 * camera.radius * y);  // wheel up: into the screen
+            if (y != 0) device_moved(*in);
             return;
         }
         in->renderer->camera().zoom(std::pow(0.9f, float(y)));
@@ -318,7 +338,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
         }
         if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
         if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
-        if (key == GLFW_KEY_G && in->device) in->device_pose.buttons ^= 1u;
+        if (key == GLFW_KEY_G && in->device) toggle_device_button(*in);
         if (key == GLFW_KEY_E && in->session) {
             in->estop = !in->estop;
             if (in->estop) in->session->emergency_stop();
@@ -550,6 +570,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
             if (input.device) {
                 input.device_pose.position_mm += to.position - from.position;
+                if (to.position != from.position) device_moved(input);
                 if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
                 input.device->set_pose(input.device_pose);
             }
@@ -638,6 +659,13 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             if (input.device && haptic->device_spec(shape.hand) == "mouse") {
                 const bool tip = shape.kind == InstrumentKind::scalpel || shape.kind == InstrumentKind::needle;
                 input.surface_offset_mm = tip ? 0.0 : shape.kind == InstrumentKind::patch ? 2.0 : -0.25 * shape.semi_axes.minCoeff();
+                // The simulation has stepped it where the window put it, its button too: said once
+                // after each input that moved it (device_moved), so that a log or a test waits for
+                // the simulation to take an input in rather than for a time.
+                const bool there = (shape.pose.position - input.device_pose.position_mm).norm() <= 1e-6 && shape.buttons == input.device_pose.buttons;
+                if (there && !input.device_in_place)
+                    say("mouse device: in place at (%.2f, %.2f, %.2f) mm\n", shape.pose.position.x(), shape.pose.position.y(), shape.pose.position.z());
+                input.device_in_place = input.device_in_place || there;
             }
         }
         for (int hand = 0; hand < 2 && !haptic; ++hand) {

@@ -657,7 +657,7 @@ std::vector<InstrumentShape> HapticRun::shapes() const {
     std::vector<InstrumentShape> shapes;
     for (int hand = 0; hand < 2; ++hand) {
         const Hand& h = hands_[hand];
-        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes, hand});
+        if (h.device && h.placed) shapes.push_back({h.instrument.kind, h.pose, h.instrument.semi_axes, hand, false, h.buttons});
     }
     return shapes;
 }

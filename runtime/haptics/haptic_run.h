@@ -119,7 +119,7 @@ public:
     /// and deletes its journal.
     void finish(ScriptedRunResult& result);
 
-    /// The instruments to draw (tool poses as the simulation last used them).
+    /// The instruments to draw (tool poses and buttons as the simulation last used them).
     std::vector<InstrumentShape> shapes() const;
     /// The mouse device, if one was given (the window moves it).
     WindowDevice* window_device() const { return window_device_; }
