@@ -1,8 +1,11 @@
 // The window driven as training staff drive it: real X input events (xdotool, XTEST) into
 // heartsim's GLFW window under Xvfb, its stdout event lines and its P-key screenshots as the
-// observables (docs/runtime.md "Window mode"). Every wait polls for the effect with a generous
-// limit; nothing asserts how long anything took. Also: the key table in docs/runtime.md is the
-// code's (runtime/window_keys.h), and `heartsim run --help` prints it.
+// observables (docs/runtime.md "Window mode"). Every wait is for an event the window says (a
+// line on stdout, a screenshot written after the frame that took an input in), polled with a
+// generous limit; nothing asserts how long anything took, and no outcome hangs on a time passing
+// (the mouse device's inputs are waited for until the simulation has them: wait_in_place). Also:
+// the key table in docs/runtime.md is the code's (runtime/window_keys.h), and `heartsim run --help`
+// prints it.
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -189,6 +192,42 @@ double changed(const Image& a, const Image& b, int x0, int y0, int x1, int y1) {
     return test::compare_images(test::crop(a, x0, y0, x1, y1), test::crop(b, x0, y0, x1, y1), 24, nullptr).fraction_over;
 }
 
+/// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole
+/// strip x = 12..40 (every pixel differs from the same frame without the HUD: the panel darkens
+/// what lies behind it).
+int panel_height(const Image& with_hud, const Image& without_hud) {
+    int rows = 0;
+    for (int y = 8; y < with_hud.height; ++y, ++rows) {
+        bool covered = true;
+        for (int x = 12; x < 40 && covered; ++x) {
+            const std::size_t p = (std::size_t(y) * std::size_t(with_hud.width) + std::size_t(x)) * 3;
+            int largest = 0;
+            for (int c = 0; c < 3; ++c) largest = std::max(largest, std::abs(int(with_hud.pixels[p + c]) - int(without_hud.pixels[p + c])));
+            covered = largest > 3;
+        }
+        if (!covered) break;
+    }
+    return rows;
+}
+
+/// Waits until the simulation has the mouse device where the inputs sent so far put it (its place
+/// and its button 1): for that event, not for a time. X hands a client its events in order, and `[`
+/// with the section view off only says so: once that line shows, the window has taken in every
+/// input sent before it. The window says "moving" (or "button 1 …") when an input changes where the
+/// device should be, and "in place" once the simulation has stepped it there: the first "in place"
+/// after the last of those is the one. Returns where that line starts in the output, or npos.
+std::size_t wait_in_place(Window& window) {
+    const std::size_t from = window.output().size();
+    if (window.xdotool("key bracketleft") != 0) return std::string::npos;
+    const auto said = window.wait_for("section view: off; C turns it on", from);
+    if (said == std::string::npos) return std::string::npos;
+    const std::string out = window.output();
+    std::size_t moved = 0;
+    for (const char* line : {"mouse device: moving", "mouse device: button 1 "})
+        if (const auto at = out.rfind(line, said); at != std::string::npos) moved = std::max(moved, at);
+    return window.wait_for("mouse device: in place at ", moved);
+}
+
 bool have_window_tools(std::string* why) {
     if (test::run_command("command -v Xvfb && command -v xdotool").exit_code != 0) {
         *why = "Xvfb or xdotool is not installed (Debian: xvfb xdotool; scripts/install-deps.sh)";
@@ -315,8 +354,15 @@ TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
     ASSERT_EQ(window.xdotool("key h F2"), 0);  // help and HUD off
     const Image bare = screenshot(window);
     ASSERT_EQ(bare.width, 400) << window.output();
-    EXPECT_LT(changed(hud, bare, 100, 150, 300, 225), 0.02) << "the scene alone, as before, below the HUD panel";
     EXPECT_GT(changed(hud, bare, 8, 8, 150, 50), 0.1) << "F2 should hide the HUD panel (top left)";
+    // Below the panel the scene alone, as before (paused: it stands still). The panel's height is
+    // measured: it has a line more where the real-time governor scaled the mass before the pause
+    // (a loaded machine), or where a force pass has run.
+    const int panel = panel_height(hud, bare), below = 8 + panel + 4;
+    std::printf("  HUD panel: %d pixels high\n", panel);
+    EXPECT_GT(panel, 40) << "the HUD panel, top left";
+    ASSERT_LT(below, 200) << "the HUD panel should leave the scene below it in sight";
+    EXPECT_LT(changed(hud, bare, 100, below, 300, 225), 0.02) << "the scene alone, as before, below the HUD panel (from row " << below << ")";
 
     // Orbit: a left drag across the middle; zoom: the wheel. Each changes the picture.
     const std::string id = window.id();
@@ -351,11 +397,13 @@ TEST(WindowInput, TheMouseDeviceTouchesTheTissueTheEmergencyStopZeroesItsForceTI
     for (int k = 1; k <= 4; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 5 * k) + " 150"), 0);
     ASSERT_EQ(window.xdotool("mouseup 1 keyup ctrl"), 0);
 
-    // Ctrl + wheel up, a notch at a time, until the device reaches the tissue and feels it.
+    // Ctrl + wheel up, a notch at a time, each stepped there by the simulation, until the device
+    // reaches the tissue and feels it.
     std::size_t touching = std::string::npos;
     for (int notch = 0; notch < 80 && touching == std::string::npos; ++notch) {
         ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
-        touching = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+        ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
+        touching = window.output().find("mouse device: touching the tissue");
     }
     ASSERT_NE(touching, std::string::npos) << "the probe should reach the phantom within 80 notches\n" << window.output();
     EXPECT_GT(number_after(window.output(), "mouse device: touching the tissue, ", touching), 0.01);
@@ -439,14 +487,15 @@ TEST(WindowInput, GGrabsTheTissueWithTheMouseDeviceAndLetsGoAgain) {
     // Ctrl + wheel up into the phantom's wall: the probe of the test above touches its surface
     // after about 20 notches of 2 % of the model radius; a few more put the grabber in the wall.
     for (int k = 0; k < 24; ++k) ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
-    window.wait_for("no such line", 0, 2.0);  // the simulation takes the device there
-    ASSERT_EQ(window.xdotool("key g"), 0);   // button 1 on: the grabber takes hold
-    window.wait_for("no such line", 0, 2.0);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // the simulation has the device there
+    ASSERT_EQ(window.xdotool("key g"), 0);  // button 1 on: the grabber takes hold
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // at the step that read the button
     // Back out a notch at a time until the held tissue pulls on the device.
     std::size_t pulling = std::string::npos;
     for (int notch = 0; notch < 15 && pulling == std::string::npos; ++notch) {
         ASSERT_EQ(window.xdotool("keydown ctrl click 5 keyup ctrl"), 0);
-        pulling = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+        ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
+        pulling = window.output().find("mouse device: touching the tissue");
     }
     ASSERT_NE(pulling, std::string::npos) << "the held tissue should pull on the device\n" << window.output();
     std::size_t from = window.output().size();
@@ -486,13 +535,12 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     ASSERT_EQ(window.xdotool("key k"), 0);
     ASSERT_NE(window.wait_for("instrument 0: scalpel"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key g"), 0);  // button 1: the blade lowered
-    window.wait_for("no such line", 0, 0.5);
     for (int k = 0; k < 30; ++k) ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
-    window.wait_for("no such line", 0, 1.5);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // the blade down, in the wall
     ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl mousedown 1"), 0);
     for (int k = 1; k <= 8; ++k) ASSERT_EQ(window.xdotool("mousemove --window " + id + " " + std::to_string(200 + 8 * k) + " 150"), 0);
     ASSERT_EQ(window.xdotool("mouseup 1 keyup ctrl"), 0);
-    window.wait_for("no such line", 0, 1.5);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // swept through it
     // G again lifts the blade: the window opens the detailed mesh along the stroke.
     ASSERT_EQ(window.xdotool("key g"), 0);
     EXPECT_NE(window.wait_for("incision: the detailed mesh opened along 1 stroke"), std::string::npos) << window.output();
@@ -508,13 +556,15 @@ TEST(WindowInput, KMakesTheMouseDevicesInstrumentAScalpelThatCutsWhileGLowersIt)
     EXPECT_TRUE(closed_manifold(state.visual_triangles, &why)) << why;
 
     // While --record records the session, K switches all the same: the recording starts with
-    // the probe and holds the scalpel from the step K took effect.
+    // the probe and holds the scalpel from the step K took effect. The simulation steps the probe
+    // where it starts before K, and the scalpel a notch further in after it.
     Window recording(x, dir.path(), quoted(phantom()) + " --backend cpu --size 400x300 --device mouse --record " + quoted(dir / "r.h5"));
     ASSERT_TRUE(recording.focus()) << recording.output();
-    recording.wait_for("no such line", 0, 0.5);
+    ASSERT_NE(wait_in_place(recording), std::string::npos) << recording.output();
     ASSERT_EQ(recording.xdotool("key k"), 0);
     EXPECT_NE(recording.wait_for("instrument 0: scalpel"), std::string::npos) << recording.output();
-    recording.wait_for("no such line", 0, 0.5);
+    ASSERT_EQ(recording.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
+    ASSERT_NE(wait_in_place(recording), std::string::npos) << recording.output();
     ASSERT_EQ(recording.xdotool("key Escape"), 0);
     ASSERT_EQ(recording.wait_exit(), 0) << recording.output();
     const Recording r = read_recording(dir / "r.h5");
@@ -556,11 +606,12 @@ TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     const Image before = screenshot(window);
     ASSERT_GT(before.width, 0) << window.output();
     EXPECT_EQ(patch_pixels(before), 0u);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // steps with the probe first
     ASSERT_EQ(window.xdotool("key shift+p"), 0);
     ASSERT_NE(window.wait_for("instrument 0: patch"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
     ASSERT_NE(window.wait_for("mouse device: on the surface at"), std::string::npos) << window.output();
-    window.wait_for("no such line", 0, 2.0);  // the simulation takes the device there
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // the simulation has the device there
     ASSERT_EQ(window.xdotool("key g"), 0);    // button 1: the patch laid
     ASSERT_NE(window.wait_for("repair: pericardium patch laid"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key g"), 0);    // button 1 off: the hand lets go of it
@@ -574,12 +625,15 @@ TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     ASSERT_EQ(window.xdotool("key shift+n"), 0);
     ASSERT_NE(window.wait_for("instrument 0: needle"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
-    window.wait_for("no such line", 0, 2.0);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key g"), 0);    // button 1: a stitch tied at the needle's tip
     EXPECT_NE(window.wait_for("repair: stitch 1 tied"), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key g"), 0);    // the knot thrown
     ASSERT_EQ(window.xdotool("key shift+n"), 0);
     EXPECT_NE(window.wait_for("instrument 0: probe"), std::string::npos) << window.output();
+    // A step with the probe again: a notch out of the screen, stepped there.
+    ASSERT_EQ(window.xdotool("keydown ctrl click 5 keyup ctrl"), 0);
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     ASSERT_EQ(window.wait_exit(), 0) << window.output();
     const SimulationState state = read_state(dir / "state.h5");
@@ -598,24 +652,6 @@ TEST(WindowInput, ShiftPLaysAPatchWithTheMouseDeviceAndShiftNTiesAStitchToIt) {
     EXPECT_NE(replay.output.find("repair: pericardium patch laid"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("repair: stitch 1 tied"), std::string::npos) << replay.output;
     EXPECT_NE(replay.output.find("match the recording bit for bit"), std::string::npos) << replay.output;
-}
-
-/// The HUD panel's height, pixels: the rows from its top (y = 8) down in which it covers the whole
-/// strip x = 12..40 (every pixel differs from the same frame without the HUD: the panel darkens
-/// what lies behind it).
-int panel_height(const Image& with_hud, const Image& without_hud) {
-    int rows = 0;
-    for (int y = 8; y < with_hud.height; ++y, ++rows) {
-        bool covered = true;
-        for (int x = 12; x < 40 && covered; ++x) {
-            const std::size_t p = (std::size_t(y) * std::size_t(with_hud.width) + std::size_t(x)) * 3;
-            int largest = 0;
-            for (int c = 0; c < 3; ++c) largest = std::max(largest, std::abs(int(with_hud.pixels[p + c]) - int(without_hud.pixels[p + c])));
-            covered = largest > 3;
-        }
-        if (!covered) break;
-    }
-    return rows;
 }
 
 // The section view driven by keys: C cuts the heart open through its centre, facing the view (the
@@ -734,10 +770,11 @@ fs::path record_from_window(Window& window, int notches, long long* steps) {
     if (window.xdotool("key F5") != 0) return {};
     const auto started = window.wait_for("recording: started at ", from);
     if (started == std::string::npos || window.wait_for("\n", started) == std::string::npos) return {};
-    // The device moves while recording: a few Ctrl + wheel notches into the tissue and back.
+    // The device moves while recording: a few Ctrl + wheel notches into the tissue and back,
+    // stepped by the simulation (the recording placed it afresh: "in place" needs a step of it).
     for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 4 keyup ctrl");
     for (int k = 0; k < notches; ++k) window.xdotool("keydown ctrl click 5 keyup ctrl");
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    if (wait_in_place(window) == std::string::npos) return {};
     from = window.output().size();
     if (window.xdotool("key F5") != 0) return {};
     const auto wrote = window.wait_for("recording: wrote ", from);
@@ -761,11 +798,12 @@ TEST(WindowInput, F5RecordsFromTheRestStateAndTheRecordingReplaysBitForBit) {
     std::size_t touching = std::string::npos;
     for (int notch = 0; notch < 80 && touching == std::string::npos; ++notch) {
         ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);
-        touching = window.wait_for("mouse device: touching the tissue", 0, 1.5);
+        ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
+        touching = window.output().find("mouse device: touching the tissue");
     }
     ASSERT_NE(touching, std::string::npos) << "the probe should reach the phantom within 80 notches\n" << window.output();
     ASSERT_EQ(window.xdotool("keydown ctrl click 4 click 4 keyup ctrl"), 0);  // deeper in
-    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
 
     long long steps1 = 0, steps2 = 0;
     const fs::path first = record_from_window(window, 2, &steps1);
@@ -779,7 +817,8 @@ TEST(WindowInput, F5RecordsFromTheRestStateAndTheRecordingReplaysBitForBit) {
     ASSERT_NE(window.wait_for("recording: started at ", from), std::string::npos) << window.output();
     ASSERT_EQ(window.xdotool("key t"), 0);
     ASSERT_NE(window.wait_for("T: not while recording", from), std::string::npos) << window.output();
-    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    ASSERT_EQ(window.xdotool("keydown ctrl click 4 keyup ctrl"), 0);  // steps recorded: a notch in, stepped there
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();
     from = window.output().size();
     ASSERT_EQ(window.xdotool("key Escape"), 0);
     ASSERT_EQ(window.wait_exit(), 0) << window.output();
@@ -826,10 +865,11 @@ TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
 }
 
 TEST(WindowHud, TheHudMatchesItsGoldenImage) {
-    // The window as seen (P), HUD included: the phantom at rest (paused after a step, then T), the
+    // The window as seen (P), HUD included: the phantom at rest (paused, one step, then T), the
     // keyboard's probe, the HUD panel, the LPS axes and the scale bar. HEARTSIM_HUD_FIXED shows
     // the figures that depend on the machine's speed (real-time factor, fps, steps/s, simulated
-    // time) as fixed values; everything else is what the window draws. Regenerate (after an
+    // time) as fixed values, and --real-time off keeps the mass scale (and its HUD line) from
+    // following the machine's speed; everything else is what the window draws. Regenerate (after an
     // intended change of the picture) with
     // HEARTSIM_UPDATE_GOLDEN=1 ./test_runtime_window --gtest_filter='*Golden*'; look at it first.
     REQUIRE_WINDOW_TOOLS();
@@ -838,22 +878,15 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     XServer x(dir.path());
     ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
     fs::copy_file(phantom(), dir / "case.h5");
-    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300", "HEARTSIM_HUD_FIXED=1");
+    Window window(x, dir.path(), quoted(dir / "case.h5") + " --backend cpu --size 400x300 --real-time off", "HEARTSIM_HUD_FIXED=1");
     ASSERT_TRUE(window.focus()) << window.output();
-    // Paused once a step has run (the HUD then shows the force pass's result, not "not known").
-    for (int attempt = 0;; ++attempt) {
-        ASSERT_LT(attempt, 20) << window.output();
-        std::size_t from = window.output().size();
-        ASSERT_EQ(window.xdotool("key space"), 0);
-        const auto at = window.wait_for("paused at ", from);
-        ASSERT_NE(at, std::string::npos) << window.output();
-        if (number_after(window.output(), "paused at ", at) > 0) break;
-        from = window.output().size();
-        ASSERT_EQ(window.xdotool("key space"), 0);
-        ASSERT_NE(window.wait_for("resumed at ", from), std::string::npos) << window.output();
-        std::this_thread::sleep_for(std::chrono::milliseconds(300));
-    }
-    const std::size_t from = window.output().size();
+    // Paused, then one step (N): the HUD shows the force pass's result, not "not known".
+    ASSERT_EQ(window.xdotool("key space"), 0);
+    ASSERT_NE(window.wait_for("paused at "), std::string::npos) << window.output();
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("key n"), 0);
+    ASSERT_NE(window.wait_for("one step: ", from), std::string::npos) << window.output();
+    from = window.output().size();
     ASSERT_EQ(window.xdotool("key t"), 0);  // the rest state exactly
     ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
     const Image image = screenshot(window);
@@ -934,7 +967,7 @@ TEST(WindowInput, WithoutAGpuTheWindowSimulatesOnTheCpuBackendAndSaysSo) {
 // button 1; a click beside the heart leaves it where it is. The recording shows the touch: the
 // probe pressed a quarter of its size in rests against the tissue with a few mN, below the
 // 0.01 N of the window's "touching" line (only the moment it lands crosses that, by more or less
-// with the machine's load), so the forces the session sent are read from it instead.
+// with the machine's load), so the forces the simulation computed there are read from it instead.
 TEST(WindowInput, CtrlShiftClickPutsTheMouseDeviceOnARealHeartsSurfaceAndADragSlidesItAlong) {
     REQUIRE_WINDOW_TOOLS();
     const fs::path label_map = test::real_case("hvsmr16_pat1");
@@ -965,13 +998,15 @@ TEST(WindowInput, CtrlShiftClickPutsTheMouseDeviceOnARealHeartsSurfaceAndADragSl
         return p;
     };
 
-    // The middle of the window shows the heart: the device goes onto its surface, and touches it.
+    // The middle of the window shows the heart (once a frame is drawn: P writes one): the device
+    // goes onto its surface, and touches it.
+    ASSERT_FALSE(screenshot(window).pixels.empty()) << window.output();
     ASSERT_EQ(window.xdotool("mousemove --window " + id + " 200 150 keydown ctrl keydown shift click 1 keyup shift keyup ctrl"), 0);
     auto at = window.wait_for("mouse device: on the surface at ");
     ASSERT_NE(at, std::string::npos) << window.output();
     const Eigen::Vector3d first = point_after("mouse device: on the surface at ", at);
     EXPECT_LT(from_surface(first), 3.0) << first.transpose();
-    std::this_thread::sleep_for(std::chrono::seconds(1));  // resting there a while (the recording below)
+    ASSERT_NE(wait_in_place(window), std::string::npos) << window.output();  // the simulation has it there
 
     // Dragged, it slides along the surface: its new place is on the surface too, further along.
     std::size_t from = window.output().size();
@@ -998,22 +1033,29 @@ TEST(WindowInput, CtrlShiftClickPutsTheMouseDeviceOnARealHeartsSurfaceAndADragSl
     ASSERT_EQ(window.wait_exit(), 0) << window.output();
 
     // The session's ticks: free where the device started, then (it glides to where the click
-    // put it, at the mouse device's speed) pushed back by the tissue while it rested there (the
-    // tick's pose is the one said, to the 0.01 mm printed).
+    // put it, at the mouse device's speed) there (the tick's pose is the one said, to the 0.01 mm
+    // printed). The simulation's steps with the device there (the window said "in place" before
+    // the drag): the tissue pushed it back. Steps, not ticks: a tick sends the force of the last
+    // step published, which lags the device's place by as much as the machine's load makes it.
     const Recording r = read_recording(dir / "slide.h5");
     const auto& p = r.hands[0].position_mm;
     const auto& f = r.hands[0].force_n;
     ASSERT_EQ(p.size(), f.size());
     auto norm = [](const auto& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); };
-    std::size_t arrived = p.size(), left = p.size();  // the first and last ticks there
+    auto there = [&](const std::array<double, 3>& x) { return (Eigen::Vector3d(x[0], x[1], x[2]) - first).norm() < 0.01; };
+    bool arrived = false;
     double before = 0.0;
     for (std::size_t i = 0; i < p.size(); ++i) {
         if (p[i] == p.front()) before = std::max(before, norm(f[i]));
-        if ((Eigen::Vector3d(p[i][0], p[i][1], p[i][2]) - first).norm() < 0.01) left = i, arrived = std::min(arrived, i);
+        arrived = arrived || there(p[i]);
     }
-    ASSERT_LT(arrived, p.size()) << "the recording has the device where the click put it";
+    EXPECT_TRUE(arrived) << "the recording has the device where the click put it";
     EXPECT_EQ(before, 0.0) << "free before the click";
-    const double resting = norm(f[(arrived + left) / 2]);  // half-way through its rest there
-    std::printf("  resting where the click put it, the device was sent %.3g N\n", resting);
+    std::size_t steps_there = 0;
+    double resting = 0.0;
+    for (std::size_t k = 0; k < r.steps.size(); ++k)
+        if (there(r.steps.tool_position_mm[k][0])) ++steps_there, resting = std::max(resting, norm(r.steps.force_n[k][0]));
+    ASSERT_GT(steps_there, 0u) << "the simulation stepped the device where the click put it";
+    std::printf("  resting where the click put it (%zu steps), the tissue pushed the device back with up to %.3g N\n", steps_there, resting);
     EXPECT_GT(resting, 1e-3) << "a click on the heart touches it: the tissue pushes the device back";
 }
