@@ -5,6 +5,7 @@
 
 #include <fcntl.h>
 #include <signal.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -183,6 +184,22 @@ void write_bytes_atomically(const std::filesystem::path& path, const void* data,
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
         write_bytes(temporary, data, size, path.string() + ": cannot write " + what);
     });
+}
+
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
+    struct stat first {}, second {};
+    if (::stat(a.c_str(), &first) == 0 && ::stat(b.c_str(), &second) == 0)
+        return first.st_dev == second.st_dev && first.st_ino == second.st_ino;
+    std::error_code error_a, error_b;
+    const auto whole_a = std::filesystem::weakly_canonical(std::filesystem::absolute(a, error_a), error_a);
+    const auto whole_b = std::filesystem::weakly_canonical(std::filesystem::absolute(b, error_b), error_b);
+    return !error_a && !error_b && whole_a == whole_b;
+}
+
+void refuse_an_input_as_output(const std::string& output_name, const std::filesystem::path& output, const std::vector<InputFile>& inputs) {
+    for (const InputFile& input : inputs)
+        if (!input.path.empty() && same_file(output, input.path))
+            throw OptionError(output_name + ": that is " + input.what + "; give another file");
 }
 
 }  // namespace heartsim

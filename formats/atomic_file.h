@@ -56,4 +56,20 @@ void write_bytes(const std::filesystem::path& file, const void* data, std::size_
 /// write_file_atomically of `size` bytes; `what` names the file in errors ("the screenshot").
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what);
 
+/// Whether `a` and `b` name one file: where both exist, the same device and inode (so a hard
+/// link, a symbolic link, "./x" and an absolute spelling all match); otherwise the same path once
+/// made absolute, with the symbolic links of the folders that exist followed.
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b);
+
+/// A file a command reads, and how its messages name it ("the scenario being run").
+struct InputFile {
+    std::filesystem::path path;
+    std::string what;
+};
+
+/// An output never replaces an input: OptionError "`output_name`: that is `what`; give another
+/// file" when `output` is one of `inputs` (same_file), before anything is written. `output_name`
+/// says which output ("--stats-csv out.csv", "-o out.nii.gz").
+void refuse_an_input_as_output(const std::string& output_name, const std::filesystem::path& output, const std::vector<InputFile>& inputs);
+
 }  // namespace heartsim

@@ -50,6 +50,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -697,9 +698,21 @@ void write_with_itk(const fs::path& path, const LabelVolume& volume, bool compre
     writer->Update();
 }
 
-/// MetaImage .mhd headers name their data file (.raw/.zraw) after themselves, so a renamed
-/// temporary header would point at the wrong file: write both inside a temporary folder under
-/// their final names, then move the data file first and the header last.
+/// The data file ITK's MetaImage writer puts beside an uncompressed `.mhd` header: its name with
+/// `.raw` for `.mhd`, in the header's folder.
+fs::path metaimage_data_file(const fs::path& header) {
+    const std::string name = header.filename().string();
+    return header.parent_path() / (name.substr(0, name.size() - std::string(".mhd").size()) + ".raw");
+}
+
+/// Whether `error` (errno) means the disk took no more: said as the cause rather than the damage
+/// the short file shows to the format's reader.
+bool disk_full(int error) { return error == ENOSPC || error == EDQUOT || error == EFBIG; }
+
+/// ITK chooses its writer by the whole extension (".nii.gz"), and a MetaImage `.mhd` header names
+/// its data file after itself: the label map is written into a staging folder beside `path` under
+/// its final names, confirmed by reading it back, and handed to write_file_atomically, which
+/// flushes it and renames it into place (for a `.mhd`, the data file first and the header last).
 void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
                              const std::map<int, std::string>* segment_names) {
     const std::string extension = volume_extension(path);
@@ -723,29 +736,55 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
     if (extension != ".seg.nrrd") segment_names = nullptr;
 
     const bool detached = extension == ".mhd";
-    // The temporary keeps the whole extension, so ITK picks the same writer.
     sweep_stale_temporaries(path);
-    const fs::path staging = temporary_beside(path, detached ? "" : extension);
-    const fs::path written = detached ? staging / path.filename() : staging;
+    const fs::path staging = temporary_beside(path, "");
+    const fs::path written = staging / path.filename();
+    const fs::path data_file = detached ? metaimage_data_file(path) : fs::path();
+    const fs::path written_data = detached ? staging / data_file.filename() : fs::path();
     std::error_code ignored;
+    int write_error = 0;  // errno after ITK's writer: ENOSPC when the disk filled up
+    std::string printed;  // what MetaIO said on std::cerr
     try {
-        if (detached && !fs::create_directory(staging))
+        if (!fs::create_directory(staging))
             throw OutputError(path.string() + ": cannot create temporary folder " + staging.string());
-        if (fits_uint16) write_with_itk<std::uint16_t>(written, volume, compress, segment_names);
-        else write_with_itk<std::int32_t>(written, volume, compress, segment_names);
+        try {
+            errno = 0;
+            with_cerr_captured(printed, [&] {
+                if (fits_uint16) write_with_itk<std::uint16_t>(written, volume, compress, segment_names);
+                else write_with_itk<std::int32_t>(written, volume, compress, segment_names);
+            });
+            write_error = errno;
+        } catch (...) {
+            write_error = errno;
+            throw;
+        }
         // Some ITK writers (niftilib) report failure only on stderr: confirm the result is complete.
         if (!fs::exists(written)) throw OutputError(path.string() + ": ITK wrote no file");
         Probe check = probe_volume(written);
         check_data_present(written, check.location, check.header.data_bytes, value_count(check));
-        if (detached) {
-            for (const auto& entry : fs::directory_iterator(staging))
-                if (entry.path() != written) fs::rename(entry.path(), path.parent_path() / entry.path().filename());
+        auto take = [](const fs::path& staged) {
+            return [staged](const fs::path& temporary) {
+                std::error_code error;
+                fs::rename(staged, temporary, error);
+                if (error) throw OutputError(temporary.string() + ": cannot move the written file here: " + error.message());
+            };
+        };
+        if (!detached) {
+            write_file_atomically(path, take(written));
+        } else {
+            if (check.header.data_file != written_data)
+                throw OutputError(path.string() + ": ITK put the voxels in " + check.header.data_file.string() + ", expected " +
+                                  written_data.string());
+            std::ifstream in(written, std::ios::binary);
+            const std::string header((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+            if (in.bad()) throw OutputError(path.string() + ": cannot read back the MetaImage header ITK wrote");
+            write_file_atomically(data_file, take(written_data), {FileBeside{path, header, "the MetaImage header"}});
         }
-        fs::rename(written, path);
-        if (detached) fs::remove_all(staging, ignored);
+        fs::remove_all(staging, ignored);
     } catch (const itk::ExceptionObject& itk_error) {
         fs::remove_all(staging, ignored);
-        throw OutputError(path.string() + ": cannot write: " + itk_reason(itk_error));
+        if (disk_full(write_error)) throw OutputError(path.string() + ": cannot write the label map (" + std::strerror(write_error) + "; disk full?)");
+        throw OutputError(path.string() + ": cannot write: " + itk_reason(itk_error, printed));
     } catch (const OutputError&) {
         fs::remove_all(staging, ignored);
         throw;
@@ -754,6 +793,7 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
         throw;
     } catch (const std::exception& error) {
         fs::remove_all(staging, ignored);
+        if (disk_full(write_error)) throw OutputError(path.string() + ": cannot write the label map (" + std::strerror(write_error) + "; disk full?)");
         throw OutputError(path.string() + ": cannot write: " + error.what());
     }
 }
@@ -785,6 +825,11 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
 std::string label_volume_path_problem(const std::filesystem::path& path) {
     if (!volume_extension(path).empty()) return {};
     return path.string() + ": unsupported file type '" + path.extension().string() + "'; expected one of " + supported_list;
+}
+
+std::vector<std::filesystem::path> label_volume_files(const std::filesystem::path& path) {
+    if (volume_extension(path) == ".mhd") return {path, metaimage_data_file(path)};
+    return {path};
 }
 
 void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume) {

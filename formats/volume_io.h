@@ -60,6 +60,11 @@ LabelVolume read_label_volume(const std::filesystem::path& path, const VolumeRea
 /// so that a command can refuse an output name before it does any work.
 std::string label_volume_path_problem(const std::filesystem::path& path);
 
+/// The files write_label_volume(path, …) writes: `path` and, for a MetaImage `.mhd` header, the
+/// data file beside it that takes the voxels (NAME.raw), so that a command can check that none of
+/// them is one of its inputs before it writes.
+std::vector<std::filesystem::path> label_volume_files(const std::filesystem::path& path);
+
 /// Writes a label map (stored as unsigned 16-bit when every label fits, else signed 32-bit);
 /// the format follows the extension. Atomic: temporary file, then rename. Throws OutputError.
 void write_label_volume(const std::filesystem::path& path, const LabelVolume& volume);

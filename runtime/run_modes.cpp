@@ -136,7 +136,7 @@ void check_arguments(const RunArguments& a) {
     // Files written after the run: a place they cannot go is refused now, not after the simulation.
     // An output must not replace an input: the scenario, the trajectory, the recording replayed,
     // a device's script (simulated:FILE[@…], scripted:FILE).
-    std::vector<std::pair<std::string, std::string>> inputs = {
+    std::vector<InputFile> inputs = {
         {a.scenario, "the scenario being run"}, {a.trajectory, "the --trajectory file"}, {a.replay, "the recording replayed"}};
     for (const std::string& device : a.devices) {
         const auto colon = device.find(':');
@@ -149,38 +149,30 @@ void check_arguments(const RunArguments& a) {
         {"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}, {"--record", a.record.value_or("")}};
     for (const auto& [option, path] : outputs) {
         if (path.empty()) continue;
-        std::error_code error;
-        for (const auto& [input, what] : inputs)
-            if (!input.empty() && std::filesystem::exists(path, error) && std::filesystem::exists(input, error) &&
-                std::filesystem::equivalent(path, input, error))
-                throw UsageError(std::string(option) + " " + path + ": that is " + what + "; give another file");
+        refuse_an_input_as_output(std::string(option) + " " + path, path, inputs);
         for (const auto& [other_option, other] : outputs)
-            if (other_option != option && other == path)
+            if (other_option != option && !other.empty() && same_file(other, path))
                 throw UsageError(std::string(option) + " and " + other_option + " name the same file, " + path + "; give each its own");
     }
     // --save-state and --record also write a ParaView description beside their file (xdmf.h): it
     // must not be another output, an input, or the scenario's own description, and its place must
     // take a file, all before the run (a folder there failed after the run, leaving the .h5).
     namespace fs = std::filesystem;
-    auto same = [](const fs::path& x, const fs::path& y) {
-        std::error_code error;
-        return fs::absolute(x, error).lexically_normal() == fs::absolute(y, error).lexically_normal();
-    };
     const fs::path scenario_description = xdmf_beside(a.scenario);
     const std::pair<const char*, std::string> described[] = {{"--save-state", a.save_state}, {"--record", a.record.value_or("")}};
     for (const auto& [option, path] : described) {
         if (path.empty()) continue;
         const fs::path description = xdmf_beside(path);
         const std::string what = std::string(option) + " " + path + ": its ParaView description " + description.string();
-        if (same(description, scenario_description))
+        if (same_file(description, scenario_description))
             throw UsageError(what + " would replace the scenario's own; give another name");
         for (const auto& [input, input_what] : inputs)
-            if (!input.empty() && same(description, input)) throw UsageError(what + " would replace " + input_what + "; give another name");
+            if (!input.empty() && same_file(description, input)) throw UsageError(what + " would replace " + input_what + "; give another name");
         for (const auto& [other_option, other] : outputs)
-            if (!other.empty() && same(description, other))
+            if (!other.empty() && same_file(description, other))
                 throw UsageError(what + " is the file " + other_option + " names; give each its own");
         for (const auto& [other_option, other] : described)
-            if (other_option != option && !other.empty() && same(description, xdmf_beside(other)))
+            if (other_option != option && !other.empty() && same_file(description, xdmf_beside(other)))
                 throw UsageError(what + " is also " + other_option + "'s; give them different names");
     }
     for (const auto& [option, path] : {std::pair{"--save-state", a.save_state}, {"--screenshot", a.screenshot}, {"--stats-csv", a.stats_csv}}) {

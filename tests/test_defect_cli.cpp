@@ -13,7 +13,9 @@
 
 #include <gtest/gtest.h>
 
+#include <fstream>
 #include <numbers>
+#include <set>
 
 using namespace heartsim;
 using namespace heartsim::test::defect_block;
@@ -188,6 +190,63 @@ TEST(HeartprepDefect, WritesTheLabelMapWithTheHoleInTheInputsGridAndRefusesWitho
 }
 
 
+
+TEST(HeartprepDefect, NeverWritesOverItsInputHoweverTheOutputIsSpelled) {
+    // The input named again (relative, "./", absolute), through a hard link or a symbolic link:
+    // refused before anything is written, exit 2, the input's bytes and inode as they were.
+    test::TempDir dir;
+    const BlockFile file(dir);
+    const std::string heartprep = test::quoted(HEARTPREP_EXE);
+    auto bytes = [](const std::filesystem::path& path) {
+        std::ifstream in(path, std::ios::binary);
+        return std::string(std::istreambuf_iterator<char>(in), {});
+    };
+    const std::string before = bytes(file.input);
+    std::filesystem::create_hard_link(file.input, dir / "hard.nrrd");
+    std::filesystem::create_symlink(file.input.filename(), dir / "soft.nrrd");
+    auto defect = [&](const std::string& input, const std::string& output) {
+        return test::run_command("cd " + test::quoted(dir.path()) + " && " + heartprep + " defect " + test::quoted(input) +
+                                 " --type vsd --diameter 8 --at " + file.point + " -q -o " + test::quoted(output));
+    };
+    for (const std::string& output : std::vector<std::string>{"block.nrrd", "./block.nrrd", file.input.string(), "hard.nrrd", "soft.nrrd"}) {
+        const auto run = defect("block.nrrd", output);
+        EXPECT_EQ(run.exit_code, 2) << output << ": " << run.output;
+        EXPECT_NE(run.output.find("-o " + output + ": that is the input label map; give another file"), std::string::npos) << run.output;
+    }
+    EXPECT_TRUE(bytes(file.input) == before) << "the input was rewritten";
+    EXPECT_EQ(std::filesystem::hard_link_count(file.input), 2u) << "the input was replaced";
+    EXPECT_TRUE(std::filesystem::is_symlink(dir / "soft.nrrd"));
+
+    // MetaImage: a .mhd header's voxels are in the data file it names. An output whose own data
+    // file would be the input's is refused too, and the input's voxels stay as they were.
+    const auto header = dir / "case.mhd";
+    write_label_volume(header, file.block.volume);
+    const auto written = read_volume_header(header).data_file;
+    ASSERT_EQ(written, label_volume_files(header).at(1)) << "the data file a .mhd gets is not where it was expected";
+    std::string text = bytes(header);
+    const std::string named = "ElementDataFile = " + written.filename().string();
+    ASSERT_NE(text.find(named), std::string::npos) << text;
+    text.replace(text.find(named), named.size(), "ElementDataFile = voxels.raw");
+    std::ofstream(dir / "other.mhd", std::ios::binary) << text;
+    std::filesystem::rename(written, dir / "voxels.raw");
+    const std::string voxels = bytes(dir / "voxels.raw");
+    ASSERT_EQ(read_label_volume(dir / "other.mhd").labels, file.block.volume.labels);
+    const auto run = defect("other.mhd", "voxels.mhd");
+    EXPECT_EQ(run.exit_code, 2) << run.output;
+    EXPECT_NE(run.output.find("-o voxels.mhd (its voxels go to voxels.raw): that is the input label map's data file"), std::string::npos)
+        << run.output;
+    EXPECT_TRUE(bytes(dir / "voxels.raw") == voxels) << "the input's voxels were rewritten";
+    EXPECT_FALSE(std::filesystem::exists(dir / "voxels.mhd"));
+
+    // Another name writes both files of the pair, and nothing else.
+    const auto written_pair = defect("other.mhd", "vsd.mhd");
+    ASSERT_EQ(written_pair.exit_code, 0) << written_pair.output;
+    EXPECT_EQ(read_volume_header(dir / "vsd.mhd").data_file, dir / "vsd.raw");
+    EXPECT_NE(read_label_volume(dir / "vsd.mhd").labels, file.block.volume.labels);
+    std::set<std::string> names;
+    for (const auto& entry : std::filesystem::directory_iterator(dir.path())) names.insert(entry.path().filename().string());
+    EXPECT_EQ(names, (std::set<std::string>{"block.nrrd", "hard.nrrd", "soft.nrrd", "case.mhd", "other.mhd", "voxels.raw", "vsd.mhd", "vsd.raw"}));
+}
 
 TEST(HeartsimDefectSection, ClipDefectCutsAcrossTheOpeningAndLooksAtIt) {
     // The block with an 8 mm VSD and without: --clip defect puts the plane through the opening's

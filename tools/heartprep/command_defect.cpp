@@ -105,6 +105,12 @@ void add_defect_command(CLI::App& app) {
         BuildReport report;
         SelectionOptions selection;
         LabelVolume volume = read_and_resolve(*input, *labels, selection, progress, report);
+        // An output never replaces an input: nor, through a MetaImage header's data file, its voxels.
+        const std::vector<InputFile> inputs = {{*input, "the input label map"},
+                                               {report.header.data_file, "the input label map's data file"},
+                                               {labels->label_table, "the --labels file"}};
+        for (const std::filesystem::path& file : label_volume_files(*output))
+            refuse_an_input_as_output("-o " + *output + (file == *output ? "" : " (its voxels go to " + file.string() + ")"), file, inputs);
         defect_stage(volume, *input, choice, selection, progress, report);
         {
             ProgressStage stage(progress, "write label map", 0);
