@@ -1,6 +1,7 @@
 #include "runtime/incision_plan.h"
 
 #include "cli/command_errors.h"
+#include "formats/atomic_file.h"
 #include "libmodel/errors.h"
 
 #include <Eigen/Geometry>
@@ -238,17 +239,18 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
     return plan;
 }
 
-void write_trajectory_csv(const Trajectory& t, const std::filesystem::path& path) {
-    std::FILE* f = std::fopen(path.c_str(), "w");
-    if (!f) throw OutputError("cannot write " + path.string());
-    std::fprintf(f, "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n");
+void write_trajectory_csv(const Trajectory& t, const std::filesystem::path& path, const std::string& comments) {
+    std::string text = comments + "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
     for (const InstrumentKeyframe& k : t.keyframes) {
         const auto& p = k.pose.position;
         const auto& q = k.pose.orientation;
-        std::fprintf(f, "%.17g,%d,%s,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand, to_string(k.kind), p.x(),
-                     p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(), k.grab ? 1 : 0);
+        char row[512];
+        std::snprintf(row, sizeof row, "%.17g,%d,%s,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand,
+                      to_string(k.kind), p.x(), p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(),
+                      k.grab ? 1 : 0);
+        text += row;
     }
-    if (std::fclose(f) != 0) throw OutputError("cannot write " + path.string());
+    write_bytes_atomically(path, text.data(), text.size(), "the trajectory");
 }
 
 double incision_view_distance(const IncisionPlan&, const IncisionPlanOptions& options) { return 2.5 * options.length_mm; }
@@ -264,8 +266,8 @@ int plan_incision_command(const PlanIncisionArguments& a) {
     IncisionPlanOptions options = a.options;
     options.approach = parse_incision_approach(a.approach);
     options.retract = options.spread_mm > 0.0;
-    if (std::filesystem::weakly_canonical(a.output) == std::filesystem::weakly_canonical(a.scenario))
-        throw UsageError("-o " + a.output + " names the scenario itself: give another file for the trajectory");
+    refuse_an_input_as_output("-o " + a.output, a.output, {{a.scenario, "the scenario being planned"}});
+    check_destination(a.output);  // before the planning: a folder that cannot take the file
     const Scenario scenario = read_scenario(a.scenario);
     const IncisionPlan plan = plan_incision(scenario, options);
     check_planned_trajectory(plan.trajectory);

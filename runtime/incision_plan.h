@@ -94,9 +94,11 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
 /// those within `radius` of the line through `point` along `blade` (a world axis, ±); −1 if none.
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius);
 
-/// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h).
-/// OutputError when the file cannot be written.
-void write_trajectory_csv(const Trajectory& trajectory, const std::filesystem::path& path);
+/// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h), after
+/// `comments` (whole `#` lines, each ending in a line break). Written atomically (formats/atomic_file.h):
+/// an old file at `path` is replaced whole or, when the write fails, left as it was; OutputError
+/// naming the file and the cause ("No space left on device").
+void write_trajectory_csv(const Trajectory& trajectory, const std::filesystem::path& path, const std::string& comments = "");
 
 /// A camera distance (mm) at which the opened incision fills a good part of the frame: two and a
 /// half incision lengths (a 30 mm cut then spans about 75 % of the frame's height).

@@ -1,7 +1,9 @@
 #include "runtime/repair_plan.h"
 
 #include "cli/command_errors.h"
+#include "formats/atomic_file.h"
 #include "libmodel/errors.h"
+#include "runtime/incision_plan.h"
 
 #include <Eigen/Eigenvalues>
 
@@ -360,29 +362,21 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
 }  // namespace
 
 void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path, const std::string& scenario_name) {
-    std::FILE* f = std::fopen(path.c_str(), "w");
-    if (!f) throw OutputError("cannot write " + path.string());
-    std::fprintf(f, "# heartsim plan-repair%s%s: a patch over the %s's opening on its %s side (%s), %zu stitches round the rim\n",
-                 scenario_name.empty() ? "" : " ", scenario_name.c_str(), plan.defect.c_str(), plan.on_right ? "right" : "left",
-                 plan.on_b ? "side b, +axis" : "side a, -axis", plan.stitches.size());
-    std::fprintf(f, "# hand 0 lays the patch (grab 1 at 0 ms); hand 1's needle ties a stitch each time its grab turns 1; "
-                    "the gesture ends at %.0f ms\n",
-                 plan.end_ms);
-    std::fprintf(f, "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n");
-    for (const InstrumentKeyframe& k : plan.trajectory.keyframes) {
-        const auto& p = k.pose.position;
-        const auto& q = k.pose.orientation;
-        std::fprintf(f, "%.17g,%d,%s,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand, to_string(k.kind), p.x(),
-                     p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(), k.grab ? 1 : 0);
-    }
-    if (std::fclose(f) != 0) throw OutputError("cannot write " + path.string());
+    char comments[1024];
+    std::snprintf(comments, sizeof comments,
+                  "# heartsim plan-repair%s%s: a patch over the %s's opening on its %s side (%s), %zu stitches round the rim\n"
+                  "# hand 0 lays the patch (grab 1 at 0 ms); hand 1's needle ties a stitch each time its grab turns 1; "
+                  "the gesture ends at %.0f ms\n",
+                  scenario_name.empty() ? "" : " ", scenario_name.c_str(), plan.defect.c_str(), plan.on_right ? "right" : "left",
+                  plan.on_b ? "side b, +axis" : "side a, -axis", plan.stitches.size(), plan.end_ms);
+    write_trajectory_csv(plan.trajectory, path, comments);
 }
 
 int plan_repair_command(const PlanRepairArguments& a) {
     RepairPlanOptions options = a.options;
     options.side = parse_repair_side(a.side);
-    if (std::filesystem::weakly_canonical(a.output) == std::filesystem::weakly_canonical(a.scenario))
-        throw UsageError("-o " + a.output + " names the scenario itself: give another file for the trajectory");
+    refuse_an_input_as_output("-o " + a.output, a.output, {{a.scenario, "the scenario being planned"}});
+    check_destination(a.output);  // before the planning: a folder that cannot take the file
     const Scenario scenario = read_scenario(a.scenario);
     const RepairPlan plan = plan_repair(scenario, options);
     check_planned_trajectory(plan.trajectory);

@@ -29,7 +29,6 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
-#include <fstream>
 #include <sstream>
 #include <thread>
 #include <tuple>
@@ -459,8 +458,7 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
                   a.contact_mode().c_str(), a.picking_refresh_every(), quote(device).c_str(), p.backend->load_report().particles, run.steps,
                   run.substeps, wall_ms, run.steps / seconds, run.substeps / seconds, per_substep > 0 ? 1000.0 / per_substep : 0.0, r.frames,
                   p.backend->options().mass_scale);
-    std::ofstream out(a.stats_csv);
-    if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+    std::ostringstream out;
     out << "pass,calls,total_ms,mean_ms,per,timing,backend,contact,picking_refresh,renderer,particles,steps,substeps,wall_ms,"
            "steps_per_s,substeps_per_s,step_pass_substeps_per_s,frames,mass_scale\n";
     const char* timing = t.gpu_timed ? "gpu" : "wall";
@@ -475,8 +473,8 @@ void write_stats_csv(const RunArguments& a, PreparedRun& p, const ScriptedRunRes
     row("position upload", r.uploads, r.upload_ms, "frame", "wall");
     row("picking buffer", t.picking_calls, t.picking_ms, "force request", timing);
     row("force buffer", t.force_calls, t.force_ms, "force request", timing);
-    out.close();
-    if (!out) throw std::runtime_error("--stats-csv: cannot write " + a.stats_csv);
+    const std::string text = out.str();
+    write_bytes_atomically(a.stats_csv, text.data(), text.size(), "the --stats-csv table");
     std::printf("wrote %s\n", a.stats_csv.c_str());
 }
 

@@ -7,6 +7,7 @@
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "formats/volume_io.h"
+#include "defect_block_scenario.h"
 #include "incision_gesture.h"
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
@@ -24,10 +25,12 @@
 #include <sys/mount.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -98,6 +101,23 @@ private:
 std::size_t pages(std::size_t bytes) {
     const auto page = std::size_t(::sysconf(_SC_PAGESIZE));
     return (bytes + page - 1) / page * page;
+}
+
+/// The file names in `folder`, sorted: what a failed write must not add to.
+std::set<std::string> names_in(const fs::path& folder) {
+    std::set<std::string> names;
+    for (const auto& entry : fs::directory_iterator(folder)) names.insert(entry.path().filename().string());
+    return names;
+}
+
+test::CommandResult heartsim_command(const std::string& arguments) { return test::run_command(quoted(HEARTSIM_EXE) + " " + arguments); }
+
+/// The two-chamber block with an 8 mm VSD (defect_block_scenario.h), built in `dir` once per
+/// call: a scenario both planners take.
+fs::path block_with_vsd(const test::TempDir& dir) {
+    const fs::path scenario = dir / "vsd.h5";
+    test::defect_block::build_block_scenario(test::defect_block::make_block(), dir / "block.nrrd", scenario, "vsd", 4000);
+    return scenario;
 }
 
 }  // namespace
@@ -207,6 +227,97 @@ TEST(Reliability, AFullDiskAtTheXdmfLeavesNeitherNewFileAndKeepsTheOldPair) {
     for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir / "disk")) ++files;
     EXPECT_EQ(files, 2u) << "a temporary was left behind";
     EXPECT_GT(xdmf_bytes, 0u);
+}
+
+TEST(Reliability, PlansAndTheStatisticsTableReplaceAnOldFileByRenameNeverWriteIntoIt) {
+    // A second hard link to the old file sees what a write does to the file itself: written in
+    // place (truncated and refilled), the other link would show the new bytes; renamed into place,
+    // the old file lives on under the other name, as it was.
+    test::TempDir dir;
+    const fs::path scenario = block_with_vsd(dir);
+    const std::string old_text = "an old file, kept under a second name\n";
+    struct Case {
+        std::string command, name;
+    };
+    for (const Case& c : {Case{"plan-repair " + quoted(scenario) + " -o", "repair.csv"}, Case{"plan-incision " + quoted(scenario) + " -o", "cut.csv"},
+                          Case{"run " + quoted(scenario) + " --headless --backend cpu --steps 2 --stats-csv", "stats.csv"}}) {
+        SCOPED_TRACE(c.name);
+        const fs::path file = dir / c.name, link = dir / ("old-" + c.name);
+        std::ofstream(file) << old_text;
+        fs::create_hard_link(file, link);
+        const auto run = heartsim_command(c.command + " " + quoted(file));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        EXPECT_EQ(file_text(link), old_text) << "the old file was rewritten where it lies";
+        EXPECT_EQ(fs::hard_link_count(link), 1u);
+        EXPECT_FALSE(fs::equivalent(file, link));
+        // The new file is whole: a plan reads back as a trajectory, the table has its six passes.
+        const std::string text = file_text(file);
+        if (c.name == "stats.csv") {
+            EXPECT_EQ(text.rfind("pass,calls,", 0), 0u) << text;
+            EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 7) << text;
+        } else {
+            EXPECT_FALSE(read_trajectory(file).keyframes.empty());
+        }
+    }
+    EXPECT_EQ(names_in(dir.path()), (std::set<std::string>{"block.nrrd", "vsd.h5", "vsd.xmf2", "repair.csv", "old-repair.csv", "cut.csv",
+                                                            "old-cut.csv", "stats.csv", "old-stats.csv"}))
+        << "a temporary was left behind";
+}
+
+TEST(Reliability, AFullDiskKeepsAnOldPlanOrLabelMapByteForByteAndSaysTheDiskIsFull) {
+    test::TempDir dir;
+    const fs::path scenario = block_with_vsd(dir);
+    SmallDisk disk(dir / "disk", 16 << 20);
+    if (disk.empty()) GTEST_SKIP() << "cannot mount a tmpfs here (needs root): " << std::strerror(errno);
+    const std::size_t page = pages(1);
+    // Room for all the old files, and for all but the last page of the new ones.
+    auto fill_up = [&](std::size_t new_bytes) {
+        std::size_t used = 0;
+        for (const auto& entry : fs::directory_iterator(dir / "disk")) used += pages(fs::file_size(entry.path()));
+        return disk.resize(used + pages(new_bytes) - page);
+    };
+    auto expect_full_disk = [&](const test::CommandResult& failed) {
+        EXPECT_EQ(failed.exit_code, 7) << failed.output;
+        EXPECT_NE(failed.output.find("No space left on device"), std::string::npos) << failed.output;
+        EXPECT_EQ(failed.output.find("damaged"), std::string::npos) << "the disk's fault put on the file: " << failed.output;
+    };
+
+    // A plan over an old one of fewer stitches, on a disk that holds the new plan less its last
+    // page: written in place, the old plan was truncated and then cut short where the disk ended.
+    const fs::path plan = dir / "disk" / "repair.csv";
+    const std::string plan_command = "plan-repair " + quoted(scenario) + " -o ";
+    ASSERT_EQ(heartsim_command(plan_command + quoted(dir / "new.csv")).exit_code, 0);
+    const std::size_t new_plan_bytes = fs::file_size(dir / "new.csv");
+    ASSERT_EQ(heartsim_command(plan_command + quoted(plan) + " --stitches=3").exit_code, 0);
+    const std::string old_plan = file_text(plan);
+    ASSERT_LE(pages(old_plan.size()), pages(new_plan_bytes) - page) << "the old plan must fit where the new one does not";
+    ASSERT_TRUE(disk.resize(pages(new_plan_bytes) - page));
+    expect_full_disk(heartsim_command(plan_command + quoted(plan)));
+    EXPECT_TRUE(file_text(plan) == old_plan) << "the old plan was changed";
+    EXPECT_EQ(names_in(dir / "disk"), std::set<std::string>{"repair.csv"});
+
+    // A label map from `heartprep defect`, in one file (.nii) and as a MetaImage pair (.mhd + .raw).
+    ASSERT_TRUE(disk.resize(16 << 20));
+    fs::remove(plan);
+    const Eigen::Vector3d at = test::defect_block::repair_site(test::defect_block::make_block());
+    const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
+    for (const std::string name : {"vsd.nii", "vsd.mhd"}) {
+        SCOPED_TRACE(name);
+        const fs::path out = dir / "disk" / name;
+        const std::string defect = "defect " + quoted(dir / "block.nrrd") + " --type vsd --diameter 8 --at " + point + " -q -o " + quoted(out);
+        ASSERT_EQ(test::heartprep(defect).exit_code, 0);
+        const std::set<std::string> files = names_in(dir / "disk");
+        std::map<std::string, std::string> old_bytes;
+        std::size_t new_bytes = 0;
+        for (const std::string& file : files) old_bytes[file] = file_text(dir / "disk" / file), new_bytes += old_bytes[file].size();
+        ASSERT_EQ(files.size(), name == "vsd.mhd" ? 2u : 1u);
+        ASSERT_TRUE(fill_up(new_bytes));
+        expect_full_disk(test::heartprep(defect));
+        for (const auto& [file, bytes] : old_bytes) EXPECT_TRUE(file_text(dir / "disk" / file) == bytes) << file << " was changed";
+        EXPECT_EQ(names_in(dir / "disk"), files) << "a temporary was left behind";
+        ASSERT_TRUE(disk.resize(16 << 20));
+        for (const std::string& file : files) fs::remove(dir / "disk" / file);
+    }
 }
 
 TEST(Reliability, ADetachedLabelMapsDataFileIsInTheBatchKeyTheHashAndTheSummary) {
