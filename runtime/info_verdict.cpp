@@ -62,8 +62,8 @@ std::string session_verdict(GlContext& context, const std::string& scenario_path
                   "  %s\n"
                   "  measured here: %zu particles (%s) step at a real-time factor of %.2f on the %s backend (substep %.3f ms, %.2f ms "
                   "of wall time each)%s%s\n",
-                  software ? "the OpenGL device is a software rasteriser: a window or haptic session simulates on the cpu backend "
-                             "and draws with OpenGL (--backend gl forces the GPU path: slower here)"
+                  software ? "the OpenGL device is a software rasteriser: a run without --backend (a window, a haptic session, "
+                             "headless) simulates on the cpu backend and draws with OpenGL (--backend gl forces the GPU path: slower here)"
                            : "the OpenGL device is hardware: sessions simulate on the gl backend (the GPU)",
                   backend->size(), scenario_path.empty() ? "a block of myocardium 1.5 mm apart" : scenario_path.c_str(), factor,
                   to_string(backend->kind()), backend->substep_ms(), 1000.0 * wall / double(steps * backend->substeps_per_step()),

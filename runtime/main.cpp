@@ -70,8 +70,9 @@ int main(int argc, char** argv) {
     run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
     run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
-    run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and for a "
-                                            "window or haptic session where OpenGL is software (llvmpipe)")->check(CLI::IsMember({"gl", "cpu"}));
+    run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and where "
+                                            "OpenGL is software (llvmpipe), unless a headless run asks for --contact picking or search")
+        ->check(CLI::IsMember({"gl", "cpu"}));
     run->add_option("--steps", a.steps, "Solver steps (each of the scenario's dt_ms). Default: 1 headless, no limit in a window")->check(cli_messages::non_negative());
     run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(cli_messages::non_negative());
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");

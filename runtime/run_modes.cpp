@@ -238,10 +238,13 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     if (!a.headless)
         p.context.emplace(GlContext::create_window(p.frame_width, p.frame_height,
                                                    "heartsim — " + std::filesystem::path(a.scenario).filename().string()));
-    if ((!a.devices.empty() || !a.headless) && p.kind == BackendKind::gl && !a.backend) {
-        // A window and a haptic session follow the wall clock. On a software rasteriser (Mesa
-        // llvmpipe, softpipe) the compute shaders run on the CPU cores, far slower than the cpu
-        // backend: simulate with it (the window still draws with OpenGL), and say so.
+    // Without --backend, on a software rasteriser (Mesa llvmpipe, softpipe) the compute shaders
+    // run on the CPU cores, about ten times slower than the cpu backend: a window, a haptic session
+    // and a headless run simulate with it (a window and screenshots still draw with OpenGL), and
+    // say so; a headless run that asks for what only the gl backend has (--contact picking or
+    // search) keeps it.
+    const bool needs_gl = parse_contact_mode(a.contact_mode()) != ContactMode::direct && a.headless && a.devices.empty();
+    if (p.kind == BackendKind::gl && !a.backend && !needs_gl) {
         if (!p.context) p.context.emplace(GlContext::create_headless());
         const GlInfo info = p.context->info();
         if (is_software_rasteriser(info)) {
@@ -249,7 +252,8 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
             p.software_gl = true;
             std::printf("%s: the OpenGL device is %s, a software rasteriser: simulating with the cpu backend, which is faster "
                         "here%s (--backend gl to override)\n",
-                        a.devices.empty() ? "window" : "haptics", info.renderer.c_str(), a.headless ? "" : ", drawing with OpenGL");
+                        !a.devices.empty() ? "haptics" : a.headless ? "headless" : "window", info.renderer.c_str(),
+                        a.headless ? "" : ", drawing with OpenGL");
             std::fflush(stdout);  // the first line a window's user (and its tests) read
         }
     }

@@ -50,7 +50,8 @@ TEST(HeartsimCli, InfoPrintsRendererAndLimits) {
         EXPECT_NE(run.output.find(word), std::string::npos) << word << "\n" << run.output;
     // The verdict: the backend a session will use with this device, and a factor measured here.
     const bool software = run.output.find("llvmpipe") != std::string::npos || run.output.find("softpipe") != std::string::npos;
-    EXPECT_NE(run.output.find(software ? "a window or haptic session simulates on the cpu backend" : "sessions simulate on the gl backend"),
+    EXPECT_NE(run.output.find(software ? "a run without --backend (a window, a haptic session, headless) simulates on the cpu backend"
+                                            : "sessions simulate on the gl backend"),
               std::string::npos)
         << run.output;
     const auto at = run.output.find("real-time factor of ");
@@ -383,4 +384,22 @@ TEST(HeartsimCli, ALabelMapGivenAsTheScenarioSaysToBuildItFirst) {
         EXPECT_EQ(run.exit_code, 1) << run.output;
         EXPECT_NE(run.output.find("a label map, not a scenario: build one first, `heartprep build"), std::string::npos) << run.output;
     }
+}
+
+// Without --backend, a headless run on a software rasteriser simulates on the cpu backend (about
+// ten times faster there) and says so in its first line; one that asks for --contact picking,
+// which only the gl backend has, keeps gl. On a hardware OpenGL device both keep gl.
+TEST(HeartsimCli, AHeadlessRunWithoutBackendTakesTheFasterOneAndSaysSo) {
+    std::string reason;
+    if (!have_gl(&reason)) GTEST_SKIP() << "no headless OpenGL 4.3 device: " << reason;
+    const auto info = run_heartsim("info");
+    const bool software = info.output.find("llvmpipe") != std::string::npos || info.output.find("softpipe") != std::string::npos;
+    const auto plain = run_heartsim("run " + quoted(phantom()) + " --headless --steps 2");
+    ASSERT_EQ(plain.exit_code, 0) << plain.output;
+    EXPECT_EQ(plain.output.rfind("headless: the OpenGL device is ", 0) == 0, software) << plain.output;
+    EXPECT_NE(plain.output.find(software ? "cpu backend: " : "gl backend: "), std::string::npos) << plain.output;
+    const auto picking = run_heartsim("run " + quoted(phantom()) + " --headless --steps 2 --contact picking");
+    ASSERT_EQ(picking.exit_code, 0) << picking.output;
+    EXPECT_NE(picking.output.find("gl backend: "), std::string::npos) << picking.output;
+    EXPECT_EQ(picking.output.find("software rasteriser"), std::string::npos) << picking.output;
 }
