@@ -556,6 +556,54 @@ TEST(Repair, AnOpenRepairSaysWhereItLeaksAndTheStateKeepsIt) {
     EXPECT_FALSE(closed.patch->leak_mm.has_value());
 }
 
+// A patch laid away from the opening: the plan's patch moved along the defect's axis, out past the
+// block's outer wall (local |x| 19 to 22 mm, the septum at x = 0), and let go with no stitch. The
+// outer wall caps the check's cylinder, so the fill finds no way out of the opening; the patch does
+// not cover it, so the run says no and why, the saved state keeps /patch closed = 0, and
+// check-closure.py says no on that state by its own geometry.
+TEST(Repair, APatchLaidAwayFromTheOpeningDoesNotCloseIt) {
+    const BlockRepair& b = block_repair();
+    test::TempDir dir;
+    const Scenario scenario = read_scenario(b.scenario);
+    const Eigen::Vector3d centre = scenario.source.defect_centre, axis = scenario.source.defect_axis.normalized();
+    Trajectory away;
+    for (InstrumentKeyframe k : read_trajectory(b.plan).keyframes) {
+        if (k.hand != 0 || k.kind != InstrumentKind::patch) continue;
+        const double along = (k.pose.position - centre).dot(axis);
+        k.pose.position += (along < 0 ? -30.0 - along : 30.0 - along) * axis;  // 30 mm from mid-wall, on the patch's side
+        away.keyframes.push_back(k);
+    }
+    ASSERT_FALSE(away.keyframes.empty());
+    {
+        std::ofstream out(dir / "away.csv");
+        out << "time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab\n";
+        for (const InstrumentKeyframe& k : away.keyframes) {
+            const auto& p = k.pose.position;
+            const auto& q = k.pose.orientation;
+            char line[512];
+            std::snprintf(line, sizeof line, "%.17g,0,patch,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, p.x(),
+                          p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(), k.grab ? 1 : 0);
+            out << line;
+        }
+    }
+    char length[32];
+    std::snprintf(length, sizeof length, "%.3f", 1e-3 * (end_of(away) + 100.0));
+    const auto run = heartsim_command("run " + quoted(b.scenario) + " --headless --backend cpu --trajectory " + quoted(dir / "away.csv") +
+                                      " --seconds " + length + " --save-state " + quoted(dir / "away.h5"));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    ASSERT_NE(run.output.find("patch laid at"), std::string::npos) << run.output;
+    EXPECT_EQ(verdict_of(run.output).closed, "no") << run.output;
+    EXPECT_NE(run.output.find("the patch does not cover the opening"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("the fill found no way out"), std::string::npos) << "the fill alone would have called it closed:\n" << run.output;
+    const SimulationState state = read_state(dir / "away.h5");
+    ASSERT_TRUE(state.patch.has_value() && state.patch->has_defect);
+    EXPECT_FALSE(state.patch->closed);
+    const auto script = test::run_command("python3 " + quoted(fs::path(HEARTSIM_SOURCE_DIR) / "scripts" / "check-closure.py") + " " +
+                                          quoted(dir / "away.h5") + " --scenario " + quoted(b.scenario));
+    EXPECT_EQ(script.exit_code, 1) << script.output;
+    EXPECT_NE(script.output.find("defect closed: no (the patch does not cover the opening"), std::string::npos) << script.output;
+}
+
 // The gl backend steps a sewn patch in a compute pass (runtime/gl/patch_pass.h) from the same
 // flattened patch the host steps (PatchModel::pass_input). With the tissue held where it was imaged,
 // plan-repair's patch on the block, its eight stitches tied at once, steps 200 times on each: the
