@@ -172,13 +172,15 @@ void write_bytes(const std::filesystem::path& file, const void* data, std::size_
         if (n <= 0) {
             const int reason = n < 0 ? errno : ENOSPC;
             ::close(fd);
-            throw OutputError(failure + " (" + std::strerror(reason) + (reason == ENOSPC || reason == EFBIG ? "; disk full?" : "") + ")");
+            throw OutputError(failure + " (" + std::strerror(reason) + (disk_full(reason) ? "; disk full?" : "") + ")");
         }
         written += std::size_t(n);
     }
     // No fsync here: every caller writes a temporary that write_file_atomically flushes before the rename.
     if (::close(fd) != 0) throw OutputError(failure + " (" + std::strerror(errno) + ")");
 }
+
+bool disk_full(int error) { return error == ENOSPC || error == EDQUOT || error == EFBIG; }
 
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what) {
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {

@@ -53,6 +53,10 @@ void write_file_atomically(const std::filesystem::path& path, const std::functio
 /// reason when any of it fails (a full disk).
 void write_bytes(const std::filesystem::path& file, const void* data, std::size_t size, const std::string& failure);
 
+/// Whether errno `error` says the disk took no more (ENOSPC, EDQUOT, EFBIG). For writers whose
+/// library tells a failed write only by a short file or a flag: their message names this cause.
+bool disk_full(int error);
+
 /// write_file_atomically of `size` bytes; `what` names the file in errors ("the screenshot").
 void write_bytes_atomically(const std::filesystem::path& path, const void* data, std::size_t size, const std::string& what);
 

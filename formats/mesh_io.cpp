@@ -21,9 +21,11 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <functional>
 #include <memory>
@@ -248,19 +250,24 @@ void write_mesh(const std::filesystem::path& path, const TriangleMesh& mesh) {
         const auto scene = scene_of(mesh, lps_mm_to_gltf);
         write_file_atomically(path, [&](const std::filesystem::path& temporary) {
             Assimp::Exporter exporter;
+            errno = 0;
             if (exporter.Export(scene.get(), "glb2", temporary.string()) != aiReturn_SUCCESS)
-                throw OutputError("cannot write mesh '" + path.string() + "': " + exporter.GetErrorString());
+                throw OutputError("cannot write mesh '" + path.string() + "': " +
+                                  (disk_full(errno) ? std::string(std::strerror(errno)) + " (disk full?)" : exporter.GetErrorString()));
         });
         return;
     }
     write_file_atomically(path, [&](const std::filesystem::path& temporary) {
+        errno = 0;
         std::ofstream out(temporary, std::ios::binary);
         if (extension == ".stl") write_stl(out, mesh);
         else if (extension == ".obj") write_obj(out, mesh);
         else if (extension == ".vtp") write_vtp(out, mesh);
         else write_ply(out, mesh);
         out.close();
-        if (!out) throw OutputError("cannot write mesh '" + path.string() + "': writing failed (disk full?)");
+        if (!out)
+            throw OutputError("cannot write mesh '" + path.string() + "': " +
+                              (disk_full(errno) ? std::string(std::strerror(errno)) + " (disk full?)" : "writing failed (disk full?)"));
     });
 }
 

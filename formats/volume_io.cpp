@@ -705,10 +705,6 @@ fs::path metaimage_data_file(const fs::path& header) {
     return header.parent_path() / (name.substr(0, name.size() - std::string(".mhd").size()) + ".raw");
 }
 
-/// Whether `error` (errno) means the disk took no more: said as the cause rather than the damage
-/// the short file shows to the format's reader.
-bool disk_full(int error) { return error == ENOSPC || error == EDQUOT || error == EFBIG; }
-
 /// ITK chooses its writer by the whole extension (".nii.gz"), and a MetaImage `.mhd` header names
 /// its data file after itself: the label map is written into a staging folder beside `path` under
 /// its final names, confirmed by reading it back, and handed to write_file_atomically, which
@@ -742,7 +738,7 @@ void write_label_volume_impl(const fs::path& path, const LabelVolume& volume,
     const fs::path data_file = detached ? metaimage_data_file(path) : fs::path();
     const fs::path written_data = detached ? staging / data_file.filename() : fs::path();
     std::error_code ignored;
-    int write_error = 0;  // errno after ITK's writer: ENOSPC when the disk filled up
+    int write_error = 0;  // errno after ITK's writer: disk_full, said as the cause rather than the short file's damage
     std::string printed;  // what MetaIO said on std::cerr
     try {
         if (!fs::create_directory(staging))

@@ -264,7 +264,7 @@ TEST(Reliability, PlansAndTheStatisticsTableReplaceAnOldFileByRenameNeverWriteIn
         << "a temporary was left behind";
 }
 
-TEST(Reliability, AFullDiskKeepsAnOldPlanOrLabelMapByteForByteAndSaysTheDiskIsFull) {
+TEST(Reliability, AFullDiskKeepsAnOldPlanMeshOrLabelMapByteForByteAndSaysTheDiskIsFull) {
     test::TempDir dir;
     const fs::path scenario = block_with_vsd(dir);
     SmallDisk disk(dir / "disk", 16 << 20);
@@ -296,9 +296,21 @@ TEST(Reliability, AFullDiskKeepsAnOldPlanOrLabelMapByteForByteAndSaysTheDiskIsFu
     EXPECT_TRUE(file_text(plan) == old_plan) << "the old plan was changed";
     EXPECT_EQ(names_in(dir / "disk"), std::set<std::string>{"repair.csv"});
 
-    // A label map from `heartprep defect`, in one file (.nii) and as a MetaImage pair (.mhd + .raw).
+    // A mesh exported for ParaView: its writer's stream only says that it failed.
     ASSERT_TRUE(disk.resize(16 << 20));
     fs::remove(plan);
+    const fs::path mesh = dir / "disk" / "heart.vtp";
+    const std::string export_command = "export " + quoted(scenario) + " -o " + quoted(mesh);
+    ASSERT_EQ(test::heartprep(export_command).exit_code, 0);
+    const std::string old_mesh = file_text(mesh);
+    ASSERT_TRUE(fill_up(old_mesh.size()));
+    expect_full_disk(test::heartprep(export_command));
+    EXPECT_TRUE(file_text(mesh) == old_mesh) << "the old mesh was changed";
+    EXPECT_EQ(names_in(dir / "disk"), std::set<std::string>{"heart.vtp"});
+    ASSERT_TRUE(disk.resize(16 << 20));
+    fs::remove(mesh);
+
+    // A label map from `heartprep defect`, in one file (.nii) and as a MetaImage pair (.mhd + .raw).
     const Eigen::Vector3d at = test::defect_block::repair_site(test::defect_block::make_block());
     const std::string point = std::to_string(at.x()) + "," + std::to_string(at.y()) + "," + std::to_string(at.z());
     for (const std::string name : {"vsd.nii", "vsd.mhd"}) {
