@@ -255,18 +255,18 @@ def covered_share(patch_positions, patch_triangles, centre, axis, u, v, radius, 
     """The share of the opening's disc (rho <= radius) that the patch covers within the wall's
     reach: sample points on rings `spacing` apart (the edge's ring included), each covered where a
     line through it along the axis meets a patch triangle (Moller-Trumbore) at a height s in
-    [low, high]. Triangles are binned by the cells of `spacing` their shadow across the axis spans.
-    Also the mean of the uncovered points (relative to the centre, across the axis), or None."""
+    [low, high]. Triangles are binned by the cells of `spacing` their shadow across the axis spans
+    (those over the disc). Also the mean of the uncovered points (relative to the centre, across the
+    axis), or None."""
     bins = {}
     flat = []
+    edge = math.floor(radius / spacing) + 1  # the cells over the disc: [-edge, edge] each way
     for t in patch_triangles:
         corners = [patch_positions[t[m]] for m in range(3)]
         shadow = [(dot(sub(p, centre), u), dot(sub(p, centre), v)) for p in corners]
         flat.append(corners)
-        i0, i1 = (math.floor(f(x for x, _ in shadow) / spacing) for f in (min, max))
-        j0, j1 = (math.floor(f(y for _, y in shadow) / spacing) for f in (min, max))
-        if (i1 - i0 + 1) * (j1 - j0 + 1) > 1_000_000:
-            continue  # a triangle spanning a million cells is no patch's
+        i0, i1 = (min(edge, max(-edge, math.floor(f(x for x, _ in shadow) / spacing))) for f in (min, max))
+        j0, j1 = (min(edge, max(-edge, math.floor(f(y for _, y in shadow) / spacing))) for f in (min, max))
         for i in range(i0, i1 + 1):
             for j in range(j0, j1 + 1):
                 bins.setdefault((i, j), []).append(len(flat) - 1)
