@@ -427,9 +427,12 @@ void HapticRun::start() {
     session_->start();
     start_sim_ms_ = backend_.simulated_time_ms();
     wall_start_ms_ = session_->now_ms();
-    // The first tool poses (one tick), so the first step already has the instruments.
-    for (int i = 0; i < 2000 && !session_->latest_tools(); ++i) std::this_thread::sleep_for(std::chrono::microseconds(50));
-    if (!session_->latest_tools()) throw DeviceUnavailable("haptics: the device thread produced no tool pose within 100 ms");
+    // The first tool poses (one tick), so the first step already has the instruments. The device
+    // thread ticks at once, but a loaded machine may not run it for a while: only a device thread
+    // that gives nothing for seconds ends the run.
+    const double give_up_ms = session_->now_ms() + 5000.0;
+    while (!session_->latest_tools() && session_->now_ms() < give_up_ms) std::this_thread::sleep_for(std::chrono::microseconds(50));
+    if (!session_->latest_tools()) throw DeviceUnavailable("haptics: the device thread produced no tool pose within 5 s");
 }
 
 StepReport HapticRun::step() {
