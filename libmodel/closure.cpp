@@ -521,7 +521,7 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         result.why = why.str();
     } else if (!has_patch) {
         result.why = "no patch covers the opening";
-    } else if (!covers) {
+    } else if (!covers) {  // and, where the fill found a way out, that too
         // Where the patch lies: its vertices' mean, across the axis and along it.
         Vector3 middle = Vector3::Zero();
         for (const Vector3& p : patch.points) middle += p;
@@ -535,7 +535,9 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         else if (cover.covered == 0)
             why << "it lies " << middle.head<2>().norm() << " mm from the defect's axis";
         else
-            why << "it covers " << 100.0 * result.covered << " % of it, its middle " << middle.head<2>().norm() << " mm from the defect's axis";
+            why << "it covers " << 100.0 * result.covered << " % of it within the wall's reach (" << reach_low << " to " << reach_high
+                << " mm), its middle " << middle.head<2>().norm() << " mm from the defect's axis";
+        if (!result.sealed) why << "; a way out of the opening passes it";
         result.why = why.str();
     } else if (!result.sealed) {
         result.why = "a way out of the opening passes the patch";

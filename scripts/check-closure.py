@@ -687,7 +687,8 @@ def main():
     elif not patch_triangles:
         print("defect closed: no (no patch)")
     elif covered < 1.0:
-        print("defect closed: no (the patch does not cover the opening: it covers %.1f %% of it)" % (100.0 * covered))
+        print("defect closed: no (the patch does not cover the opening: it covers %.1f %% of it within the wall's reach%s)"
+              % (100.0 * covered, "" if sealed else "; a way out of the opening passes it"))
     else:
         print("defect closed: no (a way out of the opening passes the patch)")
     if not closed and patch_triangles and sealed:
