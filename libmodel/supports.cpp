@@ -116,14 +116,44 @@ SupportReport add_supports(Lattice& lattice, const SupportOptions& options) {
         p.support_stiffness[i] = float(per_area * area[i] + embedding);
         report.embedding_stiffness += embedding;
         if (area[i] == 0.0 || per_area == 0.0) continue;
-        ++report.supported;
         report.area_mm2 += area[i];
     }
     for (std::size_t i = 0; i < n; ++i) {
         report.total_stiffness += double(p.support_stiffness[i]);
         p.support_damping[i] = float(2.0 * options.damping_ratio * std::sqrt(double(p.support_stiffness[i]) * double(p.mass[i])));
     }
+    // Counted as inspect and batch count them from the file: a particle whose share of a face is a
+    // rounding's remainder is not on a support.
+    report.supported = count_surface_supported(lattice);
     return report;
+}
+
+std::size_t count_surface_supported(const Lattice& lattice) {
+    const auto& p = lattice.particles;
+    if (!p.supported()) return 0;
+    // k·ρ/m: the support's stiffness per tissue volume, N/mm per mm³.
+    auto per_volume = [&](std::size_t i) {
+        const auto row = std::size_t(p.material[i]);
+        const double density = row < lattice.materials.size() ? lattice.materials[row].density : Material{}.density;
+        return double(p.support_stiffness[i]) * density / double(p.mass[i]);
+    };
+    double least = std::numeric_limits<double>::infinity();
+    bool foundation = true;
+    std::size_t supported = 0;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+        if (p.anchored[i]) continue;
+        if (!(p.support_stiffness[i] > 0.0f) || !(p.mass[i] > 0.0f)) {
+            foundation = foundation && p.support_stiffness[i] > 0.0f;
+            continue;
+        }
+        ++supported;
+        least = std::min(least, per_volume(i));
+    }
+    if (!foundation) return supported;
+    std::size_t surface = 0;
+    for (std::size_t i = 0; i < p.size(); ++i)
+        if (!p.anchored[i] && p.support_stiffness[i] > 0.0f && p.mass[i] > 0.0f && per_volume(i) > 1.5 * least) ++surface;
+    return surface;
 }
 
 Pieces find_pieces(const Particles& particles, const Springs& springs) {

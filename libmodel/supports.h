@@ -71,6 +71,15 @@ struct SupportReport {
 /// negative or non-finite stiffness or a zero `posterior` direction.
 SupportReport add_supports(Lattice& lattice, const SupportOptions& options = {});
 
+/// The particles on surface supports (posterior or boundary) of a lattice as stored, which keeps
+/// each particle's support stiffness k but not the options that made it: the elastic foundation
+/// gives every free particle the same stiffness per tissue volume (k·ρ/m), a surface support adds
+/// to it. Where every free particle has a support, those whose k·ρ/m exceeds the least by half
+/// again (a surface support worth half the foundation under it) are on surface supports; where
+/// some free particle has none there is no foundation, and every supported particle counts. The
+/// one count heartprep build, inspect and batch give.
+std::size_t count_surface_supported(const Lattice& lattice);
+
 /// Connected pieces of the spring network, largest first: `piece[i]` is particle i's piece.
 struct Pieces {
     std::vector<std::int32_t> piece;   ///< N

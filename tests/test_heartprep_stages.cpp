@@ -1,4 +1,5 @@
 // heartprep's stage commands on scenario files, and batch conversion, run as a technician would.
+#include "formats/csv.h"
 #include "formats/mesh_io.h"
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
@@ -16,6 +17,7 @@
 #include <fstream>
 #include <map>
 #include <regex>
+#include <sstream>
 
 #include <unistd.h>
 
@@ -376,6 +378,75 @@ TEST(HeartprepBatch, TheSummaryHasTheScenariosFiguresAndAPicturePerCase) {
     const auto clash = heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "clash"));
     EXPECT_NE(clash.exit_code, 0);
     EXPECT_NE(clash.output.find("would both be case 'a-label'"), std::string::npos) << clash.output;
+}
+
+// One case, one set of figures: every figure of a batch's summary.csv is the one `heartprep inspect
+// --json` gives for the same scenario (the supported particles those on surface supports, the
+// tissue the label map's), and the build's own summary in the case's log says the same; a case that
+// failed measured nothing, so its figures are blank, in the CSV and the markdown alike.
+TEST(HeartprepBatch, EverySummaryFigureIsInspectsAndAFailedCaseHasBlanks) {
+    test::TempDir dir;
+    fs::create_directory(dir / "in");
+    small_phantom(dir, "in/a.nii.gz", 8.0);
+    small_phantom(dir, "in/b.nii.gz", 0.0);
+    std::ofstream(dir / "in" / "broken.nii.gz") << "this is not a volume";
+    const auto run = heartprep("batch " + quoted(dir / "in") + " -o " + quoted(dir / "out") +
+                               " -j 2 --threads 1 --no-preview --options '--particles 2000 --anchor-border'");
+    ASSERT_EQ(run.exit_code, 1) << run.output;  // one case failed
+    std::istringstream csv(read_file_text(dir / "out" / "summary.csv"));
+    std::string line;
+    ASSERT_TRUE(std::getline(csv, line));
+    std::map<std::string, std::size_t> column;
+    for (const auto& name : csv_fields(line)) column.emplace(name, column.size());
+    const std::vector<std::string> figures{"particles", "springs", "triangles", "anchored", "supported", "tissue_volume_ml", "spacing_mm", "dt_ms"};
+    for (const auto& name : figures) ASSERT_TRUE(column.count(name)) << name;
+    const std::string markdown = read_file_text(dir / "out" / "summary.md");
+    std::size_t built = 0, failed = 0;
+    while (std::getline(csv, line)) {
+        const auto row = csv_fields(line);
+        ASSERT_EQ(row.size(), column.size()) << line;
+        const std::string id = row[column.at("case_id")];
+        SCOPED_TRACE(id);
+        auto cell = [&](const std::string& name) { return row[column.at(name)]; };
+        if (id == "broken") {
+            ++failed;
+            EXPECT_EQ(cell("status"), "failed");
+            for (const auto& name : figures) EXPECT_EQ(cell(name), "") << name << " of a case that built nothing";
+            // The markdown row: case, status, then six blank figures.
+            EXPECT_NE(markdown.find("| broken | failed |  |  |  |  |  |  | "), std::string::npos) << markdown;
+            continue;
+        }
+        ++built;
+        ASSERT_EQ(cell("status"), "built");
+        const auto inspect = heartprep("inspect --json " + quoted(fs::path(cell("output"))));
+        ASSERT_EQ(inspect.exit_code, 0) << inspect.output;
+        const auto j = nlohmann::json::parse(inspect.output);
+        EXPECT_EQ(std::stoull(cell("particles")), j["particles"].get<std::size_t>());
+        EXPECT_EQ(std::stoull(cell("springs")), j["springs"].get<std::size_t>());
+        EXPECT_EQ(std::stoull(cell("triangles")), j["visual"]["triangles"].get<std::size_t>());
+        EXPECT_EQ(std::stoull(cell("anchored")), j["anchored"].get<std::size_t>());
+        EXPECT_EQ(std::stoull(cell("supported")), j["holding"]["surface_supported_particles"].get<std::size_t>());
+        // Written with 3, 4 and 5 decimals.
+        EXPECT_NEAR(std::stod(cell("tissue_volume_ml")), j["tissue_volume_ml"].get<double>(), 0.5e-3);
+        EXPECT_NEAR(std::stod(cell("spacing_mm")), j["lattice"]["spacing"].get<double>(), 0.5e-4);
+        EXPECT_NEAR(std::stod(cell("dt_ms")), j["solver"]["dt_ms"].get<double>(), 0.5e-5);
+        // The posterior supports are the heart's back, not every free particle (the elastic
+        // foundation under all of them is not a surface support).
+        const std::size_t particles = j["particles"], anchored = j["anchored"], supported = j["holding"]["surface_supported_particles"];
+        EXPECT_GT(supported, 0u);
+        EXPECT_LT(supported, (particles - anchored) / 2);
+        EXPECT_EQ(j["holding"]["supported_particles"].get<std::size_t>(), particles - anchored) << "the foundation holds every free particle";
+        // The build's summary, in the case's log, gives the same particles, supports and tissue.
+        const std::string log = read_file_text(dir / "out" / "logs" / (id + ".log"));
+        std::smatch m;
+        ASSERT_TRUE(std::regex_search(log, m, std::regex("a heart of ([0-9.]+) mL of tissue .*: ([0-9,]+) particles"))) << log;
+        EXPECT_NEAR(std::stod(m[1]), j["tissue_volume_ml"].get<double>(), 0.05);
+        EXPECT_EQ(std::regex_replace(m[2].str(), std::regex(","), ""), cell("particles"));
+        ASSERT_TRUE(std::regex_search(log, m, std::regex("\\(([0-9,]+) particles on supports\\)"))) << log;
+        EXPECT_EQ(std::regex_replace(m[1].str(), std::regex(","), ""), cell("supported"));
+    }
+    EXPECT_EQ(built, 2u);
+    EXPECT_EQ(failed, 1u);
 }
 
 // `batch --plan` tells what a batch would do, with the content key a build stores: what the

@@ -20,6 +20,7 @@
 #include "formats/xdmf.h"
 #include "cli/command_errors.h"
 #include "libmodel/errors.h"
+#include "libmodel/supports.h"
 #include "cli/exit_codes.h"
 
 #include <CLI/CLI.hpp>
@@ -62,10 +63,12 @@ struct Outcome {
     /// --no-build: no build ran for the case's current key)
     std::string status = "pending";
     std::size_t particles = 0, springs = 0, triangles = 0;
-    std::size_t anchored = 0, supported = 0;  ///< particles that do not move / that hang on a support spring
+    /// Particles that do not move / on surface supports (count_surface_supported: the elastic
+    /// foundation under every free particle is not counted), as build and inspect count them.
+    std::size_t anchored = 0, supported = 0;
     /// The tissue's volume: the label map's tissue voxels (/source tissue_volume_mm3), the figure
-    /// build and inspect give; Σ mass / density over the particles for a file without it.
-    double tissue_volume_ml = 0.0;
+    /// build and inspect give; none for a file from before it was stored (inspect: null).
+    std::optional<double> tissue_volume_ml;
     double spacing_mm = 0.0, dt_ms = 0.0;     ///< the lattice spacing and the scenario's time step
     /// The build's wall time, s: of the build that made the scenario (a reused case: from its build
     /// record; unknown for a scenario without one), or until the case failed or was stopped.
@@ -244,15 +247,9 @@ void fill_figures(const Scenario& s, Outcome& outcome) {
     outcome.particles = p.size();
     outcome.springs = s.lattice.springs.size();
     outcome.triangles = s.visual ? s.visual->triangles.size() : 0;
-    outcome.anchored = outcome.supported = 0;
-    outcome.tissue_volume_ml = 0.0;
-    for (std::size_t i = 0; i < p.size(); ++i) {
-        outcome.anchored += p.anchored[i] != 0;
-        if (p.supported()) outcome.supported += p.support_stiffness[i] > 0.0f;
-        const auto row = std::size_t(p.material[i]);
-        const auto& material = row < s.lattice.materials.size() ? s.lattice.materials[row] : s.lattice.materials.front();
-        outcome.tissue_volume_ml += double(p.mass[i]) / material.density * 1e-3;  // mm³ -> mL
-    }
+    outcome.anchored = std::size_t(std::count_if(p.anchored.begin(), p.anchored.end(), [](auto a) { return a != 0; }));
+    outcome.supported = count_surface_supported(s.lattice);
+    outcome.tissue_volume_ml.reset();
     if (s.source.tissue_volume_mm3 > 0) outcome.tissue_volume_ml = s.source.tissue_volume_mm3 / 1000.0;
     outcome.spacing_mm = s.lattice.spacing;
     outcome.dt_ms = s.solver.dt_ms;
@@ -511,7 +508,7 @@ nlohmann::ordered_json summary_json(const fs::path& folder, const std::vector<Ba
             entry["triangles"] = o.triangles;
             entry["anchored"] = o.anchored;
             entry["supported"] = o.supported;
-            entry["tissue_volume_ml"] = o.tissue_volume_ml;
+            entry["tissue_volume_ml"] = o.tissue_volume_ml ? nlohmann::ordered_json(*o.tissue_volume_ml) : nlohmann::ordered_json();
             entry["spacing_mm"] = o.spacing_mm;
             entry["dt_ms"] = o.dt_ms;
         }
@@ -552,18 +549,24 @@ std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>
         std::string warnings;
         for (const auto& w : o.warnings) warnings += (warnings.empty() ? "" : "; ") + w;
         const std::string seconds = o.seconds ? fixed(*o.seconds, 2) : std::string();
-        csv << csv_quote(c.id) << "," << csv_quote(c.input.string()) << "," << o.status << "," << o.particles << "," << o.springs
-            << "," << o.triangles << "," << seconds << "," << csv_quote(warnings) << "," << csv_quote(o.message) << ","
-            << csv_quote(output_of(c, folder).string()) << "," << o.anchored << "," << o.supported << "," << fixed(o.tissue_volume_ml, 3)
-            << "," << fixed(o.spacing_mm, 4) << "," << fixed(o.dt_ms, 5) << "," << csv_quote(o.preview) << "," << o.built_by << "," << o.built_at << "\n";
+        // A case without a scenario measured nothing: its figures are blank, not zero.
+        auto figure = [&](const std::string& text) { return ended_well ? text : std::string(); };
+        const std::string tissue_csv = o.tissue_volume_ml ? fixed(*o.tissue_volume_ml, 3) : "",
+                          tissue_md = o.tissue_volume_ml ? fixed(*o.tissue_volume_ml, 1) : "";
+        csv << csv_quote(c.id) << "," << csv_quote(c.input.string()) << "," << o.status << "," << figure(std::to_string(o.particles)) << ","
+            << figure(std::to_string(o.springs)) << "," << figure(std::to_string(o.triangles)) << "," << seconds << "," << csv_quote(warnings)
+            << "," << csv_quote(o.message) << "," << csv_quote(output_of(c, folder).string()) << "," << figure(std::to_string(o.anchored))
+            << "," << figure(std::to_string(o.supported)) << "," << figure(tissue_csv) << "," << figure(fixed(o.spacing_mm, 4)) << ","
+            << figure(fixed(o.dt_ms, 5)) << "," << csv_quote(o.preview) << "," << o.built_by << "," << o.built_at << "\n";
         std::string cell = ended_well ? warnings : o.message;
         std::replace(cell.begin(), cell.end(), '|', '/');
         if (ended_well && cell.size() > 100)  // the CSV and the log keep the full text
             cell = std::to_string(o.warnings.size()) + " warning(s): " + cell.substr(0, 80) + "… (see logs/" + c.id + ".log)";
         std::string picture = o.preview.empty() ? o.preview_note : "![" + c.id + "](" + o.preview + ")";
         std::replace(picture.begin(), picture.end(), '|', '/');
-        markdown << "| " << c.id << " | " << o.status << " | " << o.particles << " | " << o.anchored << " | " << o.supported << " | "
-                 << fixed(o.tissue_volume_ml, 1) << " | " << fixed(o.spacing_mm, 2) << " | " << fixed(o.dt_ms, 4) << " | "
+        markdown << "| " << c.id << " | " << o.status << " | " << figure(std::to_string(o.particles)) << " | " << figure(std::to_string(o.anchored))
+                 << " | " << figure(std::to_string(o.supported)) << " | " << figure(tissue_md) << " | " << figure(fixed(o.spacing_mm, 2)) << " | "
+                 << figure(fixed(o.dt_ms, 4)) << " | "
                  << (seconds.empty() && ended_well ? "unknown" : seconds) << " | " << cell << " | " << picture << " |\n";
     }
     // Always the statuses of this kind of run, then any other that occurs.

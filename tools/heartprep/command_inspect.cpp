@@ -34,10 +34,12 @@ struct Summary {
     std::size_t thin_particles = 0;       ///< particles one particle thick along some lattice axis
     double thin_volume_share = 0.0;       ///< their share of the tissue volume (mass / density)
     double total_mass = 0.0;
+    /// Σ m/ρ: the tissue the particles carry, mm³ (their cells' tissue, as the layout weighed it;
+    /// not the label map's tissue volume, /source tissue_volume_mm3).
+    double particle_volume = 0.0;
     std::size_t supported = 0;            ///< particles with a support spring
     /// Of those, the ones on surface supports (posterior or boundary) rather than the elastic
-    /// foundation alone: the foundation gives every free particle the same stiffness per mass
-    /// (its k/m is the least), a surface support adds to it.
+    /// foundation alone (count_surface_supported: the figure build and batch give).
     std::size_t surface_supported = 0;
     double support_stiffness = 0.0;       ///< Σ k_s, N/mm
     std::size_t pieces = 0, free_pieces = 0;
@@ -62,24 +64,21 @@ Summary summarise(const Scenario& s) {
     for (std::size_t i = 0; i < p.size(); ++i) {
         summary.anchored += p.anchored[i];
         summary.total_mass += p.mass[i];
+        const auto row = std::size_t(p.material[i]);
+        summary.particle_volume += double(p.mass[i]) / (row < s.lattice.materials.size() ? s.lattice.materials[row].density : Material{}.density);
         const Eigen::Vector3d x(p.rest_position[i][0], p.rest_position[i][1], p.rest_position[i][2]);
         summary.low = summary.low.cwiseMin(x);
         summary.high = summary.high.cwiseMax(x);
     }
     const auto& sp = s.lattice.springs;
     summary.springs = sp.size();
-    if (p.supported()) {
-        double least = std::numeric_limits<double>::infinity();
+    if (p.supported())
         for (std::size_t i = 0; i < p.size(); ++i) {
             const float k = p.support_stiffness[i];
             summary.supported += k > 0;
             summary.support_stiffness += k;
-            if (k > 0 && p.mass[i] > 0) least = std::min(least, double(k) / p.mass[i]);
         }
-        for (std::size_t i = 0; i < p.size(); ++i)
-            if (p.support_stiffness[i] > 0 && p.mass[i] > 0 && double(p.support_stiffness[i]) / p.mass[i] > 1.5 * least)
-                ++summary.surface_supported;
-    }
+    summary.surface_supported = count_surface_supported(s.lattice);
     const Pieces pieces = find_pieces(p, sp);
     summary.pieces = pieces.size.size();
     for (bool held : pieces.held) summary.free_pieces += !held;
@@ -183,6 +182,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
            {"face_springs", m.face_springs},
            {"edge_springs", m.edge_springs},
            {"total_mass_g", m.total_mass},
+           {"particle_volume_ml", m.particle_volume / 1000.0},
            {"bounds", {{"min", vector(m.low)}, {"max", vector(m.high)}}},
            {"visual", s.visual ? json{{"vertices", m.visual_vertices}, {"triangles", m.visual_triangles}} : json()},
            {"packing", s.packing ? json{{"scheme", to_string(s.packing->scheme)},
@@ -242,7 +242,11 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
                     s.source.defect_axis.x(), s.source.defect_axis.y(), s.source.defect_axis.z());
     std::printf("lattice     spacing %.3f mm, %d x %d x %d cells\n", s.lattice.spacing, s.lattice.dims[0], s.lattice.dims[1],
                 s.lattice.dims[2]);
-    std::printf("particles   %zu (%zu anchored), total mass %.3f g\n", m.particles, m.anchored, m.total_mass);
+    // The particles' mass is their cells' tissue at its density: not the label map's volume above.
+    char density[48] = "";
+    if (s.lattice.materials.size() == 1) std::snprintf(density, sizeof density, " at %.3g g/cm³", s.lattice.materials.front().density * 1e3);
+    std::printf("particles   %zu (%zu anchored), %.3f g: the tissue of their cells, %.1f mL%s\n", m.particles, m.anchored, m.total_mass,
+                m.particle_volume / 1000.0, density);
     std::printf("springs     %zu (%zu face, %zu edge)\n", m.springs, m.face_springs, m.edge_springs);
     std::printf("thin walls  %zu particles one particle thick along some axis, %.2f%% of the tissue volume\n", m.thin_particles,
                 100 * m.thin_volume_share);

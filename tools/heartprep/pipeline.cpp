@@ -535,7 +535,7 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
     else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
     std::printf("built       a heart of %.1f mL of tissue (label %s) from %s: %s particles %.2f mm apart%s\n",
                 report.selection.tissue_volume_mm3 / 1000.0, tissue.c_str(), scenario.source.file_name.c_str(),
-                thousands(l.particles).c_str(), l.spacing,
+                thousands(scenario.lattice.particles.size()).c_str(), l.spacing,
                 scenario.visual ? (", a detailed surface of " + thousands(scenario.visual->triangles.size()) + " triangles").c_str() : "");
     // How it is held, in the words of docs/user-guide.md "How the heart is held".
     const auto& sp = report.supports;
