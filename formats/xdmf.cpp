@@ -173,6 +173,18 @@ std::string state_xdmf(const std::string& h5, const SimulationState& state, cons
             grids += triangle_grid("simulation_surface", file, "/simsurface/triangles", state.scenario_simsurface_triangles, positions);
     }
     grids += vertex_grid("particles", n, positions, "", time);
+    if (state.patch) {
+        // The repair as it ended: the patch's mid-surface, and each stitch's tissue point carrying
+        // its pull on the patch.
+        const PatchState& patch = *state.patch;
+        if (!patch.triangles.empty())
+            grids += triangle_grid("patch", h5, "/patch/triangles", patch.triangles.size(),
+                                   hdf(h5, "/patch/positions", {patch.positions.size(), 3}, f32, "        "));
+        const std::size_t stitches = patch.stitch_vertex.size();
+        if (stitches > 0)
+            grids += vertex_grid("stitches", stitches, hdf(h5, "/patch/stitch_anchor", {stitches, 3}, f32, "        "),
+                                 attribute("force_n", "Vector", hdf(h5, "/patch/stitch_force", {stitches, 3}, f64, "        ")));
+    }
     return document("heartsim saved state " + escaped(h5) + " (" + escaped(state.scenario) + ", " + number(state.time_ms) +
                         " ms simulated): world mm, LPS, as stored (docs/runtime.md)",
                     grids);

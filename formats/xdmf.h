@@ -53,7 +53,9 @@ std::string scenario_xdmf(const std::string& h5_name, const Scenario& scenario);
 /// The saved state's grids: `particles` (/positions, deformed) and, when the state names its
 /// scenario (SimulationState::scenario_path), the deformed `simulation_surface` and
 /// `detailed_mesh`: the state's positions with the scenario's triangles, which the state does not
-/// hold (the .xdmf refers to the scenario by its path relative to the .xdmf's folder).
+/// hold (the .xdmf refers to the scenario by its path relative to the .xdmf's folder); once a
+/// patch was laid, the `patch` (/patch/positions, /patch/triangles) and its `stitches` (one vertex
+/// per stitch at its tissue point, /patch/stitch_anchor, carrying force_n, /patch/stitch_force).
 /// `xdmf_folder` is where the .xdmf will lie.
 std::string state_xdmf(const std::string& h5_name, const SimulationState& state, const std::filesystem::path& xdmf_folder);
 

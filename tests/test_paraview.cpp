@@ -11,6 +11,8 @@
 #include "formats/xdmf.h"
 #include "libmodel/mesh.h"
 #include "libmodel/simulation_surface.h"
+#include "runtime/trajectory.h"
+#include "defect_block_scenario.h"
 #include "incision_gesture.h"
 #include "test_support.h"
 
@@ -21,6 +23,7 @@
 #include <limits>
 #include <map>
 #include <sstream>
+#include <stdexcept>
 
 namespace heartsim {
 namespace {
@@ -301,6 +304,74 @@ TEST(ParaView, AnIncisedStateShowsTheOpenedMeshWithItsOwnTriangles) {
     expect_paraview_parts(xdmf, {{"detailed_mesh", state.visual_positions.size(), state.visual_triangles.size()},
                                  {"simulation_surface", n, s.simulation_surface->size()},
                                  {"particles", n, n}});
+}
+
+namespace {
+
+/// The block's 8 mm VSD (defect_block_scenario.h) closed by `heartsim plan-repair`'s three-stitch
+/// plan played to its end on the cpu backend: a saved state that holds a patch and its stitches,
+/// its detailed mesh uncut.
+struct RepairedState {
+    test::TempDir dir;
+    fs::path scenario = dir / "vsd.h5", state = dir / "repaired.h5";
+    RepairedState() {
+        test::defect_block::build_block_scenario(test::defect_block::make_block(), dir / "block.nrrd", scenario, "vsd", 3000);
+        const auto planned = run_heartsim("plan-repair " + quoted(scenario) + " -o " + quoted(dir / "plan.csv") + " --stitches=3");
+        if (planned.exit_code != 0) throw std::runtime_error("plan-repair failed: " + planned.output);
+        double end_ms = 0.0;
+        for (const InstrumentKeyframe& k : read_trajectory(dir / "plan.csv").keyframes) end_ms = std::max(end_ms, k.time_ms);
+        char seconds[32];
+        std::snprintf(seconds, sizeof seconds, "%.3f", 1e-3 * end_ms + 0.05);
+        const auto run = run_heartsim("run " + quoted(scenario) + " --headless --backend cpu --trajectory " + quoted(dir / "plan.csv") +
+                                      " --seconds " + seconds + " --leak-test 0 --save-state " + quoted(state));
+        if (run.exit_code != 0) throw std::runtime_error("the repair's run failed: " + run.output);
+    }
+};
+const RepairedState& repaired_state() {
+    static const RepairedState made;
+    return made;
+}
+
+}  // namespace
+
+// A repaired state's .xmf2 shows the repair as it ended: besides the tissue, the `patch` (its
+// mid-surface, /patch) and its `stitches` (a vertex per stitch at its tissue point, carrying its
+// pull), with the state's counts, in VTK's readers and in ParaView's own File > Open.
+TEST(ParaView, ARepairedStateShowsThePatchAndItsStitches) {
+    const RepairedState& r = repaired_state();
+    const SimulationState state = read_state(r.state);
+    ASSERT_TRUE(state.patch.has_value());
+    const PatchState& patch = *state.patch;
+    const std::size_t stitches = patch.stitch_vertex.size();
+    ASSERT_EQ(stitches, 3u);
+    ASSERT_FALSE(patch.triangles.empty());
+    // The plan's hand 0 lays the patch, hand 1 ties with the needle: kinds 4 and 5 (docs/runtime.md).
+    EXPECT_EQ(state.kind, (std::array<std::int32_t, 2>{4, 5}));
+    const Scenario s = read_scenario(r.scenario);
+    const fs::path xdmf = xdmf_beside(r.state);
+    const std::string text = text_of(xdmf);
+    EXPECT_NE(text.find(">repaired.h5:/patch/triangles<"), std::string::npos) << text;
+    EXPECT_NE(text.find(">repaired.h5:/patch/stitch_anchor<"), std::string::npos) << text;
+    const std::size_t n = state.positions.size();
+    const Opened opened = vtk_open({xdmf});
+    if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
+    ASSERT_FALSE(opened.readers().empty()) << opened.output;
+    for (const auto& reader : opened.readers()) {
+        const auto blocks = opened.blocks(reader);
+        ASSERT_TRUE(blocks.count("patch") && blocks.count("stitches")) << reader << "\n" << opened.output;
+        EXPECT_EQ(count(blocks.at("patch"), "points"), patch.positions.size()) << reader;
+        EXPECT_EQ(count(blocks.at("patch"), "cells"), patch.triangles.size()) << reader;
+        expect_bounds(blocks.at("patch"), patch.positions, 1e-3, reader + " patch");
+        EXPECT_EQ(count(blocks.at("stitches"), "points"), stitches) << reader;
+        EXPECT_EQ(count(blocks.at("stitches"), "cells"), stitches) << reader;
+        EXPECT_NE(blocks.at("stitches").at("arrays").find("force_n"), std::string::npos) << reader;
+        expect_bounds(blocks.at("stitches"), patch.stitch_anchor, 1e-3, reader + " stitches");
+    }
+    expect_paraview_parts(xdmf, {{"detailed_mesh", state.visual_positions.size(), s.visual->triangles.size()},
+                                 {"simulation_surface", n, s.simulation_surface->size()},
+                                 {"particles", n, n},
+                                 {"patch", patch.positions.size(), patch.triangles.size()},
+                                 {"stitches", stitches, stitches}});
 }
 
 TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
