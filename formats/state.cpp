@@ -4,6 +4,7 @@
 #include "hdf5_io.h"
 #include "xdmf.h"
 
+#include "libmodel/errors.h"
 #include "libmodel/stability.h"
 
 #include <string>
@@ -168,6 +169,15 @@ SimulationState read_state(const std::filesystem::path& path) {
         state.patch = std::move(patch);
     }
     return state;
+}
+
+bool is_state_file(const std::filesystem::path& path) {
+    try {
+        const h5::Reader r(path);
+        return r.has_attribute("/", "format") && r.string_attribute("/", "format") == "heartsim.state";
+    } catch (const InputError&) {
+        return false;
+    }
 }
 
 }  // namespace heartsim

@@ -93,5 +93,8 @@ struct SimulationState {
 void write_state(const std::filesystem::path& path, const SimulationState& state);
 /// Reads and validates; throws InputError naming the file and dataset.
 SimulationState read_state(const std::filesystem::path& path);
+/// Whether `path` is an HDF5 file whose root says it is a saved state (format heartsim.state);
+/// false for anything else, which that file's own reader then refuses with its reason.
+bool is_state_file(const std::filesystem::path& path);
 
 }  // namespace heartsim

@@ -11,6 +11,7 @@
 #include "formats/xdmf.h"
 #include "libmodel/mesh.h"
 #include "libmodel/simulation_surface.h"
+#include "formats/mesh_io.h"
 #include "runtime/trajectory.h"
 #include "defect_block_scenario.h"
 #include "incision_gesture.h"
@@ -372,6 +373,53 @@ TEST(ParaView, ARepairedStateShowsThePatchAndItsStitches) {
                                  {"particles", n, n},
                                  {"patch", patch.positions.size(), patch.triangles.size()},
                                  {"stitches", stitches, stitches}});
+}
+
+// `heartprep export` of a saved state: its deformed detailed mesh with the patch by default, the
+// patch alone or the mesh alone with --what, each with the state's own vertex and triangle counts;
+// an uncut state keeps no triangles of its own, so without the scenario it ran (--scenario) the
+// export says what to give.
+TEST(ParaView, ExportOfARepairedStateWritesItsMeshAndPatch) {
+    const RepairedState& r = repaired_state();
+    const SimulationState state = read_state(r.state);
+    ASSERT_TRUE(state.patch.has_value());
+    ASSERT_TRUE(state.visual_triangles.empty()) << "uncut: the scenario's triangles apply";
+    const Scenario s = read_scenario(r.scenario);
+    test::TempDir dir;
+    const auto without = test::heartprep("export " + quoted(r.state) + " -o " + quoted(dir / "x.ply"));
+    EXPECT_EQ(without.exit_code, 2) << without.output;
+    EXPECT_NE(without.output.find("give the scenario it ran, --scenario vsd.h5"), std::string::npos) << without.output;
+    EXPECT_FALSE(fs::exists(dir / "x.ply"));
+    const std::size_t mesh_vertices = state.visual_positions.size(), mesh_triangles = s.visual->triangles.size(),
+                      patch_vertices = state.patch->positions.size(), patch_triangles = state.patch->triangles.size();
+    struct Case {
+        std::string what;
+        std::size_t vertices, triangles;
+    };
+    for (const Case& c : {Case{"", mesh_vertices + patch_vertices, mesh_triangles + patch_triangles}, Case{"visual", mesh_vertices, mesh_triangles},
+                          Case{"patch", patch_vertices, patch_triangles}}) {
+        SCOPED_TRACE(c.what);
+        const fs::path out = dir / ((c.what.empty() ? std::string("default") : c.what) + ".ply");
+        const auto run = test::heartprep("export " + quoted(r.state) + " --scenario " + quoted(r.scenario) +
+                                         (c.what.empty() ? "" : " --what " + c.what) + " -o " + quoted(out));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        const TriangleMesh read = read_mesh(out);
+        EXPECT_EQ(read.positions.size(), c.vertices);
+        EXPECT_EQ(read.triangles.size(), c.triangles);
+        std::vector<std::array<float, 3>> expected = c.what == "patch" ? state.patch->positions : state.visual_positions;
+        if (c.what.empty()) expected.insert(expected.end(), state.patch->positions.begin(), state.patch->positions.end());
+        for (int a = 0; a < 3; ++a) {
+            double low = 1e30, high = -1e30, read_low = 1e30, read_high = -1e30;
+            for (const auto& p : expected) low = std::min(low, double(p[a])), high = std::max(high, double(p[a]));
+            for (const auto& p : read.positions) read_low = std::min(read_low, p[a]), read_high = std::max(read_high, p[a]);
+            EXPECT_NEAR(read_low, low, 1e-4) << "axis " << a;
+            EXPECT_NEAR(read_high, high, 1e-4) << "axis " << a;
+        }
+    }
+    // A state that holds no patch, and a scenario asked for one.
+    const auto scenario_patch = test::heartprep("export " + quoted(r.scenario) + " --what patch -o " + quoted(dir / "p.ply"));
+    EXPECT_EQ(scenario_patch.exit_code, 2) << scenario_patch.output;
+    EXPECT_NE(scenario_patch.output.find("a scenario holds no patch"), std::string::npos) << scenario_patch.output;
 }
 
 TEST(ParaView, RecordingXdmfIsATimeSeriesOfTheToolsAndForces) {
