@@ -2,6 +2,7 @@
 #include "hdf5_io.h"
 
 #include "atomic_file.h"
+#include "xdmf.h"
 
 #include <algorithm>
 #include <cmath>
@@ -289,7 +290,10 @@ Reader::Reader(const std::filesystem::path& path) : path_(path.string()) {
     if (!std::filesystem::exists(path)) fail("", "file not found");
     // A FIFO or a device would block or never end: only regular files are read.
     if (!std::filesystem::is_regular_file(path)) fail("", "not a regular file");
-    if (H5Fis_hdf5(path.c_str()) <= 0) fail("", "not an HDF5 file");
+    if (H5Fis_hdf5(path.c_str()) <= 0) {
+        const std::string instead = xdmf_given_instead_of_h5(path);  // case.xmf2 given for case.h5
+        fail("", "not an HDF5 file" + (instead.empty() ? std::string() : ": " + instead));
+    }
     file_ = Handle(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT), H5Fclose);
     if (!file_.valid()) fail("", "cannot open (damaged HDF5 file?)");
 }

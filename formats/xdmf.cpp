@@ -10,6 +10,7 @@
 #include "libmodel/errors.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <vector>
 #include <sstream>
@@ -121,6 +122,24 @@ std::filesystem::path xdmf_beside(const std::filesystem::path& h5) {
     path.replace_extension(xdmf_extension);
     // An .h5 someone named `x.xmf2` keeps its data: its description is `x.xmf2.xmf2`.
     return path == h5 ? std::filesystem::path(h5.string() + xdmf_extension) : path;
+}
+
+std::string xdmf_given_instead_of_h5(const std::filesystem::path& path) {
+    std::string extension = path.extension().string();
+    std::transform(extension.begin(), extension.end(), extension.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    if (extension != xdmf_extension && extension != ".xdmf") return {};
+    // The names xdmf_beside maps to `path`: x.h5, x.hdf5, and `x.xmf2` itself for `x.xmf2.xmf2`.
+    std::vector<std::filesystem::path> described;
+    for (const char* h5 : {".h5", ".hdf5"}) described.push_back(std::filesystem::path(path).replace_extension(h5));
+    if (path.stem().extension() == xdmf_extension) described.push_back(path.parent_path() / path.stem());
+    std::error_code error;
+    const auto found = std::find_if(described.begin(), described.end(), [&](const auto& h5) {
+        return std::filesystem::is_regular_file(h5, error) && xdmf_beside(h5) == path;
+    });
+    if (found != described.end())
+        return "it is ParaView's description (XDMF) of " + found->string() + " beside it, which holds the data: give " + found->string();
+    return "it is ParaView's description (XDMF) of an .h5 that holds the data and should lie beside it (" + described.front().string() +
+           ", not there): give that .h5";
 }
 
 void check_xdmf_destination(const std::filesystem::path& h5) {

@@ -35,6 +35,11 @@ inline constexpr const char* xdmf_extension = ".xmf2";
 /// `.h5` → `.xmf2` adds two bytes: an .h5 name of up to 253 bytes keeps its description within
 /// the 255 bytes a file name may take.
 std::filesystem::path xdmf_beside(const std::filesystem::path& h5);
+/// Where `path` is named as a description (`.xmf2`, or `.xdmf` as earlier versions wrote), the
+/// words that say what it is and which file to give instead: the .h5 beside it that xdmf_beside
+/// maps to it (`case.h5`, else `case.hdf5`), named whether or not it is there. Empty for any
+/// other name. The HDF5 reader adds them to its "not an HDF5 file".
+std::string xdmf_given_instead_of_h5(const std::filesystem::path& path);
 /// The description `text` as a file written together with `h5` (atomic_file.h FileBeside): a
 /// failure at either leaves both old files as they were.
 FileBeside xdmf_file_beside(const std::filesystem::path& h5, const std::string& text);

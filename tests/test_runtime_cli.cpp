@@ -4,6 +4,7 @@
 
 #include "formats/scenario.h"
 #include "formats/state.h"
+#include "formats/xdmf.h"
 #include "runtime/gl/gl_context.h"
 
 #include <gtest/gtest.h>
@@ -373,6 +374,29 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
     const auto help = run_heartsim("run --help");
     EXPECT_EQ(help.exit_code, 0);
     EXPECT_NE(help.output.find("Exit status: 0 success, 1 input error"), std::string::npos) << help.output;
+}
+
+// The .xmf2 beside a scenario where the scenario belongs (ParaView opens that one): one line that
+// says what it is and names the .h5 beside it to give instead, or, where that .h5 is not there,
+// the name it should have; exit 1 (a bad input).
+TEST(HeartsimCli, AParaViewDescriptionGivenAsTheScenarioNamesTheH5BesideIt) {
+    const fs::path description = xdmf_beside(phantom());
+    ASSERT_TRUE(fs::exists(description));
+    const auto beside = test::run_command("(" + quoted(HEARTSIM_EXE) + " run " + quoted(description) + " --headless --backend cpu --steps 1 2>&1 >/dev/null)");
+    EXPECT_EQ(beside.exit_code, 1) << beside.output;
+    EXPECT_EQ(std::count(beside.output.begin(), beside.output.end(), '\n'), 1) << beside.output;
+    EXPECT_NE(beside.output.find(description.string() + ": not an HDF5 file: it is ParaView's description (XDMF) of " + phantom().string() +
+                                 " beside it, which holds the data: give " + phantom().string()),
+              std::string::npos)
+        << beside.output;
+    test::TempDir dir;
+    fs::copy_file(description, dir / "alone.xmf2");
+    const auto alone = test::run_command("(" + quoted(HEARTSIM_EXE) + " run " + quoted(dir / "alone.xmf2") + " --headless --backend cpu --steps 1 2>&1 >/dev/null)");
+    EXPECT_EQ(alone.exit_code, 1) << alone.output;
+    EXPECT_NE(alone.output.find("alone.xmf2: not an HDF5 file: it is ParaView's description (XDMF) of an .h5 that holds the data and should "
+                                "lie beside it (" + (dir / "alone.h5").string() + ", not there): give that .h5"),
+              std::string::npos)
+        << alone.output;
 }
 
 // A label map where the scenario belongs (the first thing a new user tries): one line saying
