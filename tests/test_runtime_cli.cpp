@@ -322,7 +322,7 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         // A number whose help names its type otherwise (S) is checked as finite too: CLI11's
         // Range lets NaN through.
         {run + "--steps 1 --igtl 18944 --igtl-wait nan", 2, "--igtl-wait: 'nan' is not a finite number"},
-        {run + "--steps 1 --leak-test inf", 2, "--leak-test: 'inf' is not a finite number"},
+        {run + "--steps 1 --leak-test nan", 2, "--leak-test: 'nan' is not a finite number"},
         {run + "--steps 1 --look-at 1e30,0,0 --screenshot " + quoted(dir / "far.png"), 2, "X is 1e+30 mm, outside the plausible range"},
         {run + "--steps -1", 2, "--steps: must be 0 or more, not -1"},
         {run + "--stepps 1", 2, "not expected: --stepps 1 (--stepps: did you mean --steps?) (heartsim run --help"},
