@@ -173,10 +173,17 @@ int main(int argc, char** argv) {
         ->check(cli_messages::non_negative());
     run->add_option("--igtl", a.igtl,
                     "Live link to 3D Slicer over OpenIGTLink (a window or a headless run): PORT listens there for Slicer's OpenIGTLinkIF "
-                    "(client; Slicer's default port is 18944), HOST:PORT connects to a Slicer server; streams the instruments' poses "
-                    "(TRANSFORM), the deformed mesh (POLYDATA), forces and state (STRING), LPS mm; the simulation never waits for it "
-                    "(docs/runtime.md \"Live link to 3D Slicer\")")
+                    "(client; Slicer's default port is 18944) on 127.0.0.1 unless --igtl-bind, HOST:PORT connects to a Slicer server; "
+                    "streams the instruments' poses (TRANSFORM), the mesh as drawn and a repair's patch and stitches (POLYDATA), forces "
+                    "and state (STRING), RAS mm unless --igtl-frame lps; the simulation never waits for it (docs/runtime.md \"Live link "
+                    "to 3D Slicer\")")
         ->type_name("PORT|HOST:PORT");
+    run->add_option("--igtl-bind", a.igtl_bind, "With --igtl PORT: the IPv4 address heartsim listens on: 127.0.0.1 (this machine only, "
+                                                "the default), 0.0.0.0 (every interface: Slicer on another machine) or one interface's")
+        ->type_name("ADDRESS");
+    run->add_option("--igtl-frame", a.igtl_frame, "With --igtl: the coordinates sent, ras (Slicer's scene, the default: heartsim's LPS "
+                                                  "with x and y negated) or lps (heartsim's world, the scenario's)")
+        ->check(CLI::IsMember({"ras", "lps"}))->type_name("ras|lps");
     run->add_option("--igtl-wait", a.igtl_wait, "With --igtl: before the first step, wait up to S seconds for Slicer to connect "
                                                 "(default 0: start at once, stream to whoever connects)")
         ->check(CLI::Range(0.0, 600.0))->type_name("S");

@@ -124,8 +124,11 @@ void check_arguments(const RunArguments& a) {
         for (const std::string& option : a.device_options_given) throw UsageError(option + " sets how forces reach a haptic device: it needs --device");
     if (!a.replay.empty() && (haptic_run || !a.trajectory.empty() || !a.probe.empty() || !a.grab.empty()))
         throw UsageError("--replay drives the instruments from the recording: no --device, --trajectory, --probe or --grab with it");
-    if (a.igtl.empty() && (a.igtl_wait || a.igtl_mesh_rate))
-        throw UsageError(std::string(a.igtl_wait ? "--igtl-wait" : "--igtl-mesh-rate") + " sets how heartsim streams to 3D Slicer: it needs --igtl PORT");
+    if (a.igtl.empty() && (a.igtl_wait || a.igtl_mesh_rate || a.igtl_bind || a.igtl_frame))
+        throw UsageError(std::string(a.igtl_wait ? "--igtl-wait" : a.igtl_mesh_rate ? "--igtl-mesh-rate" : a.igtl_bind ? "--igtl-bind" : "--igtl-frame") +
+                         " sets how heartsim streams to 3D Slicer: it needs --igtl PORT");
+    if (a.igtl_bind && a.igtl.find(':') != std::string::npos)
+        throw UsageError("--igtl-bind sets where heartsim listens: not with --igtl " + a.igtl + ", where heartsim connects to a Slicer server");
     if (!a.igtl.empty() && !a.replay.empty()) throw UsageError("--igtl streams a running session: not with --replay");
     if (haptic_run && a.headless && a.seconds <= 0 && a.steps && *a.steps == 0)
         throw UsageError("--steps 0 runs no step: a headless haptic run needs --steps N of at least 1, or --seconds S "
@@ -503,8 +506,9 @@ const std::vector<std::array<float, 3>>& positions_or_read(PreparedRun& p, const
 
 /// The renderer draws the incision state's mesh from the next frame on.
 void draw_incisions(PreparedRun& p) {
-    if (!p.renderer || !p.renderer->draws_visual_mesh()) return;
     const IncisionState& cut = *p.incisions;
+    if (p.link) p.link->set_drawn_mesh(cut.drawn_triangles(), cut.mapping());  // and Slicer from its next mesh on
+    if (!p.renderer || !p.renderer->draws_visual_mesh()) return;
     p.renderer->set_visual(cut.rest_positions(), cut.rest_normals(), cut.drawn_triangles(), cut.mapping(), cut.cap_first());
 }
 
@@ -514,6 +518,14 @@ void draw_repair(PreparedRun& p) {
     if (!p.renderer) return;
     if (const PatchModel* patch = p.repair ? p.repair->patch() : nullptr) p.renderer->set_patch(drawn_patch(*patch, p.repair->stitch_anchors()));
     else p.renderer->clear_patch();
+}
+
+/// The repair as the link sends it, made only when a mesh is sent (none before a patch is laid).
+SlicerLink::PatchSource link_patch(PreparedRun& p) {
+    return [&p] {
+        const PatchModel* patch = p.repair ? p.repair->patch() : nullptr;
+        return patch ? drawn_patch(*patch, p.repair->stitch_anchors()) : DrawnPatch{};
+    };
 }
 
 }  // namespace
@@ -758,7 +770,11 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     check_arguments(a);
     // --igtl: the port is taken now, so a port in use is said before the scenario is read.
     if (!a.igtl.empty())
-        link = SlicerLink::open({.endpoint = a.igtl, .mesh_rate_hz = a.igtl_mesh_rate.value_or(20.0), .wait_s = a.igtl_wait.value_or(0.0)});
+        link = SlicerLink::open({.endpoint = a.igtl,
+                                 .bind = a.igtl_bind.value_or("127.0.0.1"),
+                                 .ras = a.igtl_frame.value_or("ras") == "ras",
+                                 .mesh_rate_hz = a.igtl_mesh_rate.value_or(20.0),
+                                 .wait_s = a.igtl_wait.value_or(0.0)});
     // Rendering only where it is seen: a window, or a screenshot (docs/runtime.md "Rendering").
     const bool render = !a.headless || !a.screenshot.empty();
     std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
@@ -882,13 +898,14 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
             std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
         if (run.link && run.link->due())
             run.link->offer(*run.backend, (long long)haptic->rows(), link_hands(haptic->shapes(), haptic->latest_published_forces()),
-                            SlicerLink::State::running);
+                            SlicerLink::State::running, link_patch(run));
     }
     if (interrupted.load()) std::printf("interrupted: ending the session\n");
     haptic->finish(result);
     // Ctrl-C stays caught while the outputs are written: a state is never cut off half way.
     const int status = finish_run(a, run, result, haptic.get(), wall_start);
-    if (run.link) run.link->finish(*run.backend, result.steps, link_hands(haptic->shapes(), run.backend->instrument_forces()));
+    if (run.link)
+        run.link->finish(*run.backend, result.steps, link_hands(haptic->shapes(), run.backend->instrument_forces()), link_patch(run));
     restore_interrupts();
     return status;
 }
@@ -917,11 +934,13 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
         if (interrupted.load()) std::printf("interrupted: ending the session\n");
         haptic->finish(result);  // Ctrl-C stays caught until the outputs are written (below)
     }
+    const int status = finish_run(a, run, result, haptic.get(), wall_start);
+    // After the run's outputs: the final mesh is the one they hold (a stroke under way opened).
     if (run.link)
         run.link->finish(*run.backend, result.steps,
                          haptic ? link_hands(haptic->shapes(), run.backend->instrument_forces())
-                                : link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
-    const int status = finish_run(a, run, result, haptic.get(), wall_start);
+                                : link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()),
+                         link_patch(run));
     if (haptic) restore_interrupts();
     return status;
 }
@@ -953,7 +972,7 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
             if (before) before(step, report);
             if (!run.link->due()) return;
             run.link->offer(*run.backend, step + 1, link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->latest_forces()),
-                            SlicerLink::State::running);
+                            SlicerLink::State::running, link_patch(run));
         };
     // A stroke's blade lifted: the detailed mesh opens along it from the positions of that step
     // (before anything else sees the step: a screenshot shows it opened).
@@ -965,7 +984,7 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
     const int status = finish_run(a, run, result, nullptr, wall_start);
     if (run.link)
         run.link->finish(*run.backend, result.steps,
-                         link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
+                         link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()), link_patch(run));
     return status;
 }
 

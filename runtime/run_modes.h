@@ -67,6 +67,8 @@ struct RunArguments {
     std::string igtl;                 // --igtl PORT | HOST:PORT; empty: none
     std::optional<double> igtl_wait;  // --igtl-wait S: wait up to S s for Slicer before the first step
     std::optional<double> igtl_mesh_rate;  // --igtl-mesh-rate HZ: cap on the mesh messages (default 20)
+    std::optional<std::string> igtl_bind;   // --igtl-bind ADDRESS: where --igtl PORT listens (default 127.0.0.1)
+    std::optional<std::string> igtl_frame;  // --igtl-frame ras|lps: the coordinates sent (default ras)
     // The repair of a septal defect (runtime/repair.h, docs/runtime.md "Closing a defect").
     std::string patch_material = "pericardium";  // --patch-material
     double leak_test_mmhg = 10.0;                // --leak-test: the pressure the closure check holds the patch to

@@ -1,7 +1,10 @@
-// The live link to 3D Slicer (slicer_link.h). OpenIGTLink encodes the messages; the sockets are
-// our own (POSIX, non-blocking, MSG_NOSIGNAL): the library's sockets block on send, raise SIGPIPE
-// on a vanished client and have no connect timeout, which a simulation that must never wait on
-// the network cannot use.
+// The live link to 3D Slicer (slicer_link.h). OpenIGTLink encodes the poses and the text; the
+// meshes are encoded here, from the protocol's layout, because the library rebuilds a mesh's
+// triangles from linked lists at every message (a 190,000-triangle heart: tens of ms each) where
+// a mesh's triangles change only when an incision opens it. The sockets are our own (POSIX,
+// non-blocking, MSG_NOSIGNAL): the library's sockets block on send, raise SIGPIPE on a vanished
+// client and have no connect timeout, which a simulation that must never wait on the network
+// cannot use.
 #include "runtime/slicer_link.h"
 
 #include "cli/command_errors.h"
@@ -58,10 +61,11 @@ std::unique_ptr<SlicerLink> SlicerLink::open(const SlicerLinkOptions&) {
 
 #include "libmodel/mapping.h"
 
-#include <igtlPolyDataMessage.h>
 #include <igtlStringMessage.h>
 #include <igtlTimeStamp.h>
 #include <igtlTransformMessage.h>
+
+#include <tbb/task_arena.h>
 
 #include <arpa/inet.h>
 #include <fcntl.h>
@@ -77,8 +81,9 @@ std::unique_ptr<SlicerLink> SlicerLink::open(const SlicerLinkOptions&) {
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <cstring>
-#include <deque>
+#include <ctime>
 #include <mutex>
 #include <thread>
 
@@ -93,8 +98,44 @@ using Bytes = std::shared_ptr<const std::string>;
 
 /// Between two tries to reach a Slicer server, and the longest a connect may wait for an answer.
 constexpr auto reconnect_period = std::chrono::seconds(2);
+/// The most of one core's time the meshes take (mapping, encoding) while a run goes on.
+constexpr double mesh_share = 0.05;
 
 std::chrono::nanoseconds seconds(double s) { return std::chrono::nanoseconds(std::llround(s * 1e9)); }
+
+/// The processor time the calling thread has taken, ns.
+std::int64_t thread_cpu_ns() {
+    timespec t{};
+    ::clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+    return std::int64_t(t.tv_sec) * 1000000000 + t.tv_nsec;
+}
+
+/// The protocol's CRC-64 (ECMA-182, most significant bit first, from 0, not inverted: the
+/// library's crc64()), eight bytes at a time: a mesh's megabytes in a few ms.
+std::uint64_t crc64_of(const char* data, std::size_t size) {
+    static const auto tables = [] {
+        std::array<std::array<std::uint64_t, 256>, 8> t{};
+        for (std::uint64_t i = 0; i < 256; ++i) {
+            std::uint64_t c = i << 56;
+            for (int k = 0; k < 8; ++k) c = (c >> 63) ? (c << 1) ^ 0x42F0E1EBA9EA3693ull : c << 1;
+            t[0][i] = c;
+        }
+        for (std::size_t k = 1; k < 8; ++k)
+            for (std::size_t i = 0; i < 256; ++i) t[k][i] = t[0][t[k - 1][i] >> 56] ^ (t[k - 1][i] << 8);
+        return t;
+    }();
+    const auto* p = reinterpret_cast<const std::uint8_t*>(data);
+    std::uint64_t crc = 0;
+    for (; size >= 8; size -= 8, p += 8) {
+        std::uint64_t word;
+        std::memcpy(&word, p, 8);
+        crc ^= __builtin_bswap64(word);  // the next eight bytes, first byte highest
+        crc = tables[7][crc >> 56] ^ tables[6][(crc >> 48) & 0xff] ^ tables[5][(crc >> 40) & 0xff] ^ tables[4][(crc >> 32) & 0xff] ^
+              tables[3][(crc >> 24) & 0xff] ^ tables[2][(crc >> 16) & 0xff] ^ tables[1][(crc >> 8) & 0xff] ^ tables[0][crc & 0xff];
+    }
+    for (; size > 0; --size, ++p) crc = tables[0][(crc >> 56) ^ *p] ^ (crc << 8);
+    return crc;
+}
 
 /// A packed message's bytes (header and body), to be shared by every client's outbox.
 Bytes packed(igtl::MessageBase* message) {
@@ -117,15 +158,19 @@ Bytes string_message(const char* device, const std::string& text) {
     return packed(message);
 }
 
-/// The 4×4 tool → world matrix of `pose`, LPS mm.
-Bytes transform_message(const char* device, const InstrumentPose& pose) {
+/// LPS → RAS: x and y negated (a half turn about z, so a triangle keeps its winding).
+constexpr std::array<float, 3> ras_signs = {-1.0f, -1.0f, 1.0f};
+
+/// The 4×4 tool → world matrix of `pose`, LPS mm; in RAS diag(−1, −1, 1)·T (rows x and y negated).
+Bytes transform_message(const char* device, const InstrumentPose& pose, bool ras) {
     igtl::TransformMessage::Pointer message = igtl::TransformMessage::New();
     message->SetDeviceName(device);
     const Eigen::Matrix3d rotation = pose.orientation.normalized().toRotationMatrix();
     igtl::Matrix4x4 matrix;
     for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) matrix[r][c] = float(rotation(r, c));
-        matrix[r][3] = float(pose.position[r]);
+        const float sign = ras ? ras_signs[std::size_t(r)] : 1.0f;
+        for (int c = 0; c < 3; ++c) matrix[r][c] = sign * float(rotation(r, c));
+        matrix[r][3] = sign * float(pose.position[r]);
     }
     matrix[3][0] = matrix[3][1] = matrix[3][2] = 0.0f;
     matrix[3][3] = 1.0f;
@@ -135,6 +180,70 @@ Bytes transform_message(const char* device, const InstrumentPose& pose) {
     return packed(message);
 }
 
+// ---- POLYDATA, from the protocol's layout (OpenIGTLink v1 header, big-endian throughout) ----
+
+void put_u16(char*& out, std::uint16_t v) {
+    v = __builtin_bswap16(v);
+    std::memcpy(out, &v, 2), out += 2;
+}
+void put_u32(char*& out, std::uint32_t v) {
+    v = __builtin_bswap32(v);
+    std::memcpy(out, &v, 4), out += 4;
+}
+void put_u64(char*& out, std::uint64_t v) {
+    v = __builtin_bswap64(v);
+    std::memcpy(out, &v, 8), out += 8;
+}
+void put_f32(char*& out, float f) {
+    std::uint32_t v;
+    std::memcpy(&v, &f, 4);
+    put_u32(out, v);
+}
+
+constexpr std::size_t header_bytes = 58;      ///< version, type, device name, time stamp, body size, CRC64
+constexpr std::size_t polydata_counts = 40;   ///< the POLYDATA body's ten u32 counts
+
+/// A cell array's bytes: each cell its size (u32) then its indices (u32).
+template <std::size_t N>
+std::string cell_section(const std::vector<std::array<std::int32_t, N>>& cells) {
+    std::string bytes((1 + N) * 4 * cells.size(), '\0');
+    char* out = bytes.data();
+    for (const auto& cell : cells) {
+        put_u32(out, std::uint32_t(N));
+        for (std::int32_t i : cell) put_u32(out, std::uint32_t(i));
+    }
+    return bytes;
+}
+
+/// One POLYDATA message: `points` (mm, in the frame already) with the polygons `polygons` (cell
+/// section, `npolygons` cells) or the lines `lines` (`nlines`); no vertices, strips or attributes.
+Bytes polydata_message(const char* device, const std::vector<std::array<float, 3>>& points, const std::string& polygons, std::size_t npolygons,
+                       const std::string& lines, std::size_t nlines) {
+    const std::size_t body = polydata_counts + 12 * points.size() + lines.size() + polygons.size();
+    auto message = std::make_shared<std::string>(header_bytes + body, '\0');
+    char* out = message->data() + header_bytes;
+    for (std::uint32_t count : {std::uint32_t(points.size()), 0u, 0u, std::uint32_t(nlines), std::uint32_t(lines.size()),
+                                std::uint32_t(npolygons), std::uint32_t(polygons.size()), 0u, 0u, 0u})
+        put_u32(out, count);
+    for (const auto& p : points)
+        for (float x : p) put_f32(out, x);
+    out = std::copy(lines.begin(), lines.end(), out);
+    std::copy(polygons.begin(), polygons.end(), out);
+    // The header: version 1, "POLYDATA", the device, the wall clock (s since 1970, 2^-32 s), the body's size and CRC64.
+    char* h = message->data();
+    put_u16(h, 1);
+    char type[12] = "POLYDATA", name[20] = {};
+    std::memcpy(name, device, std::min(std::strlen(device), sizeof name));
+    std::memcpy(h, type, 12), h += 12;
+    std::memcpy(h, name, 20), h += 20;
+    const auto since_epoch = std::chrono::system_clock::now().time_since_epoch();
+    const auto whole = std::chrono::duration_cast<std::chrono::seconds>(since_epoch);
+    const double fraction = std::chrono::duration<double>(since_epoch - whole).count();
+    put_u64(h, (std::uint64_t(whole.count()) << 32) | std::uint64_t(std::min(fraction * 4294967296.0, 4294967295.0)));
+    put_u64(h, body);
+    put_u64(h, crc64_of(message->data() + header_bytes, body));
+    return message;
+}
 
 const char* state_name(SlicerLink::State state) {
     switch (state) {
@@ -193,6 +302,25 @@ void say(const char* format, Args... args) {
     std::fflush(stdout);
 }
 
+/// The mesh Slicer shows, as the renderer draws it, from one change of its triangles to the next.
+struct DrawnMesh {
+    std::uint64_t version = 0;
+    std::vector<std::array<std::int32_t, 3>> triangles;  ///< indices into the points sent
+    std::optional<VisualMapping> mapping;                ///< the detailed mesh: its vertices through the mapping
+    std::vector<std::int32_t> particles;                 ///< else the simulation surface: its particles, renumbered
+};
+
+/// What a mesh message is made of: the particles, the mesh drawn, the repair.
+struct MeshJob {
+    std::shared_ptr<const std::vector<std::array<float, 3>>> positions;
+    std::shared_ptr<const DrawnMesh> mesh;
+    DrawnPatch patch;
+    bool forced = false;  ///< sent whether it changed or not (a client connected)
+};
+
+/// A message with the device it updates: a newer one replaces one not yet begun.
+using Named = std::pair<std::string, Bytes>;
+
 class IgtlLink final : public SlicerLink {
 public:
     IgtlLink(const SlicerLinkOptions& options, Endpoint endpoint) : options_(options), endpoint_(std::move(endpoint)) {
@@ -201,6 +329,7 @@ public:
         if (endpoint_.host.empty()) listen_now();
     }
     ~IgtlLink() override {
+        stop_encoder();
         stop();
         if (listen_fd_ >= 0) ::close(listen_fd_);
     }
@@ -208,14 +337,19 @@ public:
     void start(const Scenario& scenario) override {
         prepare_mesh(scenario);
         thread_ = std::thread([this] { run(); });
-        const std::string streams = "heartsim-heart (" + std::to_string(triangles_) + " triangles, " + mesh_source_ + ") at up to " +
-                                    rate(options_.mesh_rate_hz) + " when it moves, heartsim-hand0/1, -state, -force0/1 at up to " +
-                                    rate(options_.pose_rate_hz) + "; LPS mm";
-        if (endpoint_.host.empty())
-            say("igtl: listening on port %d (every interface) for 3D Slicer (OpenIGTLinkIF, client); %s\n", endpoint_.port, streams.c_str());
-        else
+        encoder_ = std::thread([this] { encode_loop(); });
+        const std::string streams = "heartsim-heart (" + std::to_string(mesh_->triangles.size()) + " triangles, " + mesh_source_ + ") at up to " +
+                                    rate(options_.mesh_rate_hz) + " when it moves, heartsim-patch and -stitches once a patch is laid, "
+                                    "heartsim-hand0/1, -state, -force0/1 at up to " + rate(options_.pose_rate_hz) + "; " + frame_name() + " mm";
+        if (!endpoint_.host.empty())
             say("igtl: connecting to a 3D Slicer server at %s:%d (OpenIGTLinkIF, server); %s\n", endpoint_.host.c_str(), endpoint_.port,
                 streams.c_str());
+        else if (options_.bind == "127.0.0.1")
+            say("igtl: listening on 127.0.0.1:%d (this machine only; --igtl-bind 0.0.0.0 for every interface) for 3D Slicer "
+                "(OpenIGTLinkIF, client); %s\n", endpoint_.port, streams.c_str());
+        else
+            say("igtl: listening on %s:%d (%s) for 3D Slicer (OpenIGTLinkIF, client); %s\n", options_.bind.c_str(), endpoint_.port,
+                options_.bind == "0.0.0.0" ? "every interface" : "that interface", streams.c_str());
         if (options_.wait_s > 0) {
             say("igtl: waiting up to %g s for %s before the first step\n", options_.wait_s,
                 endpoint_.host.empty() ? "a client" : "the connection");
@@ -225,41 +359,49 @@ public:
         }
     }
 
+    void set_drawn_mesh(const std::vector<std::array<std::int32_t, 3>>& triangles, const VisualMapping& mapping) override {
+        if (!mesh_ || !mesh_->mapping) return;  // the simulation surface is sent: no detailed mesh to open
+        auto mesh = std::make_shared<DrawnMesh>();
+        mesh->version = mesh_->version + 1;
+        mesh->triangles = triangles;
+        mesh->mapping = mapping;
+        mesh_ = std::move(mesh);
+    }
+
     bool due() const override { return clients_.load(std::memory_order_relaxed) > 0 && Clock::now() >= next_pose_; }
 
-    void offer(Backend& backend, long long steps, const SlicerLinkHands& hands, State state) override {
+    void offer(Backend& backend, long long steps, const SlicerLinkHands& hands, State state, const PatchSource& patch) override {
         if (!due()) return;
         const auto now = Clock::now();
         next_pose_ = std::max(next_pose_ + seconds(1.0 / options_.pose_rate_hz), now);
-        Frame frame{.time_ms = backend.simulated_time_ms(), .steps = steps, .state = state, .hands = hands, .positions = nullptr, .final = false};
-        if (now >= next_mesh_ || mesh_wanted_.exchange(false)) {
-            // The only wait the simulation takes (gl: the positions read back), and only while
-            // someone is connected, at most mesh_rate_hz times a second.
-            frame.positions = std::make_shared<const std::vector<std::array<float, 3>>>(backend.positions());
-            next_mesh_ = std::max(next_mesh_ + seconds(1.0 / options_.mesh_rate_hz), now);
-        }
-        post(std::move(frame));
+        // The only wait the simulation takes (gl: the positions read back), and only while a client
+        // can take a mesh and the mesh thread is free for it, at most mesh_rate_hz times a second.
+        if (mesh_due(now)) submit(std::make_shared<const std::vector<std::array<float, 3>>>(backend.positions()), patch);
+        post(Frame{.time_ms = backend.simulated_time_ms(), .steps = steps, .state = state, .hands = hands, .final = false, .meshes = {}});
     }
 
     void offer(double time_ms, const std::vector<std::array<float, 3>>& positions, long long steps, const SlicerLinkHands& hands,
-               State state) override {
+               State state, const PatchSource& patch) override {
         if (!due()) return;
         const auto now = Clock::now();
         next_pose_ = std::max(next_pose_ + seconds(1.0 / options_.pose_rate_hz), now);
-        Frame frame{.time_ms = time_ms, .steps = steps, .state = state, .hands = hands, .positions = nullptr, .final = false};
-        if (!positions.empty() && (now >= next_mesh_ || mesh_wanted_.exchange(false))) {
-            frame.positions = std::make_shared<const std::vector<std::array<float, 3>>>(positions);
-            next_mesh_ = std::max(next_mesh_ + seconds(1.0 / options_.mesh_rate_hz), now);
-        }
-        post(std::move(frame));
+        if (!positions.empty() && mesh_due(now)) submit(std::make_shared<const std::vector<std::array<float, 3>>>(positions), patch);
+        post(Frame{.time_ms = time_ms, .steps = steps, .state = state, .hands = hands, .final = false, .meshes = {}});
     }
 
-    void finish(Backend& backend, long long steps, const SlicerLinkHands& hands) override {
+    void finish(Backend& backend, long long steps, const SlicerLinkHands& hands, const PatchSource& patch) override {
         if (!thread_.joinable()) return;
+        stop_encoder();  // the final mesh is made here, after any the mesh thread was making
         if (clients_.load() > 0) {
-            Frame frame{.time_ms = backend.simulated_time_ms(), .steps = steps, .state = State::finished, .hands = hands, .positions = nullptr, .final = false};
-            frame.positions = std::make_shared<const std::vector<std::array<float, 3>>>(backend.positions());
-            frame.final = true;
+            Frame frame{.time_ms = backend.simulated_time_ms(), .steps = steps, .state = State::finished, .hands = hands, .final = true, .meshes = {}};
+            MeshJob job{.positions = std::make_shared<const std::vector<std::array<float, 3>>>(backend.positions()),
+                        .mesh = mesh_,
+                        .patch = patch ? patch() : DrawnPatch{},
+                        .forced = true};
+            frame.meshes = encode(job);
+            if (const long long made = meshes_made_.load(); made > 0)
+                say("igtl: %lld meshes made during the run, %.3g ms of processor time each (at most %g %% of one core)\n", made, 1e-6 * double(mesh_ns_.load()) / double(made),
+                    100 * mesh_share);
             finishing_.store(true);
             post(std::move(frame));
             // Until every client has the final state and has closed (or finish_s has passed).
@@ -275,19 +417,22 @@ private:
         long long steps = 0;
         State state = State::running;
         SlicerLinkHands hands{};
-        std::shared_ptr<const std::vector<std::array<float, 3>>> positions;  ///< null: the mesh is not due
         bool final = false;
+        std::vector<Named> meshes;  ///< the final frame's meshes
     };
     struct Client {
         int fd = -1;
         std::string name;
-        std::deque<Bytes> outbox;  ///< at most one frame (two with the final one): newer frames are skipped meanwhile
-        std::size_t sent = 0;      ///< bytes of outbox.front() already sent
+        Bytes current;              ///< the message on the wire: sent whole before any other
+        std::size_t sent = 0;       ///< bytes of `current` already sent
+        Bytes frame;                ///< the newest frame not yet begun (state, poses, forces): goes first
+        std::vector<Named> meshes;  ///< the newest meshes not yet begun, one per device
         Clock::time_point last_progress = Clock::now();
-        std::uint64_t mesh_version = 0;  ///< the mesh it has
-        bool closing = false;            ///< final state queued: shut down once sent
-        bool shut = false;               ///< everything sent and shut down for writing: waiting for its close
-        std::string gone;                ///< why it is dropped; empty while connected
+        bool closing = false;       ///< final state queued: shut down once sent
+        bool shut = false;          ///< everything sent and shut down for writing: waiting for its close
+        std::string gone;           ///< why it is dropped; empty while connected
+        bool pending() const { return current || frame || !meshes.empty(); }
+        bool open() const { return gone.empty() && !closing && !shut; }
     };
 
     static std::string rate(double hz) {
@@ -295,19 +440,22 @@ private:
         std::snprintf(text, sizeof text, "%g Hz", hz);
         return text;
     }
+    const char* frame_name() const { return options_.ras ? "RAS" : "LPS"; }
 
     void listen_now() {
         const std::string option = "--igtl " + std::to_string(endpoint_.port);
+        sockaddr_in address{};
+        address.sin_family = AF_INET;
+        address.sin_port = htons(std::uint16_t(endpoint_.port));
+        if (::inet_pton(AF_INET, options_.bind.c_str(), &address.sin_addr) != 1)
+            throw UsageError("--igtl-bind '" + options_.bind + "': expected an IPv4 address of this machine to listen on: 127.0.0.1 (this "
+                             "machine only, the default), 0.0.0.0 (every interface) or one interface's, e.g. 192.168.1.20");
         listen_fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
         if (listen_fd_ < 0) throw UsageError(option + ": cannot open a socket: " + std::strerror(errno));
         // A port a heartsim closed a moment ago (TIME_WAIT) is free to take again; one that a program
         // listens on is not (Linux refuses the bind either way).
         int on = 1;
         ::setsockopt(listen_fd_, SOL_SOCKET, SO_REUSEADDR, &on, sizeof on);
-        sockaddr_in address{};
-        address.sin_family = AF_INET;
-        address.sin_addr.s_addr = htonl(INADDR_ANY);
-        address.sin_port = htons(std::uint16_t(endpoint_.port));
         if (::bind(listen_fd_, reinterpret_cast<sockaddr*>(&address), sizeof address) != 0 || ::listen(listen_fd_, 4) != 0) {
             const int error = errno;
             ::close(listen_fd_);
@@ -318,6 +466,9 @@ private:
                                  "free one, e.g. --igtl " + std::to_string(endpoint_.port < 65535 ? endpoint_.port + 1 : 18944));
             if (error == EACCES)
                 throw UsageError(option + ": ports below 1024 need privileges; give one from 1024 to 65535 (Slicer's default is 18944)");
+            if (error == EADDRNOTAVAIL)
+                throw UsageError("--igtl-bind " + options_.bind + ": not an address of this machine; give one of its interfaces', "
+                                 "127.0.0.1 or 0.0.0.0");
             throw UsageError(option + ": cannot listen on port " + std::to_string(endpoint_.port) + ": " + std::strerror(error));
         }
         set_non_blocking(listen_fd_);
@@ -327,64 +478,152 @@ private:
     /// the simulation surface (its particles only, renumbered).
     void prepare_mesh(const Scenario& scenario) {
         scenario_ = &scenario;
-        const std::vector<std::array<std::int32_t, 3>>* triangles = nullptr;
+        auto mesh = std::make_shared<DrawnMesh>();
         if (scenario.visual && scenario.mapping && scenario.simulation_surface) {
-            triangles = &scenario.visual->triangles;
+            mesh->triangles = scenario.visual->triangles;
+            mesh->mapping = *scenario.mapping;
             mesh_source_ = "the detailed mesh";
         } else if (scenario.simulation_surface) {
-            triangles = &scenario.simulation_surface->triangles;
             mesh_source_ = "the simulation surface";
             std::vector<std::int32_t> renumbered(scenario.lattice.particles.rest_position.size(), -1);
-            for (const auto& t : *triangles)
-                for (std::int32_t i : t)
-                    if (renumbered[std::size_t(i)] < 0) renumbered[std::size_t(i)] = std::int32_t(surface_particles_.size()), surface_particles_.push_back(i);
-            renumber_ = std::move(renumbered);
+            for (const auto& t : scenario.simulation_surface->triangles) {
+                std::array<std::int32_t, 3> cell{};
+                for (int k = 0; k < 3; ++k) {
+                    std::int32_t& r = renumbered[std::size_t(t[std::size_t(k)])];
+                    if (r < 0) r = std::int32_t(mesh->particles.size()), mesh->particles.push_back(t[std::size_t(k)]);
+                    cell[std::size_t(k)] = r;
+                }
+                mesh->triangles.push_back(cell);
+            }
         } else {
             mesh_source_ = "no surface in the scenario";
         }
-        polydata_ = igtl::PolyDataMessage::New();
-        polydata_->SetDeviceName("heartsim-heart");
-        points_ = igtl::PolyDataPointArray::New();
-        polydata_->SetPoints(points_);
-        if (triangles) {
-            igtl::PolyDataCellArray::Pointer polygons = igtl::PolyDataCellArray::New();
-            for (const auto& t : *triangles) {
-                igtlUint32 cell[3];
-                for (int k = 0; k < 3; ++k) cell[k] = igtlUint32(renumber_.empty() ? t[std::size_t(k)] : renumber_[std::size_t(t[std::size_t(k)])]);
-                polygons->AddCell(3, cell);
-            }
-            polydata_->SetPolygons(polygons);
-            triangles_ = triangles->size();
-        }
+        mesh_ = std::move(mesh);
     }
 
-    /// The POLYDATA of `positions` (packed particles, mm), or null when they did not move.
-    Bytes mesh_message(const std::vector<std::array<float, 3>>& positions) {
-        if (triangles_ == 0 || positions == last_positions_) return nullptr;
-        last_positions_ = positions;
-        if (renumber_.empty()) {
-            // The detailed mesh as drawn and as --save-state writes /visual/positions.
-            const auto visual = apply_mapping(*scenario_->mapping, positions, *scenario_->simulation_surface);
-            points_->SetNumberOfPoints(int(visual.size()));
-            for (std::size_t v = 0; v < visual.size(); ++v) points_->SetPoint(unsigned(v), visual[v].x(), visual[v].y(), visual[v].z());
-        } else {
-            points_->SetNumberOfPoints(int(surface_particles_.size()));
-            for (std::size_t v = 0; v < surface_particles_.size(); ++v) {
-                const auto& p = positions[std::size_t(surface_particles_[v])];
-                points_->SetPoint(unsigned(v), p[0], p[1], p[2]);
-            }
+    // ---- the thread that steps ----
+
+    /// A mesh is due: its time has come (or a client has just connected), a client has room for
+    /// it and the mesh thread is free.
+    bool mesh_due(Clock::time_point now) {
+        if (!(now >= next_mesh_ || mesh_wanted_.load()) || !mesh_room_.load() || encoding_.load() ||
+            now.time_since_epoch().count() < mesh_not_before_.load())
+            return false;
+        next_mesh_ = std::max(next_mesh_ + seconds(1.0 / options_.mesh_rate_hz), now);
+        return true;
+    }
+
+    void submit(std::shared_ptr<const std::vector<std::array<float, 3>>> positions, const PatchSource& patch) {
+        MeshJob job{.positions = std::move(positions), .mesh = mesh_, .patch = patch ? patch() : DrawnPatch{}, .forced = mesh_wanted_.exchange(false)};
+        {
+            std::lock_guard lock(job_mutex_);
+            job_ = std::move(job);
+            encoding_.store(true);
         }
-        stamp(polydata_);
-        polydata_->Pack();
-        return packed(polydata_);
+        job_ready_.notify_one();
     }
 
     void post(Frame frame) {
         std::lock_guard lock(mailbox_mutex_);
         // A final frame is never replaced; otherwise the newest replaces what the sender has not taken.
         if (mailbox_ && mailbox_->final) return;
-        if (mailbox_ && !frame.positions) frame.positions = std::move(mailbox_->positions);  // keep a pending mesh
         mailbox_ = std::move(frame);
+    }
+
+    // ---- the mesh thread ----
+
+    void encode_loop() {
+        while (true) {
+            MeshJob job;
+            {
+                std::unique_lock lock(job_mutex_);
+                job_ready_.wait(lock, [this] { return job_ || stop_encoder_; });
+                if (stop_encoder_) return;
+                job = std::move(*job_);
+                job_.reset();
+            }
+            const std::int64_t began = thread_cpu_ns();
+            std::vector<Named> meshes = encode(job);
+            // The next mesh waits (1 − share)/share times the processor time this one took: the
+            // meshes take at most mesh_share of one core, whatever they cost and however loaded
+            // the machine is.
+            const std::int64_t took = thread_cpu_ns() - began;
+            mesh_not_before_.store((Clock::now() + std::chrono::nanoseconds(std::llround(double(took) * (1.0 - mesh_share) / mesh_share)))
+                                       .time_since_epoch()
+                                       .count());
+            meshes_made_.fetch_add(1), mesh_ns_.fetch_add(took);
+            if (!meshes.empty()) {
+                std::lock_guard lock(meshes_mutex_);
+                for (Named& m : meshes) replace(meshes_out_, std::move(m));
+            }
+            encoding_.store(false);
+        }
+    }
+
+    void stop_encoder() {
+        {
+            std::lock_guard lock(job_mutex_);
+            stop_encoder_ = true;
+        }
+        job_ready_.notify_one();
+        if (encoder_.joinable()) encoder_.join();
+    }
+
+    /// `m` in place of the message for its device in `queue`, or after the others.
+    static void replace(std::vector<Named>& queue, Named m) {
+        for (Named& q : queue)
+            if (q.first == m.first) return void(q.second = std::move(m.second));
+        queue.push_back(std::move(m));
+    }
+
+    /// The messages for what changed since the last ones (everything when forced): the heart, the
+    /// patch and its stitches (empty once a patch is gone, so that Slicer's go too).
+    std::vector<Named> encode(const MeshJob& job) {
+        std::vector<Named> out;
+        const DrawnMesh& mesh = *job.mesh;
+        const auto& positions = *job.positions;
+        const float sx = options_.ras ? ras_signs[0] : 1.0f, sy = options_.ras ? ras_signs[1] : 1.0f;
+        if (!mesh.triangles.empty() && (job.forced || mesh.version != sent_version_ || positions != sent_positions_)) {
+            std::vector<std::array<float, 3>> points;
+            if (mesh.mapping) {
+                // The detailed mesh as drawn and as --save-state writes /visual/positions; on this
+                // thread alone (not the simulation's workers).
+                std::vector<Eigen::Vector3f> visual;
+                tbb::task_arena(1).execute([&] { visual = apply_mapping(*mesh.mapping, positions, *scenario_->simulation_surface); });
+                points.reserve(visual.size());
+                for (const auto& v : visual) points.push_back({sx * v.x(), sy * v.y(), v.z()});
+            } else {
+                points.reserve(mesh.particles.size());
+                for (std::int32_t i : mesh.particles) {
+                    const auto& p = positions[std::size_t(i)];
+                    points.push_back({sx * p[0], sy * p[1], p[2]});
+                }
+            }
+            if (polygons_version_ != mesh.version || polygons_.empty()) polygons_ = cell_section(mesh.triangles), polygons_version_ = mesh.version;
+            out.emplace_back("heartsim-heart", polydata_message("heartsim-heart", points, polygons_, mesh.triangles.size(), {}, 0));
+            sent_version_ = mesh.version;
+            sent_positions_ = positions;
+        }
+        const DrawnPatch& patch = job.patch;
+        const bool has_patch = !patch.triangles.empty();
+        if ((has_patch || patch_sent_) &&
+            (job.forced || patch.positions != sent_patch_.positions || patch.triangles != sent_patch_.triangles ||
+             patch.stitch_from != sent_patch_.stitch_from || patch.stitch_to != sent_patch_.stitch_to)) {
+            auto frame = [&](const std::array<float, 3>& p) { return std::array<float, 3>{sx * p[0], sy * p[1], p[2]}; };
+            std::vector<std::array<float, 3>> points, ends;
+            for (const auto& p : patch.positions) points.push_back(frame(p));
+            std::vector<std::array<std::int32_t, 2>> lines;
+            for (std::size_t k = 0; k < patch.stitch_from.size() && k < patch.stitch_to.size(); ++k) {
+                lines.push_back({std::int32_t(ends.size()), std::int32_t(ends.size() + 1)});
+                ends.push_back(frame(patch.stitch_from[k]));
+                ends.push_back(frame(patch.stitch_to[k]));
+            }
+            out.emplace_back("heartsim-patch", polydata_message("heartsim-patch", points, cell_section(patch.triangles), patch.triangles.size(), {}, 0));
+            out.emplace_back("heartsim-stitches", polydata_message("heartsim-stitches", ends, {}, 0, cell_section(lines), lines.size()));
+            sent_patch_ = patch;
+            patch_sent_ = has_patch;
+        }
+        return out;
     }
 
     void stop() {
@@ -409,6 +648,7 @@ private:
                     last_failure.clear();
                 }
             }
+            take_meshes();
             take_frame();
             exchange();
             for (auto it = clients_list_.begin(); it != clients_list_.end();) {
@@ -425,6 +665,7 @@ private:
                 it = clients_list_.erase(it);
                 clients_.store(int(clients_list_.size()));
             }
+            mesh_room_.store(std::any_of(clients_list_.begin(), clients_list_.end(), [](const Client& c) { return c.open() && c.meshes.empty(); }));
         }
         for (Client& client : clients_list_) ::close(client.fd);
         clients_list_.clear();
@@ -482,10 +723,27 @@ private:
         client.name = std::move(name);
         clients_list_.push_back(std::move(client));
         clients_.store(int(clients_list_.size()));
+        mesh_room_.store(true);
         mesh_wanted_.store(true);  // a newcomer gets the mesh at once, moved or not
     }
 
-    /// The mailbox's frame, if any, into the outbox of every client that has room.
+    /// The mesh thread's newest messages into every open client's queue, each in place of its
+    /// device's message not yet begun.
+    void take_meshes() {
+        std::vector<Named> meshes;
+        {
+            std::lock_guard lock(meshes_mutex_);
+            meshes.swap(meshes_out_);
+        }
+        for (const Named& m : meshes)
+            for (Client& client : clients_list_) {
+                if (!client.open()) continue;
+                if (!client.pending()) client.last_progress = Clock::now();
+                replace(client.meshes, m);
+            }
+    }
+
+    /// The mailbox's frame, if any, to every open client, in place of the frame it has not begun.
     void take_frame() {
         std::optional<Frame> frame;
         {
@@ -493,46 +751,37 @@ private:
             frame.swap(mailbox_);
         }
         if (!frame) return;
-        // The mesh is made (mapping, encoding) only when a client can take it now: a client that
-        // is not reading costs no work.
-        if (frame->positions) pending_positions_ = std::move(frame->positions);
-        const bool someone_ready = std::any_of(clients_list_.begin(), clients_list_.end(), [](const Client& c) {
-            return c.gone.empty() && c.outbox.empty() && !c.closing && !c.shut;
-        });
-        if (pending_positions_ && (someone_ready || frame->final)) {
-            if (Bytes mesh = mesh_message(*pending_positions_)) mesh_ = std::move(mesh), ++mesh_version_;
-            pending_positions_.reset();
-        }
         // state, hands, forces: one buffer shared by the clients
         std::string bytes;
         char text[256];
-        std::snprintf(text, sizeof text, "%s time_ms=%.17g steps=%lld", state_name(frame->state), frame->time_ms, frame->steps);
+        std::snprintf(text, sizeof text, "%s time_ms=%.17g steps=%lld frame=%s", state_name(frame->state), frame->time_ms, frame->steps,
+                      frame_name());
         bytes += *string_message("heartsim-state", text);
+        const double sx = options_.ras ? ras_signs[0] : 1.0, sy = options_.ras ? ras_signs[1] : 1.0;
         for (int hand = 0; hand < 2; ++hand) {
             const SlicerLinkHand& h = frame->hands[std::size_t(hand)];
             if (!h.used) continue;
-            bytes += *transform_message(hand == 0 ? "heartsim-hand0" : "heartsim-hand1", h.pose);
-            std::snprintf(text, sizeof text, "force_n=%.6g,%.6g,%.6g magnitude_n=%.6g particles=%zu kind=%s", h.force_n.x(), h.force_n.y(),
-                          h.force_n.z(), h.force_n.norm(), h.particles, to_string(h.kind));
+            bytes += *transform_message(hand == 0 ? "heartsim-hand0" : "heartsim-hand1", h.pose, options_.ras);
+            std::snprintf(text, sizeof text, "force_n=%.6g,%.6g,%.6g magnitude_n=%.6g particles=%zu kind=%s", sx * h.force_n.x(),
+                          sy * h.force_n.y(), h.force_n.z(), h.force_n.norm(), h.particles, to_string(h.kind));
             bytes += *string_message(hand == 0 ? "heartsim-force0" : "heartsim-force1", text);
         }
         const Bytes shared = std::make_shared<const std::string>(std::move(bytes));
         for (Client& client : clients_list_) {
-            if (!client.gone.empty() || client.closing || client.shut) continue;
-            if (!client.outbox.empty() && !frame->final) continue;  // still busy with an older frame: this one is skipped
-            if (client.outbox.empty()) client.last_progress = Clock::now();
-            client.outbox.push_back(shared);
-            if (mesh_ && client.mesh_version < mesh_version_) client.outbox.push_back(mesh_), client.mesh_version = mesh_version_;
-            client.closing = frame->final;
+            if (!client.open()) continue;
+            if (!client.pending()) client.last_progress = Clock::now();
+            client.frame = shared;
+            if (frame->final) client.meshes = frame->meshes, client.closing = true;
         }
     }
 
-    /// One poll of every socket (≤ 5 ms): new clients, bytes out, bytes in (discarded), closes.
+    /// One poll of every socket (≤ 5 ms): new clients, bytes out (a frame before any mesh not yet
+    /// begun), bytes in (discarded), closes.
     void exchange() {
         std::vector<pollfd> fds;
         if (listen_fd_ >= 0) fds.push_back({listen_fd_, POLLIN, 0});
         const std::size_t first_client = fds.size();
-        for (const Client& client : clients_list_) fds.push_back({client.fd, short(POLLIN | (client.outbox.empty() ? 0 : POLLOUT)), 0});
+        for (const Client& client : clients_list_) fds.push_back({client.fd, short(POLLIN | (client.pending() ? POLLOUT : 0)), 0});
         if (::poll(fds.data(), nfds_t(fds.size()), 5) < 0) return;
         for (std::size_t i = 0; i < clients_list_.size(); ++i) {
             Client& client = clients_list_[i];
@@ -545,8 +794,14 @@ private:
             } else if (events & (POLLERR | POLLHUP)) {
                 client.gone = "closed the connection";
             }
-            while (client.gone.empty() && !client.outbox.empty()) {
-                const std::string& front = *client.outbox.front();
+            while (client.gone.empty()) {
+                if (!client.current) {
+                    if (client.frame) client.current = std::move(client.frame), client.frame.reset();
+                    else if (!client.meshes.empty()) client.current = std::move(client.meshes.front().second), client.meshes.erase(client.meshes.begin());
+                    else break;
+                    client.sent = 0;
+                }
+                const std::string& front = *client.current;
                 const ssize_t n = ::send(client.fd, front.data() + client.sent, front.size() - client.sent, MSG_NOSIGNAL | MSG_DONTWAIT);
                 if (n < 0) {
                     if (errno != EAGAIN && errno != EWOULDBLOCK) client.gone = std::string("dropped: ") + std::strerror(errno);
@@ -554,15 +809,15 @@ private:
                 }
                 client.sent += std::size_t(n);
                 client.last_progress = Clock::now();
-                if (client.sent == front.size()) client.outbox.pop_front(), client.sent = 0;
+                if (client.sent == front.size()) client.current.reset(), client.sent = 0;
             }
-            if (client.gone.empty() && client.closing && client.outbox.empty()) {
+            if (client.gone.empty() && client.closing && !client.pending()) {
                 // All sent: say so with a FIN and wait for the client to close (or finish_s).
                 ::shutdown(client.fd, SHUT_WR);
                 client.closing = false;
                 client.shut = true;
             }
-            if (client.gone.empty() && !client.outbox.empty() && Clock::now() - client.last_progress > seconds(options_.stall_s)) {
+            if (client.gone.empty() && client.pending() && Clock::now() - client.last_progress > seconds(options_.stall_s)) {
                 char text[96];
                 std::snprintf(text, sizeof text, "took nothing for %g s (not reading): dropped, the simulation goes on", options_.stall_s);
                 client.gone = text;
@@ -578,28 +833,38 @@ private:
     SlicerLinkOptions options_;
     Endpoint endpoint_;
     int listen_fd_ = -1;
-    std::thread thread_;
+    std::thread thread_, encoder_;
     std::atomic<bool> stop_{false};
     std::atomic<int> clients_{0};
     std::atomic<bool> mesh_wanted_{false};
+    std::atomic<bool> mesh_room_{false};  ///< a client has no mesh waiting (the sender's word)
+    std::atomic<bool> encoding_{false};   ///< the mesh thread has a job
+    std::atomic<Clock::rep> mesh_not_before_{0};  ///< the mesh thread's share: no mesh before this (Clock's count)
+    std::atomic<long long> meshes_made_{0}, mesh_ns_{0};  ///< by the mesh thread, and the time they took
     std::atomic<bool> finishing_{false};  ///< the final state is on its way: no new connection
+    const Scenario* scenario_ = nullptr;
+    std::string mesh_source_;
     // the thread that steps
     Clock::time_point next_pose_{}, next_mesh_{};
+    std::shared_ptr<const DrawnMesh> mesh_;  ///< the mesh drawn now
     // the mailbox: one slot
     std::mutex mailbox_mutex_;
     std::optional<Frame> mailbox_;
+    // the mesh thread: its job, its messages out
+    std::mutex job_mutex_;
+    std::condition_variable job_ready_;
+    std::optional<MeshJob> job_;
+    bool stop_encoder_ = false;
+    std::mutex meshes_mutex_;
+    std::vector<Named> meshes_out_;
+    // the mesh thread's own (finish()'s once it has stopped): what was sent last
+    std::uint64_t sent_version_ = ~std::uint64_t(0), polygons_version_ = ~std::uint64_t(0);
+    std::vector<std::array<float, 3>> sent_positions_;
+    std::string polygons_;
+    DrawnPatch sent_patch_;
+    bool patch_sent_ = false;
     // the sender thread
     std::vector<Client> clients_list_;
-    const Scenario* scenario_ = nullptr;
-    std::string mesh_source_;
-    std::size_t triangles_ = 0;
-    std::vector<std::int32_t> renumber_, surface_particles_;
-    igtl::PolyDataMessage::Pointer polydata_;
-    igtl::PolyDataPointArray::Pointer points_;
-    std::vector<std::array<float, 3>> last_positions_;
-    std::shared_ptr<const std::vector<std::array<float, 3>>> pending_positions_;  ///< offered, not yet made into a mesh
-    Bytes mesh_;
-    std::uint64_t mesh_version_ = 0;
 };
 
 }  // namespace

@@ -729,8 +729,9 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
             const SlicerLink::State state = input.estop ? SlicerLink::State::emergency_stop
                                             : input.paused ? SlicerLink::State::paused
                                                            : SlicerLink::State::running;
-            if (simulation) a.link->offer(st.simulated_ms, latest_positions, (long long)result.steps, hands, state);
-            else a.link->offer(backend, (long long)result.steps, hands, state);
+            const auto patch = [&drawn] { return drawn; };  // the repair this frame draws
+            if (simulation) a.link->offer(st.simulated_ms, latest_positions, (long long)result.steps, hands, state, patch);
+            else a.link->offer(backend, (long long)result.steps, hands, state, patch);
         }
         {
             // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.

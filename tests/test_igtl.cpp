@@ -1,9 +1,14 @@
 // `heartsim run … --igtl`: the live link to 3D Slicer (runtime/slicer_link.h), end to end on the
-// loopback interface. A client built with the same OpenIGTLink library as heartsim receives what
-// Slicer's OpenIGTLinkIF would, and the test checks it against the truth: the mesh against the
-// state file the same run wrote, the triangles against the scenario, the instruments' poses
-// against the trajectory's keyframes interpolated here. Then what must not disturb a session: a
-// client that never reads, a reconnect, a port in use, a server that is not there.
+// loopback interface. Two clients receive what Slicer's OpenIGTLinkIF would: one built with the
+// OpenIGTLink library, and one written here from the protocol's specification (the 58-byte
+// header, CRC64, the TRANSFORM, STRING and POLYDATA bodies), which shares no code with heartsim's
+// encoder. The tests check what arrives against the truth: the mesh against the state file the
+// same run wrote (opened by an incision, with a repair's patch and stitches), the triangles
+// against the scenario, the instruments' poses against the trajectory's keyframes interpolated
+// here, in RAS by default. Then what must not disturb a session: a client that never reads, a
+// reconnect, a port in use, a server that is not there, an interface that was not asked for.
+#include "defect_block_scenario.h"
+#include "incision_gesture.h"
 #include "test_support.h"
 
 #include "formats/scenario.h"
@@ -13,16 +18,21 @@
 #include <gtest/gtest.h>
 
 #include <arpa/inet.h>
+#include <ifaddrs.h>
 #include <netinet/in.h>
+#include <poll.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <fstream>
+#include <functional>
 #include <future>
 #include <map>
+#include <optional>
 #include <regex>
 #include <sstream>
 #include <thread>
@@ -72,6 +82,221 @@ long long steps_ran(const std::string& output) {
 }
 
 }  // namespace
+
+// ---- A client from the OpenIGTLink specification (protocol v1/v2), sharing no code with heartsim ----
+namespace spec {
+
+/// CRC-64 of the protocol: the ECMA-182 polynomial 0x42F0E1EBA9EA3693, most significant bit first,
+/// starting from 0, not inverted.
+std::uint64_t crc64(const char* data, std::size_t size) {
+    static const std::array<std::uint64_t, 256> table = [] {
+        std::array<std::uint64_t, 256> t{};
+        for (std::uint64_t i = 0; i < 256; ++i) {
+            std::uint64_t c = i << 56;
+            for (int k = 0; k < 8; ++k) c = (c >> 63) ? (c << 1) ^ 0x42F0E1EBA9EA3693ull : c << 1;
+            t[i] = c;
+        }
+        return t;
+    }();
+    std::uint64_t crc = 0;
+    for (std::size_t i = 0; i < size; ++i) crc = table[((crc >> 56) ^ std::uint8_t(data[i])) & 0xff] ^ (crc << 8);
+    return crc;
+}
+
+/// Big-endian fields, read in order; `ok` false once a read would pass the end.
+struct Reader {
+    const std::string& bytes;
+    std::size_t at = 0;
+    bool ok = true;
+    std::uint64_t uint(int size) {
+        if (at + std::size_t(size) > bytes.size()) return ok = false, 0;
+        std::uint64_t v = 0;
+        for (int k = 0; k < size; ++k) v = (v << 8) | std::uint8_t(bytes[at++]);
+        return v;
+    }
+    float f32() {
+        const std::uint32_t v = std::uint32_t(uint(4));
+        float f;
+        std::memcpy(&f, &v, 4);
+        return f;
+    }
+};
+
+struct Message {
+    int version = 0;
+    std::string type, device, content;  ///< content: the body without a v2 extended header and metadata
+    bool crc_ok = false;
+};
+
+/// Reads exactly `size` bytes, waiting at most 60 s for each; false at the end of the stream.
+bool read_exactly(int fd, char* out, std::size_t size) {
+    while (size > 0) {
+        pollfd p{fd, POLLIN, 0};
+        if (::poll(&p, 1, 60000) <= 0) return false;
+        const ssize_t n = ::recv(fd, out, size, 0);
+        if (n <= 0) return false;
+        out += n, size -= std::size_t(n);
+    }
+    return true;
+}
+
+/// The next message: the 58-byte header (version u16, type char[12], device name char[20], time
+/// stamp u64, body size u64, CRC64 u64), then the body it announces.
+std::optional<Message> next(int fd) {
+    std::string header(58, '\0');
+    if (!read_exactly(fd, header.data(), header.size())) return std::nullopt;
+    Reader h{header};
+    Message m;
+    m.version = int(h.uint(2));
+    auto text = [&](std::size_t at, std::size_t size) {
+        const std::string field = header.substr(at, size);
+        return field.substr(0, field.find('\0'));
+    };
+    m.type = text(2, 12), m.device = text(14, 20);
+    h.at = 42;
+    const std::uint64_t body_size = h.uint(8), crc = h.uint(8);
+    if (body_size > (1u << 30)) return std::nullopt;
+    std::string body(body_size, '\0');
+    if (!read_exactly(fd, body.data(), body.size())) return std::nullopt;
+    m.crc_ok = crc64(body.data(), body.size()) == crc;
+    m.content = body;
+    if (m.version == 2) {  // extended header: its size u16, metadata header size u16, metadata size u32, message id u32
+        Reader e{body};
+        const std::size_t extended = e.uint(2), meta_header = e.uint(2), meta = e.uint(4);
+        if (e.ok && extended + meta_header + meta <= body.size()) m.content = body.substr(extended, body.size() - extended - meta_header - meta);
+    }
+    return m;
+}
+
+struct PolyData {
+    std::vector<std::array<float, 3>> points;
+    std::vector<std::vector<std::uint32_t>> vertices, lines, polygons, strips;
+    bool ok = false;  ///< every count and size agreed with the bytes
+};
+
+/// POLYDATA: the counts (points; vertices, lines, polygons, strips: each cells and bytes;
+/// attributes), the points (float32 × 3), then each cell array as (N, i1 … iN) in u32.
+PolyData polydata(const std::string& body) {
+    Reader r{body};
+    PolyData d;
+    const std::uint64_t npoints = r.uint(4);
+    std::array<std::uint64_t, 4> cells{}, sizes{};
+    for (int k = 0; k < 4; ++k) cells[std::size_t(k)] = r.uint(4), sizes[std::size_t(k)] = r.uint(4);
+    r.uint(4);  // attributes: none expected (read past)
+    if (!r.ok || 40 + 12 * npoints > body.size()) return d;
+    d.points.resize(npoints);
+    for (auto& p : d.points)
+        for (float& x : p) x = r.f32();
+    std::array<std::vector<std::vector<std::uint32_t>>*, 4> arrays = {&d.vertices, &d.lines, &d.polygons, &d.strips};
+    bool ok = true;
+    for (int k = 0; k < 4; ++k) {
+        const std::size_t end = r.at + sizes[std::size_t(k)];
+        for (std::uint64_t c = 0; c < cells[std::size_t(k)]; ++c) {
+            const std::uint64_t n = r.uint(4);
+            std::vector<std::uint32_t> cell;
+            for (std::uint64_t i = 0; i < n && r.ok; ++i) {
+                cell.push_back(std::uint32_t(r.uint(4)));
+                ok = ok && cell.back() < npoints;
+            }
+            arrays[std::size_t(k)]->push_back(std::move(cell));
+        }
+        ok = ok && r.at == end;
+    }
+    d.ok = ok && r.ok;
+    return d;
+}
+
+/// TRANSFORM: R11 R21 R31 R12 R22 R32 R13 R23 R33 TX TY TZ (float32): the 4×4 matrix, row major.
+std::optional<std::array<std::array<double, 4>, 4>> transform(const std::string& body) {
+    if (body.size() != 48) return std::nullopt;
+    Reader r{body};
+    std::array<std::array<double, 4>, 4> m{};
+    for (int c = 0; c < 4; ++c)
+        for (int row = 0; row < 3; ++row) m[std::size_t(row)][std::size_t(c)] = r.f32();
+    m[3] = {0, 0, 0, 1};
+    return m;
+}
+
+/// STRING: encoding u16, length u16, the bytes.
+std::string string(const std::string& body) {
+    Reader r{body};
+    r.uint(2);
+    const std::size_t length = r.uint(2);
+    return r.ok && 4 + length <= body.size() ? body.substr(4, length) : std::string();
+}
+
+/// What a client received: the last POLYDATA of each device, counts, states and poses in order.
+struct Stream {
+    struct Pose {
+        double time_ms;  ///< the simulated time of the heartsim-state before it
+        int hand;
+        std::array<std::array<double, 4>, 4> matrix;
+    };
+    std::vector<std::string> states;
+    std::vector<Pose> poses;
+    std::map<std::string, PolyData> last;
+    std::map<std::string, std::size_t> polydata_count;
+    std::size_t bad_crc = 0, malformed = 0;
+    bool ended = false;
+};
+
+/// Receives until the server closes (or `enough`), from a socket connected to heartsim.
+void receive(int fd, Stream& s, const std::function<bool(const Stream&)>& enough = {}) {
+    double time_ms = -1.0;
+    while (!(enough && enough(s))) {
+        const std::optional<Message> m = next(fd);
+        if (!m) return void(s.ended = true);
+        if (!m->crc_ok) {
+            ++s.bad_crc;
+            continue;
+        }
+        if (m->type == "STRING" && m->device == "heartsim-state") {
+            s.states.push_back(string(m->content));
+            std::smatch match;
+            if (std::regex_search(s.states.back(), match, std::regex("time_ms=([^ ]+)"))) time_ms = std::stod(match[1]);
+        } else if (m->type == "TRANSFORM") {
+            const auto matrix = transform(m->content);
+            if (!matrix) ++s.malformed;
+            else s.poses.push_back({time_ms, m->device == "heartsim-hand1" ? 1 : 0, *matrix});
+        } else if (m->type == "POLYDATA") {
+            PolyData d = polydata(m->content);
+            if (!d.ok) ++s.malformed;
+            ++s.polydata_count[m->device];
+            s.last[m->device] = std::move(d);
+        }
+    }
+}
+
+/// A socket connected to 127.0.0.1:`port`, trying for up to 60 s (heartsim is starting); -1 if none.
+int connect_to(int port, const char* address = "127.0.0.1") {
+    for (const auto until = Clock::now() + std::chrono::seconds(60); Clock::now() < until;) {
+        const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+        sockaddr_in a{};
+        a.sin_family = AF_INET;
+        a.sin_port = htons(std::uint16_t(port));
+        ::inet_pton(AF_INET, address, &a.sin_addr);
+        if (::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0) return fd;
+        ::close(fd);
+        std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return -1;
+}
+
+/// Runs `command` (heartsim with --igtl PORT --igtl-wait) beside this client, to the stream's end.
+Stream received_from(const std::string& command, int port, test::CommandResult& result) {
+    auto run = std::async(std::launch::async, [&] { return test::run_command(command); });
+    Stream s;
+    const int fd = connect_to(port);
+    if (fd >= 0) receive(fd, s), ::close(fd);
+    result = run.get();
+    EXPECT_GE(fd, 0) << "no connection to port " << port << "\n" << result.output;
+    return s;
+}
+
+/// heartsim's LPS point in RAS: x and y negated.
+std::array<float, 3> ras(const std::array<float, 3>& p) { return {-p[0], -p[1], p[2]}; }
+
+}  // namespace spec
 
 TEST(Igtl, WithoutTheLibraryTheOptionIsRefused) {
     if (slicer_link_available()) GTEST_SKIP() << "built with OpenIGTLink: the option is accepted (the other tests)";
@@ -221,6 +446,7 @@ Received received_from(const std::string& command, int port, test::CommandResult
     return r;
 }
 
+// In LPS on request (--igtl-frame lps), read with the OpenIGTLink library as Slicer reads it.
 TEST(Igtl, LoopbackRoundTripMatchesTheSavedStateAndTheTrajectory) {
     test::TempDir dir;
     const int port = free_port();
@@ -229,7 +455,7 @@ TEST(Igtl, LoopbackRoundTripMatchesTheSavedStateAndTheTrajectory) {
     test::CommandResult result;
     const Received r = received_from(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
                                          " --headless --backend cpu --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
-                                         std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5"),
+                                         std::to_string(port) + " --igtl-frame lps --igtl-wait 60 --save-state " + quoted(dir / "s.h5"),
                                      port, result);
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_NE(result.output.find("igtl: 127.0.0.1:"), std::string::npos) << result.output;
@@ -241,7 +467,7 @@ TEST(Igtl, LoopbackRoundTripMatchesTheSavedStateAndTheTrajectory) {
     ASSERT_FALSE(r.states.empty());
     EXPECT_EQ(r.states.front().rfind("running ", 0), 0u) << r.states.front();
     EXPECT_EQ(r.states.back().rfind("finished ", 0), 0u) << r.states.back();
-    EXPECT_NE(r.states.back().find("steps=" + std::to_string(state.steps)), std::string::npos) << r.states.back();
+    EXPECT_NE(r.states.back().find("steps=" + std::to_string(state.steps) + " frame=LPS"), std::string::npos) << r.states.back();
     std::printf("received %zu states, %zu poses, %zu meshes, %zu force lines; last state '%s'\n", r.states.size(), r.poses.size(), r.meshes,
                 r.forces.size(), r.states.back().c_str());
 
@@ -404,6 +630,216 @@ TEST(Igtl, AServerThatIsNotThereCostsTheSessionNothing) {
     EXPECT_NE(lone.output.find("it needs --igtl PORT"), std::string::npos) << lone.output;
 }
 
+// The scalpel's incision through the phantom's anterior wall (incision_gesture.h), streamed to the
+// client written from the specification: the last heart it receives is the opened mesh the run's
+// state file holds (its triangles, caps included, and its points), not the uncut one; everything
+// in RAS by default: each point is the state's LPS point with x and y negated, each pose is
+// diag(−1, −1, 1) times the trajectory's, and the state message says so.
+TEST(Igtl, AfterAnIncisionTheLastMeshIsTheOpenedMeshOfTheSavedStateInRas) {
+    test::TempDir dir;
+    const Scenario scenario = read_scenario(phantom());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 16, .retract = false});
+    test::write_trajectory_csv(plan.trajectory, dir / "cut.csv");
+    const int port = free_port();
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%.3f", 1e-3 * (plan.cut_end_ms + 100.0));
+    test::CommandResult result;
+    const spec::Stream s = spec::received_from(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                                   " --headless --backend cpu --seconds " + seconds + " --trajectory " + quoted(dir / "cut.csv") +
+                                                   " --igtl " + std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5"),
+                                               port, result);
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_NE(result.output.find("incision: the detailed mesh opened"), std::string::npos) << result.output;
+    EXPECT_TRUE(s.ended);
+    EXPECT_EQ(s.bad_crc, 0u);
+    EXPECT_EQ(s.malformed, 0u);
+    const SimulationState state = read_state(dir / "s.h5");
+    ASSERT_FALSE(state.visual_triangles.empty()) << "the run's mesh did not open";
+    ASSERT_GT(state.visual_triangles.size(), scenario.visual->triangles.size());
+
+    ASSERT_TRUE(s.last.count("heartsim-heart"));
+    const spec::PolyData& heart = s.last.at("heartsim-heart");
+    std::printf("the last of %zu meshes: %zu points, %zu triangles; the saved state's %zu, %zu (uncut %zu, %zu)\n",
+                s.polydata_count.at("heartsim-heart"), heart.points.size(), heart.polygons.size(), state.visual_positions.size(),
+                state.visual_triangles.size(), scenario.visual->positions.size(), scenario.visual->triangles.size());
+    ASSERT_EQ(heart.polygons.size(), state.visual_triangles.size());
+    for (std::size_t t = 0; t < heart.polygons.size(); ++t) {
+        ASSERT_EQ(heart.polygons[t].size(), 3u) << "polygon " << t;
+        for (int k = 0; k < 3; ++k) ASSERT_EQ(heart.polygons[t][std::size_t(k)], std::uint32_t(state.visual_triangles[t][std::size_t(k)])) << "triangle " << t;
+    }
+    EXPECT_TRUE(heart.lines.empty() && heart.vertices.empty() && heart.strips.empty());
+    ASSERT_EQ(heart.points.size(), state.visual_positions.size());
+    std::size_t mismatched = 0;
+    for (std::size_t v = 0; v < heart.points.size(); ++v) mismatched += heart.points[v] != spec::ras(state.visual_positions[v]);
+    EXPECT_EQ(mismatched, 0u) << "points that are not the saved state's with x and y negated";
+
+    ASSERT_FALSE(s.states.empty());
+    for (const std::string& line : s.states) EXPECT_NE(line.find(" frame=RAS"), std::string::npos) << line;
+    EXPECT_EQ(s.states.back().rfind("finished ", 0), 0u) << s.states.back();
+    // The poses: the trajectory's, turned into RAS (positions' x and y negated, rotations' rows too).
+    const Trajectory trajectory = read_trajectory(dir / "cut.csv");
+    ASSERT_FALSE(s.poses.empty());
+    double error = 0.0;
+    for (const auto& pose : s.poses) {
+        const InstrumentKeyframe k = trajectory.at(pose.hand, pose.time_ms);
+        const Eigen::Matrix3d rotation = k.pose.orientation.normalized().toRotationMatrix();
+        const double sign[3] = {-1.0, -1.0, 1.0};
+        for (int r = 0; r < 3; ++r) {
+            error = std::max(error, std::abs(pose.matrix[std::size_t(r)][3] - sign[r] * k.pose.position[r]));
+            for (int c = 0; c < 3; ++c) error = std::max(error, std::abs(pose.matrix[std::size_t(r)][std::size_t(c)] - sign[r] * rotation(r, c)));
+        }
+    }
+    std::printf("%zu poses against diag(-1, -1, 1) times the trajectory's: max %.3g\n", s.poses.size(), error);
+    EXPECT_LT(error, 1e-4);
+}
+
+// plan-repair's closure of the block's VSD (4 stitches) streamed to the client written from the
+// specification: the patch arrives as its own POLYDATA (heartsim-patch) and ends as the state file
+// holds it (its triangles, its points in RAS), and its stitches (heartsim-stitches) as one line each
+// from the stitch's patch vertex to its tissue point, the state's anchors.
+TEST(Igtl, ARepairsPatchAndStitchesArriveAsTheStateHoldsThem) {
+    test::TempDir dir;
+    const fs::path scenario = dir / "vsd.h5", plan = dir / "repair.csv";
+    test::defect_block::build_block_scenario(test::defect_block::make_block(), dir / "block.nrrd", scenario, "vsd", 3000);
+    const auto planned = run_heartsim("plan-repair " + quoted(scenario) + " -o " + quoted(plan) + " --stitches=4");
+    ASSERT_EQ(planned.exit_code, 0) << planned.output;
+    double end_ms = 0.0;
+    for (const InstrumentKeyframe& k : read_trajectory(plan).keyframes) end_ms = std::max(end_ms, k.time_ms);
+    char seconds[32];
+    std::snprintf(seconds, sizeof seconds, "%.3f", 1e-3 * end_ms);
+    const int port = free_port();
+    test::CommandResult result;
+    const spec::Stream s = spec::received_from(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(scenario) +
+                                                   " --headless --backend cpu --seconds " + seconds + " --trajectory " + quoted(plan) +
+                                                   " --igtl " + std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5"),
+                                               port, result);
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_TRUE(s.ended);
+    EXPECT_EQ(s.bad_crc, 0u);
+    EXPECT_EQ(s.malformed, 0u);
+    const SimulationState state = read_state(dir / "s.h5");
+    ASSERT_TRUE(state.patch.has_value()) << result.output;
+    const PatchState& patch = *state.patch;
+    ASSERT_EQ(patch.stitch_vertex.size(), 4u);
+    ASSERT_TRUE(s.last.count("heartsim-patch") && s.last.count("heartsim-stitches")) << "no patch or no stitches received";
+    const spec::PolyData &sheet = s.last.at("heartsim-patch"), &stitches = s.last.at("heartsim-stitches");
+    std::printf("patch: %zu messages, the last %zu points and %zu triangles (the state's %zu, %zu); stitches: %zu lines\n",
+                s.polydata_count.at("heartsim-patch"), sheet.points.size(), sheet.polygons.size(), patch.positions.size(),
+                patch.triangles.size(), stitches.lines.size());
+    ASSERT_EQ(sheet.polygons.size(), patch.triangles.size());
+    for (std::size_t t = 0; t < sheet.polygons.size(); ++t)
+        EXPECT_EQ(sheet.polygons[t], (std::vector<std::uint32_t>{std::uint32_t(patch.triangles[t][0]), std::uint32_t(patch.triangles[t][1]),
+                                                                  std::uint32_t(patch.triangles[t][2])}))
+            << "triangle " << t;
+    ASSERT_EQ(sheet.points.size(), patch.positions.size());
+    for (std::size_t v = 0; v < sheet.points.size(); ++v) EXPECT_EQ(sheet.points[v], spec::ras(patch.positions[v])) << "patch vertex " << v;
+    ASSERT_EQ(stitches.lines.size(), patch.stitch_vertex.size());
+    for (std::size_t k = 0; k < stitches.lines.size(); ++k) {
+        ASSERT_EQ(stitches.lines[k].size(), 2u);
+        EXPECT_EQ(stitches.points[stitches.lines[k][0]], spec::ras(patch.positions[std::size_t(patch.stitch_vertex[k])])) << "stitch " << k;
+        EXPECT_EQ(stitches.points[stitches.lines[k][1]], spec::ras(patch.stitch_anchor[k])) << "stitch " << k;
+    }
+    // The heart came too, uncut: the scenario's triangles.
+    ASSERT_TRUE(s.last.count("heartsim-heart"));
+    EXPECT_EQ(s.last.at("heartsim-heart").polygons.size(), read_scenario(scenario).visual->triangles.size());
+}
+
+// Poses go at their rate whatever the meshes cost: the meshes are made on a thread of their own
+// and a client's poses go before any mesh not yet begun. At the default rates (poses 60 a second,
+// meshes at most 20) a client receives at least 2.5 poses of a hand for each mesh; the counts are
+// what the client received over the whole run, not a time.
+TEST(Igtl, PosesAreNotHeldBackByTheMeshes) {
+    test::TempDir dir;
+    const int port = free_port();
+    test::CommandResult result;
+    const spec::Stream s = spec::received_from(std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
+                                                   " --headless --backend cpu --seconds 1 --trajectory " +
+                                                   quoted(sample("probe_and_grab_phantom.csv")) + " --igtl " + std::to_string(port) +
+                                                   " --igtl-wait 60",
+                                               port, result);
+    ASSERT_EQ(result.exit_code, 0) << result.output;
+    EXPECT_EQ(s.bad_crc, 0u);
+    std::size_t hand0 = 0;
+    for (const auto& pose : s.poses) hand0 += pose.hand == 0;
+    const std::size_t meshes = s.polydata_count.count("heartsim-heart") ? s.polydata_count.at("heartsim-heart") : 0;
+    std::printf("%zu poses of hand 0, %zu meshes, %zu states over %lld steps\n", hand0, meshes, s.states.size(), steps_ran(result.output));
+    ASSERT_GE(meshes, 2u);
+    EXPECT_GE(double(hand0), 2.5 * double(meshes));
+}
+
+// heartsim listens on the loopback interface unless --igtl-bind says otherwise: a client on this
+// machine's other address is refused while one on 127.0.0.1 is streamed to; with --igtl-bind
+// 0.0.0.0 the other address is served too. An address that is not this machine's, or not an
+// address, is refused before the run (exit 2), naming the option.
+TEST(Igtl, ListensOnLoopbackUnlessAsked) {
+    // This machine's first IPv4 address that is not loopback.
+    std::string other;
+    ifaddrs* list = nullptr;
+    if (::getifaddrs(&list) == 0) {
+        for (ifaddrs* i = list; i && other.empty(); i = i->ifa_next)
+            if (i->ifa_addr && i->ifa_addr->sa_family == AF_INET) {
+                char text[INET_ADDRSTRLEN];
+                ::inet_ntop(AF_INET, &reinterpret_cast<sockaddr_in*>(i->ifa_addr)->sin_addr, text, sizeof text);
+                if (std::string(text).rfind("127.", 0) != 0) other = text;
+            }
+        ::freeifaddrs(list);
+    }
+    const std::string common = " run " + quoted(phantom()) + " --headless --backend cpu --seconds 0.3 --trajectory " +
+                               quoted(sample("probe_and_grab_phantom.csv")) + " --igtl-wait 60";
+    for (const std::string bind : {"", "0.0.0.0"}) {
+        const int port = free_port();
+        auto run = std::async(std::launch::async, [&] {
+            return test::run_command(std::string(quoted(HEARTSIM_EXE)) + common + " --igtl " + std::to_string(port) +
+                                     (bind.empty() ? "" : " --igtl-bind " + bind));
+        });
+        spec::Stream s;
+        const int fd = spec::connect_to(port);
+        bool other_served = false;
+        if (fd >= 0) {
+            spec::receive(fd, s, [](const spec::Stream& r) { return !r.states.empty(); });
+            // heartsim is listening (it streams to this client) while the other address is tried.
+            if (!other.empty()) {
+                const int probe = ::socket(AF_INET, SOCK_STREAM, 0);
+                sockaddr_in a{};
+                a.sin_family = AF_INET;
+                a.sin_port = htons(std::uint16_t(port));
+                ::inet_pton(AF_INET, other.c_str(), &a.sin_addr);
+                other_served = ::connect(probe, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0;
+                ::close(probe);
+            }
+            spec::receive(fd, s);
+            ::close(fd);
+        }
+        const auto result = run.get();
+        ASSERT_GE(fd, 0) << result.output;
+        ASSERT_EQ(result.exit_code, 0) << result.output;
+        ASSERT_FALSE(s.states.empty());
+        EXPECT_EQ(s.states.back().rfind("finished ", 0), 0u) << "the stream went on after the other address was tried";
+        if (bind.empty()) {
+            EXPECT_NE(result.output.find("igtl: listening on 127.0.0.1:" + std::to_string(port) + " (this machine only"), std::string::npos)
+                << result.output;
+            if (!other.empty()) {
+                EXPECT_FALSE(other_served) << "a client on " << other << " was let in";
+            }
+        } else {
+            EXPECT_NE(result.output.find("igtl: listening on 0.0.0.0:" + std::to_string(port) + " (every interface)"), std::string::npos)
+                << result.output;
+            if (!other.empty()) {
+                EXPECT_TRUE(other_served) << "a client on " << other << " was refused";
+            }
+        }
+    }
+    if (other.empty()) std::printf("this machine has no address but loopback: the other interface was not tried\n");
+    for (const std::string bind : {"192.0.2.254", "127.0.0", "every"}) {
+        const auto bad = run_heartsim("run " + quoted(phantom()) + " --headless --steps 1 --igtl " + std::to_string(free_port()) + " --igtl-bind " + bind);
+        EXPECT_EQ(bad.exit_code, 2) << bad.output;
+        EXPECT_NE(bad.output.find("--igtl-bind"), std::string::npos) << bad.output;
+    }
+    const auto connecting = run_heartsim("run " + quoted(phantom()) + " --headless --steps 1 --igtl localhost:18944 --igtl-bind 0.0.0.0");
+    EXPECT_EQ(connecting.exit_code, 2) << connecting.output;
+    EXPECT_NE(connecting.output.find("--igtl-bind sets where heartsim listens"), std::string::npos) << connecting.output;
+}
+
 #endif
 
 // The window streams too: a scripted window run under Xvfb (cpu backend: the simulation on its
@@ -417,7 +853,7 @@ TEST(Igtl, TheWindowStreamsWhatItShows) {
     test::CommandResult result;
     const Received r = received_from("xvfb-run -a " + std::string(quoted(HEARTSIM_EXE)) + " run " + quoted(phantom()) +
                                          " --backend cpu --size 320x240 --seconds 0.5 --trajectory " + quoted(trajectory) + " --igtl " +
-                                         std::to_string(port) + " --igtl-wait 60 --save-state " + quoted(dir / "s.h5") + " 2>&1",
+                                         std::to_string(port) + " --igtl-frame lps --igtl-wait 60 --save-state " + quoted(dir / "s.h5") + " 2>&1",
                                      port, result);
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_TRUE(r.ended);
