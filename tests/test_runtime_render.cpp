@@ -365,6 +365,28 @@ TEST(RenderWindow, TheCpuBackendSimulatesOnItsOwnThreadPacedToTheWallClock) {
     EXPECT_GT(steps, 3 * frames) << "not one step per frame";
 }
 
+// The tissue's surface under a pixel comes from the last frame's depth: there is none before the
+// first frame (a click then finds no tissue, where the undefined depth put the mouse device off
+// the heart), the drawn surface in the middle of the fitted view once a frame is drawn, and none
+// over the background at a corner.
+TEST(RenderPicking, TheSurfaceUnderAPixelIsNoneBeforeTheFirstFrame) {
+    REQUIRE_GL();
+    const Scenario& scenario = phantom_scenario();
+    ASSERT_TRUE(scenario.visual.has_value());
+    auto backend = make_cpu_backend(scenario, options_from(scenario.solver));
+    const int size = 128;
+    Renderer renderer(scenario, {.width = size, .height = size});
+    EXPECT_FALSE(renderer.surface_point(size / 2, size / 2, size, size).has_value()) << "no frame drawn yet";
+    renderer.render(*backend, {});
+    const std::optional<Eigen::Vector3f> hit = renderer.surface_point(size / 2, size / 2, size, size);
+    ASSERT_TRUE(hit.has_value()) << "the model fills the middle of the fitted view";
+    double nearest = 1e30;  // to the detailed mesh at rest (its edges are about a millimetre)
+    for (const auto& v : scenario.visual->positions)
+        nearest = std::min(nearest, (Eigen::Vector3d(v[0], v[1], v[2]) - hit->cast<double>()).norm());
+    EXPECT_LT(nearest, 2.0) << hit->transpose();
+    EXPECT_FALSE(renderer.surface_point(1, 1, size, size).has_value()) << "the background at a corner";
+}
+
 TEST(RenderWindow, StartsUnderXvfbRendersFramesAndExitsCleanly) {
     if (test::run_command("command -v xvfb-run && command -v Xvfb").exit_code != 0)
         GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
