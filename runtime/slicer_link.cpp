@@ -98,7 +98,7 @@ using Bytes = std::shared_ptr<const std::string>;
 
 /// Between two tries to reach a Slicer server, and the longest a connect may wait for an answer.
 constexpr auto reconnect_period = std::chrono::seconds(2);
-/// The most of one core's time the meshes take (mapping, encoding) while a run goes on.
+/// The most of one core's time the meshes take (mapping, encoding, sending) while a run goes on.
 constexpr double mesh_share = 0.05;
 
 std::chrono::nanoseconds seconds(double s) { return std::chrono::nanoseconds(std::llround(s * 1e9)); }
@@ -326,12 +326,14 @@ public:
     IgtlLink(const SlicerLinkOptions& options, Endpoint endpoint) : options_(options), endpoint_(std::move(endpoint)) {
         if (!(options_.pose_rate_hz > 0) || !(options_.mesh_rate_hz > 0))
             throw UsageError("--igtl-mesh-rate: expected a rate above 0 Hz");
+        if (::pipe2(wake_, O_CLOEXEC | O_NONBLOCK) != 0) throw UsageError(std::string("--igtl: cannot make a pipe: ") + std::strerror(errno));
         if (endpoint_.host.empty()) listen_now();
     }
     ~IgtlLink() override {
         stop_encoder();
         stop();
         if (listen_fd_ >= 0) ::close(listen_fd_);
+        ::close(wake_[0]), ::close(wake_[1]);
     }
 
     void start(const Scenario& scenario) override {
@@ -400,7 +402,7 @@ public:
                         .forced = true};
             frame.meshes = encode(job);
             if (const long long made = meshes_made_.load(); made > 0)
-                say("igtl: %lld meshes made during the run, %.3g ms of processor time each (at most %g %% of one core)\n", made, 1e-6 * double(mesh_ns_.load()) / double(made),
+                say("igtl: %lld meshes made and sent during the run, %.3g ms of processor time each (at most %g %% of one core)\n", made, 1e-6 * double(mesh_ns_.load()) / double(made),
                     100 * mesh_share);
             finishing_.store(true);
             post(std::move(frame));
@@ -425,6 +427,7 @@ private:
         std::string name;
         Bytes current;              ///< the message on the wire: sent whole before any other
         std::size_t sent = 0;       ///< bytes of `current` already sent
+        bool current_is_mesh = false;
         Bytes frame;                ///< the newest frame not yet begun (state, poses, forces): goes first
         std::vector<Named> meshes;  ///< the newest meshes not yet begun, one per device
         Clock::time_point last_progress = Clock::now();
@@ -528,6 +531,13 @@ private:
         // A final frame is never replaced; otherwise the newest replaces what the sender has not taken.
         if (mailbox_ && mailbox_->final) return;
         mailbox_ = std::move(frame);
+        wake();
+    }
+
+    /// The sender thread out of its poll: a frame or meshes for it, or the end.
+    void wake() {
+        const char byte = 1;
+        [[maybe_unused]] const ssize_t n = ::write(wake_[1], &byte, 1);  // a full pipe has woken it already
     }
 
     // ---- the mesh thread ----
@@ -547,7 +557,8 @@ private:
             // The next mesh waits (1 − share)/share times the processor time this one took: the
             // meshes take at most mesh_share of one core, whatever they cost and however loaded
             // the machine is.
-            const std::int64_t took = thread_cpu_ns() - began;
+            // What sending the meshes before it took the sender thread counts too.
+            const std::int64_t took = thread_cpu_ns() - began + mesh_send_ns_.exchange(0);
             mesh_not_before_.store((Clock::now() + std::chrono::nanoseconds(std::llround(double(took) * (1.0 - mesh_share) / mesh_share)))
                                        .time_since_epoch()
                                        .count());
@@ -556,6 +567,7 @@ private:
                 std::lock_guard lock(meshes_mutex_);
                 for (Named& m : meshes) replace(meshes_out_, std::move(m));
             }
+            wake();
             encoding_.store(false);
         }
     }
@@ -628,6 +640,7 @@ private:
 
     void stop() {
         stop_.store(true);
+        wake();
         if (thread_.joinable()) thread_.join();
     }
 
@@ -775,14 +788,20 @@ private:
         }
     }
 
-    /// One poll of every socket (≤ 5 ms): new clients, bytes out (a frame before any mesh not yet
-    /// begun), bytes in (discarded), closes.
+    /// One poll of every socket until something happens (a client, bytes that can go, a frame or
+    /// meshes to send: the wake pipe) or 50 ms pass (the stall and reconnect clocks): new clients,
+    /// bytes out (a frame before any mesh not yet begun), bytes in (discarded), closes. Between
+    /// frames the thread sleeps: it takes no processor time from the simulation.
     void exchange() {
         std::vector<pollfd> fds;
+        fds.push_back({wake_[0], POLLIN, 0});
         if (listen_fd_ >= 0) fds.push_back({listen_fd_, POLLIN, 0});
         const std::size_t first_client = fds.size();
         for (const Client& client : clients_list_) fds.push_back({client.fd, short(POLLIN | (client.pending() ? POLLOUT : 0)), 0});
-        if (::poll(fds.data(), nfds_t(fds.size()), 5) < 0) return;
+        if (::poll(fds.data(), nfds_t(fds.size()), 50) < 0) return;
+        if (fds[0].revents & POLLIN)
+            for (char drain[64]; ::read(wake_[0], drain, sizeof drain) > 0;) {
+            }
         for (std::size_t i = 0; i < clients_list_.size(); ++i) {
             Client& client = clients_list_[i];
             const short events = fds[first_client + i].revents;
@@ -796,13 +815,16 @@ private:
             }
             while (client.gone.empty()) {
                 if (!client.current) {
+                    client.current_is_mesh = !client.frame;
                     if (client.frame) client.current = std::move(client.frame), client.frame.reset();
                     else if (!client.meshes.empty()) client.current = std::move(client.meshes.front().second), client.meshes.erase(client.meshes.begin());
                     else break;
                     client.sent = 0;
                 }
                 const std::string& front = *client.current;
+                const std::int64_t began = client.current_is_mesh ? thread_cpu_ns() : 0;
                 const ssize_t n = ::send(client.fd, front.data() + client.sent, front.size() - client.sent, MSG_NOSIGNAL | MSG_DONTWAIT);
+                if (client.current_is_mesh) mesh_send_ns_.fetch_add(thread_cpu_ns() - began);
                 if (n < 0) {
                     if (errno != EAGAIN && errno != EWOULDBLOCK) client.gone = std::string("dropped: ") + std::strerror(errno);
                     break;
@@ -823,7 +845,7 @@ private:
                 client.gone = text;
             }
         }
-        if (listen_fd_ >= 0 && (fds[0].revents & POLLIN))
+        if (listen_fd_ >= 0 && (fds[1].revents & POLLIN))
             for (int fd; (fd = ::accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC)) >= 0;) {
                 add_client(fd, peer_name(fd));
                 say("igtl: %s connected\n", clients_list_.back().name.c_str());
@@ -833,6 +855,7 @@ private:
     SlicerLinkOptions options_;
     Endpoint endpoint_;
     int listen_fd_ = -1;
+    int wake_[2] = {-1, -1};  ///< the sender thread's wake pipe: read end, write end
     std::thread thread_, encoder_;
     std::atomic<bool> stop_{false};
     std::atomic<int> clients_{0};
@@ -840,7 +863,8 @@ private:
     std::atomic<bool> mesh_room_{false};  ///< a client has no mesh waiting (the sender's word)
     std::atomic<bool> encoding_{false};   ///< the mesh thread has a job
     std::atomic<Clock::rep> mesh_not_before_{0};  ///< the mesh thread's share: no mesh before this (Clock's count)
-    std::atomic<long long> meshes_made_{0}, mesh_ns_{0};  ///< by the mesh thread, and the time they took
+    std::atomic<long long> meshes_made_{0}, mesh_ns_{0};  ///< by the mesh thread, and the time they took (sending them included)
+    std::atomic<std::int64_t> mesh_send_ns_{0};  ///< the sender thread's processor time on meshes since the mesh thread last counted it
     std::atomic<bool> finishing_{false};  ///< the final state is on its way: no new connection
     const Scenario* scenario_ = nullptr;
     std::string mesh_source_;

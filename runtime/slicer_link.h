@@ -13,11 +13,12 @@
 ///
 /// The simulation never waits for the network: the thread that steps offers its state (offer(),
 /// a clock read when nothing is due) into a one-slot mailbox that a sender thread empties; the
-/// meshes are made on a thread of their own that takes at most 5 % of one core (a mesh that took
-/// t to make waits 19·t before the next), and each client's poses go out before any mesh not yet
-/// begun, so a mesh never holds the poses back by more than the one message on the wire. A slow client skips
-/// frames, a client that takes nothing for stall_s is dropped, a vanished one is noticed, and a
-/// Slicer that is not there yet is tried again every 2 s. Each such event is one line `igtl: …`.
+/// meshes are made on a thread of their own, and making and sending them takes at most 5 % of one
+/// core (a mesh that took t of processor time waits 19·t before the next); each client's poses go
+/// out before any mesh not yet begun, so a mesh never holds the poses back by more than the one
+/// message on the wire. A slow client skips frames, a client that takes nothing for stall_s is
+/// dropped, a vanished one is noticed, and a Slicer that is not there yet is tried again every
+/// 2 s. Each such event is one line `igtl: …`.
 ///
 ///     auto link = SlicerLink::open({.endpoint = "18944"});  // binds 127.0.0.1 now: a port in use is a UsageError
 ///     link->start(scenario);                                // the threads (and --igtl-wait)
