@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <map>
+#include <optional>
 #include <set>
 #include <unordered_map>
 
@@ -47,41 +48,60 @@ struct PointKey {
 };
 PointKey key(const Point& p) { return {p.x(), p.y(), p.z()}; }
 
-/// Whether `p` lies inside the closed mesh: the parity of the crossings of three rays, each
-/// nearly along one axis (tilted by about a thousandth, so that a ray rarely meets an edge or a
-/// vertex of a mesh whose features follow the voxel axes), the majority. Each ray's exact test
-/// runs only on the triangles whose boxes its narrow column meets.
-/// `box` bounds `rest`.
-bool inside(const Point& p, const std::vector<Eigen::Vector3d>& rest, const std::vector<std::array<std::int32_t, 3>>& triangles,
-            const Eigen::AlignedBox3d& box) {
-    const Eigen::Vector3d from(p.x(), p.y(), p.z());
+/// Whether each of `points` lies inside the closed mesh: the parity of the crossings of three
+/// rays from it, each nearly along one axis (tilted by about a thousandth, so that a ray rarely
+/// meets an edge or a vertex of a mesh whose features follow the voxel axes), the majority. Each
+/// ray's exact test runs only on the triangles whose boxes its narrow column meets, looked for
+/// among those whose boxes meet the columns of all the points' rays along that axis: one pass over
+/// the mesh per axis, whatever the number of points. `box` bounds `rest`.
+std::vector<std::uint8_t> inside(const std::vector<Point>& points, const std::vector<Eigen::Vector3d>& rest,
+                                 const std::vector<std::array<std::int32_t, 3>>& triangles, const Eigen::AlignedBox3d& box) {
     static const double tilt[3][2] = {{1.31e-3, 0.73e-3}, {0.89e-3, -1.17e-3}, {-0.61e-3, 1.07e-3}};
-    int votes = 0;
+    auto apart = [&](const std::array<std::int32_t, 3>& t, const Eigen::Vector3d& low, const Eigen::Vector3d& high) {
+        const Eigen::Vector3d& a = rest[std::size_t(t[0])];
+        const Eigen::Vector3d& b = rest[std::size_t(t[1])];
+        const Eigen::Vector3d& c = rest[std::size_t(t[2])];
+        for (int k = 0; k < 3; ++k)
+            if (std::max({a[k], b[k], c[k]}) < low[k] || std::min({a[k], b[k], c[k]}) > high[k]) return true;
+        return false;
+    };
+    std::vector<int> votes(points.size(), 0);
     for (int axis = 0; axis < 3; ++axis) {
         Eigen::Vector3d d = Eigen::Vector3d::Zero();
         d[axis] = 1.0;
         d[(axis + 1) % 3] = tilt[axis][0];
         d[(axis + 2) % 3] = tilt[axis][1];
-        const double reach = box.max()[axis] - from[axis] + 1.0;
-        if (reach <= 0) continue;  // beyond the mesh along this axis: no crossing, outside
-        const Eigen::Vector3d to = from + reach * d;
-        const Eigen::Vector3d low = from.cwiseMin(to), high = from.cwiseMax(to);
-        const Kernel::Ray_3 ray(p, Kernel::Vector_3(d.x(), d.y(), d.z()));
-        int crossings = 0;
-        for (const auto& t : triangles) {
-            const Eigen::Vector3d& a = rest[std::size_t(t[0])];
-            const Eigen::Vector3d& b = rest[std::size_t(t[1])];
-            const Eigen::Vector3d& c = rest[std::size_t(t[2])];
-            bool apart = false;
-            for (int k = 0; k < 3 && !apart; ++k)
-                apart = std::max({a[k], b[k], c[k]}) < low[k] || std::min({a[k], b[k], c[k]}) > high[k];
-            if (apart) continue;
-            const Kernel::Triangle_3 tri(point(a), point(b), point(c));
-            if (!tri.is_degenerate() && CGAL::do_intersect(ray, tri)) ++crossings;
+        // Each ray's column (none for a point beyond the mesh along this axis: no crossing, outside).
+        std::vector<std::optional<Eigen::AlignedBox3d>> column(points.size());
+        Eigen::AlignedBox3d all;
+        for (std::size_t i = 0; i < points.size(); ++i) {
+            const Eigen::Vector3d from(points[i].x(), points[i].y(), points[i].z());
+            const double reach = box.max()[axis] - from[axis] + 1.0;
+            if (reach <= 0) continue;
+            const Eigen::Vector3d to = from + reach * d;
+            column[i] = Eigen::AlignedBox3d(from.cwiseMin(to), from.cwiseMax(to));
+            all.extend(*column[i]);
         }
-        votes += crossings % 2;
+        if (all.isEmpty()) continue;
+        std::vector<std::size_t> near;
+        for (std::size_t t = 0; t < triangles.size(); ++t)
+            if (!apart(triangles[t], all.min(), all.max())) near.push_back(t);
+        for (std::size_t i = 0; i < points.size(); ++i) {
+            if (!column[i]) continue;
+            const Kernel::Ray_3 ray(points[i], Kernel::Vector_3(d.x(), d.y(), d.z()));
+            int crossings = 0;
+            for (std::size_t t : near) {
+                if (apart(triangles[t], column[i]->min(), column[i]->max())) continue;
+                const auto& tri = triangles[t];
+                const Kernel::Triangle_3 face(point(rest[std::size_t(tri[0])]), point(rest[std::size_t(tri[1])]), point(rest[std::size_t(tri[2])]));
+                if (!face.is_degenerate() && CGAL::do_intersect(ray, face)) ++crossings;
+            }
+            votes[i] += crossings % 2;
+        }
     }
-    return votes >= 2;
+    std::vector<std::uint8_t> result(points.size());
+    for (std::size_t i = 0; i < points.size(); ++i) result[i] = votes[i] >= 2 ? 1 : 0;
+    return result;
 }
 
 }  // namespace
@@ -163,6 +183,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         }
         patch_cap[f] = mesh.cap[t];
     }
+    result.patch_triangles = patch.number_of_faces();
     if (patch.number_of_faces() == 0) return result;
 
     auto patch_constrained = patch.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
@@ -201,6 +222,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
             triangles.push_back(mesh.triangles[t]);
             cap.push_back(mesh.cap[t]);
         }
+    result.triangles_from = triangles.size();
     for (FaceIndex f : patch.faces()) {
         std::array<std::int32_t, 3> tri{};
         int k = 0;
@@ -222,7 +244,9 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         around.try_emplace(a);
         around.try_emplace(b);
     }
-    for (std::size_t t = 0; t < triangles.size(); ++t)
+    // A vertex on a cut edge lies on the strip, so every face around it meets the strip's box: the
+    // patch's faces are all of them.
+    for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
         for (std::int32_t v : triangles[t])
             if (auto it = around.find(v); it != around.end()) it->second.push_back(t);
     std::map<std::int32_t, std::vector<std::pair<std::int32_t, std::vector<std::size_t>>>> copies;  // vertex → (id, fan faces)
@@ -296,7 +320,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     for (const auto& x : mesh.rest) mesh_box.extend(x);
     std::vector<int> region(swept.num_faces(), -1);
     int regions = 0;
-    std::vector<std::uint8_t> region_inside;
+    std::vector<Point> centres;  // per region: the centroid of its first face, tested for inside the tissue
     for (FaceIndex seed : swept.faces()) {
         if (region[seed] >= 0) continue;
         region[seed] = regions;
@@ -313,10 +337,10 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
             }
         }
         const auto h = swept.halfedge(seed);
-        const Point centre = CGAL::centroid(swept.point(swept.source(h)), swept.point(swept.target(h)), swept.point(swept.target(swept.next(h))));
-        region_inside.push_back(inside(centre, mesh.rest, mesh.triangles, mesh_box) ? 1 : 0);
+        centres.push_back(CGAL::centroid(swept.point(swept.source(h)), swept.point(swept.target(h)), swept.point(swept.target(swept.next(h)))));
         ++regions;
     }
+    const std::vector<std::uint8_t> region_inside = inside(centres, mesh.rest, mesh.triangles, mesh_box);
 
     // The caps: side + (the strip's normal side) takes the faces reversed, side − as they are.
     std::map<PointKey, std::int32_t> on_curve;  // points of the cut curves → their vertex (before the split)
@@ -390,7 +414,8 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     std::vector<Eigen::Vector3f> normals = mesh.normals;
     normals.resize(rest.size(), Eigen::Vector3f::Zero());
     std::vector<Eigen::Vector3d> summed(rest.size() - result.vertices_from, Eigen::Vector3d::Zero());
-    for (const auto& t : triangles) {
+    for (std::size_t f = result.triangles_from; f < triangles.size(); ++f) {  // an added vertex lies on the patch's faces only
+        const auto& t = triangles[f];
         const Eigen::Vector3d n = (rest[std::size_t(t[1])] - rest[std::size_t(t[0])]).cross(rest[std::size_t(t[2])] - rest[std::size_t(t[0])]);
         for (std::int32_t v : t)
             if (std::size_t(v) >= result.vertices_from) summed[std::size_t(v) - result.vertices_from] += n;
@@ -406,21 +431,21 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     // The new faces (the patch's and the caps) must close up with each other and with the faces
     // around them; where the geometry defeated the split, the mesh stays as it was.
     {
-        const std::size_t first_new = mesh.triangles.size() - std::size_t(std::count(in_patch.begin(), in_patch.end(), 1));
         std::vector<std::uint8_t> touched(rest.size(), 0);
-        for (std::size_t t = first_new; t < triangles.size(); ++t)
+        for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
             for (std::int32_t v : triangles[t]) touched[std::size_t(v)] = 1;
         std::map<std::pair<std::int32_t, std::int32_t>, int> directed;
         for (const auto& t : triangles)
             if (touched[std::size_t(t[0])] || touched[std::size_t(t[1])] || touched[std::size_t(t[2])])
                 for (int k = 0; k < 3; ++k) ++directed[{t[std::size_t(k)], t[std::size_t((k + 1) % 3)]}];
-        for (std::size_t t = first_new; t < triangles.size(); ++t)
+        for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
             for (int k = 0; k < 3; ++k) {
                 const std::int32_t a = triangles[t][std::size_t(k)], b = triangles[t][std::size_t((k + 1) % 3)];
                 const auto back = directed.find({b, a});
                 if (directed[{a, b}] != 1 || back == directed.end() || back->second != 1) {
                     IncisionResult failed;
                     failed.vertices_from = result.vertices_from;
+                    failed.patch_triangles = result.patch_triangles;
                     failed.failure = "the split along the cut did not close up (the swept surface meets the mesh too intricately there)";
                     return failed;
                 }

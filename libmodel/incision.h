@@ -46,8 +46,12 @@ struct CutSurface {
 struct IncisionResult {
     bool opened = false;              ///< the mesh changed
     std::size_t vertices_from = 0;    ///< the first vertex added (the vertices before it keep their rows)
+    /// The first triangle the opening made (the ones before it are the mesh's untouched, in their
+    /// order; an added vertex lies only on the ones from here on).
+    std::size_t triangles_from = 0;
     std::size_t crossings = 0;        ///< edges of the curves where the strip meets the mesh
     std::size_t cap_triangles = 0;    ///< cap triangles added (both sides)
+    std::size_t patch_triangles = 0;  ///< the mesh's triangles taken into the corefinement (re-meshed where the strip crosses them)
     std::vector<std::int32_t> moved;  ///< existing vertices that became a copy on one side (moved by gap)
     /// The strip's triangles inside the tissue where the blade passed (before the sides move
     /// apart): the surface no vertex may be carried across.

@@ -50,30 +50,120 @@ private:
     std::unordered_map<std::int64_t, std::vector<std::int32_t>> cells_;
 };
 
-/// The cut faces (the swept strip inside the tissue, where the blade passed) in buckets of one
-/// lattice spacing, for the test whether a segment passes through the cut.
+/// Whether triangle `t` meets the box `low`–`high` (the separating axis test: the box's three
+/// axes, the triangle's normal, and the nine cross products of their edges).
+bool triangle_meets_box(const std::array<Eigen::Vector3d, 3>& t, const Eigen::Vector3d& low, const Eigen::Vector3d& high) {
+    const Eigen::Vector3d centre = 0.5 * (low + high), half = 0.5 * (high - low);
+    const std::array<Eigen::Vector3d, 3> v{t[0] - centre, t[1] - centre, t[2] - centre};
+    const std::array<Eigen::Vector3d, 3> edge{v[1] - v[0], v[2] - v[1], v[0] - v[2]};
+    auto apart = [&](const Eigen::Vector3d& axis) {
+        const double p0 = v[0].dot(axis), p1 = v[1].dot(axis), p2 = v[2].dot(axis);
+        const double r = half.dot(axis.cwiseAbs());
+        return std::min({p0, p1, p2}) > r || std::max({p0, p1, p2}) < -r;
+    };
+    for (int d = 0; d < 3; ++d)
+        if (apart(Eigen::Vector3d::Unit(d))) return false;
+    if (apart(edge[0].cross(edge[1]))) return false;
+    for (int d = 0; d < 3; ++d)
+        for (const Eigen::Vector3d& e : edge)
+            if (apart(Eigen::Vector3d::Unit(d).cross(e))) return false;
+    return true;
+}
+
+/// Narrows [enter, leave] to where a + t·d lies in [low, high] (one coordinate of a segment a + t·d,
+/// t in [0, 1]); false when nothing is left.
+bool clip(double a, double d, double low, double high, double& enter, double& leave) {
+    if (d == 0.0) return a >= low && a <= high && enter <= leave;
+    double t0 = (low - a) / d, t1 = (high - a) / d;
+    if (t0 > t1) std::swap(t0, t1);
+    enter = std::max(enter, t0);
+    leave = std::min(leave, t1);
+    return enter <= leave;
+}
+
+/// Every cut so far (the strips the strokes swept, at rest, each whole: it parts the particles also
+/// where it passes beyond the mesh), in the order they were made, and in buckets of one lattice
+/// spacing, for the test whether a segment passes through the cut. A face is in the buckets it
+/// meets (its cells grown by a thousandth of a spacing, so that rounding leaves none out), not in
+/// every bucket of its box: a long strip's faces lie across few of the cells their boxes span.
+/// Faces are only ever added at the end, or dropped from the end (a preview given back), so each
+/// bucket lists its faces in the order they were made, and a test may start from any face.
 class CapIndex {
 public:
-    CapIndex(const std::vector<std::array<Eigen::Vector3d, 3>>& faces, double size) : faces_(faces), size_(size) {
-        for (std::size_t t = 0; t < faces.size(); ++t) {
-            Eigen::AlignedBox3d box;
-            for (const auto& p : faces[t]) box.extend(p);
-            for (long k = cell(box.min().z()); k <= cell(box.max().z()); ++k)
-                for (long j = cell(box.min().y()); j <= cell(box.max().y()); ++j)
-                    for (long i = cell(box.min().x()); i <= cell(box.max().x()); ++i) cells_[cell_key(i, j, k)].push_back(std::int32_t(t));
-        }
+    explicit CapIndex(double size) : size_(size) {}
+
+    std::size_t size() const { return faces_.size(); }
+
+    void add(const std::array<Eigen::Vector3d, 3>& face) {
+        const auto id = std::int32_t(faces_.size());
+        faces_.push_back(face);
+        Eigen::AlignedBox3d box;
+        for (const auto& p : face) box.extend(p);
+        const double margin = 1e-3 * size_;
+        for (long k = cell(box.min().z() - margin); k <= cell(box.max().z() + margin); ++k)
+            for (long j = cell(box.min().y() - margin); j <= cell(box.max().y() + margin); ++j)
+                for (long i = cell(box.min().x() - margin); i <= cell(box.max().x() + margin); ++i) {
+                    const Eigen::Vector3d low = Eigen::Vector3d(double(i), double(j), double(k)) * size_;
+                    if (!triangle_meets_box(face, low.array() - margin, (low.array() + size_ + margin).matrix())) continue;
+                    const std::int64_t key = cell_key(i, j, k);
+                    cells_[key].push_back(id);
+                    added_.push_back(key);
+                }
+        filed_.push_back(added_.size());
     }
-    /// Whether the segment a–b passes through a cut face (its ends touching one do not count).
-    bool crosses(const Eigen::Vector3d& a, const Eigen::Vector3d& b) const {
-        const Eigen::Vector3d low = a.cwiseMin(b), high = a.cwiseMax(b);
-        for (long k = cell(low.z()); k <= cell(high.z()); ++k)
-            for (long j = cell(low.y()); j <= cell(high.y()); ++j)
-                for (long i = cell(low.x()); i <= cell(high.x()); ++i) {
+
+    /// Back to the first `count` faces.
+    void truncate(std::size_t count) {
+        if (count >= faces_.size()) return;
+        const std::size_t keep = count == 0 ? 0 : filed_[count - 1];
+        for (std::size_t a = added_.size(); a-- > keep;) cells_[added_[a]].pop_back();
+        added_.resize(keep);
+        filed_.resize(count);
+        faces_.resize(count);
+        seen_.resize(std::min(seen_.size(), count));
+    }
+
+    void clear() {
+        faces_.clear();
+        cells_.clear();
+        added_.clear();
+        filed_.clear();
+        seen_.clear();
+    }
+
+    /// Whether the segment a–b passes through one of the faces from the `from`-th on (its ends
+    /// touching one do not count). Looks in the buckets the segment meets (their cells grown as
+    /// a face's), each face once; `tests` counts the faces it tested.
+    bool crosses(const Eigen::Vector3d& a, const Eigen::Vector3d& b, std::size_t from = 0, std::size_t* tests = nullptr) const {
+        if (from >= faces_.size()) return false;
+        if (++query_ == 0) {  // the stamps wrapped round: none counts as seen
+            std::fill(seen_.begin(), seen_.end(), 0u);
+            query_ = 1;
+        }
+        seen_.resize(faces_.size(), 0u);
+        const Eigen::Vector3d low = a.cwiseMin(b), high = a.cwiseMax(b), d = b - a;
+        const double margin = 1e-3 * size_;
+        for (long k = cell(low.z() - margin); k <= cell(high.z() + margin); ++k)
+            for (long j = cell(low.y() - margin); j <= cell(high.y() + margin); ++j) {
+                // The stretch of the segment in this row of cells (grown as a face's), then the
+                // cells along x it passes.
+                double enter = 0.0, leave = 1.0;
+                if (!clip(a.y(), d.y(), double(j) * size_ - margin, double(j + 1) * size_ + margin, enter, leave) ||
+                    !clip(a.z(), d.z(), double(k) * size_ - margin, double(k + 1) * size_ + margin, enter, leave))
+                    continue;
+                const double x0 = a.x() + enter * d.x(), x1 = a.x() + leave * d.x();
+                for (long i = cell(std::min(x0, x1) - margin); i <= cell(std::max(x0, x1) + margin); ++i) {
                     const auto it = cells_.find(cell_key(i, j, k));
                     if (it == cells_.end()) continue;
-                    for (std::int32_t t : it->second)
-                        if (through(a, b, faces_[std::size_t(t)])) return true;
+                    const std::vector<std::int32_t>& list = it->second;
+                    for (auto t = std::lower_bound(list.begin(), list.end(), std::int32_t(from)); t != list.end(); ++t) {
+                        if (seen_[std::size_t(*t)] == query_) continue;
+                        seen_[std::size_t(*t)] = query_;
+                        if (tests) ++*tests;
+                        if (through(a, b, faces_[std::size_t(*t)])) return true;
+                    }
                 }
+            }
         return false;
     }
 
@@ -95,9 +185,13 @@ private:
         return t_hit > 1e-6 && t_hit < 1.0 - 1e-6;
     }
     long cell(double x) const { return long(std::floor(x / size_)); }
-    const std::vector<std::array<Eigen::Vector3d, 3>>& faces_;
     double size_;
+    std::vector<std::array<Eigen::Vector3d, 3>> faces_;
     std::unordered_map<std::int64_t, std::vector<std::int32_t>> cells_;
+    std::vector<std::int64_t> added_;  ///< the bucket of each entry, in the order they were filed
+    std::vector<std::size_t> filed_;   ///< per face: the entries filed up to and including its own
+    mutable std::vector<std::uint32_t> seen_;  ///< per face: the last test that looked at it (crosses)
+    mutable std::uint32_t query_ = 0;
 };
 
 }  // namespace
@@ -206,8 +300,9 @@ std::vector<CutSurface> stroke_surfaces(const BladeStroke& stroke, const std::ve
 }
 
 struct IncisionState::Impl {
-    explicit Impl(const Lattice& lattice, const std::vector<Eigen::Vector3d>& rest) : embedder(lattice, rest) {}
+    explicit Impl(const Lattice& lattice, const std::vector<Eigen::Vector3d>& rest) : embedder(lattice, rest), caps(lattice.spacing) {}
     mapping_internal::CellEmbedder embedder;
+    CapIndex caps;
 };
 
 IncisionState::IncisionState(const Lattice& lattice, const std::vector<std::array<float, 3>>& positions,
@@ -234,7 +329,8 @@ void IncisionState::restore() {
     committed_.reset();
     mesh_ = uncut_;
     mapping_ = uncut_mapping_;
-    cut_faces_.clear();
+    impl_->caps.clear();
+    settled_.clear();
     applied_.clear();
     order_for_drawing();
 }
@@ -273,18 +369,20 @@ void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::arra
     const double gap = 0.02 * lattice_.spacing;
     for (const CutSurface& surface : stroke_surfaces(stroke, positions, lattice_)) {
         const IncisionResult result = open_along(mesh_, surface, gap);
+        update.remeshed += result.patch_triangles;
         if (!result.failure.empty()) update.failures.push_back(result.failure);
         if (!result.opened) continue;
         // The whole strip parts the particles, as the physics cut parted them: also where it
         // passes between particles outside the detailed mesh (the lattice reaches up to half a
         // spacing beyond the surface).
         for (const auto& t : surface.triangles)
-            cut_faces_.push_back({surface.points[std::size_t(t[0])], surface.points[std::size_t(t[1])], surface.points[std::size_t(t[2])]});
+            impl_->caps.add({surface.points[std::size_t(t[0])], surface.points[std::size_t(t[1])], surface.points[std::size_t(t[2])]});
+        update.cut_faces += surface.triangles.size();
         Eigen::AlignedBox3d region;
         for (const auto& p : surface.points) region.extend(p);
         region.min().array() -= 2 * lattice_.spacing;
         region.max().array() += 2 * lattice_.spacing;
-        update.reembedded += reembed(result, region);
+        update.reembedded += reembed(result, region, update);
         update.opened = true;
     }
     ++update.strokes;
@@ -294,7 +392,8 @@ bool IncisionState::end_preview() {
     if (!committed_) return false;
     mesh_ = std::move(committed_->mesh);
     mapping_ = std::move(committed_->mapping);
-    cut_faces_ = std::move(committed_->cut_faces);
+    impl_->caps.truncate(committed_->cut_faces);
+    settled_ = std::move(committed_->settled);
     committed_.reset();
     order_for_drawing();
     return true;
@@ -320,6 +419,10 @@ IncisionUpdate IncisionState::update(const StrokeLog& log, const std::vector<std
         changed = changed || one.opened;
         update.strokes += one.strokes;
         update.reembedded += one.reembedded;
+        update.remeshed += one.remeshed;
+        update.cut_faces += one.cut_faces;
+        update.carriers_tested += one.carriers_tested;
+        update.face_tests += one.face_tests;
         update.failures.insert(update.failures.end(), one.failures.begin(), one.failures.end());
     }
     if (changed) order_for_drawing();
@@ -342,7 +445,7 @@ IncisionUpdate IncisionState::preview(const StrokeLog& log, const std::vector<st
     for (std::size_t r = 0; r < strokes.size(); ++r)
         open = open || ((r >= applied_.size() || !applied_[r]) && !strokes[r].lifted && strokes[r].poses.size() >= 2);
     if (!open) return update;
-    committed_ = Committed{mesh_, mapping_, cut_faces_};
+    committed_ = Committed{mesh_, mapping_, impl_->caps.size(), settled_};
     for (std::size_t r = 0; r < strokes.size(); ++r)
         if ((r >= applied_.size() || !applied_[r]) && !strokes[r].lifted && strokes[r].poses.size() >= 2) apply(strokes[r], positions, update);
     order_for_drawing();
@@ -351,49 +454,68 @@ IncisionUpdate IncisionState::preview(const StrokeLog& log, const std::vector<st
     return update;
 }
 
-std::size_t IncisionState::reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region) {
-    const CapIndex caps(cut_faces_, lattice_.spacing);
+std::size_t IncisionState::reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region, IncisionUpdate& update) {
+    const CapIndex& caps = impl_->caps;
+    const auto faces = std::uint32_t(caps.size());
     const std::size_t vertices = mesh_.rest.size();
     const std::size_t before = mapping_.offset.size();
     // Rows for the added vertices: the normal frame (triangle, λ) of an old vertex they share a
-    // face with (it only turns the shading normal), carriers set below.
+    // face with (it only turns the shading normal), carriers set below. An added vertex lies only
+    // on the triangles the opening made (from result.triangles_from on).
     mapping_.triangle.resize(vertices, 0);
     mapping_.barycentric.resize(vertices, {1.0f, 0.0f, 0.0f});
     mapping_.offset.resize(vertices, 0.0f);
     mapping_.particles.resize(vertices, {});
     mapping_.weights.resize(vertices, {});
-    std::vector<std::uint8_t> framed(vertices, 0);
-    for (const auto& t : mesh_.triangles)
-        for (std::int32_t v : t) {
-            if (std::size_t(v) < before || framed[std::size_t(v)]) continue;
-            for (std::int32_t w : t)
+    settled_.resize(vertices);
+    for (std::int32_t v : result.moved) settled_[std::size_t(v)] = {};
+    std::vector<std::uint8_t> framed(vertices - before, 0);
+    for (std::size_t t = result.triangles_from; t < mesh_.triangles.size(); ++t)
+        for (std::int32_t v : mesh_.triangles[t]) {
+            if (std::size_t(v) < before || framed[std::size_t(v) - before]) continue;
+            for (std::int32_t w : mesh_.triangles[t])
                 if (std::size_t(w) < before) {
                     mapping_.triangle[std::size_t(v)] = mapping_.triangle[std::size_t(w)];
                     mapping_.barycentric[std::size_t(v)] = mapping_.barycentric[std::size_t(w)];
-                    framed[std::size_t(v)] = 1;
+                    framed[std::size_t(v) - before] = 1;
                     break;
                 }
         }
 
+    // Embedded again: the added vertices, the moved ones, and those near the cut whose carriers
+    // reach across it. A vertex's carriers are tested against the faces cut since they were last
+    // found clear of all (Settled::clear_of): the earlier ones they cross no more now than then.
     std::vector<std::uint8_t> again(vertices, 0);
     for (std::size_t v = before; v < vertices; ++v) again[v] = 1;
     for (std::int32_t v : result.moved) again[std::size_t(v)] = 1;
     for (std::size_t v = 0; v < before; ++v) {
         if (again[v] || !region.contains(mesh_.rest[v])) continue;
-        for (int k = 0; k < 8; ++k)
-            if (mapping_.weights[v][std::size_t(k)] != 0.0f &&
-                caps.crosses(mesh_.rest[v], particle_rest_[std::size_t(mapping_.particles[v][std::size_t(k)])])) {
-                again[v] = 1;
-                break;
-            }
+        for (int k = 0; k < 8 && !again[v]; ++k) {
+            if (mapping_.weights[v][std::size_t(k)] == 0.0f) continue;
+            ++update.carriers_tested;
+            again[v] = caps.crosses(mesh_.rest[v], particle_rest_[std::size_t(mapping_.particles[v][std::size_t(k)])], settled_[v].clear_of,
+                                    &update.face_tests);
+        }
+        if (!again[v]) settled_[v].clear_of = faces;
     }
     std::size_t count = 0;
     for (std::size_t v = 0; v < vertices; ++v) {
         if (!again[v]) continue;
+        Settled& settled = settled_[v];
+        if (settled.stranded) {  // a cut takes particles from its side, never gives: still none can carry it
+            count += settled.stranded == 1;
+            continue;
+        }
         const Eigen::Vector3d& x = mesh_.rest[v];
+        settled.clear_of = faces;  // embedded in particles on its own side: its carriers cross no cut
         mapping_internal::Embedding e =
             impl_->embedder.embed(x, [&](std::int32_t p) { return !caps.crosses(x, particle_rest_[std::size_t(p)]); });
-        if (!e.found()) e = impl_->embedder.embed(x);  // no particle on its side nearby: the nearest any side
+        if (!e.found()) {  // no particle on its side nearby: the nearest any side, tested against every cut next time
+            const bool stranded = e.far_found < 8;
+            e = impl_->embedder.embed(x);
+            settled.clear_of = 0;
+            settled.stranded = !stranded ? 0 : e.found() ? 1 : 2;
+        }
         if (!e.found()) continue;
         for (int k = 0; k < 8; ++k) {
             mapping_.particles[v][std::size_t(k)] = k < e.count ? e.particles[std::size_t(k)] : e.particles[0];

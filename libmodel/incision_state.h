@@ -37,6 +37,13 @@ struct IncisionUpdate {
     bool opened = false;               ///< the mesh changed
     std::size_t strokes = 0;           ///< strokes opened in this update
     std::size_t reembedded = 0;        ///< vertices embedded again (new ones included)
+    std::size_t remeshed = 0;          ///< the mesh's triangles the strokes' corefinements took in (IncisionResult::patch_triangles)
+    std::size_t cut_faces = 0;         ///< the strips' triangles added to the cut
+    /// Carriers (vertex–particle segments) of the vertices beside the strips tested for crossing
+    /// the cut, and the segment–face tests that took: each segment meets each face once at most,
+    /// and only the faces cut since its vertex was last found clear.
+    std::size_t carriers_tested = 0;
+    std::size_t face_tests = 0;
     std::vector<std::string> failures; ///< strokes the mesh could not be opened along, and why
     double seconds = 0.0;
 };
@@ -81,7 +88,7 @@ private:
     void restore();
     void apply(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions, IncisionUpdate& update);
     bool end_preview();  ///< back to the strokes that lifted; true when a preview was shown
-    std::size_t reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region);
+    std::size_t reembed(const IncisionResult& result, const Eigen::AlignedBox3d& region, IncisionUpdate& update);
     void order_for_drawing();
 
     const Lattice& lattice_;
@@ -94,12 +101,22 @@ private:
     IncisionMesh mesh_;
     VisualMapping mapping_;
     std::vector<std::array<std::int32_t, 3>> drawn_;
-    std::vector<std::array<Eigen::Vector3d, 3>> cut_faces_;  ///< every cut so far, at rest (IncisionResult::cut_faces)
+    /// What the cuts so far settled about a vertex's carriers, so that a lift looks only at what
+    /// its own stroke changed (reembed).
+    struct Settled {
+        std::uint32_t clear_of = 0;  ///< its carriers reach across none of the first so many cut faces
+        /// 1: no particles on its side can carry it, and fewer cannot either (CellEmbedder's search
+        /// found fewer than 8 within reach): its carriers are the nearest any side's until it moves;
+        /// 2: the same, and none carry it (its carriers kept).
+        std::uint8_t stranded = 0;
+    };
+    std::vector<Settled> settled_;
     std::size_t cap_first_ = 0;
     struct Committed {
         IncisionMesh mesh;
         VisualMapping mapping;
-        std::vector<std::array<Eigen::Vector3d, 3>> cut_faces;
+        std::size_t cut_faces = 0;
+        std::vector<Settled> settled;
     };
     std::optional<Committed> committed_;  ///< while a preview is drawn: the strokes that lifted
     std::vector<std::uint8_t> applied_;  ///< per stroke row of the log

@@ -76,12 +76,19 @@ bool CellEmbedder::affine(const Eigen::Vector3d& v, const std::int32_t* ids, int
 Embedding CellEmbedder::embed(const Eigen::Vector3d& v) const { return embed(v, {}); }
 
 Embedding CellEmbedder::embed(const Eigen::Vector3d& v, const std::function<bool(std::int32_t)>& usable) const {
-    auto particle_at = [&](long i, long j, long k) {
-        const std::int32_t p = grid_.at(i, j, k);
-        return p >= 0 && usable && !usable(p) ? -1 : p;
-    };
     const Eigen::Vector3d q = (world_to_index_ * v.homogeneous()).head<3>();
     const std::array<long, 3> base{long(std::floor(q[0])), long(std::floor(q[1])), long(std::floor(q[2]))};
+    // `usable` is asked once a particle of the 4×4×4 around v's cell (the corners of the 27 cells),
+    // and beyond them only as far as the choice of the nearest goes (below): it may be costly.
+    std::array<std::int8_t, 64> asked;
+    asked.fill(-1);
+    auto particle_at = [&](long i, long j, long k) {
+        const std::int32_t p = grid_.at(i, j, k);
+        if (p < 0 || !usable) return p;
+        std::int8_t& known = asked[std::size_t((i - base[0] + 1) + 4 * (j - base[1] + 1) + 16 * (k - base[2] + 1))];
+        if (known < 0) known = usable(p) ? 1 : 0;
+        return known ? p : -1;
+    };
     Embedding best;
     auto consider = [&](long ci, long cj, long ck) {
         std::array<std::int32_t, 8> ids{};
@@ -118,19 +125,35 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v, const std::function<bool
     if (best.found()) return best;
 
     // Far from any cell with a volume of particles: the 8 nearest particles within 6 cells; if
-    // they are flat (a sheet), the 7 nearest and the nearest one off their plane.
+    // they are flat (a sheet), the 7 nearest and the nearest one off their plane. The particles
+    // within reach are taken in the order of (distance, index), from a heap, and asked of `usable`
+    // in that order, as far as the choice goes: the same choice as ordering the usable ones alone.
     std::vector<std::pair<double, std::int32_t>> near;
     constexpr long reach = 6;
     for (long k = base[2] - reach; k <= base[2] + reach + 1; ++k)
         for (long j = base[1] - reach; j <= base[1] + reach + 1; ++j)
             for (long i = base[0] - reach; i <= base[0] + reach + 1; ++i)
-                if (const std::int32_t p = particle_at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
-    if (near.size() < 4) return best;
-    std::sort(near.begin(), near.end());
-    const std::size_t count = std::min<std::size_t>(8, near.size());
+                if (const std::int32_t p = grid_.at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
+    const std::greater<> nearer_last;
+    std::make_heap(near.begin(), near.end(), nearer_last);
+    auto next_usable = [&]() -> std::int32_t {
+        while (!near.empty()) {
+            std::pop_heap(near.begin(), near.end(), nearer_last);
+            const std::int32_t p = near.back().second;
+            near.pop_back();
+            if (!usable || usable(p)) return p;
+        }
+        return -1;
+    };
     std::array<std::int32_t, 8> ids{};
-    for (std::size_t k = 0; k < count; ++k) ids[k] = near[k].second;
-    if (affine(v, ids.data(), int(count), best) || count < 8) return best;
+    std::size_t count = 0;
+    for (std::int32_t p; count < 8 && (p = next_usable()) >= 0;) ids[count++] = p;
+    auto chosen = [&] {
+        best.far_found = int(count);
+        return best;
+    };
+    if (count < 4) return chosen();
+    if (affine(v, ids.data(), int(count), best) || count < 8) return chosen();
     Eigen::Vector3d mean = Eigen::Vector3d::Zero();
     for (std::size_t k = 0; k < 7; ++k) mean += rest_[std::size_t(ids[k])];
     mean /= 7.0;
@@ -142,13 +165,13 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v, const std::function<bool
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eigen;
     eigen.computeDirect(scatter);
     const Eigen::Vector3d normal = eigen.eigenvectors().col(0);
-    for (std::size_t k = 7; k < near.size(); ++k)
-        if (std::abs((rest_[std::size_t(near[k].second)] - mean).dot(normal)) > 0.5 * spacing_) {
-            ids[7] = near[k].second;
+    for (std::int32_t p = ids[7]; p >= 0; p = next_usable())
+        if (std::abs((rest_[std::size_t(p)] - mean).dot(normal)) > 0.5 * spacing_) {
+            ids[7] = p;
             affine(v, ids.data(), 8, best);
             break;
         }
-    return best;
+    return chosen();
 }
 
 }  // namespace heartsim::mapping_internal

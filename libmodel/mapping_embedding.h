@@ -19,6 +19,10 @@ struct Embedding {
     int count = 0;                  ///< carriers used (the rest: weight 0)
     double amplification = 0.0;     ///< Σ|w|; 0 when no cell embeds the vertex
     bool convex = false;            ///< every weight in [0, 1]
+    /// Where no cell around the vertex embeds it: the particles within 6 cells the search took,
+    /// up to 8 (0 where a cell embeds it). Fewer than 8 and none found: no subset of the
+    /// particles it was given embeds the vertex either (under 4, or all in one plane).
+    int far_found = 0;
     bool found() const { return count > 0; }
 };
 
@@ -37,7 +41,8 @@ public:
     /// otherwise.
     Embedding embed(const Eigen::Vector3d& v) const;
     /// The same over the particles `usable` accepts only (the others count as absent): a vertex
-    /// beside an incision embedded in the particles of its own side.
+    /// beside an incision embedded in the particles of its own side. `usable` is asked once a
+    /// particle at most, and only of the particles the choice depends on.
     Embedding embed(const Eigen::Vector3d& v, const std::function<bool(std::int32_t)>& usable) const;
 
 private:
