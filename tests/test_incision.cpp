@@ -370,3 +370,147 @@ TEST(Incision, APreviewWhileTheBladeIsDownLeavesNoTraceOnceItLifts) {
     EXPECT_EQ(previewed.mapping().weights, direct.mapping().weights);
     EXPECT_EQ(count_components(direct.mesh().triangles, direct.mesh().rest.size()), 2u);
 }
+
+namespace {
+
+/// A cut through the whole block along the plane where coordinate `axis` is `at`.
+struct PlaneCut {
+    int axis;
+    double at;
+};
+
+/// The plane between particle columns `column` and `column` + 1 along `axis` (a hundredth of a
+/// millimetre off the middle).
+PlaneCut between_columns(const CutModel& m, int axis, int column) {
+    return {axis, m.low[axis] + 0.75 + (column + 0.5) * 1.5 + 0.011};
+}
+
+/// The poses of a blade drawing `cut` through the block, `steps` steps, and its length: the blade
+/// along +z (along +x for a cut across z), moved along the plane's next axis from 2 mm before the
+/// block to 2 mm past it.
+std::vector<InstrumentPose> plane_cut_poses(const CutModel& m, const PlaneCut& cut, int steps, double& length) {
+    const int blade = cut.axis == 2 ? 0 : 2, along = cut.axis == 1 ? 0 : 1;
+    length = m.high[blade] - m.low[blade] + 4.0;
+    const Eigen::Quaterniond orientation = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), Eigen::Vector3d::Unit(blade));
+    std::vector<InstrumentPose> poses;
+    for (int k = 0; k <= steps; ++k) {
+        Eigen::Vector3d p;
+        p[cut.axis] = cut.at;
+        p[blade] = m.low[blade] - 2.0;
+        p[along] = m.low[along] - 2.0 + k * (m.high[along] - m.low[along] + 4.0) / steps;
+        poses.push_back({p, orientation});
+    }
+    return poses;
+}
+
+/// Nine cuts across a block 20 particles long, between every second pair of particle columns, in
+/// an order that puts each beside earlier ones: ten pieces of two columns each.
+std::vector<PlaneCut> nine_cuts(const CutModel& m) {
+    std::vector<PlaneCut> cuts;
+    for (int column : {9, 7, 11, 5, 13, 3, 15, 1, 17}) cuts.push_back(between_columns(m, 0, column));
+    return cuts;
+}
+
+}  // namespace
+
+// Nine strokes through a block, each beside earlier ones, each opened as its blade lifts: after
+// every lift the mesh is a closed 2-manifold and every vertex is carried by particles on its own
+// side of every cut so far (by the signs of their distances to the planes, not by the cut's own
+// test); at the end, ten closed pieces. A lift tests a carrier against a face of its strip only
+// where the carrier's segment passes within a spacing of it (a face's bucket), each face once.
+TEST(Incision, ManyStrokesKeepTheMeshClosedAndEachLiftTestsOnlyItsOwnStrip) {
+    const CutModel m = cut_model(20, 6, 4);
+    IncisionState incisions(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    const auto& rest = m.lattice.particles.rest_position;
+    const std::vector<PlaneCut> cuts = nine_cuts(m);
+    StrokeLog log;
+    std::string why;
+    for (std::size_t c = 0; c < cuts.size(); ++c) {
+        double length = 0.0;
+        const std::vector<InstrumentPose> poses = plane_cut_poses(m, cuts[c], 4, length);
+        for (std::size_t k = 1; k < poses.size(); ++k) log.sweep(0, poses[k - 1], poses[k], length);
+        log.lift(0);
+        // Before the lift: the carriers of the vertices within two spacings of the plane (those
+        // the lift tests) whose segments pass within a spacing of it (the bucket of a face of the
+        // plane is a spacing wide): only they may meet its faces.
+        std::size_t near_plane = 0;
+        {
+            const IncisionMesh& mesh = incisions.mesh();
+            const VisualMapping& mapping = incisions.mapping();
+            const int a = cuts[c].axis;
+            for (std::size_t v = 0; v < mesh.rest.size(); ++v) {
+                if (std::abs(mesh.rest[v][a] - cuts[c].at) > 2 * 1.5) continue;
+                for (int k = 0; k < 8; ++k) {
+                    if (mapping.weights[v][std::size_t(k)] == 0.0f) continue;
+                    const double p = rest[std::size_t(mapping.particles[v][std::size_t(k)])][std::size_t(a)];
+                    near_plane += std::min(p, mesh.rest[v][a]) <= cuts[c].at + 1.5 * 1.001 && std::max(p, mesh.rest[v][a]) >= cuts[c].at - 1.5 * 1.001;
+                }
+            }
+        }
+        const IncisionUpdate u = incisions.update(log, rest, false);
+        ASSERT_TRUE(u.opened) << "cut " << c << ": " << (u.failures.empty() ? "" : u.failures[0]);
+        ASSERT_TRUE(closed_manifold(incisions.drawn_triangles(), &why)) << "cut " << c << ": " << why;
+        EXPECT_EQ(u.cut_faces, 2u) << "cut " << c << ": a straight stroke sweeps one quad";
+        EXPECT_GT(u.carriers_tested, 0u) << "cut " << c;
+        EXPECT_LE(u.face_tests, near_plane * u.cut_faces) << "cut " << c << " tested carriers against earlier cuts";
+        std::printf("  cut %zu: %zu carriers tested, %zu within a spacing of the plane, %zu segment-face tests, %zu vertices embedded again\n", c,
+                    u.carriers_tested, near_plane, u.face_tests, u.reembedded);
+
+        const IncisionMesh& mesh = incisions.mesh();
+        const VisualMapping& mapping = incisions.mapping();
+        for (std::size_t v = 0; v < mesh.rest.size(); ++v)
+            for (int k = 0; k < 8; ++k) {
+                if (mapping.weights[v][std::size_t(k)] == 0.0f) continue;
+                const auto& r = rest[std::size_t(mapping.particles[v][std::size_t(k)])];
+                for (std::size_t d = 0; d <= c; ++d) {
+                    const int a = cuts[d].axis;
+                    ASSERT_GT((mesh.rest[v][a] - cuts[d].at) * (double(r[std::size_t(a)]) - cuts[d].at), 0.0)
+                        << "after cut " << c << ", vertex " << v << " at " << mesh.rest[v].transpose() << " is carried across cut " << d;
+                }
+            }
+    }
+    EXPECT_EQ(count_components(incisions.mesh().triangles, incisions.mesh().rest.size()), 10u);
+}
+
+// A preview while a blade is down, after other strokes have lifted, leaves no trace once it lifts:
+// the mesh and the mapping are those of a state that never previewed, bit for bit.
+TEST(Incision, APreviewAfterEarlierStrokesLeavesNoTraceOnceItLifts) {
+    const CutModel m = cut_model(20, 6, 4);
+    const auto& rest = m.lattice.particles.rest_position;
+    const std::vector<PlaneCut> cuts = nine_cuts(m);
+    IncisionState previewed(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    IncisionState direct(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    StrokeLog log;
+    for (std::size_t c = 0; c < 4; ++c) {
+        double length = 0.0;
+        const std::vector<InstrumentPose> poses = plane_cut_poses(m, cuts[c], 4, length);
+        for (std::size_t k = 1; k < poses.size(); ++k) {
+            log.sweep(0, poses[k - 1], poses[k], length);
+            if (c == 3 && k == 2) {  // the last stroke halfway across: a slit from the block's side
+                const IncisionUpdate u = previewed.preview(log, rest);
+                EXPECT_TRUE(u.opened);
+                EXPECT_TRUE(previewed.previewing());
+                std::string why;
+                EXPECT_TRUE(closed_manifold(previewed.drawn_triangles(), &why)) << why;
+            }
+        }
+        log.lift(0);
+        previewed.update(log, rest, false);
+        direct.update(log, rest, false);
+    }
+    EXPECT_FALSE(previewed.previewing());
+    EXPECT_EQ(previewed.drawn_triangles(), direct.drawn_triangles());
+    EXPECT_EQ(previewed.mesh().rest, direct.mesh().rest);
+    EXPECT_EQ(previewed.mapping().particles, direct.mapping().particles);
+    EXPECT_EQ(previewed.mapping().weights, direct.mapping().weights);
+    // A fifth stroke opened in both, after the preview was given back: the same again.
+    double length = 0.0;
+    const std::vector<InstrumentPose> poses = plane_cut_poses(m, cuts[4], 4, length);
+    for (std::size_t k = 1; k < poses.size(); ++k) log.sweep(0, poses[k - 1], poses[k], length);
+    log.lift(0);
+    previewed.update(log, rest, false);
+    direct.update(log, rest, false);
+    EXPECT_EQ(previewed.drawn_triangles(), direct.drawn_triangles());
+    EXPECT_EQ(previewed.mapping().particles, direct.mapping().particles);
+    EXPECT_EQ(previewed.mapping().weights, direct.mapping().weights);
+}
