@@ -746,8 +746,9 @@ TEST(Igtl, ARepairsPatchAndStitchesArriveAsTheStateHoldsThem) {
 
 // Poses go at their rate whatever the meshes cost: the meshes are made on a thread of their own
 // and a client's poses go before any mesh not yet begun. At the default rates (poses 60 a second,
-// meshes at most 20) a client receives at least 2.5 poses of a hand for each mesh; the counts are
-// what the client received over the whole run, not a time.
+// meshes at most 20: three poses a mesh) a client receives at least two poses of a hand for each
+// mesh (where meshes held the poses back, one came with each); the counts are what the client
+// received over the whole run, not a time.
 TEST(Igtl, PosesAreNotHeldBackByTheMeshes) {
     test::TempDir dir;
     const int port = free_port();
@@ -764,7 +765,7 @@ TEST(Igtl, PosesAreNotHeldBackByTheMeshes) {
     const std::size_t meshes = s.polydata_count.count("heartsim-heart") ? s.polydata_count.at("heartsim-heart") : 0;
     std::printf("%zu poses of hand 0, %zu meshes, %zu states over %lld steps\n", hand0, meshes, s.states.size(), steps_ran(result.output));
     ASSERT_GE(meshes, 2u);
-    EXPECT_GE(double(hand0), 2.5 * double(meshes));
+    EXPECT_GE(double(hand0), 2.0 * double(meshes));
 }
 
 // heartsim listens on the loopback interface unless --igtl-bind says otherwise: a client on this
@@ -838,6 +839,11 @@ TEST(Igtl, ListensOnLoopbackUnlessAsked) {
     const auto connecting = run_heartsim("run " + quoted(phantom()) + " --headless --steps 1 --igtl localhost:18944 --igtl-bind 0.0.0.0");
     EXPECT_EQ(connecting.exit_code, 2) << connecting.output;
     EXPECT_NE(connecting.output.find("--igtl-bind sets where heartsim listens"), std::string::npos) << connecting.output;
+    for (const std::string option : {"--igtl-bind 0.0.0.0", "--igtl-frame lps"}) {
+        const auto alone = run_heartsim("run " + quoted(phantom()) + " --headless --steps 1 " + option);
+        EXPECT_EQ(alone.exit_code, 2) << alone.output;
+        EXPECT_NE(alone.output.find("it needs --igtl PORT"), std::string::npos) << alone.output;
+    }
 }
 
 #endif
