@@ -125,8 +125,9 @@ void sort_along(std::vector<Crossing>& crossings) {
 /// to the axis at `rim_radius`, each the interval containing s = 0 or nearest it, within `reach`.
 /// The angles are offset by an irrational fraction of a turn so the lines miss the edges of a mesh
 /// built with rotational symmetry. Lines whose crossings do not sum to zero (an open mesh) are
-/// skipped. NaN when no line finds a wall.
-double wall_thickness(const FrameMesh& tissue, double rim_radius, double reach) {
+/// skipped. NaN when no line finds a wall. `distances`: each line's distance from s = 0 to its
+/// interval (0 where the interval holds it: the centre lies within the wall there).
+double wall_thickness(const FrameMesh& tissue, double rim_radius, double reach, std::vector<double>& distances) {
     std::vector<double> lengths;
     std::vector<Crossing> crossings;
     for (int line = 0; line < 8; ++line) {
@@ -149,7 +150,7 @@ double wall_thickness(const FrameMesh& tissue, double rim_radius, double reach) 
                 if (distance < nearest) nearest = distance, length = c.along - start;
             }
         }
-        if (winding == 0 && nearest <= reach) lengths.push_back(length);
+        if (winding == 0 && nearest <= reach) lengths.push_back(length), distances.push_back(nearest);
     }
     if (lengths.empty()) return std::numeric_limits<double>::quiet_NaN();
     std::sort(lengths.begin(), lengths.end());
@@ -381,7 +382,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
     const double rim_radius = radius + options.rim_offset_mm;
 
     // 1. The wall's thickness.
-    const double wall = wall_thickness(tissue, rim_radius, radius + options.margin_mm);
+    std::vector<double> wall_distances;
+    const double wall = wall_thickness(tissue, rim_radius, radius + options.margin_mm, wall_distances);
     if (std::isnan(wall)) {
         std::ostringstream what;
         what << "no wall around the defect at " << format_point(defect.centre) << ": no line parallel to its axis " << rim_radius
@@ -510,14 +512,27 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         }
     result.sealed = leak_path.empty();
     const bool covers = has_patch && cover.covered == cover.samples;
-    result.cannot_tell = result.rim_points == 0;
+    // The centre must lie within the wall: on at least half the lines of step 1 the wall's
+    // interval holds s = 0. A centre moved into the blood on either side (beyond the patch, say)
+    // seeds the fill where the opening is not, and the fill then says nothing about the patch.
+    const auto in_wall = std::size_t(std::count(wall_distances.begin(), wall_distances.end(), 0.0));
+    const bool centre_in_wall = 2 * in_wall >= wall_distances.size();
+    result.cannot_tell = result.rim_points == 0 || !centre_in_wall;
     result.closed = result.sealed && covers && !result.cannot_tell;
-    if (result.cannot_tell) {
+    if (result.rim_points == 0) {
         std::ostringstream why;
         why.precision(3);
         why << "cannot tell: no rim point meets the wall (no tissue surface faces the patch's side " << rim_radius
             << " mm from the axis within " << reach << " mm of the defect's centre " << format_point(defect.centre)
             << "; is the centre in the opening?)";
+        result.why = why.str();
+    } else if (!centre_in_wall) {
+        std::sort(wall_distances.begin(), wall_distances.end());
+        std::ostringstream why;
+        why.precision(3);
+        why << "cannot tell: the defect's centre " << format_point(defect.centre) << " is not in the wall (" << in_wall << " of "
+            << wall_distances.size() << " lines along the axis " << rim_radius << " mm from it meet the wall there; the median lies "
+            << wall_distances[wall_distances.size() / 2] << " mm from it along the axis; is the centre in the opening?)";
         result.why = why.str();
     } else if (!has_patch) {
         result.why = "no patch covers the opening";

@@ -28,7 +28,8 @@
 ///     the far side's chamber, has not passed the patch;
 ///  6. the verdict: closed only where rim points were found, the patch covers the opening (every
 ///     point of its disc has the patch over it along the axis, within the wall's reach) and the
-///     fill found no way out; cannot tell where no rim point was found; else open, with why.
+///     fill found no way out; cannot tell where no rim point was found or the wall does not hold
+///     the centre; else open, with why.
 #pragma once
 
 #include <Eigen/Core>
@@ -63,9 +64,10 @@ struct ClosureResult {
     /// The verdict "yes": a patch covers the opening (`covered` is 1), rim points were found and
     /// the fill found no way out (`sealed`). Never true together with `cannot_tell`.
     bool closed = false;
-    /// The verdict "cannot tell": no rim point meets the wall (rim_points is 0), so the check does
-    /// not know where the wall around the opening is (a defect centre in blood, not in the
-    /// opening). `closed` is false; `why` says so.
+    /// The verdict "cannot tell": no rim point meets the wall (rim_points is 0), or the wall does
+    /// not hold the centre (on fewer than half the lines of step 1 the wall's interval contains
+    /// s = 0): the defect's centre is in blood, not in the opening, and the fill from there says
+    /// nothing about the patch. `closed` is false; `why` says so.
     bool cannot_tell = false;
     /// Not closed: why, for a trainer ("the patch does not cover the opening: it lies 34 mm from
     /// the defect's axis", "cannot tell: no rim point meets the wall …"). Empty when closed.

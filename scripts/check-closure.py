@@ -32,7 +32,8 @@ rays through points on rings of the disc) and the fill finds no way out. A patch
 the opening is no closure even where tissue beyond it caps the region.
 
 Prints `defect closed: yes`, `defect closed: no (why)` or `defect closed: cannot tell: why` (no
-rim point meets the wall: the defect's centre is not where the wall is), `reached voxels: N` and
+rim point meets the wall, or the wall does not hold the defect's centre on at least half the lines
+along the axis: the centre is not where the wall is), `reached voxels: N` and
 the share of the opening covered, and when open where the leak passes the rim (`leak passes the
 rim at (x, y, z) mm`, heartsim's ClosureResult::leak_mm by its own rays: the way's voxels at the
 rim's radius with tissue, not patch, below them; or that it goes through the patch; or, where the
@@ -186,7 +187,9 @@ def ray_triangle(origin, direction, a, b, c):
 
 def wall_thickness(positions, triangles, centre, axis, u, v, rim_radius, reach):
     """The median length of the tissue intervals (parity of crossings) of eight lines along the
-    axis at rim_radius, each the interval containing or nearest the wall's middle."""
+    axis at rim_radius, each the interval containing or nearest the wall's middle; and each line's
+    distance from the centre to its interval along the axis (0 where the interval holds it)."""
+    distances = []
     lengths = []
     for line in range(8):
         angle = 2.0 * math.pi * (line + 0.37) / 8.0
@@ -216,11 +219,12 @@ def wall_thickness(positions, triangles, centre, axis, u, v, rim_radius, reach):
                 best = (distance, high - low)
         if best[0] <= reach:
             lengths.append(best[1])
+            distances.append(best[0])
     if not lengths:
         raise BadInput("no wall around the defect at (%.4g, %.4g, %.4g) mm" % centre)
     lengths.sort()
     middle = len(lengths) // 2
-    return lengths[middle] if len(lengths) % 2 else 0.5 * (lengths[middle - 1] + lengths[middle])
+    return (lengths[middle] if len(lengths) % 2 else 0.5 * (lengths[middle - 1] + lengths[middle])), distances
 
 
 def rim_top(positions, triangles, centre, axis, u, v, rim_radius, start, reach, samples=72):
@@ -321,7 +325,7 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
     u = cross(axis, helper)
     u = scale(u, 1.0 / norm(u))
     v = cross(axis, u)
-    wall = wall_thickness(positions, triangles, centre, axis, u, v, radius + rim_offset, radius + margin)
+    wall, distances = wall_thickness(positions, triangles, centre, axis, u, v, radius + rim_offset, radius + margin)
 
     # The region's top: 2 mm above the patch lying on the rim and above the patch's highest point
     # over the cylinder (the triangles with a corner within the cylinder's radius plus their
@@ -333,6 +337,14 @@ def check(positions, triangles, patch_positions, patch_triangles, thickness, cen
         raise CannotTell("no rim point meets the wall: no tissue surface facing the patch's side %.3g mm from the axis "
                          "within %.3g mm of the defect's centre (is the centre in the opening?)"
                          % (radius + rim_offset, radius + margin + 0.5 * wall))
+    # The centre must lie within the wall: on at least half the lines along the axis the wall's
+    # interval holds it. A centre in the blood (beyond the patch, say) seeds a fill that says
+    # nothing about the patch.
+    held = sum(1 for d in distances if d == 0.0)
+    if 2 * held < len(distances):
+        raise CannotTell("the defect's centre is not in the wall: %d of %d lines along the axis %.3g mm from it meet the wall "
+                         "there; the median lies %.3g mm from it (is the centre in the opening?)"
+                         % (held, len(distances), radius + rim_offset, sorted(distances)[len(distances) // 2]))
     surface = max(rim, 0.0)
     # The patch covers the opening where every point of its disc has the patch over it along the
     # axis within the wall's reach: from the wall's far face to the rim's radius above the highest

@@ -474,8 +474,9 @@ TEST(Closure, APatchThatDoesNotCoverTheOpeningNeverClosesIt) {
 TEST(Closure, ADefectCentreInBloodCannotTell) {
     // The defect's centre moved 10 mm down its axis, into the far side's blood under the plate:
     // the wall lies 8 mm above it, within reach, but no rim ray meets a surface facing the patch's
-    // side, so the check cannot tell where the rim is. The fill from the blood up to the disc
-    // lying on the plate finds no way out; the verdict is still not closed.
+    // side, so the check cannot tell where the rim is (nor does the wall hold the centre). The
+    // fill from the blood up to the disc lying on the plate finds no way out; the verdict is
+    // still not closed.
     const Mesh patch = flat_disc(2.0 * sweep_radius, on_plate);
     DefectFrame sunk = defect;
     sunk.centre = Eigen::Vector3d(0.0, 0.0, -10.0);
@@ -486,6 +487,20 @@ TEST(Closure, ADefectCentreInBloodCannotTell) {
     EXPECT_EQ(r.why.rfind("cannot tell: no rim point meets the wall", 0), 0u) << r.why;
     EXPECT_FALSE(r.leak_mm.has_value());
     EXPECT_EQ(leak_place(r), "");
+    // The centre moved 1 mm beyond the disc's upper face, into the patch's side's blood, its axis
+    // turned toward the patch (as the runtime turns it): the plate's underside meets the rim rays
+    // (rim points are found), but the wall lies 1.5 mm from the centre on every line along the
+    // axis, none holds it: the fill would start beyond the patch, so cannot tell.
+    DefectFrame beyond = defect;
+    beyond.centre = Eigen::Vector3d(0.0, 0.0, top + patch_thickness + 1.0);
+    beyond.axis = -Eigen::Vector3d::UnitZ();
+    const ClosureResult b = check_closure(plate().positions, plate().triangles, patch.positions, patch.triangles, patch_thickness, beyond);
+    EXPECT_GT(b.rim_points, 0);
+    EXPECT_TRUE(b.cannot_tell);
+    EXPECT_FALSE(b.closed);
+    EXPECT_EQ(b.why.rfind("cannot tell: the defect's centre", 0), 0u) << b.why;
+    EXPECT_NE(b.why.find("0 of 8 lines"), std::string::npos) << b.why;
+    EXPECT_FALSE(b.leak_mm.has_value());
     // The same patch with the centre where it is: closed, with every rim point.
     const ClosureResult there = check(patch);
     EXPECT_TRUE(there.closed);
@@ -677,6 +692,8 @@ TEST(ClosureScript, SaysNotClosedForAPatchThatDoesNotCoverTheOpening) {
 }
 
 TEST(ClosureScript, CannotTellWithoutARimAndRefusesABrokenPatch) {
+    // The state's defect centre moved into blood: under the plate (no rim point), or just beyond
+    // the patch (the wall does not hold it): the script cannot tell, as heartsim's check.
     const std::filesystem::path folder = std::filesystem::temp_directory_path() / ("heartsim-closure-refuse-" + std::to_string(::getpid()));
     const Mesh on = flat_disc(2.0 * sweep_radius, on_plate);
     // The state's defect centre moved 10 mm into the far side's blood: no rim point (exit 3).
@@ -685,6 +702,13 @@ TEST(ClosureScript, CannotTellWithoutARimAndRefusesABrokenPatch) {
     EXPECT_EQ(run_script(folder / "sunk", on, true, "", Eigen::Isometry3d::Identity(), plate(), sunk), 3) << script_output(folder / "sunk");
     EXPECT_NE(script_output(folder / "sunk").find("defect closed: cannot tell: no rim point meets the wall"), std::string::npos)
         << script_output(folder / "sunk");
+    // Moved 1 mm beyond the disc's upper face: rim points are found (the plate's underside), but no
+    // line along the axis finds the wall holding the centre (exit 3).
+    StateEdits beyond;
+    beyond.defect_centre = Eigen::Vector3d(0.0, 0.0, top + patch_thickness + 1.0);
+    EXPECT_EQ(run_script(folder / "beyond", on, true, "", Eigen::Isometry3d::Identity(), plate(), beyond), 3) << script_output(folder / "beyond");
+    EXPECT_NE(script_output(folder / "beyond").find("defect closed: cannot tell: the defect's centre is not in the wall"), std::string::npos)
+        << script_output(folder / "beyond");
     // The patch as laid not finite, or empty, beside a whole patch after the leak test: refused.
     StateEdits not_finite;
     not_finite.laid_positions = on.positions;
