@@ -16,9 +16,11 @@ namespace heartsim::h5 {
 namespace {
 
 /// HDF5 prints its own error stack by default; every caller reports its own message instead.
+/// A thread-safe HDF5 keeps that setting per thread (a recording written on the window's
+/// simulation thread would print the stack), so each thread turns it off once.
 void quiet() {
-    static std::once_flag once;
-    std::call_once(once, [] { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); });
+    thread_local bool done = false;
+    if (!done) H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr), done = true;
 }
 
 /// Whether the HDF5 call that just failed could not allocate memory (its error stack records

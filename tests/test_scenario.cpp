@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include <fcntl.h>
 #include <hdf5.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -22,6 +23,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <thread>
 
 using namespace heartsim;
 using test::overwrite;
@@ -553,6 +555,48 @@ TEST(Scenario, ASourceDefectOfNoPlausibleSizeOrOutsideItsLabelMapIsRefused) {
         away.source.defect_centre = g.to_world(ijk);
         refused(away, "away.h5", "lies outside the label map it was carved into");
     }
+}
+
+TEST(Scenario, HdfPrintsNothingOfItsOwnOnAnyThread) {
+    // A refusal is one message of ours, whichever thread reads: HDF5's own error stack, which it
+    // prints per thread unless told not to on that thread, never reaches standard error.
+    test::TempDir dir;
+    write_scenario(dir / "whole.h5", sample_scenario());
+    EXPECT_NO_THROW(read_scenario(dir / "whole.h5"));  // this thread has read a file
+    // One flipped bit in the stored masses: HDF5 itself fails the chunk's checksum.
+    write_scenario(dir / "flipped.h5", sample_scenario());
+    const auto [address, stored] = mass_chunk(dir / "flipped.h5");
+    ASSERT_GT(stored, 8u);
+    {
+        std::fstream file(dir / "flipped.h5", std::ios::in | std::ios::out | std::ios::binary);
+        file.seekg(std::streamoff(address + 2));
+        char byte = 0;
+        file.read(&byte, 1);
+        byte ^= 0x10;
+        file.seekp(std::streamoff(address + 2));
+        file.write(&byte, 1);
+    }
+    std::fflush(stderr);
+    const int saved = dup(STDERR_FILENO);
+    const int captured = open((dir / "stderr.txt").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ASSERT_GE(saved, 0);
+    ASSERT_GE(captured, 0);
+    dup2(captured, STDERR_FILENO);
+    std::string message;
+    std::thread([&] {
+        try {
+            read_scenario(dir / "flipped.h5");
+        } catch (const InputError& e) {
+            message = e.what();
+        }
+    }).join();
+    std::fflush(stderr);
+    dup2(saved, STDERR_FILENO);
+    close(saved), close(captured);
+    EXPECT_NE(message.find("particles/mass"), std::string::npos) << message;
+    std::ifstream in(dir / "stderr.txt");
+    const std::string printed((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(printed, "") << "HDF5 printed on the reading thread";
 }
 
 TEST(Scenario, StringsAreStoredFixedLengthInTheChecksummedObjectHeaders) {
