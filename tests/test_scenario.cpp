@@ -92,6 +92,19 @@ ChunkPlace mass_chunk(const std::filesystem::path& file) {
     return place;
 }
 
+/// Flips one bit of the stored masses in `file`: the chunk's Fletcher-32 checksum no longer matches.
+void flip_a_stored_mass_bit(const std::filesystem::path& file) {
+    const auto [address, stored] = mass_chunk(file);
+    ASSERT_GT(stored, 8u);
+    std::fstream bytes(file, std::ios::in | std::ios::out | std::ios::binary);
+    bytes.seekg(std::streamoff(address + 2));
+    char byte = 0;
+    bytes.read(&byte, 1);
+    byte ^= 0x10;
+    bytes.seekp(std::streamoff(address + 2));
+    bytes.write(&byte, 1);
+}
+
 }  // namespace
 
 TEST(Scenario, LatticeDimsBeyondTheSourceVolumeAreRefusedNamingTheAttribute) {
@@ -404,17 +417,7 @@ TEST(Scenario, AFlippedBitASparseHugeDatasetAndAFifoAreRefused) {
 
     // One flipped bit in the stored masses: the chunk's Fletcher-32 checksum no longer matches.
     write_scenario(dir / "flipped.h5", s);
-    const auto [address, stored] = mass_chunk(dir / "flipped.h5");
-    ASSERT_GT(stored, 8u);
-    {
-        std::fstream file(dir / "flipped.h5", std::ios::in | std::ios::out | std::ios::binary);
-        file.seekg(std::streamoff(address + 2));
-        char byte = 0;
-        file.read(&byte, 1);
-        byte ^= 0x10;
-        file.seekp(std::streamoff(address + 2));
-        file.write(&byte, 1);
-    }
+    flip_a_stored_mass_bit(dir / "flipped.h5");
     EXPECT_NE(refusal(dir / "flipped.h5").find("particles/mass: cannot be read (damaged file"), std::string::npos)
         << refusal(dir / "flipped.h5");
 
@@ -565,17 +568,7 @@ TEST(Scenario, HdfPrintsNothingOfItsOwnOnAnyThread) {
     EXPECT_NO_THROW(read_scenario(dir / "whole.h5"));  // this thread has read a file
     // One flipped bit in the stored masses: HDF5 itself fails the chunk's checksum.
     write_scenario(dir / "flipped.h5", sample_scenario());
-    const auto [address, stored] = mass_chunk(dir / "flipped.h5");
-    ASSERT_GT(stored, 8u);
-    {
-        std::fstream file(dir / "flipped.h5", std::ios::in | std::ios::out | std::ios::binary);
-        file.seekg(std::streamoff(address + 2));
-        char byte = 0;
-        file.read(&byte, 1);
-        byte ^= 0x10;
-        file.seekp(std::streamoff(address + 2));
-        file.write(&byte, 1);
-    }
+    flip_a_stored_mass_bit(dir / "flipped.h5");
     std::fflush(stderr);
     const int saved = dup(STDERR_FILENO);
     const int captured = open((dir / "stderr.txt").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
