@@ -335,13 +335,10 @@ Cover cover_opening(const FrameMesh& patch, double radius, double spacing, doubl
     return cover;
 }
 
-}  // namespace
-
-ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_positions, const std::vector<Triangle>& tissue_triangles,
+/// The input checks of check_closure (closure.h says what each throws).
+void require_closure_inputs(const std::vector<std::array<float, 3>>& tissue_positions, const std::vector<Triangle>& tissue_triangles,
                             const std::vector<std::array<float, 3>>& patch_positions, const std::vector<Triangle>& patch_triangles,
                             double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options) {
-    const auto started = std::chrono::steady_clock::now();
-
     if (!(options.voxel_mm > 0.0) || !std::isfinite(options.voxel_mm)) throw OptionError("ClosureOptions::voxel_mm must be a positive number of mm");
     if (!(options.margin_mm >= 0.0) || !std::isfinite(options.margin_mm)) throw OptionError("ClosureOptions::margin_mm must be a number of mm ≥ 0");
     if (options.rim_samples < 1) throw OptionError("ClosureOptions::rim_samples must be at least 1");
@@ -357,10 +354,11 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         throw InputError("the defect's axis must be a unit vector, not one of length " + std::to_string(defect.axis.norm()));
     if (!(defect.diameter_mm > 0.0) || !std::isfinite(defect.diameter_mm)) throw InputError("the defect's diameter must be a positive number of mm");
     if (!(patch_thickness_mm >= 0.0) || !std::isfinite(patch_thickness_mm)) throw InputError("the patch's thickness must be a number of mm ≥ 0");
-    const bool has_patch = !patch_triangles.empty();
-    const double thickness = has_patch ? patch_thickness_mm : 0.0;
+}
 
-    // The defect's frame: x, y across the axis, z along it (right-handed).
+/// The rotation from world axes into the defect's frame: its rows are x, y across the axis and z
+/// along it (right-handed).
+Eigen::Matrix3d defect_frame_rotation(const DefectFrame& defect) {
     const Vector3 z_axis = defect.axis.normalized();
     int least_aligned = 0;
     z_axis.cwiseAbs().minCoeff(&least_aligned);
@@ -368,35 +366,31 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
     const Vector3 y_axis = z_axis.cross(x_axis);
     Eigen::Matrix3d to_frame;
     to_frame << x_axis.transpose(), y_axis.transpose(), z_axis.transpose();
-    auto in_frame = [&](const std::vector<std::array<float, 3>>& positions, const std::vector<Triangle>& triangles) {
-        FrameMesh mesh{std::vector<Vector3>(positions.size()), triangles};
-        for (std::size_t v = 0; v < positions.size(); ++v)
-            mesh.points[v] = to_frame * (Vector3(positions[v][0], positions[v][1], positions[v][2]) - defect.centre);
-        return mesh;
-    };
-    const FrameMesh tissue = in_frame(tissue_positions, tissue_triangles);
-    const FrameMesh patch = in_frame(patch_positions, patch_triangles);
+    return to_frame;
+}
 
-    ClosureResult result;
-    const double radius = 0.5 * defect.diameter_mm;
-    const double rim_radius = radius + options.rim_offset_mm;
+/// A world mesh moved into the defect's frame (origin at its centre, rotated by `to_frame`).
+FrameMesh in_defect_frame(const Eigen::Matrix3d& to_frame, const DefectFrame& defect, const std::vector<std::array<float, 3>>& positions,
+                          const std::vector<Triangle>& triangles) {
+    FrameMesh mesh{std::vector<Vector3>(positions.size()), triangles};
+    for (std::size_t v = 0; v < positions.size(); ++v)
+        mesh.points[v] = to_frame * (Vector3(positions[v][0], positions[v][1], positions[v][2]) - defect.centre);
+    return mesh;
+}
 
-    // 1. The wall's thickness.
-    std::vector<double> wall_distances;
-    const double wall = wall_thickness(tissue, rim_radius, radius + options.margin_mm, wall_distances);
-    if (std::isnan(wall)) {
-        std::ostringstream what;
-        what << "no wall around the defect at " << format_point(defect.centre) << ": no line parallel to its axis " << rim_radius
-             << " mm from it meets tissue within " << radius + options.margin_mm << " mm of the centre";
-        throw InputError(what.str());
-    }
-    result.wall_thickness_mm = wall;
+/// What step 2 found along the rim.
+struct Rim {
+    int points = 0;            ///< rim samples where the tissue surface was found
+    double largest_gap = 0.0;  ///< the largest distance from a rim point to the patch, less half its thickness (0 without a patch)
+    double top = -std::numeric_limits<double>::infinity();  ///< the highest rim point's s
+};
 
-    // 2. The rim: rays along −z from s = T/2 + margin at the rim's radius; the first surface that
-    // faces the patch's side (outward normal along +z) within `reach` of the centre is the rim
-    // point. The triangles that can meet those rays are gathered once.
-    const double reach = radius + options.margin_mm + 0.5 * wall;
-    const double ray_start = 0.5 * wall + options.margin_mm;
+/// Step 2: the rim. Rays along −z from s = `ray_start` at `rim_radius`, `samples` of them evenly
+/// round; the first surface that faces the patch's side (outward normal along +z) within `reach`
+/// of the centre is the rim point there. The triangles that can meet those rays are gathered once.
+/// The gap to the patch is measured only where `has_patch`.
+Rim find_rim(const FrameMesh& tissue, const FrameMesh& patch, bool has_patch, double thickness, double rim_radius, double reach,
+             double ray_start, int samples) {
     std::vector<std::uint32_t> near_rim;
     for (std::size_t t = 0; t < tissue.triangles.size(); ++t) {
         const Vector3 &a = tissue.corner(t, 0), &b = tissue.corner(t, 1), &c = tissue.corner(t, 2);
@@ -405,9 +399,9 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             low.z() <= ray_start)
             near_rim.push_back(std::uint32_t(t));
     }
-    double largest_gap = 0.0, rim_top = -std::numeric_limits<double>::infinity();
-    for (int sample = 0; sample < options.rim_samples; ++sample) {
-        const double angle = 2.0 * std::numbers::pi * (sample + 1e-3 * std::numbers::sqrt2) / options.rim_samples;
+    Rim rim;
+    for (int sample = 0; sample < samples; ++sample) {
+        const double angle = 2.0 * std::numbers::pi * (sample + 1e-3 * std::numbers::sqrt2) / samples;
         const Vector2 point(rim_radius * std::cos(angle), rim_radius * std::sin(angle));
         double hit = -std::numeric_limits<double>::infinity();
         for (std::uint32_t t : near_rim) {
@@ -416,64 +410,51 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             if (cross_along_axis(tissue, t, point, crossing) && crossing.sign < 0 && crossing.along <= ray_start) hit = std::max(hit, crossing.along);
         }
         if (!(rim_radius * rim_radius + hit * hit <= reach * reach)) continue;
-        ++result.rim_points;
-        rim_top = std::max(rim_top, hit);
-        if (has_patch) largest_gap = std::max(largest_gap, distance_to_mesh(Vector3(point.x(), point.y(), hit), patch) - 0.5 * thickness);
+        ++rim.points;
+        rim.top = std::max(rim.top, hit);
+        if (has_patch) rim.largest_gap = std::max(rim.largest_gap, distance_to_mesh(Vector3(point.x(), point.y(), hit), patch) - 0.5 * thickness);
     }
-    result.largest_rim_gap_mm = has_patch && result.rim_points > 0 ? largest_gap : defect.diameter_mm;
+    return rim;
+}
 
-    // 3. The region: the cylinder ρ ≤ D/2 + margin from mid-wall (s = 0) to 2 mm above both the
-    // patch where it lies on the rim (rim top + thickness) and the patch's highest point over the
-    // cylinder (a patch domed into its side rises above the rim). The patch's triangles over the
-    // cylinder: those with a corner within the cylinder's radius plus the triangle's longest edge.
-    const double cylinder = radius + options.margin_mm;
-    double patch_top = -std::numeric_limits<double>::infinity();
+/// The patch's highest point over the cylinder of `radius` round the axis (−∞ where none): the
+/// triangles with a corner within the radius plus the triangle's longest edge across the axis.
+double patch_top_over(const FrameMesh& patch, double radius) {
+    double top = -std::numeric_limits<double>::infinity();
     for (std::size_t t = 0; t < patch.triangles.size(); ++t) {
         const Vector3 &a = patch.corner(t, 0), &b = patch.corner(t, 1), &c = patch.corner(t, 2);
         const double edge = std::max({(b - a).head<2>().norm(), (c - b).head<2>().norm(), (a - c).head<2>().norm()});
-        if (std::min({a.head<2>().norm(), b.head<2>().norm(), c.head<2>().norm()}) <= cylinder + edge)
-            patch_top = std::max({patch_top, a.z(), b.z(), c.z()});
+        if (std::min({a.head<2>().norm(), b.head<2>().norm(), c.head<2>().norm()}) <= radius + edge)
+            top = std::max({top, a.z(), b.z(), c.z()});
     }
-    const double surface = result.rim_points > 0 ? std::max(rim_top, 0.0) : 0.5 * wall;
+    return top;
+}
 
-    // Whether the patch covers the opening: its disc, seen along the axis, under the patch within
-    // the wall's reach, from the wall's far face to the rim's radius above the highest rim point
-    // (a patch held at the rim and domed by the pressure rises over the opening by less: a
-    // hemisphere on the rim rises by its radius). A patch laid away from the opening (across the
-    // axis, or along it beyond the wall) covers none of it.
-    const double reach_low = -0.5 * wall, reach_high = surface + rim_radius + 0.5 * thickness;
-    const Cover cover = cover_opening(patch, radius, std::min(options.voxel_mm, 0.05 * defect.diameter_mm), reach_low, reach_high);
-    result.covered = cover.samples ? double(cover.covered) / double(cover.samples) : 0.0;
-    const double top = std::max(surface + thickness, patch_top + 0.5 * thickness) + 2.0;
-    result.top_mm = top;
-    Grid grid(options.voxel_mm, cylinder, top);
-    if (grid.voxels() > 2e8)
-        throw OptionError("ClosureOptions::voxel_mm " + std::to_string(grid.h) + " makes a grid of " + std::to_string(grid.voxels()) +
-                          " voxels around a cylinder " + std::to_string(2 * cylinder) + " mm across and " + std::to_string(top) +
-                          " mm tall; use a coarser grid");
+/// Step 3: flags the voxels of the region, the cylinder ρ ≤ `radius`, 0 ≤ s ≤ `top`, in a grid
+/// of cleared flags; returns how many there are.
+std::size_t mark_region(Grid& grid, double radius, double top) {
     grid.flags.assign(grid.layer * std::size_t(grid.along.n), 0);
+    std::size_t voxels = 0;
     for (long k = 0; k < grid.along.n; ++k) {
         const double z = grid.along.centre(k);
         if (z < 0.0 || z > top) continue;
         for (long j = 0; j < grid.across.n; ++j)
             for (long i = 0; i < grid.across.n; ++i)
-                if (std::pow(grid.across.centre(i), 2) + std::pow(grid.across.centre(j), 2) <= cylinder * cylinder) {
+                if (std::pow(grid.across.centre(i), 2) + std::pow(grid.across.centre(j), 2) <= radius * radius) {
                     grid.flags[grid.index(i, j, k)] = Grid::in_region;
-                    ++result.voxels;
+                    ++voxels;
                 }
     }
+    return voxels;
+}
 
-    // 4. The tissue's and the patch's voxels. The patch's reach is widened by half a voxel's
-    // diagonal so that no two free voxels meet face to face across it, however thin it is.
-    block_tissue(grid, tissue, cylinder);
-    if (has_patch) block_patch(grid, patch, 0.5 * thickness + 0.5 * std::numbers::sqrt3 * grid.h);
+/// Whether voxel `at` lies in the region's top layer, the fill's targets.
+bool at_top(const Grid& grid, std::size_t at, double top) { return grid.along.centre(long(at / grid.layer)) >= top - grid.h; }
 
-    // 5. Seeds: the opening at mid-wall (s below 1 mm, or one voxel where that is coarser; ρ within
-    // the opening less a voxel). Targets: the region's top layer. The region starts at s = 0, so
-    // a path around the septum through the far side's blood is not in it: the fill looks only for
-    // a way out of the opening past the patch.
-    const double seed_below = std::max(1.0, grid.h), seed_radius = radius - grid.h;
-    auto is_target = [&](std::size_t at) { return grid.along.centre(long(at / grid.layer)) >= top - grid.h; };
+/// Step 5's seeds: the free voxels of the opening at mid-wall (s below `seed_below`, ρ below
+/// `seed_radius`), marked visited; throws InputError where there is none, or where the region's
+/// top layer (`top`, `cylinder` its radius, for the message) has no free voxel to reach.
+std::vector<std::uint32_t> seed_fill(Grid& grid, const DefectFrame& defect, double seed_below, double seed_radius, double top, double cylinder) {
     std::vector<std::uint32_t> queue;
     std::size_t targets = 0;
     for (long k = 1; k + 1 < grid.along.n; ++k)
@@ -485,7 +466,7 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
                     std::pow(grid.across.centre(i), 2) + std::pow(grid.across.centre(j), 2) < seed_radius * seed_radius) {
                     grid.flags[at] |= Grid::visited;
                     queue.push_back(std::uint32_t(at));
-                } else if (is_target(at)) {
+                } else if (at_top(grid, at, top)) {
                     ++targets;
                 }
             }
@@ -502,41 +483,41 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
              << top << " mm above the wall's middle and within " << cylinder << " mm of the axis, is all tissue or patch";
         throw InputError(what.str());
     }
-    grid.flood(queue, Grid::visited, [&](std::size_t at) { return grid.flags[at] == Grid::in_region; });  // not outside, blocked or visited
-    result.reached = queue.size();
-    std::vector<std::uint32_t> leak_path;
-    for (const std::uint32_t at : queue)
-        if (is_target(at)) {
-            grid.flags[at] |= Grid::on_path;
-            leak_path.push_back(at);
-        }
-    result.sealed = leak_path.empty();
-    const bool covers = has_patch && cover.covered == cover.samples;
-    // The centre must lie within the wall: on at least half the lines of step 1 the wall's
-    // interval holds s = 0. A centre moved into the blood on either side (beyond the patch, say)
-    // seeds the fill where the opening is not, and the fill then says nothing about the patch.
-    const auto in_wall = std::size_t(std::count(wall_distances.begin(), wall_distances.end(), 0.0));
-    const bool centre_in_wall = 2 * in_wall >= wall_distances.size();
-    result.cannot_tell = result.rim_points == 0 || !centre_in_wall;
-    result.closed = result.sealed && covers && !result.cannot_tell;
+    return queue;
+}
+
+/// The figures the verdict's reasons quote.
+struct VerdictFigures {
+    double rim_radius = 0.0, reach = 0.0;           ///< step 2's rim radius and reach, mm
+    double reach_low = 0.0, reach_high = 0.0;       ///< the heights within which the patch covers the opening, mm
+    std::size_t in_wall = 0;                        ///< step 1's lines whose wall interval holds the centre
+};
+
+/// Why the verdict is not yes (empty where it is): cannot tell (no rim point, or the centre out of
+/// the wall), no patch, a patch that does not cover the opening (and a way out where the fill
+/// found one too), or a way out past the patch. `wall_distances`: step 1's, per line.
+std::string explain_verdict(const ClosureResult& result, const DefectFrame& defect, const FrameMesh& patch, const Cover& cover,
+                            std::vector<double> wall_distances, const VerdictFigures& figures, bool has_patch, bool covers) {
+    const bool centre_in_wall = 2 * figures.in_wall >= wall_distances.size();
     if (result.rim_points == 0) {
         std::ostringstream why;
         why.precision(3);
-        why << "cannot tell: no rim point meets the wall (no tissue surface faces the patch's side " << rim_radius
-            << " mm from the axis within " << reach << " mm of the defect's centre " << format_point(defect.centre)
+        why << "cannot tell: no rim point meets the wall (no tissue surface faces the patch's side " << figures.rim_radius
+            << " mm from the axis within " << figures.reach << " mm of the defect's centre " << format_point(defect.centre)
             << "; is the centre in the opening?)";
-        result.why = why.str();
-    } else if (!centre_in_wall) {
+        return why.str();
+    }
+    if (!centre_in_wall) {
         std::sort(wall_distances.begin(), wall_distances.end());
         std::ostringstream why;
         why.precision(3);
-        why << "cannot tell: the defect's centre " << format_point(defect.centre) << " is not in the wall (" << in_wall << " of "
-            << wall_distances.size() << " lines along the axis " << rim_radius << " mm from it meet the wall there; the median lies "
+        why << "cannot tell: the defect's centre " << format_point(defect.centre) << " is not in the wall (" << figures.in_wall << " of "
+            << wall_distances.size() << " lines along the axis " << figures.rim_radius << " mm from it meet the wall there; the median lies "
             << wall_distances[wall_distances.size() / 2] << " mm from it along the axis; is the centre in the opening?)";
-        result.why = why.str();
-    } else if (!has_patch) {
-        result.why = "no patch covers the opening";
-    } else if (!covers) {  // and, where the fill found a way out, that too
+        return why.str();
+    }
+    if (!has_patch) return "no patch covers the opening";
+    if (!covers) {  // and, where the fill found a way out, that too
         // Where the patch lies: its vertices' mean, across the axis and along it.
         Vector3 middle = Vector3::Zero();
         for (const Vector3& p : patch.points) middle += p;
@@ -545,25 +526,177 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         why.precision(3);
         why << "the patch does not cover the opening: ";
         if (cover.covered == 0 && cover.anywhere == cover.samples)
-            why << "it lies over it " << middle.z() << " mm from the wall's middle, beyond the wall's reach (" << reach_low << " to "
-                << reach_high << " mm)";
+            why << "it lies over it " << middle.z() << " mm from the wall's middle, beyond the wall's reach (" << figures.reach_low << " to "
+                << figures.reach_high << " mm)";
         else if (cover.covered == 0)
             why << "it lies " << middle.head<2>().norm() << " mm from the defect's axis";
         else
-            why << "it covers " << 100.0 * result.covered << " % of it within the wall's reach (" << reach_low << " to " << reach_high
-                << " mm), its middle " << middle.head<2>().norm() << " mm from the defect's axis";
+            why << "it covers " << 100.0 * result.covered << " % of it within the wall's reach (" << figures.reach_low << " to "
+                << figures.reach_high << " mm), its middle " << middle.head<2>().norm() << " mm from the defect's axis";
         if (!result.sealed) why << "; a way out of the opening passes it";
-        result.why = why.str();
-    } else if (!result.sealed) {
-        result.why = "a way out of the opening passes the patch";
+        return why.str();
     }
+    if (!result.sealed) return "a way out of the opening passes the patch";
+    return {};
+}
+
+/// Where the leak's way out passes the rim, in the defect's frame; none where it never does (it
+/// goes through the patch). `grid`: the fill's flags with the way marked on_path. Per rim
+/// sample's arc (`bins` of them): in each column of voxels at the rim's radius that starts in the
+/// tissue, the free voxels just above the tissue, up to the patch (none where the patch lies on
+/// the tissue), that are on the way, and their heights.
+std::optional<Vector3> leak_past_rim(const Grid& grid, double rim_radius, int bins) {
+    std::vector<std::size_t> columns(std::size_t(bins), 0), count(std::size_t(bins), 0);
+    std::vector<double> height(std::size_t(bins), 0.0);
+    for (long j = 1; j + 1 < grid.across.n; ++j)
+        for (long i = 1; i + 1 < grid.across.n; ++i) {
+            const double x = grid.across.centre(i), y = grid.across.centre(j);
+            if (std::abs(std::hypot(x, y) - rim_radius) > 0.5 * grid.h) continue;
+            const std::size_t bin = std::size_t(
+                std::clamp(long(std::floor((std::atan2(y, x) + std::numbers::pi) / (2.0 * std::numbers::pi) * bins)), 0L, long(bins) - 1));
+            ++columns[bin];
+            auto flags = [&](long layer) { return grid.flags[grid.index(i, j, layer)]; };
+            long k = 1;
+            if (!(flags(k) & Grid::blocked) || (flags(k) & Grid::patch)) continue;  // not on the wall
+            while (k + 1 < grid.along.n && (flags(k) & Grid::blocked) && !(flags(k) & Grid::patch)) ++k;  // the tissue
+            for (; k + 1 < grid.along.n && (flags(k) & Grid::in_region) && !(flags(k) & Grid::blocked); ++k)
+                if (flags(k) & Grid::on_path) ++count[bin], height[bin] += grid.along.centre(k);
+        }
+    // The way's height per arc (its voxels over the arc's columns). The widest arc, and the arcs
+    // next to it the way passes as wide (within a voxel, and at least half as wide): the leak
+    // passes the rim in their middle. Where that is the whole rim (the patch lifted evenly all
+    // round), at the widest arc.
+    std::vector<double> wide(std::size_t(bins), 0.0);
+    for (std::size_t b = 0; b < wide.size(); ++b)
+        if (columns[b] > 0) wide[b] = grid.h * double(count[b]) / double(columns[b]);
+    const long widest = long(std::max_element(wide.begin(), wide.end()) - wide.begin());
+    if (count[std::size_t(widest)] == 0) return std::nullopt;
+    const double as_wide = std::max(wide[std::size_t(widest)] - grid.h, 0.5 * wide[std::size_t(widest)]);
+    auto arc = [&](long b) { return std::size_t((b % bins + bins) % bins); };
+    auto joins = [&](long b) { return count[arc(b)] > 0 && wide[arc(b)] >= as_wide; };
+    long first = widest, last = widest;
+    while (last - first + 1 < bins && joins(first - 1)) --first;
+    while (last - first + 1 < bins && joins(last + 1)) ++last;
+    if (last - first + 1 >= bins) first = last = widest;
+    double sum = 0.0;
+    std::size_t voxels = 0;
+    for (long b = first; b <= last; ++b) sum += height[arc(b)], voxels += count[arc(b)];
+    const double turn = -std::numbers::pi + (0.5 * double(first + last) + 0.5) * 2.0 * std::numbers::pi / bins;
+    return Vector3(rim_radius * std::cos(turn), rim_radius * std::sin(turn), sum / double(voxels));
+}
+
+/// The stitches either side of the leak at `leak` (defect frame): the least turn from it to each,
+/// one way ([0], turning back) and the other ([1], ahead).
+std::array<std::size_t, 2> stitches_either_side(const Vector3& leak, const std::vector<Eigen::Vector3d>& stitches, const Eigen::Matrix3d& to_frame,
+                                                const DefectFrame& defect) {
+    const double at = std::atan2(leak.y(), leak.x());
+    std::array<double, 2> least{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
+    std::array<std::size_t, 2> between{};
+    for (std::size_t s = 0; s < stitches.size(); ++s) {
+        const Vector3 p = to_frame * (stitches[s] - defect.centre);
+        const double turn = std::remainder(std::atan2(p.y(), p.x()) - at, 2.0 * std::numbers::pi);  // (−π, π]
+        const double back = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, ahead = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
+        if (back < least[0]) least[0] = back, between[0] = s;
+        if (ahead < least[1]) least[1] = ahead, between[1] = s;
+    }
+    return between;
+}
+
+}  // namespace
+
+ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_positions, const std::vector<Triangle>& tissue_triangles,
+                            const std::vector<std::array<float, 3>>& patch_positions, const std::vector<Triangle>& patch_triangles,
+                            double patch_thickness_mm, const DefectFrame& defect, const ClosureOptions& options) {
+    const auto started = std::chrono::steady_clock::now();
+    require_closure_inputs(tissue_positions, tissue_triangles, patch_positions, patch_triangles, patch_thickness_mm, defect, options);
+    const bool has_patch = !patch_triangles.empty();
+    const double thickness = has_patch ? patch_thickness_mm : 0.0;
+
+    const Eigen::Matrix3d to_frame = defect_frame_rotation(defect);
+    const FrameMesh tissue = in_defect_frame(to_frame, defect, tissue_positions, tissue_triangles);
+    const FrameMesh patch = in_defect_frame(to_frame, defect, patch_positions, patch_triangles);
+
+    ClosureResult result;
+    const double radius = 0.5 * defect.diameter_mm;
+    const double rim_radius = radius + options.rim_offset_mm;
+
+    // 1. The wall's thickness.
+    std::vector<double> wall_distances;
+    const double wall = wall_thickness(tissue, rim_radius, radius + options.margin_mm, wall_distances);
+    if (std::isnan(wall)) {
+        std::ostringstream what;
+        what << "no wall around the defect at " << format_point(defect.centre) << ": no line parallel to its axis " << rim_radius
+             << " mm from it meets tissue within " << radius + options.margin_mm << " mm of the centre";
+        throw InputError(what.str());
+    }
+    result.wall_thickness_mm = wall;
+
+    // 2. The rim, rays from T/2 + margin down to the surface within `reach` of the centre.
+    const double reach = radius + options.margin_mm + 0.5 * wall;
+    const Rim rim = find_rim(tissue, patch, has_patch, thickness, rim_radius, reach, 0.5 * wall + options.margin_mm, options.rim_samples);
+    result.rim_points = rim.points;
+    result.largest_rim_gap_mm = has_patch && result.rim_points > 0 ? rim.largest_gap : defect.diameter_mm;
+
+    // 3. The region: the cylinder ρ ≤ D/2 + margin from mid-wall (s = 0) to 2 mm above both the
+    // patch where it lies on the rim (rim top + thickness) and the patch's highest point over the
+    // cylinder (a patch domed into its side rises above the rim).
+    const double cylinder = radius + options.margin_mm;
+    const double patch_top = patch_top_over(patch, cylinder);
+    const double surface = result.rim_points > 0 ? std::max(rim.top, 0.0) : 0.5 * wall;
+
+    // Whether the patch covers the opening: its disc, seen along the axis, under the patch within
+    // the wall's reach, from the wall's far face to the rim's radius above the highest rim point
+    // (a patch held at the rim and domed by the pressure rises over the opening by less: a
+    // hemisphere on the rim rises by its radius). A patch laid away from the opening (across the
+    // axis, or along it beyond the wall) covers none of it.
+    const double reach_low = -0.5 * wall, reach_high = surface + rim_radius + 0.5 * thickness;
+    const Cover cover = cover_opening(patch, radius, std::min(options.voxel_mm, 0.05 * defect.diameter_mm), reach_low, reach_high);
+    result.covered = cover.samples ? double(cover.covered) / double(cover.samples) : 0.0;
+    const double top = std::max(surface + thickness, patch_top + 0.5 * thickness) + 2.0;
+    result.top_mm = top;
+    Grid grid(options.voxel_mm, cylinder, top);
+    if (grid.voxels() > 2e8)
+        throw OptionError("ClosureOptions::voxel_mm " + std::to_string(grid.h) + " makes a grid of " + std::to_string(grid.voxels()) +
+                          " voxels around a cylinder " + std::to_string(2 * cylinder) + " mm across and " + std::to_string(top) +
+                          " mm tall; use a coarser grid");
+    result.voxels = mark_region(grid, cylinder, top);
+
+    // 4. The tissue's and the patch's voxels. The patch's reach is widened by half a voxel's
+    // diagonal so that no two free voxels meet face to face across it, however thin it is.
+    block_tissue(grid, tissue, cylinder);
+    if (has_patch) block_patch(grid, patch, 0.5 * thickness + 0.5 * std::numbers::sqrt3 * grid.h);
+
+    // 5. Seeds: the opening at mid-wall (s below 1 mm, or one voxel where that is coarser; ρ within
+    // the opening less a voxel). Targets: the region's top layer. The region starts at s = 0, so
+    // a path around the septum through the far side's blood is not in it: the fill looks only for
+    // a way out of the opening past the patch.
+    std::vector<std::uint32_t> queue = seed_fill(grid, defect, std::max(1.0, grid.h), radius - grid.h, top, cylinder);
+    grid.flood(queue, Grid::visited, [&](std::size_t at) { return grid.flags[at] == Grid::in_region; });  // not outside, blocked or visited
+    result.reached = queue.size();
+    std::vector<std::uint32_t> leak_path;
+    for (const std::uint32_t at : queue)
+        if (at_top(grid, at, top)) {
+            grid.flags[at] |= Grid::on_path;
+            leak_path.push_back(at);
+        }
+
+    // 6. The verdict. The centre must lie within the wall: on at least half the lines of step 1
+    // the wall's interval holds s = 0. A centre moved into the blood on either side (beyond the
+    // patch, say) seeds the fill where the opening is not, and the fill then says nothing about
+    // the patch.
+    result.sealed = leak_path.empty();
+    const bool covers = has_patch && cover.covered == cover.samples;
+    const auto in_wall = std::size_t(std::count(wall_distances.begin(), wall_distances.end(), 0.0));
+    const bool centre_in_wall = 2 * in_wall >= wall_distances.size();
+    result.cannot_tell = result.rim_points == 0 || !centre_in_wall;
+    result.closed = result.sealed && covers && !result.cannot_tell;
+    result.why = explain_verdict(result, defect, patch, cover, wall_distances,
+                                 {.rim_radius = rim_radius, .reach = reach, .reach_low = reach_low, .reach_high = reach_high, .in_wall = in_wall},
+                                 has_patch, covers);
     if (!result.sealed && !result.cannot_tell) {
         // The leak's way out past the rim: the reached voxels outside the rim's circle (less half a
         // voxel) that a fill back from the top reaches without coming inside it, so a pocket under
-        // the patch sealed farther out is not on it. Where it passes the rim: in each column of
-        // voxels at the rim's radius that starts in the tissue, the free voxels just above the
-        // tissue, up to the patch (none where the patch lies on the tissue; up to the top where no
-        // patch covers it), that are on the way.
+        // the patch sealed farther out is not on it.
         const double inside = rim_radius - 0.5 * grid.h;
         grid.flood(leak_path, Grid::on_path, [&](std::size_t at) {  // reached, not yet on the way, and outside
             if (grid.flags[at] != (Grid::in_region | Grid::visited)) return false;
@@ -572,45 +705,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
         });
         Vector3 leak = Vector3::Zero();  // no patch: the opening itself
         if (has_patch) {
-            // Per rim sample's arc: the columns there, and the voxels and their heights on the way.
-            const int bins = options.rim_samples;
-            std::vector<std::size_t> columns(std::size_t(bins), 0), count(std::size_t(bins), 0);
-            std::vector<double> height(std::size_t(bins), 0.0);
-            for (long j = 1; j + 1 < grid.across.n; ++j)
-                for (long i = 1; i + 1 < grid.across.n; ++i) {
-                    const double x = grid.across.centre(i), y = grid.across.centre(j);
-                    if (std::abs(std::hypot(x, y) - rim_radius) > 0.5 * grid.h) continue;
-                    const std::size_t bin = std::size_t(
-                        std::clamp(long(std::floor((std::atan2(y, x) + std::numbers::pi) / (2.0 * std::numbers::pi) * bins)), 0L, long(bins) - 1));
-                    ++columns[bin];
-                    auto flags = [&](long layer) { return grid.flags[grid.index(i, j, layer)]; };
-                    long k = 1;
-                    if (!(flags(k) & Grid::blocked) || (flags(k) & Grid::patch)) continue;  // not on the wall
-                    while (k + 1 < grid.along.n && (flags(k) & Grid::blocked) && !(flags(k) & Grid::patch)) ++k;  // the tissue
-                    for (; k + 1 < grid.along.n && (flags(k) & Grid::in_region) && !(flags(k) & Grid::blocked); ++k)
-                        if (flags(k) & Grid::on_path) ++count[bin], height[bin] += grid.along.centre(k);
-                }
-            // The way's height per arc (its voxels over the arc's columns). The widest arc, and
-            // the arcs next to it the way passes as wide (within a voxel, and at least half as
-            // wide): the leak passes the rim in their middle. Where that is the whole rim (the
-            // patch lifted evenly all round), at the widest arc.
-            std::vector<double> wide(std::size_t(bins), 0.0);
-            for (std::size_t b = 0; b < wide.size(); ++b)
-                if (columns[b] > 0) wide[b] = grid.h * double(count[b]) / double(columns[b]);
-            const long widest = long(std::max_element(wide.begin(), wide.end()) - wide.begin());
-            if (count[std::size_t(widest)] > 0) {
-                const double as_wide = std::max(wide[std::size_t(widest)] - grid.h, 0.5 * wide[std::size_t(widest)]);
-                auto arc = [&](long b) { return std::size_t((b % bins + bins) % bins); };
-                auto joins = [&](long b) { return count[arc(b)] > 0 && wide[arc(b)] >= as_wide; };
-                long first = widest, last = widest;
-                while (last - first + 1 < bins && joins(first - 1)) --first;
-                while (last - first + 1 < bins && joins(last + 1)) ++last;
-                if (last - first + 1 >= bins) first = last = widest;
-                double sum = 0.0;
-                std::size_t voxels = 0;
-                for (long b = first; b <= last; ++b) sum += height[arc(b)], voxels += count[arc(b)];
-                const double turn = -std::numbers::pi + (0.5 * double(first + last) + 0.5) * 2.0 * std::numbers::pi / bins;
-                leak = Vector3(rim_radius * std::cos(turn), rim_radius * std::sin(turn), sum / double(voxels));
+            if (const std::optional<Vector3> past_rim = leak_past_rim(grid, rim_radius, options.rim_samples)) {
+                leak = *past_rim;
                 result.leak_way = ClosureResult::LeakWay::rim;
             } else {  // the way out never passes the rim (through the patch): where it reaches the top
                 result.leak_way = ClosureResult::LeakWay::through_patch;
@@ -618,20 +714,8 @@ ClosureResult check_closure(const std::vector<std::array<float, 3>>& tissue_posi
             }
         }
         result.leak_mm = defect.centre + to_frame.transpose() * leak;
-        if (result.leak_way == ClosureResult::LeakWay::rim && !options.stitches.empty()) {
-            // The stitches either side of it: the least turn from it to each, one way and the other.
-            const double at = std::atan2(leak.y(), leak.x());
-            std::array<double, 2> least{std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
-            std::array<std::size_t, 2> between{};
-            for (std::size_t s = 0; s < options.stitches.size(); ++s) {
-                const Vector3 p = to_frame * (options.stitches[s] - defect.centre);
-                const double turn = std::remainder(std::atan2(p.y(), p.x()) - at, 2.0 * std::numbers::pi);  // (−π, π]
-                const double back = turn <= 0 ? -turn : 2.0 * std::numbers::pi - turn, ahead = turn > 0 ? turn : 2.0 * std::numbers::pi + turn;
-                if (back < least[0]) least[0] = back, between[0] = s;
-                if (ahead < least[1]) least[1] = ahead, between[1] = s;
-            }
-            result.leak_between = between;
-        }
+        if (result.leak_way == ClosureResult::LeakWay::rim && !options.stitches.empty())
+            result.leak_between = stitches_either_side(leak, options.stitches, to_frame, defect);
     } else if (!result.closed && !result.cannot_tell && has_patch) {
         // Sealed but not covered: the opening leaks where the patch leaves it uncovered.
         const Vector2 middle = cover.uncovered_sum / double(cover.samples - cover.covered);
