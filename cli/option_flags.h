@@ -2,8 +2,9 @@
 /// @brief From an option's meaning to a program's flag. libmodel names the option a message is
 /// about by what it means, in braces (`{LayoutOptions::occupancy} must be in (0, 1]`), since it
 /// knows no command line (libmodel/errors.h OptionError); heartprep spells it as its flag
-/// (`--occupancy must be in (0, 1]`) where it prints an error or a warning. heartsim has none of
-/// these options (its scenario holds what they chose), so only heartprep has a table.
+/// (`--occupancy must be in (0, 1]`) where it prints an error or a warning. The runtime's parts
+/// below heartsim's command line (the live link, the section plane, the haptic run, the plans)
+/// name their options the same way, and heartsim spells them with its own table.
 #pragma once
 
 #include <span>
@@ -79,6 +80,28 @@ inline constexpr OptionFlag heartprep_flags[] = {
     {"PhantomOptions::vsd_position", "--vsd-position"},
     {"PhantomOptions::radius_mm", "--radius"},
     {"PhantomOptions::inner_radius_mm", "--inner-radius"},
+};
+
+/// heartsim's flags for the options its runtime parts name (runtime/slicer_link.h,
+/// section_plane.h, real_time.h, trajectory.h, incision_plan.h, repair_plan.h,
+/// haptics/haptic_run.h).
+inline constexpr OptionFlag heartsim_flags[] = {
+    {"SlicerLinkOptions::endpoint", "--igtl"},
+    {"SlicerLinkOptions::bind", "--igtl-bind"},
+    {"SlicerLinkOptions::mesh_rate_hz", "--igtl-mesh-rate"},
+    {"RealTimeMode", "--real-time"},
+    {"SectionRequest", "--clip"},
+    {"fixed_probe", "--probe"},
+    {"fixed_grabber", "--grab"},
+    {"IncisionPlanOptions::approach", "--approach"},
+    {"RepairPlanOptions::side", "--side"},
+    {"RepairPlanOptions::stitches", "--stitches"},
+    {"RepairPlanOptions::rim_mm", "--rim"},
+    {"RepairPlanOptions::thickness_mm", "--thickness"},
+    {"RepairPlanOptions::patch_diameter_mm", "--patch-diameter"},
+    {"HapticRunSettings::devices", "--device"},
+    {"HapticRunSettings::instruments", "--instrument"},
+    {"HapticRunSettings::record", "--record"},
 };
 
 }  // namespace heartsim::cli

@@ -12,6 +12,7 @@
 #include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "cli/exit_codes.h"
+#include "cli/option_flags.h"
 #include "libmodel/text.h"
 
 #include <CLI/CLI.hpp>
@@ -315,9 +316,10 @@ int main(int argc, char** argv) {
     cli_messages::require_finite_numbers(app);
     app.footer(heartsim_exit_status_help);
     // Every failure is one line `heartsim: error: FILE: what` and an exit status of the table in
-    // cli/exit_codes.h (docs/user-guide.md, "Exit status").
+    // cli/exit_codes.h (docs/user-guide.md, "Exit status"); an option the runtime's parts name by
+    // its meaning is spelled as heartsim's flag (cli/option_flags.h).
     auto fail = [](ExitCode code, const std::string& message) {
-        std::fprintf(stderr, "heartsim: error: %s\n", one_line(message).c_str());
+        std::fprintf(stderr, "heartsim: error: %s\n", one_line(cli::spell_options(message, cli::heartsim_flags)).c_str());
         return exit_status(code);
     };
     try {
