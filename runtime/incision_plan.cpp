@@ -1,6 +1,5 @@
 #include "runtime/incision_plan.h"
 
-#include "cli/command_errors.h"
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
 
@@ -140,7 +139,7 @@ double wall_thickness(const Scenario& scenario, std::size_t from, const Eigen::V
 IncisionApproach parse_incision_approach(const std::string& name) {
     if (name == "ventriculotomy") return IncisionApproach::ventriculotomy;
     if (name == "atriotomy") return IncisionApproach::atriotomy;
-    throw UsageError("--approach '" + name + "': expected ventriculotomy or atriotomy");
+    throw OptionError("{IncisionPlanOptions::approach} '" + name + "': expected ventriculotomy or atriotomy");
 }
 
 const char* to_string(IncisionApproach approach) {

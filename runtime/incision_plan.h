@@ -44,7 +44,7 @@ enum class IncisionApproach { ventriculotomy, atriotomy };
 /// spacing more (the tissue reaches half a spacing beyond its last particle).
 double wall_thickness(const Scenario& scenario, std::size_t from, const Eigen::Vector3d& direction);
 
-/// "ventriculotomy" or "atriotomy"; UsageError otherwise.
+/// "ventriculotomy" or "atriotomy"; OptionError naming {IncisionPlanOptions::approach} otherwise.
 IncisionApproach parse_incision_approach(const std::string& name);
 const char* to_string(IncisionApproach approach);
 

@@ -1,6 +1,5 @@
 #include "runtime/real_time.h"
 
-#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 
 #include <cmath>
@@ -13,7 +12,7 @@ namespace heartsim {
 RealTimeMode parse_real_time_mode(const std::string& text) {
     if (text == "auto") return RealTimeMode::automatic;
     if (text == "off") return RealTimeMode::off;
-    throw UsageError("--real-time must be auto or off, not '" + text + "'");
+    throw OptionError("{RealTimeMode} must be auto or off, not '" + text + "'");
 }
 
 std::string mass_scale_cost(double mass_scale) {
@@ -29,7 +28,7 @@ double MassScaleGovernor::assumed_factor_from_environment() {
     char* end = nullptr;
     const double value = std::strtod(text, &end);
     if (end == text || *end != '\0' || !(value > 0) || !std::isfinite(value))
-        throw UsageError(std::string("HEARTSIM_ASSUME_REAL_TIME_FACTOR must be a positive number, not '") + text + "'");
+        throw OptionError(std::string("HEARTSIM_ASSUME_REAL_TIME_FACTOR must be a positive number, not '") + text + "'");
     return value;
 }
 

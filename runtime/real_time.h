@@ -19,7 +19,7 @@ namespace heartsim {
 
 /// `--real-time`: auto (the governor chooses S) or off (S stays what --mass-scale gives, 1 unless).
 enum class RealTimeMode { automatic, off };
-/// "auto" or "off"; throws UsageError otherwise.
+/// "auto" or "off"; throws OptionError naming {RealTimeMode} otherwise.
 RealTimeMode parse_real_time_mode(const std::string& text);
 
 /// The closed-form cost of S for messages and the HUD: "transients 2× slower, forces at rest

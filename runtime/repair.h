@@ -17,6 +17,7 @@
 #include "libmodel/closure.h"
 #include "libmodel/patch.h"
 #include "runtime/backend.h"
+#include "runtime/patch_stepper.h"
 
 #include <memory>
 #include <optional>

@@ -1,6 +1,5 @@
 #include "runtime/repair_plan.h"
 
-#include "cli/command_errors.h"
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
 #include "runtime/incision_plan.h"
@@ -123,7 +122,7 @@ RepairSide parse_repair_side(const std::string& name) {
     if (name == "left") return RepairSide::left;
     if (name == "a") return RepairSide::a;
     if (name == "b") return RepairSide::b;
-    throw UsageError("--side '" + name + "': expected auto, right, left, a (the axis's tail) or b (its head)");
+    throw OptionError("{RepairPlanOptions::side} '" + name + "': expected auto, right, left, a (the axis's tail) or b (its head)");
 }
 
 const char* to_string(RepairSide side) {
@@ -189,11 +188,11 @@ RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& o) {
 namespace {
 
 RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) {
-    if (o.stitches != 0 && o.stitches < 3) throw OptionError("--stitches " + std::to_string(o.stitches) + ": a patch needs at least 3 stitches");
+    if (o.stitches != 0 && o.stitches < 3) throw OptionError("{RepairPlanOptions::stitches} " + std::to_string(o.stitches) + ": a patch needs at least 3 stitches");
     if (!(o.stitch_spacing_mm > 0)) throw OptionError("the stitches' spacing must be above 0 mm");
-    if (!(o.rim_mm > 0)) throw OptionError("--rim " + number_text(o.rim_mm, 2) + ": expected a distance above 0 mm beyond the opening's edge");
-    if (!(o.thickness_mm > 0)) throw OptionError("--thickness " + number_text(o.thickness_mm, 2) + ": expected a thickness above 0 mm");
-    if (o.patch_diameter_mm < 0) throw OptionError("--patch-diameter " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
+    if (!(o.rim_mm > 0)) throw OptionError("{RepairPlanOptions::rim_mm} " + number_text(o.rim_mm, 2) + ": expected a distance above 0 mm beyond the opening's edge");
+    if (!(o.thickness_mm > 0)) throw OptionError("{RepairPlanOptions::thickness_mm} " + number_text(o.thickness_mm, 2) + ": expected a thickness above 0 mm");
+    if (o.patch_diameter_mm < 0) throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
     const ScenarioSource& source = scenario.source;
     if (source.defect.empty())
         throw InputError("the scenario has no defect (its /source carries none): build it with heartprep build LABELS -o CASE.h5 "
@@ -229,9 +228,9 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
     plan.patch_diameter_mm = o.patch_diameter_mm > 0 ? o.patch_diameter_mm : plan.defect_diameter_mm + 2.0 * (o.rim_mm + 2.0);
     plan.patch_thickness_mm = o.thickness_mm;
     if (!(plan.patch_diameter_mm > 2.0 * plan.stitch_radius_mm))
-        throw OptionError("--patch-diameter " + number_text(plan.patch_diameter_mm) + " mm does not reach beyond the stitches: they lie on a circle " +
+        throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(plan.patch_diameter_mm) + " mm does not reach beyond the stitches: they lie on a circle " +
                           number_text(2.0 * plan.stitch_radius_mm) + " mm across (the defect's " + number_text(plan.defect_diameter_mm) +
-                          " mm and --rim " + number_text(o.rim_mm) + " mm each side); give a larger diameter");
+                          " mm and {RepairPlanOptions::rim_mm} " + number_text(o.rim_mm) + " mm each side); give a larger diameter");
 
     // The circle's first direction: superior (+z) across the axis, or anterior (−y) where the axis
     // is within 25° of superior-inferior; the second makes them counter-clockwise seen from outside.

@@ -62,7 +62,7 @@ namespace heartsim {
 /// rim is too rough for a patch to lie on and the left's is not (RepairPlanOptions::rough_rim_mm).
 enum class RepairSide { automatic, right, left, a, b };
 
-/// "auto", "right", "left", "a" or "b"; UsageError naming --side otherwise.
+/// "auto", "right", "left", "a" or "b"; OptionError naming {RepairPlanOptions::side} otherwise.
 RepairSide parse_repair_side(const std::string& name);
 const char* to_string(RepairSide side);
 

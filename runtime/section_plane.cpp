@@ -1,7 +1,7 @@
 // The section view's plane: section_plane.h; docs/runtime.md "Section view".
 #include "runtime/section_plane.h"
 
-#include "cli/command_errors.h"
+#include "libmodel/errors.h"
 #include "formats/csv.h"
 #include "libmodel/plausible.h"
 
@@ -52,12 +52,12 @@ void aim_at_section(Camera& camera, const SectionPlane& plane) {
 SectionRequest parse_section_option(const std::string& text) {
     if (text == "centre" || text == "center") return {.facing_view = true, .plane = {}};
     if (text == "defect") return {.through_defect = true, .plane = {}};
-    const std::string expected = "--clip '" + text +
+    const std::string expected = "{SectionRequest} '" + text +
                                  "': expected PX,PY,PZ,NX,NY,NZ (a point of the plane and its normal, mm, world LPS; the side the "
                                  "normal points to is not drawn), centre (through the heart's centre, facing the camera) or defect (across the "
                                  "scenario's septal defect)";
     const std::vector<std::string> fields = csv_fields(text);
-    if (fields.size() != 6) throw UsageError(expected);
+    if (fields.size() != 6) throw OptionError(expected);
     double v[6];
     for (std::size_t k = 0; k < 6; ++k) {
         std::size_t used = 0;
@@ -69,19 +69,19 @@ SectionRequest parse_section_option(const std::string& text) {
         } catch (const std::exception&) {
             used = 0;
         }
-        if (!overflow && (used == 0 || used != fields[k].size())) throw UsageError(expected);
-        if (overflow || !std::isfinite(v[k])) throw UsageError("--clip '" + text + "': '" + fields[k] + "' is not a finite number");
+        if (!overflow && (used == 0 || used != fields[k].size())) throw OptionError(expected);
+        if (overflow || !std::isfinite(v[k])) throw OptionError("{SectionRequest} '" + text + "': '" + fields[k] + "' is not a finite number");
     }
     // The point as a trajectory's positions (plausible::coordinate_mm: a float keeps them to the µm).
     for (int a = 0; a < 3; ++a)
         if (!plausible::coordinate_mm.contains(v[a]))
-            throw UsageError("--clip '" + text + "': " + plausible::outside(std::string("P") + "XYZ"[a], v[a], plausible::coordinate_mm));
+            throw OptionError("{SectionRequest} '" + text + "': " + plausible::outside(std::string("P") + "XYZ"[a], v[a], plausible::coordinate_mm));
     // The normal's length does not matter, only its direction: scaled by its largest component
     // first, so no size of finite numbers overflows on the way to unit length.
     const Eigen::Vector3d given(v[3], v[4], v[5]);
     const double largest = given.cwiseAbs().maxCoeff();
     if (largest == 0.0)
-        throw UsageError("--clip '" + text + "': the normal (" + fields[3] + ", " + fields[4] + ", " + fields[5] +
+        throw OptionError("{SectionRequest} '" + text + "': the normal (" + fields[3] + ", " + fields[4] + ", " + fields[5] +
                          ") is zero; give the direction of the side to remove, e.g. 0,-1,0 for the anterior half");
     const Eigen::Vector3d normal = (given / largest).normalized();
     return {.facing_view = false,

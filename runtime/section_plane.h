@@ -62,7 +62,7 @@ SectionPlane section_through_defect(const Camera& camera, const Eigen::Vector3f&
 void aim_at_section(Camera& camera, const SectionPlane& plane);
 
 /// Reads `--clip`'s value: "PX,PY,PZ,NX,NY,NZ" (a point and a normal, world LPS mm; the side the
-/// normal points to is removed), "centre" ("center" too) or "defect". Throws UsageError naming --clip when
+/// normal points to is removed), "centre" ("center" too) or "defect". Throws OptionError naming {SectionRequest} when
 /// it is neither, a number is not finite, a coordinate is beyond 10^6 mm, or the normal is zero.
 SectionRequest parse_section_option(const std::string& text);
 

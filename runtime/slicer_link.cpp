@@ -7,7 +7,7 @@
 // cannot use.
 #include "runtime/slicer_link.h"
 
-#include "cli/command_errors.h"
+#include "libmodel/errors.h"
 
 #include <cstdio>
 
@@ -50,7 +50,7 @@ namespace heartsim {
 bool slicer_link_available() { return false; }
 
 std::unique_ptr<SlicerLink> SlicerLink::open(const SlicerLinkOptions&) {
-    throw UsageError("--igtl: this heartsim was built without OpenIGTLink, so it cannot stream to 3D Slicer (install "
+    throw OptionError("{SlicerLinkOptions::endpoint}: this heartsim was built without OpenIGTLink, so it cannot stream to 3D Slicer (install "
                      "libopenigtlink-dev, e.g. with scripts/install-deps.sh, and build again with the CMake option "
                      "HEARTSIM_WITH_OPENIGTLINK on, its default)");
 }
@@ -255,25 +255,25 @@ const char* state_name(SlicerLink::State state) {
     return "running";
 }
 
-/// "PORT" or "HOST:PORT"; UsageError otherwise.
+/// "PORT" or "HOST:PORT"; OptionError naming {SlicerLinkOptions::endpoint} otherwise.
 struct Endpoint {
     std::string host;  ///< empty: listen
     int port = 0;
 };
 
 Endpoint parse_endpoint(const std::string& text) {
-    const std::string usage = "--igtl '" + text +
-                              "': expected PORT (heartsim listens there, e.g. --igtl 18944) or HOST:PORT (heartsim connects to a "
-                              "Slicer server there, e.g. --igtl localhost:18944), the port from 1 to 65535";
+    const std::string usage = "{SlicerLinkOptions::endpoint} '" + text +
+                              "': expected PORT (heartsim listens there, e.g. {SlicerLinkOptions::endpoint} 18944) or HOST:PORT (heartsim "
+                              "connects to a Slicer server there, e.g. {SlicerLinkOptions::endpoint} localhost:18944), the port from 1 to 65535";
     Endpoint endpoint;
     const auto colon = text.rfind(':');
     const std::string port = colon == std::string::npos ? text : text.substr(colon + 1);
     if (colon != std::string::npos) endpoint.host = text.substr(0, colon);
-    if (colon != std::string::npos && endpoint.host.empty()) throw UsageError(usage);
+    if (colon != std::string::npos && endpoint.host.empty()) throw OptionError(usage);
     if (port.empty() || port.size() > 5 || !std::all_of(port.begin(), port.end(), [](char c) { return c >= '0' && c <= '9'; }))
-        throw UsageError(usage);
+        throw OptionError(usage);
     endpoint.port = std::stoi(port);
-    if (endpoint.port < 1 || endpoint.port > 65535) throw UsageError(usage);
+    if (endpoint.port < 1 || endpoint.port > 65535) throw OptionError(usage);
     return endpoint;
 }
 
@@ -325,8 +325,8 @@ class IgtlLink final : public SlicerLink {
 public:
     IgtlLink(const SlicerLinkOptions& options, Endpoint endpoint) : options_(options), endpoint_(std::move(endpoint)) {
         if (!(options_.pose_rate_hz > 0) || !(options_.mesh_rate_hz > 0))
-            throw UsageError("--igtl-mesh-rate: expected a rate above 0 Hz");
-        if (::pipe2(wake_, O_CLOEXEC | O_NONBLOCK) != 0) throw UsageError(std::string("--igtl: cannot make a pipe: ") + std::strerror(errno));
+            throw OptionError("{SlicerLinkOptions::mesh_rate_hz}: expected a rate above 0 Hz");
+        if (::pipe2(wake_, O_CLOEXEC | O_NONBLOCK) != 0) throw OptionError(std::string("{SlicerLinkOptions::endpoint}: cannot make a pipe: ") + std::strerror(errno));
         if (endpoint_.host.empty()) listen_now();
     }
     ~IgtlLink() override {
@@ -446,15 +446,15 @@ private:
     const char* frame_name() const { return options_.ras ? "RAS" : "LPS"; }
 
     void listen_now() {
-        const std::string option = "--igtl " + std::to_string(endpoint_.port);
+        const std::string option = "{SlicerLinkOptions::endpoint} " + std::to_string(endpoint_.port);
         sockaddr_in address{};
         address.sin_family = AF_INET;
         address.sin_port = htons(std::uint16_t(endpoint_.port));
         if (::inet_pton(AF_INET, options_.bind.c_str(), &address.sin_addr) != 1)
-            throw UsageError("--igtl-bind '" + options_.bind + "': expected an IPv4 address of this machine to listen on: 127.0.0.1 (this "
+            throw OptionError("{SlicerLinkOptions::bind} '" + options_.bind + "': expected an IPv4 address of this machine to listen on: 127.0.0.1 (this "
                              "machine only, the default), 0.0.0.0 (every interface) or one interface's, e.g. 192.168.1.20");
         listen_fd_ = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-        if (listen_fd_ < 0) throw UsageError(option + ": cannot open a socket: " + std::strerror(errno));
+        if (listen_fd_ < 0) throw OptionError(option + ": cannot open a socket: " + std::strerror(errno));
         // A port a heartsim closed a moment ago (TIME_WAIT) is free to take again; one that a program
         // listens on is not (Linux refuses the bind either way).
         int on = 1;
@@ -464,15 +464,15 @@ private:
             ::close(listen_fd_);
             listen_fd_ = -1;
             if (error == EADDRINUSE)
-                throw UsageError(option + ": port " + std::to_string(endpoint_.port) +
-                                 " is in use by another program (another heartsim, or a Slicer connector in server mode?); give a "
-                                 "free one, e.g. --igtl " + std::to_string(endpoint_.port < 65535 ? endpoint_.port + 1 : 18944));
+                throw OptionError(option + ": port " + std::to_string(endpoint_.port) +
+                                  " is in use by another program (another heartsim, or a Slicer connector in server mode?); give a "
+                                  "free one, e.g. {SlicerLinkOptions::endpoint} " + std::to_string(endpoint_.port < 65535 ? endpoint_.port + 1 : 18944));
             if (error == EACCES)
-                throw UsageError(option + ": ports below 1024 need privileges; give one from 1024 to 65535 (Slicer's default is 18944)");
+                throw OptionError(option + ": ports below 1024 need privileges; give one from 1024 to 65535 (Slicer's default is 18944)");
             if (error == EADDRNOTAVAIL)
-                throw UsageError("--igtl-bind " + options_.bind + ": not an address of this machine; give one of its interfaces', "
-                                 "127.0.0.1 or 0.0.0.0");
-            throw UsageError(option + ": cannot listen on port " + std::to_string(endpoint_.port) + ": " + std::strerror(error));
+                throw OptionError("{SlicerLinkOptions::bind} " + options_.bind + ": not an address of this machine; give one of its "
+                                  "interfaces', 127.0.0.1 or 0.0.0.0");
+            throw OptionError(option + ": cannot listen on port " + std::to_string(endpoint_.port) + ": " + std::strerror(error));
         }
         set_non_blocking(listen_fd_);
     }

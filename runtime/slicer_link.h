@@ -20,13 +20,16 @@
 /// dropped, a vanished one is noticed, and a Slicer that is not there yet is tried again every
 /// 2 s. Each such event is one line `igtl: …`.
 ///
-///     auto link = SlicerLink::open({.endpoint = "18944"});  // binds 127.0.0.1 now: a port in use is a UsageError
+///     auto link = SlicerLink::open({.endpoint = "18944"});  // binds 127.0.0.1 now: a port in use is an OptionError
 ///     link->start(scenario);                                // the threads (and --igtl-wait)
 ///     … an incision opened the mesh: link->set_drawn_mesh(triangles, mapping);
 ///     … after each step: link->offer(backend, steps, hands, SlicerLink::State::running, patch);
 ///     link->finish(backend, steps, hands, patch);           // the final state, sent within 2 s
 ///
-/// Built without OpenIGTLink (no HEARTSIM_HAVE_OPENIGTLINK), open() throws UsageError saying so.
+/// Built without OpenIGTLink (no HEARTSIM_HAVE_OPENIGTLINK), open() throws OptionError saying so.
+///
+/// The errors name the options by their meaning ({SlicerLinkOptions::endpoint}, …: libmodel/errors.h
+/// OptionError); heartsim spells them as its flags (--igtl, --igtl-bind, --igtl-mesh-rate).
 #pragma once
 
 #include "runtime/backend.h"
@@ -83,7 +86,7 @@ class SlicerLink {
 public:
     enum class State { running, paused, emergency_stop, finished };
 
-    /// Checks the endpoint and, listening, binds the port. Throws UsageError for an endpoint that
+    /// Checks the endpoint and, listening, binds the port. Throws OptionError for an endpoint that
     /// is not PORT or HOST:PORT, a port in use or not permitted, and in a build without OpenIGTLink.
     static std::unique_ptr<SlicerLink> open(const SlicerLinkOptions& options);
     virtual ~SlicerLink() = default;

@@ -3,7 +3,6 @@
 
 #include "formats/csv.h"
 
-#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 
@@ -134,10 +133,11 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
 
 Trajectory read_trajectory(const std::filesystem::path& path) { return parse_trajectory(read_csv_file(path), path.string()); }
 
-// --probe and --grab are options: a value that is not one is a UsageError (exit 2).
+// --probe and --grab are options: a value that is not one is an OptionError naming the option by
+// its meaning (heartsim spells it as its flag, cli/option_flags.h; exit 2).
 InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand) try {
     const auto fields = csv_fields(text);
-    const std::string what = kind == InstrumentKind::probe ? "--probe" : "--grab";
+    const std::string what = kind == InstrumentKind::probe ? "{fixed_probe}" : "{fixed_grabber}";
     if (fields.size() != 6 && !(kind == InstrumentKind::grabber && fields.size() == 9))
         throw InputError(what + " '" + text + "': expected X,Y,Z,AX,AY,AZ" + (kind == InstrumentKind::grabber ? "[,DX,DY,DZ]" : "") + " (mm)");
     std::vector<double> v;
@@ -152,10 +152,10 @@ InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKin
     for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", what);
     k.grab = kind == InstrumentKind::grabber;
     return k;
-} catch (const UsageError&) {
+} catch (const OptionError&) {
     throw;
 } catch (const InputError& e) {
-    throw UsageError(e.what());
+    throw OptionError(e.what());
 }
 
 void ScriptedHands::apply(Backend& backend, int hand, double t_ms, double t_next_ms) {

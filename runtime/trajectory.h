@@ -55,7 +55,8 @@ Trajectory read_trajectory(const std::filesystem::path& path);
 Trajectory parse_trajectory(const std::string& text, const std::string& name);
 
 /// A fixed probe or grabber from the command line: "X,Y,Z,AX,AY,AZ" (mm), a grabber optionally
-/// followed by ",DX,DY,DZ", the distance it pulls over the run.
+/// followed by ",DX,DY,DZ", the distance it pulls over the run. Throws OptionError naming
+/// {fixed_probe} or {fixed_grabber} (heartsim's --probe, --grab) when it is not one.
 InstrumentKeyframe parse_fixed_instrument(const std::string& text, InstrumentKind kind, int hand);
 
 struct ScriptedRunOptions {

@@ -10,7 +10,6 @@
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
 
-#include "cli/command_errors.h"
 #include "libmodel/errors.h"
 #include "libmodel/plausible.h"
 #include "libmodel/text.h"
@@ -38,20 +37,20 @@ std::array<double, 3> to_array(const Eigen::Vector3d& v) { return {v.x(), v.y(),
 void check_record_path(const std::string& record) {
     namespace fs = std::filesystem;
     const fs::path path(record);
-    if (record.back() == '/' || fs::is_directory(path)) throw UsageError("--record " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
+    if (record.back() == '/' || fs::is_directory(path)) throw OptionError("{HapticRunSettings::record} " + record + ": is a folder; give a file, e.g. " + (path / "session.h5").string());
     try {
         check_destination(path);  // the folder exists and takes a file
     } catch (const OutputError& e) {
-        throw OutputError("--record " + std::string(e.what()));
+        throw OutputError("{HapticRunSettings::record} " + std::string(e.what()));
     }
     // A journal there is a session that is recording now, or one that was killed before it could
     // write its recording: never replaced, so nothing of it is lost.
     const fs::path journal = journal_path(path);
     if (fs::exists(journal) || fs::is_symlink(journal)) {
         if (journal_in_use(journal))
-            throw InputError("--record " + record + ": another heartsim session is recording to it now (its journal " + journal.string() +
+            throw InputError("{HapticRunSettings::record} " + record + ": another heartsim session is recording to it now (its journal " + journal.string() +
                              " is open); give another file");
-        throw InputError("--record " + record + ": " + journal.string() + " holds a session that was killed before it could write " + record +
+        throw InputError("{HapticRunSettings::record} " + record + ": " + journal.string() + " holds a session that was killed before it could write " + record +
                          ": `heartsim recover " + journal.string() + "` writes it (to " + record + ", or -o OTHER.h5), or delete " +
                          journal.string() + " to record over it");
     }
@@ -86,14 +85,14 @@ DeviceSpec parse_device_spec(const std::string& text) {
     const char* usage = "expected scripted:FILE, simulated:FILE, mouse or openhaptics[:NAME]";
     if (kind == "scripted" || kind == "simulated") {
         spec.kind = kind == "scripted" ? DeviceSpec::Kind::scripted : DeviceSpec::Kind::simulated;
-        if (spec.argument.empty()) throw UsageError("--device " + text + ": " + kind + " needs a file (" + usage + ")");
+        if (spec.argument.empty()) throw OptionError("{HapticRunSettings::devices} " + text + ": " + kind + " needs a file (" + usage + ")");
     } else if (kind == "mouse") {
         spec.kind = DeviceSpec::Kind::mouse;
-        if (!spec.argument.empty()) throw UsageError("--device " + text + ": mouse takes no argument");
+        if (!spec.argument.empty()) throw OptionError("{HapticRunSettings::devices} " + text + ": mouse takes no argument");
     } else if (kind == "openhaptics") {
         spec.kind = DeviceSpec::Kind::openhaptics;
     } else {
-        throw UsageError("--device " + text + ": unknown device '" + kind + "'; " + usage);
+        throw OptionError("{HapticRunSettings::devices} " + text + ": unknown device '" + kind + "'; " + usage);
     }
     return spec;
 }
@@ -195,7 +194,7 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
     const std::string kind = text.substr(0, colon);
     const std::optional<InstrumentKind> named = instrument_kind_named(kind);
     if (named && *named != InstrumentKind::none) instrument.kind = *named;
-    else throw UsageError("--instrument " + text + ": expected probe, grabber, scalpel, patch or needle, optionally :AX,AY,AZ (semi-axes, mm)");
+    else throw OptionError("{HapticRunSettings::instruments} " + text + ": expected probe, grabber, scalpel, patch or needle, optionally :AX,AY,AZ (semi-axes, mm)");
     switch (instrument.kind) {
     case InstrumentKind::scalpel: instrument.semi_axes = default_blade_semi_axes_mm; break;
     case InstrumentKind::patch: instrument.semi_axes = default_patch_semi_axes_mm; break;
@@ -207,15 +206,15 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
         char extra = 0;
         if (std::sscanf(text.c_str() + colon + 1, "%lf,%lf,%lf%c", &a[0], &a[1], &a[2], &extra) != 3 || !(a[0] > 0) || !(a[1] > 0) ||
             !(a[2] > 0) || !std::isfinite(a[0] + a[1] + a[2]))
-            throw UsageError("--instrument " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
+            throw OptionError("{HapticRunSettings::instruments} " + text + ": semi-axes must be three positive numbers AX,AY,AZ (mm)");
         try {
-            for (double axis : a) plausible::require(axis, plausible::semi_axis_mm, "semi-axis", "--instrument " + text);
+            for (double axis : a) plausible::require(axis, plausible::semi_axis_mm, "semi-axis", "{HapticRunSettings::instruments} " + text);
         } catch (const InputError& e) {
-            throw UsageError(e.what());
+            throw OptionError(e.what());
         }
         instrument.semi_axes = Eigen::Vector3d(a[0], a[1], a[2]);
         if (instrument.kind == InstrumentKind::patch && (std::max(a[0], a[1]) > 50.0 || a[2] > 2.5))
-            throw UsageError("--instrument " + text + ": a patch's half-diameters are at most 50 mm and its half thickness 2.5 mm");
+            throw OptionError("{HapticRunSettings::instruments} " + text + ": a patch's half-diameters are at most 50 mm and its half thickness 2.5 mm");
     }
     return instrument;
 }
@@ -241,9 +240,9 @@ void apply_tool(Backend& backend, int hand, const Instrument& instrument, const 
 HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::string& scenario_name, const HapticRunSettings& settings,
                      const HapticRunContext& context)
     : backend_(backend), settings_(settings) {
-    if (settings.devices.empty() || settings.devices.size() > 2) throw UsageError("--device: give one or two devices (hand 0, hand 1)");
+    if (settings.devices.empty() || settings.devices.size() > 2) throw OptionError("{HapticRunSettings::devices}: give one or two devices (hand 0, hand 1)");
     if (settings.instruments.size() > settings.devices.size())
-        throw UsageError("--instrument: one per --device at most (" + std::to_string(settings.devices.size()) + " devices given)");
+        throw OptionError("{HapticRunSettings::instruments}: one per {HapticRunSettings::devices} at most (" + std::to_string(settings.devices.size()) + " devices given)");
     if (!settings.record.empty()) check_record_path(settings.record);
     std::array<DeviceMapping, 2> mappings;
     const double semi_axis = 1.5 * scenario.lattice.spacing;
@@ -263,7 +262,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
             if (const auto at = file.rfind('@'); at != std::string::npos && (lower_extension(file.substr(0, at)) == ".h5" ||
                                                                               lower_extension(file.substr(0, at)) == ".hdf5")) {
                 const std::string which = file.substr(at + 1);
-                if (which != "0" && which != "1") throw UsageError("--device " + h.spec.text + ": @HAND must be @0 or @1");
+                if (which != "0" && which != "1") throw OptionError("{HapticRunSettings::devices} " + h.spec.text + ": @HAND must be @0 or @1");
                 recorded_hand = which[0] - '0';
                 file = file.substr(0, at);
             }
@@ -294,7 +293,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         case DeviceSpec::Kind::mouse: {
             if (context.headless)
                 throw DeviceUnavailable("--device mouse needs the window; run without --headless, or use scripted:FILE / simulated:FILE");
-            if (window_device_) throw UsageError("--device mouse: only one hand can follow the mouse");
+            if (window_device_) throw OptionError("{HapticRunSettings::devices} mouse: only one hand can follow the mouse");
             auto device = std::make_unique<WindowDevice>();
             window_device_ = device.get();
             DevicePose start;
@@ -358,7 +357,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
 }
 
 InstrumentKind HapticRun::toggle_instrument(int hand, const Instrument& instrument) {
-    if (hand < 0 || hand > 1 || !hands_[hand].device) throw UsageError("haptics: hand " + std::to_string(hand) + " has no device");
+    if (hand < 0 || hand > 1 || !hands_[hand].device) throw std::logic_error("haptics: hand " + std::to_string(hand) + " has no device");
     Hand& h = hands_[hand];
     h.instrument = h.instrument.kind == instrument.kind ? h.own : instrument;
     // The next step places it afresh if it differs from the one the last step held (step(), as a
@@ -370,7 +369,7 @@ InstrumentKind HapticRun::toggle_instrument(int hand, const Instrument& instrume
 }
 
 void HapticRun::start_recording(const std::string& path) {
-    if (recording_on_) throw UsageError("haptics: a recording is on already (" + record_path_ + ")");
+    if (recording_on_) throw std::logic_error("haptics: a recording is on already (" + record_path_ + ")");
     Recording fresh = recording_header_;
     for (int i = 0; i < 2; ++i)  // the instruments in hand now (K may have switched one)
         if (fresh.hands[i].used) {
@@ -397,7 +396,7 @@ void HapticRun::start_recording(const std::string& path) {
 }
 
 std::size_t HapticRun::stop_recording() {
-    if (!window_recording_) throw UsageError("haptics: no recording from the window is on");
+    if (!window_recording_) throw std::logic_error("haptics: no recording from the window is on");
     drain();
     recording_on_ = window_recording_ = false;
     return write_recording_now();

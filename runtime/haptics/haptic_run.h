@@ -63,7 +63,8 @@ inline const Eigen::Vector3d default_needle_semi_axes_mm{0.25, 0.25, 6.0};
 /// `--instrument KIND[:AX,AY,AZ]`: probe, grabber, scalpel, patch or needle, semi-axes mm (default
 /// 1.5 lattice spacings; a scalpel's, a patch's and a needle's defaults are the constants above and
 /// default_blade_semi_axes_mm). Button 1 grabs with a grabber, lowers a scalpel's blade, lays a
-/// patch (runtime/repair.h) and ties a stitch with a needle. Throws UsageError naming the argument.
+/// patch (runtime/repair.h) and ties a stitch with a needle. Throws OptionError naming the argument
+/// and the option by its meaning ({HapticRunSettings::instruments}: heartsim spells it --instrument).
 Instrument parse_instrument(const std::string& text, double default_semi_axis_mm);
 
 struct HapticRunSettings {
