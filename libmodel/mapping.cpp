@@ -431,13 +431,11 @@ std::vector<Eigen::Vector3f> apply_mapping(const VisualMapping& mapping, const s
 
 namespace {
 
-VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, const std::vector<std::array<float, 3>>& rest_positions,
-                       const Lattice* lattice, const SimulationSurface& surface, const MappingOptions& options,
-                       Progress& progress, MappingReport* report_out) {
-    const auto start_time = std::chrono::steady_clock::now();
-    const auto& triangles = surface.triangles;
+/// The input checks of map_visual_mesh (mapping.h says what each throws).
+void require_mapping_inputs(const std::vector<Eigen::Vector3d>& visual_positions, const std::vector<std::array<float, 3>>& rest_positions,
+                            const SimulationSurface& surface) {
     if (visual_positions.empty()) throw InputError("mapping: the visual mesh has no vertices");
-    if (triangles.empty()) throw InputError("mapping: the simulation surface has no triangles");
+    if (surface.triangles.empty()) throw InputError("mapping: the simulation surface has no triangles");
     check_surface(rest_positions.size(), surface);
     for (std::size_t v = 0; v < visual_positions.size(); ++v)
         if (!visual_positions[v].allFinite())
@@ -445,220 +443,238 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
     for (const auto& p : rest_positions)
         if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
             throw InputError("mapping: a particle rest position is not finite");
+}
 
-    const std::size_t particle_count = rest_positions.size();
-    std::vector<Vec3> x(particle_count);
-    for (std::size_t i = 0; i < particle_count; ++i) x[i] = Vec3(rest_positions[i][0], rest_positions[i][1], rest_positions[i][2]);
-    // Solve against the float normals the runtime computes, widened: the float evaluation then
-    // differs from the solved one by rounding only.
-    const std::vector<Eigen::Vector3f> normals_float = particle_normals(rest_positions, surface);
-    std::vector<Vec3> n(particle_count);
-    for (std::size_t i = 0; i < particle_count; ++i) n[i] = normals_float[i].cast<double>();
-    // A normal whose summed (counted) area vectors nearly cancel (|Σ c| < 0.3 Σ|c|) has an
-    // ill-defined direction: avoid triangles that use it. The normal weights remove this at
-    // sheets with exact twins; it remains at thin walls whose two sides are triangulated
-    // differently (staircase or diagonal walls) and at sharp folds.
-    std::vector<char> unstable(particle_count, 0);
-    // Normal sensitivity P_j/|S_j| (mapping.h, MappingReport::amplification): moving the
-    // particles by at most δ turns n_j by at most δ·P_j/|S_j|.
-    std::vector<double> sensitivity(particle_count, std::numeric_limits<double>::infinity());
+/// What the solves need to know of the simulation surface's counted triangles (normal weight 1).
+struct CountedSurface {
+    /// Per particle: a normal whose summed (counted) area vectors nearly cancel (|Σ c| < 0.3 Σ|c|)
+    /// has an ill-defined direction: avoid triangles that use it. The normal weights remove this
+    /// at sheets with exact twins; it remains at thin walls whose two sides are triangulated
+    /// differently (staircase or diagonal walls) and at sharp folds.
+    std::vector<char> unstable;
+    /// Per particle: the normal's sensitivity P_j/|S_j| (mapping.h, MappingReport::amplification):
+    /// moving the particles by at most δ turns n_j by at most δ·P_j/|S_j|.
+    std::vector<double> sensitivity;
+    std::vector<std::int32_t> rows;  ///< the counted triangles' rows: a twin adds nothing new
+    double edge_length = 0.0;        ///< their mean edge length, mm
+};
+
+/// The counted triangles of `surface` over the particles at `x`; throws InputError where none counts.
+CountedSurface counted_surface(const std::vector<Vec3>& x, const SimulationSurface& surface) {
+    const std::size_t particle_count = x.size();
+    const auto& triangles = surface.triangles;
+    CountedSurface counted;
+    counted.unstable.assign(particle_count, 0);
+    counted.sensitivity.assign(particle_count, std::numeric_limits<double>::infinity());
     double edge_sum = 0.0;
-    std::vector<std::int32_t> candidate_rows;  // counted triangles: a twin adds nothing new
-    {
-        std::vector<Vec3> sum(particle_count, Vec3::Zero());
-        std::vector<double> magnitude(particle_count, 0.0), perimeter(particle_count, 0.0);
-        for (std::size_t row = 0; row < triangles.size(); ++row) {
-            if (!surface.normal_weight[row]) continue;
-            candidate_rows.push_back(std::int32_t(row));
-            const auto& t = triangles[row];
-            const Vec3 c = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).cross(x[std::size_t(t[2])] - x[std::size_t(t[0])]);
-            const double edges = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).norm() +
-                                 (x[std::size_t(t[2])] - x[std::size_t(t[1])]).norm() + (x[std::size_t(t[0])] - x[std::size_t(t[2])]).norm();
-            for (int v : t) {
-                sum[std::size_t(v)] += c;
-                magnitude[std::size_t(v)] += c.norm();
-                perimeter[std::size_t(v)] += edges;
-            }
-            edge_sum += edges;
+    std::vector<Vec3> sum(particle_count, Vec3::Zero());
+    std::vector<double> magnitude(particle_count, 0.0), perimeter(particle_count, 0.0);
+    for (std::size_t row = 0; row < triangles.size(); ++row) {
+        if (!surface.normal_weight[row]) continue;
+        counted.rows.push_back(std::int32_t(row));
+        const auto& t = triangles[row];
+        const Vec3 c = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).cross(x[std::size_t(t[2])] - x[std::size_t(t[0])]);
+        const double edges = (x[std::size_t(t[1])] - x[std::size_t(t[0])]).norm() +
+                             (x[std::size_t(t[2])] - x[std::size_t(t[1])]).norm() + (x[std::size_t(t[0])] - x[std::size_t(t[2])]).norm();
+        for (int v : t) {
+            sum[std::size_t(v)] += c;
+            magnitude[std::size_t(v)] += c.norm();
+            perimeter[std::size_t(v)] += edges;
         }
-        for (std::size_t i = 0; i < particle_count; ++i) {
-            unstable[i] = magnitude[i] > 0 && sum[i].norm() < 0.3 * magnitude[i];
-            if (sum[i].norm() > 0) sensitivity[i] = perimeter[i] / sum[i].norm();
+        edge_sum += edges;
+    }
+    for (std::size_t i = 0; i < particle_count; ++i) {
+        counted.unstable[i] = magnitude[i] > 0 && sum[i].norm() < 0.3 * magnitude[i];
+        if (sum[i].norm() > 0) counted.sensitivity[i] = perimeter[i] / sum[i].norm();
+    }
+    if (counted.rows.empty()) throw InputError("mapping: no simulation-surface triangle counts in the particle normals");
+    counted.edge_length = edge_sum / (3.0 * double(counted.rows.size()));
+    return counted;
+}
+
+/// The tangent-space sensitivity bound of a solution (MappingReport::amplification).
+double tangent_amplification(const Solution& s, const Problem& problem, const std::vector<double>& sensitivity) {
+    if (!s.exact) return std::numeric_limits<double>::infinity();
+    const auto& tri = problem.triangles[std::size_t(s.triangle)];
+    double a = s.lambda.cwiseAbs().sum();
+    if (s.offset == 0.0) return a;
+    Vec3 m = Vec3::Zero();
+    double turn = 0.0;
+    for (int k = 0; k < 3; ++k) {
+        m += s.lambda[k] * problem.n[std::size_t(tri[std::size_t(k)])];
+        if (s.lambda[k] != 0.0) turn += std::abs(s.lambda[k]) * sensitivity[std::size_t(tri[std::size_t(k)])];
+    }
+    return m.norm() > 0 ? a + std::abs(s.offset) / m.norm() * turn : std::numeric_limits<double>::infinity();
+}
+
+bool unstable_triangle(const Problem& problem, std::int32_t t) {
+    const auto& tri = problem.triangles[std::size_t(t)];
+    return problem.unstable[std::size_t(tri[0])] || problem.unstable[std::size_t(tri[1])] || problem.unstable[std::size_t(tri[2])];
+}
+
+/// An embedded vertex's normal frame (for shading only): the closest point of the nearest
+/// surface triangle whose particle normals are stable (a frame on normals that nearly cancel
+/// would turn the shading at random), else the closest. `ids`: scratch.
+Solution embedded_frame(const Problem& problem, const mapping_internal::TriangleSearch& search, const Vec3& p, double edge_length,
+                        std::vector<std::int32_t>& ids) {
+    const auto [row, point] = search.closest(p);
+    std::int32_t frame = row;
+    Vec3 frame_lambda;
+    distance_to_triangle(problem.x, problem.triangles[std::size_t(row)], p, frame_lambda);
+    if (unstable_triangle(problem, row)) {
+        double nearest = std::numeric_limits<double>::infinity();
+        ids.clear();
+        search.near(p, (p - point).norm() + edge_length, ids);
+        for (std::int32_t t : ids) {
+            if (unstable_triangle(problem, t)) continue;
+            Vec3 lambda;
+            const double distance = distance_to_triangle(problem.x, problem.triangles[std::size_t(t)], p, lambda);
+            if (distance < nearest || (distance == nearest && t < frame)) nearest = distance, frame = t, frame_lambda = lambda;
         }
     }
-    if (candidate_rows.empty()) throw InputError("mapping: no simulation-surface triangle counts in the particle normals");
-    const double edge_length = edge_sum / (3.0 * double(candidate_rows.size()));
+    Solution s{};
+    s.triangle = frame;
+    s.lambda = frame_lambda;
+    s.offset = 0.0;
+    s.exact = true;
+    return s;
+}
 
-    std::vector<std::array<std::int32_t, 3>> candidate_triangles;
-    candidate_triangles.reserve(candidate_rows.size());
-    for (std::int32_t row : candidate_rows) candidate_triangles.push_back(triangles[std::size_t(row)]);
-    const mapping_internal::TriangleSearch search(x, candidate_triangles, candidate_rows);
-    const Problem problem{x, n, unstable, triangles};
+/// Each visual vertex's solution, in double: embedded in a lattice cell or mapped in tangent space.
+struct VertexSolutions {
+    std::vector<Solution> solutions;  ///< the tangent-space solution, or an embedded vertex's normal frame
+    std::vector<mapping_internal::Embedding> embeddings;  ///< count > 0: the vertex is embedded
+    std::vector<double> amplification;                    ///< the sensitivity bound of the kind chosen
+    std::size_t solves = 0;                               ///< Newton solves over all vertices
+};
+
+/// Solves every visual vertex, in parallel: embedded where `embedder` (none: tangent space only)
+/// embeds it well or better conditioned than the tangent-space solution. Each vertex is solved
+/// independently of the others: deterministic for any thread count.
+VertexSolutions solve_vertices(const std::vector<Eigen::Vector3d>& visual_positions, const Problem& problem,
+                               const mapping_internal::TriangleSearch& search, const CountedSurface& counted,
+                               const mapping_internal::CellEmbedder* embedder, const MappingOptions& options, Progress& progress) {
     const std::size_t count = visual_positions.size();
-    std::vector<Solution> solutions(count);
-    std::vector<mapping_internal::Embedding> embeddings(count);  // count > 0: the vertex is embedded
-    std::vector<double> amplification(count, 0.0);
-    std::optional<mapping_internal::CellEmbedder> embedder;
-    if (lattice && options.method == MappingMethod::automatic) embedder.emplace(*lattice, x);
-    // The tangent-space sensitivity bound of a solution (MappingReport::amplification).
-    auto tangent_amplification = [&](const Solution& s) {
-        if (!s.exact) return std::numeric_limits<double>::infinity();
-        const auto& tri = triangles[std::size_t(s.triangle)];
-        double a = s.lambda.cwiseAbs().sum();
-        if (s.offset == 0.0) return a;
-        Vec3 m = Vec3::Zero();
-        double turn = 0.0;
-        for (int k = 0; k < 3; ++k) {
-            m += s.lambda[k] * n[std::size_t(tri[std::size_t(k)])];
-            if (s.lambda[k] != 0.0) turn += std::abs(s.lambda[k]) * sensitivity[std::size_t(tri[std::size_t(k)])];
-        }
-        return m.norm() > 0 ? a + std::abs(s.offset) / m.norm() * turn : std::numeric_limits<double>::infinity();
-    };
-    auto unstable_triangle = [&](std::int32_t t) {
-        const auto& tri = triangles[std::size_t(t)];
-        return unstable[std::size_t(tri[0])] || unstable[std::size_t(tri[1])] || unstable[std::size_t(tri[2])];
-    };
+    VertexSolutions solved;
+    solved.solutions.resize(count);
+    solved.embeddings.resize(count);
+    solved.amplification.assign(count, 0.0);
     std::atomic<std::size_t> solve_total{0};
-    {
-        ProgressStage stage(progress, "map visual mesh", count);
-        std::atomic<std::uint64_t> done{0};
-        // Each vertex is solved independently of the others: deterministic for any thread count.
-        constexpr std::size_t chunk = 256;
-        const std::size_t chunks = (count + chunk - 1) / chunk;
-        tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
-            if (progress.cancelled()) throw Cancelled();
-            std::vector<std::int32_t> ids;
-            std::vector<Candidate> candidates;
-            std::size_t local_solves = 0;
-            const std::size_t end = std::min(count, (c + 1) * chunk);
-            for (std::size_t v = c * chunk; v < end; ++v) {
-                const Vec3& p = visual_positions[v];
-                mapping_internal::Embedding e;
-                if (embedder) e = embedder->embed(p);
-                // An embedded vertex's normal frame (for shading only): the closest point of the
-                // nearest surface triangle whose particle normals are stable (a frame on normals
-                // that nearly cancel would turn the shading at random), else the closest.
-                auto embed = [&] {
-                    const auto [row, point] = search.closest(p);
-                    std::int32_t frame = row;
-                    Vec3 frame_lambda;
-                    distance_to_triangle(x, triangles[std::size_t(row)], p, frame_lambda);
-                    if (unstable_triangle(row)) {
-                        double nearest = std::numeric_limits<double>::infinity();
-                        ids.clear();
-                        search.near(p, (p - point).norm() + edge_length, ids);
-                        for (std::int32_t t : ids) {
-                            if (unstable_triangle(t)) continue;
-                            Vec3 lambda;
-                            const double distance = distance_to_triangle(x, triangles[std::size_t(t)], p, lambda);
-                            if (distance < nearest || (distance == nearest && t < frame))
-                                nearest = distance, frame = t, frame_lambda = lambda;
-                        }
-                    }
-                    solutions[v] = Solution{};
-                    solutions[v].triangle = frame;
-                    solutions[v].lambda = frame_lambda;
-                    solutions[v].offset = 0.0;
-                    solutions[v].exact = true;
-                    embeddings[v] = e;
-                    amplification[v] = e.amplification;
-                };
-                if (e.found() && e.amplification <= options.embed_below_amplification) {
-                    // A well-conditioned embedding: it follows every affine motion exactly, which
-                    // a tangent-space offset does not (a stretch leaves d unscaled).
-                    embed();
-                    continue;
-                }
-                solutions[v] = solve_vertex(problem, search, p, edge_length, ids, candidates, local_solves);
-                amplification[v] = tangent_amplification(solutions[v]);
-                if (e.found() && e.amplification <= amplification[v]) embed();  // the better conditioned
-            }
-            solve_total += local_solves;
-            stage.update(done += end - c * chunk);
-        });
-    }
-
-    // Round to float32; where rounding leaves more than 1e-5 mm, a few Newton corrections on the
-    // float evaluation's own residual (iterative refinement) bring it back to rounding level.
-    VisualMapping mapping;
-    mapping.triangle.resize(count);
-    mapping.barycentric.resize(count);
-    mapping.offset.resize(count);
-    mapping.particles.resize(count);
-    mapping.weights.resize(count);
-    std::vector<double> error(count, 0.0);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t v = range.begin(); v < range.end(); ++v) {
-            const Solution& s = solutions[v];
-            const auto& tri = triangles[std::size_t(s.triangle)];
-            auto round = [](const Vec3& lambda) {
-                // λa from the other two, so the stored weights sum to 1 as closely as float allows.
-                const float lb = float(lambda[1]), lc = float(lambda[2]);
-                return std::array<float, 3>{float(1.0 - double(lb) - double(lc)), lb, lc};
+    ProgressStage stage(progress, "map visual mesh", count);
+    std::atomic<std::uint64_t> done{0};
+    constexpr std::size_t chunk = 256;
+    const std::size_t chunks = (count + chunk - 1) / chunk;
+    tbb::parallel_for(std::size_t(0), chunks, [&](std::size_t c) {
+        if (progress.cancelled()) throw Cancelled();
+        std::vector<std::int32_t> ids;
+        std::vector<Candidate> candidates;
+        std::size_t local_solves = 0;
+        const std::size_t end = std::min(count, (c + 1) * chunk);
+        for (std::size_t v = c * chunk; v < end; ++v) {
+            const Vec3& p = visual_positions[v];
+            mapping_internal::Embedding e;
+            if (embedder) e = embedder->embed(p);
+            auto embed = [&] {
+                solved.solutions[v] = embedded_frame(problem, search, p, counted.edge_length, ids);
+                solved.embeddings[v] = e;
+                solved.amplification[v] = e.amplification;
             };
-            std::array<float, 3> lambda = round(s.lambda);
-            float d = float(s.offset);
-            std::array<std::int32_t, 8> carriers;
-            std::array<float, 8> weights;
-            const mapping_internal::Embedding& e = embeddings[v];
-            if (e.found()) {
-                carriers.fill(e.particles[0]);
-                weights.fill(0.0f);
-                double rest = 1.0;  // w_0 from the others, so the weights sum to 1 as closely as float allows
-                for (int k = 1; k < e.count; ++k) {
-                    carriers[std::size_t(k)] = e.particles[std::size_t(k)];
-                    weights[std::size_t(k)] = float(e.weights[std::size_t(k)]);
-                    rest -= double(weights[std::size_t(k)]);
-                }
-                weights[0] = float(rest);
-                d = 0.0f;
-            } else {
-                triangle_carriers(tri, lambda, carriers, weights);
+            if (e.found() && e.amplification <= options.embed_below_amplification) {
+                // A well-conditioned embedding: it follows every affine motion exactly, which
+                // a tangent-space offset does not (a stretch leaves d unscaled).
+                embed();
+                continue;
             }
-            auto float_error = [&](const std::array<float, 8>& w, const std::array<float, 3>& l, float o) {
-                const Eigen::Vector3f p = evaluate_float(carriers, w, tri, l, o, rest_positions, normals_float);
-                return Vec3(double(p[0]) - visual_positions[v][0], double(p[1]) - visual_positions[v][1],
-                            double(p[2]) - visual_positions[v][2]);
-            };
-            Vec3 err = float_error(weights, lambda, d);
-            if (!e.found() && s.exact && err.norm() > 1e-5) {
-                Vec3 u(s.lambda[1], s.lambda[2], s.offset);
-                for (int pass = 0; pass < 3 && err.norm() > 1e-5; ++pass) {
-                    const Evaluation at = evaluate(problem, s.triangle, u, visual_positions[v]);
-                    const Vec3 trial_u = u + at.jacobian.partialPivLu().solve(-err);
-                    const std::array<float, 3> trial_lambda = round(Vec3(1 - trial_u[0] - trial_u[1], trial_u[0], trial_u[1]));
-                    std::array<std::int32_t, 8> trial_carriers;
-                    std::array<float, 8> trial_weights;
-                    triangle_carriers(tri, trial_lambda, trial_carriers, trial_weights);
-                    const Vec3 trial_e = float_error(trial_weights, trial_lambda, float(trial_u[2]));
-                    if (!(trial_e.norm() < err.norm())) break;
-                    u = trial_u;
-                    lambda = trial_lambda;
-                    weights = trial_weights;
-                    d = float(trial_u[2]);
-                    err = trial_e;
-                }
-            }
-            mapping.triangle[v] = s.triangle;
-            mapping.barycentric[v] = lambda;
-            mapping.offset[v] = d;
-            mapping.particles[v] = carriers;
-            mapping.weights[v] = weights;
-            error[v] = err.norm();
+            solved.solutions[v] = solve_vertex(problem, search, p, counted.edge_length, ids, candidates, local_solves);
+            solved.amplification[v] = tangent_amplification(solved.solutions[v], problem, counted.sensitivity);
+            if (e.found() && e.amplification <= solved.amplification[v]) embed();  // the better conditioned
         }
+        solve_total += local_solves;
+        stage.update(done += end - c * chunk);
     });
+    solved.solves = solve_total.load();
+    return solved;
+}
 
+/// Barycentric weights in float32, λa from the other two, so the stored weights sum to 1 as
+/// closely as float allows.
+std::array<float, 3> round_barycentric(const Vec3& lambda) {
+    const float lb = float(lambda[1]), lc = float(lambda[2]);
+    return std::array<float, 3>{float(1.0 - double(lb) - double(lc)), lb, lc};
+}
+
+/// Stores vertex v's solution in `mapping`, rounded to float32; returns the float evaluation's
+/// distance from the vertex at rest. Where rounding leaves more than 1e-5 mm, a few Newton
+/// corrections on the float evaluation's own residual (iterative refinement) bring it back to
+/// rounding level.
+double store_rounded(std::size_t v, const Solution& s, const mapping_internal::Embedding& e, const Problem& problem,
+                     const std::vector<Eigen::Vector3d>& visual_positions, const std::vector<std::array<float, 3>>& rest_positions,
+                     const std::vector<Eigen::Vector3f>& normals_float, VisualMapping& mapping) {
+    const auto& tri = problem.triangles[std::size_t(s.triangle)];
+    std::array<float, 3> lambda = round_barycentric(s.lambda);
+    float d = float(s.offset);
+    std::array<std::int32_t, 8> carriers;
+    std::array<float, 8> weights;
+    if (e.found()) {
+        carriers.fill(e.particles[0]);
+        weights.fill(0.0f);
+        double rest = 1.0;  // w_0 from the others, so the weights sum to 1 as closely as float allows
+        for (int k = 1; k < e.count; ++k) {
+            carriers[std::size_t(k)] = e.particles[std::size_t(k)];
+            weights[std::size_t(k)] = float(e.weights[std::size_t(k)]);
+            rest -= double(weights[std::size_t(k)]);
+        }
+        weights[0] = float(rest);
+        d = 0.0f;
+    } else {
+        triangle_carriers(tri, lambda, carriers, weights);
+    }
+    auto float_error = [&](const std::array<float, 8>& w, const std::array<float, 3>& l, float o) {
+        const Eigen::Vector3f p = evaluate_float(carriers, w, tri, l, o, rest_positions, normals_float);
+        return Vec3(double(p[0]) - visual_positions[v][0], double(p[1]) - visual_positions[v][1], double(p[2]) - visual_positions[v][2]);
+    };
+    Vec3 err = float_error(weights, lambda, d);
+    if (!e.found() && s.exact && err.norm() > 1e-5) {
+        Vec3 u(s.lambda[1], s.lambda[2], s.offset);
+        for (int pass = 0; pass < 3 && err.norm() > 1e-5; ++pass) {
+            const Evaluation at = evaluate(problem, s.triangle, u, visual_positions[v]);
+            const Vec3 trial_u = u + at.jacobian.partialPivLu().solve(-err);
+            const std::array<float, 3> trial_lambda = round_barycentric(Vec3(1 - trial_u[0] - trial_u[1], trial_u[0], trial_u[1]));
+            std::array<std::int32_t, 8> trial_carriers;
+            std::array<float, 8> trial_weights;
+            triangle_carriers(tri, trial_lambda, trial_carriers, trial_weights);
+            const Vec3 trial_e = float_error(trial_weights, trial_lambda, float(trial_u[2]));
+            if (!(trial_e.norm() < err.norm())) break;
+            u = trial_u;
+            lambda = trial_lambda;
+            weights = trial_weights;
+            d = float(trial_u[2]);
+            err = trial_e;
+        }
+    }
+    mapping.triangle[v] = s.triangle;
+    mapping.barycentric[v] = lambda;
+    mapping.offset[v] = d;
+    mapping.particles[v] = carriers;
+    mapping.weights[v] = weights;
+    return err.norm();
+}
+
+/// The report's figures and warnings (all but the time). `error`: store_rounded's, per vertex.
+MappingReport summarise_mapping(const VertexSolutions& solved, const VisualMapping& mapping, const std::vector<double>& error,
+                                const MappingOptions& options) {
+    const std::size_t count = solved.solutions.size();
     MappingReport report;
     double offset_sum = 0.0, amplification_sum = 0.0;
     for (std::size_t v = 0; v < count; ++v) {
-        const Solution& s = solutions[v];
+        const Solution& s = solved.solutions[v];
         report.max_rest_error_mm = std::max(report.max_rest_error_mm, error[v]);
-        report.max_amplification = std::max(report.max_amplification, amplification[v]);
-        amplification_sum += amplification[v];
-        if (amplification[v] > options.max_amplification) ++report.over_amplification;
-        if (embeddings[v].found()) {
+        report.max_amplification = std::max(report.max_amplification, solved.amplification[v]);
+        amplification_sum += solved.amplification[v];
+        if (solved.amplification[v] > options.max_amplification) ++report.over_amplification;
+        if (solved.embeddings[v].found()) {
             ++report.embedded;
-            if (embeddings[v].convex) ++report.embedded_convex;
+            if (solved.embeddings[v].convex) ++report.embedded_convex;
             continue;
         }
         ++report.tangent;
@@ -670,7 +686,7 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
     }
     report.mean_offset_mm = report.tangent ? offset_sum / double(report.tangent) : 0.0;
     report.mean_amplification = amplification_sum / double(count);
-    report.candidate_solves = solve_total.load();
+    report.candidate_solves = solved.solves;
     if (report.mean_offset_mm > options.far_warning_spacings * options.lattice_spacing_mm) {
         std::ostringstream message;
         message << "the visual mesh lies far from the tissue: mean offset " << report.mean_offset_mm << " mm is more than "
@@ -689,11 +705,55 @@ VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, con
                    "particles, mapped in tangent space on normals that nearly cancel)";
         report.warnings.push_back(message.str());
     }
+    return report;
+}
+
+VisualMapping map_impl(const std::vector<Eigen::Vector3d>& visual_positions, const std::vector<std::array<float, 3>>& rest_positions,
+                       const Lattice* lattice, const SimulationSurface& surface, const MappingOptions& options,
+                       Progress& progress, MappingReport* report_out) {
+    const auto start_time = std::chrono::steady_clock::now();
+    const auto& triangles = surface.triangles;
+    require_mapping_inputs(visual_positions, rest_positions, surface);
+
+    const std::size_t particle_count = rest_positions.size();
+    std::vector<Vec3> x(particle_count);
+    for (std::size_t i = 0; i < particle_count; ++i) x[i] = Vec3(rest_positions[i][0], rest_positions[i][1], rest_positions[i][2]);
+    // Solve against the float normals the runtime computes, widened: the float evaluation then
+    // differs from the solved one by rounding only.
+    const std::vector<Eigen::Vector3f> normals_float = particle_normals(rest_positions, surface);
+    std::vector<Vec3> n(particle_count);
+    for (std::size_t i = 0; i < particle_count; ++i) n[i] = normals_float[i].cast<double>();
+    const CountedSurface counted = counted_surface(x, surface);
+
+    std::vector<std::array<std::int32_t, 3>> candidate_triangles;
+    candidate_triangles.reserve(counted.rows.size());
+    for (std::int32_t row : counted.rows) candidate_triangles.push_back(triangles[std::size_t(row)]);
+    const mapping_internal::TriangleSearch search(x, candidate_triangles, counted.rows);
+    const Problem problem{x, n, counted.unstable, triangles};
+    std::optional<mapping_internal::CellEmbedder> embedder;
+    if (lattice && options.method == MappingMethod::automatic) embedder.emplace(*lattice, x);
+    const VertexSolutions solved =
+        solve_vertices(visual_positions, problem, search, counted, embedder ? &*embedder : nullptr, options, progress);
+
+    const std::size_t count = visual_positions.size();
+    VisualMapping mapping;
+    mapping.triangle.resize(count);
+    mapping.barycentric.resize(count);
+    mapping.offset.resize(count);
+    mapping.particles.resize(count);
+    mapping.weights.resize(count);
+    std::vector<double> error(count, 0.0);
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 1024), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t v = range.begin(); v < range.end(); ++v)
+            error[v] = store_rounded(v, solved.solutions[v], solved.embeddings[v], problem, visual_positions, rest_positions, normals_float,
+                                     mapping);
+    });
+
+    MappingReport report = summarise_mapping(solved, mapping, error, options);
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_time).count();
     if (report_out) *report_out = std::move(report);
     return mapping;
 }
-
 
 }  // namespace
 
