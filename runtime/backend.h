@@ -19,16 +19,14 @@
 #include "libmodel/errors.h"
 
 #include <array>
-#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
-#include <utility>
 #include <vector>
 
 namespace heartsim {
 
-class PatchStepper;  // runtime/patch_stepper.h
+class SurgerySupport;  // runtime/surgery.h
 
 enum class BackendKind { cpu, gl };
 /// "cpu" or "gl"; throws InputError otherwise.
@@ -86,14 +84,6 @@ public:
     virtual void set_mass_scale(double mass_scale) = 0;
     /// Advances `steps` steps of time_step_ms(). gl: queued on the GPU, returns at once.
     virtual StepReport step(int steps = 1) = 0;
-    /// One step with `task` run first: `task` may read positions_of() and set_loads(), which the
-    /// step then applies. The cpu backend runs it beside the step's spring pass
-    /// (Solver::run_beside_next_step: the same result to the bit, its time hidden on two cores);
-    /// by default it runs before the step.
-    virtual StepReport step_after(const std::function<void()>& task) {
-        task();
-        return step(1);
-    }
 
     /// Queues the force pass for both hands on the current state (gl: into a persistent mapped
     /// ring, fenced); latest_forces() returns the newest finished one without waiting.
@@ -113,12 +103,6 @@ public:
     virtual const StrokeLog& strokes() const = 0;
     /// Current positions, N×3 mm, packed order. Waits for the GPU.
     virtual std::vector<std::array<float, 3>> positions() = 0;
-    /// External loads on particles from the next step on, until replaced (Solver::set_loads; the same
-    /// checks). gl: uploaded at once (one small scatter), applied in the step pass.
-    virtual void set_loads(const std::vector<ParticleLoad>& loads) = 0;
-    /// The current positions of `particles` (packed indices, any order, repeats allowed), mm. gl: one
-    /// gather pass and one small readback (waits for the GPU). Index out of range: InputError.
-    virtual std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) = 0;
     /// Pass timings so far (waits for outstanding timer queries).
     virtual PassTimes pass_times() = 0;
     /// Bytes of device memory the backend allocated (gl), or of its own arrays (cpu).
@@ -132,12 +116,13 @@ public:
     }
     /// The particles the last force pass summed for `hand`, sorted (gl: waits for the GPU).
     virtual std::vector<std::int32_t> contact_particles(int hand) { (void)hand; return {}; }
-    /// The backend that simulates: itself, or the one a wrapper (runtime/repair.h) passes its
-    /// calls to; the renderer reads the gl backend's position buffer through it.
+    /// The backend that simulates: itself, or the one a wrapper (runtime/backend_wrapper.h) passes
+    /// its calls to; the renderer reads the gl backend's position buffer through it.
     virtual const Backend& simulating() const { return *this; }
-    /// The backend's own patch stepper (the gl backend's compute pass), or nullptr: the host steps
-    /// a patch then (runtime/repair.h).
-    virtual PatchStepper* patch_stepper() { return nullptr; }
+    /// The one extension for a surgery on the tissue (runtime/surgery.h: a few particles' positions,
+    /// loads on them, a task beside a step, the device's patch pass, the repair riding on the hands),
+    /// or nullptr where the backend offers none.
+    virtual SurgerySupport* surgery() { return nullptr; }
 };
 
 /// The CPU backend: libmodel's Solver on the scenario's packed particles. Throws InputError if
@@ -145,7 +130,7 @@ public:
 std::unique_ptr<Backend> make_cpu_backend(const Scenario& scenario, const SolverOptions& options);
 
 /// Throws InputError naming the entry and the index unless every one of `particles` is in
-/// [0, particle_count): Backend::positions_of's check, on both backends.
+/// [0, particle_count): SurgerySupport::positions_of's check, on both backends.
 void check_particle_indices(const std::vector<std::int32_t>& particles, std::size_t particle_count);
 
 /// Throws InputError naming the group when the scenario lacks what a run needs (/packing).

@@ -1,5 +1,6 @@
 // The CPU backend: libmodel's Solver behind the Backend interface, timed by the wall clock.
 #include "runtime/backend.h"
+#include "runtime/surgery.h"
 
 #include "libmodel/errors.h"
 
@@ -47,7 +48,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-class CpuBackend final : public Backend {
+class CpuBackend final : public Backend, public SurgerySupport {
 public:
     CpuBackend(const Scenario& scenario, const SolverOptions& options)
         : solver_(scenario.lattice, scenario.packing->neighbours, options) {}
@@ -112,6 +113,7 @@ public:
         return list;
     }
     PassTimes pass_times() override { return times_; }
+    SurgerySupport* surgery() override { return this; }
     std::size_t memory_bytes() const override {
         // Three float4 position buffers, rest, per-particle constants, five per-entry tables.
         const std::size_t n = (solver_.size() + 7) / 8 * 8;

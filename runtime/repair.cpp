@@ -57,8 +57,18 @@ ContactSurface patch_surface_near(const Scenario& scenario, const Eigen::Vector3
     return surface;
 }
 
+namespace {
+
+SurgerySupport& surgery_of(Backend& backend) {
+    SurgerySupport* surgery = backend.surgery();
+    if (!surgery) throw InputError("repair: the " + std::string(to_string(backend.kind())) + " backend offers no surgery support");
+    return *surgery;
+}
+
+}  // namespace
+
 RepairBackend::RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings)
-    : inner_(std::move(inner)), scenario_(scenario), settings_(settings) {}
+    : BackendWrapper(std::move(inner)), tissue_(surgery_of(this->inner())), scenario_(scenario), settings_(settings) {}
 
 void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
@@ -70,20 +80,20 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     h.grabbing = false;
     h.stitch.reset();
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
-    inner_->set_instrument(hand, repair_kind(instrument.kind) ? Instrument{InstrumentKind::none, instrument.semi_axes} : instrument);
+    inner().set_instrument(hand, repair_kind(instrument.kind) ? Instrument{InstrumentKind::none, instrument.semi_axes} : instrument);
 }
 
 void RepairBackend::set_pose(int hand, const InstrumentPose& pose) {
     if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
     hands_[std::size_t(hand)].pose = pose;
     hands_[std::size_t(hand)].posed = true;
-    inner_->set_pose(hand, pose);
+    inner().set_pose(hand, pose);
 }
 
 std::size_t RepairBackend::begin_grab(int hand) {
     if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
     Hand& h = hands_[std::size_t(hand)];
-    if (!repair_kind(h.instrument.kind)) return inner_->begin_grab(hand);
+    if (!repair_kind(h.instrument.kind)) return inner().begin_grab(hand);
     if (h.grabbing) return 0;
     h.grabbing = true;
     if (h.instrument.kind == InstrumentKind::patch) lay(hand);
@@ -96,7 +106,7 @@ void RepairBackend::release(int hand) {
     if (hand < 0 || hand > 1) throw InputError("solver: hand must be 0 or 1");
     Hand& h = hands_[std::size_t(hand)];
     if (!repair_kind(h.instrument.kind)) {
-        inner_->release(hand);
+        inner().release(hand);
         return;
     }
     h.grabbing = false;
@@ -120,7 +130,7 @@ void RepairBackend::lay(int hand) {
     spec.tie_ms = settings_.tie_ms;
     spec.stitch_stiffness = settings_.stitch_stiffness;
     spec.iterations = settings_.iterations;
-    spec.gravity = Eigen::Vector3d(inner_->options().gravity[0], inner_->options().gravity[1], inner_->options().gravity[2]);
+    spec.gravity = Eigen::Vector3d(inner().options().gravity[0], inner().options().gravity[1], inner().options().gravity[2]);
     const double reach = std::max(spec.radius_x_mm, spec.radius_y_mm) + 3.0;
     const Eigen::Vector3d facing = h.pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
     const Particles& particles = scenario_.lattice.particles;
@@ -134,8 +144,8 @@ void RepairBackend::lay(int hand) {
         std::printf("repair: no patch laid: %s\n", e.what());
         return;
     }
-    patch_->set_mass_scale(inner_->options().mass_scale);
-    patch_->lay(h.pose, inner_->positions_of(patch_->particles()));
+    patch_->set_mass_scale(inner().options().mass_scale);
+    patch_->lay(h.pose, tissue_.positions_of(patch_->particles()));
     tissue_steps_ = 0;
     const Eigen::Vector3d c = h.pose.position;
     std::printf("repair: %s patch laid at (%.1f, %.1f, %.1f) mm, %.1f × %.1f mm, %.2f mm thick (%.0f MPa), %zu vertices, %.1f mg, "
@@ -148,26 +158,26 @@ void RepairBackend::lay(int hand) {
 void RepairBackend::tie(int hand) {
     Hand& h = hands_[std::size_t(hand)];
     if (!patch_ || !patch_->laid()) {
-        std::printf("repair: no stitch at %.6g ms: no patch is laid\n", inner_->simulated_time_ms());
+        std::printf("repair: no stitch at %.6g ms: no patch is laid\n", inner().simulated_time_ms());
         return;
     }
     std::string why;
     sync_from_device();
-    h.stitch = patch_->tie(h.pose.position, inner_->simulated_time_ms(), inner_->positions_of(patch_->particles()), &why);
+    h.stitch = patch_->tie(h.pose.position, inner().simulated_time_ms(), tissue_.positions_of(patch_->particles()), &why);
     if (!h.stitch) {
-        std::printf("repair: no stitch at %.6g ms: %s\n", inner_->simulated_time_ms(), why.c_str());
+        std::printf("repair: no stitch at %.6g ms: %s\n", inner().simulated_time_ms(), why.c_str());
         return;
     }
     patch_force_[std::size_t(hand)].setZero();  // the new stitch pulls from its first step on
     to_device();
     const Stitch& s = patch_->stitches()[*h.stitch];
     std::printf("repair: stitch %zu tied at %.6g ms, patch vertex %d to the tissue %.2f mm from it; it draws tight over %.0f ms\n",
-                *h.stitch + 1, inner_->simulated_time_ms(), s.vertex, s.start_length, settings_.tie_ms);
+                *h.stitch + 1, inner().simulated_time_ms(), s.vertex, s.start_length, settings_.tie_ms);
 }
 
 void RepairBackend::step_patch(int every) {
     const auto start = std::chrono::steady_clock::now();
-    patch_->set_mass_scale(inner_->options().mass_scale);
+    patch_->set_mass_scale(inner().options().mass_scale);
     // The probes push the patch as they push the tissue (their hands feel it), and a needle's hand
     // feels the suture it ties: what each hand feels of the patch (PatchPassStep::hand_output).
     std::vector<PatchObstacle> probes;
@@ -183,9 +193,9 @@ void RepairBackend::step_patch(int every) {
     }
     if (device_) {  // on the device, before the tissue's step: nothing read back
         PatchPassStep step;
-        step.dt_ms = every * inner_->time_step_ms();
-        step.time_ms = inner_->simulated_time_ms();
-        step.mass_scale = inner_->options().mass_scale;
+        step.dt_ms = every * inner().time_step_ms();
+        step.time_ms = inner().simulated_time_ms();
+        step.mass_scale = inner().options().mass_scale;
         step.obstacles = probes;
         step.hand_output = output;
         patch_->set_obstacles(std::move(probes));
@@ -198,7 +208,7 @@ void RepairBackend::step_patch(int every) {
         if (device_steps_ % candidate_refresh == 0) {
             auto [x, slot_x] = device_->snapshot();
             if (slot_x.empty())  // the pass has not stepped since it was loaded: the tissue now
-                for (const auto& p : inner_->positions_of(patch_->particles())) slot_x.push_back(vec(p));
+                for (const auto& p : tissue_.positions_of(patch_->particles())) slot_x.push_back(vec(p));
             patch_->pass_candidates(*device_input_, x, slot_x, candidate_reach_mm);
             device_->load_candidates(*device_input_);
         }
@@ -207,8 +217,8 @@ void RepairBackend::step_patch(int every) {
         return;
     }
     patch_->set_obstacles(std::move(probes));
-    patch_->step(inner_->positions_of(patch_->particles()), every * inner_->time_step_ms(), inner_->simulated_time_ms());
-    inner_->set_loads(patch_->loads());
+    patch_->step(tissue_.positions_of(patch_->particles()), every * inner().time_step_ms(), inner().simulated_time_ms());
+    tissue_.set_loads(patch_->loads());
     for (int hand = 0; hand < 2; ++hand) {
         const int o = output[std::size_t(hand)];
         patch_force_[std::size_t(hand)] = o < 0 ? Eigen::Vector3d::Zero()
@@ -220,7 +230,7 @@ void RepairBackend::step_patch(int every) {
 }
 
 StepReport RepairBackend::step(int steps) {
-    if (!patch_ || !patch_->laid()) return inner_->step(steps);
+    if (!patch_ || !patch_->laid()) return inner().step(steps);
     StepReport total;
     const int every = std::max(1, settings_.patch_every);
     for (int k = 0; k < steps; ++k) {
@@ -228,9 +238,9 @@ StepReport RepairBackend::step(int steps) {
         if (tissue_steps_++ % every == 0) {
             // The patch's step, with the tissue as this step starts; its loads for this step and
             // the next every − 1 (the cpu backend runs it beside the tissue's spring pass).
-            r = inner_->step_after([this, every] { step_patch(every); });
+            r = tissue_.step_after([this, every] { step_patch(every); });
         } else {
-            r = inner_->step(1);
+            r = inner().step(1);
         }
         total.steps += r.steps;
         total.substeps += r.substeps;
@@ -241,8 +251,8 @@ StepReport RepairBackend::step(int steps) {
             sync_from_device();
             const bool on_device = device_ != nullptr;
             off_device();
-            patch_->recover(inner_->positions_of(patch_->particles()), inner_->simulated_time_ms());
-            inner_->set_loads({});
+            patch_->recover(tissue_.positions_of(patch_->particles()), inner().simulated_time_ms());
+            tissue_.set_loads({});
             patch_force_.fill(Eigen::Vector3d::Zero());
             if (on_device) to_device();
         }
@@ -273,14 +283,14 @@ void RepairBackend::device_hand_forces(bool wait) {
 
 std::optional<InstrumentForces> RepairBackend::latest_forces() {
     device_hand_forces(false);
-    std::optional<InstrumentForces> forces = inner_->latest_forces();
+    std::optional<InstrumentForces> forces = inner().latest_forces();
     if (forces) add_repair_forces(*forces);
     return forces;
 }
 
 InstrumentForces RepairBackend::instrument_forces() {
     device_hand_forces(true);
-    InstrumentForces forces = inner_->instrument_forces();
+    InstrumentForces forces = inner().instrument_forces();
     add_repair_forces(forces);
     return forces;
 }
@@ -290,20 +300,20 @@ void RepairBackend::reset_tissue() {
     patch_.reset();
     patch_force_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
-    inner_->set_loads({});
-    inner_->reset_tissue();
+    tissue_.set_loads({});
+    inner().reset_tissue();
 }
 
 void RepairBackend::to_device() {
     if (!patch_ || !patch_->laid() || patch_->held()) return;
-    PatchStepper* stepper = inner_->patch_stepper();
+    PatchStepper* stepper = tissue_.patch_stepper();
     if (!stepper || !stepper->takes(*patch_)) {
         off_device();
         return;
     }
-    device_input_ = patch_->pass_input(inner_->positions_of(patch_->particles()), candidate_reach_mm);
+    device_input_ = patch_->pass_input(tissue_.positions_of(patch_->particles()), candidate_reach_mm);
     stepper->load(*device_input_);
-    inner_->set_loads({});  // the host's loads, if any: the pass puts its own
+    tissue_.set_loads({});  // the host's loads, if any: the pass puts its own
     device_ = stepper;
     timed_device_ = stepper;
     device_ahead_ = false;
@@ -336,7 +346,7 @@ void RepairBackend::off_device() {
 std::vector<Eigen::Vector3d> RepairBackend::stitch_anchors() {
     std::vector<Eigen::Vector3d> out;
     if (!patch()) return out;
-    const auto positions = inner_->positions_of(patch_->particles());
+    const auto positions = tissue_.positions_of(patch_->particles());
     for (const Stitch& s : patch_->stitches()) out.push_back(patch_->where(s.anchor, positions));
     return out;
 }
@@ -349,7 +359,7 @@ InputError no_patch_surface(const std::string& what) {
 }
 
 std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings) {
-    if (!can_hold_patch(scenario)) return inner;
+    if (!can_hold_patch(scenario) || !inner->surgery()) return inner;
     return std::make_unique<RepairBackend>(std::move(inner), scenario, settings);
 }
 

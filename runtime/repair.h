@@ -7,18 +7,26 @@
 /// no instrument in that hand.
 ///
 /// Each step, with a patch laid: the positions of the particles the patch touches are read
-/// (Backend::positions_of), the patch steps against them held still, and its stitches' and
-/// contact's equal and opposite forces go to the tissue as loads for the step (Backend::set_loads).
-/// A needle's hand feels the stitch it ties while its button is held: the suture's tension.
+/// (SurgerySupport::positions_of, runtime/surgery.h), the patch steps against them held still, and
+/// its stitches' and contact's equal and opposite forces go to the tissue as loads for the step
+/// (SurgerySupport::set_loads). A needle's hand feels the stitch it ties while its button is held:
+/// the suture's tension.
+///
+/// The repair wraps the backend (runtime/backend_wrapper.h) and overrides only the calls it
+/// changes; a run finds it through the backend's one extension, Backend::surgery (repair_of).
 ///
 ///     auto backend = with_repair(make_cpu_backend(scenario, options), scenario, RepairSettings{});
+///     if (RepairBackend* repair = repair_of(*backend)) show(repair->patch(), repair->stitch_anchors());
 #pragma once
 
 #include "libmodel/closure.h"
 #include "libmodel/patch.h"
 #include "runtime/backend.h"
+#include "runtime/backend_wrapper.h"
 #include "runtime/patch_stepper.h"
+#include "runtime/surgery.h"
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -39,42 +47,34 @@ struct RepairSettings {
     int patch_every = 3;
 };
 
-class RepairBackend final : public Backend {
+class RepairBackend final : public BackendWrapper, public SurgerySupport {
 public:
+    /// `inner` must offer the surgery's support (Backend::surgery; both backends do).
     RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
 
-    BackendKind kind() const override { return inner_->kind(); }
-    std::size_t size() const override { return inner_->size(); }
-    const SolverLoadReport& load_report() const override { return inner_->load_report(); }
-    const SolverOptions& options() const override { return inner_->options(); }
-    double time_step_ms() const override { return inner_->time_step_ms(); }
-    double substep_ms() const override { return inner_->substep_ms(); }
-    int substeps_per_step() const override { return inner_->substeps_per_step(); }
-    double simulated_time_ms() const override { return inner_->simulated_time_ms(); }
+    // The calls a repair changes: the hands that hold a patch or a needle, the step (the patch's
+    // with it), the forces (what the hands feel of the patch), the tissue's reset (the patch goes).
     void set_instrument(int hand, const Instrument& instrument) override;
     void set_pose(int hand, const InstrumentPose& pose) override;
     std::size_t begin_grab(int hand) override;
     void release(int hand) override;
     void reset_tissue() override;
-    void set_mass_scale(double mass_scale) override { inner_->set_mass_scale(mass_scale); }
     StepReport step(int steps = 1) override;
-    void request_forces() override { inner_->request_forces(); }
     std::optional<InstrumentForces> latest_forces() override;
-    std::uint64_t latest_forces_request() const override { return inner_->latest_forces_request(); }
     InstrumentForces instrument_forces() override;
-    std::vector<std::array<std::int32_t, 2>> cut_springs() override { return inner_->cut_springs(); }
-    const StrokeLog& strokes() const override { return inner_->strokes(); }
-    std::vector<std::array<float, 3>> positions() override { return inner_->positions(); }
-    void set_loads(const std::vector<ParticleLoad>& loads) override { inner_->set_loads(loads); }
+
+    SurgerySupport* surgery() override { return this; }
+    RepairBackend* repair() override { return this; }
+    void set_loads(const std::vector<ParticleLoad>& loads) override { tissue_.set_loads(loads); }
     std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) override {
-        return inner_->positions_of(particles);
+        return tissue_.positions_of(particles);
     }
-    PassTimes pass_times() override { return inner_->pass_times(); }
-    std::size_t memory_bytes() const override { return inner_->memory_bytes(); }
-    bool software_device() const override { return inner_->software_device(); }
-    void set_contact(const ContactSettings& settings) override { inner_->set_contact(settings); }
-    std::vector<std::int32_t> contact_particles(int hand) override { return inner_->contact_particles(hand); }
-    const Backend& simulating() const override { return inner_->simulating(); }
+    /// The task, then this backend's step (the patch's with it).
+    StepReport step_after(const std::function<void()>& task) override {
+        task();
+        return step(1);
+    }
+    PatchStepper* patch_stepper() override { return tissue_.patch_stepper(); }
 
     /// The patch, once laid; nullptr before. Where the backend's device steps it, this reads it
     /// back first (the gl backend: waits for the GPU).
@@ -102,7 +102,7 @@ private:
     /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.
     void add_repair_forces(InstrumentForces& forces) const;
     /// After the patch changed on the host (a stitch tied, a recovery): the backend's device steps
-    /// it from now on where it can (Backend::patch_stepper), with candidates found afresh.
+    /// it from now on where it can (SurgerySupport::patch_stepper), with candidates found afresh.
     void to_device();
     /// The device's patch into patch_ when it is newer.
     void sync_from_device() const;
@@ -111,7 +111,7 @@ private:
     /// Each hand's force from the device's newest finished patch step, into patch_force_.
     void device_hand_forces(bool wait);
 
-    std::unique_ptr<Backend> inner_;
+    SurgerySupport& tissue_;  ///< the wrapped backend's (Backend::surgery)
     const Scenario& scenario_;
     RepairSettings settings_;
     mutable std::optional<PatchModel> patch_;  ///< mutable: read back from the device when asked for
@@ -149,7 +149,14 @@ bool can_hold_patch(const Scenario& scenario);
 /// stitch on a scenario that cannot hold one: said before the first step, not when the hand acts.
 InputError no_patch_surface(const std::string& what);
 
-/// `inner` wrapped in a RepairBackend when can_hold_patch(scenario); else `inner` itself.
+/// The repair riding on `backend` (Backend::surgery, SurgerySupport::repair), or nullptr.
+inline RepairBackend* repair_of(Backend& backend) {
+    SurgerySupport* surgery = backend.surgery();
+    return surgery ? surgery->repair() : nullptr;
+}
+
+/// `inner` wrapped in a RepairBackend when can_hold_patch(scenario) and `inner` offers the
+/// surgery's support (Backend::surgery); else `inner` itself.
 std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
 
 /// The defect of a scenario, where it is in the tissue's current state: its rest centre moved by

@@ -245,7 +245,7 @@ const Eigen::Quaterniond facing_down(0.0, 1.0, 0.0, 0.0);
 TEST(Repair, APatchSewnOnASlabFollowsItWhenItIsStretched) {
     const Scenario scenario = read_scenario(slab());
     auto made = with_repair(make_cpu_backend(scenario, options_from(scenario.solver)), scenario, RepairSettings{});
-    auto* repair = dynamic_cast<RepairBackend*>(made.get());
+    RepairBackend* repair = repair_of(*made);
     ASSERT_NE(repair, nullptr) << "a scenario with a detailed mesh takes a patch";
     Backend& backend = *repair;
     const double dt = backend.time_step_ms();
@@ -615,7 +615,10 @@ TEST(Repair, TheGlPatchPassStepsThePatchAsTheHostDoes) {
     const Scenario scenario = read_scenario(b.scenario);
     const SolverOptions options = options_from(scenario.solver);
     auto gl = make_gl_backend(*test::shared_gl_context(), scenario, options);
-    PatchStepper* pass = gl->patch_stepper();
+    ASSERT_NE(gl->surgery(), nullptr);
+    SurgerySupport& surgery = *gl->surgery();
+    EXPECT_EQ(surgery.repair(), nullptr);  // the bare backend holds no repair
+    PatchStepper* pass = surgery.patch_stepper();
     ASSERT_NE(pass, nullptr);
     const Trajectory plan = read_trajectory(b.closure);
     std::optional<InstrumentKeyframe> laid;
@@ -642,7 +645,7 @@ TEST(Repair, TheGlPatchPassStepsThePatchAsTheHostDoes) {
     PatchModel host(spec, particles.rest_position,
                     patch_surface_near(scenario, laid->pose.position, facing, std::max(spec.radius_x_mm, spec.radius_y_mm) + 3.0, 8.0),
                     inverse_mass);
-    const ParticlePositions positions = gl->positions_of(host.particles());
+    const ParticlePositions positions = surgery.positions_of(host.particles());
     host.lay(laid->pose, positions);
     for (const Eigen::Vector3d& tip : ties) ASSERT_TRUE(host.tie(tip, 0.0, positions).has_value());
     pass->load(host.pass_input(positions, 3.0));

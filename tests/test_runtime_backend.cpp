@@ -14,6 +14,7 @@
 #include "runtime/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
+#include "runtime/surgery.h"
 #include "runtime/trajectory.h"
 
 #include <gtest/gtest.h>
@@ -515,7 +516,7 @@ TEST(RuntimeBackend, GlPiercesAndGrabsOnePieceOfTissueAsTheCpuDoes) {
     }
 }
 
-// External loads (Backend::set_loads) on a free block without gravity, drag or supports, on
+// External loads (SurgerySupport::set_loads) on a free block without gravity, drag or supports, on
 // both backends: the springs' forces cancel in pairs, so from rest the centre of mass moves by
 // exactly h²·ΣF·N(N+1)/(2M) after N substeps (Verlet: Σ m·u_n = n·h²·ΣF), however the loads deform
 // the block; both backends end where each other does; reset_tissue() removes the loads, and the
@@ -561,8 +562,9 @@ TEST(RuntimeBackend, LoadsMoveAFreeBlockByNewtonsSecondLawOnBothBackends) {
     std::vector<std::vector<std::array<float, 3>>> end;
     for (Backend* backend : {cpu.get(), gl.get()}) {
         SCOPED_TRACE(to_string(backend->kind()));
+        ASSERT_NE(backend->surgery(), nullptr);
         const Eigen::Vector3d before = centre(backend->positions());
-        backend->set_loads(loads);
+        backend->surgery()->set_loads(loads);
         double largest = 0;
         for (int s = 0; s < steps; ++s) {
             const StepReport r = backend->step(1);
@@ -625,9 +627,11 @@ TEST(RuntimeBackend, GlReadsAndLoadsPatchParticlesAsTheCpuDoes) {
     std::vector<std::vector<std::array<float, 3>>> loaded, end;  // after the last loaded step, at the end
     for (Backend* backend : {cpu.get(), gl.get()}) {
         SCOPED_TRACE(to_string(backend->kind()));
+        ASSERT_NE(backend->surgery(), nullptr);
+        SurgerySupport& surgery = *backend->surgery();
         for (int s = 0; s < steps; ++s) {
             if (s == loaded_steps) loaded.push_back(backend->positions());
-            const auto x = backend->positions_of(asked);
+            const auto x = surgery.positions_of(asked);
             ASSERT_EQ(x.size(), asked.size());
             if (s % 20 == 0) {
                 const auto all = backend->positions();
@@ -642,7 +646,7 @@ TEST(RuntimeBackend, GlReadsAndLoadsPatchParticlesAsTheCpuDoes) {
                     const Eigen::Vector3d target(rest[i][0] + 2.0, rest[i][1], rest[i][2]);
                     loads.push_back({patch[q], stiffness * (target - Eigen::Vector3d(xi[0], xi[1], xi[2]))});
                 }
-            backend->set_loads(loads);
+            surgery.set_loads(loads);
             if (backend->kind() == BackendKind::gl && loads.size() >= 2) {
                 const double nan = std::numeric_limits<double>::quiet_NaN();
                 std::vector<ParticleLoad> unsorted = loads, repeated = loads, outside = loads, not_finite = loads;
@@ -650,15 +654,15 @@ TEST(RuntimeBackend, GlReadsAndLoadsPatchParticlesAsTheCpuDoes) {
                 repeated[1].particle = repeated[0].particle;
                 outside.push_back({n, {1, 0, 0}});
                 not_finite[1].force_n.y() = nan;
-                for (const auto* bad : {&unsorted, &repeated, &outside, &not_finite}) EXPECT_THROW(backend->set_loads(*bad), InputError);
-                EXPECT_THROW(backend->set_loads({{-1, {1, 0, 0}}}), InputError);
+                for (const auto* bad : {&unsorted, &repeated, &outside, &not_finite}) EXPECT_THROW(surgery.set_loads(*bad), InputError);
+                EXPECT_THROW(surgery.set_loads({{-1, {1, 0, 0}}}), InputError);
             }
             const StepReport r = backend->step(1);
             ASSERT_FALSE(r.diverged) << r.message;
         }
-        EXPECT_THROW(backend->positions_of({0, n}), InputError);
-        EXPECT_THROW(backend->positions_of({-1}), InputError);
-        EXPECT_TRUE(backend->positions_of({}).empty());
+        EXPECT_THROW(surgery.positions_of({0, n}), InputError);
+        EXPECT_THROW(surgery.positions_of({-1}), InputError);
+        EXPECT_TRUE(surgery.positions_of({}).empty());
         end.push_back(backend->positions());
     }
     auto difference = [](const std::vector<std::array<float, 3>>& a, const std::vector<std::array<float, 3>>& b) {

@@ -616,7 +616,7 @@ TEST(RenderRepair, TheLaidPatchAndItsStitchesAreDrawnOverTheDefectInTheSectionVi
     // The plan's gesture without the steps: the patch laid where hand 0 lays it, each stitch tied
     // at its site; the tissue at rest.
     std::unique_ptr<Backend> backend = with_repair(make_cpu_backend(scenario, options_from(scenario.solver)), scenario, {});
-    auto* repair = dynamic_cast<RepairBackend*>(backend.get());
+    RepairBackend* repair = repair_of(*backend);
     ASSERT_NE(repair, nullptr);
     const double radius = 0.5 * plan.patch_diameter_mm;
     backend->set_instrument(0, {.kind = InstrumentKind::patch, .semi_axes = Eigen::Vector3d(radius, radius, 0.5 * plan.patch_thickness_mm)});

@@ -5,6 +5,7 @@
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/patch_pass.h"
 #include "runtime/gl/picking.h"
+#include "runtime/surgery.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/gl_object.h"
 #include "runtime/gl/gl_program.h"
@@ -76,7 +77,7 @@ struct LoadEntry {
 };
 static_assert(sizeof(LoadEntry) == 16);
 
-class GlBackend final : public Backend {
+class GlBackend final : public Backend, public SurgerySupport {
 public:
     bool software_device() const override { return software_; }
     void set_software(bool software) { software_ = software; }
@@ -690,6 +691,13 @@ public:
         return times_;
     }
 
+    SurgerySupport* surgery() override { return this; }
+    /// The task, then the step: the patch pass it queues runs on the GPU before the tissue's.
+    StepReport step_after(const std::function<void()>& task) override {
+        task();
+        return step(1);
+    }
+
     PatchStepper* patch_stepper() override {
         if (!patch_pass_ && !patch_pass_refused_) {
             try {
@@ -1100,8 +1108,10 @@ std::unique_ptr<Backend> make_gl_backend(GlContext& context, const Scenario& sce
 }
 
 unsigned gl_position_buffer(const Backend& backend) {
-    const auto* gl = dynamic_cast<const GlBackend*>(&backend.simulating());
-    return gl ? gl->position_buffer() : 0;
+    // The backend that simulates is a wrapper's inner one (Backend::simulating), never a wrapper:
+    // of those, only the gl backend says it is one.
+    const Backend& simulating = backend.simulating();
+    return simulating.kind() == BackendKind::gl ? static_cast<const GlBackend&>(simulating).position_buffer() : 0;
 }
 
 }  // namespace heartsim
