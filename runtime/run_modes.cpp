@@ -288,7 +288,7 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     // A replay lays the patch the session laid (its recorded --patch-material).
     repair.material = patch_material_named(p.replayed ? p.replayed->patch_material : a.patch_material);
     p.backend = with_repair(std::move(p.backend), p.scenario, repair);
-    p.repair = dynamic_cast<RepairBackend*>(p.backend.get());
+    p.repair = repair_of(*p.backend);
 }
 
 void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section) {
@@ -660,7 +660,7 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
     std::vector<std::array<std::int32_t, 3>> patch_triangles;
     double thickness = 0;
     if (patch) {
-        const PatchModel tested = patch->under_pressure(p.backend->positions_of(patch->particles()), a.leak_test_mmhg * mmhg_in_n_per_mm2);
+        const PatchModel tested = patch->under_pressure(p.repair->positions_of(patch->particles()), a.leak_test_mmhg * mmhg_in_n_per_mm2);
         for (const auto& x : tested.positions()) patch_positions.push_back({float(x.x()), float(x.y()), float(x.z())});
         patch_triangles = tested.triangles();
         thickness = tested.spec().thickness_mm;

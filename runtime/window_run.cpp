@@ -348,7 +348,7 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     });
     glfwSwapInterval(1);
     Hud hud(window);
-    RepairBackend* const repair = dynamic_cast<RepairBackend*>(&backend);
+    RepairBackend* const repair = repair_of(backend);
     HudRepair repair_shown;  // the closure check as last run (at most once a second)
     std::optional<std::array<float, 3>> leak_shown;  // where the last check found a leak pass the rim
     auto next_closure = std::chrono::steady_clock::now();

@@ -33,13 +33,13 @@ private:
 }  // namespace
 
 WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
-    : backend_(backend), repair_(dynamic_cast<RepairBackend*>(&backend)), hands_(std::in_place, trajectory), trajectory_(&trajectory),
+    : backend_(backend), repair_(repair_of(backend)), hands_(std::in_place, trajectory), trajectory_(&trajectory),
       options_(options), start_mass_scale_(backend.options().mass_scale) {
     thread_ = std::thread([this] { run(); });
 }
 
 WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options)
-    : backend_(backend), repair_(dynamic_cast<RepairBackend*>(&backend)), haptic_(&haptic), options_(options),
+    : backend_(backend), repair_(repair_of(backend)), haptic_(&haptic), options_(options),
       start_mass_scale_(backend.options().mass_scale) {
     status_.shapes = haptic.shapes();
     thread_ = std::thread([this] { run_haptic(); });
