@@ -4,6 +4,7 @@
 #include "volume_io.h"
 
 #include "hdf5_io.h"
+#include "scenario_landmarks.h"
 #include "xdmf.h"
 #include "volume_header_checks.h"
 
@@ -670,7 +671,13 @@ void write_scenario_file(const std::filesystem::path& path, const Scenario& scen
                          const std::function<void(const std::filesystem::path&)>& check) {
     const std::string xdmf = scenario_xdmf(path.filename().string(), scenario);
     check_xdmf_destination(path);
-    h5::write_file(path, [&](h5::Writer& w) { write_contents(w, scenario); }, check, {xdmf_file_beside(path, xdmf)});
+    h5::write_file(
+        path,
+        [&](h5::Writer& w) {
+            write_contents(w, scenario);
+            if (scenario.landmarks) write_landmarks(w, *scenario.landmarks);
+        },
+        check, {xdmf_file_beside(path, xdmf)});
 }
 
 }  // namespace
@@ -697,7 +704,10 @@ Scenario read_scenario(const std::filesystem::path& path) {
     if (label_volume_path_problem(path).empty() && std::filesystem::is_regular_file(path, error) && H5Fis_hdf5(path.c_str()) <= 0)
         throw InputError(path.string() + ": a label map, not a scenario: build one first, `heartprep build " + path.string() +
                          " -o CASE.h5`, then run `heartsim CASE.h5`");
-    return read_contents(h5::Reader(path));
+    const h5::Reader reader(path);
+    Scenario scenario = read_contents(reader);
+    if (reader.exists("landmarks")) scenario.landmarks = read_landmarks(reader, scenario.visual.has_value());
+    return scenario;
 }
 
 namespace {

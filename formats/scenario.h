@@ -4,6 +4,7 @@
 /// validates shapes, types, index ranges and finiteness before anything uses the data.
 #pragma once
 
+#include "libmodel/landmarks.h"
 #include "libmodel/lattice.h"
 #include "libmodel/mapping.h"
 #include "libmodel/packing.h"
@@ -83,6 +84,9 @@ struct Scenario {
     std::optional<SimulationSurface> simulation_surface;
     /// /mapping: one row per visual vertex; needs /visual and /simsurface.
     std::optional<VisualMapping> mapping;
+    /// /landmarks: the grooves, coronary courses and valve rings on the detailed surface, and those
+    /// the label map could not give with the reason (libmodel/landmarks.h); nullopt: none stored.
+    std::optional<Landmarks> landmarks;
 };
 
 /// The solver options of a scenario: its step settings, with heartsim's rules and kernel options.

@@ -159,6 +159,47 @@ std::string substeps_text(const SolverSettings& solver) {
     return std::to_string(*n) + (*n == 1 ? " substep" : " substeps");
 }
 
+/// /landmarks for --json: each found landmark's figures (not its points) and each missing one's reason.
+nlohmann::ordered_json landmarks_json(const Scenario& s) {
+    using json = nlohmann::ordered_json;
+    if (!s.landmarks) return json();
+    auto vector = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
+    json found = json::array(), missing = json::array();
+    for (const Landmark& l : s.landmarks->found) {
+        json o{{"name", l.name}, {"kind", to_string(l.kind)}, {"between", l.between}, {"points", l.points.size()},
+               {"length_mm", l.length_mm}, {"surface_distance_mm", l.surface_distance_mm}, {"coverage", l.coverage}};
+        if (l.kind == LandmarkKind::ring) {
+            o["diameter_mm"] = l.diameter_mm;
+            o["centre"] = vector(l.centre);
+            o["normal"] = vector(l.normal);
+        }
+        found.push_back(o);
+    }
+    for (const MissingLandmark& m : s.landmarks->missing) missing.push_back({{"name", m.name}, {"reason", m.reason}});
+    return json{{"found", found}, {"missing", missing}};
+}
+
+/// /landmarks for the table: one line a landmark.
+void print_landmarks(const Scenario& s) {
+    if (!s.landmarks) {
+        std::printf("landmarks   none stored (a file from before heartprep found them)\n");
+        return;
+    }
+    const char* head = "landmarks  ";
+    for (const Landmark& l : s.landmarks->found) {
+        std::printf("%s %s: %zu points", head, l.name.c_str(), l.points.size());
+        if (l.kind == LandmarkKind::course) std::printf(", %.1f mm long", l.length_mm);
+        if (l.kind == LandmarkKind::ring) std::printf(", %.1f mm across, perimeter %.1f mm", l.diameter_mm, l.length_mm);
+        if (l.coverage < 1.0) std::printf(", %.0f%% of it on the surface", 100.0 * l.coverage);
+        std::printf(" (%s)\n", l.between.c_str());
+        head = "           ";
+    }
+    for (const MissingLandmark& m : s.landmarks->missing) {
+        std::printf("%s %s: missing: %s\n", head, m.name.c_str(), m.reason.c_str());
+        head = "           ";
+    }
+}
+
 void print_json(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
     using json = nlohmann::ordered_json;
     auto vector = [](const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); };
@@ -225,6 +266,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                     {"max_prestrain", m.max_prestrain},
                     {"rest_residual_max_particle_n", m.residual.max_particle_n},
                     {"rest_residual_total_n", m.residual.total.norm()}};
+    o["landmarks"] = landmarks_json(s);
     o["build_warnings"] = s.build_warnings ? json(*s.build_warnings) : json();
     // nlohmann writes NaN and infinities as null and replaces bytes that are not UTF-8: always valid JSON.
     std::fputs((o.dump(2, ' ', false, json::error_handler_t::replace) + "\n").c_str(), stdout);
@@ -295,6 +337,7 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     std::printf("rest state  %s; pre-strain max %.2g%%; force at rest under gravity: max %.3g N on a particle, %.3g N in all\n",
                 b.norm() > 0 ? "balanced under gravity (pre-stressed)" : "unstressed (imaged shape, no pre-stress)", 100 * m.max_prestrain,
                 m.residual.max_particle_n, m.residual.total.norm());
+    print_landmarks(s);
     if (!s.build_warnings)
         std::printf("warnings    not stored (a file from before heartprep kept its build's warnings)\n");
     else if (s.build_warnings->empty())

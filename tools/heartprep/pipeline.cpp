@@ -1,4 +1,5 @@
 #include "pipeline.h"
+#include "landmark_stage.h"
 #include "cli/option_flags.h"
 
 #include "formats/label_table.h"
@@ -423,6 +424,7 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     pack_stage(scenario, options.packing, progress, report);
     simulation_surface_stage(scenario, progress, report);
     if (options.visual) mapping_stage(scenario, options.visual_mesh, progress, report, options.mapping);
+    landmark_stage(scenario, volume, report);
     // libmodel names options by their meaning; the scenario keeps the warnings as heartprep says them.
     for (std::string& warning : report.warnings) warning = spell_options(warning, heartprep_flags);
     return scenario;
