@@ -258,6 +258,26 @@ public:
 
 private:
     void build_mesh();
+    // step()'s parts, in the order it takes them (patch.cpp).
+    struct StitchPull;
+    struct StepContact;
+    /// Gravity afloat in blood, the pressure over the opening and the damping, for one step.
+    void drift(double dt_ms);
+    /// The stitches' anchors and lengths for the step ending at time_ms + dt_ms.
+    StitchPull stitch_pull(const ParticlePositions& positions, double dt_ms, double time_ms) const;
+    /// α/dt² and 1/(w_a + w_b + α/dt²) per distance, recomputed where the step length changed.
+    void update_compliance(double dt_ms, double dt2);
+    /// The surface under each vertex for the step (under_), the tissue's inverse mass there and how
+    /// far it moved since the last step.
+    StepContact step_contact();
+    void project_stitches(StitchPull& pull, double dt2);
+    void project_distances(std::vector<double>& lambda);
+    /// One-sided contact with friction: a vertex over a surface triangle stays half the thickness
+    /// in front of it (the tissue held still within the step, yielding as predicted).
+    void project_contact(StepContact& contact, const std::vector<Eigen::Vector3d>& previous);
+    void project_obstacles(double dt2);
+    /// The stitches' and the contact's forces, and their opposites as loads on the tissue.
+    void load_tissue(const StitchPull& pull, const StepContact& contact, double dt2);
     /// The grid over a surface at `surface_x` (per triangle its unit `normals`): build_surface_grid
     /// for the step, pass_candidates for a pass.
     struct SurfaceGrid {
