@@ -258,7 +258,7 @@ public:
 
 private:
     void build_mesh();
-    // step()'s parts, in the order it takes them (patch.cpp).
+    // step()'s parts, in the order it takes them (patch_step.cpp).
     struct StitchPull;
     struct StepContact;
     /// Gravity afloat in blood, the pressure over the opening and the damping, for one step.
