@@ -1,8 +1,10 @@
 /// @file backend.h
 /// @brief The simulation behind one interface: `cpu` (libmodel's Solver, the reference) and
-/// `gl` (compute shaders on the same packed layout; runtime/gl/backend_gl.h). This interface knows
-/// no GL: the gl part (heartsim_gl) builds on it. Both do the same step with the same
-/// formulas, instrument semantics and force sign (docs/solver.md, docs/runtime.md).
+/// `gl` (compute shaders on the same packed layout; runtime/gl/backend_gl.h). This interface is
+/// the tissue's and knows no GL, no device and no surgery: the gl part (heartsim_gl) builds on it,
+/// and a surgery's needs come through its one extension, surgery() (runtime/surgery.h). Both do
+/// the same step with the same formulas, instrument semantics and force sign (docs/solver.md,
+/// docs/runtime.md "The backend interface").
 ///
 ///     auto backend = make_gl_backend(gl, scenario, options_from(scenario.solver));  // runtime/gl/backend_gl.h
 ///     backend->set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = {2, 2, 6}});
@@ -117,7 +119,9 @@ public:
     /// The particles the last force pass summed for `hand`, sorted (gl: waits for the GPU).
     virtual std::vector<std::int32_t> contact_particles(int hand) { (void)hand; return {}; }
     /// The backend that simulates: itself, or the one a wrapper (runtime/backend_wrapper.h) passes
-    /// its calls to; the renderer reads the gl backend's position buffer through it.
+    /// its calls to; the renderer reads the gl backend's position buffer through it
+    /// (gl_position_buffer takes the backend returned here whose kind() is gl for the gl backend,
+    /// so a wrapper, which says its inner backend's kind, must pass this on too).
     virtual const Backend& simulating() const { return *this; }
     /// The one extension for a surgery on the tissue (runtime/surgery.h: a few particles' positions,
     /// loads on them, a task beside a step, the device's patch pass, the repair riding on the hands),
