@@ -4,7 +4,8 @@
 /// `length_mm` from inferior to superior, then lifted; two grabbers used as retractors grab the
 /// incision's two edges, one each side of the blade's plane, and pull them `spread_mm` apart, then
 /// hold. The scenario stores no chamber labels: each approach finds its place by a geometric rule
-/// on the particles' rest positions (world LPS: +x the patient's left, +y posterior, +z superior).
+/// on the particles' rest positions (world LPS: +x the patient's left, +y posterior, +z superior;
+/// libmodel/surgery_site.h incision_site).
 ///
 /// * **ventriculotomy** (a right ventriculotomy through the most anterior wall): the most anterior
 ///   particle (smallest y) of the middle third (in z) of the model, the free wall in front rather
@@ -27,6 +28,7 @@
 #pragma once
 
 #include "formats/scenario.h"
+#include "libmodel/surgery_site.h"
 #include "runtime/camera.h"
 #include "runtime/trajectory.h"
 
@@ -38,12 +40,6 @@
 
 namespace heartsim {
 
-enum class IncisionApproach { ventriculotomy, atriotomy };
-/// The tissue's thickness from particle `from` along the unit vector `direction`, mm: how far a
-/// point marched from it in quarter spacings stays within 0.75 spacing of a particle, and half a
-/// spacing more (the tissue reaches half a spacing beyond its last particle).
-double wall_thickness(const Scenario& scenario, std::size_t from, const Eigen::Vector3d& direction);
-
 /// "ventriculotomy" or "atriotomy"; OptionError naming {IncisionPlanOptions::approach} otherwise.
 IncisionApproach parse_incision_approach(const std::string& name);
 const char* to_string(IncisionApproach approach);
@@ -52,7 +48,7 @@ struct IncisionPlanOptions {
     IncisionApproach approach = IncisionApproach::ventriculotomy;
     double length_mm = 30.0;     ///< along z, centred on the chosen particle
     /// How far the blade reaches behind the chosen particle, mm; 0: through the wall there (the
-    /// tissue's thickness along the blade, wall_thickness, and 2 mm on into the cavity).
+    /// tissue's thickness along the blade, libmodel/surgery_site.h wall_thickness, and 2 mm on into the cavity).
     double depth_mm = 0.0;
     double clearance_mm = 2.0;   ///< the tip's distance in front of it
     double speed_mm_per_ms = 0.1;
@@ -73,7 +69,7 @@ struct IncisionPlan {
     ViewDirection view = ViewDirection::anterior;        ///< the named view that faces the incision from outside
     double blade_length_mm = 0.0;
     double depth_mm = 0.0;       ///< how far the blade reaches behind the chosen particle (the option's, or through the wall)
-    double wall_mm = 0.0;        ///< the tissue's thickness along the blade from the chosen particle (wall_thickness)
+    double wall_mm = 0.0;        ///< the tissue's thickness along the blade from the chosen particle (libmodel/surgery_site.h wall_thickness)
     double cut_end_ms = 0.0;     ///< the blade lifts here
     double end_ms = 0.0;         ///< the gesture's end (retractors held still from spread_end_ms)
     double spread_end_ms = 0.0;  ///< 0 without retractors
@@ -90,15 +86,8 @@ struct IncisionPlan {
 /// The incision of `options.approach` on `scenario`. InputError when the scenario has no particles.
 IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& options = {});
 
-/// The particle that is frontmost along `blade` (the smallest rest coordinate along it) among
-/// those within `radius` of the line through `point` along `blade` (a world axis, ±); −1 if none.
+/// libmodel/surgery_site.h frontmost_near on `scenario`'s rest positions.
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius);
-
-/// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h), after
-/// `comments` (whole `#` lines, each ending in a line break). Written atomically (formats/atomic_file.h):
-/// an old file at `path` is replaced whole or, when the write fails, left as it was; OutputError
-/// naming the file and the cause ("No space left on device").
-void write_trajectory_csv(const Trajectory& trajectory, const std::filesystem::path& path, const std::string& comments = "");
 
 /// A camera distance (mm) at which the opened incision fills a good part of the frame: two and a
 /// half incision lengths (a 30 mm cut then spans about 75 % of the frame's height).

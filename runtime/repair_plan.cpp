@@ -2,9 +2,8 @@
 
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
+#include "libmodel/surgery_site.h"
 #include "runtime/incision_plan.h"
-
-#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
@@ -22,70 +21,6 @@ const Eigen::Vector3d right_anterior = Eigen::Vector3d(-1.0, -1.0, 0.0).normaliz
 /// How far beyond the wall's thickness a site may lie from the defect's centre along the axis, mm.
 constexpr double window_margin_mm = 3.0;
 
-/// Where a line crosses the closed surface: `height` along the line's direction `up` (from the
-/// point the line was given at), and whether, followed downward (along −up), it enters the tissue.
-struct Crossing {
-    double height;
-    bool entering;
-};
-
-/// A stretch of the line inside the tissue, between the heights where it enters (from above) and
-/// leaves it.
-struct Stretch {
-    double top, bottom;
-    double length() const { return top - bottom; }
-    bool holds(double h) const { return bottom <= h && h <= top; }
-};
-
-/// The tissue's stretches along the line through `point` along `up`, from the top down: every
-/// crossing of the mesh's triangles (Möller–Trumbore, in double), each entering crossing paired
-/// with the next leaving one. The surface is closed with outward normals (counter-clockwise seen
-/// from outside), so followed downward from far above, crossings alternate entering and leaving;
-/// a crossing counted twice (a line through an edge) is dropped.
-std::vector<Stretch> stretches_along(const VisualMesh& mesh, const Eigen::Vector3d& point, const Eigen::Vector3d& up) {
-    std::vector<Crossing> crossings;
-    const Eigen::Vector3d down = -up;
-    for (const auto& t : mesh.triangles) {
-        const auto& pa = mesh.positions[std::size_t(t[0])];
-        const auto& pb = mesh.positions[std::size_t(t[1])];
-        const auto& pc = mesh.positions[std::size_t(t[2])];
-        const Eigen::Vector3d a(pa[0], pa[1], pa[2]), b(pb[0], pb[1], pb[2]), c(pc[0], pc[1], pc[2]);
-        const Eigen::Vector3d e1 = b - a, e2 = c - a;
-        const Eigen::Vector3d p = down.cross(e2);
-        const double det = e1.dot(p);
-        if (std::abs(det) < 1e-14) continue;  // parallel to the line
-        const double inverse = 1.0 / det;
-        const Eigen::Vector3d s = point - a;
-        const double u = s.dot(p) * inverse;
-        if (u < 0.0 || u > 1.0) continue;
-        const Eigen::Vector3d q = s.cross(e1);
-        const double v = down.dot(q) * inverse;
-        if (v < 0.0 || u + v > 1.0) continue;
-        const double along = e2.dot(q) * inverse;  // distance travelled downward from `point`
-        // The triangle's outward normal e1 × e2 against the downward direction: negative entering.
-        crossings.push_back({-along, e1.cross(e2).dot(down) < 0.0});
-    }
-    std::sort(crossings.begin(), crossings.end(), [](const Crossing& x, const Crossing& y) { return x.height > y.height; });
-    std::vector<Stretch> stretches;
-    bool inside = false;
-    double top = 0.0, last = std::numeric_limits<double>::infinity();
-    bool last_entering = false;
-    for (const Crossing& c : crossings) {
-        if (std::abs(c.height - last) < 1e-7 && c.entering == last_entering) continue;  // the same crossing, through an edge
-        last = c.height, last_entering = c.entering;
-        if (c.entering && !inside) inside = true, top = c.height;
-        else if (!c.entering && inside) inside = false, stretches.push_back({top, c.height});
-    }
-    return stretches;
-}
-
-double median(std::vector<double> values) {
-    if (values.empty()) return std::numeric_limits<double>::quiet_NaN();
-    std::sort(values.begin(), values.end());
-    const std::size_t n = values.size();
-    return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
-
 const char* chamber_of(const std::string& defect) { return defect == "asd" ? "atrium" : "ventricle"; }
 
 std::string defect_words(const std::string& defect) {
@@ -102,6 +37,27 @@ std::string number_text(double value, int decimals = 1) {
     char text[48];
     std::snprintf(text, sizeof text, "%.*f", decimals, value);
     return text;
+}
+
+/// The refusal where a stitch's line meets no wall near the defect (StitchSites::missing): which
+/// stitch, where, what its line met, and what to change.
+InputError no_wall_at_stitch(const StitchSites& found, double stitch_radius_mm, int n) {
+    const StitchSite& line = found.missing_line;
+    const std::string stitch = "stitch " + std::to_string(found.missing + 1) + " of " + std::to_string(n) + " (" + number_text(line.angle_deg, 0) +
+                               "° round the rim): the line along the defect's axis through " + point_text(line.point) + " mm (" +
+                               number_text(stitch_radius_mm) + " mm from the axis)";
+    if (!found.mid_wall_found)
+        return InputError(stitch + " meets no wall near the defect's centre, and none of the " + std::to_string(n) +
+                          " lines crosses tissue at mid-wall: the scenario's tissue has no wall there round the opening (the "
+                          "stitches' circle reaches beyond the septum: a smaller --rim; or the wall the defect was carved through "
+                          "is not simulated: an atrial septum that the label map leaves unlabelled, as MM-WHS does); heartsim run "
+                          "CASE --clip defect shows the section there");
+    std::string what = "it crosses no tissue at all";
+    if (std::isfinite(found.missing_nearest_mm))
+        what = "the nearest tissue it enters begins " + number_text(found.missing_nearest_mm) + " mm from the centre's plane";
+    return InputError(stitch + " meets no wall within " + number_text(found.window_mm) + " mm of the defect's centre (" + what +
+                      "); a smaller --rim keeps the stitches nearer the opening, and heartsim run CASE --clip defect shows the "
+                      "septum there");
 }
 
 /// 221416 → "221,416".
@@ -232,96 +188,34 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
                           number_text(2.0 * plan.stitch_radius_mm) + " mm across (the defect's " + number_text(plan.defect_diameter_mm) +
                           " mm and {RepairPlanOptions::rim_mm} " + number_text(o.rim_mm) + " mm each side); give a larger diameter");
 
-    // The circle's first direction: superior (+z) across the axis, or anterior (−y) where the axis
-    // is within 25° of superior-inferior; the second makes them counter-clockwise seen from outside.
-    plan.starts_anterior = std::abs(axis.z()) > std::cos(25.0 * std::numbers::pi / 180.0);
-    const Eigen::Vector3d reference = plan.starts_anterior ? Eigen::Vector3d(0, -1, 0) : Eigen::Vector3d(0, 0, 1);
-    const Eigen::Vector3d first = (reference - reference.dot(outward) * outward).normalized();
-    const Eigen::Vector3d second = outward.cross(first);
-
-    // The tissue along each stitch's line, heights from the centre's plane along outward.
+    // The stitch sites on the detailed mesh, round the circle of radius D/2 + rim.
     const int n = o.stitches > 0 ? o.stitches
                                  : std::max(8, int(std::ceil(2.0 * std::numbers::pi * plan.stitch_radius_mm / o.stitch_spacing_mm - 1e-9)));
-    const std::size_t count = std::size_t(n);
-    std::vector<Eigen::Vector3d> points(count);
-    std::vector<std::vector<Stretch>> along(count);
-    std::vector<double> angles(count);
-    std::vector<double> mid_wall;
-    for (int k = 0; k < n; ++k) {
-        const double angle = 2.0 * std::numbers::pi * double(k) / double(n);
-        angles[std::size_t(k)] = 360.0 * double(k) / double(n);
-        points[std::size_t(k)] = centre + plan.stitch_radius_mm * (std::cos(angle) * first + std::sin(angle) * second);
-        along[std::size_t(k)] = stretches_along(mesh, points[std::size_t(k)], outward);
-        for (const Stretch& s : along[std::size_t(k)])
-            if (s.holds(0.0)) mid_wall.push_back(s.length());
-    }
-    // T: the septum's thickness, from the stretches that hold mid-wall; without any, the window is
-    // the margin alone.
-    const double thickness = mid_wall.empty() ? 0.0 : median(mid_wall);
-    const double window = thickness + window_margin_mm;
-
-    std::vector<double> walls;
-    for (int k = 0; k < n; ++k) {
-        const auto& stretches = along[std::size_t(k)];
-        const auto found = std::find_if(stretches.begin(), stretches.end(), [&](const Stretch& s) { return std::abs(s.top) <= window; });
-        if (found == stretches.end()) {
-            const std::string stitch = "stitch " + std::to_string(k + 1) + " of " + std::to_string(n) + " (" +
-                                       number_text(angles[std::size_t(k)], 0) + "° round the rim): the line along the defect's axis through " +
-                                       point_text(points[std::size_t(k)]) + " mm (" + number_text(plan.stitch_radius_mm) + " mm from the axis)";
-            if (mid_wall.empty())
-                throw InputError(stitch + " meets no wall near the defect's centre, and none of the " + std::to_string(n) +
-                                 " lines crosses tissue at mid-wall: the scenario's tissue has no wall there round the opening (the "
-                                 "stitches' circle reaches beyond the septum: a smaller --rim; or the wall the defect was carved through "
-                                 "is not simulated: an atrial septum that the label map leaves unlabelled, as MM-WHS does); heartsim run "
-                                 "CASE --clip defect shows the section there");
-            std::string what = "it crosses no tissue at all";
-            double nearest = std::numeric_limits<double>::infinity();
-            for (const Stretch& s : stretches) nearest = std::min(nearest, std::abs(s.top));
-            if (std::isfinite(nearest)) what = "the nearest tissue it enters begins " + number_text(nearest) + " mm from the centre's plane";
-            throw InputError(stitch + " meets no wall within " + number_text(window) + " mm of the defect's centre (" + what +
-                             "); a smaller --rim keeps the stitches nearer the opening, and heartsim run CASE --clip defect shows the "
-                             "septum there");
-        }
+    const StitchCircle circle = stitch_circle(centre, axis, plan.on_b, plan.stitch_radius_mm, n);
+    plan.starts_anterior = circle.starts_anterior;
+    const StitchSites found = find_stitch_sites(mesh.positions, mesh.triangles, circle, window_margin_mm);
+    if (found.missing >= 0) throw no_wall_at_stitch(found, plan.stitch_radius_mm, n);
+    for (const StitchSite& site : found.sites) {
         RepairStitch stitch;
-        stitch.height_mm = found->top;
-        stitch.site = points[std::size_t(k)] + found->top * outward;
+        stitch.height_mm = site.height_mm;
+        stitch.site = site.site;
         stitch.outside = stitch.site + o.approach_mm * outward;
-        stitch.angle_deg = angles[std::size_t(k)];
-        stitch.wall_mm = found->length();
-        walls.push_back(stitch.wall_mm);
+        stitch.angle_deg = site.angle_deg;
+        stitch.wall_mm = site.wall_mm;
         plan.stitches.push_back(stitch);
     }
-    plan.wall_mm = median(walls);
-    plan.wall_min_mm = *std::min_element(walls.begin(), walls.end());
-    plan.wall_max_mm = *std::max_element(walls.begin(), walls.end());
+    plan.wall_mm = found.wall_median_mm;
+    plan.wall_min_mm = found.wall_min_mm;
+    plan.wall_max_mm = found.wall_max_mm;
 
-    // The plane through the sites (least squares: the normal is the direction of least spread),
-    // its normal turned toward the tissue.
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (const RepairStitch& s : plan.stitches) mean += s.site;
-    mean /= double(n);
-    Eigen::Matrix3d spread = Eigen::Matrix3d::Zero();
-    for (const RepairStitch& s : plan.stitches) spread += (s.site - mean) * (s.site - mean).transpose();
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(spread);
-    Eigen::Vector3d facing = solver.eigenvectors().col(0).normalized();
-    if (facing.dot(outward) > 0) facing = -facing;
-    if (-facing.dot(outward) < 0.1)
-        throw InputError("the stitch sites lie on a surface almost along the defect's axis (its normal " +
-                         number_text(std::acos(std::clamp(-facing.dot(outward), -1.0, 1.0)) * 180.0 / std::numbers::pi, 0) +
-                         "° from it), not across it: there is no wall round the opening for a patch to cover");
-    for (const RepairStitch& s : plan.stitches) plan.fit_residual_mm = std::max(plan.fit_residual_mm, std::abs((s.site - mean).dot(facing)));
-    plan.patch_facing = facing;
-    plan.patch_tilt_deg = std::acos(std::clamp(-facing.dot(outward), -1.0, 1.0)) * 180.0 / std::numbers::pi;
-    // Where the axis meets the plane, then along the axis, away from the tissue, until half the
-    // thickness off the plane: the patch stays centred on the axis and its underside on the plane.
-    const double along_axis = facing.dot(mean - centre) / facing.dot(axis);
-    plan.patch_centre = centre + along_axis * axis + (0.5 * o.thickness_mm / -facing.dot(outward)) * outward;
-    const Eigen::Vector3d patch_x = (first - first.dot(facing) * facing).normalized();
-    Eigen::Matrix3d patch_frame;
-    patch_frame << patch_x, facing.cross(patch_x), facing;
-    plan.patch_orientation = Eigen::Quaterniond(patch_frame).normalized();
+    const PatchPlacement patch = place_patch(found.sites, circle, o.thickness_mm);
+    plan.fit_residual_mm = patch.residual_mm;
+    plan.patch_facing = patch.facing;
+    plan.patch_tilt_deg = patch.tilt_deg;
+    plan.patch_centre = patch.centre;
+    plan.patch_orientation = patch.orientation;
     Eigen::Matrix3d needle_frame;
-    needle_frame << first, second, outward;
+    needle_frame << circle.first, circle.second, outward;
     plan.needle_orientation = Eigen::Quaterniond(needle_frame).normalized();
 
     // The keyframes (repair_plan.h).

@@ -6,7 +6,8 @@
 /// The defect is the one `heartprep build --defect` stores in /source: its centre (mid-wall), axis
 /// (unit, from side a's pool to side b's) and diameter D. The geometry is found on the detailed
 /// mesh at rest (/visual, a closed surface with outward normals), world LPS (+x the patient's
-/// left, +y posterior, +z superior):
+/// left, +y posterior, +z superior), by libmodel/surgery_site.h (the stitch circle, the sites, the
+/// patch's plane); this plan chooses the side, refuses what it cannot plan and scripts the hands:
 ///
 /// * **side**: by default the right side (the right ventricle's for a vsd, the right atrium's for
 ///   an asd: surgeons close both through the right heart). A scenario does not store which pool is

@@ -1,6 +1,7 @@
 // Scripted instruments and the run loop shared by the CLI and the tests. trajectory.h.
 #include "runtime/trajectory.h"
 
+#include "formats/atomic_file.h"
 #include "formats/csv.h"
 
 #include "libmodel/errors.h"
@@ -132,6 +133,20 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
 }
 
 Trajectory read_trajectory(const std::filesystem::path& path) { return parse_trajectory(read_csv_file(path), path.string()); }
+
+void write_trajectory_csv(const Trajectory& t, const std::filesystem::path& path, const std::string& comments) {
+    std::string text = comments + "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
+    for (const InstrumentKeyframe& k : t.keyframes) {
+        const auto& p = k.pose.position;
+        const auto& q = k.pose.orientation;
+        char row[512];
+        std::snprintf(row, sizeof row, "%.17g,%d,%s,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%d\n", k.time_ms, k.hand,
+                      to_string(k.kind), p.x(), p.y(), p.z(), q.w(), q.x(), q.y(), q.z(), k.semi_axes.x(), k.semi_axes.y(), k.semi_axes.z(),
+                      k.grab ? 1 : 0);
+        text += row;
+    }
+    write_bytes_atomically(path, text.data(), text.size(), "the trajectory");
+}
 
 // --probe and --grab are options: a value that is not one is an OptionError naming the option by
 // its meaning (heartsim spells it as its flag, cli/option_flags.h; exit 2).

@@ -53,6 +53,11 @@ void check_planned_trajectory(const Trajectory& trajectory);
 Trajectory read_trajectory(const std::filesystem::path& path);
 /// Parses CSV text (the same format); `name` is used in error messages.
 Trajectory parse_trajectory(const std::string& text, const std::string& name);
+/// Writes `trajectory` as that CSV, after `comments` (whole `#` lines, each ending in a line break):
+/// what read_trajectory reads back, every number to the last bit (%.17g). Written atomically
+/// (formats/atomic_file.h): an old file at `path` is replaced whole or, when the write fails, left
+/// as it was; OutputError naming the file and the cause ("No space left on device").
+void write_trajectory_csv(const Trajectory& trajectory, const std::filesystem::path& path, const std::string& comments = "");
 
 /// A fixed probe or grabber from the command line: "X,Y,Z,AX,AY,AZ" (mm), a grabber optionally
 /// followed by ",DX,DY,DZ", the distance it pulls over the run. Throws OptionError naming
