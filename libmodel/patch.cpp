@@ -3,6 +3,7 @@
 #include "ellipsoid.h"
 #include "errors.h"
 #include "patch_internal.h"
+#include "ray_triangle.h"
 #include "triangle_point.h"
 
 #include <algorithm>
@@ -24,23 +25,6 @@ namespace {
 
 using patch_internal::barycentric;
 using patch_internal::vec;
-
-/// Where the ray o + s·d (s ≥ 0) meets triangle (a, b, c) (Möller–Trumbore); −1 when it misses.
-double ray_triangle(const Eigen::Vector3d& o, const Eigen::Vector3d& d, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                    const Eigen::Vector3d& c) {
-    const Eigen::Vector3d e1 = b - a, e2 = c - a, q = d.cross(e2);
-    const double det = e1.dot(q);
-    if (std::abs(det) < 1e-14) return -1;
-    const double inv = 1.0 / det;
-    const Eigen::Vector3d t = o - a;
-    const double u = t.dot(q) * inv;
-    if (u < 0 || u > 1) return -1;
-    const Eigen::Vector3d r = t.cross(e1);
-    const double v = d.dot(r) * inv;
-    if (v < 0 || u + v > 1) return -1;
-    const double s = e2.dot(r) * inv;
-    return s >= 0 ? s : -1;
-}
 
 }  // namespace
 
