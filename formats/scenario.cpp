@@ -42,6 +42,26 @@ void write_labels(h5::Writer& w, const std::string& object, const char* name, co
     w.attribute(object, name, values.data(), {values.size()});
 }
 
+/// /materials/origin, wall_thickness_mm, grown_from, tissue_volume_mm3: one row per material.
+void write_tissue_origin(h5::Writer& w, const Scenario& s) {
+    const std::size_t m = s.lattice.materials.size();
+    if (s.tissue_origin.size() != m)
+        throw InputError("scenario: " + std::to_string(s.tissue_origin.size()) + " tissue origins for " + std::to_string(m) + " materials");
+    std::vector<std::string> origin;
+    std::vector<float> thickness, volume;
+    std::vector<std::int32_t> from;
+    for (const TissueOrigin& o : s.tissue_origin) {
+        origin.push_back(o.grown ? "grown" : "labelled");
+        thickness.push_back(o.grown ? float(o.thickness_mm) : 0.0f);
+        from.push_back(o.grown_from);
+        volume.push_back(float(o.volume_mm3));
+    }
+    w.strings("materials/origin", origin);
+    w.dataset("materials/wall_thickness_mm", thickness, {m});
+    w.dataset("materials/grown_from", from, {m});
+    w.dataset("materials/tissue_volume_mm3", volume, {m});
+}
+
 void write_contents(h5::Writer& w, const Scenario& s) {
     w.header("heartsim.scenario", scenario_format_version, "mm g ms");
     w.attribute("/", "generator", s.generator);
@@ -100,6 +120,7 @@ void write_contents(h5::Writer& w, const Scenario& s) {
         w.dataset(g + "/stiffness", stiffness, {m});
         w.dataset(g + "/damping", damping, {m});
         w.dataset(g + "/youngs_modulus_kpa", youngs, {m});
+        if (!s.tissue_origin.empty()) write_tissue_origin(w, s);
     }
     {
         const std::string g = "particles";
@@ -360,6 +381,321 @@ void check_time_steps(const h5::Reader& r, const Scenario& s) {
     }
 }
 
+/// /source: the input volume's name, grid and labels, and a carved defect.
+void read_source(const h5::Reader& r, Scenario& s) {
+    auto& geometry = s.source.geometry;
+    s.source.file_name = r.string_attribute("source", "file_name");
+    auto dims = r.numbers<std::int32_t>("source", "dims", 3);
+    auto spacing = r.numbers<double>("source", "spacing", 3);
+    for (int a = 0; a < 3; ++a) {
+        if (dims[std::size_t(a)] <= 0 || spacing[std::size_t(a)] <= 0) r.fail("/source", "dims and spacing must be positive");
+        if (dims[std::size_t(a)] > plausible::max_voxels_per_axis)
+            r.fail("/source", "dims " + std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " + std::to_string(dims[2]) +
+                                  ": at most " + std::to_string(plausible::max_voxels_per_axis) + " voxels along an axis");
+        if (!plausible::voxel_spacing_mm.contains(spacing[std::size_t(a)]))
+            r.fail("/source", plausible::outside("spacing", spacing[std::size_t(a)], plausible::voxel_spacing_mm));
+        geometry.dims[std::size_t(a)] = dims[std::size_t(a)];
+        geometry.spacing[a] = spacing[std::size_t(a)];
+    }
+    const Eigen::Matrix4d m = read_matrix(r, "source", "voxel_to_world");
+    geometry.direction = m.topLeftCorner<3, 3>() * geometry.spacing.cwiseInverse().asDiagonal();
+    geometry.origin = m.topRightCorner<3, 1>();
+    auto labels = [&](const char* name) {
+        auto values = r.numbers<std::int32_t>("source", name, -1);
+        return std::vector<int>(values.begin(), values.end());
+    };
+    s.source.tissue_labels = labels("tissue_labels");
+    s.source.cavity_labels = labels("cavity_labels");
+    s.source.anchor_labels = labels("anchor_labels");
+    s.source.anchor_border = r.number<std::int32_t>("source", "anchor_border") != 0;
+    if (r.has_attribute("source", "tissue_volume_mm3")) {
+        s.source.tissue_volume_mm3 = r.number<double>("source", "tissue_volume_mm3");
+        if (!(s.source.tissue_volume_mm3 > 0.0) || !std::isfinite(s.source.tissue_volume_mm3))
+            r.fail("/source", "tissue_volume_mm3 must be a positive number");
+    }
+    if (r.has_attribute("source", "defect")) {
+        s.source.defect = r.string_attribute("source", "defect");
+        if (s.source.defect != "vsd" && s.source.defect != "asd")
+            r.fail("/source", "defect must be vsd or asd, got '" + s.source.defect + "'");
+        auto vector = [&](const char* name) {
+            const auto v = r.numbers<double>("source", name, 3);
+            const Eigen::Vector3d out(v[0], v[1], v[2]);
+            if (!out.allFinite()) r.fail("/source", std::string(name) + " must be finite");
+            return out;
+        };
+        s.source.defect_centre = vector("defect_centre");
+        s.source.defect_axis = vector("defect_axis");
+        if (!(std::abs(s.source.defect_axis.norm() - 1.0) < 1e-3)) r.fail("/source", "defect_axis must be a unit vector");
+        s.source.defect_diameter_mm = r.number<double>("source", "defect_diameter_mm");
+        if (!plausible::defect_diameter_mm.contains(s.source.defect_diameter_mm))
+            r.fail("/source", plausible::outside("defect_diameter_mm", s.source.defect_diameter_mm, plausible::defect_diameter_mm) +
+                                  " (heartprep carves no other)");
+        // The opening was carved into this label map: its centre lies in the map's box.
+        const Eigen::Vector3d ijk =
+            (geometry.direction.inverse() * (s.source.defect_centre - geometry.origin)).cwiseQuotient(geometry.spacing);
+        for (int a = 0; a < 3; ++a)
+            if (!(ijk[a] >= -0.5 && ijk[a] <= double(geometry.dims[std::size_t(a)]) - 0.5)) {
+                std::ostringstream text;
+                text << "defect_centre " << s.source.defect_centre.x() << ", " << s.source.defect_centre.y() << ", "
+                     << s.source.defect_centre.z() << " mm lies outside the label map it was carved into (voxel index "
+                     << ijk[a] << " along axis " << a << ", of 0 to " << geometry.dims[std::size_t(a)] - 1 << ")";
+                r.fail("/source", text.str());
+            }
+    }
+}
+
+/// /lattice: spacing, dims within the source volume's extent, and a non-degenerate index-to-world map.
+void read_lattice(const h5::Reader& r, const ScenarioSource& source, Lattice& lattice) {
+    lattice.spacing = r.number<double>("lattice", "spacing");
+    if (!(lattice.spacing > 0)) r.fail("/lattice", "spacing must be positive");
+    if (!plausible::lattice_spacing_mm.contains(lattice.spacing))
+        r.fail("/lattice", plausible::outside("spacing", lattice.spacing, plausible::lattice_spacing_mm));
+    auto dims = r.numbers<std::int32_t>("lattice", "dims", 3);
+    for (int a = 0; a < 3; ++a) {
+        if (dims[std::size_t(a)] <= 0) r.fail("/lattice", "dims must be positive");
+        lattice.dims[std::size_t(a)] = dims[std::size_t(a)];
+    }
+    // heartprep's lattice covers the source volume: ceil(voxels × voxel size / spacing) cells
+    // per axis (lattice.cpp axis_weights). One more is allowed for the rounding of the stored
+    // values; a larger count is damage, and readers that size a grid by it would ask for
+    // gigabytes (a 2e9 read as "out of memory").
+    for (int a = 0; a < 3; ++a) {
+        const double extent = double(source.geometry.dims[std::size_t(a)]) * source.geometry.spacing[a];
+        const double most = std::ceil(extent / lattice.spacing) + 1;
+        if (double(lattice.dims[std::size_t(a)]) > most)
+            r.fail("/lattice", "dims " + std::to_string(lattice.dims[0]) + " x " + std::to_string(lattice.dims[1]) + " x " +
+                                   std::to_string(lattice.dims[2]) + ": at most " + std::to_string(std::llround(most)) + " cells of " +
+                                   std::to_string(lattice.spacing) + " mm fit the " + std::to_string(extent) +
+                                   " mm of the source volume along axis " + std::to_string(a));
+    }
+    lattice.index_to_world = read_matrix(r, "lattice", "index_to_world");
+    // An affine map whose three axes are the lattice spacing long (a rotation times the spacing).
+    const Eigen::Matrix4d& m = lattice.index_to_world;
+    if (!m.allFinite() || m.row(3) != Eigen::RowVector4d(0, 0, 0, 1))
+        r.fail("/lattice", "index_to_world must be a finite affine matrix (last row 0 0 0 1)");
+    for (int a = 0; a < 3; ++a) {
+        const double length = m.block<3, 1>(0, a).norm();
+        if (!(std::abs(length - lattice.spacing) <= 1e-3 * lattice.spacing))
+            r.fail("/lattice", "index_to_world axis " + std::to_string(a) + " is " + std::to_string(length) +
+                                   " mm long, not the lattice spacing of " + std::to_string(lattice.spacing) + " mm");
+    }
+    if (!(std::abs(m.topLeftCorner<3, 3>().determinant()) > 0.5 * std::pow(lattice.spacing, 3)))
+        r.fail("/lattice", "index_to_world is degenerate: its axes do not span 3D space");
+}
+
+/// /materials: the table the particles refer to.
+void read_materials(const h5::Reader& r, Lattice& lattice) {
+    std::size_t m = 0;
+    auto label = r.dataset<std::int32_t>("materials/label", {-1}, &m);
+    auto name = r.strings("materials/name", long(m));
+    auto density = r.dataset<float>("materials/density", {long(m)});
+    auto stiffness = r.dataset<float>("materials/stiffness", {long(m)});
+    auto damping = r.dataset<float>("materials/damping", {long(m)});
+    if (m == 0) r.fail("materials/label", "no material");
+    std::vector<float> youngs;
+    if (r.exists("materials/youngs_modulus_kpa")) {
+        youngs = r.dataset<float>("materials/youngs_modulus_kpa", {long(m)});
+        for (std::size_t i = 0; i < m; ++i)  // informative (the stiffness is the contract), but printed by inspect
+            if (!(youngs[i] > 0) || !std::isfinite(youngs[i])) r.fail("materials/youngs_modulus_kpa", "must be positive and finite");
+    }
+    for (std::size_t i = 0; i < m; ++i) {
+        if (!(density[i] > 0) || !std::isfinite(density[i])) r.fail("materials/density", "must be positive and finite");
+        if (!(stiffness[i] > 0) || !std::isfinite(stiffness[i])) r.fail("materials/stiffness", "must be positive and finite");
+        if (!(damping[i] >= 0) || !std::isfinite(damping[i])) r.fail("materials/damping", "must be non-negative and finite");
+        Material material;
+        material.label = label[i];
+        material.name = name[i];
+        material.density = density[i];
+        material.damping_ratio = damping[i];
+        // The face-spring stiffness is the contract; Young's modulus follows from k = 0.4·E·h.
+        material.youngs_modulus_kpa = youngs.empty() ? stiffness[i] / (0.4e-3 * lattice.spacing) : youngs[i];
+        lattice.materials.push_back(material);
+    }
+    require_plausible(r, "materials/density", density, plausible::density_g_per_mm3);
+    require_plausible(r, "materials/stiffness", stiffness, plausible::stiffness_n_per_mm);
+    require_plausible(r, "materials/damping", damping, plausible::damping_ratio);
+}
+
+/// /materials/origin, wall_thickness_mm, grown_from, tissue_volume_mm3: where each material's tissue
+/// came from. A file without them (every build of the labels as they are, and every older file)
+/// reads as all labelled.
+void read_tissue_origin(const h5::Reader& r, Scenario& s) {
+    if (!r.exists("materials/origin")) return;
+    const long m = long(s.lattice.materials.size());
+    const auto origin = r.strings("materials/origin", m);
+    const auto thickness = r.dataset<float>("materials/wall_thickness_mm", {m});
+    const auto from = r.dataset<std::int32_t>("materials/grown_from", {m});
+    const auto volume = r.dataset<float>("materials/tissue_volume_mm3", {m});
+    for (std::size_t i = 0; i < std::size_t(m); ++i) {
+        TissueOrigin o;
+        if (origin[i] != "labelled" && origin[i] != "grown")
+            r.fail("materials/origin", "entry " + std::to_string(i) + " is '" + origin[i] + "', expected labelled or grown");
+        o.grown = origin[i] == "grown";
+        o.thickness_mm = thickness[i];
+        if (o.grown && !plausible::wall_thickness_mm.contains(o.thickness_mm))
+            r.fail("materials/wall_thickness_mm", "entry " + std::to_string(i) + ": " +
+                                                     plausible::outside("a grown wall's thickness", o.thickness_mm, plausible::wall_thickness_mm));
+        if (!o.grown && o.thickness_mm != 0.0f)
+            r.fail("materials/wall_thickness_mm", "entry " + std::to_string(i) + " is labelled tissue and must be 0");
+        o.grown_from = from[i];
+        o.volume_mm3 = volume[i];
+        if (!(o.volume_mm3 >= 0.0) || !std::isfinite(o.volume_mm3))
+            r.fail("materials/tissue_volume_mm3", "entry " + std::to_string(i) + " is not a non-negative finite volume");
+        s.tissue_origin.push_back(o);
+    }
+}
+
+/// /particles: rest positions, lattice indices (one particle per node), masses, materials, anchors
+/// and supports.
+void read_particles(const h5::Reader& r, Lattice& lattice) {
+    auto& p = lattice.particles;
+    std::size_t n = 0;
+    auto rest = r.dataset<float>("particles/rest_position", {-1, 3}, &n);
+    r.require_finite("particles/rest_position", rest);
+    require_plausible(r, "particles/rest_position", rest, plausible::coordinate_mm);
+    p.rest_position = h5::rows_of<3>(rest);
+    p.lattice_index = h5::rows_of<3>(r.dataset<std::int32_t>("particles/lattice_index", {long(n), 3}));
+    for (std::size_t i = 0; i < n; ++i)
+        for (int a = 0; a < 3; ++a)
+            if (p.lattice_index[i][std::size_t(a)] < 0 || p.lattice_index[i][std::size_t(a)] >= lattice.dims[std::size_t(a)])
+                r.fail("particles/lattice_index", "row " + std::to_string(i) + " lies outside /lattice dims");
+    {  // one particle per lattice node
+        std::unordered_map<std::uint64_t, std::size_t> owner;
+        owner.reserve(n);
+        for (std::size_t i = 0; i < n; ++i) {
+            const auto& c = p.lattice_index[i];
+            const std::uint64_t key = (std::uint64_t(c[2]) * std::uint64_t(lattice.dims[1]) + std::uint64_t(c[1])) *
+                                          std::uint64_t(lattice.dims[0]) + std::uint64_t(c[0]);
+            if (const auto [at, fresh] = owner.emplace(key, i); !fresh)
+                r.fail("particles/lattice_index", "rows " + std::to_string(at->second) + " and " + std::to_string(i) +
+                                                      " name the same lattice node (" + std::to_string(c[0]) + ", " +
+                                                      std::to_string(c[1]) + ", " + std::to_string(c[2]) + ")");
+        }
+    }
+    p.mass = r.dataset<float>("particles/mass", {long(n)});
+    for (std::size_t i = 0; i < n; ++i)
+        if (!(p.mass[i] > 0) || !std::isfinite(p.mass[i]))
+            r.fail("particles/mass", "entry " + std::to_string(i) + " is not a positive finite mass");
+    require_plausible(r, "particles/mass", p.mass, plausible::particle_mass_g);
+    p.material = r.dataset<std::int32_t>("particles/material", {long(n)});
+    require_indices(r, "particles/material", p.material, lattice.materials.size());
+    p.anchored = r.dataset<std::uint8_t>("particles/anchored", {long(n)});
+    for (std::size_t i = 0; i < n; ++i)
+        if (p.anchored[i] > 1) r.fail("particles/anchored", "entry " + std::to_string(i) + " is neither 0 nor 1");
+    if (n == 0) r.fail("particles/mass", "no particles");
+    // Supports (optional: a file without them has none).
+    const bool has_stiffness = r.exists("particles/support_stiffness"), has_point = r.exists("particles/support_point");
+    if (has_stiffness != has_point)
+        r.fail(has_stiffness ? "particles/support_point" : "particles/support_stiffness",
+               "missing: support_stiffness and support_point come together");
+    if (has_stiffness) {
+        p.support_stiffness = r.dataset<float>("particles/support_stiffness", {long(n)});
+        for (std::size_t i = 0; i < n; ++i)
+            if (!(p.support_stiffness[i] >= 0) || !std::isfinite(p.support_stiffness[i]))
+                r.fail("particles/support_stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness (N/mm)");
+        auto point = r.dataset<float>("particles/support_point", {long(n), 3});
+        r.require_finite("particles/support_point", point);
+        require_plausible(r, "particles/support_point", point, plausible::coordinate_mm);
+        require_plausible(r, "particles/support_stiffness", p.support_stiffness, plausible::stiffness_n_per_mm);
+        for (std::size_t i = 0; i < n; ++i)
+            if (p.anchored[i] && p.support_stiffness[i] > 0)
+                r.fail("particles/support_stiffness", "entry " + std::to_string(i) +
+                                                          " supports an anchored particle (a particle is held by one or the other)");
+        p.support_point = h5::rows_of<3>(point);
+        p.support_damping.assign(n, 0.0f);  // optional: undamped supports
+        if (r.exists("particles/support_damping")) {
+            p.support_damping = r.dataset<float>("particles/support_damping", {long(n)});
+            for (std::size_t i = 0; i < n; ++i)
+                if (!(p.support_damping[i] >= 0) || !std::isfinite(p.support_damping[i]))
+                    r.fail("particles/support_damping", "entry " + std::to_string(i) + " is not a non-negative finite damping (N·ms/mm)");
+            require_plausible(r, "particles/support_damping", p.support_damping, plausible::support_damping_n_ms_per_mm);
+        }
+    }
+}
+
+/// /springs: pairs (each once, ordered), rest lengths and stiffnesses.
+void read_springs(const h5::Reader& r, Lattice& lattice) {
+    auto& sp = lattice.springs;
+    const std::size_t n = lattice.particles.size();
+    std::size_t count = 0;
+    auto pairs = r.dataset<std::int32_t>("springs/pairs", {-1, 2}, &count);
+    require_indices(r, "springs/pairs", pairs, n);
+    sp.pairs = h5::rows_of<2>(pairs);
+    for (std::size_t i = 0; i < count; ++i)
+        if (sp.pairs[i][0] >= sp.pairs[i][1])
+            r.fail("springs/pairs", "row " + std::to_string(i) + " is not ordered first < second");
+    {  // each pair once: a duplicate would replace the other's slot in /packing
+        std::vector<std::pair<std::uint64_t, std::size_t>> keys(count);
+        for (std::size_t i = 0; i < count; ++i) keys[i] = {(std::uint64_t(sp.pairs[i][0]) << 32) | std::uint32_t(sp.pairs[i][1]), i};
+        std::sort(keys.begin(), keys.end());
+        for (std::size_t k = 1; k < count; ++k)
+            if (keys[k].first == keys[k - 1].first) {
+                const std::size_t a = std::min(keys[k - 1].second, keys[k].second), b = std::max(keys[k - 1].second, keys[k].second);
+                r.fail("springs/pairs", "rows " + std::to_string(a) + " and " + std::to_string(b) + " join the same particles (" +
+                                            std::to_string(sp.pairs[a][0]) + ", " + std::to_string(sp.pairs[a][1]) + ")");
+            }
+    }
+    sp.rest_length = r.dataset<float>("springs/rest_length", {long(count)});
+    sp.stiffness = r.dataset<float>("springs/stiffness", {long(count)});
+    for (std::size_t i = 0; i < count; ++i) {
+        if (!(sp.rest_length[i] > 0) || !std::isfinite(sp.rest_length[i]))
+            r.fail("springs/rest_length", "entry " + std::to_string(i) + " is not a positive finite length");
+        if (!(sp.stiffness[i] >= 0) || !std::isfinite(sp.stiffness[i]))
+            r.fail("springs/stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness");
+    }
+    require_plausible(r, "springs/rest_length", sp.rest_length, plausible::rest_length_mm);
+    require_plausible(r, "springs/stiffness", sp.stiffness, plausible::stiffness_n_per_mm);
+}
+
+/// /visual, when present.
+void read_visual(const h5::Reader& r, Scenario& s) {
+    if (!r.exists("visual")) return;
+    VisualMesh v;
+    std::size_t count = 0;
+    auto positions = r.dataset<float>("visual/positions", {-1, 3}, &count);
+    r.require_finite("visual/positions", positions);
+    require_plausible(r, "visual/positions", positions, plausible::coordinate_mm);
+    auto normals = r.dataset<float>("visual/normals", {long(count), 3});
+    r.require_finite("visual/normals", normals);
+    auto triangles = r.dataset<std::int32_t>("visual/triangles", {-1, 3});
+    require_indices(r, "visual/triangles", triangles, count);
+    v.positions = h5::rows_of<3>(positions);
+    v.normals = h5::rows_of<3>(normals);
+    v.triangles = h5::rows_of<3>(triangles);
+    s.visual = std::move(v);
+}
+
+/// /solver: the step settings, within their plausible ranges and below the critical step.
+void read_solver(const h5::Reader& r, Scenario& s) {
+    auto& solver = s.solver;
+    solver.dt_ms = r.number<double>("solver", "dt_ms");
+    solver.substeps = r.number<std::int32_t>("solver", "substeps");
+    solver.damping = r.number<double>("solver", "damping");
+    auto gravity = r.numbers<double>("solver", "gravity", 3);
+    solver.gravity = Eigen::Vector3d(gravity[0], gravity[1], gravity[2]);
+    if (r.has_attribute("solver", "balanced_gravity")) {
+        auto balanced = r.numbers<double>("solver", "balanced_gravity", 3);
+        solver.balanced_gravity = Eigen::Vector3d(balanced[0], balanced[1], balanced[2]);
+        if (!solver.balanced_gravity.allFinite()) r.fail("/solver", "balanced_gravity must be finite");
+    }
+    solver.critical_dt_ms = r.number<double>("solver", "critical_dt_ms");
+    if (r.has_attribute("solver", "critical_dt_bound_ms"))
+        solver.critical_dt_bound_ms = r.number<double>("solver", "critical_dt_bound_ms");
+    if (r.has_attribute("solver", "damped_critical_dt_ms"))
+        solver.damped_critical_dt_ms = r.number<double>("solver", "damped_critical_dt_ms");
+    if (r.has_attribute("solver", "safety_factor")) solver.safety_factor = r.number<double>("solver", "safety_factor");
+    if (!(solver.dt_ms > 0)) r.fail("/solver", "dt_ms must be positive");
+    if (solver.substeps < 1) r.fail("/solver", "substeps must be at least 1");
+    if (!(solver.damping >= 0)) r.fail("/solver", "damping must be non-negative");
+    if (!(solver.critical_dt_ms > 0)) r.fail("/solver", "critical_dt_ms must be positive");
+    using plausible::outside;
+    if (!plausible::time_step_ms.contains(solver.dt_ms)) r.fail("/solver", outside("dt_ms", solver.dt_ms, plausible::time_step_ms));
+    if (!plausible::drag_per_ms.contains(solver.damping)) r.fail("/solver", outside("damping", solver.damping, plausible::drag_per_ms));
+    for (const auto& [name, g] : {std::pair{"|gravity|", solver.gravity.norm()}, std::pair{"|balanced_gravity|", solver.balanced_gravity.norm()}})
+        if (!plausible::gravity_mm_per_ms2.contains(g)) r.fail("/solver", outside(name, g, plausible::gravity_mm_per_ms2));
+    check_time_steps(r, s);
+}
+
 Scenario read_contents(const h5::Reader& r) {
     Scenario s;
     r.header("heartsim.scenario", scenario_oldest_format_version, scenario_format_version, "mm g ms");
@@ -368,281 +704,17 @@ Scenario read_contents(const h5::Reader& r) {
     if (r.has_attribute("/", "batch_key")) s.batch_key = r.string_attribute("/", "batch_key");
     if (r.exists("build_warnings")) s.build_warnings = r.strings("build_warnings", -1);
 
-    {
-        auto& geometry = s.source.geometry;
-        s.source.file_name = r.string_attribute("source", "file_name");
-        auto dims = r.numbers<std::int32_t>("source", "dims", 3);
-        auto spacing = r.numbers<double>("source", "spacing", 3);
-        for (int a = 0; a < 3; ++a) {
-            if (dims[std::size_t(a)] <= 0 || spacing[std::size_t(a)] <= 0) r.fail("/source", "dims and spacing must be positive");
-            if (dims[std::size_t(a)] > plausible::max_voxels_per_axis)
-                r.fail("/source", "dims " + std::to_string(dims[0]) + " x " + std::to_string(dims[1]) + " x " + std::to_string(dims[2]) +
-                                      ": at most " + std::to_string(plausible::max_voxels_per_axis) + " voxels along an axis");
-            if (!plausible::voxel_spacing_mm.contains(spacing[std::size_t(a)]))
-                r.fail("/source", plausible::outside("spacing", spacing[std::size_t(a)], plausible::voxel_spacing_mm));
-            geometry.dims[std::size_t(a)] = dims[std::size_t(a)];
-            geometry.spacing[a] = spacing[std::size_t(a)];
-        }
-        const Eigen::Matrix4d m = read_matrix(r, "source", "voxel_to_world");
-        geometry.direction = m.topLeftCorner<3, 3>() * geometry.spacing.cwiseInverse().asDiagonal();
-        geometry.origin = m.topRightCorner<3, 1>();
-        auto labels = [&](const char* name) {
-            auto values = r.numbers<std::int32_t>("source", name, -1);
-            return std::vector<int>(values.begin(), values.end());
-        };
-        s.source.tissue_labels = labels("tissue_labels");
-        s.source.cavity_labels = labels("cavity_labels");
-        s.source.anchor_labels = labels("anchor_labels");
-        s.source.anchor_border = r.number<std::int32_t>("source", "anchor_border") != 0;
-        if (r.has_attribute("source", "tissue_volume_mm3")) {
-            s.source.tissue_volume_mm3 = r.number<double>("source", "tissue_volume_mm3");
-            if (!(s.source.tissue_volume_mm3 > 0.0) || !std::isfinite(s.source.tissue_volume_mm3))
-                r.fail("/source", "tissue_volume_mm3 must be a positive number");
-        }
-        if (r.has_attribute("source", "defect")) {
-            s.source.defect = r.string_attribute("source", "defect");
-            if (s.source.defect != "vsd" && s.source.defect != "asd")
-                r.fail("/source", "defect must be vsd or asd, got '" + s.source.defect + "'");
-            auto vector = [&](const char* name) {
-                const auto v = r.numbers<double>("source", name, 3);
-                const Eigen::Vector3d out(v[0], v[1], v[2]);
-                if (!out.allFinite()) r.fail("/source", std::string(name) + " must be finite");
-                return out;
-            };
-            s.source.defect_centre = vector("defect_centre");
-            s.source.defect_axis = vector("defect_axis");
-            if (!(std::abs(s.source.defect_axis.norm() - 1.0) < 1e-3)) r.fail("/source", "defect_axis must be a unit vector");
-            s.source.defect_diameter_mm = r.number<double>("source", "defect_diameter_mm");
-            if (!plausible::defect_diameter_mm.contains(s.source.defect_diameter_mm))
-                r.fail("/source", plausible::outside("defect_diameter_mm", s.source.defect_diameter_mm, plausible::defect_diameter_mm) +
-                                      " (heartprep carves no other)");
-            // The opening was carved into this label map: its centre lies in the map's box.
-            const Eigen::Vector3d ijk =
-                (geometry.direction.inverse() * (s.source.defect_centre - geometry.origin)).cwiseQuotient(geometry.spacing);
-            for (int a = 0; a < 3; ++a)
-                if (!(ijk[a] >= -0.5 && ijk[a] <= double(geometry.dims[std::size_t(a)]) - 0.5)) {
-                    std::ostringstream text;
-                    text << "defect_centre " << s.source.defect_centre.x() << ", " << s.source.defect_centre.y() << ", "
-                         << s.source.defect_centre.z() << " mm lies outside the label map it was carved into (voxel index "
-                         << ijk[a] << " along axis " << a << ", of 0 to " << geometry.dims[std::size_t(a)] - 1 << ")";
-                    r.fail("/source", text.str());
-                }
-        }
-    }
-    auto& lattice = s.lattice;
-    {
-        lattice.spacing = r.number<double>("lattice", "spacing");
-        if (!(lattice.spacing > 0)) r.fail("/lattice", "spacing must be positive");
-        if (!plausible::lattice_spacing_mm.contains(lattice.spacing))
-            r.fail("/lattice", plausible::outside("spacing", lattice.spacing, plausible::lattice_spacing_mm));
-        auto dims = r.numbers<std::int32_t>("lattice", "dims", 3);
-        for (int a = 0; a < 3; ++a) {
-            if (dims[std::size_t(a)] <= 0) r.fail("/lattice", "dims must be positive");
-            lattice.dims[std::size_t(a)] = dims[std::size_t(a)];
-        }
-        // heartprep's lattice covers the source volume: ceil(voxels × voxel size / spacing) cells
-        // per axis (lattice.cpp axis_weights). One more is allowed for the rounding of the stored
-        // values; a larger count is damage, and readers that size a grid by it would ask for
-        // gigabytes (a 2e9 read as "out of memory").
-        for (int a = 0; a < 3; ++a) {
-            const double extent = double(s.source.geometry.dims[std::size_t(a)]) * s.source.geometry.spacing[a];
-            const double most = std::ceil(extent / lattice.spacing) + 1;
-            if (double(lattice.dims[std::size_t(a)]) > most)
-                r.fail("/lattice", "dims " + std::to_string(lattice.dims[0]) + " x " + std::to_string(lattice.dims[1]) + " x " +
-                                       std::to_string(lattice.dims[2]) + ": at most " + std::to_string(std::llround(most)) + " cells of " +
-                                       std::to_string(lattice.spacing) + " mm fit the " + std::to_string(extent) +
-                                       " mm of the source volume along axis " + std::to_string(a));
-        }
-        lattice.index_to_world = read_matrix(r, "lattice", "index_to_world");
-        // An affine map whose three axes are the lattice spacing long (a rotation times the spacing).
-        const Eigen::Matrix4d& m = lattice.index_to_world;
-        if (!m.allFinite() || m.row(3) != Eigen::RowVector4d(0, 0, 0, 1))
-            r.fail("/lattice", "index_to_world must be a finite affine matrix (last row 0 0 0 1)");
-        for (int a = 0; a < 3; ++a) {
-            const double length = m.block<3, 1>(0, a).norm();
-            if (!(std::abs(length - lattice.spacing) <= 1e-3 * lattice.spacing))
-                r.fail("/lattice", "index_to_world axis " + std::to_string(a) + " is " + std::to_string(length) +
-                                       " mm long, not the lattice spacing of " + std::to_string(lattice.spacing) + " mm");
-        }
-        if (!(std::abs(m.topLeftCorner<3, 3>().determinant()) > 0.5 * std::pow(lattice.spacing, 3)))
-            r.fail("/lattice", "index_to_world is degenerate: its axes do not span 3D space");
-    }
-    {
-        std::size_t m = 0;
-        auto label = r.dataset<std::int32_t>("materials/label", {-1}, &m);
-        auto name = r.strings("materials/name", long(m));
-        auto density = r.dataset<float>("materials/density", {long(m)});
-        auto stiffness = r.dataset<float>("materials/stiffness", {long(m)});
-        auto damping = r.dataset<float>("materials/damping", {long(m)});
-        if (m == 0) r.fail("materials/label", "no material");
-        std::vector<float> youngs;
-        if (r.exists("materials/youngs_modulus_kpa")) {
-            youngs = r.dataset<float>("materials/youngs_modulus_kpa", {long(m)});
-            for (std::size_t i = 0; i < m; ++i)  // informative (the stiffness is the contract), but printed by inspect
-                if (!(youngs[i] > 0) || !std::isfinite(youngs[i])) r.fail("materials/youngs_modulus_kpa", "must be positive and finite");
-        }
-        for (std::size_t i = 0; i < m; ++i) {
-            if (!(density[i] > 0) || !std::isfinite(density[i])) r.fail("materials/density", "must be positive and finite");
-            if (!(stiffness[i] > 0) || !std::isfinite(stiffness[i])) r.fail("materials/stiffness", "must be positive and finite");
-            if (!(damping[i] >= 0) || !std::isfinite(damping[i])) r.fail("materials/damping", "must be non-negative and finite");
-            Material material;
-            material.label = label[i];
-            material.name = name[i];
-            material.density = density[i];
-            material.damping_ratio = damping[i];
-            // The face-spring stiffness is the contract; Young's modulus follows from k = 0.4·E·h.
-            material.youngs_modulus_kpa = youngs.empty() ? stiffness[i] / (0.4e-3 * lattice.spacing) : youngs[i];
-            lattice.materials.push_back(material);
-        }
-        require_plausible(r, "materials/density", density, plausible::density_g_per_mm3);
-        require_plausible(r, "materials/stiffness", stiffness, plausible::stiffness_n_per_mm);
-        require_plausible(r, "materials/damping", damping, plausible::damping_ratio);
-    }
-    {
-        auto& p = lattice.particles;
-        std::size_t n = 0;
-        auto rest = r.dataset<float>("particles/rest_position", {-1, 3}, &n);
-        r.require_finite("particles/rest_position", rest);
-        require_plausible(r, "particles/rest_position", rest, plausible::coordinate_mm);
-        p.rest_position = h5::rows_of<3>(rest);
-        p.lattice_index = h5::rows_of<3>(r.dataset<std::int32_t>("particles/lattice_index", {long(n), 3}));
-        for (std::size_t i = 0; i < n; ++i)
-            for (int a = 0; a < 3; ++a)
-                if (p.lattice_index[i][std::size_t(a)] < 0 || p.lattice_index[i][std::size_t(a)] >= lattice.dims[std::size_t(a)])
-                    r.fail("particles/lattice_index", "row " + std::to_string(i) + " lies outside /lattice dims");
-        {  // one particle per lattice node
-            std::unordered_map<std::uint64_t, std::size_t> owner;
-            owner.reserve(n);
-            for (std::size_t i = 0; i < n; ++i) {
-                const auto& c = p.lattice_index[i];
-                const std::uint64_t key = (std::uint64_t(c[2]) * std::uint64_t(lattice.dims[1]) + std::uint64_t(c[1])) *
-                                              std::uint64_t(lattice.dims[0]) + std::uint64_t(c[0]);
-                if (const auto [at, fresh] = owner.emplace(key, i); !fresh)
-                    r.fail("particles/lattice_index", "rows " + std::to_string(at->second) + " and " + std::to_string(i) +
-                                                          " name the same lattice node (" + std::to_string(c[0]) + ", " +
-                                                          std::to_string(c[1]) + ", " + std::to_string(c[2]) + ")");
-            }
-        }
-        p.mass = r.dataset<float>("particles/mass", {long(n)});
-        for (std::size_t i = 0; i < n; ++i)
-            if (!(p.mass[i] > 0) || !std::isfinite(p.mass[i]))
-                r.fail("particles/mass", "entry " + std::to_string(i) + " is not a positive finite mass");
-        require_plausible(r, "particles/mass", p.mass, plausible::particle_mass_g);
-        p.material = r.dataset<std::int32_t>("particles/material", {long(n)});
-        require_indices(r, "particles/material", p.material, lattice.materials.size());
-        p.anchored = r.dataset<std::uint8_t>("particles/anchored", {long(n)});
-        for (std::size_t i = 0; i < n; ++i)
-            if (p.anchored[i] > 1) r.fail("particles/anchored", "entry " + std::to_string(i) + " is neither 0 nor 1");
-        if (n == 0) r.fail("particles/mass", "no particles");
-        // Supports (optional: a file without them has none).
-        const bool has_stiffness = r.exists("particles/support_stiffness"), has_point = r.exists("particles/support_point");
-        if (has_stiffness != has_point)
-            r.fail(has_stiffness ? "particles/support_point" : "particles/support_stiffness",
-                   "missing: support_stiffness and support_point come together");
-        if (has_stiffness) {
-            p.support_stiffness = r.dataset<float>("particles/support_stiffness", {long(n)});
-            for (std::size_t i = 0; i < n; ++i)
-                if (!(p.support_stiffness[i] >= 0) || !std::isfinite(p.support_stiffness[i]))
-                    r.fail("particles/support_stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness (N/mm)");
-            auto point = r.dataset<float>("particles/support_point", {long(n), 3});
-            r.require_finite("particles/support_point", point);
-            require_plausible(r, "particles/support_point", point, plausible::coordinate_mm);
-            require_plausible(r, "particles/support_stiffness", p.support_stiffness, plausible::stiffness_n_per_mm);
-            for (std::size_t i = 0; i < n; ++i)
-                if (p.anchored[i] && p.support_stiffness[i] > 0)
-                    r.fail("particles/support_stiffness", "entry " + std::to_string(i) +
-                                                              " supports an anchored particle (a particle is held by one or the other)");
-            p.support_point = h5::rows_of<3>(point);
-            p.support_damping.assign(n, 0.0f);  // optional: undamped supports
-            if (r.exists("particles/support_damping")) {
-                p.support_damping = r.dataset<float>("particles/support_damping", {long(n)});
-                for (std::size_t i = 0; i < n; ++i)
-                    if (!(p.support_damping[i] >= 0) || !std::isfinite(p.support_damping[i]))
-                        r.fail("particles/support_damping", "entry " + std::to_string(i) + " is not a non-negative finite damping (N·ms/mm)");
-                require_plausible(r, "particles/support_damping", p.support_damping, plausible::support_damping_n_ms_per_mm);
-            }
-        }
-    }
-    {
-        auto& sp = lattice.springs;
-        const std::size_t n = lattice.particles.size();
-        std::size_t count = 0;
-        auto pairs = r.dataset<std::int32_t>("springs/pairs", {-1, 2}, &count);
-        require_indices(r, "springs/pairs", pairs, n);
-        sp.pairs = h5::rows_of<2>(pairs);
-        for (std::size_t i = 0; i < count; ++i)
-            if (sp.pairs[i][0] >= sp.pairs[i][1])
-                r.fail("springs/pairs", "row " + std::to_string(i) + " is not ordered first < second");
-        {  // each pair once: a duplicate would replace the other's slot in /packing
-            std::vector<std::pair<std::uint64_t, std::size_t>> keys(count);
-            for (std::size_t i = 0; i < count; ++i) keys[i] = {(std::uint64_t(sp.pairs[i][0]) << 32) | std::uint32_t(sp.pairs[i][1]), i};
-            std::sort(keys.begin(), keys.end());
-            for (std::size_t k = 1; k < count; ++k)
-                if (keys[k].first == keys[k - 1].first) {
-                    const std::size_t a = std::min(keys[k - 1].second, keys[k].second), b = std::max(keys[k - 1].second, keys[k].second);
-                    r.fail("springs/pairs", "rows " + std::to_string(a) + " and " + std::to_string(b) + " join the same particles (" +
-                                                std::to_string(sp.pairs[a][0]) + ", " + std::to_string(sp.pairs[a][1]) + ")");
-                }
-        }
-        sp.rest_length = r.dataset<float>("springs/rest_length", {long(count)});
-        sp.stiffness = r.dataset<float>("springs/stiffness", {long(count)});
-        for (std::size_t i = 0; i < count; ++i) {
-            if (!(sp.rest_length[i] > 0) || !std::isfinite(sp.rest_length[i]))
-                r.fail("springs/rest_length", "entry " + std::to_string(i) + " is not a positive finite length");
-            if (!(sp.stiffness[i] >= 0) || !std::isfinite(sp.stiffness[i]))
-                r.fail("springs/stiffness", "entry " + std::to_string(i) + " is not a non-negative finite stiffness");
-        }
-        require_plausible(r, "springs/rest_length", sp.rest_length, plausible::rest_length_mm);
-        require_plausible(r, "springs/stiffness", sp.stiffness, plausible::stiffness_n_per_mm);
-    }
-    if (r.exists("visual")) {
-        VisualMesh v;
-        std::size_t count = 0;
-        auto positions = r.dataset<float>("visual/positions", {-1, 3}, &count);
-        r.require_finite("visual/positions", positions);
-        require_plausible(r, "visual/positions", positions, plausible::coordinate_mm);
-        auto normals = r.dataset<float>("visual/normals", {long(count), 3});
-        r.require_finite("visual/normals", normals);
-        auto triangles = r.dataset<std::int32_t>("visual/triangles", {-1, 3});
-        require_indices(r, "visual/triangles", triangles, count);
-        v.positions = h5::rows_of<3>(positions);
-        v.normals = h5::rows_of<3>(normals);
-        v.triangles = h5::rows_of<3>(triangles);
-        s.visual = std::move(v);
-    }
+    read_source(r, s);
+    read_lattice(r, s.source, s.lattice);
+    read_materials(r, s.lattice);
+    read_tissue_origin(r, s);
+    read_particles(r, s.lattice);
+    read_springs(r, s.lattice);
+    read_visual(r, s);
     read_packing_and_mapping(r, s);
-    {
-        auto& solver = s.solver;
-        solver.dt_ms = r.number<double>("solver", "dt_ms");
-        solver.substeps = r.number<std::int32_t>("solver", "substeps");
-        solver.damping = r.number<double>("solver", "damping");
-        auto gravity = r.numbers<double>("solver", "gravity", 3);
-        solver.gravity = Eigen::Vector3d(gravity[0], gravity[1], gravity[2]);
-        if (r.has_attribute("solver", "balanced_gravity")) {
-            auto balanced = r.numbers<double>("solver", "balanced_gravity", 3);
-            solver.balanced_gravity = Eigen::Vector3d(balanced[0], balanced[1], balanced[2]);
-            if (!solver.balanced_gravity.allFinite()) r.fail("/solver", "balanced_gravity must be finite");
-        }
-        solver.critical_dt_ms = r.number<double>("solver", "critical_dt_ms");
-        if (r.has_attribute("solver", "critical_dt_bound_ms"))
-            solver.critical_dt_bound_ms = r.number<double>("solver", "critical_dt_bound_ms");
-        if (r.has_attribute("solver", "damped_critical_dt_ms"))
-            solver.damped_critical_dt_ms = r.number<double>("solver", "damped_critical_dt_ms");
-        if (r.has_attribute("solver", "safety_factor")) solver.safety_factor = r.number<double>("solver", "safety_factor");
-        if (!(solver.dt_ms > 0)) r.fail("/solver", "dt_ms must be positive");
-        if (solver.substeps < 1) r.fail("/solver", "substeps must be at least 1");
-        if (!(solver.damping >= 0)) r.fail("/solver", "damping must be non-negative");
-        if (!(solver.critical_dt_ms > 0)) r.fail("/solver", "critical_dt_ms must be positive");
-        using plausible::outside;
-        if (!plausible::time_step_ms.contains(solver.dt_ms)) r.fail("/solver", outside("dt_ms", solver.dt_ms, plausible::time_step_ms));
-        if (!plausible::drag_per_ms.contains(solver.damping)) r.fail("/solver", outside("damping", solver.damping, plausible::drag_per_ms));
-        for (const auto& [name, g] : {std::pair{"|gravity|", solver.gravity.norm()}, std::pair{"|balanced_gravity|", solver.balanced_gravity.norm()}})
-            if (!plausible::gravity_mm_per_ms2.contains(g)) r.fail("/solver", outside(name, g, plausible::gravity_mm_per_ms2));
-        check_time_steps(r, s);
-    }
+    read_solver(r, s);
     return s;
 }
-
 
 }  // namespace
 

@@ -65,6 +65,16 @@ struct VisualMesh {
     std::vector<std::array<std::int32_t, 3>> triangles;
 };
 
+/// Where a material's tissue came from (/materials/origin, wall_thickness_mm, grown_from,
+/// tissue_volume_mm3; docs/scenario-format.md): labelled in the input, or a wall heartprep grew
+/// around a blood label that had none (libmodel/walls.h).
+struct TissueOrigin {
+    bool grown = false;         ///< grown around blood; false: labelled in the input volume
+    double thickness_mm = 0.0;  ///< the grown wall's thickness, mm; 0 for labelled tissue
+    int grown_from = 0;         ///< the blood label the wall lines (the first, where several); 0 for labelled tissue
+    double volume_mm3 = 0.0;    ///< the material's voxels in the label map as built (islands dropped), mm³; 0 if unknown
+};
+
 struct Scenario {
     std::string generator;            ///< tool name and version
     /// `heartprep batch`'s key: SHA-256 of (input bytes, build options, generator); empty outside
@@ -75,6 +85,9 @@ struct Scenario {
     std::optional<std::vector<std::string>> build_warnings;
     ScenarioSource source;
     Lattice lattice;                  ///< spacing, dims, index_to_world, materials, particles, springs
+    /// One per row of lattice.materials where a wall was grown; empty for a build of the labels as
+    /// they are (and a file without /materials/origin): every material labelled.
+    std::vector<TissueOrigin> tissue_origin;
     std::optional<VisualMesh> visual;
     SolverSettings solver;
     /// /packing: present once the particles are packed (then particles are in packed order).

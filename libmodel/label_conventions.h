@@ -13,6 +13,7 @@
 #pragma once
 
 #include "segment_names.h"
+#include "walls.h"
 
 #include <set>
 #include <string>
@@ -29,10 +30,19 @@ struct LabelConvention {
     /// (HVSMR 2016: one blood pool).
     int left_atrium = 0, left_ventricle = 0, right_atrium = 0, right_ventricle = 0;
     int aorta = 0;           ///< the aorta's blood (0: not labelled apart)
+    int pulmonary_artery = 0;///< the pulmonary artery's blood (0: not labelled apart)
     std::vector<int> blood;  ///< every blood-filled label: the cavities when none are chosen
+    /// Which walls the convention labels, in words, for summaries ("" where it says nothing).
+    std::string labelled_walls;
     /// Whether the chambers are labelled apart (a septum can be found without a point).
     bool chambers() const { return left_ventricle != 0 && right_ventricle != 0; }
 };
+
+/// The walls to grow where the convention labels blood without its wall (walls.h): MM-WHS's right
+/// ventricle's free wall, left ventricle where its labelled wall leaves its blood bare, atria, aorta and
+/// pulmonary artery; HVSMR's one blood pool. Their grown voxels are labelled `first_label`,
+/// `first_label` + 1, … in that order. Names: "right ventricle free wall (grown)", ...
+std::vector<WallStructure> convention_walls(const LabelConvention& convention, const WallThicknesses& thickness, int first_label);
 
 /// Every known convention, in the order above.
 const std::vector<LabelConvention>& label_conventions();

@@ -38,6 +38,9 @@ inline constexpr Range device_mass_g{1e-3, 1e6, "g"};
 /// A septal defect's diameter, as heartprep carves one and a scenario records it: from a
 /// pinhole to wider than any heart's septum.
 inline constexpr Range defect_diameter_mm{0.5, 60.0, "mm"};
+/// A wall heartprep grows around a chamber's or vessel's blood (libmodel/walls.h): from a tenth of a
+/// millimetre to beyond any ventricle's wall (a hypertrophied one is about 3 cm).
+inline constexpr Range wall_thickness_mm{0.1, 40.0, "mm"};
 /// The planners' gestures (heartsim plan-incision and plan-repair): an incision up to 30 cm, the
 /// retractors up to 20 cm apart, a blade up to 10 cm deep and from 0.1 mm/s to 10 m/s, stitches up
 /// to 3 cm beyond the opening, a patch up to 20 cm across and 1 cm thick. A value outside is a

@@ -13,6 +13,7 @@
 // built in this run from those it found done.
 #include "commands.h"
 #include "manifest.h"
+#include "pipeline.h"
 #include "terminal_progress.h"
 
 #include "formats/atomic_file.h"
@@ -69,6 +70,7 @@ struct Outcome {
     /// The tissue's volume: the label map's tissue voxels (/source tissue_volume_mm3), the figure
     /// build and inspect give; none for a file from before it was stored (inspect: null).
     std::optional<double> tissue_volume_ml;
+    std::string heart;  ///< what the heart is made of (pipeline.h heart_contents): labelled and grown walls
     double spacing_mm = 0.0, dt_ms = 0.0;     ///< the lattice spacing and the scenario's time step
     /// The build's wall time, s: of the build that made the scenario (a reused case: from its build
     /// record; unknown for a scenario without one), or until the case failed or was stopped.
@@ -251,6 +253,7 @@ void fill_figures(const Scenario& s, Outcome& outcome) {
     outcome.supported = count_surface_supported(s.lattice);
     outcome.tissue_volume_ml.reset();
     if (s.source.tissue_volume_mm3 > 0) outcome.tissue_volume_ml = s.source.tissue_volume_mm3 / 1000.0;
+    outcome.heart = heart_contents(s);
     outcome.spacing_mm = s.lattice.spacing;
     outcome.dt_ms = s.solver.dt_ms;
 }
@@ -511,6 +514,7 @@ nlohmann::ordered_json summary_json(const fs::path& folder, const std::vector<Ba
             entry["tissue_volume_ml"] = o.tissue_volume_ml ? nlohmann::ordered_json(*o.tissue_volume_ml) : nlohmann::ordered_json();
             entry["spacing_mm"] = o.spacing_mm;
             entry["dt_ms"] = o.dt_ms;
+            entry["heart"] = o.heart;
         }
         entry["seconds"] = o.seconds ? nlohmann::ordered_json(*o.seconds) : nlohmann::ordered_json();
         entry["built_by"] = o.built_by.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(o.built_by);
@@ -580,6 +584,9 @@ std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>
         first = false;
     }
     markdown << ". " << state << "\n";
+    const char* gap = "\n";  // then what each heart is made of: the labels' walls, and those grown
+    for (std::size_t i = 0; i < cases.size(); ++i)
+        if (has_scenario(outcomes[i].status) && !outcomes[i].heart.empty()) markdown << std::exchange(gap, "") << "- " << cases[i].id << ": " << outcomes[i].heart << "\n";
     write_text(folder / "summary.csv", csv.str());
     write_text(folder / "summary.md", markdown.str());
     write_text(folder / "summary.json", dump(summary_json(folder, cases, outcomes, state)));

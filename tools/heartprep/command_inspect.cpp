@@ -1,5 +1,6 @@
 // `heartprep inspect`: what a scenario file holds, for people (table) and scripts (--json).
 #include "commands.h"
+#include "pipeline.h"
 
 #include "formats/scenario.h"
 #include "libmodel/mapping.h"
@@ -212,6 +213,7 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                        {"spacing", vector(g.spacing)}}},
            {"lattice", {{"spacing", s.lattice.spacing}, {"dims", {s.lattice.dims[0], s.lattice.dims[1], s.lattice.dims[2]}}}},
            {"tissue_volume_ml", s.source.tissue_volume_mm3 > 0 ? json(s.source.tissue_volume_mm3 / 1000.0) : json()},
+           {"heart", heart_contents(s)},
            {"defect", s.source.defect.empty() ? json(nullptr)
                                               : json{{"type", s.source.defect},
                                                      {"centre", vector(s.source.defect_centre)},
@@ -241,13 +243,19 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                         {"offset_mm_median_p99_max", m.offset}};
     o["thin_walls"] = {{"particles", m.thin_particles}, {"volume_share", m.thin_volume_share}};
     json materials = json::array();
-    for (const auto& mat : s.lattice.materials)
+    for (std::size_t k = 0; k < s.lattice.materials.size(); ++k) {
+        const Material& mat = s.lattice.materials[k];
+        const TissueOrigin origin = k < s.tissue_origin.size() ? s.tissue_origin[k] : TissueOrigin{};
         materials.push_back({{"label", mat.label},
                              {"name", mat.name},
                              {"density_g_per_mm3", mat.density},
                              {"youngs_modulus_kpa", mat.youngs_modulus_kpa},
                              {"face_spring_stiffness_n_per_mm", spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)},
-                             {"damping_ratio", mat.damping_ratio}});
+                             {"damping_ratio", mat.damping_ratio},
+                             {"origin", origin.grown ? "grown" : "labelled"},
+                             {"wall_thickness_mm", origin.thickness_mm},
+                             {"tissue_volume_ml", origin.volume_mm3 > 0 ? json(origin.volume_mm3 / 1000.0) : json()}});
+    }
     o["materials"] = std::move(materials);
     const auto substeps = runtime_substeps(s.solver);
     o["solver"] = {{"dt_ms", s.solver.dt_ms},
@@ -272,12 +280,31 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
     std::fputs((o.dump(2, ' ', false, json::error_handler_t::replace) + "\n").c_str(), stdout);
 }
 
+/// One line a material: labelled or grown (with its thickness), its volume and its particles.
+void print_tissues(const Scenario& s) {
+    std::vector<std::size_t> particles(s.lattice.materials.size(), 0);
+    for (auto row : s.lattice.particles.material) ++particles[std::size_t(row)];
+    const char* head = "tissues    ";
+    for (std::size_t k = 0; k < s.lattice.materials.size(); ++k) {
+        const Material& material = s.lattice.materials[k];
+        const TissueOrigin origin = k < s.tissue_origin.size() ? s.tissue_origin[k] : TissueOrigin{};
+        std::printf("%s %s (label %d): ", head, material.name.c_str(), material.label);
+        if (origin.grown) std::printf("grown %g mm around label %d", origin.thickness_mm, origin.grown_from);
+        else std::printf("as labelled");
+        if (origin.volume_mm3 > 0) std::printf(", %.1f mL", origin.volume_mm3 / 1000.0);
+        std::printf(", %zu particles\n", particles[k]);
+        head = "           ";
+    }
+}
+
 void print_table(const std::filesystem::path& path, const Scenario& s, const Summary& m) {
     std::printf("file        %s (%.2f MB), %s\n", path.c_str(), double(std::filesystem::file_size(path)) / 1e6, s.generator.c_str());
     const auto& g = s.source.geometry;
     std::printf("source      %s, %d x %d x %d voxels of %.3f x %.3f x %.3f mm, sha256 %.12s…\n", s.source.file_name.c_str(),
                 g.dims[0], g.dims[1], g.dims[2], g.spacing[0], g.spacing[1], g.spacing[2], s.source.sha256.c_str());
     if (s.source.tissue_volume_mm3 > 0) std::printf("tissue      %.1f mL (the label map's tissue voxels)\n", s.source.tissue_volume_mm3 / 1000.0);
+    std::printf("heart       %s\n", heart_contents(s).c_str());
+    print_tissues(s);
     if (!s.source.defect.empty())
         std::printf("defect      %s, %.1f mm, centre %.1f, %.1f, %.1f (LPS mm), axis %.2f, %.2f, %.2f\n", s.source.defect.c_str(),
                     s.source.defect_diameter_mm, s.source.defect_centre.x(), s.source.defect_centre.y(), s.source.defect_centre.z(),

@@ -120,10 +120,11 @@ LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoi
 }
 
 SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
-                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect) {
+                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect, const WallChoice& walls) {
     SelectedVolume result;
     result.volume = read_and_resolve(input, labels, options, progress, report);
     if (defect) defect_stage(result.volume, input, *defect, options, progress, report);
+    if (walls.grow) timed(report, "walls", [&] { walls_stage(result.volume, walls, options, progress, report); });
     try {
         result.selection = timed(report, "select", [&] { return select_tissue(result.volume, options, progress, &report.selection); });
     } catch (const InputError& error) {
@@ -141,6 +142,42 @@ SelectedVolume read_and_select(const std::filesystem::path& input, const LabelCh
                                   " dropped as smaller than --min-island): a heart's myocardium is one piece and a few specks; is the "
                                   "input an intensity image, or --tissue the wrong label?");
     return result;
+}
+
+void walls_stage(LabelVolume& volume, const WallChoice& choice, SelectionOptions& options, Progress& progress, BuildReport& report) {
+    WallsReport& walls = report.walls;
+    walls.asked = choice.grow;
+    if (!choice.grow) return;
+    const std::string& name = report.convention.empty() ? report.convention_match : report.convention;
+    const LabelConvention* convention = name.empty() ? nullptr : find_label_convention(name);
+    std::vector<int> present;  // the volume's labels, for the first label free for the walls
+    {
+        std::set<int> seen(volume.labels.begin(), volume.labels.end());
+        present.assign(seen.begin(), seen.end());
+    }
+    const int first_label = std::max(1, present.empty() ? 1 : present.back() + 1);
+    std::vector<WallStructure> structures;
+    if (convention && options.tissue_labels == std::vector<int>{convention->myocardium}) {
+        walls.convention = convention->title;
+        structures = convention_walls(*convention, choice.thickness, first_label);
+    } else if (!options.cavity_labels.empty()) {
+        structures.push_back({"blood pool wall (grown)", options.cavity_labels, choice.thickness.blood_pool, first_label});
+    } else {
+        walls.none_because = convention ? "the tissue is not " + convention->title + "'s myocardium (--tissue), so its blood's walls are not known"
+                                        : "no label names blood (--labels names a convention, --cavity the blood)";
+        return;
+    }
+    const WallGrowthReport grown = grow_walls(volume, structures, progress);
+    for (std::size_t k = 0; k < structures.size(); ++k) {
+        if (grown.walls[k].voxels == 0) {
+            walls.bare.push_back({structures[k], grown.walls[k]});
+            continue;
+        }
+        walls.grown.push_back({structures[k], grown.walls[k]});
+        options.tissue_labels.push_back(structures[k].wall_label);
+        report.segment_names[structures[k].wall_label] = structures[k].name;
+    }
+    if (walls.grown.empty()) walls.none_because = "no blood faces background: every blood surface has its labelled wall";
 }
 
 namespace {
@@ -334,18 +371,33 @@ void hold_stage(Scenario& scenario, const BuildOptions& options, Progress& progr
         report.warnings.push_back("nothing holds the heart (no anchor, no support) and gravity is on: it free-falls in heartsim");
 }
 
+namespace {
+
+/// The grown wall of label `label`, or nullptr.
+const GrownStructure* grown_wall(const WallsReport& walls, int label) {
+    for (const GrownStructure& wall : walls.grown)
+        if (wall.structure.wall_label == label) return &wall;
+    return nullptr;
+}
+
+}  // namespace
+
 Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildReport& report) {
     Scenario scenario;
     scenario.generator = std::string("heartprep ") + HEARTSIM_VERSION;
     scenario.source.file_name = options.input.filename().string();
     // References, not a structured binding: clang 14 (the sanitize preset) cannot capture those in lambdas.
     SelectionOptions chosen = options.selection;
-    SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report, options.defect);
+    SelectedVolume selected = read_and_select(options.input, options.labels, chosen, progress, report, options.defect, options.walls);
     const LabelVolume& volume = selected.volume;
     const Selection& selection = selected.selection;
     scenario.source.sha256 = timed(report, "hash", [&] { return label_map_sha256(options.input); });
     scenario.source.geometry = volume.geometry;
-    scenario.source.tissue_labels = chosen.tissue_labels;
+    scenario.source.tissue_labels.clear();  // the input's labels: a grown wall's label is not the input's
+    for (int label : chosen.tissue_labels)
+        if (!grown_wall(report.walls, label)) scenario.source.tissue_labels.push_back(label);
+    for (std::size_t v = 0; v < volume.labels.size(); ++v)
+        if (selection.tissue.values[v]) report.tissue_volume_by_label_mm3[volume.labels[v]] += volume.geometry.voxel_volume();
     scenario.source.cavity_labels = chosen.cavity_labels;
     scenario.source.anchor_labels = chosen.anchor_labels;
     scenario.source.anchor_border = chosen.anchor_border;
@@ -387,6 +439,17 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         return layout_particles(selection, chosen.tissue_labels, volume, layout, progress, &report.layout);
     });
     append(report.warnings, report.layout.warnings);
+    if (!report.walls.grown.empty())
+        for (const Material& material : scenario.lattice.materials) {
+            TissueOrigin origin;
+            if (const GrownStructure* wall = grown_wall(report.walls, material.label)) {
+                origin.grown = true;
+                origin.thickness_mm = wall->structure.thickness_mm;
+                origin.grown_from = wall->structure.blood_labels.front();
+            }
+            origin.volume_mm3 = report.tissue_volume_by_label_mm3[material.label];
+            scenario.tissue_origin.push_back(origin);
+        }
     scenario.solver = options.solver;  // gravity, drag, safety; hold_stage and the critical step fill in the rest
     hold_stage(scenario, options, progress, report);
 
@@ -430,6 +493,52 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
     return scenario;
 }
 
+namespace {
+
+/// A grown wall's name without "(grown)".
+std::string wall_name(const std::string& name) {
+    const std::string suffix = " (grown)";
+    return name.size() > suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0
+               ? name.substr(0, name.size() - suffix.size())
+               : name;
+}
+
+std::string format(const char* pattern, double value) {
+    char text[64];
+    std::snprintf(text, sizeof text, pattern, value);
+    return text;
+}
+
+}  // namespace
+
+std::string heart_contents(const Scenario& scenario) {
+    const auto& materials = scenario.lattice.materials;
+    double total = scenario.source.tissue_volume_mm3;
+    if (total <= 0)  // a file without the label map's volume: the particles' tissue
+        for (std::size_t i = 0; i < scenario.lattice.particles.size(); ++i) {
+            const auto row = std::size_t(scenario.lattice.particles.material[i]);
+            total += double(scenario.lattice.particles.mass[i]) / (row < materials.size() ? materials[row].density : Material{}.density);
+        }
+    std::string labelled, grown;
+    double labelled_mm3 = 0, grown_mm3 = 0, thinnest = 1e30, thickest = 0;
+    for (std::size_t m = 0; m < materials.size(); ++m) {
+        const TissueOrigin origin = m < scenario.tissue_origin.size() ? scenario.tissue_origin[m] : TissueOrigin{};
+        if (origin.grown) {
+            grown += (grown.empty() ? "" : ", ") + wall_name(materials[m].name);
+            grown_mm3 += origin.volume_mm3;
+            thinnest = std::min(thinnest, origin.thickness_mm), thickest = std::max(thickest, origin.thickness_mm);
+        } else {
+            labelled += (labelled.empty() ? "" : ", ") + std::string("label ") + std::to_string(materials[m].label) + " '" + materials[m].name + "'";
+            labelled_mm3 += origin.volume_mm3;
+        }
+    }
+    std::string text = "a heart of " + format("%.1f", total / 1000.0) + " mL of tissue (";
+    if (grown.empty()) return text + labelled + " as labelled; no wall grown)";
+    const std::string range = thinnest == thickest ? format("%g mm", thinnest) : format("%g", thinnest) + "-" + format("%g mm", thickest);
+    return text + labelled + " " + format("%.1f mL", labelled_mm3 / 1000.0) + " as labelled; grown where the labels show only blood, " +
+           range + ": " + grown + ", " + format("%.1f mL", grown_mm3 / 1000.0) + ")";
+}
+
 void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     const auto& g = report.header.geometry;
     std::printf("input       %s (%s, %s), %d x %d x %d voxels of %.3f x %.3f x %.3f mm\n", scenario.source.file_name.c_str(),
@@ -439,6 +548,8 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     const auto& s = report.selection;
     std::string tissue;
     for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
+    for (const GrownStructure& wall : report.walls.grown)
+        tissue += ", " + describe_label(wall.structure.wall_label, report.segment_names) + " " + format("%g mm", wall.structure.thickness_mm);
     std::string cavity;
     if (!scenario.source.cavity_labels.empty()) {
         char text[64];
@@ -520,6 +631,29 @@ void print_build_summary(const BuildReport& report, const Scenario& scenario) {
     std::printf(" total %.3f s\n", total);
 }
 
+namespace {
+
+/// The walls line of the technician's summary: each wall grown, its thickness and volume, or why none was.
+void print_walls_summary(const BuildReport& report) {
+    const WallsReport& walls = report.walls;
+    if (!walls.asked) {
+        std::printf("walls       as labelled (--walls labelled): no wall grown\n");
+        return;
+    }
+    if (walls.grown.empty()) {
+        std::printf("walls       as labelled: %s\n", walls.none_because.c_str());
+        return;
+    }
+    std::string text;
+    for (const GrownStructure& wall : walls.grown)
+        text += (text.empty() ? "" : ", ") + wall_name(wall.structure.name) + " " + format("%g mm", wall.structure.thickness_mm) + " (" +
+                format("%.1f mL", wall.grown.volume_mm3 / 1000.0) + ")";
+    std::printf("walls       grown into the background around the blood%s: %s\n",
+                walls.convention.empty() ? "" : (" (" + walls.convention + "'s labels)").c_str(), text.c_str());
+}
+
+}  // namespace
+
 void print_plain_summary(const BuildReport& report, const Scenario& scenario, const std::filesystem::path& output) {
     auto thousands = [](std::size_t n) {
         std::string digits = std::to_string(n), out;
@@ -529,14 +663,15 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
         }
         return out;
     };
-    std::string tissue;
-    for (int label : scenario.source.tissue_labels) tissue += (tissue.empty() ? "" : ", ") + describe_label(label, report.segment_names);
     const auto& l = report.layout;
     if (!report.header.data_file.empty()) std::printf("voxels      from %s\n", report.header.data_file.string().c_str());
-    if (!report.convention.empty()) std::printf("labels      %s (--labels %s)\n", find_label_convention(report.convention)->title.c_str(), report.convention.c_str());
+    if (!report.convention.empty()) {
+        const LabelConvention& convention = *find_label_convention(report.convention);
+        std::printf("labels      %s (--labels %s)%s\n", convention.title.c_str(), report.convention.c_str(),
+                    convention.labelled_walls.empty() ? "" : (": " + convention.labelled_walls).c_str());
+    }
     else if (!report.convention_hint.empty()) std::printf("labels      %s\n", report.convention_hint.c_str());
-    std::printf("built       a heart of %.1f mL of tissue (label %s) from %s: %s particles %.2f mm apart%s\n",
-                report.selection.tissue_volume_mm3 / 1000.0, tissue.c_str(), scenario.source.file_name.c_str(),
+    std::printf("built       %s from %s: %s particles %.2f mm apart%s\n", heart_contents(scenario).c_str(), scenario.source.file_name.c_str(),
                 thousands(scenario.lattice.particles.size()).c_str(), l.spacing,
                 scenario.visual ? (", a detailed surface of " + thousands(scenario.visual->triangles.size()) + " triangles").c_str() : "");
     // How it is held, in the words of docs/user-guide.md "How the heart is held".
@@ -552,6 +687,7 @@ void print_plain_summary(const BuildReport& report, const Scenario& scenario, co
     else if (report.balance.balanced) held += ": it stays where it was imaged";
     else if (report.balance.max_sag_mm > 0) held += ": it sags by up to " + std::to_string(report.balance.max_sag_mm).substr(0, 4) + " mm";
     std::printf("held        %s\n", held.c_str());
+    print_walls_summary(report);
     if (report.defect)
         std::printf("defect      a %.0f mm %s (measured %.1f mm) at %.1f, %.1f, %.1f (LPS mm)\n", report.defect->diameter_mm,
                     report.defect->type == DefectType::vsd ? "ventricular septal defect" : "atrial septal defect",

@@ -20,8 +20,10 @@
 #include "libmodel/stability.h"
 #include "libmodel/supports.h"
 #include "libmodel/surface.h"
+#include "libmodel/walls.h"
 
 #include <filesystem>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -49,6 +51,28 @@ struct DefectChoice {
     double max_wall_mm = 20.0;           ///< --max-wall
 };
 
+/// Walls grown where the labels show blood without wall (libmodel/walls.h, docs/user-guide.md
+/// "Walls grown where the labels show only blood").
+struct WallChoice {
+    bool grow = true;           ///< --walls grown; false: --walls labelled (the label map as it is)
+    WallThicknesses thickness;  ///< --wall-rv, --wall-lv, --wall-atria, --wall-aorta, --wall-pa, --wall-blood-pool (mm)
+};
+
+/// A wall grown, with what growing it did.
+struct GrownStructure {
+    WallStructure structure;
+    GrownWall grown;
+};
+
+/// What the walls stage did.
+struct WallsReport {
+    bool asked = false;                  ///< --walls grown
+    std::string convention;              ///< the convention whose blood was lined ("" for none)
+    std::string none_because;            ///< why no wall was grown, when none was
+    std::vector<GrownStructure> grown;   ///< the walls grown, each with at least one voxel
+    std::vector<GrownStructure> bare;    ///< structures whose blood faced no background: nothing grown
+};
+
 struct BuildOptions {
     std::filesystem::path input;
     LabelChoice labels;              ///< resolved into `selection`'s label lists by read_and_select
@@ -68,6 +92,7 @@ struct BuildOptions {
     std::filesystem::path visual_mesh;
     MappingMethod mapping = MappingMethod::automatic;  ///< how visual vertices are tied to particles
     std::optional<DefectChoice> defect;  ///< --defect: carved into the label map first
+    WallChoice walls;                    ///< --walls: grown after the defect, before the selection
     std::string batch_key;           ///< see Scenario::batch_key
 };
 
@@ -85,7 +110,10 @@ struct BuildReport {
     std::string convention_hint;
     std::string convention_match;       ///< that convention's name
     std::optional<DefectReport> defect; ///< the defect carved, if one was asked for
+    WallsReport walls;                  ///< the walls grown
     SelectionReport selection;
+    /// The tissue's volume per tissue label (labelled and grown), mm³, after small islands are dropped.
+    std::map<int, double> tissue_volume_by_label_mm3;
     SurfaceReport surface;
     MeshReport mesh;
     LayoutReport layout;
@@ -109,8 +137,23 @@ struct SelectedVolume {
     LabelVolume volume;
     Selection selection;
 };
+/// With `walls` (grow), the walls are grown after the defect and their labels join `options`' tissue labels.
 SelectedVolume read_and_select(const std::filesystem::path& input, const LabelChoice& labels, SelectionOptions& options,
-                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect = std::nullopt);
+                               Progress& progress, BuildReport& report, const std::optional<DefectChoice>& defect = std::nullopt,
+                               const WallChoice& walls = WallChoice{.grow = false, .thickness = {}});
+
+/// Grows the walls `choice` asks for into `volume` (libmodel/walls.h): around the blood of the label
+/// convention --labels names or the volume's labels match (MM-WHS's chambers and great vessels,
+/// HVSMR's blood pool), when the tissue is that convention's myocardium; otherwise around the
+/// --cavity labels as one blood pool. The grown labels (above every label of the volume) join
+/// `options`' tissue labels and report.segment_names. Sets report.walls.
+void walls_stage(LabelVolume& volume, const WallChoice& choice, SelectionOptions& options, Progress& progress, BuildReport& report);
+
+/// What a scenario's heart is made of, in words, for summaries: "a heart of 412.0 mL of tissue (the
+/// left ventricle's wall with the septum 134.3 mL as labelled; the right ventricle's free wall, …
+/// grown, 1.5-3.5 mm: 278 mL)". The volume is the scenario's tissue volume, or the particles' where
+/// the file holds none.
+std::string heart_contents(const Scenario& scenario);
 
 /// Reads `input` and resolves `labels` (the first half of read_and_select): the volume, with
 /// report.segment_names, convention and convention_hint set and `options`' label lists resolved.
