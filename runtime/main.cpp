@@ -21,6 +21,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 #include <vector>
 
 using namespace heartsim;
@@ -48,25 +49,8 @@ int command_run(const RunArguments& a) {
     return headless_scripted_mode(a, run);
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-    CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)\n\n"
-                 "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
-                 "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
-                 "  heartsim info                             the OpenGL device, version and limits\n"
-                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"
-                 "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n"
-                 "  heartsim plan-repair scenario.h5 -o repair.csv       a patch stitched over a septal defect, for run --trajectory\n",
-                 "heartsim"};
-    app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
-    app.require_subcommand(1);
-    auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL), and a verdict: which backend "
-                                            "a session will use here and the real-time factor measured on SCENARIO (or, without one, on "
-                                            "a block of 30,000 particles)");
-    std::string info_scenario;
-    info->add_option("scenario", info_scenario, "A scenario to measure the verdict on (heartprep build); default: a uniform block");
-    RunArguments a;
+/// `heartsim run`'s options, into `a`.
+CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     auto* run = app.add_subcommand("run", "Simulate a scenario");
     run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
@@ -191,13 +175,21 @@ int main(int argc, char** argv) {
     run->add_option("--igtl-mesh-rate", a.igtl_mesh_rate, "With --igtl: the most mesh (POLYDATA) messages a second, sent only when the "
                                                           "mesh moved (default 20; poses, forces and state: up to 60)")
         ->check(CLI::Range(0.1, 1000.0))->type_name("HZ");
-    std::string journal, recovered;
+    return run;
+}
+
+/// `heartsim recover JOURNAL [-o OUT.h5]`.
+CLI::App* add_recover_command(CLI::App& app, std::string& journal, std::string& recovered) {
     auto* recover = app.add_subcommand("recover", "Write the recording of a --record session that was killed, from the journal it "
                                                   "kept beside the recording (OUT.h5.journal: all but its last second); then delete the journal");
     recover->add_option("journal", journal, "The journal, OUT.h5.journal")->required();
     recover->add_option("-o,--output", recovered, "Recording to write (default: the journal's name without .journal, the --record file)")
         ->check(cli_messages::output_extension({".h5", ".hdf5"}, "the recording is an HDF5 file"));
-    PlanIncisionArguments plan;
+    return recover;
+}
+
+/// `heartsim plan-incision`'s options, into `plan`.
+CLI::App* add_plan_incision_command(CLI::App& app, PlanIncisionArguments& plan) {
     auto* plan_command = app.add_subcommand(
         "plan-incision",
         "Plan a scripted incision on a scenario and write it as a --trajectory CSV: a scalpel (hand 0) lowered onto the heart's "
@@ -237,7 +229,11 @@ int main(int argc, char** argv) {
                          "  heartsim run case.h5 --trajectory cut.csv --seconds 1.2           # as it printed\n"
                          "  heartsim run case.h5 --headless --trajectory cut.csv --seconds 1.2 --view right \\\n"
                          "      --look-at X,Y,Z,D --screenshot cut.png                       # the --look-at it printed\n");
-    PlanRepairArguments repair;
+    return plan_command;
+}
+
+/// `heartsim plan-repair`'s options, into `repair`.
+CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
     auto* repair_command = app.add_subcommand(
         "plan-repair",
         "Plan the closure of a scenario's septal defect (heartprep build --defect vsd|asd) and write it as a --trajectory CSV: "
@@ -290,9 +286,13 @@ int main(int argc, char** argv) {
                            "  heartprep build case-label.nii.gz -o vsd.h5 --defect vsd --at=40.7,-14.4,-10.4   # a 10 mm VSD there\n"
                            "  heartsim plan-repair vsd.h5 -o repair.csv --stitches=10 --rim=2.5\n"
                            "  heartsim run vsd.h5 --trajectory repair.csv --seconds 2.6 --clip defect   # as it printed\n");
-    // Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
-    // scenario.h5`): a first argument other than a subcommand, --help or --version means `run`.
-    std::vector<char*> arguments(argv, argv + argc);
+    return repair_command;
+}
+
+/// Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
+/// scenario.h5`): a first argument other than a subcommand, --help or --version means `run`;
+/// `arguments` gets the word. A mistyped command is refused: the exit status, else nullopt.
+std::optional<int> insert_run_word(const CLI::App& app, int argc, char** argv, std::vector<char*>& arguments) {
     static char run_word[] = "run";
     const std::string first = argc >= 2 ? argv[1] : "";
     std::vector<std::string> commands;
@@ -312,6 +312,37 @@ int main(int argc, char** argv) {
         }
         arguments.insert(arguments.begin() + 1, run_word);
     }
+    return std::nullopt;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+    CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)\n\n"
+                 "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
+                 "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"
+                 "  heartsim info                             the OpenGL device, version and limits\n"
+                 "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"
+                 "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n"
+                 "  heartsim plan-repair scenario.h5 -o repair.csv       a patch stitched over a septal defect, for run --trajectory\n",
+                 "heartsim"};
+    app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
+    app.require_subcommand(1);
+    auto* info = app.add_subcommand("info", "Print the OpenGL renderer, version and limits (headless EGL), and a verdict: which backend "
+                                            "a session will use here and the real-time factor measured on SCENARIO (or, without one, on "
+                                            "a block of 30,000 particles)");
+    std::string info_scenario;
+    info->add_option("scenario", info_scenario, "A scenario to measure the verdict on (heartprep build); default: a uniform block");
+    RunArguments a;
+    CLI::App* run = add_run_command(app, a);
+    std::string journal, recovered;
+    CLI::App* recover = add_recover_command(app, journal, recovered);
+    PlanIncisionArguments plan;
+    CLI::App* plan_command = add_plan_incision_command(app, plan);
+    PlanRepairArguments repair;
+    CLI::App* repair_command = add_plan_repair_command(app, repair);
+    std::vector<char*> arguments(argv, argv + argc);
+    if (const std::optional<int> refused = insert_run_word(app, argc, argv, arguments)) return *refused;
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim_exit_status_help);
     cli_messages::require_finite_numbers(app);
     app.footer(heartsim_exit_status_help);
