@@ -5,6 +5,7 @@
 #include "closure.h"
 
 #include "errors.h"
+#include "ray_triangle.h"
 
 #include <Eigen/Geometry>
 
@@ -60,19 +61,16 @@ struct Crossing {
 /// The crossing of the line through `point` with a triangle, the triangle given by its corners
 /// projected onto the two axes across the line (p0, p1, p2) and their coordinates along it (w0,
 /// w1, w2); the two axes and the line's direction must be right-handed in that order. False when
-/// the line misses the triangle or the triangle is edge-on to it. Callers keep their lines off
-/// vertices and edges (irrational offsets), so each crossing of a closed mesh is counted once.
+/// the line misses the triangle or the triangle is edge-on to it (ray_triangle.h, whose edge rule
+/// counts an edge in both its triangles: callers keep their lines off vertices and edges,
+/// irrational offsets, so each crossing of a closed mesh is counted once).
 bool cross_line(const Vector2& point, const Vector2& p0, const Vector2& p1, const Vector2& p2, double w0, double w1, double w2,
                 Crossing& crossing) {
-    auto edge = [](const Vector2& from, const Vector2& to, const Vector2& q) {
-        return (to.x() - from.x()) * (q.y() - from.y()) - (to.y() - from.y()) * (q.x() - from.x());
-    };
-    const double l0 = edge(p1, p2, point), l1 = edge(p2, p0, point), l2 = edge(p0, p1, point);
-    const double area = l0 + l1 + l2;  // twice the projected area: the normal's component along the line
-    if (area == 0.0) return false;
-    if (area > 0.0 ? (l0 < 0.0 || l1 < 0.0 || l2 < 0.0) : (l0 > 0.0 || l1 > 0.0 || l2 > 0.0)) return false;
-    crossing.along = (l0 * w0 + l1 * w1 + l2 * w2) / area;
-    crossing.sign = area > 0.0 ? -1 : +1;
+    const auto hit = line_triangle(Vector3(point.x(), point.y(), 0.0), Vector3::UnitZ(), Vector3(p0.x(), p0.y(), w0),
+                                   Vector3(p1.x(), p1.y(), w1), Vector3(p2.x(), p2.y(), w2));
+    if (!hit) return false;
+    crossing.along = hit->along;
+    crossing.sign = hit->det > 0.0 ? +1 : -1;  // det > 0: the outward normal against the line, entering
     return true;
 }
 
