@@ -46,12 +46,13 @@ void write_landmarks(h5::Writer& w, const Landmarks& landmarks) {
 }
 
 Landmarks read_landmarks(const h5::Reader& r, bool has_visual) {
-    if (!has_visual) r.fail(group, "present without /visual (its points lie on the detailed surface)");
     Landmarks out;
     // The landmarks heartprep knows, by name; a later heartprep's others are left for it.
     for (const std::string& known : landmark_names()) {
         const std::string name = std::string(group) + "/" + known;
         if (!r.exists(name)) continue;
+        // A landmark lies on the detailed surface; the missing ones' reasons need none.
+        if (!has_visual) r.fail(name, "present without /visual (its points lie on the detailed surface)");
         Landmark l;
         l.name = known;
         std::size_t rows = 0;

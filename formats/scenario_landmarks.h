@@ -14,7 +14,7 @@ void write_landmarks(h5::Writer& w, const Landmarks& landmarks);
 
 /// Reads /landmarks (the caller checks that it exists), refusing a misshapen or non-finite point
 /// list, an unknown kind, a ring without a unit normal or a positive diameter, a landmark both
-/// found and missing, and landmarks in a file without /visual (they lie on it).
+/// found and missing, and a found landmark in a file without /visual (it lies on it).
 Landmarks read_landmarks(const h5::Reader& r, bool has_visual);
 
 }  // namespace heartsim
