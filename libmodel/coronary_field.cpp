@@ -19,7 +19,14 @@ std::vector<CoronaryCourse> coronary_courses(const Landmarks& landmarks) {
     for (const Artery& artery : arteries) {
         const Landmark* found = landmarks.find(artery.landmark);
         if (!found || found->points.size() < 2) continue;
-        courses.push_back({artery.landmark, found->points, artery.radius_mm});
+        // A course's points sit on surface vertices, so it zigzags by a vertex's spacing; the
+        // artery follows its mean line: three passes of (1, 2, 1)/4 over the inner points.
+        std::vector<Eigen::Vector3d> points = found->points;
+        for (int pass = 0; pass < 3; ++pass) {
+            const std::vector<Eigen::Vector3d> before = points;
+            for (std::size_t k = 1; k + 1 < points.size(); ++k) points[k] = 0.25 * (before[k - 1] + 2.0 * before[k] + before[k + 1]);
+        }
+        courses.push_back({artery.landmark, std::move(points), artery.radius_mm});
     }
     return courses;
 }

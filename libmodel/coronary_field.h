@@ -26,8 +26,8 @@ struct CoronaryCourse {
 /// The arteries the landmarks give (lad_course, rca_course, lcx_course), with the mean proximal
 /// lumen radii of normal adult coronary arteries: anterior descending 1.85 mm, right coronary
 /// 1.95 mm, circumflex 1.7 mm (Dodge et al., Circulation 86:232, 1992: proximal diameters 3.7,
-/// 3.9 and 3.4 mm). Courses with fewer than two points are left out; none when there are no
-/// landmarks.
+/// 3.9 and 3.4 mm). Each course is smoothed along its length (its points lie on surface vertices
+/// and zigzag by their spacing; its ends stay). Courses with fewer than two points are left out.
 std::vector<CoronaryCourse> coronary_courses(const Landmarks& landmarks);
 
 /// The field: nodes at origin + spacing·(i, j, k), x fastest. `reach` is the largest normalised

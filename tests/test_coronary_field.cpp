@@ -113,3 +113,22 @@ TEST(CoronaryField, RefusesANonFinitePointAndAnImpossibleRadius) {
     EXPECT_THROW(coronary_field({{"lad_course", {{0, 0, 0}, {1, 0, 0}}, 0.0}}), InputError);
     EXPECT_THROW(coronary_field({{"lad_course", {{0, 0, 0}, {1, 0, 0}}, 1.8}}, 0.0), InputError);
 }
+
+TEST(CoronaryField, ACourseThatZigzagsAcrossItsLineIsDrawnAlongItsMeanLine) {
+    // Points alternating ±0.5 mm about the x axis: the drawn course keeps its ends and comes within
+    // a tenth of the zigzag's amplitude of the axis inside; a straight course stays straight.
+    Landmarks landmarks;
+    Landmark zigzag{"rca_course", LandmarkKind::course, "right atrium, right ventricle", {}};
+    for (int k = 0; k <= 20; ++k) zigzag.points.emplace_back(1.0 * k, k % 2 ? 0.5 : -0.5, 0.0);
+    landmarks.found.push_back(zigzag);
+    const std::vector<CoronaryCourse> courses = coronary_courses(landmarks);
+    ASSERT_EQ(courses.size(), 1u);
+    const auto& p = courses[0].points;
+    ASSERT_EQ(p.size(), zigzag.points.size());
+    EXPECT_EQ(p.front(), zigzag.points.front());
+    EXPECT_EQ(p.back(), zigzag.points.back());
+    for (std::size_t k = 3; k + 3 < p.size(); ++k) {
+        EXPECT_LT(std::abs(p[k].y()), 0.05) << k;
+        EXPECT_NEAR(p[k].x(), double(k), 1e-12) << k;
+    }
+}

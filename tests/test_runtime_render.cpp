@@ -37,6 +37,7 @@
 #include <numbers>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
 
@@ -720,4 +721,131 @@ TEST(RenderRepair, TheLaidPatchAndItsStitchesAreDrawnOverTheDefectInTheSectionVi
     EXPECT_EQ(cyan_before, 0u);
     EXPECT_GT(double(cyan_in), 0.5 * std::numbers::pi * ball * ball) << "the marker shows whole, though on the side cut away";
     EXPECT_EQ(cyan_out, 0u);
+}
+
+namespace {
+
+/// A pixel in the coronary artery's crimson (coronary_artery_rgb, lit): green under 0.36 of red,
+/// blue over 0.38 of it; the lit epicardium's green is at least 0.41 of its red, the cut
+/// myocardium's blue under 0.25, the fat's green 0.86.
+bool artery_coloured(const std::uint8_t* c) { return c[0] > 40 && c[1] < 0.36 * c[0] && c[2] > 0.38 * c[0]; }
+
+Eigen::Vector2d pixel_of(const Camera& camera, int size, const Eigen::Vector3d& p) {
+    const Eigen::Matrix4f view_projection = camera.projection(1.0f) * camera.view();
+    const Eigen::Vector4f clip = view_projection * Eigen::Vector4f(float(p.x()), float(p.y()), float(p.z()), 1.0f);
+    return {0.5 * (clip.x() / clip.w() + 1.0) * size, 0.5 * (1.0 - clip.y() / clip.w()) * size};
+}
+
+double distance_to_polyline(const Eigen::Vector2d& q, const std::vector<Eigen::Vector2d>& line) {
+    double best = std::numeric_limits<double>::infinity();
+    for (std::size_t k = 0; k + 1 < line.size(); ++k) {
+        const Eigen::Vector2d ab = line[k + 1] - line[k];
+        const double t = ab.squaredNorm() > 0 ? std::clamp((q - line[k]).dot(ab) / ab.squaredNorm(), 0.0, 1.0) : 0.0;
+        best = std::min(best, (q - (line[k] + t * ab)).norm());
+    }
+    return best;
+}
+
+}  // namespace
+
+// The coronary arteries as drawn: an anterior descending course laid across the phantom's front
+// (visual vertices under a row of the frame's pixels, as heartprep puts a course on the detailed
+// surface) is drawn in the artery's crimson where it projects and nowhere else, and not without
+// coronaries; a grabber then pulls the tissue under it 5 mm up the screen, and the crimson is
+// found where the course's vertices went (the drawing shader's own vertices), no longer where
+// they were: the artery moves with the tissue.
+TEST(RenderCoronaries, AnArteryIsDrawnWhereItsCourseProjectsAndMovesWithTheTissueUnderAGrab) {
+    REQUIRE_GL();
+    Scenario scenario = phantom_scenario();
+    const auto& visual = scenario.visual->positions;
+    const int size = 400;
+    std::unique_ptr<Backend> backend = make_cpu_backend(scenario, options_from(scenario.solver));
+
+    // The course: the visual vertex nearest to the surface under every 4th pixel of the middle row.
+    Renderer plain(scenario, {.width = size, .height = size, .coronaries = false});
+    plain.render(*backend, {});
+    const Image without = plain.read_pixels();
+    std::vector<std::size_t> course_vertices;
+    for (int x = size / 4; x <= 3 * size / 4; x += 4) {
+        const auto point = plain.surface_point(x + 0.5, size / 2 + 0.5, size, size);
+        if (!point) continue;
+        std::size_t nearest = 0;
+        float best = std::numeric_limits<float>::infinity();
+        for (std::size_t v = 0; v < visual.size(); ++v) {
+            const float d = (Eigen::Vector3f(visual[v][0], visual[v][1], visual[v][2]) - *point).squaredNorm();
+            if (d < best) best = d, nearest = v;
+        }
+        if (course_vertices.empty() || course_vertices.back() != nearest) course_vertices.push_back(nearest);
+    }
+    ASSERT_GE(course_vertices.size(), 20u) << "the phantom fills the middle row";
+    Landmark lad{"lad_course", LandmarkKind::course, "left ventricle, right ventricle", {}};
+    for (std::size_t v : course_vertices) lad.points.emplace_back(visual[v][0], visual[v][1], visual[v][2]);
+    scenario.landmarks = Landmarks{{lad}, {}};
+
+    Renderer renderer(scenario, {.width = size, .height = size});
+    const Camera& camera = renderer.camera();
+    const double radius_px = 1.85 / camera.mm_per_pixel(size);
+    auto count = [&](const Image& image, const std::vector<Eigen::Vector3d>& points) {
+        int coloured = 0;
+        for (const Eigen::Vector3d& p : points) {
+            const Eigen::Vector2d q = pixel_of(camera, size, p);
+            const std::size_t at = 3 * (std::size_t(q.y()) * size + std::size_t(q.x()));
+            coloured += artery_coloured(&image.pixels[at]);
+        }
+        return coloured;
+    };
+    renderer.render(*backend, {});
+    const Image with = renderer.read_pixels();
+    std::vector<Eigen::Vector2d> line;
+    for (const Eigen::Vector3d& p : lad.points) line.push_back(pixel_of(camera, size, p));
+    std::size_t crimson = 0, astray = 0, crimson_without = 0;
+    for (int y = 0; y < size; ++y)
+        for (int x = 0; x < size; ++x) {
+            const std::size_t p = 3 * (std::size_t(y) * size + std::size_t(x));
+            crimson_without += artery_coloured(&without.pixels[p]);
+            if (!artery_coloured(&with.pixels[p])) continue;
+            ++crimson;
+            astray += distance_to_polyline({x + 0.5, y + 0.5}, line) > 1.3 * radius_px + 2.0;
+        }
+    const int on_course = count(with, lad.points), on_course_without = count(without, lad.points);
+    std::printf("  course of %zu vertices, artery %.1f px wide: %d of them crimson (%d without coronaries); %zu crimson pixels, %zu "
+                "beyond the artery's width from the course; %zu without coronaries\n",
+                lad.points.size(), 2 * radius_px, on_course, on_course_without, crimson, astray, crimson_without);
+    EXPECT_GE(on_course, int(0.8 * double(lad.points.size()))) << "the artery shows where its course projects";
+    EXPECT_EQ(on_course_without, 0);
+    EXPECT_EQ(crimson_without, 0u);
+    EXPECT_EQ(astray, 0u) << "crimson only along the course";
+    EXPECT_GT(double(crimson), 0.8 * 2 * radius_px * (line.back() - line.front()).norm()) << "the artery's band, not a line";
+
+    // The grab: a grabber over the course's middle vertex lifts the tissue 5 mm up the screen.
+    const Eigen::Vector3d middle = lad.points[lad.points.size() / 2];
+    const Eigen::Vector3d up = (camera.orientation.toRotationMatrix() * Eigen::Vector3f::UnitY()).cast<double>();
+    const double reach = 2.0 * scenario.lattice.spacing;
+    backend->set_instrument(0, {.kind = InstrumentKind::grabber, .semi_axes = Eigen::Vector3d::Constant(reach)});
+    backend->set_pose(0, {middle, Eigen::Quaterniond::Identity()});
+    ASSERT_GT(backend->begin_grab(0), 0u);
+    for (int k = 1; k <= 20; ++k) {
+        backend->set_pose(0, {middle + (5.0 * k / 20.0) * up, Eigen::Quaterniond::Identity()});
+        backend->step(10);
+    }
+    backend->step(200);
+    renderer.render(*backend, {});
+    const Image pulled = renderer.read_pixels();
+    const auto moved = renderer.capture_vertices(*backend);
+    std::vector<Eigen::Vector3d> now, left_behind;
+    for (std::size_t k = 0; k < course_vertices.size(); ++k) {
+        const auto& m = moved[course_vertices[k]];
+        now.emplace_back(m[0], m[1], m[2]);
+        // Those carried up by more than the artery's width: where they were is no longer crimson.
+        if ((pixel_of(camera, size, now.back()) - line[k]).norm() > 2.5 * radius_px) left_behind.push_back(lad.points[k]);
+    }
+    const int followed = count(pulled, now), stayed = count(pulled, left_behind);
+    std::printf("  after the grab: %d of %zu course vertices crimson where they went; %zu moved more than the artery's width, %d of "
+                "those still crimson where they were\n",
+                followed, now.size(), left_behind.size(), stayed);
+    if (HasFailure() || std::getenv("HEARTSIM_KEEP_PICTURES"))
+        write_png("coronary_rest.png", with), write_png("coronary_pulled.png", pulled);
+    EXPECT_GE(followed, int(0.8 * double(now.size()))) << "the artery is drawn where its course's vertices went";
+    ASSERT_GE(left_behind.size(), 3u) << "the grab moved part of the course by more than the artery's width";
+    EXPECT_LE(stayed, int(left_behind.size() / 5)) << "the artery left where the tissue left";
 }

@@ -11,6 +11,7 @@
 #include "runtime/gl/shaders/bindings.h"
 #include "runtime/gl/shaders/render_shaders.h"
 
+#include "libmodel/coronary_field.h"
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
 
@@ -39,13 +40,14 @@ struct VertexRecord {
     float rest_frame_normal[3];
     std::int32_t carrier[8];
     float weight[8];
+    float rest_position[3];  ///< where the surface detail is looked up
 };
-static_assert(sizeof(VertexRecord) == 116);
+static_assert(sizeof(VertexRecord) == 128);
 
 void check(const char* what) { check_gl_error("renderer", what); }
 
-GLuint compile(GLenum stage, const char* source, const char* name) {
-    return compile_shader(stage, {source}, std::string("renderer: the ") + name + " shader");
+GLuint compile(GLenum stage, const char* source, const char* name, const char* defines = "") {
+    return compile_shader(stage, {defines, source}, std::string("renderer: the ") + name + " shader");
 }
 
 GLuint link(std::initializer_list<GLuint> shaders, const char* name, const char* feedback_varying = nullptr) {
@@ -107,6 +109,10 @@ struct Renderer::State {
     gl::Framebuffer fbo;
     gl::Renderbuffer colour_rb, depth_rb;
     gl::Buffer feedback;  // transform feedback capture buffer (lazily)
+    // The coronary arteries drawn on the detailed mesh (RenderOptions::coronaries, the scenario's
+    // landmarks): their field as a 3D texture in the rest state.
+    gl::Texture coronary_texture;
+    CoronaryField coronary;
     // The repair (set_patch): the patch's closed sheet, its sheet flags (all 0: a closed surface),
     // and the stitches to draw with the instrument program.
     gl::Program patch_program;
@@ -149,6 +155,7 @@ struct Renderer::State {
             }
             const float length = m.norm();
             for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
+            for (int k = 0; k < 3; ++k) r.rest_position[k] = positions[v][std::size_t(k)];
         }
         std::vector<std::uint32_t> elements;
         elements.reserve(3 * triangles.size());
@@ -171,7 +178,7 @@ struct Renderer::State {
         memory += mesh_memory;
         if (!vao) {
             glCreateVertexArrays(1, vao.create());
-            for (GLuint a = 0; a < 9; ++a) {
+            for (GLuint a = 0; a < 10; ++a) {
                 glEnableVertexArrayAttrib(vao, a);
                 glVertexArrayAttribBinding(vao, a, 0);
             }
@@ -184,10 +191,52 @@ struct Renderer::State {
             glVertexArrayAttribIFormat(vao, 6, 4, GL_INT, offsetof(VertexRecord, carrier) + 16);
             glVertexArrayAttribFormat(vao, 7, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight));
             glVertexArrayAttribFormat(vao, 8, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight) + 16);
+            glVertexArrayAttribFormat(vao, 9, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_position));
         }
         glVertexArrayVertexBuffer(vao, 0, this->records, 0, sizeof(VertexRecord));
         glVertexArrayElementBuffer(vao, this->elements);
         feedback.reset();  // sized for the old vertex count
+    }
+
+    /// The arteries' field as an RGBA16F 3D texture (r: distance in radii, gba: the direction away),
+    /// filtered linearly; beyond it, the field's reach (no artery).
+    void load_coronaries(CoronaryField field) {
+        coronary = std::move(field);
+        if (coronary.empty()) return;
+        std::vector<float> texels(4 * coronary.distance.size());
+        for (std::size_t n = 0; n < coronary.distance.size(); ++n) {
+            texels[4 * n] = coronary.distance[n];
+            for (int k = 0; k < 3; ++k) texels[4 * n + 1 + std::size_t(k)] = coronary.away[n][k];
+        }
+        glCreateTextures(GL_TEXTURE_3D, 1, coronary_texture.create());
+        glTextureStorage3D(coronary_texture, 1, GL_RGBA16F, coronary.nx, coronary.ny, coronary.nz);
+        glTextureSubImage3D(coronary_texture, 0, 0, 0, 0, coronary.nx, coronary.ny, coronary.nz, GL_RGBA, GL_FLOAT, texels.data());
+        glTextureParameteri(coronary_texture, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTextureParameteri(coronary_texture, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+        for (GLenum wrap : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R})
+            glTextureParameteri(coronary_texture, wrap, GL_CLAMP_TO_BORDER);
+        const float border[4] = {float(coronary.reach), 0.0f, 0.0f, 0.0f};
+        glTextureParameterfv(coronary_texture, GL_TEXTURE_BORDER_COLOR, border);
+        memory += texels.size() / 2;  // 16-bit texels
+        check("loading the coronary arteries' field");
+    }
+
+    /// The mesh program's coronary uniforms and texture (unit 0).
+    void bind_coronaries() {
+        const GLuint p = mesh_program;
+        const bool on = bool(coronary_texture);
+        glProgramUniform1i(p, glGetUniformLocation(p, "coronaries_on"), on ? 1 : 0);
+        if (!on) return;
+        glBindTextureUnit(0, coronary_texture);
+        glProgramUniform1i(p, glGetUniformLocation(p, "coronary_field"), 0);
+        const Eigen::Vector3f origin = coronary.origin.cast<float>();
+        glProgramUniform3fv(p, glGetUniformLocation(p, "field_origin"), 1, origin.data());
+        glProgramUniform1f(p, glGetUniformLocation(p, "field_spacing"), float(coronary.spacing_mm));
+        glProgramUniform3f(p, glGetUniformLocation(p, "field_nodes"), float(coronary.nx), float(coronary.ny), float(coronary.nz));
+        glProgramUniform3f(p, glGetUniformLocation(p, "artery_color"), float(coronary_artery_rgb[0]) / 255.0f,
+                           float(coronary_artery_rgb[1]) / 255.0f, float(coronary_artery_rgb[2]) / 255.0f);
+        glProgramUniform3f(p, glGetUniformLocation(p, "fat_color"), float(epicardial_fat_rgb[0]) / 255.0f,
+                           float(epicardial_fat_rgb[1]) / 255.0f, float(epicardial_fat_rgb[2]) / 255.0f);
     }
 
     struct Pending { std::array<gl::Query, 3> queries; bool normals = false; };
@@ -389,7 +438,8 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
         std::vector<std::uint32_t> elements;
         for (std::size_t i = 0; i < s.particles; ++i) {
             const std::int32_t p = std::int32_t(i);
-            records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0}};
+            records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0},
+                          {rest[i][0], rest[i][1], rest[i][2]}};
         }
         for (const auto& t : surface.triangles)
             for (int k = 0; k < 3; ++k) {
@@ -417,8 +467,9 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     glVertexArrayAttribFormat(s.sphere_vao, 0, 3, GL_FLOAT, GL_FALSE, 0);
 
     s.mesh_program = link({compile(GL_VERTEX_SHADER, sh::mesh_vertex_shader, "mapping vertex"),
-                           compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
+                           compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment", "#define SURFACE_DETAIL 1\n")},
                           "mesh", "world_position");
+    if (s.visual && options.coronaries && scenario.landmarks) s.load_coronaries(coronary_field(coronary_courses(*scenario.landmarks)));
     s.instrument_program = link({compile(GL_VERTEX_SHADER, sh::instrument_vertex_shader, "instrument vertex"),
                                  compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
                                 "instrument");
@@ -590,6 +641,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
                            float(section_cut_rgb[1]) / 255.0f, float(section_cut_rgb[2]) / 255.0f);
     }
     s.bind_mesh(positions);
+    s.bind_coronaries();
     glDrawElements(GL_TRIANGLES, GLsizei(3 * s.triangles), GL_UNSIGNED_INT, nullptr);
     if (s.patch) s.draw_patch();
 

@@ -61,6 +61,14 @@ inline constexpr std::array<int, 3> section_cut_rgb = {138, 34, 26};
 /// a deeper, darker red than the epicardium's (0.80, 0.33, 0.30).
 inline constexpr std::array<int, 3> incision_cap_rgb = {150, 40, 36};
 
+/// A coronary artery's colour as seen through the epicardium, 8-bit RGB: a crimson whose green is
+/// under 0.33 of its red (the lit epicardium's is at least 0.41) and whose blue is over 0.4 of it
+/// (the cut myocardium's is under 0.25).
+inline constexpr std::array<int, 3> coronary_artery_rgb = {168, 50, 76};
+
+/// The epicardial fat along the coronary arteries, 8-bit RGB: yellow.
+inline constexpr std::array<int, 3> epicardial_fat_rgb = {236, 204, 122};
+
 /// A patch's colour by its material (PatchMaterial::name), 8-bit RGB: fixed bovine pericardium
 /// ivory {232, 222, 190}, expanded PTFE white-grey {214, 218, 222}, woven dacron white
 /// {242, 242, 236}; any other name gets pericardium's.
@@ -96,6 +104,9 @@ DrawnPatch drawn_patch(const PatchModel& patch, const std::vector<Eigen::Vector3
 struct RenderOptions {
     int width = 1024, height = 768;            ///< offscreen framebuffer, pixels
     ViewDirection view = ViewDirection::anterior;
+    /// Draw the coronary arteries along the scenario's courses (/landmarks lad_course, rca_course,
+    /// lcx_course) on the detailed mesh; nothing where the scenario has none.
+    bool coronaries = true;
 };
 
 /// Rendering times so far, ms summed (GPU timer queries; the cpu backend's position upload in

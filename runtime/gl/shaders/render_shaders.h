@@ -50,9 +50,13 @@ layout(location = 5) in ivec4 carrier_lo;       // the carrying particles i_0..i
 layout(location = 6) in ivec4 carrier_hi;       // i_4..i_7
 layout(location = 7) in vec4 weight_lo;         // their weights w_0..w_3
 layout(location = 8) in vec4 weight_hi;         // w_4..w_7
+layout(location = 9) in vec3 rest_position;     // the visual vertex at rest, world mm
 uniform mat4 view_projection;
 out vec3 world_position;
 out vec3 shading_normal;
+out vec3 rest_point;                            // where the surface detail is looked up
+out vec3 rest_shading_normal;                   // the detail's tangent plane at rest
+out vec4 rest_turn;                             // (k, c): the turn from rest to now (Rodrigues)
 void main() {
     vec3 na = n[particle.x].xyz, nb = n[particle.y].xyz, nc = n[particle.z].xyz;
     precise vec3 p = weight_lo.x * x[carrier_lo.x].xyz;
@@ -71,13 +75,17 @@ void main() {
     // Shading: the rest normal turned by the rotation taking the rest interpolated normal to
     // the current one (Rodrigues), so the detailed mesh keeps its detail as it deforms.
     vec3 s = rest_normal;
+    rest_turn = vec4(0.0, 0.0, 0.0, 1.0);
     if (len > 0.0 && dot(rest_frame_normal, rest_frame_normal) > 0.5) {
         vec3 b = m / len, a = rest_frame_normal;
         float c = dot(a, b);
         vec3 k = cross(a, b);
         s = c > -0.99 ? s * c + cross(k, s) + k * (dot(k, s) / (1.0 + c)) : b;
+        if (c > -0.99) rest_turn = vec4(k, c);
     }
     shading_normal = s;
+    rest_point = rest_position;
+    rest_shading_normal = rest_normal;
     gl_Position = view_projection * vec4(p, 1.0);
 }
 )";
@@ -105,10 +113,55 @@ void main() {
 /// double-sided sheet (a triangle drawn with its reverse twin) encloses no tissue: both its sides
 /// are lit. An incision's caps (the triangles from cap_first on) are the cut myocardium: lit with
 /// their flat face normal in cap_color.
+///
+/// With SURFACE_DETAIL defined (the mapped detailed mesh only), the coronary arteries: the field
+/// of libmodel/coronary_field.h (r: distance to the nearest course in that artery's radii; gba:
+/// the unit direction away from it) looked up at the fragment's rest position. The artery is a
+/// half-cylinder of its radius standing 0.6 radii proud of a ridge of epicardial fat that falls
+/// off over 2.6 radii; the heights' gradient tilts the rest normal in its tangent plane, and the
+/// vertex's turn from rest to now carries the tilted normal along: the detail follows every
+/// deformation without more geometry. Coloured as seen through the fat: the artery red, the fat
+/// around it yellow.
 inline constexpr const char* fragment_shader = R"(
 layout(std430, binding = BINDING_SHEET_TRIANGLES) readonly buffer SheetBuffer { uint sheet[]; };
 in vec3 world_position;
 in vec3 shading_normal;
+#ifdef SURFACE_DETAIL
+in vec3 rest_point;
+in vec3 rest_shading_normal;
+in vec4 rest_turn;
+uniform bool coronaries_on;
+uniform sampler3D coronary_field;
+uniform vec3 field_origin;     // the first node, mm
+uniform float field_spacing;   // mm
+uniform vec3 field_nodes;      // nodes along x, y, z
+uniform vec3 artery_color;
+uniform vec3 fat_color;
+/// The rest normal tilted by the arteries' and the fat's heights, turned to now; the colour under them.
+void coronary_detail(inout vec3 nrm, inout vec3 surface_color) {
+    vec4 f = texture(coronary_field, ((rest_point - field_origin) / field_spacing + 0.5) / field_nodes);
+    float u = f.r;
+    if (u >= 2.6) return;
+    // d(height)/d(distance), both in radii: the artery's half-cylinder sqrt(1 - u²) (its slope
+    // held finite at the flank) and the fat's smoothstep fall from 1 to 2.6 radii.
+    float w = min(u, 0.96);
+    float slope = u < 1.0 ? -0.6 * w / sqrt(1.0 - w * w) : 0.0;
+    float t = clamp((u - 1.0) / 1.6, 0.0, 1.0);
+    slope += -0.35 * 6.0 * t * (1.0 - t) / 1.6;
+    vec3 n0 = rest_shading_normal;
+    if (dot(n0, n0) < 1e-12) return;
+    n0 = normalize(n0);
+    vec3 g = slope * f.gba;
+    g -= dot(g, n0) * n0;
+    vec3 tilted = normalize(n0 - g);
+    vec3 k = rest_turn.xyz;
+    float c = rest_turn.w;
+    nrm = tilted * c + cross(k, tilted) + k * (dot(k, tilted) / (1.0 + c));
+    float fat = 1.0 - smoothstep(1.5, 2.6, u);
+    float artery = 1.0 - smoothstep(0.85, 1.05, u);
+    surface_color = mix(mix(surface_color, fat_color, 0.85 * fat), artery_color, artery);
+}
+#endif
 uniform vec3 eye;
 uniform vec3 key_light;
 uniform vec3 fill_light;
@@ -133,6 +186,10 @@ void main() {
     }
     bool cap = cap_first >= 0 && gl_PrimitiveID >= cap_first;
     vec3 nrm = cap ? vec3(0.0) : shading_normal;
+    vec3 surface_color = cap ? cap_color : base_color;
+#ifdef SURFACE_DETAIL
+    if (coronaries_on && !cap && dot(nrm, nrm) >= 1e-12) coronary_detail(nrm, surface_color);
+#endif
     if (dot(nrm, nrm) < 1e-12) nrm = face_normal;
     vec3 v = normalize(eye - world_position);
     nrm = dot(nrm, nrm) > 1e-20 ? normalize(nrm) : v;
@@ -140,7 +197,7 @@ void main() {
     float diffuse = 0.62 * max(dot(nrm, key_light), 0.0) + 0.28 * max(dot(nrm, fill_light), 0.0);
     vec3 h = normalize(key_light + v);
     float shine = specular * pow(max(dot(nrm, h), 0.0), 32.0);
-    colour = vec4(min((cap ? cap_color : base_color) * (0.16 + diffuse) + vec3(shine), vec3(1.0)), opacity);
+    colour = vec4(min(surface_color * (0.16 + diffuse) + vec3(shine), vec3(1.0)), opacity);
 }
 )";
 
