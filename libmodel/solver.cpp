@@ -91,11 +91,12 @@ const char* to_string(WatchdogReason reason) {
 }
 
 namespace {
-
 using namespace solver_kernels;
+}  // namespace
 
 /// A probe during one substep, world frame, double.
-struct ProbeFrame {
+template <class Real>
+struct BasicSolver<Real>::ProbeFrame {
     int hand = 0;
     Eigen::Vector3d centre;
     Eigen::Matrix3d world_from_tool;
@@ -104,9 +105,6 @@ struct ProbeFrame {
     Eigen::Vector3d semi_axes;
     double bound2 = 0.0;  // squared bounding radius, with a margin
 };
-
-
-}  // namespace
 
 void check_loads(const std::vector<ParticleLoad>& loads, std::size_t particle_count) {
     for (std::size_t q = 0; q < loads.size(); ++q) {
@@ -296,179 +294,7 @@ Real BasicSolver<Real>::strain_at(std::size_t i, const Real* x, const Real* posi
 }
 
 template <class Real>
-void BasicSolver<Real>::set_instrument(int hand, const Instrument& instrument) {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    for (int c = 0; c < 3; ++c)
-        if (!(instrument.semi_axes[c] > 0) || !std::isfinite(instrument.semi_axes[c]))
-            throw InputError("solver: instrument semi-axes must be positive and finite, mm");
-    release(hand);
-    hand_[std::size_t(hand)].instrument = instrument;
-    hand_[std::size_t(hand)].placed = false;
-    for (std::size_t c = 0; c < chunks_; ++c) touched_[c * hands + std::size_t(hand)].clear();
-}
-
-template <class Real>
-const Instrument& BasicSolver<Real>::instrument(int hand) const {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    return hand_[std::size_t(hand)].instrument;
-}
-
-template <class Real>
-void BasicSolver<Real>::set_pose(int hand, const InstrumentPose& pose) {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    if (!pose.position.allFinite() || !pose.orientation.coeffs().allFinite() || pose.orientation.norm() < 1e-6)
-        throw InputError("solver: an instrument pose must be finite with a non-zero quaternion");
-    InstrumentPose p = pose;
-    p.orientation.normalize();
-    HandState& state = hand_[std::size_t(hand)];
-    state.target = p;
-    if (!state.placed) state.pose = p;  // the first pose of an instrument places it: no sweep from the origin
-    state.placed = true;
-}
-
-std::vector<std::uint8_t> grab_piece(const std::vector<Eigen::Vector3d>& local, const std::vector<Eigen::Vector3d>& rest,
-                                     const Eigen::Vector3d& semi_axes, double reach, const std::vector<std::array<std::int32_t, 2>>& joined) {
-    std::vector<std::uint8_t> keep(local.size(), 1);
-    if (local.empty() || (!(reach > 0) && joined.empty())) return keep;
-    std::size_t anchor = 0;
-    double nearest = std::numeric_limits<double>::infinity();
-    for (std::size_t q = 0; q < local.size(); ++q) {
-        const double r2 = local[q].cwiseQuotient(semi_axes).squaredNorm();
-        if (r2 < nearest) {
-            nearest = r2;
-            anchor = q;
-        }
-    }
-    const double limit = reach * semi_axes.maxCoeff();
-    if (reach > 0)
-        for (std::size_t q = 0; q < local.size(); ++q) keep[q] = (rest[q] - rest[anchor]).squaredNorm() <= limit * limit;
-    if (joined.empty()) return keep;
-    // The anchor's side of a cut: reached through springs that are not cut, among those kept.
-    std::vector<std::uint8_t> reached(local.size(), 0);
-    std::vector<std::size_t> stack{anchor};
-    reached[anchor] = 1;
-    while (!stack.empty()) {
-        const std::size_t q = stack.back();
-        stack.pop_back();
-        for (const auto& [a, b] : joined) {
-            const std::size_t other = std::size_t(a) == q ? std::size_t(b) : std::size_t(b) == q ? std::size_t(a) : local.size();
-            if (other < local.size() && keep[other] && !reached[other]) {
-                reached[other] = 1;
-                stack.push_back(other);
-            }
-        }
-    }
-    for (std::size_t q = 0; q < local.size(); ++q) keep[q] = keep[q] && reached[q];
-    return keep;
-}
-
-template <class Real>
-std::size_t BasicSolver<Real>::begin_grab(int hand) {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    HandState& state = hand_[std::size_t(hand)];
-    if (state.instrument.kind == InstrumentKind::scalpel) {
-        if (!state.cutting) state.blade = lowered_blade(options_.cutting_resistance, lattice_frame_);
-        state.cutting = true;
-        return 0;
-    }
-    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber or scalpel");
-    release(hand);
-    state.grabbing = true;
-    const Eigen::Matrix3d tool_from_world = state.pose.orientation.toRotationMatrix().transpose();
-    for (std::size_t i = 0; i < n_; ++i) {
-        if (!movable_[i] || held_by_[i] >= 0) continue;
-        const Eigen::Vector3d x(static_cast<double>(current_[state_stride * i]), double(current_[state_stride * i + 1]), double(current_[state_stride * i + 2]));
-        const Eigen::Vector3d local = tool_from_world * (x - state.pose.position);
-        if (local.cwiseQuotient(state.instrument.semi_axes).squaredNorm() > 1.0) continue;
-        state.held.push_back(std::int32_t(i));
-        state.held_local.push_back(local);
-        held_by_[i] = std::int8_t(hand);
-    }
-    const std::vector<std::array<std::int32_t, 2>> joined = joined_captured(
-        state.held, slots, [&](std::size_t i, int s) { return neighbour_[entry_of(i, s)]; },
-        [&](std::size_t i, int s) { return uncut_neighbour_[entry_of(i, s)]; });
-    if ((options_.grab_reach > 0 || !joined.empty()) && !state.held.empty()) {
-        std::vector<Eigen::Vector3d> rest(state.held.size());
-        for (std::size_t q = 0; q < state.held.size(); ++q)
-            for (int c = 0; c < 3; ++c) rest[q][c] = double(rest_[4 * std::size_t(state.held[q]) + std::size_t(c)]);
-        const std::vector<std::uint8_t> keep = grab_piece(state.held_local, rest, state.instrument.semi_axes, options_.grab_reach, joined);
-        state.keep_held([&](std::size_t q) {
-            if (!keep[q]) held_by_[std::size_t(state.held[q])] = -1;
-            return keep[q] != 0;
-        });
-    }
-    return state.held.size();
-}
-
-template <class Real>
-void BasicSolver<Real>::release(int hand) {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    HandState& state = hand_[std::size_t(hand)];
-    for (std::int32_t i : state.held) held_by_[std::size_t(i)] = -1;
-    state.held.clear();
-    state.held_local.clear();
-    state.grabbing = false;
-    if (state.cutting) strokes_.lift(hand);
-    state.cutting = false;
-    state.blade = {};  // a lifted blade exerts nothing
-    state.cuts = 0;
-}
-
-template <class Real>
-std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
-    if (!sweep.cuts_anything) return 0;
-    // Each spring once, from its end of lower index (searched only near the sweep: cutting.h
-    // cut_search_margin), in particle order per chunk; the chunks' lists joined in order: the
-    // same list for any thread count.
-    std::vector<std::vector<std::array<std::int32_t, 2>>> found(chunks_);
-    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, chunks_), [&](const tbb::blocked_range<std::size_t>& range) {
-        for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) {
-            const std::size_t end = std::min(n_, (chunk + 1) * chunk_groups * lane_count);
-            for (std::size_t i = chunk * chunk_groups * lane_count; i < end; ++i) {
-                const Real* xi = current_ + state_stride * i;
-                const float p[3] = {float(xi[0]), float(xi[1]), float(xi[2])};
-                if (!near_sweep(sweep, p)) continue;
-                for (int s = 0; s < slot_count; ++s) {
-                    const std::size_t j = std::size_t(neighbour_[entry_of(i, s)]);
-                    if (j <= i) continue;
-                    const Real* xj = current_ + state_stride * j;
-                    const float q[3] = {float(xj[0]), float(xj[1]), float(xj[2])};
-                    if (spring_crosses(sweep, p, q)) found[chunk].push_back({std::int32_t(i), std::int32_t(j)});
-                }
-            }
-        }
-    });
-    std::size_t count = 0;
-    for (const auto& list : found)
-        for (const auto& [i, j] : list) {
-            // Both ends' table entries point at themselves: an empty slot, zero force in every pass.
-            for (const auto& [from, to] : {std::array<std::int32_t, 2>{i, j}, std::array<std::int32_t, 2>{j, i}})
-                for (int s = 0; s < slot_count; ++s) {
-                    const std::size_t t = entry_of(std::size_t(from), s);
-                    if (neighbour_[t] == to) neighbour_[t] = from;
-                }
-            cut_.push_back({i, j});
-            ++count;
-        }
-    return count;
-}
-
-template <class Real>
-std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int hand) const {
-    if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
-    const HandState& state = hand_[std::size_t(hand)];
-    if (state.instrument.kind == InstrumentKind::grabber) return state.held;
-    std::vector<std::int32_t> all;
-    for (std::size_t c = 0; c < chunks_; ++c) {
-        const auto& list = touched_[c * hands + std::size_t(hand)];
-        all.insert(all.end(), list.begin(), list.end());
-    }
-    return all;
-}
-
-template <class Real>
-void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad,
-                                const std::function<void()>* beside) {
+KernelData<Real> BasicSolver<Real>::kernel_data() const {
     KernelData<Real> k{};
     k.x = current_;
     k.u = motion_;
@@ -497,9 +323,11 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
     k.support_point = support_point_.data();
     k.support_stiffness = support_stiffness_.data();
     k.support_damping = support_damping_over_h_.data();
-    const GroupFunction<Real> group_function = choose_group_function<Real>(load_report_.kernel, damped_, supported_);
+    return k;
+}
 
-    std::array<ProbeFrame, hands> probes;
+template <class Real>
+int BasicSolver<Real>::probe_frames(const InstrumentPose* previous_poses, const InstrumentPose* poses, std::array<ProbeFrame, hands>& probes) const {
     int probe_count = 0;
     for (int hand = 0; hand < hands; ++hand) {
         const HandState& state = hand_[std::size_t(hand)];
@@ -514,96 +342,160 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         const double radius = state.instrument.semi_axes.maxCoeff() * (1 + 1e-3) + 1e-3;
         p.bound2 = radius * radius;
     }
+    return probe_count;
+}
 
-    // Projects particle i out of the probe if inside (exact test in double; the stored float
-    // position is re-checked so rounding cannot leave it inside). The contact is inelastic and
-    // frictionless: the particle keeps its own displacement u of this substep except that its
-    // normal component becomes at least the probe surface's, so a deep or sudden probe does not
-    // fling particles out at penetration/h. Only this particle's next position and motion change
-    // (nothing else reads them during the substep).
-    auto project = [&](const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched, std::size_t& pierced) {
+// Projects particle i out of the probe if inside (exact test in double; the stored float position
+// is re-checked so rounding cannot leave it inside). The contact is inelastic and frictionless:
+// the particle keeps its own displacement u of this substep except that its normal component
+// becomes at least the probe surface's, so a deep or sudden probe does not fling particles out
+// at penetration/h. Only this particle's next position and motion change (nothing else reads
+// them during the substep).
+template <class Real>
+void BasicSolver<Real>::project_out_of_probe(const ProbeFrame& p, std::size_t i, std::vector<std::int32_t>& touched, std::size_t& pierced) {
+    Real* x = next_ + state_stride * i;
+    const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
+    Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
+    const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
+    if (!(r2 < 1.0)) return;
+    // To the nearest point of the surface (ellipsoid.h), then just outside it (1e-6 relative)
+    // so that float rounding and a caller's own evaluation of the pose cannot see it inside.
+    local = nearest_point_on_ellipsoid(local, p.semi_axes);
+    double factor = 1.0 + 1e-6;
+    Eigen::Vector3d stored;
+    for (int attempt = 0; attempt < 60; ++attempt) {
+        const Eigen::Vector3d out = p.centre + p.world_from_tool * (local * factor);
+        for (int c = 0; c < 3; ++c) x[c] = Real(out[c]);
+        stored = Eigen::Vector3d(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
+        if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(p.semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
+        factor *= 1 + 1e-6 * double(1 << std::min(attempt, 20));
+    }
+    // Pierced (SolverOptions::probe_pierce_strain): the surface point would stretch one of its
+    // springs too far, measured against the neighbours' positions at the start of the substep
+    // (the ones this pass does not write), so the particle stays inside, untouched.
+    if (options_.probe_pierce_strain > 0 && double(strain_at(i, x, current_)) > options_.probe_pierce_strain) {
+        for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
+        ++pierced;
+        return;
+    }
+    const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
+    const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
+    const Real* xc = current_ + state_stride * i;
+    Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));
+    u += std::max(0.0, (surface_motion - u).dot(normal)) * normal;
+    touched.push_back(std::int32_t(i));
+    Real* motion = next_motion_ + state_stride * i;
+    for (int c = 0; c < 3; ++c) motion[c] = Real(u[c]);
+}
+
+// A chunk's loads and the probes' projection, after its springs and integration (the next state
+// only, its own particles).
+template <class Real>
+void BasicSolver<Real>::load_and_project(std::size_t chunk, const std::array<ProbeFrame, hands>& probes, int probe_count) {
+    const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
+    // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
+    // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
+    const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
+    const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
+    for (auto at = load_begin; at != load_end; ++at) {
+        const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
+        if (!movable_[i] || held_by_[i] >= 0) continue;
         Real* x = next_ + state_stride * i;
-        const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
-        Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
-        const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
-        if (!(r2 < 1.0)) return;
-        // To the nearest point of the surface (ellipsoid.h), then just outside it (1e-6 relative)
-        // so that float rounding and a caller's own evaluation of the pose cannot see it inside.
-        local = nearest_point_on_ellipsoid(local, p.semi_axes);
-        double factor = 1.0 + 1e-6;
-        Eigen::Vector3d stored;
-        for (int attempt = 0; attempt < 60; ++attempt) {
-            const Eigen::Vector3d out = p.centre + p.world_from_tool * (local * factor);
-            for (int c = 0; c < 3; ++c) x[c] = Real(out[c]);
-            stored = Eigen::Vector3d(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
-            if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(p.semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
-            factor *= 1 + 1e-6 * double(1 << std::min(attempt, 20));
-        }
-        // Pierced (SolverOptions::probe_pierce_strain): the surface point would stretch one of its
-        // springs too far, measured against the neighbours' positions at the start of the substep
-        // (the ones this pass does not write), so the particle stays inside, untouched.
-        if (options_.probe_pierce_strain > 0 && double(strain_at(i, x, current_)) > options_.probe_pierce_strain) {
-            for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
-            ++pierced;
-            return;
-        }
-        const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
-        const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
-        const Real* xc = current_ + state_stride * i;
-        Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));
-        u += std::max(0.0, (surface_motion - u).dot(normal)) * normal;
-        touched.push_back(std::int32_t(i));
         Real* motion = next_motion_ + state_stride * i;
-        for (int c = 0; c < 3; ++c) motion[c] = Real(u[c]);
+        for (int c = 0; c < 3; ++c) {
+            const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
+            x[c] = x[c] + step;
+            motion[c] = motion[c] + step;
+        }
+    }
+    for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
+    for (int pi = 0; pi < probe_count; ++pi) {
+        const ProbeFrame& p = probes[std::size_t(pi)];
+        auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
+        const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
+        const std::size_t end = std::min(n_, last * lane_count);
+        std::size_t i = first * lane_count;
+#ifdef HEARTSIM_SOLVER_X86
+        if constexpr (std::is_same_v<Real, float>) {
+            // 16 particles per test where the avx512 kernel runs (same operations as below).
+            if (load_report_.kernel == SolverKernel::avx512)
+                for (; i + 16 <= last * lane_count; i += 16)
+                    for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
+                        const std::size_t q = i + std::size_t(__builtin_ctz(mask));
+                        if (q < n_ && movable_[q] && held_by_[q] < 0) project_out_of_probe(p, q, touched, chunk_pierced_[chunk]);
+                    }
+        }
+#endif
+        for (; i < end; ++i) {
+            const Real* x = next_ + state_stride * i;
+            const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
+            if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project_out_of_probe(p, i, touched, chunk_pierced_[chunk]);
+        }
+    }
+}
+
+// Grabbed particles follow the tool rigidly, unless that would stretch one of their springs past
+// the slip strain: then the particle slips out of the grabber and moves freely (it keeps the
+// position the integration gave it, x + u). Order-free, in three passes as the gl backend's one
+// work group runs them (solver_shaders.h `after_step`): every held particle moves to its target;
+// each then measures its springs with its held neighbours at their targets and the free ones
+// where the integration put them; the ones past the slip strain go back and are free. The held
+// lists keep their order, so the result is deterministic.
+template <class Real>
+void BasicSolver<Real>::follow_grabbers(const InstrumentPose* poses) {
+    std::array<Eigen::Matrix3d, hands> rotation;
+    auto world_of = [&](int hand, std::size_t q) {
+        return Eigen::Vector3d(poses[hand].position + rotation[std::size_t(hand)] * hand_[std::size_t(hand)].held_local[q]);
     };
+    for (int hand = 0; hand < hands; ++hand) {
+        const HandState& state = hand_[std::size_t(hand)];
+        if (!state.grabbing) continue;
+        rotation[std::size_t(hand)] = poses[hand].orientation.toRotationMatrix();
+        for (std::size_t q = 0; q < state.held.size(); ++q) {
+            const Eigen::Vector3d world = world_of(hand, q);
+            Real* x = next_ + state_stride * std::size_t(state.held[q]);
+            for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
+        }
+    }
+    constexpr std::int8_t slipping = -2;
+    if (options_.grab_slip_strain > 0)
+        for (int hand = 0; hand < hands; ++hand)
+            for (const std::int32_t i : hand_[std::size_t(hand)].held)
+                if (double(strain_at(std::size_t(i), next_ + state_stride * std::size_t(i), next_)) > options_.grab_slip_strain)
+                    held_by_[std::size_t(i)] = slipping;
+    for (int hand = 0; hand < hands; ++hand) {
+        HandState& state = hand_[std::size_t(hand)];
+        if (!state.grabbing) continue;
+        state.keep_held([&](std::size_t q) {
+            const std::size_t i = std::size_t(state.held[q]);
+            Real* x = next_ + state_stride * i;
+            Real* motion = next_motion_ + state_stride * i;
+            if (held_by_[i] == slipping) {
+                for (int c = 0; c < 3; ++c) x[c] = current_[state_stride * i + std::size_t(c)] + motion[c];
+                held_by_[i] = -1;
+                ++slipped_;
+                return false;
+            }
+            const Eigen::Vector3d world = world_of(hand, q);
+            for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[state_stride * i + std::size_t(c)]));
+            return true;
+        });
+    }
+}
+
+template <class Real>
+void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad,
+                                const std::function<void()>* beside) {
+    const KernelData<Real> k = kernel_data();
+    const GroupFunction<Real> group_function = choose_group_function<Real>(load_report_.kernel, damped_, supported_);
+    std::array<ProbeFrame, hands> probes;
+    const int probe_count = probe_frames(previous_poses, poses, probes);
 
     // A chunk's springs and integration (the kernel: reads the current state, writes the next);
     // then its loads and the probes' projection (the next state only, its own particles).
     auto integrate = [&](std::size_t chunk) {
         const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
         chunk_bad_[chunk] = group_function(k, first, last);
-    };
-    auto load_and_project = [&](std::size_t chunk) {
-        const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
-        // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
-        // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
-        const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
-        const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
-        for (auto at = load_begin; at != load_end; ++at) {
-            const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
-            if (!movable_[i] || held_by_[i] >= 0) continue;
-            Real* x = next_ + state_stride * i;
-            Real* motion = next_motion_ + state_stride * i;
-            for (int c = 0; c < 3; ++c) {
-                const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
-                x[c] = x[c] + step;
-                motion[c] = motion[c] + step;
-            }
-        }
-        for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
-        for (int pi = 0; pi < probe_count; ++pi) {
-            const ProbeFrame& p = probes[std::size_t(pi)];
-            auto& touched = touched_[chunk * hands + std::size_t(p.hand)];
-            const Real cx = Real(p.centre.x()), cy = Real(p.centre.y()), cz = Real(p.centre.z()), bound2 = Real(p.bound2);
-            const std::size_t end = std::min(n_, last * lane_count);
-            std::size_t i = first * lane_count;
-#ifdef HEARTSIM_SOLVER_X86
-            if constexpr (std::is_same_v<Real, float>) {
-                // 16 particles per test where the avx512 kernel runs (same operations as below).
-                if (load_report_.kernel == SolverKernel::avx512)
-                    for (; i + 16 <= last * lane_count; i += 16)
-                        for (unsigned mask = near_probe16(next_ + state_stride * i, cx, cy, cz, bound2); mask != 0; mask &= mask - 1) {
-                            const std::size_t q = i + std::size_t(__builtin_ctz(mask));
-                            if (q < n_ && movable_[q] && held_by_[q] < 0) project(p, q, touched, chunk_pierced_[chunk]);
-                        }
-            }
-#endif
-            for (; i < end; ++i) {
-                const Real* x = next_ + state_stride * i;
-                const Real dx = x[0] - cx, dy = x[1] - cy, dz = x[2] - cz;
-                if (dx * dx + dy * dy + dz * dz < bound2 && movable_[i] && held_by_[i] < 0) project(p, i, touched, chunk_pierced_[chunk]);
-            }
-        }
     };
     const tbb::blocked_range<std::size_t> all_chunks(0, chunks_);
     if (beside && *beside) {
@@ -617,63 +509,18 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
                                  });
                              });
         tbb::parallel_for(all_chunks, [&](const tbb::blocked_range<std::size_t>& range) {
-            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) load_and_project(chunk);
+            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) load_and_project(chunk, probes, probe_count);
         });
     } else {
         tbb::parallel_for(all_chunks, [&](const tbb::blocked_range<std::size_t>& range) {
-            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk) integrate(chunk), load_and_project(chunk);
+            for (std::size_t chunk = range.begin(); chunk != range.end(); ++chunk)
+                integrate(chunk), load_and_project(chunk, probes, probe_count);
         });
     }
 
-    // Grabbed particles follow the tool rigidly, unless that would stretch one of their springs
-    // past the slip strain: then the particle slips out of the grabber and moves freely (it keeps
-    // the position the integration gave it, x + u). Order-free, in three passes as the gl
-    // backend's one work group runs them (solver_shaders.h `after_step`): every held particle
-    // moves to its target; each then measures its springs with its held neighbours at their
-    // targets and the free ones where the integration put them; the ones past the slip strain go
-    // back and are free. The held lists keep their order, so the result is deterministic.
     bool any_grab = false;
     for (int hand = 0; hand < hands; ++hand) any_grab = any_grab || hand_[std::size_t(hand)].grabbing;
-    if (any_grab) {
-        std::array<Eigen::Matrix3d, hands> rotation;
-        auto world_of = [&](int hand, std::size_t q) {
-            return Eigen::Vector3d(poses[hand].position + rotation[std::size_t(hand)] * hand_[std::size_t(hand)].held_local[q]);
-        };
-        for (int hand = 0; hand < hands; ++hand) {
-            const HandState& state = hand_[std::size_t(hand)];
-            if (!state.grabbing) continue;
-            rotation[std::size_t(hand)] = poses[hand].orientation.toRotationMatrix();
-            for (std::size_t q = 0; q < state.held.size(); ++q) {
-                const Eigen::Vector3d world = world_of(hand, q);
-                Real* x = next_ + state_stride * std::size_t(state.held[q]);
-                for (int c = 0; c < 3; ++c) x[c] = Real(world[c]);
-            }
-        }
-        constexpr std::int8_t slipping = -2;
-        if (options_.grab_slip_strain > 0)
-            for (int hand = 0; hand < hands; ++hand)
-                for (const std::int32_t i : hand_[std::size_t(hand)].held)
-                    if (double(strain_at(std::size_t(i), next_ + state_stride * std::size_t(i), next_)) > options_.grab_slip_strain)
-                        held_by_[std::size_t(i)] = slipping;
-        for (int hand = 0; hand < hands; ++hand) {
-            HandState& state = hand_[std::size_t(hand)];
-            if (!state.grabbing) continue;
-            state.keep_held([&](std::size_t q) {
-                const std::size_t i = std::size_t(state.held[q]);
-                Real* x = next_ + state_stride * i;
-                Real* motion = next_motion_ + state_stride * i;
-                if (held_by_[i] == slipping) {
-                    for (int c = 0; c < 3; ++c) x[c] = current_[state_stride * i + std::size_t(c)] + motion[c];
-                    held_by_[i] = -1;
-                    ++slipped_;
-                    return false;
-                }
-                const Eigen::Vector3d world = world_of(hand, q);
-                for (int c = 0; c < 3; ++c) motion[c] = Real(world[c] - double(current_[state_stride * i + std::size_t(c)]));
-                return true;
-            });
-        }
-    }
+    if (any_grab) follow_grabbers(poses);
 
     for (std::size_t chunk = 0; chunk < chunks_; ++chunk) {
         bad = bad || chunk_bad_[chunk];

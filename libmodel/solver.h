@@ -197,6 +197,11 @@ std::vector<std::array<std::int32_t, 2>> joined_captured(const std::vector<std::
     return joined;
 }
 
+namespace solver_kernels {
+template <class Real>
+struct KernelData;
+}  // namespace solver_kernels
+
 /// The solver, in float (`Solver`, the hot path, GPU parity) or double (`ReferenceSolver`,
 /// the converged reference for convergence tests). Not thread-safe: one caller drives it;
 /// step() itself runs on TBB's workers and gives the same bits for any thread count.
@@ -378,6 +383,15 @@ private:
     /// constants; keeps velocities.
     void apply_step(const ScaledStep& step);
     void substep(const InstrumentPose* previous_poses, const InstrumentPose* poses, bool& bad, const std::function<void()>* beside = nullptr);
+    // substep()'s parts (solver.cpp).
+    struct ProbeFrame;
+    /// The kernel's pointers and per-substep constants.
+    solver_kernels::KernelData<Real> kernel_data() const;
+    /// The probes' frames at `poses` and the substep before; returns how many (the first entries).
+    int probe_frames(const InstrumentPose* previous_poses, const InstrumentPose* poses, std::array<ProbeFrame, hands>& probes) const;
+    void project_out_of_probe(const ProbeFrame& probe, std::size_t particle, std::vector<std::int32_t>& touched, std::size_t& pierced);
+    void load_and_project(std::size_t chunk, const std::array<ProbeFrame, hands>& probes, int probe_count);
+    void follow_grabbers(const InstrumentPose* poses);
     SolverEnergy compute_energy(bool centred) const;
     /// The largest strain of particle i's springs if it stood at `x` (its neighbours in `positions`).
     Real strain_at(std::size_t i, const Real* x, const Real* positions) const;
