@@ -205,31 +205,13 @@ struct PlaneCounts {
     std::size_t xy = 0, z = 0;
 };
 
-}  // namespace
-
-TriangleMesh marching_cubes(const Mask& mask, Progress& progress) {
-    const auto& geometry = mask.geometry;
-    if (mask.values.size() != geometry.voxel_count())
-        throw InputError("marching cubes: mask holds " + std::to_string(mask.values.size()) + " values, expected " +
-                         std::to_string(geometry.voxel_count()));
-    TriangleMesh mesh;
-    if (geometry.voxel_count() == 0) return mesh;
-
-    const CaseTable& table = case_table();
-    const PaddedMask padded = pad(mask);
+/// Pass 1: per padded plane, the crossings (the surface's vertices) on its x and y edges and on
+/// its z edges to the next plane. `finish_unit` is called once per slab.
+template <class FinishUnit>
+std::vector<PlaneCounts> count_plane_crossings(const PaddedMask& padded, const std::atomic<bool>& stop, FinishUnit&& finish_unit) {
     const int size_x = padded.size_x, size_y = padded.size_y, size_z = padded.size_z;
     const std::size_t plane_size = std::size_t(size_x) * std::size_t(size_y);
     const int slab_count = size_z - 1;
-
-    ProgressStage stage(progress, "marching cubes", std::uint64_t(2 * slab_count));
-    std::atomic<std::uint64_t> work_done{0};
-    std::atomic<bool> stop{false};
-    auto finish_unit = [&] {
-        stage.update(++work_done);
-        if (progress.cancelled()) stop = true;
-    };
-
-    // Pass 1: count the vertices each plane owns.
     std::vector<PlaneCounts> counts(static_cast<std::size_t>(size_z));
     tbb::parallel_for(0, size_z, [&](int k) {
         if (stop) return;
@@ -247,29 +229,35 @@ TriangleMesh marching_cubes(const Mask& mask, Progress& progress) {
         counts[std::size_t(k)] = count;
         if (k < slab_count) finish_unit();
     });
-    if (stop) throw Cancelled();
+    return counts;
+}
 
-    std::vector<std::size_t> plane_first_vertex(std::size_t(size_z) + 1, 0);
-    for (int k = 0; k < size_z; ++k)
-        plane_first_vertex[std::size_t(k) + 1] =
-            plane_first_vertex[std::size_t(k)] + counts[std::size_t(k)].xy + counts[std::size_t(k)].z;
-    const std::size_t vertex_count = plane_first_vertex.back();
-    if (vertex_count > std::size_t(std::numeric_limits<std::int32_t>::max()))
-        throw InputError("marching cubes: the surface has more vertices than 32-bit indices allow");
-    mesh.positions.resize(vertex_count);
+/// The surface's vertices, one per crossed edge, numbered plane by plane: plane k's x/y crossings
+/// in scan order from first_vertex[k], then its z crossings to plane k + 1.
+struct VertexNumbering {
+    const PaddedMask& padded;
+    const std::vector<PlaneCounts>& counts;
+    std::vector<std::size_t> first_vertex;  ///< per plane, and one past the last
+    Eigen::Matrix3d index_to_world;
+    Eigen::Vector3d world_of_padded_zero;
+    std::vector<Eigen::Vector3d>& positions;  ///< written by index_plane (where asked) and index_slab
 
-    // Continuous padded index p maps to voxel index p − 1, then to the world.
-    const Eigen::Matrix3d index_to_world = geometry.direction * geometry.spacing.asDiagonal();
-    const Eigen::Vector3d world_of_padded_zero = geometry.origin - index_to_world * Eigen::Vector3d::Ones();
-    auto world = [&](double i, double j, double k) {
+    /// Continuous padded index p maps to voxel index p − 1, then to the world.
+    VertexNumbering(const PaddedMask& padded_mask, const std::vector<PlaneCounts>& plane_counts, const VolumeGeometry& geometry,
+                    std::vector<Eigen::Vector3d>& vertex_positions)
+        : padded(padded_mask), counts(plane_counts), index_to_world(geometry.direction * geometry.spacing.asDiagonal()),
+          world_of_padded_zero(geometry.origin - index_to_world * Eigen::Vector3d::Ones()), positions(vertex_positions) {
+        first_vertex.assign(counts.size() + 1, 0);
+        for (std::size_t k = 0; k < counts.size(); ++k) first_vertex[k + 1] = first_vertex[k] + counts[k].xy + counts[k].z;
+    }
+    Eigen::Vector3d world(double i, double j, double k) const {
         return Eigen::Vector3d(world_of_padded_zero + index_to_world * Eigen::Vector3d(i, j, k));
-    };
-
-    // Numbers plane k's x/y crossings (and, with z-edges, its crossings to plane k + 1) in scan
-    // order; writes their positions only where this worker owns the plane.
-    auto index_plane = [&](int k, std::vector<std::int32_t>& x_edges, std::vector<std::int32_t>& y_edges,
-                           bool write_positions) {
-        std::size_t next = plane_first_vertex[std::size_t(k)];
+    }
+    /// Numbers plane k's x/y crossings in scan order; writes their positions only where
+    /// `write_positions` (where the calling worker owns the plane).
+    void index_plane(int k, std::vector<std::int32_t>& x_edges, std::vector<std::int32_t>& y_edges, bool write_positions) const {
+        const int size_x = padded.size_x, size_y = padded.size_y;
+        std::size_t next = first_vertex[std::size_t(k)];
         const std::uint8_t* plane = &padded.values[padded.linear(0, 0, k)];
         for (int j = 0; j < size_y; ++j) {
             const std::size_t row_start = std::size_t(j) * std::size_t(size_x);
@@ -277,34 +265,115 @@ TriangleMesh marching_cubes(const Mask& mask, Progress& progress) {
             for (int i = 0; i < size_x; ++i) {
                 std::int32_t x_index = -1, y_index = -1;
                 if (i + 1 < size_x && row[i] != row[i + 1]) {
-                    if (write_positions) mesh.positions[next] = world(i + 0.5, j, k);
+                    if (write_positions) positions[next] = world(i + 0.5, j, k);
                     x_index = std::int32_t(next++);
                 }
                 if (j + 1 < size_y && row[i] != row[i + size_x]) {
-                    if (write_positions) mesh.positions[next] = world(i, j + 0.5, k);
+                    if (write_positions) positions[next] = world(i, j + 0.5, k);
                     y_index = std::int32_t(next++);
                 }
                 x_edges[row_start + std::size_t(i)] = x_index;
                 y_edges[row_start + std::size_t(i)] = y_index;
             }
         }
-    };
-    auto index_slab = [&](int k, std::vector<std::int32_t>& z_edges) {
-        std::size_t next = plane_first_vertex[std::size_t(k)] + counts[std::size_t(k)].xy;
+    }
+    /// Numbers and places plane k's crossings to plane k + 1.
+    void index_slab(int k, std::vector<std::int32_t>& z_edges) const {
+        const int size_x = padded.size_x;
+        const std::size_t plane_size = std::size_t(size_x) * std::size_t(padded.size_y);
+        std::size_t next = first_vertex[std::size_t(k)] + counts[std::size_t(k)].xy;
         const std::uint8_t* plane = &padded.values[padded.linear(0, 0, k)];
         for (std::size_t p = 0; p < plane_size; ++p) {
             std::int32_t index = -1;
             if (plane[p] != plane[p + plane_size]) {
                 const int i = int(p % std::size_t(size_x)), j = int(p / std::size_t(size_x));
-                mesh.positions[next] = world(i, j, k + 0.5);
+                positions[next] = world(i, j, k + 0.5);
                 index = std::int32_t(next++);
             }
             z_edges[p] = index;
         }
-    };
+    }
+};
 
+/// Appends the triangles of slab k (the cells between planes k and k + 1) to `triangles`, their
+/// corners the vertex numbers of `lower` (plane k's edges and the slab's z edges) and `upper`
+/// (plane k + 1's). `mirrored`: the volume's direction matrix mirrors, so each triangle turns.
+void triangulate_slab(const PaddedMask& padded, const CaseTable& table, int k, const PlaneIndices& lower, const PlaneIndices& upper,
+                      bool mirrored, std::vector<std::array<std::int32_t, 3>>& triangles) {
+    const int size_x = padded.size_x, size_y = padded.size_y;
+    const std::size_t plane_size = std::size_t(size_x) * std::size_t(size_y);
     // Spreads column bits (cy + 2·cz) to corner bits (cx + 2·cy + 4·cz) with cx = 0.
     constexpr std::array<std::uint8_t, 16> spread{0, 1, 4, 5, 16, 17, 20, 21, 64, 65, 68, 69, 80, 81, 84, 85};
+    // Per cube edge: the index array and the offset from the cell's (i, j).
+    std::array<const std::int32_t*, 12> edge_base;
+    std::array<std::size_t, 12> edge_offset;
+    for (int e = 0; e < 12; ++e) {
+        const auto& edge = cube_edges[std::size_t(e)];
+        const int cx = edge.lower_corner & 1, cy = (edge.lower_corner >> 1) & 1, cz = (edge.lower_corner >> 2) & 1;
+        const PlaneIndices& plane = cz ? upper : lower;
+        edge_base[std::size_t(e)] = edge.axis == 0 ? plane.x_edges.data() : edge.axis == 1 ? plane.y_edges.data() : lower.z_edges.data();
+        edge_offset[std::size_t(e)] = std::size_t(cy) * std::size_t(size_x) + std::size_t(cx);
+    }
+    const std::uint8_t* plane = &padded.values[padded.linear(0, 0, k)];
+    for (int j = 0; j + 1 < size_y; ++j) {
+        const std::size_t row_start = std::size_t(j) * std::size_t(size_x);
+        const std::uint8_t* row00 = plane + row_start;   // (y, z) offsets (0,0)
+        const std::uint8_t* row10 = row00 + size_x;      // (1,0)
+        const std::uint8_t* row01 = row00 + plane_size;  // (0,1)
+        const std::uint8_t* row11 = row01 + size_x;      // (1,1)
+        auto column = [&](int i) { return row00[i] | (row10[i] << 1) | (row01[i] << 2) | (row11[i] << 3); };
+        int left = column(0);
+        for (int i = 0; i + 1 < size_x; ++i) {
+            const int right = column(i + 1);
+            const int pattern = spread[std::size_t(left)] | (spread[std::size_t(right)] << 1);
+            left = right;
+            if (pattern == 0 || pattern == 255) continue;
+            const std::size_t cell = row_start + std::size_t(i);
+            const auto& cell_triangles = table.triangles[std::size_t(pattern)];
+            for (int t = 0; t < table.triangle_count[std::size_t(pattern)]; ++t) {
+                std::array<std::int32_t, 3> triangle;
+                for (int c = 0; c < 3; ++c) {
+                    const int e = cell_triangles[std::size_t(t)][std::size_t(c)];
+                    triangle[std::size_t(c)] = edge_base[std::size_t(e)][cell + edge_offset[std::size_t(e)]];
+                }
+                // A mirroring direction matrix turns counter-clockwise into clockwise.
+                if (mirrored) std::swap(triangle[1], triangle[2]);
+                triangles.push_back(triangle);
+            }
+        }
+    }
+}
+
+}  // namespace
+
+TriangleMesh marching_cubes(const Mask& mask, Progress& progress) {
+    const auto& geometry = mask.geometry;
+    if (mask.values.size() != geometry.voxel_count())
+        throw InputError("marching cubes: mask holds " + std::to_string(mask.values.size()) + " values, expected " +
+                         std::to_string(geometry.voxel_count()));
+    TriangleMesh mesh;
+    if (geometry.voxel_count() == 0) return mesh;
+
+    const CaseTable& table = case_table();
+    const PaddedMask padded = pad(mask);
+    const std::size_t plane_size = std::size_t(padded.size_x) * std::size_t(padded.size_y);
+    const int slab_count = padded.size_z - 1;
+
+    ProgressStage stage(progress, "marching cubes", std::uint64_t(2 * slab_count));
+    std::atomic<std::uint64_t> work_done{0};
+    std::atomic<bool> stop{false};
+    auto finish_unit = [&] {
+        stage.update(++work_done);
+        if (progress.cancelled()) stop = true;
+    };
+
+    const std::vector<PlaneCounts> counts = count_plane_crossings(padded, stop, finish_unit);
+    if (stop) throw Cancelled();
+    const VertexNumbering numbering(padded, counts, geometry, mesh.positions);
+    const std::size_t vertex_count = numbering.first_vertex.back();
+    if (vertex_count > std::size_t(std::numeric_limits<std::int32_t>::max()))
+        throw InputError("marching cubes: the surface has more vertices than 32-bit indices allow");
+    mesh.positions.resize(vertex_count);
 
     // Pass 2: fixed chunks of slabs (independent of the thread count), each with its own
     // triangle list; concatenated in slab order, the result is the same for any thread count.
@@ -322,57 +391,13 @@ TriangleMesh marching_cubes(const Mask& mask, Progress& progress) {
             indices->y_edges.resize(plane_size);
         }
         lower.z_edges.resize(plane_size);
-        auto& triangles = chunk_triangles[std::size_t(chunk)];
-        index_plane(first_slab, lower.x_edges, lower.y_edges, true);
-
+        numbering.index_plane(first_slab, lower.x_edges, lower.y_edges, true);
         for (int k = first_slab; k < end_slab; ++k) {
             if (stop) return;
-            index_slab(k, lower.z_edges);
+            numbering.index_slab(k, lower.z_edges);
             // Plane k + 1 belongs to the next chunk when k is this chunk's last slab.
-            index_plane(k + 1, upper.x_edges, upper.y_edges, k + 1 < end_slab);
-
-            // Per cube edge: the index array and the offset from the cell's (i, j).
-            std::array<const std::int32_t*, 12> edge_base;
-            std::array<std::size_t, 12> edge_offset;
-            for (int e = 0; e < 12; ++e) {
-                const auto& edge = cube_edges[std::size_t(e)];
-                const int cx = edge.lower_corner & 1, cy = (edge.lower_corner >> 1) & 1,
-                          cz = (edge.lower_corner >> 2) & 1;
-                const PlaneIndices& plane = cz ? upper : lower;
-                edge_base[std::size_t(e)] = edge.axis == 0   ? plane.x_edges.data()
-                                            : edge.axis == 1 ? plane.y_edges.data()
-                                                             : lower.z_edges.data();
-                edge_offset[std::size_t(e)] = std::size_t(cy) * std::size_t(size_x) + std::size_t(cx);
-            }
-
-            const std::uint8_t* plane = &padded.values[padded.linear(0, 0, k)];
-            for (int j = 0; j + 1 < size_y; ++j) {
-                const std::size_t row_start = std::size_t(j) * std::size_t(size_x);
-                const std::uint8_t* row00 = plane + row_start;  // (y, z) offsets (0,0)
-                const std::uint8_t* row10 = row00 + size_x;     // (1,0)
-                const std::uint8_t* row01 = row00 + plane_size; // (0,1)
-                const std::uint8_t* row11 = row01 + size_x;     // (1,1)
-                auto column = [&](int i) { return row00[i] | (row10[i] << 1) | (row01[i] << 2) | (row11[i] << 3); };
-                int left = column(0);
-                for (int i = 0; i + 1 < size_x; ++i) {
-                    const int right = column(i + 1);
-                    const int pattern = spread[std::size_t(left)] | (spread[std::size_t(right)] << 1);
-                    left = right;
-                    if (pattern == 0 || pattern == 255) continue;
-                    const std::size_t cell = row_start + std::size_t(i);
-                    const auto& cell_triangles = table.triangles[std::size_t(pattern)];
-                    for (int t = 0; t < table.triangle_count[std::size_t(pattern)]; ++t) {
-                        std::array<std::int32_t, 3> triangle;
-                        for (int c = 0; c < 3; ++c) {
-                            const int e = cell_triangles[std::size_t(t)][std::size_t(c)];
-                            triangle[std::size_t(c)] = edge_base[std::size_t(e)][cell + edge_offset[std::size_t(e)]];
-                        }
-                        // A mirroring direction matrix turns counter-clockwise into clockwise.
-                        if (mirrored) std::swap(triangle[1], triangle[2]);
-                        triangles.push_back(triangle);
-                    }
-                }
-            }
+            numbering.index_plane(k + 1, upper.x_edges, upper.y_edges, k + 1 < end_slab);
+            triangulate_slab(padded, table, k, lower, upper, mirrored, chunk_triangles[std::size_t(chunk)]);
             std::swap(lower.x_edges, upper.x_edges);
             std::swap(lower.y_edges, upper.y_edges);
             finish_unit();
