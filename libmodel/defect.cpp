@@ -11,6 +11,7 @@
 #include <deque>
 #include <limits>
 #include <numbers>
+#include <optional>
 #include <unordered_set>
 
 namespace heartsim {
@@ -477,127 +478,176 @@ std::vector<Candidate> septum_candidates(const LabelVolume& volume, const Grid& 
 /// Carves the opening at `s` (carve_defect's last step), measures it and floods through it;
 /// keeps it and fills `report` when its passage is clear and it joins the pools, else restores
 /// every voxel and returns false (report's measures say why).
+/// Whether c lies in site s's cylinder: within `r` of its axis and `w` of its middle along it.
+bool in_cylinder(const Site& s, const Eigen::Vector3d& c, double r, double w) {
+    const Eigen::Vector3d rel = c - s.centre;
+    const double t = rel.dot(s.normal);
+    return std::abs(t) <= w && (rel - t * s.normal).squaredNorm() <= r * r;
+}
+
+/// An unlabelled seam between the wall and a pool (DefectOptions::gap_mm) opens with the wall:
+/// a 0 voxel with the pool within the gap along the axis.
+bool on_seam(const Grid& grid, const Site& s, double gap_mm, const Eigen::Vector3d& c) {
+    const double h = 0.25 * grid.min_spacing();
+    for (double u = h; u <= gap_mm + h; u += h)
+        for (double side : {-1.0, 1.0}) {
+            const int l = grid.label(c + side * u * s.normal);
+            if (l == s.crossing.label_minus || l == s.crossing.label_plus) return true;
+        }
+    return false;
+}
+
+/// The wall voxel the carving starts from: the one at the site's centre, or, where the middle of
+/// a wall one voxel thick falls between voxel centres, the wall voxel nearest it. False if none.
+bool carving_seed(const Grid& grid, const Carver& carver, const Site& s, std::array<int, 3>& seed) {
+    if (grid.voxel(s.centre, seed) && carver.is_wall(grid.label(seed[0], seed[1], seed[2]))) return true;
+    Eigen::Vector3d w;
+    return nearest(grid, s.centre, grid.max_spacing() * 2, [&](int l) { return carver.is_wall(l); }, Eigen::Vector3d::Zero(), w) &&
+           grid.voxel(w, seed);
+}
+
+/// The voxels one carving may touch (within the box [lo, hi]) and the cylinder's half length.
+struct CarvingBounds {
+    std::array<int, 3> lo, hi;
+    double window = 0.0;
+};
+
+/// Carves the wall voxels whose centres lie within r of the axis, connected to `seed` (each into
+/// the pool on its side; a seam voxel too), and returns them with their labels before.
+std::vector<std::pair<std::size_t, std::int32_t>> carve_cylinder(LabelVolume& volume, const Grid& grid, const Carver& carver,
+                                                                 const DefectOptions& o, const Site& s, const std::array<int, 3>& seed,
+                                                                 const CarvingBounds& bounds, double r) {
+    const VolumeGeometry& geo = volume.geometry;
+    const auto& [lo, hi, window] = bounds;
+    std::unordered_set<std::size_t> seen;
+    std::deque<std::array<int, 3>> queue;
+    queue.push_back(seed);
+    seen.insert(geo.linear(seed[0], seed[1], seed[2]));
+    std::vector<std::array<int, 3>> carved;
+    while (!queue.empty()) {
+        const auto v = queue.front();
+        queue.pop_front();
+        carved.push_back(v);
+        for (int dk = -1; dk <= 1; ++dk)
+            for (int dj = -1; dj <= 1; ++dj)
+                for (int di = -1; di <= 1; ++di) {
+                    const int i = v[0] + di, j = v[1] + dj, k = v[2] + dk;
+                    if (i < lo[0] || j < lo[1] || k < lo[2] || i > hi[0] || j > hi[1] || k > hi[2]) continue;
+                    const std::size_t at = geo.linear(i, j, k);
+                    if (seen.count(at) || !in_cylinder(s, grid.centre(i, j, k), r, window)) continue;
+                    if (!carver.is_wall(volume.labels[at]) && !(volume.labels[at] == 0 && on_seam(grid, s, o.gap_mm, grid.centre(i, j, k))))
+                        continue;
+                    seen.insert(at);
+                    queue.push_back({i, j, k});
+                }
+    }
+    // The seed itself may lie just outside a small cylinder: keep only voxels inside it.
+    carved.erase(std::remove_if(carved.begin(), carved.end(),
+                                [&](const auto& v) { return !in_cylinder(s, grid.centre(v[0], v[1], v[2]), r, window); }),
+                 carved.end());
+    std::vector<std::pair<std::size_t, std::int32_t>> changed;
+    for (const auto& v : carved) changed.emplace_back(geo.linear(v[0], v[1], v[2]), volume.labels[geo.linear(v[0], v[1], v[2])]);
+    for (const auto& v : carved) {
+        const double t = (grid.centre(v[0], v[1], v[2]) - s.centre).dot(s.normal);
+        volume.labels[geo.linear(v[0], v[1], v[2])] = t < 0.0 ? s.crossing.label_minus : s.crossing.label_plus;
+    }
+    return changed;
+}
+
+/// The opening's diameter: that of a disc with the area across the axis of the lines parallel to
+/// it, a quarter voxel apart, that cross the wall's slab (along the axis from slab_lo to slab_hi)
+/// without meeting wall, connected to the axis.
+double passage_diameter(const Grid& grid, const Carver& carver, const Site& s, double radius, double slab_lo, double slab_hi) {
+    Eigen::Vector3d u, v;
+    frame(s.normal, u, v);
+    const double h = 0.25 * grid.min_spacing();
+    const double extent = radius + 3.0 * grid.max_spacing();
+    const int n = int(std::ceil(extent / h));
+    const int side = 2 * n + 1;
+    std::vector<std::uint8_t> open(std::size_t(side) * std::size_t(side)), reached(open.size());
+    for (int b = -n; b <= n; ++b)
+        for (int a = -n; a <= n; ++a) {
+            if (a * a + b * b > n * n) continue;
+            const Eigen::Vector3d q = s.centre + h * (a * u + b * v);
+            bool clear = true;
+            for (double t = slab_lo; t <= slab_hi && clear; t += h) clear = !carver.is_wall(grid.label(q + t * s.normal));
+            open[std::size_t(b + n) * std::size_t(side) + std::size_t(a + n)] = clear;
+        }
+    std::size_t area = 0;
+    const std::size_t centre = std::size_t(n) * std::size_t(side) + std::size_t(n);
+    if (open[centre]) {
+        std::vector<std::size_t> stack{centre};
+        reached[centre] = 1;
+        while (!stack.empty()) {
+            const std::size_t at = stack.back();
+            stack.pop_back();
+            ++area;
+            const int a = int(at % std::size_t(side)), b = int(at / std::size_t(side));
+            const std::array<std::array<int, 2>, 4> steps{{{1, 0}, {-1, 0}, {0, 1}, {0, -1}}};
+            for (const auto& d : steps) {
+                const int a2 = a + d[0], b2 = b + d[1];
+                if (a2 < 0 || b2 < 0 || a2 >= side || b2 >= side) continue;
+                const std::size_t next = std::size_t(b2) * std::size_t(side) + std::size_t(a2);
+                if (!open[next] || reached[next]) continue;
+                reached[next] = 1;
+                stack.push_back(next);
+            }
+        }
+    }
+    return 2.0 * std::sqrt(double(area) * h * h / std::numbers::pi);
+}
+
+/// Whether the two pools (labels a and b) connect through the opening: a flood fill through
+/// blood, within the cylinder of radius r and half length w, from a voxel a step beyond the
+/// wall's face on one side to one on the other; nullopt where either of those is not blood.
+std::optional<bool> pools_connected(const LabelVolume& volume, const Grid& grid, const Site& s, int label_a, int label_b, double r, double w) {
+    const VolumeGeometry& geo = volume.geometry;
+    auto blood = [&](int l) { return l == label_a || l == label_b; };
+    std::array<int, 3> from, to;
+    const double step = grid.max_spacing();
+    bool ends = grid.voxel(s.centre + (s.crossing.t_minus - step) * s.normal, from) && grid.voxel(s.centre + (s.crossing.t_plus + step) * s.normal, to);
+    ends = ends && blood(grid.label(from[0], from[1], from[2])) && blood(grid.label(to[0], to[1], to[2]));
+    if (!ends) return std::nullopt;
+    std::unordered_set<std::size_t> reached{geo.linear(from[0], from[1], from[2])};
+    std::deque<std::array<int, 3>> q{from};
+    const std::size_t target = geo.linear(to[0], to[1], to[2]);
+    constexpr std::array<std::array<int, 3>, 6> steps{{{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}}};
+    while (!q.empty() && !reached.count(target)) {
+        const auto v = q.front();
+        q.pop_front();
+        for (const auto& d : steps) {
+            const int i = v[0] + d[0], j = v[1] + d[1], k = v[2] + d[2];
+            if (!geo.contains(i, j, k)) continue;
+            const std::size_t at = geo.linear(i, j, k);
+            if (reached.count(at) || !blood(volume.labels[at]) || !in_cylinder(s, grid.centre(i, j, k), r, w)) continue;
+            reached.insert(at);
+            q.push_back({i, j, k});
+        }
+    }
+    return reached.count(target) != 0;
+}
+
 bool open_site(LabelVolume& volume, const Grid& grid, const Carver& carver, const DefectOptions& o, const Site& s,
                DefectReport& report) {
     const double radius = 0.5 * o.diameter_mm;
-    const double window = 0.5 * s.crossing.thickness() + radius + 2.0 * grid.max_spacing();
-    const VolumeGeometry& geo = volume.geometry;
-    std::array<int, 3> lo, hi;
-    grid.box(s.centre, std::hypot(window, radius) + grid.max_spacing(), lo, hi);
-    auto inside = [&](const Eigen::Vector3d& c, double r, double w) {
-        const Eigen::Vector3d rel = c - s.centre;
-        const double t = rel.dot(s.normal);
-        return std::abs(t) <= w && (rel - t * s.normal).squaredNorm() <= r * r;
-    };
-    // An unlabelled seam between the wall and a pool (DefectOptions::gap_mm) opens with the wall:
-    // a 0 voxel with the pool within the gap along the axis.
-    auto seam = [&](const Eigen::Vector3d& c) {
-        const double h = 0.25 * grid.min_spacing();
-        for (double u = h; u <= o.gap_mm + h; u += h)
-            for (double side : {-1.0, 1.0}) {
-                const int l = grid.label(c + side * u * s.normal);
-                if (l == s.crossing.label_minus || l == s.crossing.label_plus) return true;
-            }
-        return false;
-    };
+    CarvingBounds bounds;
+    bounds.window = 0.5 * s.crossing.thickness() + radius + 2.0 * grid.max_spacing();
+    grid.box(s.centre, std::hypot(bounds.window, radius) + grid.max_spacing(), bounds.lo, bounds.hi);
     std::array<int, 3> seed;
-    if (!grid.voxel(s.centre, seed) || !carver.is_wall(grid.label(seed[0], seed[1], seed[2]))) {
-        // The middle of a wall one voxel thick can fall between voxel centres: start from the
-        // wall voxel nearest it.
-        Eigen::Vector3d w;
-        if (!nearest(grid, s.centre, grid.max_spacing() * 2, [&](int l) { return carver.is_wall(l); }, Eigen::Vector3d::Zero(), w) ||
-            !grid.voxel(w, seed))
-            return false;
-    }
-    // The wall voxels whose centres lie within r of the axis, connected to the seed; carved (each
-    // into the pool on its side) and returned with their labels before.
-    auto carve = [&](double r) {
-        std::unordered_set<std::size_t> seen;
-        std::deque<std::array<int, 3>> queue;
-        queue.push_back(seed);
-        seen.insert(geo.linear(seed[0], seed[1], seed[2]));
-        std::vector<std::array<int, 3>> carved;
-        while (!queue.empty()) {
-            const auto v = queue.front();
-            queue.pop_front();
-            carved.push_back(v);
-            for (int dk = -1; dk <= 1; ++dk)
-                for (int dj = -1; dj <= 1; ++dj)
-                    for (int di = -1; di <= 1; ++di) {
-                        const int i = v[0] + di, j = v[1] + dj, k = v[2] + dk;
-                        if (i < lo[0] || j < lo[1] || k < lo[2] || i > hi[0] || j > hi[1] || k > hi[2]) continue;
-                        const std::size_t at = geo.linear(i, j, k);
-                        if (seen.count(at) || !inside(grid.centre(i, j, k), r, window)) continue;
-                        if (!carver.is_wall(volume.labels[at]) && !(volume.labels[at] == 0 && seam(grid.centre(i, j, k)))) continue;
-                        seen.insert(at);
-                        queue.push_back({i, j, k});
-                    }
-        }
-        // The seed itself may lie just outside a small cylinder: keep only voxels inside it.
-        carved.erase(std::remove_if(carved.begin(), carved.end(),
-                                    [&](const auto& v) { return !inside(grid.centre(v[0], v[1], v[2]), r, window); }),
-                     carved.end());
-        std::vector<std::pair<std::size_t, std::int32_t>> changed;
-        for (const auto& v : carved) changed.emplace_back(geo.linear(v[0], v[1], v[2]), volume.labels[geo.linear(v[0], v[1], v[2])]);
-        for (const auto& v : carved) {
-            const double t = (grid.centre(v[0], v[1], v[2]) - s.centre).dot(s.normal);
-            volume.labels[geo.linear(v[0], v[1], v[2])] = t < 0.0 ? s.crossing.label_minus : s.crossing.label_plus;
-        }
-        return changed;
-    };
-    // The opening's area across the axis: the lines parallel to it, a quarter voxel apart, that
-    // cross the wall's slab without meeting wall, connected to the axis.
-    // Only the wall's own slab counts (as thick as at the centre, plus a voxel and a little for a
-    // curved wall each way): another wall across a pool beyond it does not close the opening.
+    if (!carving_seed(grid, carver, s, seed)) return false;
+    // Only the wall's own slab counts for the passage (as thick as at the centre, plus a voxel and
+    // a little for a curved wall each way): another wall across a pool beyond it does not close
+    // the opening.
     const double slab_lo = s.crossing.t_minus - grid.max_spacing() - 0.25 * radius;
     const double slab_hi = s.crossing.t_plus + grid.max_spacing() + 0.25 * radius;
-    auto passage = [&] {
-        Eigen::Vector3d u, v;
-        frame(s.normal, u, v);
-        const double h = 0.25 * grid.min_spacing();
-        const double extent = radius + 3.0 * grid.max_spacing();
-        const int n = int(std::ceil(extent / h));
-        const int side = 2 * n + 1;
-        std::vector<std::uint8_t> open(std::size_t(side) * std::size_t(side)), reached(open.size());
-        for (int b = -n; b <= n; ++b)
-            for (int a = -n; a <= n; ++a) {
-                if (a * a + b * b > n * n) continue;
-                const Eigen::Vector3d q = s.centre + h * (a * u + b * v);
-                bool clear = true;
-                for (double t = slab_lo; t <= slab_hi && clear; t += h) clear = !carver.is_wall(grid.label(q + t * s.normal));
-                open[std::size_t(b + n) * std::size_t(side) + std::size_t(a + n)] = clear;
-            }
-        std::size_t area = 0;
-        const std::size_t centre = std::size_t(n) * std::size_t(side) + std::size_t(n);
-        if (open[centre]) {
-            std::vector<std::size_t> stack{centre};
-            reached[centre] = 1;
-            while (!stack.empty()) {
-                const std::size_t at = stack.back();
-                stack.pop_back();
-                ++area;
-                const int a = int(at % std::size_t(side)), b = int(at / std::size_t(side));
-                const std::array<std::array<int, 2>, 4> steps{{{1, 0}, {-1, 0}, {0, 1}, {0, -1}}};
-                for (const auto& d : steps) {
-                    const int a2 = a + d[0], b2 = b + d[1];
-                    if (a2 < 0 || b2 < 0 || a2 >= side || b2 >= side) continue;
-                    const std::size_t next = std::size_t(b2) * std::size_t(side) + std::size_t(a2);
-                    if (!open[next] || reached[next]) continue;
-                    reached[next] = 1;
-                    stack.push_back(next);
-                }
-            }
-        }
-        return 2.0 * std::sqrt(double(area) * h * h / std::numbers::pi);
-    };
     // Voxels are carved whole: the clear passage of a cylinder of voxel centres is up to half a
     // voxel narrower than the cylinder. The smallest cylinder (in quarter-voxel steps, at most a
     // voxel wider) whose passage reaches the diameter asked is kept.
     std::vector<std::pair<std::size_t, std::int32_t>> carved;
     for (double r = radius;; r += 0.25 * grid.min_spacing()) {
         for (const auto& [at, label] : carved) volume.labels[at] = label;
-        carved = carve(r);
-        report.measured_diameter_mm = passage();
+        carved = carve_cylinder(volume, grid, carver, o, s, seed, bounds, r);
+        report.measured_diameter_mm = passage_diameter(grid, carver, s, radius, slab_lo, slab_hi);
         if (report.measured_diameter_mm >= o.diameter_mm || r >= radius + grid.max_spacing()) break;
     }
     report.voxels_carved = carved.size();
@@ -606,36 +656,10 @@ bool open_site(LabelVolume& volume, const Grid& grid, const Carver& carver, cons
     report.centre = grid.to_world(s.centre);
     report.normal = grid.direction_to_world(s.normal);
     report.wall_thickness_mm = s.crossing.thickness();
-
-    // The two pools connect through the opening: flood fill through blood, near the axis.
-    {
-        const double r = radius + 2.0 * grid.max_spacing(), w = window + 2.0 * grid.max_spacing();
-        auto blood = [&](int l) { return l == report.label_a || l == report.label_b; };
-        std::array<int, 3> from, to;
-        const double step = grid.max_spacing();
-        bool ends = grid.voxel(s.centre + (s.crossing.t_minus - step) * s.normal, from) &&
-                    grid.voxel(s.centre + (s.crossing.t_plus + step) * s.normal, to);
-        ends = ends && blood(grid.label(from[0], from[1], from[2])) && blood(grid.label(to[0], to[1], to[2]));
-        if (ends) {
-            std::unordered_set<std::size_t> reached{geo.linear(from[0], from[1], from[2])};
-            std::deque<std::array<int, 3>> q{from};
-            const std::size_t target = geo.linear(to[0], to[1], to[2]);
-            constexpr std::array<std::array<int, 3>, 6> steps{{{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}}};
-            while (!q.empty() && !reached.count(target)) {
-                const auto v = q.front();
-                q.pop_front();
-                for (const auto& d : steps) {
-                    const int i = v[0] + d[0], j = v[1] + d[1], k = v[2] + d[2];
-                    if (!geo.contains(i, j, k)) continue;
-                    const std::size_t at = geo.linear(i, j, k);
-                    if (reached.count(at) || !blood(volume.labels[at]) || !inside(grid.centre(i, j, k), r, w)) continue;
-                    reached.insert(at);
-                    q.push_back({i, j, k});
-                }
-            }
-            report.connected = reached.count(target) != 0;
-        }
-    }
+    // (Where the fill has no ends, report.connected stays as it was.)
+    if (const std::optional<bool> connected = pools_connected(volume, grid, s, report.label_a, report.label_b,
+                                                              radius + 2.0 * grid.max_spacing(), bounds.window + 2.0 * grid.max_spacing()))
+        report.connected = *connected;
 
     // Open only if clear (a passage within a voxel of the diameter: no other wall across it) and
     // joining the pools; else every voxel back as it was.
