@@ -1,6 +1,7 @@
 // libmodel names an option by its meaning ({LayoutOptions::occupancy}); the programs spell it as
 // their flag (cli/option_flags.h). Checked against libmodel's own sources: every meaning it names
-// in a message has a heartprep flag, so no user ever reads braces.
+// in a message has a heartprep flag, and every one the runtime's parts name a heartsim flag, so no
+// user ever reads braces.
 #include "cli/option_flags.h"
 
 #include <gtest/gtest.h>
@@ -11,6 +12,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <vector>
 
 namespace heartsim::cli {
 namespace {
@@ -32,24 +34,29 @@ TEST(OptionFlags, BracesThatNameNoOptionOfTheTableStayAsTheyAre) {
     EXPECT_EQ(spell_options("{}", table), "{}");
 }
 
-/// The meanings libmodel's string literals name: {Struct::field} or {plain_name}.
-std::set<std::string> meanings_named_in_libmodel() {
+/// The meanings the string literals of the .cpp files in `folders` (under the source tree) name:
+/// {Struct::field} or {plain_name}; files named in `skip` are left out.
+std::set<std::string> meanings_named_in(const std::vector<std::string>& folders, const std::set<std::string>& skip = {}) {
     std::set<std::string> found;
     const std::regex literal(R"("(?:[^"\\\n]|\\.)*")");
     const std::regex meaning(R"(\{([A-Za-z_][A-Za-z_0-9]*(?:::[A-Za-z_][A-Za-z_0-9]*)?)\})");
-    for (const auto& entry : std::filesystem::directory_iterator(std::filesystem::path(HEARTSIM_SOURCE_DIR) / "libmodel")) {
-        if (entry.path().extension() != ".cpp") continue;
-        std::ifstream in(entry.path());
-        std::stringstream text;
-        text << in.rdbuf();
-        const std::string source = text.str();
-        for (std::sregex_iterator s(source.begin(), source.end(), literal), end; s != end; ++s) {
-            const std::string string = s->str();
-            for (std::sregex_iterator m(string.begin(), string.end(), meaning); m != end; ++m) found.insert((*m)[1].str());
+    for (const std::string& folder : folders)
+        for (const auto& entry : std::filesystem::directory_iterator(std::filesystem::path(HEARTSIM_SOURCE_DIR) / folder)) {
+            if (entry.path().extension() != ".cpp" || skip.count(entry.path().filename().string())) continue;
+            std::ifstream in(entry.path());
+            std::stringstream text;
+            text << in.rdbuf();
+            const std::string source = text.str();
+            for (std::sregex_iterator s(source.begin(), source.end(), literal), end; s != end; ++s) {
+                const std::string string = s->str();
+                for (std::sregex_iterator m(string.begin(), string.end(), meaning); m != end; ++m) found.insert((*m)[1].str());
+            }
         }
-    }
     return found;
 }
+
+/// The meanings libmodel's string literals name.
+std::set<std::string> meanings_named_in_libmodel() { return meanings_named_in({"libmodel"}); }
 
 TEST(OptionFlags, HeartprepSpellsEveryOptionLibmodelNames) {
     const std::set<std::string> named = meanings_named_in_libmodel();
@@ -60,6 +67,26 @@ TEST(OptionFlags, HeartprepSpellsEveryOptionLibmodelNames) {
         EXPECT_TRUE(spelled) << "{" << option << "} has no heartprep flag in cli/option_flags.h";
     }
     for (const OptionFlag& f : heartprep_flags) EXPECT_TRUE(f.flag.starts_with("--")) << f.option;
+}
+
+// The runtime's parts below heartsim's command line name their options by meaning too (the live
+// link, the section plane, the plans, the haptic run): heartsim spells every one, and its table
+// holds no meaning that no part names.
+TEST(OptionFlags, HeartsimSpellsEveryOptionTheRuntimeNames) {
+    const std::set<std::string> named = meanings_named_in({"runtime", "runtime/haptics"}, {"main.cpp", "run_modes.cpp"});
+    EXPECT_GE(named.size(), 10u) << "the runtime's messages name its options by their meaning";
+    for (const std::string& option : named) {
+        bool spelled = false;
+        for (const OptionFlag& f : heartsim_flags) spelled = spelled || f.option == option;
+        EXPECT_TRUE(spelled) << "{" << option << "} has no heartsim flag in cli/option_flags.h";
+    }
+    for (const OptionFlag& f : heartsim_flags) {
+        EXPECT_TRUE(f.flag.starts_with("--")) << f.option;
+        EXPECT_TRUE(named.count(std::string(f.option))) << f.option << ": named by no runtime part (a flag the table need not spell)";
+    }
+    EXPECT_EQ(spell_options("{SlicerLinkOptions::endpoint} 18944: port in use; give a free one, e.g. {SlicerLinkOptions::endpoint} 18945",
+                            heartsim_flags),
+              "--igtl 18944: port in use; give a free one, e.g. --igtl 18945");
 }
 
 }  // namespace
