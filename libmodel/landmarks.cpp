@@ -150,6 +150,12 @@ struct LabelMoments {
     }
 };
 
+/// A valve's orifice as the label map has it: centre, unit normal from the first blood to the second.
+struct Plane {
+    Eigen::Vector3d centre{0, 0, 0}, normal{0, 0, 1};
+    double radius = 0.0;  ///< the rim's mean radius
+};
+
 /// What a ring's orifice is: where two bloods touch.
 struct Contact {
     std::vector<Eigen::Vector3d> centres;  ///< voxel-face centres, world
@@ -179,16 +185,20 @@ public:
         const Chamber la{chambers_.left_atrium, "left atrium"}, lv{chambers_.left_ventricle, "left ventricle"},
             ra{chambers_.right_atrium, "right atrium"}, rv{chambers_.right_ventricle, "right ventricle"},
             ao{chambers_.aorta, "aorta"}, pa{chambers_.pulmonary_artery, "pulmonary artery"};
+        // The rings first: the atrioventricular grooves lie about their planes.
+        const std::optional<Plane> tricuspid = add_ring(tricuspid_ring, ra, rv), mitral = add_ring(mitral_ring, la, lv),
+                                   aortic = add_ring(aortic_ring, lv, ao);
+        add_ring(pulmonary_ring, rv, pa);
         // The grooves and the courses along them.
         std::vector<int> anterior, posterior, right_av, left_av;
         std::string interventricular_problem = problem({lv, rv}), right_problem = problem({ra, rv}), left_problem = problem({la, lv});
         if (interventricular_problem.empty()) {
-            const std::vector<int> both = groove_vertices(lv, rv);
+            const std::vector<int> both = groove_vertices(lv, rv, std::nullopt);
             split_interventricular(both, anterior, posterior);
-            if (both.empty()) interventricular_problem = no_groove(lv, rv);
+            if (both.empty()) interventricular_problem = no_groove(lv, rv, false);
         }
-        if (right_problem.empty() && (right_av = groove_vertices(ra, rv)).empty()) right_problem = no_groove(ra, rv);
-        if (left_problem.empty() && (left_av = groove_vertices(la, lv)).empty()) left_problem = no_groove(la, lv);
+        if (right_problem.empty() && (right_av = groove_vertices(ra, rv, tricuspid)).empty()) right_problem = no_groove(ra, rv, bool(tricuspid));
+        if (left_problem.empty() && (left_av = groove_vertices(la, lv, mitral)).empty()) left_problem = no_groove(la, lv, bool(mitral));
         add_groove(interventricular_anterior, lv, rv, anterior,
                    !interventricular_problem.empty() ? interventricular_problem
                    : anterior.empty() ? "no groove vertex lies anterior to the septum" : "");
@@ -198,16 +208,26 @@ public:
         add_groove(right_av_groove, ra, rv, right_av, right_problem);
         add_groove(left_av_groove, la, lv, left_av, left_problem);
 
-        // The rings first: the atrioventricular courses go round them.
-        const std::optional<Landmark> tricuspid = add_ring(tricuspid_ring, ra, rv), mitral = add_ring(mitral_ring, la, lv),
-                                      aortic = add_ring(aortic_ring, lv, ao);
-        add_ring(pulmonary_ring, rv, pa);
-        const Eigen::Vector3d aortic_root = aortic ? aortic->centre : moments(ao.label).centroid();
-        const bool have_root = aortic || moments(ao.label).count > 0;
-
         add_lad(lv, rv, anterior, interventricular_problem);
-        add_av_course(rca_course, ra, rv, right_av, right_problem, tricuspid ? &*tricuspid : nullptr, have_root, aortic_root);
-        add_av_course(lcx_course, la, lv, left_av, left_problem, mitral ? &*mitral : nullptr, have_root, aortic_root);
+        // The crux, where the posterior interventricular groove meets the atrioventricular grooves:
+        // its most basal step.
+        std::optional<Eigen::Vector3d> crux;
+        if (!posterior.empty()) {
+            const Eigen::Vector3d axis = long_axis(), origin = moments(chambers_.left_ventricle).centroid();
+            double base = std::numeric_limits<double>::infinity();
+            for (int v : posterior) base = std::min(base, (surface_.positions[std::size_t(v)] - origin).dot(axis));
+            Eigen::Vector3d sum{0, 0, 0};
+            std::size_t count = 0;
+            for (int v : posterior)
+                if ((surface_.positions[std::size_t(v)] - origin).dot(axis) <= base + options_.course_step_mm)
+                    sum += surface_.positions[std::size_t(v)], ++count;
+            crux = sum / double(count);
+        }
+        std::optional<Eigen::Vector3d> root;
+        if (aortic) root = aortic->centre;
+        else if (moments(ao.label).count) root = moments(ao.label).centroid();
+        add_av_course(rca_course, ra, rv, right_av, right_problem, tricuspid, crux, root);
+        add_av_course(lcx_course, la, lv, left_av, left_problem, mitral, crux, root);
 
         // In the documented order.
         Landmarks ordered;
@@ -303,12 +323,19 @@ private:
         return "";
     }
 
-    std::string no_groove(const Chamber& a, const Chamber& b) const {
-        char text[320];
+    std::string no_groove(const Chamber& a, const Chamber& b, bool near_valve) const {
+        char text[400];
         std::snprintf(text, sizeof text,
                       "no vertex of the detailed surface that faces away from the blood lies within %.3g mm of both the %s's and the "
-                      "%s's blood (distances equal within %.3g mm): the surface does not pass over that junction",
-                      options_.groove_reach_mm, a.name, b.name, options_.groove_band_mm);
+                      "%s's blood (distances equal within %.3g mm)%s: the surface does not pass over that junction",
+                      options_.groove_reach_mm, a.name, b.name, options_.groove_band_mm,
+                      near_valve ? (" within " + format_mm(options_.av_plane_reach_mm) + " of the valve's plane").c_str() : "");
+        return text;
+    }
+
+    static std::string format_mm(double value) {
+        char text[32];
+        std::snprintf(text, sizeof text, "%.3g mm", value);
         return text;
     }
 
@@ -326,7 +353,9 @@ private:
         return true;
     }
 
-    std::vector<int> groove_vertices(const Chamber& a, const Chamber& b) {
+    /// A groove's vertices; an atrioventricular groove's within `av_plane_reach_mm` of its valve's
+    /// plane and within the ring's radius plus `groove_reach_mm` of its axis.
+    std::vector<int> groove_vertices(const Chamber& a, const Chamber& b, const std::optional<Plane>& valve) {
         const Field& fa = field(a.label);
         const Field& fb = field(b.label);
         std::vector<int> out;
@@ -336,6 +365,13 @@ private:
             if (!(da <= options_.groove_reach_mm)) continue;
             const double db = fb.at(p);
             if (!(db <= options_.groove_reach_mm) || std::abs(da - db) > options_.groove_band_mm) continue;
+            if (valve) {  // beside the valve's ring: near its plane, no farther out than the groove's reach
+                const Eigen::Vector3d r = p - valve->centre;
+                const double height = r.dot(valve->normal);
+                if (std::abs(height) > options_.av_plane_reach_mm ||
+                    (r - height * valve->normal).norm() > valve->radius + options_.groove_reach_mm)
+                    continue;
+            }
             if (faces_out(v)) out.push_back(int(v));
         }
         return out;
@@ -414,8 +450,8 @@ private:
 
     // ---- courses ------------------------------------------------------------------------------
 
-    /// A course through `vertices` ordered by `along` (mm): the mean of each step's vertices, the
-    /// run of steps without a gap wider than three steps that holds the most vertices.
+    /// A course through `vertices` ordered by `along` (mm): the mean of each step's vertices, along
+    /// the longest run of steps without a gap wider than three steps (the most vertices among equals).
     std::vector<Eigen::Vector3d> course_points(const std::vector<int>& vertices, const std::vector<double>& along) const {
         std::map<long, std::pair<Eigen::Vector3d, std::size_t>> steps;
         for (std::size_t n = 0; n < vertices.size(); ++n) {
@@ -431,11 +467,12 @@ private:
             runs.back().push_back({s.first / double(s.second), s.second});
             last = step;
         }
-        std::size_t best = 0, best_count = 0;
+        std::size_t best = 0, best_steps = 0, best_count = 0;
         for (std::size_t r = 0; r < runs.size(); ++r) {
             std::size_t count = 0;
             for (const auto& s : runs[r]) count += s.second;
-            if (count > best_count) best_count = count, best = r;
+            if (runs[r].size() > best_steps || (runs[r].size() == best_steps && count > best_count))
+                best_steps = runs[r].size(), best_count = count, best = r;
         }
         std::vector<Eigen::Vector3d> points;
         if (!runs.empty())
@@ -472,26 +509,29 @@ private:
     }
 
     /// The right coronary (right AV groove) or the circumflex (left AV groove): round the valve's
-    /// ring by angle, from the end nearer the aortic root.
+    /// ring by angle, from the end farther from the crux to the point nearest it (without a
+    /// posterior interventricular groove: from the end nearer the aortic root, else the more
+    /// anterior end, to the other).
     void add_av_course(const char* name, const Chamber& atrium, const Chamber& ventricle, const std::vector<int>& groove,
-                       const std::string& reason, const Landmark* ring, bool have_root, const Eigen::Vector3d& root) {
+                       const std::string& reason, const std::optional<Plane>& valve, const std::optional<Eigen::Vector3d>& crux,
+                       const std::optional<Eigen::Vector3d>& root) {
         if (!reason.empty()) return add_missing(name, "its groove is missing: " + reason);
         if (groove.empty()) return add_missing(name, "its groove is missing");
         // The axis round which the groove runs: the valve's ring, else the line between the chambers.
-        Eigen::Vector3d centre, normal;
-        if (ring) {
-            centre = ring->centre, normal = ring->normal;
+        Plane plane;
+        if (valve) {
+            plane = *valve;
         } else {
             const Eigen::Vector3d ca = moments(atrium.label).centroid(), cv = moments(ventricle.label).centroid();
-            centre = 0.5 * (ca + cv), normal = (cv - ca).normalized();
+            plane.centre = 0.5 * (ca + cv), plane.normal = (cv - ca).normalized();
         }
-        Eigen::Vector3d e1 = normal.unitOrthogonal(), e2 = normal.cross(e1);
+        const Eigen::Vector3d e1 = plane.normal.unitOrthogonal(), e2 = plane.normal.cross(e1);
         std::vector<double> angle;
         double radius = 0.0;
         for (int v : groove) {
-            const Eigen::Vector3d r = surface_.positions[std::size_t(v)] - centre;
+            const Eigen::Vector3d r = surface_.positions[std::size_t(v)] - plane.centre;
             angle.push_back(std::atan2(r.dot(e2), r.dot(e1)));
-            radius += (r - r.dot(normal) * normal).norm();
+            radius += (r - r.dot(plane.normal) * plane.normal).norm();
         }
         radius /= double(groove.size());
         // Start after the widest angular gap, so a C-shaped groove is one run.
@@ -507,11 +547,18 @@ private:
             along.push_back(turned * radius);
         }
         std::vector<Eigen::Vector3d> points = course_points(groove, along);
-        // From the end nearer the aortic root (the artery's origin); without an aorta, the more anterior end.
         if (points.size() >= 2) {
-            const bool reverse = have_root ? (points.back() - root).norm() < (points.front() - root).norm()
-                                           : points.back().y() < points.front().y();
+            bool reverse = false;
+            if (crux) reverse = (points.back() - *crux).norm() > (points.front() - *crux).norm();
+            else if (root) reverse = (points.back() - *root).norm() < (points.front() - *root).norm();
+            else reverse = points.back().y() < points.front().y();
             if (reverse) std::reverse(points.begin(), points.end());
+            if (crux) {  // the artery runs in this groove as far as the crux
+                std::size_t nearest = 0;
+                for (std::size_t i = 1; i < points.size(); ++i)
+                    if ((points[i] - *crux).norm() < (points[nearest] - *crux).norm()) nearest = i;
+                points.resize(nearest + 1);
+            }
         }
         add_course(name, atrium, ventricle, points);
     }
@@ -593,8 +640,9 @@ private:
         return out;
     }
 
-    /// The ring between two bloods (a copy, for the courses round it), or nullopt when missing.
-    std::optional<Landmark> add_ring(const char* name, const Chamber& a, const Chamber& b) {
+    /// Adds the ring between two bloods (or its reason to be missing); returns its plane where the
+    /// bloods touch, whether or not the surface reaches the ring.
+    std::optional<Plane> add_ring(const char* name, const Chamber& a, const Chamber& b) {
         if (const std::string reason = problem({a, b}); !reason.empty()) {
             add_missing(name, reason);
             return std::nullopt;
@@ -647,10 +695,10 @@ private:
             std::snprintf(figures, sizeof figures, " (in the label map: %.1f mm across, centre %.1f, %.1f, %.1f)", l.diameter_mm, centre.x(),
                           centre.y(), centre.z());
             add_missing(name, reason + figures);
-            return std::nullopt;
+            return Plane{centre, normal, l.diameter_mm / 2};
         }
         result_.found.push_back(l);
-        return l;
+        return Plane{centre, normal, l.diameter_mm / 2};
     }
 
     const LabelVolume& volume_;

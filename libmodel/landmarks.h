@@ -9,13 +9,16 @@
 ///               nearest voxel centre of each chamber's blood; at a point, trilinear.
 ///   groove      the detailed surface's vertices that face away from the blood (no blood label
 ///               along their outward normal for 3 voxels), whose distances to the two chambers'
-///               blood differ by at most `groove_band_mm` and are both at most `groove_reach_mm`.
+///               blood differ by at most `groove_band_mm` and are both at most `groove_reach_mm`;
+///               an atrioventricular groove's also within `av_plane_reach_mm` of its valve's plane
+///               and no farther from the ring's axis than its radius plus `groove_reach_mm`.
 ///               The interventricular groove is split anterior / posterior about the left
 ///               ventricle's long axis (anterior: towards −y, the patient's front).
 ///   course      a groove's vertices in steps of `course_step_mm` along it (the anterior
-///               interventricular groove from base to apex, an atrioventricular groove by angle
-///               around its valve's ring from the end nearer the aortic root), each step's
-///               vertices averaged, then moved to the nearest surface vertex: an ordered polyline.
+///               interventricular groove from base to apex; an atrioventricular groove by angle
+///               round its valve's ring, from the end farther from the crux to the crux), each
+///               step's vertices averaged, the longest run of steps, then moved to the nearest
+///               surface vertex: an ordered polyline.
 ///   ring        the voxel faces where two blood labels touch (the orifice); its plane fitted to
 ///               them (centre, normal from the first blood to the second); in each of
 ///               `ring_sectors` angular sectors about the centre, the face farthest out: the rim,
@@ -93,6 +96,7 @@ const std::vector<std::string>& landmark_names();
 struct LandmarkOptions {
     double groove_band_mm = 1.0;          ///< |d_a − d_b| at most this on a groove
     double groove_reach_mm = 12.0;        ///< both distances at most this on a groove
+    double av_plane_reach_mm = 12.0;      ///< an atrioventricular groove's vertices at most this far from its valve's plane
     double course_step_mm = 2.0;          ///< spacing of a course's points
     int ring_sectors = 48;                ///< angular sectors of a ring's rim
     double max_surface_distance_mm = 2.0; ///< farther from the surface: not on it, left out
