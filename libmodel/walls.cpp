@@ -199,6 +199,10 @@ WallGrowthReport grow_walls(LabelVolume& volume, const std::vector<WallStructure
                           k = v / (std::size_t(dims[0]) * std::size_t(dims[1]));
         return g.linear(int(i) + box.low[0], int(j) + box.low[1], int(k) + box.low[2]);
     };
+    std::vector<std::int32_t> labels(count);  // the box's labels, copied once
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t v = range.begin(); v != range.end(); ++v) labels[v] = volume.labels[volume_index(v)];
+    });
     std::vector<float> best(count, infinity);         // squared distance to the owner's nearest blood voxel, mm²
     std::vector<std::uint16_t> owner(count, 0xffff);  // structure claiming the voxel
     std::vector<std::uint8_t> feature(count);
@@ -209,7 +213,7 @@ WallGrowthReport grow_walls(LabelVolume& volume, const std::vector<WallStructure
         const auto& blood = structures[s].blood_labels;
         std::size_t found = 0;
         for (std::size_t v = 0; v < count; ++v) {
-            feature[v] = std::find(blood.begin(), blood.end(), volume.labels[volume_index(v)]) != blood.end();
+            feature[v] = std::find(blood.begin(), blood.end(), labels[v]) != blood.end();
             found += feature[v];
         }
         if (found == 0) continue;
@@ -222,7 +226,7 @@ WallGrowthReport grow_walls(LabelVolume& volume, const std::vector<WallStructure
         const float reach2 = float(reach * reach);
         tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count), [&](const tbb::blocked_range<std::size_t>& range) {
             for (std::size_t v = range.begin(); v != range.end(); ++v) {
-                if (squared[v] > reach2 || squared[v] >= best[v] || volume.labels[volume_index(v)] != 0) continue;
+                if (squared[v] > reach2 || squared[v] >= best[v] || labels[v] != 0) continue;
                 best[v] = squared[v];
                 owner[v] = std::uint16_t(s);
             }
