@@ -5,6 +5,7 @@
 
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
+#include "libmodel/errors.h"
 #include "libmodel/label_conventions.h"
 #include "libmodel/select.h"
 #include "libmodel/surface.h"
@@ -78,6 +79,17 @@ void expect_on_surface(const Landmarks& landmarks, const TriangleMesh& surface) 
     for (const auto& p : surface.positions) vertices.insert({p.x(), p.y(), p.z()});
     for (const Landmark& l : landmarks.found)
         for (const auto& p : l.points) EXPECT_TRUE(vertices.count({p.x(), p.y(), p.z()})) << l.name << " has a point off the surface";
+}
+
+/// read_scenario refuses `file`, naming `object` and saying `reason`.
+void expect_refusal(const std::filesystem::path& file, const std::string& object, const std::string& reason) {
+    try {
+        read_scenario(file);
+        ADD_FAILURE() << "read " << file << " without complaint";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find(object), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find(reason), std::string::npos) << e.what();
+    }
 }
 
 }  // namespace
@@ -359,6 +371,42 @@ TEST(LandmarkBuild, ABuildStoresTheLandmarksOnItsSurfaceAndInspectListsThem) {
     ASSERT_EQ(inspect.exit_code, 0) << inspect.output;
     EXPECT_NE(inspect.output.find("\"lad_course\""), std::string::npos);
     EXPECT_NE(inspect.output.find("\"missing\""), std::string::npos);
+
+    // Written and read back as they were; a ring without a unit normal, or a landmark both found
+    // and missing, is refused by name.
+    write_scenario(dir / "copy.h5", s);
+    const Scenario back = read_scenario(dir / "copy.h5");
+    ASSERT_TRUE(back.landmarks);
+    ASSERT_EQ(back.landmarks->found.size(), s.landmarks->found.size());
+    for (std::size_t i = 0; i < s.landmarks->found.size(); ++i) {
+        const Landmark &a = s.landmarks->found[i], &b = back.landmarks->found[i];
+        EXPECT_EQ(a.name, b.name);
+        EXPECT_EQ(a.kind, b.kind);
+        EXPECT_EQ(a.between, b.between);
+        EXPECT_EQ(a.points, b.points);
+        EXPECT_EQ(a.length_mm, b.length_mm);
+        EXPECT_EQ(a.coverage, b.coverage);
+    }
+    ASSERT_EQ(back.landmarks->missing.size(), s.landmarks->missing.size());
+    for (std::size_t i = 0; i < s.landmarks->missing.size(); ++i) {
+        EXPECT_EQ(back.landmarks->missing[i].name, s.landmarks->missing[i].name);
+        EXPECT_EQ(back.landmarks->missing[i].reason, s.landmarks->missing[i].reason);
+    }
+    Scenario damaged = s;
+    Landmark ring = *lad;
+    ring.name = "mitral_ring";
+    ring.kind = LandmarkKind::ring;
+    ring.normal = {0, 0, 1};
+    ring.diameter_mm = 20;
+    damaged.landmarks->found.push_back(ring);
+    write_scenario(dir / "both.h5", damaged);
+    expect_refusal(dir / "both.h5", "landmarks/missing", "both found and missing");
+    std::erase_if(damaged.landmarks->missing, [](const MissingLandmark& m) { return m.name == "mitral_ring"; });
+    write_scenario(dir / "ring.h5", damaged);
+    EXPECT_NO_THROW(read_scenario(dir / "ring.h5"));
+    damaged.landmarks->found.back().normal = {0, 0, 2};
+    write_scenario(dir / "normal.h5", damaged);
+    expect_refusal(dir / "normal.h5", "landmarks/mitral_ring", "unit vector");
 
     // One blood pool (HVSMR 2016's labels): every landmark missing, and the reason in inspect.
     const auto pool = dir / "pool.nrrd";

@@ -131,6 +131,9 @@ void add_stage_commands(CLI::App& app) {
                 throw InputError(files->input.string() + ": has no /visual mesh to map; give --visual-mesh FILE");
             BuildReport report;
             mapping_stage(scenario, *mesh, progress, report, parse_mapping_method(*method));
+            if (!mesh->empty() && scenario.landmarks)  // found on the surface just replaced: no longer on it
+                scenario.landmarks = missing_landmarks("the detailed surface was replaced (--visual-mesh) after they were found on the "
+                                                       "label map's: heartprep build finds them on its own surface");
             if (!files->quiet)
                 std::printf("mapping        %zu visual vertices (%zu embedded in lattice cells, %zu in tangent space), rest error "
                             "max %.2g mm, tangent offset mean %.3f mm max %.3f mm, sensitivity bound max %.2f\n",
