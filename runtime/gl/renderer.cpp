@@ -64,6 +64,7 @@ GLuint buffer_with(const void* data, std::size_t bytes, GLbitfield flags = 0) {
 Eigen::Vector3f to_vector(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
 
+
 /// The patch's sheet: world positions and shading normals per vertex (a zero normal: flat, the
 /// face's), lit by the shared fragment shader.
 constexpr const char* patch_vertex_shader = R"(
@@ -113,6 +114,9 @@ struct Renderer::State {
     // landmarks): their field as a 3D texture in the rest state.
     gl::Texture coronary_texture;
     CoronaryField coronary;
+    // The fibres' ridges (RenderOptions::fibres): turned about the heart's long axis.
+    bool fibres = false;
+    Eigen::Vector3f heart_axis = Eigen::Vector3f::UnitZ(), heart_base = Eigen::Vector3f::Zero();
     // The repair (set_patch): the patch's closed sheet, its sheet flags (all 0: a closed surface),
     // and the stitches to draw with the instrument program.
     gl::Program patch_program;
@@ -221,9 +225,12 @@ struct Renderer::State {
         check("loading the coronary arteries' field");
     }
 
-    /// The mesh program's coronary uniforms and texture (unit 0).
+    /// The mesh program's surface detail: the fibres' and the coronaries' uniforms and texture (unit 0).
     void bind_coronaries() {
         const GLuint p = mesh_program;
+        glProgramUniform1i(p, glGetUniformLocation(p, "fibres_on"), fibres ? 1 : 0);
+        glProgramUniform3fv(p, glGetUniformLocation(p, "heart_axis"), 1, heart_axis.data());
+        glProgramUniform3fv(p, glGetUniformLocation(p, "heart_base"), 1, heart_base.data());
         const bool on = bool(coronary_texture);
         glProgramUniform1i(p, glGetUniformLocation(p, "coronaries_on"), on ? 1 : 0);
         if (!on) return;
@@ -470,6 +477,13 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
                            compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment", "#define SURFACE_DETAIL 1\n")},
                           "mesh", "world_position");
     if (s.visual && options.coronaries && scenario.landmarks) s.load_coronaries(coronary_field(coronary_courses(*scenario.landmarks)));
+    // The fibres need the left ventricle's long axis and base: the mitral ring.
+    if (const Landmark* mitral = scenario.landmarks ? scenario.landmarks->find("mitral_ring") : nullptr;
+        s.visual && options.fibres && mitral && mitral->normal.norm() > 0.5) {
+        s.fibres = true;
+        s.heart_axis = mitral->normal.normalized().cast<float>();
+        s.heart_base = mitral->centre.cast<float>();
+    }
     s.instrument_program = link({compile(GL_VERTEX_SHADER, sh::instrument_vertex_shader, "instrument vertex"),
                                  compile(GL_FRAGMENT_SHADER, sh::fragment_shader, "fragment")},
                                 "instrument");

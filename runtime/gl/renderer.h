@@ -107,6 +107,9 @@ struct RenderOptions {
     /// Draw the coronary arteries along the scenario's courses (/landmarks lad_course, rca_course,
     /// lcx_course) on the detailed mesh; nothing where the scenario has none.
     bool coronaries = true;
+    /// Draw the ventricles' epicardial fibres as fine ridges on the detailed mesh, where the
+    /// scenario's landmarks give the mitral ring (the left ventricle's long axis and base).
+    bool fibres = true;
 };
 
 /// Rendering times so far, ms summed (GPU timer queries; the cpu backend's position upload in

@@ -121,7 +121,8 @@ void main() {
 /// off over 2.6 radii; the heights' gradient tilts the rest normal in its tangent plane, and the
 /// vertex's turn from rest to now carries the tilted normal along: the detail follows every
 /// deformation without more geometry. Coloured as seen through the fat: the artery red, the fat
-/// around it yellow.
+/// around it yellow. Elsewhere on the muscle, its fibres' fine ridges (fibre_phase), carried the
+/// same way.
 inline constexpr const char* fragment_shader = R"(
 layout(std430, binding = BINDING_SHEET_TRIANGLES) readonly buffer SheetBuffer { uint sheet[]; };
 in vec3 world_position;
@@ -137,6 +138,39 @@ uniform float field_spacing;   // mm
 uniform vec3 field_nodes;      // nodes along x, y, z
 uniform vec3 artery_color;
 uniform vec3 fat_color;
+uniform bool fibres_on;
+uniform vec3 heart_axis;       // unit: the left ventricle's long axis, base to apex
+uniform vec3 heart_base;       // the mitral ring's centre, mm
+/// The ventricles' epicardial fibres: fine ridges 1.2 mm apart along helices about the left
+/// ventricle's long axis (from the mitral ring's centre towards the apex) at the epicardial helix
+/// angle of 60 degrees, 120 around: phase = 120 θ + (2π / 1.2 mm) cos 60° h, θ the angle about
+/// the axis and h the height along it, below the atrioventricular plane (h > 0) only. Returns the
+/// phase; `gradient` its gradient at rest (mm⁻¹), `pixel` how much it changes across a pixel.
+float fibre_phase(out vec3 gradient, out float pixel) {
+    vec3 r = rest_point - heart_base;
+    float h = dot(r, heart_axis);
+    vec3 radial = r - h * heart_axis;
+    float rho2 = max(dot(radial, radial), 1.0);
+    vec3 e1 = normalize(abs(heart_axis.x) < 0.9 ? cross(heart_axis, vec3(1.0, 0.0, 0.0)) : cross(heart_axis, vec3(0.0, 1.0, 0.0)));
+    vec3 e2 = cross(heart_axis, e1);
+    float theta = atan(dot(radial, e2), dot(radial, e1));
+    const float around = 120.0, along = 2.6179939;  // (2π / 1.2) cos 60°
+    vec3 dtheta = cross(heart_axis, radial) / rho2;
+    gradient = around * dtheta + along * heart_axis;
+    pixel = around * (abs(dot(dtheta, dFdx(rest_point))) + abs(dot(dtheta, dFdy(rest_point)))) +
+            along * (abs(dot(heart_axis, dFdx(rest_point))) + abs(dot(heart_axis, dFdy(rest_point))));
+    return around * theta + along * h;
+}
+/// The rest normal tilted across the fibres' ridges (0.02 mm high, `fade` of it), turned to now.
+void fibre_detail(inout vec3 nrm, float phase, vec3 gradient, float fade) {
+    vec3 n0 = normalize(rest_shading_normal);
+    vec3 g = (0.02 * fade * cos(phase)) * gradient;
+    g -= dot(g, n0) * n0;
+    vec3 tilted = normalize(n0 - g);
+    vec3 k = rest_turn.xyz;
+    float c = rest_turn.w;
+    nrm = tilted * c + cross(k, tilted) + k * (dot(k, tilted) / (1.0 + c));
+}
 /// The rest normal tilted by the arteries' and the fat's heights, turned to now; the colour under them.
 void coronary_detail(inout vec3 nrm, inout vec3 surface_color) {
     vec4 f = texture(coronary_field, ((rest_point - field_origin) / field_spacing + 0.5) / field_nodes);
@@ -177,6 +211,14 @@ out vec4 colour;
 void main() {
     // Derivatives before any discard: they need the whole pixel quad.
     vec3 face_normal = cross(dFdx(world_position), dFdy(world_position));
+#ifdef SURFACE_DETAIL
+    // The fibres' ridges fade where they would be finer than two pixels, so they never alias.
+    vec3 fibre_gradient = vec3(0.0);
+    float fibre_pixel = 0.0;
+    float phase = fibres_on ? fibre_phase(fibre_gradient, fibre_pixel) : 0.0;
+    float fibre_fade = fibres_on ? clamp(1.0 - fibre_pixel / 3.1415927, 0.0, 1.0) *
+                                       smoothstep(0.0, 6.0, dot(rest_point - heart_base, heart_axis)) : 0.0;
+#endif
     if (section_on) {
         if (dot(section_plane.xyz, world_position) + section_plane.w > 0.0) discard;
         if (!gl_FrontFacing && sheet[gl_PrimitiveID] == 0u) {
@@ -188,6 +230,8 @@ void main() {
     vec3 nrm = cap ? vec3(0.0) : shading_normal;
     vec3 surface_color = cap ? cap_color : base_color;
 #ifdef SURFACE_DETAIL
+    if (fibre_fade > 0.0 && !cap && dot(nrm, nrm) >= 1e-12 && dot(rest_shading_normal, rest_shading_normal) >= 1e-12)
+        fibre_detail(nrm, phase, fibre_gradient, fibre_fade);
     if (coronaries_on && !cap && dot(nrm, nrm) >= 1e-12) coronary_detail(nrm, surface_color);
 #endif
     if (dot(nrm, nrm) < 1e-12) nrm = face_normal;
