@@ -4,9 +4,8 @@
 /// above real time with a margin; it re-checks while the run goes on and raises S when the
 /// machine slows. docs/runtime.md "Real time", docs/solver.md "Mass scaling".
 ///
-///     MassScaleGovernor governor(backend);
-///     … after every step (or a few):
-///     if (auto change = governor.observe(wall_ms, backend.simulated_time_ms())) std::puts(change->c_str());
+/// Every mode's governor is the stepping core's (runtime/stepping.h Stepper::observe): after every
+/// step (or a few), observe(wall_ms, simulated_ms); when it returns a line, the mass scale changed.
 #pragma once
 
 #include "runtime/backend.h"

@@ -1,14 +1,13 @@
 // The window mode's loop: docs/runtime.md "Window mode".
 #include "runtime/window_run.h"
 
-#include "runtime/real_time.h"
-
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
 #include "runtime/repair.h"
 #include "runtime/repair_plan.h"
 #include "runtime/section_plane.h"
 #include "runtime/slicer_link.h"
+#include "runtime/window_input.h"
 #include "runtime/window_keys.h"
 #include "runtime/window_simulation.h"
 
@@ -69,115 +68,6 @@ std::tm local_time_now() {
     return local;
 }
 
-/// The window's mouse and keyboard state (GLFW callbacks write it).
-struct WindowInput {
-    Renderer* renderer = nullptr;
-    double last_x = 0, last_y = 0;
-    bool orbiting = false, panning = false, paused = false;
-    // The mouse haptic device (--device mouse): Ctrl + left drag moves it in the view plane,
-    // Ctrl + wheel in depth, G toggles its button 1 (grab), E the emergency stop.
-    haptics::WindowDevice* device = nullptr;
-    haptics::HapticSession* session = nullptr;
-    haptics::DevicePose device_pose;
-    bool dragging_device = false, estop = false;
-    // Ctrl + Shift + left click: the mouse device onto the tissue's surface under the cursor;
-    // held and dragged, it slides along the surface (`surface_offset_mm` from it).
-    bool sliding_device = false;
-    /// Where the mouse device goes from the surface point, towards the eye, mm: a quarter of its
-    /// instrument's smallest semi-axis below it (pressing); a scalpel's or needle's tip on it; a
-    /// patch 2 mm in front of it (laid, it drapes onto the surface along the view).
-    double surface_offset_mm = -0.5;
-    int surface_moves = 0;              ///< slides since the click (for the line said at release)
-    /// The simulation has stepped the mouse device where the window put it (position and buttons)
-    /// since the last input that moved it or pressed its button.
-    bool device_in_place = false;
-    bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
-    bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
-    int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
-    bool screenshot = false;    ///< P: write the window as seen after the next frame
-    bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)
-    bool toggle_scalpel = false;    ///< K: instrument 0 to the scalpel and back (haptic sessions)
-    bool toggle_patch = false;      ///< Shift + P: instrument 0 to a patch and back (haptic sessions)
-    bool toggle_needle = false;     ///< Shift + N: instrument 0 to a needle and back (haptic sessions)
-    bool redraw = false;            ///< C, [, ], V: the section changed; draw the next frame now
-};
-
-/// An event line on stdout at once (tests and logs read it while the window runs).
-template <class... Args>
-void say(const char* format, Args... args) {
-    std::printf(format, args...);
-    std::fflush(stdout);
-}
-
-/// An input moved the mouse device. Where the simulation had it where the window put it, that
-/// ends ("moving" is said); "in place" is said once the simulation has stepped it at the new
-/// place. A log (a test) that reads both knows when the simulation has taken an input in.
-void device_moved(WindowInput& in) {
-    if (!in.device_in_place) return;
-    in.device_in_place = false;
-    say("mouse device: moving\n");
-}
-
-/// G or Ctrl + right click: the mouse device's button 1 (a grabber closes or opens, a scalpel's
-/// blade goes down or up, …); "in place" follows once the simulation has stepped with it.
-void toggle_device_button(WindowInput& in) {
-    in.device_pose.buttons ^= 1u;
-    in.device_in_place = false;
-    say("mouse device: button 1 %s\n", in.device_pose.buttons & 1u ? "pressed" : "released");
-}
-
-/// Ctrl + Shift + click and drag: the mouse device onto the tissue's surface point under the
-/// cursor, `surface_offset_mm` towards the eye from it (a probe's centre a quarter of its extent
-/// below it: a click on the heart rests it on the tissue). False over the background (the device stays
-/// where it was).
-bool place_on_surface(WindowInput& in, GLFWwindow* window, double x, double y) {
-    int width = 0, height = 0;
-    glfwGetWindowSize(window, &width, &height);
-    const std::optional<Eigen::Vector3f> hit = in.renderer->surface_point(x, y, width, height);
-    if (!hit) return false;
-    const Eigen::Vector3d point = hit->cast<double>();
-    const Eigen::Vector3d to_eye = (in.renderer->camera().eye().cast<double>() - point).normalized();
-    in.device_pose.position_mm = point + in.surface_offset_mm * to_eye;
-    device_moved(in);
-    return true;
-}
-
-/// The section view's keys (docs/runtime.md "Section view"). C: on, through the heart's centre
-/// facing the view (the nearer half removed), or off.
-void toggle_section(Renderer& renderer) {
-    if (renderer.section()) {
-        renderer.set_section(std::nullopt);
-        say("section view: off\n");
-        return;
-    }
-    const SectionPlane plane = section_facing(renderer.camera(), renderer.model_centre());
-    renderer.set_section(plane);
-    say("section view: on, %s; [ and ] move it, V aims it at the view, C turns it off\n", describe(plane, renderer.model_centre()).c_str());
-}
-
-/// [ and ]: the plane along its normal by `mm` (< 0: deeper, more removed).
-void move_section(Renderer& renderer, float mm) {
-    if (!renderer.section()) {
-        say("section view: off; C turns it on\n");
-        return;
-    }
-    renderer.set_section(renderer.section()->moved(mm));
-    say("section view: %s\n", describe(*renderer.section(), renderer.model_centre()).c_str());
-}
-
-/// V: the plane turned to face the current view, at the same depth from the heart's centre (after
-/// an orbit, the cut is seen square on again).
-void aim_section(Renderer& renderer) {
-    if (!renderer.section()) {
-        say("section view: off; C turns it on\n");
-        return;
-    }
-    const Eigen::Vector3f centre = renderer.model_centre();
-    const SectionPlane plane = section_facing(renderer.camera(), centre).moved(-renderer.section()->depth_from(centre));
-    renderer.set_section(plane);
-    say("section view: aimed at the view, %s\n", describe(plane, centre).c_str());
-}
-
 /// Shift + P's patch and Shift + N's needle: the patch plan-repair lays on a defect of the
 /// scenario's diameter (D + 2·(rim + 2 mm) across; a 10 mm defect's without one), as thick as its
 /// patch; the plan's needle.
@@ -225,134 +115,68 @@ std::optional<ClosureResult> closure_now(const Scenario& scenario, const std::ve
     return check_closure(tissue, scenario.visual->triangles, patch.positions, patch.triangles, patch.thickness_mm, *frame, options);
 }
 
-/// The window mode's loop: the simulation follows the wall clock (the cpu backend on its own
-/// thread, the gl backend between frames, haptics through `haptic`) with the script or the
-/// keyboard moving the instruments; frames are drawn from the latest state. Ends on Esc, on
-/// closing the window, or after `steps` steps (< 0: no limit). Returns what run_scripted would.
-}  // namespace
 
-ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
-                             int steps, const WindowRunOptions& a, haptics::HapticRun* haptic) {
-    auto* window = static_cast<GLFWwindow*>(context.window());
-    WindowInput input;
-    input.renderer = &renderer;
-    renderer.set_show_hidden_instruments(true);  // an instrument pushed into the wall stays in sight
-    if (haptic) {
-        input.session = &haptic->session();
-        input.device = haptic->window_device();
-        if (input.device) input.device_pose = input.device->last_set();
+/// The window mode's loop (run_window): the simulation follows the wall clock through the
+/// stepping core (the cpu backend on its own thread, the gl backend between frames, haptics
+/// through its session) with the script, the keyboard or the devices moving the instruments;
+/// frames are drawn from the latest state. Its state lives across frames; each part of a frame
+/// is a method of its own.
+class WindowLoop {
+public:
+    WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0, int steps,
+               const WindowRunOptions& options);
+    /// Not Esc, not closed, not interrupted, `steps` not done, --seconds not past, the watchdog
+    /// not given up.
+    bool running() const {
+        return !glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps) &&
+               !past_end() && !result.gave_up;
     }
-    glfwGetCursorPos(window, &input.last_x, &input.last_y);  // then every motion event keeps them
-    glfwSetWindowUserPointer(window, &input);
-    glfwSetMouseButtonCallback(window, [](GLFWwindow* w, int button, int action, int mods) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        const bool down = action == GLFW_PRESS;
-        if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL) && (mods & GLFW_MOD_SHIFT)) {
-            in->sliding_device = down;
-            if (down) {
-                in->surface_moves = 0;
-                if (place_on_surface(*in, w, in->last_x, in->last_y))
-                    say("mouse device: on the surface at (%.2f, %.2f, %.2f) mm\n", in->device_pose.position_mm.x(), in->device_pose.position_mm.y(),
-                        in->device_pose.position_mm.z());
-                else
-                    say("mouse device: no tissue under the cursor\n");
-            } else if (in->surface_moves > 0) {
-                say("mouse device: slid along the surface to (%.2f, %.2f, %.2f) mm\n", in->device_pose.position_mm.x(),
-                    in->device_pose.position_mm.y(), in->device_pose.position_mm.z());
-            }
-            if (!down) in->orbiting = in->panning = in->dragging_device = false;
-            return;
-        }
-        if (button == GLFW_MOUSE_BUTTON_RIGHT && in->device && (mods & GLFW_MOD_CONTROL)) {
-            // Ctrl + right click: the device's button 1, as G (a grabber closes or opens).
-            if (down) toggle_device_button(*in);
-            return;
-        }
-        if (button == GLFW_MOUSE_BUTTON_LEFT && in->device && (mods & GLFW_MOD_CONTROL)) in->dragging_device = down;
-        else if (button == GLFW_MOUSE_BUTTON_LEFT && !(mods & GLFW_MOD_SHIFT)) in->orbiting = down;
-        if (button == GLFW_MOUSE_BUTTON_RIGHT || button == GLFW_MOUSE_BUTTON_MIDDLE || (button == GLFW_MOUSE_BUTTON_LEFT && (mods & GLFW_MOD_SHIFT)))
-            in->panning = down;
-        if (!down) in->orbiting = in->panning = in->dragging_device = in->sliding_device = false;
-        // No glfwGetCursorPos here: it asks the X server where the pointer is *now*, which, when
-        // frames are slow and events queue up, is already the end of the drag, and the queued
-        // motion events then cancel out (a lost orbit). last_x/last_y follow the motion events
-        // in order instead.
-    });
-    glfwSetCursorPosCallback(window, [](GLFWwindow* w, double x, double y) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        const float dx = float(x - in->last_x), dy = float(y - in->last_y);
-        in->last_x = x, in->last_y = y;
-        int width = 0, height = 0;
-        glfwGetWindowSize(w, &width, &height);
-        if (in->sliding_device) {
-            if (place_on_surface(*in, w, x, y)) ++in->surface_moves;
-            return;
-        }
-        if (in->dragging_device) {
-            // One pixel = the model's view height / window height at the target's depth.
-            const Camera& camera = in->renderer->camera();
-            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-            in->device_pose.position_mm += camera.mm_per_pixel(height) * (double(dx) * basis.col(0) - double(dy) * basis.col(1));
-            if (dx != 0 || dy != 0) device_moved(*in);
-            return;
-        }
-        if (in->orbiting) in->renderer->camera().orbit(-0.008f * dx, -0.008f * dy);
-        if (in->panning) in->renderer->camera().pan(dx, dy, height);
-    });
-    glfwSetScrollCallback(window, [](GLFWwindow* w, double, double y) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        if (in->device && (glfwGetKey(w, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS || glfwGetKey(w, GLFW_KEY_RIGHT_CONTROL) == GLFW_PRESS)) {
-            const Camera& camera = in->renderer->camera();
-            const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
-            in->device_pose.position_mm -= back * (0.02 * camera.radius * y);  // wheel up: into the screen
-            if (y != 0) device_moved(*in);
-            return;
-        }
-        in->renderer->camera().zoom(std::pow(0.9f, float(y)));
-    });
-    glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int mods) {
-        auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
-        // [ and ] move the section plane, 1 mm a press (Shift: 5 mm), and go on while held.
-        if ((key == GLFW_KEY_LEFT_BRACKET || key == GLFW_KEY_RIGHT_BRACKET) && action != GLFW_RELEASE) {
-            const float step_mm = (mods & GLFW_MOD_SHIFT) ? 5.0f : 1.0f;
-            move_section(*in->renderer, key == GLFW_KEY_RIGHT_BRACKET ? -step_mm : step_mm);
-            in->redraw = true;
-            return;
-        }
-        if (action != GLFW_PRESS) return;
-        if (key == GLFW_KEY_ESCAPE) glfwSetWindowShouldClose(w, GLFW_TRUE);
-        if (key == GLFW_KEY_R) in->renderer->reset_camera();
-        if (key == GLFW_KEY_SPACE) in->paused = !in->paused;
-        const bool shift = (mods & GLFW_MOD_SHIFT) != 0;
-        if (key == GLFW_KEY_N && shift) in->toggle_needle = true;
-        else if (key == GLFW_KEY_N && in->paused) ++in->single_steps;
-        if (key == GLFW_KEY_T) in->reset_tissue = true;
-        if (key == GLFW_KEY_P && shift) in->toggle_patch = true;
-        else if (key == GLFW_KEY_P) in->screenshot = true;
-        if (key == GLFW_KEY_F5) in->toggle_recording = true;
-        if (key == GLFW_KEY_K) in->toggle_scalpel = true;
-        if (key == GLFW_KEY_C || key == GLFW_KEY_V) {
-            if (key == GLFW_KEY_C) toggle_section(*in->renderer);
-            else aim_section(*in->renderer);
-            in->redraw = true;
-        }
-        if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
-        if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
-        if (key == GLFW_KEY_G && in->device) toggle_device_button(*in);
-        if (key == GLFW_KEY_E && in->session) {
-            in->estop = !in->estop;
-            if (in->estop) in->session->emergency_stop();
-            else in->session->release_emergency_stop();
-            say(in->estop ? "emergency stop latched: every device's force is zero (E releases)\n" : "emergency stop released\n");
-        }
-    });
-    glfwSwapInterval(1);
-    Hud hud(window);
-    RepairBackend* const repair = repair_of(backend);
+    void frame();
+    /// The simulation thread joined, the window's line said; what run_scripted would return.
+    ScriptedRunResult finish();
+
+private:
+    /// --seconds when the step has changed with the mass scale: the simulated time decides (gl and
+    /// a haptic session here; the cpu thread decides for itself).
+    bool past_end() const {
+        return !simulation && a.end_ms > 0 && backend.options().mass_scale != start_mass_scale &&
+               backend.simulated_time_ms() - start_simulated_ms >= a.end_ms * (1 - 1e-12);
+    }
+    /// T, F5, K, Shift + P, Shift + N: handed to the thread that steps (or done here).
+    void handle_requests();
+    /// The steps the frame owes (gl), the keyboard's hand 0 and the mouse device moved, a haptic
+    /// session stepped to real time (gl), the simulation thread's state taken (cpu).
+    void step_frame(std::chrono::steady_clock::time_point now, double frame_s);
+    /// Paused, resumed, one step done: said once the simulation has taken them in.
+    void say_events();
+    /// The instruments to draw, with their contact colour; the mouse device's "in place".
+    std::vector<InstrumentShape> frame_shapes();
+    /// The drawn mesh opened along the strokes; the repair as the frame's positions have it, and at
+    /// most once a second whether it closes the defect.
+    DrawnPatch repair_now();
+    /// --igtl: what this frame shows, to 3D Slicer (the sender thread does the rest).
+    void offer_link(const std::vector<InstrumentShape>& shapes, const DrawnPatch& drawn);
+    /// The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
+    void draw_hud(const std::vector<InstrumentShape>& shapes, const DrawnPatch& drawn, int width, int height);
+    /// P's screenshot, the swap, the draw share's wait, the numbered screenshots, the title.
+    void end_frame(int width, int height, std::chrono::steady_clock::time_point draw_start);
+
+    Stepper& stepper;
+    Backend& backend;
+    haptics::HapticRun* const haptic;
+    Renderer& renderer;
+    Trajectory& trajectory;
+    const bool keyboard_hand0;
+    const int steps;
+    const WindowRunOptions& a;
+    GLFWwindow* const window;
+    WindowInput input;
+    std::optional<Hud> hud;
+    RepairBackend* repair = nullptr;
     HudRepair repair_shown;  // the closure check as last run (at most once a second)
     std::optional<std::array<float, 3>> leak_shown;  // where the last check found a leak pass the rim
-    auto next_closure = std::chrono::steady_clock::now();
-    const bool has_defect = a.scenario && !a.scenario->source.defect.empty();
+    std::chrono::steady_clock::time_point next_closure = std::chrono::steady_clock::now();
+    bool has_defect = false;
     const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
     bool said_paused = false;
     long long resets_said = 0;  // T on the cpu thread: resets done and said
@@ -366,31 +190,15 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     std::atomic<int> toggles_pending{0};        // F5 presses the thread that steps has not handled yet
 
     // Scripted hands: the same per-step rule as run_scripted (trajectory.h).
-    ScriptedHands hands(trajectory);
-    StepClock step_clock(backend.time_step_ms());
-    const double start_simulated_ms = backend.simulated_time_ms();
+    ScriptedHands hands;
+    StepClock step_clock;
+    const double start_simulated_ms;
     InstrumentKeyframe keyboard;
-    if (keyboard_hand0) {
-        keyboard = trajectory.at(0, 0.0);
-        backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
-        backend.set_pose(0, keyboard.pose);
-    }
-    const bool any_instrument = trajectory.uses_hand(0) || trajectory.uses_hand(1);
-
     // The simulation follows the wall clock, never ahead of it: with the cpu backend on its own
     // thread (a haptic session's steps too, so drawing never stalls the forces); with the gl
     // backend (one GL context) between frames within a time budget. Drawing takes at most
     // --draw-share of the wall clock (docs/runtime.md "Window mode").
     std::optional<WindowSimulation> simulation;
-    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps,
-                                                     .real_time_auto = a.real_time_auto && !haptic, .end_ms = a.end_ms};
-    // The gl backend steps here, between frames: its governor runs here too.
-    std::optional<MassScaleGovernor> gl_governor;
-    if (a.real_time_auto && !haptic && backend.kind() != BackendKind::cpu) gl_governor.emplace(backend);
-    if (backend.kind() == BackendKind::cpu) {
-        if (haptic) simulation.emplace(backend, *haptic, simulation_options);
-        else simulation.emplace(backend, trajectory, simulation_options);
-    }
     double paused_ms = 0.0;  // gl pacing: wall time spent paused, not owed
     double next_title_s = 0.0;
     bool said_slow = false;
@@ -399,481 +207,521 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     ScriptedRunResult result;
     int attempted = 0;  // step() calls: a step the watchdog restores counts here, not in result.steps
     double last_draw_ms = 0.0;  // render + present of the last frame (not the swap's vsync wait)
-    long long frames = 0, next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
-    const auto start = std::chrono::steady_clock::now();
-    auto last = start;
+    long long frames = 0, next_shot = -1;
+    std::chrono::steady_clock::time_point start, last;
     // The window closes when the watchdog gives up too: the tissue cannot move on (heartsim says
     // why and exits 6).
-    const double start_mass_scale = backend.options().mass_scale;
-    // --seconds when the step has changed with the mass scale: the simulated time decides (gl and
-    // a haptic session here; the cpu thread decides for itself).
-    auto past_end = [&] {
-        return !simulation && a.end_ms > 0 && backend.options().mass_scale != start_mass_scale &&
-               backend.simulated_time_ms() - start_simulated_ms >= a.end_ms * (1 - 1e-12);
-    };
-    while (!glfwWindowShouldClose(window) && !(a.interrupted && a.interrupted->load()) && (steps < 0 || attempted < steps) && !past_end() &&
-           !result.gave_up) {
-        glfwPollEvents();
-        const auto now = std::chrono::steady_clock::now();
-        const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
-        if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
-        last = now;
-        if (input.reset_tissue && (recording_now || toggles_pending > 0)) {
-            // The reset is no step input a replay could repeat: the recording would not replay.
-            say("T: not while recording (a reset inside a recording could not be replayed); F5 stops the recording, F5 again starts a new one from rest\n");
-            input.reset_tissue = false;
-        }
-        if (input.reset_tissue && haptic && haptic->records_session()) {
-            // The same for --record's whole-session recording.
-            say("T: not while --record records the session (a reset inside a recording could not be replayed)\n");
-            input.reset_tissue = false;
-        }
-        if (input.toggle_recording) {
-            // F5: a recording from the tissue's rest state (T, grabs released) to the next F5,
-            // written beside the scenario (docs/haptics.md "Recording from the window"). Started
-            // and stopped on the thread that steps, between two steps.
-            input.toggle_recording = false;
-            if (!haptic) {
-                say("recording: needs a haptic session (--device mouse, scripted:FILE, …): nothing to record\n");
-            } else if (haptic->records_session()) {
-                say("recording: --record %s records the whole session already; F5 is off\n", haptic->recording_path().c_str());
-            } else {
-                // F5 toggles what the stepping thread has: on → stop and write; off → start.
-                const std::string scenario_path = a.scenario_path;
-                ++toggles_pending;
-                auto toggle = [haptic, &backend, &recording_now, &toggles_pending, scenario_path] {
-                    // Handled once recording_now says what it did (T is refused until then).
-                    struct Handled {
-                        std::atomic<int>& pending;
-                        ~Handled() { --pending; }
-                    } handled{toggles_pending};
-                    if (!haptic->window_recording()) {
-                        // Named on this thread, once the previous recording is written: never the same name.
-                        const std::string path = timestamped_path(scenario_path, local_time_now(), ".rec.h5");
-                        try {
-                            haptic->start_recording(path);
-                            recording_now = true;
-                            say("recording: started at %.10g ms simulated, to %s (the tissue reset to its rest state; F5 stops and writes it)\n",
-                                backend.simulated_time_ms(), path.c_str());
-                        } catch (const std::exception& e) {
-                            say("recording: could not start %s: %s\n", path.c_str(), e.what());
-                        }
-                        return;
-                    }
-                    const std::string path = haptic->recording_path();
-                    recording_now = false;
+    const double start_mass_scale;
+};
+
+WindowLoop::WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0, int steps,
+                       const WindowRunOptions& options)
+    : stepper(stepper), backend(stepper.backend()), haptic(stepper.haptic()), renderer(renderer), trajectory(trajectory),
+      keyboard_hand0(keyboard_hand0), steps(steps), a(options), window(static_cast<GLFWwindow*>(context.window())), hands(trajectory),
+      step_clock(backend.time_step_ms()), start_simulated_ms(backend.simulated_time_ms()), start_mass_scale(backend.options().mass_scale) {
+    input.renderer = &renderer;
+    renderer.set_show_hidden_instruments(true);  // an instrument pushed into the wall stays in sight
+    if (haptic) {
+        input.session = &haptic->session();
+        input.device = haptic->window_device();
+        if (input.device) input.device_pose = input.device->last_set();
+    }
+    install_input_callbacks(window, input);
+    glfwSwapInterval(1);
+    hud.emplace(window);
+    repair = repair_of(backend);
+    has_defect = a.scenario && !a.scenario->source.defect.empty();
+    if (keyboard_hand0) {
+        keyboard = trajectory.at(0, 0.0);
+        backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
+        backend.set_pose(0, keyboard.pose);
+    }
+    const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps, .end_ms = a.end_ms};
+    if (backend.kind() == BackendKind::cpu) {
+        if (haptic) simulation.emplace(stepper, simulation_options);
+        else simulation.emplace(stepper, trajectory, simulation_options);
+    }
+    next_shot = a.screenshot_every > 0 ? a.screenshot_every : -1;
+    start = last = std::chrono::steady_clock::now();
+}
+
+void WindowLoop::frame() {
+    glfwPollEvents();
+    const auto now = std::chrono::steady_clock::now();
+    const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
+    if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
+    last = now;
+    handle_requests();
+    step_frame(now, frame_s);
+    say_events();
+    int width = 0, height = 0;
+    glfwGetFramebufferSize(window, &width, &height);
+    if (width > 0 && height > 0) renderer.resize(width, height);
+    const std::vector<InstrumentShape> shapes = frame_shapes();
+    DrawnPatch drawn = repair_now();
+    drawn.leak = leak_shown;
+    renderer.set_patch(drawn);
+    const auto draw_start = std::chrono::steady_clock::now();
+    if (simulation) renderer.render(latest_positions, shapes);
+    else renderer.render(backend, shapes);
+    renderer.present(width, height);
+    if (stepper.link_due()) offer_link(shapes, drawn);
+    draw_hud(shapes, drawn, width, height);
+    end_frame(width, height, draw_start);
+}
+
+void WindowLoop::handle_requests() {
+    if (input.reset_tissue && (recording_now || toggles_pending > 0)) {
+        // The reset is no step input a replay could repeat: the recording would not replay.
+        say("T: not while recording (a reset inside a recording could not be replayed); F5 stops the recording, F5 again starts a new one from rest\n");
+        input.reset_tissue = false;
+    }
+    if (input.reset_tissue && haptic && haptic->records_session()) {
+        // The same for --record's whole-session recording.
+        say("T: not while --record records the session (a reset inside a recording could not be replayed)\n");
+        input.reset_tissue = false;
+    }
+    if (input.toggle_recording) {
+        // F5: a recording from the tissue's rest state (T, grabs released) to the next F5,
+        // written beside the scenario (docs/haptics.md "Recording from the window"). Started
+        // and stopped on the thread that steps, between two steps.
+        input.toggle_recording = false;
+        if (!haptic) {
+            say("recording: needs a haptic session (--device mouse, scripted:FILE, …): nothing to record\n");
+        } else if (haptic->records_session()) {
+            say("recording: --record %s records the whole session already; F5 is off\n", haptic->recording_path().c_str());
+        } else {
+            // F5 toggles what the stepping thread has: on → stop and write; off → start.
+            const std::string scenario_path = a.scenario_path;
+            ++toggles_pending;
+            auto toggle = [haptic = haptic, &backend = backend, &recording_now = recording_now, &toggles_pending = toggles_pending, scenario_path] {
+                // Handled once recording_now says what it did (T is refused until then).
+                struct Handled {
+                    std::atomic<int>& pending;
+                    ~Handled() { --pending; }
+                } handled{toggles_pending};
+                if (!haptic->window_recording()) {
+                    // Named on this thread, once the previous recording is written: never the same name.
+                    const std::string path = timestamped_path(scenario_path, local_time_now(), ".rec.h5");
                     try {
-                        const std::size_t steps = haptic->stop_recording();
-                        say("recording: wrote %s (%zu steps)\n", path.c_str(), steps);
+                        haptic->start_recording(path);
+                        recording_now = true;
+                        say("recording: started at %.10g ms simulated, to %s (the tissue reset to its rest state; F5 stops and writes it)\n",
+                            backend.simulated_time_ms(), path.c_str());
                     } catch (const std::exception& e) {
-                        say("recording: could not write %s: %s\n", path.c_str(), e.what());
+                        say("recording: could not start %s: %s\n", path.c_str(), e.what());
                     }
-                };
-                if (simulation) simulation->run_between_steps(toggle);
-                else toggle();
-            }
-        }
-        if (input.toggle_scalpel || input.toggle_patch || input.toggle_needle) {
-            // K, Shift + P, Shift + N: hand 0 holds a scalpel, a patch or a needle, or its own
-            // instrument again, switched on the thread that steps between two steps (a recording
-            // keeps the switch: /steps/instrument).
-            const InstrumentKind asked = input.toggle_scalpel ? InstrumentKind::scalpel
-                                         : input.toggle_patch ? InstrumentKind::patch
-                                                              : InstrumentKind::needle;
-            const char* key = input.toggle_scalpel ? "K" : input.toggle_patch ? "Shift + P" : "Shift + N";
-            input.toggle_scalpel = input.toggle_patch = input.toggle_needle = false;
-            if (!haptic || !haptic->uses_hand(0)) {
-                say(asked == InstrumentKind::scalpel ? "%s: the scalpel is a device's instrument: run with --device (mouse, openhaptics, …)\n"
-                                                     : "%s: the patch and the needle are a device's instruments: run with --device (mouse, openhaptics, …)\n",
-                    key);
-            } else if (asked != InstrumentKind::scalpel && !repair) {
-                say("%s: the scenario has no detailed mesh with its mapping for a patch to lie on\n", key);
-            } else {
-                const Instrument instrument = asked == InstrumentKind::scalpel
-                                                  ? Instrument{.kind = InstrumentKind::scalpel, .semi_axes = default_blade_semi_axes_mm}
-                                                  : repair_instrument(asked, a.scenario);
-                auto swap = [haptic, instrument, key] {
-                    try {
-                        const InstrumentKind now = haptic->toggle_instrument(0, instrument);
-                        const char* how = now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)"
-                                          : now == InstrumentKind::patch
-                                              ? " (G or button 1 lays it on the tissue in front of it; held there until its first stitch)"
-                                          : now == InstrumentKind::needle
-                                              ? " (G or button 1 ties a stitch from the tissue at its tip to the patch's point nearest it)"
-                                              : "";
-                        say("instrument 0: %s%s\n", to_string(now), how);
-                    } catch (const std::exception& e) {
-                        say("%s: %s\n", key, e.what());
-                    }
-                };
-                if (simulation) simulation->run_between_steps(swap);
-                else swap();
-            }
-        }
-        if (input.reset_tissue) {
-            if (simulation) {
-                simulation->request_reset_tissue();
-            } else {
-                backend.reset_tissue();
-                say("tissue reset to its rest state\n");
-            }
-            input.reset_tissue = false;
-        }
-        if (simulation && simulation->status().resets > resets_said) {  // said once the thread has done it
-            resets_said = simulation->status().resets;
-            say("tissue reset to its rest state\n");
-        }
-        // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
-        // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
-        int n = 0;
-        if (!simulation && !haptic && !input.paused) {
-            const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
-            // The steps that fit in the time owed and not yet simulated (the step changes with the mass scale).
-            n = int(std::clamp(std::floor((owed_ms - (backend.simulated_time_ms() - start_simulated_ms)) / backend.time_step_ms() + 1e-9),
-                               0.0, 1e6));
-            if (gl_governor)
-                if (auto change = gl_governor->observe(owed_ms, backend.simulated_time_ms())) say("%s\n", change->c_str());
-        }
-        if (gl_governor && input.paused) gl_governor->restart();
-        // N while paused: one step (the gl loop here, the cpu thread by request); not with a
-        // haptic session, whose steps follow the session clock.
-        if (!input.paused) input.single_steps = 0;
-        if (input.single_steps > 0 && haptic) {
-            say("N: single steps need a run without --device (a haptic session follows its own clock)\n");
-            input.single_steps = 0;
-        }
-        if (input.single_steps > 0 && steps_before_single < 0) {
-            steps_before_single = attempted;
-            --input.single_steps;
-            if (simulation) simulation->request_single_step();
-            else n = 1;
-        }
-        if (steps >= 0) n = std::min(n, steps - attempted);
-        const double step_budget_ms = std::max(12.0, 2.0 * last_draw_ms);
-
-        // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
-        // out of the screen.
-        InstrumentPose from = keyboard.pose, to = keyboard.pose;
-        if (keyboard_hand0 || input.device) {
-            const Camera& camera = renderer.camera();
-            const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-            Eigen::Vector3d move = Eigen::Vector3d::Zero();
-            if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
-            if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
-            if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
-            if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
-            if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
-            if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
-            const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
-            to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
-            keyboard.pose = to;
-            if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
-            if (input.device) {
-                input.device_pose.position_mm += to.position - from.position;
-                if (to.position != from.position) device_moved(input);
-                if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
-                input.device->set_pose(input.device_pose);
-            }
-        }
-        if (haptic && !simulation) {
-            // Haptics with the gl backend: the simulation follows real time between frames; the
-            // device thread moves the instruments.
-            haptic->set_paused(input.paused);  // the real-time reference stops while paused
-            // Stepping gets at least twice the last frame's drawing time (12 ms minimum): on a slow
-            // renderer (llvmpipe) the simulation keeps 2/3 of the wall clock, fewer frames are drawn.
-            if (!input.paused)
-                haptic->step_to_real_time(steps >= 0 ? std::max(0, std::min(100000, steps - attempted)) : 100000,
-                                          std::max(12.0, 2.0 * last_draw_ms));
-            else haptic->drain();
-            attempted = int(haptic->rows());
-            result.steps = haptic->result().steps;
-            result.substeps = haptic->result().substeps;
-            n = 0;
-        }
-        if (simulation) {
-            simulation->set_paused(input.paused);
-            simulation->latest(latest_positions);
-            const WindowSimulation::Status status = simulation->status();
-            attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
-            result = status.run;
-            if (status.finished) {
-                simulation->latest(latest_positions);  // the final state
-                attempted = std::max(attempted, steps);
-            }
-        }
-        const auto step_start = std::chrono::steady_clock::now();
-        for (int k = 0; k < n && !past_end(); ++k) {
-            if (k > 0 && std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - step_start).count() > step_budget_ms) break;
-            const int step = attempted++;
-            const auto [t, t_next] = step_clock.at(step, backend.time_step_ms());
-            for (int hand = 0; hand < 2; ++hand) {
-                if (!trajectory.uses_hand(hand)) continue;
-                if (hand == 0 && keyboard_hand0) {
-                    const double f = double(k + 1) / double(n);
-                    backend.set_pose(0, {from.position + f * (to.position - from.position), to.orientation});
-                    continue;
+                    return;
                 }
-                hands.apply(backend, hand, t, t_next);
-            }
-            const StepReport report = backend.step(1);
-            result.add(report);
-            if (any_instrument) {
-                backend.request_forces();
-                if (auto forces = backend.latest_forces()) {
-                    ++result.forces_received;
-                    gl_forces = forces;
+                const std::string path = haptic->recording_path();
+                recording_now = false;
+                try {
+                    const std::size_t steps = haptic->stop_recording();
+                    say("recording: wrote %s (%zu steps)\n", path.c_str(), steps);
+                } catch (const std::exception& e) {
+                    say("recording: could not write %s: %s\n", path.c_str(), e.what());
                 }
-            }
-        }
-
-        // Event lines once the simulation has taken them in: paused (no step runs from here on),
-        // resumed, one step done.
-        const double simulated_now_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
-        const bool paused_seen = simulation ? simulation->status().paused : input.paused;
-        if (input.paused && paused_seen && !said_paused && steps_before_single < 0) {
-            said_paused = true;
-            say("paused at %.10g ms simulated (Space resumes, N steps once)\n", simulated_now_ms);
-        }
-        if (input.paused && paused_seen) paused_simulated_ms = simulated_now_ms;
-        if (!input.paused && said_paused) {
-            said_paused = false;
-            say("resumed at %.10g ms simulated\n", paused_simulated_ms);  // the time it stood at while paused
-        }
-        if (steps_before_single >= 0) {
-            const long long now_attempted = simulation ? simulation->status().attempted : attempted;
-            if (now_attempted > steps_before_single || !input.paused) {
-                if (now_attempted > steps_before_single) say("one step: %.10g ms simulated\n", simulated_now_ms);
-                steps_before_single = -1;
-            }
-        }
-
-        int width = 0, height = 0;
-        glfwGetFramebufferSize(window, &width, &height);
-        if (width > 0 && height > 0) renderer.resize(width, height);
-        std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
-                                              : simulation ? simulation->status().shapes : haptic->shapes();
-        for (InstrumentShape& shape : shapes) {
-            if (shape.hand < 0 || shape.hand > 1) continue;
-            shape.touching = touching[std::size_t(shape.hand)];
-            // The mouse device's instrument: where it goes when put on the surface.
-            if (input.device && haptic->device_spec(shape.hand) == "mouse") {
-                const bool tip = shape.kind == InstrumentKind::scalpel || shape.kind == InstrumentKind::needle;
-                input.surface_offset_mm = tip ? 0.0 : shape.kind == InstrumentKind::patch ? 2.0 : -0.25 * shape.semi_axes.minCoeff();
-                // The simulation has stepped it where the window put it, its button too: said once
-                // after each input that moved it (device_moved), so that a log or a test waits for
-                // the simulation to take an input in rather than for a time.
-                const bool there = (shape.pose.position - input.device_pose.position_mm).norm() <= 1e-6 && shape.buttons == input.device_pose.buttons;
-                if (there && !input.device_in_place)
-                    say("mouse device: in place at (%.2f, %.2f, %.2f) mm\n", shape.pose.position.x(), shape.pose.position.y(), shape.pose.position.z());
-                input.device_in_place = input.device_in_place || there;
-            }
-        }
-        for (int hand = 0; hand < 2 && !haptic; ++hand) {
-            if (!trajectory.uses_hand(hand)) continue;
-            const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
-            const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
-            if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand, touching[std::size_t(hand)]});
-        }
-        if (a.open_incisions) {
-            if (simulation) {
-                const StrokeLog strokes = simulation->strokes();
-                a.open_incisions(&latest_positions, &strokes);
-            } else {
-                a.open_incisions(nullptr, nullptr);
-            }
-        }
-        // The repair as the frame's positions have it, and at most once a second whether it closes the defect.
-        DrawnPatch drawn;
-        if (simulation) drawn = simulation->patch();
-        else if (const PatchModel* patch = repair ? repair->patch() : nullptr) drawn = drawn_patch(*patch, repair->stitch_anchors());
-        if (drawn.triangles.empty()) {
-            repair_shown = {};
-            leak_shown.reset();
-        } else if (has_defect && std::chrono::steady_clock::now() >= next_closure) {
-            try {
-                const std::optional<ClosureResult> closure =
-                    closure_now(*a.scenario, simulation ? latest_positions : backend.positions(), drawn);
-                repair_shown.known = closure.has_value() && !closure->cannot_tell;
-                leak_shown.reset();
-                if (closure) {
-                    repair_shown.closed = closure->closed;
-                    repair_shown.rim_gap_mm = closure->largest_rim_gap_mm;
-                    repair_shown.leak = leak_place(*closure);
-                    if (closure->leak_mm) leak_shown = {float(closure->leak_mm->x()), float(closure->leak_mm->y()), float(closure->leak_mm->z())};
-                }
-            } catch (const InputError&) {
-                repair_shown.known = false;
-                leak_shown.reset();
-            }
-            repair_shown.checked = true;
-            next_closure = std::chrono::steady_clock::now() + std::chrono::seconds(1);
-        }
-        drawn.leak = leak_shown;
-        renderer.set_patch(drawn);
-        const auto draw_start = std::chrono::steady_clock::now();
-        if (simulation) renderer.render(latest_positions, shapes);
-        else renderer.render(backend, shapes);
-        renderer.present(width, height);
-        if (a.link && a.link->due()) {
-            // --igtl: what this frame shows, to 3D Slicer (the sender thread does the rest).
-            // The forces of what the frame shows: the simulation thread's, the gl backend's last
-            // force pass (with the particles it summed), or the haptic session's published ones.
-            const WindowSimulation::Status st = simulation ? simulation->status() : WindowSimulation::Status{};
-            InstrumentForces forces{};
-            for (int hand = 0; hand < 2; ++hand) {
-                if (simulation && st.has_forces) forces.hand[std::size_t(hand)].force_n = st.forces[std::size_t(hand)];
-                else if (gl_forces) forces.hand[std::size_t(hand)] = gl_forces->hand[std::size_t(hand)];
-                else if (haptic) forces.hand[std::size_t(hand)].force_n = haptic->latest_published_forces().hand[std::size_t(hand)].force_n;
-            }
-            const SlicerLinkHands hands = link_hands(shapes, forces);
-            const SlicerLink::State state = input.estop ? SlicerLink::State::emergency_stop
-                                            : input.paused ? SlicerLink::State::paused
-                                                           : SlicerLink::State::running;
-            const auto patch = [&drawn] { return drawn; };  // the repair this frame draws
-            if (simulation) a.link->offer(st.simulated_ms, latest_positions, (long long)result.steps, hands, state, patch);
-            else a.link->offer(backend, (long long)result.steps, hands, state, patch);
-        }
-        {
-            // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
-            const double s = std::max(1e-9, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
-            HudState state;
-            state.show_hud = input.show_hud, state.show_help = input.show_help;
-            const WindowSimulation::Status status = simulation ? simulation->status() : WindowSimulation::Status{};
-            const double owed_ms = simulation ? status.owed_ms : 1e3 * s - paused_ms;
-            state.simulated_ms = simulation ? status.simulated_ms : backend.simulated_time_ms();
-            state.real_time_factor = haptic && !simulation ? 1.0 : owed_ms > 0 ? state.simulated_ms / owed_ms : 1.0;
-            state.frames_per_s = frames / s;
-            state.steps_per_s = result.steps / s;
-            state.particles = backend.size();
-            state.backend = to_string(backend.kind());
-            if (!a.backend_note.empty()) state.backend += " (" + a.backend_note + ")";
-            state.mass_scale = simulation ? status.mass_scale : backend.options().mass_scale;
-            state.paused = input.paused;
-            state.emergency_stop = input.estop;
-            state.recording = recording_now;
-            if (const auto& section = renderer.section()) {
-                state.section = true;
-                state.section_depth_mm = section->depth_from(renderer.model_centre());
-                state.section_normal = section->normal.cast<double>();
-            }
-            state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
-            const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
-            for (int hand = 0; hand < 2; ++hand) {
-                HudHand& h = state.hands[hand];
-                for (const InstrumentShape& shape : shapes)
-                    if (shape.hand == hand) h.position_mm = shape.pose.position;
-                if (haptic) {
-                    h.used = haptic->uses_hand(hand);
-                    if (!h.used) continue;
-                    h.device = haptic->device_spec(hand);
-                    if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
-                        h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
-                    h.instrument = to_string(haptic->instrument(hand));
-                    h.max_force_n = haptic->max_force_n(hand);
-                    // The simulation's force on the instrument (what the session sends on, before
-                    // safety); for the mouse device what it was sent.
-                    h.has_force = simulation ? status.has_forces : true;
-                    h.force_n = simulation ? status.forces[hand] : haptic->latest_published_forces().hand[hand].force_n;
-                    h.force_source = "on the instrument";
-                    if (input.device && h.device == "mouse") {
-                        h.force_source = "sent to the device";
-                        // The force sent to the mouse device (world frame: its mapping is the identity).
-                        h.has_force = true;
-                        h.force_n = input.device->latest_force();
-                        h.grabbing = (input.device_pose.buttons & 1u) != 0;
-                        // Contact as the hand feels it, on the terminal too (a log, the tests): the
-                        // largest force the device thread sent since the last frame.
-                        const double peak = std::max(input.device->peak_force_since_last(), h.force_n.norm());
-                        largest_mouse_force_n = std::max(largest_mouse_force_n, peak);
-                        if (!mouse_touching && peak > 0.01) say("mouse device: touching the tissue, %.4g N\n", peak);
-                        if (mouse_touching && peak == 0.0) say("mouse device: free\n");
-                        mouse_touching = peak > 0.01 || (mouse_touching && peak > 0.0);
-                    }
-                    touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
-                    continue;
-                }
-                h.used = trajectory.uses_hand(hand);
-                if (!h.used) continue;
-                h.device = hand == 0 && keyboard_hand0 ? "keyboard" : "script";
-                const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, state.simulated_ms);
-                h.instrument = to_string(k.kind);
-                h.grabbing = k.grab;
-                h.has_force = has_forces;
-                h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
-                touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
-            }
-            state.repair = repair_shown;
-            state.repair.laid = !drawn.triangles.empty();
-            state.repair.material = drawn.material;
-            state.repair.stitches = drawn.stitch_from.size();
-            state.repair.defect = has_defect;
-            if (hud_fixed) {
-                // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
-                // machine's speed and on timing shown as fixed values, so the picture is the same
-                // on every run (docs/runtime.md "Screenshots and the golden image").
-                state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
-                if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
-            }
-            hud.draw(state, renderer.camera(), width, height);
-        }
-        if (input.screenshot) {
-            // P: the window as seen, HUD included, beside the scenario (written atomically).
-            input.screenshot = false;
-            const std::string path = timestamped_screenshot(a.scenario_path, local_time_now());
-            try {
-                write_png(path, read_window_pixels(width, height));
-                say("screenshot: wrote %s (%dx%d)\n", path.c_str(), width, height);
-            } catch (const std::exception& e) {
-                say("screenshot: could not write %s: %s\n", path.c_str(), e.what());
-            }
-        }
-        glfwSwapBuffers(window);
-        input.redraw = false;
-        last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
-        ++frames;
-        // Drawing takes at most --draw-share of the wall clock: on a software renderer the window
-        // draws fewer frames and the simulation keeps the cores.
-        if (simulation && a.draw_share < 1.0) {
-            const double rest_ms = last_draw_ms / a.draw_share - last_draw_ms;
-            const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
-            while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
-                glfwWaitEventsTimeout(0.01);
-                if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0 || input.redraw)
-                    break;
-            }
-        }
-        if (next_shot > 0 && result.steps >= next_shot) {
-            const std::string path = numbered_screenshot(a.screenshot, result.steps);
-            write_png(path, renderer.read_pixels());
-            while (next_shot <= result.steps) next_shot += a.screenshot_every;
-        }
-        const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-        if (s >= next_title_s) {  // the title twice a second
-            next_title_s = s + 0.5;
-            char title[256];
-            std::string forces;
-            if (input.device) {
-                const Eigen::Vector3d f = input.device->latest_force();
-                char text[96];
-                std::snprintf(text, sizeof text, ", mouse device force %.3f N%s", f.norm(), input.device_pose.buttons & 1u ? ", grab" : "");
-                forces = text;
-            }
-            if (input.estop) forces += ", EMERGENCY STOP (E releases)";
-            const double simulated_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
-            const double owed_ms = simulation ? simulation->status().owed_ms : 1e3 * s - paused_ms;
-            const double factor = owed_ms > 0 ? simulated_ms / owed_ms : 1.0;
-            std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s, %.2f× real time%s%s",
-                          a.scenario_name.c_str(), frames / s, result.steps / s, haptic && !simulation ? 1.0 : factor,
-                          input.paused ? " (paused)" : "", forces.c_str());
-            glfwSetWindowTitle(window, title);
-            if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
-                said_slow = true;
-                std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
-                            "the hand: %s\n",
-                            factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
-            }
+            };
+            if (simulation) simulation->run_between_steps(toggle);
+            else toggle();
         }
     }
+    if (input.toggle_scalpel || input.toggle_patch || input.toggle_needle) {
+        // K, Shift + P, Shift + N: hand 0 holds a scalpel, a patch or a needle, or its own
+        // instrument again, switched on the thread that steps between two steps (a recording
+        // keeps the switch: /steps/instrument).
+        const InstrumentKind asked = input.toggle_scalpel ? InstrumentKind::scalpel
+                                     : input.toggle_patch ? InstrumentKind::patch
+                                                          : InstrumentKind::needle;
+        const char* key = input.toggle_scalpel ? "K" : input.toggle_patch ? "Shift + P" : "Shift + N";
+        input.toggle_scalpel = input.toggle_patch = input.toggle_needle = false;
+        if (!haptic || !haptic->uses_hand(0)) {
+            say(asked == InstrumentKind::scalpel ? "%s: the scalpel is a device's instrument: run with --device (mouse, openhaptics, …)\n"
+                                                 : "%s: the patch and the needle are a device's instruments: run with --device (mouse, openhaptics, …)\n",
+                key);
+        } else if (asked != InstrumentKind::scalpel && !repair) {
+            say("%s: the scenario has no detailed mesh with its mapping for a patch to lie on\n", key);
+        } else {
+            const Instrument instrument = asked == InstrumentKind::scalpel
+                                              ? Instrument{.kind = InstrumentKind::scalpel, .semi_axes = default_blade_semi_axes_mm}
+                                              : repair_instrument(asked, a.scenario);
+            auto swap = [haptic = haptic, instrument, key] {
+                try {
+                    const InstrumentKind now = haptic->toggle_instrument(0, instrument);
+                    const char* how = now == InstrumentKind::scalpel ? " (G or button 1 lowers the blade: it cuts what it sweeps)"
+                                      : now == InstrumentKind::patch
+                                          ? " (G or button 1 lays it on the tissue in front of it; held there until its first stitch)"
+                                      : now == InstrumentKind::needle
+                                          ? " (G or button 1 ties a stitch from the tissue at its tip to the patch's point nearest it)"
+                                          : "";
+                    say("instrument 0: %s%s\n", to_string(now), how);
+                } catch (const std::exception& e) {
+                    say("%s: %s\n", key, e.what());
+                }
+            };
+            if (simulation) simulation->run_between_steps(swap);
+            else swap();
+        }
+    }
+    if (input.reset_tissue) {
+        if (simulation) {
+            simulation->request_reset_tissue();
+        } else {
+            backend.reset_tissue();
+            say("tissue reset to its rest state\n");
+        }
+        input.reset_tissue = false;
+    }
+    if (simulation && simulation->status().resets > resets_said) {  // said once the thread has done it
+        resets_said = simulation->status().resets;
+        say("tissue reset to its rest state\n");
+    }
+}
+
+void WindowLoop::step_frame(std::chrono::steady_clock::time_point now, double frame_s) {
+    // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
+    // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
+    int n = 0;
+    if (!simulation && !haptic && !input.paused) {
+        const double owed_ms = 1e3 * std::chrono::duration<double>(now - start).count() - paused_ms;
+        // The steps that fit in the time owed and not yet simulated (the step changes with the mass scale).
+        n = stepper.steps_owed(owed_ms, backend.simulated_time_ms() - start_simulated_ms);
+        stepper.observe(owed_ms, backend.simulated_time_ms());
+    }
+    if (!simulation && !haptic && input.paused) stepper.restart_measuring();
+    // N while paused: one step (the gl loop here, the cpu thread by request); not with a
+    // haptic session, whose steps follow the session clock.
+    if (!input.paused) input.single_steps = 0;
+    if (input.single_steps > 0 && haptic) {
+        say("N: single steps need a run without --device (a haptic session follows its own clock)\n");
+        input.single_steps = 0;
+    }
+    if (input.single_steps > 0 && steps_before_single < 0) {
+        steps_before_single = attempted;
+        --input.single_steps;
+        if (simulation) simulation->request_single_step();
+        else n = 1;
+    }
+    if (steps >= 0) n = std::min(n, steps - attempted);
+    const double step_budget_ms = std::max(12.0, 2.0 * last_draw_ms);
+
+    // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
+    // out of the screen.
+    InstrumentPose from = keyboard.pose, to = keyboard.pose;
+    if (keyboard_hand0 || input.device) {
+        const Camera& camera = renderer.camera();
+        const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
+        Eigen::Vector3d move = Eigen::Vector3d::Zero();
+        if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
+        if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
+        if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
+        if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
+        if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
+        if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
+        const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
+        to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
+        keyboard.pose = to;
+        if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
+        if (input.device) {
+            input.device_pose.position_mm += to.position - from.position;
+            if (to.position != from.position) device_moved(input);
+            if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
+            input.device->set_pose(input.device_pose);
+        }
+    }
+    if (haptic && !simulation) {
+        // Haptics with the gl backend: the simulation follows real time between frames; the
+        // device thread moves the instruments.
+        stepper.set_paused(input.paused);  // the real-time reference stops while paused
+        // Stepping gets at least twice the last frame's drawing time (12 ms minimum): on a slow
+        // renderer (llvmpipe) the simulation keeps 2/3 of the wall clock, fewer frames are drawn.
+        if (!input.paused)
+            stepper.step_to_real_time(steps >= 0 ? std::max(0, std::min(100000, steps - attempted)) : 100000,
+                                      std::max(12.0, 2.0 * last_draw_ms));
+        else haptic->drain();
+        attempted = int(haptic->rows());
+        result.steps = haptic->result().steps;
+        result.substeps = haptic->result().substeps;
+        n = 0;
+    }
+    if (simulation) {
+        simulation->set_paused(input.paused);
+        simulation->latest(latest_positions);
+        const WindowSimulation::Status status = simulation->status();
+        attempted = int(std::min<long long>(status.attempted, std::numeric_limits<int>::max()));
+        result = status.run;
+        if (status.finished) {
+            simulation->latest(latest_positions);  // the final state
+            attempted = std::max(attempted, steps);
+        }
+    }
+    const auto step_start = std::chrono::steady_clock::now();
+    for (int k = 0; k < n && !past_end(); ++k) {
+        if (k > 0 && std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - step_start).count() > step_budget_ms) break;
+        const int step = attempted++;
+        const double f = double(k + 1) / double(n);  // the keyboard's hand 0 moves over the frame's steps
+        const InstrumentPose hand0{from.position + f * (to.position - from.position), to.orientation};
+        std::optional<InstrumentForces> forces;
+        result.add(stepper.step_scripted(hands, trajectory, step_clock, step, keyboard_hand0, hand0, forces));
+        if (forces) {
+            ++result.forces_received;
+            gl_forces = forces;
+        }
+    }
+}
+
+void WindowLoop::say_events() {
+    // Event lines once the simulation has taken them in: paused (no step runs from here on),
+    // resumed, one step done.
+    const double simulated_now_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+    const bool paused_seen = simulation ? simulation->status().paused : input.paused;
+    if (input.paused && paused_seen && !said_paused && steps_before_single < 0) {
+        said_paused = true;
+        say("paused at %.10g ms simulated (Space resumes, N steps once)\n", simulated_now_ms);
+    }
+    if (input.paused && paused_seen) paused_simulated_ms = simulated_now_ms;
+    if (!input.paused && said_paused) {
+        said_paused = false;
+        say("resumed at %.10g ms simulated\n", paused_simulated_ms);  // the time it stood at while paused
+    }
+    if (steps_before_single >= 0) {
+        const long long now_attempted = simulation ? simulation->status().attempted : attempted;
+        if (now_attempted > steps_before_single || !input.paused) {
+            if (now_attempted > steps_before_single) say("one step: %.10g ms simulated\n", simulated_now_ms);
+            steps_before_single = -1;
+        }
+    }
+}
+
+std::vector<InstrumentShape> WindowLoop::frame_shapes() {
+    std::vector<InstrumentShape> shapes = !haptic ? std::vector<InstrumentShape>{}
+                                          : simulation ? simulation->status().shapes : haptic->shapes();
+    for (InstrumentShape& shape : shapes) {
+        if (shape.hand < 0 || shape.hand > 1) continue;
+        shape.touching = touching[std::size_t(shape.hand)];
+        // The mouse device's instrument: where it goes when put on the surface.
+        if (input.device && haptic->device_spec(shape.hand) == "mouse") {
+            const bool tip = shape.kind == InstrumentKind::scalpel || shape.kind == InstrumentKind::needle;
+            input.surface_offset_mm = tip ? 0.0 : shape.kind == InstrumentKind::patch ? 2.0 : -0.25 * shape.semi_axes.minCoeff();
+            // The simulation has stepped it where the window put it, its button too: said once
+            // after each input that moved it (device_moved), so that a log or a test waits for
+            // the simulation to take an input in rather than for a time.
+            const bool there = (shape.pose.position - input.device_pose.position_mm).norm() <= 1e-6 && shape.buttons == input.device_pose.buttons;
+            if (there && !input.device_in_place)
+                say("mouse device: in place at (%.2f, %.2f, %.2f) mm\n", shape.pose.position.x(), shape.pose.position.y(), shape.pose.position.z());
+            input.device_in_place = input.device_in_place || there;
+        }
+    }
+    for (int hand = 0; hand < 2 && !haptic; ++hand) {
+        if (!trajectory.uses_hand(hand)) continue;
+        const double time_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+        const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, time_ms);
+        if (k.kind != InstrumentKind::none) shapes.push_back({k.kind, k.pose, k.semi_axes, hand, touching[std::size_t(hand)]});
+    }
+    return shapes;
+}
+
+DrawnPatch WindowLoop::repair_now() {
+    if (simulation) {
+        const StrokeLog strokes = simulation->strokes();
+        stepper.open_or_preview_incisions(&latest_positions, &strokes);
+    } else {
+        stepper.open_or_preview_incisions(nullptr, nullptr);
+    }
+    // The repair as the frame's positions have it, and at most once a second whether it closes the defect.
+    DrawnPatch drawn;
+    if (simulation) drawn = simulation->patch();
+    else if (const PatchModel* patch = repair ? repair->patch() : nullptr) drawn = drawn_patch(*patch, repair->stitch_anchors());
+    if (drawn.triangles.empty()) {
+        repair_shown = {};
+        leak_shown.reset();
+    } else if (has_defect && std::chrono::steady_clock::now() >= next_closure) {
+        try {
+            const std::optional<ClosureResult> closure =
+                closure_now(*a.scenario, simulation ? latest_positions : backend.positions(), drawn);
+            repair_shown.known = closure.has_value() && !closure->cannot_tell;
+            leak_shown.reset();
+            if (closure) {
+                repair_shown.closed = closure->closed;
+                repair_shown.rim_gap_mm = closure->largest_rim_gap_mm;
+                repair_shown.leak = leak_place(*closure);
+                if (closure->leak_mm) leak_shown = {float(closure->leak_mm->x()), float(closure->leak_mm->y()), float(closure->leak_mm->z())};
+            }
+        } catch (const InputError&) {
+            repair_shown.known = false;
+            leak_shown.reset();
+        }
+        repair_shown.checked = true;
+        next_closure = std::chrono::steady_clock::now() + std::chrono::seconds(1);
+    }
+    return drawn;
+}
+
+void WindowLoop::offer_link(const std::vector<InstrumentShape>& shapes, const DrawnPatch& drawn) {
+    // --igtl: what this frame shows, to 3D Slicer (the sender thread does the rest).
+    // The forces of what the frame shows: the simulation thread's, the gl backend's last
+    // force pass (with the particles it summed), or the haptic session's published ones.
+    const WindowSimulation::Status st = simulation ? simulation->status() : WindowSimulation::Status{};
+    InstrumentForces forces{};
+    for (int hand = 0; hand < 2; ++hand) {
+        if (simulation && st.has_forces) forces.hand[std::size_t(hand)].force_n = st.forces[std::size_t(hand)];
+        else if (gl_forces) forces.hand[std::size_t(hand)] = gl_forces->hand[std::size_t(hand)];
+        else if (haptic) forces.hand[std::size_t(hand)].force_n = haptic->latest_published_forces().hand[std::size_t(hand)].force_n;
+    }
+    const SlicerLinkHands streamed = link_hands(shapes, forces);
+    const SlicerLink::State state = input.estop ? SlicerLink::State::emergency_stop
+                                    : input.paused ? SlicerLink::State::paused
+                                                   : SlicerLink::State::running;
+    const auto patch = [&drawn] { return drawn; };  // the repair this frame draws
+    if (simulation) stepper.offer(st.simulated_ms, latest_positions, (long long)result.steps, streamed, state, patch);
+    else stepper.offer((long long)result.steps, streamed, state, patch);
+}
+
+void WindowLoop::draw_hud(const std::vector<InstrumentShape>& shapes, const DrawnPatch& drawn, int width, int height) {
+    // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
+    const double s = std::max(1e-9, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
+    HudState state;
+    state.show_hud = input.show_hud, state.show_help = input.show_help;
+    const WindowSimulation::Status status = simulation ? simulation->status() : WindowSimulation::Status{};
+    const double owed_ms = simulation ? status.owed_ms : 1e3 * s - paused_ms;
+    state.simulated_ms = simulation ? status.simulated_ms : backend.simulated_time_ms();
+    state.real_time_factor = haptic && !simulation ? 1.0 : owed_ms > 0 ? state.simulated_ms / owed_ms : 1.0;
+    state.frames_per_s = frames / s;
+    state.steps_per_s = result.steps / s;
+    state.particles = backend.size();
+    state.backend = to_string(backend.kind());
+    if (!a.backend_note.empty()) state.backend += " (" + a.backend_note + ")";
+    state.mass_scale = simulation ? status.mass_scale : backend.options().mass_scale;
+    state.paused = input.paused;
+    state.emergency_stop = input.estop;
+    state.recording = recording_now;
+    if (const auto& section = renderer.section()) {
+        state.section = true;
+        state.section_depth_mm = section->depth_from(renderer.model_centre());
+        state.section_normal = section->normal.cast<double>();
+    }
+    state.haptic_period_p99_ms = simulation ? status.haptic_period_p99_ms : haptic ? haptic->session().live_period_p99_ms() : -1;
+    const bool has_forces = simulation ? status.has_forces : gl_forces.has_value();
+    for (int hand = 0; hand < 2; ++hand) {
+        HudHand& h = state.hands[hand];
+        for (const InstrumentShape& shape : shapes)
+            if (shape.hand == hand) h.position_mm = shape.pose.position;
+        if (haptic) {
+            h.used = haptic->uses_hand(hand);
+            if (!h.used) continue;
+            h.device = haptic->device_spec(hand);
+            if (const auto colon = h.device.find(':'); colon != std::string::npos && h.device.find('/') != std::string::npos)
+                h.device = h.device.substr(0, colon + 1) + std::filesystem::path(h.device.substr(colon + 1)).filename().string();
+            h.instrument = to_string(haptic->instrument(hand));
+            h.max_force_n = haptic->max_force_n(hand);
+            // The simulation's force on the instrument (what the session sends on, before
+            // safety); for the mouse device what it was sent.
+            h.has_force = simulation ? status.has_forces : true;
+            h.force_n = simulation ? status.forces[hand] : haptic->latest_published_forces().hand[hand].force_n;
+            h.force_source = "on the instrument";
+            if (input.device && h.device == "mouse") {
+                h.force_source = "sent to the device";
+                // The force sent to the mouse device (world frame: its mapping is the identity).
+                h.has_force = true;
+                h.force_n = input.device->latest_force();
+                h.grabbing = (input.device_pose.buttons & 1u) != 0;
+                // Contact as the hand feels it, on the terminal too (a log, the tests): the
+                // largest force the device thread sent since the last frame.
+                const double peak = std::max(input.device->peak_force_since_last(), h.force_n.norm());
+                largest_mouse_force_n = std::max(largest_mouse_force_n, peak);
+                if (!mouse_touching && peak > 0.01) say("mouse device: touching the tissue, %.4g N\n", peak);
+                if (mouse_touching && peak == 0.0) say("mouse device: free\n");
+                mouse_touching = peak > 0.01 || (mouse_touching && peak > 0.0);
+            }
+            touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
+            continue;
+        }
+        h.used = trajectory.uses_hand(hand);
+        if (!h.used) continue;
+        h.device = hand == 0 && keyboard_hand0 ? "keyboard" : "script";
+        const InstrumentKeyframe k = hand == 0 && keyboard_hand0 ? keyboard : trajectory.at(hand, state.simulated_ms);
+        h.instrument = to_string(k.kind);
+        h.grabbing = k.grab;
+        h.has_force = has_forces;
+        h.force_n = simulation ? status.forces[hand] : gl_forces ? gl_forces->hand[hand].force_n : Eigen::Vector3d::Zero();
+        touching[std::size_t(hand)] = h.has_force && h.force_n.norm() > 0.01;
+    }
+    state.repair = repair_shown;
+    state.repair.laid = !drawn.triangles.empty();
+    state.repair.material = drawn.material;
+    state.repair.stitches = drawn.stitch_from.size();
+    state.repair.defect = has_defect;
+    if (hud_fixed) {
+        // HEARTSIM_HUD_FIXED (golden-image tests): the figures that depend on the
+        // machine's speed and on timing shown as fixed values, so the picture is the same
+        // on every run (docs/runtime.md "Screenshots and the golden image").
+        state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
+        if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
+    }
+    hud->draw(state, renderer.camera(), width, height);
+}
+
+void WindowLoop::end_frame(int width, int height, std::chrono::steady_clock::time_point draw_start) {
+    if (input.screenshot) {
+        // P: the window as seen, HUD included, beside the scenario (written atomically).
+        input.screenshot = false;
+        const std::string path = timestamped_screenshot(a.scenario_path, local_time_now());
+        try {
+            write_png(path, read_window_pixels(width, height));
+            say("screenshot: wrote %s (%dx%d)\n", path.c_str(), width, height);
+        } catch (const std::exception& e) {
+            say("screenshot: could not write %s: %s\n", path.c_str(), e.what());
+        }
+    }
+    glfwSwapBuffers(window);
+    input.redraw = false;
+    last_draw_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - draw_start).count();
+    ++frames;
+    // Drawing takes at most --draw-share of the wall clock: on a software renderer the window
+    // draws fewer frames and the simulation keeps the cores.
+    if (simulation && a.draw_share < 1.0) {
+        const double rest_ms = last_draw_ms / a.draw_share - last_draw_ms;
+        const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
+        while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
+            glfwWaitEventsTimeout(0.01);
+            if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0 || input.redraw)
+                break;
+        }
+    }
+    if (next_shot > 0 && result.steps >= next_shot) {
+        const std::string path = numbered_screenshot(a.screenshot, result.steps);
+        write_png(path, renderer.read_pixels());
+        while (next_shot <= result.steps) next_shot += a.screenshot_every;
+    }
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (s >= next_title_s) {  // the title twice a second
+        next_title_s = s + 0.5;
+        char title[256];
+        std::string forces;
+        if (input.device) {
+            const Eigen::Vector3d f = input.device->latest_force();
+            char text[96];
+            std::snprintf(text, sizeof text, ", mouse device force %.3f N%s", f.norm(), input.device_pose.buttons & 1u ? ", grab" : "");
+            forces = text;
+        }
+        if (input.estop) forces += ", EMERGENCY STOP (E releases)";
+        const double simulated_ms = simulation ? simulation->status().simulated_ms : backend.simulated_time_ms();
+        const double owed_ms = simulation ? simulation->status().owed_ms : 1e3 * s - paused_ms;
+        const double factor = owed_ms > 0 ? simulated_ms / owed_ms : 1.0;
+        std::snprintf(title, sizeof title, "heartsim — %s — %.1f fps, %.0f steps/s, %.2f× real time%s%s",
+                      a.scenario_name.c_str(), frames / s, result.steps / s, haptic && !simulation ? 1.0 : factor,
+                      input.paused ? " (paused)" : "", forces.c_str());
+        glfwSetWindowTitle(window, title);
+        if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
+            said_slow = true;
+            std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
+                        "the hand: %s\n",
+                        factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
+        }
+    }
+}
+
+ScriptedRunResult WindowLoop::finish() {
     const double wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     const char* pacing = simulation ? (haptic ? "haptic simulation on its own thread, paced to the session clock"
                                               : "simulation on its own thread, paced to the wall clock")
@@ -891,6 +739,15 @@ ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& ren
     std::printf("window: %lld frames in %.3g s (%.1f fps), %s; %.4g ms simulated, %.3g× real time\n", frames, result.wall_ms * 1e-3,
                 frames / std::max(result.wall_ms * 1e-3, 1e-9), pacing, simulated_ms, simulated_ms / std::max(result.wall_ms, 1e-9));
     return result;
+}
+
+}  // namespace
+
+ScriptedRunResult run_window(GlContext& context, Stepper& stepper, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
+                             int steps, const WindowRunOptions& a) {
+    WindowLoop loop(context, stepper, renderer, trajectory, keyboard_hand0, steps, a);
+    while (loop.running()) loop.frame();
+    return loop.finish();
 }
 
 }  // namespace heartsim

@@ -8,6 +8,7 @@
 #include "runtime/gl/gl_context.h"
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/gl/renderer.h"
+#include "runtime/stepping.h"
 #include "runtime/trajectory.h"
 
 #include "formats/scenario.h"
@@ -19,8 +20,6 @@
 
 namespace heartsim {
 
-class SlicerLink;
-
 struct WindowRunOptions {
     std::string scenario_name;      ///< for the title
     std::string scenario_path;      ///< the P key's screenshots go beside it
@@ -28,31 +27,24 @@ struct WindowRunOptions {
     int screenshot_every = 0;       ///< also OUT-000123.png after every N steps
     double draw_share = 0.1;        ///< drawing takes at most this fraction of the wall clock (cpu backend)
     const std::atomic<bool>* interrupted = nullptr;  ///< ends the loop when set (Ctrl-C)
-    /// --real-time auto: a MassScaleGovernor keeps the simulation at real time (a haptic session
-    /// steers its own: HapticRunSettings::real_time_auto).
-    bool real_time_auto = false;
     /// > 0 (--seconds): once the mass scale has changed (and with it the step), the run ends where
     /// the simulated time reaches this, ms, rather than after `steps`.
     double end_ms = 0.0;
     /// Said after the backend's name in the HUD: why it is the one simulating (e.g. "OpenGL is
     /// software"); empty: nothing.
     std::string backend_note;
-    /// --igtl: the live link to 3D Slicer, offered the state after each frame (never waits).
-    SlicerLink* link = nullptr;
-    /// Before each frame: opens the drawn mesh along the scalpel strokes finished since the last
-    /// (run_modes.h open_incisions), given the positions and strokes of the frame (both null: the
-    /// backend's own, which the window's thread steps).
-    std::function<void(const std::vector<std::array<float, 3>>* positions, const StrokeLog* strokes)> open_incisions;
     /// The scenario run: with a septal defect, the HUD says at most once a second whether the
     /// patch closes it (libmodel/closure.h), and Shift + P's patch is sized to it. Null: neither.
     const Scenario* scenario = nullptr;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no
-/// limit). `keyboard_hand0`: the arrow keys move hand 0 (no trajectory). `haptic`: a started
-/// haptic session (its devices move the instruments). Returns what run_scripted would.
-ScriptedRunResult run_window(GlContext& context, Backend& backend, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
-                             int steps, const WindowRunOptions& options, haptics::HapticRun* haptic);
+/// limit). `keyboard_hand0`: the arrow keys move hand 0 (no trajectory). The stepping core
+/// (runtime/stepping.h) steps its backend, with its haptic session where it has one (the
+/// devices move the instruments), paces it, opens the drawn mesh along the strokes before each
+/// frame and offers the frame to the live link. Returns what run_scripted would.
+ScriptedRunResult run_window(GlContext& context, Stepper& stepper, Renderer& renderer, Trajectory& trajectory, bool keyboard_hand0,
+                             int steps, const WindowRunOptions& options);
 
 /// SCENARIO-YYYYmmdd-HHMMSS`ending` beside `scenario` (the .h5) at `local_time`, with -2, -3, …
 /// appended while that name, or its recording journal (NAME.journal), exists already.

@@ -1,47 +1,23 @@
 // The window's simulation thread: docs/runtime.md "The window".
 #include "runtime/window_simulation.h"
 
-#include "runtime/real_time.h"
-
 #include <algorithm>
 #include <chrono>
 
 namespace heartsim {
 
-namespace {
 using Clock = std::chrono::steady_clock;
-double ms_between(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
-/// The real time owed to the simulation: the wall clock since the start less the time paused.
-class OwedClock {
-public:
-    /// At `now`, with the window `paused` or not: the owed time, ms (frozen while paused).
-    double owed_ms(bool paused, Clock::time_point now) {
-        if (paused != paused_) {
-            if (paused) paused_at_ = now;
-            else paused_total_ms_ += ms_between(paused_at_, now);
-            paused_ = paused;
-        }
-        return ms_between(start_, paused ? paused_at_ : now) - paused_total_ms_;
-    }
-
-private:
-    Clock::time_point start_ = Clock::now(), paused_at_{};
-    double paused_total_ms_ = 0;
-    bool paused_ = false;
-};
-}  // namespace
-
-WindowSimulation::WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options)
-    : backend_(backend), repair_(repair_of(backend)), hands_(std::in_place, trajectory), trajectory_(&trajectory),
-      options_(options), start_mass_scale_(backend.options().mass_scale) {
+WindowSimulation::WindowSimulation(Stepper& stepper, const Trajectory& trajectory, const WindowSimulationOptions& options)
+    : stepper_(stepper), backend_(stepper.backend()), repair_(repair_of(backend_)), hands_(std::in_place, trajectory),
+      trajectory_(&trajectory), options_(options), start_mass_scale_(backend_.options().mass_scale) {
     thread_ = std::thread([this] { run(); });
 }
 
-WindowSimulation::WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options)
-    : backend_(backend), repair_(repair_of(backend)), haptic_(&haptic), options_(options),
-      start_mass_scale_(backend.options().mass_scale) {
-    status_.shapes = haptic.shapes();
+WindowSimulation::WindowSimulation(Stepper& stepper, const WindowSimulationOptions& options)
+    : stepper_(stepper), backend_(stepper.backend()), repair_(repair_of(backend_)), haptic_(stepper.haptic()),
+      options_(options), start_mass_scale_(backend_.options().mass_scale) {
+    status_.shapes = haptic_->shapes();
     thread_ = std::thread([this] { run_haptic(); });
 }
 
@@ -156,11 +132,8 @@ WindowSimulation::Status WindowSimulation::status() const {
 
 void WindowSimulation::run() {
     StepClock step_clock(backend_.time_step_ms());
-    const bool any_instrument = trajectory_->uses_hand(0) || trajectory_->uses_hand(1);
     const double start_ms = backend_.simulated_time_ms();
     OwedClock clock;
-    std::optional<MassScaleGovernor> governor;
-    if (options_.real_time_auto) governor.emplace(backend_);
     bool was_paused = false;
     publish_start();
     for (;;) {
@@ -183,7 +156,7 @@ void WindowSimulation::run() {
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         const double simulated_ms = backend_.simulated_time_ms() - start_ms;
         const double dt = backend_.time_step_ms();  // changes with the mass scale
-        if (governor && paused != was_paused) governor->restart();  // a pause is no measure of speed
+        if (paused != was_paused) stepper_.restart_measuring();  // a pause is no measure of speed
         was_paused = paused;
         if ((paused && !step_once) || (!paused && simulated_ms + dt > owed_ms)) {
             // Ahead of the wall clock (or paused): wait for the next step's time, or for a request.
@@ -197,24 +170,10 @@ void WindowSimulation::run() {
             continue;
         }
         // One step, the hands posed as run_scripted poses them.
-        const long long step = status_.attempted;
-        const auto [t, t_next] = step_clock.at(step, dt);
-        for (int hand = 0; hand < 2; ++hand) {
-            if (!trajectory_->uses_hand(hand)) continue;
-            if (hand == 0 && options_.keyboard_hand0) {
-                if (keyboard_set) backend_.set_pose(0, keyboard);
-                continue;
-            }
-            hands_->apply(backend_, hand, t, t_next);
-        }
-        const StepReport report = backend_.step(1);
         std::optional<InstrumentForces> forces;
-        if (any_instrument) {
-            backend_.request_forces();
-            forces = backend_.latest_forces();
-        }
-        if (governor && !paused)
-            if (auto change = governor->observe(owed_ms, backend_.simulated_time_ms() - start_ms)) std::printf("%s\n", change->c_str());
+        const StepReport report = stepper_.step_scripted(*hands_, *trajectory_, step_clock, status_.attempted, options_.keyboard_hand0,
+                                                         keyboard_set ? std::optional(keyboard) : std::nullopt, forces);
+        if (!paused) stepper_.observe(owed_ms, backend_.simulated_time_ms() - start_ms);
         const bool received = forces.has_value();
         std::lock_guard lock(mutex_);
         if (forces) {
@@ -234,7 +193,7 @@ void WindowSimulation::run() {
 }
 
 void WindowSimulation::run_haptic() {
-    // The session's own clock paces the steps (HapticRun::step_to_real_time); pauses stop it.
+    // The session's own clock paces the steps (Stepper::step_to_real_time); pauses stop it.
     const double start_ms = backend_.simulated_time_ms();
     OwedClock clock;
     publish_start();
@@ -249,7 +208,7 @@ void WindowSimulation::run_haptic() {
             actions.swap(actions_);
         }
         for (auto& action : actions) action();
-        haptic_->set_paused(paused);  // no-op unless it changed
+        stepper_.set_paused(paused);  // no-op unless it changed
         const double owed_ms = clock.owed_ms(paused, Clock::now());
         if (reset) {
             backend_.reset_tissue();
@@ -261,7 +220,7 @@ void WindowSimulation::run_haptic() {
             haptic_->drain();
         } else {
             const long long left = options_.steps >= 0 ? options_.steps - (long long)haptic_->rows() : 100000;
-            stepped = haptic_->step_to_real_time(int(std::clamp(left, 0LL, 100000LL)), 2.0);
+            stepped = stepper_.step_to_real_time(int(std::clamp(left, 0LL, 100000LL)), 2.0);
         }
         std::unique_lock lock(mutex_);
         status_.paused = paused;

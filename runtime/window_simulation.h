@@ -3,9 +3,10 @@
 /// ahead of real time and never one step per frame; the window draws at its own rate from the
 /// latest positions it asks for. Scripted or keyboard instruments, or a haptic session (its steps
 /// to real time, so drawing never stalls the forces). With a repair (runtime/repair.h), the patch
-/// and its stitches are copied with the positions. docs/runtime.md "Window mode".
+/// and its stitches are copied with the positions. Each step goes through the stepping core
+/// (runtime/stepping.h: the hands, the pacing, --real-time auto). docs/runtime.md "Window mode".
 ///
-///     WindowSimulation simulation(backend, trajectory, {.keyboard_hand0 = true, .steps = -1});
+///     WindowSimulation simulation(stepper, trajectory, {.keyboard_hand0 = true, .steps = -1});
 ///     simulation.set_keyboard_pose(pose);              // hand 0 from the arrow keys
 ///     if (simulation.latest(positions)) renderer.render(positions, shapes);
 ///     WindowSimulation::Status s = simulation.status(); // simulated time, steps, RTF
@@ -15,6 +16,7 @@
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/gl/renderer.h"
 #include "runtime/repair.h"
+#include "runtime/stepping.h"
 #include "runtime/trajectory.h"
 
 #include <array>
@@ -32,7 +34,6 @@ namespace heartsim {
 struct WindowSimulationOptions {
     bool keyboard_hand0 = false;  ///< hand 0 follows set_keyboard_pose instead of the trajectory
     long long steps = -1;         ///< stop after this many steps (< 0: until destroyed)
-    bool real_time_auto = false;  ///< --real-time auto: a MassScaleGovernor on the thread (not with a haptic session: its own)
     /// > 0 (--seconds): once the mass scale has changed (and with it the step), the run ends where
     /// the simulated time reaches this, ms, rather than after `steps`.
     double end_ms = 0.0;
@@ -57,12 +58,12 @@ public:
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };
 
-    /// Starts the thread. `backend` and `trajectory` must outlive this object and are used by
-    /// the thread only (the caller must not step or pose the backend meanwhile).
-    WindowSimulation(Backend& backend, const Trajectory& trajectory, const WindowSimulationOptions& options);
-    /// A haptic session (started) steps to real time on the thread; the caller must not touch
-    /// `haptic` until this object is destroyed (then haptic->finish()).
-    WindowSimulation(Backend& backend, haptics::HapticRun& haptic, const WindowSimulationOptions& options);
+    /// Starts the thread. `stepper` (its backend) and `trajectory` must outlive this object and
+    /// are stepped by the thread only (the caller must not step or pose the backend meanwhile).
+    WindowSimulation(Stepper& stepper, const Trajectory& trajectory, const WindowSimulationOptions& options);
+    /// The stepper's haptic session (started) steps to real time on the thread; the caller must
+    /// not touch the session until this object is destroyed (then HapticRun::finish()).
+    WindowSimulation(Stepper& stepper, const WindowSimulationOptions& options);
     ~WindowSimulation();  ///< stops and joins
     WindowSimulation(const WindowSimulation&) = delete;
     WindowSimulation& operator=(const WindowSimulation&) = delete;
@@ -96,6 +97,7 @@ private:
     void publish_if_wanted();  ///< with the mutex held
     bool finish_at_limit();    ///< with the mutex held: true (and the final state published) at the step limit
 
+    Stepper& stepper_;
     Backend& backend_;
     RepairBackend* repair_ = nullptr;  ///< backend_ as a RepairBackend, where it is one
     std::optional<ScriptedHands> hands_;

@@ -1,11 +1,11 @@
-// The simulation side of a haptic session: devices from --device specs, the real-time step loop,
-// the haptic-rate table, recording and replay (haptic_run.h, docs/haptics.md). One file because it is one header's implementation whose parts change together: the run is
-// built from the --device and --instrument words, and the replay must apply the tools exactly as
-// the live run does (apply_tool), or a cpu replay would not reproduce the forces bit for bit.
+// The simulation side of a haptic session: devices from --device specs, the step, the
+// haptic-rate table and the recording (haptic_run.h, docs/haptics.md); the steps' pacing is the
+// stepping core's (runtime/stepping.h). The replay (replay.cpp) applies the tools with this
+// file's apply_tool, exactly as the live run does, or a cpu replay would not reproduce the forces
+// bit for bit.
 #include "runtime/haptics/haptic_run.h"
 
 #include "runtime/haptics/openhaptics.h"
-#include "runtime/repair.h"
 
 #include "formats/atomic_file.h"
 #include "formats/csv.h"
@@ -252,8 +252,8 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
         h.instrument = i < int(settings.instruments.size()) ? parse_instrument(settings.instruments[i], semi_axis)
                                                             : parse_instrument(i == 0 ? "probe" : "grabber", semi_axis);
         h.own = h.stepped = h.instrument;
-        if ((h.instrument.kind == InstrumentKind::patch || h.instrument.kind == InstrumentKind::needle) && !can_hold_patch(scenario))
-            throw no_patch_surface("--instrument " + settings.instruments[std::size_t(i)] + " for hand " + std::to_string(i));
+        if (context.check_instrument && i < int(settings.instruments.size()))
+            context.check_instrument(h.instrument, "--instrument " + settings.instruments[std::size_t(i)] + " for hand " + std::to_string(i));
         DeviceMapping& mapping = mappings[i];  // scripted, simulated and mouse devices move in the world frame
         switch (h.spec.kind) {
         case DeviceSpec::Kind::scripted: {
@@ -332,7 +332,6 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
     recording_.rules = static_cast<const SolverRules&>(backend.options());
     recording_.contact = settings.contact;
     recording_.patch_material = settings.patch_material;
-    if (settings.real_time_auto) governor_.emplace(backend);
     recording_.interpolation = to_string(settings.session.interpolation);
     recording_.rate_hz = settings.session.rate_hz;
     recording_.coupling = settings.session.coupling.enabled;
@@ -552,23 +551,12 @@ double HapticRun::ms_until_next_step() const {
     return simulated + backend_.time_step_ms() - session_->now_ms() + wall_start_ms_;
 }
 
-int HapticRun::step_to_real_time(int max_steps, double max_wall_ms) {
-    // A simulation slower than real time is always due: the wall budget returns control (to end
-    // the run on time, draw a frame) and the ticks are drained after every step.
-    const double until = session_->now_ms() + max_wall_ms;
-    int n = 0;
-    while (n < max_steps && !result_.gave_up && ms_until_next_step() <= 0.0) {
-        step();
-        ++n;
-        drain();
-        if (governor_)  // the real time owed (pauses excluded) against the simulated time
-            if (auto change = governor_->observe(session_->now_ms() - wall_start_ms_, backend_.simulated_time_ms() - start_sim_ms_)) {
-                std::printf("%s\n", change->c_str());
-                if (recording_on_) recording_.events.push_back({session_->now_ms(), -1, "mass_scale"});
-            }
-        if (session_->now_ms() >= until) break;
-    }
-    return n;
+double HapticRun::owed_ms() const { return session_->now_ms() - wall_start_ms_; }
+
+double HapticRun::simulated_ms() const { return backend_.simulated_time_ms() - start_sim_ms_; }
+
+void HapticRun::record_event(const char* what) {
+    if (recording_on_) recording_.events.push_back({session_->now_ms(), -1, what});
 }
 
 void HapticRun::set_paused(bool paused) {
@@ -576,7 +564,6 @@ void HapticRun::set_paused(bool paused) {
     const double now = session_->now_ms();
     if (paused) paused_at_ms_ = now;
     else wall_start_ms_ += now - paused_at_ms_;  // the paused interval does not count as simulation time owed
-    if (governor_) governor_->restart();
     paused_ = paused;
 }
 
@@ -784,73 +771,6 @@ std::size_t HapticRun::write_recording_now() {
     const std::size_t steps = recording_.steps.size();
     ticks_.clear();
     return steps;
-}
-
-// ------------------------------------------------------------------------------------------------
-// Replay
-
-ReplayResult replay(Backend& backend, const Recording& recording, const std::string& name, const std::function<void()>& after_step) {
-    if (recording.particles != std::int64_t(backend.size()))
-        throw InputError(name + ": recorded on " + recording.scenario + " with " + std::to_string(recording.particles) +
-                         " particles; this scenario has " + std::to_string(backend.size()));
-    const double step = backend.load_report().unscaled_dt_ms;  // at mass scale 1, as recorded
-    if (std::abs(recording.dt_ms - step) > 1e-12 * recording.dt_ms) {
-        char text[160];
-        std::snprintf(text, sizeof text, "recorded with a step of %.17g ms; this scenario's step is %.17g ms", recording.dt_ms, step);
-        throw InputError(name + ": " + text + " (another scenario, or other solver settings)");
-    }
-    if (!recording.hands[0].used && !recording.hands[1].used) throw InputError(name + ": the recording has no hand (/hand0, /hand1): nothing to replay");
-    std::array<Instrument, 2> instruments;
-    for (int i = 0; i < 2; ++i) instruments[i] = recording.instrument_at(0, i);
-    const RecordedSteps& s = recording.steps;
-    ReplayResult result;
-    const auto start = std::chrono::steady_clock::now();
-    std::vector<InstrumentForces> forces;
-    forces.reserve(s.size());
-    std::array<bool, 2> placed{false, false}, grabbing{false, false};
-    for (std::size_t k = 0; k < s.size(); ++k) {
-        // The mass scale the live step ran with (--real-time auto changes it between steps).
-        if (s.mass_scale_at(k) != backend.options().mass_scale) backend.set_mass_scale(s.mass_scale_at(k));
-        for (int i = 0; i < 2; ++i) {
-            // An instrument changed in the window (K, Shift + P, Shift + N): placed afresh, its
-            // predecessor's grab released, as the live step did.
-            if (const Instrument now = recording.instrument_at(k, i); !(now == instruments[i]))
-                instruments[i] = now, placed[i] = false, grabbing[i] = false;
-            // Exactly where the live step applied the hand's tool (not before its first usable pose).
-            if (!recording.hands[i].used || !s.applied[k][i]) continue;
-            const auto& p = s.tool_position_mm[k][i];
-            const auto& q = s.tool_orientation[k][i];
-            InstrumentPose pose;
-            pose.position = Eigen::Vector3d(p[0], p[1], p[2]);
-            pose.orientation = Eigen::Quaterniond(q[0], q[1], q[2], q[3]);
-            apply_tool(backend, i, instruments[i], pose, s.grab[k][i] != 0, placed[i], grabbing[i]);
-        }
-        backend.step(1);
-        forces.push_back(backend.instrument_forces());
-        ++result.steps;
-        if (after_step) after_step();
-    }
-    for (std::size_t k = 0; k < s.size(); ++k) {
-        const long long from = s.force_step[k];
-        if (from < 0) continue;
-        for (int i = 0; i < 2; ++i) {
-            if (!recording.hands[i].used) continue;
-            const Eigen::Vector3d recorded(s.force_n[k][i][0], s.force_n[k][i][1], s.force_n[k][i][2]);
-            const Eigen::Vector3d again = forces[std::size_t(from)].hand[i].force_n;
-            // A non-finite difference counts as infinite (never as a match).
-            const double d = std::isfinite((again - recorded).norm()) ? (again - recorded).norm() : std::numeric_limits<double>::infinity();
-            ++result.compared;
-            result.rms_difference_n += d * d;
-            if (again == recorded) ++result.identical;
-            result.max_force_n = std::max(result.max_force_n, recorded.norm());
-            if (d > result.max_difference_n || result.worst_step < 0) result.max_difference_n = std::max(d, result.max_difference_n), result.worst_step = (long long)k;
-        }
-    }
-    if (result.compared == 0)
-        throw InputError(name + ": no recorded force to compare (no step has forces: /steps/force_step is −1 throughout)");
-    if (result.compared) result.rms_difference_n = std::sqrt(result.rms_difference_n / double(result.compared));
-    result.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    return result;
 }
 
 }  // namespace heartsim::haptics

@@ -2,18 +2,18 @@
 /// @brief `heartsim run … --device SPEC [--device SPEC]`: opens the devices, runs a HapticSession
 /// beside the simulation at real time, records the session (`--record`), and replays a recording
 /// (`--replay`). The device thread is haptics.h's; this is the simulation side and the command
-/// line's vocabulary. docs/haptics.md.
+/// line's vocabulary. The pacing of its steps (and the mass scale) is the stepping core's
+/// (runtime/stepping.h Stepper::step_to_real_time). docs/haptics.md.
 ///
 ///     HapticRun run(backend, scenario, "pat1.h5", settings, {.headless = true});
 ///     run.start();
-///     while (…) run.step_to_real_time(100);   // tools → backend → step → forces → devices
+///     while (…) if (run.ms_until_next_step() <= 0) run.step(), run.drain();  // tools → backend → step → forces → devices
 ///     run.finish(result);                       // stops the thread, prints the table, writes --record
 #pragma once
 
 #include "runtime/backend.h"
 #include "runtime/haptics/haptics.h"
 #include "runtime/camera.h"
-#include "runtime/real_time.h"
 #include "runtime/instrument_shape.h"
 #include "runtime/trajectory.h"
 
@@ -74,15 +74,16 @@ struct HapticRunSettings {
     std::string record;                    ///< --record OUT.h5 ("" = none)
     std::string contact = "direct";        ///< recorded with the session
     std::string patch_material = "pericardium";  ///< --patch-material, recorded with the session
-    /// --real-time auto: a MassScaleGovernor steers the mass scale from the session's clock
-    /// (runtime/real_time.h); every step records the scale it ran with.
-    bool real_time_auto = false;
 };
 
 struct HapticRunContext {
     bool headless = true;
     /// Where devices with their own frame (mouse, openhaptics) are placed: the camera's view.
     Camera camera{};
+    /// Checks an --instrument the run can hold (a patch or a needle needs a surface for a patch
+    /// to lie on: the program's rule), given the instrument and the words that name it in an
+    /// error; throws to refuse. Empty: every instrument is taken.
+    std::function<void(const Instrument& instrument, const std::string& what)> check_instrument{};
 };
 
 /// The simulation side of a haptic session. Not thread-safe: one thread (the main one) calls
@@ -101,12 +102,15 @@ public:
     /// turning on → begin_grab, off → release) → step → forces → devices; recorded. Returns the
     /// step's report.
     StepReport step();
-    /// Steps until the simulated time reaches the session clock (real time), at most `max_steps`
-    /// and for at most about `max_wall_ms` (one step may overrun it); returns how many ran. When
-    /// the simulation is ahead it returns 0 at once.
-    int step_to_real_time(int max_steps, double max_wall_ms = 10.0);
     /// Milliseconds until the next step is due (≤ 0: now).
     double ms_until_next_step() const;
+    /// The real time owed since start(), pauses excluded, ms (the session clock).
+    double owed_ms() const;
+    /// The simulated time since start(), ms.
+    double simulated_ms() const;
+    /// An event of the session's recording at the session clock now (e.g. "mass_scale": the
+    /// stepping core changed the mass scale); nothing while nothing records.
+    void record_event(const char* what);
     /// step() calls so far (a step the watchdog restored counts: --steps limits these).
     std::size_t rows() const { return rows_; }
     /// Window pause: the real-time reference stops, so resuming does not race to catch up.
@@ -193,7 +197,6 @@ private:
     WindowDevice* window_device_ = nullptr;
     InstrumentForces last_published_forces_{};
     std::unique_ptr<HapticSession> session_;
-    std::optional<MassScaleGovernor> governor_;  ///< --real-time auto
     Recording recording_;
     Recording recording_header_;  ///< recording_'s attributes and hands, no rows (a window recording starts from it)
     std::string record_path_;     ///< where recording_ goes: --record, or the window's recording
