@@ -12,6 +12,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <utility>
 
 namespace heartsim {
 
@@ -276,6 +277,146 @@ struct SpringEnd {
     std::int32_t spring;
 };
 
+using Vectors = std::vector<Eigen::Vector3d>;
+
+/// The linear static problem of balance_rest_state at rest, K·u = M·g over its unknowns (the free
+/// particles of held pieces): springs k·n·nᵀ, supports k·I, every other particle fixed.
+struct RestStatics {
+    const Particles& p;
+    const Springs& s;
+    std::vector<std::uint8_t> unknown;      ///< per particle: 1 where it is an unknown
+    std::vector<Eigen::Vector3d> unit;      ///< per spring: its direction at rest (double)
+    std::vector<std::size_t> first;         ///< per particle and one past: its first entry in ends
+    std::vector<SpringEnd> ends;            ///< per particle, its springs and their other ends (a race-free gather)
+    std::vector<Eigen::Matrix3d> block_inverse;  ///< per particle: its diagonal block's inverse (3×3 block-Jacobi)
+
+    RestStatics(const Lattice& lattice, std::vector<std::uint8_t> unknown_particles)
+        : p(lattice.particles), s(lattice.springs), unknown(std::move(unknown_particles)) {
+        const std::size_t n = p.size();
+        unit.resize(s.size());
+        for (std::size_t q = 0; q < s.size(); ++q) {
+            const auto& a = p.rest_position[std::size_t(s.pairs[q][0])];
+            const auto& b = p.rest_position[std::size_t(s.pairs[q][1])];
+            const Eigen::Vector3d dvec(double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]);
+            unit[q] = dvec.norm() > 0 ? Eigen::Vector3d(dvec.normalized()) : Eigen::Vector3d::Zero();
+        }
+        first.assign(n + 1, 0);
+        for (const auto& [a, b] : s.pairs) ++first[std::size_t(a) + 1], ++first[std::size_t(b) + 1];
+        for (std::size_t i = 0; i < n; ++i) first[i + 1] += first[i];
+        ends.resize(first[n]);
+        std::vector<std::size_t> fill(first.begin(), first.end() - 1);
+        for (std::size_t q = 0; q < s.size(); ++q) {
+            const auto [a, b] = s.pairs[q];
+            ends[fill[std::size_t(a)]++] = {b, std::int32_t(q)};
+            ends[fill[std::size_t(b)]++] = {a, std::int32_t(q)};
+        }
+        block_inverse.assign(n, Eigen::Matrix3d::Zero());
+        tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
+            if (!unknown[i]) return;
+            Eigen::Matrix3d block = support(i) * Eigen::Matrix3d::Identity();
+            for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
+                const auto q = std::size_t(ends[e].spring);
+                block += double(s.stiffness[q]) * unit[q] * unit[q].transpose();
+            }
+            Eigen::FullPivLU<Eigen::Matrix3d> lu(block);
+            if (lu.isInvertible()) block_inverse[i] = lu.inverse();
+            else {
+                const double trace = block.trace();
+                block_inverse[i] = trace > 0 ? Eigen::Matrix3d(Eigen::Matrix3d::Identity() * (3.0 / trace)) : Eigen::Matrix3d::Zero();
+            }
+        });
+    }
+    double support(std::size_t i) const { return p.supported() ? double(p.support_stiffness[i]) : 0.0; }
+    /// y = K x over the unknowns.
+    void multiply(const Vectors& x, Vectors& y) const {
+        tbb::parallel_for(std::size_t(0), p.size(), [&](std::size_t i) {
+            if (!unknown[i]) {
+                y[i].setZero();
+                return;
+            }
+            Eigen::Vector3d sum = support(i) * x[i];
+            for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
+                const auto q = std::size_t(ends[e].spring);
+                const auto j = std::size_t(ends[e].other);
+                const Eigen::Vector3d relative = unknown[j] ? Eigen::Vector3d(x[i] - x[j]) : x[i];
+                sum += double(s.stiffness[q]) * unit[q] * unit[q].dot(relative);
+            }
+            y[i] = sum;
+        });
+    }
+    /// Σ a·b in fixed blocks, the block partials summed in order: the same result for any thread count.
+    double dot(const Vectors& a, const Vectors& b) const {
+        const std::size_t n = p.size();
+        const std::size_t block = 4096, blocks = (n + block - 1) / block;
+        std::vector<double> partial(blocks, 0.0);
+        tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t k) {
+            double sum = 0;
+            for (std::size_t i = k * block; i < std::min(n, (k + 1) * block); ++i) sum += a[i].dot(b[i]);
+            partial[k] = sum;
+        });
+        return std::accumulate(partial.begin(), partial.end(), 0.0);
+    }
+};
+
+/// Solves K·u = f by preconditioned conjugate gradients from u = 0; returns the relative residual
+/// |K·u − f|/|f| it stopped at (within the tolerance, diverging past 1e6, at a direction with no
+/// stiffness, or after max_iterations) and the iterations in `iterations`.
+double solve_sag(const RestStatics& statics, const Vectors& f, Vectors& u, const RestBalanceOptions& options, Progress& progress,
+                 int& iterations) {
+    const std::size_t n = f.size();
+    Vectors r(n), z(n), d(n), kd(n);
+    r = f;
+    for (std::size_t i = 0; i < n; ++i) z[i] = statics.block_inverse[i] * r[i];
+    d = z;
+    double rz = statics.dot(r, z);
+    const double f_norm = std::sqrt(statics.dot(f, f));
+    ProgressStage stage(progress, "balance the rest state", 0);
+    int iteration = 0;
+    double residual = 1.0;
+    for (; iteration < options.max_iterations; ++iteration) {
+        residual = std::sqrt(statics.dot(r, r)) / f_norm;
+        if (residual <= options.tolerance) break;
+        if (residual > 1e6) break;  // diverging: a load across a mechanism (below)
+        if ((iteration & 63) == 0 && progress.cancelled()) throw Cancelled();
+        statics.multiply(d, kd);
+        const double curvature = statics.dot(d, kd);
+        if (!(curvature > 0)) break;  // a direction with no stiffness: a mechanism nothing holds
+        const double alpha = rz / curvature;
+        for (std::size_t i = 0; i < n; ++i) {
+            u[i] += alpha * d[i];
+            r[i] -= alpha * kd[i];
+            z[i] = statics.block_inverse[i] * r[i];
+        }
+        const double rz_next = statics.dot(r, z);
+        const double beta = rz_next / rz;
+        rz = rz_next;
+        for (std::size_t i = 0; i < n; ++i) d[i] = z[i] + beta * d[i];
+    }
+    iterations = iteration;
+    return residual;
+}
+
+/// Pre-stress: each spring keeps the tension of the sagged shape `u` at the rest positions (its
+/// rest length the rest distance less the elongation), each support the load (its point x − u).
+void prestress(Lattice& lattice, const RestStatics& statics, const Vectors& u, RestBalanceReport& report) {
+    auto& p = lattice.particles;
+    auto& s = lattice.springs;
+    for (std::size_t q = 0; q < s.size(); ++q) {
+        const auto a = std::size_t(s.pairs[q][0]), b = std::size_t(s.pairs[q][1]);
+        if (!statics.unknown[a] && !statics.unknown[b]) continue;
+        const double elongation = statics.unit[q].dot(u[b] - u[a]);
+        const double distance = double(float_distance(p.rest_position[a], p.rest_position[b]));
+        const double rest = distance - elongation;
+        if (!(rest > 0)) throw InputError("balancing the rest state compressed a spring to zero length: the supports are far too weak");
+        s.rest_length[q] = float(rest);
+        report.max_prestrain = std::max(report.max_prestrain, std::abs(elongation) / distance);
+    }
+    if (p.supported())
+        for (std::size_t i = 0; i < p.size(); ++i)
+            if (statics.unknown[i] && p.support_stiffness[i] > 0)
+                for (int c = 0; c < 3; ++c) p.support_point[i][std::size_t(c)] = float(double(p.rest_position[i][std::size_t(c)]) - u[i][c]);
+}
+
 }  // namespace
 
 RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gravity, const RestBalanceOptions& options,
@@ -305,116 +446,21 @@ RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gr
                                   " particles in pieces that nothing holds are not balanced: they fall under gravity");
     if (unknowns == 0) return report;
 
-    // Spring directions at rest (double) and adjacency for a race-free gather.
-    std::vector<Eigen::Vector3d> unit(s.size());
-    for (std::size_t q = 0; q < s.size(); ++q) {
-        const auto& a = p.rest_position[std::size_t(s.pairs[q][0])];
-        const auto& b = p.rest_position[std::size_t(s.pairs[q][1])];
-        const Eigen::Vector3d dvec(double(b[0]) - a[0], double(b[1]) - a[1], double(b[2]) - a[2]);
-        unit[q] = dvec.norm() > 0 ? Eigen::Vector3d(dvec.normalized()) : Eigen::Vector3d::Zero();
-    }
-    std::vector<std::size_t> first(n + 1, 0);
-    for (const auto& [a, b] : s.pairs) ++first[std::size_t(a) + 1], ++first[std::size_t(b) + 1];
-    for (std::size_t i = 0; i < n; ++i) first[i + 1] += first[i];
-    std::vector<SpringEnd> ends(first[n]);
-    {
-        std::vector<std::size_t> fill(first.begin(), first.end() - 1);
-        for (std::size_t q = 0; q < s.size(); ++q) {
-            const auto [a, b] = s.pairs[q];
-            ends[fill[std::size_t(a)]++] = {b, std::int32_t(q)};
-            ends[fill[std::size_t(b)]++] = {a, std::int32_t(q)};
-        }
-    }
-    auto support = [&](std::size_t i) { return p.supported() ? double(p.support_stiffness[i]) : 0.0; };
-
-    // 3×3 block-Jacobi preconditioner: the inverse of each particle's diagonal block.
-    std::vector<Eigen::Matrix3d> block_inverse(n, Eigen::Matrix3d::Zero());
-    tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
-        if (!unknown[i]) return;
-        Eigen::Matrix3d block = support(i) * Eigen::Matrix3d::Identity();
-        for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
-            const auto q = std::size_t(ends[e].spring);
-            block += double(s.stiffness[q]) * unit[q] * unit[q].transpose();
-        }
-        Eigen::FullPivLU<Eigen::Matrix3d> lu(block);
-        if (lu.isInvertible()) block_inverse[i] = lu.inverse();
-        else {
-            const double trace = block.trace();
-            block_inverse[i] = trace > 0 ? Eigen::Matrix3d(Eigen::Matrix3d::Identity() * (3.0 / trace)) : Eigen::Matrix3d::Zero();
-        }
-    });
-
-    using Vectors = std::vector<Eigen::Vector3d>;
-    auto multiply = [&](const Vectors& x, Vectors& y) {  // y = K x over the unknowns
-        tbb::parallel_for(std::size_t(0), n, [&](std::size_t i) {
-            if (!unknown[i]) {
-                y[i].setZero();
-                return;
-            }
-            Eigen::Vector3d sum = support(i) * x[i];
-            for (std::size_t e = first[i]; e < first[i + 1]; ++e) {
-                const auto q = std::size_t(ends[e].spring);
-                const auto j = std::size_t(ends[e].other);
-                const Eigen::Vector3d relative = unknown[j] ? Eigen::Vector3d(x[i] - x[j]) : x[i];
-                sum += double(s.stiffness[q]) * unit[q] * unit[q].dot(relative);
-            }
-            y[i] = sum;
-        });
-    };
-    auto dot = [&](const Vectors& a, const Vectors& b) {
-        // Fixed blocks, serial sum of block partials: the same result for any thread count.
-        const std::size_t block = 4096, blocks = (n + block - 1) / block;
-        std::vector<double> partial(blocks, 0.0);
-        tbb::parallel_for(std::size_t(0), blocks, [&](std::size_t k) {
-            double sum = 0;
-            for (std::size_t i = k * block; i < std::min(n, (k + 1) * block); ++i) sum += a[i].dot(b[i]);
-            partial[k] = sum;
-        });
-        return std::accumulate(partial.begin(), partial.end(), 0.0);
-    };
-
-    Vectors f(n, Eigen::Vector3d::Zero()), u(n, Eigen::Vector3d::Zero()), r(n), z(n), d(n), kd(n);
+    const RestStatics statics(lattice, std::move(unknown));
+    Vectors f(n, Eigen::Vector3d::Zero()), u(n, Eigen::Vector3d::Zero());
     for (std::size_t i = 0; i < n; ++i)
-        if (unknown[i]) {
+        if (statics.unknown[i]) {
             f[i] = double(p.mass[i]) * gravity;
             report.weight_n += double(p.mass[i]) * gravity.norm();
         }
-    r = f;
-    for (std::size_t i = 0; i < n; ++i) z[i] = block_inverse[i] * r[i];
-    d = z;
-    double rz = dot(r, z);
-    const double f_norm = std::sqrt(dot(f, f));
-    ProgressStage stage(progress, "balance the rest state", 0);
-    int iteration = 0;
-    double residual = 1.0;
-    for (; iteration < options.max_iterations; ++iteration) {
-        residual = std::sqrt(dot(r, r)) / f_norm;
-        if (residual <= options.tolerance) break;
-        if (residual > 1e6) break;  // diverging: a load across a mechanism (below)
-        if ((iteration & 63) == 0 && progress.cancelled()) throw Cancelled();
-        multiply(d, kd);
-        const double curvature = dot(d, kd);
-        if (!(curvature > 0)) break;  // a direction with no stiffness: a mechanism nothing holds
-        const double alpha = rz / curvature;
-        for (std::size_t i = 0; i < n; ++i) {
-            u[i] += alpha * d[i];
-            r[i] -= alpha * kd[i];
-            z[i] = block_inverse[i] * r[i];
-        }
-        const double rz_next = dot(r, z);
-        const double beta = rz_next / rz;
-        rz = rz_next;
-        for (std::size_t i = 0; i < n; ++i) d[i] = z[i] + beta * d[i];
-    }
-    report.iterations = iteration;
+    const double residual = solve_sag(statics, f, u, options, progress, report.iterations);
     report.relative_residual = residual;
     if (!(residual <= std::max(options.tolerance, 1e-6)))
         throw InputError("the rest state cannot be balanced under gravity (conjugate gradients stopped at a relative residual of " +
-                         std::to_string(residual) + " after " + std::to_string(iteration) +
+                         std::to_string(residual) + " after " + std::to_string(report.iterations) +
                          " iterations): a part of the heart is held at too few points to resist rotation. Use {SupportOptions::region} boundary, "
                          "anchor more, or {rest_state} imaged");
 
-    // Pre-stress: each spring keeps the tension of the sagged shape at the rest positions.
     double sag_sum = 0;
     for (std::size_t i = 0; i < n; ++i) {
         const double sag = u[i].norm();
@@ -422,20 +468,7 @@ RestBalanceReport balance_rest_state(Lattice& lattice, const Eigen::Vector3d& gr
         sag_sum += sag;
     }
     report.mean_sag_mm = sag_sum / double(unknowns);
-    for (std::size_t q = 0; q < s.size(); ++q) {
-        const auto a = std::size_t(s.pairs[q][0]), b = std::size_t(s.pairs[q][1]);
-        if (!unknown[a] && !unknown[b]) continue;
-        const double elongation = unit[q].dot(u[b] - u[a]);
-        const double distance = double(float_distance(p.rest_position[a], p.rest_position[b]));
-        const double rest = distance - elongation;
-        if (!(rest > 0)) throw InputError("balancing the rest state compressed a spring to zero length: the supports are far too weak");
-        s.rest_length[q] = float(rest);
-        report.max_prestrain = std::max(report.max_prestrain, std::abs(elongation) / distance);
-    }
-    if (p.supported())
-        for (std::size_t i = 0; i < n; ++i)
-            if (unknown[i] && p.support_stiffness[i] > 0)
-                for (int c = 0; c < 3; ++c) p.support_point[i][std::size_t(c)] = float(double(p.rest_position[i][std::size_t(c)]) - u[i][c]);
+    prestress(lattice, statics, u, report);
     report.balanced = true;
     return report;
 }
