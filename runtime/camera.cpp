@@ -22,6 +22,12 @@ Eigen::Matrix3f view_basis(ViewDirection view) {
         case ViewDirection::right: back = {-1, 0, 0}, up = {0, 0, 1}; break;
         case ViewDirection::superior: back = {0, 0, 1}, up = {0, -1, 0}; break;
         case ViewDirection::inferior: back = {0, 0, -1}, up = {0, -1, 0}; break;
+        case ViewDirection::surgeon:
+            // The eye above the chest (anterior, -y) and out over the patient's right (-x); up
+            // is away from the surgeon, across the table to the patient's left (+x).
+            back = Eigen::Vector3f(-0.42f, -1.0f, 0.0f).normalized();
+            up = Eigen::Vector3f(1.0f, -0.42f, 0.0f).normalized();
+            break;
     }
     Eigen::Matrix3f basis;
     basis.col(0) = up.cross(back);
@@ -39,7 +45,8 @@ ViewDirection parse_view_direction(const std::string& name) {
     if (name == "right") return ViewDirection::right;
     if (name == "superior") return ViewDirection::superior;
     if (name == "inferior") return ViewDirection::inferior;
-    throw InputError("--view '" + name + "': expected anterior, posterior, left, right, superior or inferior");
+    if (name == "surgeon") return ViewDirection::surgeon;
+    throw InputError("--view '" + name + "': expected anterior, posterior, left, right, superior, inferior or surgeon");
 }
 
 Eigen::Vector3f Camera::eye() const { return target + orientation * Eigen::Vector3f(0, 0, distance); }

@@ -14,9 +14,13 @@ namespace heartsim {
 
 /// The default views, named by where the camera stands (world frame LPS: +x left, +y posterior,
 /// +z superior). anterior (the default): the camera in front of the patient looking posterior,
-/// superior up, the patient's left on the image's right (as facing the patient).
-enum class ViewDirection { anterior, posterior, left, right, superior, inferior };
-/// "anterior", "posterior", "left", "right", "superior" or "inferior"; throws InputError otherwise.
+/// superior up, the patient's left on the image's right (as facing the patient). surgeon: as the
+/// surgeon stands at an open chest, the patient supine and the surgeon on the patient's right:
+/// looking down on the heart's front from 23 degrees to the patient's right, the patient's left
+/// (the far side of the table) up, the head on the image's left.
+enum class ViewDirection { anterior, posterior, left, right, superior, inferior, surgeon };
+/// "anterior", "posterior", "left", "right", "superior", "inferior" or "surgeon"; throws InputError
+/// otherwise.
 ViewDirection parse_view_direction(const std::string& name);
 
 /// An orbiting perspective camera (mm, world frame).
@@ -51,7 +55,8 @@ struct LookAt {
     Eigen::Vector3f point = Eigen::Vector3f::Zero();
     std::optional<float> distance;
 };
-/// Parses "X,Y,Z" or "X,Y,Z,DISTANCE": finite numbers, DISTANCE > 0. OptionError otherwise.
+/// Parses "X,Y,Z" or "X,Y,Z,DISTANCE": finite numbers, DISTANCE > 0. OptionError naming {LookAt}
+/// (heartsim's --look-at) otherwise.
 LookAt parse_look_at(const std::string& text);
 /// Centres `camera` on the point, looking from where it looks (its orientation, the --view's,
 /// kept), from the distance given or its own. The near plane follows the distance (projection).

@@ -36,6 +36,7 @@ const char* view_name(ViewDirection view) {
         case ViewDirection::right: return "right";
         case ViewDirection::superior: return "superior";
         case ViewDirection::inferior: return "inferior";
+        case ViewDirection::surgeon: return "surgeon";
     }
     return "anterior";
 }

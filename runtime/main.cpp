@@ -109,9 +109,10 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
         ->check(CLI::Range(0.01, 1.0))
         ->capture_default_str();
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
-    run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior, or section "
+    run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior, surgeon (the "
+                                      "patient supine, seen from the surgeon's place on the patient's right), or section "
                                       "(with --clip: straight at the section plane, from the removed side)")
-        ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior", "section"}));
+        ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior", "surgeon", "section"}));
     run->add_option("--clip", a.clip,
                     "Section view: PX,PY,PZ,NX,NY,NZ, a point and a normal (mm, world LPS); the side the normal points to is not "
                     "drawn and the cut wall is shaded. centre: through the heart's centre facing the camera (the nearer half "

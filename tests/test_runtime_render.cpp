@@ -247,6 +247,29 @@ TEST(RenderCamera, DefaultAnteriorViewPutsThePatientsLeftOnTheRight) {
     EXPECT_THROW(parse_view_direction("sideways"), InputError);
 }
 
+// The surgeon's view: the patient supine, the surgeon standing on the patient's right and looking
+// down into the chest. The eye is anterior (−y) and out over the patient's right (−x), mostly
+// above; the far side of the table (the patient's left, +x) is up on the screen; facing across
+// the table, the surgeon has the patient's head (+z) on the left and the feet on the right.
+TEST(RenderCamera, TheSurgeonsViewLooksDownOnTheChestFromThePatientsRight) {
+    const Eigen::AlignedBox3f box(Eigen::Vector3f(-30, -30, -30), Eigen::Vector3f(30, 30, 30));
+    ASSERT_EQ(parse_view_direction("surgeon"), ViewDirection::surgeon);
+    const Camera camera = fit_camera(box, ViewDirection::surgeon, 1.0f);
+    const Eigen::Vector3f eye = camera.eye() - camera.target;
+    EXPECT_LT(eye.y(), 0.0f);
+    EXPECT_LT(eye.x(), 0.0f);
+    EXPECT_GT(std::abs(eye.y()), 2.0f * std::abs(eye.x())) << "mostly from above";
+    EXPECT_NEAR(eye.z(), 0.0f, 1e-3f * eye.norm());
+    const Eigen::Matrix4f vp = camera.projection(1.0f) * camera.view();
+    auto screen = [&](Eigen::Vector3f p) {
+        const Eigen::Vector4f c = vp * p.homogeneous();
+        return Eigen::Vector2f(c.x() / c.w(), c.y() / c.w());
+    };
+    EXPECT_GT(screen({30, 0, 0}).y(), 0.1f) << "the patient's left is across the table, up";
+    EXPECT_LT(screen({0, 0, 30}).x(), -0.1f) << "the head on the surgeon's left";
+    EXPECT_GT(screen({0, 0, -30}).x(), 0.1f) << "the feet on the right";
+}
+
 TEST(RenderMapping, VertexShaderEqualsTheCpuFormulaOnTheGlBackend) {
     REQUIRE_GL();
     const Scenario& scenario = phantom_scenario();
