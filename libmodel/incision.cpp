@@ -48,6 +48,18 @@ struct PointKey {
 };
 PointKey key(const Point& p) { return {p.x(), p.y(), p.z()}; }
 
+/// Per point, the sides of the box `low`–`high` it lies beyond: bit 2k below it along axis k, bit
+/// 2k + 1 above it. A triangle's box misses the box exactly where its corners share such a bit.
+std::vector<std::uint8_t> sides_beyond(const std::vector<Eigen::Vector3d>& points, const Eigen::Vector3d& low, const Eigen::Vector3d& high) {
+    std::vector<std::uint8_t> sides(points.size());
+    for (std::size_t v = 0; v < points.size(); ++v) {
+        unsigned bits = 0;
+        for (int k = 0; k < 3; ++k) bits |= (points[v][k] < low[k] ? 1u : 0u) << (2 * k) | (points[v][k] > high[k] ? 2u : 0u) << (2 * k);
+        sides[v] = std::uint8_t(bits);
+    }
+    return sides;
+}
+
 /// Whether each of `points` lies inside the closed mesh: the parity of the crossings of three
 /// rays from it, each nearly along one axis (tilted by about a thousandth, so that a ray rarely
 /// meets an edge or a vertex of a mesh whose features follow the voxel axes), the majority. Each
@@ -84,8 +96,9 @@ std::vector<std::uint8_t> inside(const std::vector<Point>& points, const std::ve
         }
         if (all.isEmpty()) continue;
         std::vector<std::size_t> near;
+        const std::vector<std::uint8_t> beyond = sides_beyond(rest, all.min(), all.max());
         for (std::size_t t = 0; t < triangles.size(); ++t)
-            if (!apart(triangles[t], all.min(), all.max())) near.push_back(t);
+            if (!(beyond[std::size_t(triangles[t][0])] & beyond[std::size_t(triangles[t][1])] & beyond[std::size_t(triangles[t][2])])) near.push_back(t);
         for (std::size_t i = 0; i < points.size(); ++i) {
             if (!column[i]) continue;
             const Kernel::Ray_3 ray(points[i], Kernel::Vector_3(d.x(), d.y(), d.z()));
@@ -119,137 +132,144 @@ IncisionMesh incision_mesh(const std::vector<std::array<float, 3>>& positions, c
     return mesh;
 }
 
-IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double gap_mm) {
-    IncisionResult result;
-    result.vertices_from = mesh.rest.size();
+namespace {
 
-    // The strip, its degenerate triangles left out (a blade that barely moved).
-    Mesh swept;
+/// The strip as a surface mesh, its degenerate triangles left out (a blade that barely moved);
+/// false with `failure` set where corefinement cannot take it, false with `failure` empty where no
+/// triangle is left.
+bool strip_mesh(const CutSurface& strip, Mesh& swept, std::string& failure) {
     std::vector<VertexIndex> strip_vertex;
     for (const auto& p : strip.points) strip_vertex.push_back(swept.add_vertex(point(p)));
     for (const auto& t : strip.triangles) {
         const Point a = point(strip.points[std::size_t(t[0])]), b = point(strip.points[std::size_t(t[1])]), c = point(strip.points[std::size_t(t[2])]);
         if (CGAL::collinear(a, b, c)) continue;
         if (swept.add_face(strip_vertex[std::size_t(t[0])], strip_vertex[std::size_t(t[1])], strip_vertex[std::size_t(t[2])]) == Mesh::null_face()) {
-            result.failure = "the swept surface folds onto itself";
-            return result;
+            failure = "the swept surface folds onto itself";
+            return false;
         }
     }
-    if (swept.number_of_faces() == 0) return result;
+    if (swept.number_of_faces() == 0) return false;
     // A blade whose path crosses its own swept surface (a loop, a sawing stroke the thinning did
     // not split): corefinement needs surfaces that do not cross themselves.
     if (pmp::does_self_intersect(swept)) {
-        result.failure = "the swept surface crosses itself (a looping or sawing stroke)";
-        return result;
+        failure = "the swept surface crosses itself (a looping or sawing stroke)";
+        return false;
     }
     for (VertexIndex v : swept.vertices())
         if (swept.is_isolated(v)) swept.remove_vertex(v);
     swept.collect_garbage();
-    const CGAL::Bbox_3 box = pmp::bbox(swept);
+    return true;
+}
 
-    // The patch: the mesh's faces whose boxes meet the strip's (every face the strip crosses, and
-    // so every face sharing an edge it crosses).
-    Mesh patch;
-    auto original = patch.add_property_map<VertexIndex, std::int32_t>("v:original", -1).first;
-    auto patch_cap = patch.add_property_map<FaceIndex, std::uint8_t>("f:cap", 0).first;
+/// The mesh's faces near the strip, as corefinement takes them: each vertex knows the mesh's
+/// vertex it is, each face its cap flag.
+struct Patch {
+    Mesh mesh;
+    Mesh::Property_map<VertexIndex, std::int32_t> original;
+    Mesh::Property_map<FaceIndex, std::uint8_t> cap;
+    std::vector<std::uint8_t> taken;  ///< per triangle of the mesh: in the patch
+};
+
+/// The patch: the mesh's faces whose boxes meet `box` (every face the strip crosses, and so every
+/// face sharing an edge it crosses), in the mesh's order. A face's box misses `box` where all its
+/// corners lie beyond the same side of it. False with `failure` set where a face cannot be taken.
+bool take_patch(const IncisionMesh& mesh, const CGAL::Bbox_3& box, Patch& patch, std::string& failure) {
+    patch.original = patch.mesh.add_property_map<VertexIndex, std::int32_t>("v:original", -1).first;
+    patch.cap = patch.mesh.add_property_map<FaceIndex, std::uint8_t>("f:cap", 0).first;
+    patch.taken.assign(mesh.triangles.size(), 0);
+    const std::vector<std::uint8_t> beyond =
+        sides_beyond(mesh.rest, Eigen::Vector3d(box.xmin(), box.ymin(), box.zmin()), Eigen::Vector3d(box.xmax(), box.ymax(), box.zmax()));
     std::unordered_map<std::int32_t, VertexIndex> patch_vertex;
-    std::vector<std::uint8_t> in_patch(mesh.triangles.size(), 0);
     auto vertex_of = [&](std::int32_t id) {
         auto [it, added] = patch_vertex.try_emplace(id);
         if (added) {
-            it->second = patch.add_vertex(point(mesh.rest[std::size_t(id)]));
-            original[it->second] = id;
+            it->second = patch.mesh.add_vertex(point(mesh.rest[std::size_t(id)]));
+            patch.original[it->second] = id;
         }
         return it->second;
     };
     for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
         const auto& tri = mesh.triangles[t];
-        CGAL::Bbox_3 face_box;
-        for (std::int32_t v : tri) face_box += point(mesh.rest[std::size_t(v)]).bbox();
-        if (!CGAL::do_overlap(face_box, box)) continue;
-        in_patch[t] = 1;
-        FaceIndex f = patch.add_face(vertex_of(tri[0]), vertex_of(tri[1]), vertex_of(tri[2]));
+        if (beyond[std::size_t(tri[0])] & beyond[std::size_t(tri[1])] & beyond[std::size_t(tri[2])]) continue;
+        patch.taken[t] = 1;
+        FaceIndex f = patch.mesh.add_face(vertex_of(tri[0]), vertex_of(tri[1]), vertex_of(tri[2]));
         if (f == Mesh::null_face()) {  // a pinch within the patch: this face on vertices of its own
             std::array<VertexIndex, 3> own;
             for (int k = 0; k < 3; ++k) {
-                own[std::size_t(k)] = patch.add_vertex(point(mesh.rest[std::size_t(tri[std::size_t(k)])]));
-                original[own[std::size_t(k)]] = tri[std::size_t(k)];
+                own[std::size_t(k)] = patch.mesh.add_vertex(point(mesh.rest[std::size_t(tri[std::size_t(k)])]));
+                patch.original[own[std::size_t(k)]] = tri[std::size_t(k)];
             }
-            f = patch.add_face(own[0], own[1], own[2]);
+            f = patch.mesh.add_face(own[0], own[1], own[2]);
             if (f == Mesh::null_face()) {
-                result.failure = "the detailed mesh has a degenerate face where the blade passed";
-                return result;
+                failure = "the detailed mesh has a degenerate face where the blade passed";
+                return false;
             }
         }
-        patch_cap[f] = mesh.cap[t];
+        patch.cap[f] = mesh.cap[t];
     }
-    result.patch_triangles = patch.number_of_faces();
-    if (patch.number_of_faces() == 0) return result;
+    return true;
+}
 
-    auto patch_constrained = patch.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
-    auto strip_constrained = swept.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
-    FaceIndex splitting = Mesh::null_face();
-    CapVisitor visitor;
-    visitor.patch = &patch;
-    visitor.cap = &patch_cap;
-    visitor.splitting = &splitting;
-    try {
-        pmp::corefine(patch, swept, CGAL::parameters::edge_is_constrained_map(patch_constrained).visitor(visitor),
-                      CGAL::parameters::edge_is_constrained_map(strip_constrained));
-    } catch (const std::exception& e) {
-        result.failure = std::string("the cut could not be traced through the detailed mesh (") + e.what() + ")";
-        return result;
-    }
-    for (auto e : patch.edges()) result.crossings += patch_constrained[e] ? 1 : 0;
-    if (result.crossings == 0) return result;  // the blade stayed outside (or wholly inside) the surface
-
-    // The new arrays: the faces away from the cut as they were, the patch's faces refined.
-    std::vector<Eigen::Vector3d> rest = mesh.rest;
-    std::vector<std::int32_t> global(patch.num_vertices(), -1);
-    for (VertexIndex v : patch.vertices()) {
-        if (original[v] >= 0) {
-            global[v] = original[v];
-        } else {
-            global[v] = std::int32_t(rest.size());
-            rest.push_back(vector(patch.point(v)));
-        }
-    }
+/// The mesh being opened: its arrays with the patch's faces refined (after the faces away from
+/// the cut, as they were), the cut's edges, and each vertex on the cut split into its fans.
+struct Opening {
+    std::vector<Eigen::Vector3d> rest;
     std::vector<std::array<std::int32_t, 3>> triangles;
     std::vector<std::uint8_t> cap;
-    triangles.reserve(mesh.triangles.size() + 4 * patch.number_of_faces());
-    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
-        if (!in_patch[t]) {
-            triangles.push_back(mesh.triangles[t]);
-            cap.push_back(mesh.cap[t]);
+    std::set<std::pair<std::int32_t, std::int32_t>> cut_edges;
+    /// Per vertex on the cut: its copies (the first the vertex itself) and the faces of each one's fan.
+    std::map<std::int32_t, std::vector<std::pair<std::int32_t, std::vector<std::size_t>>>> copies;
+};
+
+/// The mesh's arrays with the corefined patch in place of the faces it took; the first patch face
+/// goes to `result.triangles_from`.
+void refine(const IncisionMesh& mesh, const Patch& patch, const Mesh::Property_map<Mesh::Edge_index, bool>& constrained, Opening& out,
+            IncisionResult& result) {
+    out.rest = mesh.rest;
+    std::vector<std::int32_t> global(patch.mesh.num_vertices(), -1);
+    for (VertexIndex v : patch.mesh.vertices()) {
+        if (patch.original[v] >= 0) {
+            global[v] = patch.original[v];
+        } else {
+            global[v] = std::int32_t(out.rest.size());
+            out.rest.push_back(vector(patch.mesh.point(v)));
         }
-    result.triangles_from = triangles.size();
-    for (FaceIndex f : patch.faces()) {
+    }
+    out.triangles.reserve(mesh.triangles.size() + 4 * patch.mesh.number_of_faces());
+    out.cap.reserve(out.triangles.capacity());
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+        if (!patch.taken[t]) {
+            out.triangles.push_back(mesh.triangles[t]);
+            out.cap.push_back(mesh.cap[t]);
+        }
+    result.triangles_from = out.triangles.size();
+    for (FaceIndex f : patch.mesh.faces()) {
         std::array<std::int32_t, 3> tri{};
         int k = 0;
-        for (VertexIndex v : CGAL::vertices_around_face(patch.halfedge(f), patch)) tri[std::size_t(k++)] = global[v];
-        triangles.push_back(tri);
-        cap.push_back(patch_cap[f]);
+        for (VertexIndex v : CGAL::vertices_around_face(patch.mesh.halfedge(f), patch.mesh)) tri[std::size_t(k++)] = global[v];
+        out.triangles.push_back(tri);
+        out.cap.push_back(patch.cap[f]);
     }
-    std::set<std::pair<std::int32_t, std::int32_t>> cut_edges;
-    for (auto e : patch.edges())
-        if (patch_constrained[e]) {
-            const std::int32_t a = global[patch.vertex(e, 0)], b = global[patch.vertex(e, 1)];
-            cut_edges.insert({std::min(a, b), std::max(a, b)});
+    for (auto e : patch.mesh.edges())
+        if (constrained[e]) {
+            const std::int32_t a = global[patch.mesh.vertex(e, 0)], b = global[patch.mesh.vertex(e, 1)];
+            out.cut_edges.insert({std::min(a, b), std::max(a, b)});
         }
+}
 
-    // Split each vertex on the cut into its fans: the faces around it joined across edges that
-    // are not cut. The first fan keeps the vertex; each other fan gets a copy.
+/// Splits each vertex on the cut into its fans: the faces around it joined across edges that are
+/// not cut. The first fan keeps the vertex; each other fan gets a copy.
+void split_into_fans(Opening& out, std::size_t triangles_from) {
     std::map<std::int32_t, std::vector<std::size_t>> around;
-    for (const auto& [a, b] : cut_edges) {
+    for (const auto& [a, b] : out.cut_edges) {
         around.try_emplace(a);
         around.try_emplace(b);
     }
     // A vertex on a cut edge lies on the strip, so every face around it meets the strip's box: the
     // patch's faces are all of them.
-    for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
-        for (std::int32_t v : triangles[t])
+    for (std::size_t t = triangles_from; t < out.triangles.size(); ++t)
+        for (std::int32_t v : out.triangles[t])
             if (auto it = around.find(v); it != around.end()) it->second.push_back(t);
-    std::map<std::int32_t, std::vector<std::pair<std::int32_t, std::vector<std::size_t>>>> copies;  // vertex → (id, fan faces)
     for (auto& [v, faces] : around) {
         std::vector<int> fan(faces.size(), -1);
         int fans = 0;
@@ -263,11 +283,11 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
                 for (std::size_t j = 0; j < faces.size(); ++j) {
                     if (fan[j] >= 0) continue;
                     // faces i and j share an edge (v, w) that is not cut
-                    for (std::int32_t w : triangles[faces[i]]) {
+                    for (std::int32_t w : out.triangles[faces[i]]) {
                         if (w == v) continue;
-                        const auto& tj = triangles[faces[j]];
+                        const auto& tj = out.triangles[faces[j]];
                         if (std::find(tj.begin(), tj.end(), w) == tj.end()) continue;
-                        if (cut_edges.count({std::min(v, w), std::max(v, w)})) continue;
+                        if (out.cut_edges.count({std::min(v, w), std::max(v, w)})) continue;
                         fan[j] = fans;
                         stack.push_back(j);
                         break;
@@ -276,46 +296,48 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
             }
             ++fans;
         }
-        auto& list = copies[v];
+        auto& list = out.copies[v];
         for (int k = 0; k < fans; ++k) {
             std::int32_t id = v;
             if (k > 0) {
-                id = std::int32_t(rest.size());
-                rest.push_back(rest[std::size_t(v)]);
+                id = std::int32_t(out.rest.size());
+                out.rest.push_back(out.rest[std::size_t(v)]);
             }
             std::vector<std::size_t> members;
             for (std::size_t i = 0; i < faces.size(); ++i)
                 if (fan[i] == k) {
                     members.push_back(faces[i]);
-                    for (auto& corner : triangles[faces[i]])
+                    for (auto& corner : out.triangles[faces[i]])
                         if (corner == v) corner = id;
                 }
             list.push_back({id, std::move(members)});
         }
     }
+}
 
-    // Both caps share the strip's border (the crack's front); an edge through the strip's inside
-    // between two border vertices would then be shared by both caps twice over. Such an edge is
-    // split at its middle (and its two faces with it): the middle is the strip's inside, one copy
-    // per side.
-    {
-        std::vector<Mesh::Edge_index> chords;
-        for (auto e : swept.edges())
-            if (!swept.is_border(e) && !strip_constrained[e] && swept.is_border(swept.vertex(e, 0)) && swept.is_border(swept.vertex(e, 1)))
-                chords.push_back(e);
-        for (auto e : chords) {
-            const auto h = swept.halfedge(e);
-            const Point middle = CGAL::midpoint(swept.point(swept.source(h)), swept.point(swept.target(h)));
-            const auto split = CGAL::Euler::split_edge(h, swept);  // split → the new vertex
-            swept.point(swept.target(split)) = middle;
-            // Each of the two faces, now four-sided, in two triangles through the new vertex.
-            CGAL::Euler::split_face(split, swept.next(swept.next(split)), swept);
-            const auto across = swept.opposite(split);
-            CGAL::Euler::split_face(swept.prev(across), swept.next(across), swept);
-        }
+/// Both caps share the strip's border (the crack's front); an edge through the strip's inside
+/// between two border vertices would then be shared by both caps twice over. Such an edge is split
+/// at its middle (and its two faces with it): the middle is the strip's inside, one copy per side.
+void split_chords(Mesh& swept, const Mesh::Property_map<Mesh::Edge_index, bool>& constrained) {
+    std::vector<Mesh::Edge_index> chords;
+    for (auto e : swept.edges())
+        if (!swept.is_border(e) && !constrained[e] && swept.is_border(swept.vertex(e, 0)) && swept.is_border(swept.vertex(e, 1)))
+            chords.push_back(e);
+    for (auto e : chords) {
+        const auto h = swept.halfedge(e);
+        const Point middle = CGAL::midpoint(swept.point(swept.source(h)), swept.point(swept.target(h)));
+        const auto split = CGAL::Euler::split_edge(h, swept);  // split → the new vertex
+        swept.point(swept.target(split)) = middle;
+        // Each of the two faces, now four-sided, in two triangles through the new vertex.
+        CGAL::Euler::split_face(split, swept.next(swept.next(split)), swept);
+        const auto across = swept.opposite(split);
+        CGAL::Euler::split_face(swept.prev(across), swept.next(across), swept);
     }
+}
 
-    // The strip's faces in regions between the cut curves; a region inside the tissue is a cap.
+/// Whether each of the strip's faces lies inside the tissue: the strip in regions between the cut
+/// curves, each region inside where the centroid of its first face is (inside).
+std::vector<std::uint8_t> faces_inside(const Mesh& swept, const Mesh::Property_map<Mesh::Edge_index, bool>& constrained, const IncisionMesh& mesh) {
     Eigen::AlignedBox3d mesh_box;
     for (const auto& x : mesh.rest) mesh_box.extend(x);
     std::vector<int> region(swept.num_faces(), -1);
@@ -329,7 +351,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
             const FaceIndex f = stack.back();
             stack.pop_back();
             for (auto h : CGAL::halfedges_around_face(swept.halfedge(f), swept)) {
-                if (strip_constrained[swept.edge(h)]) continue;
+                if (constrained[swept.edge(h)]) continue;
                 const FaceIndex g = swept.face(swept.opposite(h));
                 if (g == Mesh::null_face() || region[g] >= 0) continue;
                 region[g] = regions;
@@ -341,17 +363,30 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         ++regions;
     }
     const std::vector<std::uint8_t> region_inside = inside(centres, mesh.rest, mesh.triangles, mesh_box);
+    std::vector<std::uint8_t> face_inside(swept.num_faces(), 0);
+    for (FaceIndex f : swept.faces()) face_inside[f] = region_inside[std::size_t(region[f])];
+    return face_inside;
+}
 
-    // The caps: side + (the strip's normal side) takes the faces reversed, side − as they are.
-    std::map<PointKey, std::int32_t> on_curve;  // points of the cut curves → their vertex (before the split)
-    for (const auto& [v, list] : copies) on_curve[key(point(rest[std::size_t(v)]))] = v;
-    std::map<std::pair<std::size_t, int>, std::int32_t> strip_copy;  // (strip vertex, side) → vertex
-    std::map<std::int32_t, Eigen::Vector3d> slit_normal;              // vertex → summed normals of its cap faces
+/// The caps of one opening, and the copies of the vertices on their rims that move apart.
+struct Caps {
+    std::vector<std::array<std::int32_t, 3>> faces;
+    std::map<std::int32_t, Eigen::Vector3d> slit_normal;  ///< vertex → summed normals of its cap faces
     std::map<std::int32_t, int> slit_side;
+};
+
+/// The caps: the strip's faces inside the tissue, side + (the strip's normal side) with the faces
+/// reversed, side − as they are, each on the copies of its own side; the strip's faces they came
+/// from go to `result.cut_faces`.
+Caps make_caps(const Mesh& swept, const std::vector<std::uint8_t>& face_inside, Opening& out, IncisionResult& result) {
+    Caps caps;
+    std::map<PointKey, std::int32_t> on_curve;  // points of the cut curves → their vertex (before the split)
+    for (const auto& [v, list] : out.copies) on_curve[key(point(out.rest[std::size_t(v)]))] = v;
+    std::map<std::pair<std::size_t, int>, std::int32_t> strip_copy;  // (strip vertex, side) → vertex
     auto cap_vertex = [&](VertexIndex s, int side, const Eigen::Vector3d& normal) -> std::int32_t {
         const Point& p = swept.point(s);
         if (auto it = on_curve.find(key(p)); it != on_curve.end()) {
-            const auto& list = copies[it->second];
+            const auto& list = out.copies[it->second];
             if (list.size() == 1) return list.front().first;  // the crack's front: shared
             // the copy whose fan lies on `side` of the cap face
             double best = 0.0;
@@ -359,31 +394,30 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
             for (const auto& [id, fan] : list) {
                 double lean = 0.0;
                 for (std::size_t t : fan)
-                    for (std::int32_t w : triangles[t]) lean += (rest[std::size_t(w)] - vector(p)).dot(normal);
+                    for (std::int32_t w : out.triangles[t]) lean += (out.rest[std::size_t(w)] - vector(p)).dot(normal);
                 if (side * lean > best) {
                     best = side * lean;
                     chosen = id;
                 }
             }
-            slit_normal.try_emplace(chosen, Eigen::Vector3d::Zero()).first->second += normal;
-            slit_side[chosen] = side;
+            caps.slit_normal.try_emplace(chosen, Eigen::Vector3d::Zero()).first->second += normal;
+            caps.slit_side[chosen] = side;
             return chosen;
         }
         const bool front = swept.is_border(s);
         auto [it, added] = strip_copy.try_emplace({std::size_t(s), front ? 0 : side});
         if (added) {
-            it->second = std::int32_t(rest.size());
-            rest.push_back(vector(p));
+            it->second = std::int32_t(out.rest.size());
+            out.rest.push_back(vector(p));
         }
         if (!front) {
-            slit_normal.try_emplace(it->second, Eigen::Vector3d::Zero()).first->second += normal;
-            slit_side[it->second] = side;
+            caps.slit_normal.try_emplace(it->second, Eigen::Vector3d::Zero()).first->second += normal;
+            caps.slit_side[it->second] = side;
         }
         return it->second;
     };
-    std::vector<std::array<std::int32_t, 3>> caps;
     for (FaceIndex f : swept.faces()) {
-        if (!region_inside[std::size_t(region[f])]) continue;
+        if (!face_inside[f]) continue;
         std::array<VertexIndex, 3> s{};
         int k = 0;
         for (VertexIndex v : CGAL::vertices_around_face(swept.halfedge(f), swept)) s[std::size_t(k++)] = v;
@@ -392,69 +426,124 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
         if (!normal.allFinite()) continue;
         const std::array<std::int32_t, 3> plus{cap_vertex(s[0], +1, normal), cap_vertex(s[2], +1, normal), cap_vertex(s[1], +1, normal)};
         const std::array<std::int32_t, 3> minus{cap_vertex(s[0], -1, normal), cap_vertex(s[1], -1, normal), cap_vertex(s[2], -1, normal)};
-        caps.push_back(plus);
-        caps.push_back(minus);
+        caps.faces.push_back(plus);
+        caps.faces.push_back(minus);
         result.cut_faces.push_back({a, b, c});
     }
-    if (caps.empty()) {
-        result.failure = "the cut meets the surface but no part of the swept surface lies inside the tissue";
-        return result;
-    }
+    return caps;
+}
 
-    // The slit at rest: each side's copies `gap`/2 into their own side.
-    for (const auto& [id, normal] : slit_normal) {
+/// The slit at rest (each side's copies `gap`/2 into their own side), the normals of the added
+/// vertices, and the caps appended to the faces.
+void part_and_shade(const IncisionMesh& mesh, const Caps& caps, double gap_mm, Opening& out, std::vector<Eigen::Vector3f>& normals,
+                    IncisionResult& result) {
+    for (const auto& [id, normal] : caps.slit_normal) {
         const Eigen::Vector3d n = normal.normalized();
         if (!n.allFinite()) continue;
-        rest[std::size_t(id)] += 0.5 * gap_mm * slit_side[id] * n;
+        out.rest[std::size_t(id)] += 0.5 * gap_mm * caps.slit_side.at(id) * n;
         if (std::size_t(id) < result.vertices_from) result.moved.push_back(id);
     }
-
     // Normals: an added vertex on the surface takes its faces' area-weighted normal; a vertex of
     // the caps only, none (the caps are shaded flat).
-    std::vector<Eigen::Vector3f> normals = mesh.normals;
-    normals.resize(rest.size(), Eigen::Vector3f::Zero());
-    std::vector<Eigen::Vector3d> summed(rest.size() - result.vertices_from, Eigen::Vector3d::Zero());
-    for (std::size_t f = result.triangles_from; f < triangles.size(); ++f) {  // an added vertex lies on the patch's faces only
-        const auto& t = triangles[f];
-        const Eigen::Vector3d n = (rest[std::size_t(t[1])] - rest[std::size_t(t[0])]).cross(rest[std::size_t(t[2])] - rest[std::size_t(t[0])]);
+    normals = mesh.normals;
+    normals.resize(out.rest.size(), Eigen::Vector3f::Zero());
+    std::vector<Eigen::Vector3d> summed(out.rest.size() - result.vertices_from, Eigen::Vector3d::Zero());
+    for (std::size_t f = result.triangles_from; f < out.triangles.size(); ++f) {  // an added vertex lies on the patch's faces only
+        const auto& t = out.triangles[f];
+        const Eigen::Vector3d n =
+            (out.rest[std::size_t(t[1])] - out.rest[std::size_t(t[0])]).cross(out.rest[std::size_t(t[2])] - out.rest[std::size_t(t[0])]);
         for (std::int32_t v : t)
             if (std::size_t(v) >= result.vertices_from) summed[std::size_t(v) - result.vertices_from] += n;
     }
     for (std::size_t k = 0; k < summed.size(); ++k)
         if (summed[k].squaredNorm() > 0) normals[result.vertices_from + k] = summed[k].normalized().cast<float>();
+    for (const auto& c : caps.faces) {
+        out.triangles.push_back(c);
+        out.cap.push_back(1);
+    }
+    result.cap_triangles = caps.faces.size();
+}
 
-    for (const auto& c : caps) {
-        triangles.push_back(c);
-        cap.push_back(1);
+/// Whether the new faces (from `from` on: the patch's and the caps) close up with each other and
+/// with the faces around them: each of their directed edges once among all faces, its reverse
+/// once. A face with such an edge has both its ends, so only the edges between two corners of new
+/// faces are counted.
+bool closes_up(const std::vector<std::array<std::int32_t, 3>>& triangles, std::size_t from, std::size_t vertices) {
+    std::vector<std::uint8_t> touched(vertices, 0);
+    for (std::size_t t = from; t < triangles.size(); ++t)
+        for (std::int32_t v : triangles[t]) touched[std::size_t(v)] = 1;
+    auto edge = [](std::int32_t a, std::int32_t b) { return std::uint64_t(std::uint32_t(a)) << 32 | std::uint32_t(b); };
+    std::vector<std::uint64_t> directed;
+    for (const auto& t : triangles)
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+            if (touched[std::size_t(a)] && touched[std::size_t(b)]) directed.push_back(edge(a, b));
+        }
+    std::sort(directed.begin(), directed.end());
+    auto count = [&](std::uint64_t e) {
+        const auto [first, last] = std::equal_range(directed.begin(), directed.end(), e);
+        return last - first;
+    };
+    for (std::size_t t = from; t < triangles.size(); ++t)
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = triangles[t][std::size_t(k)], b = triangles[t][std::size_t((k + 1) % 3)];
+            if (count(edge(a, b)) != 1 || count(edge(b, a)) != 1) return false;
+        }
+    return true;
+}
+
+}  // namespace
+
+IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double gap_mm) {
+    IncisionResult result;
+    result.vertices_from = mesh.rest.size();
+    Mesh swept;
+    if (!strip_mesh(strip, swept, result.failure)) return result;
+    Patch patch;
+    if (!take_patch(mesh, pmp::bbox(swept), patch, result.failure)) return result;
+    result.patch_triangles = patch.mesh.number_of_faces();
+    if (patch.mesh.number_of_faces() == 0) return result;
+
+    auto patch_constrained = patch.mesh.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
+    auto strip_constrained = swept.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
+    FaceIndex splitting = Mesh::null_face();
+    CapVisitor visitor;
+    visitor.patch = &patch.mesh;
+    visitor.cap = &patch.cap;
+    visitor.splitting = &splitting;
+    try {
+        pmp::corefine(patch.mesh, swept, CGAL::parameters::edge_is_constrained_map(patch_constrained).visitor(visitor),
+                      CGAL::parameters::edge_is_constrained_map(strip_constrained));
+    } catch (const std::exception& e) {
+        result.failure = std::string("the cut could not be traced through the detailed mesh (") + e.what() + ")";
+        return result;
     }
-    result.cap_triangles = caps.size();
-    // The new faces (the patch's and the caps) must close up with each other and with the faces
-    // around them; where the geometry defeated the split, the mesh stays as it was.
-    {
-        std::vector<std::uint8_t> touched(rest.size(), 0);
-        for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
-            for (std::int32_t v : triangles[t]) touched[std::size_t(v)] = 1;
-        std::map<std::pair<std::int32_t, std::int32_t>, int> directed;
-        for (const auto& t : triangles)
-            if (touched[std::size_t(t[0])] || touched[std::size_t(t[1])] || touched[std::size_t(t[2])])
-                for (int k = 0; k < 3; ++k) ++directed[{t[std::size_t(k)], t[std::size_t((k + 1) % 3)]}];
-        for (std::size_t t = result.triangles_from; t < triangles.size(); ++t)
-            for (int k = 0; k < 3; ++k) {
-                const std::int32_t a = triangles[t][std::size_t(k)], b = triangles[t][std::size_t((k + 1) % 3)];
-                const auto back = directed.find({b, a});
-                if (directed[{a, b}] != 1 || back == directed.end() || back->second != 1) {
-                    IncisionResult failed;
-                    failed.vertices_from = result.vertices_from;
-                    failed.patch_triangles = result.patch_triangles;
-                    failed.failure = "the split along the cut did not close up (the swept surface meets the mesh too intricately there)";
-                    return failed;
-                }
-            }
+    for (auto e : patch.mesh.edges()) result.crossings += patch_constrained[e] ? 1 : 0;
+    if (result.crossings == 0) return result;  // the blade stayed outside (or wholly inside) the surface
+
+    Opening out;
+    refine(mesh, patch, patch_constrained, out, result);
+    split_into_fans(out, result.triangles_from);
+    split_chords(swept, strip_constrained);
+    const Caps caps = make_caps(swept, faces_inside(swept, strip_constrained, mesh), out, result);
+    if (caps.faces.empty()) {
+        result.failure = "the cut meets the surface but no part of the swept surface lies inside the tissue";
+        return result;
     }
-    mesh.rest = std::move(rest);
+    std::vector<Eigen::Vector3f> normals;
+    part_and_shade(mesh, caps, gap_mm, out, normals, result);
+    // Where the geometry defeated the split, the mesh stays as it was.
+    if (!closes_up(out.triangles, result.triangles_from, out.rest.size())) {
+        IncisionResult failed;
+        failed.vertices_from = result.vertices_from;
+        failed.patch_triangles = result.patch_triangles;
+        failed.failure = "the split along the cut did not close up (the swept surface meets the mesh too intricately there)";
+        return failed;
+    }
+    mesh.rest = std::move(out.rest);
     mesh.normals = std::move(normals);
-    mesh.triangles = std::move(triangles);
-    mesh.cap = std::move(cap);
+    mesh.triangles = std::move(out.triangles);
+    mesh.cap = std::move(out.cap);
     result.opened = true;
     return result;
 }
