@@ -6,6 +6,7 @@
 #include "mapping_embedding.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <optional>
 #include <cmath>
@@ -92,6 +93,20 @@ class CapIndex {
 public:
     explicit CapIndex(double size) : size_(size) {}
 
+    /// The faces that last stopped a segment from one point, the latest first: tested before the
+    /// buckets (the segments from a point beside the cuts are mostly stopped by the same few faces,
+    /// and a point walled in by cuts asks of every particle within reach). A face the segment
+    /// passes through lies in a bucket the segment meets, so the answer is the same.
+    struct Blockers {
+        std::array<std::int32_t, 8> face{};
+        std::size_t count = 0;
+        void remember(std::int32_t f) {
+            if (count < face.size()) ++count;
+            std::copy_backward(face.begin(), face.begin() + std::ptrdiff_t(count) - 1, face.begin() + std::ptrdiff_t(count));
+            face[0] = f;
+        }
+    };
+
     std::size_t size() const { return faces_.size(); }
 
     void add(const std::array<Eigen::Vector3d, 3>& face) {
@@ -133,14 +148,26 @@ public:
 
     /// Whether the segment a–b passes through one of the faces from the `from`-th on (its ends
     /// touching one do not count). Looks in the buckets the segment meets (their cells grown as
-    /// a face's), each face once; `tests` counts the faces it tested.
-    bool crosses(const Eigen::Vector3d& a, const Eigen::Vector3d& b, std::size_t from = 0, std::size_t* tests = nullptr) const {
+    /// a face's), each face once, after the faces `recent` holds (which keeps the face found);
+    /// `tests` counts the faces it tested.
+    bool crosses(const Eigen::Vector3d& a, const Eigen::Vector3d& b, std::size_t from = 0, std::size_t* tests = nullptr,
+                 Blockers* recent = nullptr) const {
         if (from >= faces_.size()) return false;
         if (++query_ == 0) {  // the stamps wrapped round: none counts as seen
             std::fill(seen_.begin(), seen_.end(), 0u);
             query_ = 1;
         }
         seen_.resize(faces_.size(), 0u);
+        for (std::size_t r = 0; recent && r < recent->count; ++r) {
+            const auto f = std::size_t(recent->face[r]);
+            if (f < from || f >= faces_.size() || seen_[f] == query_) continue;
+            seen_[f] = query_;
+            if (tests) ++*tests;
+            if (through(a, b, faces_[f])) {  // to the front
+                std::rotate(recent->face.begin(), recent->face.begin() + std::ptrdiff_t(r), recent->face.begin() + std::ptrdiff_t(r) + 1);
+                return true;
+            }
+        }
         const Eigen::Vector3d low = a.cwiseMin(b), high = a.cwiseMax(b), d = b - a;
         const double margin = 1e-3 * size_;
         for (long k = cell(low.z() - margin); k <= cell(high.z() + margin); ++k)
@@ -160,7 +187,10 @@ public:
                         if (seen_[std::size_t(*t)] == query_) continue;
                         seen_[std::size_t(*t)] = query_;
                         if (tests) ++*tests;
-                        if (through(a, b, faces_[std::size_t(*t)])) return true;
+                        if (through(a, b, faces_[std::size_t(*t)])) {
+                            if (recent) recent->remember(*t);
+                            return true;
+                        }
                     }
                 }
             }
@@ -508,8 +538,9 @@ std::size_t IncisionState::reembed(const IncisionResult& result, const Eigen::Al
         }
         const Eigen::Vector3d& x = mesh_.rest[v];
         settled.clear_of = faces;  // embedded in particles on its own side: its carriers cross no cut
+        CapIndex::Blockers blockers;
         mapping_internal::Embedding e =
-            impl_->embedder.embed(x, [&](std::int32_t p) { return !caps.crosses(x, particle_rest_[std::size_t(p)]); });
+            impl_->embedder.embed(x, [&](std::int32_t p) { return !caps.crosses(x, particle_rest_[std::size_t(p)], 0, nullptr, &blockers); });
         if (!e.found()) {  // no particle on its side nearby: the nearest any side, tested against every cut next time
             const bool stranded = e.far_found < 8;
             e = impl_->embedder.embed(x);
