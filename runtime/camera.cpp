@@ -107,7 +107,7 @@ Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspe
 }
 
 LookAt parse_look_at(const std::string& text) {
-    const std::string expected = "--look-at '" + text + "': expected X,Y,Z or X,Y,Z,DISTANCE: the point to centre the view on and the "
+    const std::string expected = "{LookAt} '" + text + "': expected X,Y,Z or X,Y,Z,DISTANCE: the point to centre the view on and the "
                                  "camera's distance from it (mm, world LPS; DISTANCE above 0)";
     std::vector<double> values;
     std::size_t start = 0;
@@ -125,9 +125,9 @@ LookAt parse_look_at(const std::string& text) {
     // The point as --clip's and a trajectory's (a float keeps them to the µm); the distance as far.
     for (int a = 0; a < 3; ++a)
         if (!plausible::coordinate_mm.contains(values[std::size_t(a)]))
-            throw OptionError("--look-at '" + text + "': " + plausible::outside(std::string(1, "XYZ"[a]), values[std::size_t(a)], plausible::coordinate_mm));
+            throw OptionError("{LookAt} '" + text + "': " + plausible::outside(std::string(1, "XYZ"[a]), values[std::size_t(a)], plausible::coordinate_mm));
     if (values.size() == 4 && values[3] > plausible::coordinate_mm.high)
-        throw OptionError("--look-at '" + text + "': " + plausible::outside("DISTANCE", values[3], {0.0, plausible::coordinate_mm.high, "mm"}));
+        throw OptionError("{LookAt} '" + text + "': " + plausible::outside("DISTANCE", values[3], {0.0, plausible::coordinate_mm.high, "mm"}));
     LookAt look;
     look.point = Eigen::Vector3f(float(values[0]), float(values[1]), float(values[2]));
     if (values.size() == 4) {
