@@ -74,7 +74,7 @@ public:
         task();
         return step(1);
     }
-    PatchStepper* patch_stepper() override { return tissue_.patch_stepper(); }
+    // patch_stepper(): none to offer: the wrapped backend's is this repair's own (to_device).
 
     /// The patch, once laid; nullptr before. Where the backend's device steps it, this reads it
     /// back first (the gl backend: waits for the GPU).
