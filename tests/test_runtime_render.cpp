@@ -872,3 +872,52 @@ TEST(RenderCoronaries, AnArteryIsDrawnWhereItsCourseProjectsAndMovesWithTheTissu
     ASSERT_GE(left_behind.size(), 3u) << "the grab moved part of the course by more than the artery's width";
     EXPECT_LE(stayed, int(left_behind.size() / 5)) << "the artery left where the tissue left";
 }
+
+// The section's cut through a grown wall: the phantom cut through its centre, once as built (its
+// walls labelled), once with every material marked grown and once with its first material alone
+// (the myocardium) marked grown. The pixels in the grown walls' ochre are none, then every pixel
+// that was cut colour (the same geometry), then some but not all; ochre and the labelled cut colour
+// never share a pixel.
+TEST(RenderSection, AGrownWallIsCutInItsOwnColourBesideTheLabelledMyocardium) {
+    REQUIRE_GL();
+    const int size = 256;
+    auto section_of = [&](const Scenario& scenario) {
+        std::unique_ptr<Backend> backend = make_cpu_backend(scenario, options_from(scenario.solver));
+        Renderer renderer(scenario, {.width = size, .height = size});
+        renderer.set_section(SectionPlane{renderer.model_centre(), Eigen::Vector3f(0, -1, 0)});
+        renderer.render(*backend, {});
+        return renderer.read_pixels();
+    };
+    auto ochre = [](const Image& image) {
+        std::size_t n = 0;
+        for (std::size_t p = 0; p + 2 < image.pixels.size(); p += 3) {
+            bool same = true;
+            for (std::size_t c = 0; c < 3; ++c) same = same && std::abs(int(image.pixels[p + c]) - grown_wall_cut_rgb[c]) <= 2;
+            n += same;
+        }
+        return n;
+    };
+    const Scenario& built = phantom_scenario();
+    const Image labelled = section_of(built);
+    const std::size_t cut = cut_pixels(labelled);
+    ASSERT_GT(cut, 500u);
+    EXPECT_EQ(ochre(labelled), 0u);
+
+    Scenario all = built;
+    all.tissue_origin.assign(all.lattice.materials.size(), TissueOrigin{});
+    for (TissueOrigin& o : all.tissue_origin) o.grown = true, o.thickness_mm = 2.0;
+    const Image grown = section_of(all);
+    EXPECT_EQ(cut_pixels(grown), 0u);
+    EXPECT_EQ(ochre(grown), cut);
+
+    std::printf("  %zu pixels of cut wall; all ochre when every material is grown\n", cut);
+    if (all.lattice.materials.size() > 1) {
+        Scenario first = built;
+        first.tissue_origin.assign(first.lattice.materials.size(), TissueOrigin{});
+        first.tissue_origin[0].grown = true;
+        const Image part = section_of(first);
+        std::printf("  the first of %zu materials grown: %zu ochre, %zu labelled cut\n", first.lattice.materials.size(), ochre(part),
+                    cut_pixels(part));
+        EXPECT_LE(ochre(part) + cut_pixels(part), cut);
+    }
+}

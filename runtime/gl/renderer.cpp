@@ -41,8 +41,9 @@ struct VertexRecord {
     std::int32_t carrier[8];
     float weight[8];
     float rest_position[3];  ///< where the surface detail is looked up
+    float grown;             ///< the carriers' weighted share of grown wall (the section's cut colour)
 };
-static_assert(sizeof(VertexRecord) == 128);
+static_assert(sizeof(VertexRecord) == 132);
 
 void check(const char* what) { check_gl_error("renderer", what); }
 
@@ -127,6 +128,7 @@ struct Renderer::State {
     std::optional<DrawnPatch> patch;  ///< as last set; nullopt: none
 
     std::vector<std::array<float, 3>> rest_particles;  ///< the particles' rest positions (rest frame normals)
+    std::vector<float> particle_grown;                  ///< 1 for a particle of a grown wall; empty: none grown
     const SimulationSurface* surface = nullptr;          ///< the scenario's (outlives the renderer's use)
     std::size_t mesh_memory = 0;                        ///< bytes of the records, elements and sheet buffers
     int cap_first = -1;                                 ///< the first cap triangle, or -1
@@ -160,6 +162,9 @@ struct Renderer::State {
             const float length = m.norm();
             for (int k = 0; k < 3; ++k) r.rest_frame_normal[k] = length > 0 ? m[k] / length : 0.0f;
             for (int k = 0; k < 3; ++k) r.rest_position[k] = positions[v][std::size_t(k)];
+            r.grown = 0.0f;
+            if (!particle_grown.empty())
+                for (std::size_t k = 0; k < 8; ++k) r.grown += weights[k] * particle_grown[std::size_t(carriers[k])];
         }
         std::vector<std::uint32_t> elements;
         elements.reserve(3 * triangles.size());
@@ -182,7 +187,7 @@ struct Renderer::State {
         memory += mesh_memory;
         if (!vao) {
             glCreateVertexArrays(1, vao.create());
-            for (GLuint a = 0; a < 10; ++a) {
+            for (GLuint a = 0; a < 11; ++a) {
                 glEnableVertexArrayAttrib(vao, a);
                 glVertexArrayAttribBinding(vao, a, 0);
             }
@@ -196,6 +201,7 @@ struct Renderer::State {
             glVertexArrayAttribFormat(vao, 7, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight));
             glVertexArrayAttribFormat(vao, 8, 4, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, weight) + 16);
             glVertexArrayAttribFormat(vao, 9, 3, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, rest_position));
+            glVertexArrayAttribFormat(vao, 10, 1, GL_FLOAT, GL_FALSE, offsetof(VertexRecord, grown));
         }
         glVertexArrayVertexBuffer(vao, 0, this->records, 0, sizeof(VertexRecord));
         glVertexArrayElementBuffer(vao, this->elements);
@@ -408,6 +414,15 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
 
     s.rest_particles = rest;
     s.surface = &surface;
+    // Which particles belong to a wall heartprep grew (/materials/origin).
+    if (std::any_of(scenario.tissue_origin.begin(), scenario.tissue_origin.end(), [](const TissueOrigin& o) { return o.grown; })) {
+        const auto& material = scenario.lattice.particles.material;
+        s.particle_grown.assign(rest.size(), 0.0f);
+        for (std::size_t i = 0; i < std::min(rest.size(), material.size()); ++i) {
+            const std::size_t row = std::size_t(material[i]);
+            s.particle_grown[i] = row < scenario.tissue_origin.size() && scenario.tissue_origin[row].grown ? 1.0f : 0.0f;
+        }
+    }
     if (s.visual) {
         const VisualMesh& visual = *scenario.visual;
         s.load_visual(visual.positions, visual.normals, visual.triangles, *scenario.mapping, -1);
@@ -446,7 +461,7 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
         for (std::size_t i = 0; i < s.particles; ++i) {
             const std::int32_t p = std::int32_t(i);
             records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0},
-                          {rest[i][0], rest[i][1], rest[i][2]}};
+                          {rest[i][0], rest[i][1], rest[i][2]}, s.particle_grown.empty() ? 0.0f : s.particle_grown[i]};
         }
         for (const auto& t : surface.triangles)
             for (int k = 0; k < 3; ++k) {
@@ -653,6 +668,8 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
         glProgramUniform4fv(s.mesh_program, glGetUniformLocation(s.mesh_program, "section_plane"), 1, equation.data());
         glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "cut_color"), float(section_cut_rgb[0]) / 255.0f,
                            float(section_cut_rgb[1]) / 255.0f, float(section_cut_rgb[2]) / 255.0f);
+        glProgramUniform3f(s.mesh_program, glGetUniformLocation(s.mesh_program, "grown_cut_color"), float(grown_wall_cut_rgb[0]) / 255.0f,
+                           float(grown_wall_cut_rgb[1]) / 255.0f, float(grown_wall_cut_rgb[2]) / 255.0f);
     }
     s.bind_mesh(positions);
     s.bind_coronaries();

@@ -57,6 +57,11 @@ Image read_window_pixels(int width, int height);
 /// the lit surface (whose green is at least 0.41 of its red), so no lit pixel takes it.
 inline constexpr std::array<int, 3> section_cut_rgb = {138, 34, 26};
 
+/// The flat colour of a wall heartprep grew where the labels showed only blood (docs/user-guide.md
+/// "Walls"), cut in the section view, 8-bit RGB: an ochre beside the labelled myocardium's
+/// section_cut_rgb, so a section shows which wall the image gave and which the build added.
+inline constexpr std::array<int, 3> grown_wall_cut_rgb = {184, 112, 44};
+
 /// The base colour of an incision's cut faces (the caps), 8-bit RGB, lit with their face normals:
 /// a deeper, darker red than the epicardium's (0.80, 0.33, 0.30).
 inline constexpr std::array<int, 3> incision_cap_rgb = {150, 40, 36};

@@ -51,12 +51,14 @@ layout(location = 6) in ivec4 carrier_hi;       // i_4..i_7
 layout(location = 7) in vec4 weight_lo;         // their weights w_0..w_3
 layout(location = 8) in vec4 weight_hi;         // w_4..w_7
 layout(location = 9) in vec3 rest_position;     // the visual vertex at rest, world mm
+layout(location = 10) in float grown;           // its carriers' share of grown wall (0: labelled tissue)
 uniform mat4 view_projection;
 out vec3 world_position;
 out vec3 shading_normal;
 out vec3 rest_point;                            // where the surface detail is looked up
 out vec3 rest_shading_normal;                   // the detail's tangent plane at rest
 out vec4 rest_turn;                             // (k, c): the turn from rest to now (Rodrigues)
+out float grown_share;
 void main() {
     vec3 na = n[particle.x].xyz, nb = n[particle.y].xyz, nc = n[particle.z].xyz;
     precise vec3 p = weight_lo.x * x[carrier_lo.x].xyz;
@@ -86,6 +88,7 @@ void main() {
     shading_normal = s;
     rest_point = rest_position;
     rest_shading_normal = rest_normal;
+    grown_share = grown;
     gl_Position = view_projection * vec4(p, 1.0);
 }
 )";
@@ -122,7 +125,9 @@ void main() {
 /// vertex's turn from rest to now carries the tilted normal along: the detail follows every
 /// deformation without more geometry. Coloured as seen through the fat: the artery red, the fat
 /// around it yellow. Elsewhere on the muscle, its fibres' fine ridges (fibre_phase), carried the
-/// same way.
+/// same way. In the section view, the cut through a wall heartprep grew (the vertex's carrying
+/// particles mostly of a grown material) is flat in grown_cut_color beside the labelled
+/// myocardium's cut_color.
 inline constexpr const char* fragment_shader = R"(
 layout(std430, binding = BINDING_SHEET_TRIANGLES) readonly buffer SheetBuffer { uint sheet[]; };
 in vec3 world_position;
@@ -131,6 +136,8 @@ in vec3 shading_normal;
 in vec3 rest_point;
 in vec3 rest_shading_normal;
 in vec4 rest_turn;
+in float grown_share;
+uniform vec3 grown_cut_color;  // the section's cut through a wall heartprep grew
 uniform bool coronaries_on;
 uniform sampler3D coronary_field;
 uniform vec3 field_origin;     // the first node, mm
@@ -223,6 +230,9 @@ void main() {
         if (dot(section_plane.xyz, world_position) + section_plane.w > 0.0) discard;
         if (!gl_FrontFacing && sheet[gl_PrimitiveID] == 0u) {
             colour = vec4(cut_color, 1.0);
+#ifdef SURFACE_DETAIL
+            if (grown_share > 0.5) colour = vec4(grown_cut_color, 1.0);
+#endif
             return;
         }
     }
