@@ -83,7 +83,7 @@ inline constexpr OptionFlag heartprep_flags[] = {
 };
 
 /// heartsim's flags for the options its runtime parts name (runtime/slicer_link.h,
-/// section_plane.h, camera.h, real_time.h, trajectory.h, incision_plan.h, repair_plan.h,
+/// section_plane.h, camera.h, contact.h, real_time.h, trajectory.h, incision_plan.h, repair_plan.h,
 /// haptics/haptic_run.h).
 inline constexpr OptionFlag heartsim_flags[] = {
     {"SlicerLinkOptions::endpoint", "--igtl"},
@@ -92,6 +92,8 @@ inline constexpr OptionFlag heartsim_flags[] = {
     {"RealTimeMode", "--real-time"},
     {"SectionRequest", "--clip"},
     {"LookAt", "--look-at"},
+    {"ViewDirection", "--view"},
+    {"ContactMode", "--contact"},
     {"fixed_probe", "--probe"},
     {"fixed_grabber", "--grab"},
     {"IncisionPlanOptions::approach", "--approach"},

@@ -46,7 +46,7 @@ ViewDirection parse_view_direction(const std::string& name) {
     if (name == "superior") return ViewDirection::superior;
     if (name == "inferior") return ViewDirection::inferior;
     if (name == "surgeon") return ViewDirection::surgeon;
-    throw InputError("--view '" + name + "': expected anterior, posterior, left, right, superior, inferior or surgeon");
+    throw InputError("{ViewDirection} '" + name + "': expected anterior, posterior, left, right, superior, inferior or surgeon");
 }
 
 Eigen::Vector3f Camera::eye() const { return target + orientation * Eigen::Vector3f(0, 0, distance); }

@@ -8,7 +8,7 @@ ContactMode parse_contact_mode(const std::string& name) {
     if (name == "direct") return ContactMode::direct;
     if (name == "picking") return ContactMode::picking;
     if (name == "search") return ContactMode::search;
-    throw InputError("--contact must be direct, picking or search, not '" + name + "'");
+    throw InputError("{ContactMode} must be direct, picking or search, not '" + name + "'");
 }
 
 const char* to_string(ContactMode mode) {

@@ -9,7 +9,8 @@
 namespace heartsim {
 
 enum class ContactMode { direct, picking, search };
-/// "direct", "picking" or "search"; throws InputError otherwise.
+/// "direct", "picking" or "search"; throws InputError naming {ContactMode} (heartsim's --contact)
+/// otherwise.
 ContactMode parse_contact_mode(const std::string& name);
 const char* to_string(ContactMode mode);
 

@@ -266,7 +266,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
                 recorded_hand = which[0] - '0';
                 file = file.substr(0, at);
             }
-            if (!std::filesystem::exists(file)) throw InputError("--device " + h.spec.text + ": " + file + ": no such file");
+            if (!std::filesystem::exists(file)) throw InputError("{HapticRunSettings::devices} " + h.spec.text + ": " + file + ": no such file");
             std::vector<PoseKeyframe> keyframes;
             const std::string e = lower_extension(file);
             if (e == ".h5" || e == ".hdf5") {
@@ -287,7 +287,7 @@ HapticRun::HapticRun(Backend& backend, const Scenario& scenario, const std::stri
             break;
         }
         case DeviceSpec::Kind::simulated:
-            if (!std::filesystem::exists(h.spec.argument)) throw InputError("--device " + h.spec.text + ": " + h.spec.argument + ": no such file");
+            if (!std::filesystem::exists(h.spec.argument)) throw InputError("{HapticRunSettings::devices} " + h.spec.text + ": " + h.spec.argument + ": no such file");
             h.device = std::make_unique<SimulatedDevice>(read_simulated_device(h.spec.argument));
             break;
         case DeviceSpec::Kind::mouse: {
