@@ -495,6 +495,13 @@ private:
         }
         const std::string reason = put_on_surface(points, l, true);
         if (!reason.empty()) return add_missing(name, reason);
+        if (l.length_mm < options_.min_course_mm) {
+            char text[300];
+            std::snprintf(text, sizeof text,
+                          "the detailed surface shows %.1f mm of its groove, less than %.3g mm: it does not pass over that junction",
+                          l.length_mm, options_.min_course_mm);
+            return add_missing(name, text);
+        }
         result_.found.push_back(std::move(l));
     }
 

@@ -18,7 +18,7 @@
 ///               interventricular groove from base to apex; an atrioventricular groove by angle
 ///               round its valve's ring, from the end farther from the crux to the crux), each
 ///               step's vertices averaged, the longest run of steps, then moved to the nearest
-///               surface vertex: an ordered polyline.
+///               surface vertex: an ordered polyline, at least `min_course_mm` long.
 ///   ring        the voxel faces where two blood labels touch (the orifice); its plane fitted to
 ///               them (centre, normal from the first blood to the second); in each of
 ///               `ring_sectors` angular sectors about the centre, the face farthest out: the rim,
@@ -98,6 +98,7 @@ struct LandmarkOptions {
     double groove_reach_mm = 12.0;        ///< both distances at most this on a groove
     double av_plane_reach_mm = 12.0;      ///< an atrioventricular groove's vertices at most this far from its valve's plane
     double course_step_mm = 2.0;          ///< spacing of a course's points
+    double min_course_mm = 20.0;          ///< a shorter course is a fragment of its groove: missing
     int ring_sectors = 48;                ///< angular sectors of a ring's rim
     double max_surface_distance_mm = 2.0; ///< farther from the surface: not on it, left out
 };

@@ -13,10 +13,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <functional>
 #include <random>
 #include <set>
+#include <tuple>
 
 using namespace heartsim;
 
@@ -285,19 +288,29 @@ void check_real_heart(const LabelVolume& v, const LabelConvention& c, const Tria
         EXPECT_LE(brute_distance(rv, p), 13.0) << "lad point " << p.transpose();
     }
     EXPECT_GE(lad->length_mm, 30.0);
+    double lad_lv = 0, lad_rv = 0;
+    for (const auto& p : lad->points) lad_lv = std::max(lad_lv, brute_distance(lv, p)), lad_rv = std::max(lad_rv, brute_distance(rv, p));
+    std::printf("%s: anterior descending course %zu points, %.1f mm, at most %.1f mm from the left ventricle's blood and %.1f mm "
+                "from the right's\n",
+                whole_heart ? "walls grown" : "labelled wall", lad->points.size(), lad->length_mm, lad_lv, lad_rv);
     // From base to apex: it ends farther from the atria than it starts.
     EXPECT_GT(brute_distance(la, lad->points.back()), brute_distance(la, lad->points.front()));
     if (!whole_heart) return;
     // The atrioventricular rings lie between atrial and ventricular blood: each point within two
-    // voxel diagonals of both (a rim face is half a voxel from each; the surface a wall's vertex away).
-    const double near = 2.0 * std::sqrt(3.0) * voxel;
+    // voxels of both (a rim face is half a voxel from each; the wall's surface vertex beside it
+    // less than a voxel farther).
+    const double near = 2.0 * voxel;
     for (const auto& [name, atrium, ventricle] : {std::tuple{"tricuspid_ring", &ra, &rv}, std::tuple{"mitral_ring", &la, &lv}}) {
         const Landmark* ring = landmarks.find(name);
         ASSERT_NE(ring, nullptr) << name;
+        double far = 0;
         for (const auto& p : ring->points) {
             EXPECT_LE(brute_distance(*atrium, p), near) << name << " " << p.transpose();
             EXPECT_LE(brute_distance(*ventricle, p), near) << name << " " << p.transpose();
+            far = std::max({far, brute_distance(*atrium, p), brute_distance(*ventricle, p)});
         }
+        std::printf("%s: %zu points, %.1f mm across, each at most %.2f mm from both bloods' voxel centres (bound %.2f)\n", name,
+                    ring->points.size(), ring->diameter_mm, far, near);
     }
     // Anatomy: each atrioventricular valve's ring is wider than its ventricle's outflow ring,
     // and all lie between 10 and 50 mm across.
