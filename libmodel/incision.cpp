@@ -210,6 +210,51 @@ bool take_patch(const IncisionMesh& mesh, const CGAL::Bbox_3& box, Patch& patch,
     return true;
 }
 
+/// Whether two of the patch's faces around one vertex lie in one plane and one of them has a
+/// corner inside the other: a triangle folded onto its neighbour (an earlier slit may move a
+/// vertex a little across a mesh edge close beside the cut). Corefinement cannot take such a
+/// surface (it crosses itself).
+bool folded(const Mesh& patch) {
+    auto strictly_inside = [](const Point& p, const Point& a, const Point& b, const Point& c) {
+        return CGAL::coplanar_orientation(a, b, c, p) == CGAL::POSITIVE && CGAL::coplanar_orientation(b, c, a, p) == CGAL::POSITIVE &&
+               CGAL::coplanar_orientation(c, a, b, p) == CGAL::POSITIVE;
+    };
+    // Faces whose normals (in double) are not parallel within a millionth of a radian do not lie in
+    // one plane: only the others take the exact tests.
+    std::vector<Eigen::Vector3d> normal(patch.num_faces());
+    for (FaceIndex f : patch.faces()) {
+        const auto h = patch.halfedge(f);
+        const Eigen::Vector3d a = vector(patch.point(patch.source(h))), b = vector(patch.point(patch.target(h))),
+                              c = vector(patch.point(patch.target(patch.next(h))));
+        normal[f] = (b - a).cross(c - a);
+    }
+    std::vector<FaceIndex> around;
+    for (VertexIndex v : patch.vertices()) {
+        around.clear();
+        for (FaceIndex f : CGAL::faces_around_target(patch.halfedge(v), patch))
+            if (f != Mesh::null_face()) around.push_back(f);
+        for (std::size_t i = 0; i < around.size(); ++i)
+            for (std::size_t j = i + 1; j < around.size(); ++j) {
+                const Eigen::Vector3d& m = normal[around[i]];
+                const Eigen::Vector3d& n = normal[around[j]];
+                if (m.cross(n).squaredNorm() > 1e-12 * m.squaredNorm() * n.squaredNorm()) continue;
+                std::array<Point, 3> a, b;
+                int k = 0;
+                for (VertexIndex w : CGAL::vertices_around_face(patch.halfedge(around[i]), patch)) a[std::size_t(k++)] = patch.point(w);
+                k = 0;
+                for (VertexIndex w : CGAL::vertices_around_face(patch.halfedge(around[j]), patch)) b[std::size_t(k++)] = patch.point(w);
+                if (CGAL::orientation(a[0], a[1], a[2], b[0]) != CGAL::COPLANAR || CGAL::orientation(a[0], a[1], a[2], b[1]) != CGAL::COPLANAR ||
+                    CGAL::orientation(a[0], a[1], a[2], b[2]) != CGAL::COPLANAR || CGAL::collinear(a[0], a[1], a[2]) || CGAL::collinear(b[0], b[1], b[2]))
+                    continue;
+                for (const Point& p : b)
+                    if (strictly_inside(p, a[0], a[1], a[2])) return true;
+                for (const Point& p : a)
+                    if (strictly_inside(p, b[0], b[1], b[2])) return true;
+            }
+    }
+    return false;
+}
+
 /// The mesh being opened: its arrays with the patch's faces refined (after the faces away from
 /// the cut, as they were), the cut's edges, and each vertex on the cut split into its fans.
 struct Opening {
@@ -504,6 +549,10 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     result.patch_triangles = patch.mesh.number_of_faces();
     if (patch.mesh.number_of_faces() == 0) return result;
 
+    if (folded(patch.mesh)) {
+        result.failure = "the detailed mesh folds onto itself where the blade passed (an earlier slit moved a vertex across a mesh edge beside it)";
+        return result;
+    }
     auto patch_constrained = patch.mesh.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
     auto strip_constrained = swept.add_property_map<Mesh::Edge_index, bool>("e:constrained", false).first;
     FaceIndex splitting = Mesh::null_face();

@@ -514,3 +514,42 @@ TEST(Incision, APreviewAfterEarlierStrokesLeavesNoTraceOnceItLifts) {
     EXPECT_EQ(previewed.mapping().particles, direct.mapping().particles);
     EXPECT_EQ(previewed.mapping().weights, direct.mapping().weights);
 }
+
+// Two through-cuts crossing at a right angle (one across x, then one across y, each through the
+// whole block along z, a hundredth of a millimetre beside a column of the box mesh's vertices):
+// the first's slit moves a vertex of the bottom face 0.015 mm across the mesh edge beside it,
+// folding a triangle onto its neighbour. Corefinement cannot take a surface that crosses itself
+// (with its checks off, as in a release build, it reads past its arrays), so the second cut is
+// refused with a message that says so, and the mesh stays as the first cut left it: closed, in
+// two pieces, bit for bit.
+TEST(Incision, ACutAcrossAnEarlierSlitThatFoldedATriangleIsRefusedAndTheMeshKept) {
+    const CutModel m = cut_model(12, 12, 4);
+    IncisionState incisions(m.lattice, m.box.positions, {}, m.box.triangles, m.mapping, m.surface);
+    const auto& rest = m.lattice.particles.rest_position;
+    const std::vector<PlaneCut> cuts{between_columns(m, 0, 5), between_columns(m, 1, 5)};
+    StrokeLog log;
+    {
+        double length = 0.0;
+        const std::vector<InstrumentPose> poses = plane_cut_poses(m, cuts[0], 4, length);
+        for (std::size_t k = 1; k < poses.size(); ++k) log.sweep(0, poses[k - 1], poses[k], length);
+        log.lift(0);
+        const IncisionUpdate first = incisions.update(log, rest, false);
+        ASSERT_TRUE(first.opened) << (first.failures.empty() ? "" : first.failures[0]);
+    }
+    const std::vector<std::array<std::int32_t, 3>> first_triangles = incisions.drawn_triangles();
+    const std::vector<Eigen::Vector3d> first_rest = incisions.mesh().rest;
+
+    double length = 0.0;
+    const std::vector<InstrumentPose> poses = plane_cut_poses(m, cuts[1], 4, length);
+    for (std::size_t k = 1; k < poses.size(); ++k) log.sweep(0, poses[k - 1], poses[k], length);
+    log.lift(0);
+    const IncisionUpdate second = incisions.update(log, rest, false);
+    EXPECT_FALSE(second.opened);
+    ASSERT_EQ(second.failures.size(), 1u);
+    EXPECT_NE(second.failures[0].find("folds onto itself"), std::string::npos) << second.failures[0];
+    EXPECT_EQ(incisions.drawn_triangles(), first_triangles);
+    EXPECT_EQ(incisions.mesh().rest, first_rest);
+    std::string why;
+    EXPECT_TRUE(closed_manifold(incisions.drawn_triangles(), &why)) << why;
+    EXPECT_EQ(count_components(incisions.mesh().triangles, incisions.mesh().rest.size()), 2u);
+}
