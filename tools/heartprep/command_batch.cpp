@@ -260,7 +260,8 @@ void fill_figures(const Scenario& s, Outcome& outcome) {
 
 /// The content key of a case: SHA-256 of its input's content (label_map_sha256: a detached
 /// header's data file too), its build options and the heartprep
-/// version with the scenario format (a build of a newer format is not skipped as up to date).
+/// version with the scenario format and the build's defaults (a build of a newer format, or one whose
+/// defaults make something else, is not skipped as up to date).
 /// `heartprep build --batch-key` stores it in the scenario; batch and the Snakemake workflow
 /// (workflow/Snakefile, through `batch --plan`) skip a case whose scenario carries it.
 std::string content_key(const BatchCase& c) {
@@ -271,7 +272,7 @@ std::string content_key(const BatchCase& c) {
         content = sha256_file(c.input);  // a header the reader refuses: its build fails and says why
     }
     return sha256_text(content + "\n" + c.options + "\nheartprep " + HEARTSIM_VERSION + " format " +
-                       std::to_string(scenario_format_version));
+                       std::to_string(scenario_format_version) + " defaults " + std::to_string(build_defaults_revision));
 }
 
 /// Whether the scenario at `output` was built from `key` (and kept its build's warnings, so the

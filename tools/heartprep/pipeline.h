@@ -51,6 +51,11 @@ struct DefectChoice {
     double max_wall_mm = 20.0;           ///< --max-wall
 };
 
+/// What `heartprep build` makes by default, as a number that changes when a default changes what it
+/// makes (a batch's content key holds it, so a batch rebuilds rather than reuses a case built by the
+/// old defaults). 2: walls grown where the labels show only blood.
+inline constexpr int build_defaults_revision = 2;
+
 /// Walls grown where the labels show blood without wall (libmodel/walls.h, docs/user-guide.md
 /// "Walls grown where the labels show only blood").
 struct WallChoice {
