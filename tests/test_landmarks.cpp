@@ -437,3 +437,18 @@ TEST(LandmarkBuild, ABuildStoresTheLandmarksOnItsSurfaceAndInspectListsThem) {
     const auto table = test::run_command(test::quoted(HEARTPREP_EXE) + " inspect " + test::quoted(pool_out.string()));
     EXPECT_NE(table.output.find("mitral_ring: missing: HVSMR 2016 labels one blood pool for every chamber"), std::string::npos) << table.output;
 }
+
+TEST(LandmarkRealHearts, AnHvsmrHeartHasOneBloodPoolSoEveryLandmarkIsMissingWithTheReason) {
+    const auto input = test::real_case("hvsmr16_pat1");
+    if (input.empty()) GTEST_SKIP() << "real data absent (../shared/data/real/hvsmr16_pat1)";
+    const LabelVolume v = read_label_volume(input);
+    const LabelConvention& hvsmr = *find_label_convention("hvsmr2016");
+    const ChamberLabels chambers = chamber_labels_from_names(hvsmr.names);
+    EXPECT_EQ(chambers.left_ventricle, 0);
+    EXPECT_EQ(chambers.right_ventricle, 0);
+    const TriangleMesh surface = marching_cubes(mask_of(v, [&](int l) { return l == hvsmr.myocardium; }));
+    const Landmarks landmarks = find_landmarks(v, chambers, surface, {}, "HVSMR 2016 labels one blood pool for every chamber");
+    EXPECT_TRUE(landmarks.found.empty());
+    EXPECT_EQ(landmarks.missing.size(), landmark_names().size());
+    for (const auto& m : landmarks.missing) EXPECT_NE(m.reason.find("one blood pool"), std::string::npos) << m.name << ": " << m.reason;
+}
