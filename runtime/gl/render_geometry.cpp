@@ -1,5 +1,6 @@
-// The renderer's geometry made on the host (render_geometry.h), and a patch as the renderer
-// draws it (renderer.h drawn_patch, patch_rgb): no GL here.
+// The renderer's geometry made on the host (render_geometry.h): the records and lists its passes
+// read, the instruments' sphere, the sheets; and a patch as the renderer draws it (renderer.h
+// drawn_patch, patch_rgb). No GL here.
 #include "runtime/gl/render_geometry.h"
 
 #include <algorithm>
@@ -15,6 +16,52 @@ namespace {
 Eigen::Vector3f to_vector(const std::array<float, 3>& a) { return {a[0], a[1], a[2]}; }
 
 }  // namespace
+
+std::vector<float> grown_particles(const Scenario& scenario) {
+    std::vector<float> grown;
+    if (std::any_of(scenario.tissue_origin.begin(), scenario.tissue_origin.end(), [](const TissueOrigin& o) { return o.grown; })) {
+        const auto& rest = scenario.lattice.particles.rest_position;
+        const auto& material = scenario.lattice.particles.material;
+        grown.assign(rest.size(), 0.0f);
+        for (std::size_t i = 0; i < std::min(rest.size(), material.size()); ++i) {
+            const std::size_t row = std::size_t(material[i]);
+            grown[i] = row < scenario.tissue_origin.size() && scenario.tissue_origin[row].grown ? 1.0f : 0.0f;
+        }
+    }
+    return grown;
+}
+
+SurfaceIncidence surface_incidence(const SimulationSurface& surface, std::size_t particles) {
+    SurfaceIncidence lists;
+    std::vector<std::uint32_t> count(particles, 0);
+    for (std::size_t row = 0; row < surface.triangles.size(); ++row)
+        if (surface.normal_weight[row])
+            for (int v : surface.triangles[row]) ++count[std::size_t(v)];
+    std::vector<std::uint32_t> slot_of(particles, 0);
+    for (std::size_t i = 0; i < particles; ++i)
+        if (count[i]) {
+            slot_of[i] = lists.start.back();
+            lists.surface_list.push_back(std::uint32_t(i));
+            lists.start.push_back(lists.start.back() + count[i]);
+        }
+    lists.incidence.resize(lists.start.back());
+    for (std::size_t row = 0; row < surface.triangles.size(); ++row) {
+        if (!surface.normal_weight[row]) continue;
+        const auto& t = surface.triangles[row];
+        for (int v : t) lists.incidence[slot_of[std::size_t(v)]++] = {t[0], t[1], t[2], 0};
+    }
+    return lists;
+}
+
+std::vector<VertexRecord> particle_records(const std::vector<std::array<float, 3>>& rest, const std::vector<float>& grown) {
+    std::vector<VertexRecord> records(rest.size());
+    for (std::size_t i = 0; i < rest.size(); ++i) {
+        const std::int32_t p = std::int32_t(i);
+        records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0},
+                      {rest[i][0], rest[i][1], rest[i][2]}, grown.empty() ? 0.0f : grown[i]};
+    }
+    return records;
+}
 
 /// The unit sphere the instruments are drawn with (latitude-longitude, 32 × 16).
 void unit_sphere(std::vector<float>& vertices, std::vector<std::uint32_t>& indices) {

@@ -32,19 +32,6 @@ namespace {
 
 namespace sh = gl_shaders;
 
-struct VertexRecord {
-    std::int32_t particle[3];
-    float lambda[3];
-    float offset;
-    float rest_normal[3];
-    float rest_frame_normal[3];
-    std::int32_t carrier[8];
-    float weight[8];
-    float rest_position[3];  ///< where the surface detail is looked up
-    float grown;             ///< the carriers' weighted share of grown wall (the section's cut colour)
-};
-static_assert(sizeof(VertexRecord) == 132);
-
 void check(const char* what) { check_gl_error("renderer", what); }
 
 GLuint compile(GLenum stage, const char* source, const char* name, const char* defines = "") {
@@ -414,38 +401,15 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
 
     s.rest_particles = rest;
     s.surface = &surface;
-    // Which particles belong to a wall heartprep grew (/materials/origin).
-    if (std::any_of(scenario.tissue_origin.begin(), scenario.tissue_origin.end(), [](const TissueOrigin& o) { return o.grown; })) {
-        const auto& material = scenario.lattice.particles.material;
-        s.particle_grown.assign(rest.size(), 0.0f);
-        for (std::size_t i = 0; i < std::min(rest.size(), material.size()); ++i) {
-            const std::size_t row = std::size_t(material[i]);
-            s.particle_grown[i] = row < scenario.tissue_origin.size() && scenario.tissue_origin[row].grown ? 1.0f : 0.0f;
-        }
-    }
+    s.particle_grown = grown_particles(scenario);
     if (s.visual) {
         const VisualMesh& visual = *scenario.visual;
         s.load_visual(visual.positions, visual.normals, visual.triangles, *scenario.mapping, -1);
         for (const auto& p : visual.positions) s.box.extend(to_vector(p));
 
-        // Incidence list over the counted triangles, per surface particle in row order (counting sort).
-        std::vector<std::uint32_t> count(s.particles, 0);
-        for (std::size_t row = 0; row < surface.triangles.size(); ++row)
-            if (surface.normal_weight[row])
-                for (int v : surface.triangles[row]) ++count[std::size_t(v)];
-        std::vector<std::uint32_t> surface_list, start{0}, slot_of(s.particles, 0);
-        for (std::size_t i = 0; i < s.particles; ++i)
-            if (count[i]) {
-                slot_of[i] = start.back();
-                surface_list.push_back(std::uint32_t(i));
-                start.push_back(start.back() + count[i]);
-            }
-        std::vector<std::array<std::int32_t, 4>> incidence(start.back());
-        for (std::size_t row = 0; row < surface.triangles.size(); ++row) {
-            if (!surface.normal_weight[row]) continue;
-            const auto& t = surface.triangles[row];
-            for (int v : t) incidence[slot_of[std::size_t(v)]++] = {t[0], t[1], t[2], 0};
-        }
+        const SurfaceIncidence lists = surface_incidence(surface, s.particles);
+        const auto &start = lists.start, &surface_list = lists.surface_list;
+        const auto& incidence = lists.incidence;
         s.surface_particles = surface_list.size();
         s.incidence_start = buffer_with(start.data(), start.size() * 4);
         s.incidence = buffer_with(incidence.data(), incidence.size() * 16);
@@ -456,13 +420,8 @@ Renderer::Renderer(const Scenario& scenario, const RenderOptions& options) : sta
     } else {
         // The simulation surface itself: one record per particle, (i, i, i), λ = (1, 0, 0), d = 0
         // (the same shader gives p = x_i exactly); flat shaded, no normals pass.
-        std::vector<VertexRecord> records(s.particles);
+        const std::vector<VertexRecord> records = particle_records(rest, s.particle_grown);
         std::vector<std::uint32_t> elements;
-        for (std::size_t i = 0; i < s.particles; ++i) {
-            const std::int32_t p = std::int32_t(i);
-            records[i] = {{p, p, p}, {1, 0, 0}, 0, {0, 0, 0}, {0, 0, 0}, {p, p, p, p, p, p, p, p}, {1, 0, 0, 0, 0, 0, 0, 0},
-                          {rest[i][0], rest[i][1], rest[i][2]}, s.particle_grown.empty() ? 0.0f : s.particle_grown[i]};
-        }
         for (const auto& t : surface.triangles)
             for (int k = 0; k < 3; ++k) {
                 elements.push_back(std::uint32_t(t[std::size_t(k)]));
