@@ -25,6 +25,7 @@ view=(--view left --size 800x600)
   echo "small dark openings at the top of pat1 are holes of its segmentation (there at rest too)."
   echo "Every real heart with a 10 mm septal defect, in the section view: [defects.md](defects.md)."
   echo "Every real heart with a planned ventriculotomy and atriotomy held open: [incisions.md](incisions.md)."
+  echo "Every real heart whole, from the surgeon's place, with its coronary arteries, and cut to show its grown walls: [whole-hearts.md](whole-hearts.md)."
   echo
   echo "| case | at rest | pressed | grabbed |"
   echo "|---|---|---|---|"
