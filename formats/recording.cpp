@@ -176,10 +176,10 @@ void write_recording(const std::filesystem::path& path, const Recording& recordi
     write_recording_data(path, recording, check, {xdmf_file_beside(path, xdmf)});
 }
 
-Recording read_recording(const std::filesystem::path& path) {
-    const h5::Reader r(path);
-    r.header("heartsim.recording", 1, 1, "mm g ms N", "is this a heartsim run --record file?");
-    Recording rec;
+namespace {
+
+/// The run's attributes on the root group, and its solver's rules where it kept them.
+void read_run_attributes(const h5::Reader& r, Recording& rec) {
     rec.scenario = r.string_attribute("/", "scenario");
     rec.particles = r.number<std::int64_t>("/", "particles");
     rec.dt_ms = r.number<double>("/", "dt_ms");
@@ -216,55 +216,59 @@ Recording read_recording(const std::filesystem::path& path) {
     rec.periods = r.number<std::int64_t>("/", "periods");
     rec.overruns = r.number<std::int64_t>("/", "overruns");
     if (!(rec.dt_ms > 0.0)) r.fail("/", "attribute dt_ms must be positive");
+}
 
-    for (int h = 0; h < 2; ++h) {
-        const std::string g = "hand" + std::to_string(h);
-        if (!r.exists(g)) continue;
-        const std::string where = "/" + g;
-        RecordedHand& hand = rec.hands[h];
-        hand.used = true;
-        hand.device = r.string_attribute(g, "device");
-        hand.device_name = r.string_attribute(g, "device_name");
-        hand.instrument = r.string_attribute(g, "instrument");
-        if (const auto kind = instrument_kind_named(hand.instrument); !kind || *kind == InstrumentKind::none)
-            r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber, scalpel, patch or needle");
-        hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
-        for (double a : hand.semi_axes_mm)
-            if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
-        hand.max_force_n = r.number<double>(g, "max_force_n");
-        if (!plausible::device_force_n.contains(hand.max_force_n))
-            r.fail(where, "attribute " + plausible::outside("max_force_n", hand.max_force_n, plausible::device_force_n));
-        hand.mapping_offset_mm = vector_attribute<3>(r, g, "mapping_offset_mm");
-        hand.mapping_rotation = vector_attribute<4>(r, g, "mapping_rotation");
-        hand.mapping_scale = r.number<double>(g, "mapping_scale");
-        hand.force_scale = r.number<double>(g, "force_scale");
-        {
-            const auto& q = hand.mapping_rotation;
-            if (!(std::abs(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) < 1e-6))
-                r.fail(where, "attribute mapping_rotation is not a unit quaternion");
-            if (!(hand.mapping_scale > 0.0)) r.fail(where, "attribute mapping_scale must be positive");
-        }
-        std::size_t t = 0;
-        hand.tick_time_ms = r.dataset<double>(g + "/tick_time_ms", {-1}, &t);
-        const long ticks = long(t);
-        const auto position = r.dataset<double>(g + "/position_mm", {ticks, 3});
-        const auto orientation = r.dataset<double>(g + "/orientation", {ticks, 4});
-        r.require_finite(g + "/tick_time_ms", hand.tick_time_ms);
-        r.require_finite(g + "/position_mm", position);
-        r.require_finite(g + "/orientation", orientation);
-        hand.position_mm = h5::rows_of<3>(position);
-        hand.orientation = h5::rows_of<4>(orientation);
-        hand.buttons = r.dataset<std::uint32_t>(g + "/buttons", {ticks});
-        hand.input_n = h5::rows_of<3>(r.dataset<double>(g + "/input_n", {ticks, 3}));
-        const auto force = r.dataset<double>(g + "/force_n", {ticks, 3});
-        r.require_finite(g + "/force_n", force);
-        hand.force_n = h5::rows_of<3>(force);
-        hand.gain = r.dataset<float>(g + "/gain", {ticks});
-        r.require_finite(g + "/gain", hand.gain);
-        for (std::size_t i = 1; i < hand.tick_time_ms.size(); ++i)
-            if (hand.tick_time_ms[i] < hand.tick_time_ms[i - 1]) r.fail(g + "/tick_time_ms", "goes backwards at row " + std::to_string(i));
+/// Hand h's device, instrument and mapping attributes and its device ticks (group /handH), where
+/// the recording has that hand.
+void read_hand(const h5::Reader& r, int h, RecordedHand& hand) {
+    const std::string g = "hand" + std::to_string(h);
+    if (!r.exists(g)) return;
+    const std::string where = "/" + g;
+    hand.used = true;
+    hand.device = r.string_attribute(g, "device");
+    hand.device_name = r.string_attribute(g, "device_name");
+    hand.instrument = r.string_attribute(g, "instrument");
+    if (const auto kind = instrument_kind_named(hand.instrument); !kind || *kind == InstrumentKind::none)
+        r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber, scalpel, patch or needle");
+    hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
+    for (double a : hand.semi_axes_mm)
+        if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
+    hand.max_force_n = r.number<double>(g, "max_force_n");
+    if (!plausible::device_force_n.contains(hand.max_force_n))
+        r.fail(where, "attribute " + plausible::outside("max_force_n", hand.max_force_n, plausible::device_force_n));
+    hand.mapping_offset_mm = vector_attribute<3>(r, g, "mapping_offset_mm");
+    hand.mapping_rotation = vector_attribute<4>(r, g, "mapping_rotation");
+    hand.mapping_scale = r.number<double>(g, "mapping_scale");
+    hand.force_scale = r.number<double>(g, "force_scale");
+    {
+        const auto& q = hand.mapping_rotation;
+        if (!(std::abs(std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) - 1.0) < 1e-6))
+            r.fail(where, "attribute mapping_rotation is not a unit quaternion");
+        if (!(hand.mapping_scale > 0.0)) r.fail(where, "attribute mapping_scale must be positive");
     }
+    std::size_t t = 0;
+    hand.tick_time_ms = r.dataset<double>(g + "/tick_time_ms", {-1}, &t);
+    const long ticks = long(t);
+    const auto position = r.dataset<double>(g + "/position_mm", {ticks, 3});
+    const auto orientation = r.dataset<double>(g + "/orientation", {ticks, 4});
+    r.require_finite(g + "/tick_time_ms", hand.tick_time_ms);
+    r.require_finite(g + "/position_mm", position);
+    r.require_finite(g + "/orientation", orientation);
+    hand.position_mm = h5::rows_of<3>(position);
+    hand.orientation = h5::rows_of<4>(orientation);
+    hand.buttons = r.dataset<std::uint32_t>(g + "/buttons", {ticks});
+    hand.input_n = h5::rows_of<3>(r.dataset<double>(g + "/input_n", {ticks, 3}));
+    const auto force = r.dataset<double>(g + "/force_n", {ticks, 3});
+    r.require_finite(g + "/force_n", force);
+    hand.force_n = h5::rows_of<3>(force);
+    hand.gain = r.dataset<float>(g + "/gain", {ticks});
+    r.require_finite(g + "/gain", hand.gain);
+    for (std::size_t i = 1; i < hand.tick_time_ms.size(); ++i)
+        if (hand.tick_time_ms[i] < hand.tick_time_ms[i - 1]) r.fail(g + "/tick_time_ms", "goes backwards at row " + std::to_string(i));
+}
 
+/// The steps' datasets (/steps), each row checked against the hands and instruments read before.
+void read_steps(const h5::Reader& r, Recording& rec) {
     RecordedSteps& s = rec.steps;
     std::size_t n = 0;
     s.time_ms = r.dataset<double>("steps/time_ms", {-1}, &n);
@@ -331,13 +335,27 @@ Recording read_recording(const std::filesystem::path& path) {
         if (s.force_step[i] < -1 || s.force_step[i] > std::int64_t(i))
             r.fail("steps/force_step", "row " + std::to_string(i) + " names step " + std::to_string(s.force_step[i]) + ", expected −1 … " +
                                            std::to_string(i));
+}
 
+void read_events(const h5::Reader& r, Recording& rec) {
     std::size_t e = 0;
     const auto times = r.dataset<double>("events/time_ms", {-1}, &e);
     r.require_finite("events/time_ms", times);
     const auto hands = r.dataset<std::int32_t>("events/hand", {long(e)});
     const auto what = r.strings("events/what", long(e));
     for (std::size_t i = 0; i < e; ++i) rec.events.push_back({times[i], hands[i], what[i]});
+}
+
+}  // namespace
+
+Recording read_recording(const std::filesystem::path& path) {
+    const h5::Reader r(path);
+    r.header("heartsim.recording", 1, 1, "mm g ms N", "is this a heartsim run --record file?");
+    Recording rec;
+    read_run_attributes(r, rec);
+    for (int h = 0; h < 2; ++h) read_hand(r, h, rec.hands[h]);
+    read_steps(r, rec);
+    read_events(r, rec);
     return rec;
 }
 
