@@ -360,15 +360,155 @@ void RecordingJournal::remove() {
 // ------------------------------------------------------------------------------------------------
 // Reading
 
-JournalContents read_recording_journal(const std::filesystem::path& path) {
+namespace {
+
+/// The journal's bytes; throws InputError where the file is missing, unreadable or no journal.
+std::vector<unsigned char> journal_bytes(const std::filesystem::path& path) {
     const std::string name = path.string();
     std::error_code error;
     if (!std::filesystem::is_regular_file(path, error)) throw InputError(name + ": " + (std::filesystem::exists(path) ? "not a file" : "file not found"));
     std::ifstream in(path, std::ios::binary);
     if (!in) throw InputError(name + ": cannot be read");
-    const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     if (bytes.size() < sizeof file_magic || std::memcmp(bytes.data(), file_magic, sizeof file_magic) != 0)
         throw InputError(name + ": not a heartsim --record journal (it does not start with \"heartsim journal\")");
+    return bytes;
+}
+
+/// The session record: the run's settings and its hands (`used`: which hands have a device);
+/// returns the journal's version, for the chunks after it.
+std::uint32_t read_session_record(Cursor& c, const std::string& where, JournalContents& contents, std::vector<bool>& used) {
+    Recording& r = contents.recording;
+    const std::uint32_t version = c.get<std::uint32_t>();
+    if (version < 1 || version > journal_version)
+        throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 to " +
+                         std::to_string(journal_version) + ")");
+    contents.target = c.text();
+    contents.pid = c.get<std::int64_t>();
+    r.scenario = c.text();
+    r.particles = c.get<std::int64_t>();
+    r.dt_ms = c.get<double>();
+    r.substeps = c.get<std::int32_t>();
+    r.backend = c.text();
+    r.contact = c.text();
+    r.interpolation = c.text();
+    r.arithmetic = version == 1 ? "separate" : c.text();
+    if (!known_arithmetic(r.arithmetic))
+        throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
+    if (version >= 3 && c.get<std::uint8_t>() != 0) {
+        SolverRules rules;
+        for_each_rule([&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); }, rules);
+        if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
+        r.rules = rules;
+    }
+    r.rate_hz = c.get<double>();
+    r.coupling = c.get<std::int32_t>() != 0;
+    for (RecordedHand& hand : r.hands) {
+        hand.used = c.get<std::uint8_t>() != 0;
+        used.push_back(hand.used);
+        if (!hand.used) continue;
+        hand.device = c.text();
+        hand.device_name = c.text();
+        hand.instrument = c.text();
+        hand.semi_axes_mm = c.get<std::array<double, 3>>();
+        hand.max_force_n = c.get<double>();
+        hand.mapping_offset_mm = c.get<std::array<double, 3>>();
+        hand.mapping_rotation = c.get<std::array<double, 4>>();
+        hand.mapping_scale = c.get<double>();
+        hand.force_scale = c.get<double>();
+    }
+    r.patch_material = version >= 5 ? c.text() : "pericardium";
+    try {
+        patch_material_named(r.patch_material);
+    } catch (const InputError& e) {
+        throw InputError(where + ": the session's " + e.what());
+    }
+    return version;
+}
+
+/// A chunk record: its steps, each used hand's device ticks and its events appended to the
+/// recording; `last_ms` rises to the latest time it holds.
+void read_chunk_record(Cursor& c, const std::string& where, std::uint32_t version, const std::vector<bool>& used, Recording& r,
+                       double& last_ms) {
+    RecordedSteps& s = r.steps;
+    const auto n = c.get<std::uint64_t>();
+    c.column(s.time_ms, n);
+    c.column(s.wall_ms, n);
+    c.column(s.tool_time_ms, n);
+    c.column(s.tool_position_mm, n);
+    c.column(s.tool_orientation, n);
+    c.column(s.grab, n);
+    c.column(s.applied, n);
+    c.column(s.force_n, n);
+    c.column(s.force_step, n);
+    c.column(s.diverged, n);
+    if (version >= 4 && c.get<std::uint8_t>() != 0) {
+        s.mass_scale.resize(s.diverged.size() - n, 1.0);  // rows of earlier chunks without the column ran at 1
+        c.column(s.mass_scale, n);
+        for (std::size_t k = s.mass_scale.size() - n; k < s.mass_scale.size(); ++k)
+            if (!valid_mass_scale(s.mass_scale[k]))
+                throw InputError(where + ": a step's mass scale is " + std::to_string(s.mass_scale[k]) + ", expected 1 … 1024");
+    } else if (!s.mass_scale.empty()) {
+        s.mass_scale.resize(s.diverged.size(), 1.0);
+    }
+    // A recording either has the instrument columns throughout or not at all (HapticRun).
+    if (version >= 5 && c.get<std::uint8_t>() != 0) {
+        if (s.instrument.size() != s.diverged.size() - n)
+            throw InputError(where + ": a chunk has the instrument columns and an earlier one did not");
+        c.column(s.instrument, n);
+        c.column(s.semi_axes_mm, n);
+        for (std::size_t k = s.instrument.size() - n; k < s.instrument.size(); ++k)
+            for (int h = 0; h < 2; ++h)
+                if (const StepInstrumentFault fault = check_step_instrument(s.instrument[k][h], s.semi_axes_mm[k][h], used[std::size_t(h)]);
+                    !fault.what.empty())
+                    throw InputError(where + ": a step's " + fault.dataset + ", hand " + std::to_string(h) + fault.what);
+    } else if (!s.instrument.empty() && n > 0) {
+        throw InputError(where + ": a chunk lacks the instrument columns an earlier one had");
+    }
+    if (n) last_ms = std::max(last_ms, s.wall_ms.back());
+    for (std::size_t h = 0; h < used.size(); ++h) {
+        if (!used[h]) continue;
+        RecordedHand& hand = r.hands[h];
+        const auto t = c.get<std::uint64_t>();
+        c.column(hand.tick_time_ms, t);
+        c.column(hand.position_mm, t);
+        c.column(hand.orientation, t);
+        c.column(hand.buttons, t);
+        c.column(hand.input_n, t);
+        c.column(hand.force_n, t);
+        c.column(hand.gain, t);
+        if (t) last_ms = std::max(last_ms, hand.tick_time_ms.back());
+    }
+    const auto events = c.get<std::uint64_t>();
+    if (events > c.left() / 20) c.need(c.left() + 1);  // each at least a time, a hand and a string's length
+    for (std::uint64_t e = 0; e < events; ++e) {
+        RecordedEvent event;
+        event.time_ms = c.get<double>();
+        event.hand = c.get<std::int32_t>();
+        event.what = c.text();
+        last_ms = std::max(last_ms, event.time_ms);
+        r.events.push_back(std::move(event));
+    }
+}
+
+/// The end record: the run's timing figures.
+void read_end_record(Cursor& c, Recording& r) {
+    r.period_p50_ms = c.get<double>();
+    r.period_p99_ms = c.get<double>();
+    r.period_max_ms = c.get<double>();
+    r.period_mean_ms = c.get<double>();
+    r.periods = c.get<std::int64_t>();
+    r.overruns = c.get<std::int64_t>();
+    r.latency_p50_ms = c.get<double>();
+    r.latency_p99_ms = c.get<double>();
+    r.latency_max_ms = c.get<double>();
+}
+
+}  // namespace
+
+JournalContents read_recording_journal(const std::filesystem::path& path) {
+    const std::string name = path.string();
+    const std::vector<unsigned char> bytes = journal_bytes(path);
 
     JournalContents contents;
     Recording& r = contents.recording;
@@ -393,121 +533,12 @@ JournalContents read_recording_journal(const std::filesystem::path& path) {
         if ((kind == session_record) != used.empty())
             throw InputError(where + ": " + (used.empty() ? "the journal does not start with its session record" : "a second session record"));
         if (kind == session_record) {
-            version = c.get<std::uint32_t>();
-            if (version < 1 || version > journal_version)
-                throw InputError(where + ": journal version " + std::to_string(version) + " is not supported (this build reads versions 1 to " +
-                                 std::to_string(journal_version) + ")");
-            contents.target = c.text();
-            contents.pid = c.get<std::int64_t>();
-            r.scenario = c.text();
-            r.particles = c.get<std::int64_t>();
-            r.dt_ms = c.get<double>();
-            r.substeps = c.get<std::int32_t>();
-            r.backend = c.text();
-            r.contact = c.text();
-            r.interpolation = c.text();
-            r.arithmetic = version == 1 ? "separate" : c.text();
-            if (!known_arithmetic(r.arithmetic))
-                throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
-            if (version >= 3 && c.get<std::uint8_t>() != 0) {
-                SolverRules rules;
-                for_each_rule([&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); }, rules);
-                if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
-                r.rules = rules;
-            }
-            r.rate_hz = c.get<double>();
-            r.coupling = c.get<std::int32_t>() != 0;
-            for (RecordedHand& hand : r.hands) {
-                hand.used = c.get<std::uint8_t>() != 0;
-                used.push_back(hand.used);
-                if (!hand.used) continue;
-                hand.device = c.text();
-                hand.device_name = c.text();
-                hand.instrument = c.text();
-                hand.semi_axes_mm = c.get<std::array<double, 3>>();
-                hand.max_force_n = c.get<double>();
-                hand.mapping_offset_mm = c.get<std::array<double, 3>>();
-                hand.mapping_rotation = c.get<std::array<double, 4>>();
-                hand.mapping_scale = c.get<double>();
-                hand.force_scale = c.get<double>();
-            }
-            r.patch_material = version >= 5 ? c.text() : "pericardium";
-            try {
-                patch_material_named(r.patch_material);
-            } catch (const InputError& e) {
-                throw InputError(where + ": the session's " + e.what());
-            }
+            version = read_session_record(c, where, contents, used);
         } else if (kind == chunk_record) {
-            RecordedSteps& s = r.steps;
-            const auto n = c.get<std::uint64_t>();
-            c.column(s.time_ms, n);
-            c.column(s.wall_ms, n);
-            c.column(s.tool_time_ms, n);
-            c.column(s.tool_position_mm, n);
-            c.column(s.tool_orientation, n);
-            c.column(s.grab, n);
-            c.column(s.applied, n);
-            c.column(s.force_n, n);
-            c.column(s.force_step, n);
-            c.column(s.diverged, n);
-            if (version >= 4 && c.get<std::uint8_t>() != 0) {
-                s.mass_scale.resize(s.diverged.size() - n, 1.0);  // rows of earlier chunks without the column ran at 1
-                c.column(s.mass_scale, n);
-                for (std::size_t k = s.mass_scale.size() - n; k < s.mass_scale.size(); ++k)
-                    if (!valid_mass_scale(s.mass_scale[k]))
-                        throw InputError(where + ": a step's mass scale is " + std::to_string(s.mass_scale[k]) + ", expected 1 … 1024");
-            } else if (!s.mass_scale.empty()) {
-                s.mass_scale.resize(s.diverged.size(), 1.0);
-            }
-            // A recording either has the instrument columns throughout or not at all (HapticRun).
-            if (version >= 5 && c.get<std::uint8_t>() != 0) {
-                if (s.instrument.size() != s.diverged.size() - n)
-                    throw InputError(where + ": a chunk has the instrument columns and an earlier one did not");
-                c.column(s.instrument, n);
-                c.column(s.semi_axes_mm, n);
-                for (std::size_t k = s.instrument.size() - n; k < s.instrument.size(); ++k)
-                    for (int h = 0; h < 2; ++h)
-                        if (const StepInstrumentFault fault = check_step_instrument(s.instrument[k][h], s.semi_axes_mm[k][h], used[std::size_t(h)]);
-                            !fault.what.empty())
-                            throw InputError(where + ": a step's " + fault.dataset + ", hand " + std::to_string(h) + fault.what);
-            } else if (!s.instrument.empty() && n > 0) {
-                throw InputError(where + ": a chunk lacks the instrument columns an earlier one had");
-            }
-            if (n) last_ms = std::max(last_ms, s.wall_ms.back());
-            for (std::size_t h = 0; h < used.size(); ++h) {
-                if (!used[h]) continue;
-                RecordedHand& hand = r.hands[h];
-                const auto t = c.get<std::uint64_t>();
-                c.column(hand.tick_time_ms, t);
-                c.column(hand.position_mm, t);
-                c.column(hand.orientation, t);
-                c.column(hand.buttons, t);
-                c.column(hand.input_n, t);
-                c.column(hand.force_n, t);
-                c.column(hand.gain, t);
-                if (t) last_ms = std::max(last_ms, hand.tick_time_ms.back());
-            }
-            const auto events = c.get<std::uint64_t>();
-            if (events > c.left() / 20) c.need(c.left() + 1);  // each at least a time, a hand and a string's length
-            for (std::uint64_t e = 0; e < events; ++e) {
-                RecordedEvent event;
-                event.time_ms = c.get<double>();
-                event.hand = c.get<std::int32_t>();
-                event.what = c.text();
-                last_ms = std::max(last_ms, event.time_ms);
-                r.events.push_back(std::move(event));
-            }
+            read_chunk_record(c, where, version, used, r, last_ms);
             ++contents.chunks;
         } else if (kind == end_record) {
-            r.period_p50_ms = c.get<double>();
-            r.period_p99_ms = c.get<double>();
-            r.period_max_ms = c.get<double>();
-            r.period_mean_ms = c.get<double>();
-            r.periods = c.get<std::int64_t>();
-            r.overruns = c.get<std::int64_t>();
-            r.latency_p50_ms = c.get<double>();
-            r.latency_p99_ms = c.get<double>();
-            r.latency_max_ms = c.get<double>();
+            read_end_record(c, r);
             contents.ended = true;
         } else {
             throw InputError(where + ": record kind " + std::to_string(kind) + " is not known (a journal of a newer heartsim?)");
