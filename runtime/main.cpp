@@ -119,6 +119,10 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
                     "removed). defect: across the scenario's septal defect (heartprep build --defect), the camera turned to look "
                     "at it. Headless with --screenshot; in a window C, [ and ] do the same")
         ->type_name("PLANE");
+    run->add_option("--surface-detail", a.surface_detail,
+                    "The coronary arteries along the courses heartprep found, raised in their fat, and the ventricles' fibres, "
+                    "drawn on the detailed mesh as it deforms: on (default) or off (the plain surface)")
+        ->check(CLI::IsMember({"on", "off"}));
     run->add_option("--look-at", a.look_at,
                     "Centre the view on a point: X,Y,Z[,DISTANCE] (mm, world LPS), the camera looking from the --view direction (or "
                     "at the --clip section) from DISTANCE mm away (default: the fitted view's distance). Headless with --screenshot; "

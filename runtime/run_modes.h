@@ -50,6 +50,7 @@ struct RunArguments {
     double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
     std::string size;                // WxH pixels of the window or the offscreen frame
     std::string view = "anterior";
+    std::string surface_detail = "on";  // --surface-detail on|off: the coronary arteries and the fibres (docs/runtime.md)
     std::string clip;                // --clip PX,PY,PZ,NX,NY,NZ or centre: the section view (section_plane.h); empty: none
     std::string look_at;             // --look-at X,Y,Z[,DISTANCE]: the camera centred on a point (camera.h); empty: the fitted view
     // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
@@ -102,6 +103,7 @@ struct PreparedRun {
     std::optional<Recording> replayed;  ///< --replay's recording, read before the backend is made
     int frame_width = 0, frame_height = 0;  ///< pixels of the window or the offscreen frame
     ViewDirection view = ViewDirection::anterior;
+    bool surface_detail = true;  ///< the coronary arteries and the fibres drawn where the scenario gives them
     /// The gl backend was asked for by default but the OpenGL device is a software rasteriser: a
     /// window or haptic session simulates on the cpu backend instead (make_context_and_backend).
     bool software_gl = false;

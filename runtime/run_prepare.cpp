@@ -258,7 +258,8 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
 
 void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section) {
     p.context->make_current();
-    p.renderer.emplace(p.scenario, RenderOptions{.width = p.frame_width, .height = p.frame_height, .view = p.view});
+    p.renderer.emplace(p.scenario, RenderOptions{.width = p.frame_width, .height = p.frame_height, .view = p.view,
+                                                 .coronaries = p.surface_detail, .fibres = p.surface_detail});
     Renderer& renderer = *p.renderer;
     if (renderer.draws_visual_mesh())
         std::printf("render: visual mesh, %zu vertices, %zu triangles, mapped onto %zu simulation-surface triangles; %dx%d\n",
@@ -369,6 +370,7 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     if (a.view == "section" && a.clip.empty())
         throw UsageError("--view section looks straight at the section plane: give --clip (a plane, centre or defect)");
     view = parse_view_direction(a.view == "section" ? "anterior" : a.view);
+    surface_detail = a.surface_detail == "on";
     std::optional<SectionRequest> section;
     if (!a.clip.empty()) section = parse_section_option(a.clip);
     if (section && a.view == "section") section->aim_camera = true;
