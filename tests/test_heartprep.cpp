@@ -369,7 +369,8 @@ TEST_P(RealCase, BuildsWithAClosedSurfaceAndParticlesInTissue) {
     const auto input = test::real_case(GetParam());
     if (input.empty()) GTEST_SKIP() << "real data not found under " << HEARTSIM_REAL_DATA;
     test::TempDir dir;
-    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(dir / "case.h5") + " --cavity 2 --anchor-border --verbose");
+    // The labelled myocardium alone (--walls labelled): the layout's occupancy on the label map's own tissue.
+    const auto run = heartprep("build " + quoted(input) + " -o " + quoted(dir / "case.h5") + " --cavity 2 --anchor-border --verbose --walls labelled");
     ASSERT_EQ(run.exit_code, 0) << run.output;
     EXPECT_NE(run.output.find("closed 2-manifold"), std::string::npos) << run.output;
     const Scenario s = read_scenario(dir / "case.h5");
