@@ -594,6 +594,96 @@ std::string write_summaries(const fs::path& folder, const std::vector<BatchCase>
     return markdown.str();
 }
 
+/// `heartprep batch --plan`: each case's id, input, output, options, content key and whether its
+/// scenario is up to date, as JSON on stdout.
+void print_batch_plan(const std::vector<BatchCase>& cases, const fs::path& folder) {
+    auto list = nlohmann::ordered_json::array();
+    for (const auto& c : cases) {
+        const std::string key = fs::exists(c.input) ? content_key(c) : std::string();
+        list.push_back({{"case_id", c.id}, {"input", fs::absolute(c.input).lexically_normal().string()},
+                        {"output", fs::absolute(output_of(c, folder)).lexically_normal().string()}, {"options", c.options},
+                        {"options_words", split_words(c.options)}, {"key", key},
+                        {"up_to_date", !key.empty() && up_to_date(output_of(c, folder), key, nullptr)}});
+    }
+    std::fputs(dump(nlohmann::ordered_json{{"cases", std::move(list)}}).c_str(), stdout);
+}
+
+/// Builds `cases` on `jobs` workers, each by run_case, the summary rewritten as each ends (and
+/// once before any starts); where stderr is not a terminal, a line every progress interval says
+/// which cases are running. A stop signal leaves the cases not begun `not started`.
+std::vector<Outcome> build_cases(const std::vector<BatchCase>& cases, const fs::path& folder, const fs::path& executable,
+                                 const BatchSettings& settings, int jobs, bool no_build, std::chrono::steady_clock::time_point start) {
+    std::vector<Outcome> outcomes(cases.size());
+    std::atomic<std::size_t> next{0};
+    std::size_t done = 0;
+    std::mutex print;  // the progress lines, `outcomes`, `running` and the summary files
+    std::condition_variable ended;  // a case ended
+    std::vector<std::pair<std::size_t, std::chrono::steady_clock::time_point>> running(std::size_t(jobs), {cases.size(), {}});
+    TerminalProgress progress(false);
+    const int workers_count = std::min<int>(jobs, int(cases.size()));
+    auto running_state = [&] {
+        return "The batch is running: " + std::to_string(done) + " of " + std::to_string(cases.size()) +
+               " cases finished (this table is rewritten as each case ends).";
+    };
+    catch_stop_signals();
+    // Before any build starts: a summary left by an earlier run no longer describes the folder.
+    write_summaries(folder, cases, outcomes, running_state(), no_build);
+    {
+        ProgressStage stage(progress, "batch", cases.size());
+        auto worker = [&](int w) {
+            for (std::size_t i; (i = next++) < cases.size();) {
+                if (stop_signal.load()) {
+                    std::lock_guard lock(print);
+                    outcomes[i].status = "not started";
+                    outcomes[i].message = "the batch was stopped by " + signal_name(stop_signal.load()) + " first";
+                    continue;
+                }
+                {
+                    std::lock_guard lock(print);
+                    running[std::size_t(w)] = {i, std::chrono::steady_clock::now()};
+                }
+                Outcome outcome = run_case(cases[i], folder, executable, settings, running_children[std::size_t(w)]);
+                std::lock_guard lock(print);
+                running[std::size_t(w)].first = cases.size();
+                outcomes[i] = std::move(outcome);
+                const auto& o = outcomes[i];
+                const bool ended_well = has_scenario(o.status);
+                std::fprintf(stderr, "\r[%zu/%zu] %s: %s%s%s\n", ++done, cases.size(), cases[i].id.c_str(), o.status.c_str(),
+                             ended_well ? "" : ": ", ended_well ? "" : o.message.c_str());
+                stage.update(done);
+                try {
+                    write_summaries(folder, cases, outcomes, running_state(), no_build);
+                } catch (const std::exception& e) {
+                    std::fprintf(stderr, "heartprep: warning: %s\n", e.what());  // the final write reports it as an error
+                }
+                ended.notify_all();
+            }
+        };
+        std::vector<std::thread> workers;
+        for (int w = 0; w < workers_count; ++w) workers.emplace_back(worker, w);
+        // In a log or a pipe, nothing else shows that a long case is still going: a line now and then.
+        const double interval = progress_interval_seconds();
+        if (!isatty(fileno(stderr)) && interval > 0.0) {
+            std::unique_lock lock(print);
+            while (done < cases.size() && !stop_signal.load()) {
+                if (ended.wait_for(lock, std::chrono::duration<double>(interval)) != std::cv_status::timeout) continue;
+                if (done >= cases.size()) break;
+                const auto now = std::chrono::steady_clock::now();
+                std::string names;
+                for (const auto& [i, since] : running)
+                    if (i < cases.size())
+                        names += (names.empty() ? "" : ", ") + cases[i].id + " (" +
+                                 fixed(std::chrono::duration<double>(now - since).count(), 0) + " s)";
+                std::fprintf(stderr, "heartprep: batch: %zu of %zu cases finished after %.0f s; running: %s\n", done, cases.size(),
+                             std::chrono::duration<double>(now - start).count(), names.empty() ? "none" : names.c_str());
+                std::fflush(stderr);
+            }
+        }
+        for (auto& w : workers) w.join();
+    }
+    return outcomes;
+}
+
 }  // namespace
 
 void add_batch_command(CLI::App& app) {
@@ -655,15 +745,7 @@ void add_batch_command(CLI::App& app) {
             throw UsageError("--pattern chooses files of a folder; " + manifest->string() + " is not a folder");
         const auto cases = read_manifest(*manifest, *options, *pattern);
         if (*plan) {
-            auto list = nlohmann::ordered_json::array();
-            for (const auto& c : cases) {
-                const std::string key = fs::exists(c.input) ? content_key(c) : std::string();
-                list.push_back({{"case_id", c.id}, {"input", fs::absolute(c.input).lexically_normal().string()},
-                                {"output", fs::absolute(output_of(c, *folder)).lexically_normal().string()}, {"options", c.options},
-                                {"options_words", split_words(c.options)}, {"key", key},
-                                {"up_to_date", !key.empty() && up_to_date(output_of(c, *folder), key, nullptr)}});
-            }
-            std::fputs(dump(nlohmann::ordered_json{{"cases", std::move(list)}}).c_str(), stdout);
+            print_batch_plan(cases, *folder);
             return;
         }
         std::error_code error;
@@ -685,75 +767,8 @@ void add_batch_command(CLI::App& app) {
             }
         }
 
-        std::vector<Outcome> outcomes(cases.size());
-        std::atomic<std::size_t> next{0};
-        std::size_t done = 0;
-        std::mutex print;  // the progress lines, `outcomes`, `running` and the summary files
-        std::condition_variable ended;  // a case ended
-        std::vector<std::pair<std::size_t, std::chrono::steady_clock::time_point>> running(std::size_t(*jobs), {cases.size(), {}});
-        TerminalProgress progress(false);
         const auto start = std::chrono::steady_clock::now();
-        const int workers_count = std::min<int>(*jobs, int(cases.size()));
-        auto running_state = [&] {
-            return "The batch is running: " + std::to_string(done) + " of " + std::to_string(cases.size()) +
-                   " cases finished (this table is rewritten as each case ends).";
-        };
-        catch_stop_signals();
-        // Before any build starts: a summary left by an earlier run no longer describes the folder.
-        write_summaries(*folder, cases, outcomes, running_state(), *no_build);
-        {
-            ProgressStage stage(progress, "batch", cases.size());
-            auto worker = [&](int w) {
-                for (std::size_t i; (i = next++) < cases.size();) {
-                    if (stop_signal.load()) {
-                        std::lock_guard lock(print);
-                        outcomes[i].status = "not started";
-                        outcomes[i].message = "the batch was stopped by " + signal_name(stop_signal.load()) + " first";
-                        continue;
-                    }
-                    {
-                        std::lock_guard lock(print);
-                        running[std::size_t(w)] = {i, std::chrono::steady_clock::now()};
-                    }
-                    Outcome outcome = run_case(cases[i], *folder, executable, settings, running_children[std::size_t(w)]);
-                    std::lock_guard lock(print);
-                    running[std::size_t(w)].first = cases.size();
-                    outcomes[i] = std::move(outcome);
-                    const auto& o = outcomes[i];
-                    const bool ended_well = has_scenario(o.status);
-                    std::fprintf(stderr, "\r[%zu/%zu] %s: %s%s%s\n", ++done, cases.size(), cases[i].id.c_str(), o.status.c_str(),
-                                 ended_well ? "" : ": ", ended_well ? "" : o.message.c_str());
-                    stage.update(done);
-                    try {
-                        write_summaries(*folder, cases, outcomes, running_state(), *no_build);
-                    } catch (const std::exception& e) {
-                        std::fprintf(stderr, "heartprep: warning: %s\n", e.what());  // the final write reports it as an error
-                    }
-                    ended.notify_all();
-                }
-            };
-            std::vector<std::thread> workers;
-            for (int w = 0; w < workers_count; ++w) workers.emplace_back(worker, w);
-            // In a log or a pipe, nothing else shows that a long case is still going: a line now and then.
-            const double interval = progress_interval_seconds();
-            if (!isatty(fileno(stderr)) && interval > 0.0) {
-                std::unique_lock lock(print);
-                while (done < cases.size() && !stop_signal.load()) {
-                    if (ended.wait_for(lock, std::chrono::duration<double>(interval)) != std::cv_status::timeout) continue;
-                    if (done >= cases.size()) break;
-                    const auto now = std::chrono::steady_clock::now();
-                    std::string names;
-                    for (const auto& [i, since] : running)
-                        if (i < cases.size())
-                            names += (names.empty() ? "" : ", ") + cases[i].id + " (" +
-                                     fixed(std::chrono::duration<double>(now - since).count(), 0) + " s)";
-                    std::fprintf(stderr, "heartprep: batch: %zu of %zu cases finished after %.0f s; running: %s\n", done, cases.size(),
-                                 std::chrono::duration<double>(now - start).count(), names.empty() ? "none" : names.c_str());
-                    std::fflush(stderr);
-                }
-            }
-            for (auto& w : workers) w.join();
-        }
+        const std::vector<Outcome> outcomes = build_cases(cases, *folder, executable, settings, *jobs, *no_build, start);
         const double total = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
         const int stopped_by = stop_signal.load();
         std::ostringstream state;
