@@ -790,6 +790,30 @@ TEST(HapticsScripted, APressBetweenTwoReadsOfTheToolsIsCountedNotLost) {
     EXPECT_EQ(read[2].second, 2u);
 }
 
+TEST(HapticsScripted, APressOverBeforeTheFirstTickOrBetweenTwoTicksIsStillCounted) {
+    // A loaded machine may tick the device late: button 1 held from 0 to 20 ms and from 41 to 42 ms,
+    // the device ticked only at 30, 50 and 60 ms, never while the button is down. The script knows
+    // both presses, and the tools say so at the ticks after each.
+    ScriptedDevice device(parse_pose_script("0,0,0,0,1,0,0,0,1\n20,0,0,0,1,0,0,0,1\n20.5,0,0,0,1,0,0,0,0\n40.5,0,0,0,1,0,0,0,0\n"
+                                            "41,0,0,0,1,0,0,0,1\n42,0,0,0,1,0,0,0,1\n42.5,0,0,0,1,0,0,0,0\n",
+                                            "late.csv"));
+    EXPECT_EQ(device.pose_at(-1.0).presses, 1u) << "pressed from the start";
+    EXPECT_EQ(device.pose_at(40.0).presses, 1u);
+    EXPECT_EQ(device.pose_at(41.5).presses, 2u);
+    EXPECT_EQ(device.pose_at(100.0).presses, 2u);
+    HapticSession session;
+    session.attach(0, &device);
+    std::vector<std::uint64_t> presses;
+    for (double t : {30.0, 50.0, 60.0}) {
+        session.tick(t);
+        const auto tools = session.latest_tools();
+        ASSERT_TRUE(tools);
+        EXPECT_EQ(tools->hand[0].buttons & 1u, 0u) << "no tick sees the button down";
+        presses.push_back(tools->hand[0].presses);
+    }
+    EXPECT_EQ(presses, (std::vector<std::uint64_t>{1, 2, 2}));
+}
+
 TEST(HapticsScripted, ButtonsOutsideA32BitWordAreRefusedNotConverted) {
     // fuzz_pose_script: 1e49 buttons were cast to uint32 (undefined behaviour; UBSan's
     // float-cast-overflow). Up to 2^32 - 1 is read, above is an error naming the row.

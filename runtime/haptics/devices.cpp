@@ -103,11 +103,25 @@ std::vector<PoseKeyframe> read_pose_script(const std::filesystem::path& path) { 
 ScriptedDevice::ScriptedDevice(std::vector<PoseKeyframe> keyframes, DeviceLimits limits)
     : keyframes_(std::move(keyframes)), limits_(limits) {
     if (keyframes_.empty()) throw InputError("scripted device: no keyframes");
+    std::uint64_t presses = 0;
+    for (std::size_t k = 0; k < keyframes_.size(); ++k) {
+        const bool down = keyframes_[k].pose.buttons & 1u, was = k > 0 && (keyframes_[k - 1].pose.buttons & 1u);
+        presses += down && !was;
+        presses_.push_back(presses);
+    }
 }
 
 DevicePose ScriptedDevice::pose_at(double t) const {
-    if (t <= keyframes_.front().time_ms) return keyframes_.front().pose;
-    if (t >= keyframes_.back().time_ms) return keyframes_.back().pose;
+    if (t <= keyframes_.front().time_ms) {
+        DevicePose p = keyframes_.front().pose;
+        p.presses = presses_.front();
+        return p;
+    }
+    if (t >= keyframes_.back().time_ms) {
+        DevicePose p = keyframes_.back().pose;
+        p.presses = presses_.back();
+        return p;
+    }
     const auto next = std::upper_bound(keyframes_.begin(), keyframes_.end(), t,
                                        [](double time, const PoseKeyframe& k) { return time < k.time_ms; });
     const PoseKeyframe& b = *next;
@@ -118,6 +132,7 @@ DevicePose ScriptedDevice::pose_at(double t) const {
     p.position_mm = a.pose.position_mm + u * (b.pose.position_mm - a.pose.position_mm);
     p.orientation = a.pose.orientation.slerp(u, b.pose.orientation);
     p.buttons = a.pose.buttons;
+    p.presses = presses_[std::size_t(next - keyframes_.begin()) - 1];
     return p;
 }
 

@@ -32,6 +32,10 @@ struct DevicePose {
     Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();
     Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
     std::uint32_t buttons = 0;
+    /// Presses of button 1 since the start, where the device knows every one (a script, even a
+    /// press shorter than the ticks' spacing or over before the first tick); 0 where it does not
+    /// (the session counts the presses its ticks see).
+    std::uint64_t presses = 0;
 };
 
 struct DeviceLimits {
@@ -81,6 +85,7 @@ public:
 
 private:
     std::vector<PoseKeyframe> keyframes_;
+    std::vector<std::uint64_t> presses_;  ///< presses of button 1 up to and including each keyframe
     DeviceLimits limits_;
     Eigen::Vector3d last_force_ = Eigen::Vector3d::Zero();
 };

@@ -165,6 +165,8 @@ void HapticSession::tick(double now_ms) {
         tools.hand[i].pose.orientation = orientation_world;
         tools.hand[i].buttons = pose.buttons;
         if ((pose.buttons & 1u) && !(h.buttons & 1u)) ++h.presses;
+        // A script knows every press, even one over between two ticks.
+        h.presses = std::max(h.presses, pose.presses);
         h.buttons = pose.buttons;
         tools.hand[i].presses = h.presses;
         tools.hand[i].time_ms = now_ms;
