@@ -167,6 +167,17 @@ void walls_stage(LabelVolume& volume, const WallChoice& choice, SelectionOptions
                                         : "no label names blood (--labels names a convention, --cavity the blood)";
         return;
     }
+    // A label the build anchors (--anchor-label) holds the tissue, whatever a convention calls it:
+    // no wall grows around it.
+    for (WallStructure& s : structures)
+        std::erase_if(s.blood_labels, [&](int label) {
+            return std::find(options.anchor_labels.begin(), options.anchor_labels.end(), label) != options.anchor_labels.end();
+        });
+    std::erase_if(structures, [](const WallStructure& s) { return s.blood_labels.empty(); });
+    if (structures.empty()) {
+        walls.none_because = "the only blood label is anchored (--anchor-label): no wall grows around it";
+        return;
+    }
     const WallGrowthReport grown = grow_walls(volume, structures, progress);
     for (std::size_t k = 0; k < structures.size(); ++k) {
         if (grown.walls[k].voxels == 0) {
