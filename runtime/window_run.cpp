@@ -410,15 +410,8 @@ void WindowLoop::step_frame(std::chrono::steady_clock::time_point now, double fr
     InstrumentPose from = keyboard.pose, to = keyboard.pose;
     if (keyboard_hand0 || input.device) {
         const Camera& camera = renderer.camera();
-        const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-        Eigen::Vector3d move = Eigen::Vector3d::Zero();
-        if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
-        if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
-        if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
-        if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
-        if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
-        if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
-        const bool slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
+        bool slow = false;
+        const Eigen::Vector3d move = arrow_keys_direction(window, camera, slow);
         to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
         keyboard.pose = to;
         if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);

@@ -5,6 +5,7 @@
 #include "formats/label_table.h"
 #include "formats/mesh_io.h"
 #include "formats/xdmf.h"
+#include "libmodel/landmarks.h"
 #include "libmodel/errors.h"
 #include "libmodel/text.h"
 
@@ -191,38 +192,6 @@ void walls_stage(LabelVolume& volume, const WallChoice& choice, SelectionOptions
     if (walls.grown.empty()) walls.none_because = "no blood faces background: every blood surface has its labelled wall";
 }
 
-namespace {
-
-/// The chambers' labels as their segment names say: "left ventricle", "LV", "right atrium",
-/// "aorta" (a name with a muscle word, "left ventricle myocardium", is not a chamber's blood).
-struct Chambers {
-    int left_atrium = 0, left_ventricle = 0, right_atrium = 0, right_ventricle = 0, aorta = 0;
-};
-
-Chambers chambers_from_names(const SegmentNames& names) {
-    Chambers c;
-    for (const auto& [label, name] : names) {
-        if (classify_segment_name(name) == SegmentKind::heart_muscle) continue;
-        std::string n = text::lowercase(text::trim(name));
-        std::replace(n.begin(), n.end(), '_', ' ');
-        const std::string padded = " " + n + " ";
-        auto word = [&](const char* w) { return padded.find(std::string(" ") + w + " ") != std::string::npos; };
-        auto has = [&](const char* w) { return n.find(w) != std::string::npos; };
-        const bool left = has("left") || word("lv") || word("la"), right = has("right") || word("rv") || word("ra");
-        const bool ventricle = has("ventric") || word("lv") || word("rv"), atrium = has("atri") || word("la") || word("ra");
-        int* slot = nullptr;
-        if (has("aort") || word("ao")) slot = &c.aorta;
-        else if (left && !right && ventricle && !atrium) slot = &c.left_ventricle;
-        else if (right && !left && ventricle && !atrium) slot = &c.right_ventricle;
-        else if (left && !right && atrium && !ventricle) slot = &c.left_atrium;
-        else if (right && !left && atrium && !ventricle) slot = &c.right_atrium;
-        if (slot && *slot == 0) *slot = label;
-    }
-    return c;
-}
-
-}  // namespace
-
 void defect_stage(LabelVolume& volume, const std::filesystem::path& input, const DefectChoice& choice, const SelectionOptions& options,
                   Progress& progress, BuildReport& report) {
     DefectOptions o;
@@ -239,7 +208,7 @@ void defect_stage(LabelVolume& volume, const std::filesystem::path& input, const
             if (label != 0 && std::find(o.wall_labels.begin(), o.wall_labels.end(), label) == o.wall_labels.end()) others.insert(label);
         o.blood_labels.assign(others.begin(), others.end());
     }
-    const Chambers c = chambers_from_names(report.segment_names);
+    const ChamberLabels c = chamber_labels_from_names(report.segment_names);
     if (choice.type == DefectType::vsd) o.side_a = c.left_ventricle, o.side_b = c.right_ventricle;
     else o.side_a = c.left_atrium, o.side_b = c.right_atrium;
     if (o.side_a == 0 || o.side_b == 0) o.side_a = o.side_b = 0;
