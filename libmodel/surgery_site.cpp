@@ -17,14 +17,13 @@
 
 namespace heartsim {
 
-namespace {
-
-/// The world axis `v` lies along (0, 1 or 2) and its sign; `v` is a signed unit axis.
 std::pair<int, double> axis_of(const Eigen::Vector3d& v) {
     int axis = 0;
     v.cwiseAbs().maxCoeff(&axis);
     return {axis, v[axis] < 0 ? -1.0 : 1.0};
 }
+
+namespace {
 
 /// The chosen particle of each approach (runtime/incision_plan.h); `whole` tells whether the atriotomy's
 /// place holds the whole incision.

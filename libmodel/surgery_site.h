@@ -16,6 +16,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace heartsim {
@@ -49,6 +50,9 @@ struct IncisionSite {
 /// The incision's place on the rest positions `rest` (N×3, N > 0) of a lattice of spacing
 /// `spacing` (mm), by options.approach's rule (runtime/incision_plan.h).
 IncisionSite incision_site(const std::vector<std::array<float, 3>>& rest, double spacing, const IncisionSiteOptions& options);
+
+/// The world axis `v` lies along (0, 1 or 2) and its sign; `v` is a signed unit axis.
+std::pair<int, double> axis_of(const Eigen::Vector3d& v);
 
 /// The tissue's thickness from particle `from` along the unit vector `direction`, mm: how far a
 /// point marched from it in quarter spacings stays within 0.75 spacing of a particle, and half a

@@ -2,6 +2,7 @@
 
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
+#include "libmodel/surgery_site.h"
 
 #include <Eigen/Geometry>
 
@@ -13,13 +14,6 @@
 
 namespace heartsim {
 namespace {
-
-/// The world axis `v` lies along (0, 1 or 2) and its sign; `v` is a signed unit axis.
-std::pair<int, double> axis_of(const Eigen::Vector3d& v) {
-    int axis = 0;
-    v.cwiseAbs().maxCoeff(&axis);
-    return {axis, v[axis] < 0 ? -1.0 : 1.0};
-}
 
 /// "posterior (+y)" and the like: where a world axis points, in the patient's words.
 std::string direction_words(const Eigen::Vector3d& v) {
