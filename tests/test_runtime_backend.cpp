@@ -431,7 +431,9 @@ TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
     int cases = 0;
     for (const test::RealCase& c : real) {
         const std::string& name = c.name;
-        const Scenario scenario = read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 --no-visual -q" + c.label_options));
+        // The label map's own walls (--walls labelled), as this incision was written for.
+        const Scenario scenario =
+            read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 --no-visual -q --walls labelled" + c.label_options));
         const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
         auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
         const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))});
