@@ -58,6 +58,8 @@
 #include <fstream>
 #include <iostream>
 #include <limits>
+#include <memory>
+#include <new>
 #include <mutex>
 #include <numbers>
 #include <optional>
@@ -528,6 +530,10 @@ LabelVolume read_voxels(const fs::path& path, Probe& probe) {
     try {
         probe.io->Read(buffer.data());
     } catch (const itk::ExceptionObject& itk_error) {
+        // ITK's NIfTI reader loads the voxels into a copy of its own first ("nifti_image_load
+        // failed" when it cannot have one): where a block that size cannot be had now, the
+        // failure is memory, not the file.
+        if (!std::unique_ptr<char[]>(new (std::nothrow) char[buffer.size() + 1])) throw std::bad_alloc();
         throw InputError(path.string() + ": cannot read voxel data: " + itk_reason(itk_error));
     }
     volume.labels.resize(voxel_count);
