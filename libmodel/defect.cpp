@@ -518,7 +518,11 @@ std::vector<std::pair<std::size_t, std::int32_t>> carve_cylinder(LabelVolume& vo
                                                                  const DefectOptions& o, const Site& s, const std::array<int, 3>& seed,
                                                                  const CarvingBounds& bounds, double r) {
     const VolumeGeometry& geo = volume.geometry;
-    const auto& [lo, hi, window] = bounds;
+    // Named references, not a structured binding: a lambda below uses the window (clang 14 does
+    // not capture structured bindings).
+    const std::array<int, 3>& lo = bounds.lo;
+    const std::array<int, 3>& hi = bounds.hi;
+    const double window = bounds.window;
     std::unordered_set<std::size_t> seen;
     std::deque<std::array<int, 3>> queue;
     queue.push_back(seed);
