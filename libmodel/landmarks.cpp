@@ -5,7 +5,6 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
-#include <tbb/parallel_for.h>
 
 #include <algorithm>
 #include <cmath>

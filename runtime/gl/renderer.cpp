@@ -214,7 +214,10 @@ struct Renderer::State {
             glTextureParameteri(coronary_texture, wrap, GL_CLAMP_TO_BORDER);
         const float border[4] = {float(coronary.reach), 0.0f, 0.0f, 0.0f};
         glTextureParameterfv(coronary_texture, GL_TEXTURE_BORDER_COLOR, border);
-        memory += texels.size() / 2;  // 16-bit texels
+        memory += texels.size() * 2;  // four 16-bit components a node
+        // The texture holds the field now: keep only its grid's placement for the uniforms.
+        coronary.distance = {};
+        coronary.away = {};
         check("loading the coronary arteries' field");
     }
 
