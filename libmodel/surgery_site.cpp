@@ -25,6 +25,11 @@ std::pair<int, double> axis_of(const Eigen::Vector3d& v) {
 
 namespace {
 
+/// Whether options.chamber_wall tells the chamber apart: one flag per rest position, one set.
+bool on_chamber_wall(const std::vector<std::array<float, 3>>& rest, const IncisionSiteOptions& o) {
+    return o.chamber_wall.size() == rest.size() && std::find(o.chamber_wall.begin(), o.chamber_wall.end(), 1) != o.chamber_wall.end();
+}
+
 /// The chosen particle of each approach (runtime/incision_plan.h); `whole` tells whether the atriotomy's
 /// place holds the whole incision.
 std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double spacing, const IncisionSiteOptions& o, bool& whole) {
@@ -33,14 +38,18 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
     std::size_t front = 0;
     bool found = false;
     whole = true;
+    const bool chamber = on_chamber_wall(rest, o);
+    auto allowed = [&](std::size_t i) { return !chamber || o.chamber_wall[i] != 0; };
     if (o.approach == IncisionApproach::ventriculotomy) {
         // The most anterior point of the middle third (in z) of the model: the free wall, not an
-        // apex or a vessel stump at the model's ends.
-        for (std::size_t i = 0; i < rest.size(); ++i) {
-            const double z = rest[i][2];
-            if (z < z_low + (z_high - z_low) / 3 || z > z_high - (z_high - z_low) / 3) continue;
-            if (!found || rest[i][1] < rest[front][1]) front = i, found = true;
-        }
+        // apex or a vessel stump at the model's ends. On the chamber's wall where it is told
+        // apart; where none of it lies in the middle third, its most anterior point anywhere.
+        for (int pass = 0; pass < 2 && !found; ++pass)
+            for (std::size_t i = 0; i < rest.size(); ++i) {
+                const double z = rest[i][2];
+                if (!allowed(i) || (pass == 0 && (z < z_low + (z_high - z_low) / 3 || z > z_high - (z_high - z_low) / 3))) continue;
+                if (!found || rest[i][1] < rest[front][1]) front = i, found = true;
+            }
         return front;
     }
     // The atriotomy: the right surface seen from the patient's right, as the most rightward
@@ -53,7 +62,15 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
     // inside the heart.
     double y_low = std::numeric_limits<double>::infinity(), y_high = -y_low;
     for (const auto& p : rest) y_low = std::min(y_low, double(p[1])), y_high = std::max(y_high, double(p[1]));
-    const double z_mid = z_low + 0.5 * (z_high - z_low), y_limit = y_low + 2.0 * (y_high - y_low) / 3.0;
+    double z_mid = z_low + 0.5 * (z_high - z_low), y_limit = y_low + 2.0 * (y_high - y_low) / 3.0, z_top = z_high;
+    if (chamber) {
+        // On the atrium's own wall: the middle half (in z) of that wall, clear of the venae cavae
+        // above and below it, anterior or posterior alike.
+        double c_low = std::numeric_limits<double>::infinity(), c_high = -c_low;
+        for (std::size_t i = 0; i < rest.size(); ++i)
+            if (allowed(i)) c_low = std::min(c_low, double(rest[i][2])), c_high = std::max(c_high, double(rest[i][2]));
+        z_mid = c_low + 0.25 * (c_high - c_low), z_top = c_high - 0.25 * (c_high - c_low), y_limit = y_high;
+    }
     const double h = spacing;
     const int ny = int(std::lround((y_high - y_low) / h)) + 1, nz = int(std::lround((z_high - z_low) / h)) + 1;
     std::vector<int> surface(std::size_t(ny) * std::size_t(nz), -1);
@@ -69,7 +86,9 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
     for (int bz = 0; bz < nz; ++bz)
         for (int by = 0; by < ny; ++by) {
             const int c = column(by, bz);
-            if (c < 0 || rest[std::size_t(c)][2] < z_mid || rest[std::size_t(c)][1] > y_limit) continue;
+            if (c < 0 || !allowed(std::size_t(c)) || rest[std::size_t(c)][2] < z_mid || rest[std::size_t(c)][2] > z_top ||
+                rest[std::size_t(c)][1] > y_limit)
+                continue;
             const double x0 = rest[std::size_t(c)][0];
             if (found && x0 >= rest[front][0]) continue;
             bool holds = bz - half >= 0 && bz + half < nz && by - wide >= 0 && by + wide < ny;
@@ -86,7 +105,7 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
     whole = false;
     for (int pass = 0; pass < 2 && !found; ++pass)  // the second pass without the y limit: never empty
         for (std::size_t i = 0; i < rest.size(); ++i) {
-            if (rest[i][2] < z_mid || (pass == 0 && rest[i][1] > y_limit)) continue;
+            if (!allowed(i) || rest[i][2] < z_mid || (pass == 0 && rest[i][1] > y_limit)) continue;
             if (!found || rest[i][0] < rest[front][0]) front = i, found = true;
         }
     return front;
@@ -112,6 +131,7 @@ IncisionSite incision_site(const std::vector<std::array<float, 3>>& rest, double
     IncisionSite site;
     const std::size_t front = entry_particle(rest, spacing, o, site.whole_wall);
     site.particle = front;
+    site.on_chamber_wall = on_chamber_wall(rest, o);
     site.entry = Eigen::Vector3d(rest[front][0], rest[front][1], rest[front][2]);
     if (o.approach == IncisionApproach::ventriculotomy) {
         // The blade points posterior (the tool's +z onto the world's +y) with its width along the

@@ -30,6 +30,10 @@ struct IncisionSiteOptions {
     double length_mm = 30.0;     ///< the stroke's length along z, mm
     double depth_mm = 0.0;       ///< the blade's reach behind the entry, mm; 0: through the wall (6 mm assumed for the atriotomy's search)
     double clearance_mm = 2.0;   ///< the blade's tip in front of the entry, mm
+    /// The approach chamber's own wall: one flag per rest position, 1 where the particle is that
+    /// chamber's tissue (the right ventricle's free wall, the right atrium's wall). Empty, or no
+    /// flag set: the chamber is not told apart and the place is found on the whole heart.
+    std::vector<std::uint8_t> chamber_wall;
 };
 
 /// An incision's place: the entry particle and the blade's frame there.
@@ -45,6 +49,8 @@ struct IncisionSite {
     /// The atriotomy found a place whose wall holds the whole incision (else the most rightward
     /// point was taken); always true for the ventriculotomy.
     bool whole_wall = true;
+    /// The place was chosen on options.chamber_wall (false: on the whole heart's rule).
+    bool on_chamber_wall = false;
 };
 
 /// The incision's place on the rest positions `rest` (N×3, N > 0) of a lattice of spacing

@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -47,6 +48,23 @@ const char* to_string(IncisionApproach approach) {
     return approach == IncisionApproach::atriotomy ? "atriotomy" : "ventriculotomy";
 }
 
+std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, IncisionApproach approach, std::string* material_name) {
+    const auto& lattice = scenario.lattice;
+    const char* const chamber = approach == IncisionApproach::atriotomy ? "right atri" : "right ventric";
+    std::vector<std::uint8_t> row_is(lattice.materials.size(), 0);
+    for (std::size_t m = 0; m < lattice.materials.size(); ++m) {
+        std::string name = lattice.materials[m].name;
+        std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+        row_is[m] = name.find(chamber) != std::string::npos;
+        if (row_is[m] && material_name && material_name->empty()) *material_name = lattice.materials[m].name;
+    }
+    const auto& material = lattice.particles.material;
+    std::vector<std::uint8_t> flags(lattice.particles.rest_position.size(), 0);
+    for (std::size_t i = 0; i < flags.size() && i < material.size(); ++i)
+        flags[i] = material[i] >= 0 && std::size_t(material[i]) < row_is.size() && row_is[std::size_t(material[i])];
+    return flags;
+}
+
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius) {
     return frontmost_near(scenario.lattice.particles.rest_position, point, blade, radius);
 }
@@ -57,8 +75,15 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
     IncisionPlan plan;
     plan.approach = o.approach;
     const double spacing = scenario.lattice.spacing;
-    const IncisionSite site = incision_site(
-        rest, spacing, {.approach = o.approach, .length_mm = o.length_mm, .depth_mm = o.depth_mm, .clearance_mm = o.clearance_mm});
+    std::string wall_name;
+    std::vector<std::uint8_t> wall = chamber_wall_particles(scenario, o.approach, &wall_name);
+    const IncisionSite site = incision_site(rest, spacing,
+                                            {.approach = o.approach,
+                                             .length_mm = o.length_mm,
+                                             .depth_mm = o.depth_mm,
+                                             .clearance_mm = o.clearance_mm,
+                                             .chamber_wall = std::move(wall)});
+    if (site.on_chamber_wall) plan.chamber_wall = wall_name;
     plan.particle = int(site.particle);
     plan.whole_wall = site.whole_wall;
     plan.entry = site.entry;
@@ -145,11 +170,18 @@ int plan_incision_command(const PlanIncisionArguments& a) {
     const char axis_name = "xyz"[side_axis];
     std::printf("plan-incision: a right %s on %s (%zu particles, lattice spacing %.2f mm)\n", to_string(options.approach), a.scenario.c_str(),
                 scenario.lattice.particles.rest_position.size(), scenario.lattice.spacing);
-    std::printf("  where       %s: particle %d at (%.1f, %.1f, %.1f) mm, world LPS\n",
-                atriotomy ? "the most rightward place of the heart's upper half, among its anterior two thirds, where the right wall "
-                            "holds the whole incision (the right atrium's free wall where the tissue has one)"
-                          : "the most anterior point of the heart's middle third (the free wall in front)",
-                plan.particle, plan.entry.x(), plan.entry.y(), plan.entry.z());
+    std::string where;
+    if (!plan.chamber_wall.empty())
+        where = atriotomy ? "on the right atrium's own wall ('" + plan.chamber_wall +
+                                "'), the most rightward place of its middle half where the wall holds the whole incision"
+                          : "on the right ventricle's own wall ('" + plan.chamber_wall + "'), its most anterior point in the heart's middle third";
+    else
+        where = atriotomy ? "no tissue is named for the right atrium, so on the whole heart: the most rightward place of its upper half, "
+                            "among its anterior two thirds, where the right wall holds the whole incision"
+                          : "no tissue is named for the right ventricle, so on the whole heart: the most anterior point of its middle "
+                            "third (the free wall in front)";
+    std::printf("  where       %s: particle %d at (%.1f, %.1f, %.1f) mm, world LPS\n", where.c_str(), plan.particle, plan.entry.x(),
+                plan.entry.y(), plan.entry.z());
     char through[64] = "";
     if (!(options.depth_mm > 0)) std::snprintf(through, sizeof through, ": through the %.1f mm wall and 2 mm on", plan.wall_mm);
     std::printf("  blade       %.1f mm long (its tip %.1f mm in front of that point, %.1f mm deep behind it%s), pointing %s%s; its plane "
@@ -174,7 +206,7 @@ int plan_incision_command(const PlanIncisionArguments& a) {
         std::printf("  retractors  none (--spread 0): the cut alone, ending at %.0f ms\n", plan.end_ms);
     }
     if (!plan.whole_wall)
-        std::printf("  note        no place on the right wall of the upper half holds the whole incision within the blade's reach: "
+        std::printf("  note        no place on the right wall holds the whole incision within the blade's reach: "
                     "the most rightward point taken; the cut may run off the wall\n");
     if (!scenario.visual || !scenario.mapping)
         std::printf("  note        the scenario has no detailed mesh (/visual with /mapping): the run cuts the tissue, but the surface it "

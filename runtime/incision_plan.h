@@ -3,13 +3,18 @@
 /// docs/runtime.md "Planning an incision"): a scalpel lowered onto the heart's surface and drawn
 /// `length_mm` from inferior to superior, then lifted; two grabbers used as retractors grab the
 /// incision's two edges, one each side of the blade's plane, and pull them `spread_mm` apart, then
-/// hold. The scenario stores no chamber labels: each approach finds its place by a geometric rule
-/// on the particles' rest positions (world LPS: +x the patient's left, +y posterior, +z superior;
-/// libmodel/surgery_site.h incision_site).
+/// hold. Each approach finds its place by a geometric rule on the particles' rest positions (world
+/// LPS: +x the patient's left, +y posterior, +z superior; libmodel/surgery_site.h incision_site),
+/// on the approach chamber's own wall where the scenario tells it apart: the tissue whose material
+/// is named for the right ventricle or the right atrium (a wall heartprep grew around that
+/// chamber's blood, "right atrium wall (grown)", or one a label map labels and names so). Where no
+/// material names it (HVSMR 2016's one blood pool, a build of the labels as they are), the rule
+/// runs on the whole heart, as below.
 ///
 /// * **ventriculotomy** (a right ventriculotomy through the most anterior wall): the most anterior
 ///   particle (smallest y) of the middle third (in z) of the model, the free wall in front rather
 ///   than an apex or a vessel stump at the model's ends; the blade points posterior (+y).
+///   On the right ventricle's wall: its most anterior particle in the model's middle third.
 /// * **atriotomy** (a right atriotomy on the right atrium's free wall): in the upper half (in z) of
 ///   the model, among its anterior two thirds (in y), where the right atrium sits (right, superior
 ///   and anterior-lateral, clear of the venae cavae behind it), the most rightward surface particle
@@ -17,7 +22,8 @@
 ///   on the retractors' columns it lies within the blade's reach (so the cut stays on a continuous
 ///   wall, off the rim of an opening of the segmentation); the blade points medially (+x) and the
 ///   cut runs superior-inferior, parallel to the atrioventricular groove's right part. Where no
-///   place holds it, the most rightward particle of that region.
+///   place holds it, the most rightward particle of that region. On the right atrium's wall: the
+///   same rule over the middle half (in z) of that wall, front or back, clear of the venae cavae.
 ///
 /// The blade's plane passes a quarter lattice spacing beside the chosen particle's column (a
 /// particle on the plane would be cut from its neighbours on one side or the other by the rounding
@@ -81,7 +87,16 @@ struct IncisionPlan {
     /// The atriotomy found a place whose wall holds the whole incision (else the most rightward
     /// point was taken); always true for the ventriculotomy.
     bool whole_wall = true;
+    /// The material whose wall the place was chosen on ("right atrium wall (grown)"); empty when
+    /// no material names the approach's chamber and the whole heart's rule chose it.
+    std::string chamber_wall;
 };
+
+/// The particles of `scenario` whose material is the wall of `approach`'s chamber (the right
+/// ventricle for the ventriculotomy, the right atrium for the atriotomy): a material whose name
+/// says "right ventric…" or "right atri…" (any case). One flag per particle; all 0 where none is;
+/// `material_name` gets the first such material's name.
+std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, IncisionApproach approach, std::string* material_name = nullptr);
 
 /// The incision of `options.approach` on `scenario`. InputError when the scenario has no particles.
 IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& options = {});

@@ -3,8 +3,10 @@
 // real heart, the mesh opened and closed; its errors and help; `heartsim run --look-at`.
 #include "formats/scenario.h"
 #include "formats/state.h"
+#include "formats/volume_io.h"
 #include "incision_gesture.h"
 #include "libmodel/incision.h"
+#include "libmodel/label_conventions.h"
 #include "runtime/camera.h"
 #include "runtime/incision_plan.h"
 #include "runtime/png.h"
@@ -16,6 +18,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <map>
 #include <regex>
 #include <sstream>
 
@@ -28,6 +31,21 @@ namespace {
 const char* const approaches[] = {"ventriculotomy", "atriotomy"};
 
 const fs::path& phantom() { return test::built_phantom("--cavity 2 --anchor-border --particles 8000"); }
+
+/// Real case `c` built with its label options at 8,000 particles (walls grown, the default), once
+/// for the whole binary; throws where the build fails.
+const fs::path& built_real(const test::RealCase& c) {
+    static test::TempDir dir;
+    static std::map<std::string, fs::path> built;
+    fs::path& path = built[c.name];
+    if (path.empty()) {
+        const fs::path output = dir / (c.name + ".h5");
+        const auto build = test::heartprep("build " + quoted(c.label_map) + " -o " + quoted(output) + " --particles 8000 -q" + c.label_options);
+        if (build.exit_code != 0) throw std::runtime_error("heartprep build of " + c.name + " failed: " + build.output);
+        path = output;
+    }
+    return path;
+}
 
 test::CommandResult heartsim_command(const std::string& arguments) { return test::run_command(quoted(HEARTSIM_EXE) + " " + arguments); }
 
@@ -137,14 +155,54 @@ TEST(IncisionPlan, EveryRealHeartPlaysBothApproachesAndOpens) {
     for (const test::RealCase& c : real) {
         const std::string& name = c.name;
         SCOPED_TRACE(name);
-        const fs::path scenario = dir / (name + ".h5");
-        const auto build = test::heartprep("build " + quoted(c.label_map) + " -o " + quoted(scenario) + " --particles 8000 -q" + c.label_options);
-        ASSERT_EQ(build.exit_code, 0) << build.output;
+        const fs::path& scenario = built_real(c);
         fs::create_directories(dir / name);
         for (const char* approach : approaches) plan_and_run(scenario, approach, dir / name);
         ++cases;
     }
     if (cases == 0) GTEST_SKIP() << "no real label map under " << test::real_data_dir();
+}
+
+namespace {
+
+/// The label of the voxel whose centre is nearest `p` (world LPS mm); 0 outside the map.
+int label_at(const LabelVolume& v, const Eigen::Vector3d& p) {
+    const Eigen::Vector3d ijk = v.geometry.spacing.cwiseInverse().asDiagonal() * (v.geometry.direction.transpose() * (p - v.geometry.origin));
+    const int i = int(std::lround(ijk.x())), j = int(std::lround(ijk.y())), k = int(std::lround(ijk.z()));
+    return v.geometry.contains(i, j, k) ? v.labels[v.geometry.linear(i, j, k)] : 0;
+}
+
+}  // namespace
+
+// On each MM-WHS heart as built by default (walls grown), the planned blade, followed from its
+// entry through the depth it cuts, first meets blood of the approach's chamber in the label map
+// itself: the right ventricle's for the ventriculotomy, the right atrium's for the atriotomy.
+TEST(IncisionPlan, OnEachMmwhsHeartTheBladeOpensTheApproachsChamber) {
+    int tried = 0;
+    for (const test::RealCase& c : test::real_cases()) {
+        if (c.label_options.find("mmwhs") == std::string::npos) continue;
+        SCOPED_TRACE(c.name);
+        const LabelConvention& convention = *find_label_convention(c.label_options.find("ordinal") != std::string::npos ? "mmwhs-ordinal" : "mmwhs");
+        const Scenario scenario = read_scenario(built_real(c));
+        const LabelVolume labels = read_label_volume(c.label_map);
+        for (const auto& [approach, chamber] : {std::pair{IncisionApproach::ventriculotomy, convention.right_ventricle},
+                                                std::pair{IncisionApproach::atriotomy, convention.right_atrium}}) {
+            SCOPED_TRACE(to_string(approach));
+            const IncisionPlan plan = plan_incision(scenario, {.approach = approach});
+            int met = 0;
+            double at = 0;
+            for (double t = 0; t <= plan.depth_mm && met == 0; t += 0.1) {
+                const int l = label_at(labels, plan.entry + t * plan.blade);
+                if (l != 0 && l != convention.myocardium) met = l, at = t;
+            }
+            EXPECT_EQ(met, chamber) << "the blade from (" << plan.entry.transpose() << ") along (" << plan.blade.transpose() << ") met label " << met
+                                    << " at " << at << " mm of its " << plan.depth_mm << " mm";
+            std::printf("%s %s: the blade meets label %d's blood %.1f mm behind its entry (it cuts %.1f mm)\n", c.name.c_str(),
+                        to_string(approach), met, at, plan.depth_mm);
+        }
+        ++tried;
+    }
+    if (tried == 0) GTEST_SKIP() << "no MM-WHS heart under " << test::real_data_dir();
 }
 
 TEST(IncisionPlan, ItsErrorsSayWhatIsWrong) {

@@ -168,5 +168,42 @@ TEST(SurgerySite, TheIncisionSiteIsTheRuleOnAColumnOfParticles) {
     EXPECT_EQ(frontmost_near(rest, Eigen::Vector3d(20, 0, 15), Eigen::Vector3d::UnitY(), 0.5), -1);
 }
 
+TEST(SurgerySite, TheIncisionSiteKeepsToTheChambersOwnWall) {
+    // Two blocks, z 0…40: a "vessel" at x −10…−6, y −8…−1, further right and further front
+    // than a "chamber wall" at x −3…3, y 0…6. On the whole, each rule takes the vessel; told the
+    // chamber's wall, each stays on it.
+    std::vector<std::array<float, 3>> rest;
+    std::vector<std::uint8_t> wall;
+    for (int z = 0; z <= 40; ++z)
+        for (int y = -8; y <= 6; ++y)
+            for (int x = -10; x <= 3; ++x) {
+                const bool vessel = x <= -6 && y < 0, chamber = x >= -3 && y >= 0;
+                if (!vessel && !chamber) continue;
+                rest.push_back({float(x), float(y), float(z)});
+                wall.push_back(chamber ? 1 : 0);
+            }
+    for (const IncisionApproach approach : {IncisionApproach::ventriculotomy, IncisionApproach::atriotomy}) {
+        SCOPED_TRACE(approach == IncisionApproach::atriotomy ? "atriotomy" : "ventriculotomy");
+        const IncisionSite whole = incision_site(rest, 1.0, {.approach = approach, .length_mm = 10});
+        EXPECT_FALSE(whole.on_chamber_wall);
+        EXPECT_LE(whole.entry.x(), -6.0);
+        const IncisionSite chamber = incision_site(rest, 1.0, {.approach = approach, .length_mm = 10, .chamber_wall = wall});
+        EXPECT_TRUE(chamber.on_chamber_wall);
+        EXPECT_EQ(wall[chamber.particle], 1);
+        if (approach == IncisionApproach::ventriculotomy) {
+            EXPECT_EQ(chamber.entry.y(), 0.0);  // the chamber wall's front
+        } else {
+            EXPECT_EQ(chamber.entry.x(), -3.0);  // the chamber wall's rightmost face
+            EXPECT_TRUE(chamber.whole_wall);
+            // The middle half in z of the wall: 10…30.
+            EXPECT_GE(chamber.entry.z(), 10.0);
+            EXPECT_LE(chamber.entry.z(), 30.0);
+        }
+    }
+    // A flag list of the wrong length, or with none set, is the whole heart's rule.
+    EXPECT_FALSE(incision_site(rest, 1.0, {.chamber_wall = std::vector<std::uint8_t>(3, 1)}).on_chamber_wall);
+    EXPECT_FALSE(incision_site(rest, 1.0, {.chamber_wall = std::vector<std::uint8_t>(rest.size(), 0)}).on_chamber_wall);
+}
+
 }  // namespace
 }  // namespace heartsim
