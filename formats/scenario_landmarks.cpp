@@ -1,8 +1,7 @@
 // /landmarks of the scenario file: one float64 [N,3] dataset per landmark found, its figures as
 // attributes; the names and reasons of those missing as two string datasets.
 #include "scenario_landmarks.h"
-
-#include "libmodel/plausible.h"
+#include "scenario_checks.h"
 
 #include <algorithm>
 #include <cmath>
@@ -58,9 +57,7 @@ Landmarks read_landmarks(const h5::Reader& r, bool has_visual) {
         std::size_t rows = 0;
         const auto flat = r.dataset<double>(name, {-1, 3}, &rows);
         r.require_finite(name, flat);
-        for (std::size_t n = 0; n < flat.size(); ++n)
-            if (!plausible::coordinate_mm.contains(flat[n]))
-                r.fail(name, plausible::outside("entry " + std::to_string(n), flat[n], plausible::coordinate_mm));
+        require_plausible(r, name, flat, plausible::coordinate_mm);
         for (std::size_t i = 0; i < rows; ++i) l.points.emplace_back(flat[3 * i], flat[3 * i + 1], flat[3 * i + 2]);
         try {
             l.kind = parse_landmark_kind(r.string_attribute(name, "kind"));
