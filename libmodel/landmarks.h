@@ -114,9 +114,10 @@ Landmarks find_landmarks(const LabelVolume& volume, const ChamberLabels& chamber
 Landmarks missing_landmarks(const std::string& reason);
 
 /// The exact Euclidean distance, mm, from each voxel centre of `geometry` to the nearest voxel
-/// centre where `inside` is 1 (0 there; +infinity where no voxel is inside). Felzenszwalb and
-/// Huttenlocher's separable transform with each axis' spacing (the grid's direction is taken as a
-/// rotation). i fastest.
+/// centre where `inside` is non-zero (0 there; +infinity where no voxel is inside): the square
+/// root of feature_transform's squared distances (walls.h), with each axis' spacing (the grid's
+/// direction is taken as a rotation). i fastest. Throws InputError, as feature_transform does,
+/// for more than 2³¹ − 1 voxels or an `inside` of another size.
 std::vector<float> distance_map(const VolumeGeometry& geometry, const std::vector<std::uint8_t>& inside);
 
 }  // namespace heartsim
