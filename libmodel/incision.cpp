@@ -302,6 +302,56 @@ void refine(const IncisionMesh& mesh, const Patch& patch, const Mesh::Property_m
         }
 }
 
+/// A cut edge from one point of the strip's border to another that is not itself on the border:
+/// where the blade's edge grazes the surface, the curve crosses the strip in one edge. Neither end
+/// is parted (each is the crack's front), so the mesh's faces on its two sides would keep the edge
+/// while both caps reach it: four faces on one edge. Each such edge is split at its middle, in the
+/// strip and in the mesh's faces (from `triangles_from`) alike: the middle is a point of the curve
+/// inside the strip, which split_into_fans then parts, one copy per side.
+void split_cut_chords(Mesh& swept, Mesh::Property_map<Mesh::Edge_index, bool>& constrained, Opening& out, std::size_t triangles_from) {
+    std::vector<Mesh::Edge_index> chords;
+    for (auto e : swept.edges())
+        if (constrained[e] && !swept.is_border(e) && swept.is_border(swept.vertex(e, 0)) && swept.is_border(swept.vertex(e, 1)))
+            chords.push_back(e);
+    if (chords.empty()) return;
+    std::map<PointKey, std::int32_t> on_cut;  // the cut edges' ends, by their exact coordinates
+    for (const auto& [a, b] : out.cut_edges) {
+        on_cut[key(point(out.rest[std::size_t(a)]))] = a;
+        on_cut[key(point(out.rest[std::size_t(b)]))] = b;
+    }
+    for (auto e : chords) {
+        const auto h = swept.halfedge(e);
+        const auto ia = on_cut.find(key(swept.point(swept.source(h)))), ib = on_cut.find(key(swept.point(swept.target(h))));
+        if (ia == on_cut.end() || ib == on_cut.end()) continue;
+        const std::int32_t a = ia->second, b = ib->second;
+        const Point middle = CGAL::midpoint(swept.point(swept.source(h)), swept.point(swept.target(h)));
+        // The strip: both halves stay on the curve, the two faces each split through the middle.
+        const auto split = CGAL::Euler::split_edge(h, swept);
+        swept.point(swept.target(split)) = middle;
+        constrained[swept.edge(split)] = true;
+        constrained[swept.edge(h)] = true;
+        if (!swept.is_border(split)) CGAL::Euler::split_face(split, swept.next(swept.next(split)), swept);
+        const auto across = swept.opposite(split);
+        if (!swept.is_border(across)) CGAL::Euler::split_face(swept.prev(across), swept.next(across), swept);
+        // The mesh: the middle a vertex of its own, each face on the edge in two through it.
+        const std::int32_t m = std::int32_t(out.rest.size());
+        out.rest.push_back(vector(middle));
+        const std::size_t faces = out.triangles.size();
+        for (std::size_t t = triangles_from; t < faces; ++t)
+            for (std::size_t k = 0; k < 3; ++k) {
+                const std::int32_t x = out.triangles[t][k], y = out.triangles[t][(k + 1) % 3], z = out.triangles[t][(k + 2) % 3];
+                if (!((x == a && y == b) || (x == b && y == a))) continue;
+                out.triangles[t] = {x, m, z};
+                out.triangles.push_back({m, y, z});
+                out.cap.push_back(out.cap[t]);
+                break;
+            }
+        out.cut_edges.erase({std::min(a, b), std::max(a, b)});
+        out.cut_edges.insert({std::min(a, m), std::max(a, m)});
+        out.cut_edges.insert({std::min(m, b), std::max(m, b)});
+    }
+}
+
 /// Splits each vertex on the cut into its fans: the faces around it joined across edges that are
 /// not cut. The first fan keeps the vertex; each other fan gets a copy.
 void split_into_fans(Opening& out, std::size_t triangles_from) {
@@ -572,6 +622,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
 
     Opening out;
     refine(mesh, patch, patch_constrained, out, result);
+    split_cut_chords(swept, strip_constrained, out, result.triangles_from);
     split_into_fans(out, result.triangles_from);
     split_chords(swept, strip_constrained);
     const Caps caps = make_caps(swept, faces_inside(swept, strip_constrained, mesh), out, result);

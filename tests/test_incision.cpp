@@ -153,6 +153,32 @@ TEST(Incision, ASlitHalfwayDownLeavesOneClosedPieceWithTheCrackFrontShared) {
     EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
 }
 
+// A blade whose edge grazes the surface: its tip runs out of the box's top (z = 10) at x = 6.6,
+// inside the stroke's last pose (x = 6.9), so the cut's curve on the top face crosses the swept
+// surface in one edge from its tip edge to its end edge, a top-face triangle's. Neither end of
+// that edge is parted (both are the crack's front), yet the tissue under it is cut: the mesh still
+// opens there, closed and in one piece, its volume the box's less at most the slit's.
+TEST(Incision, ABladeWhoseEdgeGrazesTheSurfaceOpensAndStaysClosed) {
+    const Eigen::Vector3d low(0, 0, 0), high(10, 10, 10);
+    const BoxMesh box = box_mesh(low, high, 1.0);
+    IncisionMesh mesh = incision_mesh(box.positions, {}, box.triangles);
+    CutSurface strip;
+    // y = 2.5 crosses the top face's squares at their middle, where either diagonal crosses
+    // x = 6.5: the curve from x = 6.6 to 6.9 lies in one triangle.
+    strip.points = {{4, 2.5, 13}, {6.9, 2.5, 13}, {6.9, 2.5, 9.7}, {4, 2.5, 12.6}};
+    strip.triangles = {{0, 1, 3}, {1, 2, 3}};
+    const double gap = 0.02;
+    const IncisionResult result = open_along(mesh, strip, gap);
+    ASSERT_TRUE(result.opened) << result.failure;
+    EXPECT_GT(result.cap_triangles, 0u);
+    std::string why;
+    EXPECT_TRUE(closed_manifold(mesh.triangles, &why)) << why;
+    EXPECT_EQ(count_components(mesh.triangles, mesh.rest.size()), 1u);
+    // The cut inside the box: the triangle (6.6, 10), (6.9, 10), (6.9, 9.7) of the strip's plane.
+    const double slit = gap * 0.5 * 0.3 * 0.3;
+    EXPECT_NEAR(enclosed_volume(mesh.rest, mesh.triangles), high.prod() - 0.5 * slit, 0.5 * slit + 1e-9);
+}
+
 // A blade drawn right through a box along a bent path, inside the box from its tip to its end
 // (a slit in the middle of the wall, open only where the path enters and leaves): the blade's line
 // at the bend joins two points of the crack's front through the inside of the swept surface, and
