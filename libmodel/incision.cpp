@@ -559,34 +559,6 @@ void part_and_shade(const IncisionMesh& mesh, const Caps& caps, double gap_mm, O
     result.cap_triangles = caps.faces.size();
 }
 
-/// Whether the new faces (from `from` on: the patch's and the caps) close up with each other and
-/// with the faces around them: each of their directed edges once among all faces, its reverse
-/// once. A face with such an edge has both its ends, so only the edges between two corners of new
-/// faces are counted.
-bool closes_up(const std::vector<std::array<std::int32_t, 3>>& triangles, std::size_t from, std::size_t vertices) {
-    std::vector<std::uint8_t> touched(vertices, 0);
-    for (std::size_t t = from; t < triangles.size(); ++t)
-        for (std::int32_t v : triangles[t]) touched[std::size_t(v)] = 1;
-    auto edge = [](std::int32_t a, std::int32_t b) { return std::uint64_t(std::uint32_t(a)) << 32 | std::uint32_t(b); };
-    std::vector<std::uint64_t> directed;
-    for (const auto& t : triangles)
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
-            if (touched[std::size_t(a)] && touched[std::size_t(b)]) directed.push_back(edge(a, b));
-        }
-    std::sort(directed.begin(), directed.end());
-    auto count = [&](std::uint64_t e) {
-        const auto [first, last] = std::equal_range(directed.begin(), directed.end(), e);
-        return last - first;
-    };
-    for (std::size_t t = from; t < triangles.size(); ++t)
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = triangles[t][std::size_t(k)], b = triangles[t][std::size_t((k + 1) % 3)];
-            if (count(edge(a, b)) != 1 || count(edge(b, a)) != 1) return false;
-        }
-    return true;
-}
-
 }  // namespace
 
 IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double gap_mm) {
@@ -633,7 +605,7 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     std::vector<Eigen::Vector3f> normals;
     part_and_shade(mesh, caps, gap_mm, out, normals, result);
     // Where the geometry defeated the split, the mesh stays as it was.
-    if (!closes_up(out.triangles, result.triangles_from, out.rest.size())) {
+    if (!closed_manifold(out.triangles, nullptr, result.triangles_from)) {
         IncisionResult failed;
         failed.vertices_from = result.vertices_from;
         failed.patch_triangles = result.patch_triangles;
@@ -648,16 +620,46 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     return result;
 }
 
-bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why) {
-    std::map<std::pair<std::int32_t, std::int32_t>, int> directed;
+bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why, std::size_t from) {
+    using Edge = std::pair<std::int32_t, std::int32_t>;
+    // Only the edges between two corners of the checked faces are counted: a checked face's edges
+    // have both their ends among them.
+    std::vector<std::uint8_t> touched;
+    if (from > 0) {
+        for (std::size_t t = from; t < triangles.size(); ++t)
+            for (std::int32_t v : triangles[t]) {
+                if (v < 0) continue;
+                if (std::size_t(v) >= touched.size()) touched.resize(std::size_t(v) + 1, 0);
+                touched[std::size_t(v)] = 1;
+            }
+    }
+    auto counted = [&](std::int32_t v) { return from == 0 || (v >= 0 && std::size_t(v) < touched.size() && touched[std::size_t(v)]); };
+    std::vector<Edge> directed;
     for (const auto& t : triangles)
-        for (int k = 0; k < 3; ++k) ++directed[{t[std::size_t(k)], t[std::size_t((k + 1) % 3)]}];
-    for (const auto& [edge, count] : directed) {
-        const auto back = directed.find({edge.second, edge.first});
-        const int reverse = back == directed.end() ? 0 : back->second;
-        if (count != 1 || reverse != 1) {
+        for (int k = 0; k < 3; ++k) {
+            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
+            if (counted(a) && counted(b)) directed.push_back({a, b});
+        }
+    std::sort(directed.begin(), directed.end());
+    auto count = [&](const Edge& e) {
+        const auto [first, last] = std::equal_range(directed.begin(), directed.end(), e);
+        return int(last - first);
+    };
+    // The checked faces' edges in order: the first offending one is the lowest (a, b).
+    std::vector<Edge> added;
+    if (from > 0) {
+        for (std::size_t t = from; t < triangles.size(); ++t)
+            for (int k = 0; k < 3; ++k) added.push_back({triangles[t][std::size_t(k)], triangles[t][std::size_t((k + 1) % 3)]});
+        std::sort(added.begin(), added.end());
+    }
+    const std::vector<Edge>& checked = from > 0 ? added : directed;
+    for (std::size_t n = 0; n < checked.size(); ++n) {
+        const Edge& edge = checked[n];
+        if (n > 0 && checked[n - 1] == edge) continue;
+        const int forward = count(edge), reverse = count({edge.second, edge.first});
+        if (forward != 1 || reverse != 1) {
             if (why)
-                *why = "edge (" + std::to_string(edge.first) + ", " + std::to_string(edge.second) + ") occurs " + std::to_string(count) +
+                *why = "edge (" + std::to_string(edge.first) + ", " + std::to_string(edge.second) + ") occurs " + std::to_string(forward) +
                        " time(s), its reverse " + std::to_string(reverse);
             return false;
         }

@@ -69,8 +69,10 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
 
 /// True when every directed edge (a, b) of `triangles` occurs exactly once and (b, a) exactly once:
 /// a closed, consistently oriented 2-manifold (vertex pinches aside). `why` says the first
-/// offending edge.
-bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why = nullptr);
+/// offending edge (the lowest (a, b)). With `from` > 0 only the edges of triangles[from, end) are
+/// checked, each against all of `triangles`: whether the faces added from `from` on close up with
+/// each other and with the faces around them (open_along's check of its patch and caps).
+bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why = nullptr, std::size_t from = 0);
 
 /// The volume a closed, outward-oriented mesh encloses (divergence theorem), mm³.
 double enclosed_volume(const std::vector<Eigen::Vector3d>& positions, const std::vector<std::array<std::int32_t, 3>>& triangles);
