@@ -323,6 +323,8 @@ std::optional<int> insert_run_word(const CLI::App& app, int argc, char** argv, s
 }  // namespace
 
 int main(int argc, char** argv) {
+    // Lines on stdout reach a file or a pipe as they are printed (a log, a test follow them).
+    std::setvbuf(stdout, nullptr, _IOLBF, 0);
     CLI::App app{"heartsim: GPU spring-mass simulation of a patient heart (scenario from heartprep)\n\n"
                  "  heartsim scenario.h5                      open a window and simulate (same as `heartsim run`)\n"
                  "  heartsim run scenario.h5 --headless --steps 500 --screenshot out.png --stats\n"

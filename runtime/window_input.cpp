@@ -6,6 +6,7 @@
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
 
+#include <algorithm>
 #include <cmath>
 #include <optional>
 
@@ -156,6 +157,13 @@ void install_input_callbacks(GLFWwindow* window, WindowInput& input) {
     });
     glfwSetKeyCallback(window, [](GLFWwindow* w, int key, int, int action, int mods) {
         auto* in = static_cast<WindowInput*>(glfwGetWindowUserPointer(w));
+        // The arrows and PgUp / PgDn: each press and the time held, counted as the events come
+        // (the loop moves instrument 0 by them; a key repeat changes nothing).
+        if (const int index = movement_key_index(key); index >= 0) {
+            if (action != GLFW_REPEAT)
+                movement_key_event(in->movement, index, action == GLFW_PRESS, (mods & GLFW_MOD_SHIFT) != 0, MovementKeys::Clock::now());
+            return;
+        }
         // [ and ] move the section plane, 1 mm a press (Shift: 5 mm), and go on while held.
         if ((key == GLFW_KEY_LEFT_BRACKET || key == GLFW_KEY_RIGHT_BRACKET) && action != GLFW_RELEASE) {
             const float step_mm = (mods & GLFW_MOD_SHIFT) ? 5.0f : 1.0f;
@@ -192,17 +200,66 @@ void install_input_callbacks(GLFWwindow* window, WindowInput& input) {
     });
 }
 
-Eigen::Vector3d arrow_keys_direction(GLFWwindow* window, const Camera& camera, bool& slow) {
-    const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
-    Eigen::Vector3d move = Eigen::Vector3d::Zero();
-    if (glfwGetKey(window, GLFW_KEY_RIGHT) == GLFW_PRESS) move += basis.col(0);
-    if (glfwGetKey(window, GLFW_KEY_LEFT) == GLFW_PRESS) move -= basis.col(0);
-    if (glfwGetKey(window, GLFW_KEY_UP) == GLFW_PRESS) move += basis.col(1);
-    if (glfwGetKey(window, GLFW_KEY_DOWN) == GLFW_PRESS) move -= basis.col(1);
-    if (glfwGetKey(window, GLFW_KEY_PAGE_UP) == GLFW_PRESS) move -= basis.col(2);
-    if (glfwGetKey(window, GLFW_KEY_PAGE_DOWN) == GLFW_PRESS) move += basis.col(2);
-    slow = glfwGetKey(window, GLFW_KEY_LEFT_SHIFT) == GLFW_PRESS || glfwGetKey(window, GLFW_KEY_RIGHT_SHIFT) == GLFW_PRESS;
-    return move;
+namespace {
+
+/// The movement keys in MovementKeys' order, their names on the terminal, and where each moves
+/// (the view frame: x right, y up, z out of the screen).
+constexpr std::array<int, MovementKeys::count> movement_glfw_keys = {GLFW_KEY_RIGHT, GLFW_KEY_LEFT, GLFW_KEY_UP, GLFW_KEY_DOWN,
+                                                                     GLFW_KEY_PAGE_UP, GLFW_KEY_PAGE_DOWN};
+constexpr std::array<const char*, MovementKeys::count> movement_key_names = {"Right", "Left", "Up", "Down", "PgUp", "PgDn"};
+
+Eigen::Vector3d movement_axis(int index) {
+    const std::array<Eigen::Vector3d, MovementKeys::count> axes = {Eigen::Vector3d::UnitX(), -Eigen::Vector3d::UnitX(), Eigen::Vector3d::UnitY(),
+                                                                   -Eigen::Vector3d::UnitY(), -Eigen::Vector3d::UnitZ(), Eigen::Vector3d::UnitZ()};
+    return axes[std::size_t(index)];
+}
+
+double seconds(MovementKeys::Clock::duration d) { return std::chrono::duration<double>(d).count(); }
+
+/// Key `k`'s held time from where it was counted to `now`, at most longest_stretch_s.
+void count_key(MovementKeys& keys, std::size_t k, MovementKeys::Clock::time_point now) {
+    if (!keys.down[k] || now <= keys.counted_to[k]) return;
+    keys.owed_s[k] += std::min(seconds(now - keys.counted_to[k]), MovementKeys::longest_stretch_s) * (keys.slow[k] ? 0.2 : 1.0);
+    keys.counted_to[k] = now;
+}
+
+}  // namespace
+
+int movement_key_index(int glfw_key) {
+    for (int k = 0; k < MovementKeys::count; ++k)
+        if (movement_glfw_keys[std::size_t(k)] == glfw_key) return k;
+    return -1;
+}
+
+void movement_key_event(MovementKeys& keys, int index, bool press, bool slow, MovementKeys::Clock::time_point now) {
+    const auto k = std::size_t(index);
+    if (press) {
+        if (keys.down[k]) return;  // a second press without a release (a lost release): the hold goes on
+        keys.down[k] = true, keys.slow[k] = slow;
+        keys.pressed_at[k] = keys.counted_to[k] = now;
+        return;
+    }
+    if (!keys.down[k]) return;
+    count_key(keys, k, now);
+    keys.down[k] = false;
+    const double held_s = seconds(now - keys.pressed_at[k]);
+    // A tap (pressed and released between two frames, or quicker than a frame) moves as tap_s held.
+    if (held_s < MovementKeys::tap_s) keys.owed_s[k] += (MovementKeys::tap_s - held_s) * (keys.slow[k] ? 0.2 : 1.0);
+    if (keys.report) say("keyboard: %s held %.3f s%s\n", movement_key_names[k], held_s, keys.slow[k] ? " (Shift: 5x slower)" : "");
+}
+
+void count_held_keys(MovementKeys& keys, MovementKeys::Clock::time_point now) {
+    for (std::size_t k = 0; k < std::size_t(MovementKeys::count); ++k) count_key(keys, k, now);
+}
+
+Eigen::Vector3d take_key_motion(MovementKeys& keys, MovementKeys::Clock::time_point now) {
+    count_held_keys(keys, now);
+    Eigen::Vector3d motion = Eigen::Vector3d::Zero();
+    for (int k = 0; k < MovementKeys::count; ++k) {
+        motion += keys.owed_s[std::size_t(k)] * movement_axis(k);
+        keys.owed_s[std::size_t(k)] = 0;
+    }
+    return motion;
 }
 
 }  // namespace heartsim

@@ -7,11 +7,42 @@
 #include "runtime/gl/renderer.h"
 #include "runtime/haptics/haptics.h"
 
+#include <array>
+#include <chrono>
 #include <cstdio>
 
 struct GLFWwindow;
 
 namespace heartsim {
+
+/// The keys that move instrument 0 (→ ← ↑ ↓, PgUp, PgDn), kept by the key callback between
+/// frames: every press counts and so does the time each key is held, however slow the frames
+/// (on llvmpipe a frame can take a second). The loop takes what they owe (take_key_motion).
+struct MovementKeys {
+    using Clock = std::chrono::steady_clock;
+    static constexpr int count = 6;
+    /// A press moves at least as much as this hold, s (a tap between two frames counts).
+    static constexpr double tap_s = 0.1;
+    /// The longest stretch counted at once, s: a stall of the program (a key held while it hung,
+    /// released after) does not throw the instrument away. Longer than a slow frame.
+    static constexpr double longest_stretch_s = 2.0;
+    std::array<bool, count> down{};
+    std::array<bool, count> slow{};  ///< Shift was held at the press: 5x slower
+    std::array<Clock::time_point, count> pressed_at{}, counted_to{};
+    std::array<double, count> owed_s{};  ///< held seconds not yet moved (Shift's at a fifth)
+    bool report = false;                 ///< say each release (a keyboard instrument or the mouse device moves)
+};
+
+/// The index of a movement key in MovementKeys (GLFW_KEY_RIGHT, …), or -1.
+int movement_key_index(int glfw_key);
+/// A press or release of movement key `index` at `now` (a release says how long it was held when
+/// keys.report).
+void movement_key_event(MovementKeys& keys, int index, bool press, bool slow, MovementKeys::Clock::time_point now);
+/// Counts the held keys' time up to `now` (also while the loop waits between frames).
+void count_held_keys(MovementKeys& keys, MovementKeys::Clock::time_point now);
+/// What the keys owe up to `now`, in seconds of motion along the view frame's axes (x right,
+/// y up, z out of the screen), and owes nothing after.
+Eigen::Vector3d take_key_motion(MovementKeys& keys, MovementKeys::Clock::time_point now);
 
 /// The window's mouse and keyboard state (GLFW callbacks write it).
 struct WindowInput {
@@ -44,6 +75,7 @@ struct WindowInput {
     bool toggle_patch = false;      ///< Shift + P: instrument 0 to a patch and back (haptic sessions)
     bool toggle_needle = false;     ///< Shift + N: instrument 0 to a needle and back (haptic sessions)
     bool redraw = false;            ///< C, [, ], V: the section changed; draw the next frame now
+    MovementKeys movement;          ///< arrows, PgUp / PgDn: presses and held time since the last frame
 };
 
 /// An event line on stdout at once (tests and logs read it while the window runs).
@@ -66,8 +98,5 @@ void toggle_device_button(WindowInput& in);
 /// place. A log (a test) that reads both knows when the simulation has taken an input in.
 void device_moved(WindowInput& in);
 
-/// The arrows (view plane) and PgUp / PgDn (into / out of the screen) held now, in the world
-/// frame of `camera`'s view, and whether Shift is held (slow).
-Eigen::Vector3d arrow_keys_direction(GLFWwindow* window, const Camera& camera, bool& slow);
 
 }  // namespace heartsim

@@ -68,6 +68,10 @@ std::tm local_time_now() {
     return local;
 }
 
+/// The arrows' and PgUp / PgDn's speed, mm per second held: a quarter of the model's radius
+/// (Shift: a fifth of that).
+double keyboard_speed_mm_per_s(const Camera& camera) { return 0.25 * double(camera.radius); }
+
 /// Shift + P's patch and Shift + N's needle: the patch plan-repair lays on a defect of the
 /// scenario's diameter (D + 2·(rim + 2 mm) across; a 10 mm defect's without one), as thick as its
 /// patch; the plan's needle.
@@ -146,7 +150,13 @@ private:
     void handle_requests();
     /// The steps the frame owes (gl), the keyboard's hand 0 and the mouse device moved, a haptic
     /// session stepped to real time (gl), the simulation thread's state taken (cpu).
-    void step_frame(std::chrono::steady_clock::time_point now, double frame_s);
+    void step_frame(std::chrono::steady_clock::time_point now);
+    /// The arrows and PgUp / PgDn: instrument 0 (the keyboard's or the mouse device) moved by what
+    /// the keys owe up to `now`, 0.25 model radius a second held, whatever the frame rate.
+    void move_by_keys(std::chrono::steady_clock::time_point now);
+    /// The keyboard's instrument: "in place at" once the simulation has stepped it where the keys
+    /// put it (after they moved it and are all up).
+    void say_keyboard_in_place();
     /// Paused, resumed, one step done: said once the simulation has taken them in.
     void say_events();
     /// The instruments to draw, with their contact colour; the mouse device's "in place".
@@ -194,6 +204,9 @@ private:
     StepClock step_clock;
     const double start_simulated_ms;
     InstrumentKeyframe keyboard;
+    bool keyboard_in_place = true;  // the simulation has stepped hand 0 where the keys put it (said)
+    std::optional<Eigen::Vector3d> gl_keyboard_stepped;  // gl: hand 0's position at the last step
+    bool said_help = false;         // the help's layout said since it was turned on
     // The simulation follows the wall clock, never ahead of it: with the cpu backend on its own
     // thread (a haptic session's steps too, so drawing never stalls the forces); with the gl
     // backend (one GL context) between frames within a time budget. Drawing takes at most
@@ -227,6 +240,7 @@ WindowLoop::WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer,
         if (input.device) input.device_pose = input.device->last_set();
     }
     install_input_callbacks(window, input);
+    input.movement.report = (keyboard_hand0 && !haptic) || input.device;
     glfwSwapInterval(1);
     hud.emplace(window);
     repair = repair_of(backend);
@@ -235,6 +249,17 @@ WindowLoop::WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer,
         keyboard = trajectory.at(0, 0.0);
         backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
         backend.set_pose(0, keyboard.pose);
+    }
+    const double speed = keyboard_speed_mm_per_s(renderer.camera());
+    if (keyboard_hand0 && !haptic) {
+        const Eigen::Vector3d& p = keyboard.pose.position;
+        say("keyboard: instrument 0 (%s) at (%.2f, %.2f, %.2f) mm; the arrows move it in the view plane, PgUp / PgDn in depth, "
+            "%.3g mm/s (Shift: %.3g mm/s); H lists the keys\n",
+            to_string(keyboard.kind), p.x(), p.y(), p.z(), speed, 0.2 * speed);
+    } else if (input.device) {
+        say("keyboard: the arrows move the mouse device in the view plane, PgUp / PgDn in depth, %.3g mm/s (Shift: %.3g mm/s); H lists "
+            "the keys\n",
+            speed, 0.2 * speed);
     }
     const WindowSimulationOptions simulation_options{.keyboard_hand0 = keyboard_hand0, .steps = steps, .end_ms = a.end_ms};
     if (backend.kind() == BackendKind::cpu) {
@@ -248,12 +273,12 @@ WindowLoop::WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer,
 void WindowLoop::frame() {
     glfwPollEvents();
     const auto now = std::chrono::steady_clock::now();
-    const double frame_s = std::min(0.1, std::chrono::duration<double>(now - last).count());
     if (input.paused) paused_ms += 1e3 * std::chrono::duration<double>(now - last).count();
     last = now;
     handle_requests();
-    step_frame(now, frame_s);
+    step_frame(now);
     say_events();
+    say_keyboard_in_place();
     int width = 0, height = 0;
     glfwGetFramebufferSize(window, &width, &height);
     if (width > 0 && height > 0) renderer.resize(width, height);
@@ -378,7 +403,34 @@ void WindowLoop::handle_requests() {
     }
 }
 
-void WindowLoop::step_frame(std::chrono::steady_clock::time_point now, double frame_s) {
+void WindowLoop::move_by_keys(std::chrono::steady_clock::time_point now) {
+    const Eigen::Vector3d held = take_key_motion(input.movement, now);
+    if (!keyboard_hand0 && !input.device) return;
+    const Camera& camera = renderer.camera();
+    const Eigen::Matrix3d basis = camera.orientation.toRotationMatrix().cast<double>();
+    const Eigen::Vector3d move = keyboard_speed_mm_per_s(camera) * (basis * held);
+    keyboard.pose.position += move;
+    if (keyboard_hand0 && !move.isZero()) keyboard_in_place = false;
+    if (simulation && keyboard_hand0) simulation->set_keyboard_pose(keyboard.pose);
+    if (input.device) {
+        input.device_pose.position_mm += move;
+        if (!move.isZero()) device_moved(input);
+        if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
+        input.device->set_pose(input.device_pose);
+    }
+}
+
+void WindowLoop::say_keyboard_in_place() {
+    if (!keyboard_hand0 || haptic || keyboard_in_place) return;
+    for (const bool down : input.movement.down)
+        if (down) return;
+    const std::optional<Eigen::Vector3d> stepped = simulation ? simulation->status().keyboard_position_mm : gl_keyboard_stepped;
+    if (!stepped || (*stepped - keyboard.pose.position).norm() > 1e-9) return;
+    keyboard_in_place = true;
+    say("keyboard: instrument 0 in place at (%.2f, %.2f, %.2f) mm\n", stepped->x(), stepped->y(), stepped->z());
+}
+
+void WindowLoop::step_frame(std::chrono::steady_clock::time_point now) {
     // gl: the steps the wall clock owes, within a budget of twice the last frame's drawing
     // (12 ms at least), so a slow renderer leaves the simulation most of the wall clock.
     int n = 0;
@@ -407,21 +459,9 @@ void WindowLoop::step_frame(std::chrono::steady_clock::time_point now, double fr
 
     // Keyboard: arrows move hand 0 (or the mouse device) in the view plane, PgUp/PgDn into /
     // out of the screen.
-    InstrumentPose from = keyboard.pose, to = keyboard.pose;
-    if (keyboard_hand0 || input.device) {
-        const Camera& camera = renderer.camera();
-        bool slow = false;
-        const Eigen::Vector3d move = arrow_keys_direction(window, camera, slow);
-        to.position += move * (0.25 * camera.radius * (slow ? 0.2 : 1.0) * frame_s);
-        keyboard.pose = to;
-        if (simulation && keyboard_hand0) simulation->set_keyboard_pose(to);
-        if (input.device) {
-            input.device_pose.position_mm += to.position - from.position;
-            if (to.position != from.position) device_moved(input);
-            if (haptic->device_spec(0) == "mouse") input.device_pose.orientation = mouse_orientation(haptic->instrument(0), camera);
-            input.device->set_pose(input.device_pose);
-        }
-    }
+    const InstrumentPose from = keyboard.pose;
+    move_by_keys(now);
+    const InstrumentPose to = keyboard.pose;
     if (haptic && !simulation) {
         // Haptics with the gl backend: the simulation follows real time between frames; the
         // device thread moves the instruments.
@@ -456,6 +496,7 @@ void WindowLoop::step_frame(std::chrono::steady_clock::time_point now, double fr
         const InstrumentPose hand0{from.position + f * (to.position - from.position), to.orientation};
         std::optional<InstrumentForces> forces;
         result.add(stepper.step_scripted(hands, trajectory, step_clock, step, keyboard_hand0, hand0, forces));
+        if (keyboard_hand0) gl_keyboard_stepped = hand0.position;
         if (forces) {
             ++result.forces_received;
             gl_forces = forces;
@@ -651,7 +692,14 @@ void WindowLoop::draw_hud(const std::vector<InstrumentShape>& shapes, const Draw
         state.real_time_factor = 1.0, state.frames_per_s = 60.0, state.steps_per_s = 1000.0, state.simulated_ms = 0.0;
         if (state.haptic_period_p99_ms >= 0) state.haptic_period_p99_ms = 1.0;
     }
+    state.keys = {.keyboard_instrument = keyboard_hand0 && !haptic, .device = haptic != nullptr, .mouse_device = input.device != nullptr};
     hud->draw(state, renderer.camera(), width, height);
+    // The help's layout, said once it shows (a log, a test: whether its last row is in the window).
+    const HudHelpLayout& help = hud->help_layout();
+    if (help.shown && !said_help)
+        say("help: %zu keys for this session%s, from y %.0f to %.0f (last row ends at %.0f) of %d pixels\n", help.rows,
+            help.details ? "" : " (actions only: the details would not fit)", help.top, help.bottom, help.last_row_bottom, height);
+    said_help = help.shown;
 }
 
 void WindowLoop::end_frame(int width, int height, std::chrono::steady_clock::time_point draw_start) {
@@ -677,6 +725,7 @@ void WindowLoop::end_frame(int width, int height, std::chrono::steady_clock::tim
         const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::milli>(std::min(rest_ms, 1000.0));
         while (std::chrono::steady_clock::now() < until && !glfwWindowShouldClose(window) && !simulation->status().finished) {
             glfwWaitEventsTimeout(0.01);
+            move_by_keys(std::chrono::steady_clock::now());  // the keyboard's instrument moves while the window waits too
             if (input.reset_tissue || input.paused || input.screenshot || input.toggle_recording || input.single_steps > 0 || input.redraw)
                 break;
         }
@@ -707,9 +756,9 @@ void WindowLoop::end_frame(int width, int height, std::chrono::steady_clock::tim
         glfwSetWindowTitle(window, title);
         if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
             said_slow = true;
-            std::printf("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
-                        "the hand: %s\n",
-                        factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
+            say("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
+                "the hand: %s\n",
+                factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
         }
     }
 }

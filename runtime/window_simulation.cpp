@@ -187,6 +187,7 @@ void WindowSimulation::run() {
         status_.owed_ms = owed_ms;
         status_.mass_scale = backend_.options().mass_scale;
         status_.run.forces_received += received;
+        if (options_.keyboard_hand0 && keyboard_set) status_.keyboard_position_mm = keyboard.position;
         publish_if_wanted();
         if (finish_at_limit()) break;
     }

@@ -54,6 +54,8 @@ public:
         std::array<Eigen::Vector3d, 2> forces{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};  ///< per hand, N, world
         double haptic_period_p99_ms = -1;  ///< a haptic session's device period p99 so far, ms (< 0: none yet)
         double mass_scale = 1.0;      ///< the backend's mass scale after the last step
+        /// The keyboard's hand 0 (set_keyboard_pose): its position at the last step, mm; none before.
+        std::optional<Eigen::Vector3d> keyboard_position_mm;
         /// Simulated per real time over the run so far (1 when it keeps up).
         double real_time_factor() const { return owed_ms > 0 ? simulated_ms / owed_ms : 1.0; }
     };

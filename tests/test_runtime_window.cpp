@@ -65,12 +65,12 @@ int end_process(pid_t pid) {
     return -1;
 }
 
-/// An Xvfb server of its own (640×480×24) on the first free display it finds (-displayfd).
+/// An Xvfb server of its own (640×480×24, or `screen`) on the first free display it finds (-displayfd).
 class XServer {
 public:
-    explicit XServer(const fs::path& dir) {
+    explicit XServer(const fs::path& dir, const std::string& screen = "640x480x24") {
         const fs::path number = dir / "display";
-        pid_ = spawn_shell("exec Xvfb -displayfd 3 -screen 0 640x480x24 -nolisten tcp 3>" + quoted(number) + " 2>" + quoted(dir / "xvfb.log"));
+        pid_ = spawn_shell("exec Xvfb -displayfd 3 -screen 0 " + screen + " -nolisten tcp 3>" + quoted(number) + " 2>" + quoted(dir / "xvfb.log"));
         for (int i = 0; i < 300 && display_.empty(); ++i) {
             std::this_thread::sleep_for(std::chrono::milliseconds(100));
             std::ifstream in(number);
@@ -918,6 +918,141 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     const bool pass = whole.mean_abs < 2.0 && whole.fraction_over < 0.01 && panel_pixels <= 12;
     if (!pass) test::write_golden_failure("window_hud", diff, image);
     EXPECT_TRUE(pass) << "mean " << whole.mean_abs << ", fraction " << whole.fraction_over << ", HUD panel pixels " << panel_pixels;
+}
+
+/// The point (x, y, z) after `prefix` in `text` at or after `from`, and where the line starts (npos: absent).
+std::size_t point_after(const std::string& text, const std::string& prefix, std::size_t from, Eigen::Vector3d& point) {
+    const auto at = text.find(prefix, from);
+    if (at == std::string::npos) return at;
+    const char* p = text.c_str() + at + prefix.size();
+    for (int k = 0; k < 3; ++k) {
+        while (*p == ' ' || *p == '(' || *p == ',') ++p;
+        char* end = nullptr;
+        point[k] = std::strtod(p, &end);
+        p = end;
+    }
+    return at;
+}
+
+/// The model radius the window's camera fits: half the diagonal of the detailed mesh's bounding box.
+double model_radius(const Scenario& scenario) {
+    Eigen::AlignedBox3d box;
+    for (const auto& p : scenario.visual->positions) box.extend(Eigen::Vector3d(p[0], p[1], p[2]));
+    return 0.5 * box.diagonal().norm();
+}
+
+// The keyboard's instrument moves 0.25 model radius per second a movement key is held, by the wall
+// clock, however slowly the window draws (llvmpipe at 1280×800: about a frame a second), and every
+// press counts, a tap as 0.1 s held, taps between two frames too. The held time is the one the
+// window logs from the key events as they reached it (a loaded machine may stretch the 2 s this
+// test holds the key); the distance is between the places the window says the simulation stepped
+// the instrument at.
+TEST(WindowInput, TheKeyboardsInstrumentMovesByTheTimeAKeyIsHeldWhateverTheFrameRate) {
+    REQUIRE_WINDOW_TOOLS();
+    test::TempDir dir;
+    XServer x(dir.path(), "1280x800x24");
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    const Scenario scenario = read_scenario(phantom());
+    ASSERT_TRUE(scenario.visual.has_value()) << "the phantom has a detailed mesh";
+    const double speed = 0.25 * model_radius(scenario);
+    Window window(x, dir.path(), quoted(phantom()) + " --size 1280x800");
+    ASSERT_TRUE(window.focus()) << window.output();
+    Eigen::Vector3d start;
+    ASSERT_NE(window.wait_for("keyboard: instrument 0 (probe) at "), std::string::npos) << window.output();
+    ASSERT_NE(point_after(window.output(), "keyboard: instrument 0 (probe) at ", 0, start), std::string::npos);
+    EXPECT_NEAR(number_after(window.output(), "PgUp / PgDn in depth, "), speed, 0.005 * speed) << "the speed said, mm/s";
+
+    // Up held for 2 s.
+    std::size_t from = window.output().size();
+    ASSERT_EQ(window.xdotool("keydown Up"), 0);
+    std::this_thread::sleep_for(std::chrono::seconds(2));
+    ASSERT_EQ(window.xdotool("keyup Up"), 0);
+    auto at = window.wait_for("keyboard: Up held ", from);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    const double held_s = number_after(window.output(), "keyboard: Up held ", at);
+    at = window.wait_for("keyboard: instrument 0 in place at ", at);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    Eigen::Vector3d after_hold;
+    point_after(window.output(), "keyboard: instrument 0 in place at ", at, after_hold);
+    const double expected = speed * std::max(held_s, 0.1);
+    std::printf("  Up held %.3f s: moved %.2f mm, %.2f mm expected\n", held_s, (after_hold - start).norm(), expected);
+    EXPECT_NEAR((after_hold - start).norm(), expected, 0.1 * expected) << window.output();
+
+    // Five taps of → in 0.1 s (within a frame or two here): each moves the instrument.
+    from = window.output().size();
+    ASSERT_EQ(window.xdotool("key --delay 20 Right Right Right Right Right"), 0);
+    double taps_s = 0;
+    std::size_t last = from;
+    for (int k = 0; k < 5; ++k) {
+        last = window.wait_for("keyboard: Right held ", last);
+        ASSERT_NE(last, std::string::npos) << "tap " << k << "\n" << window.output();
+        taps_s += std::max(number_after(window.output(), "keyboard: Right held ", last), 0.1);
+        ++last;
+    }
+    at = window.wait_for("keyboard: instrument 0 in place at ", last);
+    ASSERT_NE(at, std::string::npos) << window.output();
+    Eigen::Vector3d after_taps;
+    point_after(window.output(), "keyboard: instrument 0 in place at ", at, after_taps);
+    std::printf("  five taps of Right (%.3f s counted): moved %.2f mm, %.2f mm expected\n", taps_s, (after_taps - after_hold).norm(),
+                speed * taps_s);
+    EXPECT_NEAR((after_taps - after_hold).norm(), speed * taps_s, 0.1 * speed * taps_s) << window.output();
+    // Up and Right move in the view plane, at right angles.
+    EXPECT_LT(std::abs((after_hold - start).normalized().dot((after_taps - after_hold).normalized())), 0.05);
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
+}
+
+// The key help (H) fits a 1280×800 window, its last row inside it, and lists the keys that work in
+// the session: a keyboard session has none of a haptic device's, a mouse-device session has them
+// all but N (the one only without a device). The layout is the one the window says it drew.
+TEST(WindowHud, TheHelpFitsA1280x800WindowAndListsTheSessionsKeys) {
+    REQUIRE_WINDOW_TOOLS();
+    for (const std::string device : {"", "mouse"}) {
+        SCOPED_TRACE(device.empty() ? "keyboard session" : "--device " + device);
+        test::TempDir dir;
+        XServer x(dir.path(), "1280x800x24");
+        ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+        Window window(x, dir.path(), quoted(phantom()) + " --size 1280x800" + (device.empty() ? "" : " --device " + device));
+        ASSERT_TRUE(window.focus()) << window.output();
+        ASSERT_EQ(window.xdotool("key h"), 0);
+        const auto at = window.wait_for("help: ");
+        ASSERT_NE(at, std::string::npos) << window.output();
+        const std::string out = window.output();
+        const std::string line = out.substr(at, out.find('\n', at) - at);
+        const double rows = number_after(line, "help: "), top = number_after(line, "from y "), bottom = number_after(line, " to "),
+                     last_row = number_after(line, "last row ends at "), height = number_after(line, ") of ");
+        EXPECT_EQ(height, 800) << line;
+        EXPECT_GE(top, 0) << line;
+        EXPECT_LE(last_row, bottom) << "the last row is inside the help window: " << line;
+        EXPECT_LE(bottom, height) << "the help window is inside the window: " << line;
+        EXPECT_EQ(line.find("actions only"), std::string::npos) << "the details fit too: " << line;
+        // The keys of the session, from the table's own words.
+        std::size_t expected = 0;
+        for (const WindowKey& k : window_keys()) {
+            const std::string d = k.description;
+            const bool device_only = d.starts_with("with --device");
+            const bool needs_moving = std::string(k.input) == "arrows" || std::string(k.input) == "PgUp / PgDn";
+            const bool without_device = d.find("(not with --device)") != std::string::npos;
+            expected += device.empty() ? !device_only : !without_device && (!needs_moving || device == "mouse");
+        }
+        EXPECT_EQ(rows, double(expected)) << line;
+        ASSERT_EQ(window.xdotool("key Escape"), 0);
+        EXPECT_EQ(window.wait_exit(), 0) << window.output();
+    }
+}
+
+TEST(WindowKeys, AKeyboardSessionsHelpHasNoDeviceKeys) {
+    const WindowKeySession keyboard{.keyboard_instrument = true};
+    std::size_t listed = 0;
+    for (const WindowKey& k : window_keys()) {
+        if (!key_works(k, keyboard)) continue;
+        ++listed;
+        EXPECT_FALSE(std::string(k.description).starts_with("with --device")) << k.input;
+    }
+    EXPECT_GT(listed, 10u);
+    // Every key works in some session.
+    for (const WindowKey& k : window_keys())
+        EXPECT_TRUE(key_works(k, keyboard) || key_works(k, {.device = true, .mouse_device = true})) << k.input;
 }
 
 TEST(WindowScreenshot, TheNameCarriesTheLocalTimeAndNeverReplacesAFile) {

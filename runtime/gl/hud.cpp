@@ -12,6 +12,8 @@
 #include <cmath>
 #include <cstdio>
 #include <optional>
+#include <string>
+#include <vector>
 
 namespace heartsim {
 
@@ -62,26 +64,55 @@ void orientation_axes(ImDrawList* draw, const Camera& camera, ImVec2 centre, flo
     outlined_text(draw, ImVec2(centre.x - length, centre.y + length + 4), white, "LPS: patient's Left, Posterior, Superior");
 }
 
-void help_window(int width, int height) {
+/// The key help, centred: the keys that work in `session`, each with its action and details, or
+/// its action only where the details would make the table taller than the window. Its layout.
+HudHelpLayout help_window(int width, int height, const WindowKeySession& session) {
+    std::vector<const WindowKey*> keys;
+    for (const WindowKey& k : window_keys())
+        if (key_works(k, session)) keys.push_back(&k);
+    const ImGuiStyle& style = ImGui::GetStyle();
+    const float window_width = std::min(0.96f * float(width), 1200.0f);
+    float input_width = 0;
+    for (const WindowKey* k : keys) input_width = std::max(input_width, ImGui::CalcTextSize(k->input).x);
+    // The table's height with the details: each row as tall as its wrapped text, and the window's
+    // title bar and padding around it.
+    const float text_width = window_width - input_width - 2 * style.WindowPadding.x - 4 * style.CellPadding.x - 8;
+    float table_height = 0;
+    for (const WindowKey* k : keys) {
+        const std::string text = std::string(k->action) + ": " + k->description;
+        table_height += ImGui::CalcTextSize(text.c_str(), nullptr, false, text_width).y + 2 * style.CellPadding.y;
+    }
+    const float chrome = ImGui::GetFrameHeight() + 2 * style.WindowPadding.y + 2 * style.ItemSpacing.y;
+    HudHelpLayout layout;
+    layout.shown = true;
+    layout.rows = keys.size();
+    layout.details = table_height + chrome <= 0.98f * float(height);
+
     ImGui::SetNextWindowPos(ImVec2(0.5f * float(width), 0.5f * float(height)), ImGuiCond_Always, ImVec2(0.5f, 0.5f));
-    ImGui::SetNextWindowSize(ImVec2(std::min(0.94f * float(width), 900.0f), 0.0f), ImGuiCond_Always);  // height: fitted
+    ImGui::SetNextWindowSize(ImVec2(window_width, 0.0f), ImGuiCond_Always);  // height: fitted
     ImGui::SetNextWindowBgAlpha(0.88f);
-    ImGui::Begin("Keys and mouse (H or F1 hides this)", nullptr,
+    ImGui::Begin(layout.details ? "Keys and mouse (H or F1 hides this)" : "Keys and mouse (H or F1 hides this; heartsim run --help has the details)",
+                 nullptr,
                  ImGuiWindowFlags_NoInputs | ImGuiWindowFlags_NoCollapse | ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoResize |
                      ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
     if (ImGui::BeginTable("keys", 2, ImGuiTableFlags_RowBg | ImGuiTableFlags_BordersInnerV | ImGuiTableFlags_SizingFixedFit)) {
         ImGui::TableSetupColumn("input", ImGuiTableColumnFlags_WidthFixed);
         ImGui::TableSetupColumn("action", ImGuiTableColumnFlags_WidthStretch);
-        for (const WindowKey& k : window_keys()) {
+        for (const WindowKey* k : keys) {
             ImGui::TableNextRow();
             ImGui::TableNextColumn();
-            ImGui::TextColored(ImVec4(1.0f, 0.85f, 0.3f, 1.0f), "%s", k.input);
+            ImGui::TextColored(ImVec4(1.0f, 0.85f, 0.3f, 1.0f), "%s", k->input);
             ImGui::TableNextColumn();
-            ImGui::TextWrapped("%s: %s", k.action, k.description);
+            if (layout.details) ImGui::TextWrapped("%s: %s", k->action, k->description);
+            else ImGui::TextUnformatted(k->action);
         }
         ImGui::EndTable();
+        layout.last_row_bottom = ImGui::GetItemRectMax().y;
     }
+    layout.top = ImGui::GetWindowPos().y;
+    layout.bottom = layout.top + ImGui::GetWindowSize().y;
     ImGui::End();
+    return layout;
 }
 
 }  // namespace
@@ -116,10 +147,13 @@ double scale_bar_mm(double mm_per_pixel, double target_pixels) {
 void Hud::draw(const HudState& s, const Camera& camera, int width, int height) {
     const bool appearing = (s.show_hud && !hud_shown_) || (s.show_help && !help_shown_);
     hud_shown_ = s.show_hud, help_shown_ = s.show_help;
+    if (!s.show_help) help_layout_ = {};
     if (!s.show_hud && !s.show_help && !s.emergency_stop) return;
-    // ImGui sizes a window that appears in its first frame and shows it from the second: lay that
-    // frame out unseen, so the frame drawn now (a screenshot maybe) shows the window.
-    if (appearing) frame(s, camera, width, height, false);
+    // ImGui sizes a window that appears in its first frame and shows it from the second, and a
+    // table fits its columns in its first frame: lay those frames out unseen, so the frame drawn
+    // now (a screenshot maybe) shows the window as it stays.
+    if (appearing)
+        for (int k = 0; k < 2; ++k) frame(s, camera, width, height, false);  // the second: the table's columns fitted
     frame(s, camera, width, height, true);
 }
 
@@ -234,7 +268,7 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         draw->AddRectFilled(ImVec2(0, top), ImVec2(w, top + extent.y + 24), IM_COL32(200, 0, 0, 235));
         draw->AddText(ImGui::GetFont(), size, ImVec2(std::max(4.0f, 0.5f * (w - extent.x)), top + 12), white, text);
     }
-    if (s.show_help) help_window(width, height);
+    help_layout_ = s.show_help ? help_window(width, height, s.keys) : HudHelpLayout{};
 
     ImGui::Render();
     if (!render) return;

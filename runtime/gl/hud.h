@@ -14,6 +14,7 @@
 
 #include "runtime/gl/renderer.h"
 #include "runtime/png.h"
+#include "runtime/window_keys.h"
 
 #include <Eigen/Core>
 
@@ -64,6 +65,16 @@ struct HudState {
     double haptic_period_p99_ms = -1;  ///< < 0: not available
     std::array<HudHand, 2> hands;
     HudRepair repair;
+    WindowKeySession keys;         ///< the help lists the keys that work in this session
+};
+
+/// The key help as the last frame laid it out (window pixels, y down from the top).
+struct HudHelpLayout {
+    bool shown = false;
+    std::size_t rows = 0;      ///< keys listed (those that work in the session)
+    bool details = true;       ///< each key's details too (false: its action only, when they would not fit)
+    float top = 0, bottom = 0; ///< the help window's top and bottom edges
+    float last_row_bottom = 0; ///< the bottom of the table's last row
 };
 
 class Hud {
@@ -79,11 +90,14 @@ public:
     /// world points with `camera` (axes, scale bar, force arrows). Nothing when neither the HUD
     /// nor the help is on.
     void draw(const HudState& state, const Camera& camera, int width, int height);
+    /// The help's layout in the last frame drawn (shown false while the help is off).
+    const HudHelpLayout& help_layout() const { return help_layout_; }
 
 private:
     void frame(const HudState& state, const Camera& camera, int width, int height, bool render);
     bool hud_shown_ = false, help_shown_ = false;
     double largest_force_n_ = 0;  ///< the force arrows' scale follows the largest force so far
+    HudHelpLayout help_layout_;
 };
 
 /// A scale bar length, mm: the 1-2-5 series value whose length on screen is nearest to
