@@ -44,6 +44,7 @@ struct Incision {
     /// The most anterior particle's rest position moved a quarter spacing along +x: a point of the
     /// blade's plane x = centre.x.
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    double depth_mm = 0.0;       ///< how far the blade reaches behind the most anterior particle (the plan's)
     double cut_end_ms = 0.0;     ///< the blade lifts here
     double end_ms = 0.0;         ///< the gesture's end (retractors held still from spread_end_ms)
     double spread_end_ms = 0.0;
@@ -68,6 +69,7 @@ inline Incision anterior_incision(const Scenario& scenario, const IncisionOption
     Incision plan;
     plan.trajectory = p.trajectory;
     plan.centre = p.centre;
+    plan.depth_mm = p.depth_mm;
     plan.cut_end_ms = p.cut_end_ms;
     plan.end_ms = p.end_ms;
     plan.spread_end_ms = p.spread_end_ms;

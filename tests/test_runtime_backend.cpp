@@ -421,8 +421,8 @@ TEST(RuntimeBackend, GlRetractorsHoldAsManyParticlesAsTheCpusAfterAnIncision) {
     }
 }
 
-// On every real heart: the 30 mm incision of incision_gesture.h through the most anterior wall,
-// then two retractors pulling its edges 6 mm apart (cpu backend, 8,000 particles): springs cut,
+// On every real heart as heartprep builds it (walls grown): the 30 mm incision of
+// incision_gesture.h through the most anterior wall, then two retractors pulling its edges 6 mm apart (cpu backend, 8,000 particles): springs cut,
 // no watchdog event, every position finite, and the springs cut near the incision's centre stand
 // open (their ends farther apart than at rest by a millimetre or more somewhere).
 TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
@@ -431,10 +431,9 @@ TEST(RuntimeBackend, AnIncisionHeldOpenByRetractorsOnEveryRealHeart) {
     int cases = 0;
     for (const test::RealCase& c : real) {
         const std::string& name = c.name;
-        // The label map's own walls (--walls labelled), as this incision was written for.
-        const Scenario scenario =
-            read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 --no-visual -q --walls labelled" + c.label_options));
-        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
+        const Scenario scenario = read_scenario(built_scenario(name + "-8k", c.label_map, "--particles 8000 --no-visual -q" + c.label_options));
+        // Through the wall (depth 0: heartsim plan-incision's default, the wall's thickness there and 2 mm on).
+        const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30, .depth_mm = 0.0});
         auto cpu = make_cpu_backend(scenario, options_from(scenario.solver));
         const ScriptedRunResult run = run_scripted(*cpu, plan.trajectory, {.steps = int(std::ceil(plan.end_ms / cpu->time_step_ms()))});
         const auto cut = cpu->cut_springs();
