@@ -70,6 +70,11 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
         for (std::size_t i = 0; i < rest.size(); ++i)
             if (allowed(i)) c_low = std::min(c_low, double(rest[i][2])), c_high = std::max(c_high, double(rest[i][2]));
         z_mid = c_low + 0.25 * (c_high - c_low), z_top = c_high - 0.25 * (c_high - c_low), y_limit = y_high;
+    } else if (o.height_from.size() == rest.size()) {
+        double r_low = std::numeric_limits<double>::infinity(), r_high = -r_low;
+        for (std::size_t i = 0; i < rest.size(); ++i)
+            if (o.height_from[i]) r_low = std::min(r_low, double(rest[i][2])), r_high = std::max(r_high, double(rest[i][2]));
+        if (r_low < r_high) z_mid = r_low + 0.5 * (r_high - r_low), z_top = r_high;
     }
     const double h = spacing;
     const int ny = int(std::lround((y_high - y_low) / h)) + 1, nz = int(std::lround((z_high - z_low) / h)) + 1;
@@ -105,7 +110,7 @@ std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double
     whole = false;
     for (int pass = 0; pass < 2 && !found; ++pass)  // the second pass without the y limit: never empty
         for (std::size_t i = 0; i < rest.size(); ++i) {
-            if (!allowed(i) || rest[i][2] < z_mid || (pass == 0 && rest[i][1] > y_limit)) continue;
+            if (!allowed(i) || rest[i][2] < z_mid || (pass == 0 && (rest[i][1] > y_limit || rest[i][2] > z_top))) continue;
             if (!found || rest[i][0] < rest[front][0]) front = i, found = true;
         }
     return front;

@@ -34,6 +34,11 @@ struct IncisionSiteOptions {
     /// chamber's tissue (the right ventricle's free wall, the right atrium's wall). Empty, or no
     /// flag set: the chamber is not told apart and the place is found on the whole heart.
     std::vector<std::uint8_t> chamber_wall;
+    /// Without a chamber wall: the particles whose extent in z gives the atriotomy its upper half,
+    /// one flag per rest position (the labelled ventricular wall, where walls were grown round one
+    /// blood pool that reaches up the great vessels: the right atrium lies beside the ventricles'
+    /// upper half, the venae cavae above it). Empty or none set: every particle.
+    std::vector<std::uint8_t> height_from;
 };
 
 /// An incision's place: the entry particle and the blade's frame there.

@@ -65,6 +65,16 @@ std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, Incis
     return flags;
 }
 
+std::vector<std::uint8_t> labelled_where_grown(const Scenario& scenario) {
+    const auto& origin = scenario.tissue_origin;
+    if (std::none_of(origin.begin(), origin.end(), [](const TissueOrigin& o) { return o.grown; })) return {};
+    const auto& material = scenario.lattice.particles.material;
+    std::vector<std::uint8_t> flags(scenario.lattice.particles.rest_position.size(), 0);
+    for (std::size_t i = 0; i < flags.size() && i < material.size(); ++i)
+        flags[i] = material[i] >= 0 && std::size_t(material[i]) < origin.size() && !origin[std::size_t(material[i])].grown;
+    return flags;
+}
+
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius) {
     return frontmost_near(scenario.lattice.particles.rest_position, point, blade, radius);
 }
@@ -82,7 +92,8 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
                                              .length_mm = o.length_mm,
                                              .depth_mm = o.depth_mm,
                                              .clearance_mm = o.clearance_mm,
-                                             .chamber_wall = std::move(wall)});
+                                             .chamber_wall = std::move(wall),
+                                             .height_from = labelled_where_grown(scenario)});
     if (site.on_chamber_wall) plan.chamber_wall = wall_name;
     plan.particle = int(site.particle);
     plan.whole_wall = site.whole_wall;
@@ -176,8 +187,11 @@ int plan_incision_command(const PlanIncisionArguments& a) {
                                 "'), the most rightward place of its middle half where the wall holds the whole incision"
                           : "on the right ventricle's own wall ('" + plan.chamber_wall + "'), its most anterior point in the heart's middle third";
     else
-        where = atriotomy ? "no tissue is named for the right atrium, so on the whole heart: the most rightward place of its upper half, "
-                            "among its anterior two thirds, where the right wall holds the whole incision"
+        where = atriotomy ? (scenario.tissue_origin.empty() ? std::string("no tissue is named for the right atrium, so on the whole heart: the most rightward place of its upper half, "
+                                                                         "among its anterior two thirds, where the right wall holds the whole incision")
+                                                             : std::string("no tissue is named for the right atrium, so beside the labelled wall's upper half: the most "
+                                                                           "rightward place at that height, among the heart's anterior two thirds, where the right wall "
+                                                                           "holds the whole incision"))
                           : "no tissue is named for the right ventricle, so on the whole heart: the most anterior point of its middle "
                             "third (the free wall in front)";
     std::printf("  where       %s: particle %d at (%.1f, %.1f, %.1f) mm, world LPS\n", where.c_str(), plan.particle, plan.entry.x(),

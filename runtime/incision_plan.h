@@ -24,6 +24,10 @@
 ///   cut runs superior-inferior, parallel to the atrioventricular groove's right part. Where no
 ///   place holds it, the most rightward particle of that region. On the right atrium's wall: the
 ///   same rule over the middle half (in z) of that wall, front or back, clear of the venae cavae.
+///   Where walls were grown but none is the right atrium's (one blood pool, HVSMR 2016), the
+///   upper half is the labelled wall's (the ventricles'), not the whole model's: the grown blood
+///   pool reaches up the great vessels, and the right atrium lies beside the ventricles' upper
+///   half, the right heart border, with the superior vena cava above it.
 ///
 /// The blade's plane passes a quarter lattice spacing beside the chosen particle's column (a
 /// particle on the plane would be cut from its neighbours on one side or the other by the rounding
@@ -91,6 +95,10 @@ struct IncisionPlan {
     /// no material names the approach's chamber and the whole heart's rule chose it.
     std::string chamber_wall;
 };
+
+/// The particles of `scenario` whose tissue is labelled in the input, where the build grew walls
+/// (one flag per particle); empty for a build of the labels as they are.
+std::vector<std::uint8_t> labelled_where_grown(const Scenario& scenario);
 
 /// The particles of `scenario` whose material is the wall of `approach`'s chamber (the right
 /// ventricle for the ventriculotomy, the right atrium for the atriotomy): a material whose name

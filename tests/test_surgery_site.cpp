@@ -200,6 +200,14 @@ TEST(SurgerySite, TheIncisionSiteKeepsToTheChambersOwnWall) {
             EXPECT_LE(chamber.entry.z(), 30.0);
         }
     }
+    // Without a chamber, the atriotomy's upper half is that of the particles `height_from` flags:
+    // here those up to z = 20, so the entry lies between z = 10 and 20 (on the whole, 20 to 40).
+    std::vector<std::uint8_t> low_half(rest.size());
+    for (std::size_t i = 0; i < rest.size(); ++i) low_half[i] = rest[i][2] <= 20.0f;
+    const IncisionSite lower = incision_site(rest, 1.0, {.approach = IncisionApproach::atriotomy, .length_mm = 10, .height_from = low_half});
+    EXPECT_GE(lower.entry.z(), 10.0);
+    EXPECT_LE(lower.entry.z(), 20.0);
+    EXPECT_GE(incision_site(rest, 1.0, {.approach = IncisionApproach::atriotomy, .length_mm = 10}).entry.z(), 20.0);
     // A flag list of the wrong length, or with none set, is the whole heart's rule.
     EXPECT_FALSE(incision_site(rest, 1.0, {.chamber_wall = std::vector<std::uint8_t>(3, 1)}).on_chamber_wall);
     EXPECT_FALSE(incision_site(rest, 1.0, {.chamber_wall = std::vector<std::uint8_t>(rest.size(), 0)}).on_chamber_wall);
