@@ -59,6 +59,17 @@ void restore_interrupts() {
     std::signal(SIGINT, SIG_DFL), std::signal(SIGTERM, SIG_DFL);
 }
 
+/// The HUD's procedure line: how the instruments are driven in the window.
+std::string window_procedure(const RunArguments& a) {
+    if (!a.devices.empty()) {
+        std::string kinds;  // each --device's kind (the part before its ':')
+        for (const std::string& device : a.devices) kinds += (kinds.empty() ? "" : ", ") + device.substr(0, device.find(':'));
+        return "by hand (" + kinds + ")";
+    }
+    if (!a.trajectory.empty()) return "scripted: " + std::filesystem::path(a.trajectory).filename().string();
+    return "exploring with the keyboard's probe";
+}
+
 /// The particles' rest bounding box (where the devices' frames are placed when nothing is drawn).
 Eigen::AlignedBox3f model_box(const Scenario& scenario) {
     Eigen::AlignedBox3f box;
@@ -231,7 +242,8 @@ int window_mode(const RunArguments& a, PreparedRun& run) {
                                   .interrupted = &interrupted,
                                   .end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 0.0,
                                   .backend_note = run.software_gl ? "OpenGL is software" : "",
-                                  .scenario = &run.scenario};
+                                  .scenario = &run.scenario,
+                                  .procedure = window_procedure(a)};
     ScriptedRunResult result = run_window(*run.context, stepper, *run.renderer, run.trajectory, run.keyboard_hand0, run.steps, window);
     if (haptic) {
         if (interrupted.load()) std::printf("interrupted: ending the session\n");

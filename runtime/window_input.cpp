@@ -190,6 +190,7 @@ void install_input_callbacks(GLFWwindow* window, WindowInput& input) {
         }
         if (key == GLFW_KEY_F2 || key == GLFW_KEY_TAB) in->show_hud = !in->show_hud;
         if (key == GLFW_KEY_H || key == GLFW_KEY_F1) in->show_help = !in->show_help;
+        if (key == GLFW_KEY_I) in->show_figures = !in->show_figures;
         if (key == GLFW_KEY_G && in->device) toggle_device_button(*in);
         if (key == GLFW_KEY_E && in->session) {
             in->estop = !in->estop;

@@ -68,6 +68,7 @@ struct WindowInput {
     bool device_in_place = false;
     bool reset_tissue = false;  ///< T: the tissue back to its rest state before the next step
     bool show_hud = true, show_help = false;  ///< F2 / Tab, H / F1
+    bool show_figures = false;  ///< I: the HUD's figures (real time, fps, steps/s, particles, backend, mass scale)
     int single_steps = 0;       ///< N while paused: steps asked for, not yet handed on
     bool screenshot = false;    ///< P: write the window as seen after the next frame
     bool toggle_recording = false;  ///< F5: start or stop a recording (haptic sessions)

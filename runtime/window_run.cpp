@@ -187,6 +187,7 @@ private:
     std::optional<std::array<float, 3>> leak_shown;  // where the last check found a leak pass the rim
     std::chrono::steady_clock::time_point next_closure = std::chrono::steady_clock::now();
     bool has_defect = false;
+    std::string defect_line;  // the HUD's: the scenario's septal defect, named, and its diameter
     const bool hud_fixed = std::getenv("HEARTSIM_HUD_FIXED") != nullptr;  // fixed figures (tests)
     bool said_paused = false;
     long long resets_said = 0;  // T on the cpu thread: resets done and said
@@ -245,11 +246,25 @@ WindowLoop::WindowLoop(GlContext& context, Stepper& stepper, Renderer& renderer,
     hud.emplace(window);
     repair = repair_of(backend);
     has_defect = a.scenario && !a.scenario->source.defect.empty();
+    if (has_defect) {
+        const ScenarioSource& source = a.scenario->source;
+        defect_line = source.defect == "vsd"   ? "ventricular septal defect (VSD)"
+                      : source.defect == "asd" ? "atrial septal defect (ASD)"
+                                               : "defect: " + source.defect;
+        if (source.defect_diameter_mm > 0) {
+            char across[48];
+            std::snprintf(across, sizeof across, ", %.3g mm across", source.defect_diameter_mm);
+            defect_line += across;
+        }
+    }
     if (keyboard_hand0) {
         keyboard = trajectory.at(0, 0.0);
         backend.set_instrument(0, {.kind = keyboard.kind, .semi_axes = keyboard.semi_axes});
         backend.set_pose(0, keyboard.pose);
     }
+    // The HUD's leading lines, on the terminal too (a log of the session).
+    say("window: %s%s%s%s%s\n", std::filesystem::path(a.scenario_name).stem().string().c_str(), defect_line.empty() ? "" : ", ",
+        defect_line.c_str(), a.procedure.empty() ? "" : "; ", a.procedure.c_str());
     const double speed = keyboard_speed_mm_per_s(renderer.camera());
     if (keyboard_hand0 && !haptic) {
         const Eigen::Vector3d& p = keyboard.pose.position;
@@ -615,7 +630,10 @@ void WindowLoop::draw_hud(const std::vector<InstrumentShape>& shapes, const Draw
     // The HUD over the scene (hud.h): figures, hands and forces, axes, scale, help.
     const double s = std::max(1e-9, std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
     HudState state;
-    state.show_hud = input.show_hud, state.show_help = input.show_help;
+    state.show_hud = input.show_hud, state.show_help = input.show_help, state.show_figures = input.show_figures;
+    state.case_name = std::filesystem::path(a.scenario_name).stem().string();
+    state.defect = defect_line;
+    state.procedure = a.procedure;
     const WindowSimulation::Status status = simulation ? simulation->status() : WindowSimulation::Status{};
     const double owed_ms = simulation ? status.owed_ms : 1e3 * s - paused_ms;
     state.simulated_ms = simulation ? status.simulated_ms : backend.simulated_time_ms();

@@ -36,6 +36,8 @@ struct WindowRunOptions {
     /// The scenario run: with a septal defect, the HUD says at most once a second whether the
     /// patch closes it (libmodel/closure.h), and Shift + P's patch is sized to it. Null: neither.
     const Scenario* scenario = nullptr;
+    /// What the session does, for the HUD's procedure line (e.g. "scripted: repair.csv").
+    std::string procedure;
 };
 
 /// Runs the window until Esc, the window is closed, `interrupted`, or `steps` steps (< 0: no

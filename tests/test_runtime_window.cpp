@@ -6,6 +6,7 @@
 // (the mouse device's inputs are waited for until the simulation has them: wait_in_place). Also:
 // the key table in docs/runtime.md is the code's (runtime/window_keys.h), and `heartsim run --help`
 // prints it.
+#include "defect_block_scenario.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -365,6 +366,14 @@ TEST(WindowInput, ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen) {
     EXPECT_GT(panel, 40) << "the HUD panel, top left";
     ASSERT_LT(below, 200) << "the HUD panel should leave the scene below it in sight";
     EXPECT_LT(changed(hud, bare, 100, below, 300, 225), 0.02) << "the scene alone, as before, below the HUD panel (from row " << below << ")";
+    // I adds the figures (real time, fps and steps/s, particles and backend: three lines at least)
+    // below what the panel showed, which stays.
+    ASSERT_EQ(window.xdotool("key F2 i"), 0);
+    const Image figures = screenshot(window);
+    ASSERT_EQ(figures.width, 400) << window.output();
+    EXPECT_GT(changed(hud, figures, 12, below, 150, below + 3 * 13), 0.1) << "I should add the figures' lines below the panel";
+    EXPECT_LT(changed(hud, figures, 8, 8, 150, 8 + panel - 20), 0.02) << "the panel's first lines stay";
+    ASSERT_EQ(window.xdotool("key i F2"), 0);  // figures and HUD off again
 
     // Orbit: a left drag across the middle; zoom: the wheel. Each changes the picture.
     const std::string id = window.id();
@@ -868,7 +877,7 @@ TEST(WindowHud, TheScaleBarIsTheOneTwoFiveLengthNearestTheTarget) {
 
 TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     // The window as seen (P), HUD included: the phantom at rest (paused, one step, then T), the
-    // keyboard's probe, the HUD panel, the LPS axes and the scale bar. HEARTSIM_HUD_FIXED shows
+    // keyboard's probe, the HUD panel with its figures (I), the LPS axes and the scale bar. HEARTSIM_HUD_FIXED shows
     // the figures that depend on the machine's speed (real-time factor, fps, steps/s, simulated
     // time) as fixed values, and --real-time off keeps the mass scale (and its HUD line) from
     // following the machine's speed; everything else is what the window draws. Regenerate (after an
@@ -891,6 +900,7 @@ TEST(WindowHud, TheHudMatchesItsGoldenImage) {
     from = window.output().size();
     ASSERT_EQ(window.xdotool("key t"), 0);  // the rest state exactly
     ASSERT_NE(window.wait_for("tissue reset to its rest state", from), std::string::npos) << window.output();
+    ASSERT_EQ(window.xdotool("key i"), 0);  // the figures too (X hands the window i before the P that follows)
     const Image image = screenshot(window);
     ASSERT_EQ(image.width, 400) << window.output();
     ASSERT_EQ(image.height, 300);
@@ -1039,6 +1049,31 @@ TEST(WindowHud, TheHelpFitsA1280x800WindowAndListsTheSessionsKeys) {
         ASSERT_EQ(window.xdotool("key Escape"), 0);
         EXPECT_EQ(window.wait_exit(), 0) << window.output();
     }
+}
+
+// The HUD leads with the case, its septal defect (the scenario's /source defect and diameter) and
+// the procedure; the window says the same lines at the start. The figures (real time, fps, …)
+// are behind I (WindowInput.ScreenshotHelpHudOrbitAndZoomChangeWhatIsSeen).
+TEST(WindowHud, TheHudLeadsWithTheCaseItsDefectAndTheProcedure) {
+    REQUIRE_WINDOW_TOOLS();
+    using namespace test::defect_block;
+    test::TempDir dir;
+    build_block_scenario(make_block(), dir / "block.nrrd", dir / "vsd.h5", "vsd", 4000);
+    const Scenario scenario = read_scenario(dir / "vsd.h5");
+    ASSERT_EQ(scenario.source.defect, "vsd");
+    XServer x(dir.path());
+    ASSERT_FALSE(x.display().empty()) << "Xvfb did not start";
+    Window window(x, dir.path(), quoted(dir / "vsd.h5") + " --size 400x300");
+    ASSERT_TRUE(window.focus()) << window.output();
+    ASSERT_NE(window.wait_for("keyboard: instrument 0"), std::string::npos) << window.output();
+    char across[32];
+    std::snprintf(across, sizeof across, ", %.3g mm across", scenario.source.defect_diameter_mm);
+    EXPECT_NE(window.output().find(std::string("window: vsd, ventricular septal defect (VSD)") + across +
+                                   "; exploring with the keyboard's probe\n"),
+              std::string::npos)
+        << window.output();
+    ASSERT_EQ(window.xdotool("key Escape"), 0);
+    EXPECT_EQ(window.wait_exit(), 0) << window.output();
 }
 
 TEST(WindowKeys, AKeyboardSessionsHelpHasNoDeviceKeys) {

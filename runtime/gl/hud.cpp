@@ -149,11 +149,12 @@ void Hud::draw(const HudState& s, const Camera& camera, int width, int height) {
     hud_shown_ = s.show_hud, help_shown_ = s.show_help;
     if (!s.show_help) help_layout_ = {};
     if (!s.show_hud && !s.show_help && !s.emergency_stop) return;
-    // ImGui sizes a window that appears in its first frame and shows it from the second, and a
-    // table fits its columns in its first frame: lay those frames out unseen, so the frame drawn
-    // now (a screenshot maybe) shows the window as it stays.
-    if (appearing)
-        for (int k = 0; k < 2; ++k) frame(s, camera, width, height, false);  // the second: the table's columns fitted
+    // ImGui sizes a window from what the frame before put in it (it shows a new window from its
+    // second frame), and a table fits its columns in its first frame: the frame drawn now (a
+    // screenshot maybe) is laid out unseen first, twice when a window appears, so that it shows
+    // every line the state has (I's figures, a REC line) in a window that fits them. ImGui's
+    // layout costs a fraction of a millisecond; the drawing is done once.
+    for (int k = 0; k < (appearing ? 2 : 1); ++k) frame(s, camera, width, height, false);
     frame(s, camera, width, height, true);
 }
 
@@ -173,11 +174,13 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
         ImGui::Begin("session", nullptr,
                      ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_NoInputs | ImGuiWindowFlags_AlwaysAutoResize |
                          ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoFocusOnAppearing | ImGuiWindowFlags_NoNav);
-        ImGui::Text("%.2fx real time%s", s.real_time_factor, s.paused ? "  PAUSED (Space resumes, N steps)" : "");
-        ImGui::Text("%.1f fps, %.0f steps/s, %.1f ms simulated", s.frames_per_s, s.steps_per_s, s.simulated_ms);
-        ImGui::Text("%zu particles, %s backend", s.particles, s.backend.c_str());
-        if (s.mass_scale != 1.0)
-            ImGui::Text("mass scale %g: transients %.2gx slower, forces at rest unchanged", s.mass_scale, std::sqrt(s.mass_scale));
+        // What a trainer needs first: the case, its defect, the procedure; the figures on I.
+        ImGui::TextColored(ImVec4(1.0f, 1.0f, 1.0f, 1), "%s", s.case_name.c_str());
+        if (!s.defect.empty()) ImGui::TextColored(ImVec4(0.55f, 0.8f, 1.0f, 1), "%s", s.defect.c_str());
+        if (!s.procedure.empty()) ImGui::Text("%s", s.procedure.c_str());
+        if (s.paused) ImGui::TextColored(ImVec4(1.0f, 0.85f, 0.3f, 1), "PAUSED (Space resumes, N steps)");
+        else if (!s.show_figures && s.real_time_factor < 0.9)
+            ImGui::TextColored(ImVec4(1.0f, 0.7f, 0.3f, 1), "slower than real time: %.2fx (I: figures)", s.real_time_factor);
         if (s.recording) ImGui::TextColored(ImVec4(1.0f, 0.25f, 0.25f, 1), "REC (F5 stops and writes it)");
         if (s.section) {
             // Where the plane is: its depth past the heart's centre and the side it removes (float
@@ -198,7 +201,6 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
                                    r.closed ? "yes" : "no", r.rim_gap_mm);
             if (r.defect && r.known && !r.leak.empty()) ImGui::TextColored(ImVec4(1.0f, 0.7f, 0.3f, 1), "leaks %s", r.leak.c_str());
         }
-        if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
         for (int hand = 0; hand < 2; ++hand) {
             const HudHand& hh = s.hands[hand];
             if (!hh.used) continue;
@@ -221,7 +223,16 @@ void Hud::frame(const HudState& s, const Camera& camera, int width, int height, 
                 ImGui::Text("force %.3f N", f);
             }
         }
-        ImGui::TextDisabled("H: help   F2: HUD off");
+        if (s.show_figures) {
+            ImGui::Separator();
+            ImGui::Text("%.2fx real time", s.real_time_factor);
+            ImGui::Text("%.1f fps, %.0f steps/s, %.1f ms simulated", s.frames_per_s, s.steps_per_s, s.simulated_ms);
+            ImGui::Text("%zu particles, %s backend", s.particles, s.backend.c_str());
+            if (s.mass_scale != 1.0)
+                ImGui::Text("mass scale %g: transients %.2gx slower, forces at rest unchanged", s.mass_scale, std::sqrt(s.mass_scale));
+            if (s.haptic_period_p99_ms >= 0) ImGui::Text("haptic period p99 %.3f ms", s.haptic_period_p99_ms);
+        }
+        ImGui::TextDisabled("H: help   I: figures   F2: HUD off");
         ImGui::End();
 
         // Orientation axes (bottom left) and the scale bar at the orbit centre's depth (bottom right).

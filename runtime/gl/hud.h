@@ -1,7 +1,7 @@
 /// @file hud.h
 /// @brief The window's heads-up display (docs/runtime.md "Window mode"), drawn over the scene with
-/// Dear ImGui (kept inside hud.cpp): the session's figures, each hand's device, instrument and
-/// force with a bar against the device's maximum, the repair's patch and whether it closes the
+/// Dear ImGui (kept inside hud.cpp): the case, its defect and the procedure, each hand's device,
+/// instrument and force with a bar against the device's maximum, the session's figures on I, the repair's patch and whether it closes the
 /// defect, a red banner while the emergency stop is
 /// latched, the orientation axes (LPS), a scale bar in mm, force arrows at the instruments, and
 /// the key help (window_keys.h). Display only: it takes no input.
@@ -52,6 +52,10 @@ struct HudRepair {
 /// What the HUD shows in one frame.
 struct HudState {
     bool show_hud = true, show_help = false;
+    bool show_figures = false;     ///< I: the figures below too (real time, fps, steps/s, particles, backend, mass scale)
+    std::string case_name;         ///< the scenario (its file name): the panel's first line
+    std::string defect;            ///< its septal defect (e.g. "ventricular septal defect (VSD), 10 mm across"); empty: none
+    std::string procedure;         ///< how the instruments are driven (WindowRunOptions::procedure); empty: no line
     double real_time_factor = 1, frames_per_s = 0, steps_per_s = 0, simulated_ms = 0;
     std::size_t particles = 0;
     std::string backend;
