@@ -17,12 +17,12 @@ mkdir -p "$work" docs/gallery
 rows=()
 # What each picture shows (looked at when the gallery was made; say again when the data or the rule changes).
 declare -A shows=(
-  [pat0]="ventriculotomy: the right ventricle's anterior free wall, a clean slit held open, the cut faces inside; atriotomy: the right lateral wall below the open right atrioventricular orifice (the atrial wall is not in the segmentation), a slit held open"
-  [pat1]="ventriculotomy: the anterior free wall, held open; atriotomy: the thin right wall beside the atrioventricular orifice, the incision gapes widest at its top"
-  [pat5]="ventriculotomy: the anterior free wall near the acute margin, held open with the cavity showing through; atriotomy: the right wall in front of the open atrioventricular orifice, a wide lens of cut faces"
-  [pat6]="ventriculotomy: the anterior free wall, a narrow slit; atriotomy: lands on the ragged rim of the open right atrioventricular orifice, the cut is hard to make out among the segmentation's holes"
-  [ct1002]="MM-WHS labels the left ventricle's wall only: ventriculotomy on the left ventricle's anterior wall, held open; atriotomy on the septum's right face near the base, a V-shaped notch"
-  [wh]="MM-WHS labels the left ventricle's wall only: ventriculotomy on the left ventricle's anterior wall; atriotomy on the septum's right face below its upper rim, a short notch"
+  [pat0]="ventriculotomy: the right ventricle's anterior free wall, a slit held open onto the cavity; atriotomy: the lateral wall of the chamber at the right heart border (the grown blood-pool wall), a slit held open onto its cavity"
+  [pat1]="ventriculotomy: the anterior free wall, held open, its cut faces folded at the middle where the blade grazed the surface; atriotomy: the right heart border's chamber wall, the opening's edge ragged under the left retractor"
+  [pat5]="ventriculotomy: the anterior free wall near the acute margin, held open with the cavity showing through; atriotomy: the right heart border's chamber wall, a narrow slit, its cut faces showing"
+  [pat6]="ventriculotomy: the anterior free wall, a narrow slit; atriotomy: the right heart border's chamber wall, a slit held open"
+  [ct1002]="ventriculotomy: the right ventricle's grown free wall, the fibres drawn across it, held open; atriotomy: the right atrium's grown wall, a slit held open"
+  [wh]="ventriculotomy: the right ventricle's grown free wall, the right coronary artery's course in yellow at the left; atriotomy: the right atrium's grown lateral wall, a slit held open"
 )
 for dir in "$real"/*/; do
   name=$(basename "$dir")
@@ -57,24 +57,24 @@ done
 {
   echo "# Incisions"
   echo
-  echo "Every real case built with \`heartprep build CASE -o CASE.h5\` (the defaults; \`--labels mmwhs\` or"
-  echo "\`mmwhs-ordinal\` for the MM-WHS hearts), the two incisions \`heartsim plan-incision\` plans on it"
-  echo "(docs/runtime.md \"Planning an incision\"): a 30 mm right ventriculotomy through the most anterior"
-  echo "wall of the heart's middle third, the blade pointing posterior, and a 30 mm right atriotomy on the"
-  echo "most rightward wall of its upper half that holds the whole cut, the blade pointing medially; each"
-  echo "cut from inferior to superior, then two retractors (the gold spheres) grab its edges and pull them"
-  echo "6 mm apart. Played by \`heartsim run --headless --backend cpu --trajectory\` for the \`--seconds\`"
-  echo "the plan suggests and drawn from the \`--view\` and \`--look-at\` it prints: the camera outside,"
-  echo "75 mm from the incision's centre (from the front for the ventriculotomy, from the patient's right"
-  echo "for the atriotomy: the patient's front on the picture's right). The cut faces, drawn in a deeper"
-  echo "red, line the opened incision. Under each picture, the point the plan chose (LPS mm). Regenerate"
-  echo "with \`scripts/make-incision-gallery.sh\`."
+  echo "Every real case built with \`heartprep build CASE -o CASE.h5\` (the defaults, walls grown where the"
+  echo "labels show only blood; \`--labels mmwhs\` or \`mmwhs-ordinal\` for the MM-WHS hearts), the two incisions"
+  echo "\`heartsim plan-incision\` plans on it (docs/runtime.md \"Planning an incision\"): a 30 mm right"
+  echo "ventriculotomy, the blade pointing posterior, and a 30 mm right atriotomy, the blade pointing"
+  echo "medially; each cut from inferior to superior through the wall, then two retractors (the gold"
+  echo "spheres) grab its edges and pull them 6 mm apart. Played by \`heartsim run --headless --backend cpu"
+  echo "--trajectory\` for the \`--seconds\` the plan suggests and drawn from the \`--view\` and \`--look-at\`"
+  echo "it prints: the camera outside, 75 mm from the incision's centre (from the front for the"
+  echo "ventriculotomy, from the patient's right for the atriotomy: the patient's front on the picture's"
+  echo "right). The cut faces, drawn in a deeper red, line the opened incision. Under each picture, the"
+  echo "point the plan chose (LPS mm). Regenerate with \`scripts/make-incision-gallery.sh\`."
   echo
-  echo "The segmentations label no atrial wall (HVSMR 2016's myocardium is the ventricles' wall, MM-WHS's"
-  echo "the left ventricle's): the atriotomy's rule finds the most rightward wall of the upper half, which"
-  echo "on these hearts lies beside the right atrioventricular junction or, on the MM-WHS hearts, on the"
-  echo "septum's right face; the ventriculotomy lands on the right ventricle's anterior wall of the HVSMR"
-  echo "hearts and on the left ventricle's of the MM-WHS hearts."
+  echo "On the MM-WHS hearts each approach keeps to its chamber's grown wall (the right ventricle's, the"
+  echo "right atrium's), and tests/test_incision_plan.cpp follows each blade into that chamber's blood in"
+  echo "the label map. HVSMR 2016 labels one blood pool: the ventriculotomy takes the most anterior wall"
+  echo "of the heart's middle third (the right ventricle's free wall on these hearts), and the atriotomy"
+  echo "the chamber at the right heart border beside the ventricles' upper half, which the label map"
+  echo "cannot name."
   echo
   echo "| case | right ventriculotomy (from the front) | right atriotomy (from the patient's right) | what it shows |"
   echo "|---|---|---|---|"
