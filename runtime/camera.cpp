@@ -81,6 +81,10 @@ double Camera::mm_per_pixel(int height) const {
     return 2.0 * double(distance) * std::tan(double(fov_y_degrees) * M_PI / 360.0) / double(std::max(height, 1));
 }
 
+double Camera::distance_to_span(double span_mm, double fraction) const {
+    return span_mm / (fraction * 2.0 * std::tan(double(fov_y_degrees) * M_PI / 360.0));
+}
+
 void Camera::pan(float dx, float dy, int height) {
     const float size = float(mm_per_pixel(height));
     target += orientation * Eigen::Vector3f(-dx * size, dy * size, 0.0f);

@@ -41,6 +41,9 @@ struct Camera {
     void pan(float dx, float dy, int height);
     /// The size of one pixel at the target's depth, mm, in a viewport `height` pixels high.
     double mm_per_pixel(int height) const;
+    /// The distance (mm) at which a span of `span_mm` at the target, across the view, covers
+    /// `fraction` (0–1] of the picture's height: span / (fraction · 2 tan(fov_y / 2)).
+    double distance_to_span(double span_mm, double fraction) const;
     /// Multiplies the distance by `factor` (clamped to 0.05–20 model radii).
     void zoom(float factor);
 };

@@ -117,7 +117,7 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
                     "Section view: PX,PY,PZ,NX,NY,NZ, a point and a normal (mm, world LPS); the side the normal points to is not "
                     "drawn and the cut wall is shaded. centre: through the heart's centre facing the camera (the nearer half "
                     "removed). defect: across the scenario's septal defect (heartprep build --defect), the camera turned to look "
-                    "at it. Headless with --screenshot; in a window C, [ and ] do the same")
+                    "at it, close enough that the opening and 4 mm round it span two thirds of the picture's height. Headless with --screenshot; in a window C, [ and ] do the same")
         ->type_name("PLANE");
     run->add_option("--surface-detail", a.surface_detail,
                     "The coronary arteries along the courses heartprep found, raised in their fat, and the ventricles' fibres, "
@@ -126,7 +126,7 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     run->add_option("--look-at", a.look_at,
                     "Centre the view on a point: X,Y,Z[,DISTANCE] (mm, world LPS), the camera looking from the --view direction (or "
                     "at the --clip section) from DISTANCE mm away (default: the fitted view's distance). Headless with --screenshot; "
-                    "heartsim plan-incision prints the one that frames its incision")
+                    "heartsim plan-incision and plan-repair print the one that frames their incision or patch")
         ->type_name("X,Y,Z[,D]");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
@@ -290,7 +290,7 @@ CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
     repair_command->footer("\nExample:\n"
                            "  heartprep build case-label.nii.gz -o vsd.h5 --defect vsd --at=40.7,-14.4,-10.4   # a 10 mm VSD there\n"
                            "  heartsim plan-repair vsd.h5 -o repair.csv --stitches=10 --rim=2.5\n"
-                           "  heartsim run vsd.h5 --trajectory repair.csv --seconds 2.6 --clip defect   # as it printed\n");
+                           "  heartsim run vsd.h5 --trajectory repair.csv --seconds 2.6 --clip defect --look-at X,Y,Z,D   # as it printed\n");
     return repair_command;
 }
 

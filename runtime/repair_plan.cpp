@@ -4,6 +4,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/surgery_site.h"
 #include "runtime/incision_plan.h"
+#include "runtime/section_plane.h"
 
 #include <algorithm>
 #include <cmath>
@@ -334,9 +335,14 @@ int plan_repair_command(const PlanRepairArguments& a) {
     const double seconds = (std::floor(plan.end_ms / 100.0) + 1.0) / 10.0;
     std::printf("  wrote       %s (%zu keyframes)\n", a.output.c_str(), plan.trajectory.keyframes.size());
     std::printf("  run it      heartsim run %s --trajectory %s --seconds %.1f\n", a.scenario.c_str(), a.output.c_str(), seconds);
-    std::printf("  see it      add --clip defect (the section across the opening, the camera facing it; headless with --screenshot "
-                "repair.png): the patch on the septum's %s side, the stitches at its rim\n",
-                side_name);
+    // Close up on the patch and the opening: midway between the defect's centre and the patch's
+    // (half a wall apart along the axis), the patch's diameter over two thirds of the picture's height.
+    const Eigen::Vector3d middle = 0.5 * (plan.defect_centre + plan.patch_centre);
+    const double distance = defect_view_distance(Camera{}, plan.patch_diameter_mm);
+    std::printf("  see it      add --clip defect --look-at %.1f,%.1f,%.1f,%.1f (the section across the opening, the camera facing it "
+                "%.0f mm away, the patch's %.1f mm over two thirds of the picture's height; headless with --screenshot repair.png): "
+                "the patch on the septum's %s side, the stitches at its rim\n",
+                middle.x(), middle.y(), middle.z(), distance, distance, plan.patch_diameter_mm, side_name);
     return 0;
 }
 

@@ -256,7 +256,8 @@ void make_context_and_backend(const RunArguments& a, bool render, PreparedRun& p
     p.repair = repair_of(*p.backend);
 }
 
-void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section) {
+/// `framed`: --clip defect may bring the camera close to the defect (no --look-at was given).
+void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section, bool framed) {
     p.context->make_current();
     p.renderer.emplace(p.scenario, RenderOptions{.width = p.frame_width, .height = p.frame_height, .view = p.view,
                                                  .coronaries = p.surface_detail, .fibres = p.surface_detail});
@@ -281,6 +282,17 @@ void make_renderer(PreparedRun& p, const std::optional<SectionRequest>& section)
         if (section->through_defect || section->aim_camera) aim_at_section(renderer.camera(), plane);
         renderer.set_section(plane);
         std::printf("section view: %s; the side the normal points to is not drawn\n", describe(plane, renderer.model_centre()).c_str());
+        // The defect close up: the whole section would leave a 10 mm opening a few percent of the
+        // picture. --look-at, given, places the camera instead.
+        const double diameter = p.scenario.source.defect_diameter_mm;
+        if (section->through_defect && framed && diameter > 0.0) {
+            Camera& camera = renderer.camera();
+            const double span = diameter + defect_frame_margin_mm;
+            camera.distance = float(defect_view_distance(camera, span));
+            std::printf("section view: the camera %.1f mm from the defect's centre, so that its %.1f mm opening and %.0f mm round it "
+                        "(%.1f mm, plan-repair's patch) span two thirds of the picture's height (--look-at places it otherwise)\n",
+                        camera.distance, diameter, 0.5 * defect_frame_margin_mm, span);
+        }
     }
 }
 
@@ -383,7 +395,7 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     require_runnable(scenario, a.scenario);
     if (!a.replay.empty()) replayed = read_recording(a.replay);
     make_context_and_backend(a, render, *this);
-    if (render) make_renderer(*this, section);
+    if (render) make_renderer(*this, section, !look);
     if (render && look) aim_camera_at(renderer->camera(), *look);
     set_contact(a, *this);
     const SolverLoadReport& load = backend->load_report();

@@ -49,6 +49,10 @@ void aim_at_section(Camera& camera, const SectionPlane& plane) {
     camera.target = plane.point;
 }
 
+double defect_view_distance(const Camera& camera, double span_mm) {
+    return camera.distance_to_span(span_mm, defect_frame_fraction);
+}
+
 SectionRequest parse_section_option(const std::string& text) {
     if (text == "centre" || text == "center") return {.facing_view = true, .plane = {}};
     if (text == "defect") return {.through_defect = true, .plane = {}};

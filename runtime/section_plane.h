@@ -61,6 +61,16 @@ SectionPlane section_through_defect(const Camera& camera, const Eigen::Vector3f&
 /// side), keeping its distance and as much of its up direction as it can.
 void aim_at_section(Camera& camera, const SectionPlane& plane);
 
+/// How `--clip defect` frames the defect: the default patch of `heartsim plan-repair` (the
+/// defect's diameter D plus 2 · (2 mm rim + 2 mm): D + 8 mm, runtime/repair_plan.h) across two
+/// thirds of the picture's height, so a 10 mm opening spans 37 % of it.
+constexpr double defect_frame_margin_mm = 8.0;
+constexpr double defect_frame_fraction = 2.0 / 3.0;
+
+/// The camera distance (mm) at which `span_mm` (a patch's diameter, or D + defect_frame_margin_mm)
+/// spans defect_frame_fraction of the picture's height through `camera`'s field of view.
+double defect_view_distance(const Camera& camera, double span_mm);
+
 /// Reads `--clip`'s value: "PX,PY,PZ,NX,NY,NZ" (a point and a normal, world LPS mm; the side the
 /// normal points to is removed), "centre" ("center" too) or "defect". Throws OptionError naming {SectionRequest} when
 /// it is neither, a number is not finite, a coordinate is beyond 10^6 mm, or the normal is zero.

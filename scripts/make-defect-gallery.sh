@@ -28,8 +28,10 @@ for dir in "$real"/*/; do
   echo "make-defect-gallery: $name"
   "$bin/tools/heartprep" build "$input" "${options[@]}" --diameter 10 -o "$work/$case-vsd.h5" -q 2>/dev/null
   "$bin/tools/heartprep" build "$input" "${labels[@]}" -o "$work/$case.h5" -q 2>/dev/null
+  # The whole section: --look-at on the defect's centre keeps the fitted distance (--clip defect alone comes close).
+  centre=$("$bin/tools/heartprep" inspect "$work/$case-vsd.h5" | sed -n 's/^defect .* centre \([^(]*\) (LPS mm).*/\1/p' | tr -d ' ')
   log=$("$bin/runtime/heartsim" run "$work/$case-vsd.h5" --headless --backend cpu --steps 0 --size 800x600 --clip defect \
-    --screenshot "docs/gallery/$case-vsd-section.png")
+    --look-at "$centre" --screenshot "docs/gallery/$case-vsd-section.png")
   # The same plane and camera on the intact heart: the plane the run printed, the camera aimed by it.
   plane=$(echo "$log" | sed -n 's/.*through (\([^)]*\)) mm, normal (\([^)]*\)).*/\1,\2/p' | tr -d ' ')
   "$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --steps 0 --size 800x600 --clip "$plane" --view section \

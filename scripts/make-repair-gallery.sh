@@ -46,7 +46,7 @@ for dir in "$real"/*/; do
   diameter=$(echo "$plan" | sed -n 's/^ *defect *vsd, \([0-9.]*\) mm across.*/\1/p')
   closure=""
   for shot in section closeup; do
-    look=()
+    look=(--look-at "$centre")  # the whole section: the fitted distance (--clip defect alone comes close)
     [ "$shot" = closeup ] && look=(--look-at "$centre,60")
     log=$("$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$work/$case.csv" --seconds "$seconds" \
       --clip defect --view section "${look[@]}" --size 640x480 --screenshot "docs/gallery/$case-repair-$shot.png")

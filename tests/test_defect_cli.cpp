@@ -6,6 +6,7 @@
 #include "libmodel/label_conventions.h"
 #include "libmodel/mesh.h"
 #include "defect_block.h"
+#include "runtime/camera.h"
 #include "runtime/gl/renderer.h"
 #include "runtime/png.h"
 #include "runtime_test_support.h"
@@ -13,7 +14,9 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <fstream>
+#include <limits>
 #include <numbers>
 #include <set>
 
@@ -276,11 +279,18 @@ TEST(HeartsimDefectSection, ClipDefectCutsAcrossTheOpeningAndLooksAtIt) {
         << run.output;
     EXPECT_LT((Eigen::Vector3d(px, py, pz) - vsd.source.defect_centre).norm(), 0.02);
     EXPECT_LT(std::abs(Eigen::Vector3d(nx, ny, nz).dot(vsd.source.defect_axis)), 1e-3);
-    char plane[256];
+    // The intact block under the same plane and camera: the plane given, the camera turned to it
+    // and placed as the run placed it (--look-at at the distance it said).
+    double distance = 0.0;
+    const auto camera_line = run.output.find("section view: the camera ");
+    ASSERT_NE(camera_line, std::string::npos) << run.output;
+    ASSERT_EQ(std::sscanf(run.output.c_str() + camera_line, "section view: the camera %lf mm", &distance), 1) << run.output;
+    char plane[256], look[256];
     std::snprintf(plane, sizeof plane, "%.4f,%.4f,%.4f,%.6f,%.6f,%.6f", px, py, pz, nx, ny, nz);
+    std::snprintf(look, sizeof look, "%.4f,%.4f,%.4f,%.4f", px, py, pz, distance);
     const auto intact = test::run_command(heartsim + " run " + test::quoted((dir / "intact.h5").string()) +
-                                          " --headless --backend cpu --steps 0 --size 400x400 --clip " + plane +
-                                          " --view section --screenshot " + test::quoted((dir / "intact.png").string()));
+                                          " --headless --backend cpu --steps 0 --size 400x400 --clip " + plane + " --view section --look-at " +
+                                          look + " --screenshot " + test::quoted((dir / "intact.png").string()));
     ASSERT_EQ(intact.exit_code, 0) << intact.output;
     const Image with_hole = read_png(dir / "vsd.png"), whole = read_png(dir / "intact.png");
     // The picture's centre is the defect's: cut wall in the intact septum, none in the opening.
@@ -298,4 +308,93 @@ TEST(HeartsimDefectSection, ClipDefectCutsAcrossTheOpeningAndLooksAtIt) {
                                             " --headless --steps 0 --view section --screenshot " + test::quoted((dir / "x.png").string()));
     EXPECT_EQ(no_plane.exit_code, 2) << no_plane.output;
     EXPECT_NE(no_plane.output.find("--clip"), std::string::npos) << no_plane.output;
+}
+
+namespace {
+
+/// The opening's width in `image`, pixels, seen from the picture's centre (where the camera's
+/// target, the defect's centre, projects): for each direction through the centre, 1° apart, the
+/// chord between the first cut-coloured pixels on either side (the picture's edge where none
+/// lies); the narrowest chord. The plane holds the defect's axis, so the septum shows as a band of
+/// cut wall with the opening a gap across it: the narrowest chord runs along the band, from one
+/// edge of the gap to the other. `closed`: whether both ends of that chord are cut wall.
+double narrowest_chord(const Image& image, bool* closed) {
+    const double cx = 0.5 * image.width, cy = 0.5 * image.height;
+    double best = std::numeric_limits<double>::infinity();
+    for (int degree = 0; degree < 180; ++degree) {
+        const double angle = degree * std::numbers::pi / 180.0;
+        double chord = 0.0;
+        bool both = true;
+        for (const double sign : {1.0, -1.0}) {
+            double r = 0.0;
+            bool hit = false;
+            for (; r < double(image.width + image.height); r += 0.5) {
+                const int x = int(std::floor(cx + sign * r * std::cos(angle))), y = int(std::floor(cy + sign * r * std::sin(angle)));
+                if (x < 0 || y < 0 || x >= image.width || y >= image.height) break;
+                if (cut_colour(image, x, y)) {
+                    hit = true;
+                    break;
+                }
+            }
+            chord += r;
+            both = both && hit;
+        }
+        if (chord < best) best = chord, *closed = both;
+    }
+    return best;
+}
+
+}  // namespace
+
+// --clip defect frames the opening close up: the camera on the defect's centre at the distance
+// where the opening and 4 mm round it span two thirds of the picture's height, so a 10 mm VSD
+// spans 10 / 18 of that, 37 %. Measured in the picture: the gap in the septum's cut band, against
+// where the defect's 10 mm project from the camera the run said (the distance, the camera's 30°
+// field of view). --look-at, given, wins: the fitted distance, the opening smaller.
+TEST(HeartsimDefectSection, ClipDefectFramesTheOpeningCloseUp) {
+    test::TempDir dir;
+    const BlockFile file(dir);
+    const std::string heartprep = test::quoted(HEARTPREP_EXE), heartsim = test::quoted(HEARTSIM_EXE);
+    const double diameter_mm = 10.0;
+    const auto built = test::run_command(heartprep + " build " + test::quoted(file.input.string()) + " --defect vsd --diameter 10 --at " +
+                                         file.point + " --particles 4000 -q -o " + test::quoted((dir / "vsd.h5").string()));
+    ASSERT_EQ(built.exit_code, 0) << built.output;
+    const Scenario vsd = read_scenario(dir / "vsd.h5");
+    ASSERT_DOUBLE_EQ(vsd.source.defect_diameter_mm, diameter_mm);
+    const int width = 480, height = 360;
+    const std::string size = " --size " + std::to_string(width) + "x" + std::to_string(height);
+    const auto run = test::run_command(heartsim + " run " + test::quoted((dir / "vsd.h5").string()) + " --headless --backend cpu --steps 0" +
+                                       size + " --clip defect --screenshot " + test::quoted((dir / "close.png").string()));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    double distance = 0.0;
+    const auto line = run.output.find("section view: the camera ");
+    ASSERT_NE(line, std::string::npos) << run.output;
+    ASSERT_EQ(std::sscanf(run.output.c_str() + line, "section view: the camera %lf mm", &distance), 1) << run.output;
+    const Image close = read_png(dir / "close.png");
+    ASSERT_EQ(close.height, height);
+    const double mm_per_pixel = 2.0 * distance * std::tan(0.5 * double(Camera{}.fov_y_degrees) * std::numbers::pi / 180.0) / height;
+    const double projected = diameter_mm / mm_per_pixel;
+    bool closed = false;
+    const double seen = narrowest_chord(close, &closed);
+    std::printf("  --clip defect: camera %.1f mm away; the 10 mm opening projects to %.1f px, the gap seen %.1f px: %.1f %% of the "
+                "picture's %d px height\n",
+                distance, projected, seen, 100.0 * seen / height, height);
+    if (HasFailure() || std::getenv("HEARTSIM_KEEP_PICTURES")) write_png("defect_close.png", close);
+    EXPECT_FALSE(cut_colour(close, width / 2, height / 2)) << "the picture's centre is the opening's";
+    EXPECT_TRUE(closed) << "cut wall on both sides of the opening";
+    EXPECT_NEAR(seen, projected, 0.12 * projected) << "the gap is the defect's diameter where the camera projects it";
+    EXPECT_GE(seen, 0.30 * height) << "the opening spans a good part of the picture";
+
+    // --look-at on the same centre without a distance: the camera at the fitted distance, farther.
+    char look[128];
+    std::snprintf(look, sizeof look, "%.4f,%.4f,%.4f", vsd.source.defect_centre.x(), vsd.source.defect_centre.y(), vsd.source.defect_centre.z());
+    const auto far = test::run_command(heartsim + " run " + test::quoted((dir / "vsd.h5").string()) + " --headless --backend cpu --steps 0" +
+                                       size + " --clip defect --look-at " + look + " --screenshot " + test::quoted((dir / "far.png").string()));
+    ASSERT_EQ(far.exit_code, 0) << far.output;
+    EXPECT_EQ(far.output.find("section view: the camera "), std::string::npos) << far.output;
+    bool far_closed = false;
+    const double far_seen = narrowest_chord(read_png(dir / "far.png"), &far_closed);
+    std::printf("  with --look-at (the fitted distance): the gap %.1f px\n", far_seen);
+    EXPECT_TRUE(far_closed);
+    EXPECT_LT(far_seen, 0.7 * seen) << "--look-at keeps the fitted view";
 }

@@ -6,11 +6,14 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "libmodel/label_conventions.h"
+#include "runtime/png.h"
 #include "runtime/repair_plan.h"
 #include "runtime/trajectory.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
+
+#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cmath>
@@ -137,6 +140,65 @@ TEST(RepairPlan, TheSideRuleTakesTheRightAnteriorFaceAndTheOptionTurnsIt) {
         const double face = (built.block.rotation.transpose() * plan.outward).x() > 0 ? 1.0 : -1.0;
         for (const RepairStitch& s : plan.stitches) EXPECT_NEAR((built.block.rotation.transpose() * s.site).x(), face * 3.0, voxel);
     }
+}
+
+// The view plan-repair prints, `--clip defect --look-at X,Y,Z,D`: centred midway between the
+// defect's centre and the patch's, at the distance where the patch's diameter spans two thirds of
+// the picture's height through the camera's 30° field of view. Played for 30 ms (the patch laid at
+// 0 ms) and drawn: the patch, edge on in the section across the opening, is a strip of its
+// diameter, measured in the picture along its longest extent.
+TEST(RepairPlan, TheViewItPrintsFramesThePatchAcrossTheOpening) {
+    const BlockScenarios& built = block_scenarios();
+    test::TempDir dir;
+    const fs::path csv = dir / "repair.csv", picture = dir / "repair.png";
+    const auto r = heartsim_command("plan-repair " + quoted(built.with_defect) + " -o " + quoted(csv));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    std::smatch m;
+    const std::string number = "(-?[0-9]+\\.[0-9])";
+    ASSERT_TRUE(std::regex_search(r.output, m, std::regex("see it +add --clip defect --look-at " + number + "," + number + "," + number + "," +
+                                                          number + " ")))
+        << r.output;
+    const Eigen::Vector3d point(std::stod(m[1]), std::stod(m[2]), std::stod(m[3]));
+    const double distance = std::stod(m[4]);
+    const RepairPlan plan = plan_repair(read_scenario(built.with_defect));
+    EXPECT_LT((point - 0.5 * (plan.defect_centre + plan.patch_centre)).norm(), 0.09) << r.output;
+    const double tan_half = std::tan(15.0 * std::numbers::pi / 180.0);  // Camera's 30° vertical field of view
+    EXPECT_NEAR(plan.patch_diameter_mm / (2.0 * distance * tan_half), 2.0 / 3.0, 0.01) << r.output;
+
+    const int width = 480, height = 360;
+    const auto run = heartsim_command("run " + quoted(built.with_defect) + " --headless --backend cpu --trajectory " + quoted(csv) +
+                                      " --seconds 0.03 --size " + std::to_string(width) + "x" + std::to_string(height) +
+                                      " --clip defect --look-at " + std::string(m[1]) + "," + std::string(m[2]) + "," + std::string(m[3]) +
+                                      "," + std::string(m[4]) + " --screenshot " + quoted(picture));
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    ASSERT_NE(run.output.find("patch laid"), std::string::npos) << run.output;
+    // The patch's pixels (pericardium's colour, lit: green 0.96 of red, blue 0.78 to 0.95 of it).
+    const Image image = read_png(picture);
+    std::vector<Eigen::Vector2d> patch;
+    for (int y = 0; y < image.height; ++y)
+        for (int x = 0; x < image.width; ++x) {
+            const std::uint8_t* c = &image.pixels[std::size_t(image.channels) * (std::size_t(y) * std::size_t(image.width) + std::size_t(x))];
+            const double red = c[0], green = c[1], blue = c[2];
+            if (red > 50 && std::abs(green / red - 0.957) < 0.04 && blue / red > 0.78 && blue / red < 0.95 && blue < green)
+                patch.emplace_back(x + 0.5, y + 0.5);
+        }
+    ASSERT_GT(patch.size(), 100u) << "the patch shows";
+    // Its longest extent: along the principal axis of its pixels.
+    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+    for (const auto& p : patch) mean += p;
+    mean /= double(patch.size());
+    Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();
+    for (const auto& p : patch) covariance += (p - mean) * (p - mean).transpose();
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> solver(covariance);
+    const Eigen::Vector2d along = solver.eigenvectors().col(1);
+    double low = 1e9, high = -1e9;
+    for (const auto& p : patch) low = std::min(low, (p - mean).dot(along)), high = std::max(high, (p - mean).dot(along));
+    const double seen = high - low, projected = plan.patch_diameter_mm / (2.0 * distance * tan_half) * height;
+    std::printf("  the patch %.1f mm across at %.1f mm: projects to %.1f px, seen %.1f px long (%.1f %% of the %d px height)\n",
+                plan.patch_diameter_mm, distance, projected, seen, 100.0 * seen / height, height);
+    EXPECT_NEAR(seen, projected, 0.12 * projected);
+    EXPECT_NEAR(mean.x(), 0.5 * width, 0.1 * height) << "the patch in the middle of the picture";
+    EXPECT_NEAR(mean.y(), 0.5 * height, 0.1 * height) << "the patch in the middle of the picture";
 }
 
 // The CSV is what the plan made, read back as `heartsim run --trajectory` reads it: hand 0 lays
