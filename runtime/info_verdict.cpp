@@ -2,6 +2,7 @@
 
 #include "runtime/backend.h"
 #include "runtime/gl/backend_gl.h"
+#include "runtime/real_time.h"
 
 #include "formats/scenario.h"
 #include "libmodel/lattice.h"
@@ -61,7 +62,8 @@ std::string session_verdict(GlContext& context, const std::string& scenario_path
                   "verdict:\n"
                   "  %s\n"
                   "  measured here: %zu particles (%s) step at a real-time factor of %.2f on the %s backend (substep %.3f ms, %.2f ms "
-                  "of wall time each)%s%s\n",
+                  "of wall time each)%s\n"
+                  "  speed: %s\n",
                   software ? "the OpenGL device is a software rasteriser: a run without --backend (a window, a haptic session, "
                              "headless) simulates on the cpu backend and draws with OpenGL (--backend gl forces the GPU path: slower here)"
                            : "the OpenGL device is hardware: sessions simulate on the gl backend (the GPU)",
@@ -70,7 +72,7 @@ std::string session_verdict(GlContext& context, const std::string& scenario_path
                   scenario_path.empty() ? "; a real heart of as many particles has a shorter substep (its supports and dashpots), so a "
                                           "lower factor: `heartsim info CASE.h5` measures it"
                                         : "",
-                  factor < 1.0 ? ("; below 1: " + keep_up_advice(factor, backend->size(), backend->kind())).c_str() : "");
+                  speed_verdict(*backend, factor, backend->options().mass_scale).c_str());
     return text;
 }
 

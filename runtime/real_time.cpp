@@ -41,34 +41,60 @@ double MassScaleGovernor::busy_ms() const {
     return t.step_ms + t.force_ms + t.picking_ms;
 }
 
-ScaledStep MassScaleGovernor::plan(double scale) const {
+ScaledStep planned_step(const Backend& backend, double scale) {
     try {
-        return scaled_step(backend_.load_report(), backend_.options(), scale);
+        return scaled_step(backend.load_report(), backend.options(), scale);
     } catch (const InputError&) {  // a step that would need too many substeps: never a choice
         ScaledStep none;
-        none.dt_ms = backend_.time_step_ms();
+        none.dt_ms = backend.time_step_ms();
         none.substeps = std::numeric_limits<int>::max();
         return none;
     }
 }
 
-double MassScaleGovernor::predict(double factor, double measured_at, double scale) const {
+double predicted_factor(const Backend& backend, double factor, double measured_at, double scale) {
     // The cost of a substep stays; the simulated time per substep is what S changes.
-    const ScaledStep from = plan(measured_at), to = plan(scale);
+    const ScaledStep from = planned_step(backend, measured_at), to = planned_step(backend, scale);
     return factor * (to.dt_ms / double(to.substeps)) / (from.dt_ms / double(from.substeps));
 }
 
-double MassScaleGovernor::choose(double factor) const {
-    const double now = mass_scale();
-    double best = now, best_factor = predict(factor, now, now);
+double chosen_mass_scale(const Backend& backend, double factor, double now) {
+    const auto& ladder = MassScaleGovernor::ladder;
+    double best = now, best_factor = predicted_factor(backend, factor, now, now);
     for (double scale : ladder) {
         if (scale < now) continue;
-        const double predicted = predict(factor, now, scale);
-        if (predicted >= margin) return scale;
+        const double predicted = predicted_factor(backend, factor, now, scale);
+        if (predicted >= MassScaleGovernor::margin) return scale;
         if (predicted > best_factor) best = scale, best_factor = predicted;  // none reaches it: the fastest, smallest first
     }
     return best;
 }
+
+std::string speed_verdict(const Backend& backend, double factor, double measured_at) {
+    const double scale = chosen_mass_scale(backend, factor, measured_at);
+    const double predicted = predicted_factor(backend, factor, measured_at, scale);
+    char text[768];
+    if (predicted >= 1.0) {
+        if (scale == measured_at)
+            std::snprintf(text, sizeof text, "keeps real time at mass scale %g (%s)", scale, mass_scale_cost(scale).c_str());
+        else
+            std::snprintf(text, sizeof text, "with --real-time auto (a window's and a haptic session's default) it keeps real time at mass "
+                                             "scale %g, %.2f× predicted (%s)",
+                          scale, predicted, mass_scale_cost(scale).c_str());
+    } else {
+        std::snprintf(text, sizeof text, "below real time even at mass scale %g (%.2f× predicted): %s", scale, predicted,
+                      keep_up_advice(predicted, backend.size(), backend.kind(), backend.software_device()).c_str());
+    }
+    return text;
+}
+
+ScaledStep MassScaleGovernor::plan(double scale) const { return planned_step(backend_, scale); }
+
+double MassScaleGovernor::predict(double factor, double measured_at, double scale) const {
+    return predicted_factor(backend_, factor, measured_at, scale);
+}
+
+double MassScaleGovernor::choose(double factor) const { return chosen_mass_scale(backend_, factor, mass_scale()); }
 
 std::optional<std::string> MassScaleGovernor::observe(double wall_ms, double simulated_ms) {
     if (!window_open_) {

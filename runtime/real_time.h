@@ -25,6 +25,22 @@ RealTimeMode parse_real_time_mode(const std::string& text);
 /// unchanged" (the critical step and a transient's time scale grow by √S).
 std::string mass_scale_cost(double mass_scale);
 
+/// The step and its substeps `backend` would take at mass scale `scale` (what set_mass_scale
+/// would take); a scale that needs too many substeps gets an unreachable plan.
+ScaledStep planned_step(const Backend& backend, double scale);
+/// The real-time factor predicted at mass scale `scale` from `factor` measured at `measured_at`:
+/// the wall time of a substep is kept; the simulated time per substep (the step over its
+/// substeps, stability.h scaled_step_ms and substeps_for_step) is what S changes.
+double predicted_factor(const Backend& backend, double factor, double measured_at, double scale);
+/// The smallest S of MassScaleGovernor::ladder, not below `now`, predicted to reach its margin from
+/// `factor` measured at `now`; the fastest when none does.
+double chosen_mass_scale(const Backend& backend, double factor, double now);
+/// The one speed verdict every part gives (`heartsim info`, the window, the governor): from
+/// `factor` measured at mass scale `measured_at`, the mass scale --real-time auto takes and the
+/// factor predicted there, or, where even the ladder's top falls short, what would keep up
+/// (keep_up_advice at the factor predicted there). One clause, no newline.
+std::string speed_verdict(const Backend& backend, double factor, double measured_at);
+
 class MassScaleGovernor {
 public:
     /// The scalings the governor chooses from, smallest first.

@@ -1,5 +1,6 @@
 // The window mode's loop: docs/runtime.md "Window mode".
 #include "runtime/window_run.h"
+#include "runtime/real_time.h"
 
 #include "runtime/gl/hud.h"
 #include "runtime/png.h"
@@ -774,9 +775,10 @@ void WindowLoop::end_frame(int width, int height, std::chrono::steady_clock::tim
         glfwSetWindowTitle(window, title);
         if ((!haptic || simulation) && !said_slow && !input.paused && owed_ms > 2000 && factor < 0.95) {
             said_slow = true;
-            say("window: the simulation runs at %.2f× real time here (%zu particles, %s backend): instruments move slower than "
-                "the hand: %s\n",
-                factor, backend.size(), to_string(backend.kind()), keep_up_advice(factor, backend.size(), backend.kind(), backend.software_device()).c_str());
+            say("window: the simulation runs at %.2f× real time here (%zu particles, %s backend, mass scale %g): instruments move "
+                "slower than the hand; it %s\n",
+                factor, backend.size(), to_string(backend.kind()), backend.options().mass_scale,
+                speed_verdict(backend, factor, backend.options().mass_scale).c_str());
         }
     }
 }

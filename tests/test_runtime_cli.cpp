@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include <regex>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -60,6 +62,18 @@ TEST(HeartsimCli, InfoPrintsRendererAndLimits) {
     const double factor = std::atof(run.output.c_str() + at + std::strlen("real-time factor of "));
     EXPECT_GT(factor, 0.0) << run.output;
     EXPECT_NE(run.output.find(software ? "on the cpu backend (substep" : "on the gl backend (substep"), std::string::npos) << run.output;
+    // One speed verdict with the mass scaling a session would take: a scale of the governor's
+    // ladder, and a predicted factor between the measured one and S times it (mass scaling
+    // lengthens the step by between √S and S: stiffness- and damping-limited).
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(run.output, m, std::regex("speed: .*mass scale ([0-9]+)(, ([0-9.]+)× predicted| \\(([0-9.]+)× predicted)?"))) << run.output;
+    const double scale = std::stod(m[1]);
+    EXPECT_TRUE(scale == 1 || scale == 2 || scale == 4 || scale == 8 || scale == 16) << run.output;
+    if (m[3].matched || m[4].matched) {
+        const double predicted = std::stod(m[3].matched ? std::string(m[3]) : std::string(m[4]));
+        EXPECT_GE(predicted, 0.99 * factor) << run.output;
+        EXPECT_LE(predicted, 1.01 * scale * factor + 0.01) << run.output;
+    }
 }
 
 // Both headless ways in reach the same GL: the EGL device platform (NVIDIA's headless way, here
