@@ -277,6 +277,12 @@ public:
             const auto until = Clock::now() + seconds(options_.finish_s);
             while (clients_.load() > 0 && Clock::now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(5));
         }
+        if (connections_.load() == 0) {
+            if (!endpoint_.host.empty())
+                say("igtl: the Slicer server at %s:%d was never reached during the run: nothing was sent\n", endpoint_.host.c_str(), endpoint_.port);
+            else
+                say("igtl: no client connected to %s:%d during the run: nothing was sent\n", options_.bind.c_str(), endpoint_.port);
+        }
         stop();
     }
 
@@ -602,6 +608,7 @@ private:
         client.fd = fd;
         client.name = std::move(name);
         clients_list_.push_back(std::move(client));
+        connections_.fetch_add(1);
         clients_.store(int(clients_list_.size()));
         mesh_room_.store(true);
         mesh_wanted_.store(true);  // a newcomer gets the mesh at once, moved or not
@@ -726,6 +733,7 @@ private:
     std::thread thread_, encoder_;
     std::atomic<bool> stop_{false};
     std::atomic<int> clients_{0};
+    std::atomic<long long> connections_{0};  ///< clients that connected during the run
     std::atomic<bool> mesh_wanted_{false};
     std::atomic<bool> mesh_room_{false};  ///< a client has no mesh waiting (the sender's word)
     std::atomic<bool> encoding_{false};   ///< the mesh thread has a job

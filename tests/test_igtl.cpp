@@ -458,6 +458,7 @@ TEST(Igtl, LoopbackRoundTripMatchesTheSavedStateAndTheTrajectory) {
                                      port, result);
     ASSERT_EQ(result.exit_code, 0) << result.output;
     EXPECT_NE(result.output.find("igtl: 127.0.0.1:"), std::string::npos) << result.output;
+    EXPECT_EQ(result.output.find("nothing was sent"), std::string::npos) << result.output;
     EXPECT_TRUE(r.ended);
     EXPECT_EQ(r.bad_crc, 0u);
 
@@ -619,6 +620,16 @@ TEST(Igtl, AServerThatIsNotThereCostsTheSessionNothing) {
     EXPECT_NE(linked.output.find("igtl: cannot reach 127.0.0.1:" + std::to_string(port) + " (Connection refused); trying again every 2 s"),
               std::string::npos)
         << linked.output;
+    // The run's end says that nothing reached Slicer, as does a server no client connected to.
+    EXPECT_NE(linked.output.find("igtl: the Slicer server at 127.0.0.1:" + std::to_string(port) + " was never reached during the run: nothing was sent"),
+              std::string::npos)
+        << linked.output;
+    const int listen_port = free_port();
+    const auto unheard = run_heartsim(common + " --igtl " + std::to_string(listen_port));
+    ASSERT_EQ(unheard.exit_code, 0) << unheard.output;
+    EXPECT_NE(unheard.output.find("igtl: no client connected to 127.0.0.1:" + std::to_string(listen_port) + " during the run: nothing was sent"),
+              std::string::npos)
+        << unheard.output;
     EXPECT_EQ(read_state(dir / "alone.h5").positions, read_state(dir / "linked.h5").positions);
     // A command line that names no endpoint, and --igtl-wait without --igtl: usage errors.
     const auto bad = run_heartsim("run " + quoted(phantom()) + " --headless --steps 1 --igtl localhost:99999");
