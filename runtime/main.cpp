@@ -54,7 +54,8 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     auto* run = app.add_subcommand("run", "Simulate a scenario");
     run->footer("\n" + window_keys_text());  // the window's keys, from the table the on-screen help shows
     run->add_option("scenario", a.scenario, "Scenario file (heartprep build)")->required();
-    run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed");
+    run->add_flag("--headless", a.headless, "No window: EGL surfaceless, no display needed. A run past 5 s of wall time (or of "
+                                            "40,000 steps) says its progress on stderr");
     run->add_option("--backend", a.backend, "gl (OpenGL 4.3 compute) or cpu (reference). Default gl; cpu for --replay, and where "
                                             "OpenGL is software (llvmpipe), unless a headless run asks for --contact picking or search")
         ->check(CLI::IsMember({"gl", "cpu"}));

@@ -8,6 +8,7 @@
 #include "runtime/haptics/haptic_run.h"
 #include "runtime/png.h"
 #include "runtime/run_outputs.h"
+#include "runtime/run_progress.h"
 #include "runtime/section_plane.h"
 #include "runtime/stepping.h"
 #include "runtime/window_run.h"
@@ -270,8 +271,17 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
             write_png(numbered_screenshot(a.screenshot, step + 1), run.renderer->read_pixels());
         };
     Stepper stepper(*run.backend, stepping(a, run, nullptr));
-    scripted.on_step = stepper.scripted_on_step(run.trajectory, wall_start, std::move(screenshots));
+    // A long run says how far it has come on stderr (run_progress.h).
+    const double start_ms = run.backend->simulated_time_ms();
+    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
+    RunProgress progress(scripted.steps, scripted.end_ms);
+    scripted.on_step = [&, each_step = stepper.scripted_on_step(run.trajectory, wall_start, std::move(screenshots))](int step,
+                                                                                                                 const StepReport& report) {
+        each_step(step, report);
+        progress.after_step(step + 1, run.backend->simulated_time_ms() - start_ms, run.backend->time_step_ms(), wall_s());
+    };
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
+    progress.finish(run.backend->simulated_time_ms() - start_ms, wall_s());
     const int status = finish_run(a, run, result, nullptr, wall_start);
     stepper.finish_link(result.steps, link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
     return status;
