@@ -26,6 +26,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <iomanip>
 #include <sstream>
 
 namespace heartsim {
@@ -689,8 +690,11 @@ MappingReport summarise_mapping(const VertexSolutions& solved, const VisualMappi
     report.candidate_solves = solved.solves;
     if (report.mean_offset_mm > options.far_warning_spacings * options.lattice_spacing_mm) {
         std::ostringstream message;
-        message << "the visual mesh lies far from the tissue: mean offset " << report.mean_offset_mm << " mm is more than "
-                << options.far_warning_spacings << " lattice spacings (" << options.lattice_spacing_mm << " mm)";
+        const double share = 100.0 * double(report.tangent) / double(count);
+        message << report.tangent << " of " << count << " visual vertices (" << std::setprecision(share < 1 ? 1 : 3) << share
+                << std::setprecision(6) << " %) lie far from the tissue: outside its cells, on average " << report.mean_offset_mm
+                << " mm from the simulation surface, more than " << options.far_warning_spacings << " lattice spacings ("
+                << options.lattice_spacing_mm << " mm); they follow it in tangent space";
         report.warnings.push_back(message.str());
     }
     if (report.unsolved > 0)

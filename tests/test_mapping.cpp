@@ -185,6 +185,11 @@ TEST(Mapping, FarVisualMeshIsWarned) {
     map_visual_mesh(far, scene.lattice.particles.rest_position, scene.surface, options, null_progress(), &report);
     ASSERT_FALSE(report.warnings.empty());
     EXPECT_NE(report.warnings.front().find("far from the tissue"), std::string::npos);
+    // It says how many: every vertex of the doubled sphere lies outside the lattice's cells.
+    EXPECT_EQ(report.tangent, far.size());
+    EXPECT_NE(report.warnings.front().find(std::to_string(far.size()) + " of " + std::to_string(far.size()) + " visual vertices (100 %)"),
+              std::string::npos)
+        << report.warnings.front();
 }
 
 TEST(Mapping, IsDeterministic) {
