@@ -18,11 +18,14 @@
 #include "test_support.h"
 
 #include <gtest/gtest.h>
+#include <hdf5.h>
 
 #include <algorithm>
 #include <fstream>
 #include <limits>
 #include <map>
+#include <regex>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -335,6 +338,70 @@ const RepairedState& repaired_state() {
 
 }  // namespace
 
+namespace {
+
+/// What one HDF DataItem of an .xmf2 names: the dataset's path, its Dimensions, and its
+/// NumberType and Precision.
+struct HdfItem {
+    std::string dataset;
+    std::vector<hsize_t> dims;
+    std::string number;
+    int precision = 0;
+};
+
+/// Every HDF DataItem of the description `text` that reads a dataset of the file named `h5_name`.
+std::vector<HdfItem> hdf_items(const std::string& text, const std::string& h5_name) {
+    std::vector<HdfItem> items;
+    const std::regex item(R"(<DataItem([^>]*)>([^<]*)</DataItem>)");
+    auto attribute = [](const std::string& attributes, const std::string& name) {
+        std::smatch m;
+        return std::regex_search(attributes, m, std::regex(" " + name + "=\"([^\"]*)\"")) ? std::string(m[1]) : std::string();
+    };
+    for (auto it = std::sregex_iterator(text.begin(), text.end(), item); it != std::sregex_iterator(); ++it) {
+        const std::string attributes = (*it)[1], content = (*it)[2];
+        if (attribute(attributes, "Format") != "HDF") continue;
+        const std::size_t colon = content.find(':');
+        if (colon == std::string::npos || content.substr(0, colon) != h5_name) continue;
+        HdfItem found{content.substr(colon + 1), {}, attribute(attributes, "NumberType"), std::atoi(attribute(attributes, "Precision").c_str())};
+        std::istringstream dims(attribute(attributes, "Dimensions"));
+        for (hsize_t d; dims >> d;) found.dims.push_back(d);
+        items.push_back(found);
+    }
+    return items;
+}
+
+/// Each item is a dataset of `h5` with the item's shape and number type (read with HDF5's C API,
+/// not heartsim's reader).
+void expect_datasets_as_described(const fs::path& h5, const std::vector<HdfItem>& items) {
+    const hid_t file = H5Fopen(h5.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT);
+    ASSERT_GE(file, 0) << h5;
+    for (const HdfItem& item : items) {
+        SCOPED_TRACE(item.dataset);
+        // Each link on the way must exist (H5Lexists on a path whose parent is missing fails).
+        bool exists = true;
+        for (std::size_t slash = item.dataset.find('/', 1); exists; slash = item.dataset.find('/', slash + 1)) {
+            const std::string prefix = item.dataset.substr(0, slash);
+            exists = H5Lexists(file, prefix.c_str(), H5P_DEFAULT) > 0;
+            if (slash == std::string::npos) break;
+        }
+        EXPECT_TRUE(exists) << "the .xmf2 names " << item.dataset << ", absent from " << h5;
+        if (!exists) continue;
+        const hid_t dataset = H5Dopen2(file, item.dataset.c_str(), H5P_DEFAULT);
+        ASSERT_GE(dataset, 0);
+        const hid_t space = H5Dget_space(dataset), type = H5Dget_type(dataset);
+        std::vector<hsize_t> dims(std::size_t(std::max(H5Sget_simple_extent_ndims(space), 0)));
+        H5Sget_simple_extent_dims(space, dims.data(), nullptr);
+        EXPECT_EQ(dims, item.dims);
+        const H5T_class_t type_class = H5Tget_class(type);
+        EXPECT_EQ(item.number, type_class == H5T_FLOAT ? "Float" : type_class == H5T_INTEGER ? "Int" : "?");
+        EXPECT_EQ(std::size_t(item.precision), H5Tget_size(type));
+        H5Tclose(type), H5Sclose(space), H5Dclose(dataset);
+    }
+    H5Fclose(file);
+}
+
+}  // namespace
+
 // A repaired state's .xmf2 shows the repair as it ended: besides the tissue, the `patch` (its
 // mid-surface, /patch) and its `stitches` (a vertex per stitch at its tissue point, carrying its
 // pull), with the state's counts, in VTK's readers and in ParaView's own File > Open.
@@ -353,6 +420,15 @@ TEST(ParaView, ARepairedStateShowsThePatchAndItsStitches) {
     const std::string text = text_of(xdmf);
     EXPECT_NE(text.find(">repaired.h5:/patch/triangles<"), std::string::npos) << text;
     EXPECT_NE(text.find(">repaired.h5:/patch/stitch_anchor<"), std::string::npos) << text;
+    // Every dataset of the state the description reads is in the state file, with the shape and
+    // number type it says; the patch's and the stitches' among them.
+    const std::vector<HdfItem> items = hdf_items(text, "repaired.h5");
+    std::set<std::string> named;
+    for (const HdfItem& item : items) named.insert(item.dataset);
+    for (const char* dataset : {"/positions", "/patch/positions", "/patch/triangles", "/patch/stitch_anchor", "/patch/stitch_force"})
+        EXPECT_TRUE(named.count(dataset)) << dataset << " not read by the .xmf2:\n" << text;
+    expect_datasets_as_described(r.state, items);
+    std::printf("  the .xmf2 reads %zu datasets of repaired.h5 (%zu distinct), each checked there\n", items.size(), named.size());
     const std::size_t n = state.positions.size();
     const Opened opened = vtk_open({xdmf});
     if (opened.skipped) GTEST_SKIP() << "VTK cannot be used: " << opened.output;
