@@ -44,7 +44,7 @@ done
   echo
   echo "Every real case built with a 10 mm ventricular septal defect (\`heartprep build CASE --defect vsd"
   echo "--diameter 10\`; on the MM-WHS hearts heartprep places it, perimembranous; on the HVSMR hearts at"
-  echo "a point of the septum) and drawn by \`heartsim run --headless --clip defect\`: the plane holds"
+  echo "a point of the septum) and drawn by \`heartsim run --headless --clip defect --look-at\` on its centre (the whole section): the plane holds"
   echo "the defect's axis and the camera looks straight at it, so the septum shows as a dark band of cut"
   echo "wall with the opening as a gap in it. Beside it, the same case built without the defect, under"
   echo "the same plane and camera. Regenerate with \`scripts/make-defect-gallery.sh\`."
