@@ -348,8 +348,7 @@ void script_instruments(const RunArguments& a, PreparedRun& p) {
     }
 
     // Window without a script: the keyboard moves hand 0, the --probe or a default probe
-    // (semi-axes 1.5 lattice spacings) in front of the model, between it and the camera: 0.8 model
-    // radii out, or half way to a camera nearer than that (--clip defect, a close --look-at).
+    // (semi-axes 1.5 lattice spacings) in front of the model, between it and the camera.
     p.keyboard_hand0 = !a.headless && a.trajectory.empty();
     if (p.keyboard_hand0 && a.probe.empty()) {
         InstrumentKeyframe k;
@@ -358,7 +357,7 @@ void script_instruments(const RunArguments& a, PreparedRun& p) {
         k.semi_axes = Eigen::Vector3d::Constant(1.5 * p.scenario.lattice.spacing);
         const Camera& camera = p.renderer->camera();
         const Eigen::Vector3d back = (camera.orientation * Eigen::Vector3f::UnitZ()).cast<double>();
-        k.pose.position = camera.target.cast<double>() + back * std::min(0.8 * camera.radius, 0.5 * camera.distance);
+        k.pose.position = camera.target.cast<double>() + back * (0.8 * camera.radius);
         p.trajectory.keyframes.insert(p.trajectory.keyframes.begin(), k);
     }
 }
