@@ -82,7 +82,7 @@ inline constexpr OptionFlag heartprep_flags[] = {
     {"PhantomOptions::inner_radius_mm", "--inner-radius"},
 };
 
-/// heartsim's flags for the options its runtime parts name (runtime/slicer_link.h,
+/// heartsim's flags for the options its runtime parts name (runtime/link/slicer_link.h,
 /// section_plane.h, camera.h, contact.h, real_time.h, trajectory.h, incision_plan.h, repair_plan.h,
 /// haptics/haptic_run.h).
 inline constexpr OptionFlag heartsim_flags[] = {

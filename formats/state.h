@@ -17,7 +17,7 @@
 ///                                      the tissue's surface first, then the incisions' caps from
 ///                                      the attribute cap_first on; V then counts the vertices the
 ///                                      incisions added. Absent while uncut (the scenario's triangles).
-///   /patch              once a patch was laid (runtime/repair.h); attributes material, thickness_mm,
+///   /patch              once a patch was laid (runtime/surgery/repair.h); attributes material, thickness_mm,
 ///                       youngs_modulus_mpa, and where the scenario has a defect its frame now:
 ///                       defect_centre [3] (mm), defect_axis [3] (unit, toward the patch's side),
 ///                       defect_diameter_mm, closed (1 or 0) and largest_rim_gap_mm (the closure

@@ -45,7 +45,7 @@ enum class InstrumentKind {
     /// (cutting.h); lifted, it touches nothing. It neither pushes nor holds tissue; its force is the
     /// tissue's resistance to the cut (cutting_force.h), zero once lifted.
     scalpel,
-    /// The repair's hands (runtime/repair.h): the solver never holds them (a backend passes them on
+    /// The repair's hands (runtime/surgery/repair.h): the solver never holds them (a backend passes them on
     /// as none). A patch is laid over the tissue where begin_grab() finds it: its pose's position is
     /// the patch's centre, the tool's +z the way it faces the tissue, ax and ay its half-diameters,
     /// az half its thickness.

@@ -30,7 +30,7 @@ bool on_chamber_wall(const std::vector<std::array<float, 3>>& rest, const Incisi
     return o.chamber_wall.size() == rest.size() && std::find(o.chamber_wall.begin(), o.chamber_wall.end(), 1) != o.chamber_wall.end();
 }
 
-/// The chosen particle of each approach (runtime/incision_plan.h); `whole` tells whether the atriotomy's
+/// The chosen particle of each approach (runtime/surgery/incision_plan.h); `whole` tells whether the atriotomy's
 /// place holds the whole incision.
 std::size_t entry_particle(const std::vector<std::array<float, 3>>& rest, double spacing, const IncisionSiteOptions& o, bool& whole) {
     double z_low = std::numeric_limits<double>::infinity(), z_high = -z_low;

@@ -1,8 +1,8 @@
 /// @file surgery_site.h
 /// @brief Where the scripted operations act on the heart, found on plain arrays: the incision's
 /// place on a lattice's rest positions, and the repair's stitch sites and patch on a closed
-/// triangle mesh round a septal defect. The plans built on them (runtime/incision_plan.h,
-/// runtime/repair_plan.h) turn these places into trajectories; the rules are theirs, described in
+/// triangle mesh round a septal defect. The plans built on them (runtime/surgery/incision_plan.h,
+/// runtime/surgery/repair_plan.h) turn these places into trajectories; the rules are theirs, described in
 /// those headers. All positions world LPS mm (+x the patient's left, +y posterior, +z superior).
 ///
 ///     const IncisionSite site = incision_site(rest, spacing, {.approach = IncisionApproach::atriotomy});
@@ -59,7 +59,7 @@ struct IncisionSite {
 };
 
 /// The incision's place on the rest positions `rest` (N×3, N > 0) of a lattice of spacing
-/// `spacing` (mm), by options.approach's rule (runtime/incision_plan.h).
+/// `spacing` (mm), by options.approach's rule (runtime/surgery/incision_plan.h).
 IncisionSite incision_site(const std::vector<std::array<float, 3>>& rest, double spacing, const IncisionSiteOptions& options);
 
 /// The world axis `v` lies along (0, 1 or 2) and its sign; `v` is a signed unit axis.

@@ -4,7 +4,7 @@
 /// `length_mm` from inferior to superior (−z to +z) at 0.1 mm/ms; lifted, it becomes a retractor
 /// (hand 0) beside a second one (hand 1): they grab the two edges of the incision, one each side
 /// of the blade's plane x = x_c, and pull them `spread_mm` apart along ±x, then hold. The gesture
-/// itself is the runtime's (runtime/incision_plan.h, the ventriculotomy of `heartsim
+/// itself is the runtime's (runtime/surgery/incision_plan.h, the ventriculotomy of `heartsim
 /// plan-incision`); this header keeps the tests' names for it.
 ///
 ///     const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 30});
@@ -14,8 +14,8 @@
 
 #include "formats/scenario.h"
 #include "libmodel/incision_state.h"
-#include "runtime/incision_plan.h"
-#include "runtime/trajectory.h"
+#include "runtime/surgery/incision_plan.h"
+#include "runtime/core/trajectory.h"
 
 #include <Eigen/Geometry>
 
@@ -56,7 +56,7 @@ inline int most_anterior_near(const Scenario& scenario, double x, double z, doub
     return frontmost_near(scenario, Eigen::Vector3d(x, 0.0, z), Eigen::Vector3d::UnitY(), radius);
 }
 
-/// The ventriculotomy of runtime/incision_plan.h. std::runtime_error (InputError) when the
+/// The ventriculotomy of runtime/surgery/incision_plan.h. std::runtime_error (InputError) when the
 /// scenario has no particles.
 inline Incision anterior_incision(const Scenario& scenario, const IncisionOptions& o = {}) {
     const IncisionPlan p = plan_incision(scenario, {.approach = IncisionApproach::ventriculotomy,
@@ -134,7 +134,7 @@ inline CapFigures cap_figures(const IncisionState& incisions, const std::vector<
     return c;
 }
 
-/// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/trajectory.h).
+/// The trajectory as a CSV that `heartsim run --trajectory` reads (runtime/core/trajectory.h).
 inline void write_trajectory_csv(const Trajectory& t, const std::filesystem::path& path) { heartsim::write_trajectory_csv(t, path); }
 
 }  // namespace heartsim::test

@@ -3,7 +3,7 @@
 #pragma once
 
 #include "runtime/gl/gl_context.h"
-#include "runtime/png.h"
+#include "runtime/view/png.h"
 
 #include <gtest/gtest.h>
 

@@ -17,7 +17,7 @@
 #include "formats/state.h"
 #include "incision_gesture.h"
 #include "libmodel/errors.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/haptics/haptic_run.h"
 
 #include <gtest/gtest.h>

@@ -6,9 +6,9 @@
 #include "libmodel/label_conventions.h"
 #include "libmodel/mesh.h"
 #include "defect_block.h"
-#include "runtime/camera.h"
+#include "runtime/view/camera.h"
 #include "runtime/gl/renderer.h"
-#include "runtime/png.h"
+#include "runtime/view/png.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 

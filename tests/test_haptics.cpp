@@ -7,7 +7,7 @@
 // One file of about 900 lines because every case drives the same harness defined at its top (the
 // recording device double, the block and heart scenes, press_loop).
 #include "runtime/haptics/haptics.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 
 #include "test_support.h"
 

@@ -1,4 +1,4 @@
-// `heartsim run … --igtl`: the live link to 3D Slicer (runtime/slicer_link.h), end to end on the
+// `heartsim run … --igtl`: the live link to 3D Slicer (runtime/link/slicer_link.h), end to end on the
 // loopback interface. Two clients receive what Slicer's OpenIGTLinkIF would: one built with the
 // OpenIGTLink library, and one written here from the protocol's specification (the 58-byte
 // header, CRC64, the TRANSFORM, STRING and POLYDATA bodies), which shares no code with heartsim's
@@ -13,7 +13,7 @@
 
 #include "formats/scenario.h"
 #include "formats/state.h"
-#include "runtime/slicer_link.h"
+#include "runtime/link/slicer_link.h"
 
 #include <gtest/gtest.h>
 

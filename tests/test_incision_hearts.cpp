@@ -7,10 +7,10 @@
 #include "libmodel/mapping.h"
 #include "formats/scenario.h"
 #include "incision_gesture.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime_test_support.h"
-#include "runtime/trajectory.h"
+#include "runtime/core/trajectory.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>

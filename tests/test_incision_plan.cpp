@@ -1,4 +1,4 @@
-// `heartsim plan-incision` (runtime/incision_plan.h) end to end, as a user runs it: the planned
+// `heartsim plan-incision` (runtime/surgery/incision_plan.h) end to end, as a user runs it: the planned
 // ventriculotomy and atriotomy played by `heartsim run --trajectory` on the phantom and on every
 // real heart, the mesh opened and closed; its errors and help; `heartsim run --look-at`.
 #include "formats/scenario.h"
@@ -7,9 +7,9 @@
 #include "incision_gesture.h"
 #include "libmodel/incision.h"
 #include "libmodel/label_conventions.h"
-#include "runtime/camera.h"
-#include "runtime/incision_plan.h"
-#include "runtime/png.h"
+#include "runtime/view/camera.h"
+#include "runtime/surgery/incision_plan.h"
+#include "runtime/view/png.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 

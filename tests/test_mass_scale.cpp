@@ -1,13 +1,13 @@
-// Explicit mass scaling (docs/solver.md "Mass scaling") and `--real-time auto` (runtime/real_time.h):
+// Explicit mass scaling (docs/solver.md "Mass scaling") and `--real-time auto` (runtime/core/real_time.h):
 // the critical and damped steps and the period of a two-mass oscillator against their closed forms,
 // the static force of a held press unchanged, the gl backend equal to the cpu one, and the
 // governor's choice from the speed it sees.
 #include "libmodel/solver.h"
 #include "libmodel/stability.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
-#include "runtime/real_time.h"
-#include "runtime/trajectory.h"
+#include "runtime/core/real_time.h"
+#include "runtime/core/trajectory.h"
 
 #include "formats/scenario.h"
 #include "formats/state.h"

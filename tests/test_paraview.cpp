@@ -12,7 +12,7 @@
 #include "libmodel/mesh.h"
 #include "libmodel/simulation_surface.h"
 #include "formats/mesh_io.h"
-#include "runtime/trajectory.h"
+#include "runtime/core/trajectory.h"
 #include "defect_block_scenario.h"
 #include "incision_gesture.h"
 #include "test_support.h"

@@ -1,4 +1,4 @@
-// The repair of a septal defect at run time (runtime/repair.h): a patch and its stitches riding on
+// The repair of a septal defect at run time (runtime/surgery/repair.h): a patch and its stitches riding on
 // the real backends. A haptic session on two scripted devices (a patch, a needle) closing the VSD
 // of the synthetic two-chamber block, replayed bit for bit; a patch sewn onto a slab of tissue that
 // is then stretched, followed by its stitches, with Newton's third law between patch and tissue at
@@ -11,10 +11,10 @@
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "formats/volume_io.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
-#include "runtime/repair.h"
-#include "runtime/trajectory.h"
+#include "runtime/surgery/repair.h"
+#include "runtime/core/trajectory.h"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// `heartsim plan-repair` (runtime/repair_plan.h): the patch and stitches planned over a septal
+// `heartsim plan-repair` (runtime/surgery/repair_plan.h): the patch and stitches planned over a septal
 // defect, checked against the synthetic two-chamber block (whose septum's faces are known planes),
 // the CSV read back as `heartsim run --trajectory` reads it, every real heart with a VSD built into
 // it, and the command's errors and help.
@@ -6,9 +6,9 @@
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
 #include "libmodel/label_conventions.h"
-#include "runtime/png.h"
-#include "runtime/repair_plan.h"
-#include "runtime/trajectory.h"
+#include "runtime/view/png.h"
+#include "runtime/surgery/repair_plan.h"
+#include "runtime/core/trajectory.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>

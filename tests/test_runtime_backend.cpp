@@ -11,11 +11,11 @@
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
 #include "libmodel/stability.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
-#include "runtime/surgery.h"
-#include "runtime/trajectory.h"
+#include "runtime/backend/surgery.h"
+#include "runtime/core/trajectory.h"
 
 #include <gtest/gtest.h>
 

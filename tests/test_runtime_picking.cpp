@@ -8,7 +8,7 @@
 
 #include "formats/scenario.h"
 #include "formats/volume_io.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/picking.h"

@@ -17,16 +17,16 @@
 #include "libmodel/errors.h"
 #include "libmodel/incision_state.h"
 #include "libmodel/mapping.h"
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
-#include "runtime/png.h"
+#include "runtime/view/png.h"
 #include "runtime/gl/renderer.h"
-#include "runtime/repair.h"
-#include "runtime/repair_plan.h"
-#include "runtime/section_plane.h"
+#include "runtime/surgery/repair.h"
+#include "runtime/surgery/repair_plan.h"
+#include "runtime/view/section_plane.h"
 #include "formats/volume_io.h"
-#include "runtime/trajectory.h"
+#include "runtime/core/trajectory.h"
 
 #include <gtest/gtest.h>
 

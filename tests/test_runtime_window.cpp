@@ -4,7 +4,7 @@
 // line on stdout, a screenshot written after the frame that took an input in), polled with a
 // generous limit; nothing asserts how long anything took, and no outcome hangs on a time passing
 // (the mouse device's inputs are waited for until the simulation has them: wait_in_place). Also:
-// the key table in docs/runtime.md is the code's (runtime/window_keys.h), and `heartsim run --help`
+// the key table in docs/runtime.md is the code's (runtime/view/window_keys.h), and `heartsim run --help`
 // prints it.
 #include "defect_block_scenario.h"
 #include "runtime_test_support.h"
@@ -14,10 +14,10 @@
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "libmodel/incision.h"
-#include "runtime/png.h"
+#include "runtime/view/png.h"
 #include "runtime/gl/hud.h"
-#include "runtime/window_keys.h"
-#include "runtime/window_run.h"
+#include "runtime/view/window_keys.h"
+#include "runtime/app/window_run.h"
 
 #include <gtest/gtest.h>
 
@@ -252,7 +252,7 @@ TEST(WindowKeys, TheDocumentsKeyTableIsTheCodes) {
         std::ifstream in(fs::path(HEARTSIM_SOURCE_DIR) / name);
         std::stringstream text;
         text << in.rdbuf();
-        const std::string doc = text.str(), begin = "<!-- window-keys: begin (runtime/window_keys.cpp; a test checks) -->\n",
+        const std::string doc = text.str(), begin = "<!-- window-keys: begin (runtime/view/window_keys.cpp; a test checks) -->\n",
                           end = "<!-- window-keys: end -->";
         const auto b = doc.find(begin), e = doc.find(end);
         ASSERT_NE(b, std::string::npos) << name << " has no '" << begin << "'";

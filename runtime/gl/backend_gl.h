@@ -1,9 +1,9 @@
 /// @file backend_gl.h
-/// @brief The gl backend (runtime/backend.h): the step, the instruments and the force buffer as
+/// @brief The gl backend (runtime/backend/backend.h): the step, the instruments and the force buffer as
 /// compute shaders on the scenario's packed layout, in the current OpenGL 4.3+ context.
 #pragma once
 
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 
 #include <memory>
 

@@ -13,8 +13,8 @@
 #include "runtime/gl/picking.h"
 #include "runtime/gl/shaders/bindings.h"
 #include "runtime/gl/shaders/solver_shaders.h"
-#include "runtime/patch_stepper.h"
-#include "runtime/surgery.h"
+#include "runtime/backend/patch_stepper.h"
+#include "runtime/backend/surgery.h"
 
 #include "libmodel/cutting.h"
 #include "libmodel/cutting_force.h"

@@ -1,7 +1,7 @@
 // The window's HUD through Dear ImGui (hud.h). ImGui stays in this file.
 #include "runtime/gl/hud.h"
 
-#include "runtime/window_keys.h"
+#include "runtime/view/window_keys.h"
 
 #include <epoxy/gl.h>
 #include <imgui.h>

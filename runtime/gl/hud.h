@@ -13,8 +13,8 @@
 #pragma once
 
 #include "runtime/gl/renderer.h"
-#include "runtime/png.h"
-#include "runtime/window_keys.h"
+#include "runtime/view/png.h"
+#include "runtime/view/window_keys.h"
 
 #include <Eigen/Core>
 
@@ -36,7 +36,7 @@ struct HudHand {
     Eigen::Vector3d position_mm = Eigen::Vector3d::Zero();  ///< the instrument's centre, world LPS (arrow origin)
 };
 
-/// A septal defect's repair as the HUD shows it (runtime/repair.h), once a patch is laid.
+/// A septal defect's repair as the HUD shows it (runtime/surgery/repair.h), once a patch is laid.
 struct HudRepair {
     bool laid = false;          ///< a patch is laid: "patch: MATERIAL, N stitches"
     std::string material;       ///< PatchMaterial::name, e.g. "pericardium"

@@ -1,11 +1,11 @@
 /// @file patch_pass.h
 /// @brief A sewn patch stepped by a compute pass before the tissue's step, on the tissue's own
 /// position and load buffers (shaders/patch_shaders.h): the gl backend's PatchStepper
-/// (runtime/patch_stepper.h). Nothing is read back to step it; the hands' forces come back through a
+/// (runtime/backend/patch_stepper.h). Nothing is read back to step it; the hands' forces come back through a
 /// small fenced ring, as the instruments' do.
 #pragma once
 
-#include "runtime/patch_stepper.h"
+#include "runtime/backend/patch_stepper.h"
 
 #include <functional>
 #include <memory>

@@ -19,7 +19,7 @@
 /// mm, depth from the base to 3c + one lattice spacing beyond the centre. docs/runtime.md.
 #pragma once
 
-#include "runtime/contact.h"
+#include "runtime/backend/contact.h"
 
 #include "formats/scenario.h"
 #include "libmodel/errors.h"

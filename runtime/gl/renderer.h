@@ -23,18 +23,18 @@
 /// not drawn, and where the plane cuts through the closed surface the inside of the wall shows as
 /// a flat band of section_cut_rgb; the instruments are drawn whole.
 ///
-/// A septal defect's repair (set_patch, runtime/repair.h) is drawn with the tissue and cut by the
+/// A septal defect's repair (set_patch, runtime/surgery/repair.h) is drawn with the tissue and cut by the
 /// same plane: the patch as a closed sheet of its thickness in its material's colour (patch_rgb;
 /// where the plane cuts it, its cut face flat in a darker shade), each stitch as a suture from
 /// its patch vertex to its tissue point with a knot on the patch (suture_rgb). Once a patch is
 /// laid, the patch instrument that laid it is not drawn: the patch is.
 #pragma once
 
-#include "runtime/backend.h"
-#include "runtime/camera.h"
-#include "runtime/instrument_shape.h"
-#include "runtime/png.h"
-#include "runtime/section_plane.h"
+#include "runtime/backend/backend.h"
+#include "runtime/view/camera.h"
+#include "runtime/backend/instrument_shape.h"
+#include "runtime/view/png.h"
+#include "runtime/view/section_plane.h"
 
 #include "formats/scenario.h"
 #include "libmodel/patch.h"

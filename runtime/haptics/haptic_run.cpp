@@ -1,6 +1,6 @@
 // The simulation side of a haptic session: devices from --device specs, the step, the
 // haptic-rate table and the recording (haptic_run.h, docs/haptics.md); the steps' pacing is the
-// stepping core's (runtime/stepping.h). The replay (replay.cpp) applies the tools with this
+// stepping core's (runtime/core/stepping.h). The replay (replay.cpp) applies the tools with this
 // file's apply_tool, exactly as the live run does, or a cpu replay would not reproduce the forces
 // bit for bit.
 #include "runtime/haptics/haptic_run.h"

@@ -3,7 +3,7 @@
 /// beside the simulation at real time, records the session (`--record`), and replays a recording
 /// (`--replay`). The device thread is haptics.h's; this is the simulation side and the command
 /// line's vocabulary. The pacing of its steps (and the mass scale) is the stepping core's
-/// (runtime/stepping.h Stepper::step_to_real_time). docs/haptics.md.
+/// (runtime/core/stepping.h Stepper::step_to_real_time). docs/haptics.md.
 ///
 ///     HapticRun run(backend, scenario, "pat1.h5", settings, {.headless = true});
 ///     run.start();
@@ -11,11 +11,11 @@
 ///     run.finish(result);                       // stops the thread, prints the table, writes --record
 #pragma once
 
-#include "runtime/backend.h"
+#include "runtime/backend/backend.h"
 #include "runtime/haptics/haptics.h"
-#include "runtime/camera.h"
-#include "runtime/instrument_shape.h"
-#include "runtime/trajectory.h"
+#include "runtime/view/camera.h"
+#include "runtime/backend/instrument_shape.h"
+#include "runtime/core/trajectory.h"
 
 #include "formats/recording.h"
 #include "formats/recording_journal.h"
@@ -54,7 +54,7 @@ SimulatedDeviceSettings read_simulated_device(const std::filesystem::path& path)
 std::vector<PoseKeyframe> recorded_pose_script(const Recording& recording, int hand, const std::string& name);
 
 /// A patch's semi-axes when none are given (mm): a disc 18 mm across and 0.5 mm thick, larger
-/// than the stitch circle of a 10 mm defect (runtime/repair_plan.h: D + 2·rim).
+/// than the stitch circle of a 10 mm defect (runtime/surgery/repair_plan.h: D + 2·rim).
 inline const Eigen::Vector3d default_patch_semi_axes_mm{9.0, 9.0, 0.25};
 /// A needle's semi-axes when none are given (mm): a shaft 12 mm long from the tip along the tool's
 /// +z, 0.5 mm thick (as heartsim plan-repair's needle).
@@ -63,7 +63,7 @@ inline const Eigen::Vector3d default_needle_semi_axes_mm{0.25, 0.25, 6.0};
 /// `--instrument KIND[:AX,AY,AZ]`: probe, grabber, scalpel, patch or needle, semi-axes mm (default
 /// 1.5 lattice spacings; a scalpel's, a patch's and a needle's defaults are the constants above and
 /// default_blade_semi_axes_mm). Button 1 grabs with a grabber, lowers a scalpel's blade, lays a
-/// patch (runtime/repair.h) and ties a stitch with a needle. Throws OptionError naming the argument
+/// patch (runtime/surgery/repair.h) and ties a stitch with a needle. Throws OptionError naming the argument
 /// and the option by its meaning ({HapticRunSettings::instruments}: heartsim spells it --instrument).
 Instrument parse_instrument(const std::string& text, double default_semi_axis_mm);
 

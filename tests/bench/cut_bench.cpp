@@ -16,8 +16,8 @@
 #include "formats/scenario.h"
 #include "libmodel/incision_state.h"
 #include "libmodel/mapping.h"
-#include "runtime/backend.h"
-#include "runtime/trajectory.h"
+#include "runtime/backend/backend.h"
+#include "runtime/core/trajectory.h"
 
 #include <algorithm>
 #include <chrono>

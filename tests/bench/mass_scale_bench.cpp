@@ -10,8 +10,8 @@
 // and its first RAMP_MS, and the mean over the last second (settled). Hands that hold nothing are
 // left out. Not a test: it asserts nothing.
 #include "formats/scenario.h"
-#include "runtime/backend.h"
-#include "runtime/trajectory.h"
+#include "runtime/backend/backend.h"
+#include "runtime/core/trajectory.h"
 
 #include <algorithm>
 #include <chrono>

@@ -1,6 +1,6 @@
 // libFuzzer target: the planners on a tampered scenario. read_scenario (formats/scenario.h), then,
-// on what it accepts, heartsim plan-repair's plan (runtime/repair_plan.h, on a scenario with a
-// septal defect) and plan-incision's for both approaches (runtime/incision_plan.h), with their
+// on what it accepts, heartsim plan-repair's plan (runtime/surgery/repair_plan.h, on a scenario with a
+// septal defect) and plan-incision's for both approaches (runtime/surgery/incision_plan.h), with their
 // defaults. A refusal (InputError, OptionError among them) is expected; a plan that is made must
 // be one `heartsim run --trajectory` reads back (check_planned_trajectory), and the work is bounded
 // by libFuzzer's time and memory limits whatever the file says (a defect 1e9 mm wide, a centre
@@ -8,9 +8,9 @@
 #include "fuzz_support.h"
 
 #include "formats/scenario.h"
-#include "runtime/incision_plan.h"
-#include "runtime/repair_plan.h"
-#include "runtime/trajectory.h"
+#include "runtime/surgery/incision_plan.h"
+#include "runtime/surgery/repair_plan.h"
+#include "runtime/core/trajectory.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
     const std::filesystem::path path = heartsim::fuzz::write_input(data, size, "input.h5");

@@ -1,8 +1,8 @@
-// libFuzzer target: the scripted-instrument trajectory CSV (runtime/trajectory.h read_trajectory),
+// libFuzzer target: the scripted-instrument trajectory CSV (runtime/core/trajectory.h read_trajectory),
 // then the trajectory sampled as the run loop samples it (Trajectory::at).
 #include "fuzz_support.h"
 
-#include "runtime/trajectory.h"
+#include "runtime/core/trajectory.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
     const std::filesystem::path path = heartsim::fuzz::write_input(data, size, "trajectory.csv");

@@ -1,4 +1,4 @@
-// libFuzzer target: a trajectory (runtime/trajectory.h read_trajectory) driving the cpu backend
+// libFuzzer target: a trajectory (runtime/core/trajectory.h read_trajectory) driving the cpu backend
 // on a small block of tissue, as `heartsim run --trajectory` drives a scenario: the run loop's
 // own ScriptedHands sets instruments, grabs, lowers and lifts scalpels and moves them, step by
 // step, over the whole of the script (its first to its last keyframe in `steps` steps, so a script
@@ -11,8 +11,8 @@
 #include "libmodel/packing.h"
 #include "libmodel/select.h"
 #include "libmodel/stability.h"
-#include "runtime/backend.h"
-#include "runtime/trajectory.h"
+#include "runtime/backend/backend.h"
+#include "runtime/core/trajectory.h"
 
 #include <cmath>
 #include <set>

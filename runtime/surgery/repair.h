@@ -1,0 +1,169 @@
+/// @file repair.h
+/// @brief The repair of a septal defect in a run: a Backend that holds a patch (libmodel/patch.h)
+/// beside the tissue it wraps. Every run mode (scripted, replayed, haptic, the window) talks to a
+/// Backend, so each gets the patch and its stitches through the hands it already drives: a hand
+/// whose instrument is a `patch` lays the patch when its grab flag or button turns on; a `needle`
+/// ties a stitch (libmodel/solver.h InstrumentKind). Neither reaches the tissue's solver, which sees
+/// no instrument in that hand.
+///
+/// Each step, with a patch laid: the positions of the particles the patch touches are read
+/// (SurgerySupport::positions_of, runtime/backend/surgery.h), the patch steps against them held still, and
+/// its stitches' and contact's equal and opposite forces go to the tissue as loads for the step
+/// (SurgerySupport::set_loads). A needle's hand feels the stitch it ties while its button is held:
+/// the suture's tension.
+///
+/// The repair wraps the backend (runtime/backend/backend_wrapper.h) and overrides only the calls it
+/// changes; a run finds it through the backend's one extension, Backend::surgery (repair_of).
+///
+///     auto backend = with_repair(make_cpu_backend(scenario, options), scenario, RepairSettings{});
+///     if (RepairBackend* repair = repair_of(*backend)) show(repair->patch(), repair->stitch_anchors());
+#pragma once
+
+#include "libmodel/closure.h"
+#include "libmodel/patch.h"
+#include "runtime/backend/backend.h"
+#include "runtime/backend/backend_wrapper.h"
+#include "runtime/backend/patch_stepper.h"
+#include "runtime/backend/surgery.h"
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace heartsim {
+
+struct RepairSettings {
+    PatchMaterial material;          ///< --patch-material
+    double edge_mm = 1.6;            ///< the patch's triangles
+    /// A laid patch lies this far in front of the surface (held there until its first stitch).
+    double standoff_mm = 0.0;
+    double tie_ms = 150.0;
+    double stitch_stiffness = 5.0;   ///< N/mm
+    int iterations = 4;
+    /// The patch steps once every this many tissue steps (by as long: XPBD has no stability bound),
+    /// its loads held in between.
+    int patch_every = 3;
+};
+
+class RepairBackend final : public BackendWrapper, public SurgerySupport {
+public:
+    /// `inner` must offer the surgery's support (Backend::surgery; both backends do).
+    RepairBackend(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
+
+    // The calls a repair changes: the hands that hold a patch or a needle, the step (the patch's
+    // with it), the forces (what the hands feel of the patch), the tissue's reset (the patch goes).
+    void set_instrument(int hand, const Instrument& instrument) override;
+    void set_pose(int hand, const InstrumentPose& pose) override;
+    std::size_t begin_grab(int hand) override;
+    void release(int hand) override;
+    void reset_tissue() override;
+    StepReport step(int steps = 1) override;
+    std::optional<InstrumentForces> latest_forces() override;
+    InstrumentForces instrument_forces() override;
+
+    SurgerySupport* surgery() override { return this; }
+    RepairBackend* repair() override { return this; }
+    void set_loads(const std::vector<ParticleLoad>& loads) override { tissue_.set_loads(loads); }
+    std::vector<std::array<float, 3>> positions_of(const std::vector<std::int32_t>& particles) override {
+        return tissue_.positions_of(particles);
+    }
+    /// The task, then this backend's step (the patch's with it).
+    StepReport step_after(const std::function<void()>& task) override {
+        task();
+        return step(1);
+    }
+    // patch_stepper(): none to offer: the wrapped backend's is this repair's own (to_device).
+
+    /// The patch, once laid; nullptr before. Where the backend's device steps it, this reads it
+    /// back first (the gl backend: waits for the GPU).
+    const PatchModel* patch() const {
+        sync_from_device();
+        return patch_ && patch_->laid() ? &*patch_ : nullptr;
+    }
+    /// Whether the backend's device steps the sewn patch (the gl backend's compute pass).
+    bool patch_on_device() const { return device_ != nullptr; }
+    /// The stitches' tissue points now (mm), in stitch order; empty without a patch.
+    std::vector<Eigen::Vector3d> stitch_anchors();
+    const RepairSettings& settings() const { return settings_; }
+    /// Wall-clock time spent on the patch (ms), and the patch steps it took: the run's summary.
+    double patch_ms() const { return patch_ms_; }
+    long long patch_steps() const { return patch_steps_; }
+    /// The device's own time for the patch's steps on it (GPU timer queries), ms, and how many were
+    /// timed; {0, 0} where the host steps it. Waits for the steps queued.
+    std::pair<double, long long> patch_device_time();
+
+private:
+    /// The patch's step over `every` tissue steps, the tissue as it is now; its loads onto the tissue.
+    void step_patch(int every);
+    void lay(int hand);
+    void tie(int hand);
+    /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.
+    void add_repair_forces(InstrumentForces& forces) const;
+    /// After the patch changed on the host (a stitch tied, a recovery): the backend's device steps
+    /// it from now on where it can (SurgerySupport::patch_stepper), with candidates found afresh.
+    void to_device();
+    /// The device's patch into patch_ when it is newer.
+    void sync_from_device() const;
+    /// The patch off the device (its loads off the tissue).
+    void off_device();
+    /// Each hand's force from the device's newest finished patch step, into patch_force_.
+    void device_hand_forces(bool wait);
+
+    SurgerySupport& tissue_;  ///< the wrapped backend's (Backend::surgery)
+    const Scenario& scenario_;
+    RepairSettings settings_;
+    mutable std::optional<PatchModel> patch_;  ///< mutable: read back from the device when asked for
+    PatchStepper* device_ = nullptr;           ///< the backend's patch pass while it steps the patch
+    mutable bool device_ahead_ = false;        ///< the device's patch is newer than patch_
+    std::optional<PatchPassInput> device_input_;
+    long long device_steps_ = 0;               ///< patch steps on the device since it was loaded (candidates found again every candidate_refresh)
+    PatchStepper* timed_device_ = nullptr;     ///< the stepper that stepped a patch in this run, for its time
+    struct Hand {
+        Instrument instrument;
+        InstrumentPose pose;
+        bool posed = false;  ///< set_pose since set_instrument
+        bool grabbing = false;
+        std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
+    };
+    std::array<Hand, 2> hands_{};
+    /// What each hand feels of the patch from its last step (held between its steps, as its loads):
+    /// a probe's push, a needle's suture; N.
+    std::array<Eigen::Vector3d, 2> patch_force_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
+    mutable double patch_ms_ = 0.0;
+    long long patch_steps_ = 0;
+    long long tissue_steps_ = 0;  ///< since the patch was laid
+};
+
+/// The detailed mesh's triangles a patch centred at `centre` and facing along `facing` can touch:
+/// within `radius` of the centre across, `depth` along, facing it (rest positions); each vertex
+/// carried by the particles the mapping names. Needs the scenario's detailed mesh and mapping.
+ContactSurface patch_surface_near(const Scenario& scenario, const Eigen::Vector3d& centre, const Eigen::Vector3d& facing, double radius,
+                                  double depth);
+
+/// Whether `scenario` can hold a patch: a detailed mesh with its mapping and the simulation
+/// surface, for the surface the patch lies on.
+bool can_hold_patch(const Scenario& scenario);
+/// The refusal of a run whose `what` (e.g. "--instrument patch for hand 0") lays a patch or ties a
+/// stitch on a scenario that cannot hold one: said before the first step, not when the hand acts.
+InputError no_patch_surface(const std::string& what);
+
+/// The repair riding on `backend` (Backend::surgery, SurgerySupport::repair), or nullptr.
+inline RepairBackend* repair_of(Backend& backend) {
+    SurgerySupport* surgery = backend.surgery();
+    return surgery ? surgery->repair() : nullptr;
+}
+
+/// `inner` wrapped in a RepairBackend when can_hold_patch(scenario) and `inner` offers the
+/// surgery's support (Backend::surgery); else `inner` itself.
+std::unique_ptr<Backend> with_repair(std::unique_ptr<Backend> inner, const Scenario& scenario, const RepairSettings& settings);
+
+/// The defect of a scenario, where it is in the tissue's current state: its rest centre moved by
+/// the displacement of the particles around it (a Gaussian of the lattice spacing's width), its
+/// axis pointing to the side `patch` lies on (without one: to the heart's right and anterior, the
+/// side a surgeon closes it from). nullopt when the scenario has no defect.
+std::optional<DefectFrame> defect_frame_now(const Scenario& scenario, const std::vector<std::array<float, 3>>& positions,
+                                            const PatchModel* patch);
+
+}  // namespace heartsim
