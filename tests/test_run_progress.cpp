@@ -1,7 +1,7 @@
-// A headless run's progress lines (runtime/run_progress.h; docs/runtime.md "Progress of a headless
+// A headless run's progress lines (runtime/app/run_progress.h; docs/runtime.md "Progress of a headless
 // run"): the cadence as a function of the steps, the simulated time and the wall time the caller
 // gives, and the lines `heartsim run --headless` prints on stderr over a run of 40,000 steps.
-#include "runtime/run_progress.h"
+#include "runtime/app/run_progress.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
@@ -144,4 +144,26 @@ TEST(RunProgress, HeadlessRunsPrintTheirProgressOnStderr) {
         EXPECT_TRUE(lines.back().closing) << text;
         EXPECT_NEAR(lines.back().simulated_ms, simulated, 1.0 + 1e-3 * simulated) << text;
     }
+}
+
+// A headless haptic session follows the wall clock, so one of 6 s runs at least 5 s of it and
+// says a line there, of its 6 s, then closes at 100 %.
+TEST(RunProgress, AHapticSessionSaysItsProgressByTheWallClock) {
+    const auto& phantom = test::built_phantom("--particles 500");
+    test::TempDir dir;
+    const auto err = dir / "stderr.txt";
+    const std::string device = std::string(" --device simulated:") + quoted(std::filesystem::path(HEARTSIM_SOURCE_DIR) / "samples/haptics/press_phantom.csv");
+    std::string command = quoted(HEARTSIM_EXE);
+    command += " run " + quoted(phantom) + " --headless --backend cpu --seconds 6" + device + " 2>" + quoted(err);
+    const auto run = test::run_command("(" + command + ")");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    std::ifstream in(err);
+    const std::string text((std::istreambuf_iterator<char>(in)), {});
+    const std::vector<Line> lines = progress_lines(text);
+    ASSERT_GE(lines.size(), 2u) << text;
+    EXPECT_FALSE(lines.front().closing) << text;
+    EXPECT_GE(lines.front().wall_s, 5.0) << text;
+    EXPECT_DOUBLE_EQ(lines.front().total_ms, 6000.0) << text;
+    EXPECT_TRUE(lines.back().closing) << text;
+    EXPECT_GT(lines.back().simulated_ms, lines.front().simulated_ms) << text;
 }

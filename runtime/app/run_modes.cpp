@@ -170,7 +170,17 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
         }
     }
     Stepper stepper(backend, stepping(a, run, nullptr));
-    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay, [&stepper] { stepper.open_incisions(); });
+    // A long replay says how far it has come on stderr, as a scripted run does (run_progress.h).
+    const auto wall_start = Clock::now();
+    const double start_ms = backend.simulated_time_ms();
+    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
+    RunProgress progress(int(recording.steps.size()), 0.0);
+    int replayed = 0;
+    const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay, [&] {
+        stepper.open_incisions();
+        progress.after_step(++replayed, backend.simulated_time_ms() - start_ms, backend.time_step_ms(), wall_s());
+    });
+    progress.finish(backend.simulated_time_ms() - start_ms, wall_s());
     const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
     const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
     std::printf("replay: %zu steps in %.4g ms; %zu forces compared, %zu bit for bit identical; max |Δf| %.3g N, rms %.3g N "
@@ -212,16 +222,24 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
     ScriptedRunResult result;
     const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
     const double started = haptic->session().now_ms();
+    // A long session says how far it has come on stderr, as a scripted run does (run_progress.h).
+    const double start_ms = run.backend->simulated_time_ms();
+    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
+    RunProgress progress(a.seconds > 0 ? 0 : run.steps, a.seconds > 0 ? end_ms : 0.0);
     while (!interrupted.load() && !haptic->result().gave_up && haptic->session().now_ms() - started < end_ms &&
            (a.seconds > 0 || haptic->rows() < std::size_t(run.steps))) {
         const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
         const int stepped = stepper.step_to_real_time(limit);
-        if (stepped > 0) stepper.open_incisions();  // the device thread goes on meanwhile
+        if (stepped > 0) {
+            stepper.open_incisions();  // the device thread goes on meanwhile
+            progress.after_step(int(haptic->rows()), run.backend->simulated_time_ms() - start_ms, run.backend->time_step_ms(), wall_s());
+        }
         if (stepped == 0)
             std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
         stepper.offer((long long)haptic->rows(), link_hands(haptic->shapes(), haptic->latest_published_forces()), SlicerLink::State::running);
     }
     if (interrupted.load()) std::printf("interrupted: ending the session\n");
+    progress.finish(run.backend->simulated_time_ms() - start_ms, wall_s());
     haptic->finish(result);
     // Ctrl-C stays caught while the outputs are written: a state is never cut off half way.
     const int status = finish_run(a, run, result, haptic.get(), wall_start);
