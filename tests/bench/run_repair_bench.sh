@@ -10,10 +10,12 @@
 # without the patch, and what the patch's steps cost.
 # With --repeat N the two runs alternate N times and each factor is the best of its N (a shared
 # machine's other work only ever slows a run).
-# Usage: tests/bench/run_repair_bench.sh [--out DIR] [--data DIR] [--backend cpu|gl] [--stitches N (default: plan-repair's)] [--repeat N]
+# The hearts are built as labelled (--walls labelled), as the table in docs/benchmarks.md; --whole
+# builds them whole (heartprep's default, walls grown); --leak-test MMHG: heartsim run's (default 10).
+# Usage: tests/bench/run_repair_bench.sh [--out DIR] [--data DIR] [--backend cpu|gl] [--stitches N (default: plan-repair's)] [--repeat N] [--whole] [--leak-test MMHG]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-out=build/repair-bench data=../shared/data/real backend=cpu stitches= repeat=1
+out=build/repair-bench data=../shared/data/real backend=cpu stitches= repeat=1 walls="--walls labelled" leak=
 while [ $# -gt 0 ]; do
   case "$1" in
     --out) out="$2"; shift 2 ;;
@@ -21,7 +23,9 @@ while [ $# -gt 0 ]; do
     --backend) backend="$2"; shift 2 ;;
     --stitches) stitches="$2"; shift 2 ;;
     --repeat) repeat="$2"; shift 2 ;;
-    -h|--help) sed -n 2,13p "$0"; exit 0 ;;
+    --whole) walls=; shift ;;
+    --leak-test) leak="--leak-test $2"; shift 2 ;;
+    -h|--help) sed -n 2,15p "$0"; exit 0 ;;
     *) echo "run_repair_bench: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -36,13 +40,13 @@ for label in "$data"/*/*label.nii.gz; do
   case=$(basename "$(dirname "$label")")
   options=$(vsd_options "$case") || { echo "$case: no place known for a VSD: skipped" >&2; continue; }
   h5="$out/$case.vsd.h5"
-  [ -f "$h5" ] || $heartprep build "$label" -o "$h5" -q $options
+  [ -f "$h5" ] || $heartprep build "$label" -o "$h5" -q $options $walls
   plan=$($heartsim plan-repair "$h5" -o "$out/$case.repair.csv" ${stitches:+--stitches="$stitches"})
   seconds=$(grep -o -- '--seconds [0-9.]*' <<<"$plan" | head -1 | cut -d' ' -f2)
   echo "$case: $seconds s" >&2
   for ((r = 1; r <= repeat; r++)); do
     $heartsim run "$h5" --headless --backend "$backend" --trajectory "$out/$case.repair.csv" --seconds "$seconds" \
-      --save-state "$out/$case.repaired.h5" > "$out/$case.run.$r.log" 2>&1 || { cat "$out/$case.run.$r.log" >&2; exit 1; }
+      --save-state "$out/$case.repaired.h5" $leak > "$out/$case.run.$r.log" 2>&1 || { cat "$out/$case.run.$r.log" >&2; exit 1; }
     $heartsim run "$h5" --headless --backend "$backend" --seconds "$seconds" > "$out/$case.without.$r.log" 2>&1 ||
       { cat "$out/$case.without.$r.log" >&2; exit 1; }
   done
