@@ -7,6 +7,7 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
+#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -33,6 +34,13 @@ CellEmbedder::CellEmbedder(const Lattice& lattice, const std::vector<Eigen::Vect
     if (lattice.particles.lattice_index.size() != rest.size())
         throw InputError("mapping: the lattice has " + std::to_string(lattice.particles.lattice_index.size()) +
                          " particle indices for " + std::to_string(rest.size()) + " particles");
+    const Eigen::Matrix3d linear = lattice.index_to_world.topLeftCorner<3, 3>();
+    mm_per_cell_ = Eigen::JacobiSVD<Eigen::Matrix3d>(linear).singularValues().minCoeff();
+    for (std::size_t p = 0; p < rest.size(); ++p) {
+        const auto& c = lattice.particles.lattice_index[p];
+        const Eigen::Vector3d at = linear * Eigen::Vector3d(c[0], c[1], c[2]) + lattice.index_to_world.topRightCorner<3, 1>();
+        off_lattice_ = std::max(off_lattice_, (rest[p] - at).norm());
+    }
 }
 
 bool CellEmbedder::affine(const Eigen::Vector3d& v, const std::int32_t* ids, int count, Embedding& out) const {
@@ -128,22 +136,48 @@ Embedding CellEmbedder::embed(const Eigen::Vector3d& v, const std::function<bool
     // they are flat (a sheet), the 7 nearest and the nearest one off their plane. The particles
     // within reach are taken in the order of (distance, index), from a heap, and asked of `usable`
     // in that order, as far as the choice goes: the same choice as ordering the usable ones alone.
+    // The cells come into the heap shell by shell (shell s: s cells beyond v's 2×2×2 block along
+    // some axis, none along any other by more), each shell only once a particle in it could be
+    // the nearest left: the heap then pops what it would hold with all of them, in the same order.
     std::vector<std::pair<double, std::int32_t>> near;
-    constexpr long reach = 6;
-    for (long k = base[2] - reach; k <= base[2] + reach + 1; ++k)
-        for (long j = base[1] - reach; j <= base[1] + reach + 1; ++j)
-            for (long i = base[0] - reach; i <= base[0] + reach + 1; ++i)
-                if (const std::int32_t p = grid_.at(i, j, k); p >= 0) near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
     const std::greater<> nearer_last;
-    std::make_heap(near.begin(), near.end(), nearer_last);
+    constexpr long reach = 6;
+    long shells = 0;  // shells 0 .. shells − 1 are in the heap
+    auto add = [&](long i, long j, long k) {
+        if (const std::int32_t p = grid_.at(i, j, k); p >= 0) {
+            near.emplace_back((rest_[std::size_t(p)] - v).squaredNorm(), p);
+            std::push_heap(near.begin(), near.end(), nearer_last);
+        }
+    };
+    auto take_shell = [&](long s) {
+        for (long k = base[2] - s; k <= base[2] + 1 + s; ++k) {
+            const bool k_out = k == base[2] - s || k == base[2] + 1 + s;
+            for (long j = base[1] - s; j <= base[1] + 1 + s; ++j) {
+                if (k_out || j == base[1] - s || j == base[1] + 1 + s) {
+                    for (long i = base[0] - s; i <= base[0] + 1 + s; ++i) add(i, j, k);
+                } else {
+                    add(base[0] - s, j, k);
+                    add(base[0] + 1 + s, j, k);
+                }
+            }
+        }
+    };
+    // A particle in shell s lies at least s cells from v in index space, so this far in world mm
+    // (less its distance from its lattice point, and a margin for rounding).
+    const double margin = off_lattice_ + 1e-9 * (spacing_ + v.norm());
+    auto nearest_beyond = [&](long s) {
+        const double d = std::max(0.0, mm_per_cell_ * double(s) - margin);
+        return d * d;
+    };
     auto next_usable = [&]() -> std::int32_t {
-        while (!near.empty()) {
+        while (true) {
+            while (shells <= reach && (near.empty() || nearest_beyond(shells) <= near.front().first)) take_shell(shells++);
+            if (near.empty()) return -1;
             std::pop_heap(near.begin(), near.end(), nearer_last);
             const std::int32_t p = near.back().second;
             near.pop_back();
             if (!usable || usable(p)) return p;
         }
-        return -1;
     };
     std::array<std::int32_t, 8> ids{};
     std::size_t count = 0;

@@ -53,6 +53,10 @@ private:
     ParticleGrid grid_;
     Eigen::Matrix4d world_to_index_;
     double spacing_ = 1.0;
+    /// The far search's bound on how near a particle s cells out can lie (world mm per cell of
+    /// index distance, and how far a particle's rest position lies from its cell's lattice point).
+    double mm_per_cell_ = 0.0;
+    double off_lattice_ = 0.0;
 };
 
 }  // namespace heartsim::mapping_internal
