@@ -620,47 +620,90 @@ IncisionResult open_along(IncisionMesh& mesh, const CutSurface& strip, double ga
     return result;
 }
 
-bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why, std::size_t from) {
-    using Edge = std::pair<std::int32_t, std::int32_t>;
-    // Only the edges between two corners of the checked faces are counted: a checked face's edges
-    // have both their ends among them.
+namespace {
+
+std::string edge_count_message(std::int32_t a, std::int32_t b, int forward, int reverse) {
+    return "edge (" + std::to_string(a) + ", " + std::to_string(b) + ") occurs " + std::to_string(forward) + " time(s), its reverse " +
+           std::to_string(reverse);
+}
+
+/// closed_manifold's check of the faces from `from` on: their directed edges and the reverses in
+/// an open-addressing table, each counted over all the faces whose two ends are both corners of
+/// the checked faces (a pass over the faces with no sorting: the patch and caps are a small part
+/// of the mesh).
+bool faces_close_up(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why, std::size_t from) {
     std::vector<std::uint8_t> touched;
-    if (from > 0) {
-        for (std::size_t t = from; t < triangles.size(); ++t)
-            for (std::int32_t v : triangles[t]) {
-                if (v < 0) continue;
-                if (std::size_t(v) >= touched.size()) touched.resize(std::size_t(v) + 1, 0);
-                touched[std::size_t(v)] = 1;
-            }
+    for (std::size_t t = from; t < triangles.size(); ++t)
+        for (std::int32_t v : triangles[t]) {
+            if (v < 0) continue;
+            if (std::size_t(v) >= touched.size()) touched.resize(std::size_t(v) + 1, 0);
+            touched[std::size_t(v)] = 1;
+        }
+    auto code = [](std::int32_t a, std::int32_t b) { return std::uint64_t(std::uint32_t(a)) << 32 | std::uint32_t(b); };
+    constexpr std::uint64_t empty = ~std::uint64_t(0);  // (−1, −1): no edge of ours (negative corners are left out)
+    int bits = 4;
+    while ((std::size_t(1) << bits) < 2 * 6 * (triangles.size() - from)) ++bits;
+    const std::size_t mask = (std::size_t(1) << bits) - 1;
+    std::vector<std::uint64_t> keys(mask + 1, empty);
+    std::vector<std::uint32_t> counts(mask + 1, 0);
+    auto slot = [&](std::uint64_t key) {
+        std::size_t s = std::size_t((key * 0x9E3779B97F4A7C15ull) >> (64 - bits));
+        while (keys[s] != key && keys[s] != empty) s = (s + 1) & mask;
+        return s;
+    };
+    for (std::size_t t = from; t < triangles.size(); ++t)
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::int32_t a = triangles[t][k], b = triangles[t][(k + 1) % 3];
+            if (a < 0 || b < 0) continue;
+            keys[slot(code(a, b))] = code(a, b);
+            keys[slot(code(b, a))] = code(b, a);
+        }
+    auto ours = [&](std::int32_t v) { return v >= 0 && std::size_t(v) < touched.size() && touched[std::size_t(v)]; };
+    for (const auto& t : triangles) {
+        if (!ours(t[0]) && !ours(t[1])) continue;  // no edge with both ends ours
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::int32_t a = t[k], b = t[(k + 1) % 3];
+            if (!ours(a) || !ours(b)) continue;
+            const std::size_t s = slot(code(a, b));
+            if (keys[s] != empty) ++counts[s];
+        }
     }
-    auto counted = [&](std::int32_t v) { return from == 0 || (v >= 0 && std::size_t(v) < touched.size() && touched[std::size_t(v)]); };
+    auto count = [&](std::int32_t a, std::int32_t b) { return a < 0 || b < 0 ? 0 : int(counts[slot(code(a, b))]); };
+    // The first offending edge is the lowest (a, b).
+    bool closed = true;
+    std::pair<std::int32_t, std::int32_t> worst;
+    for (std::size_t t = from; t < triangles.size(); ++t)
+        for (std::size_t k = 0; k < 3; ++k) {
+            const std::int32_t a = triangles[t][k], b = triangles[t][(k + 1) % 3];
+            if (count(a, b) == 1 && count(b, a) == 1) continue;
+            if (!why) return false;
+            if (closed || std::make_pair(a, b) < worst) worst = {a, b};
+            closed = false;
+        }
+    if (!closed) *why = edge_count_message(worst.first, worst.second, count(worst.first, worst.second), count(worst.second, worst.first));
+    return closed;
+}
+
+}  // namespace
+
+bool closed_manifold(const std::vector<std::array<std::int32_t, 3>>& triangles, std::string* why, std::size_t from) {
+    if (from > 0) return faces_close_up(triangles, why, from);
+    using Edge = std::pair<std::int32_t, std::int32_t>;
     std::vector<Edge> directed;
     for (const auto& t : triangles)
-        for (int k = 0; k < 3; ++k) {
-            const std::int32_t a = t[std::size_t(k)], b = t[std::size_t((k + 1) % 3)];
-            if (counted(a) && counted(b)) directed.push_back({a, b});
-        }
+        for (int k = 0; k < 3; ++k) directed.push_back({t[std::size_t(k)], t[std::size_t((k + 1) % 3)]});
     std::sort(directed.begin(), directed.end());
     auto count = [&](const Edge& e) {
         const auto [first, last] = std::equal_range(directed.begin(), directed.end(), e);
         return int(last - first);
     };
-    // The checked faces' edges in order: the first offending one is the lowest (a, b).
-    std::vector<Edge> added;
-    if (from > 0) {
-        for (std::size_t t = from; t < triangles.size(); ++t)
-            for (int k = 0; k < 3; ++k) added.push_back({triangles[t][std::size_t(k)], triangles[t][std::size_t((k + 1) % 3)]});
-        std::sort(added.begin(), added.end());
-    }
-    const std::vector<Edge>& checked = from > 0 ? added : directed;
-    for (std::size_t n = 0; n < checked.size(); ++n) {
-        const Edge& edge = checked[n];
-        if (n > 0 && checked[n - 1] == edge) continue;
+    // The edges in order: the first offending one is the lowest (a, b).
+    for (std::size_t n = 0; n < directed.size(); ++n) {
+        const Edge& edge = directed[n];
+        if (n > 0 && directed[n - 1] == edge) continue;
         const int forward = count(edge), reverse = count({edge.second, edge.first});
         if (forward != 1 || reverse != 1) {
-            if (why)
-                *why = "edge (" + std::to_string(edge.first) + ", " + std::to_string(edge.second) + ") occurs " + std::to_string(forward) +
-                       " time(s), its reverse " + std::to_string(reverse);
+            if (why) *why = edge_count_message(edge.first, edge.second, forward, reverse);
             return false;
         }
     }

@@ -61,6 +61,59 @@ CutSurface plane_x(double x, const Eigen::Vector3d& low, const Eigen::Vector3d& 
 
 }  // namespace
 
+// closed_manifold's check of the faces from `from` on (open_along's check of its patch and caps)
+// against its definition counted face by face: each directed edge of those faces occurs once among
+// all the faces and its reverse once, else the message names the lowest offending edge. A closed
+// box, then the box with a face flipped, dropped or doubled before, at and after `from`.
+TEST(Incision, TheCheckOfTheAddedFacesAgreesWithEdgeCountsOverTheWholeMesh) {
+    const BoxMesh box = box_mesh(Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(3, 2, 2), 0.5);
+    using Triangles = std::vector<std::array<std::int32_t, 3>>;
+    auto expected = [](const Triangles& triangles, std::size_t from, std::string& why) {
+        auto count = [&](std::int32_t a, std::int32_t b) {
+            int n = 0;
+            for (const auto& t : triangles)
+                for (std::size_t k = 0; k < 3; ++k) n += t[k] == a && t[(k + 1) % 3] == b;
+            return n;
+        };
+        bool closed = true;
+        std::pair<std::int32_t, std::int32_t> lowest;
+        for (std::size_t t = from; t < triangles.size(); ++t)
+            for (std::size_t k = 0; k < 3; ++k) {
+                const std::pair<std::int32_t, std::int32_t> e{triangles[t][k], triangles[t][(k + 1) % 3]};
+                if (count(e.first, e.second) == 1 && count(e.second, e.first) == 1) continue;
+                if (closed || e < lowest) lowest = e;
+                closed = false;
+            }
+        if (!closed)
+            why = "edge (" + std::to_string(lowest.first) + ", " + std::to_string(lowest.second) + ") occurs " +
+                  std::to_string(count(lowest.first, lowest.second)) + " time(s), its reverse " + std::to_string(count(lowest.second, lowest.first));
+        return closed;
+    };
+    const std::size_t n = box.triangles.size();
+    ASSERT_GT(n, 40u);
+    std::vector<std::pair<std::string, Triangles>> cases{{"closed", box.triangles}};
+    for (const std::size_t at : {std::size_t(3), n / 2, n - 2}) {
+        Triangles flipped = box.triangles, dropped = box.triangles, doubled = box.triangles;
+        std::swap(flipped[at][1], flipped[at][2]);
+        dropped.erase(dropped.begin() + std::ptrdiff_t(at));
+        doubled.push_back(doubled[at]);
+        cases.push_back({"flipped " + std::to_string(at), flipped});
+        cases.push_back({"dropped " + std::to_string(at), dropped});
+        cases.push_back({"doubled " + std::to_string(at), doubled});
+    }
+    int broken = 0;
+    for (const auto& [name, triangles] : cases)
+        for (const std::size_t from : {std::size_t(1), std::size_t(4), n / 2, n / 2 + 1, n - 3}) {
+            std::string want, got;
+            const bool closed = expected(triangles, from, want);
+            broken += !closed;
+            EXPECT_EQ(closed_manifold(triangles, &got, from), closed) << name << ", from " << from;
+            EXPECT_EQ(got, want) << name << ", from " << from;
+            EXPECT_EQ(closed_manifold(triangles, nullptr, from), closed) << name << ", from " << from;
+        }
+    EXPECT_GT(broken, 20);  // the broken faces mostly lie among the checked ones
+}
+
 // A plane right through a box: two closed pieces whose volumes sum to the box's, less the slit's
 // (gap × cross-section), within 1 %; every cap vertex on the plane (within the slit's half width);
 // every vertex away from the plane exactly where it was.
