@@ -77,34 +77,60 @@ std::vector<std::uint8_t> inside(const std::vector<Point>& points, const std::ve
             if (std::max({a[k], b[k], c[k]}) < low[k] || std::min({a[k], b[k], c[k]}) > high[k]) return true;
         return false;
     };
-    std::vector<int> votes(points.size(), 0);
+    // Per axis: its direction, each ray's column (none for a point beyond the mesh along this
+    // axis: no crossing, outside) and the box of all of them.
+    std::array<Eigen::Vector3d, 3> direction;
+    std::array<std::vector<std::optional<Eigen::AlignedBox3d>>, 3> column;
+    std::array<Eigen::AlignedBox3d, 3> all;
     for (int axis = 0; axis < 3; ++axis) {
-        Eigen::Vector3d d = Eigen::Vector3d::Zero();
+        Eigen::Vector3d& d = direction[std::size_t(axis)];
+        d = Eigen::Vector3d::Zero();
         d[axis] = 1.0;
         d[(axis + 1) % 3] = tilt[axis][0];
         d[(axis + 2) % 3] = tilt[axis][1];
-        // Each ray's column (none for a point beyond the mesh along this axis: no crossing, outside).
-        std::vector<std::optional<Eigen::AlignedBox3d>> column(points.size());
-        Eigen::AlignedBox3d all;
+        column[std::size_t(axis)].resize(points.size());
+        all[std::size_t(axis)].setEmpty();
         for (std::size_t i = 0; i < points.size(); ++i) {
             const Eigen::Vector3d from(points[i].x(), points[i].y(), points[i].z());
             const double reach = box.max()[axis] - from[axis] + 1.0;
             if (reach <= 0) continue;
             const Eigen::Vector3d to = from + reach * d;
-            column[i] = Eigen::AlignedBox3d(from.cwiseMin(to), from.cwiseMax(to));
-            all.extend(*column[i]);
+            column[std::size_t(axis)][i] = Eigen::AlignedBox3d(from.cwiseMin(to), from.cwiseMax(to));
+            all[std::size_t(axis)].extend(*column[std::size_t(axis)][i]);
         }
-        if (all.isEmpty()) continue;
-        std::vector<std::size_t> near;
-        const std::vector<std::uint8_t> beyond = sides_beyond(rest, all.min(), all.max());
-        for (std::size_t t = 0; t < triangles.size(); ++t)
-            if (!(beyond[std::size_t(triangles[t][0])] & beyond[std::size_t(triangles[t][1])] & beyond[std::size_t(triangles[t][2])])) near.push_back(t);
+    }
+    // The triangles whose boxes meet each axis's box of columns, in one pass over the mesh: per
+    // vertex the sides of the three boxes it lies beyond (sides_beyond's bits, 6 per axis).
+    std::array<std::vector<std::size_t>, 3> near;
+    {
+        std::vector<std::uint32_t> beyond(rest.size(), 0);
+        for (std::size_t v = 0; v < rest.size(); ++v) {
+            std::uint32_t bits = 0;
+            for (int axis = 0; axis < 3; ++axis) {
+                const Eigen::AlignedBox3d& b = all[std::size_t(axis)];
+                for (int k = 0; k < 3; ++k)
+                    bits |= ((rest[v][k] < b.min()[k] ? 1u : 0u) << (2 * k) | (rest[v][k] > b.max()[k] ? 2u : 0u) << (2 * k)) << (6 * axis);
+            }
+            beyond[v] = bits;
+        }
+        for (std::size_t t = 0; t < triangles.size(); ++t) {
+            const std::uint32_t shared =
+                beyond[std::size_t(triangles[t][0])] & beyond[std::size_t(triangles[t][1])] & beyond[std::size_t(triangles[t][2])];
+            for (int axis = 0; axis < 3; ++axis)
+                if (!all[std::size_t(axis)].isEmpty() && !((shared >> (6 * axis)) & 63u)) near[std::size_t(axis)].push_back(t);
+        }
+    }
+    std::vector<int> votes(points.size(), 0);
+    for (int axis = 0; axis < 3; ++axis) {
+        if (all[std::size_t(axis)].isEmpty()) continue;
+        const Eigen::Vector3d& d = direction[std::size_t(axis)];
         for (std::size_t i = 0; i < points.size(); ++i) {
-            if (!column[i]) continue;
+            const auto& col = column[std::size_t(axis)][i];
+            if (!col) continue;
             const Kernel::Ray_3 ray(points[i], Kernel::Vector_3(d.x(), d.y(), d.z()));
             int crossings = 0;
-            for (std::size_t t : near) {
-                if (apart(triangles[t], column[i]->min(), column[i]->max())) continue;
+            for (std::size_t t : near[std::size_t(axis)]) {
+                if (apart(triangles[t], col->min(), col->max())) continue;
                 const auto& tri = triangles[t];
                 const Kernel::Triangle_3 face(point(rest[std::size_t(tri[0])]), point(rest[std::size_t(tri[1])]), point(rest[std::size_t(tri[2])]));
                 if (!face.is_degenerate() && CGAL::do_intersect(ray, face)) ++crossings;
