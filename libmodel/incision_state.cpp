@@ -27,11 +27,19 @@ std::int64_t cell_key(long i, long j, long k) {
     return (std::int64_t(i) + (1 << 20)) | ((std::int64_t(j) + (1 << 20)) << 21) | ((std::int64_t(k) + (1 << 20)) << 42);
 }
 
-/// Points in buckets of one lattice spacing.
+/// Points in buckets of one lattice spacing: those whose cells lie in the cells of the box
+/// `low`–`high` (near() with `reach` sees all the points it would with every point in buckets
+/// wherever its centre's cell lies `reach` cells or more inside the box's).
 class PointBuckets {
 public:
-    PointBuckets(const std::vector<Eigen::Vector3d>& points, double size) : points_(points), size_(size) {
-        for (std::size_t p = 0; p < points.size(); ++p) cells_[key(points[p])].push_back(std::int32_t(p));
+    PointBuckets(const std::vector<Eigen::Vector3d>& points, double size, const Eigen::Vector3d& low, const Eigen::Vector3d& high)
+        : points_(points), size_(size) {
+        const long i0 = cell(low.x()), j0 = cell(low.y()), k0 = cell(low.z()), i1 = cell(high.x()), j1 = cell(high.y()), k1 = cell(high.z());
+        for (std::size_t p = 0; p < points.size(); ++p) {
+            const long i = cell(points[p].x()), j = cell(points[p].y()), k = cell(points[p].z());
+            if (i < i0 || i > i1 || j < j0 || j > j1 || k < k0 || k > k1) continue;
+            cells_[cell_key(i, j, k)].push_back(std::int32_t(p));
+        }
     }
     template <class F>
     void near(const Eigen::Vector3d& c, long reach, F&& visit) const {
@@ -45,7 +53,6 @@ public:
 
 private:
     long cell(double x) const { return long(std::floor(x / size_)); }
-    std::int64_t key(const Eigen::Vector3d& p) const { return cell_key(cell(p.x()), cell(p.y()), cell(p.z())); }
     const std::vector<Eigen::Vector3d>& points_;
     double size_;
     std::unordered_map<std::int64_t, std::vector<std::int32_t>> cells_;
@@ -273,7 +280,14 @@ std::vector<CutSurface> stroke_surfaces(const BladeStroke& stroke, const std::ve
         now[p] = {x[0], x[1], x[2]};
         rest[p] = {r[0], r[1], r[2]};
     }
-    const PointBuckets buckets(now, h);
+    // The particles within 12 cells of the blade's kept poses (the farthest to_rest looks), and
+    // one cell more for rounding.
+    Eigen::AlignedBox3d reached;
+    for (std::size_t k : kept) {
+        reached.extend(tip[k]);
+        reached.extend(end[k]);
+    }
+    const PointBuckets buckets(now, h, reached.min().array() - 13 * h, reached.max().array() + 13 * h);
     auto to_rest = [&](const Eigen::Vector3d& p) -> Eigen::Vector3d {
         Eigen::Vector3d shift = Eigen::Vector3d::Zero();
         double total = 0.0;
