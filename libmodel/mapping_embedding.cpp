@@ -7,7 +7,6 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
-#include <Eigen/SVD>
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -35,7 +34,9 @@ CellEmbedder::CellEmbedder(const Lattice& lattice, const std::vector<Eigen::Vect
         throw InputError("mapping: the lattice has " + std::to_string(lattice.particles.lattice_index.size()) +
                          " particle indices for " + std::to_string(rest.size()) + " particles");
     const Eigen::Matrix3d linear = lattice.index_to_world.topLeftCorner<3, 3>();
-    mm_per_cell_ = Eigen::JacobiSVD<Eigen::Matrix3d>(linear).singularValues().minCoeff();
+    // The smallest singular value of the index-to-world map: the least world length of a unit step.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> squared(linear.transpose() * linear, Eigen::EigenvaluesOnly);
+    mm_per_cell_ = std::sqrt(std::max(0.0, squared.eigenvalues().minCoeff()));
     for (std::size_t p = 0; p < rest.size(); ++p) {
         const auto& c = lattice.particles.lattice_index[p];
         const Eigen::Vector3d at = linear * Eigen::Vector3d(c[0], c[1], c[2]) + lattice.index_to_world.topRightCorner<3, 1>();
