@@ -296,3 +296,30 @@ TEST(Walls, HeartprepGrowsByDefaultRecordsTheWallsAndBuildsTheLabelsAsTheyAreOnR
     EXPECT_NE(both.exit_code, 0);
     EXPECT_NE(both.output.find("--wall-rv"), std::string::npos) << both.output;
 }
+
+// An MM-WHS map without some of its convention's labels (here no atria, aorta or pulmonary
+// artery: 1 myocardium round the left ventricle's blood 3, the right ventricle's blood 5 beside
+// it): the walls take labels above every label the convention knows, so none is read as another
+// structure's blood, and the right ventricle's wall grows.
+TEST(Walls, AConventionsMapWithoutSomeOfItsLabelsGrowsItsWalls) {
+    test::TempDir dir;
+    LabelVolume v = empty_volume({70, 50, 50}, Eigen::Vector3d(0.8, 0.8, 0.8));
+    paint_ball(v, Eigen::Vector3d(-6, 0, 0), 14.0, 1);
+    paint_ball(v, Eigen::Vector3d(-6, 0, 0), 10.0, 3);
+    paint_ball(v, Eigen::Vector3d(14, 0, 0), 9.0, 5);
+    write_label_volume(dir / "partial.nii.gz", v);
+    const auto run = test::heartprep("build " + quoted(dir / "partial.nii.gz") + " -o " + quoted(dir / "partial.h5") +
+                                     " --labels mmwhs-ordinal --particles 3000");
+    ASSERT_EQ(run.exit_code, 0) << run.output;
+    // The structures it leaves out are said.
+    EXPECT_NE(run.output.find("holds no 2 'left atrium blood pool'"), std::string::npos) << run.output;
+    const Scenario s = read_scenario(dir / "partial.h5");
+    ASSERT_EQ(s.tissue_origin.size(), s.lattice.materials.size());
+    bool right_ventricle = false;
+    for (std::size_t m = 0; m < s.lattice.materials.size(); ++m) {
+        if (!s.tissue_origin[m].grown) continue;
+        EXPECT_GT(s.lattice.materials[m].label, 7) << s.lattice.materials[m].name;
+        right_ventricle = right_ventricle || (s.tissue_origin[m].grown_from == 5 && s.tissue_origin[m].volume_mm3 > 0);
+    }
+    EXPECT_TRUE(right_ventricle) << run.output;
+}

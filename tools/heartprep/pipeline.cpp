@@ -102,9 +102,25 @@ LabelVolume read_and_resolve(const std::filesystem::path& input, const LabelChoi
         } else {
             options.tissue_labels = resolve_label_choice(labels.tissue, report.segment_names, "--tissue");
         }
-        // A convention knows its blood pools: they are the cavities unless --cavity says otherwise.
-        options.cavity_labels = labels.cavity.empty() && convention ? convention->blood
-                                                                    : resolve_label_choice(labels.cavity, report.segment_names, "--cavity");
+        // A convention knows its blood pools: they are the cavities unless --cavity says otherwise,
+        // those the map holds (a map may leave a structure out: a crop without the pulmonary artery).
+        if (labels.cavity.empty() && convention) {
+            std::string absent;
+            for (int label : convention->blood) {
+                if (present.count(label)) {
+                    options.cavity_labels.push_back(label);
+                    continue;
+                }
+                const auto name = convention->names.find(label);
+                absent += (absent.empty() ? "" : ", ") + std::to_string(label) +
+                          (name == convention->names.end() ? std::string() : " '" + name->second + "'");
+            }
+            if (!absent.empty())
+                report.warnings.push_back(input.string() + " holds no " + absent + " of " + convention->title +
+                                          "'s blood labels: those structures, and their walls, are left out");
+        } else {
+            options.cavity_labels = resolve_label_choice(labels.cavity, report.segment_names, "--cavity");
+        }
         options.anchor_labels = resolve_label_choice(labels.anchor, report.segment_names, "--anchor-label");
     } catch (const InputError& error) {
         throw InputError(input.string() + ": " + error.what());
@@ -151,12 +167,14 @@ void walls_stage(LabelVolume& volume, const WallChoice& choice, SelectionOptions
     if (!choice.grow) return;
     const std::string& name = report.convention.empty() ? report.convention_match : report.convention;
     const LabelConvention* convention = name.empty() ? nullptr : find_label_convention(name);
-    std::vector<int> present;  // the volume's labels, for the first label free for the walls
-    {
-        std::set<int> seen(volume.labels.begin(), volume.labels.end());
-        present.assign(seen.begin(), seen.end());
-    }
-    const int first_label = std::max(1, present.empty() ? 1 : present.back() + 1);
+    // The walls' labels: above every label the volume holds, the build names (--tissue, --cavity,
+    // --anchor-label) or the convention knows, so that a map without some of a convention's labels
+    // (an MM-WHS map with no pulmonary artery) gives no wall a label the build reads as blood.
+    std::set<int> named(volume.labels.begin(), volume.labels.end());
+    for (const std::vector<int>* list : {&options.tissue_labels, &options.cavity_labels, &options.anchor_labels}) named.insert(list->begin(), list->end());
+    if (convention)
+        for (const auto& [label, segment] : convention->names) named.insert(label);
+    const int first_label = std::max(1, named.empty() ? 1 : *named.rbegin() + 1);
     std::vector<WallStructure> structures;
     if (convention && options.tissue_labels == std::vector<int>{convention->myocardium}) {
         walls.convention = convention->title;
