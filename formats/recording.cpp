@@ -5,9 +5,9 @@
 #include "xdmf.h"
 
 #include "libmodel/errors.h"
-#include "libmodel/patch.h"
+#include "libmodel/surgery/patch.h"
 #include "libmodel/plausible.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <algorithm>
 #include <cmath>

@@ -10,7 +10,7 @@
 ///               before it was kept: pericardium), period_p50_ms, period_p99_ms, period_max_ms,
 ///               period_mean_ms, periods, overruns, latency_p50_ms, latency_p99_ms, latency_max_ms
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
-///               (libmodel/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
+///               (libmodel/sim/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
 ///               instrument ("probe" | "grabber" | "scalpel" | "patch" | "needle"), semi_axes_mm [3], max_force_n,
 ///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
@@ -34,7 +34,7 @@
 ///     diverged       int8    [S]      the step hit the watchdog
 ///     mass_scale     float64 [S]      the explicit mass scaling S the step ran with (absent in
 ///                                     recordings made before heartsim scaled mass: 1 throughout)
-///     instrument     int8    [S,2]    the instrument each hand held during the step (libmodel/solver.h instrument_code:
+///     instrument     int8    [S,2]    the instrument each hand held during the step (libmodel/sim/solver.h instrument_code:
 ///                                     0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle; the
 ///                                     window's K, Shift + P and Shift + N change it) and
 ///     semi_axes_mm   float64 [S,2,3]  its semi-axes (both absent in recordings made before an instrument
@@ -45,7 +45,7 @@
 
 #include "formats/atomic_file.h"
 
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <array>
 #include <cstdint>
@@ -133,7 +133,7 @@ struct Recording {
     /// kernel, and every recording made before they were fused, which has no such attribute). A
     /// cpu replay takes the same, so that it reproduces the forces to the bit (docs/haptics.md).
     std::string arithmetic = "fused";
-    /// --patch-material of the session (libmodel/patch.h patch_material_named), which a replay lays.
+    /// --patch-material of the session (libmodel/surgery/patch.h patch_material_named), which a replay lays.
     std::string patch_material = "pericardium";
     /// nullopt: made before recordings kept their rules (replayed with rules_before_recorded()).
     std::optional<SolverRules> rules;

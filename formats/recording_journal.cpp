@@ -4,7 +4,7 @@
 #include "hdf5_io.h"  // lookup3
 
 #include "libmodel/errors.h"
-#include "libmodel/patch.h"
+#include "libmodel/surgery/patch.h"
 
 #include <algorithm>
 #include <bit>

@@ -8,7 +8,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/mapping.h"
 #include "libmodel/packing.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/mesh.h"
 #include "libmodel/volume.h"
 
@@ -49,7 +49,7 @@ struct ScenarioSource {
     double defect_diameter_mm = 0.0;
 };
 
-/// /solver attributes: the step settings (libmodel/solver_options.h StepSettings: dt_ms, damping,
+/// /solver attributes: the step settings (libmodel/sim/solver_options.h StepSettings: dt_ms, damping,
 /// gravity, balanced_gravity, critical_dt_ms, damped_critical_dt_ms, safety_factor; same names,
 /// units and defaults as the file's attributes) plus what only the file holds. The solver's rules
 /// and kernel options are heartsim's, not the scenario's (options_from). Units: ms, mm/ms².

@@ -1,6 +1,6 @@
-#include "coronary_field.h"
+#include "libmodel/coronary_field.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <algorithm>
 #include <cmath>

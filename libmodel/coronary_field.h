@@ -8,7 +8,7 @@
 /// every deformation without more geometry (the seed's normal-mapping technique).
 #pragma once
 
-#include "landmarks.h"
+#include "libmodel/landmarks.h"
 
 #include <Eigen/Core>
 #include <string>

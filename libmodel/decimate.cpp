@@ -4,8 +4,8 @@
 // The Garland–Heckbert policies solve small systems with Eigen, which CGAL enables by this flag.
 #define CGAL_EIGEN3_ENABLED
 
-#include "errors.h"
-#include "surface.h"
+#include "libmodel/errors.h"
+#include "libmodel/surface.h"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Surface_mesh.h>

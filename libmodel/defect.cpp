@@ -1,6 +1,6 @@
-#include "defect.h"
+#include "libmodel/defect.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <Eigen/Dense>
 #include <algorithm>

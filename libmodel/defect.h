@@ -15,9 +15,9 @@
 /// and at most `max_wall_mm` thick; `site` chooses where on it (DefectSite).
 #pragma once
 
-#include "progress.h"
-#include "segment_names.h"
-#include "volume.h"
+#include "libmodel/progress.h"
+#include "libmodel/segment_names.h"
+#include "libmodel/volume.h"
 
 #include <Eigen/Core>
 #include <optional>

@@ -1,8 +1,8 @@
 // The exact Euclidean distance map of landmarks.h (distance_map): the square root of walls.h's
 // feature transform, which finds the squared distances one grid axis at a time with that axis'
 // spacing.
-#include "landmarks.h"
-#include "walls.h"
+#include "libmodel/landmarks.h"
+#include "libmodel/walls.h"
 
 #include <cmath>
 

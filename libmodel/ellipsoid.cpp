@@ -1,6 +1,6 @@
 /// @file ellipsoid.cpp
 /// @brief The nearest surface point of an ellipsoid from inside (ellipsoid.h).
-#include "ellipsoid.h"
+#include "libmodel/ellipsoid.h"
 
 #include <cmath>
 

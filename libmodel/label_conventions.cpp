@@ -1,6 +1,6 @@
-#include "label_conventions.h"
+#include "libmodel/label_conventions.h"
 
-#include "text.h"
+#include "libmodel/text.h"
 
 #include <array>
 

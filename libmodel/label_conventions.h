@@ -12,8 +12,8 @@
 ///                  7 pulmonary artery), as many MM-WHS derivatives store them
 #pragma once
 
-#include "segment_names.h"
-#include "walls.h"
+#include "libmodel/segment_names.h"
+#include "libmodel/walls.h"
 
 #include <set>
 #include <string>

@@ -1,7 +1,7 @@
-#include "landmarks.h"
+#include "libmodel/landmarks.h"
 
-#include "errors.h"
-#include "text.h"
+#include "libmodel/errors.h"
+#include "libmodel/text.h"
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>

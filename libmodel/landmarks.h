@@ -29,9 +29,9 @@
 /// is not made: it is listed missing with the reason, never guessed.
 #pragma once
 
-#include "mesh.h"
-#include "segment_names.h"
-#include "volume.h"
+#include "libmodel/mesh.h"
+#include "libmodel/segment_names.h"
+#include "libmodel/volume.h"
 
 #include <Eigen/Core>
 #include <string>

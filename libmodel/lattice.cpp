@@ -1,7 +1,7 @@
-#include "lattice.h"
+#include "libmodel/lattice.h"
 
-#include "errors.h"
-#include "select.h"
+#include "libmodel/errors.h"
+#include "libmodel/select.h"
 
 #include <tbb/parallel_for.h>
 

@@ -5,9 +5,9 @@
 /// exact layout of the scenario file and the GPU buffers (float32 / int32 / uint8).
 #pragma once
 
-#include "progress.h"
-#include "select.h"
-#include "volume.h"
+#include "libmodel/progress.h"
+#include "libmodel/select.h"
+#include "libmodel/volume.h"
 
 #include <Eigen/Core>
 #include <array>

@@ -9,12 +9,12 @@
 /// embedding, and the runtime's evaluation of the result all share the Problem/Solution types and
 /// the exact formula, which must not drift apart; the candidate search and the lattice embedding
 /// live in mapping_candidates.cpp and mapping_embedding.cpp.
-#include "mapping.h"
-#include "triangle_point.h"
+#include "libmodel/mapping.h"
+#include "libmodel/triangle_point.h"
 
-#include "errors.h"
-#include "mapping_candidates.h"
-#include "mapping_embedding.h"
+#include "libmodel/errors.h"
+#include "libmodel/mapping_candidates.h"
+#include "libmodel/mapping_embedding.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

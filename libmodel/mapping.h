@@ -17,10 +17,10 @@
 /// The weights and offset reproduce the visual vertex at rest exactly, not merely a projection.
 #pragma once
 
-#include "lattice.h"
-#include "mesh.h"
-#include "progress.h"
-#include "simulation_surface.h"
+#include "libmodel/lattice.h"
+#include "libmodel/mesh.h"
+#include "libmodel/progress.h"
+#include "libmodel/simulation_surface.h"
 
 #include <Eigen/Core>
 #include <array>

@@ -1,7 +1,7 @@
 /// @file mapping_candidates.cpp
 /// @brief The CGAL AABB tree behind mapping_candidates.h. Simple_cartesian<double> suffices: the
 /// tree only ranks candidates; the mapping solves each candidate exactly itself.
-#include "mapping_candidates.h"
+#include "libmodel/mapping_candidates.h"
 
 #include <CGAL/AABB_traits.h>
 #include <CGAL/AABB_tree.h>

@@ -1,8 +1,8 @@
 /// @file mapping_embedding.cpp
 /// @brief A visual vertex embedded in a lattice cell (mapping_embedding.h).
-#include "mapping_embedding.h"
+#include "libmodel/mapping_embedding.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>

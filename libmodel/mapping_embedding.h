@@ -3,7 +3,7 @@
 /// combination of up to 8 of the cell's particles (mapping.h, "embedded" vertices).
 #pragma once
 
-#include "lattice.h"
+#include "libmodel/lattice.h"
 
 #include <Eigen/Core>
 #include <array>

@@ -1,8 +1,8 @@
 /// @file marching_cubes.cpp
 /// @brief Marching cubes on a binary mask with a case table built at start-up from one face rule,
 /// so that neighbouring cells always agree and the surface is a closed, oriented 2-manifold.
-#include "errors.h"
-#include "surface.h"
+#include "libmodel/errors.h"
+#include "libmodel/surface.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

@@ -1,7 +1,7 @@
 /// @file mesh.cpp
 /// @brief Topology checks and measures of triangle meshes, from our own edge map (no CGAL), so
 /// the checks can judge the CGAL-based stages independently.
-#include "mesh.h"
+#include "libmodel/mesh.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>

@@ -1,6 +1,6 @@
-#include "packing.h"
+#include "libmodel/packing.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <algorithm>
 #include <cmath>

@@ -4,8 +4,8 @@
 /// are never stored: arrays hold particles only; the texture's void texels exist only on the GPU.
 #pragma once
 
-#include "lattice.h"
-#include "progress.h"
+#include "libmodel/lattice.h"
+#include "libmodel/progress.h"
 
 #include <array>
 #include <cstdint>

@@ -1,7 +1,7 @@
-#include "phantom.h"
+#include "libmodel/phantom.h"
 
-#include "errors.h"
-#include "plausible.h"
+#include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <tbb/parallel_for.h>
 

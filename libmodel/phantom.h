@@ -5,7 +5,7 @@
 /// 0 background, 1 myocardium, 2 blood pool.
 #pragma once
 
-#include "volume.h"
+#include "libmodel/volume.h"
 
 #include <string>
 

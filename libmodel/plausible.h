@@ -5,7 +5,7 @@
 /// with its name, value and range rather than simulated (a 1e30 mm probe, a 1e-30 g particle).
 #pragma once
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <cmath>
 #include <sstream>

@@ -1,4 +1,4 @@
-#include "progress.h"
+#include "libmodel/progress.h"
 
 namespace heartsim {
 

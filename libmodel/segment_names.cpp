@@ -1,7 +1,7 @@
-#include "segment_names.h"
+#include "libmodel/segment_names.h"
 
-#include "errors.h"
-#include "text.h"
+#include "libmodel/errors.h"
+#include "libmodel/text.h"
 
 #include <algorithm>
 #include <array>

@@ -1,6 +1,6 @@
-#include "select.h"
+#include "libmodel/select.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <algorithm>
 #include <sstream>

@@ -3,8 +3,8 @@
 /// anchor the tissue; detached islands below a size are dropped and reported.
 #pragma once
 
-#include "progress.h"
-#include "volume.h"
+#include "libmodel/progress.h"
+#include "libmodel/volume.h"
 
 #include <string>
 #include <vector>

@@ -3,9 +3,9 @@
 /// cube's 8 corners are 8 neighbouring cell centres), each crossing edge snapped to its occupied
 /// end, so every vertex is a particle. See docs/simulation-surface-and-mapping.md for the
 /// construction, why the result is closed and oriented, and what happens at thin walls.
-#include "simulation_surface.h"
+#include "libmodel/simulation_surface.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <tbb/parallel_for.h>
 

@@ -4,9 +4,9 @@
 /// buffer) and the mapping ties the detailed visual mesh to it.
 #pragma once
 
-#include "lattice.h"
-#include "mesh.h"
-#include "progress.h"
+#include "libmodel/lattice.h"
+#include "libmodel/mesh.h"
+#include "libmodel/progress.h"
 
 #include <array>
 #include <cstdint>

@@ -1,8 +1,8 @@
 /// @file smoothing.cpp
 /// @brief Windowed-sinc smoothing (Taubin, Zhang & Golub 1996, "Optimal surface smoothing as
 /// filter design"), the filter of vtkWindowedSincPolyDataFilter that 3D Slicer applies.
-#include "errors.h"
-#include "surface.h"
+#include "libmodel/errors.h"
+#include "libmodel/surface.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

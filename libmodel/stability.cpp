@@ -1,6 +1,6 @@
-#include "stability.h"
+#include "libmodel/stability.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <Eigen/Core>
 #include <Eigen/Eigenvalues>

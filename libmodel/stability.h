@@ -6,7 +6,7 @@
 
 #include <functional>
 
-#include "lattice.h"
+#include "libmodel/lattice.h"
 
 #include <vector>
 

@@ -1,7 +1,7 @@
-#include "supports.h"
+#include "libmodel/supports.h"
 
-#include "errors.h"
-#include "packing.h"
+#include "libmodel/errors.h"
+#include "libmodel/packing.h"
 
 #include <Eigen/Dense>
 #include <tbb/blocked_range.h>

@@ -8,8 +8,8 @@
 /// docs/scenario-format.md (/particles/support_*, /solver balanced_gravity).
 #pragma once
 
-#include "lattice.h"
-#include "progress.h"
+#include "libmodel/lattice.h"
+#include "libmodel/progress.h"
 
 #include <Eigen/Core>
 #include <cstddef>

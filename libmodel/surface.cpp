@@ -1,8 +1,8 @@
 /// @file surface.cpp
 /// @brief The surface stage: marching cubes, windowed-sinc smoothing, decimation, normals.
-#include "surface.h"
+#include "libmodel/surface.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <chrono>
 #include <cmath>

@@ -3,9 +3,9 @@
 /// non-shrinking windowed-sinc smoothing (3D Slicer's default pipeline), optional decimation.
 #pragma once
 
-#include "mesh.h"
-#include "progress.h"
-#include "volume.h"
+#include "libmodel/mesh.h"
+#include "libmodel/progress.h"
+#include "libmodel/volume.h"
 
 #include <string>
 #include <vector>

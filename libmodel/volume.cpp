@@ -1,4 +1,4 @@
-#include "volume.h"
+#include "libmodel/volume.h"
 
 #include <algorithm>
 

@@ -1,7 +1,7 @@
-#include "walls.h"
+#include "libmodel/walls.h"
 
-#include "errors.h"
-#include "plausible.h"
+#include "libmodel/errors.h"
+#include "libmodel/plausible.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

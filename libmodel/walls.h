@@ -17,8 +17,8 @@
 ///   that meet (the atria across an unlabelled interatrial septum) become one wall.
 #pragma once
 
-#include "progress.h"
-#include "volume.h"
+#include "libmodel/progress.h"
+#include "libmodel/volume.h"
 
 #include <Eigen/Core>
 #include <array>

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Does the patch in a saved heartsim state close its septal defect? An independent check of
-libmodel/closure.h (docs/closure.md), with its own code and, where it can, other methods:
+libmodel/surgery/closure.h (docs/closure.md), with its own code and, where it can, other methods:
 
   - the tissue's voxels by the parity of crossings along rays parallel to the world's z axis
     (heartsim: the winding number along rows of a grid turned to the defect's frame);

@@ -78,7 +78,7 @@ done
   echo "plane crosses it; the stitches' knots (blue) sit on it at the rim; the needle (gold) is where the"
   echo "gesture left it. Left the whole section, right a close-up 60 mm from the defect's centre"
   echo "(\`--look-at\`). Under them, the patch the plan chose and the closure check the run printed"
-  echo "(libmodel/closure.h, docs/closure.md: the patch held to 10 mmHg across the septum). Regenerate"
+  echo "(libmodel/surgery/closure.h, docs/closure.md: the patch held to 10 mmHg across the septum). Regenerate"
   echo "with \`scripts/make-repair-gallery.sh\`."
   echo
   echo "The hearts are built as their label maps are (\`--walls labelled\`), the septum's right face then"

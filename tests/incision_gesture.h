@@ -13,7 +13,7 @@
 #pragma once
 
 #include "formats/scenario.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision_state.h"
 #include "runtime/surgery/incision_plan.h"
 #include "runtime/core/trajectory.h"
 

@@ -7,7 +7,7 @@
 #pragma once
 
 #include "formats/scenario.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <algorithm>
 #include <array>

@@ -6,7 +6,7 @@
 /// instruments and targets that tests/test_solver.cpp and solver_bench share.
 #pragma once
 
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <Eigen/Geometry>
 

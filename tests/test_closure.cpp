@@ -1,4 +1,4 @@
-// The closure check (libmodel/closure.h) on a plate with a round hole, against what the shapes
+// The closure check (libmodel/surgery/closure.h) on a plate with a round hole, against what the shapes
 // say in closed form: a patch lying on the plate closes it, one lifted, too small or tilted does
 // not; the rim's gap is the patch's height over the rim (the distance to a plane or a sphere);
 // the voxels the flood fill reaches fill the blood's volume in the region (a cylinder from
@@ -6,7 +6,7 @@
 // side around the plate is no leak; none of it depends on where the scene lies or how it is
 // turned. The independent check for saved states (scripts/check-closure.py) must give the same
 // verdicts.
-#include "libmodel/closure.h"
+#include "libmodel/surgery/closure.h"
 #include "libmodel/errors.h"
 #include "box_mesh.h"
 

@@ -6,15 +6,15 @@
 // Then the abuse a user's script can do (docs/reliability.md "Cutting"): a thousand springs cut in
 // one step, every spring cut, a blade of no length or of the shortest, a blade pose that is not a
 // number, cutting what the other hand holds, cutting a cut again, each against counts made here
-// by brute force and against Newton's laws. Last the blade's force (libmodel/cutting_force.h): the
+// by brute force and against Newton's laws. Last the blade's force (libmodel/sim/cutting_force.h): the
 // springs a plane of any orientation crosses per unit area, counted on a lattice, and the force on
 // a blade drawn at constant speed through a block, against G_c × the springs cut (counted here from
 // the rest positions) × the area each stands for / the travel.
-#include "libmodel/cutting.h"
-#include "libmodel/cutting_force.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/sim/cutting_force.h"
 #include "libmodel/errors.h"
 #include "libmodel/packing.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "test_support.h"
 

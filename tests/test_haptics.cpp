@@ -17,7 +17,7 @@
 #include "libmodel/packing.h"
 #include "libmodel/select.h"
 #include "libmodel/simulation_surface.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 
 #include <gtest/gtest.h>

@@ -3,7 +3,7 @@
 #include "formats/volume_io.h"
 #include "libmodel/lattice.h"
 #include "libmodel/phantom.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>

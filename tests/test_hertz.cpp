@@ -4,7 +4,7 @@
 // several spacings, depths and placements).
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>

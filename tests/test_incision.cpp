@@ -3,12 +3,12 @@
 // the blade's plane (the caps lie on it), Euler's count of closed pieces (connected components),
 // and the solver's own pieces (each side's vertices carried by the particles on that side only,
 // so when one piece moves rigidly its vertices move with it and the other's stay put).
-#include "libmodel/incision.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision.h"
+#include "libmodel/surgery/incision_state.h"
 #include "libmodel/mapping.h"
 #include "libmodel/packing.h"
 #include "libmodel/simulation_surface.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "box_mesh.h"
 #include "test_support.h"

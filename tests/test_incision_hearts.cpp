@@ -1,9 +1,9 @@
 // The detailed mesh of every real heart opened along a scripted incision, as heartsim opens it
-// (libmodel/incision_state.h at the step the blade lifts), against what needs no incision code:
+// (libmodel/surgery/incision_state.h at the step the blade lifts), against what needs no incision code:
 // the blade's plane (which side each vertex and its carrying particles lie on), the springs the
 // solver cut (how far the two sides part), and rays cast through the incision (how deep one sees).
-#include "libmodel/incision.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision.h"
+#include "libmodel/surgery/incision_state.h"
 #include "libmodel/mapping.h"
 #include "formats/scenario.h"
 #include "incision_gesture.h"

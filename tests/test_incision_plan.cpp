@@ -5,7 +5,7 @@
 #include "formats/state.h"
 #include "formats/volume_io.h"
 #include "incision_gesture.h"
-#include "libmodel/incision.h"
+#include "libmodel/surgery/incision.h"
 #include "libmodel/label_conventions.h"
 #include "runtime/view/camera.h"
 #include "runtime/surgery/incision_plan.h"

@@ -2,7 +2,7 @@
 // the critical and damped steps and the period of a two-mass oscillator against their closed forms,
 // the static force of a held press unchanged, the gl backend equal to the cpu one, and the
 // governor's choice from the speed it sees.
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"

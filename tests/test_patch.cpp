@@ -1,10 +1,10 @@
-// The patch (libmodel/patch.h) sewn over a hole in a rigid plate, checked by the closure check
-// (libmodel/closure.h): enough stitches close the hole, too few or no patch leave it open; the
+// The patch (libmodel/surgery/patch.h) sewn over a hole in a rigid plate, checked by the closure check
+// (libmodel/surgery/closure.h): enough stitches close the hole, too few or no patch leave it open; the
 // tissue takes the opposite of every force on the patch (Newton's third law); a probe pressed on it
 // pushes it and is pushed back.
-#include "libmodel/closure.h"
+#include "libmodel/surgery/closure.h"
 #include "libmodel/errors.h"
-#include "libmodel/patch.h"
+#include "libmodel/surgery/patch.h"
 #include "plate_hole.h"
 
 #include <gtest/gtest.h>
@@ -229,7 +229,7 @@ TEST(Patch, RefusesWhatIsNotAPatch) {
     EXPECT_NE(why.find("no patch"), std::string::npos);
 }
 
-// What a pass carries (libmodel/patch.h PatchPassInput, PatchPassState: the patch and all its step
+// What a pass carries (libmodel/surgery/patch.h PatchPassInput, PatchPassState: the patch and all its step
 // keeps between steps) goes back into a model exactly: a second model, sewn alike but stepped on
 // a plate that slid elsewhere, takes the first one's state, and from there the two step on a
 // sliding plate to the same bit.

@@ -327,7 +327,7 @@ TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
 
 // The scalpel's force along the phantom's incision, step by step on both backends: each step the
 // same springs cut (the gl cut pass's counter, read back with the forces) and the same force, to
-// the rounding of a fused multiply-add (the blade pass applies libmodel/cutting_force.h's double
+// the rounding of a fused multiply-add (the blade pass applies libmodel/sim/cutting_force.h's double
 // operations to that count), non-zero while
 // the blade cuts, against its motion (+z), and zero from the step it is lifted.
 TEST(RuntimeBackend, GlFeelsTheSameBladeForceAsTheCpu) {

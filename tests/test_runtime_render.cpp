@@ -15,7 +15,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision_state.h"
 #include "libmodel/mapping.h"
 #include "runtime/backend/backend.h"
 #include "runtime/gl/backend_gl.h"
@@ -356,7 +356,7 @@ TEST(RenderScreenshot, HeadlessWithoutScreenshotSkipsRendering) {
 
 TEST(RenderWindow, TheCpuBackendSimulatesOnItsOwnThreadPacedToTheWallClock) {
     // `heartsim scenario.h5` the way staff start a session: the simulation must follow the wall
-    // clock (never ahead of it), not take one step per frame (docs/runtime.md "The window").
+    // clock (never ahead of it), not take one step per frame (docs/runtime.md "Window mode").
     if (test::run_command("command -v xvfb-run && command -v Xvfb").exit_code != 0)
         GTEST_SKIP() << "Xvfb is not installed (Debian: xvfb xauth; scripts/install-deps.sh)";
     REQUIRE_GL();

@@ -13,7 +13,7 @@
 #include "formats/recording.h"
 #include "formats/scenario.h"
 #include "formats/state.h"
-#include "libmodel/incision.h"
+#include "libmodel/surgery/incision.h"
 #include "runtime/view/png.h"
 #include "runtime/gl/hud.h"
 #include "runtime/view/window_keys.h"

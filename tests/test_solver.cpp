@@ -6,7 +6,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
 #include "libmodel/select.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "formats/volume_io.h"
 #include "stress_gesture.h"

@@ -2,7 +2,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/lattice.h"
 #include "libmodel/select.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "libmodel/supports.h"
 #include "test_support.h"

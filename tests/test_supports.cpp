@@ -8,7 +8,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
 #include "libmodel/select.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "libmodel/supports.h"
 #include "soak_gesture.h"

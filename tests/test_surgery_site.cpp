@@ -1,8 +1,8 @@
 // The line-triangle routine (libmodel/ray_triangle.h) and the surgery sites on plain arrays
-// (libmodel/surgery_site.h), against shapes whose answers are known in closed form: a box, a slab
+// (libmodel/surgery/surgery_site.h), against shapes whose answers are known in closed form: a box, a slab
 // with the defect's axis across it, a line through a shared edge.
 #include "libmodel/ray_triangle.h"
-#include "libmodel/surgery_site.h"
+#include "libmodel/surgery/surgery_site.h"
 
 #include "libmodel/errors.h"
 

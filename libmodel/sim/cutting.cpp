@@ -7,9 +7,9 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "cutting.h"
+#include "libmodel/sim/cutting.h"
 
-#include "solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <algorithm>
 

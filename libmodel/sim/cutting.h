@@ -17,7 +17,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
-#include "instrument_pose.h"
+#include "libmodel/instrument_pose.h"
 
 #include <array>
 #include <cstdint>
@@ -70,7 +70,7 @@ bool spring_crosses(const BladeSweep& sweep, const float* p, const float* q);
 
 /// One scalpel stroke: the blade's poses from the step it first swept tissue space to the step it
 /// was lifted, one per step in which it moved (a blade held still sweeps nothing and adds none).
-/// The incision of the detailed mesh (libmodel/incision.h) is built from it.
+/// The incision of the detailed mesh (libmodel/surgery/incision.h) is built from it.
 struct BladeStroke {
     int hand = 0;
     double length = 0.0;                ///< the blade's length, mm (2·az)

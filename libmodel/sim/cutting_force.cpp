@@ -6,8 +6,8 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "cutting_force.h"
-#include "cutting.h"
+#include "libmodel/sim/cutting_force.h"
+#include "libmodel/sim/cutting.h"
 
 #include <algorithm>
 #include <cmath>

@@ -29,9 +29,9 @@
 /// falls below v_min, then lets go as (s̄/v_min)².
 #pragma once
 
-#include "instrument_pose.h"
-#include "lattice.h"
-#include "solver_options.h"
+#include "libmodel/instrument_pose.h"
+#include "libmodel/lattice.h"
+#include "libmodel/sim/solver_options.h"
 
 #include <Eigen/Core>
 

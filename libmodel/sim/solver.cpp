@@ -8,14 +8,14 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "solver.h"
-#include "cutting.h"
-#include "solver_kernels.h"
+#include "libmodel/sim/solver.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/sim/solver_kernels.h"
 
-#include "ellipsoid.h"
-#include "errors.h"
-#include "packing.h"
-#include "stability.h"
+#include "libmodel/ellipsoid.h"
+#include "libmodel/errors.h"
+#include "libmodel/packing.h"
+#include "libmodel/stability.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

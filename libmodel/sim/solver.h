@@ -14,12 +14,12 @@
 ///     InstrumentForces forces = solver.instrument_forces();   // both hands, one call
 #pragma once
 
-#include "cutting.h"
-#include "cutting_force.h"
-#include "instrument_pose.h"
-#include "lattice.h"
-#include "solver_options.h"
-#include "stability.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/sim/cutting_force.h"
+#include "libmodel/instrument_pose.h"
+#include "libmodel/lattice.h"
+#include "libmodel/sim/solver_options.h"
+#include "libmodel/stability.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>

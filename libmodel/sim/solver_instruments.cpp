@@ -7,11 +7,11 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "solver.h"
-#include "cutting.h"
-#include "solver_kernels.h"
+#include "libmodel/sim/solver.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/sim/solver_kernels.h"
 
-#include "errors.h"
+#include "libmodel/errors.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>

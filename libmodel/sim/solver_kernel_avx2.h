@@ -4,7 +4,7 @@
 /// EVEX-encoded, 32 vector registers; the same operations, the same bits).
 #pragma once
 
-#include "solver_kernels.h"
+#include "libmodel/sim/solver_kernels.h"
 
 #ifdef HEARTSIM_SOLVER_X86
 

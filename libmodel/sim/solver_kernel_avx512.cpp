@@ -6,8 +6,8 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "solver_kernels.h"
-#include "solver_kernel_avx2.h"
+#include "libmodel/sim/solver_kernels.h"
+#include "libmodel/sim/solver_kernel_avx2.h"
 
 namespace heartsim::solver_kernels {
 

@@ -6,7 +6,7 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "solver_kernels.h"
+#include "libmodel/sim/solver_kernels.h"
 
 #include <cmath>
 

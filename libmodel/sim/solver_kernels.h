@@ -12,7 +12,7 @@
 /// multiply and add, in one kernel and not another.
 #pragma once
 
-#include "solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <cstddef>
 #include <cstdint>

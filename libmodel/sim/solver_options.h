@@ -148,7 +148,7 @@ struct KernelOptions {
     bool compact_uniform_slots = true;
 };
 
-/// The scalpel's cutting resistance (libmodel/cutting_force.h, docs/haptics.md "The scalpel's
+/// The scalpel's cutting resistance (libmodel/sim/cutting_force.h, docs/haptics.md "The scalpel's
 /// force"): the energy to cut tissue is G_c × the area cut, and the hand feels it as a force
 /// against the blade's motion, the energy over the distance of the blade's last λ of travel. Not
 /// kept by recordings: a replay renders the blade with this build's values.

@@ -6,12 +6,12 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
-#include "solver.h"
-#include "solver_kernels.h"
+#include "libmodel/sim/solver.h"
+#include "libmodel/sim/solver_kernels.h"
 
-#include "errors.h"
-#include "packing.h"
-#include "stability.h"
+#include "libmodel/errors.h"
+#include "libmodel/packing.h"
+#include "libmodel/stability.h"
 
 #include <algorithm>
 #include <cmath>

@@ -2,10 +2,10 @@
 // axis, the rim and its gap to the patch, the tissue and the patch rasterised on a grid in the
 // defect's frame, and a flood fill from the opening at mid-wall to beyond the patch. Everything after the input checks works in the
 // defect's frame: x, y across the axis, z along it (s), origin at the defect's centre.
-#include "closure.h"
+#include "libmodel/surgery/closure.h"
 
-#include "errors.h"
-#include "ray_triangle.h"
+#include "libmodel/errors.h"
+#include "libmodel/ray_triangle.h"
 
 #include <Eigen/Geometry>
 

@@ -2,7 +2,7 @@
 /// @brief incision.h: CGAL's corefinement of the detailed mesh's faces near the cut with the swept
 /// strip, then the split, the caps and the slit in plain arrays. The only translation unit of the
 /// incision that includes CGAL (it compiles slowly).
-#include "incision.h"
+#include "libmodel/surgery/incision.h"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Polygon_mesh_processing/corefinement.h>

@@ -1,9 +1,9 @@
 /// @file incision_state.cpp
 /// @brief incision_state.h: strokes into rest-space strips, the mesh opened along them, and the
 /// vertices beside the cut embedded again on their own side.
-#include "incision_state.h"
+#include "libmodel/surgery/incision_state.h"
 
-#include "mapping_embedding.h"
+#include "libmodel/mapping_embedding.h"
 
 #include <algorithm>
 #include <array>

@@ -8,10 +8,10 @@
 ///     if (incisions.update(backend.strokes(), backend.positions(), false).opened) renderer.set_visual(...);
 #pragma once
 
-#include "cutting.h"
-#include "incision.h"
-#include "lattice.h"
-#include "mapping.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/surgery/incision.h"
+#include "libmodel/lattice.h"
+#include "libmodel/mapping.h"
 
 #include <Eigen/Core>
 

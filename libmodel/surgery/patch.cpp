@@ -1,10 +1,10 @@
-#include "patch.h"
+#include "libmodel/surgery/patch.h"
 
-#include "ellipsoid.h"
-#include "errors.h"
-#include "patch_internal.h"
-#include "ray_triangle.h"
-#include "triangle_point.h"
+#include "libmodel/ellipsoid.h"
+#include "libmodel/errors.h"
+#include "libmodel/surgery/patch_internal.h"
+#include "libmodel/ray_triangle.h"
+#include "libmodel/triangle_point.h"
 
 #include <algorithm>
 #include <limits>

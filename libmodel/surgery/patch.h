@@ -19,8 +19,8 @@
 ///     patch.step(positions_of(patch.particles()), dt_ms, time_ms);  // then backend.set_loads(patch.loads())
 #pragma once
 
-#include "instrument_pose.h"
-#include "solver.h"
+#include "libmodel/instrument_pose.h"
+#include "libmodel/sim/solver.h"
 
 #include <Eigen/Core>
 

@@ -1,10 +1,10 @@
 // The patch's exchange with a pass that steps it elsewhere (PatchPassInput and PatchPassState,
 // patch.h): the patch flattened into arrays, the surface triangles each vertex may meet, and what
 // the pass's steps left taken back into the model.
-#include "patch.h"
+#include "libmodel/surgery/patch.h"
 
-#include "errors.h"
-#include "patch_internal.h"
+#include "libmodel/errors.h"
+#include "libmodel/surgery/patch_internal.h"
 
 #include <algorithm>
 #include <cmath>

@@ -2,11 +2,11 @@
 // (Macklin, Müller and Chentanez, "XPBD", MIG 2016) with the tissue held where it is, its stitches
 // drawn by a smoothstep, a one-sided contact with friction, the instruments as obstacles, and the
 // opposite of every force on the patch left as a load on the tissue.
-#include "patch.h"
+#include "libmodel/surgery/patch.h"
 
-#include "ellipsoid.h"
-#include "errors.h"
-#include "patch_internal.h"
+#include "libmodel/ellipsoid.h"
+#include "libmodel/errors.h"
+#include "libmodel/surgery/patch_internal.h"
 
 #include <algorithm>
 #include <cmath>

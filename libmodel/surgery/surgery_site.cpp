@@ -1,6 +1,6 @@
 // Where the scripted operations act (surgery_site.h): the incision's place on the particles, the
 // stitch sites and the patch on the detailed mesh.
-#include "libmodel/surgery_site.h"
+#include "libmodel/surgery/surgery_site.h"
 
 #include "libmodel/errors.h"
 #include "libmodel/ray_triangle.h"

@@ -8,7 +8,7 @@
 ///     return headless_scripted_mode(arguments, run);
 #pragma once
 
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision_state.h"
 #include "runtime/backend/backend.h"
 #include "runtime/gl/gl_context.h"
 #include "runtime/gl/renderer.h"

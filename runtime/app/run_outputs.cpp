@@ -277,7 +277,7 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
     std::printf("wrote %s\n", a.save_state.c_str());
 }
 
-/// The closure check at the end of a run on a scenario with a defect (libmodel/closure.h): the
+/// The closure check at the end of a run on a scenario with a defect (libmodel/surgery/closure.h): the
 /// detailed mesh as drawn and the patch after the leak test, one line a trainer reads.
 void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std::array<float, 3>>& positions) {
     const PatchModel* patch = p.repair ? p.repair->patch() : nullptr;

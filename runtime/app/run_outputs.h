@@ -20,7 +20,7 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
 /// (none before a patch is laid).
 void draw_repair(PreparedRun& p);
 
-/// The closure check at the end of a run on a scenario with a defect (libmodel/closure.h): the
+/// The closure check at the end of a run on a scenario with a defect (libmodel/surgery/closure.h): the
 /// detailed mesh as drawn and the patch after the leak test, one line a trainer reads.
 void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std::array<float, 3>>& positions);
 

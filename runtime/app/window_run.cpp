@@ -12,7 +12,7 @@
 #include "runtime/view/window_keys.h"
 #include "runtime/app/window_simulation.h"
 
-#include "libmodel/closure.h"
+#include "libmodel/surgery/closure.h"
 #include "libmodel/errors.h"
 #include "libmodel/mapping.h"
 
@@ -69,7 +69,7 @@ Eigen::Quaterniond mouse_orientation(InstrumentKind kind, const Camera& camera) 
     return Eigen::Quaterniond::Identity();
 }
 
-/// The closure check of the repair a frame shows (libmodel/closure.h): the detailed mesh mapped
+/// The closure check of the repair a frame shows (libmodel/surgery/closure.h): the detailed mesh mapped
 /// onto `positions` and the patch as it lies, the rim where its stitches are. No leak test: the
 /// check at the end of the run (run_modes.cpp) holds the patch to the pressure. nullopt: the scenario has no defect or no
 /// mapped detailed mesh. Throws InputError when the check cannot run (ClosureResult::cannot_tell

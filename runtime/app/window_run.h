@@ -36,7 +36,7 @@ struct WindowRunOptions {
     /// software"); empty: nothing.
     std::string backend_note;
     /// The scenario run: with a septal defect, the HUD says at most once a second whether the
-    /// patch closes it (libmodel/closure.h), and Shift + P's patch is sized to it. Null: neither.
+    /// patch closes it (libmodel/surgery/closure.h), and Shift + P's patch is sized to it. Null: neither.
     const Scenario* scenario = nullptr;
     /// What the session does, for the HUD's procedure line (e.g. "scripted: repair.csv").
     std::string procedure;

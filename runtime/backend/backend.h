@@ -15,7 +15,7 @@
 #pragma once
 
 #include "formats/scenario.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "runtime/backend/contact.h"
 
 #include "libmodel/errors.h"
@@ -101,7 +101,7 @@ public:
     /// indices, lower first, sorted. Waits for the GPU.
     virtual std::vector<std::array<std::int32_t, 2>> cut_springs() = 0;
     /// The scalpel strokes so far, pose for pose as the cut pass swept them (the detailed mesh's
-    /// incision is built from them, runtime/incision_view.h). Never waits.
+    /// incision is built from them, libmodel/surgery/incision_state.h). Never waits.
     virtual const StrokeLog& strokes() const = 0;
     /// Current positions, N×3 mm, packed order. Waits for the GPU.
     virtual std::vector<std::array<float, 3>> positions() = 0;

@@ -2,7 +2,7 @@
 /// @brief An instrument as the renderer draws it and a haptic run reports it: no GL.
 #pragma once
 
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <Eigen/Core>
 

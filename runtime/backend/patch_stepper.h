@@ -5,7 +5,7 @@
 /// and steps the patch on the host where there is none.
 #pragma once
 
-#include "libmodel/patch.h"
+#include "libmodel/surgery/patch.h"
 
 #include <array>
 #include <optional>

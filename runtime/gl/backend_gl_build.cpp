@@ -1,5 +1,5 @@
 // The gl backend (runtime/gl/backend_gl_impl.h) built from the scenario: its compute programs,
-// the packed tables and buffers of libmodel/solver.cpp's constructor made the same way, and the
+// the packed tables and buffers of libmodel/sim/solver.cpp's constructor made the same way, and the
 // constants that depend on the substep and the mass scale.
 #include "runtime/gl/backend_gl_impl.h"
 #include "runtime/gl/gl_context.h"

@@ -16,8 +16,8 @@
 #include "runtime/backend/patch_stepper.h"
 #include "runtime/backend/surgery.h"
 
-#include "libmodel/cutting.h"
-#include "libmodel/cutting_force.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/sim/cutting_force.h"
 
 #include <epoxy/gl.h>
 
@@ -211,7 +211,7 @@ private:
     void harvest_queries(bool wait);
     void bind_common();
 
-    /// The tables of libmodel/solver.cpp's constructor, built the same way (same slot search,
+    /// The tables of libmodel/sim/solver.cpp's constructor, built the same way (same slot search,
     /// same rounding of the dashpot and h²/m from double).
     void build_buffers(const Scenario& scenario);
     SolverOptions options_;

@@ -23,7 +23,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <cstdint>
 #include <memory>

@@ -37,7 +37,7 @@
 #include "runtime/view/section_plane.h"
 
 #include "formats/scenario.h"
-#include "libmodel/patch.h"
+#include "libmodel/surgery/patch.h"
 
 #include <Eigen/Geometry>
 
@@ -139,7 +139,7 @@ public:
     Renderer(const Renderer&) = delete;
     Renderer& operator=(const Renderer&) = delete;
 
-    /// Draws from now on the detailed mesh as an incision opened it (libmodel/incision_state.h):
+    /// Draws from now on the detailed mesh as an incision opened it (libmodel/surgery/incision_state.h):
     /// rest positions and normals (V), triangles in drawing order with the caps from `cap_first`
     /// on (lit flat in incision_cap_rgb), and the mapping (V rows). The buffers are made anew.
     void set_visual(const std::vector<std::array<float, 3>>& positions, const std::vector<std::array<float, 3>>& normals,

@@ -9,7 +9,7 @@
 #include "runtime/haptics/exchange.h"
 #include "runtime/haptics/safety.h"
 
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <Eigen/Core>
 

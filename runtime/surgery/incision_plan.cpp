@@ -2,7 +2,7 @@
 
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
-#include "libmodel/surgery_site.h"
+#include "libmodel/surgery/surgery_site.h"
 
 #include <Eigen/Geometry>
 

@@ -4,7 +4,7 @@
 /// `length_mm` from inferior to superior, then lifted; two grabbers used as retractors grab the
 /// incision's two edges, one each side of the blade's plane, and pull them `spread_mm` apart, then
 /// hold. Each approach finds its place by a geometric rule on the particles' rest positions (world
-/// LPS: +x the patient's left, +y posterior, +z superior; libmodel/surgery_site.h incision_site),
+/// LPS: +x the patient's left, +y posterior, +z superior; libmodel/surgery/surgery_site.h incision_site),
 /// on the approach chamber's own wall where the scenario tells it apart: the tissue whose material
 /// is named for the right ventricle or the right atrium (a wall heartprep grew around that
 /// chamber's blood, "right atrium wall (grown)", or one a label map labels and names so). Where no
@@ -38,7 +38,7 @@
 #pragma once
 
 #include "formats/scenario.h"
-#include "libmodel/surgery_site.h"
+#include "libmodel/surgery/surgery_site.h"
 #include "runtime/view/camera.h"
 #include "runtime/core/trajectory.h"
 
@@ -58,7 +58,7 @@ struct IncisionPlanOptions {
     IncisionApproach approach = IncisionApproach::ventriculotomy;
     double length_mm = 30.0;     ///< along z, centred on the chosen particle
     /// How far the blade reaches behind the chosen particle, mm; 0: through the wall there (the
-    /// tissue's thickness along the blade, libmodel/surgery_site.h wall_thickness, and 2 mm on into the cavity).
+    /// tissue's thickness along the blade, libmodel/surgery/surgery_site.h wall_thickness, and 2 mm on into the cavity).
     double depth_mm = 0.0;
     double clearance_mm = 2.0;   ///< the tip's distance in front of it
     double speed_mm_per_ms = 0.1;
@@ -79,7 +79,7 @@ struct IncisionPlan {
     ViewDirection view = ViewDirection::anterior;        ///< the named view that faces the incision from outside
     double blade_length_mm = 0.0;
     double depth_mm = 0.0;       ///< how far the blade reaches behind the chosen particle (the option's, or through the wall)
-    double wall_mm = 0.0;        ///< the tissue's thickness along the blade from the chosen particle (libmodel/surgery_site.h wall_thickness)
+    double wall_mm = 0.0;        ///< the tissue's thickness along the blade from the chosen particle (libmodel/surgery/surgery_site.h wall_thickness)
     double cut_end_ms = 0.0;     ///< the blade lifts here
     double end_ms = 0.0;         ///< the gesture's end (retractors held still from spread_end_ms)
     double spread_end_ms = 0.0;  ///< 0 without retractors
@@ -109,7 +109,7 @@ std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, Incis
 /// The incision of `options.approach` on `scenario`. InputError when the scenario has no particles.
 IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& options = {});
 
-/// libmodel/surgery_site.h frontmost_near on `scenario`'s rest positions.
+/// libmodel/surgery/surgery_site.h frontmost_near on `scenario`'s rest positions.
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius);
 
 /// A camera distance (mm) at which the opened incision fills a good part of the frame: two and a

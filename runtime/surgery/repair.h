@@ -1,9 +1,9 @@
 /// @file repair.h
-/// @brief The repair of a septal defect in a run: a Backend that holds a patch (libmodel/patch.h)
+/// @brief The repair of a septal defect in a run: a Backend that holds a patch (libmodel/surgery/patch.h)
 /// beside the tissue it wraps. Every run mode (scripted, replayed, haptic, the window) talks to a
 /// Backend, so each gets the patch and its stitches through the hands it already drives: a hand
 /// whose instrument is a `patch` lays the patch when its grab flag or button turns on; a `needle`
-/// ties a stitch (libmodel/solver.h InstrumentKind). Neither reaches the tissue's solver, which sees
+/// ties a stitch (libmodel/sim/solver.h InstrumentKind). Neither reaches the tissue's solver, which sees
 /// no instrument in that hand.
 ///
 /// Each step, with a patch laid: the positions of the particles the patch touches are read
@@ -19,8 +19,8 @@
 ///     if (RepairBackend* repair = repair_of(*backend)) show(repair->patch(), repair->stitch_anchors());
 #pragma once
 
-#include "libmodel/closure.h"
-#include "libmodel/patch.h"
+#include "libmodel/surgery/closure.h"
+#include "libmodel/surgery/patch.h"
 #include "runtime/backend/backend.h"
 #include "runtime/backend/backend_wrapper.h"
 #include "runtime/backend/patch_stepper.h"

@@ -6,7 +6,7 @@
 /// The defect is the one `heartprep build --defect` stores in /source: its centre (mid-wall), axis
 /// (unit, from side a's pool to side b's) and diameter D. The geometry is found on the detailed
 /// mesh at rest (/visual, a closed surface with outward normals), world LPS (+x the patient's
-/// left, +y posterior, +z superior), by libmodel/surgery_site.h (the stitch circle, the sites, the
+/// left, +y posterior, +z superior), by libmodel/surgery/surgery_site.h (the stitch circle, the sites, the
 /// patch's plane); this plan chooses the side, refuses what it cannot plan and scripts the hands:
 ///
 /// * **side**: by default the right side (the right ventricle's for a vsd, the right atrium's for
@@ -34,7 +34,7 @@
 ///   the plane, along the axis).
 ///   Its first in-plane axis (tool +x) points toward stitch 1.
 ///
-/// The trajectory (runtime/core/trajectory.h; semi-axes and kinds as libmodel/solver.h describes them):
+/// The trajectory (runtime/core/trajectory.h; semi-axes and kinds as libmodel/sim/solver.h describes them):
 /// hand 0 lays the patch at 0 ms (kind patch, grab 1) and lets go at `release_ms` (grab 0: a laid
 /// patch stays). Hand 1, a needle whose shaft points outward (tool +z = outward), then ties the
 /// stitches in order: from `approach_mm` outside a site to the site in `approach_ms`, grab 1 held

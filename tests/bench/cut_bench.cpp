@@ -5,7 +5,7 @@
 // (p50, p99, max), the real-time factor while cutting and after, the springs cut, watchdog events,
 // whether every position stayed finite, and how far the incision stands open at the end
 // (incision_gesture.h incision_opening, over the springs the lowered run cut). With a detailed
-// mesh, the lowered run opens it where the blade lifts (libmodel/incision_state.h, timed inside
+// mesh, the lowered run opens it where the blade lifts (libmodel/surgery/incision_state.h, timed inside
 // that step, as heartsim does): how long that takes, how far the caps lie from the blade's swept
 // plane then (their drawn positions), whether the mesh is a closed 2-manifold, and how far apart
 // the two sides' caps stand at the end near the incision's centre. Appends one row per run to
@@ -14,7 +14,7 @@
 #include "incision_gesture.h"
 
 #include "formats/scenario.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/surgery/incision_state.h"
 #include "libmodel/mapping.h"
 #include "runtime/backend/backend.h"
 #include "runtime/core/trajectory.h"

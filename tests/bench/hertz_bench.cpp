@@ -33,7 +33,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/packing.h"
 #include "libmodel/select.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <tbb/global_control.h>
 

@@ -11,7 +11,7 @@
 // Usage: holding_bench [--seconds S] [--radius R] [--csv OUT] scenario.h5 [...]
 // One CSV row per scenario; the table goes to stdout. Not a test: it asserts nothing.
 #include "formats/scenario.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 
 #include <Eigen/Dense>
 

@@ -9,7 +9,7 @@
 //   soak_bench SCENARIO.h5 [--steps N] [--seed S] [--settle SECONDS] [--slip STRAIN] [--restore-strain STRAIN] [--events]
 #include "formats/scenario.h"
 #include "libmodel/errors.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "tests/soak_gesture.h"
 
 #include <algorithm>

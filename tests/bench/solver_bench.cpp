@@ -15,7 +15,7 @@
 #include "libmodel/packing.h"
 #include "libmodel/phantom.h"
 #include "libmodel/select.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/stability.h"
 #include "tests/stress_gesture.h"
 

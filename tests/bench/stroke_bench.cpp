@@ -1,6 +1,6 @@
 // The cost of many scalpel strokes (docs/benchmarks.md "Many strokes"): on one scenario, random
 // strokes (a fixed seed) opened in the detailed mesh one by one, each at the moment its blade
-// lifts, as heartsim opens them (libmodel/incision_state.h IncisionState::update, the particles at
+// lifts, as heartsim opens them (libmodel/surgery/incision_state.h IncisionState::update, the particles at
 // rest). A stroke: a blade (8 mm, or --blade) from 2 mm outside a random vertex of the uncut mesh,
 // pointing into the tissue (tilted up to 20° off the inward normal), drawn 8-20 mm along a random
 // tangent, turning up to 40° on the way, a pose every 0.5 mm. The strokes of a count are the
@@ -11,8 +11,8 @@
 // mesh and its mapping (two builds that give the same digest gave the same state, bit for bit).
 // Usage: stroke_bench SCENARIO.h5 [--seed N] [--counts 1,25,50,100,200] [--blade MM]
 #include "formats/scenario.h"
-#include "libmodel/cutting.h"
-#include "libmodel/incision_state.h"
+#include "libmodel/sim/cutting.h"
+#include "libmodel/surgery/incision_state.h"
 
 #include <Eigen/Geometry>
 

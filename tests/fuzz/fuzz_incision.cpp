@@ -1,4 +1,4 @@
-// libFuzzer target: the detailed mesh opened along swept surfaces (libmodel/incision.h
+// libFuzzer target: the detailed mesh opened along swept surfaces (libmodel/surgery/incision.h
 // open_along), as heartsim opens it along a scalpel's strokes, on a closed box 12 × 12 × 8 mm
 // meshed in 0.7 mm squares. The input is one or two strokes: a byte for the poses (2 to 6), then
 // per pose the blade's tip and end, six coordinates of two bytes each over −4 to 16 mm (a blade
@@ -7,7 +7,7 @@
 // where open_along refused, exactly as it was; open_along must never throw.
 #include "fuzz_support.h"
 
-#include "libmodel/incision.h"
+#include "libmodel/surgery/incision.h"
 #include "tests/box_mesh.h"
 
 

@@ -4,7 +4,7 @@
 
 #include "formats/scenario.h"
 #include "libmodel/mapping.h"
-#include "libmodel/solver.h"
+#include "libmodel/sim/solver.h"
 #include "libmodel/supports.h"
 
 #include <CLI/CLI.hpp>
@@ -140,7 +140,7 @@ Summary summarise(const Scenario& s) {
     return summary;
 }
 
-/// The substeps heartsim's solver takes per step of dt (libmodel/solver.cpp set_time_step): the
+/// The substeps heartsim's solver takes per step of dt (libmodel/sim/solver.cpp set_time_step): the
 /// fewest within safety_factor × the damped critical step, that step no longer than the critical
 /// one. Nothing when the file stores no damped step (the solver estimates it at load), and more
 /// than Solver::max_substeps where heartsim refuses the step. /solver substeps is not this number.

@@ -36,7 +36,7 @@ enum Binding : unsigned {
 /// Counter words in the `counters` buffer.
 /// `strain`: the restore-point candidate's largest spring stretch (float bits; strain_pass).
 /// `cut0`, `cut1`: the springs each hand's blade cut in the step (cut_pass). From `blade0`, 12 words
-/// per hand: the scalpel's state (libmodel/cutting_force.h BladeState: energy, travel, the three
+/// per hand: the scalpel's state (libmodel/sim/cutting_force.h BladeState: energy, travel, the three
 /// components of the velocity, speed), six doubles as pairs of words (low, high; blade_pass).
 enum Counter : unsigned {
     touched0 = 0, touched1 = 1, strain = 2, held0 = 3, held1 = 4, status = 5, picked0 = 6, picked1 = 7,

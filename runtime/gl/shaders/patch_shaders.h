@@ -1,5 +1,5 @@
 /// @file patch_shaders.h
-/// @brief The patch's step as one compute workgroup (runtime/gl/patch_pass.cpp): libmodel/patch.cpp
+/// @brief The patch's step as one compute workgroup (runtime/gl/patch_pass.cpp): libmodel/surgery/patch.cpp
 /// PatchModel::step in double, phase by phase, with barriers where the CPU's loops follow one
 /// another. The patch is a few hundred vertices: one workgroup of 256 invocations steps it, its
 /// positions in shared memory, its distance constraints by colour (those of a colour share no

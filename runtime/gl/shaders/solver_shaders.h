@@ -1,7 +1,7 @@
 /// @file solver_shaders.h
 /// @brief GLSL 4.30 compute shaders of the GL backend (backend_gl.cpp): each program is `common`
 /// and one pass, after the preamble compile_shader puts first (bindings.h). Every arithmetic
-/// expression mirrors libmodel/solver.cpp operation for operation (same order, `precise` so that
+/// expression mirrors libmodel/sim/solver.cpp operation for operation (same order, `precise` so that
 /// no multiply-add is fused except the five fma() of a spring slot, where the CPU kernels fuse
 /// them too), so the GPU step is the CPU step: float for the springs and integration, double
 /// for the instrument geometry (probe projection, grab capture and follow, forces), as on the CPU.
@@ -173,7 +173,7 @@ void main() {
     }
     vec4 motion = vec4(ex, ey, ez, 0.0);
 
-    // Probes (libmodel/solver.cpp `project`): exact test and projection in double.
+    // Probes (libmodel/sim/solver.cpp `project`): exact test and projection in double.
     if (i < particle_count && p.movable != 0 && held_by[i] < 0) {
         for (int q = 0; q < probe_count; ++q) {
             precise float cx = float(probe_centre[q].x), cy = float(probe_centre[q].y), cz = float(probe_centre[q].z);
@@ -448,7 +448,7 @@ void main() {
 }
 )";
 
-/// A lowered scalpel's cut (Solver::cut, libmodel/cutting.cpp operation for operation): every
+/// A lowered scalpel's cut (Solver::cut, libmodel/sim/cutting.cpp operation for operation): every
 /// entry whose spring crosses the blade's swept quad (two triangles, `corner`) at the current
 /// positions points at its own particle from now on, an empty slot. One invocation per particle
 /// writes only its own entries; both ends of a spring test it with the end of lower index first,
@@ -503,7 +503,7 @@ void main() {
 }
 )";
 
-/// A cutting scalpel's state after its cut pass (one invocation): libmodel/cutting_force.cpp
+/// A cutting scalpel's state after its cut pass (one invocation): libmodel/sim/cutting_force.cpp
 /// next_blade_state on the hand's count, with the step's constants from blade_step as uniforms, the
 /// same double operations in the same order. The state lives in the counter words from
 /// COUNTER_BLADE0 (six doubles per hand as pairs of words), where the force pass copies it into
@@ -544,7 +544,7 @@ void main() {
 /// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot, with
 /// each hand's particle count, its springs cut in the step and its blade's state (the host
-/// computes a scalpel's force from them: libmodel/cutting_force.h blade_force). The count is a
+/// computes a scalpel's force from them: libmodel/sim/cutting_force.h blade_force). The count is a
 /// uint word of its own, not the force's w lane: NVIDIA's compiler (driver 580, H100) stores
 /// dvec4(partial, double(count)) with the count's integer bits in the w lane's low word and the
 /// high word unwritten, which the host read as 0 or 10^11 particles.
