@@ -56,7 +56,7 @@ std::set<std::string> meanings_named_in(const std::vector<std::string>& folders,
 }
 
 /// The meanings libmodel's string literals name.
-std::set<std::string> meanings_named_in_libmodel() { return meanings_named_in({"libmodel"}); }
+std::set<std::string> meanings_named_in_libmodel() { return meanings_named_in({"libmodel", "libmodel/sim", "libmodel/surgery"}); }
 
 TEST(OptionFlags, HeartprepSpellsEveryOptionLibmodelNames) {
     const std::set<std::string> named = meanings_named_in_libmodel();
@@ -73,7 +73,9 @@ TEST(OptionFlags, HeartprepSpellsEveryOptionLibmodelNames) {
 // link, the section plane, the plans, the haptic run): heartsim spells every one, and its table
 // holds no meaning that no part names.
 TEST(OptionFlags, HeartsimSpellsEveryOptionTheRuntimeNames) {
-    const std::set<std::string> named = meanings_named_in({"runtime", "runtime/haptics"}, {"main.cpp", "run_modes.cpp"});
+    const std::set<std::string> named = meanings_named_in(
+        {"runtime/app", "runtime/core", "runtime/backend", "runtime/surgery", "runtime/link", "runtime/view", "runtime/haptics"},
+        {"main.cpp", "run_modes.cpp"});
     EXPECT_GE(named.size(), 10u) << "the runtime's messages name its options by their meaning";
     for (const std::string& option : named) {
         bool spelled = false;
