@@ -43,6 +43,24 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+/// A run's progress lines (run_progress.h) from `backend`'s simulated time since it was made and
+/// the wall clock since `wall_start`.
+class BackendProgress {
+public:
+    BackendProgress(const Backend& backend, Clock::time_point wall_start, int steps, double end_ms)
+        : backend_(backend), wall_start_(wall_start), start_ms_(backend.simulated_time_ms()), progress_(steps, end_ms) {}
+    void after_step(int steps_done) { progress_.after_step(steps_done, simulated_ms(), backend_.time_step_ms(), wall_s()); }
+    void finish() { progress_.finish(simulated_ms(), wall_s()); }
+
+private:
+    double simulated_ms() const { return backend_.simulated_time_ms() - start_ms_; }
+    double wall_s() const { return std::chrono::duration<double>(Clock::now() - wall_start_).count(); }
+    const Backend& backend_;
+    Clock::time_point wall_start_;
+    double start_ms_;
+    RunProgress progress_;
+};
+
 /// Ctrl-C during a haptic run: end it cleanly (forces fade out, the recording is written).
 std::atomic<bool> interrupted{false};
 
@@ -171,16 +189,13 @@ int replay_mode(const RunArguments& a, PreparedRun& run) {
     }
     Stepper stepper(backend, stepping(a, run, nullptr));
     // A long replay says how far it has come on stderr, as a scripted run does (run_progress.h).
-    const auto wall_start = Clock::now();
-    const double start_ms = backend.simulated_time_ms();
-    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
-    RunProgress progress(int(recording.steps.size()), 0.0);
+    BackendProgress progress(backend, Clock::now(), int(recording.steps.size()), 0.0);
     int replayed = 0;
     const haptics::ReplayResult r = haptics::replay(backend, recording, a.replay, [&] {
         stepper.open_incisions();
-        progress.after_step(++replayed, backend.simulated_time_ms() - start_ms, backend.time_step_ms(), wall_s());
+        progress.after_step(++replayed);
     });
-    progress.finish(backend.simulated_time_ms() - start_ms, wall_s());
+    progress.finish();
     const bool exact = recording.backend == "cpu" && backend.kind() == BackendKind::cpu;
     const double tolerance = a.replay_tolerance >= 0 ? a.replay_tolerance : exact ? 0.0 : 0.10 * r.max_force_n;
     std::printf("replay: %zu steps in %.4g ms; %zu forces compared, %zu bit for bit identical; max |Δf| %.3g N, rms %.3g N "
@@ -223,23 +238,21 @@ int headless_haptic_mode(const RunArguments& a, PreparedRun& run) {
     const double end_ms = a.seconds > 0 ? a.seconds * 1000.0 : 1e300;
     const double started = haptic->session().now_ms();
     // A long session says how far it has come on stderr, as a scripted run does (run_progress.h).
-    const double start_ms = run.backend->simulated_time_ms();
-    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
-    RunProgress progress(a.seconds > 0 ? 0 : run.steps, a.seconds > 0 ? end_ms : 0.0);
+    BackendProgress progress(*run.backend, wall_start, a.seconds > 0 ? 0 : run.steps, a.seconds > 0 ? end_ms : 0.0);
     while (!interrupted.load() && !haptic->result().gave_up && haptic->session().now_ms() - started < end_ms &&
            (a.seconds > 0 || haptic->rows() < std::size_t(run.steps))) {
         const int limit = a.seconds > 0 ? 1000 : run.steps - int(haptic->rows());
         const int stepped = stepper.step_to_real_time(limit);
         if (stepped > 0) {
             stepper.open_incisions();  // the device thread goes on meanwhile
-            progress.after_step(int(haptic->rows()), run.backend->simulated_time_ms() - start_ms, run.backend->time_step_ms(), wall_s());
+            progress.after_step(int(haptic->rows()));
         }
         if (stepped == 0)
             std::this_thread::sleep_for(std::chrono::duration<double, std::milli>(std::clamp(haptic->ms_until_next_step(), 0.05, 1.0)));
         stepper.offer((long long)haptic->rows(), link_hands(haptic->shapes(), haptic->latest_published_forces()), SlicerLink::State::running);
     }
     if (interrupted.load()) std::printf("interrupted: ending the session\n");
-    progress.finish(run.backend->simulated_time_ms() - start_ms, wall_s());
+    progress.finish();
     haptic->finish(result);
     // Ctrl-C stays caught while the outputs are written: a state is never cut off half way.
     const int status = finish_run(a, run, result, haptic.get(), wall_start);
@@ -290,16 +303,14 @@ int headless_scripted_mode(const RunArguments& a, PreparedRun& run) {
         };
     Stepper stepper(*run.backend, stepping(a, run, nullptr));
     // A long run says how far it has come on stderr (run_progress.h).
-    const double start_ms = run.backend->simulated_time_ms();
-    auto wall_s = [wall_start] { return std::chrono::duration<double>(Clock::now() - wall_start).count(); };
-    RunProgress progress(scripted.steps, scripted.end_ms);
+    BackendProgress progress(*run.backend, wall_start, scripted.steps, scripted.end_ms);
     scripted.on_step = [&, each_step = stepper.scripted_on_step(run.trajectory, wall_start, std::move(screenshots))](int step,
                                                                                                                  const StepReport& report) {
         each_step(step, report);
-        progress.after_step(step + 1, run.backend->simulated_time_ms() - start_ms, run.backend->time_step_ms(), wall_s());
+        progress.after_step(step + 1);
     };
     const ScriptedRunResult result = run_scripted(*run.backend, run.trajectory, scripted);
-    progress.finish(run.backend->simulated_time_ms() - start_ms, wall_s());
+    progress.finish();
     const int status = finish_run(a, run, result, nullptr, wall_start);
     stepper.finish_link(result.steps, link_hands(run.trajectory, run.backend->simulated_time_ms(), run.backend->instrument_forces()));
     return status;
