@@ -3,11 +3,11 @@
 #include "formats/atomic_file.h"
 #include "libmodel/errors.h"
 #include "libmodel/surgery/surgery_site.h"
+#include "libmodel/text.h"
 
 #include <Eigen/Geometry>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -48,31 +48,36 @@ const char* to_string(IncisionApproach approach) {
     return approach == IncisionApproach::atriotomy ? "atriotomy" : "ventriculotomy";
 }
 
-std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, IncisionApproach approach, std::string* material_name) {
-    const auto& lattice = scenario.lattice;
-    const char* const chamber = approach == IncisionApproach::atriotomy ? "right atri" : "right ventric";
-    std::vector<std::uint8_t> row_is(lattice.materials.size(), 0);
-    for (std::size_t m = 0; m < lattice.materials.size(); ++m) {
-        std::string name = lattice.materials[m].name;
-        std::transform(name.begin(), name.end(), name.begin(), [](unsigned char c) { return char(std::tolower(c)); });
-        row_is[m] = name.find(chamber) != std::string::npos;
-        if (row_is[m] && material_name && material_name->empty()) *material_name = lattice.materials[m].name;
-    }
-    const auto& material = lattice.particles.material;
-    std::vector<std::uint8_t> flags(lattice.particles.rest_position.size(), 0);
+namespace {
+
+/// One flag per particle of `scenario`: its material's row's flag in `rows` (0 for a row beyond it).
+std::vector<std::uint8_t> particles_of_rows(const Scenario& scenario, const std::vector<std::uint8_t>& rows) {
+    const auto& material = scenario.lattice.particles.material;
+    std::vector<std::uint8_t> flags(scenario.lattice.particles.rest_position.size(), 0);
     for (std::size_t i = 0; i < flags.size() && i < material.size(); ++i)
-        flags[i] = material[i] >= 0 && std::size_t(material[i]) < row_is.size() && row_is[std::size_t(material[i])];
+        flags[i] = material[i] >= 0 && std::size_t(material[i]) < rows.size() && rows[std::size_t(material[i])];
     return flags;
+}
+
+}  // namespace
+
+std::vector<std::uint8_t> chamber_wall_particles(const Scenario& scenario, IncisionApproach approach, std::string* material_name) {
+    const auto& materials = scenario.lattice.materials;
+    const char* const chamber = approach == IncisionApproach::atriotomy ? "right atri" : "right ventric";
+    std::vector<std::uint8_t> rows(materials.size(), 0);
+    for (std::size_t m = 0; m < materials.size(); ++m) {
+        rows[m] = text::lowercase(materials[m].name).find(chamber) != std::string::npos;
+        if (rows[m] && material_name && material_name->empty()) *material_name = materials[m].name;
+    }
+    return particles_of_rows(scenario, rows);
 }
 
 std::vector<std::uint8_t> labelled_where_grown(const Scenario& scenario) {
     const auto& origin = scenario.tissue_origin;
     if (std::none_of(origin.begin(), origin.end(), [](const TissueOrigin& o) { return o.grown; })) return {};
-    const auto& material = scenario.lattice.particles.material;
-    std::vector<std::uint8_t> flags(scenario.lattice.particles.rest_position.size(), 0);
-    for (std::size_t i = 0; i < flags.size() && i < material.size(); ++i)
-        flags[i] = material[i] >= 0 && std::size_t(material[i]) < origin.size() && !origin[std::size_t(material[i])].grown;
-    return flags;
+    std::vector<std::uint8_t> rows(origin.size());
+    for (std::size_t m = 0; m < origin.size(); ++m) rows[m] = !origin[m].grown;
+    return particles_of_rows(scenario, rows);
 }
 
 int frontmost_near(const Scenario& scenario, const Eigen::Vector3d& point, const Eigen::Vector3d& blade, double radius) {
