@@ -224,7 +224,7 @@ std::vector<TissueStretch> tissue_stretches(const std::vector<std::array<float, 
 
 Eigen::Vector3d StitchCircle::point(int k) const {
     const double angle = 2.0 * std::numbers::pi * double(k) / double(count);
-    return centre + radius_mm * (std::cos(angle) * first + std::sin(angle) * second);
+    return centre + radius_of(k) * (std::cos(angle) * first + std::sin(angle) * second);
 }
 
 double StitchCircle::angle_deg(int k) const { return 360.0 * double(k) / double(count); }

@@ -106,7 +106,14 @@ struct StitchCircle {
     bool starts_anterior = false;                       ///< stitch 1 at the most anterior point (else the most superior)
     double radius_mm = 0.0;
     int count = 0;
-    /// Stitch k's point on the circle (k from 0) and its angle round the axis from stitch 1, degrees.
+    /// Each stitch's own distance from the axis, mm, where some stitches lie off the circle (those
+    /// a plan moves out of a conduction zone, libmodel/surgery/conduction_zone.h); empty: every
+    /// stitch at radius_mm.
+    std::vector<double> radii;
+    /// Stitch k's distance from the axis: radii[k], or radius_mm.
+    double radius_of(int k) const { return radii.empty() ? radius_mm : radii[std::size_t(k)]; }
+    /// Stitch k's point (k from 0), at radius_of(k) from the axis, and its angle round the axis
+    /// from stitch 1, degrees.
     Eigen::Vector3d point(int k) const;
     double angle_deg(int k) const;
 };
