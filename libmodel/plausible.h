@@ -53,6 +53,10 @@ inline constexpr Range stitch_rim_mm{0.1, 30.0, "mm"};
 inline constexpr Range patch_diameter_mm{0.5, 200.0, "mm"};
 inline constexpr Range patch_thickness_mm{0.01, 10.0, "mm"};
 inline constexpr Range rim_roughness_mm{0.01, 100.0, "mm"};
+/// A conduction zone's arc (plan-repair --zone-half-width, --zone-margin): half-widths up to the
+/// whole rim, degrees.
+inline constexpr Range zone_half_width_deg{0.1, 180.0, "degrees"};
+inline constexpr Range zone_margin_deg{0.0, 180.0, "degrees"};
 /// heartprep build's material options: density as typed (g/cm³; within density_g_per_mm3 × 1000 after
 /// float rounding: from foam to twice lead), and
 /// Young's modulus from a gel (1 Pa) to a stiff plastic (1 GPa).

@@ -288,6 +288,42 @@ CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
         ->type_name("MM")
         ->check(cli_messages::within(plausible::patch_thickness_mm))
         ->capture_default_str();
+    repair_command->add_option("--conduction-zone", repair.conduction_zone,
+                               "auto: where the scenario's tricuspid and aortic rings lie within --zone-reach of a vsd's rim "
+                               "(perimembranous), mark the posteroinferior arc of the rim along which the atrioventricular conduction "
+                               "axis (the bundle of His) runs, and move the stitches there out to --zone-rim beyond the edge; off: "
+                               "every stitch at --rim. Scenarios without the rings (HVSMR 2016's) get no zone, and the plan says why")
+        ->check(CLI::IsMember({"auto", "off"}))
+        ->capture_default_str();
+    repair_command->add_option("--zone-rim", repair.options.zone_rim_mm,
+                               "How far beyond the opening's edge the stitches in the conduction zone bite, mm: more than --zone-band "
+                               "and --rim (surgeons bite 3 to 5 mm back from the edge there)")
+        ->type_name("MM")
+        ->check(cli_messages::within(plausible::stitch_rim_mm))
+        ->capture_default_str();
+    repair_command->add_option("--zone-band", repair.options.zone.band_mm,
+                               "How far beyond the opening's edge the conduction zone reaches, mm: a stitch nearer the edge within its "
+                               "arc bites the conduction axis's course")
+        ->type_name("MM")
+        ->check(cli_messages::within(plausible::stitch_rim_mm))
+        ->capture_default_str();
+    repair_command->add_option("--zone-half-width", repair.options.zone.half_width_deg,
+                               "The conduction zone's arc round the defect's axis: this many degrees either side of its middle")
+        ->type_name("DEG")
+        ->check(cli_messages::within(plausible::zone_half_width_deg))
+        ->capture_default_str();
+    repair_command->add_option("--zone-margin", repair.options.zone_margin_deg,
+                               "Stitches this many degrees beyond the conduction zone's arc move out too, so a bite a little off its "
+                               "site still spares the zone")
+        ->type_name("DEG")
+        ->check(cli_messages::within(plausible::zone_margin_deg))
+        ->capture_default_str();
+    repair_command->add_option("--zone-reach", repair.options.zone.ring_reach_mm,
+                               "The defect is perimembranous (has a conduction zone) where its rim comes within this of both the "
+                               "tricuspid and the aortic ring, mm")
+        ->type_name("MM")
+        ->check(cli_messages::within(plausible::stitch_rim_mm))
+        ->capture_default_str();
     repair_command->footer("\nExample:\n"
                            "  heartprep build case-label.nii.gz -o vsd.h5 --defect vsd --at=40.7,-14.4,-10.4   # a 10 mm VSD there\n"
                            "  heartsim plan-repair vsd.h5 -o repair.csv --stitches=10 --rim=2.5\n"

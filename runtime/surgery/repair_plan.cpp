@@ -42,8 +42,9 @@ std::string number_text(double value, int decimals = 1) {
 
 /// The refusal where a stitch's line meets no wall near the defect (StitchSites::missing): which
 /// stitch, where, what its line met, and what to change.
-InputError no_wall_at_stitch(const StitchSites& found, double stitch_radius_mm, int n) {
+InputError no_wall_at_stitch(const StitchSites& found, const StitchCircle& circle, int n) {
     const StitchSite& line = found.missing_line;
+    const double stitch_radius_mm = circle.radius_of(found.missing);
     const std::string stitch = "stitch " + std::to_string(found.missing + 1) + " of " + std::to_string(n) + " (" + number_text(line.angle_deg, 0) +
                                "° round the rim): the line along the defect's axis through " + point_text(line.point) + " mm (" +
                                number_text(stitch_radius_mm) + " mm from the axis)";
@@ -59,6 +60,35 @@ InputError no_wall_at_stitch(const StitchSites& found, double stitch_radius_mm, 
     return InputError(stitch + " meets no wall within " + number_text(found.window_mm) + " mm of the defect's centre (" + what +
                       "); a smaller --rim keeps the stitches nearer the opening, and heartsim run CASE --clip defect shows the "
                       "septum there");
+}
+
+/// The plan's conduction zone in a sentence: its arc, its band and the stitches moved out of it;
+/// or why there is none.
+std::string conduction_text(const RepairPlan& plan, const RepairPlanOptions& o) {
+    const ConductionZone& zone = plan.zone;
+    if (!zone.found) return "no zone: " + zone.reason;
+    std::vector<int> moved, biting;
+    for (std::size_t k = 0; k < plan.stitches.size(); ++k) {
+        if (plan.stitches[k].spares_zone) moved.push_back(int(k) + 1);
+        if (plan.stitches[k].would_bite_zone) biting.push_back(int(k) + 1);
+    }
+    auto list = [](const std::vector<int>& stitches) {
+        std::string text;
+        for (std::size_t i = 0; i < stitches.size(); ++i) text += (i ? ", " : "") + std::to_string(stitches[i]);
+        return text;
+    };
+    const double from = std::remainder(plan.zone_angle_deg - zone.half_width_deg, 360.0), to = std::remainder(plan.zone_angle_deg + zone.half_width_deg, 360.0);
+    std::string text = zone.reason + ". The zone: the rim's arc of " + number_text(2.0 * zone.half_width_deg, 0) + "° round " +
+                       number_text(plan.zone_angle_deg, 0) + "° (" + number_text(from < 0 ? from + 360.0 : from, 0) + "° to " +
+                       number_text(to < 0 ? to + 360.0 : to, 0) + "°, measured as the stitches' angles), its middle " +
+                       point_text(zone.direction, 2) + " across the axis, from the axis to " + number_text(zone.outer_mm - zone.edge_mm) +
+                       " mm beyond the opening's edge (" + number_text(zone.outer_mm) + " mm from the axis)";
+    if (moved.empty()) return text + "; no stitch lies in its arc";
+    return text + "; stitches " + list(moved) + " (in its arc or within " + number_text(o.zone_margin_deg, 0) + "° of it; at " +
+           number_text(plan.stitch_radius_mm) + " mm stitches " + (biting.empty() ? std::string("none") : list(biting)) +
+           " would bite it) moved out to " + number_text(plan.zone_radius_mm) + " mm from the axis (" + number_text(o.zone_rim_mm) +
+           " mm beyond the edge), shallow: the needle's tip at the surface site on the " + (plan.on_right ? "right" : "left") +
+           " side and no deeper (the model anchors every stitch at the surface; a bite's depth is not modelled)";
 }
 
 /// 221416 → "221,416".
@@ -80,6 +110,34 @@ RepairSide parse_repair_side(const std::string& name) {
     if (name == "a") return RepairSide::a;
     if (name == "b") return RepairSide::b;
     throw OptionError("{RepairPlanOptions::side} '" + name + "': expected auto, right, left, a (the axis's tail) or b (its head)");
+}
+
+ConductionZoneMode parse_conduction_zone_mode(const std::string& name) {
+    if (name == "auto") return ConductionZoneMode::automatic;
+    if (name == "off") return ConductionZoneMode::off;
+    throw OptionError("{RepairPlanOptions::conduction_zone} '" + name + "': expected auto (mark a perimembranous defect's conduction zone "
+                      "and spare it) or off");
+}
+
+const char* to_string(ConductionZoneMode mode) { return mode == ConductionZoneMode::off ? "off" : "auto"; }
+
+ConductionZone scenario_conduction_zone(const Scenario& scenario, const ConductionZoneOptions& options) {
+    const ScenarioSource& source = scenario.source;
+    ConductionZone none;
+    if (source.defect.empty()) {
+        none.reason = "the scenario has no defect";
+        return none;
+    }
+    if (source.defect != "vsd") {
+        none.reason = "an " + defect_words(source.defect) + ": the conduction zone is a perimembranous ventricular septal defect's";
+        return none;
+    }
+    if (!scenario.landmarks) {
+        none.reason = "the scenario stores no /landmarks (no tricuspid and aortic rings): whether the defect is perimembranous "
+                      "cannot be told, and no conduction zone is marked";
+        return none;
+    }
+    return conduction_zone(source.defect_centre, source.defect_axis, source.defect_diameter_mm, *scenario.landmarks, options);
 }
 
 const char* to_string(RepairSide side) {
@@ -185,6 +243,17 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
     if (!(o.stitch_spacing_mm > 0)) throw OptionError("the stitches' spacing must be above 0 mm");
     if (!(o.rim_mm > 0)) throw OptionError("{RepairPlanOptions::rim_mm} " + number_text(o.rim_mm, 2) + ": expected a distance above 0 mm beyond the opening's edge");
     if (!(o.thickness_mm > 0)) throw OptionError("{RepairPlanOptions::thickness_mm} " + number_text(o.thickness_mm, 2) + ": expected a thickness above 0 mm");
+    if (o.conduction_zone == ConductionZoneMode::automatic) {
+        if (!(o.zone.band_mm > 0)) throw OptionError("{ConductionZoneOptions::band_mm} " + number_text(o.zone.band_mm, 2) + ": expected a band above 0 mm beyond the opening's edge");
+        if (!(o.zone.half_width_deg > 0 && o.zone.half_width_deg <= 180))
+            throw OptionError("{ConductionZoneOptions::half_width_deg} " + number_text(o.zone.half_width_deg, 1) + ": expected a half-width in (0, 180] degrees");
+        if (!(o.zone.ring_reach_mm > 0)) throw OptionError("{ConductionZoneOptions::ring_reach_mm} " + number_text(o.zone.ring_reach_mm, 2) + ": expected a distance above 0 mm");
+        if (!(o.zone_margin_deg >= 0)) throw OptionError("{RepairPlanOptions::zone_margin_deg} " + number_text(o.zone_margin_deg, 1) + ": expected 0 degrees or more");
+        if (!(o.zone_rim_mm > o.zone.band_mm && o.zone_rim_mm > o.rim_mm))
+            throw OptionError("{RepairPlanOptions::zone_rim_mm} " + number_text(o.zone_rim_mm, 2) + " mm: the stitches moved out of the conduction zone must "
+                              "lie beyond its band ({ConductionZoneOptions::band_mm} " + number_text(o.zone.band_mm, 2) + " mm) and beyond the other "
+                              "stitches ({RepairPlanOptions::rim_mm} " + number_text(o.rim_mm, 2) + " mm)");
+    }
     if (o.patch_diameter_mm < 0) throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
     const ScenarioSource& source = scenario.source;
     if (source.defect.empty())
@@ -218,22 +287,49 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
     plan.outward = outward;
 
     plan.stitch_radius_mm = 0.5 * plan.defect_diameter_mm + o.rim_mm;
-    plan.patch_diameter_mm = o.patch_diameter_mm > 0 ? o.patch_diameter_mm : plan.defect_diameter_mm + 2.0 * (o.rim_mm + 2.0);
     plan.patch_thickness_mm = o.thickness_mm;
-    if (!(plan.patch_diameter_mm > 2.0 * plan.stitch_radius_mm))
-        throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(plan.patch_diameter_mm) + " mm does not reach beyond the stitches: they lie on a circle " +
-                          number_text(2.0 * plan.stitch_radius_mm) + " mm across (the defect's " + number_text(plan.defect_diameter_mm) +
-                          " mm and {RepairPlanOptions::rim_mm} " + number_text(o.rim_mm) + " mm each side); give a larger diameter");
 
-    // The stitch sites on the detailed mesh, round the circle of radius D/2 + rim.
+    // The stitch sites on the detailed mesh, round the circle of radius D/2 + rim; those in the
+    // conduction zone's arc (and its margin) on the circle of D/2 + zone_rim.
     const int n = o.stitches > 0 ? o.stitches
                                  : std::max(8, int(std::ceil(2.0 * std::numbers::pi * plan.stitch_radius_mm / o.stitch_spacing_mm - 1e-9)));
-    const StitchCircle circle = stitch_circle(centre, axis, plan.on_b, plan.stitch_radius_mm, n);
+    StitchCircle circle = stitch_circle(centre, axis, plan.on_b, plan.stitch_radius_mm, n);
     plan.starts_anterior = circle.starts_anterior;
+    if (o.conduction_zone == ConductionZoneMode::automatic) plan.zone = scenario_conduction_zone(scenario, o.zone);
+    else plan.zone.reason = "not marked ({RepairPlanOptions::conduction_zone} off)";
+    std::vector<bool> spared(std::size_t(n), false), would_bite(std::size_t(n), false);
+    if (plan.zone.found) {
+        plan.zone_radius_mm = 0.5 * plan.defect_diameter_mm + o.zone_rim_mm;
+        const double turn = std::atan2(plan.zone.direction.dot(circle.second), plan.zone.direction.dot(circle.first)) * 180.0 / std::numbers::pi;
+        plan.zone_angle_deg = turn < 0 ? turn + 360.0 : turn;
+        circle.radii.assign(std::size_t(n), plan.stitch_radius_mm);
+        for (int k = 0; k < n; ++k) {
+            const Eigen::Vector3d p = circle.point(k);
+            would_bite[std::size_t(k)] = plan.zone.holds(p);
+            if (plan.zone.angle_from_middle_deg(p) <= plan.zone.half_width_deg + o.zone_margin_deg) {
+                spared[std::size_t(k)] = true;
+                circle.radii[std::size_t(k)] = plan.zone_radius_mm;
+            }
+        }
+    }
+    const bool any_spared = std::find(spared.begin(), spared.end(), true) != spared.end();
+    const double outermost_mm = any_spared ? plan.zone_radius_mm : plan.stitch_radius_mm;
+    const double outermost_rim_mm = any_spared ? o.zone_rim_mm : o.rim_mm;
+    plan.patch_diameter_mm = o.patch_diameter_mm > 0 ? o.patch_diameter_mm : plan.defect_diameter_mm + 2.0 * (outermost_rim_mm + 2.0);
+    if (!(plan.patch_diameter_mm > 2.0 * outermost_mm))
+        throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(plan.patch_diameter_mm) + " mm does not reach beyond the stitches: they lie on a circle " +
+                          number_text(2.0 * outermost_mm) + " mm across (the defect's " + number_text(plan.defect_diameter_mm) + " mm and " +
+                          (any_spared ? "{RepairPlanOptions::zone_rim_mm}" : "{RepairPlanOptions::rim_mm}") + " " + number_text(outermost_rim_mm) +
+                          " mm each side" + (any_spared ? ", where stitches spare the conduction zone" : "") + "); give a larger diameter");
+
     const StitchSites found = find_stitch_sites(mesh.positions, mesh.triangles, circle, window_margin_mm);
-    if (found.missing >= 0) throw no_wall_at_stitch(found, plan.stitch_radius_mm, n);
-    for (const StitchSite& site : found.sites) {
+    if (found.missing >= 0) throw no_wall_at_stitch(found, circle, n);
+    for (std::size_t k = 0; k < found.sites.size(); ++k) {
+        const StitchSite& site = found.sites[k];
         RepairStitch stitch;
+        stitch.radius_mm = circle.radius_of(int(k));
+        stitch.spares_zone = spared[k];
+        stitch.would_bite_zone = would_bite[k];
         stitch.height_mm = site.height_mm;
         stitch.site = site.site;
         stitch.outside = stitch.site + o.approach_mm * outward;
@@ -275,6 +371,7 @@ void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path,
 int plan_repair_command(const PlanRepairArguments& a) {
     RepairPlanOptions options = a.options;
     options.side = parse_repair_side(a.side);
+    options.conduction_zone = parse_conduction_zone_mode(a.conduction_zone);
     refuse_an_input_as_output("-o " + a.output, a.output, {{a.scenario, "the scenario being planned"}});
     check_destination(a.output);  // before the planning: a folder that cannot take the file
     const Scenario scenario = read_scenario(a.scenario);
@@ -319,6 +416,7 @@ int plan_repair_command(const PlanRepairArguments& a) {
                 "(%.0f° from the axis): on the plane fitted to the sites (each within %.2f mm of it), lifted %.2f mm off it\n",
                 plan.patch_diameter_mm, plan.patch_thickness_mm, point_text(plan.patch_centre).c_str(), point_text(plan.patch_facing, 2).c_str(),
                 plan.patch_tilt_deg, plan.fit_residual_mm, 0.5 * plan.patch_thickness_mm);
+    std::printf("  conduction  %s\n", conduction_text(plan, options).c_str());
     std::printf("  stitches    %zu on the circle %.1f mm from the axis (%.1f mm beyond the opening's edge), from its most %s point "
                 "counter-clockwise as seen from the %s side; hand 1's needle (its shaft pointing away from the tissue) comes to each "
                 "from %.0f mm outside in %.0f ms and ties it, held %.0f ms while it draws tight:\n",
@@ -326,8 +424,12 @@ int plan_repair_command(const PlanRepairArguments& a) {
                 side_name, options.approach_mm, options.approach_ms, options.tie_ms);
     for (std::size_t k = 0; k < n; ++k) {
         const RepairStitch& s = plan.stitches[k];
-        std::printf("    %2zu  %-24s mm  at %3.0f°, %+.1f mm from mid-wall, the wall %.1f mm thick there; tied at %.0f ms\n", k + 1,
-                    point_text(s.site).c_str(), s.angle_deg, s.height_mm, s.wall_mm, s.tie_ms);
+        std::printf("    %2zu  %-24s mm  at %3.0f°, %+.1f mm from mid-wall, the wall %.1f mm thick there; tied at %.0f ms%s\n", k + 1,
+                    point_text(s.site).c_str(), s.angle_deg, s.height_mm, s.wall_mm, s.tie_ms,
+                    s.spares_zone ? ("; sparing the conduction zone: " + number_text(s.radius_mm - 0.5 * plan.defect_diameter_mm) +
+                                     " mm beyond the edge, shallow")
+                                        .c_str()
+                                  : "");
     }
     std::printf("  gesture     %.0f ms: the patch laid at 0 ms, the stitches tied from %.0f to %.0f ms, then %.0f ms for the tissue to settle\n",
                 plan.end_ms, plan.stitches.front().tie_ms, plan.stitches.back().tie_ms + options.tie_ms, options.settle_ms);

@@ -19,7 +19,8 @@
 ///   spaced on the circle of radius D/2 + `rim_mm`
 ///   around the axis, in the plane through the centre across it; stitch 1 at the circle's most
 ///   superior point (most anterior where the axis is within 25° of superior-inferior), the others
-///   following counter-clockwise as seen from the chosen side. Each site is where the line through
+///   following counter-clockwise as seen from the chosen side (those in a conduction zone farther
+///   out: below). Each site is where the line through
 ///   its point along the axis, followed from far outside along −outward, first enters the tissue
 ///   within T + 3 mm of the centre (T the wall's thickness there: below). The line crosses the
 ///   pool on the chosen side first, so the free wall beyond the pool (and anything farther than
@@ -28,11 +29,24 @@
 ///   centre's plane (mid-wall) is the septum there; T is the median of those stretches' lengths.
 ///   Each stitch then reports the length of the stretch that begins at its site.
 /// * **patch**: a disc of diameter `patch_diameter_mm` (default D + 2·(rim + 2 mm): 2 mm beyond
-///   the stitches) and thickness `thickness_mm`, facing the plane fitted to the sites by least
+///   the stitches; D + 2·(zone_rim + 2 mm) where stitches moved out of a conduction zone) and thickness `thickness_mm`, facing the plane fitted to the sites by least
 ///   squares (its normal oriented along −outward: the way the patch faces the tissue), centred
 ///   on the axis, half its thickness off that plane on the chosen side (from where the axis meets
 ///   the plane, along the axis).
 ///   Its first in-plane axis (tool +x) points toward stitch 1.
+/// * **conduction zone** (a vsd, `conduction_zone` automatic, the default): where the scenario's
+///   tricuspid and aortic rings lie near the defect's rim, the defect is perimembranous and the
+///   posteroinferior arc of its rim carries the atrioventricular conduction axis
+///   (libmodel/surgery/conduction_zone.h, its rule and anatomy). Every stitch whose circle point
+///   lies within that arc, or within `zone_margin_deg` beyond it, moves out along its direction to
+///   D/2 + `zone_rim_mm` (4.5 mm by default: beyond the zone's band of `zone.band_mm`, 3 mm, as a
+///   surgeon bites 3 to 5 mm back from the edge there), and is marked shallow. The model anchors
+///   every stitch at the tissue's surface point nearest the needle's tip (libmodel/surgery/patch.h
+///   PatchModel::tie): a bite's depth is not modelled, and "shallow" says only what the plan does,
+///   which is what it does for every stitch: the needle's tip goes to the surface site on the
+///   chosen side and no deeper. The stitches keep their count and angles; those moved lie farther
+///   apart. Without the rings (HVSMR 2016's hearts), for an asd, or with `conduction_zone` off, no
+///   stitch moves, and the plan says why.
 ///
 /// The trajectory (runtime/core/trajectory.h; semi-axes and kinds as libmodel/sim/solver.h describes them):
 /// hand 0 lays the patch at 0 ms (kind patch, grab 1) and lets go at `release_ms` (grab 0: a laid
@@ -47,6 +61,7 @@
 #pragma once
 
 #include "formats/scenario.h"
+#include "libmodel/surgery/conduction_zone.h"
 #include "runtime/core/trajectory.h"
 
 #include <Eigen/Core>
@@ -66,6 +81,14 @@ enum class RepairSide { automatic, right, left, a, b };
 /// "auto", "right", "left", "a" or "b"; OptionError naming {RepairPlanOptions::side} otherwise.
 RepairSide parse_repair_side(const std::string& name);
 const char* to_string(RepairSide side);
+
+/// Whether a plan marks a perimembranous defect's conduction zone and spares it (automatic), or
+/// leaves every stitch on the one circle (off).
+enum class ConductionZoneMode { automatic, off };
+
+/// "auto" or "off"; OptionError naming {RepairPlanOptions::conduction_zone} otherwise.
+ConductionZoneMode parse_conduction_zone_mode(const std::string& name);
+const char* to_string(ConductionZoneMode mode);
 
 struct RepairPlanOptions {
     RepairSide side = RepairSide::automatic;
@@ -91,6 +114,14 @@ struct RepairPlanOptions {
     double withdraw_ms = 30.0;        ///< from the site to the point outside the next site, ms
     double settle_ms = 300.0;         ///< the hold after the last stitch, ms
     Eigen::Vector3d needle_semi_axes{0.25, 0.25, 6.0};  ///< the needle's ellipsoid: shaft 2·az long from the tip, mm
+    ConductionZoneMode conduction_zone = ConductionZoneMode::automatic;
+    ConductionZoneOptions zone;       ///< the zone's rule: the rings' reach, its band and arc
+    /// The stitches in the zone lie this far beyond the opening's edge, mm; more than zone.band_mm
+    /// and than rim_mm.
+    double zone_rim_mm = 4.5;
+    /// A stitch this far beyond the arc moves too, degrees: a bite a little off its site still
+    /// spares the zone.
+    double zone_margin_deg = 10.0;
 };
 
 struct RepairStitch {
@@ -100,6 +131,12 @@ struct RepairStitch {
     double height_mm = 0.0;   ///< the site's distance from the defect's centre along outward
     double wall_mm = 0.0;     ///< the tissue's thickness along the axis from the site
     double tie_ms = 0.0;      ///< the needle's grab turns 1 here
+    double radius_mm = 0.0;   ///< its line's distance from the axis: D/2 + rim, or D/2 + zone_rim when spared
+    /// Moved out of the conduction zone to D/2 + zone_rim, shallow (RepairPlanOptions::zone_rim_mm).
+    bool spares_zone = false;
+    /// Its point at D/2 + rim would lie in the zone (ConductionZone::holds): what it would bite
+    /// with the zone off.
+    bool would_bite_zone = false;
 };
 
 struct RepairPlan {
@@ -121,6 +158,13 @@ struct RepairPlan {
     double wall_mm = 0.0;                                   ///< T, the median septal thickness along the axis at the stitches
     double wall_min_mm = 0.0, wall_max_mm = 0.0;            ///< over the stitches (RepairStitch::wall_mm)
     double stitch_radius_mm = 0.0;                          ///< D/2 + rim
+    /// The conduction zone (a perimembranous vsd's; found false with the reason otherwise, and
+    /// where conduction_zone is off: "--conduction-zone off").
+    ConductionZone zone;
+    double zone_radius_mm = 0.0;                            ///< D/2 + zone_rim: where the spared stitches lie; 0 without a zone
+    /// The zone's middle round the axis, as the stitches' angles are measured (from stitch 1,
+    /// counter-clockwise seen from the chosen side), degrees in [0, 360); 0 without a zone.
+    double zone_angle_deg = 0.0;
     /// Stitch 1 sits at the circle's most anterior point (the axis within 25° of superior-inferior),
     /// else at its most superior.
     bool starts_anterior = false;
@@ -135,8 +179,14 @@ struct RepairPlan {
     double end_ms = 0.0;              ///< the gesture's end (after the settling hold)
 };
 
+/// The conduction zone of `scenario`'s defect by `options` (libmodel/surgery/conduction_zone.h):
+/// found false, with the reason, for a scenario with no defect, a defect other than a vsd, or no
+/// /landmarks stored.
+ConductionZone scenario_conduction_zone(const Scenario& scenario, const ConductionZoneOptions& options = {});
+
 /// The repair of `scenario`'s septal defect. Throws OptionError for stitches below 3, a rim,
-/// thickness or patch diameter not above 0, or a patch that does not reach beyond the stitches;
+/// thickness or patch diameter not above 0, a zone rim not beyond the zone's band and the rim, or
+/// a patch that does not reach beyond the stitches;
 /// InputError when the scenario has no defect, no detailed mesh, or a stitch's line meets no wall
 /// near the defect (naming the stitch and its point).
 RepairPlan plan_repair(const Scenario& scenario, const RepairPlanOptions& options = {});
@@ -151,6 +201,7 @@ void write_repair_csv(const RepairPlan& plan, const std::filesystem::path& path,
 struct PlanRepairArguments {
     std::string scenario, output;
     std::string side = "auto";
+    std::string conduction_zone = "auto";
     RepairPlanOptions options;
 };
 int plan_repair_command(const PlanRepairArguments& arguments);
