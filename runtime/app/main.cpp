@@ -4,6 +4,7 @@
 #include "runtime/haptics/haptics.h"
 #include "runtime/surgery/incision_plan.h"
 #include "runtime/app/info_verdict.h"
+#include "runtime/surgery/operation_plan.h"
 #include "runtime/surgery/repair_plan.h"
 #include "runtime/app/run_modes.h"
 #include "runtime/view/window_keys.h"
@@ -331,6 +332,65 @@ CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
     return repair_command;
 }
 
+/// `heartsim plan-operation`'s options, into `operation`.
+CLI::App* add_plan_operation_command(CLI::App& app, PlanOperationArguments& operation) {
+    auto* command = app.add_subcommand(
+        "plan-operation",
+        "Plan the operation on a scenario's septal defect (heartprep build --defect vsd) through an incision, and write it as a "
+        "--trajectory CSV: a scalpel (hand 0) opens the approach's chamber where a line of sight from the defect leaves the heart "
+        "through its free wall, clear of the coronary courses; two retractors (hands 0 and 1) pull the incision's edges apart until "
+        "the defect is seen; then the patch (hand 0) and the needle (hand 1) come in through the opening and the patch is sewn over "
+        "the defect's right side (plan-repair's stitches). Prints the incision, the retraction, the surgeon's eye, when the defect "
+        "is exposed, how many stitch sites are seen from the eye, and how to run and see it; with --approach all, both approaches "
+        "and a table comparing them (docs/runtime.md \"Planning an operation\")");
+    command->add_option("scenario", operation.scenario, "Scenario file with a septal defect (heartprep build ... --defect vsd)")->required();
+    command->add_option("-o,--output", operation.output,
+                        "Trajectory CSV to write, for heartsim run --trajectory; with --approach all, one per approach, named with the "
+                        "approach before the extension (op.csv: op.right-atrial.csv, op.right-ventricular.csv)")
+        ->required()
+        ->check(cli_messages::output_extension({".csv"}, "the trajectory is a CSV file"));
+    command->add_option("--approach", operation.approach,
+                        "right-atrial (a right atriotomy: the defect seen through the tricuspid valve), right-ventricular (a right "
+                        "ventriculotomy over the defect), or all (both, and a table comparing them)")
+        ->check(CLI::IsMember({"right-atrial", "right-ventricular", "all"}))
+        ->capture_default_str();
+    command->add_option("--length", operation.options.length_mm, "The incision's length, mm")
+        ->type_name("MM")
+        ->check(CLI::Range(6.0, 120.0))
+        ->capture_default_str();
+    command->add_option("--spread", operation.options.spread_mm,
+                        "How far apart the retractors pull the incision's edges, mm. Default: the narrowest of 8, 10, ... 24 mm that shows "
+                        "as many stitch sites from the surgeon's eye as 24 mm")
+        ->type_name("MM")
+        ->check(CLI::Range(2.0, 60.0));
+    command->add_option("--coronary-clearance", operation.options.coronary_clearance_mm,
+                        "The least distance from any point of the incision to a coronary course (the scenario's landmarks), mm")
+        ->type_name("MM")
+        ->check(CLI::Range(0.0, 50.0))
+        ->capture_default_str();
+    command->add_option("--max-wall", operation.options.max_wall_mm, "The thickest free wall the incision may cut through, mm")
+        ->type_name("MM")
+        ->check(CLI::Range(1.0, 60.0))
+        ->capture_default_str();
+    command->add_option("--eye-distance", operation.options.eye_distance_mm,
+                        "The surgeon's eye's distance from the opening along the line of sight, mm. Default: 2.5 incision lengths (the "
+                        "opening then fills a good part of the picture)")
+        ->type_name("MM")
+        ->check(CLI::Range(1.0, 2000.0));
+    command->add_option("--stitches", operation.options.repair.stitches, "How many stitches round the rim (plan-repair's --stitches)")
+        ->type_name("N")
+        ->check(CLI::Range(3, 360));
+    command->add_option("--rim", operation.options.repair.rim_mm, "How far beyond the opening's edge the stitches bite, mm (plan-repair's --rim)")
+        ->type_name("MM")
+        ->check(cli_messages::within(plausible::stitch_rim_mm))
+        ->capture_default_str();
+    command->footer("\nExample:\n"
+                    "  heartprep build ct-label.nii.gz --labels mmwhs --defect vsd -o vsd.h5\n"
+                    "  heartsim plan-operation vsd.h5 -o op.csv --approach all           # both approaches, compared\n"
+                    "  heartsim run vsd.h5 --trajectory op.right-atrial.csv --seconds 7 --view surgeon --eye X,Y,Z --look-at X,Y,Z\n");
+    return command;
+}
+
 /// Training staff launch a session as `heartsim scenario.h5` (or `heartsim --device mouse
 /// scenario.h5`): a first argument other than a subcommand, --help or --version means `run`;
 /// `arguments` gets the word. A mistyped command is refused: the exit status, else nullopt.
@@ -368,7 +428,8 @@ int main(int argc, char** argv) {
                  "  heartsim info                             the OpenGL device, version and limits\n"
                  "  heartsim recover rec.h5.journal           the recording of a --record session that was killed\n"
                  "  heartsim plan-incision scenario.h5 -o incision.csv   a scripted incision with retractors, for run --trajectory\n"
-                 "  heartsim plan-repair scenario.h5 -o repair.csv       a patch stitched over a septal defect, for run --trajectory\n",
+                 "  heartsim plan-repair scenario.h5 -o repair.csv       a patch stitched over a septal defect, for run --trajectory\n"
+                 "  heartsim plan-operation scenario.h5 -o op.csv --approach all   the operation through an incision, both approaches\n",
                  "heartsim"};
     app.set_version_flag("--version", std::string("heartsim ") + HEARTSIM_VERSION);
     app.require_subcommand(1);
@@ -385,6 +446,8 @@ int main(int argc, char** argv) {
     CLI::App* plan_command = add_plan_incision_command(app, plan);
     PlanRepairArguments repair;
     CLI::App* repair_command = add_plan_repair_command(app, repair);
+    PlanOperationArguments operation;
+    CLI::App* operation_command = add_plan_operation_command(app, operation);
     std::vector<char*> arguments(argv, argv + argc);
     if (const std::optional<int> refused = insert_run_word(app, argc, argv, arguments)) return *refused;
     for (CLI::App* command : app.get_subcommands({})) command->footer(command->get_footer() + "\n" + heartsim_exit_status_help);
@@ -405,20 +468,22 @@ int main(int argc, char** argv) {
         return fail(ExitCode::usage, cli_messages::parse_error_message(app, e, int(arguments.size()), arguments.data()));
     }
     for (const CLI::App* command : {static_cast<const CLI::App*>(run), static_cast<const CLI::App*>(recover),
-                                    static_cast<const CLI::App*>(plan_command), static_cast<const CLI::App*>(repair_command)})
+                                    static_cast<const CLI::App*>(plan_command), static_cast<const CLI::App*>(repair_command),
+                                    static_cast<const CLI::App*>(operation_command)})
         if (const std::string empty = cli_messages::empty_value_given(*command); command->parsed() && !empty.empty())
             return fail(ExitCode::usage, empty);
     for (const char* option : {"--max-force", "--haptic-rate", "--interpolation", "--haptic-priority", "--coupling"})
         if (run->count(option) > 0) a.device_options_given.push_back(option);
     // The file an error that names none comes from: the scenario run, or the journal recovered.
     const std::string file = run->parsed() ? a.scenario : recover->parsed() ? journal : plan_command->parsed() ? plan.scenario
-                           : repair_command->parsed() ? repair.scenario : "";
+                           : repair_command->parsed() ? repair.scenario : operation_command->parsed() ? operation.scenario : "";
     try {
         if (info->parsed()) return command_info(info_scenario);
         if (recover->parsed()) return recover_recording(journal, recovered);
         if (run->parsed()) return command_run(a);
         if (plan_command->parsed()) return plan_incision_command(plan);
         if (repair_command->parsed()) return plan_repair_command(repair);
+        if (operation_command->parsed()) return plan_operation_command(operation);
     } catch (const GlUnavailable& e) {
         return fail(ExitCode::no_opengl, e.what());
     } catch (const haptics::DeviceUnavailable& e) {

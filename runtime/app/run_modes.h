@@ -53,6 +53,7 @@ struct RunArguments {
     std::string surface_detail = "on";  // --surface-detail on|off: the coronary arteries and the fibres (docs/runtime.md)
     std::string clip;                // --clip PX,PY,PZ,NX,NY,NZ or centre: the section view (section_plane.h); empty: none
     std::string look_at;             // --look-at X,Y,Z[,DISTANCE]: the camera centred on a point (camera.h); empty: the fitted view
+    std::string eye;                 // --eye X,Y,Z: with --look-at, where the camera stands (camera.h LookAt::eye)
     // Haptics (docs/haptics.md): devices for hand 0 and hand 1, their instruments, the session.
     std::vector<std::string> devices, instruments;
     double haptic_rate = 1000.0;

@@ -389,6 +389,8 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     // --look-at: the camera centred on a point, after the view and the section have turned it.
     std::optional<LookAt> look;
     if (!a.look_at.empty()) look = parse_look_at(a.look_at);
+    if (!a.eye.empty() && !look) throw UsageError("--eye places the camera looking at a point: give that point with --look-at X,Y,Z");
+    if (!a.eye.empty()) parse_eye(a.eye, *look);
     if (look && a.headless && a.screenshot.empty()) throw UsageError("--look-at aims the camera: headless it needs --screenshot");
 
     scenario = read_scenario(a.scenario);

@@ -141,9 +141,34 @@ LookAt parse_look_at(const std::string& text) {
     return look;
 }
 
+void parse_eye(const std::string& text, LookAt& look) {
+    LookAt eye;
+    try {
+        eye = parse_look_at(text);
+    } catch (const OptionError&) {
+        throw OptionError("{LookAt::eye} '" + text + "': expected X,Y,Z: where the camera stands (mm, world LPS, each within a million mm), looking at the --look-at point");
+    }
+    if (eye.distance) throw OptionError("{LookAt::eye} '" + text + "': expected X,Y,Z (three numbers): the camera's distance is the eye's from the --look-at point");
+    if ((eye.point - look.point).norm() < 1e-3f) throw OptionError("{LookAt::eye} '" + text + "': the eye is on the --look-at point: it must look at it from somewhere");
+    look.eye = eye.point;
+}
+
 void aim_camera_at(Camera& camera, const LookAt& look) {
     camera.target = look.point;
     if (look.distance) camera.distance = *look.distance;
+    if (!look.eye) return;
+    const Eigen::Vector3f back = (*look.eye - look.point).normalized();
+    const Eigen::Vector3f view_up = camera.orientation * Eigen::Vector3f::UnitY(), view_right = camera.orientation * Eigen::Vector3f::UnitX();
+    Eigen::Vector3f up = view_up - view_up.dot(back) * back;
+    if (up.norm() < 0.2f) up = back.cross(view_right);  // looking along the view's up: its right keeps the picture's sides
+    up.normalize();
+    Eigen::Matrix3f basis;
+    basis.col(0) = up.cross(back);
+    basis.col(1) = up;
+    basis.col(2) = back;
+    camera.orientation = Eigen::Quaternionf(basis).normalized();
+    camera.turntable_axis = up;
+    camera.distance = (*look.eye - look.point).norm();
 }
 
 }  // namespace heartsim

@@ -57,12 +57,20 @@ Camera fit_camera(const Eigen::AlignedBox3f& box, ViewDirection view, float aspe
 struct LookAt {
     Eigen::Vector3f point = Eigen::Vector3f::Zero();
     std::optional<float> distance;
+    /// `heartsim run --eye X,Y,Z`: where the camera stands (mm, world LPS), looking at the point;
+    /// its distance is then the eye's from the point.
+    std::optional<Eigen::Vector3f> eye;
 };
 /// Parses "X,Y,Z" or "X,Y,Z,DISTANCE": finite numbers, DISTANCE > 0. OptionError naming {LookAt}
 /// (heartsim's --look-at) otherwise.
 LookAt parse_look_at(const std::string& text);
+/// Parses `--eye` "X,Y,Z" (mm, world LPS) into look.eye: finite coordinates within reach, not on
+/// the point itself. OptionError naming {LookAt::eye} (heartsim's --eye) otherwise.
+void parse_eye(const std::string& text, LookAt& look);
 /// Centres `camera` on the point, looking from where it looks (its orientation, the --view's,
-/// kept), from the distance given or its own. The near plane follows the distance (projection).
+/// kept), from the distance given or its own. With an eye: the camera stands there looking at the
+/// point, the --view's up turned as little as it takes to lie across the line of sight (so the
+/// surgeon's view keeps the patient's left up). The near plane follows the distance (projection).
 void aim_camera_at(Camera& camera, const LookAt& look);
 
 }  // namespace heartsim
