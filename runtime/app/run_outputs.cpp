@@ -2,6 +2,7 @@
 // prints, in the order it prints it, is the command's output that tests/test_runtime_cli.cpp and
 // tests/test_haptics_cli.cpp check.
 #include "runtime/app/run_outputs.h"
+#include "runtime/surgery/repair_plan.h"
 
 
 #include "runtime/gl/backend_gl.h"
@@ -277,6 +278,43 @@ void save_state(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& 
     std::printf("wrote %s\n", a.save_state.c_str());
 }
 
+namespace {
+
+/// The stitches tied in the run that bite inside the defect's conduction zone, one line after the
+/// closure's: each stitch's tissue point at rest (where the needle tied it, on the detailed mesh's
+/// rest surface: CarriedPoint::rest) against the zone the scenario gives by default
+/// (scenario_conduction_zone, runtime/surgery/repair_plan.h), not against a plan's flags. Nothing
+/// without a tied stitch.
+void report_conduction_zone(PreparedRun& p) {
+    const PatchModel* patch = p.repair ? p.repair->patch() : nullptr;
+    if (!patch || patch->stitches().empty()) return;
+    const ConductionZone zone = scenario_conduction_zone(p.scenario);
+    const std::size_t m = patch->stitches().size();
+    if (!zone.found) {
+        std::printf("stitches in the conduction zone: cannot tell, %zu stitches tied (no zone: %s)\n", m, zone.reason.c_str());
+        return;
+    }
+    std::vector<Eigen::Vector3d> tissue;
+    for (const Stitch& s : patch->stitches()) tissue.push_back(s.anchor.rest);
+    const std::vector<int> in = points_in_zone(zone, tissue);
+    std::string which;
+    for (std::size_t i = 0; i < in.size(); ++i) {
+        const Eigen::Vector3d& x = tissue[std::size_t(in[i])];
+        const Eigen::Vector3d off = x - zone.centre - (x - zone.centre).dot(zone.axis) * zone.axis;
+        char one[160];
+        std::snprintf(one, sizeof one, "%sstitch %d at (%.1f, %.1f, %.1f) mm, %.1f mm beyond the edge, %.0f° from the arc's middle", i ? "; " : "",
+                      in[i] + 1, x.x(), x.y(), x.z(), off.norm() - zone.edge_mm, zone.angle_from_middle_deg(x));
+        which += one;
+    }
+    std::printf("stitches in the conduction zone: %zu of %zu%s%s%s\n", in.size(), m, in.empty() ? "" : " (", which.c_str(), in.empty() ? "" : ")");
+    std::printf("  conduction zone: the defect's posteroinferior rim, the arc of %.0f° round (%.2f, %.2f, %.2f) across its axis, from the "
+                "axis to %.1f mm beyond the opening's edge; %s; each stitch's tissue point at rest\n",
+                2.0 * zone.half_width_deg, zone.direction.x(), zone.direction.y(), zone.direction.z(), zone.outer_mm - zone.edge_mm,
+                zone.reason.c_str());
+}
+
+}  // namespace
+
 /// The closure check at the end of a run on a scenario with a defect (libmodel/surgery/closure.h): the
 /// detailed mesh as drawn and the patch after the leak test, one line a trainer reads.
 void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std::array<float, 3>>& positions) {
@@ -321,7 +359,7 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                         r.leak_mm->x(), r.leak_mm->y(), r.leak_mm->z());
     } catch (const InputError& e) {
         std::printf("defect closed: cannot tell (%s)\n", e.what());
-    }
+    }    report_conduction_zone(p);
 }
 
 /// After every mode but --replay: the last screenshot, the summary, --stats, --stats-csv,

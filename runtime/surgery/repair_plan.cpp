@@ -296,7 +296,7 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
     StitchCircle circle = stitch_circle(centre, axis, plan.on_b, plan.stitch_radius_mm, n);
     plan.starts_anterior = circle.starts_anterior;
     if (o.conduction_zone == ConductionZoneMode::automatic) plan.zone = scenario_conduction_zone(scenario, o.zone);
-    else plan.zone.reason = "not marked ({RepairPlanOptions::conduction_zone} off)";
+    else plan.zone.reason = "not marked (--conduction-zone off)";
     std::vector<bool> spared(std::size_t(n), false), would_bite(std::size_t(n), false);
     if (plan.zone.found) {
         plan.zone_radius_mm = 0.5 * plan.defect_diameter_mm + o.zone_rim_mm;
