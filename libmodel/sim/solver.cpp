@@ -50,13 +50,14 @@ const char* to_string(InstrumentKind kind) {
     case InstrumentKind::scalpel: return "scalpel";
     case InstrumentKind::patch: return "patch";
     case InstrumentKind::needle: return "needle";
+    case InstrumentKind::retractor: return "retractor";
     }
     return "none";
 }
 
 std::optional<InstrumentKind> instrument_kind_named(const std::string& word) {
     for (InstrumentKind kind : {InstrumentKind::none, InstrumentKind::probe, InstrumentKind::grabber, InstrumentKind::scalpel,
-                                 InstrumentKind::patch, InstrumentKind::needle})
+                                 InstrumentKind::patch, InstrumentKind::needle, InstrumentKind::retractor})
         if (word == to_string(kind)) return kind;
     return std::nullopt;
 }
@@ -69,14 +70,15 @@ std::int8_t instrument_code(InstrumentKind kind) {
     case InstrumentKind::scalpel: return 3;
     case InstrumentKind::patch: return 4;
     case InstrumentKind::needle: return 5;
+    case InstrumentKind::retractor: return 6;
     }
     return 0;
 }
 
 std::optional<InstrumentKind> instrument_of_code(int code) {
-    constexpr InstrumentKind kinds[] = {InstrumentKind::none,    InstrumentKind::probe, InstrumentKind::grabber,
-                                        InstrumentKind::scalpel, InstrumentKind::patch, InstrumentKind::needle};
-    if (code < 0 || code > 5) return std::nullopt;
+    constexpr InstrumentKind kinds[] = {InstrumentKind::none,  InstrumentKind::probe,  InstrumentKind::grabber,  InstrumentKind::scalpel,
+                                        InstrumentKind::patch, InstrumentKind::needle, InstrumentKind::retractor};
+    if (code < 0 || code > 6) return std::nullopt;
     return kinds[code];
 }
 
@@ -198,6 +200,8 @@ void BasicSolver<Real>::reset() {
 
 template <class Real>
 void BasicSolver<Real>::reset_tissue() {
+    for (int hand = 0; hand < hands; ++hand) release_hand(hand, false);
+    free_stayed();  // the scenario's anchoring again, before the start motion below reads it
     neighbour_ = uncut_neighbour_;
     set_loads({});
     cut_.clear();
@@ -215,7 +219,6 @@ void BasicSolver<Real>::reset_tissue() {
     for (std::size_t i = 0; i < n_pad_; ++i)
         if (movable_[i])
             for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = Real(-0.5 * rest_acceleration[c] * h_ * h_);
-    for (int hand = 0; hand < hands; ++hand) release(hand);
     for (auto& list : touched_) list.clear();
     good_energy_ = 0.0;
     substeps_since_check_ = 0;
@@ -273,10 +276,12 @@ void BasicSolver<Real>::restore() {
     time_ms_ = good_time_ms_;
     for (auto& list : touched_) list.clear();
     substeps_since_check_ = 0;
-    // Grabs end (the tissue slipped out) and blades lift: the runtime sees no held particles and
-    // cuts nothing until it grabs again.
+    // Grabs end (the tissue slipped out; a retractor's does not stay) and blades lift: the runtime
+    // sees no held particles and cuts nothing until it grabs again. What retractors left stayed
+    // is free again: the scenario's anchoring.
     for (int hand = 0; hand < hands; ++hand)
-        if (hand_[std::size_t(hand)].grabbing || hand_[std::size_t(hand)].cutting) release(hand);
+        if (hand_[std::size_t(hand)].grabbing || hand_[std::size_t(hand)].cutting) release_hand(hand, false);
+    free_stayed();
 }
 
 template <class Real>

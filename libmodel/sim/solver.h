@@ -53,21 +53,29 @@ enum class InstrumentKind {
     /// From begin_grab() a needle ties a stitch between the patch point and the tissue point
     /// nearest its tip (the pose's position); the stitch draws tight over its tying time.
     needle,
+    /// A grabber whose tissue stays where it is left (stay sutures tying a retracted edge to the
+    /// drape): from begin_grab() until release() exactly a grabber (the same capture, follow and
+    /// force). Its release(), or set_instrument() on its hand while it holds, does not free the
+    /// particles it holds: they become anchored where they are, at rest, until reset(),
+    /// reset_tissue() or the watchdog's restore brings back the scenario's own anchoring.
+    retractor,
 };
 
-/// "none", "probe", "grabber", "scalpel", "patch" or "needle": the word of trajectories, recordings
-/// and the window's HUD.
+/// "none", "probe", "grabber", "scalpel", "patch", "needle" or "retractor": the word of
+/// trajectories, recordings and the window's HUD.
 const char* to_string(InstrumentKind kind);
 /// The kind to_string() calls `word`; empty for any other word.
 std::optional<InstrumentKind> instrument_kind_named(const std::string& word);
 /// The kind's code in files (a state's /instrument_kind, a recording's /steps/instrument): 0 none,
-/// 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle.
+/// 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle, 6 retractor.
 std::int8_t instrument_code(InstrumentKind kind);
-/// The kind of a code; nullopt for a code outside 0 … 5.
+/// The kind of a code; nullopt for a code outside 0 … 6.
 std::optional<InstrumentKind> instrument_of_code(int code);
-/// Whether the kind acts on a grab flag or button 1: a grabber holds, a scalpel's blade is
-/// lowered, a patch is laid, a needle ties a stitch.
+/// Whether the kind acts on a grab flag or button 1: a grabber or a retractor holds, a scalpel's
+/// blade is lowered, a patch is laid, a needle ties a stitch.
 inline bool takes_grab(InstrumentKind kind) { return kind != InstrumentKind::none && kind != InstrumentKind::probe; }
+/// Whether begin_grab() captures tissue that then follows the tool: a grabber or a retractor.
+inline bool holds_tissue(InstrumentKind kind) { return kind == InstrumentKind::grabber || kind == InstrumentKind::retractor; }
 /// The repair's kinds (patch, needle), which the solver never sees.
 inline bool repair_kind(InstrumentKind kind) { return kind == InstrumentKind::patch || kind == InstrumentKind::needle; }
 
@@ -251,20 +259,27 @@ public:
     void set_mass_scale(double mass_scale);
     double mass_scale() const { return options_.mass_scale; }
 
-    /// Instruments: hand 0 or 1. Changing an instrument releases what it held.
+    /// Instruments: hand 0 or 1. Changing an instrument releases what it held (release(): a
+    /// retractor's tissue stays).
     void set_instrument(int hand, const Instrument& instrument);
     const Instrument& instrument(int hand) const;
     /// The pose reached at the end of the next step() call; the pose moves linearly (position)
     /// and by slerp (orientation) across that call's substeps, so fast tools do not teleport.
     /// The first pose after set_instrument() places the instrument there at once.
     void set_pose(int hand, const InstrumentPose& pose);
-    /// Starts a grab gesture: captures the free particles inside the grabber at its current
-    /// pose (one piece of tissue: SolverOptions::grab_reach); they then follow it rigidly, in
-    /// ascending index order. Returns how many. On a scalpel it lowers the blade: the steps from
-    /// now on cut (returns 0). Throws if the hand is neither.
+    /// Starts a grab gesture: captures the free particles inside the grabber or retractor at its
+    /// current pose (one piece of tissue: SolverOptions::grab_reach); they then follow it rigidly,
+    /// in ascending index order. Returns how many. On a scalpel it lowers the blade: the steps from
+    /// now on cut (returns 0). Throws if the hand holds none of these.
     std::size_t begin_grab(int hand);
-    /// Ends a grab, or lifts a scalpel's blade.
+    /// Ends a grab, or lifts a scalpel's blade. A grabber's particles go free. A retractor's stay:
+    /// each becomes anchored where it is now (not movable, zero inverse mass, no support spring,
+    /// zero motion: it never moves again), listed in stayed_particles(), until reset(),
+    /// reset_tissue() or the watchdog's restore frees them (the scenario's anchoring again).
     void release(int hand);
+    /// The particles retractors left anchored in place (release()), in the order they stayed (each
+    /// release's in its held order); empty after reset(), reset_tissue() and the watchdog's restore.
+    const std::vector<std::int32_t>& stayed_particles() const { return stayed_; }
     /// The springs cut so far, each as its two packed particle indices (lower first), in the
     /// order they were cut (particle order within a step). reset() and reset_tissue() heal them.
     const std::vector<std::array<std::int32_t, 2>>& cut_springs() const { return cut_; }
@@ -374,6 +389,11 @@ private:
     };
 
     void build_step_constants();
+    /// release() with `stay`: a retractor's held particles anchored in place (false: freed, as
+    /// the tissue's reset and the watchdog's restore release).
+    void release_hand(int hand, bool stay);
+    /// The stayed particles movable again, with their support springs (the scenario's anchoring).
+    void free_stayed();
     // The constructor's steps (solver_setup.cpp).
     void load_particles(const Particles& particles);
     void load_springs(const Particles& particles, const Springs& springs, const std::vector<std::array<std::int32_t, 18>>& table,
@@ -429,6 +449,8 @@ private:
     std::vector<std::uint8_t> movable_; ///< 1 = free particle (not anchored, not padding)
     std::vector<std::uint8_t> anchored_;
     std::vector<std::int8_t> held_by_;  ///< −1 or the hand holding it
+    std::vector<std::int32_t> stayed_;  ///< stayed_particles()
+    std::vector<Real> stayed_support_stiffness_;  ///< each stayed particle's support stiffness as loaded, N/mm
     std::vector<Real> support_point_;   ///< 4 per particle, mm (the rest position where unsupported)
     std::vector<Real> support_stiffness_; ///< N/mm, 0 for unsupported, anchored and padding
     std::vector<Real> support_damping_;   ///< c, N·ms/mm

@@ -102,7 +102,7 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
         state.cutting = true;
         return 0;
     }
-    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber or scalpel");
+    if (!holds_tissue(state.instrument.kind)) throw InputError("solver: begin_grab on a hand that holds no grabber, retractor or scalpel");
     release(hand);
     state.grabbing = true;
     const Eigen::Matrix3d tool_from_world = state.pose.orientation.toRotationMatrix().transpose();
@@ -134,7 +134,26 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
 template <class Real>
 void BasicSolver<Real>::release(int hand) {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
+    release_hand(hand, true);
+}
+
+template <class Real>
+void BasicSolver<Real>::release_hand(int hand, bool stay) {
     HandState& state = hand_[std::size_t(hand)];
+    if (stay && state.grabbing && state.instrument.kind == InstrumentKind::retractor) {
+        // Anchored where the grab left them, at rest: zero inverse mass and zero motion keep the
+        // kernel's step at x + keep·0 + (f + m·g)·0 = x for good.
+        for (std::int32_t q : state.held) {
+            const std::size_t i = std::size_t(q);
+            stayed_.push_back(q);
+            stayed_support_stiffness_.push_back(support_stiffness_[i]);
+            movable_[i] = 0;
+            anchored_[i] = 1;
+            inverse_mass_h2_[i] = Real(0);
+            support_stiffness_[i] = Real(0);
+            for (int c = 0; c < 3; ++c) motion_[state_stride * i + std::size_t(c)] = next_motion_[state_stride * i + std::size_t(c)] = Real(0);
+        }
+    }
     for (std::int32_t i : state.held) held_by_[std::size_t(i)] = -1;
     state.held.clear();
     state.held_local.clear();
@@ -143,6 +162,20 @@ void BasicSolver<Real>::release(int hand) {
     state.cutting = false;
     state.blade = {};  // a lifted blade exerts nothing
     state.cuts = 0;
+}
+
+template <class Real>
+void BasicSolver<Real>::free_stayed() {
+    if (stayed_.empty()) return;
+    for (std::size_t q = 0; q < stayed_.size(); ++q) {
+        const std::size_t i = std::size_t(stayed_[q]);
+        movable_[i] = 1;
+        anchored_[i] = 0;
+        support_stiffness_[i] = stayed_support_stiffness_[q];
+    }
+    stayed_.clear();
+    stayed_support_stiffness_.clear();
+    build_step_constants();  // h²/(S·m) again for them, the same bits as at load
 }
 
 template <class Real>
@@ -188,7 +221,7 @@ template <class Real>
 std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int hand) const {
     if (hand < 0 || hand >= hands) throw InputError("solver: hand must be 0 or 1");
     const HandState& state = hand_[std::size_t(hand)];
-    if (state.instrument.kind == InstrumentKind::grabber) return state.held;
+    if (holds_tissue(state.instrument.kind)) return state.held;
     std::vector<std::int32_t> all;
     for (std::size_t c = 0; c < chunks_; ++c) {
         const auto& list = touched_[c * hands + std::size_t(hand)];
@@ -204,6 +237,8 @@ std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int hand) const {
     template void BasicSolver<Real>::set_pose(int, const InstrumentPose&);                                \
     template std::size_t BasicSolver<Real>::begin_grab(int);                                              \
     template void BasicSolver<Real>::release(int);                                                        \
+    template void BasicSolver<Real>::release_hand(int, bool);                                             \
+    template void BasicSolver<Real>::free_stayed();                                                       \
     template std::size_t BasicSolver<Real>::cut(const BladeSweep&);                                       \
     template std::vector<std::int32_t> BasicSolver<Real>::contact_particles(int) const;
 HEARTSIM_SOLVER_INSTRUMENTS(float)
