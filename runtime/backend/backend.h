@@ -73,12 +73,17 @@ public:
     /// Hand 0 or 1; as Solver::set_instrument / set_pose / begin_grab / release.
     virtual void set_instrument(int hand, const Instrument& instrument) = 0;
     virtual void set_pose(int hand, const InstrumentPose& pose) = 0;
-    /// Captures the free particles inside the grabber; returns how many (gl: one small readback).
+    /// Captures the free particles inside the grabber or retractor; returns how many (gl: one
+    /// small readback).
     virtual std::size_t begin_grab(int hand) = 0;
+    /// Ends a grab or lifts a blade. A retractor's particles stay anchored where they are, at
+    /// rest, until reset_tissue() or the watchdog's restore (Solver::release; gl: one small
+    /// readback of the held list); set_instrument() on a retractor that holds does the same.
     virtual void release(int hand) = 0;
 
-    /// The tissue back to its rest state (rest positions, at rest, grabs released, loads removed);
-    /// the simulated time and the instruments are kept.
+    /// The tissue back to its rest state (rest positions, at rest, grabs released, loads removed,
+    /// what retractors left in place free again: the scenario's anchoring); the simulated time and
+    /// the instruments are kept.
     virtual void reset_tissue() = 0;
     /// Explicit mass scaling S in [1, 1024] from the next step on (Solver::set_mass_scale): the
     /// substeps, the load report's critical steps and options().mass_scale follow; positions and

@@ -56,7 +56,7 @@ std::size_t GlBackend::begin_grab(int hand) {
         state.cutting = true;
         return 0;
     }
-    if (state.instrument.kind != InstrumentKind::grabber) throw InputError("solver: begin_grab on a hand that holds no grabber or scalpel");
+    if (!holds_tissue(state.instrument.kind)) throw InputError("solver: begin_grab on a hand that holds no grabber, retractor or scalpel");
     release(hand);
     state.grabbing = true;
     bind_common();
@@ -142,17 +142,55 @@ GLuint GlBackend::keep_one_piece(int hand, GLuint count) {
 
 void GlBackend::release(int hand) {
     check_hand(hand);
+    release_hand(hand, true);
+}
+
+void GlBackend::release_hand(int hand, bool stay) {
     HandState& state = hand_[hand];
     if (state.cutting) strokes_.lift(hand);
     state.cutting = false;
     clear_blade(hand);  // a lifted blade exerts nothing (Solver::release)
     if (!state.grabbing) return;
+    if (stay && state.instrument.kind == InstrumentKind::retractor) anchor_held(hand);
     bind_common();
     glProgramUniform1i(release_program_.id, release_program_.at("hand"), hand);
     glUseProgram(release_program_.id);
     glDispatchCompute(1, 1, 1);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     state.grabbing = false;
+}
+
+void GlBackend::anchor_held(int hand) {
+    glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);  // the after pass may have dropped slipped particles from the list
+    GLuint count = 0;
+    glGetNamedBufferSubData(counters_.id(), GLintptr((sh::held0 + hand) * 4), 4, &count);
+    std::vector<std::int32_t> held(std::min<std::size_t>(count, n_));
+    if (!held.empty()) glGetNamedBufferSubData(held_.id(), GLintptr(std::size_t(hand) * n_ * 4), GLsizeiptr(held.size() * 4), held.data());
+    const float zero4[4] = {0, 0, 0, 0};
+    for (const std::int32_t q : held) {
+        const std::size_t i = std::size_t(q);
+        stayed_.push_back(q);
+        stayed_constants_.push_back(particle_host_[i]);
+        // Solver::release_hand: not movable, h²/m 0, no support spring, zero motion in both buffers.
+        ParticleConstants& p = particle_host_[i];
+        p.movable = 0;
+        p.inverse_mass_h2 = 0.0f;
+        p.support_stiffness = 0.0f;
+        p.support_point[3] = 0.0f;
+        glNamedBufferSubData(particle_.id(), GLintptr(i * sizeof(ParticleConstants)), GLsizeiptr(sizeof(ParticleConstants)), &p);
+        for (Buffer& m : motion_) glClearNamedBufferSubData(m.id(), GL_RGBA32F, GLintptr(i * 16), 16, GL_RGBA, GL_FLOAT, zero4);
+    }
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
+    check("anchoring a retractor's tissue");
+}
+
+void GlBackend::free_stayed() {
+    if (stayed_.empty()) return;
+    for (std::size_t q = 0; q < stayed_.size(); ++q) particle_host_[std::size_t(stayed_[q])] = stayed_constants_[q];
+    stayed_.clear();
+    stayed_constants_.clear();
+    upload_step_constants();  // their h²/(S·m), support spring and start motion again
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_BUFFER_UPDATE_BARRIER_BIT);
 }
 
 void GlBackend::request_forces() {

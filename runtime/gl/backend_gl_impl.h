@@ -96,6 +96,15 @@ public:
     /// release pass run over just them. Returns the count kept.
     GLuint keep_one_piece(int hand, GLuint count);
     void release(int hand) override;
+    /// release() with `stay`: a retractor's held particles anchored in place (anchor_held) before
+    /// the release pass frees the list; false: freed, as place_tissue releases.
+    void release_hand(int hand, bool stay);
+    /// Solver::release_hand's stay on the device: reads the hand's held list back (one small
+    /// readback) and writes each particle's constants (not movable, h²/m 0, no support spring)
+    /// and zero motion into both motion buffers; the host copies follow (stayed_).
+    void anchor_held(int hand);
+    /// The stayed particles' constants as loaded again, uploaded (upload_step_constants).
+    void free_stayed();
 
     /// 1 − γh/S, as Solver's kernel constants (the drag force γ·m·v on the inertia S·m).
     float keep() const { return float(1.0 - options_.damping * h_ / options_.mass_scale); }
@@ -203,7 +212,8 @@ private:
     void forget_status();
 
     /// The last verified state, at rest, grabs released, the status cleared; as Solver::restore.
-    /// Grabs released, the tissue at `positions` (both buffers) with `motion` (null: at rest), the
+    /// Grabs released (a retractor's tissue freed, not stayed), what retractors left anchored free
+    /// again, the tissue at `positions` (both buffers) with `motion` (null: at rest), the
     /// touched lists and the watchdog status cleared, nothing of the old state in flight. The
     /// one way reset_tissue() and restore() put the tissue somewhere.
     void place_tissue(const Buffer& positions, const Buffer* motion);
@@ -243,6 +253,8 @@ private:
     struct ParticleConstants { float mass, inverse_mass_h2; std::int32_t movable; float support_stiffness; float support_point[4]; };
     static_assert(sizeof(ParticleConstants) == 32);  // std430 `Particle` in shaders/solver_shaders.h
     std::vector<ParticleConstants> particle_host_;
+    std::vector<std::int32_t> stayed_;                ///< particles a retractor left anchored in place (anchor_held)
+    std::vector<ParticleConstants> stayed_constants_; ///< their host constants as loaded, to free them
     std::vector<double> support_damping_host_;  ///< c_s per particle, N·ms/mm (0 where unsupported)
     std::vector<std::int32_t> uncut_neighbour_;  ///< the neighbour table as loaded (reset_tissue heals cuts)
     StrokeLog strokes_;  ///< what the scalpels swept (Backend::strokes)

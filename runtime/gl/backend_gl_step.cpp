@@ -243,7 +243,8 @@ void GlBackend::forget_status() {
 }
 
 void GlBackend::place_tissue(const Buffer& positions, const Buffer* motion) {
-    for (int hand = 0; hand < hands; ++hand) release(hand);
+    for (int hand = 0; hand < hands; ++hand) release_hand(hand, false);
+    free_stayed();  // before the start motion is copied: rest_motion_ is the scenario's again
     const GLsizeiptr bytes = GLsizeiptr(n_pad_ * 16);
     glCopyNamedBufferSubData(positions.id(), position_[current_].id(), 0, 0, bytes);
     glCopyNamedBufferSubData(positions.id(), position_[next_].id(), 0, 0, bytes);
