@@ -32,7 +32,7 @@ template <std::size_t N> std::array<double, N> vector_attribute(const h5::Reader
 StepInstrumentFault check_step_instrument(std::int8_t code, const std::array<double, 3>& semi_axes_mm, bool hand_used) {
     const auto kind = instrument_of_code(code);
     if (!kind)
-        return {"instrument", " is " + std::to_string(int(code)) + ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch) or 5 (needle)"};
+        return {"instrument", " is " + std::to_string(int(code)) + ", expected 0 (none), 1 (probe), 2 (grabber), 3 (scalpel), 4 (patch), 5 (needle) or 6 (retractor)"};
     if (*kind != InstrumentKind::none && !hand_used) return {"instrument", " is an instrument of a hand without a device"};
     if (*kind == InstrumentKind::none && hand_used) return {"instrument", " holds no instrument in a hand with a device"};
     if (*kind != InstrumentKind::none)
@@ -229,7 +229,7 @@ void read_hand(const h5::Reader& r, int h, RecordedHand& hand) {
     hand.device_name = r.string_attribute(g, "device_name");
     hand.instrument = r.string_attribute(g, "instrument");
     if (const auto kind = instrument_kind_named(hand.instrument); !kind || *kind == InstrumentKind::none)
-        r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber, scalpel, patch or needle");
+        r.fail(where, "attribute instrument is '" + hand.instrument + "', expected probe, grabber, retractor, scalpel, patch or needle");
     hand.semi_axes_mm = vector_attribute<3>(r, g, "semi_axes_mm");
     for (double a : hand.semi_axes_mm)
         if (!plausible::semi_axis_mm.contains(a)) r.fail(where, "attribute " + plausible::outside("semi_axes_mm", a, plausible::semi_axis_mm));
@@ -325,7 +325,7 @@ void read_steps(const h5::Reader& r, Recording& rec) {
             if (s.applied[i][h] != 0 && s.applied[i][h] != 1) r.fail("/steps", "dataset applied " + row + " is not 0 or 1");
             if (s.applied[i][h] && !rec.hands[h].used) r.fail("/steps", "dataset applied " + row + " applies a hand without a device");
             if (s.grab[i][h] && (!rec.hands[h].used || !takes_grab(rec.instrument_at(i, h).kind)))
-                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber, scalpel, patch or needle");
+                r.fail("/steps", "dataset grab " + row + " grabs with a hand that holds no grabber, retractor, scalpel, patch or needle");
             if (!rec.hands[h].used) continue;
             const auto& q = s.tool_orientation[i][h];
             if (!(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] > 1e-12))

@@ -12,7 +12,7 @@
 ///   /rules      attrs: the solver's instrument and watchdog rules of the recording build
 ///               (libmodel/sim/solver_options.h SolverRules; absent in recordings made before heartsim kept them)
 ///   /hand0, /hand1 (a hand with a device)   attrs: device (the --device spec), device_name,
-///               instrument ("probe" | "grabber" | "scalpel" | "patch" | "needle"), semi_axes_mm [3], max_force_n,
+///               instrument ("probe" | "grabber" | "retractor" | "scalpel" | "patch" | "needle"), semi_axes_mm [3], max_force_n,
 ///               mapping_offset_mm [3], mapping_rotation [4] (w, x, y, z), mapping_scale, force_scale
 ///     tick_time_ms   float64 [T]      session clock of each device-thread tick
 ///     position_mm    float64 [T,3]    device pose (device frame)
@@ -27,7 +27,7 @@
 ///     tool_time_ms   float64 [S]      session clock of the tool sample the step used
 ///     tool_position_mm float64 [S,2,3]  tool pose per hand (world frame) used by the step
 ///     tool_orientation float64 [S,2,4]
-///     grab           int8    [S,2]    1 while the hand's grabber held during the step (0 or 1; only a grabber hand)
+///     grab           int8    [S,2]    1 while the hand's grabber held during the step (0 or 1; only a hand whose kind takes a grab)
 ///     applied        int8    [S,2]    1 when the step applied the hand's tool (0 before its first pose)
 ///     force_n        float64 [S,2,3]  forces published after the step (world frame)
 ///     force_step     int64   [S]      the step whose state those forces came from (−1: none yet)
@@ -35,7 +35,7 @@
 ///     mass_scale     float64 [S]      the explicit mass scaling S the step ran with (absent in
 ///                                     recordings made before heartsim scaled mass: 1 throughout)
 ///     instrument     int8    [S,2]    the instrument each hand held during the step (libmodel/sim/solver.h instrument_code:
-///                                     0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle; the
+///                                     0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle, 6 retractor; the
 ///                                     window's K, Shift + P and Shift + N change it) and
 ///     semi_axes_mm   float64 [S,2,3]  its semi-axes (both absent in recordings made before an instrument
 ///                                     could change inside one: the hand's attributes throughout)
@@ -61,7 +61,7 @@ struct RecordedHand {
     bool used = false;
     std::string device;       ///< the --device spec, e.g. "simulated:samples/haptics/press.csv"
     std::string device_name;  ///< what the device calls itself
-    std::string instrument;   ///< "probe", "grabber", "scalpel", "patch" or "needle"
+    std::string instrument;   ///< "probe", "grabber", "retractor", "scalpel", "patch" or "needle"
     std::array<double, 3> semi_axes_mm{};
     double max_force_n = 0.0;
     /// Device frame → world: x_w = offset + scale·R·x_d (R from the quaternion w, x, y, z);
@@ -115,7 +115,7 @@ std::string check_rules(const SolverRules& rules);
 
 /// What is wrong with one hand's entry of a step's instrument columns: `dataset` ("instrument" or
 /// "semi_axes_mm") and `what` (to follow the row's name); an empty `what` when it is one a recording
-/// holds: a code 0 … 5, none exactly where the hand has no device, semi-axes in range where it
+/// holds: a code 0 … 6, none exactly where the hand has no device, semi-axes in range where it
 /// holds an instrument. The recording's and the journal's readers both ask it.
 struct StepInstrumentFault {
     const char* dataset = "";

@@ -87,7 +87,7 @@ SimulationState read_state(const std::filesystem::path& path) {
     const auto kind = r.dataset<std::int32_t>("instrument_kind", {2});
     for (int h = 0; h < 2; ++h) {
         state.particles[h] = particles[h], state.kind[h] = kind[h];
-        if (kind[h] < 0 || kind[h] > 5) r.fail("instrument_kind", "hand " + std::to_string(h) + " is " + std::to_string(kind[h]) + ", expected 0 to 5");
+        if (kind[h] < 0 || kind[h] > 6) r.fail("instrument_kind", "hand " + std::to_string(h) + " is " + std::to_string(kind[h]) + ", expected 0 to 6");
     }
     if (r.exists("cut_springs")) {
         const auto cuts = r.dataset<std::int32_t>("cut_springs", {-1, 2});

@@ -8,7 +8,7 @@
 ///   /positions          float32 [N,3]  mm, packed order (as /particles/rest_position)
 ///   /instrument_forces  float64 [2,3]  N, the force the tissue exerts on each hand's instrument
 ///   /instrument_particles int32 [2]    particles held or touched per hand
-///   /instrument_kind    int32 [2]      0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle
+///   /instrument_kind    int32 [2]      0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle, 6 retractor
 ///   /cut_springs        int32 [K,2]    the springs a scalpel cut, as packed particle indices (lower
 ///                                      first, sorted); absent when none was cut
 ///   /visual/positions   float32 [V,3]  mm, the deformed detailed mesh (when the scenario has one)
@@ -70,7 +70,7 @@ struct SimulationState {
     std::vector<std::array<float, 3>> positions;       ///< N×3, mm
     std::array<std::array<double, 3>, 2> force_n{};    ///< per hand, N
     std::array<std::int32_t, 2> particles{};           ///< per hand
-    std::array<std::int32_t, 2> kind{};                ///< per hand: 0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle
+    std::array<std::int32_t, 2> kind{};                ///< per hand: 0 none, 1 probe, 2 grabber, 3 scalpel, 4 patch, 5 needle, 6 retractor
     std::vector<std::array<std::int32_t, 2>> cut_springs;  ///< K×2 packed particle indices, lower first, sorted
     /// The deformed detailed mesh, V×3 mm (the scenario's mapping evaluated at `positions`, as the
     /// runtime draws it): /visual/positions. Empty when the scenario has no visual mesh.

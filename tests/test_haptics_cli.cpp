@@ -639,7 +639,7 @@ TEST(HapticsCli, BadDevicesAndOptionsGiveClearErrors) {
         {"--headless --coupling --steps 1", 2, "--coupling sets how forces reach a haptic device: it needs --device"},
         {"--headless --haptic-rate 500 --steps 1", 2, "--haptic-rate sets how forces reach a haptic device: it needs --device"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --instrument scissors --seconds 1", 2,
-         "expected probe, grabber, scalpel, patch or needle"},
+         "expected probe, grabber, retractor, scalpel, patch or needle"},
         {"--headless --device simulated:" + quoted(sample("press_phantom.csv")) + " --seconds 1 --record /no/such/folder/r.h5", 7,
          "folder /no/such/folder does not exist"},
         {"--headless --device openhaptics --seconds 1", 4, "openhaptics"},
@@ -941,7 +941,7 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
     {
         Recording d = r;
         d.steps.grab[0][0] = 1;  // hand 0 has no device, let alone a grabber
-        refused(d, "grabs with a hand that holds no grabber, scalpel, patch or needle");
+        refused(d, "grabs with a hand that holds no grabber, retractor, scalpel, patch or needle");
     }
     {
         Recording d = r;

@@ -64,7 +64,9 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     run->add_option("--seconds", a.seconds, "Simulated seconds instead of --steps")->check(cli_messages::non_negative());
     run->add_option("--probe", a.probe, "Fixed probe on hand 0: X,Y,Z,AX,AY,AZ (mm, world LPS)");
     run->add_option("--grab", a.grab, "Grabber on hand 1: X,Y,Z,AX,AY,AZ[,DX,DY,DZ] grabs at start, pulls by D over the run");
-    run->add_option("--trajectory", a.trajectory, "Instrument keyframes CSV (docs/runtime.md)");
+    run->add_option("--trajectory", a.trajectory,
+                    "Instrument keyframes CSV (docs/runtime.md \"Trajectory CSV\"): per hand a probe, grabber, retractor (a grabber "
+                    "whose tissue stays anchored where it is let go, until the tissue is reset), scalpel, patch, needle or none");
     run->add_option("--patch-material", a.patch_material,
                     "A patch's material, laid by a hand whose instrument is a patch (docs/runtime.md \"Closing a defect\"): pericardium "
                     "(fixed bovine pericardium, 30 MPa), ptfe (expanded PTFE, 40 MPa) or dacron (woven polyester, 200 MPa)")
@@ -136,9 +138,10 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
                     "openhaptics[:NAME] (3D Systems Touch / Phantom Omni through libHD)")
         ->type_name("SPEC")
         ->allow_extra_args(false);
-    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe, grabber, scalpel, patch or needle[:AX,AY,AZ] "
+    run->add_option("--instrument", a.instruments, "Instrument per --device, in order: probe, grabber, retractor, scalpel, patch or needle[:AX,AY,AZ] "
                                                     "semi-axes mm (default: hand 0 probe, hand 1 grabber, 1.5 lattice spacings; a grabber "
-                                                    "holds and a scalpel cuts while button 1 is pressed; a scalpel's blade runs from the tip "
+                                                    "holds and a scalpel cuts while button 1 is pressed; a retractor holds as a grabber and, "
+                                                    "let go, leaves the tissue anchored where it is until the tissue is reset; a scalpel's blade runs from the tip "
                                                     "along the tool's +z, 2*AZ long, default 2,0.3,10; button 1 lays a patch, centred at the "
                                                     "tip and facing the tissue along +z, AX and AY its half-diameters, AZ half its thickness, "
                                                     "default 9,9,0.25, and ties a stitch with a needle, default 0.25,0.25,6, whose hand feels "

@@ -34,7 +34,7 @@ double number(const std::string& text, const std::string& where) {
 InstrumentKind parse_kind(const std::string& text, const std::string& where) {
     if (text == "grab") return InstrumentKind::grabber;
     if (const auto kind = instrument_kind_named(text)) return *kind;
-    throw InputError(where + ": kind '" + text + "': expected probe, grabber, scalpel, patch, needle or none");
+    throw InputError(where + ": kind '" + text + "': expected probe, grabber, retractor, scalpel, patch, needle or none");
 }
 
 }  // namespace
@@ -72,7 +72,7 @@ void check_keyframe(const InstrumentKeyframe& k, const std::string& where) {
     if (!(k.semi_axes.minCoeff() > 0)) throw InputError(where + ": semi-axes must be positive, mm");
     for (int a = 0; a < 3; ++a) plausible::require(k.semi_axes[a], plausible::semi_axis_mm, "semi-axis", where);
     if (k.grab && !takes_grab(k.kind))
-        throw InputError(where + ": grab is 1 but the kind is probe or none (grab acts on a grabber, scalpel, patch or needle)");
+        throw InputError(where + ": grab is 1 but the kind is probe or none (grab acts on a grabber, retractor, scalpel, patch or needle)");
 }
 
 void check_planned_trajectory(const Trajectory& trajectory) {

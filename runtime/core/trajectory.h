@@ -5,10 +5,13 @@
 ///
 /// CSV columns (header line optional, `#` starts a comment; units mm, ms, world frame LPS):
 ///     time_ms, hand, kind, x, y, z, qw, qx, qy, qz, ax, ay, az, grab
-/// kind is probe, grabber, scalpel or none; (x, y, z) the tool position, q its orientation (tool →
-/// world, normalised on use), (ax, ay, az) the ellipsoid's semi-axes (a scalpel: the blade from the
-/// tip along the tool's +z, 2·az long, ax and ay its half-width and half-thickness), grab 1 while
-/// the grabber holds or the scalpel's blade is lowered and cuts.
+/// kind is probe, grabber, retractor, scalpel, patch, needle or none ("grab" reads as grabber);
+/// (x, y, z) the tool position, q its orientation (tool → world, normalised on use), (ax, ay, az)
+/// the ellipsoid's semi-axes (a scalpel: the blade from the tip along the tool's +z, 2·az long, ax
+/// and ay its half-width and half-thickness), grab 1 while the grabber or retractor holds, the
+/// scalpel's blade is lowered and cuts, the patch is laid or the needle ties. A retractor holds as a
+/// grabber; when its grab turns 0, or its hand takes another kind or semi-axes while it holds, the
+/// tissue it held stays anchored where it is (Backend::release) until the tissue is reset.
 /// Between two keyframes of a hand the pose moves linearly (position) and by slerp (orientation);
 /// kind, semi-axes and grab switch at a keyframe's time and hold until the next.
 #pragma once

@@ -194,7 +194,7 @@ Instrument parse_instrument(const std::string& text, double default_semi_axis_mm
     const std::string kind = text.substr(0, colon);
     const std::optional<InstrumentKind> named = instrument_kind_named(kind);
     if (named && *named != InstrumentKind::none) instrument.kind = *named;
-    else throw OptionError("{HapticRunSettings::instruments} " + text + ": expected probe, grabber, scalpel, patch or needle, optionally :AX,AY,AZ (semi-axes, mm)");
+    else throw OptionError("{HapticRunSettings::instruments} " + text + ": expected probe, grabber, retractor, scalpel, patch or needle, optionally :AX,AY,AZ (semi-axes, mm)");
     switch (instrument.kind) {
     case InstrumentKind::scalpel: instrument.semi_axes = default_blade_semi_axes_mm; break;
     case InstrumentKind::patch: instrument.semi_axes = default_patch_semi_axes_mm; break;

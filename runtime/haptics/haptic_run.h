@@ -60,7 +60,7 @@ inline const Eigen::Vector3d default_patch_semi_axes_mm{9.0, 9.0, 0.25};
 /// +z, 0.5 mm thick (as heartsim plan-repair's needle).
 inline const Eigen::Vector3d default_needle_semi_axes_mm{0.25, 0.25, 6.0};
 
-/// `--instrument KIND[:AX,AY,AZ]`: probe, grabber, scalpel, patch or needle, semi-axes mm (default
+/// `--instrument KIND[:AX,AY,AZ]`: probe, grabber, retractor, scalpel, patch or needle, semi-axes mm (default
 /// 1.5 lattice spacings; a scalpel's, a patch's and a needle's defaults are the constants above and
 /// default_blade_semi_axes_mm). Button 1 grabs with a grabber, lowers a scalpel's blade, lays a
 /// patch (runtime/surgery/repair.h) and ties a stitch with a needle. Throws OptionError naming the argument
@@ -98,7 +98,7 @@ public:
 
     /// Starts the device thread; the simulation clock starts with it.
     void start();
-    /// One step: newest tool poses → backend (button 1 of a grabber, scalpel, patch or needle hand
+    /// One step: newest tool poses → backend (button 1 of a grabber, retractor, scalpel, patch or needle hand
     /// turning on → begin_grab, off → release) → step → forces → devices; recorded. Returns the
     /// step's report.
     StepReport step();
