@@ -852,8 +852,8 @@ TEST(HapticsRecordingFile, RoundTripsAndRejectsDamagedFiles) {
         write_recording(dir / "switched.h5", switched);
         EXPECT_EQ(read_recording(dir / "switched.h5").patch_material, "dacron");
         Recording bad = switched;
-        bad.steps.instrument[1][1] = 6;
-        refused(bad, "steps/instrument: row 1, hand 1 is 6, expected 0 (none)");
+        bad.steps.instrument[1][1] = 7;  // 6 is the retractor
+        refused(bad, "steps/instrument: row 1, hand 1 is 7, expected 0 (none)");
         bad = switched;
         bad.steps.instrument[1][1] = instrument_code(InstrumentKind::probe);  // a probe does not grab
         refused(bad, "dataset grab row 1, hand 1 grabs with a hand that holds no grabber");
