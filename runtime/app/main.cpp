@@ -301,7 +301,7 @@ CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
         ->capture_default_str();
     repair_command->add_option("--zone-rim", repair.options.zone_rim_mm,
                                "How far beyond the opening's edge the stitches in the conduction zone bite, mm: more than --zone-band "
-                               "and --rim (surgeons bite 3 to 5 mm back from the edge there)")
+                               "(surgeons bite 3 to 5 mm back from the edge there); where --rim reaches as far, none moves")
         ->type_name("MM")
         ->check(cli_messages::within(plausible::stitch_rim_mm))
         ->capture_default_str();

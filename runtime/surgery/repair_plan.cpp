@@ -83,6 +83,9 @@ std::string conduction_text(const RepairPlan& plan, const RepairPlanOptions& o) 
                        number_text(to < 0 ? to + 360.0 : to, 0) + "°, measured as the stitches' angles), its middle " +
                        point_text(zone.direction, 2) + " across the axis, from the axis to " + number_text(zone.outer_mm - zone.edge_mm) +
                        " mm beyond the opening's edge (" + number_text(zone.outer_mm) + " mm from the axis)";
+    if (o.rim_mm >= o.zone_rim_mm)
+        return text + "; every stitch lies " + number_text(o.rim_mm) + " mm beyond the edge (--rim), as far as --zone-rim " +
+               number_text(o.zone_rim_mm) + " mm or farther: none moved";
     if (moved.empty()) return text + "; no stitch lies in its arc";
     return text + "; stitches " + list(moved) + " (in its arc or within " + number_text(o.zone_margin_deg, 0) + "° of it; at " +
            number_text(plan.stitch_radius_mm) + " mm stitches " + (biting.empty() ? std::string("none") : list(biting)) +
@@ -249,10 +252,9 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
             throw OptionError("{ConductionZoneOptions::half_width_deg} " + number_text(o.zone.half_width_deg, 1) + ": expected a half-width in (0, 180] degrees");
         if (!(o.zone.ring_reach_mm > 0)) throw OptionError("{ConductionZoneOptions::ring_reach_mm} " + number_text(o.zone.ring_reach_mm, 2) + ": expected a distance above 0 mm");
         if (!(o.zone_margin_deg >= 0)) throw OptionError("{RepairPlanOptions::zone_margin_deg} " + number_text(o.zone_margin_deg, 1) + ": expected 0 degrees or more");
-        if (!(o.zone_rim_mm > o.zone.band_mm && o.zone_rim_mm > o.rim_mm))
+        if (!(o.zone_rim_mm > o.zone.band_mm))
             throw OptionError("{RepairPlanOptions::zone_rim_mm} " + number_text(o.zone_rim_mm, 2) + " mm: the stitches moved out of the conduction zone must "
-                              "lie beyond its band ({ConductionZoneOptions::band_mm} " + number_text(o.zone.band_mm, 2) + " mm) and beyond the other "
-                              "stitches ({RepairPlanOptions::rim_mm} " + number_text(o.rim_mm, 2) + " mm)");
+                              "lie beyond its band ({ConductionZoneOptions::band_mm} " + number_text(o.zone.band_mm, 2) + " mm)");
     }
     if (o.patch_diameter_mm < 0) throw OptionError("{RepairPlanOptions::patch_diameter_mm} " + number_text(o.patch_diameter_mm, 2) + ": expected a diameter above 0 mm");
     const ScenarioSource& source = scenario.source;
@@ -298,7 +300,8 @@ RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) 
     if (o.conduction_zone == ConductionZoneMode::automatic) plan.zone = scenario_conduction_zone(scenario, o.zone);
     else plan.zone.reason = "not marked (--conduction-zone off)";
     std::vector<bool> spared(std::size_t(n), false), would_bite(std::size_t(n), false);
-    if (plan.zone.found) {
+    // Stitches whose circle lies at zone_rim or beyond stay there: they spare the zone already.
+    if (plan.zone.found && o.zone_rim_mm > o.rim_mm) {
         plan.zone_radius_mm = 0.5 * plan.defect_diameter_mm + o.zone_rim_mm;
         const double turn = std::atan2(plan.zone.direction.dot(circle.second), plan.zone.direction.dot(circle.first)) * 180.0 / std::numbers::pi;
         plan.zone_angle_deg = turn < 0 ? turn + 360.0 : turn;

@@ -45,7 +45,7 @@
 ///   PatchModel::tie): a bite's depth is not modelled, and "shallow" says only what the plan does,
 ///   which is what it does for every stitch: the needle's tip goes to the surface site on the
 ///   chosen side and no deeper. The stitches keep their count and angles; those moved lie farther
-///   apart. Without the rings (HVSMR 2016's hearts), for an asd, or with `conduction_zone` off, no
+///   apart. Where rim_mm already reaches zone_rim_mm, none moves. Without the rings (HVSMR 2016's hearts), for an asd, or with `conduction_zone` off, no
 ///   stitch moves, and the plan says why.
 ///
 /// The trajectory (runtime/core/trajectory.h; semi-axes and kinds as libmodel/sim/solver.h describes them):
@@ -116,8 +116,8 @@ struct RepairPlanOptions {
     Eigen::Vector3d needle_semi_axes{0.25, 0.25, 6.0};  ///< the needle's ellipsoid: shaft 2·az long from the tip, mm
     ConductionZoneMode conduction_zone = ConductionZoneMode::automatic;
     ConductionZoneOptions zone;       ///< the zone's rule: the rings' reach, its band and arc
-    /// The stitches in the zone lie this far beyond the opening's edge, mm; more than zone.band_mm
-    /// and than rim_mm.
+    /// The stitches in the zone lie this far beyond the opening's edge, mm; more than zone.band_mm.
+    /// Where rim_mm reaches as far, no stitch moves.
     double zone_rim_mm = 4.5;
     /// A stitch this far beyond the arc moves too, degrees: a bite a little off its site still
     /// spares the zone.
@@ -185,7 +185,7 @@ struct RepairPlan {
 ConductionZone scenario_conduction_zone(const Scenario& scenario, const ConductionZoneOptions& options = {});
 
 /// The repair of `scenario`'s septal defect. Throws OptionError for stitches below 3, a rim,
-/// thickness or patch diameter not above 0, a zone rim not beyond the zone's band and the rim, or
+/// thickness or patch diameter not above 0, a zone rim not beyond the zone's band, or
 /// a patch that does not reach beyond the stitches;
 /// InputError when the scenario has no defect, no detailed mesh, or a stitch's line meets no wall
 /// near the defect (naming the stitch and its point).
