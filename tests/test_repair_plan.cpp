@@ -58,6 +58,37 @@ double angle_round(const Eigen::Vector3d& p, const Eigen::Vector3d& centre, cons
     return a < 0 ? a + 360.0 : a;
 }
 
+/// The posteroinferior direction (0, 1, −1)/√2 of LPS made perpendicular to the unit `axis`.
+Eigen::Vector3d posteroinferior_across(const Eigen::Vector3d& axis) {
+    const Eigen::Vector3d p = Eigen::Vector3d(0, 1, -1).normalized();
+    return (p - p.dot(axis) * axis).normalized();
+}
+
+/// A tricuspid and an aortic ring of 48 points (radius 6 mm) in the plane across the defect's axis
+/// through its centre: the tricuspid ring's point nearest the rim (radius D/2) 3 mm beyond it
+/// along `toward` (unit, across the axis), the aortic ring's 4 mm beyond it along −toward. The
+/// zone's middle (libmodel/surgery/conduction_zone.h: t − a + p) is then 2·toward + p, and
+/// `toward` itself where it is p, the posteroinferior direction across the axis.
+Landmarks rings_toward(const Eigen::Vector3d& centre, const Eigen::Vector3d& axis, double diameter_mm, const Eigen::Vector3d& toward) {
+    const Eigen::Vector3d v = axis.cross(toward);
+    auto ring = [&](const std::string& name, const Eigen::Vector3d& middle, const Eigen::Vector3d& u) {
+        Landmark l;
+        l.name = name;
+        l.kind = LandmarkKind::ring;
+        for (int k = 0; k < 48; ++k) {
+            const double a = 2.0 * std::numbers::pi * k / 48.0;
+            l.points.push_back(middle + 6.0 * (std::cos(a) * u + std::sin(a) * v));
+        }
+        l.centre = middle, l.normal = axis, l.diameter_mm = 12.0;
+        return l;
+    };
+    const double r = 0.5 * diameter_mm;
+    Landmarks rings;
+    rings.found.push_back(ring("tricuspid_ring", centre + (r + 3.0 + 6.0) * toward, -toward));  // its first point nearest the rim
+    rings.found.push_back(ring("aortic_ring", centre - (r + 4.0 + 6.0) * toward, toward));
+    return rings;
+}
+
 }  // namespace
 
 // On the block the septum's faces are the planes x = ±3 mm (local): every stitch site lies on the
@@ -347,6 +378,141 @@ TEST(RepairPlan, EveryRealHeartWithAVsdGetsAllItsStitches) {
     }
 }
 
+// The block's defect given rings that make it perimembranous, its conduction zone's middle the
+// posteroinferior direction p across the axis (rings_toward): 12 stitches, one every 30° from
+// stitch 1 (at angle 0), p at angle φ. With the zone off every stitch lies on the circle of
+// D/2 + 2 mm, inside the zone's band (D/2 + 3 mm), and those within 60° of p bite it; with it on,
+// those within 70° (the arc and its 10° margin) lie at D/2 + 4.5 mm and none bites it.
+TEST(RepairPlan, OnAPerimembranousDefectTheStitchesSpareTheConductionZone) {
+    const BlockScenarios& built = block_scenarios();
+    Scenario scenario = read_scenario(built.with_defect);
+    const Eigen::Vector3d& centre = scenario.source.defect_centre;
+    const Eigen::Vector3d axis = scenario.source.defect_axis.normalized();
+    const double d = BlockScenarios::diameter_mm;
+    const Eigen::Vector3d p = posteroinferior_across(axis);
+    // The block's own scenario has no rings: no zone, and the plan says why.
+    const RepairPlan without = plan_repair(scenario, {.stitches = 12});
+    EXPECT_FALSE(without.zone.found);
+    EXPECT_FALSE(without.zone.reason.empty());
+    scenario.landmarks = rings_toward(centre, axis, d, p);
+
+    const RepairPlan off = plan_repair(scenario, {.stitches = 12, .conduction_zone = ConductionZoneMode::off});
+    const RepairPlan on = plan_repair(scenario, {.stitches = 12});
+    const ConductionZone zone = scenario_conduction_zone(scenario);
+    ASSERT_TRUE(zone.found) << zone.reason;
+    ASSERT_TRUE(on.zone.found) << on.zone.reason;
+    EXPECT_FALSE(off.zone.found);
+    EXPECT_NEAR(zone.tricuspid_mm, 3.0, 1e-6);
+    EXPECT_NEAR(zone.aortic_mm, 4.0, 1e-6);
+    EXPECT_TRUE(zone.direction.isApprox(p, 1e-9)) << zone.direction.transpose() << " against " << p.transpose();
+    EXPECT_TRUE(on.zone.direction.isApprox(p, 1e-9));
+    EXPECT_DOUBLE_EQ(zone.outer_mm, 0.5 * d + 3.0);
+    // φ: p's angle from stitch 1 (superior made perpendicular to the axis), as the stitches' are.
+    const Eigen::Vector3d first = (Eigen::Vector3d::UnitZ() - axis.z() * axis).normalized();
+    const double phi = angle_round(centre + p, centre, on.outward, first);
+    EXPECT_NEAR(std::remainder(on.zone_angle_deg - phi, 360.0), 0.0, 1e-6);
+    int biting = 0, moved = 0;
+    ASSERT_EQ(off.stitches.size(), 12u);
+    ASSERT_EQ(on.stitches.size(), 12u);
+    for (int k = 0; k < 12; ++k) {
+        SCOPED_TRACE("stitch " + std::to_string(k + 1));
+        const double from_middle = std::abs(std::remainder(30.0 * k - phi, 360.0));
+        ASSERT_GT(std::abs(from_middle - 60.0), 0.5) << "a stitch on the arc's edge: the count would hang on rounding";
+        ASSERT_GT(std::abs(from_middle - 70.0), 0.5);
+        const bool bites = from_middle <= 60.0, spared = from_middle <= 70.0;
+        biting += bites, moved += spared;
+        const Eigen::Vector3d off_site = off.stitches[std::size_t(k)].site, on_site = on.stitches[std::size_t(k)].site;
+        auto from_axis = [&](const Eigen::Vector3d& x) { return (x - centre - (x - centre).dot(axis) * axis).norm(); };
+        EXPECT_NEAR(from_axis(off_site), 0.5 * d + 2.0, 1e-6);
+        EXPECT_EQ(zone.holds(off_site), bites);
+        EXPECT_EQ(on.stitches[std::size_t(k)].would_bite_zone, bites);
+        EXPECT_EQ(on.stitches[std::size_t(k)].spares_zone, spared);
+        EXPECT_NEAR(from_axis(on_site), spared ? 0.5 * d + 4.5 : 0.5 * d + 2.0, 1e-6);
+        EXPECT_NEAR(on.stitches[std::size_t(k)].angle_deg, 30.0 * k, 1e-9);
+        EXPECT_FALSE(zone.holds(on_site));
+    }
+    std::printf("12 stitches, the zone's middle at %.1f°: %d bite it with the zone off, %d move out with it on\n", phi, biting, moved);
+    EXPECT_GT(biting, 0);
+    EXPECT_LT(biting, 12);
+    std::vector<Eigen::Vector3d> off_sites, on_sites;
+    for (const RepairStitch& s : off.stitches) off_sites.push_back(s.site);
+    for (const RepairStitch& s : on.stitches) on_sites.push_back(s.site);
+    EXPECT_EQ(int(points_in_zone(zone, off_sites).size()), biting);
+    EXPECT_TRUE(points_in_zone(zone, on_sites).empty());
+    // The patch reaches 2 mm beyond the stitches moved out.
+    EXPECT_NEAR(on.patch_diameter_mm, d + 2.0 * (4.5 + 2.0), 1e-12);
+    EXPECT_NEAR(off.patch_diameter_mm, d + 2.0 * (2.0 + 2.0), 1e-12);
+
+    // A run of each plan reports the stitches it tied inside the zone, from their tissue points:
+    // as many as bite it with the zone off, none with it on.
+    test::TempDir dir;
+    const fs::path zoned = dir / "zoned.h5";
+    write_scenario(zoned, scenario);
+    for (const char* mode : {"off", "auto"}) {
+        SCOPED_TRACE(mode);
+        const fs::path csv = dir / (std::string(mode) + ".csv");
+        const auto planned = heartsim_command("plan-repair " + quoted(zoned) + " -o " + quoted(csv) + " --stitches=12 --conduction-zone " + mode);
+        ASSERT_EQ(planned.exit_code, 0) << planned.output;
+        const bool zoned_plan = std::string(mode) == "auto";
+        EXPECT_NE(planned.output.find(zoned_plan ? "  conduction  perimembranous: its rim comes 3.0 mm from the tricuspid ring and 4.0 mm from the aortic ring"
+                                                 : "  conduction  no zone: not marked (--conduction-zone off)"),
+                  std::string::npos)
+            << planned.output;
+        const std::smatch seconds = [&] {
+            std::smatch m;
+            std::regex_search(planned.output, m, std::regex("--seconds ([0-9.]+)"));
+            return m;
+        }();
+        ASSERT_FALSE(seconds.empty()) << planned.output;
+        const auto run = heartsim_command("run " + quoted(zoned) + " --headless --backend cpu --trajectory " + quoted(csv) + " --seconds " +
+                                          seconds[1].str());
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        const std::string expected = "stitches in the conduction zone: " + std::to_string(zoned_plan ? 0 : biting) + " of 12";
+        EXPECT_NE(run.output.find(expected + (zoned_plan ? "\n" : " (stitch ")), std::string::npos) << expected << "\n" << run.output;
+        const std::size_t line = run.output.find("stitches in the conduction zone:");
+        if (line != std::string::npos) std::printf("%s: %s\n", mode, run.output.substr(line, run.output.find('\n', line) - line).c_str());
+    }
+}
+
+// MM-WHS CT 1002, its chambers labelled apart, a 10 mm VSD where heartprep puts one (nearest the
+// aorta's blood, beneath the aortic valve: perimembranous): its rim lies near the tricuspid and
+// aortic rings, so the plan marks a conduction zone on the rim's posteroinferior side, and no
+// stitch of the plan lies in it, where the plan with the zone off bites it.
+TEST(RepairPlan, TheRealPerimembranousDefectGetsAConductionZoneItsStitchesSpare) {
+    const std::vector<test::RealCase> real = test::real_cases();
+    const auto c = std::find_if(real.begin(), real.end(), [](const test::RealCase& r) { return r.name == "mmwhs_ct1002"; });
+    if (c == real.end()) GTEST_SKIP() << "mmwhs_ct1002 absent (../shared/data/real): no real perimembranous defect to plan on";
+    test::TempDir dir;
+    const fs::path scenario_path = dir / "ct1002.h5", csv = dir / "repair.csv";
+    const auto build = test::heartprep("build " + quoted(c->label_map) + " -o " + quoted(scenario_path) + test::vsd_options(*c) +
+                                       " --particles 3000 -q" + c->label_options);
+    ASSERT_EQ(build.exit_code, 0) << build.output;
+    const auto r = heartsim_command("plan-repair " + quoted(scenario_path) + " -o " + quoted(csv));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    EXPECT_NE(r.output.find("  conduction  perimembranous: its rim comes "), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("sparing the conduction zone: 4.5 mm beyond the edge, shallow"), std::string::npos) << r.output;
+    const Scenario scenario = read_scenario(scenario_path);
+    const RepairPlan plan = plan_repair(scenario);
+    ASSERT_TRUE(plan.zone.found) << plan.zone.reason;
+    EXPECT_LE(plan.zone.tricuspid_mm, 10.0);
+    EXPECT_LE(plan.zone.aortic_mm, 10.0);
+    // Posteroinferior: toward +y and −z more than away.
+    EXPECT_GT(plan.zone.direction.dot(Eigen::Vector3d(0, 1, -1).normalized()), 0.0) << plan.zone.direction.transpose();
+    int spared = 0;
+    for (const RepairStitch& s : plan.stitches) {
+        spared += s.spares_zone;
+        EXPECT_FALSE(plan.zone.holds(s.site)) << "a stitch at " << s.angle_deg << "°";
+    }
+    EXPECT_GT(spared, 0);
+    const RepairPlan off = plan_repair(scenario, {.conduction_zone = ConductionZoneMode::off});
+    int biting = 0;
+    for (const RepairStitch& s : off.stitches) biting += plan.zone.holds(s.site);
+    EXPECT_GT(biting, 0);
+    std::printf("mmwhs_ct1002: rim %.1f mm from the tricuspid ring, %.1f mm from the aortic ring; %d of %zu stitches moved out of "
+                "the zone, %d of %zu bite it with the zone off\n",
+                plan.zone.tricuspid_mm, plan.zone.aortic_mm, spared, plan.stitches.size(), biting, off.stitches.size());
+}
+
 TEST(RepairPlan, ItsErrorsSayWhatIsWrong) {
     const BlockScenarios& built = block_scenarios();
     test::TempDir dir;
@@ -385,6 +551,12 @@ TEST(RepairPlan, ItsErrorsSayWhatIsWrong) {
              {out + " --patch-diameter=1001", "--patch-diameter: must lie in the plausible range"},
              {out + " --rough-rim=nan", "--rough-rim: must lie in the plausible range [0.01, 100] mm, not nan"},
              {out + " --patch-diameter=10", "--patch-diameter 10.0 mm does not reach beyond the stitches"},
+             {out + " --conduction-zone=maybe", "--conduction-zone"},
+             {out + " --zone-rim=2.5", "--zone-rim 2.50 mm: the stitches moved out of the conduction zone must lie beyond its band "
+                                       "(--zone-band 3.00 mm)"},
+             {out + " --zone-band=5", "--zone-rim 4.50 mm: the stitches moved out of the conduction zone must lie beyond its band "
+                                      "(--zone-band 5.00 mm)"},
+             {out + " --zone-half-width=200", "--zone-half-width: must lie in the plausible range"},
              {"", "--output is required"},
              {" -o " + quoted(dir / "repair.txt"), "the trajectory is a CSV file"}}) {
         r = heartsim_command("plan-repair " + quoted(built.with_defect) + arguments);
@@ -396,6 +568,7 @@ TEST(RepairPlan, ItsErrorsSayWhatIsWrong) {
     r = heartsim_command("plan-repair --help");
     EXPECT_EQ(r.exit_code, 0) << r.output;
     for (const char* word : {"--side", "right", "--stitches", "--rim", "--patch-diameter", "--thickness", "mm", "--trajectory", "--clip defect",
-                             "Example", "--defect vsd"})
+                             "Example", "--defect vsd", "--conduction-zone", "--zone-rim", "--zone-band", "--zone-half-width",
+                             "--zone-margin", "--zone-reach", "bundle of His"})
         EXPECT_NE(r.output.find(word), std::string::npos) << word << "\n" << r.output;
 }
