@@ -15,6 +15,7 @@
 #include "runtime/core/trajectory.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
+#include "runtime/surgery/repair.h"
 
 #include <gtest/gtest.h>
 
@@ -57,20 +58,20 @@ std::size_t front_particle(const Scenario& scenario) {
 }
 
 /// The gesture as trajectory CSV text: `kind` on hand 1, a sphere of 1.5 lattice spacings centred
-/// on the front particle.
-std::string gesture_csv(const Scenario& scenario, const std::string& kind) {
+/// on the front particle; at the release the hand takes `then` (empty: the same kind).
+std::string gesture_csv(const Scenario& scenario, const std::string& kind, const std::string& then = "") {
     const auto& r = scenario.lattice.particles.rest_position[front_particle(scenario)];
     const double dt = scenario.solver.dt_ms, a = 1.5 * scenario.lattice.spacing;
     std::ostringstream csv;
     csv.precision(17);
     csv << "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
-    auto row = [&](double time, double pull, int grab) {
-        csv << time << ",1," << kind << "," << r[0] << "," << r[1] - pull << "," << r[2] << ",1,0,0,0," << a << "," << a << "," << a << ","
+    auto row = [&](double time, double pull, int grab, const std::string& held = "") {
+        csv << time << ",1," << (held.empty() ? kind : held) << "," << r[0] << "," << r[1] - pull << "," << r[2] << ",1,0,0,0," << a << "," << a << "," << a << ","
             << grab << "\n";
     };
     row(0, 0, 1);
     row(pulled * dt, 4.0, 1);
-    row(release_step * dt, 4.0, 0);
+    row(release_step * dt, 4.0, 0, then);
     return csv.str();
 }
 
@@ -158,6 +159,21 @@ TEST(Retractor, GlKeepsTheRetractedTissueInPlaceAsTheCpuDoes) {
         for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(c.end[i][k] - g.end[i][k])));
     std::printf("  %zu particles stayed; max |x_gl - x_cpu| %.3g mm (%.3g of the size)\n", c.held.size(), error, error / box.diagonal().norm());
     EXPECT_LE(error, 1e-4 * box.diagonal().norm());
+}
+
+// Through the repair's backend (runtime/surgery/repair.h), the retractor's hand switching to a
+// needle while it holds: the repair hands the tissue's solver no instrument in that hand, which
+// ends the retractor's grab there, and its tissue stays as when it lets go.
+TEST(Retractor, AHandThatTakesANeedleWhileRetractingLeavesTheTissueInPlace) {
+    const Scenario scenario = read_scenario(phantom());
+    const Trajectory trajectory = parse_trajectory(gesture_csv(scenario, "retractor", "needle"), "retract-then-needle.csv");
+    RepairBackend repair(make_cpu_backend(scenario, options_from(scenario.solver)), scenario, RepairSettings{});
+    const Gesture g = run_gesture(repair, trajectory);
+    ASSERT_GT(g.held.size(), 3u);
+    EXPECT_EQ(repair.contact_particles(1), std::vector<std::int32_t>{}) << "the needle's hand holds no tissue";
+    const double moved = largest_move(g, g.held);
+    std::printf("  %zu particles stayed; moved %.3g mm in the %d steps after the switch\n", g.held.size(), moved, after);
+    EXPECT_LE(moved, 1e-6);
 }
 
 // Stayed tissue is anchored: a probe pushed 2 mm into it moves none of it, and a grabber closing on
