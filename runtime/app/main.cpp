@@ -250,7 +250,9 @@ CLI::App* add_plan_repair_command(CLI::App& app, PlanRepairArguments& repair) {
         "a patch (hand 0) laid over the opening on the septum's right side (its left where the right's rim is too rough to "
         "seal: --side), then a needle (hand 1) tying stitches one by one round the opening's rim, a stitch every 3 mm, each "
         "joining the patch to the wall. The septum's surface is found on the detailed mesh, along "
-        "lines parallel to the defect's axis. Prints the side and why, the wall's thickness, the patch, each stitch's site, how "
+        "lines parallel to the defect's axis. A perimembranous VSD's conduction zone (its posteroinferior rim, along which "
+        "the bundle of His runs) is spared: --conduction-zone. Prints the side and why, the wall's thickness, the patch, the "
+        "conduction zone, each stitch's site, how "
         "long a run must last (--seconds) and how to see it (--clip defect) (docs/runtime.md \"Planning a repair\")");
     repair_command->add_option("scenario", repair.scenario, "Scenario file with a septal defect (heartprep build ... --defect vsd)")->required();
     repair_command->add_option("-o,--output", repair.output, "Trajectory CSV to write, for heartsim run --trajectory")

@@ -21,7 +21,10 @@ std::vector<InstrumentShape> shapes_at(const Trajectory& trajectory, double time
 void draw_repair(PreparedRun& p);
 
 /// The closure check at the end of a run on a scenario with a defect (libmodel/surgery/closure.h): the
-/// detailed mesh as drawn and the patch after the leak test, one line a trainer reads.
+/// detailed mesh as drawn and the patch after the leak test, one line a trainer reads. Where
+/// stitches were tied, a line after it counts those whose tissue points at rest lie in the
+/// defect's conduction zone ("stitches in the conduction zone: N of M", naming them; the zone
+/// by scenario_conduction_zone's defaults, runtime/surgery/repair_plan.h).
 void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std::array<float, 3>>& positions);
 
 /// --save-state: the final positions, the forces, what each hand held and the springs cut.

@@ -94,7 +94,8 @@ struct RepairPlanOptions {
     RepairSide side = RepairSide::automatic;
     /// The automatic side leaves the right for the left where the right's rim lies farther than
     /// this from a plane and the left's does not (each rim sampled where 36 lines along the axis,
-    /// one every 10° round the stitches' circle, enter the tissue, found as stitch sites are): a
+    /// one every 10° round the stitches' circle, those in a conduction zone at its distance, enter
+    /// the tissue, found as stitch sites are): a
     /// rim among the right ventricle's trabeculations, with recesses between stitches deeper than a
     /// flat patch follows (surgeons close such muscular defects from the left, whose septal face is
     /// smooth). 4 mm lies between the real hearts' right rims that a patch seals (up to 3.5 mm off a
