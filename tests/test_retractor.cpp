@@ -2,9 +2,10 @@
 // where it is left. On the phantom, a retractor closes on the front wall, pulls it 4 mm out and
 // lets go: what it held stays where it was, to the bit, while a grabber's tissue springs back
 // under the same gesture; the gl backend does as the cpu; a probe pushed into the stayed tissue
-// moves none of it and a grab there takes none of it, until reset_tissue() frees it; the same
-// gesture through `heartsim run --trajectory` keeps it; a haptic session with a retractor replays
-// bit for bit.
+// moves none of it and a grab there takes none of it, until reset_tissue() (or the watchdog's
+// restore) frees it; a hand that takes a needle through the repair's backend leaves it too; the
+// same gesture through `heartsim run --trajectory` keeps it; a haptic session with a retractor
+// replays bit for bit.
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -12,6 +13,7 @@
 #include "formats/scenario.h"
 #include "formats/state.h"
 #include "runtime/backend/backend.h"
+#include "runtime/backend/surgery.h"
 #include "runtime/core/trajectory.h"
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/gl_context.h"
@@ -237,6 +239,41 @@ TEST(Retractor, ResetTissueFreesWhatARetractorLeftInPlace) {
         EXPECT_EQ(before_reset, 0u);
         EXPECT_EQ(after_reset, g.held.size());
         EXPECT_GT(least, 1.5) << "mm: after the reset the grab carries the particles the retractor had left";
+    }
+}
+
+// The watchdog's restore brings back the scenario's anchoring too: after the retractor let go, a
+// 10 N load on the back wall trips the watchdog (the state restored at rest, grabs released); with
+// the load gone the tissue the retractor had left springs back like a grabber's. On both backends.
+TEST(Retractor, TheWatchdogsRestoreFreesWhatARetractorLeftInPlace) {
+    const Scenario scenario = read_scenario(phantom());
+    const Trajectory trajectory = parse_trajectory(gesture_csv(scenario, "retractor"), "retractor.csv");
+    const auto& rest = scenario.lattice.particles.rest_position;
+    std::int32_t back = 0;
+    for (std::size_t i = 0; i < rest.size(); ++i)
+        if (!scenario.lattice.particles.anchored[i] && rest[i][1] > rest[std::size_t(back)][1]) back = std::int32_t(i);
+    const SolverOptions options = options_from(scenario.solver);
+    std::vector<std::unique_ptr<Backend>> backends;
+    backends.push_back(make_cpu_backend(scenario, options));
+    if (test::shared_gl_context()) backends.push_back(make_gl_backend(*test::shared_gl_context(), scenario, options));
+    for (const auto& backend : backends) {
+        SCOPED_TRACE(to_string(backend->kind()));
+        const Gesture g = run_gesture(*backend, trajectory);
+        ASSERT_GT(g.held.size(), 3u);
+        backend->surgery()->set_loads({{.particle = back, .force_n = Eigen::Vector3d(0, 10.0, 0)}});
+        bool diverged = false;
+        for (int s = 0; s < 50 && !diverged; ++s) diverged = backend->step(1).diverged;
+        ASSERT_TRUE(diverged) << "the load should trip the watchdog";
+        backend->surgery()->set_loads({});
+        const auto restored = backend->positions();
+        for (int s = 0; s < after; ++s) backend->step(1);
+        const auto x = backend->positions();
+        double moved = 0;
+        for (std::int32_t i : g.held)
+            for (int c = 0; c < 3; ++c) moved = std::max(moved, double(std::abs(x[std::size_t(i)][c] - restored[std::size_t(i)][c])));
+        std::printf("  %s: after the restore the %zu particles the retractor had left moved %.3f mm\n", to_string(backend->kind()),
+                    g.held.size(), moved);
+        EXPECT_GT(moved, 1.0) << "mm: the restore should have freed them";
     }
 }
 
