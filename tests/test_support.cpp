@@ -53,6 +53,16 @@ std::vector<RealCase> real_cases() {
     return cases;
 }
 
+std::string vsd_options(const RealCase& c) {
+    static const std::map<std::string, std::string> septum_points = {{"hvsmr16_pat0", "40.7,-14.4,-10.4"},
+                                                                     {"hvsmr16_pat1", "11.4,-25.6,5.2"},
+                                                                     {"hvsmr16_pat5", "26.8,-17.3,-4.9"},
+                                                                     {"hvsmr16_pat6", "26.9,-12.1,-20.0"}};
+    if (!c.label_options.empty()) return " --defect vsd";
+    const auto point = septum_points.find(c.name);
+    return point == septum_points.end() ? "" : " --defect vsd --at=" + point->second;
+}
+
 std::filesystem::path real_case(const std::string& name) {
     auto dir = real_data_dir();
     if (dir.empty()) return {};

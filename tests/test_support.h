@@ -41,6 +41,11 @@ struct RealCase {
 };
 /// Every real case in real_data_dir() with a *label.nii.gz, by name; none when the data are absent.
 std::vector<RealCase> real_cases();
+/// heartprep build's options for a 10 mm ventricular septal defect in real case `c` (" --defect
+/// vsd", with " --at=X,Y,Z" a point of the septum for the HVSMR cases, whose one blood pool does
+/// not tell the ventricles apart: the points of scripts/real-cases.sh); empty for an HVSMR case
+/// with no point known.
+std::string vsd_options(const RealCase& c);
 
 /// A mask on an isotropic grid of `n` voxels per side with `spacing` mm, centred on the world
 /// origin (identity direction), selected where inside(x) is true at the voxel centre (world mm).

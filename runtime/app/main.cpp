@@ -132,6 +132,11 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
                     "at the --clip section) from DISTANCE mm away (default: the fitted view's distance). Headless with --screenshot; "
                     "heartsim plan-incision and plan-repair print the one that frames their incision or patch")
         ->type_name("X,Y,Z[,D]");
+    run->add_option("--eye", a.eye,
+                    "With --look-at: where the camera stands, X,Y,Z (mm, world LPS), looking at the --look-at point; the --view's "
+                    "up kept as nearly as the line of sight allows (--view surgeon: the patient's left up, across the table). "
+                    "heartsim plan-operation prints the surgeon's eye")
+        ->type_name("X,Y,Z");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
                     ".h5[@HAND]), simulated:FILE (a virtual device pushed by a scripted hand force), mouse (the window), "
@@ -364,8 +369,8 @@ CLI::App* add_plan_operation_command(CLI::App& app, PlanOperationArguments& oper
         ->check(CLI::Range(6.0, 120.0))
         ->capture_default_str();
     command->add_option("--spread", operation.options.spread_mm,
-                        "How far apart the retractors pull the incision's edges, mm. Default: the narrowest of 8, 10, ... 24 mm that shows "
-                        "as many stitch sites from the surgeon's eye as 24 mm")
+                        "How far apart the retractors pull the incision's edges, mm. Default: 4 mm more than the narrowest of 10, 12, ... 24 mm "
+                        "that shows as many stitch sites from the surgeon's eye as 24 mm (at most 24)")
         ->type_name("MM")
         ->check(CLI::Range(2.0, 60.0));
     command->add_option("--coronary-clearance", operation.options.coronary_clearance_mm,

@@ -91,8 +91,9 @@ Opening opening_of(const Eigen::Vector3d& centre, const Candidate& c, double len
     Opening o;
     o.centre = centre;
     o.cut = c.cut, o.side = c.side, o.sight = c.line.direction;
-    o.half_length = std::max(0.0, 0.5 * length_mm - 3.0);
-    o.half_width = 0.5 * spread_mm;
+    // A retracted slit opens as a lens: its ends hardly, its edges' inner faces less than the grips.
+    o.half_length = std::max(0.0, 0.5 * length_mm - 6.0);
+    o.half_width = std::max(0.0, 0.5 * spread_mm - 2.0);
     o.half_depth = 0.5 * c.line.wall_mm() + 1.0;
     return o;
 }
@@ -215,7 +216,9 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
                          "--approach " + other);
     const Candidate& best = *std::max_element(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) {
         if (x.seen != y.seen) return x.seen < y.seen;
-        return x.line.wall_in_mm > y.line.wall_in_mm;  // on a tie, the shorter way through blood
+        // On a tie, the thinner wall (to the millimetre: less tissue cut), then the shorter way through blood.
+        if (std::round(x.line.wall_mm()) != std::round(y.line.wall_mm())) return std::round(x.line.wall_mm()) > std::round(y.line.wall_mm());
+        return x.line.wall_in_mm > y.line.wall_in_mm;
     });
     plan.sight = best.line.direction;
     plan.exit = best.line.exit(target);
@@ -233,11 +236,14 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
         plan.spread_mm = o.spread_mm;
         plan.sites_seen = best.seen;
     } else {
-        // The narrowest width that shows as many sites as the widest.
+        // The narrowest width that shows as many sites as the widest (from 10 mm: a narrower retraction
+        // of a wall some millimetres thick leaves a slit).
         const int most = count_seen(tissue, repair.stitches, plan.eye, opening_of(plan.centre, best, o.length_mm, 24.0));
-        for (double w = 8.0; w <= 24.0; w += 2.0)
+        for (double w = 10.0; w <= 24.0; w += 2.0)
             if (const int seen = count_seen(tissue, repair.stitches, plan.eye, opening_of(plan.centre, best, o.length_mm, w)); seen >= most) {
-                plan.spread_mm = w, plan.sites_seen = seen;
+                // 4 mm more: the elastic wall between the grips and the edges gives a little.
+                plan.spread_mm = std::min(24.0, w + 4.0);
+                plan.sites_seen = count_seen(tissue, repair.stitches, plan.eye, opening_of(plan.centre, best, o.length_mm, plan.spread_mm));
                 break;
             }
     }
@@ -254,10 +260,23 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     Eigen::Matrix3d frame;
     frame.col(0) = plan.cut, frame.col(1) = plan.side, frame.col(2) = blade;
     const Eigen::Quaterniond orientation = Eigen::Quaterniond(frame).normalized();
+    // The blade reaches through the wall all along the incision: from 2 mm above its most outward
+    // face to 2 mm below its deepest inner face (the wall curves away from the line of sight's
+    // plane), but no nearer the septum than 2 mm short of its face on the line.
+    double outer = 0.0, inner = plan.wall_mm;
+    for (double t = -0.5 * o.length_mm; t <= 0.5 * o.length_mm + 1e-9; t += 1.0) {
+        const Eigen::Vector3d q = plan.exit + t * plan.cut + 10.0 * plan.sight;
+        const std::vector<SightSpan> spans = tissue_along(tissue, q, q - (10.0 + plan.wall_mm + plan.blood_mm) * plan.sight);
+        if (spans.empty()) continue;
+        outer = std::max(outer, 10.0 - spans.front().from);
+        inner = std::max(inner, spans.front().to - 10.0 + 0.25 * spacing);
+    }
+    inner = std::min(inner, plan.wall_mm + plan.blood_mm - 2.0);
     const double clearance = 2.0, speed = 0.1;
-    const double blade_length = clearance + plan.wall_mm + 2.0;
+    const double blade_length = outer + clearance + inner + 2.0;
+    plan.blade_mm = blade_length;
     const Eigen::Vector3d blade_axes(2.0, 0.3, 0.5 * blade_length);
-    const Eigen::Vector3d tip = plan.exit + clearance * plan.sight, half = (0.5 * o.length_mm) * plan.cut;
+    const Eigen::Vector3d tip = plan.exit + (outer + clearance) * plan.sight, half = (0.5 * o.length_mm) * plan.cut;
     plan.cut_end_ms = o.length_mm / speed;
     key(0.0, 0, InstrumentKind::scalpel, tip - half, orientation, blade_axes, true);
     key(plan.cut_end_ms, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, true);
@@ -265,10 +284,10 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     key(plan.cut_end_ms + 25.0, 0, InstrumentKind::scalpel, tip + half + 10.0 * plan.sight, orientation, blade_axes, false);
 
     // Retractors: each an ellipsoid along the edge (a quarter of the incision long), 1.2 spacings
-    // across, through the wall's depth, its inner side half a spacing from the blade's plane;
+    // across, through the wall's depth, its inner side a quarter spacing from the blade's plane;
     // pulled apart and 2 mm out toward the surgeon.
     plan.retractor = InstrumentKind::grabber;
-    const double across_mm = 1.2 * spacing, offset = across_mm + 0.5 * spacing;
+    const double across_mm = 1.2 * spacing, offset = across_mm + 0.25 * spacing;
     const Eigen::Vector3d retractor_axes(0.25 * o.length_mm, across_mm, 0.5 * plan.wall_mm + 0.5 * spacing);
     plan.grab_ms = plan.cut_end_ms + 50.0;
     plan.exposed_ms = plan.grab_ms + 500.0;
@@ -320,9 +339,10 @@ void print_plan(const OperationPlan& plan, const std::string& scenario, const st
                 "goes %.1f mm through blood along (%s), then through the %.1f mm wall, out at (%s) mm\n",
                 plan.lines_found, plan.lines_tried, plan.chamber_wall.c_str(), plan.blood_mm, point_text(plan.sight, 2).c_str(), plan.wall_mm,
                 point_text(plan.exit).c_str());
-    std::printf("  incision    %.0f mm along (%s), parallel to %s, centred at (%s) mm; the scalpel (hand 0) cuts through the wall and 2 mm on "
-                "from 0 to %.0f ms, then is withdrawn\n",
-                plan.length_mm, point_text(plan.cut, 2).c_str(), plan.cut_parallel_to.c_str(), point_text(plan.exit).c_str(), plan.cut_end_ms);
+    std::printf("  incision    %.0f mm along (%s), parallel to %s, centred at (%s) mm; the scalpel (hand 0), its blade "
+                "%.1f mm long (through the wall all along the incision and 2 mm on), cuts from 0 to %.0f ms, then is withdrawn\n",
+                plan.length_mm, point_text(plan.cut, 2).c_str(), plan.cut_parallel_to.c_str(), point_text(plan.exit).c_str(), plan.blade_mm,
+                plan.cut_end_ms);
     if (plan.coronary_mm >= 0)
         std::printf("  coronaries  the nearest course, %s, is %.1f mm from the incision (at least %.1f mm asked)\n", plan.coronary_name.c_str(),
                     plan.coronary_mm, o.coronary_clearance_mm);

@@ -24,12 +24,15 @@
 /// cut parallel to the vessel they must spare), else along the body's long axis; every point of the
 /// incision stays `coronary_clearance_mm` from every coronary course. Among the lines left, the
 /// plan takes the one from which the most stitch sites of the repair are seen through the opening
-/// (Opening: the incision's length less 3 mm each end, the retraction's width), the shortest way
-/// through blood on a tie. The retraction's width is the narrowest of 8, 10, … 24 mm that shows as
-/// many sites as the widest.
+/// (Opening: the incision's length less 6 mm each end, the retraction's width less 2 mm each
+/// side: a retracted slit opens as a lens, its edges' inner faces less than the grips); on a tie the
+/// thinner wall (to the millimetre), then the shorter way through blood. The retraction's width is
+/// 4 mm more than the narrowest of 10, 12, … 24 mm that shows as many sites as the widest
+/// (the elastic wall between the grips and the edges gives a little), at most 24 mm.
 ///
-/// **The trajectory.** Hand 0's scalpel cuts along the incision (0.1 mm/ms) through the wall and
-/// 2 mm on, and is withdrawn; hands 0 and 1 then take the incision's edges with retractors (kind
+/// **The trajectory.** Hand 0's scalpel cuts along the incision (0.1 mm/ms), its blade from 2 mm
+/// above the wall's most outward face along the incision to 2 mm below its deepest inner face (no
+/// nearer the septum than 2 mm short of its face on the line of sight), and is withdrawn; hands 0 and 1 then take the incision's edges with retractors (kind
 /// retractor where the build has it: the retracted edges stay, held by stay sutures, when the hands
 /// let go) and pull them apart over 500 ms; the defect is exposed when they reach their width. Then
 /// hand 0 carries the patch in from outside the opening along the line of sight and lays it; hand 1
@@ -85,6 +88,7 @@ struct OperationPlan {
     double wall_mm = 0.0;            ///< the wall's thickness along the line of sight
     double blood_mm = 0.0;           ///< the line's way through blood from the defect to the wall
     double length_mm = 0.0, spread_mm = 0.0;
+    double blade_mm = 0.0;           ///< the scalpel's blade: through the wall all along the incision
     double coronary_mm = -1.0;       ///< the nearest coronary course from the incision; < 0: none known
     std::string coronary_name;       ///< which
     int sites_seen = 0;              ///< stitch sites seen from the eye through the opening (rest geometry)
