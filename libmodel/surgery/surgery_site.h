@@ -93,8 +93,8 @@ std::vector<TissueStretch> tissue_stretches(const std::vector<std::array<float, 
                                             const std::vector<std::array<std::int32_t, 3>>& triangles, const Eigen::Vector3d& point,
                                             const Eigen::Vector3d& up);
 
-/// The circle the stitches lie on: `count` points of radius `radius_mm` round the defect's axis, in
-/// the plane through its centre across it; stitch 1 at the circle's most superior point (most
+/// The circle the stitches lie on: `count` points of radius `radius_mm` (or each its own, `radii`)
+/// round the defect's axis, evenly spaced in angle, in the plane through its centre across it; stitch 1 at the circle's most superior point (most
 /// anterior where the axis is within 25° of superior-inferior), the others counter-clockwise seen
 /// from the chosen side (`outward`).
 struct StitchCircle {
