@@ -658,7 +658,7 @@ void Renderer::draw(unsigned positions, const std::vector<InstrumentShape>& inst
                 if (shape.touching) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.98f, 0.62f, 0.18f);  // in contact: amber
                 else if (shape.kind == InstrumentKind::probe) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.55f, 0.66f, 0.82f);
                 else if (shape.kind == InstrumentKind::scalpel) glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.86f, 0.88f, 0.92f);  // steel
-                else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);
+                else glProgramUniform3f(p, glGetUniformLocation(p, "base_color"), 0.88f, 0.72f, 0.25f);  // grabber, retractor: gold
                 s.ellipsoid(shape.drawn_centre().cast<float>(), shape.pose.orientation.normalized().toRotationMatrix().cast<float>(),
                             shape.semi_axes.cast<float>());
             }
