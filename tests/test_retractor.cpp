@@ -142,7 +142,7 @@ TEST(Retractor, ItsTissueStaysWhereItIsLeftWhereAGrabbersSpringsBack) {
 // The gl backend anchors the same particles in place (a readback of the held list and a write of
 // their constants and motion): both backends end where each other does, to the cpu-vs-gl
 // tolerance of test_runtime_backend (1e-4 of the model's size), and the stayed tissue does not
-// move on the gl backend either.
+// move on the gl backend either, nor on either after the mass scale changes.
 TEST(Retractor, GlKeepsTheRetractedTissueInPlaceAsTheCpuDoes) {
     REQUIRE_GL();
     const Scenario scenario = read_scenario(phantom());
@@ -161,6 +161,17 @@ TEST(Retractor, GlKeepsTheRetractedTissueInPlaceAsTheCpuDoes) {
         for (int k = 0; k < 3; ++k) error = std::max(error, double(std::abs(c.end[i][k] - g.end[i][k])));
     std::printf("  %zu particles stayed; max |x_gl - x_cpu| %.3g mm (%.3g of the size)\n", c.held.size(), error, error / box.diagonal().norm());
     EXPECT_LE(error, 1e-4 * box.diagonal().norm());
+    // A change of mass scale (--real-time auto's) rebuilds the step's constants: the stayed
+    // particles stay anchored on both.
+    for (Backend* backend : {cpu.get(), gl.get()}) {
+        backend->set_mass_scale(4.0);
+        for (int s = 0; s < 50; ++s) backend->step(1);
+        const auto x = backend->positions();
+        double moved = 0;
+        for (std::int32_t i : c.held)
+            for (int k = 0; k < 3; ++k) moved = std::max(moved, double(std::abs(x[std::size_t(i)][k] - c.end[std::size_t(i)][k])));
+        EXPECT_LE(moved, 1e-6) << to_string(backend->kind()) << ": mm, after the mass scale changed";
+    }
 }
 
 // Through the repair's backend (runtime/surgery/repair.h), the retractor's hand switching to a
