@@ -387,6 +387,13 @@ CLI::App* add_plan_operation_command(CLI::App& app, PlanOperationArguments& oper
                         "opening then fills a good part of the picture)")
         ->type_name("MM")
         ->check(CLI::Range(1.0, 2000.0));
+    command->add_option("--rough-rim", operation.options.repair.rough_rim_mm,
+                        "How far off a plane the defect's right-side rim may lie, mm, before the plan refuses: a rougher rim (among "
+                        "the right ventricle's trabeculations) a flat patch laid through the right heart does not seal, and surgeons "
+                        "close such a defect from the left (plan-repair's --rough-rim)")
+        ->type_name("MM")
+        ->check(cli_messages::within(plausible::rim_roughness_mm))
+        ->capture_default_str();
     command->add_option("--stitches", operation.options.repair.stitches, "How many stitches round the rim (plan-repair's --stitches)")
         ->type_name("N")
         ->check(CLI::Range(3, 360));

@@ -133,9 +133,16 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
         throw OptionError("{OperationPlanOptions::eye_distance_mm} " + number_text(o.eye_distance_mm) + ": expected 0 (2.5 incision lengths) to 2000 mm");
     OperationPlan plan;
     plan.approach = o.approach;
+    // The repair through the right heart: its side the right, unless plan-repair's automatic side
+    // finds the right rim too rough for a flat patch to seal and the left's smooth.
     RepairPlanOptions repair_options = o.repair;
-    repair_options.side = RepairSide::right;
+    repair_options.side = RepairSide::automatic;
     plan.repair = plan_repair(scenario, repair_options);
+    if (!plan.repair.on_right)
+        throw InputError("no operation through the right heart closes this defect: " + plan.repair.side_reason +
+                         "; no right-heart incision reaches the left side (heartsim plan-repair CASE -o repair.csv closes it there); "
+                         "--rough-rim " + number_text(std::ceil(plan.repair.right_residual_mm + 0.5), 0) +
+                         " plans the operation through the right heart anyway, its patch on the rough rim");
     const RepairPlan& repair = plan.repair;
     const auto& rest = scenario.lattice.particles.rest_position;
     const double spacing = scenario.lattice.spacing;
@@ -286,7 +293,7 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     // Retractors: each an ellipsoid along the edge (a quarter of the incision long), 1.2 spacings
     // across, through the wall's depth, its inner side a quarter spacing from the blade's plane;
     // pulled apart and 2 mm out toward the surgeon.
-    plan.retractor = InstrumentKind::grabber;
+    plan.retractor = InstrumentKind::retractor;
     const double across_mm = 1.2 * spacing, offset = across_mm + 0.25 * spacing;
     const Eigen::Vector3d retractor_axes(0.25 * o.length_mm, across_mm, 0.5 * plan.wall_mm + 0.5 * spacing);
     plan.grab_ms = plan.cut_end_ms + 50.0;
@@ -348,9 +355,9 @@ void print_plan(const OperationPlan& plan, const std::string& scenario, const st
                     plan.coronary_mm, o.coronary_clearance_mm);
     else
         std::printf("  coronaries  not known: the scenario's landmarks give no coronary course (its label map does not tell the chambers apart)\n");
-    std::printf("  retraction  two %ss (hands 0 and 1) take the edges at %.0f ms and pull them %.0f mm apart by %.0f ms, then hold%s\n",
-                to_string(plan.retractor), plan.grab_ms, plan.spread_mm, plan.exposed_ms,
-                plan.retractor == InstrumentKind::grabber ? " until the repair begins (a grabber lets the edges go when its hand takes the patch)" : "");
+    std::printf("  retraction  two retractors (hands 0 and 1) take the edges at %.0f ms and pull them %.0f mm apart by %.0f ms, then hold; "
+                "when the hands take the patch and the needle at %.0f ms, the edges stay where they were left (stay sutures)\n",
+                plan.grab_ms, plan.spread_mm, plan.exposed_ms, plan.repair_start_ms);
     std::printf("  surgeon's eye: %s mm\n", point_text(plan.eye).c_str());
     std::printf("  defect exposed at: %.2f s\n", plan.exposed_ms / 1000.0);
     std::printf("  rim seen    %d of %d stitch sites seen from the eye through the %.0f mm wide opening (at rest, the opening's wall taken away)\n",

@@ -32,12 +32,15 @@
 ///
 /// **The trajectory.** Hand 0's scalpel cuts along the incision (0.1 mm/ms), its blade from 2 mm
 /// above the wall's most outward face along the incision to 2 mm below its deepest inner face (no
-/// nearer the septum than 2 mm short of its face on the line of sight), and is withdrawn; hands 0 and 1 then take the incision's edges with retractors (kind
-/// retractor where the build has it: the retracted edges stay, held by stay sutures, when the hands
-/// let go) and pull them apart over 500 ms; the defect is exposed when they reach their width. Then
-/// hand 0 carries the patch in from outside the opening along the line of sight and lays it; hand 1
-/// brings the needle in the same way and ties the stitches (plan_repair's script, on the right side
-/// always: the only side reached through the right heart).
+/// nearer the septum than 2 mm short of its face on the line of sight), and is withdrawn. Hands 0
+/// and 1 then take the incision's edges with retractors (kind retractor: the retracted edges stay
+/// where the hands leave them, as stay sutures hold them) and pull them apart over 500 ms; the
+/// defect is exposed when they reach their width. Then hand 0 carries the patch in from outside the
+/// opening along the line of sight and lays it; hand 1 brings the needle in the same way and ties
+/// the stitches (plan_repair's script, on the right side always: the only side reached through the
+/// right heart). Where plan-repair's automatic side leaves the right for the left (the right rim too
+/// rough for a flat patch to seal, the left's smooth: RepairPlanOptions::rough_rim_mm), no
+/// operation through the right heart closes the defect, and the plan refuses, saying so.
 ///
 ///     const OperationPlan plan = plan_operation(scenario, {.approach = OperationApproach::right_atrial});
 ///     write_trajectory_csv(plan.trajectory, "op.csv");
@@ -96,11 +99,12 @@ struct OperationPlan {
     int lines_found = 0, lines_tried = 0;
     double cut_end_ms = 0.0, grab_ms = 0.0, exposed_ms = 0.0, repair_start_ms = 0.0, end_ms = 0.0;
     std::array<Eigen::Vector3d, 2> grips{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
-    InstrumentKind retractor = InstrumentKind::grabber;      ///< the retractors' kind
+    InstrumentKind retractor = InstrumentKind::retractor;    ///< the retractors' kind
 };
 
 /// The operation of `options.approach` on `scenario`'s septal defect. InputError where the
-/// scenario has no defect or detailed mesh, or no incision of the approach exists (saying which
+/// scenario has no defect or detailed mesh, the defect's right rim is too rough to seal from the
+/// right (above), or no incision of the approach exists (saying which
 /// tests the lines of sight failed, and what would work: the other approach, a smaller clearance).
 OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOptions& options = {});
 
