@@ -50,7 +50,7 @@ for dir in "$real"/*/; do
   for shot in section closeup; do
     look=(--look-at "$centre")  # the whole section: the fitted distance (--clip defect alone comes close)
     [ "$shot" = closeup ] && look=(--look-at "$centre,60")
-    log=$("$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$work/$case.csv" --seconds "$seconds" \
+    log=$("$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$work/$case.csv" --seconds "$seconds" --leak-test 10 \
       --clip defect --view section "${look[@]}" --size 640x480 --screenshot "docs/gallery/$case-repair-$shot.png")
     if ! echo "$log" | grep -q "^repair: .* patch laid"; then
       echo "make-repair-gallery: $case: no patch was laid:" >&2

@@ -74,8 +74,10 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
         ->capture_default_str();
     run->add_option("--leak-test", a.leak_test_mmhg,
                     "MMHG: the pressure across the septum the closure check holds the patch to at the end of a run on a scenario with a "
-                    "defect: it pushes the patch off the wall over the opening, as the left ventricle's filling pressure does when "
-                    "the heart fills again; a patch its stitches do not hold lifts off the rim (0: the patch as it lies)")
+                    "defect: it pushes the patch off the wall over the opening, as the left ventricle does in systole once the defect "
+                    "is closed; a patch its stitches do not hold lifts off the rim. Default 75: a child's left ventricle at about 100 "
+                    "mmHg against a right ventricle at 25, the systolic difference a patch over a VSD carries (10: the left "
+                    "ventricle's filling pressure as the heart fills again; 0: the patch as it lies)")
         ->check(CLI::Range(0.0, 300.0))
         ->capture_default_str();
     run->add_option("--save-state", a.save_state, "Write final positions and forces (HDF5), and OUT.xmf2 beside it for ParaView (the deformed heart)")

@@ -73,7 +73,7 @@ struct RunArguments {
     std::optional<std::string> igtl_frame;  // --igtl-frame ras|lps: the coordinates sent (default ras)
     // The repair of a septal defect (runtime/surgery/repair.h, docs/runtime.md "Closing a defect").
     std::string patch_material = "pericardium";  // --patch-material
-    double leak_test_mmhg = 10.0;                // --leak-test: the pressure the closure check holds the patch to
+    double leak_test_mmhg = 75.0;                // --leak-test: the pressure the closure check holds the patch to (a child's systolic difference)
 
     static constexpr const char* default_contact = "direct";
     static constexpr int default_picking_refresh = 1;
