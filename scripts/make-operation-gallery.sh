@@ -7,14 +7,14 @@
 # each planned approach is played headless on the cpu backend and drawn from the surgeon's eye the
 # plan printed (--view surgeon --eye … --look-at the defect's face, 640x480): at the moment the plan
 # says the defect is exposed, and at the operation's end, the patch sewn. The operation's run holds
-# the patch to --leak-test MMHG (default 10, the run's default) and its summary (defect closed, the
+# the patch to --leak-test MMHG (default 75, the run's: the systolic difference) and its summary (defect closed, the
 # stitches in the conduction zone, the real-time factor) goes in the table, beside the same heart
 # run as long with no instrument (its real-time factor).
 # Usage: scripts/make-operation-gallery.sh [--leak-test MMHG] [BUILD_DIR]   (default build/release, built first)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 real=../shared/data/real
-leak=10
+leak=75
 if [ "${1:-}" = --leak-test ]; then leak=$2; shift 2; fi
 if [ ! -d "$real" ]; then echo "make-operation-gallery: $real is absent: no gallery regenerated" >&2; exit 0; fi
 bin=${1:-build/release}
