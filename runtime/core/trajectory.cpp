@@ -55,7 +55,9 @@ InstrumentKeyframe Trajectory::at(int hand, double time_ms) const {
     if (!before) return *after;
     InstrumentKeyframe state = *before;
     state.time_ms = time_ms;
-    if (after && after->time_ms > before->time_ms) {
+    // Toward a keyframe where the hand's instrument changes the pose holds: the instrument does not
+    // travel to where the next one is placed (that one is placed there at once, at its keyframe).
+    if (after && after->time_ms > before->time_ms && after->kind == before->kind && after->semi_axes == before->semi_axes) {
         const double t = (time_ms - before->time_ms) / (after->time_ms - before->time_ms);
         state.pose.position = before->pose.position + t * (after->pose.position - before->pose.position);
         state.pose.orientation = before->pose.orientation.slerp(t, after->pose.orientation);
@@ -185,7 +187,11 @@ void ScriptedHands::apply(Backend& backend, int hand, double t_ms, double t_next
     if (now.grab && !a.grab) backend.begin_grab(hand);
     if (!now.grab && a.grab) backend.release(hand);
     a.grab = now.grab;
-    backend.set_pose(hand, trajectory_.at(hand, t_next_ms).pose);
+    // The instrument changes within the step (at a keyframe after t): this one ends it where it
+    // is. Posed at the next instrument's place it would drag what it holds there, and the held
+    // tissue would slip out of a retractor before its release could anchor it.
+    const InstrumentKeyframe next = trajectory_.at(hand, t_next_ms);
+    backend.set_pose(hand, next.kind == now.kind && next.semi_axes == now.semi_axes ? next.pose : now.pose);
 }
 
 ScriptedRunResult run_scripted(Backend& backend, const Trajectory& trajectory, const ScriptedRunOptions& options) {

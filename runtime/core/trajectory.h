@@ -13,7 +13,9 @@
 /// grabber; when its grab turns 0, or its hand takes another kind or semi-axes while it holds, the
 /// tissue it held stays anchored where it is (Backend::release) until the tissue is reset.
 /// Between two keyframes of a hand the pose moves linearly (position) and by slerp (orientation);
-/// kind, semi-axes and grab switch at a keyframe's time and hold until the next.
+/// kind, semi-axes and grab switch at a keyframe's time and hold until the next. Toward a keyframe
+/// whose kind or semi-axes differ the pose holds: an instrument does not travel to where the next
+/// one is placed (a retractor holding until the hand takes a patch stays where it holds).
 #pragma once
 
 #include "runtime/backend/backend.h"
@@ -38,8 +40,9 @@ struct InstrumentKeyframe {
 struct Trajectory {
     std::vector<InstrumentKeyframe> keyframes;  ///< sorted by time within each hand
     bool uses_hand(int hand) const;
-    /// The keyframe state of `hand` at `time_ms` (pose interpolated; the rest from the keyframe
-    /// at or before, or the first one before the script starts). Requires uses_hand(hand).
+    /// The keyframe state of `hand` at `time_ms` (pose interpolated toward the next keyframe, held
+    /// when that one's kind or semi-axes differ; the rest from the keyframe at or before, or the
+    /// first one before the script starts). Requires uses_hand(hand).
     InstrumentKeyframe at(int hand, double time_ms) const;
 };
 
@@ -98,7 +101,8 @@ struct ScriptedRunResult {
 /// Drives `backend` along `trajectory` for `options.steps` steps. Before step k (time t = k·dt):
 /// a hand whose kind or semi-axes change gets set_instrument and is placed at its pose at t; a
 /// grab flag turning on calls begin_grab at t, turning off calls release; then set_pose with the
-/// pose at t + dt, reached at the end of the step.
+/// pose at t + dt, reached at the end of the step (the pose at t when the kind or semi-axes at
+/// t + dt differ: the instrument of the step stays where it is until the next one is placed).
 /// The simulated start and end of each step of a run whose step may change on the way (mass
 /// scaling, runtime/core/real_time.h): step k starts where the steps before it ended. While the step
 /// does not change these are k·dt and (k + 1)·dt, to the bit.
