@@ -5,7 +5,9 @@
 // moves none of it and a grab there takes none of it, until reset_tissue() (or the watchdog's
 // restore) frees it; a hand that takes a needle through the repair's backend leaves it too; the
 // same gesture through `heartsim run --trajectory` keeps it; a haptic session with a retractor
-// replays bit for bit.
+// replays bit for bit. In a whole operation on a septal defect (a cut, retractors spreading its
+// edges, the hands then taking the patch and the needle elsewhere) the retracted edges stay, on
+// both backends.
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -27,6 +29,7 @@
 #include <fstream>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 
 using namespace heartsim;
 using test::quoted;
@@ -107,6 +110,89 @@ double largest_move(const Gesture& g, const std::vector<std::int32_t>& particles
     double worst = 0;
     for (std::int32_t i : particles)
         for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(g.end[std::size_t(i)][c] - g.at_release[std::size_t(i)][c])));
+    return worst;
+}
+
+/// The phantom's two ventricles with an 8 mm VSD carved through its septum, 8,000 particles and the
+/// detailed mesh (the run wraps the backend in the repair's and opens the mesh along a cut).
+const fs::path& vsd_phantom() {
+    static test::TempDir dir;
+    static fs::path built;
+    if (built.empty()) {
+        const fs::path labels = dir / "phantom.nii.gz", scenario = dir / "vsd.h5";
+        const auto phantom = test::heartprep("phantom -o " + quoted(labels) + " --vsd-diameter 0");
+        if (phantom.exit_code != 0) throw std::runtime_error(phantom.output);
+        const auto build = test::heartprep("build " + quoted(labels) + " --defect vsd --at=-21.1,-1.1,-1.5 --diameter 8 --particles 8000 -q -o " +
+                                           quoted(scenario));
+        if (build.exit_code != 0) throw std::runtime_error(build.output);
+        built = scenario;
+    }
+    return built;
+}
+
+/// `heartsim plan-operation`'s operation on the VSD phantom, its retraction by retractors (a
+/// grabber's rows read as retractor's): the scalpel cuts, the retractors take the edges and spread
+/// them, then the hands take the patch and the needle, placed away from where the retractors hold.
+struct Operation {
+    fs::path csv;
+    double hold_ms = 0;    ///< the retractors' last keyframe: still holding
+    double switch_ms = 0;  ///< hand 0 takes the patch
+};
+
+Operation plan_operation(const fs::path& dir) {
+    Operation op{.csv = dir / "op.csv"};
+    const auto plan = run_heartsim("plan-operation " + quoted(vsd_phantom()) + " -o " + quoted(dir / "plan.csv"));
+    if (plan.exit_code != 0) throw std::runtime_error(plan.output);
+    Trajectory trajectory = read_trajectory(dir / "plan.csv");
+    for (InstrumentKeyframe& k : trajectory.keyframes) {
+        if (k.kind == InstrumentKind::grabber) k.kind = InstrumentKind::retractor;
+        if (k.hand != 0) continue;
+        if (k.kind == InstrumentKind::retractor && op.switch_ms == 0) op.hold_ms = k.time_ms;
+        if (k.kind == InstrumentKind::patch && op.switch_ms == 0) op.switch_ms = k.time_ms;
+    }
+    write_trajectory_csv(trajectory, op.csv);
+    return op;
+}
+
+/// Steps `backend` along the operation as run_scripted does, until `end_ms`: what each hand holds
+/// 10 ms before the retractors' last keyframe, the positions 10 ms after the switch and at the end.
+struct OperationRun {
+    std::array<std::vector<std::int32_t>, 2> held;
+    std::vector<std::array<float, 3>> after_switch, end;
+};
+
+OperationRun run_operation(Backend& backend, const Operation& op, double end_ms) {
+    const Trajectory trajectory = read_trajectory(op.csv);
+    ScriptedHands hands(trajectory);
+    OperationRun r;
+    const double dt = backend.time_step_ms();
+    bool held = false, switched = false;
+    for (long long step = 0; double(step) * dt < end_ms; ++step) {
+        const double t = double(step) * dt;
+        if (!held && t >= op.hold_ms - 10.0) {
+            backend.instrument_forces();  // the gl backend lists what a hand holds in its force pass
+            for (int hand = 0; hand < 2; ++hand) r.held[std::size_t(hand)] = backend.contact_particles(hand);
+            held = true;
+        }
+        if (!switched && t >= op.switch_ms + 10.0) {
+            r.after_switch = backend.positions();
+            switched = true;
+        }
+        for (int hand = 0; hand < 2; ++hand) hands.apply(backend, hand, t, t + dt);
+        const StepReport report = backend.step(1);
+        EXPECT_FALSE(report.diverged) << report.message;
+        backend.request_forces();
+        backend.latest_forces();
+    }
+    r.end = backend.positions();
+    return r;
+}
+
+double largest_move(const std::vector<std::array<float, 3>>& from, const std::vector<std::array<float, 3>>& to,
+                    const std::vector<std::int32_t>& particles) {
+    double worst = 0;
+    for (std::int32_t i : particles)
+        for (int c = 0; c < 3; ++c) worst = std::max(worst, double(std::abs(to[std::size_t(i)][c] - from[std::size_t(i)][c])));
     return worst;
 }
 
@@ -375,4 +461,68 @@ TEST(Retractor, AHapticSessionWithARetractorReplaysBitForBit) {
     std::printf("  %zu steps; the front particle ends %.3f mm from rest\n", recorded.steps.size(),
                 distance_from_rest(b_state.positions[front], scenario.lattice.particles.rest_position[front]));
     EXPECT_GT(distance_from_rest(b_state.positions[front], scenario.lattice.particles.rest_position[front]), 3.0);
+}
+
+// The operation through `heartsim run --trajectory` (cpu, the repair's backend around it, the
+// detailed mesh opened along the cut): the retractors hold pieces of both edges until their hands
+// take the patch and the needle, placed elsewhere; the particles they held then do not move at
+// all, to the bit, between the state 10 ms after the switch and the one 150 ms after it. What
+// each held is taken from the same steps in this process, and the run's state before the switch
+// holds as many in each hand.
+TEST(Retractor, AnOperationsRetractedEdgesStayWhenTheHandsTakeThePatchAndTheNeedle) {
+    test::TempDir dir;
+    const Operation op = plan_operation(dir.path());
+    ASSERT_GT(op.switch_ms, op.hold_ms);
+    ASSERT_GT(op.hold_ms, 0);
+    const Scenario scenario = read_scenario(vsd_phantom());
+    RepairBackend repair(make_cpu_backend(scenario, options_from(scenario.solver)), scenario, RepairSettings{});
+    const OperationRun in_process = run_operation(repair, op, op.hold_ms);
+    std::vector<std::int32_t> held;
+    for (int hand = 0; hand < 2; ++hand) {
+        EXPECT_GT(in_process.held[std::size_t(hand)].size(), 3u) << "retractor " << hand << " should hold a piece of its edge";
+        held.insert(held.end(), in_process.held[std::size_t(hand)].begin(), in_process.held[std::size_t(hand)].end());
+    }
+    std::vector<SimulationState> states;
+    for (double ms : {op.hold_ms - 10.0, op.switch_ms + 10.0, op.switch_ms + 150.0}) {
+        const fs::path state = dir / ("at" + std::to_string(int(ms)) + ".h5");
+        char seconds[32];
+        std::snprintf(seconds, sizeof seconds, "%.6f", ms / 1000.0);
+        const auto run = run_heartsim("run " + quoted(vsd_phantom()) + " --headless --backend cpu --trajectory " + quoted(op.csv) + " --seconds " +
+                                      seconds + " --save-state " + quoted(state));
+        ASSERT_EQ(run.exit_code, 0) << run.output;
+        states.push_back(read_state(state));
+    }
+    for (int hand = 0; hand < 2; ++hand) {
+        EXPECT_EQ(states[0].kind[std::size_t(hand)], 6);
+        EXPECT_EQ(std::size_t(states[0].particles[std::size_t(hand)]), in_process.held[std::size_t(hand)].size()) << "hand " << hand;
+    }
+    EXPECT_EQ(states[1].kind[0], 4) << "hand 0 holds the patch";
+    EXPECT_EQ(states[1].kind[1], 5) << "hand 1 holds the needle";
+    const double moved = largest_move(states[1].positions, states[2].positions, held);
+    std::printf("  the retractors held %zu + %zu particles; they moved %.3g mm from 10 to 150 ms after the switch\n",
+                in_process.held[0].size(), in_process.held[1].size(), moved);
+    EXPECT_EQ(moved, 0.0) << "mm: the retracted edges should stay where the retractors left them";
+}
+
+// The same operation on the gl backend (in this process, the repair's backend around it): the
+// retractors hold what the cpu's do and the particles they held do not move after the switch.
+TEST(Retractor, GlKeepsAnOperationsRetractedEdgesAsTheCpuDoes) {
+    REQUIRE_GL();
+    test::TempDir dir;
+    const Operation op = plan_operation(dir.path());
+    const Scenario scenario = read_scenario(vsd_phantom());
+    const SolverOptions options = options_from(scenario.solver);
+    RepairBackend cpu(make_cpu_backend(scenario, options), scenario, RepairSettings{});
+    RepairBackend gl(make_gl_backend(*test::shared_gl_context(), scenario, options), scenario, RepairSettings{});
+    const OperationRun c = run_operation(cpu, op, op.hold_ms), g = run_operation(gl, op, op.switch_ms + 150.0);
+    std::vector<std::int32_t> held;
+    for (int hand = 0; hand < 2; ++hand) {
+        EXPECT_GT(c.held[std::size_t(hand)].size(), 3u);
+        EXPECT_EQ(c.held[std::size_t(hand)], g.held[std::size_t(hand)]) << "hand " << hand;
+        held.insert(held.end(), g.held[std::size_t(hand)].begin(), g.held[std::size_t(hand)].end());
+    }
+    ASSERT_FALSE(g.after_switch.empty());
+    const double moved = largest_move(g.after_switch, g.end, held);
+    std::printf("  gl: %zu particles held; they moved %.3g mm from 10 to 150 ms after the switch\n", held.size(), moved);
+    EXPECT_EQ(moved, 0.0) << "mm: the gl backend's retracted edges moved";
 }
