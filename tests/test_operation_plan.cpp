@@ -9,6 +9,7 @@
 #include "libmodel/surgery/sight.h"
 #include "libmodel/surgery/surgery_site.h"
 #include "runtime/surgery/operation_plan.h"
+#include "runtime/view/camera.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
@@ -172,6 +173,25 @@ TEST(OperationPlan, TheOperationClosesThePhantomsDefect) {
                                       std::to_string(seconds));
     ASSERT_EQ(run.exit_code, 0) << run.output;
     EXPECT_NE(run.output.find("defect closed: yes"), std::string::npos) << run.output;
+}
+
+// `--eye` puts the camera at the eye looking at the --look-at point, the surgeon's view keeping the
+// patient's left up as nearly as the line of sight allows; an eye on the point is refused.
+TEST(OperationPlan, TheEyeLooksAtThePointWithThePatientsLeftUp) {
+    LookAt look = parse_look_at("10,20,30");
+    parse_eye("-40,-60,50", look);
+    Camera camera = fit_camera(Eigen::AlignedBox3f(Eigen::Vector3f(-50, -50, -50), Eigen::Vector3f(50, 50, 50)), ViewDirection::surgeon, 4.0f / 3.0f);
+    aim_camera_at(camera, look);
+    EXPECT_TRUE(camera.eye().isApprox(Eigen::Vector3f(-40, -60, 50), 1e-4f)) << camera.eye().transpose();
+    EXPECT_EQ(camera.target, Eigen::Vector3f(10, 20, 30));
+    const Eigen::Vector3f forward = camera.orientation * -Eigen::Vector3f::UnitZ(), up = camera.orientation * Eigen::Vector3f::UnitY();
+    EXPECT_TRUE(forward.isApprox((Eigen::Vector3f(10, 20, 30) - Eigen::Vector3f(-40, -60, 50)).normalized(), 1e-5f));
+    EXPECT_NEAR(up.dot(forward), 0.0f, 1e-5f);
+    EXPECT_GT(up.x(), 0.5f) << "the patient's left (+x) should be up in the surgeon's view";
+    EXPECT_NEAR(camera.orientation.toRotationMatrix().determinant(), 1.0f, 1e-5f);
+    EXPECT_THROW(parse_eye("10,20,30", look), OptionError);
+    EXPECT_THROW(parse_eye("1,2", look), OptionError);
+    EXPECT_THROW(parse_eye("1,2,3,4", look), OptionError);
 }
 
 // Errors a user meets: no defect, an unknown approach, --eye without --look-at.

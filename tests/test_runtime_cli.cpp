@@ -341,7 +341,7 @@ TEST(HeartsimCli, ExitStatusFollowsTheTable) {
         {run + "--steps -1", 2, "--steps: must be 0 or more, not -1"},
         {run + "--stepps 1", 2, "not expected: --stepps 1 (--stepps: did you mean --steps?) (heartsim run --help"},
         {"recover", 2, "journal is required (heartsim recover --help lists the options)"},
-        {"bogus", 2, "'bogus' is neither a command (info, run, recover, plan-incision, plan-repair) nor a scenario file"},
+        {"bogus", 2, "'bogus' is neither a command (info, run, recover, plan-incision, plan-repair, plan-operation) nor a scenario file"},
         {run + "--steps 1 --save-state " + quoted(dir / "state.png"), 2, "state.png: the state is an HDF5 file"},
         {run + "--steps 1 --screenshot " + quoted(dir / "shot.jpg"), 2, "shot.jpg: the screenshot is a PNG picture"},
         {"run", 2, "scenario"},                                                 // missing argument

@@ -4,6 +4,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/surgery/sight.h"
 #include "runtime/surgery/incision_plan.h"
+#include "runtime/surgery/plan_text.h"
 
 #include <Eigen/Geometry>
 
@@ -16,17 +17,12 @@
 namespace heartsim {
 namespace {
 
+/// "x, y, z" (the parentheses, where wanted, are the sentence's).
 std::string point_text(const Eigen::Vector3d& p, int decimals = 1) {
-    char text[96];
-    std::snprintf(text, sizeof text, "%.*f, %.*f, %.*f", decimals, p.x(), decimals, p.y(), decimals, p.z());
-    return text;
+    const std::string text = plan_text::point(p, decimals);
+    return text.substr(1, text.size() - 2);
 }
-
-std::string number_text(double value, int decimals = 1) {
-    char text[48];
-    std::snprintf(text, sizeof text, "%.*f", decimals, value);
-    return text;
-}
+std::string number_text(double value, int decimals = 1) { return plan_text::number(value, decimals); }
 
 /// The coronary courses the landmarks give, each a polyline.
 struct Course {

@@ -4,6 +4,7 @@
 #include "libmodel/errors.h"
 #include "libmodel/surgery/surgery_site.h"
 #include "runtime/surgery/incision_plan.h"
+#include "runtime/surgery/plan_text.h"
 #include "runtime/view/section_plane.h"
 
 #include <algorithm>
@@ -28,17 +29,8 @@ std::string defect_words(const std::string& defect) {
     return defect == "asd" ? "atrial septal defect" : defect == "vsd" ? "ventricular septal defect" : "septal defect (" + defect + ")";
 }
 
-std::string point_text(const Eigen::Vector3d& p, int decimals = 1) {
-    char text[96];
-    std::snprintf(text, sizeof text, "(%.*f, %.*f, %.*f)", decimals, p.x(), decimals, p.y(), decimals, p.z());
-    return text;
-}
-
-std::string number_text(double value, int decimals = 1) {
-    char text[48];
-    std::snprintf(text, sizeof text, "%.*f", decimals, value);
-    return text;
-}
+std::string point_text(const Eigen::Vector3d& p, int decimals = 1) { return plan_text::point(p, decimals); }
+std::string number_text(double value, int decimals = 1) { return plan_text::number(value, decimals); }
 
 /// The refusal where a stitch's line meets no wall near the defect (StitchSites::missing): which
 /// stitch, where, what its line met, and what to change.
