@@ -28,21 +28,7 @@ namespace {
 
 test::CommandResult heartsim_command(const std::string& arguments) { return test::run_command(quoted(HEARTSIM_EXE) + " " + arguments); }
 
-/// The phantom's two ventricles with an 8 mm VSD carved through its septum at a known point, 8,000 particles.
-const fs::path& vsd_phantom() {
-    static test::TempDir dir;
-    static fs::path built;
-    if (built.empty()) {
-        const fs::path labels = dir / "phantom.nii.gz", scenario = dir / "vsd.h5";
-        const auto phantom = test::heartprep("phantom -o " + quoted(labels) + " --vsd-diameter 0");
-        if (phantom.exit_code != 0) throw std::runtime_error(phantom.output);
-        const auto build = test::heartprep("build " + quoted(labels) + " --defect vsd --at=-21.1,-1.1,-1.5 --diameter 8 --particles 8000 -q -o " +
-                                           quoted(scenario));
-        if (build.exit_code != 0) throw std::runtime_error(build.output);
-        built = scenario;
-    }
-    return built;
-}
+const fs::path& vsd_phantom() { return test::built_vsd_phantom(); }
 
 Eigen::Vector3d printed_point(const std::string& output, const std::string& label) {
     std::smatch m;

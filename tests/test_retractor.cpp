@@ -113,22 +113,7 @@ double largest_move(const Gesture& g, const std::vector<std::int32_t>& particles
     return worst;
 }
 
-/// The phantom's two ventricles with an 8 mm VSD carved through its septum, 8,000 particles and the
-/// detailed mesh (the run wraps the backend in the repair's and opens the mesh along a cut).
-const fs::path& vsd_phantom() {
-    static test::TempDir dir;
-    static fs::path built;
-    if (built.empty()) {
-        const fs::path labels = dir / "phantom.nii.gz", scenario = dir / "vsd.h5";
-        const auto phantom = test::heartprep("phantom -o " + quoted(labels) + " --vsd-diameter 0");
-        if (phantom.exit_code != 0) throw std::runtime_error(phantom.output);
-        const auto build = test::heartprep("build " + quoted(labels) + " --defect vsd --at=-21.1,-1.1,-1.5 --diameter 8 --particles 8000 -q -o " +
-                                           quoted(scenario));
-        if (build.exit_code != 0) throw std::runtime_error(build.output);
-        built = scenario;
-    }
-    return built;
-}
+const fs::path& vsd_phantom() { return test::built_vsd_phantom(); }
 
 /// `heartsim plan-operation`'s operation on the VSD phantom, its retraction by retractors (a
 /// grabber's rows read as retractor's): the scalpel cuts, the retractors take the edges and spread

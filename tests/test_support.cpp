@@ -163,4 +163,19 @@ const std::filesystem::path& built_phantom(const std::string& build_options) {
     return path;
 }
 
+const std::filesystem::path& built_vsd_phantom() {
+    static TempDir dir;
+    static std::filesystem::path built;
+    if (built.empty()) {
+        const auto labels = dir / "phantom.nii.gz", scenario = dir / "vsd.h5";
+        const auto phantom = heartprep("phantom -o " + quoted(labels) + " --vsd-diameter 0");
+        if (phantom.exit_code != 0) throw std::runtime_error("heartprep phantom failed: " + phantom.output);
+        const auto build = heartprep("build " + quoted(labels) + " --defect vsd --at=-21.1,-1.1,-1.5 --diameter 8 --particles 8000 -q -o " +
+                                     quoted(scenario));
+        if (build.exit_code != 0) throw std::runtime_error("heartprep build failed: " + build.output);
+        built = scenario;
+    }
+    return built;
+}
+
 }  // namespace heartsim::test

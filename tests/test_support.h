@@ -108,6 +108,10 @@ CommandResult heartprep(const std::string& arguments);
 /// "--cavity 2 --anchor-border"), once per test program and set of options, into a folder that
 /// lives as long as the program. Throws with heartprep's output when the build fails.
 const std::filesystem::path& built_phantom(const std::string& build_options);
+/// The phantom's two ventricles (heartprep phantom --vsd-diameter 0) built with an 8 mm VSD carved
+/// through its septum at (-21.1, -1.1, -1.5) mm, 8,000 particles and the detailed mesh: the
+/// operation's and the repair's small heart. Built once per test program; throws where it fails.
+const std::filesystem::path& built_vsd_phantom();
 
 /// The start of a shell command that runs a program in a window under Xvfb (640×480), with a
 /// 10-minute limit. Under AddressSanitizer leak detection is off for that program only: Mesa's
