@@ -362,6 +362,30 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
     }    report_conduction_zone(p);
 }
 
+namespace {
+
+/// Where a carried patch or needle passed through tissue (RepairBackend::intrusions), after the
+/// closure's lines: "none", or one line for each of the first few stretches and a count of the rest.
+/// Nothing in a run whose hands held neither, or with the check off (RepairSettings::intrusion_every_ms).
+void report_intrusions(PreparedRun& p) {
+    if (!p.repair || !p.repair->held_repair_instrument() || p.repair->intrusion_every() == 0) return;
+    const auto& found = p.repair->intrusions();
+    if (found.empty()) {
+        std::printf("instruments through tissue: none\n");
+        return;
+    }
+    constexpr std::size_t shown = 5;
+    for (std::size_t i = 0; i < found.size() && i < shown; ++i) {
+        const TissueIntrusion& t = found[i];
+        std::printf("instruments through tissue: the %s (hand %d) passed through tissue at (%.1f, %.1f, %.1f) mm, %.1f mm deep, from %.0f "
+                    "to %.0f ms\n",
+                    std::string(to_string(t.kind)).c_str(), t.hand, t.where.x(), t.where.y(), t.where.z(), t.depth_mm, t.from_ms, t.to_ms);
+    }
+    if (found.size() > shown) std::printf("instruments through tissue: %zu more, %zu in all\n", found.size() - shown, found.size());
+}
+
+}  // namespace
+
 /// After every mode but --replay: the last screenshot, the summary, --stats, --stats-csv,
 /// --save-state. Returns the exit status: 4 when a haptic device faulted, else 0.
 int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& run, const haptics::HapticRun* haptic,
@@ -417,6 +441,7 @@ int finish_run(const RunArguments& a, PreparedRun& p, const ScriptedRunResult& r
         std::printf("hand %d force (%.6g, %.6g, %.6g) N on %zu particles\n", hand, f.force_n.x(), f.force_n.y(), f.force_n.z(), f.particles);
     }
     if (p.repair || !p.scenario.source.defect.empty()) report_closure(a, p, positions);
+    report_intrusions(p);
     if (a.stats) print_stats(a, p, run, wall_ms);
     if (!a.stats_csv.empty()) write_stats_csv(a, p, run, wall_ms);
     if (!a.save_state.empty()) save_state(a, p, run, forces, positions, haptic);

@@ -1,10 +1,14 @@
 #include "runtime/surgery/repair.h"
 
+#include "libmodel/surgery/sight.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
+#include <numbers>
 
 namespace heartsim {
 
@@ -79,6 +83,10 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     patch_force_[std::size_t(hand)].setZero();
     h.grabbing = false;
     h.stitch.reset();
+    h.laid = false;
+    end_intrusion(hand);
+    checked_at_[std::size_t(hand)].reset();
+    held_repair_instrument_ = held_repair_instrument_ || repair_kind(instrument.kind);
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
     inner().set_instrument(hand, repair_kind(instrument.kind) ? Instrument{InstrumentKind::none, instrument.semi_axes} : instrument);
 }
@@ -96,7 +104,9 @@ std::size_t RepairBackend::begin_grab(int hand) {
     if (!repair_kind(h.instrument.kind)) return inner().begin_grab(hand);
     if (h.grabbing) return 0;
     h.grabbing = true;
-    if (h.instrument.kind == InstrumentKind::patch) lay(hand);
+    end_intrusion(hand);
+    checked_at_[std::size_t(hand)].reset();
+    if (h.instrument.kind == InstrumentKind::patch) h.laid = true, lay(hand);
     else tie(hand);
     std::fflush(stdout);  // the repair's lines, read as they happen (a window's log, the tests)
     return 0;
@@ -229,7 +239,143 @@ void RepairBackend::step_patch(int every) {
     ++patch_steps_;
 }
 
+int RepairBackend::intrusion_every() const {
+    if (!(settings_.intrusion_every_ms > 0)) return 0;
+    return std::max(1, int(std::lround(settings_.intrusion_every_ms / inner().time_step_ms())));
+}
+
+bool RepairBackend::carried(int hand) const {
+    const Hand& h = hands_[std::size_t(hand)];
+    if (!h.posed || h.grabbing) return false;
+    return (h.instrument.kind == InstrumentKind::patch && !h.laid) || h.instrument.kind == InstrumentKind::needle;
+}
+
+void RepairBackend::check_intrusions() {
+    const auto start = std::chrono::steady_clock::now();
+    // Each carrying hand's working points and its direction of travel.
+    struct Point {
+        int hand;
+        Eigen::Vector3d x;
+        std::array<Eigen::Vector3d, 4> ways;  ///< its depth is looked for along these, both ways: the travel, the tool's axes
+    };
+    std::vector<Point> points;
+    Eigen::Vector3d low = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), high = -low;
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!carried(hand)) {
+            end_intrusion(hand);
+            checked_at_[std::size_t(hand)].reset();
+            continue;
+        }
+        const Hand& h = hands_[std::size_t(hand)];
+        const Eigen::Matrix3d axes = h.pose.orientation.normalized().toRotationMatrix();
+        std::optional<Eigen::Vector3d>& last = checked_at_[std::size_t(hand)];
+        const Eigen::Vector3d moved = last ? Eigen::Vector3d(h.pose.position - *last) : Eigen::Vector3d::Zero();
+        const Eigen::Vector3d along = moved.norm() > 1e-3 ? Eigen::Vector3d(moved.normalized()) : Eigen::Vector3d(axes.col(2));
+        last = h.pose.position;
+        const std::array<Eigen::Vector3d, 4> ways{along, axes.col(0), axes.col(1), axes.col(2)};
+        points.push_back({hand, h.pose.position, ways});
+        if (h.instrument.kind == InstrumentKind::patch)
+            for (int k = 0; k < 8; ++k) {
+                const double angle = 2.0 * std::numbers::pi * k / 8;
+                points.push_back({hand,
+                                  h.pose.position + h.instrument.semi_axes.x() * std::cos(angle) * axes.col(0) +
+                                      h.instrument.semi_axes.y() * std::sin(angle) * axes.col(1),
+                                  ways});
+            }
+    }
+    if (points.empty()) return;
+    // The tissue where it is now. Most checks find no point inside: the particles within 0.75
+    // spacing of the points are enough to tell. Only for a point inside are the particles along its
+    // four lines gathered, to find how deep it is.
+    const double h = scenario_.lattice.spacing, reach2 = 0.5625 * h * h, step = 0.25 * h;
+    const std::vector<std::array<float, 3>> positions = inner().positions();
+    for (const Point& p : points) low = low.cwiseMin(p.x), high = high.cwiseMax(p.x);
+    low.array() -= h, high.array() += h;
+    std::vector<std::array<float, 3>> near;
+    for (const auto& x : positions)
+        if (x[0] >= low.x() && x[0] <= high.x() && x[1] >= low.y() && x[1] <= high.y() && x[2] >= low.z() && x[2] <= high.z())
+            near.push_back(x);
+    std::vector<Point> inside;
+    {
+        const TissueOccupancy tissue(near, h);
+        for (const Point& p : points)
+            if (tissue.inside(p.x)) inside.push_back(p);
+    }
+    const double now = inner().simulated_time_ms();
+    std::array<std::optional<std::pair<double, Eigen::Vector3d>>, 2> deepest;
+    if (!inside.empty()) {
+        near.clear();
+        for (const auto& x : positions) {
+            const Eigen::Vector3d y(x[0], x[1], x[2]);
+            bool taken = false;
+            for (const Point& p : inside)
+                for (const Eigen::Vector3d& way : p.ways) {
+                    const double t = std::clamp((y - p.x).dot(way), -intrusion_reach_mm, intrusion_reach_mm);
+                    if (!taken && (y - p.x - t * way).squaredNorm() <= reach2) near.push_back(x), taken = true;
+                }
+        }
+        const TissueOccupancy tissue(near, h);
+        for (const Point& p : inside) {
+            double depth = intrusion_reach_mm;
+            for (double t = step; t < depth; t += step)
+                for (const Eigen::Vector3d& way : p.ways)
+                    for (const double sign : {1.0, -1.0}) {
+                        // Out: two samples in a row outside (a single one may fall in the gap
+                        // the rule leaves at a lattice cell's centre, 0.87 spacing from its corners).
+                        const Eigen::Vector3d q = p.x + sign * t * way;
+                        if (depth > t && !tissue.inside(q) && !tissue.inside(q + sign * step * way)) depth = t - 0.5 * step;
+                    }
+            auto& d = deepest[std::size_t(p.hand)];
+            if (!d || depth > d->first) d = std::pair{depth, p.x};
+        }
+    }
+    for (int hand = 0; hand < 2; ++hand) {
+        const auto& d = deepest[std::size_t(hand)];
+        std::optional<TissueIntrusion>& going = going_[std::size_t(hand)];
+        if (!d) {
+            // A stretch ends once its hand has been out of the tissue for intrusion_gap_ms.
+            if (going && now - going->to_ms >= intrusion_gap_ms) end_intrusion(hand);
+            continue;
+        }
+        if (!going) going = TissueIntrusion{.hand = hand, .kind = hands_[std::size_t(hand)].instrument.kind, .where = d->second,
+                                            .depth_mm = d->first, .from_ms = now, .to_ms = now};
+        going->to_ms = now;
+        if (d->first > going->depth_mm) going->depth_mm = d->first, going->where = d->second;
+        // Reported once a point has been a spacing deep: less is the surface (a stitch tied there).
+        int& shown = shown_[std::size_t(hand)];
+        if (shown < 0 && going->depth_mm >= h) shown = int(intrusions_.size()), intrusions_.push_back(*going);
+        if (shown >= 0) intrusions_[std::size_t(shown)] = *going;
+    }
+    intrusion_ms_ += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    ++intrusion_checks_;
+}
+
 StepReport RepairBackend::step(int steps) {
+    const int every = intrusion_every();
+    if (every == 0 || !(carried(0) || carried(1))) {
+        since_check_ = 0;
+        return step_tissue(steps);
+    }
+    StepReport total;
+    for (int done = 0; done < steps;) {
+        const int n = std::min(steps - done, every - since_check_);
+        const StepReport r = step_tissue(n);
+        total.steps += r.steps;
+        total.substeps += r.substeps;
+        if (r.diverged) total.diverged = true, total.reason = r.reason, total.message = r.message;
+        total.gave_up = total.gave_up || r.gave_up;
+        if (r.gave_up) break;
+        done += n;
+        since_check_ += n;
+        if (since_check_ >= every) {
+            since_check_ = 0;
+            check_intrusions();
+        }
+    }
+    return total;
+}
+
+StepReport RepairBackend::step_tissue(int steps) {
     if (!patch_ || !patch_->laid()) return inner().step(steps);
     StepReport total;
     const int every = std::max(1, settings_.patch_every);
@@ -300,6 +446,7 @@ void RepairBackend::reset_tissue() {
     patch_.reset();
     patch_force_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
+    end_intrusion(0), end_intrusion(1);
     tissue_.set_loads({});
     inner().reset_tissue();
 }

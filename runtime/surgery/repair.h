@@ -12,6 +12,9 @@
 /// (SurgerySupport::set_loads). A needle's hand feels the stitch it ties while its button is held:
 /// the suture's tension.
 ///
+/// Because neither touches the tissue's solver, nothing stops a patch or a needle that is carried
+/// through intact tissue: the repair reports it instead (TissueIntrusion, RepairBackend::intrusions).
+///
 /// The repair wraps the backend (runtime/backend/backend_wrapper.h) and overrides only the calls it
 /// changes; a run finds it through the backend's one extension, Backend::surgery (repair_of).
 ///
@@ -45,7 +48,45 @@ struct RepairSettings {
     /// The patch steps once every this many tissue steps (by as long: XPBD has no stability bound),
     /// its loads held in between.
     int patch_every = 3;
+    /// While a hand carries a patch not yet laid or a needle between stitches, whether its working
+    /// points lie in the tissue is checked once every this much simulated time (rounded to whole
+    /// tissue steps, at least one), ms; 0: never (TissueIntrusion). An instrument carried at
+    /// 0.2 mm/ms, a brisk hand, moves 0.4 mm between checks: less than a lattice spacing.
+    double intrusion_every_ms = 2.0;
 };
+
+/// A stretch of a run in which a carried instrument passed through tissue: a patch in the hand
+/// before it is laid (kind patch, grab off), or a needle between stitches (grab off). The
+/// instrument's working points are the needle's tip (its pose's position) and the patch's centre
+/// and 8 points round its rim (the disc of semi-axes ax, ay in the tool's x, y plane). A point lies
+/// in the tissue within 0.75 lattice spacing of a particle where it is at the check
+/// (libmodel/surgery/sight.h TissueOccupancy, on the current positions).
+///
+/// A point's depth is the shortest way out of the tissue along four lines through it, each both
+/// ways: the instrument's direction of travel since the last check (standing still: the tool's z
+/// axis) and the tool's x, y and z axes. Each is sampled every quarter spacing; the way out is
+/// midway between the last sample inside and the first of two in a row outside (a single one may
+/// fall in the small gap the 0.75-spacing rule leaves at the centre of a lattice cell), so the
+/// depth is within an eighth of a spacing; at most intrusion_reach_mm. Through a wall it is about
+/// the distance to the nearer face; for a rim point grazing an edge, how far it cuts into it.
+///
+/// A stretch runs from the first check that finds one of the hand's points in the tissue to the
+/// last, through gaps shorter than intrusion_gap_ms; it ends once the checks have found none for
+/// intrusion_gap_ms, or when the hand stops carrying (the patch laid, the needle's grab on,
+/// another instrument). It is reported (RepairBackend::intrusions) once a point in it has been at
+/// least one spacing deep: less is the surface (a needle tying a stitch there, a patch laid on it).
+struct TissueIntrusion {
+    int hand = 0;
+    InstrumentKind kind = InstrumentKind::patch;
+    Eigen::Vector3d where = Eigen::Vector3d::Zero();  ///< the deepest working point at its deepest check, mm (world)
+    double depth_mm = 0.0;                            ///< its depth there, mm (at most intrusion_reach_mm)
+    double from_ms = 0.0, to_ms = 0.0;                ///< the simulated times of the stretch's first and last checks in the tissue
+};
+
+/// How far along each way a working point's depth is looked for, mm.
+constexpr double intrusion_reach_mm = 40.0;
+/// Checks finding no point in the tissue for less than this (simulated ms) leave a stretch going on.
+constexpr double intrusion_gap_ms = 10.0;
 
 class RepairBackend final : public BackendWrapper, public SurgerySupport {
 public:
@@ -93,8 +134,27 @@ public:
     /// The device's own time for the patch's steps on it (GPU timer queries), ms, and how many were
     /// timed; {0, 0} where the host steps it. Waits for the steps queued.
     std::pair<double, long long> patch_device_time();
+    /// The stretches in which a carried instrument passed through tissue (TissueIntrusion), in the
+    /// order they began; the last of a hand may still be going on.
+    const std::vector<TissueIntrusion>& intrusions() const { return intrusions_; }
+    /// Whether a hand has held a patch or a needle in this run (the summary's line is for those runs).
+    bool held_repair_instrument() const { return held_repair_instrument_; }
+    /// Tissue steps between two of the intrusion checks (RepairSettings::intrusion_every_ms); 0: none.
+    int intrusion_every() const;
+    /// Wall-clock time the intrusion checks took (ms), and how many ran.
+    double intrusion_ms() const { return intrusion_ms_; }
+    long long intrusion_checks() const { return intrusion_checks_; }
 
 private:
+    /// The steps with the patch's, as many as asked.
+    StepReport step_tissue(int steps);
+    /// Whether hand `hand` carries an instrument whose passage through tissue is checked.
+    bool carried(int hand) const;
+    /// One intrusion check of every carrying hand against the tissue as it is now.
+    void check_intrusions();
+    /// The hand's stretch in tissue, if one is going on, ends.
+    void end_intrusion(int hand) { going_[std::size_t(hand)].reset(), shown_[std::size_t(hand)] = -1; }
+
     /// The patch's step over `every` tissue steps, the tissue as it is now; its loads onto the tissue.
     void step_patch(int every);
     void lay(int hand);
@@ -126,6 +186,7 @@ private:
         bool posed = false;  ///< set_pose since set_instrument
         bool grabbing = false;
         std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
+        bool laid = false;  ///< a patch: laid since set_instrument (no longer carried)
     };
     std::array<Hand, 2> hands_{};
     /// What each hand feels of the patch from its last step (held between its steps, as its loads):
@@ -134,6 +195,14 @@ private:
     mutable double patch_ms_ = 0.0;
     long long patch_steps_ = 0;
     long long tissue_steps_ = 0;  ///< since the patch was laid
+    std::vector<TissueIntrusion> intrusions_;
+    std::array<std::optional<TissueIntrusion>, 2> going_;  ///< each hand's stretch in the tissue going on, reported or not yet
+    std::array<int, 2> shown_{-1, -1};  ///< its index in intrusions_ once reported, or −1
+    std::array<std::optional<Eigen::Vector3d>, 2> checked_at_;  ///< each carrying hand's position at its last check
+    int since_check_ = 0;  ///< tissue steps since the last intrusion check
+    bool held_repair_instrument_ = false;
+    double intrusion_ms_ = 0.0;
+    long long intrusion_checks_ = 0;
 };
 
 /// The detailed mesh's triangles a patch centred at `centre` and facing along `facing` can touch:
