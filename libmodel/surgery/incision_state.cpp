@@ -411,8 +411,30 @@ bool IncisionState::pending(const StrokeLog& log, bool finish) const {
 
 void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions, IncisionUpdate& update) {
     const double gap = 0.02 * lattice_.spacing;
-    for (const CutSurface& surface : stroke_surfaces(stroke, positions, lattice_)) {
-        const IncisionResult result = open_along(mesh_, surface, gap);
+    for (CutSurface surface : stroke_surfaces(stroke, positions, lattice_)) {
+        IncisionResult result = open_along(mesh_, surface, gap);
+        // Where the split does not close up (the strip meets the surface too intricately, often
+        // along an edge or through a vertex), the strip moved a little along its normal meets it
+        // elsewhere: 0.05, 0.1, 0.2 and 0.3 spacing each way are tried (within the cell the blade
+        // cut the springs in) before the mesh is left closed.
+        if (!result.opened && result.failure.find("did not close up") != std::string::npos) {
+            Eigen::Vector3d normal = Eigen::Vector3d::Zero();
+            for (const auto& t : surface.triangles)
+                normal += (surface.points[std::size_t(t[1])] - surface.points[std::size_t(t[0])])
+                              .cross(surface.points[std::size_t(t[2])] - surface.points[std::size_t(t[0])]);
+            if (normal.norm() > 0) {
+                normal.normalize();
+                for (const double move : {0.05, -0.05, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3}) {
+                    CutSurface moved = surface;
+                    for (auto& p : moved.points) p += (move * lattice_.spacing) * normal;
+                    IncisionResult again = open_along(mesh_, moved, gap);
+                    if (!again.opened) continue;
+                    surface = std::move(moved);
+                    result = std::move(again);
+                    break;
+                }
+            }
+        }
         update.remeshed += result.patch_triangles;
         if (!result.failure.empty()) update.failures.push_back(result.failure);
         if (!result.opened) continue;

@@ -63,7 +63,9 @@ public:
     /// Opens the mesh along every stroke of `log` whose blade was lifted and that is not opened
     /// yet, and, with `finish`, along the strokes still under way too (the end of a run: they are
     /// then taken as finished). `positions`: the particles' current positions (packed order).
-    /// A log that was cleared (the tissue reset, its cuts healed) restores the uncut mesh.
+    /// A log that was cleared (the tissue reset, its cuts healed) restores the uncut mesh. Where
+    /// the split along a stroke does not close up (open_along), the strip moved 0.05, 0.1, 0.2 and
+    /// 0.3 spacing each way along its normal is tried before that stroke leaves the mesh closed.
     IncisionUpdate update(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions, bool finish);
     /// Whether update() would do anything for `log` (cheap: no positions needed).
     bool pending(const StrokeLog& log, bool finish) const;
