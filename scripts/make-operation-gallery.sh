@@ -33,7 +33,8 @@ for dir in "$real"/*/; do
   case=${name#hvsmr16_}; case=${case#mmwhs_}
   echo "make-operation-gallery: $name" >&2
   [ -f "$work/$case.h5" ] || "$bin/tools/heartprep" build "$input" "${options[@]}" -o "$work/$case.h5" -q 2>/dev/null
-  plans=$("$bin/runtime/heartsim" plan-operation "$work/$case.h5" -o "$work/$case.csv" --approach all)
+  # Exit 1 where neither approach has an incision: each approach's line then says why.
+  plans=$("$bin/runtime/heartsim" plan-operation "$work/$case.h5" -o "$work/$case.csv" --approach all 2>&1) || true
   echo "$plans" > "$work/$case.plan.txt"
   without=""
   for approach in right-atrial right-ventricular; do
@@ -42,6 +43,7 @@ for dir in "$real"/*/; do
       why=$(sed 's/^plan-operation: no [^:]*: //' <<<"$plan" | head -1)
       table+=("| $case | $approach | no incision: $why | | | | | | | |")
       pictures+=("| $case | $approach | no incision | | $why |")
+      rm -f "docs/gallery/$case-$approach-exposed.png" "docs/gallery/$case-$approach-sewn.png"
       continue
     fi
     csv="$work/$case.$approach.csv"
