@@ -185,6 +185,15 @@ double distance_from_rest(const std::array<float, 3>& x, const std::array<float,
     return std::sqrt(std::pow(double(x[0]) - rest[0], 2) + std::pow(double(x[1]) - rest[1], 2) + std::pow(double(x[2]) - rest[2], 2));
 }
 
+/// The scenario on the cpu backend and, where a GL context opens here, the gl backend.
+std::vector<std::unique_ptr<Backend>> cpu_and_gl(const Scenario& scenario) {
+    const SolverOptions options = options_from(scenario.solver);
+    std::vector<std::unique_ptr<Backend>> backends;
+    backends.push_back(make_cpu_backend(scenario, options));
+    if (test::shared_gl_context()) backends.push_back(make_gl_backend(*test::shared_gl_context(), scenario, options));
+    return backends;
+}
+
 }  // namespace
 
 // A retractor's tissue stays where it was let go, to within 1e-6 mm (to the bit: it is anchored at
@@ -269,10 +278,7 @@ TEST(Retractor, ResetTissueFreesWhatARetractorLeftInPlace) {
     const auto& r = scenario.lattice.particles.rest_position[front_particle(scenario)];
     const Eigen::Vector3d front(r[0], r[1], r[2]);
     const double a = 1.5 * scenario.lattice.spacing;
-    const SolverOptions options = options_from(scenario.solver);
-    std::vector<std::unique_ptr<Backend>> backends;
-    backends.push_back(make_cpu_backend(scenario, options));
-    if (test::shared_gl_context()) backends.push_back(make_gl_backend(*test::shared_gl_context(), scenario, options));
+    const std::vector<std::unique_ptr<Backend>> backends = cpu_and_gl(scenario);
     for (const auto& backend : backends) {
         SCOPED_TRACE(to_string(backend->kind()));
         const Gesture g = run_gesture(*backend, trajectory);
@@ -334,10 +340,7 @@ TEST(Retractor, TheWatchdogsRestoreFreesWhatARetractorLeftInPlace) {
     std::int32_t back = 0;
     for (std::size_t i = 0; i < rest.size(); ++i)
         if (!scenario.lattice.particles.anchored[i] && rest[i][1] > rest[std::size_t(back)][1]) back = std::int32_t(i);
-    const SolverOptions options = options_from(scenario.solver);
-    std::vector<std::unique_ptr<Backend>> backends;
-    backends.push_back(make_cpu_backend(scenario, options));
-    if (test::shared_gl_context()) backends.push_back(make_gl_backend(*test::shared_gl_context(), scenario, options));
+    const std::vector<std::unique_ptr<Backend>> backends = cpu_and_gl(scenario);
     for (const auto& backend : backends) {
         SCOPED_TRACE(to_string(backend->kind()));
         const Gesture g = run_gesture(*backend, trajectory);

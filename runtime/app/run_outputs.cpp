@@ -2,8 +2,8 @@
 // prints, in the order it prints it, is the command's output that tests/test_runtime_cli.cpp and
 // tests/test_haptics_cli.cpp check.
 #include "runtime/app/run_outputs.h"
-#include "runtime/surgery/repair_plan.h"
 
+#include "runtime/surgery/repair_plan.h"
 
 #include "runtime/gl/backend_gl.h"
 #include "runtime/gl/picking.h"
@@ -359,7 +359,8 @@ void report_closure(const RunArguments& a, PreparedRun& p, const std::vector<std
                         r.leak_mm->x(), r.leak_mm->y(), r.leak_mm->z());
     } catch (const InputError& e) {
         std::printf("defect closed: cannot tell (%s)\n", e.what());
-    }    report_conduction_zone(p);
+    }
+    report_conduction_zone(p);
 }
 
 namespace {

@@ -39,6 +39,18 @@ InstrumentKind parse_kind(const std::string& text, const std::string& where) {
 
 }  // namespace
 
+void Trajectory::add(double time_ms, int hand, InstrumentKind kind, const Eigen::Vector3d& position, const Eigen::Quaterniond& orientation,
+                     const Eigen::Vector3d& semi_axes, bool grab) {
+    InstrumentKeyframe k;
+    k.time_ms = time_ms, k.hand = hand, k.kind = kind, k.semi_axes = semi_axes, k.grab = grab;
+    k.pose.position = position, k.pose.orientation = orientation;
+    keyframes.push_back(k);
+}
+
+void Trajectory::sort_by_time() {
+    std::stable_sort(keyframes.begin(), keyframes.end(), [](const InstrumentKeyframe& a, const InstrumentKeyframe& b) { return a.time_ms < b.time_ms; });
+}
+
 bool Trajectory::uses_hand(int hand) const {
     return std::any_of(keyframes.begin(), keyframes.end(), [&](const InstrumentKeyframe& k) { return k.hand == hand; });
 }

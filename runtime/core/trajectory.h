@@ -44,6 +44,11 @@ struct Trajectory {
     /// when that one's kind or semi-axes differ; the rest from the keyframe at or before, or the
     /// first one before the script starts). Requires uses_hand(hand).
     InstrumentKeyframe at(int hand, double time_ms) const;
+    /// Appends a keyframe (the planners' scripts build a trajectory with it, then sort_by_time).
+    void add(double time_ms, int hand, InstrumentKind kind, const Eigen::Vector3d& position, const Eigen::Quaterniond& orientation,
+             const Eigen::Vector3d& semi_axes, bool grab);
+    /// Orders the keyframes by time, keeping the order of those at the same time.
+    void sort_by_time();
 };
 
 /// Checks one keyframe by the rules a trajectory CSV's rows are read by (a finite time, a position

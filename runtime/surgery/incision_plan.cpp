@@ -115,22 +115,16 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
     plan.depth_mm = o.depth_mm > 0 ? o.depth_mm : std::min(plan.wall_mm + 2.0, 40.0);
     plan.blade_length_mm = o.clearance_mm + plan.depth_mm;
     const Eigen::Vector3d blade_axes(2.0, 0.3, 0.5 * plan.blade_length_mm);
-    auto key = [&](double t, int hand, InstrumentKind kind, const Eigen::Vector3d& p, const Eigen::Quaterniond& q,
-                   const Eigen::Vector3d& axes, bool grab) {
-        InstrumentKeyframe k;
-        k.time_ms = t, k.hand = hand, k.kind = kind, k.semi_axes = axes, k.grab = grab;
-        k.pose.position = p, k.pose.orientation = q;
-        plan.trajectory.keyframes.push_back(k);
-    };
+    Trajectory& script = plan.trajectory;
     const Eigen::Vector3d tip = plan.centre - o.clearance_mm * plan.blade;
     const Eigen::Vector3d half = (0.5 * o.length_mm) * plan.cut;
     plan.cut_end_ms = o.length_mm / o.speed_mm_per_ms;
-    key(0.0, 0, InstrumentKind::scalpel, tip - half, orientation, blade_axes, true);
-    key(plan.cut_end_ms, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, true);
+    script.add(0.0, 0, InstrumentKind::scalpel, tip - half, orientation, blade_axes, true);
+    script.add(plan.cut_end_ms, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, true);
     // Lifted and withdrawn 10 mm back out.
-    key(plan.cut_end_ms + 1e-3, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, false);
+    script.add(plan.cut_end_ms + 1e-3, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, false);
     plan.end_ms = plan.cut_end_ms + 25.0;
-    key(plan.end_ms, 0, InstrumentKind::scalpel, tip + half - 10.0 * plan.blade, orientation, blade_axes, false);
+    script.add(plan.end_ms, 0, InstrumentKind::scalpel, tip + half - 10.0 * plan.blade, orientation, blade_axes, false);
     if (!o.retract) return plan;
 
     // Retractors: a grabber of radius 1.2 spacings each side of the blade's plane, its centre on
@@ -151,13 +145,12 @@ IncisionPlan plan_incision(const Scenario& scenario, const IncisionPlanOptions& 
         const double pull = side * 0.5 * o.spread_mm;
         const Eigen::Vector3d pulled = grip + pull * plan.side;
         const Eigen::Quaterniond none = Eigen::Quaterniond::Identity();
-        if (hand == 1) key(0.0, 1, InstrumentKind::none, grip, none, grabber_axes, false);
-        key(plan.grab_ms, hand, InstrumentKind::grabber, grip, none, grabber_axes, true);
-        key(plan.spread_end_ms, hand, InstrumentKind::grabber, pulled, none, grabber_axes, true);
-        key(plan.end_ms, hand, InstrumentKind::grabber, pulled, none, grabber_axes, true);
+        if (hand == 1) script.add(0.0, 1, InstrumentKind::none, grip, none, grabber_axes, false);
+        script.add(plan.grab_ms, hand, InstrumentKind::grabber, grip, none, grabber_axes, true);
+        script.add(plan.spread_end_ms, hand, InstrumentKind::grabber, pulled, none, grabber_axes, true);
+        script.add(plan.end_ms, hand, InstrumentKind::grabber, pulled, none, grabber_axes, true);
     }
-    std::stable_sort(plan.trajectory.keyframes.begin(), plan.trajectory.keyframes.end(),
-                     [](const auto& a, const auto& b) { return a.time_ms < b.time_ms; });
+    script.sort_by_time();
     return plan;
 }
 

@@ -18,10 +18,7 @@ namespace heartsim {
 namespace {
 
 /// "x, y, z" (the parentheses, where wanted, are the sentence's).
-std::string point_text(const Eigen::Vector3d& p, int decimals = 1) {
-    const std::string text = plan_text::point(p, decimals);
-    return text.substr(1, text.size() - 2);
-}
+std::string point_text(const Eigen::Vector3d& p, int decimals = 1) { return plan_text::coordinates(p, decimals); }
 std::string number_text(double value, int decimals = 1) { return plan_text::number(value, decimals); }
 
 /// The coronary courses the landmarks give, each a polyline.
@@ -252,13 +249,7 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     }
 
     // The trajectory.
-    auto key = [&](double t, int hand, InstrumentKind kind, const Eigen::Vector3d& p, const Eigen::Quaterniond& q, const Eigen::Vector3d& axes,
-                   bool grab) {
-        InstrumentKeyframe k;
-        k.time_ms = t, k.hand = hand, k.kind = kind, k.semi_axes = axes, k.grab = grab;
-        k.pose.position = p, k.pose.orientation = q;
-        plan.trajectory.keyframes.push_back(k);
-    };
+    Trajectory& script = plan.trajectory;
     const Eigen::Vector3d blade = -plan.sight;
     Eigen::Matrix3d frame;
     frame.col(0) = plan.cut, frame.col(1) = plan.side, frame.col(2) = blade;
@@ -281,10 +272,10 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     const Eigen::Vector3d blade_axes(2.0, 0.3, 0.5 * blade_length);
     const Eigen::Vector3d tip = plan.exit + (outer + clearance) * plan.sight, half = (0.5 * o.length_mm) * plan.cut;
     plan.cut_end_ms = o.length_mm / speed;
-    key(0.0, 0, InstrumentKind::scalpel, tip - half, orientation, blade_axes, true);
-    key(plan.cut_end_ms, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, true);
-    key(plan.cut_end_ms + 1e-3, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, false);
-    key(plan.cut_end_ms + 25.0, 0, InstrumentKind::scalpel, tip + half + 10.0 * plan.sight, orientation, blade_axes, false);
+    script.add(0.0, 0, InstrumentKind::scalpel, tip - half, orientation, blade_axes, true);
+    script.add(plan.cut_end_ms, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, true);
+    script.add(plan.cut_end_ms + 1e-3, 0, InstrumentKind::scalpel, tip + half, orientation, blade_axes, false);
+    script.add(plan.cut_end_ms + 25.0, 0, InstrumentKind::scalpel, tip + half + 10.0 * plan.sight, orientation, blade_axes, false);
 
     // Retractors: each an ellipsoid along the edge (a quarter of the incision long), 1.2 spacings
     // across, through the wall's depth, its inner side a quarter spacing from the blade's plane;
@@ -300,10 +291,10 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
         const Eigen::Vector3d grip = plan.centre + (s * offset) * plan.side;
         plan.grips[std::size_t(hand)] = grip;
         const Eigen::Vector3d pulled = grip + (s * 0.5 * plan.spread_mm) * plan.side + 2.0 * plan.sight;
-        if (hand == 1) key(0.0, 1, InstrumentKind::none, plan.eye, orientation, retractor_axes, false);
-        key(plan.grab_ms, hand, plan.retractor, grip, orientation, retractor_axes, true);
-        key(plan.exposed_ms, hand, plan.retractor, pulled, orientation, retractor_axes, true);
-        key(plan.repair_start_ms, hand, plan.retractor, pulled, orientation, retractor_axes, true);
+        if (hand == 1) script.add(0.0, 1, InstrumentKind::none, plan.eye, orientation, retractor_axes, false);
+        script.add(plan.grab_ms, hand, plan.retractor, grip, orientation, retractor_axes, true);
+        script.add(plan.exposed_ms, hand, plan.retractor, pulled, orientation, retractor_axes, true);
+        script.add(plan.repair_start_ms, hand, plan.retractor, pulled, orientation, retractor_axes, true);
     }
 
     // The repair, carried in through the opening: the patch and the needle from outside it along
@@ -312,16 +303,15 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     const double lay_ms = plan.repair_start_ms + carry_ms + 1.0;
     const Eigen::Vector3d outside = plan.exit + 20.0 * plan.sight;
     const Eigen::Vector3d patch_axes(0.5 * repair.patch_diameter_mm, 0.5 * repair.patch_diameter_mm, 0.5 * repair.patch_thickness_mm);
-    key(plan.repair_start_ms + 1.0, 0, InstrumentKind::patch, outside, repair.patch_orientation, patch_axes, false);
-    key(plan.repair_start_ms + 1.0, 1, InstrumentKind::needle, outside, repair.needle_orientation, o.repair.needle_semi_axes, false);
+    script.add(plan.repair_start_ms + 1.0, 0, InstrumentKind::patch, outside, repair.patch_orientation, patch_axes, false);
+    script.add(plan.repair_start_ms + 1.0, 1, InstrumentKind::needle, outside, repair.needle_orientation, o.repair.needle_semi_axes, false);
     for (InstrumentKeyframe k : repair.trajectory.keyframes) {
         if (k.hand == 1 && k.kind == InstrumentKind::none) continue;  // the needle waits outside the opening instead
         k.time_ms += lay_ms;
         plan.trajectory.keyframes.push_back(k);
     }
     plan.end_ms = lay_ms + repair.end_ms;
-    std::stable_sort(plan.trajectory.keyframes.begin(), plan.trajectory.keyframes.end(),
-                     [](const InstrumentKeyframe& a, const InstrumentKeyframe& b) { return a.time_ms < b.time_ms; });
+    script.sort_by_time();
     return plan;
 }
 
@@ -366,19 +356,7 @@ void print_plan(const OperationPlan& plan, const std::string& scenario, const st
     std::printf("  run it      heartsim run %s --trajectory %s --seconds %.1f\n", scenario.c_str(), output.c_str(), seconds);
     std::printf("  see it      add --view surgeon --eye %s --look-at %s (from the surgeon's eye into the opening); the exposure alone: "
                 "--seconds %.2f\n",
-                [&] {
-                    char t[96];
-                    std::snprintf(t, sizeof t, "%.1f,%.1f,%.1f", plan.eye.x(), plan.eye.y(), plan.eye.z());
-                    return std::string(t);
-                }()
-                    .c_str(),
-                [&] {
-                    char t[96];
-                    std::snprintf(t, sizeof t, "%.1f,%.1f,%.1f", plan.target.x(), plan.target.y(), plan.target.z());
-                    return std::string(t);
-                }()
-                    .c_str(),
-                plan.exposed_ms / 1000.0);
+                plan_text::option_point(plan.eye).c_str(), plan_text::option_point(plan.target).c_str(), plan.exposed_ms / 1000.0);
 }
 
 }  // namespace

@@ -10,10 +10,20 @@
 
 namespace heartsim::plan_text {
 
-/// "(x, y, z)" to `decimals` places.
-inline std::string point(const Eigen::Vector3d& p, int decimals = 1) {
+/// "x, y, z" to `decimals` places.
+inline std::string coordinates(const Eigen::Vector3d& p, int decimals = 1) {
     char text[96];
-    std::snprintf(text, sizeof text, "(%.*f, %.*f, %.*f)", decimals, p.x(), decimals, p.y(), decimals, p.z());
+    std::snprintf(text, sizeof text, "%.*f, %.*f, %.*f", decimals, p.x(), decimals, p.y(), decimals, p.z());
+    return text;
+}
+
+/// "(x, y, z)" to `decimals` places.
+inline std::string point(const Eigen::Vector3d& p, int decimals = 1) { return "(" + coordinates(p, decimals) + ")"; }
+
+/// "x,y,z" to 0.1 mm: a point as heartsim run's --look-at and --eye take it.
+inline std::string option_point(const Eigen::Vector3d& p) {
+    char text[96];
+    std::snprintf(text, sizeof text, "%.1f,%.1f,%.1f", p.x(), p.y(), p.z());
     return text;
 }
 

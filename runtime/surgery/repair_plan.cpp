@@ -200,37 +200,30 @@ namespace {
 /// The hands' keyframes of `plan` (its patch, stitches and needle placed) by `o`'s times
 /// (repair_plan.h): each stitch's tie_ms, the gesture's end_ms and the trajectory, in time order.
 void script_repair(RepairPlan& plan, const RepairPlanOptions& o) {
-    auto key = [&](double t, int hand, InstrumentKind kind, const Eigen::Vector3d& p, const Eigen::Quaterniond& q, const Eigen::Vector3d& axes,
-                   bool grab) {
-        InstrumentKeyframe k;
-        k.time_ms = t, k.hand = hand, k.kind = kind, k.semi_axes = axes, k.grab = grab;
-        k.pose.position = p, k.pose.orientation = q;
-        plan.trajectory.keyframes.push_back(k);
-    };
+    Trajectory& script = plan.trajectory;
     const Eigen::Vector3d patch_axes(0.5 * plan.patch_diameter_mm, 0.5 * plan.patch_diameter_mm, 0.5 * o.thickness_mm);
     const Eigen::Vector3d& needle_axes = o.needle_semi_axes;
     const Eigen::Quaterniond& needle = plan.needle_orientation;
-    key(0.0, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, true);
-    key(o.release_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
+    script.add(0.0, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, true);
+    script.add(o.release_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
     // The needle is held out of the way (kind none) until the patch is laid.
-    key(0.0, 1, InstrumentKind::none, plan.stitches.front().outside, needle, needle_axes, false);
+    script.add(0.0, 1, InstrumentKind::none, plan.stitches.front().outside, needle, needle_axes, false);
     double t = o.release_ms;
-    key(t, 1, InstrumentKind::needle, plan.stitches.front().outside, needle, needle_axes, false);
+    script.add(t, 1, InstrumentKind::needle, plan.stitches.front().outside, needle, needle_axes, false);
     const int n = int(plan.stitches.size());
     for (int k = 0; k < n; ++k) {
         RepairStitch& s = plan.stitches[std::size_t(k)];
         s.tie_ms = t + o.approach_ms;
-        key(s.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, true);
-        key(s.tie_ms + o.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, false);
+        script.add(s.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, true);
+        script.add(s.tie_ms + o.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, false);
         t = s.tie_ms + o.tie_ms + o.withdraw_ms;
         const Eigen::Vector3d& next = k + 1 < n ? plan.stitches[std::size_t(k + 1)].outside : s.outside;
-        key(t, 1, InstrumentKind::needle, next, needle, needle_axes, false);
+        script.add(t, 1, InstrumentKind::needle, next, needle, needle_axes, false);
     }
     plan.end_ms = t + o.settle_ms;
-    key(plan.end_ms, 1, InstrumentKind::needle, plan.stitches.back().outside, needle, needle_axes, false);
-    key(plan.end_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
-    std::stable_sort(plan.trajectory.keyframes.begin(), plan.trajectory.keyframes.end(),
-                     [](const InstrumentKeyframe& a, const InstrumentKeyframe& b) { return a.time_ms < b.time_ms; });
+    script.add(plan.end_ms, 1, InstrumentKind::needle, plan.stitches.back().outside, needle, needle_axes, false);
+    script.add(plan.end_ms, 0, InstrumentKind::patch, plan.patch_centre, plan.patch_orientation, patch_axes, false);
+    script.sort_by_time();
 }
 
 RepairPlan plan_repair_on(const Scenario& scenario, const RepairPlanOptions& o) {
