@@ -61,6 +61,7 @@ SolverRules rules_before_recorded() {
     r.max_displacement_fraction = 2.0;
     r.probe_pierce_strain = 0.0;  // never pierces
     r.grab_reach = 0.0;           // everything inside
+    r.contact_skin = 0.0;         // at the particles
     return r;
 }
 
@@ -74,6 +75,7 @@ std::string check_rules(const SolverRules& r) {
     if (!wrong.empty()) return wrong;
     if (!(r.max_displacement_fraction > 0)) return "max_displacement_fraction must be positive, not " + std::to_string(r.max_displacement_fraction);
     if (!(r.energy_growth_limit > 1)) return "energy_growth_limit must be above 1, not " + std::to_string(r.energy_growth_limit);
+    if (!(r.contact_skin >= 0 && r.contact_skin <= 1)) return "contact_skin must be in [0, 1], not " + std::to_string(r.contact_skin);
     if (r.watchdog_interval < 1) return "watchdog_interval must be at least 1, not " + std::to_string(r.watchdog_interval);
     if (r.max_consecutive_restores < 1) return "max_consecutive_restores must be at least 1, not " + std::to_string(r.max_consecutive_restores);
     return {};
@@ -200,7 +202,13 @@ void read_run_attributes(const h5::Reader& r, Recording& rec) {
     // Absent in recordings made before they kept the solver's rules.
     if (r.exists("rules")) {
         SolverRules rules;
-        for_each_rule([&](const char* name, auto& value) { value = r.number<std::remove_reference_t<decltype(value)>>("rules", name); }, rules);
+        for_each_rule(
+            [&](const char* name, auto& value) {
+                // contact_skin: absent in recordings made before instruments met the drawn surface.
+                if (std::string(name) == "contact_skin" && !r.has_attribute("rules", name)) value = 0.0;
+                else value = r.number<std::remove_reference_t<decltype(value)>>("rules", name);
+            },
+            rules);
         if (const std::string wrong = check_rules(rules); !wrong.empty()) r.fail("/rules", wrong);
         rec.rules = rules;
     }

@@ -31,8 +31,9 @@ constexpr std::size_t record_header = 20;           // magic, kind, bytes, check
 /// the arithmetic (a byte, 1 when they follow); a journal before it is read without them. 4 adds
 /// to each chunk, after the diverged column, a byte (1 when the mass-scale column follows) and the
 /// column. 5 adds after the mass-scale column a byte (1 when the instrument and semi-axes columns
-/// follow) and the two columns, and at the end of the session record its patch material.
-constexpr std::uint32_t journal_version = 5;
+/// follow) and the two columns, and at the end of the session record its patch material. 6 adds
+/// the contact_skin rule after the others (a journal before it is read with 0).
+constexpr std::uint32_t journal_version = 6;
 enum Kind : std::uint32_t { session_record = 1, chunk_record = 2, end_record = 3 };
 
 /// A payload being built.
@@ -397,7 +398,12 @@ std::uint32_t read_session_record(Cursor& c, const std::string& where, JournalCo
         throw InputError(where + ": the session's arithmetic must be fused or separate, not '" + r.arithmetic + "'");
     if (version >= 3 && c.get<std::uint8_t>() != 0) {
         SolverRules rules;
-        for_each_rule([&](const char*, auto& value) { value = c.get<std::remove_reference_t<decltype(value)>>(); }, rules);
+        for_each_rule(
+            [&](const char* name, auto& value) {
+                if (version < 6 && std::string(name) == "contact_skin") value = 0.0;
+                else value = c.get<std::remove_reference_t<decltype(value)>>();
+            },
+            rules);
         if (const std::string wrong = check_rules(rules); !wrong.empty()) throw InputError(where + ": the session's rules: " + wrong);
         r.rules = rules;
     }

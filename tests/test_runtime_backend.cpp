@@ -488,10 +488,13 @@ TEST(RuntimeBackend, GlPiercesAndGrabsOnePieceOfTissueAsTheCpuDoes) {
             const Eigen::Vector3d grab_at = pose.position + Eigen::Vector3d(0, paddle.y() + 1.0, 0);
             const Eigen::Vector3d grab_axes = Eigen::Vector3d::Constant(2.5);
             const auto x = backend->positions();
+            const std::vector<float> skin = scenario_contact_skin(scenario);  // the grabber grown by each particle's skin
             std::size_t count = 0;
             for (std::size_t i = 0; i < x.size(); ++i)
                 if (!scenario.lattice.particles.anchored[i])
-                    count += (Eigen::Vector3d(x[i][0], x[i][1], x[i][2]) - grab_at).cwiseQuotient(grab_axes).squaredNorm() <= 1.0;
+                    count += (Eigen::Vector3d(x[i][0], x[i][1], x[i][2]) - grab_at)
+                                 .cwiseQuotient(grab_axes + Eigen::Vector3d::Constant(double(skin[i]) * options.contact_skin))
+                                 .squaredNorm() <= 1.0;
             inside_grabber.push_back(count);
             backend->set_instrument(1, {.kind = InstrumentKind::grabber, .semi_axes = grab_axes});
             backend->set_pose(1, {grab_at, Eigen::Quaterniond::Identity()});

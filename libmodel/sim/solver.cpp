@@ -122,6 +122,22 @@ void check_loads(const std::vector<ParticleLoad>& loads, std::size_t particle_co
 }
 
 template <class Real>
+void BasicSolver<Real>::set_contact_skin(std::vector<float> skin) {
+    if (!skin.empty() && skin.size() != n_)
+        throw InputError("solver: the contact skin has " + std::to_string(skin.size()) + " values for " + std::to_string(n_) + " particles");
+    const double limit = 4.0 * double(max_rest_length_);
+    double largest = 0.0;
+    for (std::size_t i = 0; i < skin.size(); ++i) {
+        if (!(skin[i] >= 0.0f) || !(double(skin[i]) <= limit))
+            throw InputError("solver: particle " + std::to_string(i) + "'s contact skin must be finite and in [0, " + std::to_string(limit) +
+                             "] mm, not " + std::to_string(skin[i]));
+        largest = std::max(largest, double(skin[i]));
+    }
+    skin_ = std::move(skin);
+    max_reach_beyond_ = largest * options_.contact_skin;
+}
+
+template <class Real>
 void BasicSolver<Real>::set_loads(std::vector<ParticleLoad> loads) {
     check_loads(loads, n_);
     std::vector<std::int32_t> particle(loads.size());
@@ -344,7 +360,7 @@ int BasicSolver<Real>::probe_frames(const InstrumentPose* previous_poses, const 
         p.previous_centre = previous_poses[hand].position;
         p.previous_world_from_tool = previous_poses[hand].orientation.toRotationMatrix();
         p.semi_axes = state.instrument.semi_axes;
-        const double radius = state.instrument.semi_axes.maxCoeff() * (1 + 1e-3) + 1e-3;
+        const double radius = (state.instrument.semi_axes.maxCoeff() + max_reach_beyond_) * (1 + 1e-3) + 1e-3;
         p.bound2 = radius * radius;
     }
     return probe_count;
@@ -361,18 +377,20 @@ void BasicSolver<Real>::project_out_of_probe(const ProbeFrame& p, std::size_t i,
     Real* x = next_ + state_stride * i;
     const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
     Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
-    const double r2 = local.cwiseQuotient(p.semi_axes).squaredNorm();
+    // The probe as this particle meets it: grown by the particle's skin (set_contact_skin).
+    const Eigen::Vector3d semi_axes = p.semi_axes + Eigen::Vector3d::Constant(reach_beyond(i));
+    const double r2 = local.cwiseQuotient(semi_axes).squaredNorm();
     if (!(r2 < 1.0)) return;
     // To the nearest point of the surface (ellipsoid.h), then just outside it (1e-6 relative)
     // so that float rounding and a caller's own evaluation of the pose cannot see it inside.
-    local = nearest_point_on_ellipsoid(local, p.semi_axes);
+    local = nearest_point_on_ellipsoid(local, semi_axes);
     double factor = 1.0 + 1e-6;
     Eigen::Vector3d stored;
     for (int attempt = 0; attempt < 60; ++attempt) {
         const Eigen::Vector3d out = p.centre + p.world_from_tool * (local * factor);
         for (int c = 0; c < 3; ++c) x[c] = Real(out[c]);
         stored = Eigen::Vector3d(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
-        if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(p.semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
+        if ((p.world_from_tool.transpose() * (stored - p.centre)).cwiseQuotient(semi_axes).squaredNorm() >= 1.0 + 1e-6) break;
         factor *= 1 + 1e-6 * double(1 << std::min(attempt, 20));
     }
     // Pierced (SolverOptions::probe_pierce_strain): the surface point would stretch one of its
@@ -383,7 +401,7 @@ void BasicSolver<Real>::project_out_of_probe(const ProbeFrame& p, std::size_t i,
         ++pierced;
         return;
     }
-    const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(p.semi_axes.cwiseProduct(p.semi_axes))).normalized();
+    const Eigen::Vector3d normal = (p.world_from_tool * local.cwiseQuotient(semi_axes.cwiseProduct(semi_axes))).normalized();
     const Eigen::Vector3d surface_motion = stored - (p.previous_centre + p.previous_world_from_tool * (local * factor));
     const Real* xc = current_ + state_stride * i;
     Eigen::Vector3d u = world - Eigen::Vector3d(static_cast<double>(xc[0]), static_cast<double>(xc[1]), static_cast<double>(xc[2]));

@@ -304,6 +304,16 @@ public:
     /// checks trips it.
     void set_loads(std::vector<ParticleLoad> loads);
     const std::vector<ParticleLoad>& loads() const { return loads_; }
+    /// Each particle's skin, mm, in packed order (libmodel/contact_skin.h: how far the drawn surface
+    /// lies beyond it at rest). From the next substep a probe, and from the next begin_grab() a
+    /// grabber or retractor, meets particle i grown by skin[i] × SolverOptions::contact_skin on each
+    /// semi-axis, so that it meets the tissue where it is drawn. Empty (as constructed): no skin.
+    /// Throws InputError, nothing changed, unless there are size() values, each finite and in
+    /// [0, 4 × the lattice's longest rest length].
+    void set_contact_skin(std::vector<float> skin);
+    const std::vector<float>& contact_skin() const { return skin_; }
+    /// How far an instrument reaches beyond particle i: skin × SolverOptions::contact_skin, mm.
+    double reach_beyond(std::size_t i) const { return skin_.empty() ? 0.0 : double(skin_[i]) * options_.contact_skin; }
     /// `task` runs during the next step() (its first substep), beside the kernel's spring pass and
     /// before the loads are applied, on one of the step's threads: it may read positions
     /// (position()) and set_loads(), which that substep applies, and must touch nothing else of
@@ -474,6 +484,8 @@ private:
 
     std::array<HandState, hands> hand_;
     std::vector<ParticleLoad> loads_;          ///< set_loads(), sorted by particle
+    std::vector<float> skin_;                  ///< set_contact_skin(), N or empty
+    double max_reach_beyond_ = 0.0;            ///< the largest reach_beyond()
     std::function<void()> beside_;             ///< run_beside_next_step()
     std::vector<std::int32_t> load_particle_;  ///< loads_'s particles, for the chunks' lower_bound
     std::vector<Real> load_force_;             ///< loads_'s forces rounded to Real, 3 per load, N

@@ -101,6 +101,12 @@ struct SolverRules {
     /// together from far apart takes the piece under the jaws instead of a rigid clump of
     /// thousands of particles. ≤ 0: everything inside.
     double grab_reach = 2.0;
+    /// How far a probe, a grabber or a retractor reaches beyond a particle, as a fraction of the
+    /// particle's skin (libmodel/contact_skin.h: how far the drawn surface lies beyond it at rest,
+    /// BasicSolver::set_contact_skin): the instrument is grown by skin × this for that particle, so
+    /// at 1 it meets the tissue where the trainee sees it drawn, not half a spacing inside. 0: at
+    /// the particles themselves (what recordings made before this rule replay with). In [0, 1].
+    double contact_skin = 1.0;
     /// A state becomes the watchdog's restore point only while no spring is longer than
     /// (1 + this) × its rest length: a state stretched further, released at rest, diverges again
     /// at once (geometric stiffening shortens the stable step), and restoring to it froze the
@@ -125,6 +131,7 @@ template <class F, class... Rules> void for_each_rule(F&& f, Rules&... rules) {
     f("restore_strain_limit", rules.restore_strain_limit...);
     f("watchdog_interval", rules.watchdog_interval...);
     f("max_consecutive_restores", rules.max_consecutive_restores...);
+    f("contact_skin", rules.contact_skin...);
 }
 
 /// How this run computes the step: the run's choice, never in a scenario (mass_scale alone is

@@ -51,7 +51,9 @@ using Clock = std::chrono::steady_clock;
 class CpuBackend final : public Backend, public SurgerySupport {
 public:
     CpuBackend(const Scenario& scenario, const SolverOptions& options)
-        : solver_(scenario.lattice, scenario.packing->neighbours, options) {}
+        : solver_(scenario.lattice, scenario.packing->neighbours, options) {
+        solver_.set_contact_skin(scenario_contact_skin(scenario));
+    }
 
     BackendKind kind() const override { return BackendKind::cpu; }
     std::size_t size() const override { return solver_.size(); }

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 namespace heartsim {
 
@@ -21,5 +22,11 @@ struct ContactSettings {
     int sampling_grid = 64;        ///< sampling points: a G×G grid over the probe's silhouette, lifted onto its front half, + a rim ring of 4G
     double tolerance_mm = 0.0;     ///< a particle within this of the probe is in contact; 0 = 1e-3 × lattice spacing
 };
+
+struct Scenario;
+/// The scenario's contact skin (libmodel/contact_skin.h) in its packed order, which both backends
+/// give their step (Solver::set_contact_skin): from its detailed mesh (/visual), or all zeros
+/// where it has none (its drawn surface is then the simulation surface, through the particles).
+std::vector<float> scenario_contact_skin(const Scenario& scenario);
 
 }  // namespace heartsim

@@ -406,7 +406,7 @@ void GlBackend::run_contact_search() {
     for (int hand = 0; hand < hands; ++hand) {
         const HandState& state = hand_[hand];
         if (state.instrument.kind != InstrumentKind::probe || !state.placed) continue;
-        picking_->collect(hand, state.instrument, state.pose, position_[current_].id(), counters_.id());
+        picking_->collect(hand, state.instrument, state.pose, position_[current_].id(), counters_.id(), skin_.id());
     }
     glQueryCounter(timing.queries[1], GL_TIMESTAMP);
     pending_.push_back(std::move(timing));
@@ -448,6 +448,7 @@ void GlBackend::bind_common() {
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held, held_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::skin, skin_.id());
 }
 
 }  // namespace gl_backend

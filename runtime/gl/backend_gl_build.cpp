@@ -34,7 +34,15 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
     // The CPU solver validates the scenario exactly as the cpu backend would and decides
     // the substeps (critical step, damping): both backends then share h and the constants.
     {
-        const Solver reference(scenario.lattice, scenario.packing->neighbours, options);
+        Solver reference(scenario.lattice, scenario.packing->neighbours, options);
+        // The contact skin as the cpu solver takes it: checked by set_contact_skin, each particle's
+        // reach computed by reach_beyond, in double (build_buffers uploads it).
+        reference.set_contact_skin(scenario_contact_skin(scenario));
+        reach_beyond_.resize(reference.size());
+        for (std::size_t i = 0; i < reference.size(); ++i) {
+            reach_beyond_[i] = reference.reach_beyond(i);
+            max_reach_beyond_ = std::max(max_reach_beyond_, reach_beyond_[i]);
+        }
         load_report_ = reference.load_report();
         dt_ms_ = reference.time_step_ms();
         h_ = reference.substep_ms();
@@ -197,6 +205,8 @@ void GlBackend::build_buffers(const Scenario& scenario) {
     storage(held_, std::size_t(hands) * n_ * 4, GL_DYNAMIC_STORAGE_BIT);              // begin_grab rewrites it
     storage(held_local_, std::size_t(hands) * n_ * 3 * 8, GL_DYNAMIC_STORAGE_BIT);
     storage(load_, std::vector<float>(4 * n_pad_, 0.0f), 0);  // set_loads's scatter pass writes it
+    reach_beyond_.resize(n_pad_, 0.0);
+    storage(skin_, reach_beyond_, 0);
     rest_position_.resize(3 * n_);  // begin_grab's piece of tissue (keep_one_piece)
     for (std::size_t i = 0; i < n_; ++i)
         for (int c = 0; c < 3; ++c) rest_position_[3 * i + std::size_t(c)] = particles.rest_position[i][std::size_t(c)];
@@ -221,6 +231,7 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n_pad * 16              // external loads
+           + n_pad * 8               // each particle's reach beyond it (the contact skin)
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
            + gl_backend::ring_slots * gl_backend::ring_stride + gl_backend::status_slots * 8 + gl_backend::sh::counter_words * 4;
 }

@@ -243,6 +243,11 @@ private:
     /// External loads: `load_` per padded particle (N, zero where none); set_loads's scatter list;
     /// positions_of's indices and positions. The two lists grow on demand.
     Buffer load_, load_list_, gather_index_, gathered_;
+    /// Per padded particle, double: how far an instrument reaches beyond it (Solver::reach_beyond,
+    /// from the scenario's contact skin); the largest, for the probes' bounding spheres.
+    Buffer skin_;
+    std::vector<double> reach_beyond_;
+    double max_reach_beyond_ = 0.0;
     std::size_t load_list_bytes_ = 0, gather_capacity_ = 0;
     std::vector<std::int32_t> load_particles_;  ///< the particles of the loads in force, ascending
     std::unique_ptr<PatchStepper> patch_pass_;  ///< a sewn patch's pass, made on first use (patch_pass.h)

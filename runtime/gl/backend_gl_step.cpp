@@ -56,7 +56,7 @@ StepReport GlBackend::step(int steps) {
     glProgramUniform1i(sp, step_program_.at("probe_count"), probe_count);
     glProgramUniform1iv(sp, step_program_.at("probe_hand"), 2, probe_hands);
     for (int q = 0; q < probe_count; ++q) {
-        const double radius = hand_[probe_hands[q]].instrument.semi_axes.maxCoeff() * (1 + 1e-3) + 1e-3;
+        const double radius = (hand_[probe_hands[q]].instrument.semi_axes.maxCoeff() + max_reach_beyond_) * (1 + 1e-3) + 1e-3;
         set_indexed_1f(sp, "probe_bound2", q, float(radius * radius));
         set_indexed_3dv(sp, "probe_semi_axes", q, hand_[probe_hands[q]].instrument.semi_axes.data());
     }

@@ -237,7 +237,7 @@ void PickingPass::render(int hand, const Instrument& instrument, const Instrumen
 }
 
 void PickingPass::collect(int hand, const Instrument& instrument, const InstrumentPose& pose, unsigned positions_buffer,
-                          unsigned counters_buffer) {
+                          unsigned counters_buffer, unsigned skin_buffer) {
     const GLuint zero = 0;
     glClearNamedBufferSubData(counters_buffer, GL_R32UI, GLintptr((sh::picked0 + hand) * 4), 4, GL_RED_INTEGER, GL_UNSIGNED_INT, &zero);
     ++epoch_;
@@ -262,6 +262,7 @@ void PickingPass::collect(int hand, const Instrument& instrument, const Instrume
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::counters, counters_buffer);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picking_marks, gl_->mark);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::picked, gl_->picked);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::skin, skin_buffer);
     std::size_t invocations = surface_count_;
     if (picking) {
         glProgramUniform1i(p, glGetUniformLocation(p, "resolution"), h.resolution);

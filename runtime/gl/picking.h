@@ -57,9 +57,11 @@ public:
     /// The picking buffer of `hand` is out of date (instrument changed): rendered on next use.
     void invalidate(int hand);
     /// picking: renders hand's buffer if due (K), then collects the contacts of the probe at
-    /// `pose` from `positions` (an SSBO of float4). search: tests every surface particle.
+    /// `pose` from `positions` (an SSBO of float4). search: tests every surface particle. A
+    /// particle is in contact within the tolerance of the probe grown by its entry of `skin_buffer`
+    /// (a double per particle, mm: Solver::reach_beyond), as the step meets it.
     void collect(int hand, const Instrument& instrument, const InstrumentPose& pose, unsigned positions_buffer,
-                 unsigned counters_buffer);
+                 unsigned counters_buffer, unsigned skin_buffer);
     unsigned picked_buffer() const;
     long long renders() const { return renders_; }
     std::size_t memory_bytes() const { return memory_bytes_; }

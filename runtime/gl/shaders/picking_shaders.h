@@ -51,6 +51,7 @@ layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x
 layout(std430, binding = BINDING_COUNTERS) buffer CounterBuffer { uint counter[]; };
 layout(std430, binding = BINDING_PICKING_MARKS) buffer MarkBuffer { uint mark[]; };
 layout(std430, binding = BINDING_PICKED) writeonly buffer PickedBuffer { int picked[]; };
+layout(std430, binding = BINDING_SKIN) readonly buffer SkinBuffer { double reach_beyond[]; };  // Solver::reach_beyond, mm
 uniform uint particle_count;
 uniform int hand;
 uniform uint epoch;
@@ -61,7 +62,7 @@ uniform double tolerance;
 bool in_contact(uint i) {
     dvec3 v = dvec3(x[i].xyz) - centre;
     dvec3 local = transpose(rotation) * v;
-    dvec3 q = local / semi_axes;
+    dvec3 q = local / (semi_axes + dvec3(reach_beyond[i]));  // the probe as the step meets particle i
     double rho = sqrt(dot(q, q));
     double d = rho > 0.0lf ? sqrt(dot(local, local)) * (1.0lf - 1.0lf / rho) : -1.0lf;
     return d <= tolerance;

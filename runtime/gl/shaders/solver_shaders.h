@@ -103,6 +103,7 @@ layout(std430, binding = BINDING_NEXT) writeonly buffer NextBuffer { vec4 xn[]; 
 layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer { vec4 un[]; };
 layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };  // N, zero where none
+layout(std430, binding = BINDING_SKIN) readonly buffer SkinBuffer { double reach_beyond[]; };  // Solver::reach_beyond, mm
 
 uniform float keep;             // 1 − γh
 uniform vec3 gravity;           // mm/ms²
@@ -182,7 +183,7 @@ void main() {
             b2 = b2 + bz * bz;
             if (!(b2 < probe_bound2[q])) continue;
             dmat3 r = probe_rotation[q];
-            dvec3 semi = probe_semi_axes[q];
+            precise dvec3 semi = probe_semi_axes[q] + dvec3(reach_beyond[i]);  // grown by the particle's skin
             dvec3 world = dvec3(double(nx), double(ny), double(nz));
             precise dvec3 local = rotate_back(r, world - probe_centre[q]);
             precise double r2 = squared_norm(local / semi);
@@ -411,6 +412,7 @@ layout(local_size_x = 64) in;
 layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
 layout(std430, binding = BINDING_HELD) writeonly buffer HeldBuffer { int held[]; };
 layout(std430, binding = BINDING_HELD_LOCAL) writeonly buffer HeldLocalBuffer { double held_local[]; };
+layout(std430, binding = BINDING_SKIN) readonly buffer SkinBuffer { double reach_beyond[]; };  // Solver::reach_beyond, mm
 uniform int hand;
 uniform dvec3 centre;
 uniform dmat3 rotation;
@@ -424,7 +426,8 @@ void main() {
     precise double a = r[0][0] * v.x + r[0][1] * v.y; a = a + r[0][2] * v.z;
     precise double b = r[1][0] * v.x + r[1][1] * v.y; b = b + r[1][2] * v.z;
     precise double c = r[2][0] * v.x + r[2][1] * v.y; c = c + r[2][2] * v.z;
-    dvec3 q = dvec3(a, b, c) / semi_axes;
+    precise dvec3 reach = semi_axes + dvec3(reach_beyond[i]);  // grown by the particle's skin
+    dvec3 q = dvec3(a, b, c) / reach;
     precise double r2 = q.x * q.x + q.y * q.y; r2 = r2 + q.z * q.z;
     if (r2 > 1.0) return;
     held_by[i] = hand;
