@@ -818,7 +818,7 @@ TEST(RecordingJournal, ACompleteJournalHoldsTheSessionExactly) {
 
 // A journal that a heartsim from before the solver's rules were recorded left behind (version 2:
 // no rules byte after the arithmetic, no mass-scale byte in its chunks) still recovers, without
-// rules. Made here from a version-5 journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
+// rules. Made here from a version-6 journal by the file format's own layout (formats/recording_journal.cpp): after the 16-byte file
 // magic, a record is magic, kind (u32), payload bytes (u64), lookup3 checksum of kind, bytes and
 // payload (u32), then the payload; the session's payload starts with the version (u32).
 TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
@@ -850,7 +850,8 @@ TEST(RecordingJournal, AVersion2JournalFromBeforeTheRulesWereKeptStillReads) {
     const std::size_t header = 16, payload = header + 20;
     std::uint32_t version = 0;
     std::memcpy(&version, bytes.data() + payload, 4);
-    ASSERT_EQ(version, 5u) << "this test turns a version-5 journal into a version-2 one";
+    // Version 6 adds only a rule, and this session keeps no rules: its bytes are version 5's.
+    ASSERT_EQ(version, 6u) << "this test turns a version-6 journal into a version-2 one";
     // The chunk after the session record: its step count (u64), the step columns (197 bytes a row:
     // times 3 × 8, tool poses 2 × (24 + 32), grab 2, applied 2, forces 48, force_step 8, diverged 1),
     // then version 4's mass-scale byte, 0: none follows, and version 5's instrument byte, 0: none
