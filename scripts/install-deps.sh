@@ -21,6 +21,9 @@ packages=(
   libopenigtlink-dev
   # tests
   googletest libgtest-dev
+  # CalculiX: the felt force's finite-element reference (tests/bench/fe_indentation.py), which
+  # tests/test_fe_indentation.cpp checks against Hertz and tests/bench/run_hertz_bench.sh uses
+  calculix-ccx
   # the sanitizer job (scripts/run-sanitizers.sh): clang with AddressSanitizer, UBSan and
   # libFuzzer's runtime; llvm for llvm-symbolizer (readable stacks in sanitizer reports)
   clang libclang-rt-14-dev llvm
