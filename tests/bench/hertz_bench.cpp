@@ -24,10 +24,17 @@
 // parts the lattice's discretisation (linear lattice against Sneddon) from its large-deformation
 // response (solver against linear lattice). It costs minutes per placement below 2 mm.
 //
+// --reference FILE (repeatable) adds a finite-element reference to the summary table: the CSV of
+// tests/bench/fe_indentation.py (`nu,d_over_R,depth_mm,force_N,force_over_hertz`: CalculiX, an
+// axisymmetric neo-Hookean cylinder of the block's height and cross-section under a rigid
+// frictionless sphere, large deformations). For each Poisson's ratio in the file, the FE force at
+// each depth and the measured force's error against it. The file must be for this --radius and
+// E = 10 kPa (checked from its depths and its forces over Hertz); a depth it lacks prints "–".
+//
 // Usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]
 //                    [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]
 //                    [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02]
-//                    [--quick] [--details] [--linear]
+//                    [--quick] [--details] [--linear] [--reference fe.csv]
 // "default" is the spacing heartprep chooses for a cube of --size mm with its 30k particle budget
 // (size/31: 1.935 mm for 60 mm). Not a test: it asserts nothing (tests/test_hertz.cpp does).
 #include "libmodel/lattice.h"
@@ -47,6 +54,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -312,6 +320,64 @@ std::vector<std::string> split(const std::string& text) {
     return parts;
 }
 
+/// A finite-element reference (fe_indentation.py's CSV): force (N) by Poisson's ratio, then d/R.
+using Reference = std::map<double, std::map<double, double>>;
+
+std::string number(double value) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", value);
+    return text;
+}
+
+[[noreturn]] void reference_error(const std::string& path, int line, const std::string& what) {
+    std::fprintf(stderr, "hertz_bench: --reference %s line %d: %s\n", path.c_str(), line, what.c_str());
+    std::exit(2);
+}
+
+/// Reads `path` into `out`: the header `nu,d_over_R,depth_mm,force_N,force_over_hertz`, then a row
+/// per (ν, d/R). Each row's depth must be d/R · `radius` and its force over Hertz's (for its ν and
+/// E = youngs_kpa) what it says, which checks the file was computed for this probe and tissue.
+void read_reference(const std::string& path, double radius, Reference& out) {
+    std::ifstream in(path);
+    if (!in) {
+        std::fprintf(stderr, "hertz_bench: --reference %s: cannot open it (a CSV of tests/bench/fe_indentation.py)\n", path.c_str());
+        std::exit(2);
+    }
+    const std::string header = "nu,d_over_R,depth_mm,force_N,force_over_hertz";
+    std::string text;
+    int line = 0, rows = 0;
+    while (std::getline(in, text)) {
+        ++line;
+        if (!text.empty() && text.back() == '\r') text.pop_back();
+        if (text.empty()) continue;
+        if (line == 1) {
+            if (text != header) reference_error(path, line, "expected the header '" + header + "', found '" + text + "'");
+            continue;
+        }
+        const std::vector<std::string> fields = split(text);
+        double v[5];
+        if (fields.size() != 5) reference_error(path, line, "expected 5 numbers (" + header + "), found '" + text + "'");
+        for (std::size_t i = 0; i < 5; ++i) {
+            char* end = nullptr;
+            v[i] = std::strtod(fields[i].c_str(), &end);
+            if (end == fields[i].c_str() || *end != '\0' || !std::isfinite(v[i]))
+                reference_error(path, line, "'" + fields[i] + "' is not a number");
+        }
+        const double nu = v[0], d_over_r = v[1], depth = v[2], force = v[3], ratio = v[4];
+        if (!(nu > -1 && nu < 0.5) || d_over_r <= 0 || force <= 0) reference_error(path, line, "expected -1 < nu < 0.5, d/R > 0, force > 0");
+        if (std::abs(depth - d_over_r * radius) > 1e-4 * depth)
+            reference_error(path, line, "depth " + fields[2] + " mm is not d/R · R for R = " + number(radius) +
+                                            " mm (--radius): computed for another sphere");
+        const double hertz_nu = 4.0 / 3.0 * youngs_kpa * 1e-3 / (1 - nu * nu) * std::sqrt(radius) * std::pow(depth, 1.5);
+        if (std::abs(force / hertz_nu - ratio) > 1e-3 * ratio)
+            reference_error(path, line, "force over Hertz for E = " + number(youngs_kpa) + " kPa is " + number(force / hertz_nu) +
+                                            ", the file says " + fields[4] + ": computed for another modulus or radius");
+        out[nu][d_over_r] = force;
+        ++rows;
+    }
+    if (rows == 0) reference_error(path, line, "no rows");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -322,6 +388,8 @@ int main(int argc, char** argv) {
     double size = 60.0, thickness = 0.0;
     int threads = 0;
     bool details = false, linear = false;
+    Reference reference;
+    std::vector<std::string> reference_files;
     for (int a = 1; a < argc; ++a) {
         const std::string arg = argv[a];
         auto value = [&]() -> std::string {
@@ -346,6 +414,7 @@ int main(int argc, char** argv) {
         else if (arg == "--ramp-speed") s.ramp_speed = std::stod(value());
         else if (arg == "--details") details = true;
         else if (arg == "--linear") linear = true;
+        else if (arg == "--reference") reference_files.push_back(value());
         else if (arg == "--quick") {
             spacings = {"3", "default"};
             depths = {0.2, 0.4};
@@ -353,11 +422,13 @@ int main(int argc, char** argv) {
         } else {
             std::fprintf(stderr, "usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]\n"
                                  "       [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]\n"
-                                 "       [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02] [--quick] [--details] [--linear]\n");
+                                 "       [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02] [--quick] [--details] [--linear]\n"
+                                 "       [--reference fe.csv]\n");
             return 2;
         }
     }
     if (thickness <= 0) thickness = size;
+    for (const std::string& file : reference_files) read_reference(file, s.radius, reference);
     std::unique_ptr<tbb::global_control> limit;
     if (threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
     std::sort(depths.begin(), depths.end());
@@ -423,9 +494,17 @@ int main(int argc, char** argv) {
                      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count());
     }
 
+    std::string reference_header, reference_rule;
+    for (const auto& entry : reference) {
+        char text[160];
+        std::snprintf(text, sizeof text, " F FE nu = %g N | error vs FE nu = %g %% (mean) |", entry.first, entry.first);
+        reference_header += text;
+        reference_rule += "---|---|";
+    }
     std::printf("\n| spacing mm | d/R | F measured N (mean; min–max over placements) | F Hertz N | error %% (mean; min–max) | "
-                "error vs Sneddon %% | error vs Hertz from the label surface %% |%s\n|---|---|---|---|---|---|---|%s\n",
-                linear ? " linear lattice vs Sneddon % (mean; min–max) | solver vs linear lattice % (mean) |" : "", linear ? "---|---|" : "");
+                "error vs Sneddon %% | error vs Hertz from the label surface %% |%s%s\n|---|---|---|---|---|---|---|%s%s\n",
+                linear ? " linear lattice vs Sneddon % (mean; min–max) | solver vs linear lattice % (mean) |" : "",
+                reference_header.c_str(), linear ? "---|---|" : "", reference_rule.c_str());
     for (const double spacing : spacing_values)
         for (const double d : depths) {
             const Cell& c = summary[{spacing, d}];
@@ -443,6 +522,13 @@ int main(int argc, char** argv) {
                 }
                 std::printf(" %+.1f; %+.1f to %+.1f | %+.1f |", 100 * (lmean / c.sneddon - 1), 100 * (llo / c.sneddon - 1),
                             100 * (lhi / c.sneddon - 1), 100 * ratio);
+            }
+            for (const auto& entry : reference) {
+                double fe = NAN;
+                for (const auto& depth_force : entry.second)
+                    if (std::abs(depth_force.first - d) < 1e-6) fe = depth_force.second;
+                if (std::isnan(fe)) std::printf(" – | – |");
+                else std::printf(" %.4f | %+.1f |", fe, 100 * (mean / fe - 1));
             }
             std::printf("\n");
         }
