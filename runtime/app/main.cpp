@@ -152,7 +152,7 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
                                                     "along the tool's +z, 2*AZ long, default 2,0.3,10; button 1 lays a patch, centred at the "
                                                     "tip and facing the tissue along +z, AX and AY its half-diameters, AZ half its thickness, "
                                                     "default 9,9,0.25, and ties a stitch with a needle, default 0.25,0.25,6, whose hand feels "
-                                                    "the stitch's tension while the button is held)")
+                                                    "the wall as its tip passes into it and the suture's tension while the button is held)")
         ->type_name("KIND")
         ->allow_extra_args(false);
     run->add_option("--haptic-rate", a.haptic_rate, "Device thread rate, Hz")->check(CLI::Range(100.0, 10000.0))->capture_default_str();

@@ -86,6 +86,9 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     h.laid = false;
     end_intrusion(hand);
     checked_at_[std::size_t(hand)].reset();
+    end_pass(hand);
+    near_tip_[std::size_t(hand)].clear();
+    gathered_at_[std::size_t(hand)].reset();
     held_repair_instrument_ = held_repair_instrument_ || repair_kind(instrument.kind);
     // The tissue's solver never holds a patch or a needle: that hand touches nothing there.
     inner().set_instrument(hand, repair_kind(instrument.kind) ? Instrument{InstrumentKind::none, instrument.semi_axes} : instrument);
@@ -106,6 +109,7 @@ std::size_t RepairBackend::begin_grab(int hand) {
     h.grabbing = true;
     end_intrusion(hand);
     checked_at_[std::size_t(hand)].reset();
+    wall_force_[std::size_t(hand)].setZero();  // tying: the hand feels the suture instead (its pass through the wall is kept)
     if (h.instrument.kind == InstrumentKind::patch) h.laid = true, lay(hand);
     else tie(hand);
     std::fflush(stdout);  // the repair's lines, read as they happen (a window's log, the tests)
@@ -179,6 +183,7 @@ void RepairBackend::tie(int hand) {
         return;
     }
     patch_force_[std::size_t(hand)].setZero();  // the new stitch pulls from its first step on
+    h.tied_ms = inner().simulated_time_ms();
     to_device();
     const Stitch& s = patch_->stitches()[*h.stitch];
     std::printf("repair: stitch %zu tied at %.6g ms, patch vertex %d to the tissue %.2f mm from it; it draws tight over %.0f ms\n",
@@ -351,14 +356,16 @@ void RepairBackend::check_intrusions() {
 }
 
 StepReport RepairBackend::step(int steps) {
-    const int every = intrusion_every();
-    if (every == 0 || !(carried(0) || carried(1))) {
-        since_check_ = 0;
-        return step_tissue(steps);
-    }
+    const int every = intrusion_every(), feel = needle_every();
+    const bool check = every > 0 && (carried(0) || carried(1)), needles = feel > 0 && (feels_wall(0) || feels_wall(1));
+    if (!check) since_check_ = 0;
+    if (!needles) since_feel_ = 0;
+    if (!check && !needles) return step_tissue(steps);
     StepReport total;
     for (int done = 0; done < steps;) {
-        const int n = std::min(steps - done, every - since_check_);
+        int n = steps - done;
+        if (check) n = std::min(n, every - since_check_);
+        if (needles) n = std::min(n, feel - since_feel_);
         const StepReport r = step_tissue(n);
         total.steps += r.steps;
         total.substeps += r.substeps;
@@ -366,13 +373,78 @@ StepReport RepairBackend::step(int steps) {
         total.gave_up = total.gave_up || r.gave_up;
         if (r.gave_up) break;
         done += n;
-        since_check_ += n;
-        if (since_check_ >= every) {
+        if (check && (since_check_ += n) >= every) {
             since_check_ = 0;
             check_intrusions();
         }
+        if (needles && (since_feel_ += n) >= feel) {
+            since_feel_ = 0;
+            feel_needles();
+        }
     }
     return total;
+}
+
+int RepairBackend::needle_every() const {
+    if (!(settings_.needle_every_ms > 0)) return 0;
+    return std::max(1, int(std::lround(settings_.needle_every_ms / inner().time_step_ms())));
+}
+
+bool RepairBackend::feels_wall(int hand) const {
+    const Hand& h = hands_[std::size_t(hand)];
+    return h.instrument.kind == InstrumentKind::needle && h.posed && !h.grabbing;
+}
+
+void RepairBackend::feel_needles() {
+    // The tissue near each carried needle's tip: the particles whose rest positions lie within
+    // `gather` of it, gathered again once the tip has moved `regather` from where they were
+    // gathered; the depth is looked for along the shaft within what they cover.
+    const double h = scenario_.lattice.spacing, regather = 2.0, gather = 12.0 + regather + 2.0 * h, reach = gather - regather - h;
+    const auto& rest = scenario_.lattice.particles.rest_position;
+    for (int hand = 0; hand < 2; ++hand) {
+        if (!feels_wall(hand)) continue;
+        const Hand& held = hands_[std::size_t(hand)];
+        const Eigen::Vector3d tip = held.pose.position;
+        const Eigen::Vector3d shaft = held.pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
+        std::vector<std::int32_t>& near = near_tip_[std::size_t(hand)];
+        std::optional<Eigen::Vector3d>& at = gathered_at_[std::size_t(hand)];
+        if (!tip.allFinite() || !shaft.allFinite()) {
+            end_pass(hand);
+            continue;
+        }
+        if (!at || (tip - *at).norm() > regather) {
+            near.clear();
+            for (std::size_t i = 0; i < rest.size(); ++i)
+                if ((vec(rest[i]) - tip).squaredNorm() <= gather * gather) near.push_back(std::int32_t(i));
+            at = tip;
+        }
+        double depth = 0.0;
+        if (!near.empty()) {
+            const std::vector<std::array<float, 3>> x = tissue_.positions_of(near);
+            const TissueOccupancy tissue(x, h);
+            if (tissue.inside(tip)) {
+                // Out along the shaft: the last quarter-spacing sample inside and the first of two
+                // in a row outside (one alone may fall in a lattice cell's gap), then halved between.
+                const double step = 0.25 * h;
+                double in = 0.0, out = reach;
+                for (double t = step; t < reach; t += step) {
+                    if (tissue.inside(tip + t * shaft)) in = t;
+                    else if (!tissue.inside(tip + (t + step) * shaft)) {
+                        out = t;
+                        break;
+                    }
+                }
+                if (out < reach) {
+                    for (int k = 0; k < 10; ++k) {
+                        const double mid = 0.5 * (in + out);
+                        (tissue.inside(tip + mid * shaft) ? in : out) = mid;
+                    }
+                }
+                depth = 0.5 * (in + out);
+            }
+        }
+        wall_force_[std::size_t(hand)] = wall_force_n(settings_.needle, passes_[std::size_t(hand)], depth) * shaft;
+    }
 }
 
 StepReport RepairBackend::step_tissue(int steps) {
@@ -414,10 +486,19 @@ void RepairBackend::add_repair_forces(InstrumentForces& forces) const {
         const Eigen::Vector3d& f = patch_force_[std::size_t(hand)];
         if (h.instrument.kind == InstrumentKind::probe && f.allFinite()) forces.hand[std::size_t(hand)].force_n += f;  // the patch it presses on
         if (!repair_kind(h.instrument.kind)) continue;
-        forces.hand[std::size_t(hand)].force_n.setZero();
+        Eigen::Vector3d& felt = forces.hand[std::size_t(hand)].force_n;
+        felt.setZero();
         forces.hand[std::size_t(hand)].particles = 0;
-        // The suture's tension pulls the hand that holds it as it pulls the patch: toward the tissue.
-        if (h.instrument.kind == InstrumentKind::needle && h.grabbing && h.stitch && f.allFinite()) forces.hand[std::size_t(hand)].force_n = f;
+        if (h.instrument.kind != InstrumentKind::needle) continue;
+        const Eigen::Vector3d shaft = h.pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
+        if (h.grabbing && h.stitch) {
+            // The suture, drawn tight through the wall, pulls the hand that holds it along the
+            // shaft toward the wall.
+            felt = -suture_tension_n(settings_.needle, inner().simulated_time_ms() - h.tied_ms, settings_.tie_ms) * shaft;
+        } else if (!h.grabbing) {
+            felt = wall_force_[std::size_t(hand)];  // the wall's resistance to the needle's pass
+        }
+        if (!felt.allFinite()) felt.setZero();
     }
 }
 
@@ -447,6 +528,7 @@ void RepairBackend::reset_tissue() {
     patch_force_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
     end_intrusion(0), end_intrusion(1);
+    end_pass(0), end_pass(1);
     tissue_.set_loads({});
     inner().reset_tissue();
 }

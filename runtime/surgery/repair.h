@@ -9,8 +9,14 @@
 /// Each step, with a patch laid: the positions of the particles the patch touches are read
 /// (SurgerySupport::positions_of, runtime/backend/surgery.h), the patch steps against them held still, and
 /// its stitches' and contact's equal and opposite forces go to the tissue as loads for the step
-/// (SurgerySupport::set_loads). A needle's hand feels the stitch it ties while its button is held:
-/// the suture's tension.
+/// (SurgerySupport::set_loads).
+///
+/// A needle's hand feels the wall and the suture (libmodel/surgery/needle_feel.h, the measurements
+/// it cites): carried (its button up), the wall's resistance along its shaft as its tip passes
+/// into the tissue (a rise to the puncture, a drop, the cutting and the friction), its tip's
+/// depth measured every needle_every_ms; tying a stitch (its button held), the suture's tension
+/// rising as the stitch draws tight, along the shaft toward the wall. Both are the hand's
+/// force (instrument_forces, latest_forces): what a device and a recording get.
 ///
 /// Because neither touches the tissue's solver, nothing stops a patch or a needle that is carried
 /// through intact tissue: the repair reports it instead (TissueIntrusion, RepairBackend::intrusions).
@@ -23,6 +29,7 @@
 #pragma once
 
 #include "libmodel/surgery/closure.h"
+#include "libmodel/surgery/needle_feel.h"
 #include "libmodel/surgery/patch.h"
 #include "runtime/backend/backend.h"
 #include "runtime/backend/backend_wrapper.h"
@@ -53,6 +60,14 @@ struct RepairSettings {
     /// tissue steps, at least one), ms; 0: never (TissueIntrusion). An instrument carried at
     /// 0.2 mm/ms, a brisk hand, moves 0.4 mm between checks: less than a lattice spacing.
     double intrusion_every_ms = 2.0;
+    /// What a needle's hand feels: the wall's resistance to its pass and the suture's tension.
+    NeedleFeel needle;
+    /// A carried needle's tip depth in the wall is measured once every this much simulated time
+    /// (rounded to whole tissue steps, at least one), its force held in between, ms; 0: the needle
+    /// feels no wall. The depth: from the tip back along the shaft (the tool's +z) to where it
+    /// leaves the tissue (a point within 0.75 lattice spacing of a particle, where the particles
+    /// are now), to 0.01 mm; 0 with the tip outside the tissue.
+    double needle_every_ms = 0.5;
 };
 
 /// A stretch of a run in which a carried instrument passed through tissue: a patch in the hand
@@ -144,10 +159,20 @@ public:
     /// Wall-clock time the intrusion checks took (ms), and how many ran.
     double intrusion_ms() const { return intrusion_ms_; }
     long long intrusion_checks() const { return intrusion_checks_; }
+    /// Tissue steps between two measures of a carried needle's depth (RepairSettings::needle_every_ms); 0: none.
+    int needle_every() const;
+    /// A carried needle's tip depth in the wall at its last measure, mm (0: out of it, or not carried).
+    double needle_depth_mm(int hand) const { return passes_[std::size_t(hand & 1)].depth_mm; }
 
 private:
     /// The steps with the patch's, as many as asked.
     StepReport step_tissue(int steps);
+    /// Whether hand `hand` carries a needle whose passage through the wall it feels.
+    bool feels_wall(int hand) const;
+    /// Each carried needle's tip depth in the wall, measured now, and the wall's force on it.
+    void feel_needles();
+    /// The hand's needle out of the wall: no depth, no force.
+    void end_pass(int hand) { passes_[std::size_t(hand)] = {}, wall_force_[std::size_t(hand)].setZero(); }
     /// Whether hand `hand` carries an instrument whose passage through tissue is checked.
     bool carried(int hand) const;
     /// One intrusion check of every carrying hand against the tissue as it is now.
@@ -159,7 +184,8 @@ private:
     void step_patch(int every);
     void lay(int hand);
     void tie(int hand);
-    /// A needle's hand feels its stitch's tension, a probe's the patch it presses on.
+    /// A needle's hand feels the suture's tension while it ties (its button held), the wall's resistance
+    /// to its pass while carried; a probe's hand the patch it presses on.
     void add_repair_forces(InstrumentForces& forces) const;
     /// After the patch changed on the host (a stitch tied, a recovery): the backend's device steps
     /// it from now on where it can (SurgerySupport::patch_stepper), with candidates found afresh.
@@ -186,6 +212,7 @@ private:
         bool posed = false;  ///< set_pose since set_instrument
         bool grabbing = false;
         std::optional<std::size_t> stitch;  ///< the needle's stitch while its button is held
+        double tied_ms = 0.0;               ///< when it was tied (its tension rises from then)
         bool laid = false;  ///< a patch: laid since set_instrument (no longer carried)
     };
     std::array<Hand, 2> hands_{};
@@ -200,6 +227,14 @@ private:
     std::array<int, 2> shown_{-1, -1};  ///< its index in intrusions_ once reported, or −1
     std::array<std::optional<Eigen::Vector3d>, 2> checked_at_;  ///< each carrying hand's position at its last check
     int since_check_ = 0;  ///< tissue steps since the last intrusion check
+    // The needles' passes through the wall: each hand's, the wall's force on it at the last
+    // measure (N, held in between), the particles near its tip (from their rest positions) and
+    // where the tip was when they were gathered.
+    std::array<NeedlePass, 2> passes_{};
+    std::array<Eigen::Vector3d, 2> wall_force_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
+    std::array<std::vector<std::int32_t>, 2> near_tip_;
+    std::array<std::optional<Eigen::Vector3d>, 2> gathered_at_;
+    int since_feel_ = 0;  ///< tissue steps since the last measure of the needles' depths
     bool held_repair_instrument_ = false;
     double intrusion_ms_ = 0.0;
     long long intrusion_checks_ = 0;
