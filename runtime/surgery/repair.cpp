@@ -396,10 +396,13 @@ bool RepairBackend::feels_wall(int hand) const {
 }
 
 void RepairBackend::feel_needles() {
-    // The tissue near each carried needle's tip: the particles whose rest positions lie within
-    // `gather` of it, gathered again once the tip has moved `regather` from where they were
-    // gathered; the depth is looked for along the shaft within what they cover.
-    const double h = scenario_.lattice.spacing, regather = 2.0, gather = 12.0 + regather + 2.0 * h, reach = gather - regather - h;
+    // The tissue along each carried needle's shaft: the particles whose rest positions lie within
+    // `across` of the segment the depth is looked for along (from the tip `reach` up the shaft),
+    // gathered again once a point of that segment has moved `regather` since: so every particle
+    // within 0.75 spacing of a point looked at is among them while the tissue there has moved
+    // less than 1 mm from rest.
+    const double h = scenario_.lattice.spacing, regather = 2.0, reach = 12.0, step = 0.25 * h;
+    const double length = reach + step, across = 0.75 * h + regather + 1.0;
     const auto& rest = scenario_.lattice.particles.rest_position;
     for (int hand = 0; hand < 2; ++hand) {
         if (!feels_wall(hand)) continue;
@@ -407,16 +410,19 @@ void RepairBackend::feel_needles() {
         const Eigen::Vector3d tip = held.pose.position;
         const Eigen::Vector3d shaft = held.pose.orientation.normalized() * Eigen::Vector3d::UnitZ();
         std::vector<std::int32_t>& near = near_tip_[std::size_t(hand)];
-        std::optional<Eigen::Vector3d>& at = gathered_at_[std::size_t(hand)];
+        std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>>& at = gathered_at_[std::size_t(hand)];
         if (!tip.allFinite() || !shaft.allFinite()) {
             end_pass(hand);
             continue;
         }
-        if (!at || (tip - *at).norm() > regather) {
+        if (!at || (tip - at->first).norm() + length * (shaft - at->second).norm() > regather) {
             near.clear();
-            for (std::size_t i = 0; i < rest.size(); ++i)
-                if ((vec(rest[i]) - tip).squaredNorm() <= gather * gather) near.push_back(std::int32_t(i));
-            at = tip;
+            for (std::size_t i = 0; i < rest.size(); ++i) {
+                const Eigen::Vector3d d = vec(rest[i]) - tip;
+                const double t = std::clamp(d.dot(shaft), 0.0, length);
+                if ((d - t * shaft).squaredNorm() <= across * across) near.push_back(std::int32_t(i));
+            }
+            at = std::pair{tip, shaft};
         }
         double depth = 0.0;
         if (!near.empty()) {
@@ -425,7 +431,6 @@ void RepairBackend::feel_needles() {
             if (tissue.inside(tip)) {
                 // Out along the shaft: the last quarter-spacing sample inside and the first of two
                 // in a row outside (one alone may fall in a lattice cell's gap), then halved between.
-                const double step = 0.25 * h;
                 double in = 0.0, out = reach;
                 for (double t = step; t < reach; t += step) {
                     if (tissue.inside(tip + t * shaft)) in = t;

@@ -66,7 +66,9 @@ struct RepairSettings {
     /// (rounded to whole tissue steps, at least one), its force held in between, ms; 0: the needle
     /// feels no wall. The depth: from the tip back along the shaft (the tool's +z) to where it
     /// leaves the tissue (a point within 0.75 lattice spacing of a particle, where the particles
-    /// are now), to 0.01 mm; 0 with the tip outside the tissue.
+    /// are now), to 0.01 mm, at most 12 mm; 0 with the tip outside the tissue. The particles looked
+    /// at are those whose rest positions lie near the shaft: tissue that has moved more than 1 mm
+    /// from rest there may be missed.
     double needle_every_ms = 0.5;
 };
 
@@ -228,12 +230,12 @@ private:
     std::array<std::optional<Eigen::Vector3d>, 2> checked_at_;  ///< each carrying hand's position at its last check
     int since_check_ = 0;  ///< tissue steps since the last intrusion check
     // The needles' passes through the wall: each hand's, the wall's force on it at the last
-    // measure (N, held in between), the particles near its tip (from their rest positions) and
-    // where the tip was when they were gathered.
+    // measure (N, held in between), the particles along its shaft (from their rest positions) and
+    // the tip and the shaft's direction when they were gathered.
     std::array<NeedlePass, 2> passes_{};
     std::array<Eigen::Vector3d, 2> wall_force_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     std::array<std::vector<std::int32_t>, 2> near_tip_;
-    std::array<std::optional<Eigen::Vector3d>, 2> gathered_at_;
+    std::array<std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>>, 2> gathered_at_;
     int since_feel_ = 0;  ///< tissue steps since the last measure of the needles' depths
     bool held_repair_instrument_ = false;
     double intrusion_ms_ = 0.0;
