@@ -104,8 +104,8 @@ std::vector<float> contact_skin(const std::vector<std::array<float, 3>>& rest, c
             point += nearest_weights[c] * vec(positions[std::size_t(tri[std::size_t(c)])]);
             normal += nearest_weights[c] * vec(normals[std::size_t(tri[std::size_t(c)])]);
         }
-        if (!((point - p).dot(normal) > 0)) continue;  // the particle lies on or outside the drawn surface
-        skin[i] = float(std::sqrt(best));
+        const double side = (point - p).dot(normal);  // > 0: the particle lies inside the drawn surface
+        skin[i] = side > 0 ? float(std::sqrt(best)) : side < 0 ? -float(std::sqrt(best)) : 0.0f;
     }
     return skin;
 }

@@ -18,11 +18,13 @@
 namespace heartsim {
 
 /// Per particle (the order of `rest`), mm: for a particle on the lattice's boundary (one of its 18
-/// neighbour slots empty, −1) that lies inside the drawn surface, the distance from its rest
-/// position to the nearest point of that surface, at most `spacing`; 0 for every other particle
-/// (inside the lattice, outside the drawn surface, or with no drawn surface within a spacing), so
-/// an inner particle never meets an instrument before the layer above it. Inside: the surface's
-/// normal (`normals`, outward, interpolated at the nearest point) points away from the particle.
+/// neighbour slots empty, −1), the distance from its rest position to the nearest point of the
+/// drawn surface within `spacing`, positive where the particle lies inside that surface and
+/// negative where it lies outside it (an instrument then meets it only as it reaches the drawn
+/// surface); 0 for every other particle (inside the lattice, or with no drawn surface within a
+/// spacing), so an inner particle never meets an instrument before the layer above it. Inside:
+/// the surface's normal (`normals`, outward, interpolated at the nearest point) points away from
+/// the particle.
 /// An empty surface gives all zeros (a scenario whose drawn surface is the simulation surface,
 /// which passes through the particles). Throws InputError when the arrays disagree in size, a
 /// triangle names a vertex out of range, or spacing is not positive.

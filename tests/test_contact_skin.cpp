@@ -83,11 +83,20 @@ TEST(ContactSkin, ABlocksOuterParticlesLieHalfASpacingInsideItsFaces) {
     }
     EXPECT_EQ(outer, std::size_t(6 * 5 * 4 - 4 * 3 * 2));
 
-    // A surface drawn inside the outer particles: they lie outside it and have no skin.
+    // A surface drawn inside the outer particles: they lie outside it, a negative skin of minus their
+    // distance to the box (a quarter spacing off a face, √2 and √3 times that off an edge and a corner).
     positions.clear(), normals.clear(), triangles.clear();
-    box_surface(low + Eigen::Vector3d::Constant(spacing / 4), high - Eigen::Vector3d::Constant(spacing / 4), positions, normals, triangles);
+    const Eigen::Vector3d inner_low = low + Eigen::Vector3d::Constant(spacing / 4), inner_high = high - Eigen::Vector3d::Constant(spacing / 4);
+    box_surface(inner_low, inner_high, positions, normals, triangles);
     const std::vector<float> outside = contact_skin(lattice.particles.rest_position, neighbours, positions, normals, triangles, spacing);
-    for (std::size_t i = 0; i < outside.size(); ++i) EXPECT_EQ(outside[i], 0.0f) << "particle " << i;
+    for (std::size_t i = 0; i < outside.size(); ++i) {
+        const auto& r = lattice.particles.rest_position[i];
+        const Eigen::Vector3d x(r[0], r[1], r[2]);
+        const double distance = (inner_low - x).cwiseMax(x - inner_high).cwiseMax(0.0).norm();
+        const bool boundary = std::any_of(neighbours[i].begin(), neighbours[i].end(), [](std::int32_t j) { return j < 0; });
+        EXPECT_NEAR(outside[i], boundary ? -distance : 0.0, 1e-5) << "particle " << i;
+        if (boundary) EXPECT_GE(distance, spacing / 4 - 1e-6);
+    }
 
     // A surface farther than a spacing: none.
     positions.clear(), normals.clear(), triangles.clear();
@@ -106,14 +115,17 @@ TEST(ContactSkin, TheSolverRefusesASkinItCannotUse) {
     std::vector<float> skin(lattice.particles.size(), 0.5f);
     skin[3] = std::nanf("");
     EXPECT_THROW(solver.set_contact_skin(skin), InputError);
-    skin[3] = -0.1f;
+    skin[3] = -100.0f;
     EXPECT_THROW(solver.set_contact_skin(skin), InputError);
     skin[3] = 100.0f;
     EXPECT_THROW(solver.set_contact_skin(skin), InputError);
     EXPECT_TRUE(solver.contact_skin().empty());
     skin[3] = 0.5f;
+    skin[4] = -0.75f;
     solver.set_contact_skin(skin);
     EXPECT_DOUBLE_EQ(solver.reach_beyond(3), 0.5);
+    // A negative skin shrinks the instrument for that particle, to half its own at most.
+    EXPECT_EQ(Solver::met_axes({2, 1, 3}, solver.reach_beyond(4)), Eigen::Vector3d(1.25, 0.5, 2.25));
 }
 
 /// A block of tissue (label 1, 24 × 24 × 12 mm of 1 mm voxels) on an anchoring slab (label 2),

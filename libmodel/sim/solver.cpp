@@ -128,9 +128,9 @@ void BasicSolver<Real>::set_contact_skin(std::vector<float> skin) {
     const double limit = 4.0 * double(max_rest_length_);
     double largest = 0.0;
     for (std::size_t i = 0; i < skin.size(); ++i) {
-        if (!(skin[i] >= 0.0f) || !(double(skin[i]) <= limit))
-            throw InputError("solver: particle " + std::to_string(i) + "'s contact skin must be finite and in [0, " + std::to_string(limit) +
-                             "] mm, not " + std::to_string(skin[i]));
+        if (!(std::abs(double(skin[i])) <= limit))
+            throw InputError("solver: particle " + std::to_string(i) + "'s contact skin must be finite and within " + std::to_string(limit) +
+                             " mm of 0, not " + std::to_string(skin[i]));
         largest = std::max(largest, double(skin[i]));
     }
     skin_ = std::move(skin);
@@ -378,7 +378,7 @@ void BasicSolver<Real>::project_out_of_probe(const ProbeFrame& p, std::size_t i,
     const Eigen::Vector3d world(static_cast<double>(x[0]), static_cast<double>(x[1]), static_cast<double>(x[2]));
     Eigen::Vector3d local = p.world_from_tool.transpose() * (world - p.centre);
     // The probe as this particle meets it: grown by the particle's skin (set_contact_skin).
-    const Eigen::Vector3d semi_axes = p.semi_axes + Eigen::Vector3d::Constant(reach_beyond(i));
+    const Eigen::Vector3d semi_axes = met_axes(p.semi_axes, reach_beyond(i));
     const double r2 = local.cwiseQuotient(semi_axes).squaredNorm();
     if (!(r2 < 1.0)) return;
     // To the nearest point of the surface (ellipsoid.h), then just outside it (1e-6 relative)

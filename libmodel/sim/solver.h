@@ -305,15 +305,21 @@ public:
     void set_loads(std::vector<ParticleLoad> loads);
     const std::vector<ParticleLoad>& loads() const { return loads_; }
     /// Each particle's skin, mm, in packed order (libmodel/contact_skin.h: how far the drawn surface
-    /// lies beyond it at rest). From the next substep a probe, and from the next begin_grab() a
-    /// grabber or retractor, meets particle i grown by skin[i] × SolverOptions::contact_skin on each
-    /// semi-axis, so that it meets the tissue where it is drawn. Empty (as constructed): no skin.
-    /// Throws InputError, nothing changed, unless there are size() values, each finite and in
-    /// [0, 4 × the lattice's longest rest length].
+    /// lies beyond it at rest; negative where the particle lies outside it). From the next substep a
+    /// probe, and from the next begin_grab() a grabber or retractor, meets particle i grown by
+    /// skin[i] × SolverOptions::contact_skin on each semi-axis (shrunk where negative, to half its
+    /// own at most: met_axes), so that it meets the tissue where it is drawn. Empty (as
+    /// constructed): no skin. Throws InputError, nothing changed, unless there are size() values,
+    /// each finite and within 4 × the lattice's longest rest length of 0.
     void set_contact_skin(std::vector<float> skin);
     const std::vector<float>& contact_skin() const { return skin_; }
     /// How far an instrument reaches beyond particle i: skin × SolverOptions::contact_skin, mm.
     double reach_beyond(std::size_t i) const { return skin_.empty() ? 0.0 : double(skin_[i]) * options_.contact_skin; }
+    /// The semi-axes with which an instrument of `semi_axes` meets a particle it reaches `reach`
+    /// beyond: semi_axes + reach on each, and at least half of each (a negative reach shrinks it).
+    static Eigen::Vector3d met_axes(const Eigen::Vector3d& semi_axes, double reach) {
+        return (semi_axes + Eigen::Vector3d::Constant(reach)).cwiseMax(0.5 * semi_axes);
+    }
     /// `task` runs during the next step() (its first substep), beside the kernel's spring pass and
     /// before the loads are applied, on one of the step's threads: it may read positions
     /// (position()) and set_loads(), which that substep applies, and must touch nothing else of

@@ -110,7 +110,7 @@ std::size_t BasicSolver<Real>::begin_grab(int hand) {
         if (!movable_[i] || held_by_[i] >= 0) continue;
         const Eigen::Vector3d x(static_cast<double>(current_[state_stride * i]), double(current_[state_stride * i + 1]), double(current_[state_stride * i + 2]));
         const Eigen::Vector3d local = tool_from_world * (x - state.pose.position);
-        const Eigen::Vector3d reach = state.instrument.semi_axes + Eigen::Vector3d::Constant(reach_beyond(i));  // set_contact_skin
+        const Eigen::Vector3d reach = met_axes(state.instrument.semi_axes, reach_beyond(i));  // set_contact_skin
         if (local.cwiseQuotient(reach).squaredNorm() > 1.0) continue;
         state.held.push_back(std::int32_t(i));
         state.held_local.push_back(local);

@@ -62,7 +62,7 @@ uniform double tolerance;
 bool in_contact(uint i) {
     dvec3 v = dvec3(x[i].xyz) - centre;
     dvec3 local = transpose(rotation) * v;
-    dvec3 q = local / (semi_axes + dvec3(reach_beyond[i]));  // the probe as the step meets particle i
+    dvec3 q = local / max(semi_axes + dvec3(reach_beyond[i]), 0.5lf * semi_axes);  // the probe as the step meets particle i (Solver::met_axes)
     double rho = sqrt(dot(q, q));
     double d = rho > 0.0lf ? sqrt(dot(local, local)) * (1.0lf - 1.0lf / rho) : -1.0lf;
     return d <= tolerance;

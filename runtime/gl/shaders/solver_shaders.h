@@ -183,7 +183,7 @@ void main() {
             b2 = b2 + bz * bz;
             if (!(b2 < probe_bound2[q])) continue;
             dmat3 r = probe_rotation[q];
-            precise dvec3 semi = probe_semi_axes[q] + dvec3(reach_beyond[i]);  // grown by the particle's skin
+            precise dvec3 semi = max(probe_semi_axes[q] + dvec3(reach_beyond[i]), 0.5lf * probe_semi_axes[q]);  // Solver::met_axes
             dvec3 world = dvec3(double(nx), double(ny), double(nz));
             precise dvec3 local = rotate_back(r, world - probe_centre[q]);
             precise double r2 = squared_norm(local / semi);
@@ -426,7 +426,7 @@ void main() {
     precise double a = r[0][0] * v.x + r[0][1] * v.y; a = a + r[0][2] * v.z;
     precise double b = r[1][0] * v.x + r[1][1] * v.y; b = b + r[1][2] * v.z;
     precise double c = r[2][0] * v.x + r[2][1] * v.y; c = c + r[2][2] * v.z;
-    precise dvec3 reach = semi_axes + dvec3(reach_beyond[i]);  // grown by the particle's skin
+    precise dvec3 reach = max(semi_axes + dvec3(reach_beyond[i]), 0.5lf * semi_axes);  // Solver::met_axes
     dvec3 q = dvec3(a, b, c) / reach;
     precise double r2 = q.x * q.x + q.y * q.y; r2 = r2 + q.z * q.z;
     if (r2 > 1.0) return;
