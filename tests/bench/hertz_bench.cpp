@@ -34,7 +34,8 @@
 // Usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]
 //                    [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]
 //                    [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02]
-//                    [--quick] [--details] [--linear] [--reference fe.csv]
+//                    [--quick] [--details] [--linear] [--reference fe.csv] [--drawn]
+// --drawn counts the depth from the drawn surface, as heartsim meets it (Settings::drawn).
 // "default" is the spacing heartprep chooses for a cube of --size mm with its 30k particle budget
 // (size/31: 1.935 mm for 60 mm). Not a test: it asserts nothing (tests/test_hertz.cpp does).
 #include "libmodel/lattice.h"
@@ -131,6 +132,11 @@ struct Settings {
     double window_ms = 10.0;
     double tolerance = 1e-4;     ///< relative force change over a window to call it settled
     double max_hold_ms = 2000.0;
+    /// --drawn: the depth counted from the drawn surface, the label map's boundary half a spacing
+    /// above the top layer, and the solver meeting it there through each outer particle's contact
+    /// skin (libmodel/contact_skin.h), as heartsim does: half a spacing on every outer particle of
+    /// the block, what contact_skin gives for the block's box (tests/test_contact_skin.cpp).
+    bool drawn = false;
 };
 
 struct Press {
@@ -152,10 +158,18 @@ std::vector<Press> press(const Block& b, const Eigen::Vector2d& offset, const st
     o.damping = s.drag;
     o.damping_ratio = {s.damping_ratio};
     Solver solver(b.lattice, b.packing.neighbours, o);
+    std::vector<float> skin(b.lattice.particles.size(), 0.0f);
+    if (s.drawn) {
+        for (std::size_t i = 0; i < skin.size(); ++i)
+            for (const std::int32_t j : b.packing.neighbours[i])
+                if (j < 0) skin[i] = float(0.5 * b.spacing);
+        solver.set_contact_skin(skin);
+    }
+    const double surface = b.top + (s.drawn ? 0.5 * b.spacing : 0.0);  // where depth 0 lies
     solver.set_instrument(0, {.kind = InstrumentKind::probe, .semi_axes = Eigen::Vector3d::Constant(s.radius)});
     const double h = solver.time_step_ms();
     auto pose_at = [&](double depth) {
-        return InstrumentPose{Eigen::Vector3d(b.middle.x() + offset.x(), b.middle.y() + offset.y(), b.top + s.radius - depth),
+        return InstrumentPose{Eigen::Vector3d(b.middle.x() + offset.x(), b.middle.y() + offset.y(), surface + s.radius - depth),
                               Eigen::Quaterniond::Identity()};
     };
     double current = -0.2;  // the probe's bottom 0.2 mm above the top layer
@@ -205,7 +219,7 @@ std::vector<Press> press(const Block& b, const Eigen::Vector2d& offset, const st
         const Eigen::Vector3d centre = pose_at(depth).position;
         for (std::size_t i = 0; i < p.size(); ++i) {
             if (p.anchored[i]) continue;
-            if ((solver.position(i) - centre).norm() < s.radius * (1 + 1e-4)) {
+            if ((solver.position(i) - centre).norm() < (s.radius + skin[i]) * (1 + 1e-4)) {
                 ++row.on_surface;
                 row.surface_sum += solver.particle_force(i).z();
             }
@@ -414,6 +428,7 @@ int main(int argc, char** argv) {
         else if (arg == "--ramp-speed") s.ramp_speed = std::stod(value());
         else if (arg == "--details") details = true;
         else if (arg == "--linear") linear = true;
+        else if (arg == "--drawn") s.drawn = true;
         else if (arg == "--reference") reference_files.push_back(value());
         else if (arg == "--quick") {
             spacings = {"3", "default"};
@@ -423,7 +438,7 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]\n"
                                  "       [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]\n"
                                  "       [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02] [--quick] [--details] [--linear]\n"
-                                 "       [--reference fe.csv]\n");
+                                 "       [--reference fe.csv] [--drawn]\n");
             return 2;
         }
     }
@@ -437,6 +452,9 @@ int main(int argc, char** argv) {
                 size, thickness, youngs_kpa, poisson);
     std::printf("# drag %g /ms, spring damping ratio %g, ramp %g mm/ms, settled: force change < %g per %g ms window, 3 in a row\n\n",
                 s.drag, s.damping_ratio, s.ramp_speed, s.tolerance, s.window_ms);
+    std::printf("# depth counted from %s\n\n", s.drawn ? "the drawn surface (the label map's boundary, half a spacing above the top particle "
+                                                        "layer), met through the outer particles' contact skin"
+                                                      : "the top particle layer");
 
     struct Cell {
         double hertz = 0, sneddon = 0, label_hertz = 0;
@@ -475,7 +493,7 @@ int main(int argc, char** argv) {
                 Cell& cell = summary[{spacing, depths[q]}];
                 cell.hertz = hertz(s.radius, r.depth);
                 cell.sneddon = sneddon(s.radius, r.depth);
-                cell.label_hertz = hertz(s.radius, r.depth + 0.5 * spacing);
+                cell.label_hertz = hertz(s.radius, r.depth + (s.drawn ? 0.0 : 0.5 * spacing));
                 cell.forces.push_back(r.force);
                 cell.linear.push_back(lin[q]);
                 if (details) {
