@@ -17,7 +17,8 @@ to the cylinder's bottom and side, the elements growing geometrically along the 
 (a prescribed rigid translation), its outer face the master surface of a node-to-surface penalty
 contact with the nodes of the tissue's top face (no friction; linear pressure-overclosure with a
 slope of --contact-stiffness N/mm^3, so the penetration is pressure / slope; the largest is
-printed). Each depth is a step, in increments of a quarter of it or less.
+printed). Each depth is a step, in increments of --increment of it at most (larger ones leave
+CalculiX's Newton iterations in a contact state they cannot leave for nu = 0.25 near d = 0.33 R).
 
 The force is the total vertical reaction of the fixed bottom (CalculiX prints the reactions of
 axisymmetric models for a 2-degree segment; they are scaled by 180), checked against that of the
@@ -31,7 +32,7 @@ Hertz's small a/R (for nu = 0.49, about 0.97, 0.95, 0.94, 0.92 at d/R = 0.1 ... 
 
 Usage: fe_indentation.py [--nu 0.25,0.49] [--E-kpa 10] [--radius 5] [--size 60]
                          [--depths 0.1,0.2,0.3,0.4] [--refine 1] [--element-size 0.2] [--outer-size 3]
-                         [--contact-stiffness 10] [--threads 2] [--csv FILE] [--workdir DIR] [--ccx ccx]
+                         [--contact-stiffness 10] [--increment 0.1] [--threads 2] [--csv FILE] [--workdir DIR] [--ccx ccx]
 --workdir keeps the decks (.inp) and CalculiX's results (.dat, .frd, .sta); without it they go to a
 temporary folder, removed after a run that succeeds. Needs only Python's standard library and
 CalculiX's ccx (Debian: calculix-ccx; scripts/install-deps.sh installs it).
@@ -214,9 +215,10 @@ def write_deck(path, args, nu, depths_mm):
         f.write("*CONTACT PAIR, INTERACTION=FRICTIONLESS, TYPE=NODE TO SURFACE\nSTISSUE, SSPHERE\n")
         f.write("*BOUNDARY\nNBOTTOM, 1, 2\nNAXIS, 1, 1\nNSPHERE, 1, 1\n")
         for d in depths_mm:
-            # Each step presses from the last depth to the next (the sphere's displacement is total);
-            # printed at the step's end (every 1000th increment otherwise).
-            f.write("*STEP, NLGEOM, INC=1000\n*STATIC\n0.25, 1.0, 1e-6, 0.25\n")
+            # Each step presses from the last depth to the next (the sphere's displacement is total),
+            # in increments of --increment of the step at most; printed at the step's end (every
+            # 1000th increment otherwise).
+            f.write(f"*STEP, NLGEOM, INC=1000\n*STATIC\n{args.increment:g}, 1.0, 1e-6, {args.increment:g}\n")
             f.write(f"*BOUNDARY\nNSPHERE, 2, 2, {-d:.10g}\n")
             f.write("*NODE PRINT, NSET=NBOTTOM, TOTALS=ONLY, FREQUENCY=1000\nRF\n")
             f.write("*NODE PRINT, NSET=NSPHERE, TOTALS=ONLY, FREQUENCY=1000\nRF\n")
@@ -294,6 +296,7 @@ def main():
     p.add_argument("--element-size", type=float, default=0.2, help="element size under the contact, mm, before --refine (default 0.2)")
     p.add_argument("--outer-size", type=float, default=3.0, help="largest element size along the rays, mm, before --refine (default 3)")
     p.add_argument("--contact-stiffness", type=float, default=10.0, help="penalty slope, N/mm^3 (default 10)")
+    p.add_argument("--increment", type=float, default=0.1, help="largest increment, a fraction of each depth step (default 0.1)")
     p.add_argument("--threads", type=int, default=2, help="ccx threads (default 2)")
     p.add_argument("--csv", help="write the table here too")
     p.add_argument("--workdir", help="folder for the CalculiX decks and results (default: a temporary one, removed)")
@@ -307,6 +310,8 @@ def main():
     for d in args.depths:
         if not 0 < d < 0.8:
             fail(f"--depths {d}: d/R must lie in (0, 0.8)")
+    if not 0 < args.increment <= 1:
+        fail(f"--increment {args.increment}: a fraction of a step, in (0, 1]")
     for name in ("E_kpa", "radius", "size", "refine", "element_size", "outer_size", "contact_stiffness"):
         if getattr(args, name) <= 0:
             fail(f"--{name.replace('_', '-')} must be positive, not {getattr(args, name)}")
