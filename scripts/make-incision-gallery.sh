@@ -4,7 +4,8 @@
 # label convention), both approaches of `heartsim plan-incision` (a right ventriculotomy and a
 # right atriotomy, each with two retractors pulling the edges 6 mm apart), played headless on the
 # cpu backend for the --seconds the plan suggests, and drawn from outside, looking at the opened
-# incision from the --view and --look-at the plan prints (640x480). Writes docs/gallery/incisions.md.
+# incision from the --view and --look-at the plan records in its CSV (its "# view:" line, where
+# heartsim run opens without view options; 640x480). Writes docs/gallery/incisions.md.
 # Usage: scripts/make-incision-gallery.sh [BUILD_DIR]   (default build/release, built first)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -40,11 +41,9 @@ for dir in "$real"/*/; do
   for approach in ventriculotomy atriotomy; do
     plan=$("$bin/runtime/heartsim" plan-incision "$work/$case.h5" -o "$work/$case-$approach.csv" --approach "$approach")
     seconds=$(echo "$plan" | sed -n 's/.*run it .*--seconds \([0-9.]*\).*/\1/p')
-    view=$(echo "$plan" | sed -n 's/.*see it *add --view \([a-z]*\) --look-at.*/\1/p')
-    look=$(echo "$plan" | sed -n 's/.*see it .*--look-at \([-0-9.,]*\).*/\1/p')
     where=$(echo "$plan" | sed -n 's/.*particle [0-9]* at (\([^)]*\)) mm.*/\1/p')
     log=$("$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$work/$case-$approach.csv" \
-      --seconds "$seconds" --size 640x480 --view "$view" --look-at "$look" --screenshot "docs/gallery/$case-$approach.png")
+      --seconds "$seconds" --size 640x480 --screenshot "docs/gallery/$case-$approach.png")
     if ! echo "$log" | grep -q "^incision: the detailed mesh opened along"; then
       echo "make-incision-gallery: $case $approach: the mesh did not open:" >&2
       echo "$log" >&2
@@ -64,7 +63,7 @@ done
   echo "medially; each cut from inferior to superior through the wall, then two retractors (the gold"
   echo "spheres) grab its edges and pull them 6 mm apart. Played by \`heartsim run --headless --backend cpu"
   echo "--trajectory\` for the \`--seconds\` the plan suggests and drawn from the \`--view\` and \`--look-at\`"
-  echo "it prints: the camera outside, 75 mm from the incision's centre (from the front for the"
+  echo "it records in the CSV: the camera outside, 75 mm from the incision's centre (from the front for the"
   echo "ventriculotomy, from the patient's right for the atriotomy: the patient's front on the picture's"
   echo "right). The cut faces, drawn in a deeper red, line the opened incision. Under each picture, the"
   echo "point the plan chose (LPS mm). Regenerate with \`scripts/make-incision-gallery.sh\`."

@@ -5,7 +5,8 @@
 # their label convention, heartprep placing the defect; the HVSMR hearts --at a point of their
 # septum: scripts/real-cases.sh); `heartsim plan-operation --approach all` plans both approaches;
 # each planned approach is played headless on the cpu backend and drawn from the surgeon's eye the
-# plan printed (--view surgeon --eye … --look-at the defect's face, 640x480): at the moment the plan
+# plan records in its CSV (# view: --view surgeon --eye … --look-at the defect's face; 640x480),
+# where heartsim run opens without view options: at the moment the plan
 # says the defect is exposed, and at the operation's end, the patch sewn. The operation's run holds
 # the patch to --leak-test MMHG (default 75, the run's: the systolic difference) and its summary (defect closed, the
 # stitches in the conduction zone, the real-time factor) goes in the table, beside the same heart
@@ -47,8 +48,6 @@ for dir in "$real"/*/; do
       continue
     fi
     csv="$work/$case.$approach.csv"
-    eye=$(sed -n "s/.*surgeon's eye: \([-0-9.]*\), \([-0-9.]*\), \([-0-9.]*\) mm.*/\1,\2,\3/p" <<<"$plan" | head -1)
-    look=$(sed -n 's/.*--look-at \([-0-9.,]*\) .*/\1/p' <<<"$plan" | head -1)
     exposed=$(field '.*defect exposed at: \([0-9.]*\) s.*' "$plan")
     seconds=$(field '.*run it .*--seconds \([0-9.]*\).*' "$plan")
     seen=$(field '.*rim seen *\([0-9]* of [0-9]*\) stitch sites.*' "$plan")
@@ -58,7 +57,7 @@ for dir in "$real"/*/; do
     coronary=$(field '.*coronaries  the nearest course, .*, is \([0-9.]*\) mm from.*' "$plan")
     [ -n "$coronary" ] || coronary="not known"
     spread=$(field '.*pull them \([0-9.]*\) mm apart.*' "$plan")
-    view=(--view surgeon --eye "$eye" --look-at "$look" --size 640x480)
+    view=(--size 640x480)  # the run opens from the surgeon's eye the CSV records
     "$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$csv" --seconds "$exposed" "${view[@]}" \
       --screenshot "docs/gallery/$case-$approach-exposed.png" > "$work/$case.$approach.exposed.log"
     "$bin/runtime/heartsim" run "$work/$case.h5" --headless --backend cpu --trajectory "$csv" --seconds "$seconds" "${view[@]}" \
@@ -83,7 +82,7 @@ done
   echo "(\`heartprep build CASE --defect vsd\`, heartprep's defaults: walls grown, 30,000 particles; on the HVSMR hearts"
   echo "\`--at\` a point of the septum), \`heartsim plan-operation CASE.h5 -o op.csv --approach all\` (docs/runtime.md"
   echo "\"Planning an operation\"), each approach run headless on the cpu backend and drawn from the surgeon's eye"
-  echo "the plan printed (\`--view surgeon --eye X,Y,Z --look-at X,Y,Z\`): the defect exposed through the retracted"
+  echo "the plan records (\`# view: --view surgeon --eye X,Y,Z --look-at X,Y,Z\`): the defect exposed through the retracted"
   echo "incision, then the patch sewn through it. Made by \`scripts/make-operation-gallery.sh --leak-test $leak\`."
   echo
   echo "## The two approaches compared"

@@ -10,12 +10,14 @@
 #include "libmodel/surgery/surgery_site.h"
 #include "runtime/surgery/operation_plan.h"
 #include "runtime/view/camera.h"
+#include "runtime/view/png.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <fstream>
 #include <map>
 #include <numbers>
 #include <regex>
@@ -196,6 +198,143 @@ TEST(OperationPlan, RefusesWhatItCannotPlan) {
     const auto eye = heartsim_command("run " + quoted(vsd_phantom()) + " --headless --steps 0 --eye 1,2,3 --screenshot " + quoted(dir / "x.png"));
     EXPECT_EQ(eye.exit_code, 2) << eye.output;
     EXPECT_NE(eye.output.find("--look-at"), std::string::npos) << eye.output;
+}
+
+// The plan's view (Trajectory::view) is written as the CSV's `# view:` line and read back equal, to
+// the bit, whatever its floats; a trajectory without one reads back without one.
+TEST(PlannedView, RoundTripsThroughTheTrajectoryCsv) {
+    test::TempDir dir;
+    Trajectory t;
+    t.add(0.0, 0, InstrumentKind::scalpel, {1, 2, 3}, Eigen::Quaterniond::Identity(), {2, 0.3, 10}, true);
+    t.add(100.0, 0, InstrumentKind::scalpel, {1, 2, 13}, Eigen::Quaterniond::Identity(), {2, 0.3, 10}, true);
+    LookAt odd;
+    odd.point = Eigen::Vector3f(1.0f / 3.0f, -123.456789f, 7e-4f);
+    odd.eye = Eigen::Vector3f(-84.5f, 51.3f, 61.2f);
+    LookAt far = odd;
+    far.eye.reset();
+    far.distance = 75.1f;
+    for (const PlannedView& view : {PlannedView{ViewDirection::surgeon, odd}, PlannedView{ViewDirection::right, far},
+                                    PlannedView{ViewDirection::inferior, std::nullopt}}) {
+        t.view = view;
+        write_trajectory_csv(t, dir / "t.csv", "# a plan\n");
+        const Trajectory back = read_trajectory(dir / "t.csv");
+        ASSERT_TRUE(back.view) << view_options(view);
+        EXPECT_TRUE(*back.view == view) << view_options(view) << " read back as " << view_options(*back.view);
+        EXPECT_TRUE(parse_view_options(view_options(view)) == view) << view_options(view);
+        ASSERT_EQ(back.keyframes.size(), 2u);
+        EXPECT_EQ(back.keyframes[1].pose.position, t.keyframes[1].pose.position);
+    }
+    // The fewest digits: the points as a user types them.
+    LookAt typed = parse_look_at("1,-2.5,30");
+    parse_eye("-84.5,51.3,61.2", typed);
+    EXPECT_EQ(view_options({ViewDirection::surgeon, typed}), "--view surgeon --eye -84.5,51.3,61.2 --look-at 1,-2.5,30");
+    t.view.reset();
+    write_trajectory_csv(t, dir / "t.csv");
+    EXPECT_FALSE(read_trajectory(dir / "t.csv").view);
+    // The view line is the whole comment: a comment that only mentions a view is a comment.
+    EXPECT_FALSE(parse_trajectory("# the view: anterior\n0,0,probe,0,0,0,1,0,0,0,1,1,1,0 # view: --view left\n", "x.csv").view);
+}
+
+// A `# view:` line the command line would refuse is refused, naming the file and the line and
+// saying what is wrong; so is a second one. heartsim run says it before reading the scenario.
+TEST(PlannedView, AMalformedViewLineIsRefusedWithTheFileAndLine) {
+    test::TempDir dir;
+    const std::string row = "0,0,probe,0,0,0,1,0,0,0,1,1,1,0\n";
+    const std::pair<const char*, const char*> cases[] = {
+        {"--view sideways", "expected anterior, posterior"},
+        {"--view surgeon --eye 1,2,3 --look-at 1,2,3", "the eye is on the --look-at point"},
+        {"--view surgeon --eye 1,2,3 --look-at 1,nan,3", "expected X,Y,Z or X,Y,Z,DISTANCE"},
+        {"--view surgeon --look-at 1,2,3,0", "DISTANCE above 0"},
+        {"--view surgeon --eye 1,2,3", "give it"},
+        {"--look-at 1,2,3", "no --view"},
+        {"--view surgeon --look-at", "without its value"},
+        {"--view surgeon --zoom 2", "'--zoom' is none of these"},
+        {"--view section", "needs --clip"},
+        {"", "no --view"},
+    };
+    for (const auto& [line, says] : cases) {
+        const fs::path csv = dir / "bad.csv";
+        std::ofstream(csv) << "# a plan\n# view: " << line << "\n" << row;
+        try {
+            read_trajectory(csv);
+            ADD_FAILURE() << "accepted '# view: " << line << "'";
+        } catch (const InputError& e) {
+            const std::string what = e.what();
+            EXPECT_NE(what.find(csv.string() + " line 2: the planned view"), std::string::npos) << what;
+            EXPECT_NE(what.find(says), std::string::npos) << what;
+        }
+    }
+    const fs::path twice = dir / "twice.csv";
+    std::ofstream(twice) << "# view: --view left\n" << row << "# view: --view right\n";
+    try {
+        read_trajectory(twice);
+        ADD_FAILURE() << "accepted two view lines";
+    } catch (const InputError& e) {
+        EXPECT_NE(std::string(e.what()).find(twice.string() + " line 3: a second '# view:' line (line 1"), std::string::npos) << e.what();
+    }
+    std::ofstream(dir / "bad.csv") << "# view: --view surgeon --eye 1,2,3 --look-at 1,2,3\n" << row;
+    const auto run = heartsim_command("run " + quoted(dir / "missing.h5") + " --headless --trajectory " + quoted(dir / "bad.csv"));
+    EXPECT_NE(run.exit_code, 0) << run.output;
+    EXPECT_NE(run.output.find("bad.csv line 1: the planned view"), std::string::npos) << run.output;
+    EXPECT_NE(run.output.find("the eye is on the --look-at point"), std::string::npos) << run.output;
+}
+
+// plan-incision records the view it prints, the camera 2.5 incision lengths from the incision's centre.
+TEST(PlannedView, PlanIncisionRecordsTheViewItPrints) {
+    test::TempDir dir;
+    const auto plan = heartsim_command("plan-incision " + quoted(vsd_phantom()) + " -o " + quoted(dir / "cut.csv") + " --length 20");
+    ASSERT_EQ(plan.exit_code, 0) << plan.output;
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(plan.output, m, std::regex("the view the file records \\((--view [a-z]+ --look-at [-0-9.,]+);"))) << plan.output;
+    const Trajectory read = read_trajectory(dir / "cut.csv");
+    ASSERT_TRUE(read.view);
+    EXPECT_EQ(view_options(*read.view), std::string(m[1]));
+    EXPECT_EQ(read.view->direction, ViewDirection::anterior);  // the ventriculotomy, from the front
+    ASSERT_TRUE(read.view->look && read.view->look->distance);
+    EXPECT_EQ(*read.view->look->distance, 50.0f);
+    EXPECT_FALSE(read.view->look->eye);
+}
+
+// plan-operation records the surgeon's view in its CSV, and `heartsim run --trajectory` opens
+// there: a headless screenshot without view options is, pixel for pixel, the one taken with the
+// options the plan printed, and differs from one where --view alone is given (the user's option wins).
+TEST(OperationPlan, TheRunOpensWhereTheSurgeonStands) {
+    test::TempDir dir;
+    const fs::path csv = dir / "op.csv";
+    const auto plan = heartsim_command("plan-operation " + quoted(vsd_phantom()) + " -o " + quoted(csv) + " --approach right-atrial");
+    ASSERT_EQ(plan.exit_code, 0) << plan.output;
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(plan.output, m, std::regex("(--view surgeon --eye ([-0-9.]+),([-0-9.]+),([-0-9.]+) --look-at [-0-9.,]+);")))
+        << plan.output;
+    const std::string options = m[1];
+    const Eigen::Vector3d eye = printed_point(plan.output, "surgeon's eye");
+    EXPECT_TRUE(Eigen::Vector3d(std::stod(m[2]), std::stod(m[3]), std::stod(m[4])).isApprox(eye, 1e-9)) << plan.output;
+    EXPECT_EQ(plan.output.find("add --view"), std::string::npos) << "the plan still asks for the view by hand:\n" << plan.output;
+    const Trajectory read = read_trajectory(csv);
+    ASSERT_TRUE(read.view) << "no '# view:' line in the plan's CSV";
+    EXPECT_EQ(view_options(*read.view), options);
+
+    REQUIRE_GL();
+    const std::string run = "run " + quoted(vsd_phantom()) + " --headless --backend cpu --trajectory " + quoted(csv) + " --steps 2 --size 96x72 ";
+    auto shot = [&](const std::string& extra, const std::string& name) {
+        const auto r = heartsim_command(run + extra + " --screenshot " + quoted(dir / name));
+        EXPECT_EQ(r.exit_code, 0) << r.output;
+        return std::make_pair(r.output, read_png(dir / name));
+    };
+    const auto [planned_output, planned] = shot("", "planned.png");
+    const auto [given_output, given] = shot(options, "given.png");
+    const auto [view_output, view_only] = shot("--view surgeon", "view.png");
+    EXPECT_NE(planned_output.find("view: as planned in " + csv.string() + ", " + options + " (--view, --eye or --look-at choose another)"),
+              std::string::npos)
+        << planned_output;
+    EXPECT_EQ(given_output.find("as planned"), std::string::npos) << given_output;
+    EXPECT_EQ(view_output.find("as planned"), std::string::npos) << view_output;
+    ASSERT_EQ(planned.width, 96);
+    ASSERT_EQ(planned.height, 72);
+    EXPECT_TRUE(planned.pixels == given.pixels) << "the planned view's screenshot differs from the one with the options given";
+    ASSERT_EQ(view_only.pixels.size(), planned.pixels.size());
+    const test::ImageDifference difference = test::compare_images(planned, view_only, 16, nullptr);
+    EXPECT_GT(difference.fraction_over, 0.1) << "with --view surgeon alone the fitted surgeon's view should replace the planned eye";
 }
 
 // Every real heart with a 10 mm VSD: both approaches planned (or one refused with its reason, and

@@ -117,7 +117,8 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     run->add_option("--size", a.size, "Window or screenshot size WxH pixels (default 1280x800 window, 1024x768 headless)");
     run->add_option("--view", a.view, "Initial view: anterior (default), posterior, left, right, superior, inferior, surgeon (the "
                                       "patient supine, seen from the surgeon's place on the patient's right), or section "
-                                      "(with --clip: straight at the section plane, from the removed side)")
+                                      "(with --clip: straight at the section plane, from the removed side). Without --view, --eye "
+                                      "and --look-at: the view a --trajectory records (its '# view:' line; plan-operation's surgeon's eye)")
         ->check(CLI::IsMember({"anterior", "posterior", "left", "right", "superior", "inferior", "surgeon", "section"}));
     run->add_option("--clip", a.clip,
                     "Section view: PX,PY,PZ,NX,NY,NZ, a point and a normal (mm, world LPS); the side the normal points to is not "
@@ -137,7 +138,7 @@ CLI::App* add_run_command(CLI::App& app, RunArguments& a) {
     run->add_option("--eye", a.eye,
                     "With --look-at: where the camera stands, X,Y,Z (mm, world LPS), looking at the --look-at point; the --view's "
                     "up kept as nearly as the line of sight allows (--view surgeon: the patient's left up, across the table). "
-                    "heartsim plan-operation prints the surgeon's eye")
+                    "heartsim plan-operation prints the surgeon's eye and records it in its CSV, where a run without view options starts")
         ->type_name("X,Y,Z");
     run->add_option("--device", a.devices,
                     "Haptic device for hand 0, then hand 1 (give once or twice): scripted:FILE (pose CSV, or a --record file "
@@ -212,7 +213,8 @@ CLI::App* add_plan_incision_command(CLI::App& app, PlanIncisionArguments& plan) 
         "Plan a scripted incision on a scenario and write it as a --trajectory CSV: a scalpel (hand 0) lowered onto the heart's "
         "surface and drawn from inferior to superior, lifted, then two grabbers (hands 0 and 1) used as retractors grab the "
         "incision's edges and pull them apart, then hold. Prints where it cuts, which way the blade points, how long a run must "
-        "last (--seconds) and the --view and --look-at that show the incision (docs/runtime.md \"Planning an incision\")");
+        "last (--seconds) and the --view and --look-at that show the incision, which the CSV records: heartsim run opens there "
+        "without view options (docs/runtime.md \"Planning an incision\")");
     plan_command->add_option("scenario", plan.scenario, "Scenario file (heartprep build)")->required();
     plan_command->add_option("-o,--output", plan.output, "Trajectory CSV to write, for heartsim run --trajectory")
         ->required()
@@ -244,8 +246,8 @@ CLI::App* add_plan_incision_command(CLI::App& app, PlanIncisionArguments& plan) 
     plan_command->footer("\nExample:\n"
                          "  heartsim plan-incision case.h5 -o cut.csv --approach atriotomy --length 25\n"
                          "  heartsim run case.h5 --trajectory cut.csv --seconds 1.2           # as it printed\n"
-                         "  heartsim run case.h5 --headless --trajectory cut.csv --seconds 1.2 --view right \\\n"
-                         "      --look-at X,Y,Z,D --screenshot cut.png                       # the --look-at it printed\n");
+                         "  heartsim run case.h5 --headless --trajectory cut.csv --seconds 1.2 \\\n"
+                         "      --screenshot cut.png                       # from the --view and --look-at the CSV records\n");
     return plan_command;
 }
 
@@ -352,7 +354,8 @@ CLI::App* add_plan_operation_command(CLI::App& app, PlanOperationArguments& oper
         "--trajectory CSV: a scalpel (hand 0) opens the approach's chamber where a line of sight from the defect leaves the heart "
         "through its free wall, clear of the coronary courses; two retractors (hands 0 and 1) pull the incision's edges apart until "
         "the defect is seen; then the patch (hand 0) and the needle (hand 1) come in through the opening and the patch is sewn over "
-        "the defect's right side (plan-repair's stitches). Prints the incision, the retraction, the surgeon's eye, when the defect "
+        "the defect's right side (plan-repair's stitches). Prints the incision, the retraction, the surgeon's eye (the CSV records "
+        "the surgeon's view: heartsim run opens there without view options), when the defect "
         "is exposed, how many stitch sites are seen from the eye, and how to run and see it; with --approach all, both approaches "
         "and a table comparing them (docs/runtime.md \"Planning an operation\")");
     command->add_option("scenario", operation.scenario, "Scenario file with a septal defect (heartprep build ... --defect vsd)")->required();
@@ -406,7 +409,7 @@ CLI::App* add_plan_operation_command(CLI::App& app, PlanOperationArguments& oper
     command->footer("\nExample:\n"
                     "  heartprep build ct-label.nii.gz --labels mmwhs --defect vsd -o vsd.h5\n"
                     "  heartsim plan-operation vsd.h5 -o op.csv --approach all           # both approaches, compared\n"
-                    "  heartsim run vsd.h5 --trajectory op.right-atrial.csv --seconds 7 --view surgeon --eye X,Y,Z --look-at X,Y,Z\n");
+                    "  heartsim run vsd.h5 --trajectory op.right-atrial.csv --seconds 7   # from the surgeon's eye the CSV records\n");
     return command;
 }
 

@@ -49,7 +49,7 @@ struct RunArguments {
     int screenshot_every = 0;        // also OUT-000123.png after every N steps (numbered by step)
     double draw_share = 0.1;         // the window draws at most this fraction of the wall clock (cpu backend)
     std::string size;                // WxH pixels of the window or the offscreen frame
-    std::string view = "anterior";
+    std::optional<std::string> view;  ///< --view; nullopt: the --trajectory's planned view (trajectory.h) when no --eye or --look-at is given, else anterior
     std::string surface_detail = "on";  // --surface-detail on|off: the coronary arteries and the fibres (docs/runtime.md)
     std::string clip;                // --clip PX,PY,PZ,NX,NY,NZ or centre: the section view (section_plane.h); empty: none
     std::string look_at;             // --look-at X,Y,Z[,DISTANCE]: the camera centred on a point (camera.h); empty: the fitted view

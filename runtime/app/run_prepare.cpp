@@ -316,9 +316,7 @@ void set_contact(const RunArguments& a, PreparedRun& p) {
 /// The instruments of --trajectory, or of --probe and --grab; in a window without a script,
 /// the keyboard's probe on hand 0.
 void script_instruments(const RunArguments& a, PreparedRun& p) {
-    if (!a.trajectory.empty()) {
-        if (!a.probe.empty() || !a.grab.empty()) throw UsageError("give --trajectory or --probe/--grab, not both");
-        p.trajectory = read_trajectory(a.trajectory);
+    if (!a.trajectory.empty()) {  // read by the constructor (its planned view)
         // A patch lies on the detailed mesh (runtime/surgery/repair.h): without one, refuse before the
         // first step rather than stop the run when the hand lays it.
         if (!can_hold_patch(p.scenario))
@@ -379,19 +377,34 @@ PreparedRun::PreparedRun(const RunArguments& a) {
     const bool render = !a.headless || !a.screenshot.empty();
     std::tie(frame_width, frame_height) = parse_size(a.size, a.headless ? std::pair{1024, 768} : std::pair{1280, 800});
     // --view section: the fitted anterior camera first, then turned to the plane (make_renderer).
-    if (a.view == "section" && a.clip.empty())
+    const std::string view_name = a.view.value_or("anterior");
+    if (view_name == "section" && a.clip.empty())
         throw UsageError("--view section looks straight at the section plane: give --clip (a plane, centre or defect)");
-    view = parse_view_direction(a.view == "section" ? "anterior" : a.view);
+    view = parse_view_direction(view_name == "section" ? "anterior" : view_name);
     surface_detail = a.surface_detail == "on";
     std::optional<SectionRequest> section;
     if (!a.clip.empty()) section = parse_section_option(a.clip);
-    if (section && a.view == "section") section->aim_camera = true;
+    if (section && view_name == "section") section->aim_camera = true;
     // --look-at: the camera centred on a point, after the view and the section have turned it.
     std::optional<LookAt> look;
     if (!a.look_at.empty()) look = parse_look_at(a.look_at);
     if (!a.eye.empty() && !look) throw UsageError("--eye places the camera looking at a point: give that point with --look-at X,Y,Z");
     if (!a.eye.empty()) parse_eye(a.eye, *look);
     if (look && a.headless && a.screenshot.empty()) throw UsageError("--look-at aims the camera: headless it needs --screenshot");
+    // The --trajectory's planned view (its `# view:` line), where none of --view, --eye and
+    // --look-at was given and --clip defect does not aim the camera: the options it records, as if given.
+    if (!a.trajectory.empty()) {
+        if (!a.probe.empty() || !a.grab.empty()) throw UsageError("give --trajectory or --probe/--grab, not both");
+        trajectory = read_trajectory(a.trajectory);
+    }
+    const bool view_given = a.view || !a.look_at.empty() || !a.eye.empty() || (section && section->through_defect);
+    if (trajectory.view && !view_given) {
+        view = trajectory.view->direction;
+        look = trajectory.view->look;
+        if (render)
+            std::printf("view: as planned in %s, %s (--view, --eye or --look-at choose another)\n", a.trajectory.c_str(),
+                        view_options(*trajectory.view).c_str());
+    }
 
     scenario = read_scenario(a.scenario);
     require_runnable(scenario, a.scenario);

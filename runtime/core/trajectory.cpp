@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <optional>
 #include <sstream>
 
 namespace heartsim {
@@ -35,6 +36,17 @@ InstrumentKind parse_kind(const std::string& text, const std::string& where) {
     if (text == "grab") return InstrumentKind::grabber;
     if (const auto kind = instrument_kind_named(text)) return *kind;
     throw InputError(where + ": kind '" + text + "': expected probe, grabber, retractor, scalpel, patch, needle or none");
+}
+
+/// What follows "# view:" on a line that begins with it (blanks before the '#' and the "view:"
+/// allowed), trimmed; nullopt for any other line.
+std::optional<std::string> view_line(const std::string& line) {
+    const auto hash = line.find_first_not_of(" \t");
+    if (hash == std::string::npos || line[hash] != '#') return std::nullopt;
+    const auto word = line.find_first_not_of(" \t", hash + 1);
+    if (word == std::string::npos || line.compare(word, 5, "view:") != 0) return std::nullopt;
+    const auto begin = line.find_first_not_of(" \t", word + 5), end = line.find_last_not_of(" \t\r");
+    return begin == std::string::npos || end < begin ? std::string() : line.substr(begin, end - begin + 1);
 }
 
 }  // namespace
@@ -105,10 +117,22 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
     Trajectory trajectory;
     std::istringstream in(text);
     std::string line;
-    int line_number = 0;
+    int line_number = 0, view_line_number = 0;
     std::map<std::pair<int, double>, int> line_of;  // (hand, time) → the line that gave it
     while (std::getline(in, line)) {
         ++line_number;
+        if (const auto view = view_line(line)) {
+            const std::string where = name + " line " + std::to_string(line_number);
+            if (trajectory.view)
+                throw InputError(where + ": a second '# view:' line (line " + std::to_string(view_line_number) + " gave the view); give one");
+            try {
+                trajectory.view = parse_view_options(*view);
+            } catch (const InputError& e) {
+                throw InputError(where + ": the planned view '# view: " + *view + "': " + e.what());
+            }
+            view_line_number = line_number;
+            continue;
+        }
         const auto hash = line.find('#');
         if (hash != std::string::npos) line.erase(hash);
         if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
@@ -149,7 +173,9 @@ Trajectory parse_trajectory(const std::string& text, const std::string& name) {
 Trajectory read_trajectory(const std::filesystem::path& path) { return parse_trajectory(read_csv_file(path), path.string()); }
 
 void write_trajectory_csv(const Trajectory& t, const std::filesystem::path& path, const std::string& comments) {
-    std::string text = comments + "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
+    std::string text = comments;
+    if (t.view) text += "# view: " + view_options(*t.view) + "\n";
+    text += "time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n";
     for (const InstrumentKeyframe& k : t.keyframes) {
         const auto& p = k.pose.position;
         const auto& q = k.pose.orientation;

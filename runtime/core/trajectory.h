@@ -16,12 +16,20 @@
 /// kind, semi-axes and grab switch at a keyframe's time and hold until the next. Toward a keyframe
 /// whose kind or semi-axes differ the pose holds: an instrument does not travel to where the next
 /// one is placed (a retractor holding until the hand takes a patch stays where it holds).
+///
+/// A whole-line comment `# view: OPTIONS` records the view the trajectory is planned to be seen
+/// from (Trajectory::view), OPTIONS as heartsim run's view options take it (camera.h
+/// view_options: `# view: --view surgeon --eye X,Y,Z --look-at X,Y,Z`); heartsim run starts there
+/// when given none of --view, --eye and --look-at. At most one such line; any other comment is
+/// ignored.
 #pragma once
 
 #include "runtime/backend/backend.h"
+#include "runtime/view/camera.h"
 
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -39,6 +47,8 @@ struct InstrumentKeyframe {
 
 struct Trajectory {
     std::vector<InstrumentKeyframe> keyframes;  ///< sorted by time within each hand
+    /// The view it is planned to be seen from (the CSV's `# view:` line); nullopt: none recorded.
+    std::optional<PlannedView> view;
     bool uses_hand(int hand) const;
     /// The keyframe state of `hand` at `time_ms` (pose interpolated toward the next keyframe, held
     /// when that one's kind or semi-axes differ; the rest from the keyframe at or before, or the
@@ -60,12 +70,14 @@ void check_keyframe(const InstrumentKeyframe& keyframe, const std::string& where
 /// `heartsim run --trajectory` refuses. Throws OptionError naming the keyframe and the rule.
 void check_planned_trajectory(const Trajectory& trajectory);
 
-/// Reads a trajectory CSV. Throws InputError naming the file, line and column on a bad row.
+/// Reads a trajectory CSV. Throws InputError naming the file, line and column on a bad row, and
+/// the file and line on a `# view:` line that parse_view_options refuses or that comes twice.
 Trajectory read_trajectory(const std::filesystem::path& path);
 /// Parses CSV text (the same format); `name` is used in error messages.
 Trajectory parse_trajectory(const std::string& text, const std::string& name);
-/// Writes `trajectory` as that CSV, after `comments` (whole `#` lines, each ending in a line break):
-/// what read_trajectory reads back, every number to the last bit (%.17g). Written atomically
+/// Writes `trajectory` as that CSV, after `comments` (whole `#` lines, each ending in a line break)
+/// and its view's `# view:` line where it has one: what read_trajectory reads back, every number
+/// to the last bit (%.17g; the view's floats in the fewest digits that read back the same). Written atomically
 /// (formats/atomic_file.h): an old file at `path` is replaced whole or, when the write fails, left
 /// as it was; OutputError naming the file and the cause ("No space left on device").
 void write_trajectory_csv(const Trajectory& trajectory, const std::filesystem::path& path, const std::string& comments = "");

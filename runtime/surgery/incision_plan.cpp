@@ -172,7 +172,10 @@ int plan_incision_command(const PlanIncisionArguments& a) {
     const Scenario scenario = read_scenario(a.scenario);
     const IncisionPlan plan = plan_incision(scenario, options);
     check_planned_trajectory(plan.trajectory);
-    write_trajectory_csv(plan.trajectory, a.output);
+    // The view that shows the incision, recorded for heartsim run (the CSV's `# view:` line).
+    Trajectory planned = plan.trajectory;
+    planned.view = parse_view_options(std::string("--view ") + view_name(plan.view) + " --look-at " + incision_look_at(plan, options));
+    write_trajectory_csv(planned, a.output);
 
     const bool atriotomy = options.approach == IncisionApproach::atriotomy;
     const auto [side_axis, side_sign] = axis_of(plan.side);
@@ -227,8 +230,9 @@ int plan_incision_command(const PlanIncisionArguments& a) {
     const double seconds = (std::floor(plan.end_ms / 100.0) + 1.0) / 10.0;
     std::printf("  wrote       %s (%zu keyframes; the gesture lasts %.0f ms)\n", a.output.c_str(), plan.trajectory.keyframes.size(), plan.end_ms);
     std::printf("  run it      heartsim run %s --trajectory %s --seconds %.1f\n", a.scenario.c_str(), a.output.c_str(), seconds);
-    std::printf("  see it      add --view %s --look-at %s (the camera from outside, on the incision's centre, %.0f mm away)\n",
-                view_name(plan.view), incision_look_at(plan, options).c_str(), incision_view_distance(plan, options));
+    std::printf("  see it      the run's window and screenshots open on the incision, the camera from outside on its centre, %.0f mm "
+                "away: the view the file records (%s; --view, --eye or --look-at choose another)\n",
+                incision_view_distance(plan, options), view_options(*planned.view).c_str());
     return 0;
 }
 

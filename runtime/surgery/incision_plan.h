@@ -119,8 +119,9 @@ double incision_view_distance(const IncisionPlan& plan, const IncisionPlanOption
 /// incision_view_distance, formatted to 0.1 mm.
 std::string incision_look_at(const IncisionPlan& plan, const IncisionPlanOptions& options);
 
-/// `heartsim plan-incision SCENARIO -o OUT.csv …`: reads the scenario, plans, writes the CSV and
-/// prints what it planned and how to play it. 0.
+/// `heartsim plan-incision SCENARIO -o OUT.csv …`: reads the scenario, plans, writes the CSV (with
+/// the view that shows the incision, the plan's view and incision_look_at, as its `# view:` line:
+/// trajectory.h) and prints what it planned and how to play it. 0.
 struct PlanIncisionArguments {
     std::string scenario, output;
     std::string approach = "ventriculotomy";

@@ -312,6 +312,10 @@ OperationPlan plan_operation(const Scenario& scenario, const OperationPlanOption
     }
     plan.end_ms = lay_ms + repair.end_ms;
     script.sort_by_time();
+    // The view the run starts from (the CSV's `# view:` line): the surgeon's, from the eye into the
+    // opening, as the points print (0.1 mm), so that the printed options and the file agree.
+    script.view = parse_view_options("--view surgeon --eye " + plan_text::option_point(plan.eye) + " --look-at " +
+                                     plan_text::option_point(plan.target));
     return plan;
 }
 
@@ -354,9 +358,9 @@ void print_plan(const OperationPlan& plan, const std::string& scenario, const st
     const double seconds = (std::floor(plan.end_ms / 100.0) + 1.0) / 10.0;
     std::printf("  wrote       %s (%zu keyframes)\n", output.c_str(), plan.trajectory.keyframes.size());
     std::printf("  run it      heartsim run %s --trajectory %s --seconds %.1f\n", scenario.c_str(), output.c_str(), seconds);
-    std::printf("  see it      add --view surgeon --eye %s --look-at %s (from the surgeon's eye into the opening); the exposure alone: "
-                "--seconds %.2f\n",
-                plan_text::option_point(plan.eye).c_str(), plan_text::option_point(plan.target).c_str(), plan.exposed_ms / 1000.0);
+    std::printf("  see it      the run's window and screenshots open from the surgeon's eye into the opening, the view the file "
+                "records (%s; --view, --eye or --look-at choose another); the exposure alone: --seconds %.2f\n",
+                view_options(*plan.trajectory.view).c_str(), plan.exposed_ms / 1000.0);
 }
 
 }  // namespace

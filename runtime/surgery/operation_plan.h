@@ -40,7 +40,10 @@
 /// the stitches (plan_repair's script, on the right side always: the only side reached through the
 /// right heart). Where plan-repair's automatic side leaves the right for the left (the right rim too
 /// rough for a flat patch to seal, the left's smooth: RepairPlanOptions::rough_rim_mm), no
-/// operation through the right heart closes the defect, and the plan refuses, saying so.
+/// operation through the right heart closes the defect, and the plan refuses, saying so. The
+/// trajectory records the surgeon's view (Trajectory::view, the CSV's `# view:` line): `--view
+/// surgeon --eye` the eye `--look-at` the defect's face, both to 0.1 mm, where `heartsim run`
+/// opens without view options.
 ///
 ///     const OperationPlan plan = plan_operation(scenario, {.approach = OperationApproach::right_atrial});
 ///     write_trajectory_csv(plan.trajectory, "op.csv");
@@ -76,7 +79,7 @@ struct OperationPlanOptions {
 };
 
 struct OperationPlan {
-    Trajectory trajectory;
+    Trajectory trajectory;  ///< the gesture, its view the surgeon's (eye and target to 0.1 mm)
     OperationApproach approach = OperationApproach::right_ventricular;
     RepairPlan repair;                                       ///< the repair's plan, before its time shift
     Eigen::Vector3d target = Eigen::Vector3d::Zero();        ///< the defect's face on the right side

@@ -6,7 +6,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <sstream>
 #include <vector>
 
 namespace heartsim {
@@ -47,6 +50,19 @@ ViewDirection parse_view_direction(const std::string& name) {
     if (name == "inferior") return ViewDirection::inferior;
     if (name == "surgeon") return ViewDirection::surgeon;
     throw InputError("{ViewDirection} '" + name + "': expected anterior, posterior, left, right, superior, inferior or surgeon");
+}
+
+const char* to_string(ViewDirection view) {
+    switch (view) {
+        case ViewDirection::anterior: return "anterior";
+        case ViewDirection::posterior: return "posterior";
+        case ViewDirection::left: return "left";
+        case ViewDirection::right: return "right";
+        case ViewDirection::superior: return "superior";
+        case ViewDirection::inferior: return "inferior";
+        case ViewDirection::surgeon: return "surgeon";
+    }
+    return "anterior";
 }
 
 Eigen::Vector3f Camera::eye() const { return target + orientation * Eigen::Vector3f(0, 0, distance); }
@@ -169,6 +185,65 @@ void aim_camera_at(Camera& camera, const LookAt& look) {
     camera.orientation = Eigen::Quaternionf(basis).normalized();
     camera.turntable_axis = up;
     camera.distance = (*look.eye - look.point).norm();
+}
+
+bool operator==(const LookAt& a, const LookAt& b) {
+    return a.point == b.point && a.distance == b.distance && a.eye.has_value() == b.eye.has_value() && (!a.eye || *a.eye == *b.eye);
+}
+
+bool operator==(const PlannedView& a, const PlannedView& b) { return a.direction == b.direction && a.look == b.look; }
+
+namespace {
+
+/// `value` in the fewest significant digits (up to 9, which always do) that read back as the same
+/// float, without an exponent where the digits allow (30, not 3e+01).
+std::string float_text(float value) {
+    char text[32];
+    for (int digits = 1; digits <= 9; ++digits) {
+        std::snprintf(text, sizeof text, "%.*g", digits, double(value));
+        if (std::strtof(text, nullptr) == value && (digits == 9 || !std::strchr(text, 'e'))) break;
+    }
+    return text;
+}
+
+std::string point_text(const Eigen::Vector3f& p) { return float_text(p.x()) + "," + float_text(p.y()) + "," + float_text(p.z()); }
+
+}  // namespace
+
+std::string view_options(const PlannedView& view) {
+    std::string text = std::string("--view ") + to_string(view.direction);
+    if (!view.look) return text;
+    if (view.look->eye) text += " --eye " + point_text(*view.look->eye);
+    text += " --look-at " + point_text(view.look->point);
+    if (view.look->distance) text += "," + float_text(*view.look->distance);
+    return text;
+}
+
+PlannedView parse_view_options(const std::string& text) {
+    const std::string expected = "'" + text + "': expected --view NAME, then optionally --look-at X,Y,Z[,DISTANCE] and --eye X,Y,Z";
+    std::istringstream in(text);
+    std::optional<std::string> view, look_at, eye;
+    std::string option;
+    while (in >> option) {
+        std::optional<std::string>* value = option == "--view" ? &view : option == "--look-at" ? &look_at : option == "--eye" ? &eye : nullptr;
+        if (!value) throw OptionError(expected + " ('" + option + "' is none of these)");
+        if (value->has_value()) throw OptionError(expected + " (" + option + " given twice)");
+        std::string word;
+        if (!(in >> word)) throw OptionError(expected + " (" + option + " without its value)");
+        *value = word;
+    }
+    if (!view) throw OptionError(expected + " (no --view)");
+    if (*view == "section") throw OptionError("{ViewDirection} 'section': a planned view is a named one (section needs --clip)");
+    PlannedView planned;
+    try {
+        planned.direction = parse_view_direction(*view);
+    } catch (const InputError& e) {
+        throw OptionError(e.what());
+    }
+    if (eye && !look_at) throw OptionError(expected + " (--eye looks at the --look-at point: give it)");
+    if (look_at) planned.look = parse_look_at(*look_at);
+    if (eye) parse_eye(*eye, *planned.look);
+    return planned;
 }
 
 }  // namespace heartsim

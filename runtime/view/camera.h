@@ -22,6 +22,8 @@ enum class ViewDirection { anterior, posterior, left, right, superior, inferior,
 /// "anterior", "posterior", "left", "right", "superior", "inferior" or "surgeon"; throws InputError
 /// otherwise.
 ViewDirection parse_view_direction(const std::string& name);
+/// The name parse_view_direction reads: "anterior", …, "surgeon".
+const char* to_string(ViewDirection view);
 
 /// An orbiting perspective camera (mm, world frame).
 struct Camera {
@@ -72,5 +74,25 @@ void parse_eye(const std::string& text, LookAt& look);
 /// point, the --view's up turned as little as it takes to lie across the line of sight (so the
 /// surgeon's view keeps the patient's left up). The near plane follows the distance (projection).
 void aim_camera_at(Camera& camera, const LookAt& look);
+
+/// The view a plan shows its trajectory from (heartsim plan-operation's surgeon's eye,
+/// plan-incision's camera on the incision): `heartsim run --trajectory` starts from it when given
+/// none of --view, --eye and --look-at (docs/runtime.md "Planning an operation"). The options that
+/// say it, as heartsim run takes them: a named view and, optionally, a point looked at and an eye.
+struct PlannedView {
+    ViewDirection direction = ViewDirection::anterior;  ///< --view
+    std::optional<LookAt> look;                         ///< --look-at, and --eye in look->eye
+};
+bool operator==(const LookAt& a, const LookAt& b);
+bool operator==(const PlannedView& a, const PlannedView& b);
+/// The view as heartsim run's options: "--view surgeon --eye X,Y,Z --look-at X,Y,Z[,DISTANCE]"
+/// (the --eye and --look-at only where given; each number in the fewest digits that read back to
+/// the same float, so parse_view_options(view_options(v)) == v).
+std::string view_options(const PlannedView& view);
+/// Reads view_options' text: "--view NAME", then in any order "--look-at X,Y,Z[,DISTANCE]" and
+/// "--eye X,Y,Z" (the eye only with a point), separated by spaces; each value checked as the
+/// command line's option is (parse_view_direction, parse_look_at, parse_eye; "section" is refused:
+/// it needs --clip). OptionError naming the option, or saying what was expected, otherwise.
+PlannedView parse_view_options(const std::string& text);
 
 }  // namespace heartsim
