@@ -105,6 +105,13 @@ printf 'time_ms,hand,kind,x,y,z,qw,qx,qy,qz,ax,ay,az,grab\n0,0,scalpel,0.1,-3,-3
 printf '0,0,scalpel,0.1,-3,-3,1,0,0,0,1,0.2,0,1\n1,0,scalpel,0.1,3,-3,1,0,0,0,1,0.2,-0,1\n' > "$corpus/fuzz_trajectory/scalpel_zero.csv"
 printf '0,0,scalpel,0.1,-3,-3,1,0,0,0,1,0.2,1e30,1\n1,0,scalpel,0.1,3,-3,1,0,0,0,inf,0.2,4,1\n2,0,scalpel,nan,3,-3,1,0,0,0,1,0.2,4,1\n' \
   > "$corpus/fuzz_trajectory/scalpel_huge.csv"
+# Planned views (the `# view:` line): the surgeon's eye as plan-operation writes it, plan-incision's
+# camera at a distance, and views the reader refuses (the eye on the point, no --view, two lines).
+printf '# view: --view surgeon --eye -84.5,51.3,61.2 --look-at -25.5,-1.1,-1.5\n0,0,probe,0,0,0,1,0,0,0,1,1,1,0\n' \
+  > "$corpus/fuzz_trajectory/view_surgeon.csv"
+printf '# view: --view anterior --look-at 37,-45.5,21.1,75\n0,0,probe,0,0,0,1,0,0,0,1,1,1,0\n' > "$corpus/fuzz_trajectory/view_distance.csv"
+printf '# view: --view surgeon --eye 1,2,3 --look-at 1,2,3\n# view: --look-at 1,2,3\n0,0,probe,0,0,0,1,0,0,0,1,1,1,0\n' \
+  > "$corpus/fuzz_trajectory/view_refused.csv"
 cp "$corpus"/fuzz_trajectory/*.csv "$corpus/fuzz_trajectory_run/"
 cp samples/haptics/grab_phantom.csv samples/haptics/grab_pat1.csv "$corpus/fuzz_pose_script/"
 cp samples/haptics/press_phantom.csv samples/haptics/press_pat1.csv "$corpus/fuzz_simulated_device/"
