@@ -211,11 +211,13 @@ std::string point_text(const Eigen::Vector3f& p) { return float_text(p.x()) + ",
 }  // namespace
 
 std::string view_options(const PlannedView& view) {
-    std::string text = std::string("--view ") + to_string(view.direction);
+    // Appended piece by piece (GCC 12 warns, wrongly, of overlapping copies in "literal" + string).
+    std::string text = "--view ";
+    text += to_string(view.direction);
     if (!view.look) return text;
-    if (view.look->eye) text += " --eye " + point_text(*view.look->eye);
-    text += " --look-at " + point_text(view.look->point);
-    if (view.look->distance) text += "," + float_text(*view.look->distance);
+    if (view.look->eye) text.append(" --eye ").append(point_text(*view.look->eye));
+    text.append(" --look-at ").append(point_text(view.look->point));
+    if (view.look->distance) text.append(",").append(float_text(*view.look->distance));
     return text;
 }
 
