@@ -446,6 +446,12 @@ void RepairBackend::feel_needles() {
                     }
                 }
                 depth = 0.5 * (in + out);
+                // Counted from the drawn surface: the occupancy's edge lies 0.75 spacing from the
+                // particle the shaft leaves by, the drawn surface that particle's skin from it.
+                if (skin_.empty()) skin_ = scenario_contact_skin(scenario_);
+                const int last = tissue.particle_at(tip + in * shaft);
+                if (last >= 0 && std::size_t(near[std::size_t(last)]) < skin_.size())
+                    depth = std::max(0.0, depth - (0.75 * h - double(skin_[std::size_t(near[std::size_t(last)])])));
             }
         }
         wall_force_[std::size_t(hand)] = wall_force_n(settings_.needle, passes_[std::size_t(hand)], depth) * shaft;

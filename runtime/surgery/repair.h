@@ -66,9 +66,12 @@ struct RepairSettings {
     /// (rounded to whole tissue steps, at least one), its force held in between, ms; 0: the needle
     /// feels no wall. The depth: from the tip back along the shaft (the tool's +z) to where it
     /// leaves the tissue (a point within 0.75 lattice spacing of a particle, where the particles
-    /// are now), to 0.01 mm, at most 12 mm; 0 with the tip outside the tissue. The particles looked
-    /// at are those whose rest positions lie near the shaft: tissue that has moved more than 1 mm
-    /// from rest there may be missed.
+    /// are now), to 0.01 mm, at most 12 mm, less the part of it outside the drawn surface: that
+    /// point lies 0.75 spacing from the particle it leaves by, the drawn surface that particle's
+    /// contact skin from it (libmodel/contact_skin.h), so the depth is counted from where the
+    /// trainee sees the wall as the probe's contact is; 0 with the tip outside. The particles
+    /// looked at are those whose rest positions lie near the shaft: tissue that has moved more
+    /// than 1 mm from rest there may be missed.
     double needle_every_ms = 0.5;
 };
 
@@ -236,6 +239,7 @@ private:
     std::array<Eigen::Vector3d, 2> wall_force_{Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()};
     std::array<std::vector<std::int32_t>, 2> near_tip_;
     std::array<std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>>, 2> gathered_at_;
+    std::vector<float> skin_;  ///< the scenario's contact skin (scenario_contact_skin), made at the first measure
     int since_feel_ = 0;  ///< tissue steps since the last measure of the needles' depths
     bool held_repair_instrument_ = false;
     double intrusion_ms_ = 0.0;
