@@ -23,19 +23,6 @@ std::string direction_words(const Eigen::Vector3d& v) {
     return words[axis][sign > 0 ? 1 : 0];
 }
 
-const char* view_name(ViewDirection view) {
-    switch (view) {
-        case ViewDirection::anterior: return "anterior";
-        case ViewDirection::posterior: return "posterior";
-        case ViewDirection::left: return "left";
-        case ViewDirection::right: return "right";
-        case ViewDirection::superior: return "superior";
-        case ViewDirection::inferior: return "inferior";
-        case ViewDirection::surgeon: return "surgeon";
-    }
-    return "anterior";
-}
-
 }  // namespace
 
 IncisionApproach parse_incision_approach(const std::string& name) {
@@ -174,7 +161,7 @@ int plan_incision_command(const PlanIncisionArguments& a) {
     check_planned_trajectory(plan.trajectory);
     // The view that shows the incision, recorded for heartsim run (the CSV's `# view:` line).
     Trajectory planned = plan.trajectory;
-    planned.view = parse_view_options(std::string("--view ") + view_name(plan.view) + " --look-at " + incision_look_at(plan, options));
+    planned.view = parse_view_options(std::string("--view ") + to_string(plan.view) + " --look-at " + incision_look_at(plan, options));
     write_trajectory_csv(planned, a.output);
 
     const bool atriotomy = options.approach == IncisionApproach::atriotomy;
