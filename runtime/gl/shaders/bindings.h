@@ -25,7 +25,7 @@ enum Binding : unsigned {
     gathered = 23,      ///< positions_of's positions, vec4 per index
     // The patch's pass (patch_pass.cpp, patch_shaders.h), beyond current and load.
     patch_ints = 24, patch_constants = 25, patch_state = 26,
-    skin = 27,  ///< per padded particle, float: how far an instrument reaches beyond it, mm (Solver::reach_beyond)
+    skin = 27,  ///< per padded particle, double: how far an instrument reaches beyond it, mm (Solver::reach_beyond)
     // The renderer's passes (renderer.cpp, render_shaders.h) bind all their buffers before each
     // use, so they reuse the backend's low slots: with the cpu backend, drawing then needs no
     // more bindings than the few every OpenGL 4.3 driver offers.
