@@ -50,6 +50,19 @@ std::vector<SightSpan> tissue_along(const TissueOccupancy& tissue, const Eigen::
     return spans;
 }
 
+WayOut way_out(const TissueOccupancy& tissue, const Eigen::Vector3d& from, const Eigen::Vector3d& way, double reach) {
+    const double step = 0.25 * tissue.spacing();
+    WayOut out{0.0, reach};
+    for (double t = step; t < reach; t += step) {
+        if (tissue.inside(from + t * way)) out.last_inside = t;
+        else if (!tissue.inside(from + (t + step) * way)) {
+            out.exit = t;
+            break;
+        }
+    }
+    return out;
+}
+
 SightLines sight_lines(const TissueOccupancy& tissue, const SightOptions& o) {
     SightLines found;
     const double cos_cone = std::cos(o.cone_deg * std::numbers::pi / 180.0);

@@ -51,6 +51,18 @@ struct SightSpan {
 /// every quarter spacing (a stretch begins and ends at its first and last sample inside).
 std::vector<SightSpan> tissue_along(const TissueOccupancy& tissue, const Eigen::Vector3d& a, const Eigen::Vector3d& b);
 
+/// Where the ray from `from` along unit `way` leaves the tissue, sampled every quarter spacing
+/// from one step out: `exit` is the first sample outside whose next sample is outside too (a
+/// single one may fall in the gap the 0.75-spacing rule leaves at a lattice cell's centre, 0.87
+/// spacing from its corners), `last_inside` the last sample inside before it (0 where none is).
+/// Where the ray does not leave before `reach`, exit is `reach`. The repair's intrusion check and
+/// its needle's depth both measure with it (runtime/surgery/repair.h).
+struct WayOut {
+    double last_inside = 0.0;  ///< mm from `from`
+    double exit = 0.0;         ///< mm from `from`
+};
+WayOut way_out(const TissueOccupancy& tissue, const Eigen::Vector3d& from, const Eigen::Vector3d& way, double reach);
+
 /// A line of sight from the defect out of the heart: from the target through blood, then through
 /// one wall, then out, meeting no tissue again within `reach_mm`.
 struct SightLine {

@@ -321,15 +321,12 @@ void RepairBackend::check_intrusions() {
         }
         const TissueOccupancy tissue(near, h);
         for (const Point& p : inside) {
-            double depth = intrusion_reach_mm;
-            for (double t = step; t < depth; t += step)
-                for (const Eigen::Vector3d& way : p.ways)
-                    for (const double sign : {1.0, -1.0}) {
-                        // Out: two samples in a row outside (a single one may fall in the gap
-                        // the rule leaves at a lattice cell's centre, 0.87 spacing from its corners).
-                        const Eigen::Vector3d q = p.x + sign * t * way;
-                        if (depth > t && !tissue.inside(q) && !tissue.inside(q + sign * step * way)) depth = t - 0.5 * step;
-                    }
+            // The nearest way out along the four lines, each both ways (way_out, each looking only
+            // as far as the nearest found so far), half a step back.
+            double exit = intrusion_reach_mm;
+            for (const Eigen::Vector3d& way : p.ways)
+                for (const double sign : {1.0, -1.0}) exit = way_out(tissue, p.x, sign * way, exit).exit;
+            const double depth = exit < intrusion_reach_mm ? exit - 0.5 * step : intrusion_reach_mm;
             auto& d = deepest[std::size_t(p.hand)];
             if (!d || depth > d->first) d = std::pair{depth, p.x};
         }
@@ -429,16 +426,10 @@ void RepairBackend::feel_needles() {
             const std::vector<std::array<float, 3>> x = tissue_.positions_of(near);
             const TissueOccupancy tissue(x, h);
             if (tissue.inside(tip)) {
-                // Out along the shaft: the last quarter-spacing sample inside and the first of two
-                // in a row outside (one alone may fall in a lattice cell's gap), then halved between.
-                double in = 0.0, out = reach;
-                for (double t = step; t < reach; t += step) {
-                    if (tissue.inside(tip + t * shaft)) in = t;
-                    else if (!tissue.inside(tip + (t + step) * shaft)) {
-                        out = t;
-                        break;
-                    }
-                }
+                // Out along the shaft (way_out), then halved between its last sample inside and
+                // its exit.
+                const WayOut way = way_out(tissue, tip, shaft, reach);
+                double in = way.last_inside, out = way.exit;
                 if (out < reach) {
                     for (int k = 0; k < 10; ++k) {
                         const double mid = 0.5 * (in + out);
