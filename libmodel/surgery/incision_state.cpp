@@ -409,6 +409,54 @@ bool IncisionState::pending(const StrokeLog& log, bool finish) const {
     return false;
 }
 
+namespace {
+
+/// `strip` (stroke_surfaces: a (tip, end) pair of points per pose, two triangles between
+/// consecutive pairs) with both its ends drawn in `by` mm along the path of the blade's middle:
+/// the pairs passed dropped, the new end pair between the two it falls between. None where the
+/// path is not longer than four times that.
+std::optional<CutSurface> drawn_in(const CutSurface& strip, double by) {
+    const std::size_t pairs = strip.points.size() / 2;
+    if (pairs < 2 || strip.points.size() % 2 != 0) return std::nullopt;
+    std::vector<std::array<Eigen::Vector3d, 2>> path(pairs);
+    for (std::size_t k = 0; k < pairs; ++k) path[k] = {strip.points[2 * k], strip.points[2 * k + 1]};
+    auto middle = [&](std::size_t k) { return 0.5 * (path[k][0] + path[k][1]); };
+    double length = 0.0;
+    for (std::size_t k = 1; k < pairs; ++k) length += (middle(k) - middle(k - 1)).norm();
+    if (!(length > 4.0 * by)) return std::nullopt;
+    // The pair `by` along the path from its front (the path as it is now).
+    auto cut_front = [&]() {
+        double left = by;
+        std::size_t k = 0;
+        while (k + 1 < path.size()) {
+            const double step = (middle(k + 1) - middle(k)).norm();
+            if (step > left) {
+                const double f = left / step;
+                for (int e = 0; e < 2; ++e) path[k][std::size_t(e)] += f * (path[k + 1][std::size_t(e)] - path[k][std::size_t(e)]);
+                break;
+            }
+            left -= step;
+            ++k;
+        }
+        path.erase(path.begin(), path.begin() + std::ptrdiff_t(k));
+    };
+    cut_front();
+    std::reverse(path.begin(), path.end());
+    cut_front();
+    std::reverse(path.begin(), path.end());
+    if (path.size() < 2) return std::nullopt;
+    CutSurface out;
+    for (const auto& [tip, end] : path) out.points.push_back(tip), out.points.push_back(end);
+    for (std::int32_t a = 0; a + 1 < std::int32_t(path.size()); ++a) {
+        const std::int32_t b = a + 1;
+        out.triangles.push_back({2 * a, 2 * a + 1, 2 * b + 1});
+        out.triangles.push_back({2 * a, 2 * b + 1, 2 * b});
+    }
+    return out;
+}
+
+}  // namespace
+
 void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions, IncisionUpdate& update) {
     const double gap = 0.02 * lattice_.spacing;
     for (CutSurface surface : stroke_surfaces(stroke, positions, lattice_)) {
@@ -416,8 +464,11 @@ void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::arra
         // Where the split does not close up (the strip meets the surface too intricately, often
         // along an edge or through a vertex), the strip moved a little along its normal meets it
         // elsewhere: 0.05, 0.1, 0.2 and 0.3 spacing each way are tried (within the cell the blade
-        // cut the springs in) before the mesh is left closed.
+        // cut the springs in); then, where it is the stroke's end that grazes the surface (a blade
+        // lifted where the wall slopes steeply under it), the strip with both ends drawn in along
+        // the stroke by 0.1, 0.2 and 0.3 spacing; then the mesh is left closed.
         if (!result.opened && result.failure.find("did not close up") != std::string::npos) {
+            std::vector<CutSurface> tries;
             Eigen::Vector3d normal = Eigen::Vector3d::Zero();
             for (const auto& t : surface.triangles)
                 normal += (surface.points[std::size_t(t[1])] - surface.points[std::size_t(t[0])])
@@ -425,14 +476,18 @@ void IncisionState::apply(const BladeStroke& stroke, const std::vector<std::arra
             if (normal.norm() > 0) {
                 normal.normalize();
                 for (const double move : {0.05, -0.05, 0.1, -0.1, 0.2, -0.2, 0.3, -0.3}) {
-                    CutSurface moved = surface;
+                    CutSurface& moved = tries.emplace_back(surface);
                     for (auto& p : moved.points) p += (move * lattice_.spacing) * normal;
-                    IncisionResult again = open_along(mesh_, moved, gap);
-                    if (!again.opened) continue;
-                    surface = std::move(moved);
-                    result = std::move(again);
-                    break;
                 }
+            }
+            for (const double trim : {0.1, 0.2, 0.3})
+                if (std::optional<CutSurface> shorter = drawn_in(surface, trim * lattice_.spacing)) tries.push_back(std::move(*shorter));
+            for (CutSurface& moved : tries) {
+                IncisionResult again = open_along(mesh_, moved, gap);
+                if (!again.opened) continue;
+                surface = std::move(moved);
+                result = std::move(again);
+                break;
             }
         }
         update.remeshed += result.patch_triangles;

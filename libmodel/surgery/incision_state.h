@@ -65,7 +65,8 @@ public:
     /// then taken as finished). `positions`: the particles' current positions (packed order).
     /// A log that was cleared (the tissue reset, its cuts healed) restores the uncut mesh. Where
     /// the split along a stroke does not close up (open_along), the strip moved 0.05, 0.1, 0.2 and
-    /// 0.3 spacing each way along its normal is tried before that stroke leaves the mesh closed.
+    /// 0.3 spacing each way along its normal is tried, then the strip with both its ends drawn in
+    /// along the stroke by 0.1, 0.2 and 0.3 spacing, before that stroke leaves the mesh closed.
     IncisionUpdate update(const StrokeLog& log, const std::vector<std::array<float, 3>>& positions, bool finish);
     /// Whether update() would do anything for `log` (cheap: no positions needed).
     bool pending(const StrokeLog& log, bool finish) const;
