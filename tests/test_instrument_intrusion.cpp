@@ -3,12 +3,14 @@
 // in `heartsim run`'s summary. On the phantom's two ventricles with a VSD: a patch carried from
 // outside the heart straight through the intact free wall to the septum is reported; the same
 // carry through a planned incision's opening is not; a needle tying plan-repair's stitches at the
-// septum's surface is not.
+// septum's surface is not, nor one biting deep where it ties; one that goes deep and ties nothing is.
+#include "runtime/core/trajectory.h"
 #include "runtime_test_support.h"
 #include "test_support.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <regex>
@@ -143,4 +145,57 @@ TEST(InstrumentIntrusion, ARunWithoutThemSaysNothing) {
     const auto run = heartsim_command("run " + quoted(vsd_phantom()) + " --headless --backend cpu --steps 10");
     ASSERT_EQ(run.exit_code, 0) << run.output;
     EXPECT_TRUE(intrusion_lines(run.output).empty()) << run.output;
+}
+
+// A needle's bite is where it should meet the tissue: plan-repair's needle sent 4 mm into the
+// septum at each stitch site (deeper than a lattice spacing, which alone is "the surface"), tying
+// there and drawn back out along its shaft, is not reported; the same needle sent as deep at the
+// first site and drawn out without tying has passed through tissue for nothing, and is.
+TEST(InstrumentIntrusion, ANeedlesOwnBiteIsNotReportedAndAPassThatTiesNothingIs) {
+    test::TempDir dir;
+    const fs::path plan = dir / "repair.csv";
+    const auto planned = heartsim_command("plan-repair " + quoted(vsd_phantom()) + " -o " + quoted(plan) + " --stitches=8");
+    ASSERT_EQ(planned.exit_code, 0) << planned.output;
+    const double seconds = printed_number(planned.output, "run it .*--seconds ([0-9.]+)");
+    ASSERT_TRUE(std::isfinite(seconds)) << planned.output;
+    const Trajectory trajectory = read_trajectory(plan);
+    // The sites: where the needle's grab turns on; each row there moved 4 mm in along its shaft.
+    std::vector<Eigen::Vector3d> sites;
+    for (const InstrumentKeyframe& k : trajectory.keyframes)
+        if (k.hand == 1 && k.kind == InstrumentKind::needle && k.grab) sites.push_back(k.pose.position);
+    ASSERT_EQ(sites.size(), 8u);
+    auto write = [&](const fs::path& csv, bool tie_first) {
+        Trajectory deep = trajectory;
+        bool first = true;
+        for (InstrumentKeyframe& k : deep.keyframes) {
+            if (k.hand != 1 || k.kind != InstrumentKind::needle) continue;
+            const auto site = std::find_if(sites.begin(), sites.end(), [&](const Eigen::Vector3d& s) { return (s - k.pose.position).norm() < 1e-9; });
+            if (site == sites.end()) continue;
+            const bool at_first = site == sites.begin();
+            k.pose.position -= 4.0 * (k.pose.orientation.normalized() * Eigen::Vector3d::UnitZ());
+            if (at_first && !tie_first && k.grab) k.grab = false, first = false;
+        }
+        EXPECT_EQ(first, tie_first);
+        write_trajectory_csv(deep, csv);
+    };
+    const fs::path bites = dir / "bites.csv", untied = dir / "untied.csv";
+    write(bites, true);
+    write(untied, false);
+    const auto tied = heartsim_command("run " + quoted(vsd_phantom()) + " --headless --backend cpu --trajectory " + quoted(bites) +
+                                       " --seconds " + std::to_string(seconds));
+    ASSERT_EQ(tied.exit_code, 0) << tied.output;
+    EXPECT_NE(tied.output.find("stitch 8 tied"), std::string::npos) << tied.output;
+    EXPECT_EQ(intrusion_lines(tied.output), std::vector<std::string>{"instruments through tissue: none"}) << tied.output;
+
+    const auto pass = heartsim_command("run " + quoted(vsd_phantom()) + " --headless --backend cpu --trajectory " + quoted(untied) +
+                                       " --seconds " + std::to_string(seconds));
+    ASSERT_EQ(pass.exit_code, 0) << pass.output;
+    EXPECT_NE(pass.output.find("stitch 7 tied"), std::string::npos) << pass.output;
+    const std::vector<std::string> lines = intrusion_lines(pass.output);
+    ASSERT_EQ(lines.size(), 1u) << pass.output;
+    EXPECT_NE(lines[0].find("the needle (hand 1) passed through tissue at ("), std::string::npos) << lines[0];
+    const double depth = printed_number(lines[0], "mm, ([0-9.]+) mm deep, from ");
+    EXPECT_GT(depth, 2.5) << lines[0];
+    EXPECT_LT(depth, 5.0) << lines[0];
+    std::printf("  a deep bite where it ties: none; a pass that ties nothing: %s\n", lines[0].c_str());
 }

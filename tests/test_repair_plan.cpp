@@ -284,9 +284,16 @@ TEST(RepairPlan, TheCsvHoldsOnePatchLayAndANeedlePressPerStitch) {
         EXPECT_TRUE(presses[1][k].position.isApprox(plan.stitches[k].site, 1e-12));
         EXPECT_TRUE((presses[1][k].orientation * Eigen::Vector3d::UnitZ()).isApprox(plan.outward, 1e-9));
         EXPECT_EQ(presses[1][k].semi_axes, Eigen::Vector3d(0.25, 0.25, 6.0));
-        // 40 ms before the press the needle was 4 mm outside the site.
+        // 40 ms before the press the needle was 4 mm outside the site, and 15 ms after its release
+        // it is there again: drawn straight back out along its shaft before it goes across to the
+        // next site, never through the rim between them.
         const InstrumentKeyframe before = trajectory.at(1, presses[1][k].time_ms - 40.0);
         EXPECT_TRUE(before.pose.position.isApprox(plan.stitches[k].site + 4.0 * plan.outward, 1e-9));
+        const InstrumentKeyframe out = trajectory.at(1, releases[1][k] + 15.0);
+        EXPECT_TRUE(out.pose.position.isApprox(plan.stitches[k].site + 4.0 * plan.outward, 1e-9));
+        const InstrumentKeyframe halfway_out = trajectory.at(1, releases[1][k] + 7.5);
+        EXPECT_NEAR((halfway_out.pose.position - plan.stitches[k].site).dot(plan.outward), 2.0, 1e-9);
+        EXPECT_NEAR((halfway_out.pose.position - plan.stitches[k].site - 2.0 * plan.outward).norm(), 0.0, 1e-9);
     }
     // The last stitch's release, 30 ms back out, 300 ms to settle.
     EXPECT_DOUBLE_EQ(last, releases[1].back() + 30.0 + 300.0);

@@ -85,6 +85,7 @@ void RepairBackend::set_instrument(int hand, const Instrument& instrument) {
     h.stitch.reset();
     h.laid = false;
     end_intrusion(hand);
+    withdrawing_[std::size_t(hand)] = false;
     checked_at_[std::size_t(hand)].reset();
     end_pass(hand);
     near_tip_[std::size_t(hand)].clear();
@@ -107,6 +108,7 @@ std::size_t RepairBackend::begin_grab(int hand) {
     if (!repair_kind(h.instrument.kind)) return inner().begin_grab(hand);
     if (h.grabbing) return 0;
     h.grabbing = true;
+    if (h.instrument.kind == InstrumentKind::needle) drop_bite(hand);
     end_intrusion(hand);
     checked_at_[std::size_t(hand)].reset();
     wall_force_[std::size_t(hand)].setZero();  // tying: the hand feels the suture instead (its pass through the wall is kept)
@@ -125,6 +127,7 @@ void RepairBackend::release(int hand) {
     }
     h.grabbing = false;
     h.stitch.reset();  // the knot is thrown: the stitch goes on drawing tight by itself
+    withdrawing_[std::size_t(hand)] = h.instrument.kind == InstrumentKind::needle;
 }
 
 void RepairBackend::lay(int hand) {
@@ -249,6 +252,18 @@ int RepairBackend::intrusion_every() const {
     return std::max(1, int(std::lround(settings_.intrusion_every_ms / inner().time_step_ms())));
 }
 
+void RepairBackend::drop_bite(int hand) {
+    const Hand& h = hands_[std::size_t(hand)];
+    const std::optional<TissueIntrusion>& going = going_[std::size_t(hand)];
+    if (!going || (going->entered - h.pose.position).norm() > 2.0 * h.instrument.semi_axes.z()) return;
+    if (const int shown = shown_[std::size_t(hand)]; shown >= 0) {
+        intrusions_.erase(intrusions_.begin() + shown);
+        int& other = shown_[std::size_t(1 - hand)];
+        if (other > shown) --other;
+    }
+    end_intrusion(hand);
+}
+
 bool RepairBackend::carried(int hand) const {
     const Hand& h = hands_[std::size_t(hand)];
     if (!h.posed || h.grabbing) return false;
@@ -335,12 +350,14 @@ void RepairBackend::check_intrusions() {
         const auto& d = deepest[std::size_t(hand)];
         std::optional<TissueIntrusion>& going = going_[std::size_t(hand)];
         if (!d) {
+            withdrawing_[std::size_t(hand)] = false;
             // A stretch ends once its hand has been out of the tissue for intrusion_gap_ms.
             if (going && now - going->to_ms >= intrusion_gap_ms) end_intrusion(hand);
             continue;
         }
+        if (withdrawing_[std::size_t(hand)]) continue;  // drawn back out of its own bite
         if (!going) going = TissueIntrusion{.hand = hand, .kind = hands_[std::size_t(hand)].instrument.kind, .where = d->second,
-                                            .depth_mm = d->first, .from_ms = now, .to_ms = now};
+                                            .depth_mm = d->first, .from_ms = now, .to_ms = now, .entered = d->second};
         going->to_ms = now;
         if (d->first > going->depth_mm) going->depth_mm = d->first, going->where = d->second;
         // Reported once a point has been a spacing deep: less is the surface (a stitch tied there).
@@ -530,6 +547,7 @@ void RepairBackend::reset_tissue() {
     patch_force_.fill(Eigen::Vector3d::Zero());
     for (Hand& h : hands_) h.grabbing = false, h.stitch.reset();
     end_intrusion(0), end_intrusion(1);
+    withdrawing_ = {false, false};
     end_pass(0), end_pass(1);
     tissue_.set_loads({});
     inner().reset_tissue();

@@ -95,12 +95,18 @@ struct RepairSettings {
 /// intrusion_gap_ms, or when the hand stops carrying (the patch laid, the needle's grab on,
 /// another instrument). It is reported (RepairBackend::intrusions) once a point in it has been at
 /// least one spacing deep: less is the surface (a needle tying a stitch there, a patch laid on it).
+///
+/// A needle's own bite is not a stretch through tissue it should not have met: the stretch going
+/// on when the needle ties a stitch, begun within the needle's length (2·az) of where it ties, is
+/// its way in to the stitch and is dropped; and after the knot, until a check first finds the tip
+/// out of the tissue, the needle is drawn back out of its bite and nothing is counted.
 struct TissueIntrusion {
     int hand = 0;
     InstrumentKind kind = InstrumentKind::patch;
     Eigen::Vector3d where = Eigen::Vector3d::Zero();  ///< the deepest working point at its deepest check, mm (world)
     double depth_mm = 0.0;                            ///< its depth there, mm (at most intrusion_reach_mm)
     double from_ms = 0.0, to_ms = 0.0;                ///< the simulated times of the stretch's first and last checks in the tissue
+    Eigen::Vector3d entered = Eigen::Vector3d::Zero(); ///< the deepest working point at its first check, mm (world)
 };
 
 /// How far along each way a working point's depth is looked for, mm.
@@ -184,6 +190,9 @@ private:
     void check_intrusions();
     /// The hand's stretch in tissue, if one is going on, ends.
     void end_intrusion(int hand) { going_[std::size_t(hand)].reset(), shown_[std::size_t(hand)] = -1; }
+    /// As `hand`'s needle ties: the stretch going on, where it began within the needle's length of
+    /// the tip, is the needle's way in to its stitch (TissueIntrusion): forgotten, reported or not.
+    void drop_bite(int hand);
 
     /// The patch's step over `every` tissue steps, the tissue as it is now; its loads onto the tissue.
     void step_patch(int every);
@@ -230,6 +239,7 @@ private:
     std::vector<TissueIntrusion> intrusions_;
     std::array<std::optional<TissueIntrusion>, 2> going_;  ///< each hand's stretch in the tissue going on, reported or not yet
     std::array<int, 2> shown_{-1, -1};  ///< its index in intrusions_ once reported, or −1
+    std::array<bool, 2> withdrawing_{false, false};  ///< a needle drawn back out of the bite it tied, not yet found outside
     std::array<std::optional<Eigen::Vector3d>, 2> checked_at_;  ///< each carrying hand's position at its last check
     int since_check_ = 0;  ///< tissue steps since the last intrusion check
     // The needles' passes through the wall: each hand's, the wall's force on it at the last

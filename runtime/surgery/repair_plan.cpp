@@ -217,6 +217,9 @@ void script_repair(RepairPlan& plan, const RepairPlanOptions& o) {
         script.add(s.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, true);
         script.add(s.tie_ms + o.tie_ms, 1, InstrumentKind::needle, s.site, needle, needle_axes, false);
         t = s.tie_ms + o.tie_ms + o.withdraw_ms;
+        // Straight back out along its shaft, then across to the next site: a needle drawn from one
+        // site to the next outside point would cut through the rim between them.
+        script.add(s.tie_ms + o.tie_ms + 0.5 * o.withdraw_ms, 1, InstrumentKind::needle, s.outside, needle, needle_axes, false);
         const Eigen::Vector3d& next = k + 1 < n ? plan.stitches[std::size_t(k + 1)].outside : s.outside;
         script.add(t, 1, InstrumentKind::needle, next, needle, needle_axes, false);
     }

@@ -52,9 +52,10 @@
 /// hand 0 lays the patch at 0 ms (kind patch, grab 1) and lets go at `release_ms` (grab 0: a laid
 /// patch stays). Hand 1, a needle whose shaft points outward (tool +z = outward), then ties the
 /// stitches in order: from `approach_mm` outside a site to the site in `approach_ms`, grab 1 held
-/// `tie_ms` (the stitch draws tight meanwhile), grab 0, then `withdraw_ms` to the point
-/// `approach_mm` outside the next site (after the last: outside its own), and a final hold of
-/// `settle_ms` for the tissue to settle.
+/// `tie_ms` (the stitch draws tight meanwhile), grab 0, then in `withdraw_ms` straight back out
+/// to the point `approach_mm` outside the site (half of it) and across to the one outside the next
+/// site (the other half; after the last: outside its own), and a final hold of `settle_ms` for the
+/// tissue to settle.
 ///
 ///     const RepairPlan plan = plan_repair(scenario, {.stitches = 10});
 ///     write_repair_csv(plan, "repair.csv");   // for `heartsim run --trajectory`
@@ -112,7 +113,7 @@ struct RepairPlanOptions {
     double approach_mm = 4.0;         ///< the needle comes to each site from this far outside it, mm
     double approach_ms = 40.0;        ///< from there to the site, ms
     double tie_ms = 150.0;            ///< grab held at the site while the stitch draws tight, ms
-    double withdraw_ms = 30.0;        ///< from the site to the point outside the next site, ms
+    double withdraw_ms = 30.0;        ///< from the site out and across to the point outside the next site, ms
     double settle_ms = 300.0;         ///< the hold after the last stitch, ms
     Eigen::Vector3d needle_semi_axes{0.25, 0.25, 6.0};  ///< the needle's ellipsoid: shaft 2·az long from the tip, mm
     ConductionZoneMode conduction_zone = ConductionZoneMode::automatic;
