@@ -231,6 +231,19 @@ private:
     mutable std::uint32_t query_ = 0;
 };
 
+/// The strip through a blade's (tip, end) pairs, one per pose in order: their points, and two
+/// triangles between each pair and the next.
+CutSurface strip_through(const std::vector<std::array<Eigen::Vector3d, 2>>& pairs) {
+    CutSurface s;
+    for (const auto& [tip, end] : pairs) s.points.push_back(tip), s.points.push_back(end);
+    for (std::int32_t a = 0; a + 1 < std::int32_t(pairs.size()); ++a) {
+        const std::int32_t b = a + 1;
+        s.triangles.push_back({2 * a, 2 * a + 1, 2 * b + 1});
+        s.triangles.push_back({2 * a, 2 * b + 1, 2 * b});
+    }
+    return s;
+}
+
 }  // namespace
 
 std::vector<CutSurface> stroke_surfaces(const BladeStroke& stroke, const std::vector<std::array<float, 3>>& positions,
@@ -319,17 +332,9 @@ std::vector<CutSurface> stroke_surfaces(const BladeStroke& stroke, const std::ve
     std::size_t first = 0;
     auto emit = [&](std::size_t from, std::size_t to) {  // kept[from..to]
         if (to <= from) return;
-        CutSurface s;
-        for (std::size_t q = from; q <= to; ++q) {
-            s.points.push_back(to_rest(tip[kept[q]]));
-            s.points.push_back(to_rest(end[kept[q]]));
-        }
-        for (std::int32_t a = 0; a + 1 < std::int32_t(to - from + 1); ++a) {
-            const std::int32_t b = a + 1;
-            s.triangles.push_back({2 * a, 2 * a + 1, 2 * b + 1});
-            s.triangles.push_back({2 * a, 2 * b + 1, 2 * b});
-        }
-        surfaces.push_back(std::move(s));
+        std::vector<std::array<Eigen::Vector3d, 2>> pairs;
+        for (std::size_t q = from; q <= to; ++q) pairs.push_back({to_rest(tip[kept[q]]), to_rest(end[kept[q]])});
+        surfaces.push_back(strip_through(pairs));
     };
     for (std::size_t q = 1; q + 1 < kept.size(); ++q) {
         const Eigen::Vector3d before = (tip[kept[q]] + end[kept[q]]) - (tip[kept[q - 1]] + end[kept[q - 1]]);
@@ -411,10 +416,9 @@ bool IncisionState::pending(const StrokeLog& log, bool finish) const {
 
 namespace {
 
-/// `strip` (stroke_surfaces: a (tip, end) pair of points per pose, two triangles between
-/// consecutive pairs) with both its ends drawn in `by` mm along the path of the blade's middle:
-/// the pairs passed dropped, the new end pair between the two it falls between. None where the
-/// path is not longer than four times that.
+/// `strip` (stroke_surfaces: strip_through a (tip, end) pair per pose) with both its ends drawn
+/// in `by` mm along the path of the blade's middle: the pairs passed dropped, the new end pair
+/// between the two it falls between. None where the path is not longer than four times that.
 std::optional<CutSurface> drawn_in(const CutSurface& strip, double by) {
     const std::size_t pairs = strip.points.size() / 2;
     if (pairs < 2 || strip.points.size() % 2 != 0) return std::nullopt;
@@ -445,14 +449,7 @@ std::optional<CutSurface> drawn_in(const CutSurface& strip, double by) {
     cut_front();
     std::reverse(path.begin(), path.end());
     if (path.size() < 2) return std::nullopt;
-    CutSurface out;
-    for (const auto& [tip, end] : path) out.points.push_back(tip), out.points.push_back(end);
-    for (std::int32_t a = 0; a + 1 < std::int32_t(path.size()); ++a) {
-        const std::int32_t b = a + 1;
-        out.triangles.push_back({2 * a, 2 * a + 1, 2 * b + 1});
-        out.triangles.push_back({2 * a, 2 * b + 1, 2 * b});
-    }
-    return out;
+    return strip_through(path);
 }
 
 }  // namespace
