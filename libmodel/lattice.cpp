@@ -62,8 +62,9 @@ ThinWallSummary summarise_thin_walls(const Lattice& lattice) {
     return summary;
 }
 
-double spring_stiffness(double youngs_modulus_kpa, double spacing_mm) {
-    return 0.4 * (youngs_modulus_kpa * 1e-3) * spacing_mm;
+double spring_stiffness(double youngs_modulus_kpa, double spacing_mm, double poisson_ratio) {
+    // 0.5/(1 + ν) is 0.4 to the bit at ν = 1/4.
+    return (0.5 / (1.0 + poisson_ratio)) * (youngs_modulus_kpa * 1e-3) * spacing_mm;
 }
 
 namespace {
@@ -350,7 +351,7 @@ Lattice layout_particles(const Selection& selection, const std::vector<int>& tis
     // Springs: each particle to the neighbours at the 9 offsets whose first non-zero component
     // is positive (3 face + 6 edge), so every one of the 18 neighbour pairs appears exactly once.
     std::vector<double> stiffness_of_material;
-    for (const auto& m : lattice.materials) stiffness_of_material.push_back(spring_stiffness(m.youngs_modulus_kpa, spacing));
+    for (const auto& m : lattice.materials) stiffness_of_material.push_back(spring_stiffness(m.youngs_modulus_kpa, spacing, m.poisson_ratio));
     auto& s = lattice.springs;
     for (std::size_t i = 0; i < p.size(); ++i) {
         const auto [a, b, c] = p.lattice_index[i];

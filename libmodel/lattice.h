@@ -23,16 +23,22 @@ struct Material {
     std::string name = "myocardium";
     double density = 1.06e-3;                ///< g/mm³ (1.06 g/cm³, myocardium)
     double youngs_modulus_kpa = 10.0;        ///< kPa; passive myocardium is of the order of 10–50
+    /// Poisson's ratio ν, in [1/4, 1/2): the springs give the tissue its shear modulus and ν = 1/4,
+    /// a volume term on the lattice's cells the rest (volume_cells.h). 1/4 here, the springs alone;
+    /// heartprep's default is myocardium's (tools/heartprep, docs/scenario-format.md).
+    double poisson_ratio = 0.25;
     /// Damping ratio of each spring's relative motion (fraction of critical damping of the
     /// two-particle oscillator), dimensionless. See docs/scenario-format.md.
     double damping_ratio = 0.1;
 };
 
 /// Stiffness of every spring (face and edge alike), N/mm, for Young's modulus `youngs_modulus_kpa`
-/// on a lattice of `spacing_mm`. With equal face and edge stiffness k the 18-neighbour cubic
-/// network is elastically isotropic (C11 − C12 = 2·C44) with Poisson's ratio 1/4 and Young's
-/// modulus E = 5k/(2h); hence k = 0.4·E·h. 1 kPa = 1e-3 N/mm².
-double spring_stiffness(double youngs_modulus_kpa, double spacing_mm);
+/// and Poisson's ratio `poisson_ratio` on a lattice of `spacing_mm`. With equal face and edge
+/// stiffness k the 18-neighbour cubic network is elastically isotropic (C11 − C12 = 2·C44) with
+/// shear modulus μ = k/h and λ = μ (Poisson's ratio 1/4, Young's modulus E = 5k/(2h)); so the
+/// springs carry μ = E/(2(1 + ν)), k = μ·h (0.4·E·h at ν = 1/4), and the volume term the rest of λ
+/// (volume_cells.h). 1 kPa = 1e-3 N/mm².
+double spring_stiffness(double youngs_modulus_kpa, double spacing_mm, double poisson_ratio = 0.25);
 
 /// The 18 neighbour offsets in lattice index space, in the scenario's slot order: the 6 face
 /// offsets (+i, −i, +j, −j, +k, −k), then the 12 edge offsets (ij-plane, ik-plane, jk-plane,

@@ -26,6 +26,8 @@ inline constexpr Range particle_mass_g{1e-12, 1e4, "g"};
 inline constexpr Range density_g_per_mm3{1e-6, 0.1, "g/mm³"};
 inline constexpr Range stiffness_n_per_mm{0.0, 1e4, "N/mm"};
 inline constexpr Range damping_ratio{0.0, 100.0, ""};
+/// A tissue's Poisson's ratio: 1/4 (the lattice's springs alone) up to nearly incompressible.
+inline constexpr Range poisson_ratio{0.25, 0.499, ""};
 inline constexpr Range rest_length_mm{1e-4, 1e4, "mm"};
 inline constexpr Range coordinate_mm{-1e6, 1e6, "mm"};
 inline constexpr Range support_damping_n_ms_per_mm{0.0, 1e4, "N·ms/mm"};

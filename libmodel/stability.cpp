@@ -123,7 +123,7 @@ void add_spring_blocks(const Springs& springs, const std::vector<double>& invers
 }  // namespace
 
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
-                                              int max_iterations, double tolerance) {
+                                              int max_iterations, double tolerance, const VolumeCells* cells) {
     const std::size_t n = particles.size();
     StabilityEstimate estimate;
     estimate.critical_dt_ms = estimate.critical_dt_bound_ms = std::numeric_limits<double>::infinity();
@@ -153,6 +153,26 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
         for (std::size_t i = 0; i < n; ++i)
             for (int r = 0; r < 3; ++r)
                 row_bound[3 * i + std::size_t(r)] += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i];
+    // The volume term at rest: (Δλ/|V₀|) g gᵀ per cell, g the volume's gradient at the rest positions.
+    std::vector<std::array<double, 24>> cell_gradient(cells ? cells->size() : 0);
+    for (std::size_t c = 0; c < cell_gradient.size(); ++c) {
+        const auto& corner = cells->corner[c];
+        double p[8][3], g[8][3];
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k)
+                p[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
+                          double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
+        cell_volume12<double>(p, g);
+        const double scale = std::sqrt(cells->modulus[c] / std::abs(cells->rest_volume[c])) / 12.0;  // g in twelfths
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k) cell_gradient[c][std::size_t(3 * q + k)] = scale * g[q][k] * inverse_sqrt_mass[std::size_t(corner[std::size_t(q)])];
+        // Gershgorin: row (a, r) of the scaled block sums |ĝ_ar| Σ|ĝ|.
+        double sum = 0;
+        for (double v : cell_gradient[c]) sum += std::abs(v);
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k)
+                row_bound[3 * std::size_t(corner[std::size_t(q)]) + std::size_t(k)] += std::abs(cell_gradient[c][std::size_t(3 * q + k)]) * sum;
+    }
     for (double row : row_bound) estimate.eigenvalue_bound = std::max(estimate.eigenvalue_bound, row);
     if (estimate.eigenvalue_bound <= 0.0) return estimate;
     estimate.critical_dt_bound_ms = 2.0 / std::sqrt(estimate.eigenvalue_bound);
@@ -169,6 +189,14 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
             for (std::size_t i = 0; i < n; ++i)
                 w.segment<3>(3 * Eigen::Index(i)) += double(particles.support_stiffness[i]) * inverse_sqrt_mass[i] * inverse_sqrt_mass[i] *
                                                      v.segment<3>(3 * Eigen::Index(i));
+        for (std::size_t c = 0; c < cell_gradient.size(); ++c) {
+            const auto& corner = cells->corner[c];
+            double along = 0;
+            for (int q = 0; q < 8; ++q)
+                for (int k = 0; k < 3; ++k) along += cell_gradient[c][std::size_t(3 * q + k)] * v[3 * Eigen::Index(corner[std::size_t(q)]) + k];
+            for (int q = 0; q < 8; ++q)
+                for (int k = 0; k < 3; ++k) w[3 * Eigen::Index(corner[std::size_t(q)]) + k] += cell_gradient[c][std::size_t(3 * q + k)] * along;
+        }
     };
     const Lanczos lanczos = largest_eigenvalue(inverse_sqrt_mass, multiply, max_iterations, tolerance);
     estimate.max_eigenvalue = lanczos.value;

@@ -7,6 +7,7 @@
 #include <functional>
 
 #include "libmodel/lattice.h"
+#include "libmodel/volume_cells.h"
 
 #include <vector>
 
@@ -33,8 +34,10 @@ struct StabilityEstimate {
 /// spring (t its tension at rest: zero unless the rest state is pre-stressed), plus k_s·I per
 /// supported particle; damping ignored. Deterministic: fixed start vector, serial reductions.
 /// A network with no free particle or no spring gives infinite steps.
+/// `cells`, unless null: the volume term's cells (volume_cells.h), (Δλ/|V₀|)·g gᵀ each at rest, g = ∂V/∂x.
 StabilityEstimate estimate_critical_time_step(const Particles& particles, const Springs& springs,
-                                              int max_iterations = 300, double tolerance = 1e-6);
+                                              int max_iterations = 300, double tolerance = 1e-6,
+                                              const VolumeCells* cells = nullptr);
 
 /// A proven ceiling on the critical step, ms, in one pass over the springs: 2/√ of a proven
 /// lower bound on λ_max(M⁻¹K), the largest over free particles of trace(K_ii)/(3 m_i) (the top

@@ -8,6 +8,7 @@
 #pragma GCC optimize("fp-contract=off")
 #endif
 
+#pragma GCC diagnostic ignored "-Wpsabi"  // the cell pass's 8-float vectors: inlined, never passed across a call
 #include "libmodel/sim/solver.h"
 #include "libmodel/sim/cutting.h"
 #include "libmodel/sim/solver_kernels.h"
@@ -27,6 +28,7 @@
 #include <cstdio>
 #include <limits>
 #include <sstream>
+#include <type_traits>
 #include <utility>
 
 namespace heartsim {
@@ -219,6 +221,7 @@ void BasicSolver<Real>::reset_tissue() {
     for (int hand = 0; hand < hands; ++hand) release_hand(hand, false);
     free_stayed();  // the scenario's anchoring again, before the start motion below reads it
     neighbour_ = uncut_neighbour_;
+    cells_stale_ = !cell_corner_.empty();
     set_loads({});
     cut_.clear();
     strokes_.clear();
@@ -416,21 +419,46 @@ void BasicSolver<Real>::project_out_of_probe(const ProbeFrame& p, std::size_t i,
 template <class Real>
 void BasicSolver<Real>::load_and_project(std::size_t chunk, const std::array<ProbeFrame, hands>& probes, int probe_count) {
     const std::size_t first = chunk * chunk_groups, last = std::min(groups_, first + chunk_groups);
-    // External loads on this chunk's particles (set_loads): h²F/(S·m) more displacement,
-    // as F in the kernel's force sum would give, rounded apart as the gl step pass does.
+    // External loads on this chunk's particles (set_loads) and the volume term's forces (cell_pass):
+    // h²F/(S·m) more displacement, as F in the kernel's force sum would give, rounded apart as the
+    // gl step pass does. With the volume term, F = (Σ of the particle's cells' forces, in corner
+    // order) + its load, one sum as the gl backend's gather pass makes it.
     const auto load_begin = std::lower_bound(load_particle_.begin(), load_particle_.end(), std::int32_t(first * lane_count));
     const auto load_end = std::lower_bound(load_begin, load_particle_.end(), std::int32_t(last * lane_count));
-    for (auto at = load_begin; at != load_end; ++at) {
-        const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
-        if (!movable_[i] || held_by_[i] >= 0) continue;
-        Real* x = next_ + state_stride * i;
-        Real* motion = next_motion_ + state_stride * i;
-        for (int c = 0; c < 3; ++c) {
-            const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
-            x[c] = x[c] + step;
-            motion[c] = motion[c] + step;
+    if (!cell_corner_.empty()) {
+        auto load_at = load_begin;
+        const std::size_t end = std::min(n_, last * lane_count);
+        for (std::size_t i = first * lane_count; i < end; ++i) {
+            while (load_at != load_end && std::size_t(*load_at) < i) ++load_at;
+            if (!movable_[i] || held_by_[i] >= 0) continue;
+            Real f[3] = {Real(0), Real(0), Real(0)};
+            const Real* slot = cell_force_.data() + 24 * i;  // its 8 slots (zero where it is no cell's corner r)
+            for (int r = 0; r < 8; ++r)
+                for (int k = 0; k < 3; ++k) f[k] = f[k] + slot[3 * r + k];
+            if (load_at != load_end && std::size_t(*load_at) == i) {
+                const std::size_t q = std::size_t(load_at - load_particle_.begin());
+                for (int k = 0; k < 3; ++k) f[k] = f[k] + load_force_[3 * q + std::size_t(k)];
+            }
+            Real* x = next_ + state_stride * i;
+            Real* motion = next_motion_ + state_stride * i;
+            for (int c = 0; c < 3; ++c) {
+                const Real step = inverse_mass_h2_[i] * f[c];
+                x[c] = x[c] + step;
+                motion[c] = motion[c] + step;
+            }
         }
-    }
+    } else
+        for (auto at = load_begin; at != load_end; ++at) {
+            const std::size_t i = std::size_t(*at), q = std::size_t(at - load_particle_.begin());
+            if (!movable_[i] || held_by_[i] >= 0) continue;
+            Real* x = next_ + state_stride * i;
+            Real* motion = next_motion_ + state_stride * i;
+            for (int c = 0; c < 3; ++c) {
+                const Real step = inverse_mass_h2_[i] * load_force_[3 * q + std::size_t(c)];
+                x[c] = x[c] + step;
+                motion[c] = motion[c] + step;
+            }
+        }
     for (int hand = 0; hand < hands; ++hand) touched_[chunk * hands + std::size_t(hand)].clear();
     for (int pi = 0; pi < probe_count; ++pi) {
         const ProbeFrame& p = probes[std::size_t(pi)];
@@ -521,6 +549,7 @@ void BasicSolver<Real>::substep(const InstrumentPose* previous_poses, const Inst
         chunk_bad_[chunk] = group_function(k, first, last);
     };
     const tbb::blocked_range<std::size_t> all_chunks(0, chunks_);
+    if (!cell_corner_.empty()) cell_pass();  // reads the current state only
     if (beside && *beside) {
         // run_beside_next_step: the task beside the kernel (it may read the current state and set
         // the loads, which the kernel reads neither of), then the loads and the probes: the same
@@ -676,7 +705,151 @@ Eigen::Vector3d BasicSolver<Real>::force_on(std::size_t i) const {
         force += double(support_stiffness_[i]) * Eigen::Vector3d(double(y[0]) - xi[0], double(y[1]) - xi[1], double(y[2]) - xi[2]);
         force -= double(support_damping_over_h_[i]) * Eigen::Vector3d(double(ui[0]), double(ui[1]), double(ui[2]));
     }
+    if (!particle_cell_.empty()) force += volume_force_on(i);
     return force;
+}
+
+// The volume term (volume_cells.h): W = ½·Δλ/|V₀|·(V − V₀)² per whole cell, f = −Δλ/|V₀|·(V − V₀)·∂V/∂x.
+template <class Real>
+void BasicSolver<Real>::refresh_cells() {
+    for (std::size_t c = 0; c < cell_corner_.size(); ++c) {
+        bool whole = true;
+        for (std::size_t q = 0; q < cell_springs.size() && whole; ++q)
+            whole = neighbour_[std::size_t(cell_spring_entry_[c][q])] == cell_corner_[c][std::size_t(cell_springs[q][1])];
+        cell_whole_[c] = whole ? 1 : 0;
+    }
+    cells_stale_ = false;
+}
+
+template <class Real>
+std::size_t BasicSolver<Real>::whole_volume_cells() const {
+    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
+    return std::size_t(std::count(cell_whole_.begin(), cell_whole_.end(), std::uint8_t(1)));
+}
+
+namespace {
+
+/// What the float cell pass reads and writes (BasicSolver<float>::cell_pass).
+struct CellLanes {
+    const float* current;
+    const std::array<std::int32_t, 8>* corner;
+    const std::uint8_t* whole;
+    const float* k12;
+    const float* rest12;
+    float* force;  ///< per particle, 8 slots of 3: the force of the cell it is corner r of, in slot r
+    std::size_t cells;
+};
+
+/// Cells 8b … 8b+7 in the lanes of a vector of floats: lane by lane the operations of
+/// cell_forces<float> (products, sums, differences; none fused), so the same bits as one cell at
+/// a time. A cell that is not whole (or past the end) runs as a point of zero volume and k₁₂ 0.
+__attribute__((always_inline)) inline void cell_block_body(const CellLanes& c, std::size_t b) {
+    using Lanes = float __attribute__((vector_size(32)));
+    Lanes p[8][3], k12{}, rest12{};
+    for (int l = 0; l < 8; ++l) {
+        const std::size_t cell = 8 * b + std::size_t(l);
+        const bool live = cell < c.cells && c.whole[cell];
+        const float* x0 = c.current + state_stride * std::size_t(live ? c.corner[cell][0] : 0);
+        for (int q = 0; q < 8; ++q) {
+            const float* x = live ? c.current + state_stride * std::size_t(c.corner[cell][std::size_t(q)]) : x0;
+            for (int k = 0; k < 3; ++k) p[q][k][l] = x[k] - x0[k];
+        }
+        if (live) k12[l] = c.k12[cell], rest12[l] = c.rest12[cell];
+    }
+    Lanes g[8][3];
+    const Lanes volume12 = cell_volume12<Lanes>(p, g);
+    const Lanes pressure = -(k12 * (volume12 - rest12));
+    for (int l = 0; l < 8; ++l) {
+        const std::size_t cell = 8 * b + std::size_t(l);
+        if (cell >= c.cells) break;
+        for (int q = 0; q < 8; ++q) {
+            float* out = c.force + 24 * std::size_t(c.corner[cell][std::size_t(q)]) + 3 * std::size_t(q);  // corner q's slot of its particle
+            for (int k = 0; k < 3; ++k) out[k] = pressure[l] * g[q][k][l];
+        }
+    }
+}
+
+void cell_block(const CellLanes& c, std::size_t b) { cell_block_body(c, b); }
+#ifdef HEARTSIM_SOLVER_X86
+/// The same with AVX2's 8-float registers (no FMA: nothing fuses).
+__attribute__((target("avx2"))) void cell_block_avx2(const CellLanes& c, std::size_t b) { cell_block_body(c, b); }
+#endif
+
+}  // namespace
+
+template <class Real>
+void BasicSolver<Real>::cell_pass() {
+    if (cells_stale_) refresh_cells();
+    if constexpr (std::is_same_v<Real, float>) {
+        const std::size_t blocks = (cell_corner_.size() + 7) / 8;
+        const CellLanes lanes{current_, cell_corner_.data(), cell_whole_.data(), cell_k12_.data(), cell_rest12_.data(), cell_force_.data(),
+                              cell_corner_.size()};
+#ifdef HEARTSIM_SOLVER_X86
+        const bool avx2 = cpu_has_avx2();
+#else
+        const bool avx2 = false;
+#endif
+        tbb::parallel_for(tbb::blocked_range<std::size_t>(0, blocks, 32), [&](const tbb::blocked_range<std::size_t>& range) {
+            for (std::size_t b = range.begin(); b != range.end(); ++b) {
+#ifdef HEARTSIM_SOLVER_X86
+                if (avx2) {
+                    cell_block_avx2(lanes, b);
+                    continue;
+                }
+#endif
+                cell_block(lanes, b);
+            }
+        });
+        (void)avx2;
+        return;
+    }
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, cell_corner_.size(), 256), [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t c = range.begin(); c != range.end(); ++c) {
+            Real out[24] = {};
+            const Real* x[8];
+            for (int q = 0; q < 8; ++q) x[q] = current_ + state_stride * std::size_t(cell_corner_[c][std::size_t(q)]);
+            if (cell_whole_[c]) cell_forces<Real>(x, cell_k12_[c], cell_rest12_[c], out);
+            for (int q = 0; q < 8; ++q)
+                for (int k = 0; k < 3; ++k) cell_force_[24 * std::size_t(cell_corner_[c][std::size_t(q)]) + 3 * std::size_t(q) + std::size_t(k)] = out[3 * q + k];
+        }
+    });
+}
+
+template <class Real>
+Eigen::Vector3d BasicSolver<Real>::volume_force_on(std::size_t i) const {
+    // The cells' forces as the pass computes them (Real), summed in double as the gl force pass does.
+    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    for (int r = 0; r < 8; ++r) {
+        const std::int32_t c = particle_cell_[i][std::size_t(r)];
+        if (c < 0 || !cell_whole_[std::size_t(c)]) continue;
+        const Real* x[8];
+        for (int q = 0; q < 8; ++q) x[q] = current_ + state_stride * std::size_t(cell_corner_[std::size_t(c)][std::size_t(q)]);
+        Real out[24];
+        cell_forces<Real>(x, cell_k12_[std::size_t(c)], cell_rest12_[std::size_t(c)], out);
+        force += Eigen::Vector3d(double(out[3 * r]), double(out[3 * r + 1]), double(out[3 * r + 2]));
+    }
+    return force;
+}
+
+template <class Real>
+double BasicSolver<Real>::volume_energy() const {
+    // ½·Δλ/|V₀|·(V − V₀)² = ½·k₁₂·(12V − 12V₀)², in double.
+    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
+    double energy = 0.0;
+    for (std::size_t c = 0; c < cell_corner_.size(); ++c) {
+        if (!cell_whole_[c]) continue;
+        const auto& corner = cell_corner_[c];
+        const Real* x0 = current_ + state_stride * std::size_t(corner[0]);
+        double p[8][3];
+        for (int q = 0; q < 8; ++q) {
+            const Real* x = current_ + state_stride * std::size_t(corner[std::size_t(q)]);
+            for (int k = 0; k < 3; ++k) p[q][k] = double(x[k]) - double(x0[k]);
+        }
+        const double change = cell_volume12<double>(p, nullptr) - double(cell_rest12_[c]);
+        energy += 0.5 * double(cell_k12_[c]) * change * change;
+    }
+    return energy;
 }
 
 template <class Real>
@@ -763,6 +936,7 @@ SolverEnergy BasicSolver<Real>::compute_energy(bool centred) const {
     });
     SolverEnergy e;
     for (const auto& p : partial) e.kinetic += p[0], e.elastic += p[1], e.gravity += p[2], e.max_strain = std::max(e.max_strain, p[3]);
+    if (!cell_corner_.empty()) e.elastic += volume_energy();
     return e;
 }
 

@@ -20,6 +20,7 @@
 #include "libmodel/lattice.h"
 #include "libmodel/sim/solver_options.h"
 #include "libmodel/stability.h"
+#include "libmodel/volume_cells.h"
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
@@ -364,6 +365,16 @@ public:
     /// FNV-1a over the bits of the current positions and motions: equal states, equal hashes.
     std::uint64_t state_hash() const;
 
+    /// The cells with a volume term (libmodel/volume_cells.h), and how many of them are whole
+    /// (no spring of theirs cut: a cut cell has no volume term).
+    std::size_t volume_cell_count() const { return cell_corner_.size(); }
+    std::size_t whole_volume_cells() const;
+    /// The cells' corners and constants as the step uses them (the gl backend uploads the same):
+    /// k₁₂ = Δλ/(144·|V₀|) and 12·V₀ (volume_cells.h cell_forces).
+    const std::vector<std::array<std::int32_t, 8>>& volume_cell_corners() const { return cell_corner_; }
+    const std::vector<Real>& volume_cell_k12() const { return cell_k12_; }
+    const std::vector<Real>& volume_cell_rest12() const { return cell_rest12_; }
+
     std::size_t watchdog_events() const { return watchdog_events_; }
     /// Particles that slipped out of a grabber so far (grab_slip_strain).
     std::size_t slipped_particles() const { return slipped_; }
@@ -414,7 +425,18 @@ private:
     void load_particles(const Particles& particles);
     void load_springs(const Particles& particles, const Springs& springs, const std::vector<std::array<std::int32_t, 18>>& table,
                       const std::vector<std::int32_t>& slot_spring);
-    void load_time_steps(const Particles& particles, const Springs& springs);
+    void load_time_steps(const Particles& particles, const Springs& springs, const VolumeCells& cells);
+    /// The volume term's cells (returned, for the time step), their springs' table entries and
+    /// each particle's cells.
+    VolumeCells load_cells(const Particles& particles);
+    /// Which cells are whole, from the neighbour table (after a cut or a reset).
+    void refresh_cells();
+    /// Each whole cell's forces on its corners at the current positions, into cell_force_.
+    void cell_pass();
+    /// The volume term's force on particle i at the current positions, in double.
+    Eigen::Vector3d volume_force_on(std::size_t i) const;
+    /// Σ ½·Δλ/|V₀|·(V − V₀)² over the whole cells at the current positions, mJ (in double).
+    double volume_energy() const;
     /// Takes `step` (scaled_step): the limits, the step, its substeps and the per-substep
     /// constants; keeps velocities.
     void apply_step(const ScaledStep& step);
@@ -487,6 +509,20 @@ private:
     bool uniform_slots_ = false;
     std::vector<Real> slot_rest_length_;   ///< [slot][lane] constants when uniform_slots_
     std::vector<Real> slot_stiffness_;
+
+    // The volume term (volume_cells.h): per cell its corners, k₁₂ = Δλ/(144·|V₀|) and 12·V₀ (cell_forces), the
+    // table entries of its 24 springs (uncut_neighbour_ holds its corner there while it is whole),
+    // whether it is whole; per particle (n_pad_) the force (3 each, N) of the cell it is corner r
+    // of, in its slot r (0 where it is no cell's corner r; the cell pass writes each cell's eight
+    // into its corners' slots, so a particle's eight lie together), and that cell (−1: none).
+    std::vector<std::array<std::int32_t, 8>> cell_corner_;
+    std::vector<Real> cell_k12_;
+    std::vector<Real> cell_rest12_;
+    std::vector<std::array<std::int32_t, 24>> cell_spring_entry_;
+    std::vector<std::uint8_t> cell_whole_;
+    bool cells_stale_ = false;
+    std::vector<Real> cell_force_;
+    std::vector<std::array<std::int32_t, 8>> particle_cell_;
 
     std::array<HandState, hands> hand_;
     std::vector<ParticleLoad> loads_;          ///< set_loads(), sorted by particle

@@ -215,6 +215,7 @@ std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
             cut_.push_back({i, j});
             ++count;
         }
+    if (count > 0) cells_stale_ = true;
     return count;
 }
 

@@ -183,6 +183,10 @@ struct SolverOptions : StepSettings, SolverRules, KernelOptions {
     /// c = 2ζ√(kμ), μ the pair's reduced mass, ζ the mean of its two particles' materials.
     /// Empty: taken from the lattice's materials, or 0 when built from bare particles.
     std::vector<double> damping_ratio;
+    /// Δλ per material row, N/mm²: the Lamé modulus the volume term adds to the springs' λ = μ
+    /// (libmodel/volume_cells.h; 0: the springs alone, ν = 1/4). Empty: taken from the lattice's
+    /// materials' Poisson's ratios, or none when built from bare particles.
+    std::vector<double> volume_modulus;
     CuttingResistance cutting_resistance;  ///< the scalpel's force (not a rule a recording keeps)
 };
 

@@ -108,6 +108,7 @@ BasicSolver<Real>::BasicSolver(const Lattice& lattice, const std::vector<std::ar
     : BasicSolver(lattice.particles, lattice.springs, neighbours, [&] {
           SolverOptions o = options;
           if (o.damping_ratio.empty()) o.damping_ratio = damping_ratios(lattice.materials);
+          if (o.volume_modulus.empty()) o.volume_modulus = added_lame_moduli(lattice.materials);
           return o;
       }()) {
     if (lattice.spacing > 0) lattice_frame_ = heartsim::lattice_frame(lattice);
@@ -127,9 +128,10 @@ BasicSolver<Real>::BasicSolver(const Particles& particles, const Springs& spring
     load_particles(particles);
     load_springs(particles, springs, table, slot_spring);
     uncut_neighbour_ = neighbour_;
+    const VolumeCells cells = load_cells(particles);
     load_report_.particles = n_;
     load_report_.springs = springs.size();
-    load_time_steps(particles, springs);
+    load_time_steps(particles, springs, cells);
     load_report_.kernel = resolve_kernel(options_.kernel, std::is_same_v<Real, float>, n_, options_.arithmetic);
 
     touched_.assign(chunks_ * hands, {});
@@ -258,8 +260,51 @@ void BasicSolver<Real>::load_springs(const Particles& particles, const Springs& 
 /// The critical step (stored and checked against a proven ceiling, or estimated) and the damped
 /// one, by the policy heartprep stores (stability.h time_step_limits), unscaled: set_time_step
 /// scales them (scaled_step).
+/// The volume term's cells (volume_cells.h) from the particles' lattice indices, each with the
+/// table entries of its 24 springs; a cell one of whose springs the table lacks gets no term.
 template <class Real>
-void BasicSolver<Real>::load_time_steps(const Particles& particles, const Springs& springs) {
+VolumeCells BasicSolver<Real>::load_cells(const Particles& particles) {
+    VolumeCells cells = volume_cells(particles, options_.volume_modulus);
+    VolumeCells kept;
+    cell_corner_.clear(), cell_k12_.clear(), cell_rest12_.clear(), cell_spring_entry_.clear();
+    particle_cell_.assign(n_pad_, {-1, -1, -1, -1, -1, -1, -1, -1});
+    for (std::size_t c = 0; c < cells.size(); ++c) {
+        const auto& corner = cells.corner[c];
+        std::array<std::int32_t, 24> entry{};
+        bool complete = true;
+        for (std::size_t q = 0; q < cell_springs.size() && complete; ++q) {
+            const std::size_t a = std::size_t(corner[std::size_t(cell_springs[q][0])]);
+            const std::int32_t b = corner[std::size_t(cell_springs[q][1])];
+            entry[q] = -1;
+            for (int s = 0; s < slot_count; ++s)
+                if (uncut_neighbour_[entry_of(a, s)] == b) entry[q] = std::int32_t(entry_of(a, s));
+            complete = entry[q] >= 0;
+        }
+        if (!complete) continue;
+        for (int r = 0; r < 8; ++r) particle_cell_[std::size_t(corner[std::size_t(r)])][std::size_t(r)] = std::int32_t(cell_corner_.size());
+        cell_corner_.push_back(corner);
+        cell_k12_.push_back(Real(cells.modulus[c] / (144.0 * std::abs(cells.rest_volume[c]))));
+        // 12·V₀ from the rest positions as the step holds them (Real), by the step's own operations:
+        // a cell at rest has no force to the bit.
+        Real p[8][3];
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k)
+                p[q][k] = rest_[4 * std::size_t(corner[std::size_t(q)]) + std::size_t(k)] - rest_[4 * std::size_t(corner[0]) + std::size_t(k)];
+        cell_rest12_.push_back(cell_volume12<Real>(p, nullptr));
+        cell_spring_entry_.push_back(entry);
+        kept.corner.push_back(corner);
+        kept.modulus.push_back(cells.modulus[c]);
+        kept.rest_volume.push_back(cells.rest_volume[c]);
+    }
+    cell_whole_.assign(cell_corner_.size(), 1);
+    cell_force_.assign(cell_corner_.empty() ? 0 : 24 * n_pad_, Real(0));
+    cells_stale_ = false;
+    if (cell_corner_.empty()) particle_cell_.clear();
+    return kept;
+}
+
+template <class Real>
+void BasicSolver<Real>::load_time_steps(const Particles& particles, const Springs& springs, const VolumeCells& cells) {
     double critical = 0.0;
     if (options_.critical_dt_ms > 0) {
         critical = options_.critical_dt_ms;
@@ -271,7 +316,7 @@ void BasicSolver<Real>::load_time_steps(const Particles& particles, const Spring
                              std::to_string(ceiling) +
                              " ms for these springs and masses: the file is damaged or not from heartprep (rebuild it)");
     } else {
-        critical = estimate_critical_time_step(particles, springs).critical_dt_ms;
+        critical = estimate_critical_time_step(particles, springs, 300, 1e-6, cells.empty() ? nullptr : &cells).critical_dt_ms;
         load_report_.critical_dt_estimated = true;
     }
     // The dashpots, support dampers and drag shorten the stable step (stability.h stable_step_ms).
@@ -303,7 +348,8 @@ ScaledStep scaled_step(const SolverLoadReport& report, const SolverOptions& opti
     template void BasicSolver<Real>::load_particles(const Particles&);                                                         \
     template void BasicSolver<Real>::load_springs(const Particles&, const Springs&, const std::vector<std::array<std::int32_t, 18>>&, \
                                                   const std::vector<std::int32_t>&);                                           \
-    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&);
+    template void BasicSolver<Real>::load_time_steps(const Particles&, const Springs&, const VolumeCells&);                     \
+    template VolumeCells BasicSolver<Real>::load_cells(const Particles&);
 HEARTSIM_SOLVER_SETUP(float)
 HEARTSIM_SOLVER_SETUP(double)
 #undef HEARTSIM_SOLVER_SETUP
