@@ -106,14 +106,17 @@ void write_contents(h5::Writer& w, const Scenario& s) {
         w.group(g);
         std::vector<std::int32_t> label;
         std::vector<std::string> name;
-        std::vector<float> density, stiffness, damping, youngs;
+        std::vector<float> density, stiffness, damping, youngs, poisson;
+        bool volume_term = false;
         for (const auto& m : lattice.materials) {
             label.push_back(m.label);
             name.push_back(m.name);
             density.push_back(float(m.density));
-            stiffness.push_back(float(spring_stiffness(m.youngs_modulus_kpa, lattice.spacing)));
+            stiffness.push_back(float(spring_stiffness(m.youngs_modulus_kpa, lattice.spacing, m.poisson_ratio)));
             damping.push_back(float(m.damping_ratio));
             youngs.push_back(float(m.youngs_modulus_kpa));
+            poisson.push_back(float(m.poisson_ratio));
+            volume_term = volume_term || m.poisson_ratio != 0.25;
         }
         const std::size_t m = lattice.materials.size();
         w.dataset(g + "/label", label, {m});
@@ -122,6 +125,8 @@ void write_contents(h5::Writer& w, const Scenario& s) {
         w.dataset(g + "/stiffness", stiffness, {m});
         w.dataset(g + "/damping", damping, {m});
         w.dataset(g + "/youngs_modulus_kpa", youngs, {m});
+        // Written where some row has a volume term: a file of springs alone reads as it always did.
+        if (volume_term) w.dataset(g + "/poisson_ratio", poisson, {m});
         if (!s.tissue_origin.empty()) write_tissue_origin(w, s);
     }
     {
@@ -324,6 +329,16 @@ void read_materials(const h5::Reader& r, Lattice& lattice) {
         for (std::size_t i = 0; i < m; ++i)  // informative (the stiffness is the contract), but printed by inspect
             if (!(youngs[i] > 0) || !std::isfinite(youngs[i])) r.fail("materials/youngs_modulus_kpa", "must be positive and finite");
     }
+    // Poisson's ratio: a volume term on the lattice's cells adds to the springs' 1/4 (volume_cells.h).
+    // A file without it (every file of springs alone) reads as 1/4.
+    std::vector<float> poisson(m, 0.25f);
+    if (r.exists("materials/poisson_ratio")) {
+        poisson = r.dataset<float>("materials/poisson_ratio", {long(m)});
+        for (std::size_t i = 0; i < m; ++i)
+            if (!(poisson[i] >= 0.25f && poisson[i] <= 0.499f))
+                r.fail("materials/poisson_ratio", "row " + std::to_string(i) + " is " + std::to_string(poisson[i]) +
+                                                      ": expected 0.25 (the springs alone) to 0.499");
+    }
     for (std::size_t i = 0; i < m; ++i) {
         if (!(density[i] > 0) || !std::isfinite(density[i])) r.fail("materials/density", "must be positive and finite");
         if (!(stiffness[i] > 0) || !std::isfinite(stiffness[i])) r.fail("materials/stiffness", "must be positive and finite");
@@ -333,8 +348,11 @@ void read_materials(const h5::Reader& r, Lattice& lattice) {
         material.name = name[i];
         material.density = density[i];
         material.damping_ratio = damping[i];
-        // The face-spring stiffness is the contract; Young's modulus follows from k = 0.4·E·h.
-        material.youngs_modulus_kpa = youngs.empty() ? stiffness[i] / (0.4e-3 * lattice.spacing) : youngs[i];
+        material.poisson_ratio = poisson[i];
+        // The face-spring stiffness is the contract; Young's modulus follows from k = E·h/(2(1 + ν)).
+        material.youngs_modulus_kpa = !youngs.empty()           ? youngs[i]
+                                      : poisson[i] == 0.25f ? stiffness[i] / (0.4e-3 * lattice.spacing)
+                                                            : stiffness[i] / ((0.5 / (1.0 + poisson[i])) * 1e-3 * lattice.spacing);
         lattice.materials.push_back(material);
     }
     require_plausible(r, "materials/density", density, plausible::density_g_per_mm3);

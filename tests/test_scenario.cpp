@@ -742,3 +742,29 @@ TEST(Scenario, AChunkIndexRecordClaimingGigabytesIsRefusedBeforeHdf5Allocates) {
     EXPECT_NE(refusal(dir / "short.h5").find("particles/mass: chunk 0 claims " + std::to_string(stored - 4) + " bytes"), std::string::npos)
         << refusal(dir / "short.h5");
 }
+
+// A material's Poisson's ratio (/materials/poisson_ratio, docs/scenario-format.md): a file of springs
+// alone does not write it and reads as 1/4, as every older file does; one declared above 1/4 comes
+// back as written with the face springs of k = E·h/(2(1 + ν)); one outside [0.25, 0.499] is refused
+// naming the dataset and the row.
+TEST(Scenario, APoissonRatioRoundTripsAFileWithoutOneReadsAsOneQuarterAndOneOutOfRangeIsRefused) {
+    test::TempDir dir;
+    Scenario s = sample_scenario();
+    ASSERT_EQ(s.lattice.materials[0].poisson_ratio, 0.25);
+    write_scenario(dir / "springs.h5", s);
+    EXPECT_EQ(read_scenario(dir / "springs.h5").lattice.materials[0].poisson_ratio, 0.25);
+    s.lattice.materials[0].poisson_ratio = 0.45;
+    write_scenario(dir / "nu.h5", s);
+    const Scenario r = read_scenario(dir / "nu.h5");
+    EXPECT_FLOAT_EQ(float(r.lattice.materials[0].poisson_ratio), 0.45f);
+    EXPECT_FLOAT_EQ(float(r.lattice.materials[0].youngs_modulus_kpa), float(s.lattice.materials[0].youngs_modulus_kpa));
+    EXPECT_NEAR(spring_stiffness(s.lattice.materials[0].youngs_modulus_kpa, s.lattice.spacing, 0.45),
+                1e-3 * s.lattice.materials[0].youngs_modulus_kpa * s.lattice.spacing / 2.9, 1e-12);
+    for (const float bad : {0.5f, 0.2f}) {
+        write_scenario(dir / "bad.h5", s);
+        overwrite(dir / "bad.h5", "materials/poisson_ratio", std::vector<float>(s.lattice.materials.size(), bad), H5T_NATIVE_FLOAT);
+        const std::string message = refusal(dir / "bad.h5");
+        EXPECT_NE(message.find("materials/poisson_ratio"), std::string::npos) << message;
+        EXPECT_NE(message.find("row 0"), std::string::npos) << message;
+    }
+}

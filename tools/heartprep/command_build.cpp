@@ -181,12 +181,20 @@ void add_material_options(CLI::App& command, BuildFlags& f) {
         ->capture_default_str()
         ->group("Material");
     command.add_option("--youngs-modulus", f.material.youngs_modulus_kpa,
-                       "Young's modulus, kPa (passive myocardium: 10-50); spring stiffness k = 0.4·E·spacing")
+                       "Young's modulus, kPa (passive myocardium: 10-50); spring stiffness k = E·spacing/(2(1 + ν)), 0.4·E·spacing at ν = 0.25")
         ->check(cli_messages::within(plausible::youngs_modulus_kpa))
         ->capture_default_str()
         ->group("Material");
     command.add_option("--damping-ratio", f.material.damping_ratio, "Spring damping as a fraction of critical damping")
         ->check(cli_messages::within(plausible::damping_ratio))
+        ->capture_default_str()
+        ->group("Material");
+    command.add_option("--poisson-ratio", f.material.poisson_ratio,
+                       "Poisson's ratio, 0.25 to 0.499 (myocardium is nearly incompressible: 0.45-0.5). The springs "
+                       "give the tissue 0.25; above it a volume term on the lattice's cells makes up the rest, and the "
+                       "simulation costs more: the step shrinks 1.8x at 0.45 and 4.2x at 0.49, and each substep takes "
+                       "about 2.3x as long on the cpu backend (docs/benchmarks.md \"The tissue's own Poisson's ratio\")")
+        ->check(cli_messages::within(plausible::poisson_ratio))
         ->capture_default_str()
         ->group("Material");
 }

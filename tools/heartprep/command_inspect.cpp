@@ -250,7 +250,9 @@ void print_json(const std::filesystem::path& path, const Scenario& s, const Summ
                              {"name", mat.name},
                              {"density_g_per_mm3", mat.density},
                              {"youngs_modulus_kpa", mat.youngs_modulus_kpa},
-                             {"face_spring_stiffness_n_per_mm", spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing)},
+                             {"poisson_ratio", mat.poisson_ratio},
+                             {"face_spring_stiffness_n_per_mm", spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing, mat.poisson_ratio)},
+                             {"added_lame_modulus_kpa", 1e3 * added_lame_modulus(mat.youngs_modulus_kpa, mat.poisson_ratio)},
                              {"damping_ratio", mat.damping_ratio},
                              {"origin", origin.grown ? "grown" : "labelled"},
                              {"wall_thickness_mm", origin.thickness_mm},
@@ -345,10 +347,14 @@ void print_table(const std::filesystem::path& path, const Scenario& s, const Sum
     }
     else if (s.visual)
         std::printf("mapping     none (run `heartprep map`)\n");
-    for (const auto& mat : s.lattice.materials)
-        std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa (spring %.4g N/mm), damping ratio %.3g\n", mat.label,
-                    mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa,
-                    spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing), mat.damping_ratio);
+    for (const auto& mat : s.lattice.materials) {
+        char volume[64] = ", springs alone";
+        if (mat.poisson_ratio > 0.25)
+            std::snprintf(volume, sizeof volume, ", volume term Δλ %.3g kPa", 1e3 * added_lame_modulus(mat.youngs_modulus_kpa, mat.poisson_ratio));
+        std::printf("material    %d %s: density %.3g g/cm³, E %.3g kPa, Poisson's ratio %.3g (spring %.4g N/mm%s), damping ratio %.3g\n",
+                    mat.label, mat.name.c_str(), mat.density * 1e3, mat.youngs_modulus_kpa, mat.poisson_ratio,
+                    spring_stiffness(mat.youngs_modulus_kpa, s.lattice.spacing, mat.poisson_ratio), volume, mat.damping_ratio);
+    }
     const std::string substeps = substeps_text(s.solver);
     std::printf("solver      dt %.4g ms (critical %.4g ms, proven bound %.4g ms, damped %s ms), %s, drag %.3g /ms, "
                 "gravity (%.3g, %.3g, %.3g) mm/ms²\n",

@@ -459,7 +459,10 @@ Scenario build_scenario(const BuildOptions& options, Progress& progress, BuildRe
         // dt_ms is one substep there.
         damping_eigenvalue = estimate_damping_eigenvalue(scenario.lattice.particles, scenario.lattice.springs,
                                                          damping_ratios(scenario.lattice.materials), scenario.solver.damping);
-        return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs);
+        // The volume term's cells stiffen the tissue's dilatation (volume_cells.h): the step shrinks
+        // with the dilatational wave speed.
+        const VolumeCells cells = volume_cells(scenario.lattice.particles, added_lame_moduli(scenario.lattice.materials));
+        return estimate_critical_time_step(scenario.lattice.particles, scenario.lattice.springs, 300, 1e-6, cells.empty() ? nullptr : &cells);
     });
     auto& solver = scenario.solver;
     solver.critical_dt_ms = report.stability.critical_dt_ms;
