@@ -230,6 +230,28 @@ TEST(RuntimeBackend, GlMatchesCpuOnThePhantom) {
     expect_agreement(c);
 }
 
+// The tissue's own Poisson's ratio (libmodel/volume_cells.h): the volume term on the lattice's cells,
+// stepped by the cpu solver's cell pass and by the gl backend's cell and gather passes, and felt by
+// both force passes. The phantom built at ν = 0.45 has cells, a shorter step, and the same gesture
+// ends in the same place with the same forces on both backends.
+const fs::path& nearly_incompressible_phantom() {
+    return built_scenario("phantom-nu045", fs::path(HEARTSIM_SOURCE_DIR) / "samples/phantom.nii.gz",
+                          "--cavity 2 --anchor-border -q --poisson-ratio 0.45");
+}
+
+TEST(RuntimeBackend, GlMatchesCpuOnThePhantomWithItsOwnPoissonRatio) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(nearly_incompressible_phantom());
+    ASSERT_NEAR(scenario.lattice.materials.at(0).poisson_ratio, 0.45, 1e-6);
+    {
+        const Solver solver(scenario.lattice, scenario.packing->neighbours, options_from(scenario.solver));
+        std::printf("  %zu volume cells for %zu particles\n", solver.volume_cell_count(), solver.size());
+        EXPECT_GT(solver.volume_cell_count(), solver.size() / 4);
+    }
+    const Comparison c = compare_backends(scenario, 200, 1.5 * scenario.lattice.spacing);
+    expect_agreement(c);
+}
+
 // A force request while neither hand holds anything the tissue feels (a repair's patch and needle
 // hands are `none` to the solver) runs no pass on the gl backend: it is answered with zero at once,
 // numbered in turn, as the cpu backend answers it. The next request with a probe back runs the
@@ -323,6 +345,28 @@ TEST(RuntimeBackend, GlCutsTheSameSpringsAsTheCpu) {
     gl->reset_tissue();
     EXPECT_TRUE(cpu->cut_springs().empty());
     EXPECT_TRUE(gl->cut_springs().empty());
+}
+
+// An incision through cells at ν = 0.45: the cut cells lose their volume term on both backends
+// alike (the gl cell pass reads the cut table; the cpu solver refreshes its cells after a cut).
+TEST(RuntimeBackend, GlCutsCellsWithAVolumeTermAsTheCpuDoes) {
+    REQUIRE_GL();
+    const Scenario scenario = read_scenario(nearly_incompressible_phantom());
+    const test::Incision plan = test::anterior_incision(scenario, {.length_mm = 12, .retract = false});
+    auto [cpu, gl] = incised_on_both(scenario, plan);
+    const auto cut_cpu = cpu->cut_springs(), cut_gl = gl->cut_springs();
+    EXPECT_GT(cut_cpu.size(), 10u);
+    EXPECT_TRUE(cut_cpu == cut_gl);
+    const auto x = cpu->positions(), y = gl->positions();
+    double error = 0, moved = 0;
+    for (std::size_t i = 0; i < x.size(); ++i)
+        for (int k = 0; k < 3; ++k) {
+            error = std::max(error, double(std::abs(x[i][k] - y[i][k])));
+            moved = std::max(moved, double(std::abs(x[i][k] - scenario.lattice.particles.rest_position[i][std::size_t(k)])));
+        }
+    std::printf("  %zu springs cut; largest displacement %.3f mm, largest |x_gl - x_cpu| %.3g mm\n", cut_cpu.size(), moved, error);
+    EXPECT_GT(moved, 0.0);
+    EXPECT_LE(error, 1e-4 * model_size(scenario));
 }
 
 // The scalpel's force along the phantom's incision, step by step on both backends: each step the

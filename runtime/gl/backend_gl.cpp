@@ -219,6 +219,7 @@ void GlBackend::request_forces() {
         kinds[hand] = hand_[hand].instrument.kind == InstrumentKind::probe ? (listed_contacts() ? 3 : 1) : hand_[hand].grabbing ? 2 : 0;
     glProgramUniform1iv(force_program_.id, force_program_.at("hand_kind"), 2, kinds);
     glProgramUniform1ui(force_program_.id, force_program_.at("sequence_number"), GLuint(next_sequence_));
+    if (cell_count_ > 0) run_cell_pass();  // the cells' forces at the current positions (Solver::force_on)
     glUseProgram(force_program_.id);
     glDispatchCompute(hands, 1, 1);
     glMemoryBarrier(GL_CLIENT_MAPPED_BUFFER_BARRIER_BIT);
@@ -298,7 +299,7 @@ void GlBackend::set_loads(const std::vector<ParticleLoad>& loads) {
     }
     load_particles_.resize(loads.size());
     for (std::size_t k = 0; k < loads.size(); ++k) load_particles_[k] = loads[k].particle;
-    glProgramUniform1i(step_program_.id, step_program_.at("loaded"), !load_particles_.empty() || patch_loads_);
+    update_loaded();
     check("set_loads");
 }
 
@@ -367,8 +368,7 @@ PatchStepper* GlBackend::patch_stepper() {
             patch_pass_ = make_gl_patch_pass([this] { return unsigned(position_[current_].id()); }, load_.id(),
                                              [this](bool on) {
                                                  patch_loads_ = on;
-                                                 glProgramUniform1i(step_program_.id, step_program_.at("loaded"),
-                                                                    !load_particles_.empty() || patch_loads_);
+                                                 update_loaded();
                                              },
                                              n_);
         } catch (const std::runtime_error& e) {  // a driver without what the pass needs (GlUnavailable, an OpenGL error): the host steps the patch
@@ -384,7 +384,19 @@ void GlBackend::clear_loads() {
     glClearNamedBufferData(load_.id(), GL_RGBA32F, GL_RGBA, GL_FLOAT, zero4);
     glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
     load_particles_.clear();
-    glProgramUniform1i(step_program_.id, step_program_.at("loaded"), GL_FALSE);
+    update_loaded();
+}
+
+void GlBackend::update_loaded() {
+    // With the volume term the step reads force_in (cell_gather: the cells' forces and the loads).
+    glProgramUniform1i(step_program_.id, step_program_.at("loaded"), cell_count_ > 0 || !load_particles_.empty() || patch_loads_);
+}
+
+void GlBackend::run_cell_pass() {
+    glProgramUniform1i(cell_program_.id, cell_program_.at("any_cut"), blade_swept_);
+    glUseProgram(cell_program_.id);
+    glDispatchCompute(GLuint((cell_count_ + 63) / 64), 1, 1);
+    glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
 }
 
 void GlBackend::run_contact_search() {
@@ -449,6 +461,11 @@ void GlBackend::bind_common() {
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::held_local, held_local_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::skin, skin_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_corner, cell_corner_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_constants, cell_constants_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_spring, cell_spring_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_force, cell_force_.id());
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::force_in, force_in_.id());
 }
 
 }  // namespace gl_backend

@@ -48,6 +48,9 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
         h_ = reference.substep_ms();
         substeps_ = reference.substeps_per_step();
         lattice_frame_ = reference.lattice_frame();  // the scalpel's area per spring, as the cpu solver's
+        cell_corner_host_ = reference.volume_cell_corners();  // the volume term's cells and constants, as it steps them
+        for (std::size_t c = 0; c < cell_corner_host_.size(); ++c)
+            cell_constants_host_.insert(cell_constants_host_.end(), {reference.volume_cell_k12()[c], reference.volume_cell_rest12()[c]});
     }
     build_buffers(scenario);
     surface_ = scenario.simulation_surface;  // for the picking / search contact passes, built on demand
@@ -62,8 +65,10 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
     build(blade_program_, "blade", {sh::blade_pass});
     build(scatter_program_, "load scatter", {sh::load_scatter});
     build(gather_program_, "gather", {sh::gather});
+    build(cell_program_, "volume cell", {sh::cell_pass});
+    build(cell_gather_program_, "volume gather", {sh::cell_gather});
     for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_,
-                             &cut_program_, &scatter_program_, &gather_program_}) {
+                             &cut_program_, &scatter_program_, &gather_program_, &cell_program_, &cell_gather_program_}) {
         glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
         glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
     }
@@ -76,6 +81,9 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
     glProgramUniform1i(force_program_.id, force_program_.at("damped"), damped_);
     glProgramUniform1f(after_program_.id, after_program_.at("slip_strain"), float(options_.grab_slip_strain));
     glProgramUniform1d(step_program_.id, step_program_.at("pierce_strain"), options_.probe_pierce_strain);
+    glProgramUniform1ui(cell_program_.id, cell_program_.at("cell_count"), GLuint(cell_count_));
+    glProgramUniform1i(force_program_.id, force_program_.at("volume_term"), cell_count_ > 0);
+    update_loaded();
     check("setting up the gl backend");
 }
 
@@ -205,6 +213,30 @@ void GlBackend::build_buffers(const Scenario& scenario) {
     storage(held_, std::size_t(hands) * n_ * 4, GL_DYNAMIC_STORAGE_BIT);              // begin_grab rewrites it
     storage(held_local_, std::size_t(hands) * n_ * 3 * 8, GL_DYNAMIC_STORAGE_BIT);
     storage(load_, std::vector<float>(4 * n_pad_, 0.0f), 0);  // set_loads's scatter pass writes it
+    // The volume term's cells (the reference solver's), their springs' entries in this table's
+    // layout, and each particle's 8 force slots. Buffers of one element where there are none.
+    cell_count_ = cell_corner_host_.size();
+    {
+        std::vector<std::int32_t> corners, entries;
+        for (std::size_t c = 0; c < cell_count_; ++c) {
+            const auto& corner = cell_corner_host_[c];
+            for (int r = 0; r < 8; ++r) corners.push_back(corner[std::size_t(r)]);
+            for (const auto& [a, b] : cell_springs) {
+                std::int32_t entry = -1;
+                for (int slot = 0; slot < slot_count; ++slot)
+                    if (uncut_neighbour_[table_entry(std::size_t(corner[std::size_t(a)]), slot)] == corner[std::size_t(b)])
+                        entry = std::int32_t(table_entry(std::size_t(corner[std::size_t(a)]), slot));
+                if (entry < 0) throw InputError("gl backend: a volume cell's spring is not in the neighbour table");
+                entries.push_back(entry);
+            }
+        }
+        if (cell_count_ == 0) corners.assign(8, 0), entries.assign(24, 0), cell_constants_host_.assign(2, 0.0f);
+        storage(cell_corner_, corners);
+        storage(cell_constants_, cell_constants_host_);
+        storage(cell_spring_, entries);
+        storage(cell_force_, std::vector<float>(cell_count_ > 0 ? 24 * n_pad_ : 24, 0.0f), 0);  // zero where no cell writes
+        storage(force_in_, std::vector<float>(4 * n_pad_, 0.0f), 0);
+    }
     reach_beyond_.resize(n_pad_, 0.0);
     storage(skin_, reach_beyond_, 0);
     rest_position_.resize(3 * n_);  // begin_grab's piece of tissue (keep_one_piece)
@@ -225,12 +257,22 @@ void GlBackend::build_buffers(const Scenario& scenario) {
 
 }  // namespace gl_backend
 
+namespace {
+bool volume_term(const Scenario& scenario) {
+    for (const Material& m : scenario.lattice.materials)
+        if (m.poisson_ratio > 0.25) return true;
+    return false;
+}
+}  // namespace
+
 std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
     const std::size_t n = scenario.lattice.particles.size(), n_pad = (n + 7) / 8 * 8;
     return 8 * n_pad * 16            // positions and motions: two float4 buffers each, the start state of both, two restore points
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n_pad * 16              // external loads
+           + (volume_term(scenario) ? n_pad * (16 + 96) + n * (8 * 4 + 8 + 24 * 4) : 0)  // the volume term: the force the step reads, the
+                                                                                      // slots; at most a cell per particle: corners, constants, springs
            + n_pad * 8               // each particle's reach beyond it (the contact skin)
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
            + gl_backend::ring_slots * gl_backend::ring_stride + gl_backend::status_slots * 8 + gl_backend::sh::counter_words * 4;

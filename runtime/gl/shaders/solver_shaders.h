@@ -391,6 +391,95 @@ void main() {
 }
 )";
 
+/// The volume term (libmodel/volume_cells.h): each cell's forces on its eight corners at the
+/// current positions, as the cpu solver's cell_pass makes them (cell_forces: twelfths, the same
+/// float operations in the same order, none fused). A cell one of whose 24 springs is cut (its
+/// table entry no longer holds the other corner) has none; `any_cut` is false while the tissue
+/// is whole, and the check is skipped.
+inline constexpr const char* cell_pass = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
+layout(std430, binding = BINDING_NEIGHBOUR) readonly buffer NeighbourBuffer { int neighbour[]; };
+layout(std430, binding = BINDING_CELL_CORNER) readonly buffer CellCornerBuffer { int cell_corner[]; };   // 8 per cell
+layout(std430, binding = BINDING_CELL_CONSTANTS) readonly buffer CellConstantsBuffer { vec2 cell_constants[]; };  // k12, 12·V0
+layout(std430, binding = BINDING_CELL_SPRING) readonly buffer CellSpringBuffer { int cell_spring[]; };   // 24 table entries per cell
+layout(std430, binding = BINDING_CELL_FORCE) writeonly buffer CellForceBuffer { float cell_force[]; };  // 8 slots of 3 per particle, N
+uniform uint cell_count;
+uniform bool any_cut;
+const int face[24] = int[24](0, 4, 6, 2, 1, 3, 7, 5, 0, 1, 5, 4, 2, 6, 7, 3, 0, 2, 3, 1, 4, 5, 7, 6);
+const int spring_end[24] = int[24](1, 2, 3, 4, 5, 6, 2, 3, 4, 5, 7, 3, 4, 6, 7, 5, 6, 7, 5, 6, 7, 6, 7, 7);  // volume_cells.cpp cell_springs
+void main() {
+    uint c = gl_GlobalInvocationID.x;
+    if (c >= cell_count) return;
+    int corner[8];
+    for (int q = 0; q < 8; ++q) corner[q] = cell_corner[8u * c + uint(q)];
+    bool whole = true;
+    if (any_cut)
+        for (int q = 0; q < 24; ++q)
+            if (neighbour[cell_spring[24u * c + uint(q)]] != corner[spring_end[q]]) whole = false;
+    if (!whole) {  // its corners' slots hold zero
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k) cell_force[24u * uint(corner[q]) + uint(3 * q + k)] = 0.0;
+        return;
+    }
+    vec3 x0 = x[corner[0]].xyz;
+    precise vec3 p[8];
+    for (int q = 0; q < 8; ++q) {
+        vec3 xq = x[corner[q]].xyz;
+        p[q] = vec3(xq.x - x0.x, xq.y - x0.y, xq.z - x0.z);
+    }
+    precise float volume = 0.0;
+    precise vec3 g[8];
+    for (int q = 0; q < 8; ++q) g[q] = vec3(0.0);
+    for (int f = 0; f < 6; ++f) {
+        int i0 = face[4 * f], i1 = face[4 * f + 1], i2 = face[4 * f + 2], i3 = face[4 * f + 3];
+        vec3 p0 = p[i0], p1 = p[i1], p2 = p[i2], p3 = p[i3];
+        precise vec3 c01 = vec3(p0.y * p1.z - p0.z * p1.y, p0.z * p1.x - p0.x * p1.z, p0.x * p1.y - p0.y * p1.x);
+        precise vec3 c02 = vec3(p0.y * p2.z - p0.z * p2.y, p0.z * p2.x - p0.x * p2.z, p0.x * p2.y - p0.y * p2.x);
+        precise vec3 c03 = vec3(p0.y * p3.z - p0.z * p3.y, p0.z * p3.x - p0.x * p3.z, p0.x * p3.y - p0.y * p3.x);
+        precise vec3 c12 = vec3(p1.y * p2.z - p1.z * p2.y, p1.z * p2.x - p1.x * p2.z, p1.x * p2.y - p1.y * p2.x);
+        precise vec3 c13 = vec3(p1.y * p3.z - p1.z * p3.y, p1.z * p3.x - p1.x * p3.z, p1.x * p3.y - p1.y * p3.x);
+        precise vec3 c23 = vec3(p2.y * p3.z - p2.z * p3.y, p2.z * p3.x - p2.x * p3.z, p2.x * p3.y - p2.y * p3.x);
+        for (int k = 0; k < 3; ++k) volume = volume + (p0[k] * (c12[k] + c23[k]) + p1[k] * (c23[k] - c03[k]));
+        for (int k = 0; k < 3; ++k) {
+            g[i0][k] = g[i0][k] + ((c12[k] + c23[k]) + c13[k]);
+            g[i1][k] = g[i1][k] + ((c23[k] - c02[k]) - c03[k]);
+            g[i2][k] = g[i2][k] + ((c01[k] - c03[k]) - c13[k]);
+            g[i3][k] = g[i3][k] + ((c02[k] + c12[k]) + c01[k]);
+        }
+    }
+    vec2 constants = cell_constants[c];
+    precise float pressure = -(constants.x * (volume - constants.y));
+    for (int q = 0; q < 8; ++q)  // corner q's force into slot q of its particle
+        for (int k = 0; k < 3; ++k) cell_force[24u * uint(corner[q]) + uint(3 * q + k)] = pressure * g[q][k];
+}
+)";
+
+/// The volume term's force on each particle, the sum of its 8 slots (in slot order; zero where it
+/// is no cell's corner), plus its external load: the step pass reads the sum in place of the
+/// loads (Solver's load_and_project makes the same sum).
+inline constexpr const char* cell_gather = R"(
+layout(local_size_x = 64) in;
+layout(std430, binding = BINDING_CELL_FORCE) readonly buffer CellForceBuffer { float cell_force[]; };
+layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };
+layout(std430, binding = BINDING_FORCE_IN) writeonly buffer ForceInBuffer { vec4 force_in[]; };
+uniform bool loaded;
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= padded_count) return;
+    precise vec3 f = vec3(0.0);
+    for (uint r = 0u; r < 8u; ++r) {
+        uint at = 24u * i + 3u * r;
+        f = vec3(f.x + cell_force[at], f.y + cell_force[at + 1u], f.z + cell_force[at + 2u]);
+    }
+    if (loaded) {
+        vec4 l = load[i];
+        f = vec3(f.x + l.x, f.y + l.y, f.z + l.z);
+    }
+    force_in[i] = vec4(f, 0.0);
+}
+)";
+
 /// positions_of: the current positions of the listed particles (checked in range by the host), in
 /// the list's order.
 inline constexpr const char* gather = R"(
@@ -544,7 +633,7 @@ void main() {
 }
 )";
 
-/// Forces for both hands (one work group per hand): Σ spring + dashpot + support force on the particles
+/// Forces for both hands (one work group per hand): Σ spring + dashpot + support (+ volume) force on the particles
 /// held or touched in the last substep, in double as Solver::force_on; into one ring slot, with
 /// each hand's particle count, its springs cut in the step and its blade's state (the host
 /// computes a scalpel's force from them: libmodel/sim/cutting_force.h blade_force). The count is a
@@ -557,6 +646,8 @@ layout(std430, binding = BINDING_TOUCHED) readonly buffer TouchedBuffer { int to
 layout(std430, binding = BINDING_HELD) readonly buffer HeldBuffer { int held[]; };
 layout(std430, binding = BINDING_FORCES) writeonly buffer ForceBuffer { dvec4 force[2]; uint status; uint sequence; uint cuts[2]; uint counts[2]; double blade[12]; };
 layout(std430, binding = BINDING_PICKED) readonly buffer PickedBuffer { int picked[]; };
+layout(std430, binding = BINDING_CELL_FORCE) readonly buffer CellForceBuffer { float cell_force[]; };
+uniform bool volume_term;       // the scenario has cells with a volume term (libmodel/volume_cells.h)
 uniform int hand_kind[2];       // 0 none, 1 probe, 2 grabber holding, 3 probe with the picking/search list
 uniform bool damped;
 uniform uint sequence_number;
@@ -593,6 +684,11 @@ void main() {
             f = f + double(own.support_stiffness) * (dvec3(own.support_point.xyz) - dvec3(xi.xyz));
             f = f - double(own.support_point.w) * dvec3(ui.xyz);
         }
+        if (volume_term)  // the cells' forces at these positions (cell_pass, run before this pass), slot by slot
+            for (uint r = 0u; r < 8u; ++r) {
+                uint at = 24u * i + 3u * r;
+                f = f + dvec3(double(cell_force[at]), double(cell_force[at + 1u]), double(cell_force[at + 2u]));
+            }
         sum = sum + f;
     }
     partial[lid] = sum;
