@@ -34,7 +34,8 @@
 // Usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]
 //                    [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]
 //                    [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02]
-//                    [--quick] [--details] [--linear] [--reference fe.csv] [--drawn]
+//                    [--quick] [--details] [--linear] [--reference fe.csv] [--drawn] [--poisson-ratio 0.25]
+// --poisson-ratio gives the block that ν (the volume term above 1/4) and Hertz and Sneddon the same.
 // --drawn counts the depth from the drawn surface, as heartsim meets it (Settings::drawn).
 // "default" is the spacing heartprep chooses for a cube of --size mm with its 30k particle budget
 // (size/31: 1.935 mm for 60 mm). Not a test: it asserts nothing (tests/test_hertz.cpp does).
@@ -67,7 +68,7 @@ using namespace heartsim;
 namespace {
 
 constexpr double youngs_kpa = 10.0;
-constexpr double poisson = 0.25;  // the 18-neighbour lattice's (lattice.h spring_stiffness)
+double poisson = 0.25;  // the block's (--poisson-ratio): the lattice's springs alone give 1/4, the volume term the rest (libmodel/volume_cells.h)
 
 double reduced_modulus() { return youngs_kpa * 1e-3 / (1 - poisson * poisson); }  // N/mm²
 
@@ -103,6 +104,7 @@ Block make_block(int n, int nz, double spacing, double damping_ratio) {
     Material material;
     material.youngs_modulus_kpa = youngs_kpa;
     material.damping_ratio = damping_ratio;
+    material.poisson_ratio = poisson;
     Block b;
     b.lattice = uniform_block({n, n, nz}, spacing, material);
     b.spacing = spacing;
@@ -429,6 +431,7 @@ int main(int argc, char** argv) {
         else if (arg == "--details") details = true;
         else if (arg == "--linear") linear = true;
         else if (arg == "--drawn") s.drawn = true;
+        else if (arg == "--poisson-ratio") poisson = std::stod(value());
         else if (arg == "--reference") reference_files.push_back(value());
         else if (arg == "--quick") {
             spacings = {"3", "default"};
@@ -438,7 +441,7 @@ int main(int argc, char** argv) {
             std::fprintf(stderr, "usage: hertz_bench [--spacings 3,2,default,1.5] [--size 60] [--thickness T] [--radius 5]\n"
                                  "       [--depths 0.1,0.2,0.3,0.4] [--placements particle,edge,face] [--threads N]\n"
                                  "       [--drag 0.1] [--damping-ratio 0.3] [--tolerance 1e-4] [--ramp-speed 0.02] [--quick] [--details] [--linear]\n"
-                                 "       [--reference fe.csv] [--drawn]\n");
+                                 "       [--reference fe.csv] [--drawn] [--poisson-ratio 0.25]\n");
             return 2;
         }
     }
