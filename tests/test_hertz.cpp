@@ -23,6 +23,34 @@ double hertz(double youngs_kpa, double radius, double depth) {
     return 4.0 / 3.0 * (youngs_kpa * 1e-3) / (1 - 0.25 * 0.25) * std::sqrt(radius) * std::pow(depth, 1.5);
 }
 
+/// Ramps the probe of hand 0 from `current` to `depth` mm slowly (0.02 mm/ms: a wave crosses the
+/// contact in well under a millisecond), then holds until the force changes by less than 1e-4 of
+/// itself over three 10 ms windows in a row, for at most `max_hold_ms`. `current` becomes `depth`.
+template <class PoseAt>
+::testing::AssertionResult press_and_settle(Solver& solver, PoseAt&& pose_at, double& current, double depth, double max_hold_ms) {
+    const double h = solver.time_step_ms(), speed = 0.02, window_ms = 10.0;
+    const int window = std::max(1, int(std::lround(window_ms / h)));
+    while (current < depth) {
+        const double next = std::min(depth, current + speed * window_ms);
+        solver.set_pose(0, pose_at(next));
+        const StepReport r = solver.step(std::max(1, int(std::lround((next - current) / speed / h))));
+        if (r.diverged) return ::testing::AssertionFailure() << r.message;
+        current = next;
+    }
+    double previous = solver.instrument_forces().hand[0].force_n.z(), held_ms = 0;
+    int quiet = 0;
+    while (quiet < 3 && held_ms < max_hold_ms) {
+        const StepReport r = solver.step(window);
+        if (r.diverged) return ::testing::AssertionFailure() << r.message;
+        held_ms += window * h;
+        const double f = solver.instrument_forces().hand[0].force_n.z();
+        quiet = std::abs(f - previous) < 1e-4 * std::abs(f) ? quiet + 1 : 0;
+        previous = f;
+    }
+    if (quiet < 3) return ::testing::AssertionFailure() << "the force did not settle in " << max_hold_ms << " ms at depth " << depth << " mm";
+    return ::testing::AssertionSuccess();
+}
+
 }  // namespace
 
 // A 5 mm sphere pressed 1, 1.5 and 2 mm (0.2, 0.3, 0.4 R) into the top of a 60 mm cube at 60/31 mm
@@ -68,30 +96,9 @@ TEST(Hertz, ASphericalProbePressedIntoABlockFeelsHertzsForceWithinTheDocumentedB
     solver.set_pose(0, pose_at(current));
     solver.step();
 
-    const double h = solver.time_step_ms(), speed = 0.02, window_ms = 10.0;  // ramp mm/ms; settling window
-    const int window = std::max(1, int(std::lround(window_ms / h)));
     std::vector<double> forces;
     for (const double depth : {0.2 * radius, 0.3 * radius, 0.4 * radius}) {
-        // Ramp slowly (a wave crosses the contact in well under a millisecond), then hold until
-        // the force changes by less than 1e-4 of itself over three 10 ms windows in a row.
-        while (current < depth) {
-            const double next = std::min(depth, current + speed * window_ms);
-            solver.set_pose(0, pose_at(next));
-            const StepReport r = solver.step(std::max(1, int(std::lround((next - current) / speed / h))));
-            ASSERT_FALSE(r.diverged) << r.message;
-            current = next;
-        }
-        double previous = solver.instrument_forces().hand[0].force_n.z(), held_ms = 0;
-        int quiet = 0;
-        while (quiet < 3 && held_ms < 1000) {
-            const StepReport r = solver.step(window);
-            ASSERT_FALSE(r.diverged) << r.message;
-            held_ms += window * h;
-            const double f = solver.instrument_forces().hand[0].force_n.z();
-            quiet = std::abs(f - previous) < 1e-4 * std::abs(f) ? quiet + 1 : 0;
-            previous = f;
-        }
-        ASSERT_EQ(quiet, 3) << "the force did not settle in 1 s at depth " << depth << " mm";
+        ASSERT_TRUE(press_and_settle(solver, pose_at, current, depth, 1000));
         const InstrumentForce force = solver.instrument_forces().hand[0];
         const double expected = hertz(youngs_kpa, radius, depth);
         // At rest the probe's force is the anchors' reaction (Newton's third law over the network).
@@ -152,27 +159,8 @@ TEST(Hertz, TheFeltForceOfANearlyIncompressibleBlockIsTheFiniteElementReferences
         double current = -0.2;
         solver.set_pose(0, pose_at(current));
         solver.step();
-        const double h = solver.time_step_ms(), speed = 0.02, window_ms = 10.0;
-        const int window = std::max(1, int(std::lround(window_ms / h)));
         for (int d = 0; d < 3; ++d) {
-            while (current < depths[d]) {
-                const double next = std::min(depths[d], current + speed * window_ms);
-                solver.set_pose(0, pose_at(next));
-                const StepReport r = solver.step(std::max(1, int(std::lround((next - current) / speed / h))));
-                ASSERT_FALSE(r.diverged) << r.message;
-                current = next;
-            }
-            double previous = solver.instrument_forces().hand[0].force_n.z(), held_ms = 0;
-            int quiet = 0;
-            while (quiet < 3 && held_ms < 2000) {
-                const StepReport r = solver.step(window);
-                ASSERT_FALSE(r.diverged) << r.message;
-                held_ms += window * h;
-                const double f = solver.instrument_forces().hand[0].force_n.z();
-                quiet = std::abs(f - previous) < 1e-4 * std::abs(f) ? quiet + 1 : 0;
-                previous = f;
-            }
-            ASSERT_EQ(quiet, 3) << "the force did not settle in 2 s at depth " << depths[d] << " mm";
+            ASSERT_TRUE(press_and_settle(solver, pose_at, current, depths[d], 2000));
             const double force = solver.instrument_forces().hand[0].force_n.z();
             EXPECT_NEAR(force, -solver.anchor_force().z(), 0.01 * force) << "at rest the probe's force is the anchors' reaction";
             mean[d] += force / 3;
