@@ -222,10 +222,11 @@ double diagonal_block_floor(const Particles& particles, const std::vector<double
     return lower;
 }
 
-/// A lower bound on λ_max(M⁻¹K).
-double stiffness_eigenvalue_floor(const Particles& particles, const Springs& springs) {
+/// A lower bound on λ_max(M⁻¹K), the volume term's cells (unless null) counted.
+double stiffness_eigenvalue_floor(const Particles& particles, const Springs& springs, const VolumeCells* cells = nullptr) {
     // Trace of each particle's 3×3 diagonal block of K: k + 2t/L per spring (the trace of
-    // k n nᵀ + (t/L)(I − n nᵀ)) plus 3 k_s for its support.
+    // k n nᵀ + (t/L)(I − n nᵀ)) plus 3 k_s for its support, plus (Δλ/|V₀|)·|∂V/∂x_c|² per cell
+    // it is corner c of (the trace of its block of (Δλ/|V₀|) g gᵀ at rest).
     std::vector<double> trace(particles.size(), 0.0);
     for (std::size_t s = 0; s < springs.size(); ++s) {
         const SpringDirection d = spring_direction(particles, springs, s);
@@ -233,14 +234,25 @@ double stiffness_eigenvalue_floor(const Particles& particles, const Springs& spr
         trace[std::size_t(springs.pairs[s][0])] += block;
         trace[std::size_t(springs.pairs[s][1])] += block;
     }
+    for (std::size_t c = 0; cells && c < cells->size(); ++c) {
+        const auto& corner = cells->corner[c];
+        double p[8][3], g[8][3];
+        for (int q = 0; q < 8; ++q)
+            for (int k = 0; k < 3; ++k)
+                p[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
+                          double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
+        cell_volume12<double>(p, g);
+        const double scale = cells->modulus[c] / (144.0 * std::abs(cells->rest_volume[c]));  // g in twelfths
+        for (int q = 0; q < 8; ++q) trace[std::size_t(corner[std::size_t(q)])] += scale * (g[q][0] * g[q][0] + g[q][1] * g[q][1] + g[q][2] * g[q][2]);
+    }
     const std::vector<float> none;
     return diagonal_block_floor(particles, trace, particles.supported() ? particles.support_stiffness : none);
 }
 
 }  // namespace
 
-double critical_step_ceiling_ms(const Particles& particles, const Springs& springs) {
-    const double lower = stiffness_eigenvalue_floor(particles, springs);
+double critical_step_ceiling_ms(const Particles& particles, const Springs& springs, const VolumeCells* cells) {
+    const double lower = stiffness_eigenvalue_floor(particles, springs, cells);
     return lower > 0 ? 2.0 / std::sqrt(lower) : std::numeric_limits<double>::infinity();
 }
 

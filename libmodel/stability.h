@@ -43,7 +43,9 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
 /// lower bound on λ_max(M⁻¹K), the largest over free particles of trace(K_ii)/(3 m_i) (the top
 /// eigenvalue of a diagonal block bounds it from below, Cauchy interlacing). A stored critical
 /// step above it cannot be right: the runtime refuses such a file. Infinite without springs.
-double critical_step_ceiling_ms(const Particles& particles, const Springs& springs);
+/// `cells`, unless null: the volume term's cells add the trace of their blocks (a scenario that
+/// declares a Poisson's ratio above 1/4 with a step for its springs alone is refused).
+double critical_step_ceiling_ms(const Particles& particles, const Springs& springs, const VolumeCells* cells = nullptr);
 
 /// A proven ceiling on the damped stable step (stable_step_ms), ms, in one pass over the
 /// springs: stable_step_ms of lower bounds on λ_K (as critical_step_ceiling_ms) and on λ_C (the

@@ -151,6 +151,34 @@ TEST(Reliability, TheStepPolicyIsCheckedAgainstItsCrossFieldRules) {
     EXPECT_GT(s.solver.damped_critical_dt_ms, 0.3 * ceiling) << "a ceiling far above the step would catch nothing";
 }
 
+// A scenario that declares a Poisson's ratio above 1/4 stiffens its dilatation with the volume
+// term's cells (libmodel/volume_cells.h): a step stored for its springs alone (here the step of
+// the same phantom built at 1/4, which those springs would take) is above the proven ceiling that
+// counts the cells, and the run refuses the file before a step is taken; the file as heartprep
+// wrote it runs.
+TEST(Reliability, AStepStoredWithoutTheVolumeCellsIsRefused) {
+    test::TempDir dir;
+    const fs::path& springs = test::built_phantom("--particles 2000");
+    const fs::path& cells = test::built_phantom("--particles 2000 --poisson-ratio 0.49");
+    const Scenario alone = read_scenario(springs), stiff = read_scenario(cells);
+    ASSERT_NEAR(stiff.lattice.materials.at(0).poisson_ratio, 0.49, 1e-6);
+    ASSERT_LT(stiff.solver.critical_dt_ms, 0.5 * alone.solver.critical_dt_ms) << "the cells shorten the step";
+    const fs::path stale = dir / "stale.h5";
+    fs::copy_file(cells, stale);
+    for (const char* name : {"critical_dt_ms", "damped_critical_dt_ms", "dt_ms"}) {
+        const double value = std::string(name) == "critical_dt_ms" ? alone.solver.critical_dt_ms
+                             : std::string(name) == "dt_ms"       ? alone.solver.dt_ms
+                                                                  : alone.solver.damped_critical_dt_ms;
+        overwrite_attribute<double>(stale, "/solver", name, {value}, H5T_NATIVE_DOUBLE);
+    }
+    const auto refused = heartsim_command("run " + quoted(stale) + " --headless --backend cpu --steps 1");
+    EXPECT_NE(refused.exit_code, 0) << refused.output;
+    for (const char* part : {"critical_dt_ms", "proven ceiling", "volume cells", "rebuild"})
+        EXPECT_NE(refused.output.find(part), std::string::npos) << part << " in: " << refused.output;
+    const auto good = heartsim_command("run " + quoted(cells) + " --headless --backend cpu --steps 1");
+    EXPECT_EQ(good.exit_code, 0) << good.output;
+}
+
 TEST(Reliability, MappingOffsetsAndTheScenarioStructureAreChecked) {
     test::TempDir dir;
     const Scenario s = read_scenario(phantom_copy(dir, "reference.h5"));

@@ -310,11 +310,11 @@ void BasicSolver<Real>::load_time_steps(const Particles& particles, const Spring
         critical = options_.critical_dt_ms;
         // A stored step is checked against a proven ceiling (one pass over the springs): one
         // flipped bit in the file must not make the step 2¹⁶ times too long.
-        const double ceiling = critical_step_ceiling_ms(particles, springs);
+        const double ceiling = critical_step_ceiling_ms(particles, springs, cells.empty() ? nullptr : &cells);
         if (!std::isfinite(critical) || critical > ceiling * (1.0 + 1e-6))
             throw InputError("scenario: /solver critical_dt_ms is " + std::to_string(critical) + " ms, above the proven ceiling of " +
-                             std::to_string(ceiling) +
-                             " ms for these springs and masses: the file is damaged or not from heartprep (rebuild it)");
+                             std::to_string(ceiling) + " ms for these springs" + (cells.empty() ? "" : ", volume cells") +
+                             " and masses: the file is damaged or not from heartprep (rebuild it)");
     } else {
         critical = estimate_critical_time_step(particles, springs, 300, 1e-6, cells.empty() ? nullptr : &cells).critical_dt_ms;
         load_report_.critical_dt_estimated = true;
