@@ -388,8 +388,10 @@ void GlBackend::clear_loads() {
 }
 
 void GlBackend::update_loaded() {
-    // With the volume term the step reads force_in (cell_gather: the cells' forces and the loads).
-    glProgramUniform1i(step_program_.id, step_program_.at("loaded"), cell_count_ > 0 || !load_particles_.empty() || patch_loads_);
+    // With the volume term the step adds each particle's cells' forces to its load (`external_loads`).
+    const bool external = !load_particles_.empty() || patch_loads_;
+    glProgramUniform1i(step_program_.id, step_program_.at("loaded"), cell_count_ > 0 || external);
+    glProgramUniform1i(step_program_.id, step_program_.at("external_loads"), external);
 }
 
 void GlBackend::run_cell_pass() {
@@ -465,7 +467,6 @@ void GlBackend::bind_common() {
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_constants, cell_constants_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_spring, cell_spring_.id());
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::cell_force, cell_force_.id());
-    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::force_in, force_in_.id());
 }
 
 }  // namespace gl_backend

@@ -66,9 +66,8 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
     build(scatter_program_, "load scatter", {sh::load_scatter});
     build(gather_program_, "gather", {sh::gather});
     build(cell_program_, "volume cell", {sh::cell_pass});
-    build(cell_gather_program_, "volume gather", {sh::cell_gather});
     for (const Program* p : {&step_program_, &after_program_, &capture_program_, &release_program_, &force_program_, &strain_program_,
-                             &cut_program_, &scatter_program_, &gather_program_, &cell_program_, &cell_gather_program_}) {
+                             &cut_program_, &scatter_program_, &gather_program_, &cell_program_}) {
         glProgramUniform1ui(p->id, p->at("particle_count"), GLuint(n_));
         glProgramUniform1ui(p->id, p->at("padded_count"), GLuint(n_pad_));
     }
@@ -83,6 +82,7 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
     glProgramUniform1d(step_program_.id, step_program_.at("pierce_strain"), options_.probe_pierce_strain);
     glProgramUniform1ui(cell_program_.id, cell_program_.at("cell_count"), GLuint(cell_count_));
     glProgramUniform1i(force_program_.id, force_program_.at("volume_term"), cell_count_ > 0);
+    glProgramUniform1i(step_program_.id, step_program_.at("volume_term"), cell_count_ > 0);
     update_loaded();
     check("setting up the gl backend");
 }
@@ -235,7 +235,6 @@ void GlBackend::build_buffers(const Scenario& scenario) {
         storage(cell_constants_, cell_constants_host_);
         storage(cell_spring_, entries);
         storage(cell_force_, std::vector<float>(cell_count_ > 0 ? 24 * n_pad_ : 24, 0.0f), 0);  // zero where no cell writes
-        storage(force_in_, std::vector<float>(4 * n_pad_, 0.0f), 0);
     }
     reach_beyond_.resize(n_pad_, 0.0);
     storage(skin_, reach_beyond_, 0);
@@ -271,8 +270,8 @@ std::size_t estimate_gl_memory_bytes(const Scenario& scenario) {
            + n_pad * 18 * 4 * 4      // neighbour, rest length, stiffness, dashpot c/h
            + n_pad * 32 + n_pad * 4  // particle constants (with the support spring), held-by
            + n_pad * 16              // external loads
-           + (volume_term(scenario) ? n_pad * (16 + 96) + n * (8 * 4 + 8 + 24 * 4) : 0)  // the volume term: the force the step reads, the
-                                                                                      // slots; at most a cell per particle: corners, constants, springs
+           + (volume_term(scenario) ? n_pad * 96 + n * (8 * 4 + 8 + 24 * 4) : 0)  // the volume term: each particle's slots; at
+                                                                                // most a cell per particle: corners, constants, springs
            + n_pad * 8               // each particle's reach beyond it (the contact skin)
            + n * (2 * 4 + 2 * 4 + 2 * 24)  // touched lists, held lists and their local coordinates
            + gl_backend::ring_slots * gl_backend::ring_stride + gl_backend::status_slots * 8 + gl_backend::sh::counter_words * 4;

@@ -266,11 +266,11 @@ private:
     bool blade_swept_ = false;  ///< a cut pass ran since the tissue was last whole (a grab then reads the table)
     std::vector<float> dashpot_host_;           ///< c per table entry, N·ms/mm, rounded to float as the table's
     Program step_program_, after_program_, capture_program_, release_program_, force_program_, strain_program_, cut_program_,
-        blade_program_, scatter_program_, gather_program_, cell_program_, cell_gather_program_;
+        blade_program_, scatter_program_, gather_program_, cell_program_;
     /// The volume term (libmodel/volume_cells.h), as the reference solver holds it: per cell its
     /// corners, k12 and 12·V0 and its springs' table entries; per padded particle the 8 slots of
-    /// its cells' forces, and the force the step reads in place of the loads (cell_gather).
-    Buffer cell_corner_, cell_constants_, cell_spring_, cell_force_, force_in_;
+    /// its cells' forces, which the step pass adds to its load.
+    Buffer cell_corner_, cell_constants_, cell_spring_, cell_force_;
     std::size_t cell_count_ = 0;
     std::vector<std::array<std::int32_t, 8>> cell_corner_host_;
     std::vector<float> cell_constants_host_;  ///< k12, 12·V0 per cell

@@ -100,17 +100,7 @@ StepReport GlBackend::step(int steps) {
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::motion, motion_[current_].id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next, position_[next_].id());
         glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::next_motion, motion_[next_].id());
-        if (cell_count_ > 0) {
-            // The volume term (Solver::cell_pass), then each particle's cells' forces and its load,
-            // which the step reads from `load`'s binding.
-            run_cell_pass();
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
-            glProgramUniform1i(cell_gather_program_.id, cell_gather_program_.at("loaded"), !load_particles_.empty() || patch_loads_);
-            glUseProgram(cell_gather_program_.id);
-            glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
-            glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
-            glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, force_in_.id());
-        }
+        if (cell_count_ > 0) run_cell_pass();  // the volume term (Solver::cell_pass): the step adds each particle's slots
         glUseProgram(sp);
         glDispatchCompute(GLuint((n_pad_ + 63) / 64), 1, 1);
         glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT);
@@ -129,7 +119,6 @@ StepReport GlBackend::step(int steps) {
         time_ms_ += h_;
         ++report.substeps;
     }
-    if (cell_count_ > 0) glBindBufferBase(GL_SHADER_STORAGE_BUFFER, sh::load, load_.id());
     report.steps = steps;
     substeps_since_snapshot_ += report.substeps;
     queue_status();

@@ -26,12 +26,11 @@ enum Binding : unsigned {
     // The patch's pass (patch_pass.cpp, patch_shaders.h), beyond current and load.
     patch_ints = 24, patch_constants = 25, patch_state = 26,
     skin = 27,  ///< per padded particle, double: how far an instrument reaches beyond it, mm (Solver::reach_beyond)
-    // The volume term (libmodel/volume_cells.h; cell_pass, cell_gather).
+    // The volume term (libmodel/volume_cells.h; cell_pass, and the step pass reads cell_force).
     cell_corner = 28,     ///< per cell, 8 particle indices
     cell_constants = 29,  ///< per cell, vec2: k12 and 12·V0
     cell_spring = 30,     ///< per cell, the 24 neighbour-table entries of its springs
     cell_force = 31,      ///< per padded particle, 8 slots of 3 floats: the force of the cell it is corner r of, N
-    force_in = 32,        ///< per padded particle, vec4: its cells' forces and its load, N, which the step reads
     // The renderer's passes (renderer.cpp, render_shaders.h) bind all their buffers before each
     // use, so they reuse the backend's low slots: with the cpu backend, drawing then needs no
     // more bindings than the few every OpenGL 4.3 driver offers.
@@ -91,7 +90,6 @@ inline constexpr ShaderConstant shader_constants[] = {
     {"BINDING_CELL_CONSTANTS", cell_constants},
     {"BINDING_CELL_SPRING", cell_spring},
     {"BINDING_CELL_FORCE", cell_force},
-    {"BINDING_FORCE_IN", force_in},
     {"BINDING_INCIDENCE_START", incidence_start},
     {"BINDING_INCIDENCE", incidence},
     {"BINDING_PARTICLE_NORMALS", particle_normals},

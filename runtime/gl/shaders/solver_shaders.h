@@ -104,6 +104,7 @@ layout(std430, binding = BINDING_NEXT_MOTION) writeonly buffer NextMotionBuffer 
 layout(std430, binding = BINDING_TOUCHED) writeonly buffer TouchedBuffer { int touched[]; };
 layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };  // N, zero where none
 layout(std430, binding = BINDING_SKIN) readonly buffer SkinBuffer { double reach_beyond[]; };  // Solver::reach_beyond, mm
+layout(std430, binding = BINDING_CELL_FORCE) readonly buffer CellForceBuffer { float cell_force[]; };  // 8 slots of 3 per particle (cell_pass)
 
 uniform float keep;             // 1 − γh
 uniform vec3 gravity;           // mm/ms²
@@ -118,7 +119,9 @@ uniform dmat3 probe_previous_rotation[2];
 uniform dvec3 probe_semi_axes[2];
 uniform float probe_bound2[2];
 uniform double pierce_strain;   // SolverOptions::probe_pierce_strain; ≤ 0: never pierces
-uniform bool loaded;            // some particle has a load (set_loads): read `load`
+uniform bool loaded;            // some particle has a load (set_loads), or the volume term: read them
+uniform bool volume_term;       // the cells' forces (cell_pass) in `cell_force`'s slots
+uniform bool external_loads;    // with volume_term: some particle has a load in `load`
 
 void main() {
     uint i = gl_GlobalInvocationID.x;
@@ -167,7 +170,20 @@ void main() {
     // External loads (Solver::substep, after the kernel): h²F/(S·m) more position and motion on a
     // movable particle that no grabber holds, rounded apart as on the CPU.
     if (loaded && p.movable != 0 && held_by[i] < 0) {
-        vec4 f = load[i];
+        vec4 f;
+        if (volume_term) {  // the particle's 8 slots in order, then its load: Solver's load_and_project sum
+            precise vec3 sum = vec3(0.0);
+            for (uint r = 0u; r < 8u; ++r) {
+                uint at = 24u * i + 3u * r;
+                sum = vec3(sum.x + cell_force[at], sum.y + cell_force[at + 1u], sum.z + cell_force[at + 2u]);
+            }
+            if (external_loads) {
+                vec4 l = load[i];
+                sum = vec3(sum.x + l.x, sum.y + l.y, sum.z + l.z);
+            }
+            f = vec4(sum, 0.0);
+        } else
+            f = load[i];
         precise float lx = p.inverse_mass_h2 * f.x, ly = p.inverse_mass_h2 * f.y, lz = p.inverse_mass_h2 * f.z;
         nx = nx + lx; ny = ny + ly; nz = nz + lz;
         ex = ex + lx; ey = ey + ly; ez = ez + lz;
@@ -395,7 +411,7 @@ void main() {
 /// current positions, as the cpu solver's cell_pass makes them (cell_forces: twelfths, the same
 /// float operations in the same order, none fused). A cell one of whose 24 springs is cut (its
 /// table entry no longer holds the other corner) has none; `any_cut` is false while the tissue
-/// is whole, and the check is skipped.
+/// is whole, and the check is skipped. The step pass adds a particle's 8 slots to its load.
 inline constexpr const char* cell_pass = R"(
 layout(local_size_x = 64) in;
 layout(std430, binding = BINDING_CURRENT) readonly buffer CurrentBuffer { vec4 x[]; };
@@ -452,31 +468,6 @@ void main() {
     precise float pressure = -(constants.x * (volume - constants.y));
     for (int q = 0; q < 8; ++q)  // corner q's force into slot q of its particle
         for (int k = 0; k < 3; ++k) cell_force[24u * uint(corner[q]) + uint(3 * q + k)] = pressure * g[q][k];
-}
-)";
-
-/// The volume term's force on each particle, the sum of its 8 slots (in slot order; zero where it
-/// is no cell's corner), plus its external load: the step pass reads the sum in place of the
-/// loads (Solver's load_and_project makes the same sum).
-inline constexpr const char* cell_gather = R"(
-layout(local_size_x = 64) in;
-layout(std430, binding = BINDING_CELL_FORCE) readonly buffer CellForceBuffer { float cell_force[]; };
-layout(std430, binding = BINDING_LOAD) readonly buffer LoadBuffer { vec4 load[]; };
-layout(std430, binding = BINDING_FORCE_IN) writeonly buffer ForceInBuffer { vec4 force_in[]; };
-uniform bool loaded;
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= padded_count) return;
-    precise vec3 f = vec3(0.0);
-    for (uint r = 0u; r < 8u; ++r) {
-        uint at = 24u * i + 3u * r;
-        f = vec3(f.x + cell_force[at], f.y + cell_force[at + 1u], f.z + cell_force[at + 2u]);
-    }
-    if (loaded) {
-        vec4 l = load[i];
-        f = vec3(f.x + l.x, f.y + l.y, f.z + l.z);
-    }
-    force_in[i] = vec4(f, 0.0);
 }
 )";
 
