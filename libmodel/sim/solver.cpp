@@ -221,7 +221,7 @@ void BasicSolver<Real>::reset_tissue() {
     for (int hand = 0; hand < hands; ++hand) release_hand(hand, false);
     free_stayed();  // the scenario's anchoring again, before the start motion below reads it
     neighbour_ = uncut_neighbour_;
-    cells_stale_ = !cell_corner_.empty();
+    refresh_cells();  // every cell whole again
     set_loads({});
     cut_.clear();
     strokes_.clear();
@@ -718,13 +718,6 @@ void BasicSolver<Real>::refresh_cells() {
             whole = neighbour_[std::size_t(cell_spring_entry_[c][q])] == cell_corner_[c][std::size_t(cell_springs[q][1])];
         cell_whole_[c] = whole ? 1 : 0;
     }
-    cells_stale_ = false;
-}
-
-template <class Real>
-std::size_t BasicSolver<Real>::whole_volume_cells() const {
-    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
-    return std::size_t(std::count(cell_whole_.begin(), cell_whole_.end(), std::uint8_t(1)));
 }
 
 namespace {
@@ -779,7 +772,6 @@ __attribute__((target("avx2"))) void cell_block_avx2(const CellLanes& c, std::si
 
 template <class Real>
 void BasicSolver<Real>::cell_pass() {
-    if (cells_stale_) refresh_cells();
     if constexpr (std::is_same_v<Real, float>) {
         const std::size_t blocks = (cell_corner_.size() + 7) / 8;
         const CellLanes lanes{current_, cell_corner_.data(), cell_whole_.data(), cell_k12_.data(), cell_rest12_.data(), cell_force_.data(),
@@ -818,7 +810,6 @@ void BasicSolver<Real>::cell_pass() {
 template <class Real>
 Eigen::Vector3d BasicSolver<Real>::volume_force_on(std::size_t i) const {
     // The cells' forces as the pass computes them (Real), summed in double as the gl force pass does.
-    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
     for (int r = 0; r < 8; ++r) {
         const std::int32_t c = particle_cell_[i][std::size_t(r)];
@@ -835,7 +826,6 @@ Eigen::Vector3d BasicSolver<Real>::volume_force_on(std::size_t i) const {
 template <class Real>
 double BasicSolver<Real>::volume_energy() const {
     // ½·Δλ/|V₀|·(V − V₀)² = ½·k₁₂·(12V − 12V₀)², in double.
-    if (cells_stale_) const_cast<BasicSolver*>(this)->refresh_cells();
     double energy = 0.0;
     for (std::size_t c = 0; c < cell_corner_.size(); ++c) {
         if (!cell_whole_[c]) continue;

@@ -365,10 +365,8 @@ public:
     /// FNV-1a over the bits of the current positions and motions: equal states, equal hashes.
     std::uint64_t state_hash() const;
 
-    /// The cells with a volume term (libmodel/volume_cells.h), and how many of them are whole
-    /// (no spring of theirs cut: a cut cell has no volume term).
+    /// The cells with a volume term (libmodel/volume_cells.h), whole or cut.
     std::size_t volume_cell_count() const { return cell_corner_.size(); }
-    std::size_t whole_volume_cells() const;
     /// The cells' corners and constants as the step uses them (the gl backend uploads the same):
     /// k₁₂ = Δλ/(144·|V₀|) and 12·V₀ (volume_cells.h cell_forces).
     const std::vector<std::array<std::int32_t, 8>>& volume_cell_corners() const { return cell_corner_; }
@@ -429,7 +427,7 @@ private:
     /// The volume term's cells (returned, for the time step), their springs' table entries and
     /// each particle's cells.
     VolumeCells load_cells(const Particles& particles);
-    /// Which cells are whole, from the neighbour table (after a cut or a reset).
+    /// Which cells are whole, from the neighbour table: after every change to it (a cut, a reset).
     void refresh_cells();
     /// Each whole cell's forces on its corners at the current positions, into cell_force_.
     void cell_pass();
@@ -520,7 +518,6 @@ private:
     std::vector<Real> cell_rest12_;
     std::vector<std::array<std::int32_t, 24>> cell_spring_entry_;
     std::vector<std::uint8_t> cell_whole_;
-    bool cells_stale_ = false;
     std::vector<Real> cell_force_;
     std::vector<std::array<std::int32_t, 8>> particle_cell_;
 

@@ -215,7 +215,7 @@ std::size_t BasicSolver<Real>::cut(const BladeSweep& sweep) {
             cut_.push_back({i, j});
             ++count;
         }
-    if (count > 0) cells_stale_ = true;
+    if (count > 0) refresh_cells();  // a cell whose spring was cut loses its volume term
     return count;
 }
 

@@ -298,7 +298,6 @@ VolumeCells BasicSolver<Real>::load_cells(const Particles& particles) {
     }
     cell_whole_.assign(cell_corner_.size(), 1);
     cell_force_.assign(cell_corner_.empty() ? 0 : 24 * n_pad_, Real(0));
-    cells_stale_ = false;
     if (cell_corner_.empty()) particle_cell_.clear();
     return kept;
 }
