@@ -157,12 +157,8 @@ StabilityEstimate estimate_critical_time_step(const Particles& particles, const 
     std::vector<std::array<double, 24>> cell_gradient(cells ? cells->size() : 0);
     for (std::size_t c = 0; c < cell_gradient.size(); ++c) {
         const auto& corner = cells->corner[c];
-        double p[8][3], g[8][3];
-        for (int q = 0; q < 8; ++q)
-            for (int k = 0; k < 3; ++k)
-                p[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
-                          double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
-        cell_volume12<double>(p, g);
+        double g[8][3];
+        rest_cell_volume12(particles, corner, g);
         const double scale = std::sqrt(cells->modulus[c] / std::abs(cells->rest_volume[c])) / 12.0;  // g in twelfths
         for (int q = 0; q < 8; ++q)
             for (int k = 0; k < 3; ++k) cell_gradient[c][std::size_t(3 * q + k)] = scale * g[q][k] * inverse_sqrt_mass[std::size_t(corner[std::size_t(q)])];
@@ -236,12 +232,8 @@ double stiffness_eigenvalue_floor(const Particles& particles, const Springs& spr
     }
     for (std::size_t c = 0; cells && c < cells->size(); ++c) {
         const auto& corner = cells->corner[c];
-        double p[8][3], g[8][3];
-        for (int q = 0; q < 8; ++q)
-            for (int k = 0; k < 3; ++k)
-                p[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
-                          double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
-        cell_volume12<double>(p, g);
+        double g[8][3];
+        rest_cell_volume12(particles, corner, g);
         const double scale = cells->modulus[c] / (144.0 * std::abs(cells->rest_volume[c]));  // g in twelfths
         for (int q = 0; q < 8; ++q) trace[std::size_t(corner[std::size_t(q)])] += scale * (g[q][0] * g[q][0] + g[q][1] * g[q][1] + g[q][2] * g[q][2]);
     }

@@ -44,6 +44,15 @@ std::vector<double> added_lame_moduli(const std::vector<Material>& materials) {
     return out;
 }
 
+double rest_cell_volume12(const Particles& particles, const std::array<std::int32_t, 8>& corner, double (*gradient)[3]) {
+    double p[8][3];
+    for (int q = 0; q < 8; ++q)
+        for (int k = 0; k < 3; ++k)
+            p[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
+                      double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
+    return cell_volume12<double>(p, gradient);
+}
+
 VolumeCells volume_cells(const Particles& particles, const std::vector<double>& added_modulus) {
     VolumeCells cells;
     bool any = false;
@@ -73,12 +82,7 @@ VolumeCells volume_cells(const Particles& particles, const std::vector<double>& 
             else corner[std::size_t(q)] = found->second, modulus += modulus_of(found->second);
         }
         if (!whole || !(modulus > 0)) continue;
-        double x[8][3];
-        for (int q = 0; q < 8; ++q)
-            for (int k = 0; k < 3; ++k)
-                x[q][k] = double(particles.rest_position[std::size_t(corner[std::size_t(q)])][std::size_t(k)]) -
-                          double(particles.rest_position[std::size_t(corner[0])][std::size_t(k)]);
-        const double volume = cell_volume12<double>(x, nullptr) / 12.0;
+        const double volume = rest_cell_volume12(particles, corner) / 12.0;
         if (!(std::abs(volume) > 0)) continue;
         cells.corner.push_back(corner);
         cells.modulus.push_back(modulus / 8.0);

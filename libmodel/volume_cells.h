@@ -90,6 +90,10 @@ template <class Real>
     return volume;
 }
 
+/// Twelve times the volume of the cell whose corners are the particles `corner` at their rest
+/// positions (double, corner 0 the origin), and, unless null, twelve times its gradient.
+double rest_cell_volume12(const Particles& particles, const std::array<std::int32_t, 8>& corner, double (*gradient)[3] = nullptr);
+
 /// A cell's forces on its corners, N, 3 per corner: f = −Δλ/|V₀|·(V − V₀)·∂V/∂x written in
 /// twelfths, −k₁₂·(12V − 12V₀)·(12∂V/∂x) with k₁₂ = Δλ/(144·|V₀|). `x` the corners' positions, in
 /// any Real (those of corner 0 subtracted first). The cpu solver's pass and its force on one
