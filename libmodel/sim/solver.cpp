@@ -715,7 +715,8 @@ void BasicSolver<Real>::refresh_cells() {
     for (std::size_t c = 0; c < cell_corner_.size(); ++c) {
         bool whole = true;
         for (std::size_t q = 0; q < cell_springs.size() && whole; ++q)
-            whole = neighbour_[std::size_t(cell_spring_entry_[c][q])] == cell_corner_[c][std::size_t(cell_springs[q][1])];
+            whole = neighbour_[entry_of(std::size_t(cell_corner_[c][std::size_t(cell_springs[q][0])]), cell_spring_slot_[c][q])] ==
+                    cell_corner_[c][std::size_t(cell_springs[q][1])];
         cell_whole_[c] = whole ? 1 : 0;
     }
 }

@@ -372,6 +372,9 @@ public:
     const std::vector<std::array<std::int32_t, 8>>& volume_cell_corners() const { return cell_corner_; }
     const std::vector<Real>& volume_cell_k12() const { return cell_k12_; }
     const std::vector<Real>& volume_cell_rest12() const { return cell_rest12_; }
+    /// The neighbour-table slot (lattice.h order) of each of a cell's 24 springs (volume_cells.h
+    /// cell_springs), at its first corner: the cell is whole while the slot holds its second.
+    const std::vector<std::array<std::int8_t, 24>>& volume_cell_spring_slots() const { return cell_spring_slot_; }
 
     std::size_t watchdog_events() const { return watchdog_events_; }
     /// Particles that slipped out of a grabber so far (grab_slip_strain).
@@ -509,14 +512,14 @@ private:
     std::vector<Real> slot_stiffness_;
 
     // The volume term (volume_cells.h): per cell its corners, k₁₂ = Δλ/(144·|V₀|) and 12·V₀ (cell_forces), the
-    // table entries of its 24 springs (uncut_neighbour_ holds its corner there while it is whole),
+    // table slots of its 24 springs at their first corners (neighbour_ holds the second while it is whole),
     // whether it is whole; per particle (n_pad_) the force (3 each, N) of the cell it is corner r
     // of, in its slot r (0 where it is no cell's corner r; the cell pass writes each cell's eight
     // into its corners' slots, so a particle's eight lie together), and that cell (−1: none).
     std::vector<std::array<std::int32_t, 8>> cell_corner_;
     std::vector<Real> cell_k12_;
     std::vector<Real> cell_rest12_;
-    std::vector<std::array<std::int32_t, 24>> cell_spring_entry_;
+    std::vector<std::array<std::int8_t, 24>> cell_spring_slot_;
     std::vector<std::uint8_t> cell_whole_;
     std::vector<Real> cell_force_;
     std::vector<std::array<std::int32_t, 8>> particle_cell_;

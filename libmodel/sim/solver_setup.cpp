@@ -257,28 +257,25 @@ void BasicSolver<Real>::load_springs(const Particles& particles, const Springs& 
         energy_floor_ += 0.5 * double(springs.stiffness[q]) * std::pow(0.1 * double(springs.rest_length[q]), 2);
 }
 
-/// The critical step (stored and checked against a proven ceiling, or estimated) and the damped
-/// one, by the policy heartprep stores (stability.h time_step_limits), unscaled: set_time_step
-/// scales them (scaled_step).
 /// The volume term's cells (volume_cells.h) from the particles' lattice indices, each with the
-/// table entries of its 24 springs; a cell one of whose springs the table lacks gets no term.
+/// table slots of its 24 springs; a cell one of whose springs the table lacks gets no term.
 template <class Real>
 VolumeCells BasicSolver<Real>::load_cells(const Particles& particles) {
     VolumeCells cells = volume_cells(particles, options_.volume_modulus);
     VolumeCells kept;
-    cell_corner_.clear(), cell_k12_.clear(), cell_rest12_.clear(), cell_spring_entry_.clear();
+    cell_corner_.clear(), cell_k12_.clear(), cell_rest12_.clear(), cell_spring_slot_.clear();
     particle_cell_.assign(n_pad_, {-1, -1, -1, -1, -1, -1, -1, -1});
     for (std::size_t c = 0; c < cells.size(); ++c) {
         const auto& corner = cells.corner[c];
-        std::array<std::int32_t, 24> entry{};
+        std::array<std::int8_t, 24> slot{};
         bool complete = true;
         for (std::size_t q = 0; q < cell_springs.size() && complete; ++q) {
             const std::size_t a = std::size_t(corner[std::size_t(cell_springs[q][0])]);
             const std::int32_t b = corner[std::size_t(cell_springs[q][1])];
-            entry[q] = -1;
+            slot[q] = -1;
             for (int s = 0; s < slot_count; ++s)
-                if (uncut_neighbour_[entry_of(a, s)] == b) entry[q] = std::int32_t(entry_of(a, s));
-            complete = entry[q] >= 0;
+                if (uncut_neighbour_[entry_of(a, s)] == b) slot[q] = std::int8_t(s);
+            complete = slot[q] >= 0;
         }
         if (!complete) continue;
         for (int r = 0; r < 8; ++r) particle_cell_[std::size_t(corner[std::size_t(r)])][std::size_t(r)] = std::int32_t(cell_corner_.size());
@@ -291,7 +288,7 @@ VolumeCells BasicSolver<Real>::load_cells(const Particles& particles) {
             for (int k = 0; k < 3; ++k)
                 p[q][k] = rest_[4 * std::size_t(corner[std::size_t(q)]) + std::size_t(k)] - rest_[4 * std::size_t(corner[0]) + std::size_t(k)];
         cell_rest12_.push_back(cell_volume12<Real>(p, nullptr));
-        cell_spring_entry_.push_back(entry);
+        cell_spring_slot_.push_back(slot);
         kept.corner.push_back(corner);
         kept.modulus.push_back(cells.modulus[c]);
         kept.rest_volume.push_back(cells.rest_volume[c]);
@@ -302,6 +299,9 @@ VolumeCells BasicSolver<Real>::load_cells(const Particles& particles) {
     return kept;
 }
 
+/// The critical step (stored and checked against a proven ceiling, or estimated) and the damped
+/// one, by the policy heartprep stores (stability.h time_step_limits), unscaled: set_time_step
+/// scales them (scaled_step).
 template <class Real>
 void BasicSolver<Real>::load_time_steps(const Particles& particles, const Springs& springs, const VolumeCells& cells) {
     double critical = 0.0;

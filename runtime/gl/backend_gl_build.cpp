@@ -48,7 +48,8 @@ GlBackend::GlBackend(const Scenario& scenario, const SolverOptions& options) : o
         h_ = reference.substep_ms();
         substeps_ = reference.substeps_per_step();
         lattice_frame_ = reference.lattice_frame();  // the scalpel's area per spring, as the cpu solver's
-        cell_corner_host_ = reference.volume_cell_corners();  // the volume term's cells and constants, as it steps them
+        cell_corner_host_ = reference.volume_cell_corners();  // the volume term's cells, constants and springs, as it steps them
+        cell_spring_slot_host_ = reference.volume_cell_spring_slots();
         for (std::size_t c = 0; c < cell_corner_host_.size(); ++c)
             cell_constants_host_.insert(cell_constants_host_.end(), {reference.volume_cell_k12()[c], reference.volume_cell_rest12()[c]});
     }
@@ -213,22 +214,16 @@ void GlBackend::build_buffers(const Scenario& scenario) {
     storage(held_, std::size_t(hands) * n_ * 4, GL_DYNAMIC_STORAGE_BIT);              // begin_grab rewrites it
     storage(held_local_, std::size_t(hands) * n_ * 3 * 8, GL_DYNAMIC_STORAGE_BIT);
     storage(load_, std::vector<float>(4 * n_pad_, 0.0f), 0);  // set_loads's scatter pass writes it
-    // The volume term's cells (the reference solver's), their springs' entries in this table's
-    // layout, and each particle's 8 force slots. Buffers of one element where there are none.
+    // The volume term's cells (the reference solver's), their springs' slots as entries of this
+    // table's layout, and each particle's 8 force slots. Buffers of one element where there are none.
     cell_count_ = cell_corner_host_.size();
     {
         std::vector<std::int32_t> corners, entries;
         for (std::size_t c = 0; c < cell_count_; ++c) {
             const auto& corner = cell_corner_host_[c];
             for (int r = 0; r < 8; ++r) corners.push_back(corner[std::size_t(r)]);
-            for (const auto& [a, b] : cell_springs) {
-                std::int32_t entry = -1;
-                for (int slot = 0; slot < slot_count; ++slot)
-                    if (uncut_neighbour_[table_entry(std::size_t(corner[std::size_t(a)]), slot)] == corner[std::size_t(b)])
-                        entry = std::int32_t(table_entry(std::size_t(corner[std::size_t(a)]), slot));
-                if (entry < 0) throw InputError("gl backend: a volume cell's spring is not in the neighbour table");
-                entries.push_back(entry);
-            }
+            for (std::size_t q = 0; q < cell_springs.size(); ++q)
+                entries.push_back(std::int32_t(table_entry(std::size_t(corner[std::size_t(cell_springs[q][0])]), cell_spring_slot_host_[c][q])));
         }
         if (cell_count_ == 0) corners.assign(8, 0), entries.assign(24, 0), cell_constants_host_.assign(2, 0.0f);
         storage(cell_corner_, corners);

@@ -274,6 +274,7 @@ private:
     std::size_t cell_count_ = 0;
     std::vector<std::array<std::int32_t, 8>> cell_corner_host_;
     std::vector<float> cell_constants_host_;  ///< k12, 12·V0 per cell
+    std::vector<std::array<std::int8_t, 24>> cell_spring_slot_host_;  ///< each cell's springs' table slots (Solver::volume_cell_spring_slots)
     /// The cells' forces at the current positions (the bound position buffer) into cell_force_.
     void run_cell_pass();
     /// The step pass's `loaded`: the volume term, a load or the patch's loads.
