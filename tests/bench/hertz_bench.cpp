@@ -446,6 +446,14 @@ int main(int argc, char** argv) {
         }
     }
     if (thickness <= 0) thickness = size;
+    if (!(poisson >= 0.25 && poisson <= 0.499)) {
+        std::fprintf(stderr, "hertz_bench: --poisson-ratio %g: expected 0.25 (the springs alone) to 0.499\n", poisson);
+        return 2;
+    }
+    if (linear && poisson > 0.25) {  // linear_press linearises the springs only
+        std::fprintf(stderr, "hertz_bench: --linear solves the springs alone; it takes no --poisson-ratio above 0.25\n");
+        return 2;
+    }
     for (const std::string& file : reference_files) read_reference(file, s.radius, reference);
     std::unique_ptr<tbb::global_control> limit;
     if (threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, std::size_t(threads));
